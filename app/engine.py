@@ -1,0 +1,532 @@
+"""The compositing engine: precompute once per scene, then one call per object pose.
+
+Differential rendering in the seed's form (sec. 6.3, eq. 3), with the terms DESIGN.md found the
+path-traced truth to need:
+
+  L_final(x) = L_b(x) - eps(x)
+  eps(x)     = L_b(x) * sum_j G_xj B_j M_xj / E_x          (shadows: occluded share of the light)
+             - rho_x * sum_t B_t F_xt V_xt                  (light the object reflects onto x)
+             - rho_x * sum_k G_xk dB_k                      (second order: patches the object
+                                                             darkens or lights pass it on)
+  E_x = sum_j G_xj B_j, rho_x = L_b(x) / E_x (reflectance from the photo, capped at 1)
+
+L_b is the photo through the inverse camera response, G the form-factor x visibility transfers
+(kernels.visibility) stored at receiver vertices and interpolated per pixel, B the patch radiance
+(lighting.radiosity), M the occlusion masks from shadow maps of the object proxy
+(kernels.shadowmap), dB_k = rho_k (sum_t B_t F_kt - sum_j G_kj B_j M_kj) at patch centres.
+Writing the shadow term as a ratio of the photo makes it independent of how well the radiosity
+reproduces the absolute brightness of the room; only the split of light between sources matters.
+
+The LDR path replaces L_ij by intensity transfers S_ij (lighting.transfer, fig. 13) subtracted
+from the 8-bit photo.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+from scipy.spatial import cKDTree
+from tqdm import tqdm
+
+from kernels import runtime
+from kernels.composite import MaskedSum
+from kernels.raycast import cast_rays
+from kernels.shadowmap import ShadowMaps
+from kernels.visibility import Occluder, emitter_sum, transfer_matrix
+from lighting.radiosity import gather
+from lighting.sources import luminance, select_sources
+from lighting.transfer import intensity_transfers
+from recon.patches import PatchMesh, build_patches
+from recon.proxy import simplify
+from recon.scene import Scene, SceneObject
+
+log = logging.getLogger("photoar")
+CACHE_VERSION = 3
+
+
+@dataclass
+class EngineParams:
+    """Knobs of the engine; every one trades accuracy against time (see bench/)."""
+
+    patch_size: float = 0.25  # m, receiver/source patches
+    emitter_patch_size: float = 0.1  # m, emitters are cut finer: one hard shadow per patch
+    vis_side: int = 2  # visibility samples per patch side for receiver transfers (n^2 rays)
+    bounces: int = 4  # light bounces the camera sees (the benchmark truth: 4)
+    source_fraction: float = 1.0  # share of total power kept in the source set (seed: 0.7)
+    passes: int | None = None  # shadow maps per frame (None = one per source)
+    map_res: int = 256  # shadow-map resolution
+    batch: int = 64  # shadow maps rendered at once
+    mode: str = "hdr"  # hdr: T(L_b - eps); ldr: I_b - sum S_ij M_ij
+    object_light: bool = True  # light reflected by the object onto the room
+    second_order: bool = True  # re-propagate the change of patch radiance once
+    proxy_faces: int = 300  # target size of the occluder proxy
+    supersample: int = 2  # object coverage rays per pixel side
+
+    def cache_key(self) -> dict:
+        return {k: getattr(self, k) for k in ("patch_size", "emitter_patch_size", "vis_side", "bounces")}
+
+
+@dataclass
+class Precomputed:
+    """Per-scene data that does not depend on the object (cached on disk)."""
+
+    patches: PatchMesh
+    G_c: np.ndarray  # (P,P) float32 patch-centre -> patch transfers
+    recv_vert: np.ndarray  # (Vr,) vertex ids of receiver vertices (vertices of camera-seen patches)
+    G_v: np.ndarray  # (Vr,P) float32 receiver-vertex -> patch transfers
+    B: np.ndarray  # (bounces+1, P, 3) radiosity iterates
+    pix_tri: np.ndarray  # (H*W,) int32 scene triangle per pixel (-1 none)
+    pix_bary: np.ndarray  # (H*W,3) float32
+    pix_depth: np.ndarray  # (H*W,) float32 metres along the ray
+    seconds: float = 0.0
+
+
+@dataclass
+class Frame:
+    radiance: np.ndarray  # (H,W,3) float32 composite radiance (HDR path estimate)
+    pixels: np.ndarray  # (H,W,3) uint8 composite photo
+    stats: dict = field(default_factory=dict)
+
+
+def _hash_scene(scene: Scene, params: EngineParams) -> str:
+    h = hashlib.sha256()
+    h.update(json.dumps({"v": CACHE_VERSION, **params.cache_key()}, sort_keys=True).encode())
+    for q in scene.quads:
+        h.update(q.name.encode())
+        for a in (q.corners, q.normal, q.albedo, q.emission):
+            h.update(np.ascontiguousarray(a, np.float64).tobytes())
+        if q.texture is not None:
+            h.update(hashlib.sha256(np.ascontiguousarray(q.texture).tobytes()).digest())
+    cam = scene.camera
+    for a in (cam.K, cam.R, cam.t):
+        h.update(np.ascontiguousarray(a, np.float64).tobytes())
+    h.update(f"{cam.width}x{cam.height}".encode())
+    return h.hexdigest()
+
+
+def _save_npz_atomic(path: Path, **arrays) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
+    os.close(fd)
+    try:
+        np.savez(tmp, **arrays)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def _bar(total: int, desc: str, quiet: bool):
+    return tqdm(total=total, desc=desc, unit="pt", disable=quiet, leave=False, dynamic_ncols=True)
+
+
+class Engine:
+    """Owns one scene's precomputed data and composites object poses into its photo."""
+
+    def __init__(self, scene: Scene, params: EngineParams | None = None, cache_dir: str | Path | None = None,
+                 device: str | None = None, quiet: bool = False):
+        self.scene = scene
+        self.params = params or EngineParams()
+        if self.params.mode not in ("hdr", "ldr"):
+            raise ValueError(f"mode must be 'hdr' or 'ldr', got {self.params.mode!r}")
+        self.device = runtime.device(device)
+        self.quiet = quiet
+        self.cache_dir = Path(cache_dir) if cache_dir else None
+        t0 = time.perf_counter()
+        self.pre, self.cache_hit = self._precompute()
+        self.precompute_s = time.perf_counter() - t0
+        self._setup()
+
+    # ------------------------------------------------------------------ precompute
+    def _precompute(self) -> tuple[Precomputed, bool]:
+        p = self.params
+        scene = self.scene
+        patches = build_patches(scene, p.patch_size, p.emitter_patch_size)
+        key = _hash_scene(scene, p)
+        cache = self.cache_dir / f"{scene.name}-{key[:20]}.npz" if self.cache_dir else None
+        if cache is not None and cache.is_file():
+            try:
+                z = np.load(cache)
+                pre = Precomputed(patches, z["G_c"], z["recv_vert"], z["G_v"], z["B"], z["pix_tri"], z["pix_bary"],
+                                  z["pix_depth"], float(z["seconds"]))
+                log.info("precompute: cache hit %s", cache)
+                return pre, True
+            except (OSError, KeyError, ValueError) as e:
+                log.warning("precompute: ignoring unreadable cache %s (%s)", cache, e)
+        t0 = time.perf_counter()
+        dev = self.device
+        solid = ~patches.is_emitter
+        tri_solid = solid[patches.tri_patch]
+        self.scene_occ = Occluder(patches.vert_pos, patches.tris[tri_solid], dev)
+
+        # ID buffer of the scene model (emitters lifted 1 mm off the wall they sit on)
+        lift = np.zeros_like(patches.vert_pos)
+        emit_tris = patches.tris[~tri_solid]
+        if len(emit_tris):
+            lift[emit_tris.ravel()] = patches.vert_normal[emit_tris.ravel()] * 1e-3
+        cam_mesh = Occluder(patches.vert_pos + lift, patches.tris, dev)
+        cam = scene.camera
+        dirs = cam.pixel_rays().reshape(-1, 3)
+        pix_tri, pix_bary, pix_depth = cast_rays(cam_mesh, cam.centre, dirs)
+
+        seen = np.unique(patches.tri_patch[pix_tri[pix_tri >= 0]])
+        seen = seen[solid[seen]]
+        recv_vert = np.unique(patches.tris[np.isin(patches.tri_patch, seen)].ravel()).astype(np.int32)
+
+        n_c, n_v = patches.n_patches, len(recv_vert)
+        with _bar(n_c + n_v, "precompute transfers", self.quiet) as bar:
+            G_c = transfer_matrix(patches.centre, patches.normal, patches.corners, patches.normal, [self.scene_occ],
+                                  n_side=1, device=dev, progress=bar.update)
+            np.fill_diagonal(G_c, 0.0)
+            G_v = transfer_matrix(patches.vert_inset[recv_vert], patches.vert_normal[recv_vert], patches.corners,
+                                  patches.normal, [self.scene_occ], n_side=p.vis_side, device=dev,
+                                  progress=bar.update)
+        B = np.stack(gather(G_c, patches.albedo, patches.emission, p.bounces))
+        seconds = time.perf_counter() - t0
+        pre = Precomputed(patches, G_c, recv_vert, G_v, B, pix_tri, pix_bary, pix_depth, seconds)
+        if cache is not None:
+            _save_npz_atomic(cache, G_c=G_c, recv_vert=recv_vert, G_v=G_v, B=B, pix_tri=pix_tri, pix_bary=pix_bary,
+                             pix_depth=pix_depth, seconds=seconds)
+        log.info("precompute: %d patches, %d receiver vertices, %.1f s", n_c, n_v, seconds)
+        return pre, False
+
+    def _setup(self) -> None:
+        """Per-scene arrays derived from the precompute, shared by every frame."""
+        pre, pm, scene = self.pre, self.pre.patches, self.scene
+        dev = self.device
+        if not hasattr(self, "scene_occ"):
+            solid = ~pm.is_emitter
+            self.scene_occ = Occluder(pm.vert_pos, pm.tris[solid[pm.tri_patch]], dev)
+        cam = scene.camera
+        self.dirs = cam.pixel_rays().reshape(-1, 3)
+        self.L_b = scene.response.to_radiance(scene.photo).reshape(-1, 3)  # (H*W,3)
+        hit = pre.pix_tri >= 0
+        self.pix_patch = np.where(hit, pm.tri_patch[np.maximum(pre.pix_tri, 0)], -1)
+        vert_row = np.full(len(pm.vert_pos), -1, np.int64)
+        vert_row[pre.recv_vert] = np.arange(len(pre.recv_vert))
+        self.pix_rows = np.where(hit[:, None], vert_row[pm.tris[np.maximum(pre.pix_tri, 0)]], -1)
+        self.pix_pos = (cam.centre + self.dirs * np.where(hit, pre.pix_depth, 0.0)[:, None]).astype(np.float32)
+        # receiver pixels: seen surface that is a non-emitter receiver patch with all vertices known
+        self.recv_pix = hit & (self.pix_rows.min(1) >= 0) & ~pm.is_emitter[np.maximum(self.pix_patch, 0)]
+        b = self.params.bounces
+        self.B_src = pre.B[b - 1]  # what receivers gather (one bounce less than the camera sees)
+        self.B_obj = pre.B[max(b - 2, 0)]  # lights light that leaves the object again
+        self.E_v = pre.G_v.astype(np.float64) @ self.B_src  # (Vr,3) irradiance/pi at receiver vertices
+        self.E_x = np.zeros_like(self.L_b)
+        rp = self.recv_pix
+        self.E_x[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], self.E_v[self.pix_rows[rp]])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            self.rho_x = np.where(self.E_x > 0, np.minimum(self.L_b / self.E_x, 1.0), 0.0)
+        self.maps = ShadowMaps(self.params.batch, self.params.map_res, device=dev)
+
+    # ------------------------------------------------------------------ per frame
+    def render(self, obj: SceneObject) -> Frame:
+        """Composite the object at its pose; returns the frame with per-phase timings in stats."""
+        p, pre, pm, scene = self.params, self.pre, self.pre.patches, self.scene
+        cam = scene.camera
+        H, W = cam.height, cam.width
+        timings: dict[str, float] = {}
+        t_all = time.perf_counter()
+
+        def tick(name: str, t: float) -> float:
+            now = time.perf_counter()
+            timings[name] = now - t
+            return now
+
+        t = time.perf_counter()
+        pv, pf, pn = simplify(obj.vertices, obj.faces, p.proxy_faces)
+        proxy_occ = Occluder(pv, pf, self.device)
+        centre = 0.5 * (pv.min(0) + pv.max(0))
+        radius = float(np.linalg.norm(pv - centre, axis=1).max())
+        t = tick("proxy", t)
+
+        # ---- object pixels: coverage and depth against the scene model
+        cov, obj_rad = self._object_pixels(obj, pv, pf, pn, proxy_occ)
+        t = tick("object", t)
+
+        # ---- source list: sources whose shafts to some receiver patch can meet the object
+        src = select_sources(self.B_src, pm.area, p.source_fraction)
+        cand = self._candidates(src, centre, radius)
+        active = np.flatnonzero(cand.any(0))
+        src, cand = src[active], cand[:, active]
+        eyes, W_v, W_c, cand = self._representatives(src, cand, p.passes)
+        t = tick("sources", t)
+
+        # ---- occlusion masks: pixels and patch centres
+        pix_sel = np.flatnonzero(self.recv_pix & (cov.reshape(-1) < 1.0) & cand.any(1)[np.maximum(self.pix_patch, 0)])
+        pix_sum = MaskedSum(self.pix_pos[pix_sel], self.pix_rows[pix_sel], pre.pix_bary[pix_sel],
+                            self.pix_patch[pix_sel], self.device)
+        cen_sel = np.flatnonzero(cand.any(1) & ~pm.is_emitter)
+        cen_sum = MaskedSum(pm.centre[cen_sel] + pm.normal[cen_sel] * 1e-3, np.repeat(cen_sel[:, None], 3, 1),
+                            np.tile([1.0, 0.0, 0.0], (len(cen_sel), 1)), cen_sel, self.device)
+        if p.mode == "ldr":
+            S_v = self._ldr_weights(W_v)
+        self.maps.set_proxy(pv, pf)
+        cand_wp = wp.array(cand.astype(np.uint8), dtype=wp.uint8, device=self.device)
+        wv_wp = wp.array((S_v if p.mode == "ldr" else W_v).astype(np.float32), dtype=wp.vec3, device=self.device)
+        wc_wp = wp.array(W_c.astype(np.float32), dtype=wp.vec3, device=self.device)
+        n_src = len(eyes)
+        for first in tqdm(range(0, n_src, p.batch), desc="shadow passes", unit="batch", leave=False,
+                          disable=self.quiet or n_src <= 4 * p.batch):
+            n = self.maps.render(eyes[first:first + p.batch])
+            pix_sum.add(self.maps, n, first, cand_wp, wv_wp)
+            cen_sum.add(self.maps, n, first, cand_wp, wc_wp)
+        wp.synchronize_device(self.device)
+        O_pix, _ = pix_sum.result()
+        O_cen, _ = cen_sum.result()
+        t = tick("masks", t)
+
+        # ---- light the object reflects, onto pixels and patch centres
+        R_pix = np.zeros((H * W, 3))
+        R_cen = np.zeros((pm.n_patches, 3))
+        tri_rad = np.zeros((len(pf), 3))
+        if p.object_light:
+            tri_rad = self._object_triangle_radiance(pv, pf, proxy_occ)
+            R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius)
+        t = tick("object_light", t)
+
+        # ---- second order: change of patch radiance, passed on once to receiver vertices
+        dE_x = np.zeros((H * W, 3))
+        if p.second_order:
+            dB = np.zeros((pm.n_patches, 3))
+            dB[cen_sel] -= O_cen
+            dB += R_cen
+            dB *= pm.albedo
+            nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
+            dE_v = pre.G_v[:, nz].astype(np.float64) @ dB[nz]
+            rp = self.recv_pix
+            dE_x[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], dE_v[self.pix_rows[rp]])
+        t = tick("second_order", t)
+
+        # ---- compose
+        L_b, E_x, rho = self.L_b, self.E_x, self.rho_x
+        add = rho * (R_pix + dE_x)  # light gained (object reflection) or lost second-hand
+        resp = scene.response
+        if p.mode == "hdr":
+            shadow = np.zeros_like(L_b)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                frac = np.where(E_x[pix_sel] > 0, np.clip(O_pix / E_x[pix_sel], 0.0, 1.0), 0.0)
+            shadow[pix_sel] = L_b[pix_sel] * frac
+            room = np.maximum(L_b - shadow + add, 0.0)
+            room_levels = resp.to_levels(room)
+        else:
+            levels = scene.photo.reshape(-1, 3).astype(np.float64)
+            levels[pix_sel] -= O_pix
+            extra = np.abs(add).sum(1) > 0
+            levels[extra] += resp.to_levels(np.maximum(L_b[extra] + add[extra], 0.0)) - resp.to_levels(L_b[extra])
+            room_levels = np.clip(levels, 0, 255)
+            room = resp.to_radiance(room_levels)
+        c = cov.reshape(-1, 1)
+        radiance = (1 - c) * room + c * obj_rad.reshape(-1, 3)
+        levels = (1 - c) * room_levels + c * resp.to_levels(obj_rad.reshape(-1, 3))
+        pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8).reshape(H, W, 3)
+        tick("compose", t)
+        frame_s = time.perf_counter() - t_all
+        stats = {"frame_s": frame_s, "timings": timings, "n_sources": int(n_src), "n_patches": int(pm.n_patches),
+                 "n_receiver_vertices": int(len(pre.recv_vert)), "n_mask_pixels": int(len(pix_sel)),
+                 "proxy_triangles": int(len(pf)), "passes": int(n_src), "mode": p.mode}
+        return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats)
+
+    # ------------------------------------------------------------------ pieces
+    def _object_pixels(self, obj: SceneObject, pv, pf, pn, proxy_occ) -> tuple[np.ndarray, np.ndarray]:
+        """Coverage (H,W) in [0,1] and radiance (H,W,3) of the object, depth-tested against the scene."""
+        cam = self.scene.camera
+        H, W, s = cam.height, cam.width, max(1, self.params.supersample)
+        cov = np.zeros((H, W))
+        rad = np.zeros((H, W, 3))
+        uv, z = cam.project(obj.vertices)
+        if np.any(z <= 1e-6):
+            u0, v0, u1, v1 = 0, 0, W - 1, H - 1
+        else:
+            u0, v0 = np.floor(uv.min(0) - 1).astype(int)
+            u1, v1 = np.ceil(uv.max(0) + 1).astype(int)
+            u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
+        if u0 > u1 or v0 > v1:
+            return cov, rad
+        obj_mesh = Occluder(obj.vertices, obj.faces, self.device)
+        # sub-pixel rays over the bounding rectangle
+        offs = (np.arange(s) + 0.5) / s - 0.5
+        uu = (np.arange(u0, u1 + 1)[:, None] + offs).reshape(-1)
+        vv = (np.arange(v0, v1 + 1)[:, None] + offs).reshape(-1)
+        U, V = np.meshgrid(uu, vv)
+        d = np.stack([U, V, np.ones_like(U)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        tri, bary, depth = cast_rays(obj_mesh, cam.centre, d)
+        _, _, scene_depth = cast_rays(self.scene_occ_cam(), cam.centre, d)
+        hit = (tri >= 0) & (depth < scene_depth)
+        # shade object vertices: irradiance from the room with self-occlusion (proxy) -> L = albedo * E
+        E_obj = self._object_irradiance(pv, pn, proxy_occ)
+        if len(pv) == len(obj.vertices) and np.allclose(pv, obj.vertices):
+            E_full = E_obj
+        else:
+            E_full = _interpolate_on_surface(pv, pn, E_obj, obj.vertices, obj.normals)
+        L_vert = obj.albedo * E_full
+        L_hit = np.einsum("nk,nkc->nc", bary[hit], L_vert[obj.faces[tri[hit]]])
+        sub = np.zeros((len(d), 3))
+        sub[hit] = L_hit
+        hh, ww = v1 - v0 + 1, u1 - u0 + 1
+        sub = sub.reshape(hh, s, ww, s, 3)
+        hitm = hit.reshape(hh, s, ww, s)
+        c = hitm.mean(axis=(1, 3))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_rad = np.where(c[..., None] > 0, sub.sum(axis=(1, 3)) / np.maximum(hitm.sum(axis=(1, 3)), 1)[..., None],
+                                0.0)
+        cov[v0:v1 + 1, u0:u1 + 1] = c
+        rad[v0:v1 + 1, u0:u1 + 1] = mean_rad
+        return cov, rad
+
+    def scene_occ_cam(self) -> Occluder:
+        """Scene mesh for camera depth tests (emitters included, lifted off their walls)."""
+        if not hasattr(self, "_cam_occ"):
+            pm = self.pre.patches
+            lift = np.zeros_like(pm.vert_pos)
+            et = pm.tris[pm.is_emitter[pm.tri_patch]].ravel()
+            lift[et] = pm.vert_normal[et] * 1e-3
+            self._cam_occ = Occluder(pm.vert_pos + lift, pm.tris, self.device)
+        return self._cam_occ
+
+    def _object_irradiance(self, pts: np.ndarray, nrm: np.ndarray, proxy_occ: Occluder) -> np.ndarray:
+        """Irradiance/pi (N,3) at object surface points from every patch, self-occlusion included."""
+        pm = self.pre.patches
+        G = transfer_matrix(pts, nrm, pm.corners, pm.normal, [self.scene_occ, proxy_occ], n_side=1,
+                            eps=2e-3, device=self.device)
+        return G.astype(np.float64) @ self.B_src
+
+    def _object_triangle_radiance(self, pv, pf, proxy_occ) -> np.ndarray:
+        """Outgoing radiance (T,3) of each proxy triangle, lit at its centroid by the room."""
+        c = pv[pf].mean(1)
+        n = np.cross(pv[pf[:, 1]] - pv[pf[:, 0]], pv[pf[:, 2]] - pv[pf[:, 0]])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        pm = self.pre.patches
+        G = transfer_matrix(c, n, pm.corners, pm.normal, [self.scene_occ, proxy_occ], n_side=1, eps=2e-3,
+                            device=self.device)
+        return self.scene.obj.albedo * (G.astype(np.float64) @ self.B_obj) if self.scene.obj is not None else \
+            0.5 * (G.astype(np.float64) @ self.B_obj)
+
+    def _object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius):
+        """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi."""
+        pm = self.pre.patches
+        resp = self.scene.response
+        b_max = tri_rad.max(0)
+        tris = pv[pf]
+        # pixels: only where an upper bound of the added light could move the pixel by > 0.25 level
+        rp = np.flatnonzero(self.recv_pix)
+        dist = np.linalg.norm(self.pix_pos[rp] - centre, axis=1)
+        f_bound = np.minimum(1.0, (radius / np.maximum(dist, 1e-6)) ** 2)
+        bound = self.rho_x[rp] * b_max * f_bound[:, None]
+        L = self.L_b[rp]
+        gain = (resp.to_levels(L + bound) - resp.to_levels(L)).max(1)
+        sel = rp[gain > 0.25]
+        R_pix = np.zeros((len(self.L_b), 3))
+        normals = self.pre.patches.normal[self.pix_patch[sel]]
+        R_pix[sel] = emitter_sum(self.pix_pos[sel], normals, tris, tri_rad, proxy_occ, device=self.device)
+        # patch centres, for the second-order term
+        dist_c = np.linalg.norm(pm.centre - centre, axis=1)
+        near = np.flatnonzero((np.minimum(1.0, (radius / np.maximum(dist_c, 1e-6)) ** 2) *
+                               luminance(b_max) > 1e-4 * luminance(self.B_src).mean()) & ~pm.is_emitter)
+        R_cen = np.zeros((pm.n_patches, 3))
+        R_cen[near] = emitter_sum(pm.centre[near], pm.normal[near], tris, tri_rad, proxy_occ, device=self.device)
+        self._n_object_light_pixels = len(sel)
+        return R_pix, R_cen
+
+    def _candidates(self, src: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+        """(P, S) bool: can the segment from patch p to source s pass within reach of the object?
+
+        A conservative capsule test (object bounding sphere inflated by both patches' radii);
+        the leaf level of the seed's shaft hierarchy, without the hierarchy.
+        """
+        pm = self.pre.patches
+        P = pm.n_patches
+        out = np.zeros((P, len(src)), bool)
+        if len(src) == 0:
+            return out
+        rad = pm.radius
+        s_c, s_r = pm.centre[src], rad[src]
+        for a in range(0, P, 256):
+            b = min(P, a + 256)
+            pc = pm.centre[a:b, None, :]
+            d = s_c[None] - pc  # (n,S,3)
+            L2 = np.maximum((d * d).sum(-1), 1e-12)
+            tt = np.clip(((centre - pc) * d).sum(-1) / L2, 0.0, 1.0)
+            closest = pc + tt[..., None] * d
+            dist = np.linalg.norm(closest - centre, axis=-1)
+            reach = radius + np.maximum(rad[a:b, None], s_r[None, :]) + 1e-3
+            out[a:b] = dist < reach
+        out[pm.is_emitter] = False
+        return out
+
+    def _representatives(self, src: np.ndarray, cand: np.ndarray, passes: int | None):
+        """Map eyes (n,3) and weight tables for the frame's shadow passes.
+
+        With a pass limit, sources are grouped: the `passes` strongest become representatives and
+        every other source joins the nearest one, adding its transfers (sec. 6.4: a cluster's map is
+        rendered from its strongest member, and the cluster carries all of its members' energy).
+        Returns eyes, W_v (Vr,n,3) receiver-vertex weights, W_c (P,n,3) centre weights, cand (P,n).
+        """
+        pre, pm = self.pre, self.pre.patches
+        B = self.B_src[src]
+        strength = (pre.G_v[:, src].astype(np.float64) * luminance(B)[None, :]).mean(0)
+        order = np.argsort(-strength, kind="stable")
+        src, cand, B = src[order], cand[:, order], B[order]
+        W_v = pre.G_v[:, src][:, :, None].astype(np.float64) * B[None]
+        W_c = pre.G_c[:, src][:, :, None].astype(np.float64) * B[None]
+        eyes = pm.centre[src] + pm.normal[src] * 1e-3
+        if passes is None or passes >= len(src):
+            return eyes, W_v, W_c, cand
+        if passes < 1:
+            raise ValueError("passes must be at least 1")
+        rep = np.arange(passes)
+        owner = cKDTree(pm.centre[src[rep]]).query(pm.centre[src])[1]
+        owner[rep] = rep
+        Wv = np.zeros((W_v.shape[0], passes, 3))
+        Wc = np.zeros((W_c.shape[0], passes, 3))
+        cd = np.zeros((cand.shape[0], passes), bool)
+        for k in range(len(src)):
+            Wv[:, owner[k]] += W_v[:, k]
+            Wc[:, owner[k]] += W_c[:, k]
+            cd[:, owner[k]] |= cand[:, k]
+        return eyes[rep], Wv, Wc, cd
+
+    def _ldr_weights(self, W_v: np.ndarray) -> np.ndarray:
+        """Intensity transfers S_ij (Vr,S,3) in levels at receiver vertices (fig. 13)."""
+        pre = self.pre
+        rp = np.flatnonzero(self.recv_pix)
+        rows, bary = self.pix_rows[rp], pre.pix_bary[rp].astype(np.float64)
+        n = len(pre.recv_vert)
+        num = np.zeros((n, 3))
+        den = np.zeros(n)
+        for k in range(3):
+            np.add.at(num, rows[:, k], bary[:, k:k + 1] * self.rho_x[rp])
+            np.add.at(den, rows[:, k], bary[:, k])
+        albedo_v = np.zeros((n, 3))
+        vert_patch = np.zeros(len(pre.patches.vert_pos), np.int64)
+        vert_patch[pre.patches.tris.ravel()] = np.repeat(pre.patches.tri_patch, 3)
+        albedo_v[:] = pre.patches.albedo[vert_patch[pre.recv_vert]]
+        rho_v = np.where(den[:, None] > 0, num / np.maximum(den, 1e-12)[:, None], albedo_v)
+        L_i = rho_v * self.E_v
+        return intensity_transfers(L_i, rho_v[:, None, :] * W_v, self.scene.response.to_levels)
+
+
+def _interpolate_on_surface(src_p, src_n, values, dst_p, dst_n, k: int = 8) -> np.ndarray:
+    """Carry per-vertex values from a proxy to the full mesh: inverse-distance weights over the k
+    nearest proxy vertices, restricted to those facing the same way (normals within ~60 deg)."""
+    d, idx = cKDTree(src_p).query(dst_p, k=min(k, len(src_p)))
+    d = d.reshape(len(dst_p), -1)
+    idx = idx.reshape(len(dst_p), -1)
+    facing = np.clip((src_n[idx] * dst_n[:, None, :]).sum(-1), 0.0, 1.0)
+    w = facing ** 4 / (d + 1e-4)
+    w_sum = w.sum(1, keepdims=True)
+    w = np.where(w_sum > 1e-12, w / np.maximum(w_sum, 1e-12), 1.0 / w.shape[1])
+    return np.einsum("nk,nkc->nc", w, values[idx])
+
+
+def params_dict(p: EngineParams) -> dict:
+    return asdict(p)

@@ -1,0 +1,166 @@
+"""Shadow maps of the object proxy, one per source (seed sec. 6.3.3), and their lookup.
+
+A map is a perspective depth image from the source's point looking at the object's bounding
+sphere, its field of view fitted to the sphere (so the proxy always fills it). Rasterisation is
+one thread per (map, triangle) writing view-space depth with `atomic_min`; 1/z is interpolated
+linearly in screen space (perspective-correct). The occlusion mask of a point x for map s is
+M = 1 when x lies behind the stored depth (plus a bias), else 0.
+
+A source inside (or nearly inside) the bounding sphere cannot be covered by one perspective map;
+for those the lookup casts the exact ray x -> source against the proxy instead (flag `ray`).
+
+Map layout: depth (S, res, res) float32 metres along the map's forward axis, +inf = empty.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from kernels import runtime
+from kernels.visibility import Occluder, segment_blocked
+
+
+@wp.struct
+class MapSet:
+    origin: wp.array(dtype=wp.vec3)  # (S,) map eye, world
+    right: wp.array(dtype=wp.vec3)
+    up: wp.array(dtype=wp.vec3)
+    fwd: wp.array(dtype=wp.vec3)
+    inv_tan: wp.array(dtype=wp.float32)  # 1 / tan(half field of view)
+    ray: wp.array(dtype=wp.int32)  # 1: resolve by ray casting against the proxy
+    depth: wp.array3d(dtype=wp.float32)
+    res: int
+    bias: float
+    proxy: wp.uint64
+
+
+@wp.func
+def _to_map(ms: MapSet, s: int, p: wp.vec3) -> wp.vec3:
+    """World point -> (pixel x, pixel y, view depth z) in map s (z <= 0: behind the eye)."""
+    d = p - ms.origin[s]
+    z = wp.dot(d, ms.fwd[s])
+    if z <= 1.0e-6:
+        return wp.vec3(0.0, 0.0, z)
+    half = float(ms.res) * 0.5
+    x = wp.dot(d, ms.right[s]) / z * ms.inv_tan[s] * half + half - 0.5
+    y = wp.dot(d, ms.up[s]) / z * ms.inv_tan[s] * half + half - 0.5
+    return wp.vec3(x, y, z)
+
+
+@wp.func
+def occluded(ms: MapSet, s: int, p: wp.vec3) -> bool:
+    """Occlusion mask M for point p and source s: True when the object hides the source from p."""
+    if ms.ray[s] == 1:
+        return segment_blocked(ms.proxy, p, ms.origin[s])
+    q = _to_map(ms, s, p)
+    if q[2] <= 1.0e-6:
+        return False
+    ix = int(wp.floor(q[0] + 0.5))
+    iy = int(wp.floor(q[1] + 0.5))
+    if ix < 0 or iy < 0 or ix >= ms.res or iy >= ms.res:
+        return False
+    return q[2] > ms.depth[s, iy, ix] + ms.bias
+
+
+@wp.func
+def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
+    return (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])
+
+
+@wp.kernel
+def _raster_kernel(ms: MapSet, verts: wp.array(dtype=wp.vec3), tris: wp.array2d(dtype=wp.int32)):
+    s, t = wp.tid()
+    if ms.ray[s] == 1:
+        return
+    a = _to_map(ms, s, verts[tris[t, 0]])
+    b = _to_map(ms, s, verts[tris[t, 1]])
+    c = _to_map(ms, s, verts[tris[t, 2]])
+    if a[2] <= 1.0e-6 or b[2] <= 1.0e-6 or c[2] <= 1.0e-6:
+        return
+    area = _edge(a, b, c[0], c[1])
+    if wp.abs(area) < 1.0e-12:
+        return
+    x0 = wp.max(int(wp.ceil(wp.min(wp.min(a[0], b[0]), c[0]))), 0)
+    x1 = wp.min(int(wp.floor(wp.max(wp.max(a[0], b[0]), c[0]))), ms.res - 1)
+    y0 = wp.max(int(wp.ceil(wp.min(wp.min(a[1], b[1]), c[1]))), 0)
+    y1 = wp.min(int(wp.floor(wp.max(wp.max(a[1], b[1]), c[1]))), ms.res - 1)
+    for iy in range(y0, y1 + 1):
+        for ix in range(x0, x1 + 1):
+            px = float(ix)
+            py = float(iy)
+            w0 = _edge(b, c, px, py) / area
+            w1 = _edge(c, a, px, py) / area
+            w2 = 1.0 - w0 - w1
+            if w0 >= -1.0e-6 and w1 >= -1.0e-6 and w2 >= -1.0e-6:
+                inv_z = w0 / a[2] + w1 / b[2] + w2 / c[2]
+                wp.atomic_min(ms.depth, s, iy, ix, 1.0 / inv_z)
+
+
+@dataclass
+class ShadowMaps:
+    """Host side of a batch of shadow maps; buffers are allocated once and reused per frame."""
+
+    capacity: int
+    res: int = 256
+    bias: float = 2e-3
+    device: str | None = None
+
+    def __post_init__(self) -> None:
+        self.device = runtime.device(self.device)
+        d = self.device
+        self.ms = MapSet()
+        self.ms.origin = wp.zeros(self.capacity, dtype=wp.vec3, device=d)
+        self.ms.right = wp.zeros(self.capacity, dtype=wp.vec3, device=d)
+        self.ms.up = wp.zeros(self.capacity, dtype=wp.vec3, device=d)
+        self.ms.fwd = wp.zeros(self.capacity, dtype=wp.vec3, device=d)
+        self.ms.inv_tan = wp.zeros(self.capacity, dtype=wp.float32, device=d)
+        self.ms.ray = wp.zeros(self.capacity, dtype=wp.int32, device=d)
+        self.ms.depth = wp.zeros((self.capacity, self.res, self.res), dtype=wp.float32, device=d)
+        self.ms.res = self.res
+        self.ms.bias = self.bias
+        self.ms.proxy = wp.uint64(0)
+        self._proxy: Occluder | None = None
+        self._verts = None
+        self._tris = None
+
+    def set_proxy(self, vertices: np.ndarray, triangles: np.ndarray) -> None:
+        """The occluder (object proxy, world coordinates) that every map of the next batches shows."""
+        self._proxy = Occluder(vertices, triangles, self.device)
+        self.ms.proxy = wp.uint64(self._proxy.id)
+        self._verts = self._proxy._pts
+        self._tris = wp.array(np.asarray(triangles, np.int32), dtype=wp.int32, device=self.device)
+        self._centre = 0.5 * (vertices.min(0) + vertices.max(0))
+        self._radius = float(np.linalg.norm(vertices - self._centre, axis=1).max())
+
+    def render(self, eyes: np.ndarray) -> int:
+        """Render maps from eye points (n<=capacity, 3) towards the proxy; returns n."""
+        n = len(eyes)
+        if n > self.capacity:
+            raise ValueError(f"{n} maps exceed the batch capacity {self.capacity}")
+        c, r = self._centre, self._radius * 1.02 + 1e-3
+        fwd = c - eyes
+        dist = np.linalg.norm(fwd, axis=1)
+        use_ray = dist < r * 1.05
+        fwd = fwd / np.maximum(dist, 1e-12)[:, None]
+        helper = np.where(np.abs(fwd[:, 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+        right = np.cross(helper, fwd)
+        right /= np.linalg.norm(right, axis=1, keepdims=True)
+        up = np.cross(fwd, right)
+        sin_h = np.clip(r / np.maximum(dist, 1e-12), 0.0, 0.999)
+        inv_tan = np.sqrt(1 - sin_h ** 2) / np.maximum(sin_h, 1e-6)
+        pad = lambda a, dt: np.concatenate([a, np.zeros((self.capacity - n,) + a.shape[1:], dt)]).astype(dt)
+        self.ms.origin.assign(pad(eyes, np.float32))
+        self.ms.right.assign(pad(right, np.float32))
+        self.ms.up.assign(pad(up, np.float32))
+        self.ms.fwd.assign(pad(fwd, np.float32))
+        self.ms.inv_tan.assign(pad(inv_tan, np.float32))
+        self.ms.ray.assign(pad(use_ray.astype(np.int32), np.int32))
+        self.ms.depth.fill_(float("inf"))
+        wp.launch(_raster_kernel, dim=(n, len(self._tris)), inputs=[self.ms, self._verts, self._tris],
+                  device=self.device)
+        return n
+
+    def depth_numpy(self) -> np.ndarray:
+        return self.ms.depth.numpy()
