@@ -26,6 +26,7 @@ import hashlib
 import json
 import logging
 import os
+import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
@@ -117,7 +118,8 @@ def _save_npz_atomic(path: Path, **arrays) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
     os.close(fd)
     try:
-        np.savez(tmp, **arrays)
+        with open(tmp, "wb") as fh:  # a file object: np.savez would append ".npz" to a name
+            np.savez(fh, **arrays)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -125,7 +127,8 @@ def _save_npz_atomic(path: Path, **arrays) -> None:
 
 
 def _bar(total: int, desc: str, quiet: bool):
-    return tqdm(total=total, desc=desc, unit="pt", disable=quiet, leave=False, dynamic_ncols=True)
+    return tqdm(total=total, desc=desc, unit="pt", disable=quiet or not sys.stderr.isatty(), leave=False,
+                dynamic_ncols=True)
 
 
 class Engine:
@@ -159,7 +162,7 @@ class Engine:
                                   z["pix_depth"], float(z["seconds"]))
                 log.info("precompute: cache hit %s", cache)
                 return pre, True
-            except (OSError, KeyError, ValueError) as e:
+            except (OSError, KeyError, ValueError, EOFError) as e:
                 log.warning("precompute: ignoring unreadable cache %s (%s)", cache, e)
         t0 = time.perf_counter()
         dev = self.device
@@ -275,7 +278,7 @@ class Engine:
         wc_wp = wp.array(W_c.astype(np.float32), dtype=wp.vec3, device=self.device)
         n_src = len(eyes)
         for first in tqdm(range(0, n_src, p.batch), desc="shadow passes", unit="batch", leave=False,
-                          disable=self.quiet or n_src <= 4 * p.batch):
+                          disable=self.quiet or n_src <= 4 * p.batch or not sys.stderr.isatty()):
             n = self.maps.render(eyes[first:first + p.batch])
             pix_sum.add(self.maps, n, first, cand_wp, wv_wp)
             cen_sum.add(self.maps, n, first, cand_wp, wc_wp)

@@ -1,0 +1,44 @@
+"""Shared fixtures: the ../shared folder (skip with a reason where it is absent), Warp device."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+SHARED = Path(os.environ.get("PHOTOAR_SHARED", ROOT.parent / "shared"))
+
+
+def _devices():
+    import warp as wp
+
+    from kernels import runtime
+
+    runtime.init()
+    return ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
+
+
+@pytest.fixture(params=_devices())
+def device(request):
+    """Every kernel test runs on the CPU and, where present, on CUDA."""
+    return request.param
+
+
+def shared_scene(name: str) -> Path:
+    path = SHARED / "scenes" / name
+    if not (path / "scene.json").is_file():
+        pytest.skip(f"benchmark scene {path} not available (../shared is absent)")
+    return path
+
+
+def score(scene_dir: Path, composite_png: Path) -> dict:
+    """Run the shared scorer (../shared/tools/score.py) and return its JSON figures."""
+    scorer = SHARED / "tools" / "score.py"
+    if not scorer.is_file():
+        pytest.skip(f"scorer {scorer} not available")
+    out = subprocess.run([sys.executable, str(scorer), str(scene_dir), str(composite_png)], capture_output=True,
+                         text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
