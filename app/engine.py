@@ -41,6 +41,7 @@ from kernels import runtime
 from kernels.composite import MaskedSum
 from kernels.raycast import cast_rays
 from kernels.shadowmap import ShadowMaps
+from kernels.shafts import shaft_candidates
 from kernels.visibility import Occluder, emitter_sum, transfer_matrix
 from lighting.radiosity import gather
 from lighting.sources import luminance, select_sources
@@ -229,6 +230,20 @@ class Engine:
         with np.errstate(divide="ignore", invalid="ignore"):
             self.rho_x = np.where(self.E_x > 0, np.minimum(self.L_b / self.E_x, 1.0), 0.0)
         self.maps = ShadowMaps(self.params.batch, self.params.map_res, device=dev)
+        self.near_factor = 2.0  # object light per pixel within this many bounding radii
+        # occlusion masks: every pixel within mask_near_factor bounding radii of the object, farther
+        # out (soft, slowly varying shadows) every second pixel in x and y, the rest filled in from
+        # looked-up neighbours on the same quad
+        self.mask_near_factor = 1.5
+        H, W = cam.height, cam.width
+        yy, xx = np.mgrid[0:H, 0:W]
+        lattice = ((yy % 2 == 0) & (xx % 2 == 0)).reshape(-1)
+        self.pix_quad = np.where(self.pix_patch >= 0, pm.quad[np.maximum(self.pix_patch, 0)], -1)
+        self.lattice = lattice & self.recv_pix
+        cover = np.zeros(H * W, bool)
+        for dy, dx, ok_src, ok_dst in _window_pairs(H, W):
+            cover[ok_dst] |= self.lattice[ok_src] & (self.pix_quad[ok_src] == self.pix_quad[ok_dst])
+        self.lattice_cover = cover
 
     # ------------------------------------------------------------------ per frame
     def render(self, obj: SceneObject) -> Frame:
@@ -264,9 +279,14 @@ class Engine:
         t = tick("sources", t)
 
         # ---- occlusion masks: pixels and patch centres
-        pix_sel = np.flatnonzero(self.recv_pix & (cov.reshape(-1) < 1.0) & cand.any(1)[np.maximum(self.pix_patch, 0)])
-        pix_sum = MaskedSum(self.pix_pos[pix_sel], self.pix_rows[pix_sel], pre.pix_bary[pix_sel],
-                            self.pix_patch[pix_sel], self.device)
+        want = self.recv_pix & (cov.reshape(-1) < 1.0) & cand.any(1)[np.maximum(self.pix_patch, 0)]
+        near = np.linalg.norm(self.pix_pos - centre, axis=1) < self.mask_near_factor * radius
+        exact = want & (near | self.lattice | ~self.lattice_cover)
+        pix_sel = np.flatnonzero(exact)
+        fill_sel = np.flatnonzero(want & ~exact)
+        halves = np.array_split(pix_sel, 2)  # two accumulators: each launch runs on its own core
+        pix_sums = [MaskedSum(self.pix_pos[h], self.pix_rows[h], pre.pix_bary[h], self.pix_patch[h], self.device)
+                    for h in halves]
         cen_sel = np.flatnonzero(cand.any(1) & ~pm.is_emitter)
         cen_sum = MaskedSum(pm.centre[cen_sel] + pm.normal[cen_sel] * 1e-3, np.repeat(cen_sel[:, None], 3, 1),
                             np.tile([1.0, 0.0, 0.0], (len(cen_sel), 1)), cen_sel, self.device)
@@ -280,10 +300,12 @@ class Engine:
         for first in tqdm(range(0, n_src, p.batch), desc="shadow passes", unit="batch", leave=False,
                           disable=self.quiet or n_src <= 4 * p.batch or not sys.stderr.isatty()):
             n = self.maps.render(eyes[first:first + p.batch])
-            pix_sum.add(self.maps, n, first, cand_wp, wv_wp)
-            cen_sum.add(self.maps, n, first, cand_wp, wc_wp)
+            runtime.run_parallel([
+                lambda: pix_sums[0].add(self.maps, n, first, cand_wp, wv_wp),
+                lambda: (pix_sums[1].add(self.maps, n, first, cand_wp, wv_wp),
+                         cen_sum.add(self.maps, n, first, cand_wp, wc_wp))])
         wp.synchronize_device(self.device)
-        O_pix, _ = pix_sum.result()
+        O_pix = np.concatenate([ps.result()[0] for ps in pix_sums])
         O_cen, _ = cen_sum.result()
         t = tick("masks", t)
 
@@ -317,12 +339,15 @@ class Engine:
             shadow = np.zeros_like(L_b)
             with np.errstate(divide="ignore", invalid="ignore"):
                 frac = np.where(E_x[pix_sel] > 0, np.clip(O_pix / E_x[pix_sel], 0.0, 1.0), 0.0)
+            frac_fill = self._fill(pix_sel, frac, fill_sel)
             shadow[pix_sel] = L_b[pix_sel] * frac
+            shadow[fill_sel] = L_b[fill_sel] * frac_fill
             room = np.maximum(L_b - shadow + add, 0.0)
             room_levels = resp.to_levels(room)
         else:
             levels = scene.photo.reshape(-1, 3).astype(np.float64)
             levels[pix_sel] -= O_pix
+            levels[fill_sel] -= self._fill(pix_sel, O_pix, fill_sel)
             extra = np.abs(add).sum(1) > 0
             levels[extra] += resp.to_levels(np.maximum(L_b[extra] + add[extra], 0.0)) - resp.to_levels(L_b[extra])
             room_levels = np.clip(levels, 0, 255)
@@ -335,6 +360,7 @@ class Engine:
         frame_s = time.perf_counter() - t_all
         stats = {"frame_s": frame_s, "timings": timings, "n_sources": int(n_src), "n_patches": int(pm.n_patches),
                  "n_receiver_vertices": int(len(pre.recv_vert)), "n_mask_pixels": int(len(pix_sel)),
+                 "n_filled_pixels": int(len(fill_sel)),
                  "proxy_triangles": int(len(pf)), "passes": int(n_src), "mode": p.mode}
         return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats)
 
@@ -386,6 +412,25 @@ class Engine:
         rad[v0:v1 + 1, u0:u1 + 1] = mean_rad
         return cov, rad
 
+    def _fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray) -> np.ndarray:
+        """Values (len(missing),3) at pixels `missing`: mean of the known pixels in their 3x3
+        window that lie on the same quad (every missing pixel has one, see lattice_cover)."""
+        if len(missing) == 0:
+            return np.zeros((0, 3))
+        n = len(self.L_b)
+        val = np.zeros((n, 3))
+        has = np.zeros(n, bool)
+        val[known] = values
+        has[known] = True
+        acc = np.zeros((n, 3))
+        cnt = np.zeros(n)
+        H, W = self.scene.camera.height, self.scene.camera.width
+        for dy, dx, ok_src, ok_dst in _window_pairs(H, W):
+            good = has[ok_src] & (self.pix_quad[ok_src] == self.pix_quad[ok_dst])
+            acc[ok_dst[good]] += val[ok_src[good]]
+            cnt[ok_dst[good]] += 1
+        return acc[missing] / np.maximum(cnt[missing], 1)[:, None]
+
     def scene_occ_cam(self) -> Occluder:
         """Scene mesh for camera depth tests (emitters included, lifted off their walls)."""
         if not hasattr(self, "_cam_occ"):
@@ -415,54 +460,44 @@ class Engine:
             0.5 * (G.astype(np.float64) @ self.B_obj)
 
     def _object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius):
-        """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi."""
-        pm = self.pre.patches
+        """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi.
+
+        Far from the object the reflected light varies slowly: it is evaluated at receiver vertices
+        and interpolated like the transfers. Within `near_factor` bounding radii of the object's
+        centre, where it changes fast (contact, under a seat), it is evaluated per pixel; there only
+        pixels whose upper bound of gain exceeds a quarter level are computed.
+        """
+        pre, pm = self.pre, self.pre.patches
         resp = self.scene.response
-        b_max = tri_rad.max(0)
         tris = pv[pf]
-        # pixels: only where an upper bound of the added light could move the pixel by > 0.25 level
-        rp = np.flatnonzero(self.recv_pix)
-        dist = np.linalg.norm(self.pix_pos[rp] - centre, axis=1)
-        f_bound = np.minimum(1.0, (radius / np.maximum(dist, 1e-6)) ** 2)
-        bound = self.rho_x[rp] * b_max * f_bound[:, None]
-        L = self.L_b[rp]
-        gain = (resp.to_levels(L + bound) - resp.to_levels(L)).max(1)
-        sel = rp[gain > 0.25]
+        rv = pre.recv_vert
+        R_v = emitter_sum(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, device=self.device)
         R_pix = np.zeros((len(self.L_b), 3))
-        normals = self.pre.patches.normal[self.pix_patch[sel]]
+        rp = np.flatnonzero(self.recv_pix)
+        R_pix[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], R_v[self.pix_rows[rp]])
+        dist = np.linalg.norm(self.pix_pos[rp] - centre, axis=1)
+        near = dist < self.near_factor * radius
+        rp, dist = rp[near], dist[near]
+        f_bound = np.minimum(1.0, (radius / np.maximum(dist, 1e-6)) ** 2)
+        bound = self.rho_x[rp] * tri_rad.max(0) * f_bound[:, None]
+        gain = (resp.to_levels(self.L_b[rp] + bound) - resp.to_levels(self.L_b[rp])).max(1)
+        sel = rp[gain > 0.25]
+        normals = pm.normal[self.pix_patch[sel]]
         R_pix[sel] = emitter_sum(self.pix_pos[sel], normals, tris, tri_rad, proxy_occ, device=self.device)
         # patch centres, for the second-order term
         dist_c = np.linalg.norm(pm.centre - centre, axis=1)
-        near = np.flatnonzero((np.minimum(1.0, (radius / np.maximum(dist_c, 1e-6)) ** 2) *
-                               luminance(b_max) > 1e-4 * luminance(self.B_src).mean()) & ~pm.is_emitter)
+        reach = np.minimum(1.0, (radius / np.maximum(dist_c, 1e-6)) ** 2) * luminance(tri_rad.max(0))
+        near_c = np.flatnonzero((reach > 1e-4 * luminance(self.B_src).mean()) & ~pm.is_emitter)
         R_cen = np.zeros((pm.n_patches, 3))
-        R_cen[near] = emitter_sum(pm.centre[near], pm.normal[near], tris, tri_rad, proxy_occ, device=self.device)
+        R_cen[near_c] = emitter_sum(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, device=self.device)
         self._n_object_light_pixels = len(sel)
         return R_pix, R_cen
 
     def _candidates(self, src: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
-        """(P, S) bool: can the segment from patch p to source s pass within reach of the object?
-
-        A conservative capsule test (object bounding sphere inflated by both patches' radii);
-        the leaf level of the seed's shaft hierarchy, without the hierarchy.
-        """
+        """(P, S) bool: can the object come between patch p and source s? (kernels.shafts)"""
         pm = self.pre.patches
-        P = pm.n_patches
-        out = np.zeros((P, len(src)), bool)
-        if len(src) == 0:
-            return out
-        rad = pm.radius
-        s_c, s_r = pm.centre[src], rad[src]
-        for a in range(0, P, 256):
-            b = min(P, a + 256)
-            pc = pm.centre[a:b, None, :]
-            d = s_c[None] - pc  # (n,S,3)
-            L2 = np.maximum((d * d).sum(-1), 1e-12)
-            tt = np.clip(((centre - pc) * d).sum(-1) / L2, 0.0, 1.0)
-            closest = pc + tt[..., None] * d
-            dist = np.linalg.norm(closest - centre, axis=-1)
-            reach = radius + np.maximum(rad[a:b, None], s_r[None, :]) + 1e-3
-            out[a:b] = dist < reach
+        rad = pm.radius + 1e-3
+        out = shaft_candidates(pm.centre, rad, pm.centre[src], rad[src], centre, radius + 1e-3, self.device)
         out[pm.is_emitter] = False
         return out
 
@@ -516,6 +551,24 @@ class Engine:
         rho_v = np.where(den[:, None] > 0, num / np.maximum(den, 1e-12)[:, None], albedo_v)
         L_i = rho_v * self.E_v
         return intensity_transfers(L_i, rho_v[:, None, :] * W_v, self.scene.response.to_levels)
+
+
+def _window_pairs(H: int, W: int):
+    """(dy, dx, src, dst) flat pixel index pairs for every offset of a 3x3 window (cached)."""
+    key = (H, W)
+    if key not in _WINDOW_CACHE:
+        yy, xx = np.mgrid[0:H, 0:W]
+        pairs = []
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                sy, sx = yy + dy, xx + dx
+                ok = (sy >= 0) & (sy < H) & (sx >= 0) & (sx < W)
+                pairs.append((dy, dx, (sy * W + sx)[ok], (yy * W + xx)[ok]))
+        _WINDOW_CACHE[key] = pairs
+    return _WINDOW_CACHE[key]
+
+
+_WINDOW_CACHE: dict = {}
 
 
 def _interpolate_on_surface(src_p, src_n, values, dst_p, dst_n, k: int = 8) -> np.ndarray:

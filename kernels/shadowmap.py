@@ -34,6 +34,7 @@ class MapSet:
     res: int
     bias: float
     proxy: wp.uint64
+    cull: int  # 1: skip triangles facing away from the eye (closed proxies cast the same shadow)
 
 
 @wp.func
@@ -70,10 +71,15 @@ def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
 
 
 @wp.kernel
-def _raster_kernel(ms: MapSet, verts: wp.array(dtype=wp.vec3), tris: wp.array2d(dtype=wp.int32)):
-    s, t = wp.tid()
+def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris: wp.array2d(dtype=wp.int32)):
+    k, t = wp.tid()
+    s = first + k
     if ms.ray[s] == 1:
         return
+    p0 = verts[tris[t, 0]]
+    if ms.cull == 1:
+        if wp.dot(wp.cross(verts[tris[t, 1]] - p0, verts[tris[t, 2]] - p0), p0 - ms.origin[s]) > 0.0:
+            return
     a = _to_map(ms, s, verts[tris[t, 0]])
     b = _to_map(ms, s, verts[tris[t, 1]])
     c = _to_map(ms, s, verts[tris[t, 2]])
@@ -121,6 +127,7 @@ class ShadowMaps:
         self.ms.res = self.res
         self.ms.bias = self.bias
         self.ms.proxy = wp.uint64(0)
+        self.ms.cull = 0
         self._proxy: Occluder | None = None
         self._verts = None
         self._tris = None
@@ -129,6 +136,7 @@ class ShadowMaps:
         """The occluder (object proxy, world coordinates) that every map of the next batches shows."""
         self._proxy = Occluder(vertices, triangles, self.device)
         self.ms.proxy = wp.uint64(self._proxy.id)
+        self.ms.cull = int(_is_closed(vertices, triangles))
         self._verts = self._proxy._pts
         self._tris = wp.array(np.asarray(triangles, np.int32), dtype=wp.int32, device=self.device)
         self._centre = 0.5 * (vertices.min(0) + vertices.max(0))
@@ -158,9 +166,23 @@ class ShadowMaps:
         self.ms.inv_tan.assign(pad(inv_tan, np.float32))
         self.ms.ray.assign(pad(use_ray.astype(np.int32), np.int32))
         self.ms.depth.fill_(float("inf"))
-        wp.launch(_raster_kernel, dim=(n, len(self._tris)), inputs=[self.ms, self._verts, self._tris],
-                  device=self.device)
+        half = (n + 1) // 2  # two launches: on the CPU each runs on its own core
+        runtime.run_parallel([
+            lambda a=a, b=b: wp.launch(_raster_kernel, dim=(b - a, len(self._tris)),
+                                       inputs=[self.ms, a, self._verts, self._tris], device=self.device)
+            for a, b in ((0, half), (half, n)) if b > a])
         return n
 
     def depth_numpy(self) -> np.ndarray:
         return self.ms.depth.numpy()
+
+
+def _is_closed(vertices: np.ndarray, triangles: np.ndarray) -> bool:
+    """True when every edge is shared by an even number of triangles once coincident vertices
+    are welded (flat-shaded and UV meshes duplicate vertices along seams; closed parts may touch
+    along an edge). Then every ray into the solid crosses a front face: back faces can be culled."""
+    _, weld = np.unique(np.round(np.asarray(vertices) / 1e-6).astype(np.int64), axis=0, return_inverse=True)
+    t = weld.reshape(-1)[np.asarray(triangles, np.int64)]
+    e = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return bool(len(counts)) and bool(np.all(counts % 2 == 0))

@@ -16,6 +16,7 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, target: int = 300, max_fac
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int32)
     if len(f) > max_faces:
+        v, f = weld(v, f)  # seams of duplicated vertices would otherwise open into holes
         v, f = fast_simplification.simplify(v.astype(np.float32), f, target_reduction=1.0 - target / len(f))
         v = np.asarray(v, np.float64)
         f = np.asarray(f, np.int32)
@@ -29,3 +30,11 @@ def vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     for k in range(3):
         np.add.at(n, f[:, k], fn)
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+
+def weld(v: np.ndarray, f: np.ndarray, tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices closer than `tol` metres (on a grid) and drop faces that collapse."""
+    _, first, inv = np.unique(np.round(v / tol).astype(np.int64), axis=0, return_index=True, return_inverse=True)
+    f2 = inv.reshape(-1)[f]
+    keep = (f2[:, 0] != f2[:, 1]) & (f2[:, 1] != f2[:, 2]) & (f2[:, 2] != f2[:, 0])
+    return v[first], f2[keep].astype(np.int32)

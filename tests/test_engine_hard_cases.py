@@ -1,0 +1,136 @@
+"""Hard cases of app.engine.Engine on the bundled demo scene (small and fast, no ../shared needed).
+
+Object coverage is computed independently here: camera rays cast against the object's full mesh,
+dilated by two pixels (the engine supersamples coverage, so edge pixels may be partly covered).
+"""
+import copy
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.ndimage import binary_dilation
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from app.cli import demo_scene_dir  # noqa: E402
+from app.engine import Engine, EngineParams  # noqa: E402
+from kernels.raycast import cast_rays  # noqa: E402
+from kernels.visibility import Occluder  # noqa: E402
+from recon.scene import load_scene  # noqa: E402
+
+FAST = dict(patch_size=0.5, emitter_patch_size=0.2)  # coarse patches: seconds, not minutes, on 2 cores
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return load_scene(demo_scene_dir())
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("engine-cache")
+
+
+@pytest.fixture(scope="module")
+def engine(scene, cache_dir):
+    """The first engine on an empty cache: a full precompute."""
+    return Engine(scene, EngineParams(**FAST), cache_dir=cache_dir, device="cpu", quiet=True)
+
+
+@pytest.fixture(scope="module")
+def full_frame(engine, scene):
+    return engine.render(scene.obj)
+
+
+def _coverage(scene, obj, grow=2):
+    """(H,W) bool: pixels whose centre ray hits the object mesh, dilated by `grow` pixels."""
+    cam = scene.camera
+    tri, _, _ = cast_rays(Occluder(obj.vertices, obj.faces, "cpu"), cam.centre, cam.pixel_rays().reshape(-1, 3))
+    hit = (tri >= 0).reshape(cam.height, cam.width)
+    return binary_dilation(hit, iterations=grow)
+
+
+def _translated(obj, delta):
+    o = copy.copy(obj)
+    o.vertices = obj.vertices + np.asarray(delta, float)
+    M = obj.object_to_world.copy()
+    M[:3, 3] += delta
+    o.object_to_world = M
+    return o
+
+
+def test_no_emitters_leaves_photo(scene, tmp_path):
+    # a scene without emitters has no sources: the photo comes back unchanged outside the object, no NaN
+    dark = copy.copy(scene)
+    dark.quads = [replace(q, emission=np.zeros(3)) for q in scene.quads]
+    eng = Engine(dark, EngineParams(**FAST), cache_dir=tmp_path, device="cpu", quiet=True)
+    assert not eng.cache_hit
+    assert np.all(eng.pre.B == 0)
+    frame = eng.render(dark.obj)
+    assert frame.stats["n_sources"] == 0
+    assert np.isfinite(frame.radiance).all() and frame.radiance.min() >= 0
+    cov = _coverage(dark, dark.obj)
+    assert 0.005 < cov.mean() < 0.3
+    np.testing.assert_array_equal(frame.pixels[~cov], dark.photo[~cov])
+
+
+def test_object_touching_floor_and_wall(scene, engine, full_frame):
+    # the object pressed into the corner of floor and left wall (where the window is) renders finite output
+    obj = scene.obj
+    lo = obj.vertices.min(0)
+    moved = _translated(obj, [scene.room_min[0] - lo[0], scene.room_min[1] - lo[1], 0.0])
+    assert moved.vertices[:, 0].min() == pytest.approx(scene.room_min[0], abs=1e-12)
+    assert moved.vertices[:, 1].min() == pytest.approx(scene.room_min[1], abs=1e-12)
+    frame = engine.render(moved)
+    assert frame.pixels.shape == scene.photo.shape
+    assert np.isfinite(frame.radiance).all() and frame.radiance.min() >= 0
+    assert frame.stats["n_sources"] > 0
+    # it changes the picture near the object and leaves the far side of the room alone
+    diff = np.abs(frame.pixels.astype(int) - scene.photo.astype(int)).max(-1)
+    cov = _coverage(scene, moved)
+    assert (diff[cov] > 2).mean() > 0.3
+    assert diff[:20].max() <= 2  # ceiling strip
+    # the object's own pixels are lit (the window is right beside it), not black
+    assert frame.radiance[_coverage(scene, moved, grow=0)].mean() > 0.01
+
+
+def test_cache_hit_and_miss(scene, engine, cache_dir, full_frame):
+    # a second engine on the same cache reuses the precompute exactly; a different patch size misses
+    assert not engine.cache_hit
+    again = Engine(scene, EngineParams(**FAST), cache_dir=cache_dir, device="cpu", quiet=True)
+    assert again.cache_hit
+    for name in ("G_c", "G_v", "recv_vert", "B", "pix_tri", "pix_bary", "pix_depth"):
+        a, b = getattr(engine.pre, name), getattr(again.pre, name)
+        assert a.dtype == b.dtype and a.shape == b.shape, name
+        np.testing.assert_array_equal(a, b, err_msg=name)
+    frame = again.render(scene.obj)
+    np.testing.assert_array_equal(frame.pixels, full_frame.pixels)
+    # parameters outside the cache key (passes, mode, ...) still hit
+    assert Engine(scene, EngineParams(**FAST, passes=3), cache_dir=cache_dir, device="cpu", quiet=True).cache_hit
+    n_files = len(list(Path(cache_dir).glob("*.npz")))
+    other = Engine(scene, EngineParams(patch_size=0.6, emitter_patch_size=0.2), cache_dir=cache_dir, device="cpu",
+                   quiet=True)
+    assert not other.cache_hit
+    assert other.pre.patches.n_patches != engine.pre.patches.n_patches
+    assert len(list(Path(cache_dir).glob("*.npz"))) == n_files + 1
+
+
+def test_single_pass_still_darkens(scene, engine, cache_dir, full_frame):
+    # passes=1 (one representative carrying every source's transfers) still casts the shadow
+    one = Engine(scene, EngineParams(**FAST, passes=1), cache_dir=cache_dir, device="cpu", quiet=True)
+    assert one.cache_hit
+    frame1 = one.render(scene.obj)
+    assert frame1.stats["passes"] == 1
+    assert full_frame.stats["passes"] > 10
+    outside = ~_coverage(scene, scene.obj)
+    L_b = scene.response.to_radiance(scene.photo)
+
+    def darkening(frame):
+        return np.maximum(L_b - frame.radiance, 0.0)[outside].sum()
+
+    d_all, d_one = darkening(full_frame), darkening(frame1)
+    assert d_all > 0
+    assert d_one > 0.5 * d_all, (d_one, d_all)
+    assert np.isfinite(frame1.radiance).all()

@@ -1,0 +1,169 @@
+"""Tests for kernels.shadowmap.ShadowMaps and kernels.composite.MaskedSum.
+
+Scene: a square plate (two triangles) at y = 1 over the floor y = 0, point sources above it. The
+reference is exact and analytic: the segment from a floor point p to an eye e crosses the plate's
+plane at p + (e - p) / e_y, and is blocked when that point lies inside the square.
+"""
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import warp as wp
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from kernels.composite import MaskedSum  # noqa: E402
+from kernels.shadowmap import ShadowMaps  # noqa: E402
+
+HALF = 0.5  # plate half-size (m)
+PLATE_Y = 1.0
+PLATE_V = np.array([[-HALF, PLATE_Y, -HALF], [-HALF, PLATE_Y, HALF], [HALF, PLATE_Y, HALF], [HALF, PLATE_Y, -HALF]])
+PLATE_F = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+# map-mode eyes well outside the plate's bounding sphere (radius ~0.71 about (0,1,0))
+EYES = np.array([[0.0, 2.5, 0.0], [0.6, 2.2, -0.3], [-0.8, 2.8, 0.5], [0.3, 3.0, 0.9], [-0.4, 2.0, -0.7]])
+RAY_EYE = np.array([0.1, 1.4, -0.05])  # inside the bounding sphere: resolved by exact rays
+
+
+def _floor_grid(step=0.05, ext=3.0):
+    # offset so that no crossing lands exactly on the plate's edge (a tie the exact test cannot break)
+    g = np.arange(-ext, ext + 1e-9, step) + 0.01234
+    X, Z = np.meshgrid(g, g + 0.00567)
+    return np.column_stack([X.ravel(), np.zeros(X.size), Z.ravel()])
+
+
+def _exact(points, eyes):
+    """(N,S) bool occlusion by the plate, and (N,S) signed margin (m) of the crossing inside the square."""
+    t = (PLATE_Y - points[:, None, 1]) / (eyes[None, :, 1] - points[:, None, 1])
+    q = points[:, None, :] + t[..., None] * (eyes[None, :, :] - points[:, None, :])
+    margin = HALF - np.maximum(np.abs(q[..., 0]), np.abs(q[..., 2]))
+    return margin > 0, margin
+
+
+def _masked(device, points, rows=None, bary=None, group=None):
+    n = len(points)
+    rows = np.zeros((n, 3), np.int32) if rows is None else rows
+    bary = np.tile([1.0, 0.0, 0.0], (n, 1)) if bary is None else bary
+    group = np.zeros(n, np.int32) if group is None else group
+    return MaskedSum(points, rows, bary, group, device)
+
+
+def _wp2(a, dtype, device):
+    return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
+
+
+def _run(device, points, eyes, weights=None, cand=None, batches=None, capacity=None, res=256, **kw):
+    """MaskedSum over the eyes rendered in the given batch sizes; returns (sums, counts)."""
+    S = len(eyes)
+    weights = np.ones((1, S, 3), np.float32) if weights is None else weights
+    cand = np.ones((1, S), np.uint8) if cand is None else cand
+    batches = [S] if batches is None else batches
+    maps = ShadowMaps(capacity or max(batches), res, device=device)
+    maps.set_proxy(PLATE_V, PLATE_F)
+    acc = _masked(device, points, **kw)
+    cand_wp = _wp2(cand.astype(np.uint8), wp.uint8, device)
+    w_wp = _wp2(weights.astype(np.float32), wp.vec3, device)
+    first = 0
+    for b in batches:
+        n = maps.render(eyes[first:first + b])
+        assert n == b
+        acc.add(maps, n, first, cand_wp, w_wp)
+        first += n
+    return acc.result()
+
+
+def test_depth_map_values(device):
+    # the map from straight above stores the plate's depth along the view axis; pixels off the plate stay empty
+    maps = ShadowMaps(2, 64, device=device)
+    maps.set_proxy(PLATE_V, PLATE_F)
+    assert maps.render(EYES[:1]) == 1
+    d = maps.depth_numpy()
+    assert d.shape == (2, 64, 64)
+    np.testing.assert_allclose(d[0, 24:40, 24:40], 2.5 - PLATE_Y, rtol=1e-5)
+    # the square inscribed in the fitted circle leaves the corners of the map empty
+    assert np.isinf(d[0, :4, :4]).all() and np.isinf(d[0, -4:, -4:]).all()
+    assert np.isinf(d[1]).all()  # the unused slot of the batch is empty
+    with pytest.raises(ValueError):
+        maps.render(EYES[:3])  # more maps than the batch capacity
+
+
+def test_mask_matches_exact_rays(device):
+    # occluded-map counts from shadow maps agree with exact segment/plate tests on >= 99% of floor points
+    pts = _floor_grid()
+    occ, margin = _exact(pts, EYES)
+    _, count = _run(device, pts, EYES)
+    ref = occ.sum(1)
+    assert 0.05 < (ref > 0).mean() < 0.6  # a real shadow, and a real lit area
+    assert (count == ref).mean() >= 0.99
+    clear_miss = (margin < -0.02).all(1)
+    assert clear_miss.sum() > 1000 and np.all(count[clear_miss] == 0)
+    clear = (np.abs(margin) > 0.02).all(1)  # every crossing at least 2 cm from the plate's edge
+    np.testing.assert_array_equal(count[clear], ref[clear])
+    assert (ref[clear] == len(EYES)).sum() > 50  # the umbra is among the clear points
+
+
+def test_eye_inside_bounding_sphere_uses_exact_rays(device):
+    # an eye inside the proxy's bounding sphere is resolved by ray casting: same answer as the exact test
+    pts = _floor_grid(step=0.04, ext=4.0)
+    occ, margin = _exact(pts, RAY_EYE[None])
+    _, count = _run(device, pts, RAY_EYE[None])
+    assert 0.02 < occ.mean() < 0.5
+    near_edge = np.abs(margin[:, 0]) < 1e-5
+    np.testing.assert_array_equal(count[~near_edge], occ[~near_edge, 0].astype(float))
+    # mixed batch: ray-mode and map-mode eyes side by side each keep their own mode
+    eyes = np.vstack([EYES[:2], RAY_EYE, EYES[2:]])
+    occ, margin = _exact(pts, eyes)
+    _, count = _run(device, pts, eyes)
+    clear = (np.abs(margin) > 0.02).all(1)
+    np.testing.assert_array_equal(count[clear], occ[clear].sum(1))
+    assert (count == occ.sum(1)).mean() >= 0.99
+
+
+def test_batches_reuse_buffers(device):
+    # 3 maps then 2 maps through one ShadowMaps object accumulate exactly what 5 maps at once do
+    pts = _floor_grid(step=0.06)
+    S = len(EYES)
+    W = (np.arange(S, dtype=np.float32)[None, :, None] + 1.0) * np.array([1.0, 10.0, 100.0], np.float32)
+    one_acc, one_cnt = _run(device, pts, EYES, weights=W)
+    for capacity in (3, 5):
+        acc, cnt = _run(device, pts, EYES, weights=W, batches=[3, 2], capacity=capacity)
+        np.testing.assert_array_equal(cnt, one_cnt)
+        np.testing.assert_allclose(acc, one_acc, rtol=1e-6)
+    # reversing the order of the eyes (so batch 2 reuses slots last filled by other eyes) changes nothing
+    acc, cnt = _run(device, pts, EYES[::-1], weights=W[:, ::-1], batches=[3, 2], capacity=3)
+    np.testing.assert_array_equal(cnt, one_cnt)
+    np.testing.assert_allclose(acc, one_acc, rtol=1e-6)
+    # and both agree with the exact answer
+    occ, margin = _exact(pts, EYES)
+    clear = (np.abs(margin) > 0.02).all(1)
+    np.testing.assert_array_equal(one_cnt[clear], occ[clear].sum(1))
+
+
+def test_weights_accumulate_barycentric(device):
+    # sums equal, per point, sum over occluded candidate sources of the barycentric interpolation of W
+    rng = np.random.default_rng(11)
+    pts = _floor_grid(step=0.07)
+    n, S, R, G = len(pts), len(EYES), 40, 4
+    W = rng.uniform(0.5, 2.0, (R, S, 3)).astype(np.float32)  # distinct values per row, source and channel
+    rows = rng.integers(0, R, (n, 3)).astype(np.int32)
+    bary = rng.dirichlet([1.0, 1.0, 1.0], n).astype(np.float32)
+    group = rng.integers(0, G, n).astype(np.int32)
+    cand = (rng.uniform(size=(G, S)) < 0.7).astype(np.uint8)
+    cand[0] = 1  # group 0 sees all sources
+    acc, cnt = _run(device, pts, EYES, weights=W, cand=cand, batches=[2, 2, 1], capacity=2, rows=rows,
+                    bary=bary, group=group)
+    occ, margin = _exact(pts, EYES)
+    m = occ & cand[group].astype(bool)  # (n,S) the sources that count
+    w_pt = np.einsum("nk,nksc->nsc", bary.astype(np.float64), W[rows].astype(np.float64))  # (n,S,3)
+    ref = np.einsum("ns,nsc->nc", m.astype(np.float64), w_pt)
+    clear = (np.abs(margin) > 0.02).all(1)
+    assert m[clear].sum() > 500
+    np.testing.assert_allclose(acc[clear], ref[clear], rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(cnt[clear], m[clear].sum(1))
+    close = np.isclose(acc, ref, rtol=1e-5, atol=1e-6).all(1)
+    assert close.mean() >= 0.99
+    # reset() clears the accumulators
+    ms = _masked(device, pts[:10])
+    ms.reset()
+    a, c = ms.result()
+    assert np.all(a == 0) and np.all(c == 0)
