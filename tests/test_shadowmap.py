@@ -167,3 +167,83 @@ def test_weights_accumulate_barycentric(device):
     ms.reset()
     a, c = ms.result()
     assert np.all(a == 0) and np.all(c == 0)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# closed proxies (back faces culled when rasterising)
+# ----------------------------------------------------------------------------------------------------------
+
+CUBE_LO, CUBE_HI = np.array([-0.3, 0.7, -0.3]), np.array([0.3, 1.3, 0.3])
+
+
+def _cube(flip=()):
+    """Closed cube, 12 triangles wound outward; faces listed in `flip` (0..5) wound inward instead."""
+    lo, hi = CUBE_LO, CUBE_HI
+    v = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    # quads with outward (counter-clockwise seen from outside) winding: -x, +x, -y, +y, -z, +z
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    tris = []
+    for qi, (a, b, c, d) in enumerate(quads):
+        pair = [(a, b, c), (a, c, d)]
+        if qi in flip:
+            pair = [(x, z, y) for x, y, z in pair]
+        tris += pair
+    v_out, t_out = v, np.array(tris, np.int32)
+    centre = 0.5 * (lo + hi)
+    fn = np.cross(v_out[t_out[:, 1]] - v_out[t_out[:, 0]], v_out[t_out[:, 2]] - v_out[t_out[:, 0]])
+    outward = ((v_out[t_out].mean(1) - centre) * fn).sum(1) > 0
+    assert outward.sum() == 12 - 2 * len(flip)
+    return v_out, t_out
+
+
+def _exact_box(points, eyes, lo, hi):
+    """(N,S) bool: does the segment point -> eye cross the box [lo, hi]? (slab test)"""
+    d = eyes[None, :, :] - points[:, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0 = (lo - points[:, None, :]) / d
+        t1 = (hi - points[:, None, :]) / d
+    tmin = np.nanmax(np.minimum(t0, t1), axis=-1)
+    tmax = np.nanmin(np.maximum(t0, t1), axis=-1)
+    return (tmax >= np.maximum(tmin, 0.0)) & (tmin <= 1.0)
+
+
+def _run_mesh(device, points, eyes, verts, tris, res=256):
+    maps = ShadowMaps(len(eyes), res, device=device)
+    maps.set_proxy(verts, tris)
+    ms = _masked(device, points)
+    n = maps.render(eyes)
+    ms.add(maps, n, 0, _wp2(np.ones((1, n), np.uint8), wp.uint8, device),
+           _wp2(np.ones((1, n, 3), np.float32), wp.vec3, device))
+    return ms.result()[1]
+
+
+def _check_cube(device, flip):
+    pts = _floor_grid(step=0.05)
+    eyes = np.vstack([EYES, [0.1, 1.45, -0.05]])  # the last one sits inside the bounding sphere (ray mode)
+    v, t = _cube(flip)
+    count = _run_mesh(device, pts, eyes, v, t)
+    ref = _exact_box(pts, eyes, CUBE_LO, CUBE_HI).sum(1)
+    grow = _exact_box(pts, eyes, CUBE_LO - 0.02, CUBE_HI + 0.02).sum(1)
+    shrink = _exact_box(pts, eyes, CUBE_LO + 0.02, CUBE_HI - 0.02).sum(1)
+    clear = grow == shrink  # no crossing within 2 cm of the cube's silhouette
+    assert (ref[clear] >= 3).sum() > 100 and (ref[clear] == 0).sum() > 1000
+    np.testing.assert_array_equal(count[clear], ref[clear])
+    assert (count == ref).mean() >= 0.99
+
+
+def test_closed_cube_outward(device):
+    # a closed, outward-wound cube (back faces culled) shadows exactly like the solid box
+    _check_cube(device, flip=())
+
+
+def test_closed_cube_inward(device):
+    # the same cube wound inward throughout still shadows like the solid box
+    _check_cube(device, flip=tuple(range(6)))
+
+
+@pytest.mark.xfail(strict=True, reason="ShadowMaps culls back faces of any closed proxy (_is_closed checks edge "
+                   "counts only, not consistent winding): with the top face wound inward and the bottom outward, "
+                   "both are culled from an eye above and the cube casts (almost) no shadow from those maps")
+def test_closed_cube_inconsistent_winding(device):
+    # a closed cube whose top face is wound inward (a common mesh defect) still shadows like the solid box
+    _check_cube(device, flip=(3,))
