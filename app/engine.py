@@ -267,7 +267,8 @@ class Engine:
         t = tick("proxy", t)
 
         # ---- object pixels: coverage and depth against the scene model
-        cov, obj_rad = self._object_pixels(obj, pv, pf, pn, proxy_occ)
+        hits = self._object_hits(obj)
+        cov = hits.coverage()
         t = tick("object", t)
 
         # ---- source list: sources whose shafts to some receiver patch can meet the object
@@ -309,22 +310,24 @@ class Engine:
         O_cen, _ = cen_sum.result()
         t = tick("masks", t)
 
+        # ---- the object lit by the room, whose patches in its shadow send it less light
+        dB_shadow = np.zeros((pm.n_patches, 3))
+        dB_shadow[cen_sel] = -pm.albedo[cen_sel] * O_cen
+        obj_rad = self._shade_object(obj, hits, pv, pn, proxy_occ, self.B_src + dB_shadow)
+        t = tick("object_shading", t)
+
         # ---- light the object reflects, onto pixels and patch centres
         R_pix = np.zeros((H * W, 3))
         R_cen = np.zeros((pm.n_patches, 3))
-        tri_rad = np.zeros((len(pf), 3))
         if p.object_light:
-            tri_rad = self._object_triangle_radiance(pv, pf, proxy_occ)
+            tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
             R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius)
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices
         dE_x = np.zeros((H * W, 3))
         if p.second_order:
-            dB = np.zeros((pm.n_patches, 3))
-            dB[cen_sel] -= O_cen
-            dB += R_cen
-            dB *= pm.albedo
+            dB = dB_shadow + pm.albedo * R_cen
             nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
             dE_v = pre.G_v[:, nz].astype(np.float64) @ dB[nz]
             rp = self.recv_pix
@@ -365,12 +368,10 @@ class Engine:
         return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats)
 
     # ------------------------------------------------------------------ pieces
-    def _object_pixels(self, obj: SceneObject, pv, pf, pn, proxy_occ) -> tuple[np.ndarray, np.ndarray]:
-        """Coverage (H,W) in [0,1] and radiance (H,W,3) of the object, depth-tested against the scene."""
+    def _object_hits(self, obj: SceneObject) -> "ObjectHits":
+        """Sub-pixel camera rays against the object, depth-tested against the scene model."""
         cam = self.scene.camera
         H, W, s = cam.height, cam.width, max(1, self.params.supersample)
-        cov = np.zeros((H, W))
-        rad = np.zeros((H, W, 3))
         uv, z = cam.project(obj.vertices)
         if np.any(z <= 1e-6):
             u0, v0, u1, v1 = 0, 0, W - 1, H - 1
@@ -379,38 +380,35 @@ class Engine:
             u1, v1 = np.ceil(uv.max(0) + 1).astype(int)
             u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
         if u0 > u1 or v0 > v1:
-            return cov, rad
-        obj_mesh = Occluder(obj.vertices, obj.faces, self.device)
-        # sub-pixel rays over the bounding rectangle
+            return ObjectHits(H, W, s, (0, 0, -1, -1), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0, bool))
         offs = (np.arange(s) + 0.5) / s - 0.5
         uu = (np.arange(u0, u1 + 1)[:, None] + offs).reshape(-1)
         vv = (np.arange(v0, v1 + 1)[:, None] + offs).reshape(-1)
         U, V = np.meshgrid(uu, vv)
         d = np.stack([U, V, np.ones_like(U)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        tri, bary, depth = cast_rays(obj_mesh, cam.centre, d)
+        tri, bary, depth = cast_rays(Occluder(obj.vertices, obj.faces, self.device), cam.centre, d)
         _, _, scene_depth = cast_rays(self.scene_occ_cam(), cam.centre, d)
-        hit = (tri >= 0) & (depth < scene_depth)
-        # shade object vertices: irradiance from the room with self-occlusion (proxy) -> L = albedo * E
-        E_obj = self._object_irradiance(pv, pn, proxy_occ)
+        return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, (tri >= 0) & (depth < scene_depth))
+
+    def _shade_object(self, obj: SceneObject, hits: "ObjectHits", pv, pn, proxy_occ, B: np.ndarray) -> np.ndarray:
+        """Object radiance (H,W,3), averaged over each pixel's covered sub-samples.
+
+        Diffuse: L = albedo * E at the proxy's vertices, E gathered from every patch of radiance B
+        with the room and the object itself as occluders, carried to the full mesh and interpolated.
+        """
+        out = np.zeros((hits.H, hits.W, 3))
+        if not hits.hit.any():
+            return out
+        E_obj = self._object_irradiance(pv, pn, proxy_occ, B)
         if len(pv) == len(obj.vertices) and np.allclose(pv, obj.vertices):
             E_full = E_obj
         else:
             E_full = _interpolate_on_surface(pv, pn, E_obj, obj.vertices, obj.normals)
         L_vert = obj.albedo * E_full
-        L_hit = np.einsum("nk,nkc->nc", bary[hit], L_vert[obj.faces[tri[hit]]])
-        sub = np.zeros((len(d), 3))
-        sub[hit] = L_hit
-        hh, ww = v1 - v0 + 1, u1 - u0 + 1
-        sub = sub.reshape(hh, s, ww, s, 3)
-        hitm = hit.reshape(hh, s, ww, s)
-        c = hitm.mean(axis=(1, 3))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean_rad = np.where(c[..., None] > 0, sub.sum(axis=(1, 3)) / np.maximum(hitm.sum(axis=(1, 3)), 1)[..., None],
-                                0.0)
-        cov[v0:v1 + 1, u0:u1 + 1] = c
-        rad[v0:v1 + 1, u0:u1 + 1] = mean_rad
-        return cov, rad
+        sub = np.zeros((len(hits.hit), 3))
+        sub[hits.hit] = np.einsum("nk,nkc->nc", hits.bary[hits.hit], L_vert[obj.faces[hits.tri[hits.hit]]])
+        return hits.average(sub)
 
     def _fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray) -> np.ndarray:
         """Values (len(missing),3) at pixels `missing`: mean of the known pixels in their 3x3
@@ -441,23 +439,21 @@ class Engine:
             self._cam_occ = Occluder(pm.vert_pos + lift, pm.tris, self.device)
         return self._cam_occ
 
-    def _object_irradiance(self, pts: np.ndarray, nrm: np.ndarray, proxy_occ: Occluder) -> np.ndarray:
-        """Irradiance/pi (N,3) at object surface points from every patch, self-occlusion included."""
+    def _object_irradiance(self, pts: np.ndarray, nrm: np.ndarray, proxy_occ: Occluder, B: np.ndarray
+                           ) -> np.ndarray:
+        """Irradiance/pi (N,3) at object surface points from patches of radiance B (P,3), with
+        self-occlusion."""
         pm = self.pre.patches
         G = transfer_matrix(pts, nrm, pm.corners, pm.normal, [self.scene_occ, proxy_occ], n_side=1,
                             eps=2e-3, device=self.device)
-        return G.astype(np.float64) @ self.B_src
+        return G.astype(np.float64) @ B
 
-    def _object_triangle_radiance(self, pv, pf, proxy_occ) -> np.ndarray:
-        """Outgoing radiance (T,3) of each proxy triangle, lit at its centroid by the room."""
+    def _object_triangle_radiance(self, obj: SceneObject, pv, pf, proxy_occ, B: np.ndarray) -> np.ndarray:
+        """Outgoing radiance (T,3) of each proxy triangle, lit at its centroid by patches of radiance B."""
         c = pv[pf].mean(1)
         n = np.cross(pv[pf[:, 1]] - pv[pf[:, 0]], pv[pf[:, 2]] - pv[pf[:, 0]])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        pm = self.pre.patches
-        G = transfer_matrix(c, n, pm.corners, pm.normal, [self.scene_occ, proxy_occ], n_side=1, eps=2e-3,
-                            device=self.device)
-        return self.scene.obj.albedo * (G.astype(np.float64) @ self.B_obj) if self.scene.obj is not None else \
-            0.5 * (G.astype(np.float64) @ self.B_obj)
+        return obj.albedo * self._object_irradiance(c, n, proxy_occ, B)
 
     def _object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius):
         """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi.
@@ -551,6 +547,40 @@ class Engine:
         rho_v = np.where(den[:, None] > 0, num / np.maximum(den, 1e-12)[:, None], albedo_v)
         L_i = rho_v * self.E_v
         return intensity_transfers(L_i, rho_v[:, None, :] * W_v, self.scene.response.to_levels)
+
+
+@dataclass
+class ObjectHits:
+    """Sub-pixel camera hits on the object inside the rectangle (u0, v0, u1, v1), s x s per pixel."""
+
+    H: int
+    W: int
+    s: int
+    rect: tuple[int, int, int, int]
+    tri: np.ndarray  # (n,) object triangle per sub-sample (-1 none)
+    bary: np.ndarray  # (n,3)
+    hit: np.ndarray  # (n,) bool: object seen (in front of the scene)
+
+    def average(self, sub: np.ndarray) -> np.ndarray:
+        """Mean of per-sub-sample values (n,3) over each pixel's hits -> (H,W,3)."""
+        u0, v0, u1, v1 = self.rect
+        out = np.zeros((self.H, self.W, 3))
+        if u1 < u0:
+            return out
+        hh, ww, s = v1 - v0 + 1, u1 - u0 + 1, self.s
+        hitm = self.hit.reshape(hh, s, ww, s)
+        total = (sub * self.hit[:, None]).reshape(hh, s, ww, s, 3).sum(axis=(1, 3))
+        out[v0:v1 + 1, u0:u1 + 1] = total / np.maximum(hitm.sum(axis=(1, 3)), 1)[..., None]
+        return out
+
+    def coverage(self) -> np.ndarray:
+        """Fraction (H,W) of each pixel's sub-samples that see the object."""
+        u0, v0, u1, v1 = self.rect
+        cov = np.zeros((self.H, self.W))
+        if u1 >= u0:
+            hh, ww, s = v1 - v0 + 1, u1 - u0 + 1, self.s
+            cov[v0:v1 + 1, u0:u1 + 1] = self.hit.reshape(hh, s, ww, s).mean(axis=(1, 3))
+        return cov
 
 
 def _window_pairs(H: int, W: int):

@@ -178,11 +178,16 @@ class ShadowMaps:
 
 
 def _is_closed(vertices: np.ndarray, triangles: np.ndarray) -> bool:
-    """True when every edge is shared by an even number of triangles once coincident vertices
-    are welded (flat-shaded and UV meshes duplicate vertices along seams; closed parts may touch
-    along an edge). Then every ray into the solid crosses a front face: back faces can be culled."""
+    """True when the welded mesh is closed and consistently wound: every directed edge a->b is
+    matched by as many b->a (flat-shaded and UV meshes duplicate vertices along seams, so
+    coincident vertices are welded first; closed parts may touch along an edge). Then every
+    ray into the solid crosses a front face and back faces can be culled."""
     _, weld = np.unique(np.round(np.asarray(vertices) / 1e-6).astype(np.int64), axis=0, return_inverse=True)
     t = weld.reshape(-1)[np.asarray(triangles, np.int64)]
-    e = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(e, axis=0, return_counts=True)
-    return bool(len(counts)) and bool(np.all(counts % 2 == 0))
+    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    e = e[e[:, 0] != e[:, 1]]
+    if len(e) == 0:
+        return False
+    fwd, cf = np.unique(e, axis=0, return_counts=True)
+    rev, cr = np.unique(e[:, ::-1], axis=0, return_counts=True)
+    return fwd.shape == rev.shape and bool(np.all(fwd == rev)) and bool(np.all(cf == cr))

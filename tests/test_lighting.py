@@ -125,6 +125,12 @@ def test_transfers_exact_for_each_set(demo_response, parity):
     ref = T(L_i - np.einsum("nsc,s->nc", L_ij, M))
     assert np.ptp(ref) > 50  # the case spans a good part of the response
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9)
+    # still exact when the set's transfers exceed the vertex radiance (the response clips at black)
+    S2 = intensity_transfers(L_i, 1.5 * L_ij * L_i[:, None, :] / L_ij.sum(1)[:, None, :], T)
+    got2 = T(L_i) - np.einsum("nsc,s->nc", S2, M)
+    ref2 = T(np.maximum(L_i - np.einsum("nsc,s->nc", 1.5 * L_ij * L_i[:, None, :] / L_ij.sum(1)[:, None, :], M), 0))
+    assert np.isfinite(S2).all() and np.all(S2 >= 0)
+    np.testing.assert_allclose(got2, ref2, rtol=0, atol=1e-9)
 
 
 def test_transfers_all_occluded_error_bounded(demo_response, record_property):
@@ -233,7 +239,7 @@ def test_select_sources_degenerate():
 # radiosity
 # ----------------------------------------------------------------------------------------------------------
 
-def _box_room_G(lo, hi, patch_size=0.25):
+def _box_room_G(lo, hi, device, patch_size=0.25):
     """Patch-centre transfer matrix of an empty closed box room (6 inward quads) via build_patches."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     quads = []
@@ -249,14 +255,15 @@ def _box_room_G(lo, hi, patch_size=0.25):
                 c = c[[0, 3, 2, 1]]
             quads.append(Quad(f"q{axis}{side}", c, n, np.full(3, 0.5), np.zeros(3)))
     pm = build_patches(Scene("box", Path("."), None, quads, None, None, None, lo, hi), patch_size, patch_size)
-    G = transfer_matrix(pm.centre, pm.normal, pm.corners, pm.normal, [Occluder(pm.vert_pos, pm.tris)], n_side=1)
+    G = transfer_matrix(pm.centre, pm.normal, pm.corners, pm.normal, [Occluder(pm.vert_pos, pm.tris, device)], n_side=1,
+                         device=device)
     np.fill_diagonal(G, 0.0)
     return pm, G
 
 
-def test_radiosity_furnace():
+def test_radiosity_furnace(device):
     # closed box, uniform albedo rho and emission E: B converges to E / (1 - rho); iterates follow the series
-    pm, G = _box_room_G([0, 0, 0], [2.0, 1.5, 1.0])
+    pm, G = _box_room_G([0, 0, 0], [2.0, 1.5, 1.0], device)
     P = pm.n_patches
     rho = np.array([0.3, 0.5, 0.8])
     E = np.array([1.0, 2.0, 0.5])
@@ -275,9 +282,9 @@ def test_radiosity_furnace():
         np.testing.assert_allclose(a, b, rtol=1e-12)
 
 
-def test_radiosity_nonuniform_monotone_and_shape_check():
+def test_radiosity_nonuniform_monotone_and_shape_check(device):
     # one emitting patch, random albedos: iterates are monotone and bounded by the furnace limit; bad shapes raise
-    pm, G = _box_room_G([0, 0, 0], [2.0, 1.5, 1.0], patch_size=0.5)
+    pm, G = _box_room_G([0, 0, 0], [2.0, 1.5, 1.0], device, patch_size=0.5)
     P = pm.n_patches
     rng = np.random.default_rng(60)
     albedo = rng.uniform(0.1, 0.9, (P, 3))

@@ -118,6 +118,13 @@ def test_unoccluded_transfer_equals_form_factor(device):
         assert G.dtype == np.float32 and G.shape == (60, 40)
         assert (ref > 1e-3).sum() > 200  # the sample actually exercises non-trivial form factors
         np.testing.assert_allclose(G, ref, rtol=2e-6, atol=1e-7)
+    # chunked evaluation (chunk smaller than N) reports progress per chunk and gives the same matrix
+    done = []
+    G3 = transfer_matrix(pts, nrm, quads, _quad_normal(quads), [], n_side=1, device=device, progress=done.append,
+                         chunk=16)
+    assert done == [16, 16, 16, 12]
+    np.testing.assert_array_equal(G3, transfer_matrix(pts, nrm, quads, _quad_normal(quads), [], n_side=1,
+                                                      device=device))
     # two empty occluders are the same as none
     empty = Occluder(None, None, device)
     assert empty.id == 0
