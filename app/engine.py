@@ -58,7 +58,7 @@ CACHE_VERSION = 3
 class EngineParams:
     """Knobs of the engine; every one trades accuracy against time (see bench/)."""
 
-    patch_size: float = 0.25  # m, receiver/source patches
+    patch_size: float = 0.18  # m, receiver/source patches (bench/bench_patch_size.py)
     emitter_patch_size: float = 0.1  # m, emitters are cut finer: one hard shadow per patch
     vis_side: int = 2  # visibility samples per patch side for receiver transfers (n^2 rays)
     bounces: int = 4  # light bounces the camera sees (the benchmark truth: 4)
