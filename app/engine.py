@@ -41,13 +41,15 @@ from kernels import runtime
 from kernels.composite import MaskedSum
 from kernels.raycast import cast_rays
 from kernels.shadowmap import ShadowMaps
+from kernels.shade import self_transfer
 from kernels.shafts import shaft_candidates
 from kernels.visibility import Occluder, emitter_sum, transfer_matrix
+from lighting.irradiance import RoomLight
 from lighting.radiosity import gather
 from lighting.sources import luminance, select_sources
 from lighting.transfer import intensity_transfers
 from recon.patches import PatchMesh, build_patches
-from recon.proxy import simplify
+from recon.proxy import simplify, subdivide
 from recon.scene import Scene, SceneObject
 
 log = logging.getLogger("photoar")
@@ -71,6 +73,9 @@ class EngineParams:
     second_order: bool = True  # re-propagate the change of patch radiance once
     proxy_faces: int = 300  # target size of the occluder proxy
     supersample: int = 2  # object coverage rays per pixel side
+    shading: str = "prt"  # prt: SH9 volume (indirect) x self-occlusion transfer + exact emitters; gather
+    volume_spacing: float = 0.25  # m, SH irradiance volume grid
+    prt_dirs: int = 128  # directions per vertex for the object's self-occlusion transfer
 
     def cache_key(self) -> dict:
         return {k: getattr(self, k) for k in ("patch_size", "emitter_patch_size", "vis_side", "bounces")}
@@ -146,8 +151,10 @@ class Engine:
         self.cache_dir = Path(cache_dir) if cache_dir else None
         t0 = time.perf_counter()
         self.pre, self.cache_hit = self._precompute()
-        self.precompute_s = time.perf_counter() - t0
         self._setup()
+        if self.params.shading == "prt":
+            self.room_light  # the SH volume is per-scene work too
+        self.precompute_s = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ precompute
     def _precompute(self) -> tuple[Precomputed, bool]:
@@ -230,6 +237,7 @@ class Engine:
         with np.errstate(divide="ignore", invalid="ignore"):
             self.rho_x = np.where(self.E_x > 0, np.minimum(self.L_b / self.E_x, 1.0), 0.0)
         self.maps = ShadowMaps(self.params.batch, self.params.map_res, device=dev)
+        self._room_light = None
         self.near_factor = 2.0  # object light per pixel within this many bounding radii
         # occlusion masks: every pixel within mask_near_factor bounding radii of the object, farther
         # out (soft, slowly varying shadows) every second pixel in x and y, the rest filled in from
@@ -267,7 +275,8 @@ class Engine:
         t = tick("proxy", t)
 
         # ---- object pixels: coverage and depth against the scene model
-        hits = self._object_hits(obj)
+        shade_mesh = subdivide(obj.vertices, obj.normals, obj.faces, max_edge=0.08, max_faces=3000)
+        hits = self._object_hits(shade_mesh[0], shade_mesh[2])
         cov = hits.coverage()
         t = tick("object", t)
 
@@ -313,7 +322,10 @@ class Engine:
         # ---- the object lit by the room, whose patches in its shadow send it less light
         dB_shadow = np.zeros((pm.n_patches, 3))
         dB_shadow[cen_sel] = -pm.albedo[cen_sel] * O_cen
-        obj_rad = self._shade_object(obj, hits, pv, pn, proxy_occ, self.B_src + dB_shadow)
+        if p.shading == "prt":
+            obj_rad = self._shade_object_prt(obj, shade_mesh, hits, proxy_occ, dB_shadow)
+        else:
+            obj_rad = self._shade_object(obj, hits, pv, pn, proxy_occ, self.B_src + dB_shadow, shade_mesh)
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres
@@ -368,11 +380,11 @@ class Engine:
         return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats)
 
     # ------------------------------------------------------------------ pieces
-    def _object_hits(self, obj: SceneObject) -> "ObjectHits":
-        """Sub-pixel camera rays against the object, depth-tested against the scene model."""
+    def _object_hits(self, verts: np.ndarray, faces: np.ndarray) -> "ObjectHits":
+        """Sub-pixel camera rays against the object mesh, depth-tested against the scene model."""
         cam = self.scene.camera
         H, W, s = cam.height, cam.width, max(1, self.params.supersample)
-        uv, z = cam.project(obj.vertices)
+        uv, z = cam.project(verts)
         if np.any(z <= 1e-6):
             u0, v0, u1, v1 = 0, 0, W - 1, H - 1
         else:
@@ -387,11 +399,55 @@ class Engine:
         U, V = np.meshgrid(uu, vv)
         d = np.stack([U, V, np.ones_like(U)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        tri, bary, depth = cast_rays(Occluder(obj.vertices, obj.faces, self.device), cam.centre, d)
+        tri, bary, depth = cast_rays(Occluder(verts, faces, self.device), cam.centre, d)
         _, _, scene_depth = cast_rays(self.scene_occ_cam(), cam.centre, d)
         return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, (tri >= 0) & (depth < scene_depth))
 
-    def _shade_object(self, obj: SceneObject, hits: "ObjectHits", pv, pn, proxy_occ, B: np.ndarray) -> np.ndarray:
+    @property
+    def room_light(self) -> RoomLight:
+        """SH9 volume of the indirect light plus the emitters (built on first use, ~2-5 s)."""
+        if self._room_light is None:
+            pm, sc = self.pre.patches, self.scene
+            self._room_light = RoomLight(pm, self.B_src, sc.room_min, sc.room_max, self.scene_occ,
+                                         self.params.volume_spacing, self.device)
+        return self._room_light
+
+    def _shade_object_prt(self, obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
+        """Object radiance (H,W,3): albedo x (indirect SH9 x self-occlusion transfer + exact emitters
+        + the change of the room's patches in the object's shadow), per shading vertex."""
+        out = np.zeros((hits.H, hits.W, 3))
+        if not hits.hit.any():
+            return out
+        v, n, f = mesh
+        pm = self.pre.patches
+        T, hit_face, hit_bary = self_transfer(v, n, Occluder(v, f, self.device), self.params.prt_dirs,
+                                              device=self.device)
+        E = np.einsum("vk,vkc->vc", T.astype(np.float64), self.room_light.indirect_sh(v))
+        E += self.room_light.direct(v, n, [proxy_occ], n_side=1)
+        # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
+        loss = np.abs(luminance(dB)) * pm.area
+        order = np.argsort(-loss)
+        order = order[loss[order] > 0]
+        keep = int(np.searchsorted(np.cumsum(loss[order]), 0.95 * loss.sum())) + 1 if len(order) else 0
+        changed = order[:keep]
+        if len(changed):
+            G = transfer_matrix(v, n, pm.corners[changed], pm.normal[changed], [self.scene_occ, proxy_occ],
+                                n_side=1, eps=2e-3, device=self.device)
+            E += G.astype(np.float64) @ dB[changed]
+        L_vert = obj.albedo * np.maximum(E, 0.0)
+        # one bounce between the object's own parts: occluded directions see the object's radiance
+        hit = hit_face >= 0
+        if hit.any():
+            L_hit = np.einsum("mk,mkc->mc", hit_bary[hit], L_vert[f[hit_face[hit]]])
+            bounce = np.zeros(hit_face.shape + (3,))
+            bounce[hit] = L_hit
+            L_vert = L_vert + obj.albedo * bounce.mean(axis=1)
+        sub = np.zeros((len(hits.hit), 3))
+        sub[hits.hit] = np.einsum("nk,nkc->nc", hits.bary[hits.hit], L_vert[f[hits.tri[hits.hit]]])
+        return hits.average(sub)
+
+    def _shade_object(self, obj: SceneObject, hits: "ObjectHits", pv, pn, proxy_occ, B: np.ndarray,
+                      mesh) -> np.ndarray:
         """Object radiance (H,W,3), averaged over each pixel's covered sub-samples.
 
         Diffuse: L = albedo * E at the proxy's vertices, E gathered from every patch of radiance B
@@ -400,14 +456,12 @@ class Engine:
         out = np.zeros((hits.H, hits.W, 3))
         if not hits.hit.any():
             return out
+        v, n, f = mesh
         E_obj = self._object_irradiance(pv, pn, proxy_occ, B)
-        if len(pv) == len(obj.vertices) and np.allclose(pv, obj.vertices):
-            E_full = E_obj
-        else:
-            E_full = _interpolate_on_surface(pv, pn, E_obj, obj.vertices, obj.normals)
+        E_full = _interpolate_on_surface(pv, pn, E_obj, v, n)
         L_vert = obj.albedo * E_full
         sub = np.zeros((len(hits.hit), 3))
-        sub[hits.hit] = np.einsum("nk,nkc->nc", hits.bary[hits.hit], L_vert[obj.faces[hits.tri[hits.hit]]])
+        sub[hits.hit] = np.einsum("nk,nkc->nc", hits.bary[hits.hit], L_vert[f[hits.tri[hits.hit]]])
         return hits.average(sub)
 
     def _fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray) -> np.ndarray:

@@ -108,7 +108,7 @@ def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.n
     occ = list(occluders) + [Occluder(None, None, device)] * (2 - len(occluders))
     polys = wp.array(np.asarray(patch_corners, np.float64), dtype=wp.vec3d, device=device)
     pn = wp.array(np.asarray(patch_normals, np.float32), dtype=wp.vec3, device=device)
-    for s in range(0, n, chunk):
+    def run(s: int) -> int:
         e = min(n, s + chunk)
         res = wp.zeros((e - s, m), dtype=wp.float32, device=device)
         wp.launch(_transfer_kernel, dim=(e - s, m),
@@ -117,8 +117,14 @@ def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.n
                           polys, pn, wp.uint64(occ[0].id), wp.uint64(occ[1].id), int(n_side), float(eps)],
                   outputs=[res], device=device)
         out[s:e] = res.numpy()
+        return e - s
+
+    starts = list(range(0, n, chunk))
+    for k in range(0, len(starts), 2):  # two chunks at a time: one per core on the CPU
+        done = runtime.run_parallel([lambda s=s: run(s) for s in starts[k:k + 2]])
         if progress is not None:
-            progress(e - s)
+            for d in done:
+                progress(d)
     return out
 
 

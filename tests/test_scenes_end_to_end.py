@@ -37,6 +37,15 @@ def test_composite_matches_truth(composites, name):
 
 
 @pytest.mark.parametrize("name", SCENES)
+def test_object_appearance(composites, name):
+    # the object lit by the room (SH9 volume x self-occlusion + emitters + one self-bounce)
+    scene, dst = composites[name]
+    s = score(scene, dst / "composite.png")
+    assert s["rmse_object"] <= 6.0, s
+    assert abs(s["bias_object"]) <= 3.0, s
+
+
+@pytest.mark.parametrize("name", SCENES)
 def test_report_and_outputs(composites, name):
     # report.json carries the fields users and benchmarks read; outputs are complete
     _, dst = composites[name]
