@@ -412,36 +412,45 @@ class Engine:
                                          self.params.volume_spacing, self.device)
         return self._room_light
 
-    def _shade_object_prt(self, obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
-        """Object radiance (H,W,3): albedo x (indirect SH9 x self-occlusion transfer + exact emitters
-        + the change of the room's patches in the object's shadow), per shading vertex."""
-        out = np.zeros((hits.H, hits.W, 3))
-        if not hits.hit.any():
-            return out
+    def object_vertex_radiance(self, obj: SceneObject, mesh, proxy_occ: Occluder,
+                               dB: np.ndarray | None = None) -> np.ndarray:
+        """Outgoing radiance (V,3) at the shading mesh's vertices (mesh = (verts, normals, faces)).
+
+        albedo x (indirect SH9 x self-occlusion transfer + exact emitters + dB, the change of the
+        room's patches in the object's shadow), plus one bounce between the object's own parts.
+        """
         v, n, f = mesh
         pm = self.pre.patches
         T, hit_face, hit_bary = self_transfer(v, n, Occluder(v, f, self.device), self.params.prt_dirs,
                                               device=self.device)
         E = np.einsum("vk,vkc->vc", T.astype(np.float64), self.room_light.indirect_sh(v))
         E += self.room_light.direct(v, n, [proxy_occ], n_side=1)
-        # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
-        loss = np.abs(luminance(dB)) * pm.area
-        order = np.argsort(-loss)
-        order = order[loss[order] > 0]
-        keep = int(np.searchsorted(np.cumsum(loss[order]), 0.95 * loss.sum())) + 1 if len(order) else 0
-        changed = order[:keep]
-        if len(changed):
-            G = transfer_matrix(v, n, pm.corners[changed], pm.normal[changed], [self.scene_occ, proxy_occ],
-                                n_side=1, eps=2e-3, device=self.device)
-            E += G.astype(np.float64) @ dB[changed]
+        if dB is not None:
+            # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
+            loss = np.abs(luminance(dB)) * pm.area
+            order = np.argsort(-loss)
+            order = order[loss[order] > 0]
+            keep = int(np.searchsorted(np.cumsum(loss[order]), 0.95 * loss.sum())) + 1 if len(order) else 0
+            changed = order[:keep]
+            if len(changed):
+                G = transfer_matrix(v, n, pm.corners[changed], pm.normal[changed], [self.scene_occ, proxy_occ],
+                                    n_side=1, eps=2e-3, device=self.device)
+                E += G.astype(np.float64) @ dB[changed]
         L_vert = obj.albedo * np.maximum(E, 0.0)
         # one bounce between the object's own parts: occluded directions see the object's radiance
         hit = hit_face >= 0
         if hit.any():
-            L_hit = np.einsum("mk,mkc->mc", hit_bary[hit], L_vert[f[hit_face[hit]]])
             bounce = np.zeros(hit_face.shape + (3,))
-            bounce[hit] = L_hit
+            bounce[hit] = np.einsum("mk,mkc->mc", hit_bary[hit], L_vert[f[hit_face[hit]]])
             L_vert = L_vert + obj.albedo * bounce.mean(axis=1)
+        return L_vert
+
+    def _shade_object_prt(self, obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
+        """Object radiance (H,W,3) from `object_vertex_radiance`, interpolated at the camera hits."""
+        if not hits.hit.any():
+            return np.zeros((hits.H, hits.W, 3))
+        L_vert = self.object_vertex_radiance(obj, mesh, proxy_occ, dB)
+        f = mesh[2]
         sub = np.zeros((len(hits.hit), 3))
         sub[hits.hit] = np.einsum("nk,nkc->nc", hits.bary[hits.hit], L_vert[f[hits.tri[hits.hit]]])
         return hits.average(sub)

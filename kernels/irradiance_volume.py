@@ -135,13 +135,15 @@ def grid_points(origin: np.ndarray, cell: np.ndarray, shape) -> np.ndarray:
 
 def build_volume(room_min: np.ndarray, room_max: np.ndarray, spacing: float, corners: np.ndarray,
                  normals: np.ndarray, radiance: np.ndarray, occluder: Occluder, tri_patch: np.ndarray,
-                 device: str | None = None) -> IrradianceVolume:
-    """Gather the SH9 volume from patches (P,4,3) / normals (P,3) / radiance (P,3); spacing in m."""
+                 device: str | None = None, shape: tuple[int, int, int] | None = None) -> IrradianceVolume:
+    """Gather the SH9 volume from patches (P,4,3) / normals (P,3) / radiance (P,3); spacing in m
+    (or an explicit grid `shape`, e.g. the seed's 20x10x20)."""
     if spacing <= 0:
         raise ValueError("volume spacing must be positive")
     device = runtime.device(device)
     size = np.asarray(room_max, np.float64) - room_min
-    shape = tuple(int(max(2, np.ceil(s / spacing - 1e-9))) for s in size)
+    if shape is None:
+        shape = tuple(int(max(2, np.ceil(s / spacing - 1e-9))) for s in size)
     cell = size / np.array(shape)
     pts = grid_points(np.asarray(room_min, np.float64), cell, shape)
     G = len(pts)

@@ -259,3 +259,21 @@ def check_object_inside(obj: SceneObject, room_min: np.ndarray, room_max: np.nda
     if np.any(lo < room_min - tol) or np.any(hi > room_max + tol):
         raise SceneError(f"{where}: object (bbox {np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()}) "
                          f"lies outside the room {room_min.tolist()} .. {room_max.tolist()}")
+
+
+def furniture_boxes(scene: Scene) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(lo, hi) corners of each furniture box, rebuilt from its faces (names 'box.x-' etc.)."""
+    groups: dict[str, list[np.ndarray]] = {}
+    for q in scene.quads:
+        if q.role == "furniture":
+            groups.setdefault(q.name.rsplit(".", 1)[0], []).append(q.corners)
+    return [(np.min(np.concatenate(c), 0), np.max(np.concatenate(c), 0)) for c in groups.values()]
+
+
+def inside_furniture(scene: Scene, points: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    """(N,) bool: points inside (or within `margin` m of) a furniture box."""
+    p = np.asarray(points, np.float64)
+    out = np.zeros(len(p), bool)
+    for lo, hi in furniture_boxes(scene):
+        out |= np.all((p > lo - margin) & (p < hi + margin), axis=1)
+    return out

@@ -75,15 +75,9 @@ def test_volume_against_brute_force(window_light):
     rng = np.random.default_rng(3)
     pts = rng.uniform(scene.room_min + 0.05, scene.room_max - 0.05, (400, 3))
     pts = pts[light.volume.lookup(pts).any(axis=(1, 2))]
-    # keep points outside the furniture boxes
-    inside = np.zeros(len(pts), bool)
-    boxes = [q for q in scene.quads if q.role == "furniture"]
-    lo = np.array([np.min([b.corners.min(0) for b in boxes if b.name.split(".")[0] == nm], axis=0)
-                   for nm in sorted({b.name.split(".")[0] for b in boxes})])
-    hi = np.array([np.max([b.corners.max(0) for b in boxes if b.name.split(".")[0] == nm], axis=0)
-                   for nm in sorted({b.name.split(".")[0] for b in boxes})])
-    for a, b in zip(lo, hi):
-        inside |= np.all((pts > a - 0.01) & (pts < b + 0.01), axis=1)
+    from recon.scene import inside_furniture
+
+    inside = inside_furniture(scene, pts, margin=0.01)
     pts = pts[~inside][:50]
     n = rng.normal(size=(len(pts), 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -109,3 +103,36 @@ def test_volume_hard_points(window_light):
     est = luminance(light.irradiance(pts, n))
     assert np.all(np.isfinite(est)) and np.all(est >= 0)
     assert np.all(np.abs(est - ref) <= 0.25 * ref), (est, ref)
+
+
+def test_object_moved_up_changes_shading_like_brute_force(window_light):
+    # raising the chair 0.5 m changes its mean shading in the direction that a brute-force gather
+    # over the same vertices predicts (measured: ours +14 %, brute force +31 %; the SH path also
+    # carries the self-bounce, which does not move with height)
+    import copy
+
+    from kernels.visibility import Occluder, transfer_matrix
+    from lighting.sources import luminance
+    from recon.proxy import simplify, subdivide
+
+    scene, eng = window_light
+    pm = eng.pre.patches
+
+    def both(dy):
+        obj = copy.copy(scene.obj)
+        obj.vertices = scene.obj.vertices + [0.0, dy, 0.0]
+        mesh = subdivide(obj.vertices, obj.normals, obj.faces, max_edge=0.08, max_faces=3000)
+        pv, pf, _ = simplify(obj.vertices, obj.faces)
+        proxy = Occluder(pv, pf)
+        ours = eng.object_vertex_radiance(obj, mesh, proxy)
+        v, n, _ = mesh
+        G = transfer_matrix(v, n, pm.corners, pm.normal, [eng.scene_occ, proxy], n_side=2, eps=2e-3)
+        brute = obj.albedo * (G.astype(float) @ eng.B_src)
+        return luminance(ours).mean(), luminance(brute).mean()
+
+    ours0, brute0 = both(0.0)
+    ours1, brute1 = both(0.5)
+    d_ours, d_brute = ours1 / ours0 - 1, brute1 / brute0 - 1
+    assert abs(d_brute) > 0.02  # the move matters in this room
+    assert np.sign(d_ours) == np.sign(d_brute)
+    assert 0.25 < d_ours / d_brute < 4.0, (d_ours, d_brute)
