@@ -29,7 +29,7 @@ import os
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -676,6 +676,3 @@ def _interpolate_on_surface(src_p, src_n, values, dst_p, dst_n, k: int = 8) -> n
     w = np.where(w_sum > 1e-12, w / np.maximum(w_sum, 1e-12), 1.0 / w.shape[1])
     return np.einsum("nk,nkc->nc", w, values[idx])
 
-
-def params_dict(p: EngineParams) -> dict:
-    return asdict(p)
