@@ -73,7 +73,6 @@ class EngineParams:
     second_order: bool = True  # re-propagate the change of patch radiance once
     proxy_faces: int = 300  # target size of the occluder proxy
     supersample: int = 2  # object coverage rays per pixel side
-    shading: str = "prt"  # prt: SH9 volume (indirect) x self-occlusion transfer + exact emitters; gather
     volume_spacing: float = 0.25  # m, SH irradiance volume grid
     prt_dirs: int = 128  # directions per vertex for the object's self-occlusion transfer
 
@@ -152,8 +151,7 @@ class Engine:
         t0 = time.perf_counter()
         self.pre, self.cache_hit = self._precompute()
         self._setup()
-        if self.params.shading == "prt":
-            self.room_light  # the SH volume is per-scene work too
+        self.room_light  # the SH volume is per-scene work too
         self.precompute_s = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ precompute
@@ -161,6 +159,7 @@ class Engine:
         p = self.params
         scene = self.scene
         patches = build_patches(scene, p.patch_size, p.emitter_patch_size)
+        self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device)
         key = _hash_scene(scene, p)
         cache = self.cache_dir / f"{scene.name}-{key[:20]}.npz" if self.cache_dir else None
         if cache is not None and cache.is_file():
@@ -175,18 +174,8 @@ class Engine:
         t0 = time.perf_counter()
         dev = self.device
         solid = ~patches.is_emitter
-        tri_solid = solid[patches.tri_patch]
-        self.scene_occ = Occluder(patches.vert_pos, patches.tris[tri_solid], dev)
-
-        # ID buffer of the scene model (emitters lifted 1 mm off the wall they sit on)
-        lift = np.zeros_like(patches.vert_pos)
-        emit_tris = patches.tris[~tri_solid]
-        if len(emit_tris):
-            lift[emit_tris.ravel()] = patches.vert_normal[emit_tris.ravel()] * 1e-3
-        cam_mesh = Occluder(patches.vert_pos + lift, patches.tris, dev)
         cam = scene.camera
-        dirs = cam.pixel_rays().reshape(-1, 3)
-        pix_tri, pix_bary, pix_depth = cast_rays(cam_mesh, cam.centre, dirs)
+        pix_tri, pix_bary, pix_depth = cast_rays(self.cam_occ, cam.centre, cam.pixel_rays().reshape(-1, 3))
 
         seen = np.unique(patches.tri_patch[pix_tri[pix_tri >= 0]])
         seen = seen[solid[seen]]
@@ -213,9 +202,6 @@ class Engine:
         """Per-scene arrays derived from the precompute, shared by every frame."""
         pre, pm, scene = self.pre, self.pre.patches, self.scene
         dev = self.device
-        if not hasattr(self, "scene_occ"):
-            solid = ~pm.is_emitter
-            self.scene_occ = Occluder(pm.vert_pos, pm.tris[solid[pm.tri_patch]], dev)
         cam = scene.camera
         self.dirs = cam.pixel_rays().reshape(-1, 3)
         self.L_b = scene.response.to_radiance(scene.photo).reshape(-1, 3)  # (H*W,3)
@@ -229,7 +215,7 @@ class Engine:
         self.recv_pix = hit & (self.pix_rows.min(1) >= 0) & ~pm.is_emitter[np.maximum(self.pix_patch, 0)]
         b = self.params.bounces
         self.B_src = pre.B[b - 1]  # what receivers gather (one bounce less than the camera sees)
-        self.B_obj = pre.B[max(b - 2, 0)]  # lights light that leaves the object again
+        self.B_obj = pre.B[max(b - 2, 0)]  # light that reaches the camera via the object has one bounce less
         self.E_v = pre.G_v.astype(np.float64) @ self.B_src  # (Vr,3) irradiance/pi at receiver vertices
         self.E_x = np.zeros_like(self.L_b)
         rp = self.recv_pix
@@ -268,7 +254,7 @@ class Engine:
             return now
 
         t = time.perf_counter()
-        pv, pf, pn = simplify(obj.vertices, obj.faces, p.proxy_faces)
+        pv, pf, _ = simplify(obj.vertices, obj.faces, p.proxy_faces)
         proxy_occ = Occluder(pv, pf, self.device)
         centre = 0.5 * (pv.min(0) + pv.max(0))
         radius = float(np.linalg.norm(pv - centre, axis=1).max())
@@ -322,10 +308,7 @@ class Engine:
         # ---- the object lit by the room, whose patches in its shadow send it less light
         dB_shadow = np.zeros((pm.n_patches, 3))
         dB_shadow[cen_sel] = -pm.albedo[cen_sel] * O_cen
-        if p.shading == "prt":
-            obj_rad = self._shade_object_prt(obj, shade_mesh, hits, proxy_occ, dB_shadow)
-        else:
-            obj_rad = self._shade_object(obj, hits, pv, pn, proxy_occ, self.B_src + dB_shadow, shade_mesh)
+        obj_rad = self._shade_object(obj, shade_mesh, hits, proxy_occ, dB_shadow)
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres
@@ -400,7 +383,7 @@ class Engine:
         d = np.stack([U, V, np.ones_like(U)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         tri, bary, depth = cast_rays(Occluder(verts, faces, self.device), cam.centre, d)
-        _, _, scene_depth = cast_rays(self.scene_occ_cam(), cam.centre, d)
+        _, _, scene_depth = cast_rays(self.cam_occ, cam.centre, d)
         return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, (tri >= 0) & (depth < scene_depth))
 
     @property
@@ -445,30 +428,12 @@ class Engine:
             L_vert = L_vert + obj.albedo * bounce.mean(axis=1)
         return L_vert
 
-    def _shade_object_prt(self, obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
+    def _shade_object(self, obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
         """Object radiance (H,W,3) from `object_vertex_radiance`, interpolated at the camera hits."""
         if not hits.hit.any():
             return np.zeros((hits.H, hits.W, 3))
         L_vert = self.object_vertex_radiance(obj, mesh, proxy_occ, dB)
         f = mesh[2]
-        sub = np.zeros((len(hits.hit), 3))
-        sub[hits.hit] = np.einsum("nk,nkc->nc", hits.bary[hits.hit], L_vert[f[hits.tri[hits.hit]]])
-        return hits.average(sub)
-
-    def _shade_object(self, obj: SceneObject, hits: "ObjectHits", pv, pn, proxy_occ, B: np.ndarray,
-                      mesh) -> np.ndarray:
-        """Object radiance (H,W,3), averaged over each pixel's covered sub-samples.
-
-        Diffuse: L = albedo * E at the proxy's vertices, E gathered from every patch of radiance B
-        with the room and the object itself as occluders, carried to the full mesh and interpolated.
-        """
-        out = np.zeros((hits.H, hits.W, 3))
-        if not hits.hit.any():
-            return out
-        v, n, f = mesh
-        E_obj = self._object_irradiance(pv, pn, proxy_occ, B)
-        E_full = _interpolate_on_surface(pv, pn, E_obj, v, n)
-        L_vert = obj.albedo * E_full
         sub = np.zeros((len(hits.hit), 3))
         sub[hits.hit] = np.einsum("nk,nkc->nc", hits.bary[hits.hit], L_vert[f[hits.tri[hits.hit]]])
         return hits.average(sub)
@@ -491,16 +456,6 @@ class Engine:
             acc[ok_dst[good]] += val[ok_src[good]]
             cnt[ok_dst[good]] += 1
         return acc[missing] / np.maximum(cnt[missing], 1)[:, None]
-
-    def scene_occ_cam(self) -> Occluder:
-        """Scene mesh for camera depth tests (emitters included, lifted off their walls)."""
-        if not hasattr(self, "_cam_occ"):
-            pm = self.pre.patches
-            lift = np.zeros_like(pm.vert_pos)
-            et = pm.tris[pm.is_emitter[pm.tri_patch]].ravel()
-            lift[et] = pm.vert_normal[et] * 1e-3
-            self._cam_occ = Occluder(pm.vert_pos + lift, pm.tris, self.device)
-        return self._cam_occ
 
     def _object_irradiance(self, pts: np.ndarray, nrm: np.ndarray, proxy_occ: Occluder, B: np.ndarray
                            ) -> np.ndarray:
@@ -646,6 +601,17 @@ class ObjectHits:
         return cov
 
 
+def _scene_meshes(patches: PatchMesh, device: str) -> tuple[Occluder, Occluder]:
+    """(occluder for light: non-emitting patches; camera mesh: every patch, emitters lifted 1 mm
+    off the wall they sit on so the ID buffer sees them rather than the wall)."""
+    solid_tri = ~patches.is_emitter[patches.tri_patch]
+    lift = np.zeros_like(patches.vert_pos)
+    emit = patches.tris[~solid_tri].ravel()
+    lift[emit] = patches.vert_normal[emit] * 1e-3
+    return (Occluder(patches.vert_pos, patches.tris[solid_tri], device),
+            Occluder(patches.vert_pos + lift, patches.tris, device))
+
+
 def _window_pairs(H: int, W: int):
     """(dy, dx, src, dst) flat pixel index pairs for every offset of a 3x3 window (cached)."""
     key = (H, W)
@@ -662,17 +628,3 @@ def _window_pairs(H: int, W: int):
 
 
 _WINDOW_CACHE: dict = {}
-
-
-def _interpolate_on_surface(src_p, src_n, values, dst_p, dst_n, k: int = 8) -> np.ndarray:
-    """Carry per-vertex values from a proxy to the full mesh: inverse-distance weights over the k
-    nearest proxy vertices, restricted to those facing the same way (normals within ~60 deg)."""
-    d, idx = cKDTree(src_p).query(dst_p, k=min(k, len(src_p)))
-    d = d.reshape(len(dst_p), -1)
-    idx = idx.reshape(len(dst_p), -1)
-    facing = np.clip((src_n[idx] * dst_n[:, None, :]).sum(-1), 0.0, 1.0)
-    w = facing ** 4 / (d + 1e-4)
-    w_sum = w.sum(1, keepdims=True)
-    w = np.where(w_sum > 1e-12, w / np.maximum(w_sum, 1e-12), 1.0 / w.shape[1])
-    return np.einsum("nk,nkc->nc", w, values[idx])
-
