@@ -35,6 +35,16 @@ def score(shared: Path, scene_dir: Path, png: Path) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def scored_row(shared: Path, scene_dir: Path, png: Path, frame, **first) -> dict:
+    """Write the frame's picture, score it against the truth, and return a table row that starts
+    with `first` and ends with frame time and the scorer's figures."""
+    write_png(png, frame.pixels)
+    s = score(shared, scene_dir, png)
+    return {**first, "frame_s": frame.stats["frame_s"], "energy_ratio": s["energy_ratio"],
+            "rmse_affected": s["rmse_affected"], "rmse_untouched": s["rmse_affected_if_untouched"],
+            "spurious": s["spurious"], "rmse_object": s["rmse_object"]}
+
+
 def ray_throughput(engine: Engine, n: int = 1_000_000, seed: int = 0) -> dict:
     """Mrays/s of segment occlusion tests inside the room: Warp kernel vs Open3D/Embree."""
     import open3d as o3d
@@ -86,17 +96,12 @@ def main() -> None:
             engine.params.passes = passes or None
             engine.render(scene.obj)  # warm: kernels compiled, caches filled
             frame = engine.render(scene.obj)
-            png = a.out / f"{name}_p{passes}.png"
-            write_png(png, frame.pixels)
-            s = score(a.shared, scene_dir, png)
-            row = {"scene": name, "passes": frame.stats["passes"], "precompute_s": engine.precompute_s,
-                   "frame_s": frame.stats["frame_s"], "masks_s": frame.stats["timings"]["masks"],
-                   "energy_ratio": s["energy_ratio"], "rmse_affected": s["rmse_affected"],
-                   "rmse_untouched": s["rmse_affected_if_untouched"], "spurious": s["spurious"],
-                   "rmse_object": s["rmse_object"]}
+            row = scored_row(a.shared, scene_dir, a.out / f"{name}_p{passes}.png", frame, scene=name,
+                             passes=frame.stats["passes"], precompute_s=engine.precompute_s,
+                             masks_s=frame.stats["timings"]["masks"])
             results.append(row)
-            xs.append(frame.stats["frame_s"])
-            ys.append(s["rmse_affected"])
+            xs.append(row["frame_s"])
+            ys.append(row["rmse_affected"])
             print(table([row], list(row)), flush=True)
         curves[name] = (xs, ys)
     if not results:

@@ -17,9 +17,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.engine import Engine, EngineParams  # noqa: E402
-from app.io import write_png  # noqa: E402
 from app.report import plot_xy, table  # noqa: E402
-from bench.bench_engine import score  # noqa: E402
+from bench.bench_engine import scored_row  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
 
@@ -44,17 +43,11 @@ def main() -> None:
                 engine = Engine(scene, EngineParams(patch_size=size), cache_dir=cache, quiet=True)
             engine.render(scene.obj)
             frame = engine.render(scene.obj)
-            png = a.out / f"{name}_patch{size}.png"
-            write_png(png, frame.pixels)
-            s = score(a.shared, scene_dir, png)
-            row = {"scene": name, "patch_m": size, "patches": frame.stats["n_patches"],
-                   "precompute_s": engine.pre.seconds, "frame_s": frame.stats["frame_s"],
-                   "energy_ratio": s["energy_ratio"], "rmse_affected": s["rmse_affected"],
-                   "rmse_untouched": s["rmse_affected_if_untouched"], "spurious": s["spurious"],
-                   "rmse_object": s["rmse_object"]}
+            row = scored_row(a.shared, scene_dir, a.out / f"{name}_patch{size}.png", frame, scene=name,
+                             patch_m=size, patches=frame.stats["n_patches"], precompute_s=engine.pre.seconds)
             rows.append(row)
-            xs.append(frame.stats["frame_s"])
-            ys.append(s["rmse_affected"])
+            xs.append(row["frame_s"])
+            ys.append(row["rmse_affected"])
             print(table([row], list(row)), flush=True)
         curves[name] = (xs, ys)
     if rows:
