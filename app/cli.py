@@ -9,6 +9,7 @@ nothing is written to --out.
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 from importlib import resources
@@ -17,6 +18,12 @@ from pathlib import Path
 from app.engine import EngineParams
 
 log = logging.getLogger("photoar")
+
+# Sub-commands that live in their own module. Each module defines `register(sub)`, which adds
+# its parser and sets `run=<callable(args) -> int>` with `set_defaults`; errors are raised as
+# ValueError / FileNotFoundError / RuntimeError with a message that names the file.
+COMMAND_MODULES: tuple[str, ...] = (
+)
 
 
 def _positive_int(s: str) -> int:
@@ -80,6 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="composite the bundled demo scene and print where the picture is")
     d.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default %(default)s)")
     _add_engine_args(d)
+
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
     return ap
 
 
@@ -95,7 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     from recon.scene import SceneError
 
     try:
-        runtime.device(a.device)
+        runtime.device(getattr(a, "device", None))
+        if getattr(a, "run", None) is not None:
+            return int(a.run(a) or 0)
         params = _params(a)
         from app import composite
 
