@@ -60,6 +60,9 @@ def _add_engine_args(p: argparse.ArgumentParser) -> None:
                    help="share of total patch power kept as shadow sources (default %(default)s)")
     g.add_argument("--patch-size", type=_positive_float, default=d.patch_size, help="metres (default %(default)s)")
     g.add_argument("--map-res", type=_positive_int, default=d.map_res, help="shadow-map size (default %(default)s)")
+    g.add_argument("--specular", type=float, default=d.specular,
+                   help="k_s of the object's Phong-like specular lobe, in [0, 1] (default %(default)s: Lambertian)")
+    g.add_argument("--shininess", type=float, default=d.shininess, help="Phong exponent (default %(default)s)")
     g.add_argument("--no-object-light", action="store_true", help="ignore light the object reflects onto the room")
     g.add_argument("--no-second-order", action="store_true", help="skip re-propagating the object's effect")
     g.add_argument("--cache", type=Path, default=None,
@@ -69,7 +72,8 @@ def _add_engine_args(p: argparse.ArgumentParser) -> None:
 
 def _params(a: argparse.Namespace) -> EngineParams:
     return EngineParams(mode=a.mode, passes=a.passes, source_fraction=a.source_fraction, patch_size=a.patch_size,
-                        map_res=a.map_res, object_light=not a.no_object_light, second_order=not a.no_second_order)
+                        map_res=a.map_res, specular=a.specular, shininess=a.shininess,
+                        object_light=not a.no_object_light, second_order=not a.no_second_order)
 
 
 def build_parser() -> argparse.ArgumentParser:

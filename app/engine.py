@@ -44,6 +44,7 @@ from kernels.shadowmap import ShadowMaps
 from kernels.shade import self_transfer
 from kernels.shafts import shaft_candidates
 from kernels.visibility import Occluder, emitter_sum, transfer_matrix
+from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from lighting.irradiance import RoomLight
 from lighting.radiosity import gather
 from lighting.sources import luminance, select_sources
@@ -75,6 +76,9 @@ class EngineParams:
     supersample: int = 2  # object coverage rays per pixel side
     volume_spacing: float = 0.25  # m, SH irradiance volume grid
     prt_dirs: int = 128  # directions per vertex for the object's self-occlusion transfer
+    specular: float = 0.0  # k_s of the object's Phong-like specular lobe (0: Lambertian, as in the benchmarks)
+    shininess: float = 32.0  # Phong exponent n of that lobe
+    envmap_res: int = 16  # face size of the pre-filtered cube map looked up per pixel
 
     def cache_key(self) -> dict:
         return {k: getattr(self, k) for k in ("patch_size", "emitter_patch_size", "vis_side", "bounces")}
@@ -145,6 +149,9 @@ class Engine:
         self.params = params or EngineParams()
         if self.params.mode not in ("hdr", "ldr"):
             raise ValueError(f"mode must be 'hdr' or 'ldr', got {self.params.mode!r}")
+        if not 0.0 <= self.params.specular <= 1.0 or self.params.shininess < 0:
+            raise ValueError(f"specular must be in [0, 1] and shininess >= 0, got {self.params.specular}, "
+                             f"{self.params.shininess}")
         self.device = runtime.device(device)
         self.quiet = quiet
         self.cache_dir = Path(cache_dir) if cache_dir else None
@@ -420,12 +427,16 @@ class Engine:
                                     n_side=1, eps=2e-3, device=self.device)
                 E += G.astype(np.float64) @ dB[changed]
         L_vert = obj.albedo * np.maximum(E, 0.0)
-        # one bounce between the object's own parts: occluded directions see the object's radiance
+        # vertices buried inside another part of the object (a chair's back-rest inside its seat)
+        # see almost nothing; their values would darken the visible triangles they belong to
         hit = hit_face >= 0
+        buried = hit.mean(axis=1) > 0.7
+        L_vert = _fill_from_neighbours(L_vert, f, buried)
+        # one bounce between the object's own parts: occluded directions see the object's radiance
         if hit.any():
             bounce = np.zeros(hit_face.shape + (3,))
             bounce[hit] = np.einsum("mk,mkc->mc", hit_bary[hit], L_vert[f[hit_face[hit]]])
-            L_vert = L_vert + obj.albedo * bounce.mean(axis=1)
+            L_vert = _fill_from_neighbours(L_vert + obj.albedo * bounce.mean(axis=1), f, buried)
         return L_vert
 
     def _shade_object(self, obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
@@ -433,10 +444,30 @@ class Engine:
         if not hits.hit.any():
             return np.zeros((hits.H, hits.W, 3))
         L_vert = self.object_vertex_radiance(obj, mesh, proxy_occ, dB)
-        f = mesh[2]
-        sub = np.zeros((len(hits.hit), 3))
-        sub[hits.hit] = np.einsum("nk,nkc->nc", hits.bary[hits.hit], L_vert[f[hits.tri[hits.hit]]])
+        v, n, f = mesh
+        h = hits.hit
+        sub = np.zeros((len(h), 3))
+        corners = f[hits.tri[h]]
+        sub[h] = np.einsum("nk,nkc->nc", hits.bary[h], L_vert[corners])
+        if self.params.specular > 0:
+            pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])
+            nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+            view = pos - self.scene.camera.centre
+            view /= np.linalg.norm(view, axis=1, keepdims=True)
+            env = self.specular_map(0.5 * (v.min(0) + v.max(0)))
+            sub[h] += self.params.specular * env.lookup(reflect(view, nrm))
         return hits.average(sub)
+
+    def specular_map(self, centre: np.ndarray) -> CubeMap:
+        """The room's radiance seen from `centre` (the object's centre, object absent), pre-filtered
+        with the Phong lobe of `shininess` (seed sec. 5, fig. 9)."""
+        p, pm = self.params, self.pre.patches
+        res_in = max(2 * p.envmap_res, int(np.ceil(2 * np.sqrt(p.shininess))))
+        dirs, _ = cube_directions(res_in)
+        tri, _, _ = cast_rays(self.cam_occ, np.asarray(centre, np.float64), dirs)
+        L = np.where((tri >= 0)[:, None], self.B_src[pm.tri_patch[np.maximum(tri, 0)]], 0.0)
+        return phong_prefilter(L, res_in, p.shininess, p.envmap_res)
 
     def _fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray) -> np.ndarray:
         """Values (len(missing),3) at pixels `missing`: mean of the known pixels in their 3x3
@@ -599,6 +630,31 @@ class ObjectHits:
             hh, ww, s = v1 - v0 + 1, u1 - u0 + 1, self.s
             cov[v0:v1 + 1, u0:u1 + 1] = self.hit.reshape(hh, s, ww, s).mean(axis=(1, 3))
         return cov
+
+
+def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.ndarray, rounds: int = 8
+                          ) -> np.ndarray:
+    """Values (V,C) with the `missing` vertices replaced by the mean of their known mesh
+    neighbours, grown over `rounds` rings (what is still missing then gets the known mean)."""
+    if not missing.any() or missing.all():
+        return values
+    out = values.copy()
+    known = ~missing
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.concatenate([e, e[:, ::-1]])
+    for _ in range(rounds):
+        src = known[e[:, 0]] & ~known[e[:, 1]]
+        if not src.any():
+            break
+        acc = np.zeros_like(out)
+        cnt = np.zeros(len(out))
+        np.add.at(acc, e[src, 1], out[e[src, 0]])
+        np.add.at(cnt, e[src, 1], 1)
+        new = cnt > 0
+        out[new] = acc[new] / cnt[new, None]
+        known = known | new
+    out[~known] = out[known].mean(0)
+    return out
 
 
 def _scene_meshes(patches: PatchMesh, device: str) -> tuple[Occluder, Occluder]:

@@ -136,3 +136,53 @@ def test_object_moved_up_changes_shading_like_brute_force(window_light):
     assert abs(d_brute) > 0.02  # the move matters in this room
     assert np.sign(d_ours) == np.sign(d_brute)
     assert 0.25 < d_ours / d_brute < 4.0, (d_ours, d_brute)
+
+
+def test_specular_map_sees_the_room_from_the_object(window_light):
+    # the pre-filtered cube map at the chair's centre, looked up towards the window, holds about
+    # the window's emitted radiance; towards the floor straight below, the floor's radiance
+    import dataclasses
+
+    from lighting.sources import luminance
+
+    scene, eng = window_light
+    params = eng.params
+    try:
+        eng.params = dataclasses.replace(params, shininess=200.0, envmap_res=16)
+        c = scene.obj.centre
+        cm = eng.specular_map(c)
+        win = next(q for q in scene.quads if q.role == "window")
+        to_win = win.corners.mean(0) - c
+        got = cm.lookup(to_win[None])[0]
+        np.testing.assert_allclose(got, win.emission, rtol=0.15)
+        pm = eng.pre.patches
+        floor = pm.normal[:, 1] > 0.99
+        below = np.argmin(np.where(floor, np.linalg.norm(pm.centre - [c[0], 0.0, c[2]], axis=1), np.inf))
+        down = cm.lookup(np.array([[0.0, -1.0, 0.0]]))[0]
+        assert luminance(down) < 0.05 * luminance(win.emission)
+        np.testing.assert_allclose(luminance(down), luminance(eng.B_src[below]), rtol=0.5)
+    finally:
+        eng.params = params
+
+
+def test_specular_adds_light_only_on_the_object(window_light):
+    # k_s > 0 leaves every pixel off the object bit-identical and brightens the object by k_s
+    # times radiance that lies within the room's range
+    import dataclasses
+
+    scene, eng = window_light
+    params = eng.params
+    base = eng.render(scene.obj).radiance
+    try:
+        eng.params = dataclasses.replace(params, specular=0.2)
+        spec = eng.render(scene.obj).radiance
+    finally:
+        eng.params = params
+    diff = spec - base
+    changed = np.any(diff != 0, axis=2)
+    assert changed.sum() > 100
+    assert np.all(diff >= -1e-6)
+    hits = eng._object_hits(scene.obj.vertices, scene.obj.faces)
+    assert np.all(hits.coverage()[changed] > 0)
+    added = diff[changed].mean(0) / 0.2
+    assert np.all(added > eng.B_src.min(0)) and np.all(added < eng.B_src.max(0))
