@@ -23,6 +23,7 @@ log = logging.getLogger("photoar")
 # its parser and sets `run=<callable(args) -> int>` with `set_defaults`; errors are raised as
 # ValueError / FileNotFoundError / RuntimeError with a message that names the file.
 COMMAND_MODULES: tuple[str, ...] = (
+    "app.cmd_reconstruct",
 )
 
 
