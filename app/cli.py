@@ -24,6 +24,8 @@ log = logging.getLogger("photoar")
 # ValueError / FileNotFoundError / RuntimeError with a message that names the file.
 COMMAND_MODULES: tuple[str, ...] = (
     "app.cmd_reconstruct",
+    "app.cmd_hdr",
+    "app.cmd_probe",
 )
 
 
