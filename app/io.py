@@ -27,6 +27,10 @@ def read_exr(path: Path) -> np.ndarray:
         ch = f.channels()
         if "RGB" in ch:
             return np.asarray(ch["RGB"].pixels, np.float32)
+        missing = [c for c in "RGB" if c not in ch]
+        if missing:
+            raise ValueError(f"{path}: OpenEXR file has no {', '.join(missing)} channel "
+                             f"(channels: {', '.join(sorted(ch)) or 'none'})")
         return np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGB"], -1)
 
 
