@@ -1,0 +1,547 @@
+"""Single-photo camera calibration from vanishing points (seed sec. 3, eq. 1; Cipolla, Drummond &
+Robertson 1999, the seed's ref. 13; Hartley & Zisserman 2nd ed. sec. 8.8).
+
+The user marks two or more image segments per world axis (x, y = vertical, z). Per family the
+vanishing point (VP) is the least-squares intersection of the segments (residual: distance of a
+segment's endpoints from the line through its midpoint and the VP), robust to one bad segment
+(best pairwise-intersection hypothesis, then a soft-L1 refinement and rejection of segments more
+than 3 px / 3 robust sigmas off). Intrinsics:
+  * two families: principal point c at the image centre, focal length by eq. 1,
+    f^2 = -(v - c) . (v' - c);
+  * three finite VPs: c = orthocentre of the VP triangle, f by eq. 1 from any pair.
+Rotation: the columns of R are the VP directions K^-1 v (third by cross product); signs: world +Y
+points up in the image, +X runs rightwards in the image (R[0,0] >= 0; `flip_xz` takes the other
+choice), Z = X x Y (right-handed). A joint least-squares refinement of (f, [c], R) over all
+segments makes the axes exactly orthogonal. Translation: the world origin lies on the ray through
+the user's origin pixel, in front of the camera, at the distance set by the camera height above
+the floor (y = 0) or by a known length along an axis from the origin; with neither, at unit
+distance (scale unknown).
+
+The standard deviation of f from the fit's covariance (0.5 px noise or the residual RMS, whichever
+is larger) flags ill-conditioned views: a near-frontal plane puts a VP near infinity and f is then
+undetermined; `calibrate` raises IllConditionedError for them unless asked not to.
+
+Conventions: OpenCV camera (recon/camera.py): x_cam = R X + t, pixel centre of the top-left pixel
+at (0,0). LINES.json: {"x": [[u1,v1,u2,v2], ...], "y": [...], "z": [...], "origin": [u, v],
+"known_length": {"axis": "x", "end_px": [u, v], "metres": L}} (origin and known_length optional,
+at least two of x/y/z). Segments shorter than 1 px are dropped with a warning (fallback); a family
+left with fewer than two segments is an error.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from itertools import combinations
+from pathlib import Path
+
+import numpy as np
+
+from recon.camera import Camera
+
+log = logging.getLogger(__name__)
+
+AXES = ("x", "y", "z")
+MIN_SEGMENT_PX = 1.0
+NOISE_FLOOR_PX = 0.5
+
+
+class IllConditionedError(ValueError):
+    """The vanishing points do not determine the focal length reliably (e.g. near-frontal view)."""
+
+
+@dataclass
+class VanishingPoint:
+    h: np.ndarray  # (3,) unit homogeneous pixel coordinates (u, v, 1) ~ h; h[2] ~ 0 at infinity
+    inliers: np.ndarray  # (N,) bool, segments used
+    residual_px: np.ndarray  # (N,) distance of each segment's endpoints from its line to the VP, px
+
+    @property
+    def finite(self) -> bool:
+        return abs(self.h[2]) > 1e-9
+
+    @property
+    def px(self) -> np.ndarray | None:
+        """(2,) pixel position, or None at infinity."""
+        return self.h[:2] / self.h[2] if self.finite else None
+
+
+@dataclass
+class Calibration:
+    camera: Camera
+    vps: dict[str, VanishingPoint]
+    focal_rel_sigma: float  # std(f)/f from the fit covariance
+    ill_conditioned: bool
+    principal_point_from: str  # "image centre" | "orthocentre" | "given"
+    scale: str  # "camera height" | "known length" | "unknown (unit distance)" | "no origin"
+    rms_px: float  # RMS segment residual of the joint fit, px
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        c = self.camera
+        K = c.K
+        return {
+            "fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+            "width": int(c.width), "height": int(c.height),
+            "K": {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+                  "width": int(c.width), "height": int(c.height)},
+            "K_matrix": K.tolist(), "R": c.R.tolist(), "t": c.t.tolist(), "centre": c.centre.tolist(),
+            "convention": "OpenCV: x_cam = R @ X_world + t, centre = -R^T t; u = fx x/z + cx, v = fy y/z + cy; "
+                          "pixel (0,0) is the centre of the top-left pixel; world +Y up, metres",
+            "vanishing_points": {a: {"h": v.h.tolist(), "px": None if v.px is None else v.px.tolist(),
+                                     "inliers": v.inliers.tolist(), "residual_px": v.residual_px.tolist()}
+                                 for a, v in self.vps.items()},
+            "focal_rel_sigma": self.focal_rel_sigma, "ill_conditioned": self.ill_conditioned,
+            "principal_point_from": self.principal_point_from, "scale": self.scale, "rms_px": self.rms_px,
+            "notes": self.notes,
+        }
+
+
+# ----------------------------------------------------------------------------------------------
+# Input
+
+def _segments(value, where: str) -> np.ndarray:
+    try:
+        a = np.asarray(value, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: segments must be numbers [[u1,v1,u2,v2], ...]") from None
+    if a.ndim != 2 or a.shape[1] != 4 or not np.all(np.isfinite(a)):
+        raise ValueError(f"{where}: segments must be a list of [u1,v1,u2,v2] with finite numbers, "
+                         f"got shape {a.shape}")
+    return a
+
+
+def parse_lines(d: dict, src: str = "<lines>") -> dict:
+    """Validate a LINES dict -> {"families": {axis: (N,4)}, "origin": (2,) | None, "known_length": dict | None}."""
+    if not isinstance(d, dict):
+        raise ValueError(f"{src}: top level must be an object")
+    fams = {}
+    for a in AXES:
+        for key in (a, a.upper()):
+            if key in d:
+                fams[a] = _segments(d[key], f"{src}: field '{key}'")
+    if len(fams) < 2:
+        raise ValueError(f"{src}: need line families for at least two of x/y/z, got {sorted(fams) or 'none'} "
+                         "(one family gives one vanishing point: no focal length, no rotation)")
+    origin = None
+    if d.get("origin") is not None:
+        origin = np.asarray(d["origin"], float)
+        if origin.shape != (2,) or not np.all(np.isfinite(origin)):
+            raise ValueError(f"{src}: field 'origin' must be [u, v]")
+    kl = d.get("known_length")
+    if kl is not None:
+        if not (isinstance(kl, dict) and kl.get("axis") in AXES and "end_px" in kl and "metres" in kl):
+            raise ValueError(f"{src}: field 'known_length' must be {{'axis': x|y|z, 'end_px': [u, v], 'metres': L}}")
+        if not float(kl["metres"]) > 0:
+            raise ValueError(f"{src}: field 'known_length.metres' must be positive")
+    return {"families": fams, "origin": origin, "known_length": kl}
+
+
+def load_lines(path: str | os.PathLike) -> dict:
+    """Read LINES.json (see module docstring); errors name the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: file not found")
+    try:
+        d = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: malformed JSON ({e})") from None
+    return parse_lines(d, str(path))
+
+
+def lines_from_scene(scene: dict, noisy: bool = True) -> dict:
+    """A scene.json's annotations (vanishing_segments, world_origin_px) in the LINES.json format.
+    `noisy` picks the noisy endpoints 'px' (what a user would click), else 'px_true'."""
+    ann = scene.get("annotations", {}) if isinstance(scene, dict) else {}
+    segs = ann.get("vanishing_segments")
+    if not isinstance(segs, dict):
+        raise ValueError("scene has no 'annotations.vanishing_segments'")
+    key = "px" if noisy else "px_true"
+    out: dict = {a.lower(): [[*s[key][0], *s[key][1]] for s in v] for a, v in segs.items()}
+    o = ann.get("world_origin_px" if noisy else "world_origin_px_true")
+    if o is not None:
+        out["origin"] = list(o)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Vanishing points
+
+def _seg_residual(segs: np.ndarray, vh: np.ndarray) -> np.ndarray:
+    """Signed distance (px) of each segment's first endpoint from the line through its midpoint and
+    the homogeneous VP `vh` (pixels); the second endpoint is at the opposite distance."""
+    a, b = segs[:, :2], segs[:, 2:]
+    m = np.concatenate([(a + b) / 2, np.ones((len(segs), 1))], 1)
+    lines = np.cross(m, vh[None, :] if vh.ndim == 1 else vh)
+    nrm = np.maximum(np.linalg.norm(lines[:, :2], axis=1), 1e-12)
+    return (lines[:, 0] * a[:, 0] + lines[:, 1] * a[:, 1] + lines[:, 2]) / nrm
+
+
+def _normaliser(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """T (3,3) maps homogeneous pixels to centred, scaled coordinates, and its inverse."""
+    s = max(width, height) / 2.0
+    c = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
+    T = np.array([[1 / s, 0, -c[0] / s], [0, 1 / s, -c[1] / s], [0, 0, 1.0]])
+    return T, np.linalg.inv(T)
+
+
+def fit_vanishing_point(segs: np.ndarray, width: int, height: int, name: str = "family",
+                        src: str = "<lines>") -> VanishingPoint:
+    """Robust least-squares VP of a family of segments (N,4) in pixels. See the module docstring."""
+    from scipy.optimize import least_squares
+
+    segs = np.asarray(segs, float)
+    length = np.linalg.norm(segs[:, 2:] - segs[:, :2], axis=1)
+    keep = length >= MIN_SEGMENT_PX
+    if not np.all(keep):
+        log.warning("%s: family '%s': dropped %d segment(s) shorter than %.0f px", src, name, int((~keep).sum()),
+                    MIN_SEGMENT_PX)
+    if keep.sum() < 2:
+        raise ValueError(f"{src}: family '{name}' needs at least two segments of non-zero length, "
+                         f"has {int(keep.sum())}")
+    T, Ti = _normaliser(width, height)
+    scale = 1.0 / T[0, 0]
+    s = segs[keep]
+    hom = lambda p: np.concatenate([p, np.ones((len(p), 1))], 1) @ T.T  # noqa: E731
+    ln = np.cross(hom(s[:, :2]), hom(s[:, 2:]))
+    ln /= np.linalg.norm(ln[:, :2], axis=1, keepdims=True)
+
+    def resid(vn: np.ndarray) -> np.ndarray:
+        return _seg_residual(s, Ti @ vn)
+
+    # hypotheses: every pairwise intersection and the algebraic least-squares point
+    cands = [np.linalg.eigh(ln.T @ ln)[1][:, 0]]
+    for i, j in combinations(range(len(s)), 2):
+        v = np.cross(ln[i], ln[j])
+        if np.linalg.norm(v) > 1e-12:
+            cands.append(v / np.linalg.norm(v))
+    thr = 2.0
+    scores = [np.sum(np.minimum(resid(v) ** 2, thr ** 2)) for v in cands]
+    v0 = cands[int(np.argmin(scores))]
+    if np.linalg.norm(v0) < 0.5:
+        raise ValueError(f"{src}: family '{name}': segments are collinear, the vanishing point is undetermined")
+    inl = np.ones(len(s), bool)
+    for _ in range(2):
+        e1 = np.cross(v0, [1.0, 0, 0] if abs(v0[0]) < 0.9 else [0, 1.0, 0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(v0, e1)
+
+        def f(x, e1=e1, e2=e2, v0=v0):
+            v = v0 + x[0] * e1 + x[1] * e2
+            return _seg_residual(s[inl], Ti @ (v / np.linalg.norm(v)))
+
+        loss = "soft_l1" if inl.sum() > 2 else "linear"
+        res = least_squares(f, np.zeros(2), loss=loss, f_scale=1.0, x_scale=1.0 / scale, xtol=1e-12, ftol=1e-12)
+        v = v0 + res.x[0] * e1 + res.x[1] * e2
+        v0 = v / np.linalg.norm(v)
+        r = np.abs(resid(v0))
+        if len(s) < 3:
+            break
+        sig = 1.4826 * np.median(r[inl])
+        new = r <= max(3.0, 3 * sig)
+        if new.sum() < 2 or np.array_equal(new, inl):
+            break
+        if (~new).sum() > max(1, len(s) // 3):
+            log.warning("%s: family '%s': %d of %d segments disagree", src, name, int((~new).sum()), len(s))
+        inl = new
+    vh = Ti @ v0
+    vh /= np.linalg.norm(vh)
+    full_inl = np.zeros(len(segs), bool)
+    full_inl[np.flatnonzero(keep)[inl]] = True
+    full_res = np.full(len(segs), np.nan)
+    full_res[keep] = np.abs(_seg_residual(s, vh))
+    if inl.sum() < len(s):
+        log.info("%s: family '%s': rejected segment(s) %s (residual %s px)", src, name,
+                 np.flatnonzero(keep)[~inl].tolist(), np.round(full_res[keep][~inl], 1).tolist())
+    return VanishingPoint(vh, full_inl, full_res)
+
+
+# ----------------------------------------------------------------------------------------------
+# Camera
+
+def focal_from_vps(v1: np.ndarray, v2: np.ndarray, c: np.ndarray) -> float:
+    """Eq. 1 with the principal point c: f^2 = -(v1-c).(v2-c); NaN when not positive. Pixels."""
+    f2 = -float(np.dot(v1 - c, v2 - c))
+    return float(np.sqrt(f2)) if f2 > 0 else float("nan")
+
+
+def orthocentre(v1: np.ndarray, v2: np.ndarray, v3: np.ndarray) -> np.ndarray:
+    """Orthocentre of the triangle of three finite VPs (the principal point), pixels."""
+    A = np.array([v3 - v2, v3 - v1])
+    b = np.array([np.dot(v3 - v2, v1), np.dot(v3 - v1, v2)])
+    return np.linalg.solve(A, b)
+
+
+def _rotation_from_dirs(dirs: dict[str, np.ndarray], flip_xz: bool) -> np.ndarray:
+    """R (world->camera) from camera-frame axis directions (any sign) of >= 2 axes."""
+    d = {a: v / np.linalg.norm(v) for a, v in dirs.items()}
+    if "y" in d and d["y"][1] > 0:
+        d["y"] = -d["y"]  # +Y up: image y grows downwards
+    if "x" in d and "y" in d:
+        x, y = d["x"], d["y"]
+        z = np.cross(x, y)
+    elif "y" in d:
+        y, z = d["y"], d["z"]
+        x = np.cross(y, z)
+    else:
+        x, z = d["x"], d["z"]
+        y = np.cross(z, x)
+        if y[1] > 0:
+            y, z = -y, -z
+    M = np.stack([x, y, z], 1)
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        R = U @ np.diag([1, 1, -1]) @ Vt
+    if (R[0, 0] < 0) != flip_xz:
+        R = R @ np.diag([-1.0, 1.0, -1.0])  # rotate 180 deg about world Y: X and Z flip together
+    return R
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    import cv2
+
+    return cv2.Rodrigues(R)[0].ravel()
+
+
+def _rotmat(r: np.ndarray) -> np.ndarray:
+    import cv2
+
+    return cv2.Rodrigues(np.asarray(r, float).reshape(3, 1))[0]
+
+
+def calibrate(families: dict[str, np.ndarray], width: int, height: int, origin=None,
+              camera_height: float | None = None, known_length: dict | None = None,
+              principal_point=None, flip_xz: bool = False, max_focal_rel_sigma: float = 0.05,
+              raise_ill_conditioned: bool = True, sigma_px: float = NOISE_FLOOR_PX, pp_sigma_px: float | None = None,
+              src: str = "<lines>") -> Calibration:
+    """Calibrated camera from line families {axis: (N,4) pixel segments}; see the module docstring.
+
+    principal_point: (2,) pixels to hold fixed (default: image centre, or the orthocentre of three
+    finite VPs). Raises ValueError naming `src` on bad input, IllConditionedError when
+    std(f)/f > max_focal_rel_sigma (unless raise_ill_conditioned is False), or when eq. 1 has no
+    solution while the VPs lie far outside the image (a near-frontal view). `sigma_px`: the smallest
+    segment noise assumed for std(f) (0.5 px for hand-clicked endpoints; lower for fitted lines);
+    `pp_sigma_px`: how far the true principal point may be from the image centre (1 sigma, px) when
+    it is assumed there (default 1 % of the larger image side); it adds eq. 1's sensitivity to it
+    to std(f)/f."""
+    from scipy.optimize import least_squares
+
+    fams = {a.lower(): np.asarray(s, float) for a, s in families.items()}
+    if len(fams) < 2:
+        raise ValueError(f"{src}: need at least two line families, got {sorted(fams)}")
+    vps = {a: fit_vanishing_point(s, width, height, a, src) for a, s in fams.items()}
+    notes: list[str] = []
+    centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
+    finite = [a for a in AXES if a in vps and vps[a].finite
+              and np.linalg.norm(vps[a].px - centre) < 1e3 * max(width, height)]
+    pp_from = "given" if principal_point is not None else "image centre"
+    c = np.asarray(principal_point, float) if principal_point is not None else centre
+    free_pp = False
+    if principal_point is None and len(finite) == 3:
+        try:
+            o = orthocentre(*(vps[a].px for a in AXES))
+            fo = focal_from_vps(vps["x"].px, vps["y"].px, o)
+            if np.all(np.abs(o - centre) < 0.25 * np.array([width, height])) and np.isfinite(fo):
+                c, pp_from, free_pp = o, "orthocentre", True
+            else:
+                notes.append("orthocentre of the three VPs is implausible; principal point at the image centre")
+        except np.linalg.LinAlgError:
+            notes.append("three VPs collinear; principal point at the image centre")
+    # initial focal length by eq. 1 from the best-conditioned finite pair
+    pairs = [(a, b) for a, b in combinations(finite, 2) if np.isfinite(focal_from_vps(vps[a].px, vps[b].px, c))]
+    pair = pairs[0] if pairs else None
+    f0 = float(np.median([focal_from_vps(vps[a].px, vps[b].px, c) for a, b in pairs])) if pairs else float("nan")
+    if pair is None:
+        inf = [a for a in vps if a not in finite]
+        if inf:
+            raise ValueError(f"{src}: the segments of family {inf} are parallel in the image (vanishing point at "
+                             "infinity): the focal length is undetermined; mark a family whose lines converge")
+        far = [a for a in finite if np.linalg.norm(vps[a].px - c) > max(width, height)]
+        if len(far) >= len(finite) - 1:
+            raise IllConditionedError(f"{src}: ill-conditioned vanishing points: eq. 1 has no solution and the "
+                                      f"vanishing points of {far} lie far outside the image (near-frontal view)")
+        raise ValueError(f"{src}: the vanishing points are not consistent with orthogonal axes for the principal "
+                         f"point {np.round(c, 1).tolist()} (eq. 1 gives f^2 <= 0): check the axis labels")
+    if len(finite) < len(vps):
+        notes.append(f"vanishing point(s) {[a for a in vps if a not in finite]} at infinity; focal length "
+                     f"from {pair}")
+    K0 = np.array([[f0, 0, c[0]], [0, f0, c[1]], [0, 0, 1.0]])
+    Ki = np.linalg.inv(K0)
+    R0 = _rotation_from_dirs({a: Ki @ v.h for a, v in vps.items()}, flip_xz)
+
+    segs = {a: fams[a][vps[a].inliers] for a in vps}
+    K, R, rel, rms = _refine(segs, f0, c, free_pp, R0, width, height, flip_xz, sigma_px)
+    if free_pp and not rel <= max_focal_rel_sigma:
+        # the orthocentre is poorly determined (a VP far out): hold the principal point at the centre
+        f1 = [focal_from_vps(vps[a].px, vps[b].px, centre) for a, b in combinations(finite, 2)]
+        f1 = [f for f in f1 if np.isfinite(f)]
+        if f1:
+            K1, R1, rel1, rms1 = _refine(segs, float(np.median(f1)), centre, False, R0, width, height, flip_xz,
+                                              sigma_px)
+            if rel1 < rel:
+                notes.append(f"principal point from three VPs is ill-conditioned (std(f)/f = {rel:.3g}); "
+                             "held at the image centre")
+                K, R, rel, rms, pp_from = K1, R1, rel1, rms1, "image centre"
+    idx = {a: AXES.index(a) for a in vps}
+    rel_fit = rel
+    if pp_sigma_px is None:
+        pp_sigma_px = 0.01 * max(width, height)
+    if pp_from == "image centre" and pp_sigma_px > 0:
+        # sensitivity of eq. 1 to a principal point off the image centre: d(f)/f = (v1+v2-2c).dc / (2 f^2)
+        vp_px = {a: (K @ R[:, idx[a]])[:2] / (K @ R[:, idx[a]])[2] for a in finite}
+        g = [np.linalg.norm(vp_px[a] + vp_px[b] - 2 * K[:2, 2]) / (2 * K[0, 0] ** 2)
+             for a, b in combinations(finite, 2)]
+        rel = float(np.hypot(rel_fit, min(g) * pp_sigma_px)) if g else rel
+    ill = not rel <= max_focal_rel_sigma
+    vps = {a: VanishingPoint(_unit(K @ R[:, idx[a]]), vps[a].inliers,
+                             np.abs(_seg_residual(fams[a], K @ R[:, idx[a]]))) for a in vps}
+    if ill:
+        msg = (f"{src}: ill-conditioned vanishing points (std(f)/f = {rel:.3g} > {max_focal_rel_sigma}): a line "
+               "family is nearly parallel in the image (near-frontal view), so the focal length is undetermined")
+        if raise_ill_conditioned:
+            raise IllConditionedError(msg)
+        notes.append(msg)
+
+    t, scale = _translation(K, R, origin, camera_height, known_length, src)
+    cam = Camera(K, R, t, int(width), int(height))
+    return Calibration(cam, vps, rel, ill, pp_from, scale, rms, notes)
+
+
+def _refine(segs: dict[str, np.ndarray], f0: float, c: np.ndarray, free_pp: bool, R0: np.ndarray, width: int,
+            height: int, flip_xz: bool, sigma_px: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Joint least-squares fit of f, [principal point], R to all segments (the VPs are K R e_axis,
+    so the axes are exactly orthogonal). Returns K, R, std(f)/f, residual RMS (px)."""
+    from scipy.optimize import least_squares
+
+    s0 = float(max(width, height))
+    idx = {a: AXES.index(a) for a in segs}
+
+    def unpack(x):
+        f = s0 * np.exp(x[0])  # log-parametrised: f stays positive
+        cc = x[1:3] * s0 if free_pp else c
+        return np.array([[f, 0, cc[0]], [0, f, cc[1]], [0, 0, 1.0]]), _rotmat(x[-3:])
+
+    def fun(x):
+        K, R = unpack(x)
+        return np.concatenate([_seg_residual(segs[a], K @ R[:, idx[a]]) for a in segs])
+
+    x0 = np.concatenate([[np.log(f0 / s0)], c / s0 if free_pp else [], _rotvec(R0)])
+    res = least_squares(fun, x0, loss="soft_l1", f_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    K, R = unpack(res.x)
+    if not (np.all(np.isfinite(res.x)) and K[0, 0] > 0):
+        raise ValueError(f"calibration fit failed (focal length {K[0, 0]:.3g})")
+    R = _rotation_from_dirs({a: R[:, idx[a]] for a in segs}, flip_xz)  # re-apply the sign conventions
+    rms = float(np.sqrt(np.mean(fun(np.concatenate([res.x[:-3], _rotvec(R)])) ** 2)))
+    # conditioning: std of f from the linearised covariance (x[0] = log f, so std(x[0]) = std(f)/f)
+    sigma = max(rms, sigma_px)
+    try:
+        cov = np.linalg.inv(res.jac.T @ res.jac) * sigma ** 2
+        rel = float(np.sqrt(max(cov[0, 0], 0.0)))
+    except np.linalg.LinAlgError:
+        rel = float("inf")
+    return K, R, rel, rms
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+def _translation(K, R, origin, camera_height, known_length, src) -> tuple[np.ndarray, str]:
+    """t such that the world origin projects to `origin` at the depth the scale gives."""
+    if origin is None:
+        if camera_height is not None or known_length is not None:
+            raise ValueError(f"{src}: a scale (camera height / known length) needs an 'origin' pixel")
+        log.warning("%s: no origin pixel: camera centre put at the world origin (translation unknown)", src)
+        return np.zeros(3), "no origin"
+    rho = np.linalg.solve(K, np.array([origin[0], origin[1], 1.0]))  # camera-frame ray, depth 1
+    if camera_height is not None:
+        if not camera_height > 0:
+            raise ValueError(f"{src}: camera height must be positive, got {camera_height}")
+        dy = (R.T @ rho)[1]  # world-frame vertical component of the ray through the origin
+        if dy > -1e-6:
+            raise ValueError(f"{src}: the origin pixel {list(np.round(origin, 1))} is on or above the horizon: a "
+                             f"floor origin seen from {camera_height} m up would lie behind the camera (or at "
+                             "infinity); mark the origin on the floor below the horizon")
+        lam = -camera_height / dy
+        return lam * rho, "camera height"
+    if known_length is not None:
+        a = AXES.index(known_length["axis"])
+        eta = np.linalg.solve(K, np.array([*map(float, known_length["end_px"]), 1.0]))
+        ra = R[:, a]
+        ce = np.cross(ra, eta)
+        if np.linalg.norm(ce) < 1e-9:
+            raise ValueError(f"{src}: 'known_length.end_px' lies at the vanishing point of axis "
+                             f"{known_length['axis']}: the length is undetermined")
+        s = -np.dot(ce, np.cross(rho, eta)) / np.dot(ce, ce)  # metres along the axis at unit origin depth
+        if abs(s) < 1e-9:
+            raise ValueError(f"{src}: 'known_length.end_px' coincides with the origin")
+        lam = float(known_length["metres"]) / abs(s)
+        return lam * rho, "known length"
+    log.warning("%s: no scale given: the world origin is put at unit distance from the camera", src)
+    return rho / np.linalg.norm(rho), "unknown (unit distance)"
+
+
+def calibrate_lines(lines: dict, width: int, height: int, camera_height: float | None = None,
+                    src: str = "<lines>", **kw) -> Calibration:
+    """calibrate() on a parsed LINES dict (parse_lines / load_lines)."""
+    return calibrate(lines["families"], width, height, lines.get("origin"), camera_height,
+                     lines.get("known_length"), src=src, **kw)
+
+
+def rotation_error_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """Angle of Ra Rb^T in degrees."""
+    c = (np.trace(Ra @ Rb.T) - 1) / 2
+    return float(np.degrees(np.arccos(np.clip(c, -1, 1))))
+
+
+def draw_overlay(image: np.ndarray, calib: Calibration, families: dict[str, np.ndarray], origin=None,
+                 axis_length: float | None = None) -> np.ndarray:
+    """BGR/RGB uint8 image (H,W,3) with the segments (x red, y green, z blue), lines from each
+    segment towards its VP, and the projected world axes at the origin. Returns a copy (RGB order)."""
+    import cv2
+
+    img = image.copy()
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
+    col = {"x": (230, 40, 40), "y": (40, 200, 40), "z": (50, 90, 255)}
+    h, w = img.shape[:2]
+    for a, segs in families.items():
+        vp = calib.vps[a]
+        for k, s in enumerate(np.asarray(segs, float)):
+            p, q = s[:2], s[2:]
+            m = (p + q) / 2
+            if vp.finite:
+                d = vp.px - m
+            else:
+                d = vp.h[:2]
+            d = d / max(np.linalg.norm(d), 1e-9)
+            if vp.finite and np.linalg.norm(vp.px - m) < 4 * max(w, h):
+                far = vp.px
+            else:
+                far = m + d * 2 * max(w, h)
+            cv2.line(img, _pt(m), _pt(far), tuple(int(0.5 * c) for c in col[a]), 1, cv2.LINE_AA)
+            thick = 2 if vp.inliers[k] else 1
+            cv2.line(img, _pt(p), _pt(q), col[a] if vp.inliers[k] else (255, 0, 255), thick, cv2.LINE_AA)
+    cam = calib.camera
+    if calib.scale != "no origin":
+        L = axis_length or (0.5 if calib.scale in ("camera height", "known length") else 0.1)
+        pts = np.array([[0, 0, 0], [L, 0, 0], [0, L, 0], [0, 0, L]], float)
+        uv, z = cam.project(pts)
+        if np.all(z > 0):
+            for k, a in enumerate(AXES):
+                cv2.arrowedLine(img, _pt(uv[0]), _pt(uv[k + 1]), col[a], 3, cv2.LINE_AA, tipLength=0.15)
+                cv2.putText(img, a.upper(), _pt(uv[k + 1] + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.6, col[a], 2)
+    if origin is not None:
+        cv2.circle(img, _pt(origin), 5, (255, 255, 0), 2, cv2.LINE_AA)
+    txt = f"f = {cam.K[0, 0]:.1f} px  c = ({cam.K[0, 2]:.1f}, {cam.K[1, 2]:.1f})  std(f)/f = {calib.focal_rel_sigma:.2%}"
+    cv2.putText(img, txt, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(img, txt, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    return img
+
+
+def _pt(p) -> tuple[int, int]:
+    p = np.clip(np.asarray(p, float), -1e5, 1e5)
+    return int(round(p[0])), int(round(p[1]))
