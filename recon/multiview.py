@@ -54,6 +54,8 @@ class SfmOptions:
     min_model_size: int = 3
     peak_threshold: float | None = None  # SIFT detection threshold (None: COLMAP's default 0.0067)
     two_view_tracks: bool = False  # also triangulate points seen in only two images
+    abs_pose_min_inliers: int = 15  # 2D-3D inliers needed to register an image (COLMAP: 30; 15 joins
+    # the temple ring into one model instead of two)
 
 
 @dataclass
@@ -162,7 +164,7 @@ def _shared_exif_camera(folder: Path, names: list[str]) -> bool:
         b = pycolmap.Bitmap.read(str(folder / n), False)
         if b is None:
             return False
-        keys.add((b.width, b.height, b.exif_camera_model))
+        keys.add((b.width, b.height, b.exif_camera_model()))
     return len(keys) == 1 and next(iter(keys))[2] is not None
 
 
@@ -204,6 +206,7 @@ def reconstruct(folder: Path, opts: SfmOptions | None = None, work_dir: Path | N
     from tqdm import tqdm
 
     opts = opts or SfmOptions()
+    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 2  # COLMAP's own log: errors only
     folder = Path(folder)
     names, unreadable = list_images(folder)
     if len(names) < 2:
@@ -271,6 +274,7 @@ def reconstruct(folder: Path, opts: SfmOptions | None = None, work_dir: Path | N
         po.random_seed = opts.seed
         po.min_model_size = opts.min_model_size
         po.triangulation.ignore_two_view_tracks = not opts.two_view_tracks
+        po.mapper.abs_pose_min_num_inliers = opts.abs_pose_min_inliers
         if opts.camera is not None:
             po.ba_refine_focal_length = False
             po.ba_refine_principal_point = False
@@ -309,6 +313,21 @@ def reconstruct(folder: Path, opts: SfmOptions | None = None, work_dir: Path | N
     for line in res.summary().splitlines():
         (log.warning if line.startswith(("not", "smaller", "unreadable")) else log.info)("%s", line)
     return res
+
+
+def read_middlebury_par(path: Path) -> dict[str, Camera]:
+    """Cameras of a Middlebury multi-view `*_par.txt` (name k11..k33 r11..r33 t1 t2 t3, x_cam = R X + t)."""
+    lines = Path(path).read_text().split("\n")
+    cams = {}
+    for ln in lines[1:]:
+        f = ln.split()
+        if len(f) != 22:
+            continue
+        v = np.array(f[1:], float)
+        cams[f[0]] = Camera(v[:9].reshape(3, 3), v[9:18].reshape(3, 3), v[18:21], 640, 480)
+    if not cams:
+        raise ValueError(f"{path}: no camera lines (name + 21 numbers)")
+    return cams
 
 
 # ---- alignment ---------------------------------------------------------------------------------

@@ -240,11 +240,25 @@ def fit_room(points: np.ndarray, colors: np.ndarray | None, cam_centres: np.ndar
             m = cand[labels == i]
             if len(m) < opts.min_box_points:
                 break
-            blo, bhi = np.percentile(R[m], 2, axis=0), np.percentile(R[m], 98, axis=0)
+            boxes.append([np.percentile(R[m], 2, axis=0), np.percentile(R[m], 98, axis=0), len(m)])
+        merged = True
+        while merged:  # clusters whose boxes touch (within 2 tol) are parts of one piece of furniture
+            merged = False
+            for i in range(len(boxes)):
+                for j in range(i + 1, len(boxes)):
+                    (a0, a1, na), (b0, b1, nb) = boxes[i], boxes[j]
+                    if np.all(a0 <= b1 + 2 * tol) and np.all(b0 <= a1 + 2 * tol):
+                        boxes[i] = [np.minimum(a0, b0), np.maximum(a1, b1), na + nb]
+                        del boxes[j]
+                        merged = True
+                        break
+                if merged:
+                    break
+        for k, (blo, bhi, nm) in enumerate(boxes):
             if blo[1] - lo[1] < 0.1 * (hi[1] - lo[1]):
                 blo[1] = lo[1]
             bhi = np.maximum(bhi, blo + tol)
-            boxes.append(((blo + bhi) / 2, bhi - blo, len(m)))
+            boxes[k] = ((blo + bhi) / 2, bhi - blo, nm)
     log.info("room surfaces seen: %s; %d furniture boxes", ", ".join(n for n, s in surfaces.items() if s.observed),
              len(boxes))
     for p in planes:
