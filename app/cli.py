@@ -26,6 +26,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "app.cmd_reconstruct",
     "app.cmd_hdr",
     "app.cmd_probe",
+    "app.cmd_calibrate",
+    "app.cmd_model",
 )
 
 
