@@ -1,0 +1,126 @@
+"""Wall time per stage of the multi-image reconstruction, and its accuracy, on the shared sets.
+
+  python bench/bench_multiview.py [--sets temple,sceaux,window_room,lamps_room]
+
+Prints one row per set: seconds for SIFT extraction, exhaustive matching, incremental mapping,
+room fitting (scene sets) and view.png rendering, with registered images, mean reprojection
+error, and the accuracy figures of issue 7 (temple: worst centre error in % of the ring diameter
+after a similarity to the published calibration; Sceaux: focal length against openMVG's K; scenes:
+worst rotation / centre error after a similarity to the true cameras and worst plane error of the
+fitted floor and walls). Renders go to out/bench/multiview_<set>.png. Timings on a shared 2-core
+machine are inflated by contention.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from app.report import table  # noqa: E402
+from recon import multiview as mv  # noqa: E402
+from recon.roomfit import FitOptions, fit_room  # noqa: E402
+from recon.view import render_png  # noqa: E402
+
+SHARED = ROOT.parent / "shared"
+MULTI = SHARED / "data" / "multiview"
+
+
+def _render(name, res, prims, row):
+    t0 = time.perf_counter()
+    row["renderer"] = render_png(ROOT / "out" / "bench" / f"multiview_{name}.png", res.points, res.colors,
+                                 res.cameras, prims)
+    row["render_s"] = time.perf_counter() - t0
+
+
+def bench_temple() -> dict:
+    base = MULTI / "middlebury_templeSparseRing"
+    known = mv.read_middlebury_par(base / "templeSR_par.txt")
+    res = mv.reconstruct(base / "images", mv.SfmOptions(single_camera=True, max_features=2000), progress=False)
+    C = np.array([c.centre for c in known.values()])
+    diam = 2 * np.mean(np.linalg.norm(C - C.mean(0), axis=1))
+    al = res.transformed(mv.similarity_from_centres(res, known))
+    err = mv.pose_errors(al.cameras, known)
+    row = {"set": "temple 640x480", **res.timings, "registered": f"{len(res.cameras)}/{res.n_images}",
+           "reproj_px": res.mean_reproj_px,
+           "accuracy": f"centre max {100 * max(e[1] for e in err.values()) / diam:.2f} % of diameter, "
+                       f"f {next(iter(res.cameras.values())).K[0, 0]:.0f} px (1520)"}
+    _render("temple", al, [], row)
+    return row
+
+
+def bench_sceaux() -> dict:
+    base = MULTI / "sceaux_castle"
+    f_true = json.loads((base / "K.json").read_text())["K_stored_corner_convention"][0][0]
+    res = mv.reconstruct(base / "images", mv.SfmOptions(max_features=4000), progress=False)
+    f = float(np.mean([c.K[0, 0] for c in res.cameras.values()]))
+    row = {"set": "sceaux 1416x1064", **res.timings, "registered": f"{len(res.cameras)}/{res.n_images}",
+           "reproj_px": res.mean_reproj_px, "accuracy": f"f {f:.0f} px ({f_true:.0f}, {100 * (f / f_true - 1):+.1f} %)"}
+    _render("sceaux", res, [], row)
+    return row
+
+
+def bench_scene(name: str) -> dict:
+    scene = SHARED / "scenes" / name
+    d = json.loads((scene / "scene.json").read_text())
+
+    def cam(c):
+        return mv.Camera(np.array(c["K_matrix"]), np.array(c["R"]), np.array(c["t"]), c["K"]["width"],
+                         c["K"]["height"])
+
+    known = {"background.png": cam(d["main_camera"])}
+    with tempfile.TemporaryDirectory() as tmp:
+        (Path(tmp) / "background.png").symlink_to(scene / "background.png")
+        for v in d["views"]:
+            (Path(tmp) / Path(v["file"]).name).symlink_to(scene / v["file"])
+            known[Path(v["file"]).name] = cam(v)
+        res = mv.reconstruct(Path(tmp), mv.SfmOptions(camera=known["background.png"], max_features=8000,
+                                                      peak_threshold=0.002, two_view_tracks=True), progress=False)
+    al = res.transformed(mv.similarity_from_poses(res, known), "m")
+    err = mv.pose_errors(al.cameras, known)
+    t0 = time.perf_counter()
+    fit = fit_room(al.points, al.colors, np.array([c.centre for c in al.cameras.values()]),
+                   opts=FitOptions(up=(0, 1, 0)))
+    fit_s = time.perf_counter() - t0
+    truth = {p["name"]: p for p in d["primitives"]}
+    worst_a = worst_d = 0.0
+    seen = []
+    for n, s in fit.surfaces.items():
+        if s.observed:
+            nn, dd = fit.surface_plane(n)
+            worst_a = max(worst_a, float(np.degrees(np.arccos(np.clip(nn @ truth[n]["normal"], -1, 1)))))
+            worst_d = max(worst_d, float(abs(nn @ np.mean(truth[n]["corners"], 0) + dd)))
+            seen.append(n)
+    room = float(max(np.subtract(d["world"]["room_max"], d["world"]["room_min"])))
+    row = {"set": f"{name} 640x480", **res.timings, "fit_s": fit_s,
+           "registered": f"{len(res.cameras)}/{res.n_images}", "reproj_px": res.mean_reproj_px,
+           "accuracy": f"rot max {max(e[0] for e in err.values()):.2f} deg, centre max "
+                       f"{100 * max(e[1] for e in err.values()) / room:.2f} % room; planes {'+'.join(seen)}: "
+                       f"max {worst_a:.2f} deg, {100 * worst_d:.1f} cm; {len(fit.boxes)} boxes"}
+    _render(name, al, fit.primitives(), row)
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sets", default="temple,sceaux,window_room,lamps_room")
+    a = ap.parse_args()
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    rows = []
+    for s in a.sets.split(","):
+        rows.append(bench_temple() if s == "temple" else bench_sceaux() if s == "sceaux" else bench_scene(s))
+        print(f"done {s}", file=sys.stderr)
+    print(table(rows, ["set", "features_s", "matching_s", "mapping_s", "fit_s", "render_s", "registered",
+                       "reproj_px", "accuracy"], floatfmt=".2f"))
+
+
+if __name__ == "__main__":
+    main()
