@@ -265,45 +265,65 @@ def save_model(path: str | os.PathLike, model: "PrimitiveModel") -> None:
 # Scene graph
 
 def infer_scene_graph(prims: list[Primitive], tol: float = 5e-3) -> None:
-    """Guess parents for primitives without one (in place), for plain scene.json input:
-    a box whose bottom is on the floor (y ~ 0) sits on the ground ("top", no parent); a box whose
-    bottom touches the top of another box it overlaps in x-z sits on that box; a quad lying within
-    `tol` m of the plane of a larger quad it overlaps (a window on a wall) is attached to it on the
-    side its normal faces, with the gap between them; everything else is free."""
+    """Guess the scene graph (in place) for plain scene.json input, "from the ground up":
+      * a quad lying within `tol` m of the plane of a larger axis-aligned quad that contains it (a
+        window on a wall, a lamp on the ceiling) is attached to it on the side its normal faces,
+        with the gap between them;
+      * a box or quad whose bottom is on the floor (y ~ 0) sits on the ground, or on the floor quad
+        ("top"), when there is one that it overlaps in x-z (walls stand on the floor);
+      * a box whose bottom touches the top of another box it overlaps in x-z sits on that box;
+      * a horizontal quad level with the top of a vertical room quad (the ceiling) sits on it;
+      * everything else is free.
+    A single photo leaves a free quad's distance from the camera undetermined (scale ambiguity);
+    attaching it to the ground fixes it."""
     aabb = {p.name: (p.center - p.half_extent(), p.center + p.half_extent()) for p in prims}
+
+    def overlaps_xz(a: str, b: str) -> bool:
+        (alo, ahi), (blo, bhi) = aabb[a], aabb[b]
+        return bool(np.all(alo[[0, 2]] <= bhi[[0, 2]] + tol) and np.all(ahi[[0, 2]] >= blo[[0, 2]] - tol))
+
+    def axis_of(p: Primitive) -> int | None:
+        n = p.rotation()[:, 2]
+        a = int(np.argmax(np.abs(n)))
+        return a if abs(n[a]) > 1 - 1e-6 else None
+
+    floors = [q for q in prims if q.kind == "quad" and axis_of(q) == 1 and abs(q.center[1]) < tol]
     for p in prims:
+        p.parent, p.attach, p.gap = None, "free", 0.0
         lo, hi = aabb[p.name]
-        if p.kind == "box":
-            p.parent, p.attach, p.gap = None, "free", 0.0
-            if abs(lo[1]) < tol:
-                p.attach = "top"
+        if p.kind == "quad":
+            axis = axis_of(p)
+            if axis is None:
                 continue
+            others = [a for a in range(3) if a != axis]
             for q in prims:
-                if q is p or q.kind != "box":
+                if q is p or q.kind != "quad" or axis_of(q) != axis or q.size.prod() <= p.size.prod():
                     continue
                 qlo, qhi = aabb[q.name]
-                if abs(qhi[1] - lo[1]) < tol and np.all(lo[[0, 2]] < qhi[[0, 2]]) and np.all(hi[[0, 2]] > qlo[[0, 2]]):
-                    p.parent, p.attach = q.name, "top"
-                    break
-        else:
-            p.parent, p.attach, p.gap = None, "free", 0.0
-            n = p.rotation()[:, 2]
-            axis = int(np.argmax(np.abs(n)))
-            if abs(n[axis]) < 1 - 1e-6:
-                continue
-            for q in prims:
-                if q is p or q.kind != "quad" or q.parent == p.name:
-                    continue
-                qn = q.rotation()[:, 2]
-                qlo, qhi = aabb[q.name]
-                if abs(abs(qn[axis]) - 1) > 1e-6 or q.size.prod() <= p.size.prod():
-                    continue
                 d = p.center[axis] - q.center[axis]
-                others = [a for a in range(3) if a != axis]
                 if abs(d) < tol and np.all(lo[others] >= qlo[others] - tol) and np.all(hi[others] <= qhi[others] + tol):
                     side = [s for s, (a, sg) in SIDES.items() if a == axis and sg == (1 if d >= 0 else -1)][0]
                     p.parent, p.attach, p.gap = q.name, side, abs(d)
                     break
+            if p.parent is not None:
+                continue
+        if abs(lo[1]) < tol:
+            p.attach = "top"
+            base = [q for q in floors if q is not p and overlaps_xz(p.name, q.name)]
+            if base and not (p.kind == "quad" and axis_of(p) == 1):
+                p.parent = base[0].name
+            continue
+        for q in prims:
+            if q is p or p.parent is not None:
+                continue
+            qlo, qhi = aabb[q.name]
+            if abs(qhi[1] - lo[1]) < tol and overlaps_xz(p.name, q.name):
+                if p.kind == "box" and q.kind == "box":
+                    p.parent, p.attach = q.name, "top"
+                elif p.kind == "quad" and q.kind == "quad" and axis_of(p) == 1 and axis_of(q) != 1 \
+                        and q.role == "room":
+                    p.parent, p.attach = q.name, "top"
+        # a cycle is impossible: parents are always lower (or coplanar containers, which are larger)
 
 
 class PrimitiveModel:
