@@ -295,7 +295,7 @@ def merge_bracket(images: list[np.ndarray], times: list[float], response: np.nda
     response (256,3) or (3,256) mapping level -> relative exposure X (None: recovered with
     `calibration`); method: "debevec" (cv2.MergeDebevec) or "robertson" (cv2.MergeRobertson).
     Returns (radiance float32 (H,W,3) = X / t, response (256,3) float64).
-    Pixels clipped in every exposure come out as the bound the response gives (see saturated_mask).
+    Channels clipped even in the shortest exposure get the lower bound g(255) / t_min (saturated_mask).
     """
     import cv2
 
@@ -312,6 +312,12 @@ def merge_bracket(images: list[np.ndarray], times: list[float], response: np.nda
     else:
         raise ValueError(f"unknown merge method {method!r} (debevec or robertson)")
     rad = np.asarray(rad, np.float32)
+    # clipped even in the shortest exposure: OpenCV's average over the exposures (each clipped
+    # one counting X = g(255)) is far below the truth; keep the tightest lower bound instead
+    clipped = images[0] >= SATURATED
+    if clipped.any():
+        bound = np.broadcast_to((g[255] / t[0]).astype(np.float32), rad.shape)
+        rad = np.where(clipped, np.maximum(rad, bound), rad)
     if not np.all(np.isfinite(rad)):
         raise RuntimeError(f"HDR merge produced {int((~np.isfinite(rad)).sum())} non-finite values")
     return rad, g
