@@ -65,6 +65,10 @@ def _add_engine_args(p: argparse.ArgumentParser) -> None:
                    help="share of total patch power kept as shadow sources (default %(default)s)")
     g.add_argument("--patch-size", type=_positive_float, default=d.patch_size, help="metres (default %(default)s)")
     g.add_argument("--map-res", type=_positive_int, default=d.map_res, help="shadow-map size (default %(default)s)")
+    g.add_argument("--lighting", choices=["known", "captured"], default=d.lighting,
+                   help="known: the scene's declared emitters; captured: the bracketed mirror-ball probe "
+                        "(probe_*.png) and the photo, with the response recovered from the bracket "
+                        "(default %(default)s)")
     g.add_argument("--specular", type=float, default=d.specular,
                    help="k_s of the object's Phong-like specular lobe, in [0, 1] (default %(default)s: Lambertian)")
     g.add_argument("--shininess", type=float, default=d.shininess, help="Phong exponent (default %(default)s)")
@@ -78,6 +82,7 @@ def _add_engine_args(p: argparse.ArgumentParser) -> None:
 def _params(a: argparse.Namespace) -> EngineParams:
     return EngineParams(mode=a.mode, passes=a.passes, source_fraction=a.source_fraction, patch_size=a.patch_size,
                         map_res=a.map_res, specular=a.specular, shininess=a.shininess,
+                        lighting=a.lighting,
                         object_light=not a.no_object_light, second_order=not a.no_second_order)
 
 

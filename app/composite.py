@@ -50,8 +50,13 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
         "precompute_cache_hit": engine.cache_hit,
         "precompute_uncached_s": engine.pre.seconds,
         **frame.stats,
+        "lighting": params.lighting,
         "params": {k: getattr(params, k) for k in params.__dataclass_fields__},
     }
+    if params.lighting == "captured":
+        from lighting.radiance import RadianceMesh
+
+        report["radiance_mesh"] = RadianceMesh(engine.pre.B[-1], engine.pre.albedo, engine.pre.origin).summary()
     with AtomicOutput(out) as stage:
         write_png(stage / "composite.png", frame.pixels)
         write_exr(stage / "composite.exr", frame.radiance)

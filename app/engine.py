@@ -22,6 +22,7 @@ from the 8-bit photo.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -46,6 +47,7 @@ from kernels.shafts import shaft_candidates
 from kernels.visibility import Occluder, emitter_sum, transfer_matrix
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from lighting.irradiance import RoomLight
+from lighting.radiance import captured_files, captured_radiance_mesh, load_captured_probe
 from lighting.radiosity import gather
 from lighting.sources import luminance, select_sources
 from lighting.transfer import intensity_transfers
@@ -54,7 +56,7 @@ from recon.proxy import simplify, subdivide
 from recon.scene import Scene, SceneObject
 
 log = logging.getLogger("photoar")
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 
 
 @dataclass
@@ -79,9 +81,10 @@ class EngineParams:
     specular: float = 0.0  # k_s of the object's Phong-like specular lobe (0: Lambertian, as in the benchmarks)
     shininess: float = 32.0  # Phong exponent n of that lobe
     envmap_res: int = 16  # face size of the pre-filtered cube map looked up per pixel
+    lighting: str = "known"  # known: declared emitters + radiosity; captured: probe bracket + photo (sec. 4.2)
 
     def cache_key(self) -> dict:
-        return {k: getattr(self, k) for k in ("patch_size", "emitter_patch_size", "vis_side", "bounces")}
+        return {k: getattr(self, k) for k in ("patch_size", "emitter_patch_size", "vis_side", "bounces", "lighting")}
 
 
 @dataclass
@@ -96,6 +99,8 @@ class Precomputed:
     pix_tri: np.ndarray  # (H*W,) int32 scene triangle per pixel (-1 none)
     pix_bary: np.ndarray  # (H*W,3) float32
     pix_depth: np.ndarray  # (H*W,) float32 metres along the ray
+    albedo: np.ndarray  # (P,3) patch reflectivity used (declared, or recovered from captured light)
+    origin: np.ndarray  # (P,) int8 where each patch's radiance came from (lighting.radiance codes; known: -1)
     seconds: float = 0.0
 
 
@@ -119,6 +124,10 @@ def _hash_scene(scene: Scene, params: EngineParams) -> str:
     for a in (cam.K, cam.R, cam.t):
         h.update(np.ascontiguousarray(a, np.float64).tobytes())
     h.update(f"{cam.width}x{cam.height}".encode())
+    if params.lighting == "captured":
+        for f in captured_files(scene):
+            h.update(hashlib.sha256(f.read_bytes()).digest())
+        h.update(hashlib.sha256(np.ascontiguousarray(scene.photo).tobytes()).digest())
     return h.hexdigest()
 
 
@@ -149,6 +158,8 @@ class Engine:
         self.params = params or EngineParams()
         if self.params.mode not in ("hdr", "ldr"):
             raise ValueError(f"mode must be 'hdr' or 'ldr', got {self.params.mode!r}")
+        if self.params.lighting not in ("known", "captured"):
+            raise ValueError(f"lighting must be 'known' or 'captured', got {self.params.lighting!r}")
         if not 0.0 <= self.params.specular <= 1.0 or self.params.shininess < 0:
             raise ValueError(f"specular must be in [0, 1] and shininess >= 0, got {self.params.specular}, "
                              f"{self.params.shininess}")
@@ -156,6 +167,11 @@ class Engine:
         self.quiet = quiet
         self.cache_dir = Path(cache_dir) if cache_dir else None
         t0 = time.perf_counter()
+        self.probe = None
+        if self.params.lighting == "captured":
+            # the camera response comes from the probe bracket too: nothing declared is used
+            self.probe = load_captured_probe(scene)
+            self.scene = scene = dataclasses.replace(scene, response=self.probe.response)
         self.pre, self.cache_hit = self._precompute()
         self._setup()
         self.room_light  # the SH volume is per-scene work too
@@ -173,8 +189,9 @@ class Engine:
             try:
                 z = np.load(cache)
                 pre = Precomputed(patches, z["G_c"], z["recv_vert"], z["G_v"], z["B"], z["pix_tri"], z["pix_bary"],
-                                  z["pix_depth"], float(z["seconds"]))
+                                  z["pix_depth"], z["albedo"], z["origin"], float(z["seconds"]))
                 log.info("precompute: cache hit %s", cache)
+                self._use_lighting(pre)
                 return pre, True
             except (OSError, KeyError, ValueError, EOFError) as e:
                 log.warning("precompute: ignoring unreadable cache %s (%s)", cache, e)
@@ -196,14 +213,32 @@ class Engine:
             G_v = transfer_matrix(patches.vert_inset[recv_vert], patches.vert_normal[recv_vert], patches.corners,
                                   patches.normal, [self.scene_occ], n_side=p.vis_side, device=dev,
                                   progress=bar.update)
-        B = np.stack(gather(G_c, patches.albedo, patches.emission, p.bounces))
+        if p.lighting == "captured":
+            pix_patch = np.where(pix_tri >= 0, patches.tri_patch[np.maximum(pix_tri, 0)], -1)
+            rm = captured_radiance_mesh(patches, G_c, self.cam_occ, self.probe, scene, pix_patch)
+            log.info("radiance mesh from captured light: %s", rm.summary())
+            B = np.stack([rm.radiance] * (p.bounces + 1))
+            albedo, origin = rm.reflectivity, rm.origin
+        else:
+            B = np.stack(gather(G_c, patches.albedo, patches.emission, p.bounces))
+            albedo, origin = patches.albedo, np.full(n_c, -1, np.int8)
         seconds = time.perf_counter() - t0
-        pre = Precomputed(patches, G_c, recv_vert, G_v, B, pix_tri, pix_bary, pix_depth, seconds)
+        pre = Precomputed(patches, G_c, recv_vert, G_v, B, pix_tri, pix_bary, pix_depth, albedo, origin, seconds)
+        self._use_lighting(pre)
         if cache is not None:
             _save_npz_atomic(cache, G_c=G_c, recv_vert=recv_vert, G_v=G_v, B=B, pix_tri=pix_tri, pix_bary=pix_bary,
-                             pix_depth=pix_depth, seconds=seconds)
+                             pix_depth=pix_depth, albedo=albedo, origin=origin, seconds=seconds)
         log.info("precompute: %d patches, %d receiver vertices, %.1f s", n_c, n_v, seconds)
         return pre, False
+
+    def _use_lighting(self, pre: Precomputed) -> None:
+        """Make the patch mesh carry the reflectivity and emitter radiance the precompute used."""
+        pm = pre.patches
+        pm.albedo = np.asarray(pre.albedo, np.float64)
+        if self.params.lighting == "captured":
+            # which patches emit is the model's (its window and lamp quads); how bright is captured
+            emit = pm.is_emitter
+            pm.emission = np.where(emit[:, None], np.maximum(pre.B[-1], 1e-12), 0.0)
 
     def _setup(self) -> None:
         """Per-scene arrays derived from the precompute, shared by every frame."""

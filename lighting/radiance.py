@@ -1,0 +1,228 @@
+"""Radiance mesh from captured light: the mirror-ball probe, the photo, and gathering (seed sec. 4.2).
+
+The seed builds its radiance mesh from HDR captures: every patch of the scene model gets the
+radiance that the light probe (or the photo) sees on it; reflectivity is the photo's radiance
+divided by the irradiance gathered from that mesh; patches that neither the probe nor the photo
+sees gather irradiance and reflect it with reflectivity 0.5. Emitters are simply bright patches.
+
+Per patch, in order of preference:
+1. the photo: the mean of the camera-seen, unsaturated pixels on the patch (at least
+   `min_pixels`; the photo is far finer than the probe and seen from the model's own camera);
+2. the probe: probe pixels are traced from the ball's surface (the reflection point, not its
+   centre) into the model; each patch gets the flux the probe saw on it divided by the solid
+   angle it subtends at the ball. Tiny bright patches (a ceiling lamp covering one or two probe
+   pixels) would be smeared over their neighbours by a plain per-pixel assignment, so each
+   pixel's flux is split over the patches its sub-rays hit in proportion to their current
+   radiance estimate and re-estimated a few times (an EM / Richardson-Lucy deconvolution over
+   the pixel footprints). The sum over a pixel is conserved, so the split never invents light;
+3. gathering: B = 0.5 * (G @ B) over the transfers G, iterated.
+
+Units: radiance in the scene's units (W/(m^2 sr) up to one scale), reflectivity in [0, 1].
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from kernels.raycast import cast_rays
+from kernels.visibility import Occluder
+from lighting import probe as probe_maps
+from recon.patches import PatchMesh
+
+log = logging.getLogger("photoar")
+
+PHOTO, PROBE, GATHERED = 2, 1, 0
+
+
+@dataclass
+class RadianceMesh:
+    """Per-patch radiance (P,3), reflectivity (P,3) and where each radiance came from (P,) int8
+    (PHOTO, PROBE or GATHERED)."""
+
+    radiance: np.ndarray
+    reflectivity: np.ndarray
+    origin: np.ndarray
+
+    def summary(self) -> dict:
+        return {"patches_from_photo": int(np.sum(self.origin == PHOTO)),
+                "patches_from_probe": int(np.sum(self.origin == PROBE)),
+                "patches_gathered": int(np.sum(self.origin == GATHERED))}
+
+
+def probe_rays(light_probe: dict, size: int, rim: float = probe_maps.DEFAULT_RIM, sub: int = 3
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rays leaving the mirror ball of a scene's `light_probe` block (scene.json), sub x sub per pixel.
+
+    Returns origins (N,3) m (points on the ball), dirs (N,3) unit world directions, solid angle
+    (N,) sr per ray, pixel (N,) flat index into the size x size probe image; only valid pixels.
+    """
+    R = np.asarray(light_probe["camera"]["R"], np.float64)
+    centre = np.asarray(light_probe["centre"], np.float64)
+    radius = float(light_probe["radius"])
+    _, sa, valid = probe_maps.mirrorball_directions(size, R.T, rim)
+    c, r = (size - 1) / 2, size / 2
+    offs = (np.arange(sub) + 0.5) / sub - 0.5
+    vv, uu = np.nonzero(valid)
+    oy, ox = np.meshgrid(offs, offs, indexing="ij")
+    U = (uu[:, None, None] + ox[None]).reshape(-1)
+    V = (vv[:, None, None] + oy[None]).reshape(-1)
+    x, y = (U - c) / r, (V - c) / r
+    n_cam = np.stack([x, y, -np.sqrt(np.clip(1 - x * x - y * y, 0, 1))], -1)
+    w_cam = np.array([0.0, 0.0, 1.0]) - 2 * n_cam[:, 2:3] * n_cam
+    dirs = w_cam @ R  # R^T applied to row vectors
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    origins = centre + radius * (n_cam @ R)
+    pixel = np.repeat(vv * size + uu, sub * sub)
+    return origins, dirs, np.repeat(sa[vv, uu] / sub ** 2, sub * sub), pixel
+
+
+def project_probe(patches: PatchMesh, mesh: Occluder, light_probe: dict, probe_rgb: np.ndarray,
+                  iterations: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Per-patch radiance (P,3) seen by the probe and the solid angle (P,) sr it covers.
+
+    probe_rgb: (S,S,3) HDR mirror-ball image in the probe camera's pixel grid; mesh: the model
+    the camera sees (emitters included). Patches the probe does not see get radiance 0, omega 0.
+    """
+    S = probe_rgb.shape[0]
+    origins, dirs, sa, pixel = probe_rays(light_probe, S)
+    tri, _, _ = cast_rays(mesh, origins, dirs)
+    hit = tri >= 0
+    P = patches.n_patches
+    patch = patches.tri_patch[np.maximum(tri, 0)]
+    L_pix = probe_rgb.reshape(-1, 3).astype(np.float64)[pixel]
+    omega = np.bincount(patch[hit], sa[hit], minlength=P)
+    seen = omega > 0
+    # start from the plain average, then split each pixel's flux by the current estimate
+    rad = np.zeros((P, 3))
+    for c in range(3):
+        rad[:, c] = np.bincount(patch[hit], sa[hit] * L_pix[hit, c], minlength=P)
+    rad[seen] /= omega[seen, None]
+    pix_flux = np.zeros((probe_rgb.shape[0] * probe_rgb.shape[1], 3))
+    np.add.at(pix_flux, pixel[hit], sa[hit, None] * L_pix[hit])
+    for _ in range(iterations):
+        w = sa[hit, None] * rad[patch[hit]]  # expected flux of each sub-ray
+        norm = np.zeros_like(pix_flux)
+        np.add.at(norm, pixel[hit], w)
+        share = w / np.maximum(norm[pixel[hit]], 1e-30)
+        new = np.zeros((P, 3))
+        for c in range(3):
+            new[:, c] = np.bincount(patch[hit], share[:, c] * pix_flux[pixel[hit], c], minlength=P)
+        rad[seen] = new[seen] / omega[seen, None]
+    return rad, omega
+
+
+def photo_radiance(pix_patch: np.ndarray, L_b: np.ndarray, saturated: np.ndarray, n_patches: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean photo radiance (P,3) per patch over its unsaturated pixels, and their count (P,).
+
+    pix_patch (H*W,) patch per pixel (-1 none); L_b (H*W,3) radiance; saturated (H*W,) bool.
+    Patches with any saturated pixel get count 0 (their radiance is only a lower bound)."""
+    ok = pix_patch >= 0
+    cnt = np.bincount(pix_patch[ok & ~saturated], minlength=n_patches).astype(np.float64)
+    sat = np.bincount(pix_patch[ok & saturated], minlength=n_patches)
+    rad = np.zeros((n_patches, 3))
+    good = ok & ~saturated
+    for c in range(3):
+        rad[:, c] = np.bincount(pix_patch[good], L_b[good, c], minlength=n_patches)
+    rad /= np.maximum(cnt, 1)[:, None]
+    cnt[sat > 0] = 0
+    return rad, cnt
+
+
+def build_radiance_mesh(G: np.ndarray, probe_rad: np.ndarray, probe_omega: np.ndarray, photo_rad: np.ndarray,
+                        photo_count: np.ndarray, is_emitter: np.ndarray, min_pixels: int = 4,
+                        min_omega: float = 1e-6, unseen_reflectivity: float = 0.5, iterations: int = 20
+                        ) -> RadianceMesh:
+    """Combine photo, probe and gathering (module docstring) into one radiance mesh.
+
+    G (P,P): patch -> patch transfers (irradiance/pi at row patch per unit radiance of column
+    patch, visibility included). Reflectivity of measured non-emitting patches is
+    L / (G @ L), clipped to [0, 1]; emitters get 0, unseen patches `unseen_reflectivity`.
+    """
+    P = len(G)
+    origin = np.full(P, GATHERED, np.int8)
+    origin[probe_omega > min_omega] = PROBE
+    origin[photo_count >= min_pixels] = PHOTO
+    L = np.zeros((P, 3))
+    L[origin == PROBE] = probe_rad[origin == PROBE]
+    L[origin == PHOTO] = photo_rad[origin == PHOTO]
+    unseen = origin == GATHERED
+    G64 = np.asarray(G, np.float64)
+    if unseen.any():
+        for _ in range(iterations):
+            L[unseen] = unseen_reflectivity * (G64[unseen] @ L)
+    E = G64 @ L
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = np.where(E > 0, L / E, unseen_reflectivity)
+    rho = np.clip(np.nan_to_num(rho, nan=unseen_reflectivity), 0.0, 1.0)
+    rho[unseen] = unseen_reflectivity
+    rho[is_emitter] = 0.0
+    if not np.all(np.isfinite(L)):
+        raise RuntimeError("radiance mesh: non-finite patch radiance (check the probe image)")
+    return RadianceMesh(L, rho, origin)
+
+
+# ----------------------------------------------------------------------------- scenes
+
+@dataclass
+class CapturedProbe:
+    """A scene's merged probe bracket and the camera response recovered from it."""
+
+    radiance: np.ndarray  # (S,S,3) float32, mirror-ball image in the probe camera's grid
+    inverse_response: np.ndarray  # (256,3) level -> relative exposure, g(255) = 1
+    response: "CameraResponse"
+    light_probe: dict  # scene.json's light_probe block (pose, radius, files)
+
+
+def _light_probe_block(scene) -> tuple[dict, Path]:
+    import json
+
+    path = Path(scene.meta.get("json_path", scene.root / "scene.json"))
+    try:
+        lp = json.loads(path.read_text())["light_probe"]
+        for key in ("centre", "radius", "camera", "ldr_files", "exposure_times"):
+            lp[key]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{path}: light_probe: missing or malformed ({e}); --lighting captured needs the "
+                         f"probe's pose and its bracket") from None
+    return lp, path
+
+
+def captured_files(scene) -> list[Path]:
+    """The bracket files (probe_*.png) of a scene's light probe, in exposure order."""
+    lp, path = _light_probe_block(scene)
+    return [path.parent / f for f in lp["ldr_files"]]
+
+
+def load_captured_probe(scene) -> CapturedProbe:
+    """Merge the scene's probe bracket with a response recovered from the bracket itself."""
+    from lighting import hdr
+    from lighting.tonemap import CameraResponse
+
+    lp, path = _light_probe_block(scene)
+    files = captured_files(scene)
+    images = [hdr.read_ldr(f) for f in files]
+    try:
+        rad, g = hdr.merge_bracket(images, lp["exposure_times"])
+    except ValueError as e:
+        raise ValueError(f"{path}: light_probe bracket: {e}") from None
+    response = CameraResponse(hdr.forward_table(g), g.T, scene.response.exposure_time)
+    return CapturedProbe(rad, g, response, lp)
+
+
+def captured_radiance_mesh(patches: PatchMesh, G: np.ndarray, mesh: Occluder, probe: CapturedProbe, scene,
+                           pix_patch: np.ndarray) -> RadianceMesh:
+    """The radiance mesh of a scene from its probe and photo (module docstring).
+
+    pix_patch (H*W,): patch seen by each photo pixel (-1 none); the photo is read through the
+    recovered response. Saturated photo pixels (any channel 255) are not used.
+    """
+    probe_rad, omega = project_probe(patches, mesh, probe.light_probe, probe.radiance)
+    photo = scene.photo.reshape(-1, 3)
+    L_b = probe.response.to_radiance(photo)
+    sat = np.any(photo >= 255, axis=1)
+    photo_rad, count = photo_radiance(pix_patch, L_b, sat, patches.n_patches)
+    return build_radiance_mesh(G, probe_rad, omega, photo_rad, count, patches.is_emitter)
