@@ -9,8 +9,8 @@ constraint act on them:
   * image constraints, satisfied in the least-squares sense: vertex k of a primitive should
     project to pixel (u, v) of the calibrated camera.
 `PrimitiveModel.fit` solves all image constraints at once (scipy least_squares); `drag` changes
-one image constraint and re-solves only the dragged primitive, its parent and its children
-(recursion one level up and down), warm-started from the last solution.
+one image constraint and re-solves only the dragged primitive and its children (optionally its
+parent too: recursion at most one level up and down), warm-started from the last solution.
 
 Model JSON schema (`save_model` / `load_model`; a scene.json loads too, its "primitives" list is
 the same format without the scene-graph fields):
@@ -565,12 +565,14 @@ class PrimitiveModel:
         self.constraints.append(c)
         return c
 
-    def drag(self, camera, name: str, vertex: int, px, tol: float = 1e-6, max_nfev: int = 50) -> dict:
-        """Interactive update: move one image constraint and re-solve the dragged primitive, its parent
-        and its children (one level up and down), warm-started from the current solution."""
+    def drag(self, camera, name: str, vertex: int, px, up: bool = False, tol: float = 1e-6,
+             max_nfev: int = 50) -> dict:
+        """Interactive update: move one image constraint and re-solve the dragged primitive and its
+        children (one level down), warm-started from the current solution. `up` also re-solves its
+        parent (one level up); the parent carries its whole subtree, so this costs more."""
         self.set_constraint(name, vertex, px)
         p = self[name]
-        names = ([p.parent] if p.parent is not None else []) + [name] + self.children[name]
+        names = ([p.parent] if up and p.parent is not None else []) + [name] + self.children[name]
         return self.solve(camera, names, tol=tol, max_nfev=max_nfev)
 
     # -- export --------------------------------------------------------------------------------
