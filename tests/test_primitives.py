@@ -99,7 +99,7 @@ def test_hierarchy_strict_and_drag():
                          and not (c.primitive == "desk_leg0" and c.vertex & 2)]
     # drag the leg's top front corner 8 px up: the leg grows, the desk top follows it exactly
     info = model.drag(cam, "desk_leg0", 6, uv[6] + [0, -8])
-    assert info["n_params"] == 5 + 6 + 6  # parent (floor quad), the leg, its child (desk top)
+    assert info["n_params"] == 6 + 6  # the leg and its child (desk top); up=True adds the parent
     lo_top = top.center[1] - top.half_extent()[1]
     hi_leg = leg.center[1] + leg.half_extent()[1]
     assert abs(lo_top - hi_leg) < 1e-12 and hi_leg > 0.71 + 1e-3
