@@ -28,6 +28,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "app.cmd_probe",
     "app.cmd_calibrate",
     "app.cmd_model",
+    "app.cmd_reference",
 )
 
 
