@@ -43,8 +43,8 @@ from kernels.composite import MaskedSum
 from kernels.raycast import cast_rays
 from kernels.shadowmap import ShadowMaps
 from kernels.shade import self_transfer
-from kernels.shafts import shaft_candidates
 from kernels.visibility import Occluder, emitter_sum, transfer_matrix
+from lighting.frame_sources import ShadowSources
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from lighting.irradiance import RoomLight
 from lighting.radiance import captured_files, captured_radiance_mesh, load_captured_probe
@@ -82,6 +82,9 @@ class EngineParams:
     shininess: float = 32.0  # Phong exponent n of that lobe
     envmap_res: int = 16  # face size of the pre-filtered cube map looked up per pixel
     lighting: str = "known"  # known: declared emitters + radiosity; captured: probe bracket + photo (sec. 4.2)
+    fps: float | None = None  # target frame rate: choose the pass count from measured per-pass cost
+    leaf_size: int = 8  # receiver octree leaf size (sec. 6.2)
+    shaft_threshold: float = 0.02  # stop refining a shaft below this share of each receiver's light
 
     def cache_key(self) -> dict:
         return {k: getattr(self, k) for k in ("patch_size", "emitter_patch_size", "vis_side", "bounces", "lighting")}
@@ -266,6 +269,14 @@ class Engine:
             self.rho_x = np.where(self.E_x > 0, np.minimum(self.L_b / self.E_x, 1.0), 0.0)
         self.maps = ShadowMaps(self.params.batch, self.params.map_res, device=dev)
         self._room_light = None
+        t0 = time.perf_counter()
+        src = select_sources(self.B_src, pm.area, self.params.source_fraction)
+        receivers = np.flatnonzero(~pm.is_emitter)
+        self.shadow_sources = ShadowSources(src, pm.centre, pm.normal, pm.corners, receivers, pre.G_c, pre.G_v,
+                                            self.B_src, self.params.leaf_size, self.params.shaft_threshold)
+        self.shaft_build_s = time.perf_counter() - t0
+        log.info("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
+        self._cost = {"fixed_s": 1.0, "per_pass_s": 0.01}  # refined after every frame
         self.near_factor = 2.0  # object light per pixel within this many bounding radii
         # occlusion masks: every pixel within mask_near_factor bounding radii of the object, farther
         # out (soft, slowly varying shadows) every second pixel in x and y, the rest filled in from
@@ -308,12 +319,9 @@ class Engine:
         cov = hits.coverage()
         t = tick("object", t)
 
-        # ---- source list: sources whose shafts to some receiver patch can meet the object
-        src = select_sources(self.B_src, pm.area, p.source_fraction)
-        cand = self._candidates(src, centre, radius)
-        active = np.flatnonzero(cand.any(0))
-        src, cand = src[active], cand[:, active]
-        eyes, W_v, W_c, cand = self._representatives(src, cand, p.passes)
+        # ---- source list from the shaft hierarchy, grouped into the frame's passes (sec. 6.2.1, 6.4)
+        fs = self.shadow_sources.select(pv.min(0), pv.max(0), self._passes_for_frame())
+        eyes, W_v, W_c, cand = fs.eyes, fs.W_v, fs.W_c, fs.cand
         t = tick("sources", t)
 
         # ---- occlusion masks: pixels and patch centres
@@ -398,10 +406,13 @@ class Engine:
         pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8).reshape(H, W, 3)
         tick("compose", t)
         frame_s = time.perf_counter() - t_all
-        stats = {"frame_s": frame_s, "timings": timings, "n_sources": int(n_src), "n_patches": int(pm.n_patches),
+        if n_src:
+            self._cost = {"per_pass_s": timings["masks"] / n_src, "fixed_s": frame_s - timings["masks"]}
+        stats = {"frame_s": frame_s, "timings": timings, "n_sources": int(fs.n_listed), "passes": int(n_src),
+                 "n_patches": int(pm.n_patches), "n_receiver_patches": fs.n_receivers,
                  "n_receiver_vertices": int(len(pre.recv_vert)), "n_mask_pixels": int(len(pix_sel)),
-                 "n_filled_pixels": int(len(fill_sel)),
-                 "proxy_triangles": int(len(pf)), "passes": int(n_src), "mode": p.mode}
+                 "n_filled_pixels": int(len(fill_sel)), "proxy_triangles": int(len(pf)), "mode": p.mode,
+                 "shaft_build_s": self.shaft_build_s, **self.shadow_sources.stats()}
         return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats)
 
     # ------------------------------------------------------------------ pieces
@@ -573,45 +584,14 @@ class Engine:
         self._n_object_light_pixels = len(sel)
         return R_pix, R_cen
 
-    def _candidates(self, src: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
-        """(P, S) bool: can the object come between patch p and source s? (kernels.shafts)"""
-        pm = self.pre.patches
-        rad = pm.radius + 1e-3
-        out = shaft_candidates(pm.centre, rad, pm.centre[src], rad[src], centre, radius + 1e-3, self.device)
-        out[pm.is_emitter] = False
-        return out
-
-    def _representatives(self, src: np.ndarray, cand: np.ndarray, passes: int | None):
-        """Map eyes (n,3) and weight tables for the frame's shadow passes.
-
-        With a pass limit, sources are grouped: the `passes` strongest become representatives and
-        every other source joins the nearest one, adding its transfers (sec. 6.4: a cluster's map is
-        rendered from its strongest member, and the cluster carries all of its members' energy).
-        Returns eyes, W_v (Vr,n,3) receiver-vertex weights, W_c (P,n,3) centre weights, cand (P,n).
-        """
-        pre, pm = self.pre, self.pre.patches
-        B = self.B_src[src]
-        strength = (pre.G_v[:, src].astype(np.float64) * luminance(B)[None, :]).mean(0)
-        order = np.argsort(-strength, kind="stable")
-        src, cand, B = src[order], cand[:, order], B[order]
-        W_v = pre.G_v[:, src][:, :, None].astype(np.float64) * B[None]
-        W_c = pre.G_c[:, src][:, :, None].astype(np.float64) * B[None]
-        eyes = pm.centre[src] + pm.normal[src] * 1e-3
-        if passes is None or passes >= len(src):
-            return eyes, W_v, W_c, cand
-        if passes < 1:
-            raise ValueError("passes must be at least 1")
-        rep = np.arange(passes)
-        owner = cKDTree(pm.centre[src[rep]]).query(pm.centre[src])[1]
-        owner[rep] = rep
-        Wv = np.zeros((W_v.shape[0], passes, 3))
-        Wc = np.zeros((W_c.shape[0], passes, 3))
-        cd = np.zeros((cand.shape[0], passes), bool)
-        for k in range(len(src)):
-            Wv[:, owner[k]] += W_v[:, k]
-            Wc[:, owner[k]] += W_c[:, k]
-            cd[:, owner[k]] |= cand[:, k]
-        return eyes[rep], Wv, Wc, cd
+    def _passes_for_frame(self) -> int | None:
+        """The pass budget: --passes, or the passes that fit 1/--fps from the measured costs."""
+        p = self.params
+        if p.fps is None:
+            return p.passes
+        budget = 1.0 / p.fps - self._cost["fixed_s"]
+        n = int(budget / max(self._cost["per_pass_s"], 1e-6))
+        return max(1, min(n, p.passes or n))
 
     def _ldr_weights(self, W_v: np.ndarray) -> np.ndarray:
         """Intensity transfers S_ij (Vr,S,3) in levels at receiver vertices (fig. 13)."""

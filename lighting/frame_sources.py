@@ -1,0 +1,167 @@
+"""Per-frame source list and representative source set under a pass budget (seed sec. 6.2.1, 6.4).
+
+`ShadowSources` is built once per scene from the source set, the transfers and the radiance
+mesh: a source KD-tree, a receiver octree over the non-emitting patches, and the shaft
+hierarchy between them. Per frame, `select(box_min, box_max, passes)`:
+1. traverses the shafts with the object's box: the sources of the leaf shafts met (each counted
+   once: the frame tag of the seed is a boolean mark here) and, per leaf shaft, its receivers;
+2. marks the KD-tree nodes holding those sources (the tag pushed up to the root) and picks
+   `passes` nodes by repeatedly splitting the marked node with the largest transfer to the
+   receivers (a heap), sec. 6.4; without a budget every marked source is its own pass;
+3. gives each chosen node a shadow-map eye at the centre of its most contributing member, and
+   weights that sum the transfers of its marked members (the cluster keeps their energy);
+4. gives the (receiver patch, pass) pairs that can be shadowed: only those pixels are touched.
+"""
+from __future__ import annotations
+
+import heapq
+from dataclasses import dataclass
+
+import numpy as np
+
+from lighting.hierarchy import receiver_octree, source_kdtree
+from lighting.shafts import ShaftHierarchy
+from lighting.sources import luminance
+
+
+@dataclass
+class FrameSources:
+    """One frame's shadow passes: eyes (n,3) m; W_v (Vr,n,3) receiver-vertex and W_c (P,n,3)
+    patch-centre transfers (irradiance/pi per pass); cand (P,n) bool receiver pairs; the number
+    of sources in the source list."""
+
+    eyes: np.ndarray
+    W_v: np.ndarray
+    W_c: np.ndarray
+    cand: np.ndarray
+    n_listed: int
+    n_receivers: int
+
+
+class ShadowSources:
+    def __init__(self, src: np.ndarray, centres: np.ndarray, normals: np.ndarray, corners: np.ndarray,
+                 receivers: np.ndarray, G_c: np.ndarray, G_v: np.ndarray, B: np.ndarray,
+                 leaf_size: int = 8, threshold: float = 0.02, keep_weak: bool = True):
+        """src (S,) source patch ids; receivers (R,) receiver patch ids; G_c (P,P), G_v (Vr,P)
+        transfers; B (P,3) source radiance; centres/normals (P,3), corners (P,4,3) m."""
+        self.P = len(centres)
+        self.keep_weak = keep_weak
+        self.G_v, self.G_c, self.B = G_v, G_c, B
+        self.empty = len(src) == 0 or len(receivers) == 0  # nothing lights anything: no passes ever
+        if self.empty:
+            return
+        self.src_tree = source_kdtree(np.asarray(src), centres, corners)
+        self.recv_tree = receiver_octree(np.asarray(receivers), centres, corners, leaf_size)
+        self.src_ids = self.src_tree.order  # source patch id at each KD position
+        self.eye_pos = centres + normals * 1e-3
+        ro, so = self.recv_tree.order, self.src_ids
+        lum_B = luminance(B[so])
+        T = np.asarray(G_c[np.ix_(ro, so)], np.float64) * lum_B[None, :]
+        prefix = np.zeros((len(ro), len(so) + 1), np.float32)
+        prefix[:, 1:] = np.cumsum(T, axis=1)
+        self.shafts = ShaftHierarchy(self.src_tree, self.recv_tree, prefix, prefix[:, -1].astype(np.float64),
+                                     threshold)
+        # a source's average transfer to the receiver vertices (the heap's key, summed per node)
+        self.strength = (np.asarray(G_v[:, so], np.float64) * lum_B[None, :]).mean(0) if len(so) else np.zeros(0)
+        self.leaf_of_recv = np.full(self.P, -1, np.int64)
+        self.leaf_of_recv[ro] = self.recv_tree.leaf_of_position()
+        self.n_recv_leaves = int(self.recv_tree.leaf_hi[0]) if len(ro) else 0
+
+    def stats(self) -> dict:
+        if self.empty:
+            return {"shafts": 0, "leaf_shafts": 0, "shaft_mb": 0.0, "source_nodes": 0, "receiver_nodes": 0}
+        return {"shafts": self.shafts.n_shafts, "leaf_shafts": self.shafts.n_leaf_shafts,
+                "shaft_mb": self.shafts.nbytes / 2 ** 20, "source_nodes": self.src_tree.n_nodes,
+                "receiver_nodes": self.recv_tree.n_nodes}
+
+    # ------------------------------------------------------------------ per frame
+    def traverse(self, box_min: np.ndarray, box_max: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(marked (S,) bool over KD positions, hit source nodes, hit receiver nodes)."""
+        S = len(self.src_ids)
+        s_nodes, r_nodes = self.shafts.traverse(box_min, box_max, self.keep_weak)
+        t = self.src_tree
+        diff = np.zeros(S + 1, np.int64)
+        np.add.at(diff, t.lo[s_nodes], 1)
+        np.add.at(diff, t.hi[s_nodes], -1)
+        marked = np.cumsum(diff[:-1]) > 0
+        return marked, s_nodes, r_nodes
+
+    def representatives(self, marked: np.ndarray, passes: int | None) -> list[int]:
+        """KD nodes (sorted by position) covering every marked source, at most `passes` of them
+        when the marked sources allow (sec. 6.4: split the node with the largest transfer)."""
+        t = self.src_tree
+        cm = np.concatenate([[0], np.cumsum(marked)])
+        cs = np.concatenate([[0.0], np.cumsum(np.where(marked, self.strength, 0.0))])
+        n_marked = int(cm[-1])
+        if n_marked == 0:
+            return []
+        if passes is None or passes >= n_marked:
+            leaf_node = np.empty(len(marked), np.int64)
+            for n in np.flatnonzero(t.is_leaf):
+                leaf_node[t.lo[n]] = n
+            return leaf_node[np.flatnonzero(marked)].tolist()
+        if passes < 1:
+            raise ValueError("passes must be at least 1")
+
+        def count(n):
+            return cm[t.hi[n]] - cm[t.lo[n]]
+
+        heap = [(-(cs[t.hi[0]] - cs[t.lo[0]]), 0)]
+        done: list[int] = []
+        while heap and len(heap) + len(done) < passes:
+            _, n = heapq.heappop(heap)
+            kids = [c for c in t.children[n] if count(c) > 0]
+            if not kids:
+                done.append(n)
+                continue
+            for c in kids:
+                heapq.heappush(heap, (-(cs[t.hi[c]] - cs[t.lo[c]]), c))
+        nodes = done + [n for _, n in heap]
+        return sorted(nodes, key=lambda n: t.lo[n])
+
+    def select(self, box_min: np.ndarray, box_max: np.ndarray, passes: int | None) -> FrameSources:
+        """The frame's shadow passes for an object inside the box (module docstring)."""
+        if passes is not None and passes < 1:
+            raise ValueError("passes must be at least 1")
+        Vr = self.G_v.shape[0]
+        nodes = []
+        if not self.empty:
+            t = self.src_tree
+            marked, s_nodes, r_nodes = self.traverse(box_min, box_max)
+            nodes = self.representatives(marked, passes)
+        n = len(nodes)
+        if n == 0:
+            return FrameSources(np.zeros((0, 3)), np.zeros((Vr, 0, 3)), np.zeros((self.P, 0, 3)),
+                                np.zeros((self.P, 0), bool), 0, 0)
+        lo, hi = t.lo[nodes], t.hi[nodes]
+        pos = np.flatnonzero(marked)  # marked KD positions, in order: each node holds a run of them
+        starts = np.searchsorted(pos, lo)
+        ids = self.src_ids[pos]
+        B = self.B[ids]
+        W_v = np.add.reduceat(np.asarray(self.G_v[:, ids], np.float32)[:, :, None] * B[None].astype(np.float32),
+                              starts, axis=1)
+        W_c = np.add.reduceat(np.asarray(self.G_c[:, ids], np.float32)[:, :, None] * B[None].astype(np.float32),
+                              starts, axis=1)
+        # eye: the member with the largest transfer
+        strength = self.strength[pos]
+        best = np.maximum.reduceat(strength, starts)
+        group = np.repeat(np.arange(n), np.diff(np.append(starts, len(pos))))
+        first_best = np.full(n, -1)
+        is_best = strength >= best[group]
+        for k in np.flatnonzero(is_best)[::-1]:
+            first_best[group[k]] = k
+        eyes = self.eye_pos[ids[first_best]]
+        # receiver pairs: leaf shafts (source node, receiver node) -> (receiver leaves, passes)
+        k_lo = np.searchsorted(hi, t.lo[s_nodes], side="right")
+        k_hi = np.searchsorted(lo, t.hi[s_nodes], side="left")
+        r = self.recv_tree
+        D = np.zeros((self.n_recv_leaves + 1, n + 1), np.int32)
+        l_lo, l_hi = r.leaf_lo[r_nodes], r.leaf_hi[r_nodes]
+        ok = k_hi > k_lo
+        for a, b, sgn in ((l_lo, k_lo, 1), (l_lo, k_hi, -1), (l_hi, k_lo, -1), (l_hi, k_hi, 1)):
+            np.add.at(D, (a[ok], b[ok]), sgn)
+        leaf_pass = np.cumsum(np.cumsum(D, axis=0), axis=1)[:-1, :-1] > 0
+        cand = np.zeros((self.P, n), bool)
+        inside = self.leaf_of_recv >= 0
+        cand[inside] = leaf_pass[self.leaf_of_recv[inside]]
+        return FrameSources(eyes, W_v, W_c, cand, int(marked.sum()), int(cand.any(1).sum()))
