@@ -1,0 +1,178 @@
+"""Placement controller (app/placement.py), no window: picking against the analytic floor hit,
+moves that change only pixels the object affects, undo bit for bit, JSON save/load, bad input."""
+import json
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from app.cli import demo_scene_dir
+from app.placement import PlacementController, load_object_mesh
+from recon.scene import SceneError
+from tests.conftest import SHARED, shared_scene
+
+
+def _floor_hit(ctl: PlacementController, u: float, v: float) -> np.ndarray:
+    """Where the ray through pixel (u, v) meets the plane y = 0, computed from the camera alone."""
+    cam = ctl.scene.camera
+    c = cam.centre
+    d = cam.R.T @ np.linalg.inv(cam.K) @ np.array([u, v, 1.0])
+    assert d[1] < 0, "pixel ray does not go down"
+    return c + d * (-c[1] / d[1])
+
+
+@pytest.mark.parametrize("name", ["window_room", "lamps_room"])
+def test_pick_on_floor_rests_object_within_1cm_of_true_hit(name):
+    # the object's resting point equals the analytic ray/floor intersection (y = 0) within 1 cm
+    ctl = PlacementController.open(shared_scene(name))
+    ctl.set_object(ctl.scene.obj.source)
+    cam = ctl.scene.camera
+    worst = 0.0
+    n = 0
+    for fu, fv in [(0.5, 0.85), (0.3, 0.9), (0.7, 0.8), (0.45, 0.75), (0.6, 0.95)]:
+        u, v = fu * (cam.width - 1), fv * (cam.height - 1)
+        hit = ctl.pick(u, v)
+        if hit is None or hit.surface != "floor":
+            continue  # furniture in front of the floor here
+        pose = ctl.place_at_pixel(u, v)
+        true = _floor_hit(ctl, u, v)
+        obj = ctl.scene_object()
+        lo, hi = obj.vertices.min(0)[[0, 2]], obj.vertices.max(0)[[0, 2]]
+        if np.any(lo < ctl.scene.room_min[[0, 2]] + 0.01) or np.any(hi > ctl.scene.room_max[[0, 2]] - 0.01):
+            continue  # slid off a wall: not a pure pick
+        worst = max(worst, float(np.linalg.norm(np.asarray(pose.position) - true)))
+        assert abs(obj.vertices[:, 1].min()) < 1e-6  # the object stands on the floor
+        n += 1
+    assert n >= 3
+    assert worst < 0.01, worst
+    print(f"{name}: {n} floor picks, worst distance to the analytic hit {worst:.2e} m")
+
+
+def test_pick_on_wall_drops_object_to_floor_in_front_of_it():
+    ctl = PlacementController.open(demo_scene_dir())
+    ctl.set_object(ctl.scene.obj.source)
+    cam = ctl.scene.camera
+    # scan the image centre column upwards for a pixel on the back wall (z = 0)
+    for v in range(cam.height // 2, 0, -4):
+        hit = ctl.pick(cam.width / 2, v)
+        if hit is not None and hit.surface == "back":
+            break
+    else:
+        pytest.fail("no back-wall pixel in the demo image")
+    ctl.place_at_pixel(cam.width / 2, v)
+    lo, hi = ctl.scene_object().vertices.min(0), ctl.scene_object().vertices.max(0)
+    assert abs(lo[1]) < 1e-6  # on the floor
+    assert 0.005 < lo[2] < 0.02  # 1 cm in front of the wall
+
+
+def test_pose_edits_and_room_limits():
+    ctl = PlacementController.open(demo_scene_dir())
+    ctl.set_object(ctl.scene.obj.source)
+    base = np.asarray(ctl.pose.position)
+    ctl.lift_by(0.2)
+    assert abs(ctl.scene_object().vertices[:, 1].min() - (base[1] + 0.2)) < 1e-9
+    ctl.lift_by(-1.0)  # never below the resting point
+    assert ctl.pose.lift == 0.0
+    h0 = np.ptp(ctl.scene_object().vertices[:, 1])
+    ctl.scale_by(1.5)
+    assert abs(np.ptp(ctl.scene_object().vertices[:, 1]) - 1.5 * h0) < 1e-9
+    ctl.rotate(90)
+    # turning about +Y keeps the pivot (bottom centre) where it was
+    v = ctl.scene_object().vertices
+    assert np.allclose([(v[:, 0].min() + v[:, 0].max()) / 2, v[:, 1].min(), (v[:, 2].min() + v[:, 2].max()) / 2],
+                       base, atol=1e-6)
+    ctl.move_by(-50.0, 0.0)  # into the left wall: slides back inside the room
+    assert ctl.scene_object().vertices[:, 0].min() >= ctl.scene.room_min[0]
+    n = len(ctl.undo_stack)
+    ctl.begin_gesture()
+    for k in range(5):
+        ctl.move_by(0.1, 0.0)
+    ctl.end_gesture()
+    assert len(ctl.undo_stack) == n + 1  # a drag is one undo step
+    with pytest.raises(ValueError):
+        ctl.scale_by(1000.0)  # larger than the room
+
+
+@pytest.mark.skipif(not (SHARED / "data" / "meshes").is_dir(), reason="../shared/data/meshes not available")
+def test_mesh_units():
+    # scene meshes and the bunny are metres; the 6.4-unit teapot is scaled to 0.6 m; big meshes decimated
+    bunny = load_object_mesh(SHARED / "data" / "meshes" / "stanford-bunny.obj")
+    assert bunny.unit_scale == 1.0 and len(bunny.faces) <= 4000
+    teapot = load_object_mesh(SHARED / "data" / "meshes" / "teapot.obj")
+    assert abs(teapot.extent_m.max() - 0.6) < 1e-9
+    sized = load_object_mesh(SHARED / "data" / "meshes" / "teapot.obj", size_m=0.3)
+    assert abs(sized.extent_m.max() - 0.3) < 1e-9
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    from app.engine import EngineParams
+
+    ctl = PlacementController.open(demo_scene_dir(), params=EngineParams(passes=10),
+                                   cache_dir=tmp_path_factory.mktemp("cache"))
+    ctl.start_engine()
+    return ctl
+
+
+def _changed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.any(a != b, axis=2)
+
+
+def test_move_changes_only_pixels_near_old_and_new_shadows_and_undo_is_exact(demo):
+    ctl = demo
+    ctl.set_object(ctl.scene.obj.source)
+    photo = ctl.scene.photo
+    a = ctl.render()
+    assert not a.stats["cached"] and a.stats["passes"] == 10
+    ctl.move_by(0.5, 0.4)
+    b = ctl.render()
+    near_a, near_b = _changed(a.pixels, photo), _changed(b.pixels, photo)
+    moved = _changed(a.pixels, b.pixels)
+    assert near_a.any() and near_b.any() and moved.any()
+    # every pixel the move changed is one the old or the new object touches (shadow, light, itself)
+    assert not (moved & ~(near_a | near_b)).any()
+    # the visible ones (more than one level; one-level flips of the faint second-order term reach
+    # the far walls) lie within 2.5 m of the old or the new resting point
+    big = np.abs(a.pixels.astype(int) - b.pixels.astype(int)).max(2) > 1
+    pos = ctl.engine.pix_pos.reshape(*moved.shape, 3)[big]
+    d = np.minimum(np.linalg.norm(pos - np.asarray(ctl.undo_stack[-1].position), axis=1),
+                   np.linalg.norm(pos - np.asarray(ctl.pose.position), axis=1))
+    print(f"move 0.64 m: {moved.sum()} pixels changed, {big.sum()} by more than 1 level, "
+          f"those within {d.max():.2f} m of the old or new resting point")
+    assert d.max() < 2.5
+    assert big.mean() < 0.3
+    # undo restores the earlier composite bit for bit: kept frame, and rendered afresh
+    assert ctl.undo()
+    again = ctl.render()
+    assert again.stats["cached"] and np.array_equal(again.pixels, a.pixels)
+    ctl.clear_frames()
+    fresh = ctl.render()
+    assert not fresh.stats["cached"]
+    assert np.array_equal(fresh.pixels, a.pixels) and np.array_equal(fresh.radiance, a.radiance)
+    assert ctl.redo() and np.array_equal(ctl.render().pixels, b.pixels)
+
+
+def test_save_load_roundtrip_and_bad_files(demo, tmp_path):
+    ctl = demo
+    ctl.set_object(ctl.scene.obj.source)
+    ctl.rotate(25.0)
+    ctl.lift_by(0.05)
+    path = ctl.save(tmp_path / "sub" / "placement.json")
+    assert sorted(p.name for p in path.parent.iterdir()) == ["placement.json"]  # no temporary left
+    other = PlacementController.open(path)
+    assert other.pose == ctl.pose
+    assert np.allclose(other.scene_object().vertices, ctl.scene_object().vertices)
+    assert other.params.passes == 10
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(SceneError, match="bad.json: malformed JSON"):
+        ctl.load(bad)
+    d = json.loads(path.read_text())
+    d["object"]["position"] = [1.0, float("nan"), 2.0]
+    bad.write_text(json.dumps(d))
+    with pytest.raises(SceneError, match="bad.json: field 'object'"):
+        ctl.load(bad)
+    with pytest.raises(SceneError, match="nothing.json: file not found"):
+        ctl.load(tmp_path / "nothing.json")
+    with pytest.raises(SceneError, match="notamesh.txt: not a mesh file"):
+        ctl.set_object(tmp_path / "notamesh.txt")
