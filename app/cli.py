@@ -23,12 +23,15 @@ log = logging.getLogger("photoar")
 # its parser and sets `run=<callable(args) -> int>` with `set_defaults`; errors are raised as
 # ValueError / FileNotFoundError / RuntimeError with a message that names the file.
 COMMAND_MODULES: tuple[str, ...] = (
+    "app.evaluate",
     "app.cmd_reconstruct",
     "app.cmd_hdr",
     "app.cmd_probe",
     "app.cmd_calibrate",
     "app.cmd_model",
     "app.cmd_reference",
+    "app.cmd_metrics",
+    "app.cmd_tonemap",
 )
 
 
@@ -53,15 +56,19 @@ def _positive_float(s: str) -> float:
     return v
 
 
-def _add_engine_args(p: argparse.ArgumentParser) -> None:
+def _add_engine_args(p: argparse.ArgumentParser, passes: bool = True) -> None:
     d = EngineParams()
     g = p.add_argument_group("engine")
     g.add_argument("--mode", choices=["hdr", "ldr"], default=d.mode,
                    help="hdr: T(L_b - eps) in floating point; ldr: subtract intensity transfers S_ij from the "
                         "8-bit photo (seed fig. 13) (default %(default)s)")
-    g.add_argument("--passes", type=_positive_int, default=None,
-                   help="shadow maps per frame; sources are grouped into this many representatives "
-                        "(default: one per source)")
+    if passes:
+        g.add_argument("--passes", type=_positive_int, default=None,
+                       help="shadow maps per frame; sources are grouped into this many representatives "
+                            "(default: one per source)")
+    g.add_argument("--fps", type=_positive_float, default=None,
+                   help="target frame rate: the pass count is chosen from the measured cost per pass "
+                        "(at most --passes)")
     g.add_argument("--source-fraction", type=_fraction, default=d.source_fraction,
                    help="share of total patch power kept as shadow sources (default %(default)s)")
     g.add_argument("--patch-size", type=_positive_float, default=d.patch_size, help="metres (default %(default)s)")
@@ -81,7 +88,7 @@ def _add_engine_args(p: argparse.ArgumentParser) -> None:
 
 
 def _params(a: argparse.Namespace) -> EngineParams:
-    return EngineParams(mode=a.mode, passes=a.passes, source_fraction=a.source_fraction, patch_size=a.patch_size,
+    return EngineParams(mode=a.mode, passes=getattr(a, "passes", None), fps=a.fps, source_fraction=a.source_fraction, patch_size=a.patch_size,
                         map_res=a.map_res, specular=a.specular, shininess=a.shininess,
                         lighting=a.lighting,
                         object_light=not a.no_object_light, second_order=not a.no_second_order)
