@@ -1,0 +1,128 @@
+"""`photoar evaluate`: speed against error over pass budgets (seed sec. 6.4 and 7, fig. 18).
+
+    photoar evaluate SCENE_DIR --passes 10,20,50,all --out DIR
+
+Renders the scene's object once per pass budget from one precompute and writes
+`evaluation.json` (a row per setting: passes, frame_s, traversal_s, energy_ratio,
+rmse_affected, spurious, rmse_object, ssim_affected; the scorer's definitions, see
+lighting/metrics.py) and `speed_vs_error.png` (frame time against rmse_affected). The error is
+measured against the scene's `truth.png` when there is one, else against the all-sources
+composite (then the reference row itself scores zero).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger("photoar")
+
+
+def parse_passes(text: str) -> list[int | None]:
+    """'10,20,50,all' -> [10, 20, 50, None]."""
+    out: list[int | None] = []
+    for part in text.split(","):
+        part = part.strip().lower()
+        if part == "all":
+            out.append(None)
+            continue
+        try:
+            v = int(part)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"pass counts are integers or 'all', got {part!r}") from None
+        if v < 1:
+            raise argparse.ArgumentTypeError(f"pass counts must be at least 1, got {v}")
+        out.append(v)
+    if not out:
+        raise argparse.ArgumentTypeError("no pass counts given")
+    return out
+
+
+def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], params=None, cache_dir=None,
+         quiet: bool = False) -> list[dict]:
+    """Rows of the evaluation (also written to out/evaluation.json and the plot)."""
+    import dataclasses
+
+    from app.composite import default_cache_dir
+    from app.engine import Engine, EngineParams
+    from app.io import AtomicOutput, write_json, write_png
+    from app.report import plot_xy, table
+    from lighting import metrics
+    from recon.scene import SceneError, load_scene, read_image_rgb
+
+    scene = load_scene(scene_dir)
+    if scene.obj is None:
+        raise SceneError(f"{Path(scene_dir) / 'scene.json'}: missing field 'synthetic_object'")
+    params = params or EngineParams()
+    engine = Engine(scene, params, cache_dir=cache_dir if cache_dir is not None else default_cache_dir(), quiet=quiet)
+    frames = {}
+    order = sorted(set(passes), key=lambda p: (p is None, p or 0))
+    if None not in order and not (Path(scene_dir) / "truth.png").is_file():
+        order.append(None)  # the all-sources frame is the reference
+    for n in order:
+        engine.params = dataclasses.replace(params, passes=n)
+        frames[n] = engine.render(scene.obj)
+    truth_png = Path(scene_dir) / "truth.png"
+    if truth_png.is_file() and (Path(scene_dir) / "truth_mask.png").is_file():
+        truth = read_image_rgb(truth_png)
+        import cv2
+
+        mask = cv2.imread(str(Path(scene_dir) / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+        against = "truth.png"
+    else:
+        truth = frames[None].pixels
+        cov = engine._object_hits(scene.obj.vertices, scene.obj.faces).coverage()
+        mask = np.rint(cov * 255).astype(np.uint8)
+        against = "all-sources composite"
+    rows = []
+    for n in passes:
+        fr = frames[n]
+        s = metrics.score_regions(fr.pixels, scene.photo, truth, mask)
+        reg = metrics.regions(scene.photo, truth, mask)["affected"]
+        rows.append({"passes": "all" if n is None else n, "n_passes": fr.stats["passes"],
+                     "frame_s": fr.stats["frame_s"], "traversal_s": fr.stats["timings"]["sources"],
+                     "masks_s": fr.stats["timings"]["masks"],
+                     "energy_ratio": s["energy_ratio"], "rmse_affected": s["rmse_affected"],
+                     "spurious": s["spurious"], "rmse_object": s["rmse_object"],
+                     "ssim_affected": metrics.ssim(fr.pixels, truth, reg) if reg.any() else 1.0,
+                     "n_sources": fr.stats["n_sources"], "against": against})
+    log.info("\n%s", table(rows, ["passes", "frame_s", "traversal_s", "energy_ratio", "rmse_affected", "spurious",
+                                  "ssim_affected"]))
+    with AtomicOutput(out) as stage:
+        write_json(stage / "evaluation.json", {"scene": str(scene_dir), "against": against,
+                                               "precompute_s": engine.precompute_s, "rows": rows,
+                                               **engine.shadow_sources.stats()})
+        plot_xy({"photoar": ([r["frame_s"] for r in rows], [r["rmse_affected"] for r in rows])},
+                "frame time (s)", f"RMSE over affected pixels (levels) vs {against}", stage / "speed_vs_error.png",
+                title=f"{scene.name}: passes {', '.join(str(r['passes']) for r in rows)}")
+        for n in passes:
+            write_png(stage / f"composite_{'all' if n is None else n}.png", frames[n].pixels)
+    return rows
+
+
+def register(sub) -> None:
+    from app.cli import _add_engine_args
+
+    e = sub.add_parser("evaluate", help="speed against error over pass budgets (evaluation.json, speed_vs_error.png)")
+    e.add_argument("scene", type=Path, help="scene folder")
+    e.add_argument("--passes", type=parse_passes, default=parse_passes("10,20,50,all"),
+                   help="comma-separated pass budgets, 'all' for one pass per source (default 10,20,50,all)")
+    e.add_argument("--out", type=Path, required=True, help="output folder")
+    _add_engine_args(e, passes=False)
+    e.set_defaults(run=_run)
+
+
+def _run(a) -> int:
+    from app.cli import _params
+
+    import dataclasses
+
+    params = dataclasses.replace(_params(a), passes=None)
+    rows = main(a.scene, a.out, a.passes, params, cache_dir=a.cache, quiet=a.quiet)
+    for r in rows:
+        print(f"passes {r['passes']}: frame {r['frame_s']:.2f} s, energy {r['energy_ratio']:.3f}, "
+              f"rmse {r['rmse_affected']:.2f}, spurious {r['spurious']:.4f}")
+    print(a.out / "evaluation.json")
+    return 0

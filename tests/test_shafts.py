@@ -1,0 +1,169 @@
+"""Shaft hierarchy (sec. 6.2): shaft planes, traversal against an exhaustive segment test,
+representative sets, and frames along a path from one precompute."""
+import copy
+
+import numpy as np
+import pytest
+
+from lighting.shafts import box_outside, shaft_planes
+
+
+def _random_boxes(rng, n):
+    a0 = rng.uniform(-3, 3, (n, 3))
+    b0 = rng.uniform(-3, 3, (n, 3))
+    return a0, a0 + rng.uniform(0.01, 2, (n, 3)), b0, b0 + rng.uniform(0.01, 2, (n, 3))
+
+
+def test_shaft_contains_every_segment():
+    # every point of every segment between the two boxes is inside the shaft's planes
+    rng = np.random.default_rng(0)
+    amin, amax, bmin, bmax = _random_boxes(rng, 300)
+    normals, offsets = shaft_planes(amin, amax, bmin, bmax)
+    for _ in range(20):
+        p = rng.uniform(amin, amax)
+        q = rng.uniform(bmin, bmax)
+        x = p + rng.uniform(0, 1, (len(p), 1)) * (q - p)
+        assert np.all(np.einsum("nkc,nc->nk", normals, x) <= offsets + 1e-9)
+        # a tiny box around a point of a segment is never culled
+        umin, umax = np.minimum(amin, bmin), np.maximum(amax, bmax)
+        for i in range(0, 300, 37):
+            assert not box_outside(normals[i:i + 1], offsets[i:i + 1], umin[i:i + 1], umax[i:i + 1],
+                                   x[i] - 1e-4, x[i] + 1e-4)[0]
+
+
+def test_shaft_culls_the_corner_outside_the_hull():
+    # two boxes along a diagonal: a box in the empty corner of their union box is outside the shaft
+    amin, amax = np.array([[0.0, 0, 0]]), np.array([[1.0, 1, 1]])
+    bmin, bmax = np.array([[10.0, 10, 0]]), np.array([[11.0, 11, 1]])
+    n, d = shaft_planes(amin, amax, bmin, bmax)
+    umin, umax = np.minimum(amin, bmin), np.maximum(amax, bmax)
+    assert box_outside(n, d, umin, umax, np.array([9.0, 0, 0]), np.array([9.5, 0.5, 1]))[0]
+    assert not box_outside(n, d, umin, umax, np.array([5.0, 5, 0.2]), np.array([5.5, 5.5, 0.4]))[0]
+
+
+@pytest.fixture(scope="module")
+def engine(tmp_path_factory):
+    from app.cli import demo_scene_dir
+    from app.engine import Engine, EngineParams
+    from recon.scene import load_scene
+
+    scene = load_scene(demo_scene_dir())
+    eng = Engine(scene, EngineParams(patch_size=0.35, emitter_patch_size=0.2),
+                 cache_dir=tmp_path_factory.mktemp("cache"), device="cpu", quiet=True)
+    return scene, eng
+
+
+def _segments_hit_box(p: np.ndarray, q: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Slab test: does segment p->q (...,3) meet the box [lo, hi]?"""
+    d = q - p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lo - p) / d
+        t2 = (hi - p) / d
+    inside = (p >= lo) & (p <= hi)
+    tmin = np.where(d == 0, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
+    tmax = np.where(d == 0, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
+    t0 = np.maximum(tmin.max(-1), 0.0)
+    t_1 = np.minimum(tmax.min(-1), 1.0)
+    return t0 <= t_1
+
+
+def test_traversal_finds_every_source_an_exhaustive_test_finds(engine):
+    # for random object boxes, every (receiver, source) pair with light between them and a segment
+    # (patch corners and centres) through the box is in the frame's list, for the right pass
+    from lighting.sources import luminance
+
+    scene, eng = engine
+    pm, ss = eng.pre.patches, eng.shadow_sources
+    src = ss.src_ids
+    recv = ss.recv_tree.order
+    pts = np.concatenate([pm.corners, pm.centre[:, None]], axis=1)  # (P,5,3)
+    light = eng.pre.G_c[np.ix_(recv, src)] * luminance(eng.B_src[src])[None, :] > 0
+    rng = np.random.default_rng(3)
+    n_pairs = 0
+    for _ in range(6):
+        size = rng.uniform(0.2, 0.8, 3)
+        lo = rng.uniform(scene.room_min + 0.1, scene.room_max - 0.1 - size)
+        hi = lo + size
+        fs = ss.select(lo, hi, None)
+        marked = ss.traverse(lo, hi)[0]
+        pass_of = np.full(len(src), -1)
+        pass_of[marked] = np.arange(marked.sum())
+        for j in range(len(src)):
+            r = np.flatnonzero(light[:, j])
+            if len(r) == 0:
+                continue
+            p = pts[recv[r]][:, :, None, :]  # (n,5,1,3)
+            q = pts[src[j]][None, None, :, :]  # (1,1,5,3)
+            hit = _segments_hit_box(np.broadcast_to(p, (len(r), 5, 5, 3)), np.broadcast_to(q, (len(r), 5, 5, 3)),
+                                    lo, hi).any(axis=(1, 2))
+            if hit.any():
+                n_pairs += int(hit.sum())
+                assert marked[j], (lo, hi, j)
+                assert np.all(fs.cand[recv[r[hit]], pass_of[j]])
+    assert n_pairs > 1000  # the boxes did block light
+
+
+def test_fewer_passes_keep_the_receivers(engine):
+    # sec. 6.4: any budget covers the same receivers, with at most `passes` shadow maps
+    scene, eng = engine
+    lo, hi = scene.obj.vertices.min(0), scene.obj.vertices.max(0)
+    ss = eng.shadow_sources
+    full = ss.select(lo, hi, None)
+    for k in (1, 10, 50):
+        part = ss.select(lo, hi, k)
+        assert len(part.eyes) == min(k, full.n_listed)
+        np.testing.assert_array_equal(part.cand.any(1), full.cand.any(1))
+
+
+def test_thirty_frames_along_a_path_reuse_the_precompute(engine, monkeypatch):
+    # moving the object over 30 positions renders from the cached precompute: nothing is rebuilt
+    from app.engine import Engine
+
+    scene, eng = engine
+    monkeypatch.setattr(Engine, "_precompute", lambda self: pytest.fail("precompute rebuilt"))
+    shafts = eng.shadow_sources
+    params = eng.params
+    eng.params = copy.copy(params)
+    eng.params.passes = 10
+    try:
+        base = scene.obj
+        lit = []
+        for k in range(30):
+            obj = copy.copy(base)
+            obj.vertices = base.vertices + [0.03 * k, 0.0, -0.02 * k]
+            fr = eng.render(obj)
+            assert fr.stats["passes"] <= 10
+            lit.append(fr.radiance)
+        assert eng.shadow_sources is shafts
+        # the frames differ: the shadow follows the object
+        assert np.abs(lit[0] - lit[-1]).max() > 0.01
+    finally:
+        eng.params = params
+
+
+def test_evaluate_writes_rows_per_budget(tmp_path):
+    # `photoar evaluate` on the demo scene (no truth.png): rows for each budget against the
+    # all-sources composite, which then scores zero error itself; errors shrink with more passes
+    import json
+
+    from app.cli import demo_scene_dir, main
+
+    out = tmp_path / "eval"
+    assert main(["-q", "evaluate", str(demo_scene_dir()), "--passes", "10,40,all", "--out", str(out),
+                 "--patch-size", "0.35", "--cache", str(tmp_path / "cache")]) == 0
+    ev = json.loads((out / "evaluation.json").read_text())
+    rows = {r["passes"]: r for r in ev["rows"]}
+    assert set(rows) == {10, 40, "all"} and ev["against"] == "all-sources composite"
+    assert rows["all"]["rmse_affected"] == 0.0 and rows["all"]["energy_ratio"] == 1.0
+    assert rows[40]["rmse_affected"] <= rows[10]["rmse_affected"] + 1e-9
+    for r in rows.values():
+        assert 0.85 <= r["energy_ratio"] <= 1.15, r
+    assert (out / "speed_vs_error.png").stat().st_size > 1000
+
+
+def test_evaluate_rejects_bad_budgets(tmp_path, capsys):
+    from app.cli import demo_scene_dir, main
+
+    with pytest.raises(SystemExit):
+        main(["evaluate", str(demo_scene_dir()), "--passes", "10,zero", "--out", str(tmp_path / "o")])
+    assert "pass counts" in capsys.readouterr().err
