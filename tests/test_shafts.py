@@ -167,3 +167,21 @@ def test_evaluate_rejects_bad_budgets(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["evaluate", str(demo_scene_dir()), "--passes", "10,zero", "--out", str(tmp_path / "o")])
     assert "pass counts" in capsys.readouterr().err
+
+
+def test_fps_budget_follows_the_measured_cost(engine):
+    # --fps picks the pass count that fits the frame time from the last frame's measured costs
+    import dataclasses
+
+    _, eng = engine
+    params, cost = eng.params, dict(eng._cost)
+    try:
+        eng._cost = {"fixed_s": 0.05, "per_pass_s": 0.002}
+        eng.params = dataclasses.replace(params, fps=10.0, passes=None)
+        assert eng._passes_for_frame() == 25  # (0.1 - 0.05) / 0.002
+        eng.params = dataclasses.replace(params, fps=10.0, passes=12)
+        assert eng._passes_for_frame() == 12  # never more than --passes
+        eng.params = dataclasses.replace(params, fps=100.0, passes=None)
+        assert eng._passes_for_frame() == 1  # over budget already: one pass
+    finally:
+        eng.params, eng._cost = params, cost
