@@ -158,11 +158,12 @@ def heatmap(values: np.ndarray, vmax: float, label: str = "", region: np.ndarray
         img[~region] = (96, 96, 96)
     H = img.shape[0]
     bar = np.full((H, 90, 3), 255, np.uint8)
-    ramp = np.linspace(255, 0, max(H - 40, 2)).astype(np.uint8)[:, None]
-    bar[20:20 + len(ramp), 10:30] = cv2.applyColorMap(np.repeat(ramp, 20, 1), cv2.COLORMAP_INFERNO)
+    top = min(20, H // 4)
+    ramp = np.linspace(255, 0, max(H - 2 * top, 1)).astype(np.uint8)[:, None]
+    bar[top:top + len(ramp), 10:30] = cv2.applyColorMap(np.repeat(ramp, 20, 1), cv2.COLORMAP_INFERNO)
     font = cv2.FONT_HERSHEY_SIMPLEX
-    cv2.putText(bar, f"{vmax:.3g}", (33, 26), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(bar, "0", (33, 20 + len(ramp)), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(bar, f"{vmax:.3g}", (33, top + 6), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(bar, "0", (33, top + len(ramp)), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     if label:
         cv2.putText(bar, label[:12], (2, H - 5), font, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
     return np.concatenate([img, bar], 1)[..., ::-1].copy()
