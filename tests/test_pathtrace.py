@@ -169,3 +169,23 @@ def test_reference_cli(tmp_path):
                        capture_output=True, text=True)
     assert p.returncode == 2 and "photoar: error:" in p.stderr and "missing" in p.stderr
     assert not bad.exists()
+
+
+def test_noise_target_stops_early_and_noise_falls_with_spp():
+    """A loose noise target stops after the third batch; the reported noise falls like 1/sqrt(spp)."""
+    from app.cmd_reference import build_tracer, render_reference
+    from recon.scene import load_scene
+
+    scene = load_scene(shared_scene("lamps_room"))
+    W = scene.camera.width
+    uv, _ = scene.camera.project(scene.obj.vertices)
+    u0, v0 = np.floor(uv.min(0)).astype(int)
+    u1, v1 = np.ceil(uv.max(0)).astype(int)
+    pix = np.array([v * W + u for v in range(v0, v1, 3) for u in range(u0, u1, 3)])
+    tracer = build_tracer(scene)
+    r = render_reference(scene, 64, seed=4, batch_spp=1, noise_target=1e6, pixels=pix, tracer=tracer, quiet=True)
+    assert r.stats["stopped_by"] == "noise_target" and r.spp == 3
+    lo = render_reference(scene, 4, seed=5, batch_spp=1, pixels=pix, tracer=tracer, quiet=True)
+    hi = render_reference(scene, 16, seed=6, batch_spp=2, pixels=pix, tracer=tracer, quiet=True)
+    ratio = np.sqrt(np.mean(lo.noise.reshape(-1, 3)[pix] ** 2) / np.mean(hi.noise.reshape(-1, 3)[pix] ** 2))
+    assert 1.6 < ratio < 2.5  # 4x the samples: half the noise
