@@ -277,6 +277,7 @@ class Engine:
         self.shaft_build_s = time.perf_counter() - t0
         log.info("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
         self._cost = {"fixed_s": 1.0, "per_pass_s": 0.01}  # refined after every frame
+        self.dB_samples = 400  # object vertices that gather the second-order loss (the rest interpolate)
         self.near_factor = 2.0  # object light per pixel within this many bounding radii
         # occlusion masks: every pixel within mask_near_factor bounding radii of the object, farther
         # out (soft, slowly varying shadows) every second pixel in x and y, the rest filled in from
@@ -469,9 +470,12 @@ class Engine:
             keep = int(np.searchsorted(np.cumsum(loss[order]), 0.95 * loss.sum())) + 1 if len(order) else 0
             changed = order[:keep]
             if len(changed):
-                G = transfer_matrix(v, n, pm.corners[changed], pm.normal[changed], [self.scene_occ, proxy_occ],
-                                    n_side=1, eps=2e-3, device=self.device)
-                E += G.astype(np.float64) @ dB[changed]
+                # the loss varies slowly over the object (the shadowed patches are beyond it):
+                # gather it at a spread subset of vertices and interpolate by position and normal
+                sub = np.arange(0, len(v), max(1, len(v) // self.dB_samples))
+                G = transfer_matrix(v[sub], n[sub], pm.corners[changed], pm.normal[changed],
+                                    [self.scene_occ, proxy_occ], n_side=1, eps=2e-3, device=self.device)
+                E += _interpolate_on_surface(v, n, sub, G.astype(np.float64) @ dB[changed])
         L_vert = obj.albedo * np.maximum(E, 0.0)
         # vertices buried inside another part of the object (a chair's back-rest inside its seat)
         # see almost nothing; their values would darken the visible triangles they belong to
@@ -645,6 +649,22 @@ class ObjectHits:
             hh, ww, s = v1 - v0 + 1, u1 - u0 + 1, self.s
             cov[v0:v1 + 1, u0:u1 + 1] = self.hit.reshape(hh, s, ww, s).mean(axis=(1, 3))
         return cov
+
+
+def _interpolate_on_surface(v: np.ndarray, n: np.ndarray, sub: np.ndarray, values: np.ndarray, k: int = 6
+                            ) -> np.ndarray:
+    """Values (V,C) at every vertex from values (len(sub),C) at vertices `sub`: inverse-distance
+    weights over the k nearest samples, times the cosine between normals squared (so a seat's top
+    does not take the value of its underside)."""
+    if len(sub) == len(v):
+        return values
+    k = min(k, len(sub))
+    d, j = cKDTree(v[sub]).query(v, k=k)
+    d, j = d.reshape(len(v), k), j.reshape(len(v), k)
+    cos = np.einsum("vc,vkc->vk", n, n[sub][j])
+    w = np.maximum(cos, 0.0) ** 2 / (d + 1e-3)
+    w[w.sum(1) == 0, 0] = 1.0  # no sample faces the same way: take the nearest
+    return np.einsum("vk,vkc->vc", w / w.sum(1, keepdims=True), values[j])
 
 
 def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.ndarray, rounds: int = 8
