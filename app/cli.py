@@ -32,6 +32,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "app.cmd_reference",
     "app.cmd_metrics",
     "app.cmd_tonemap",
+    "app.cmd_gui",
 )
 
 

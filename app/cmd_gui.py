@@ -1,0 +1,141 @@
+"""`photoar gui`: the interactive placement window (app/gui.py over app/placement.py).
+
+  photoar gui SCENE_DIR [--object MESH] [--place X,Y,Z --screenshot PNG --frames N]
+
+SCENE_DIR is a benchmark scene folder (../shared/scenes/FORMAT.md) or a placement JSON saved
+from the window. With --screenshot (or --frames) the window opens, applies the placement,
+composites N frames, saves a screenshot of itself and exits: the headless-testable mode (run it
+under Xvfb: `xvfb-run -a photoar gui ...`).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger("photoar")
+
+
+def _xyz(s: str) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(x) for x in s.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3 or not np.all(np.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z in metres, got {s!r}")
+    return v  # type: ignore[return-value]
+
+
+def _positive_int(s: str) -> int:
+    v = int(s)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    return v
+
+
+def _size(s: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in s.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {s!r}") from None
+    if w < 320 or h < 240:
+        raise argparse.ArgumentTypeError(f"window must be at least 320x240, got {s!r}")
+    return w, h
+
+
+def register(sub) -> None:
+    g = sub.add_parser("gui", help="interactive placement window (Open3D): click to place, drag to move",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    g.add_argument("scene", type=Path, help="scene folder, or a placement JSON saved from the window")
+    g.add_argument("--object", type=Path, default=None,
+                   help="object mesh (PLY/OBJ/GLB; default: the scene's own object)")
+    g.add_argument("--object-size", type=float, default=None,
+                   help="largest extent of the object in metres (default: the file's units when they look like "
+                        "metres, else 0.6 m)")
+    g.add_argument("--place", type=_xyz, default=None, metavar="X,Y,Z",
+                   help="world point (m) for the object's bottom centre (default: the scene's object pose)")
+    g.add_argument("--yaw", type=float, default=0.0, help="turn about +Y in degrees (with --place)")
+    g.add_argument("--passes", type=_positive_int, default=20,
+                   help="shadow passes per frame (default %(default)s; the window's slider changes it)")
+    g.add_argument("--all-sources", action="store_true", help="one shadow pass per source (slow)")
+    g.add_argument("--mode", choices=["hdr", "ldr"], default="hdr", help="compositing path (default %(default)s)")
+    g.add_argument("--screenshot", type=Path, default=None,
+                   help="after the frames, save a PNG of the window and exit")
+    g.add_argument("--frames", type=_positive_int, default=None,
+                   help="composite this many frames of the placement, then exit (default 1 with --screenshot)")
+    g.add_argument("--window", type=_size, default=(1280, 720), metavar="WxH", help="window size (default 1280x720)")
+    g.add_argument("--cache", type=Path, default=None,
+                   help="folder for per-scene precompute (default $PHOTOAR_CACHE or ~/.cache/photoar)")
+    g.set_defaults(run=run)
+
+
+def _write_png_atomic(path: Path, rgb: np.ndarray) -> None:
+    from app.io import write_png
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
+    os.close(fd)
+    try:
+        write_png(Path(tmp), rgb)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def run(a: argparse.Namespace) -> int:
+    from app.composite import default_cache_dir
+    from app.engine import EngineParams
+    from app.placement import PlacementController
+
+    if not os.environ.get("DISPLAY"):
+        raise RuntimeError("photoar gui: no X display (DISPLAY is not set); run it under Xvfb, "
+                           "e.g. `xvfb-run -a photoar gui SCENE_DIR --screenshot shot.png`")
+    if a.object_size is not None and not a.object_size > 0:
+        raise ValueError(f"{a.object}: --object-size must be positive, got {a.object_size}")
+    params = EngineParams(passes=None if a.all_sources else a.passes, mode=a.mode)
+    ctl = PlacementController.open(a.scene, params=params, cache_dir=a.cache or default_cache_dir(),
+                                   quiet=a.quiet)
+    if ctl.params is not params:  # a saved placement brought its own budget
+        params = ctl.params
+    mesh = a.object
+    if mesh is None and ctl.pose.mesh is None:
+        if ctl.scene.obj is None:
+            raise ValueError(f"{ctl.scene.root / 'scene.json'}: no synthetic_object; give --object MESH")
+        mesh = Path(ctl.scene.obj.source)
+    if mesh is not None:
+        ctl.set_object(mesh, a.object_size)
+    if a.place is not None:
+        ctl.place_at(a.place)
+        if a.yaw:
+            ctl.rotate(a.yaw)
+    choices = ctl.object_choices([Path(ctl.pose.mesh).parent] if ctl.pose.mesh else [])
+
+    import open3d.visualization.gui as gui
+
+    from app.gui import PlacementWindow
+
+    app = gui.Application.instance
+    app.initialize()
+    win = PlacementWindow(ctl, choices, title=f"photoar - {ctl.scene.name}", width=a.window[0],
+                          height=a.window[1], object_size=a.object_size)
+    n = a.frames or (1 if a.screenshot is not None else None)
+    if n is None:
+        app.run()
+        return 0
+    win.run_frames(n)
+    times = win.frame_times
+    log.info("%d frames, %.2f s mean per frame (passes %s, %s)", len(times), float(np.mean(times)) if times else 0.0,
+             win.last_frame.stats.get("passes") if win.last_frame else "-", params.mode)
+    if a.screenshot is not None:
+        shot = win.screenshot()
+        _write_png_atomic(a.screenshot, shot)
+        print(a.screenshot)
+    win.closed = True
+    win.window.close()
+    app.run_one_tick()
+    return 0

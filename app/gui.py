@@ -1,0 +1,585 @@
+"""Open3D GUI for interactive placement: a thin view over app.placement.PlacementController.
+
+Layout: a tab control on the left with "Photo" (the live composite in an ImageWidget; click to
+place the object on the surface under the cursor, drag to slide it on its resting plane) and
+"3D" (a SceneWidget with the scene model coloured by patch radiance through the camera response,
+the placed object and the camera frustum); a side panel on the right with the object picker,
+the pass budget (slider 10-50, or all sources), the HDR/LDR compositing path, live frame time
+and pass count, undo/redo and save/load.
+
+Keys (window focus): Q/E turn -/+15 deg about +Y, R/F lift/lower 2 cm, =/- scale x1.1 / /1.1,
+arrow keys slide 5 cm along world x/z, Z undo, Y redo.
+
+Threads: the per-scene precompute runs in a worker thread (progress bar, window stays
+responsive); frames are composited in a second worker that always renders the newest pose
+(edits made while a frame is running coalesce into one frame). Widgets are touched only on the
+main thread (Application.post_to_main_thread).
+"""
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import logging
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from app.placement import PlacementController, Pose
+
+log = logging.getLogger("photoar")
+
+PANEL_W = 300  # px, side panel width (at scaling 1)
+ROTATE_STEP = 15.0  # deg
+LIFT_STEP = 0.02  # m
+MOVE_STEP = 0.05  # m
+SCALE_STEP = 1.1
+
+
+# ---------------------------------------------------------------------------- X11 screenshot
+class _XImage(ctypes.Structure):
+    # the leading fields of Xlib's XImage (X11/Xlib.h), stable since X11R6
+    _fields_ = [("width", ctypes.c_int), ("height", ctypes.c_int), ("xoffset", ctypes.c_int),
+                ("format", ctypes.c_int), ("data", ctypes.c_void_p), ("byte_order", ctypes.c_int),
+                ("bitmap_unit", ctypes.c_int), ("bitmap_bit_order", ctypes.c_int), ("bitmap_pad", ctypes.c_int),
+                ("depth", ctypes.c_int), ("bytes_per_line", ctypes.c_int), ("bits_per_pixel", ctypes.c_int),
+                ("red_mask", ctypes.c_ulong), ("green_mask", ctypes.c_ulong), ("blue_mask", ctypes.c_ulong)]
+
+
+_X_ERROR_HANDLER = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p)
+_x_errors: list[int] = []
+_x_handler = _X_ERROR_HANDLER(lambda d, e: _x_errors.append(1) or 0)
+
+
+def grab_screen(x: int, y: int, w: int, h: int) -> np.ndarray:
+    """RGB (h,w,3) uint8 of the X display's root window in the rectangle (x, y, w, h), clipped
+    to the screen (Xlib XGetImage through ctypes; needs a 24/32-bit TrueColor X server such as
+    Xvfb). RuntimeError when there is no X display or the grab fails."""
+    name = ctypes.util.find_library("X11") or "libX11.so.6"
+    try:
+        x11 = ctypes.CDLL(name)
+    except OSError as e:
+        raise RuntimeError(f"{name}: cannot load Xlib for the screenshot ({e})") from None
+    x11.XOpenDisplay.restype = ctypes.c_void_p
+    x11.XOpenDisplay.argtypes = [ctypes.c_char_p]
+    x11.XDefaultRootWindow.restype = ctypes.c_ulong
+    x11.XDefaultRootWindow.argtypes = [ctypes.c_void_p]
+    x11.XDisplayWidth.argtypes = x11.XDisplayHeight.argtypes = [ctypes.c_void_p, ctypes.c_int]
+    x11.XGetImage.restype = ctypes.POINTER(_XImage)
+    x11.XGetImage.argtypes = [ctypes.c_void_p, ctypes.c_ulong, ctypes.c_int, ctypes.c_int, ctypes.c_uint,
+                              ctypes.c_uint, ctypes.c_ulong, ctypes.c_int]
+    x11.XDestroyImage = None  # a macro, not a symbol: the image is freed with XFree on its data
+    x11.XFree.argtypes = [ctypes.c_void_p]
+    x11.XCloseDisplay.argtypes = [ctypes.c_void_p]
+    x11.XSync.argtypes = [ctypes.c_void_p, ctypes.c_int]
+    x11.XSetErrorHandler.argtypes = [_X_ERROR_HANDLER]
+    x11.XSetErrorHandler.restype = ctypes.c_void_p
+    d = x11.XOpenDisplay(None)
+    if not d:
+        raise RuntimeError("no X display to take the screenshot from (is DISPLAY set?)")
+    old = x11.XSetErrorHandler(_x_handler)  # Xlib's default handler would exit the process
+    try:
+        sw, sh = x11.XDisplayWidth(d, 0), x11.XDisplayHeight(d, 0)
+        x0, y0 = max(0, int(x)), max(0, int(y))
+        x1, y1 = min(sw, int(x) + int(w)), min(sh, int(y) + int(h))
+        if x1 <= x0 or y1 <= y0:
+            raise RuntimeError(f"window rectangle {x},{y} {w}x{h} lies off the {sw}x{sh} screen")
+        _x_errors.clear()
+        ZPIXMAP = 2
+        img = x11.XGetImage(d, x11.XDefaultRootWindow(d), x0, y0, x1 - x0, y1 - y0, 0xFFFFFFFF, ZPIXMAP)
+        x11.XSync(d, 0)
+        if not img or _x_errors:
+            raise RuntimeError("XGetImage failed")
+        im = img.contents
+        if im.bits_per_pixel != 32 or im.red_mask != 0xFF0000 or im.blue_mask != 0xFF:
+            raise RuntimeError(f"unsupported X visual ({im.bits_per_pixel} bpp, red mask {im.red_mask:#x})")
+        raw = np.frombuffer(ctypes.string_at(im.data, im.bytes_per_line * im.height), np.uint8)
+        px = raw.reshape(im.height, im.bytes_per_line)[:, :4 * im.width].reshape(im.height, im.width, 4)
+        rgb = px[..., [2, 1, 0]].copy() if im.byte_order == 0 else px[..., [1, 2, 3]].copy()
+        x11.XFree(ctypes.c_void_p(im.data))
+        x11.XFree(img)
+        return rgb
+    finally:
+        x11.XSetErrorHandler(ctypes.cast(old, _X_ERROR_HANDLER) if old else _X_ERROR_HANDLER())
+        x11.XCloseDisplay(d)
+
+
+# ---------------------------------------------------------------------------- drawing helpers
+def image_fit(frame_w: float, frame_h: float, img_w: int, img_h: int) -> tuple[float, float, float]:
+    """(scale, x offset, y offset) of an image drawn aspect-fit and centred in a frame, as
+    Open3D's ImageWidget draws it."""
+    s = min(frame_w / img_w, frame_h / img_h)
+    return s, (frame_w - s * img_w) / 2, (frame_h - s * img_h) / 2
+
+
+def outline_preview(pixels: np.ndarray, ctl: PlacementController, pose: Pose) -> np.ndarray:
+    """The last composite with the outline (convex hull) of the object at `pose` drawn on it:
+    instant feedback while the frame for that pose is being composited."""
+    import cv2
+
+    obj = ctl.scene_object(pose)
+    out = np.array(pixels, copy=True)
+    if obj is None:
+        return out
+    uv, z = ctl.scene.camera.project(obj.vertices)
+    uv = uv[z > 1e-3]
+    if len(uv) < 3:
+        return out
+    hull = cv2.convexHull(np.round(uv * 4).astype(np.int32))
+    cv2.polylines(out, [hull], True, (255, 220, 0), 1, cv2.LINE_AA, shift=2)
+    return out
+
+
+def room_mesh(ctl: PlacementController):
+    """Open3D TriangleMesh of the scene model, one colour per patch: patch radiance through the
+    camera response once the engine is ready, the quads' albedo (emitters: their radiance)
+    before."""
+    import open3d as o3d
+
+    sc = ctl.scene
+    eng = ctl.engine
+    if eng is not None:
+        pm = eng.pre.patches
+        v = pm.vert_pos[pm.tris].reshape(-1, 3)
+        col = sc.response.to_levels(eng.pre.B[-1][pm.tri_patch]) / 255.0
+    else:
+        corners = np.array([q.corners for q in sc.quads])
+        v = corners[:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3)
+        quad_col = np.array([sc.response.to_levels(q.emission)[None][0] / 255.0 if q.is_emitter else q.albedo
+                             for q in sc.quads])
+        col = np.repeat(quad_col, 2, axis=0)
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v),
+                                  o3d.utility.Vector3iVector(np.arange(len(v)).reshape(-1, 3)))
+    # the renderer encodes its linear output for display; the levels already are display values
+    m.vertex_colors = o3d.utility.Vector3dVector(np.repeat(np.clip(col, 0, 1) ** 2.2, 3, axis=0))
+    return m
+
+
+def frustum_lines(ctl: PlacementController, depth: float = 0.5):
+    import open3d as o3d
+
+    cam = ctl.scene.camera
+    W, H = cam.width, cam.height
+    corners = [(-0.5, -0.5), (W - 0.5, -0.5), (W - 0.5, H - 0.5), (-0.5, H - 0.5)]
+    c = cam.centre
+    pts = [c] + [c + depth * ctl.pixel_ray(u, v) / (ctl.pixel_ray(u, v) @ (cam.R[2])) for u, v in corners]
+    lines = [[0, 1], [0, 2], [0, 3], [0, 4], [1, 2], [2, 3], [3, 4], [4, 1]]
+    ls = o3d.geometry.LineSet(o3d.utility.Vector3dVector(np.array(pts)), o3d.utility.Vector2iVector(lines))
+    ls.paint_uniform_color([1.0, 0.8, 0.0])
+    return ls
+
+
+# ---------------------------------------------------------------------------- the window
+class PlacementWindow:
+    """The window; `ctl` holds every bit of state, this class only shows it and forwards input."""
+
+    def __init__(self, ctl: PlacementController, mesh_choices: list[str], title: str = "photoar",
+                 width: int = 1280, height: int = 720, object_size: float | None = None):
+        import open3d as o3d
+        import open3d.visualization.gui as gui
+        import open3d.visualization.rendering as rendering
+
+        self.o3d, self.gui, self.rendering = o3d, gui, rendering
+        self.ctl = ctl
+        self.app = gui.Application.instance
+        self.object_size = object_size
+        self.choices = list(dict.fromkeys(mesh_choices))
+        self.frames_shown = 0
+        self.last_frame = None  # FrameResult on display
+        self.frame_times: list[float] = []  # seconds per engine frame (not kept ones)
+        self.error: str | None = None
+        self.engine_ready = threading.Event()
+        self.closed = False
+        self._dirty = False
+        self._render_cv = threading.Condition()
+        self._script: Callable[[], bool] | None = None  # headless mode: decides whether to render more
+        self._pre_t0 = time.perf_counter()
+
+        w = self.window = self.app.create_window(title, width, height)
+        em = w.theme.font_size
+        self.tabs = gui.TabControl()
+        self.image = gui.ImageWidget(o3d.geometry.Image(np.ascontiguousarray(ctl.scene.photo)))
+        self.image.set_on_mouse(self._on_image_mouse)
+        self.tabs.add_tab("Photo", self.image)
+        self.scene3d = gui.SceneWidget()
+        self.scene3d.scene = rendering.Open3DScene(w.renderer)
+        self.scene3d.scene.set_background([0.1, 0.1, 0.12, 1.0])
+        self.tabs.add_tab("3D", self.scene3d)
+        w.add_child(self.tabs)
+
+        p = self.panel = gui.Vert(0.4 * em, gui.Margins(0.6 * em, 0.6 * em, 0.6 * em, 0.6 * em))
+        self.status = gui.Label("precomputing the scene ...")
+        self.progress = gui.ProgressBar()
+        p.add_child(self.status)
+        p.add_child(self.progress)
+        p.add_fixed(0.5 * em)
+        p.add_child(gui.Label("Object"))
+        self.picker = gui.Combobox()
+        for c in self.choices:
+            self.picker.add_item(Path(c).name)
+        self.picker.set_on_selection_changed(self._on_pick_object)
+        p.add_child(self.picker)
+        b_open = gui.Button("Open mesh...")
+        b_open.set_on_clicked(self._on_open_mesh)
+        p.add_child(b_open)
+        p.add_fixed(0.5 * em)
+        p.add_child(gui.Label("Shadow passes per frame"))
+        self.slider = gui.Slider(gui.Slider.INT)
+        self.slider.set_limits(10, 50)
+        self.slider.int_value = int(ctl.passes) if ctl.passes else 20
+        self.slider.set_on_value_changed(self._on_passes)
+        p.add_child(self.slider)
+        self.all_sources = gui.Checkbox("all sources")
+        self.all_sources.checked = ctl.passes is None
+        self.all_sources.set_on_checked(self._on_all_sources)
+        p.add_child(self.all_sources)
+        p.add_child(gui.Label("Compositing path"))
+        self.mode = gui.RadioButton(gui.RadioButton.HORIZ)
+        self.mode.set_items(["HDR", "LDR"])
+        self.mode.selected_index = 1 if (ctl.params is not None and ctl.params.mode == "ldr") else 0
+        self.mode.set_on_selection_changed(self._on_mode)
+        p.add_child(self.mode)
+        p.add_fixed(0.5 * em)
+        self.frame_label = gui.Label("frame: -")
+        self.pass_label = gui.Label("passes: -")
+        self.pose_label = gui.Label("pose: -")
+        for lab in (self.frame_label, self.pass_label, self.pose_label):
+            p.add_child(lab)
+        row = gui.Horiz(0.4 * em)
+        for text, fn in (("Undo", self._on_undo), ("Redo", self._on_redo), ("Save", self._on_save),
+                         ("Load", self._on_load)):
+            b = gui.Button(text)
+            b.set_on_clicked(fn)
+            row.add_child(b)
+        p.add_child(row)
+        p.add_fixed(0.5 * em)
+        p.add_child(gui.Label("click: place  drag: move\nQ/E turn  R/F lift  =/- scale\n"
+                              "arrows: slide  Z undo  Y redo"))
+        w.add_child(p)
+        w.set_on_layout(self._on_layout)
+        w.set_on_key(self._on_key)
+        w.set_on_tick_event(self._on_tick)
+        w.set_on_close(self._on_close)
+
+        self._mat_room = rendering.MaterialRecord()
+        self._mat_room.shader = "defaultUnlit"
+        self._mat_obj = rendering.MaterialRecord()
+        self._mat_obj.shader = "defaultLit"
+        self._mat_line = rendering.MaterialRecord()
+        self._mat_line.shader = "unlitLine"
+        self._mat_line.line_width = 2.0
+        self._show_room()
+        sc, cam = ctl.scene, ctl.scene.camera
+        ext = np.eye(4)
+        ext[:3, :3], ext[:3, 3] = cam.R, cam.t
+        bbox = o3d.geometry.AxisAlignedBoundingBox(sc.room_min, sc.room_max)
+        self.scene3d.setup_camera(cam.K, ext, cam.width, cam.height, bbox)
+        self.scene3d.scene.add_geometry("camera", frustum_lines(ctl), self._mat_line)
+
+        ctl.on_change = self._on_pose_change
+        if ctl.pose.mesh is not None:
+            self._select_choice(ctl.pose.mesh)
+            self._show_pose(ctl.pose)
+            self._show_object()
+        threading.Thread(target=self._precompute, name="photoar-precompute", daemon=True).start()
+        threading.Thread(target=self._render_loop, name="photoar-render", daemon=True).start()
+
+    # ------------------------------------------------------------------ layout
+    def _on_layout(self, ctx) -> None:
+        r = self.window.content_rect
+        pw = int(PANEL_W * self.window.scaling)
+        self.tabs.frame = self.gui.Rect(r.x, r.y, r.width - pw, r.height)
+        self.panel.frame = self.gui.Rect(r.get_right() - pw, r.y, pw, r.height)
+
+    def image_to_pixel(self, x: float, y: float) -> tuple[float, float] | None:
+        """Window coordinates -> photo pixel (u, v) (None outside the photo)."""
+        f = self.image.frame
+        cam = self.ctl.scene.camera
+        s, ox, oy = image_fit(f.width, f.height, cam.width, cam.height)
+        u = (x - f.x - ox) / s - 0.5
+        v = (y - f.y - oy) / s - 0.5
+        if not (-0.5 <= u <= cam.width - 0.5 and -0.5 <= v <= cam.height - 0.5):
+            return None
+        return u, v
+
+    # ------------------------------------------------------------------ workers
+    def _precompute(self) -> None:
+        try:
+            eng = self.ctl.start_engine()
+            msg = (f"precompute {eng.precompute_s:.1f} s" + (" (cached)" if eng.cache_hit else "")
+                   + f", {eng.pre.patches.n_patches} patches")
+        except Exception as e:  # noqa: BLE001 - shown in the window, and ends a headless run
+            log.exception("precompute failed")
+            self.error = f"precompute failed: {e}"
+            self.app.post_to_main_thread(self.window, lambda: setattr(self.status, "text", self.error))
+            return
+
+        def done():
+            self.status.text = msg
+            self.progress.value = 1.0
+            self._show_room()
+            self.window.set_needs_layout()
+
+        self.app.post_to_main_thread(self.window, done)
+        self.engine_ready.set()
+        self.request_frame()
+
+    def request_frame(self) -> None:
+        with self._render_cv:
+            self._dirty = True
+            self._render_cv.notify()
+
+    def _render_loop(self) -> None:
+        while not self.closed:
+            with self._render_cv:
+                while not self._dirty and not self.closed:
+                    self._render_cv.wait(0.5)
+                self._dirty = False
+            if self.closed or not self.engine_ready.is_set():
+                continue
+            if self._script is not None and not self._script():
+                continue
+            pose = self.ctl.pose
+            try:
+                fr = self.ctl.render(pose)
+            except Exception as e:  # noqa: BLE001 - an engine error must not kill the window
+                log.exception("frame failed")
+                self.error = f"frame failed: {e}"
+                self.app.post_to_main_thread(self.window, lambda: setattr(self.status, "text", self.error))
+                continue
+            if not fr.stats["cached"]:
+                self.frame_times.append(fr.stats["frame_s"])
+            self.app.post_to_main_thread(self.window, lambda fr=fr, pose=pose: self._show_frame(fr, pose))
+
+    # ------------------------------------------------------------------ showing
+    def _show_frame(self, fr, pose: Pose) -> None:
+        self.last_frame = fr
+        if pose == self.ctl.pose:
+            self._set_image(fr.pixels)
+        else:  # an edit arrived meanwhile: show this frame with the newer outline until its own
+            self._set_image(outline_preview(fr.pixels, self.ctl, self.ctl.pose))
+        st = fr.stats
+        kept = " (kept)" if st["cached"] else ""
+        self.frame_label.text = (f"frame: {st['frame_s'] * 1000:.0f} ms{kept}"
+                                 + (f", engine {st['engine_s']:.2f} s" if st.get("engine_s") else ""))
+        budget = "all" if st.get("budget") is None else st["budget"]
+        self.pass_label.text = f"passes: {st['passes']} (budget {budget}), {st['mode'].upper()}"
+        self.frames_shown += 1
+        self.window.post_redraw()
+
+    def _set_image(self, pixels: np.ndarray) -> None:
+        self.image.update_image(self.o3d.geometry.Image(np.ascontiguousarray(pixels)))
+        self.window.post_redraw()
+
+    def _show_room(self) -> None:
+        s = self.scene3d.scene
+        if s.has_geometry("room"):
+            s.remove_geometry("room")
+        s.add_geometry("room", room_mesh(self.ctl), self._mat_room)
+
+    def _show_object(self) -> None:
+        o3d = self.o3d
+        s = self.scene3d.scene
+        if s.has_geometry("object"):
+            s.remove_geometry("object")
+        obj = self.ctl.scene_object()
+        if obj is None:
+            return
+        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(obj.vertices), o3d.utility.Vector3iVector(obj.faces))
+        m.vertex_normals = o3d.utility.Vector3dVector(obj.normals)
+        m.paint_uniform_color(np.clip(obj.albedo, 0, 1))
+        s.add_geometry("object", m, self._mat_obj)
+
+    def _show_pose(self, p: Pose) -> None:
+        self.pose_label.text = (f"pose: ({p.position[0]:.2f}, {p.position[1]:.2f}, {p.position[2]:.2f}) m\n"
+                                f"yaw {p.yaw_deg:.0f} deg, lift {p.lift * 100:.0f} cm, scale {p.scale:.2f}"
+                                + ("\nWARNING: inside furniture" if self.ctl.collides(p) else ""))
+
+    def _on_pose_change(self, pose: Pose) -> None:
+        """Controller callback (main thread: edits come from widget events)."""
+        self._show_pose(pose)
+        self._show_object()
+        if self.last_frame is not None:
+            self._set_image(outline_preview(self.last_frame.pixels, self.ctl, pose))
+        self.request_frame()
+
+    def _on_tick(self) -> bool:
+        if not self.engine_ready.is_set() and self.error is None:
+            t = time.perf_counter() - self._pre_t0
+            self.progress.value = 1.0 - math.exp(-t / 30.0)  # no fraction from the engine: time-based
+            self.status.text = f"precomputing the scene ... {t:.0f} s"
+            return True
+        return False
+
+    def _on_close(self) -> bool:
+        self.closed = True
+        with self._render_cv:
+            self._render_cv.notify()
+        return True
+
+    # ------------------------------------------------------------------ input
+    def _guard(self, fn, *args) -> None:
+        try:
+            fn(*args)
+        except ValueError as e:
+            self.status.text = str(e)
+
+    def _on_image_mouse(self, e):
+        gui = self.gui
+        if self.ctl.pose.mesh is None and self.choices:
+            self._guard(self.ctl.set_object, self.choices[0], self.object_size)
+        t = e.type
+        if t == gui.MouseEvent.Type.BUTTON_DOWN and e.is_button_down(gui.MouseButton.LEFT):
+            uv = self.image_to_pixel(e.x, e.y)
+            if uv is not None:
+                self.ctl.begin_gesture()
+                self._guard(self.ctl.place_at_pixel, *uv)
+                self._dragging = True
+            return gui.Widget.EventCallbackResult.CONSUMED
+        if t == gui.MouseEvent.Type.DRAG and getattr(self, "_dragging", False):
+            uv = self.image_to_pixel(e.x, e.y)
+            if uv is not None:
+                self._guard(self.ctl.move_to_pixel, *uv)
+            return gui.Widget.EventCallbackResult.CONSUMED
+        if t == gui.MouseEvent.Type.BUTTON_UP and getattr(self, "_dragging", False):
+            self._dragging = False
+            self.ctl.end_gesture()
+            return gui.Widget.EventCallbackResult.CONSUMED
+        return gui.Widget.EventCallbackResult.IGNORED
+
+    def _on_key(self, e) -> bool:
+        gui, ctl = self.gui, self.ctl
+        if e.type != gui.KeyEvent.Type.DOWN or ctl.pose.mesh is None:
+            return False
+        K = gui.KeyName
+        actions = {K.Q: (ctl.rotate, -ROTATE_STEP), K.E: (ctl.rotate, ROTATE_STEP),
+                   K.R: (ctl.lift_by, LIFT_STEP), K.F: (ctl.lift_by, -LIFT_STEP),
+                   K.EQUALS: (ctl.scale_by, SCALE_STEP), K.PLUS: (ctl.scale_by, SCALE_STEP),
+                   K.MINUS: (ctl.scale_by, 1 / SCALE_STEP),
+                   K.LEFT: (ctl.move_by, -MOVE_STEP, 0.0), K.RIGHT: (ctl.move_by, MOVE_STEP, 0.0),
+                   K.UP: (ctl.move_by, 0.0, -MOVE_STEP), K.DOWN: (ctl.move_by, 0.0, MOVE_STEP)}
+        if e.key == K.Z:
+            ctl.undo()
+            return True
+        if e.key == K.Y:
+            ctl.redo()
+            return True
+        if e.key in actions:
+            fn, *args = actions[e.key]
+            self._guard(fn, *args)
+            return True
+        return False
+
+    def _select_choice(self, path: str) -> None:
+        if path not in self.choices:
+            self.choices.append(path)
+            self.picker.add_item(Path(path).name)
+        self.picker.selected_index = self.choices.index(path)
+
+    def _on_pick_object(self, text: str, index: int) -> None:
+        self._guard(self.ctl.set_object, self.choices[index], self.object_size)
+
+    def _on_open_mesh(self) -> None:
+        gui = self.gui
+        dlg = gui.FileDialog(gui.FileDialog.OPEN, "Open an object mesh", self.window.theme)
+        dlg.add_filter(".ply .obj .glb .gltf .off .stl", "meshes")
+        dlg.set_on_cancel(self.window.close_dialog)
+
+        def done(path: str) -> None:
+            self.window.close_dialog()
+            self._guard(self._set_mesh, path)
+
+        dlg.set_on_done(done)
+        self.window.show_dialog(dlg)
+
+    def _set_mesh(self, path: str) -> None:
+        self.ctl.set_object(path, self.object_size)
+        self._select_choice(self.ctl.pose.mesh)
+
+    def _on_passes(self, value: float) -> None:
+        if not self.all_sources.checked:
+            self.ctl.set_budget(int(value))
+            self.request_frame()
+
+    def _on_all_sources(self, checked: bool) -> None:
+        self.ctl.set_budget(None if checked else int(self.slider.int_value))
+        self.request_frame()
+
+    def _on_mode(self, index: int) -> None:
+        self.ctl.set_budget(mode="ldr" if index == 1 else "hdr")
+        self.request_frame()
+
+    def _on_undo(self) -> None:
+        self.ctl.undo()
+
+    def _on_redo(self) -> None:
+        self.ctl.redo()
+
+    def _file_dialog(self, mode, title: str, then: Callable[[str], None]) -> None:
+        gui = self.gui
+        dlg = gui.FileDialog(mode, title, self.window.theme)
+        dlg.add_filter(".json", "placements")
+        dlg.set_on_cancel(self.window.close_dialog)
+
+        def done(path: str) -> None:
+            self.window.close_dialog()
+            try:
+                then(path)
+            except (ValueError, OSError) as e:
+                self.status.text = str(e)
+
+        dlg.set_on_done(done)
+        self.window.show_dialog(dlg)
+
+    def _on_save(self) -> None:
+        self._file_dialog(self.gui.FileDialog.SAVE, "Save placement",
+                          lambda p: setattr(self.status, "text", f"saved {self.ctl.save(p)}"))
+
+    def _on_load(self) -> None:
+        def load(p: str) -> None:
+            self.ctl.load(p)
+            if self.ctl.pose.mesh is not None:
+                self._select_choice(self.ctl.pose.mesh)
+
+        self._file_dialog(self.gui.FileDialog.OPEN, "Load placement", load)
+
+    # ------------------------------------------------------------------ scripted runs
+    def screenshot(self) -> np.ndarray:
+        """RGB (H,W,3) uint8 of the window as it is on the X display."""
+        f = self.window.os_frame
+        return grab_screen(f.x, f.y, f.width, f.height)
+
+    def run_frames(self, n: int, timeout_s: float = 600.0) -> None:
+        """Headless mode: wait for the precompute, composite the current pose `n` times (each by
+        the engine, no kept frames), show the last one and let the window draw it."""
+        remaining = [n]
+
+        def script() -> bool:
+            if remaining[0] <= 0:
+                return False
+            remaining[0] -= 1
+            self.ctl.clear_frames()
+            if remaining[0] > 0:
+                self.request_frame()
+            return True
+
+        self._script = script
+        t0 = time.perf_counter()
+        target = self.frames_shown + n
+        self.request_frame()
+        while self.app.run_one_tick():
+            if self.error is not None:
+                raise RuntimeError(f"{self.ctl.scene.root}: {self.error}")
+            if self.frames_shown >= target:
+                break
+            if time.perf_counter() - t0 > timeout_s:
+                raise RuntimeError(f"{self.ctl.scene.root}: no frame after {timeout_s:.0f} s")
+            time.sleep(0.005)
+        self._script = None
+        for _ in range(10):  # let the window draw the last image
+            self.window.post_redraw()
+            self.app.run_one_tick()
+            time.sleep(0.02)
