@@ -56,7 +56,7 @@ from recon.proxy import simplify, subdivide
 from recon.scene import Scene, SceneObject
 
 log = logging.getLogger("photoar")
-CACHE_VERSION = 4
+CACHE_VERSION = 5
 
 
 @dataclass
@@ -458,10 +458,12 @@ class Engine:
         """
         v, n, f = mesh
         pm = self.pre.patches
-        T, hit_face, hit_bary = self_transfer(v, n, Occluder(v, f, self.device), self.params.prt_dirs,
-                                              device=self.device)
+        # the shading mesh shadows itself: the coarse proxy would cut through its surface and
+        # shadow vertices that lie outside it
+        own = Occluder(v, f, self.device)
+        T, hit_face, hit_bary = self_transfer(v, n, own, self.params.prt_dirs, device=self.device)
         E = np.einsum("vk,vkc->vc", T.astype(np.float64), self.room_light.indirect_sh(v))
-        E += self.room_light.direct(v, n, [proxy_occ], n_side=1)
+        E += self.room_light.direct(v, n, [own], n_side=1)
         if dB is not None:
             # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
             loss = np.abs(luminance(dB)) * pm.area
@@ -474,7 +476,7 @@ class Engine:
                 # gather it at a spread subset of vertices and interpolate by position and normal
                 sub = np.arange(0, len(v), max(1, len(v) // self.dB_samples))
                 G = transfer_matrix(v[sub], n[sub], pm.corners[changed], pm.normal[changed],
-                                    [self.scene_occ, proxy_occ], n_side=1, eps=2e-3, device=self.device)
+                                    [self.scene_occ, own], n_side=1, eps=2e-3, device=self.device)
                 E += _interpolate_on_surface(v, n, sub, G.astype(np.float64) @ dB[changed])
         L_vert = obj.albedo * np.maximum(E, 0.0)
         # vertices buried inside another part of the object (a chair's back-rest inside its seat)

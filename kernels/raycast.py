@@ -21,7 +21,7 @@ def _cast_kernel(mesh: wp.uint64, origins: wp.array(dtype=wp.vec3), stride: int,
     q = wp.mesh_query_ray(mesh, origins[i * stride], dirs[i], max_t)
     if q.result:
         tri[i] = q.face
-        bary[i] = wp.vec3(1.0 - q.u - q.v, q.u, q.v)
+        bary[i] = wp.vec3(q.u, q.v, 1.0 - q.u - q.v)  # Warp: p = u p0 + v p1 + (1-u-v) p2
         depth[i] = q.t
     else:
         tri[i] = -1

@@ -66,7 +66,7 @@ def _transfer_kernel(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp
             hit_face[i, k] = -1
         else:
             hit_face[i, k] = q.face
-            hit_bary[i, k] = wp.vec3(1.0 - q.u - q.v, q.u, q.v)
+            hit_bary[i, k] = wp.vec3(q.u, q.v, 1.0 - q.u - q.v)  # Warp: p = u p0 + v p1 + (1-u-v) p2
     for c in range(9):
         out[i, c] = acc[c] / float(n_dirs)
 

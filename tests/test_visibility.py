@@ -275,3 +275,18 @@ def test_emitter_sum_is_linear_over_triangles(device):
     np.testing.assert_allclose(out, F @ B, rtol=1e-5, atol=1e-9)
     assert emitter_sum(pts[:0], nrm[:0], tri, B, device=device).shape == (0, 3)
     assert np.all(emitter_sum(pts, nrm, tri[:0], B[:0], device=device) == 0.0)
+
+
+def test_ray_hit_barycentrics_rebuild_the_hit_point(device):
+    # the weights cast_rays returns, applied to the triangle's vertices, give back the hit point
+    from kernels.raycast import cast_rays
+
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    f = np.array([[0, 1, 2], [1, 3, 2]])
+    occ = Occluder(v, f, device)
+    targets = np.array([[0.6, 0.2, 0.0], [0.1, 0.7, 0.0], [0.8, 0.9, 0.0], [0.3, 0.3, 0.0]])
+    origins = targets + [0.0, 0.0, 1.0]
+    tri, bary, depth = cast_rays(occ, origins, np.tile([0.0, 0.0, -1.0], (4, 1)))
+    assert np.all(tri >= 0)
+    np.testing.assert_allclose(np.einsum("nk,nkc->nc", bary, v[f[tri]]), targets, atol=1e-5)
+    np.testing.assert_allclose(depth, 1.0, atol=1e-5)
