@@ -6,8 +6,9 @@ Renders the scene's object once per pass budget from one precompute and writes
 `evaluation.json` (a row per setting: passes, frame_s, traversal_s, energy_ratio,
 rmse_affected, spurious, rmse_object, ssim_affected; the scorer's definitions, see
 lighting/metrics.py) and `speed_vs_error.png` (frame time against rmse_affected). The error is
-measured against the scene's `truth.png` when there is one, else against the all-sources
-composite (then the reference row itself scores zero).
+measured against the scene's `truth.png` when there is one, else against the path-traced
+reference of `photoar reference` (`--reference-spp N`), else against the all-sources composite
+(then that row itself scores zero).
 """
 from __future__ import annotations
 
@@ -41,7 +42,7 @@ def parse_passes(text: str) -> list[int | None]:
 
 
 def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], params=None, cache_dir=None,
-         quiet: bool = False) -> list[dict]:
+         quiet: bool = False, reference_spp: int | None = None) -> list[dict]:
     """Rows of the evaluation (also written to out/evaluation.json and the plot)."""
     import dataclasses
 
@@ -59,7 +60,7 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
     engine = Engine(scene, params, cache_dir=cache_dir if cache_dir is not None else default_cache_dir(), quiet=quiet)
     frames = {}
     order = sorted(set(passes), key=lambda p: (p is None, p or 0))
-    if None not in order and not (Path(scene_dir) / "truth.png").is_file():
+    if None not in order and not (Path(scene_dir) / "truth.png").is_file() and reference_spp is None:
         order.append(None)  # the all-sources frame is the reference
     for n in order:
         engine.params = dataclasses.replace(params, passes=n)
@@ -71,6 +72,13 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
 
         mask = cv2.imread(str(Path(scene_dir) / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
         against = "truth.png"
+    elif reference_spp is not None:
+        from app.cmd_reference import render_reference
+
+        ref = render_reference(scene, reference_spp, quiet=quiet)
+        truth = ref.pixels
+        mask = np.rint(ref.coverage * 255).astype(np.uint8)
+        against = f"path-traced reference ({ref.spp} spp)"
     else:
         truth = frames[None].pixels
         cov = engine._object_hits(scene.obj.vertices, scene.obj.faces).coverage()
@@ -110,6 +118,9 @@ def register(sub) -> None:
     e.add_argument("--passes", type=parse_passes, default=parse_passes("10,20,50,all"),
                    help="comma-separated pass budgets, 'all' for one pass per source (default 10,20,50,all)")
     e.add_argument("--out", type=Path, required=True, help="output folder")
+    e.add_argument("--reference-spp", type=int, default=None,
+                   help="without truth.png: measure against a path-traced reference at this many samples per "
+                        "pixel (default: against the all-sources composite)")
     _add_engine_args(e, passes=False)
     e.set_defaults(run=_run)
 
@@ -120,7 +131,7 @@ def _run(a) -> int:
     import dataclasses
 
     params = dataclasses.replace(_params(a), passes=None)
-    rows = main(a.scene, a.out, a.passes, params, cache_dir=a.cache, quiet=a.quiet)
+    rows = main(a.scene, a.out, a.passes, params, cache_dir=a.cache, quiet=a.quiet, reference_spp=a.reference_spp)
     for r in rows:
         print(f"passes {r['passes']}: frame {r['frame_s']:.2f} s, energy {r['energy_ratio']:.3f}, "
               f"rmse {r['rmse_affected']:.2f}, spurious {r['spurious']:.4f}")

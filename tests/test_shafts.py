@@ -185,3 +185,18 @@ def test_fps_budget_follows_the_measured_cost(engine):
         assert eng._passes_for_frame() == 1  # over budget already: one pass
     finally:
         eng.params, eng._cost = params, cost
+
+
+def test_evaluate_against_a_path_traced_reference(tmp_path):
+    # without truth.png, --reference-spp measures every budget against `photoar reference`
+    import json
+
+    from app.cli import demo_scene_dir, main
+
+    out = tmp_path / "eval"
+    assert main(["-q", "evaluate", str(demo_scene_dir()), "--passes", "20", "--reference-spp", "4", "--out",
+                 str(out), "--patch-size", "0.35", "--cache", str(tmp_path / "cache")]) == 0
+    ev = json.loads((out / "evaluation.json").read_text())
+    assert ev["against"].startswith("path-traced reference")
+    (row,) = ev["rows"]
+    assert 0.5 < row["energy_ratio"] < 1.5 and row["rmse_affected"] < 10, row
