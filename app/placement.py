@@ -34,7 +34,7 @@ from typing import Callable
 
 import numpy as np
 
-from recon.scene import Scene, SceneError, SceneObject, inside_furniture, load_mesh, load_scene
+from recon.scene import Scene, SceneError, SceneObject, furniture_boxes, load_mesh, load_scene
 
 log = logging.getLogger("photoar")
 
@@ -418,9 +418,13 @@ class PlacementController:
         return SceneObject(v, n, om.faces, om.albedo, M, om.path)
 
     def collides(self, pose: Pose | None = None) -> bool:
-        """Does the object poke into a furniture box (recon.scene.inside_furniture)?"""
+        """Does the object's bounding box overlap a furniture box by more than 1 mm?
+        (Conservative: a chair tucked under a desk counts.)"""
         obj = self.scene_object(pose)
-        return obj is not None and bool(inside_furniture(self.scene, obj.vertices, margin=-1e-3).any())
+        if obj is None:
+            return False
+        lo, hi = obj.vertices.min(0), obj.vertices.max(0)
+        return any(bool(np.all((lo < b_hi - 1e-3) & (hi > b_lo + 1e-3))) for b_lo, b_hi in furniture_boxes(self.scene))
 
     # ------------------------------------------------------------------ frames
     @property
