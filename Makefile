@@ -3,7 +3,7 @@
 PY      ?= python3
 VENV    := .venv
 VPY     := $(VENV)/bin/python
-APT_PKGS := libusb-1.0-0 libgl1 libegl1 libgomp1 xvfb libvulkan1 mesa-vulkan-drivers
+APT_PKGS := libusb-1.0-0 libgl1 libegl1 libgomp1 libx11-6 xvfb libvulkan1 mesa-vulkan-drivers
 OUT     ?= out/demo
 
 .PHONY: demo test bench deps clean
