@@ -8,7 +8,6 @@ Without image constraints in it, nothing moves and the overlay shows the model a
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from pathlib import Path
 
@@ -31,12 +30,9 @@ def load_camera(path: Path):
     """recon.camera.Camera from a camera.json (flat fx..t) or a scene.json's main_camera."""
     from recon.camera import Camera
 
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: file not found")
-    try:
-        d = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: malformed JSON ({e})") from None
+    from recon.scene import read_json
+
+    d = read_json(path)
     if isinstance(d, dict) and "main_camera" in d:
         d = dict(d["main_camera"], **d["main_camera"].get("K", {}))
     try:

@@ -61,12 +61,9 @@ def register(sub) -> None:
 
 def load_camera(path: Path, image: str | None) -> tuple[Camera, str]:
     """Camera and the image it belongs to, from a camera.json or a scene.json (main_camera)."""
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: file not found")
-    try:
-        d = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: malformed JSON ({e})") from None
+    from recon.scene import read_json
+
+    d = read_json(path)
     c = d.get("main_camera", d.get("camera", d)) if isinstance(d, dict) else None
     if not isinstance(c, dict):
         raise ValueError(f"{path}: expected a JSON object with K, R, t")

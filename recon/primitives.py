@@ -241,12 +241,9 @@ def model_from_dict(d: dict, src: str = "<model>", infer_graph: bool | None = No
 def load_model(path: str | os.PathLike, infer_graph: bool | None = None) -> "PrimitiveModel":
     """Read a model JSON (or a scene.json) -> PrimitiveModel; ValueError/FileNotFoundError naming the file."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: file not found")
-    try:
-        d = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: malformed JSON ({e})") from None
+    from recon.scene import read_json
+
+    d = read_json(path)
     return model_from_dict(d, str(path), infer_graph)
 
 
@@ -257,8 +254,18 @@ def model_to_dict(model: "PrimitiveModel") -> dict:
 
 
 def save_model(path: str | os.PathLike, model: "PrimitiveModel") -> None:
-    """Write the model JSON (schema in the module docstring)."""
-    Path(path).write_text(json.dumps(model_to_dict(model), indent=1) + "\n")
+    """Write the model JSON (schema in the module docstring), atomically (temp file, then rename)."""
+    import tempfile
+
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps(model_to_dict(model), indent=1) + "\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 # ----------------------------------------------------------------------------------------------

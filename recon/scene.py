@@ -147,6 +147,17 @@ def _box_quads(name: str, center: np.ndarray, size: np.ndarray, albedo: np.ndarr
     return quads
 
 
+def read_json(path: str | os.PathLike):
+    """Parsed JSON of `path`; FileNotFoundError / ValueError naming the file when it is missing or malformed."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: file not found")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: malformed JSON ({e})") from None
+
+
 def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scene:
     """Read a benchmark scene folder (scene.json + photo + object mesh) into the scene model."""
     root = Path(scene_dir)

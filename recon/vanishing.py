@@ -29,7 +29,6 @@ left with fewer than two segments is an error.
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 from dataclasses import dataclass, field
@@ -141,12 +140,9 @@ def parse_lines(d: dict, src: str = "<lines>") -> dict:
 def load_lines(path: str | os.PathLike) -> dict:
     """Read LINES.json (see module docstring); errors name the file."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: file not found")
-    try:
-        d = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: malformed JSON ({e})") from None
+    from recon.scene import read_json
+
+    d = read_json(path)
     return parse_lines(d, str(path))
 
 
