@@ -122,28 +122,37 @@ def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return v, n, f
 
 
-def _box_quads(name: str, center: np.ndarray, size: np.ndarray, albedo: np.ndarray,
-               room_min: np.ndarray, room_max: np.ndarray) -> list[Quad]:
-    """The six outward faces of an axis-aligned box, minus faces flush against a room wall."""
-    lo, hi = center - size / 2, center + size / 2
-    quads = []
+def box_faces(lo, hi, inward: bool = False) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """The six faces of the box [lo, hi] (m): (axis, side, corners (4,3), unit normal (3,)), side 0
+    at lo[axis] and 1 at hi[axis]. Normals point out of the box, or into it with `inward` (a
+    room's walls); corners run counter-clockwise seen from the side the normal points to."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    faces = []
     for axis in range(3):
-        for sign in (-1.0, 1.0):
+        for side in (0, 1):
             normal = np.zeros(3)
-            normal[axis] = sign
-            plane = hi[axis] if sign > 0 else lo[axis]
-            wall = room_max[axis] if sign > 0 else room_min[axis]
-            if abs(plane - wall) < 1e-6:
-                continue  # face pressed against the wall/floor: never lit, never seen
+            normal[axis] = (1.0 if side else -1.0) * (-1.0 if inward else 1.0)
             u_ax, v_ax = [a for a in range(3) if a != axis]
             c = np.empty((4, 3))
             for k, (a, b) in enumerate([(0, 0), (1, 0), (1, 1), (0, 1)]):
-                c[k, axis] = plane
+                c[k, axis] = (lo, hi)[side][axis]
                 c[k, u_ax] = (lo, hi)[a][u_ax]
                 c[k, v_ax] = (lo, hi)[b][v_ax]
             if np.dot(np.cross(c[1] - c[0], c[3] - c[0]), normal) < 0:
                 c = c[[0, 3, 2, 1]]
-            quads.append(Quad(f"{name}.{'xyz'[axis]}{'-+'[sign > 0]}", c, normal, albedo, np.zeros(3), "furniture"))
+            faces.append((axis, side, c, normal))
+    return faces
+
+
+def _box_quads(name: str, center: np.ndarray, size: np.ndarray, albedo: np.ndarray,
+               room_min: np.ndarray, room_max: np.ndarray) -> list[Quad]:
+    """The six outward faces of an axis-aligned box, minus faces flush against a room wall."""
+    quads = []
+    for axis, side, c, normal in box_faces(center - size / 2, center + size / 2):
+        wall = (room_min, room_max)[side][axis]
+        if abs(c[0, axis] - wall) < 1e-6:
+            continue  # face pressed against the wall/floor: never lit, never seen
+        quads.append(Quad(f"{name}.{'xyz'[axis]}{'-+'[side]}", c, normal, albedo, np.zeros(3), "furniture"))
     return quads
 
 

@@ -19,7 +19,7 @@ from lighting.radiosity import gather  # noqa: E402
 from lighting.sources import LUMA, select_sources  # noqa: E402
 from lighting.transfer import intensity_transfers  # noqa: E402
 from recon.patches import build_patches  # noqa: E402
-from recon.scene import Quad, Scene, load_scene  # noqa: E402
+from recon.scene import Quad, Scene, box_faces, load_scene  # noqa: E402
 from tests.conftest import shared_scene  # noqa: E402
 
 SCENES = ["demo", "window_room", "lamps_room"]
@@ -242,18 +242,7 @@ def test_select_sources_degenerate():
 def _box_room_G(lo, hi, device, patch_size=0.25):
     """Patch-centre transfer matrix of an empty closed box room (6 inward quads) via build_patches."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    quads = []
-    for axis in range(3):
-        for side, plane in ((0, lo[axis]), (1, hi[axis])):
-            n = np.zeros(3)
-            n[axis] = 1.0 if side == 0 else -1.0
-            u, w = [a for a in range(3) if a != axis]
-            c = np.zeros((4, 3))
-            for k, (a, b) in enumerate([(0, 0), (1, 0), (1, 1), (0, 1)]):
-                c[k, axis], c[k, u], c[k, w] = plane, (lo, hi)[a][u], (lo, hi)[b][w]
-            if np.cross(c[1] - c[0], c[3] - c[0]) @ n < 0:
-                c = c[[0, 3, 2, 1]]
-            quads.append(Quad(f"q{axis}{side}", c, n, np.full(3, 0.5), np.zeros(3)))
+    quads = [Quad(f"q{axis}{side}", c, n, np.full(3, 0.5), np.zeros(3)) for axis, side, c, n in box_faces(lo, hi, True)]
     pm = build_patches(Scene("box", Path("."), None, quads, None, None, None, lo, hi), patch_size, patch_size)
     G = transfer_matrix(pm.centre, pm.normal, pm.corners, pm.normal, [Occluder(pm.vert_pos, pm.tris, device)], n_side=1,
                          device=device)

@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from kernels.formfactor import point_to_polygon  # noqa: E402
 from kernels.visibility import Occluder, emitter_sum, segments_visible, transfer_matrix  # noqa: E402
 from recon.patches import build_patches  # noqa: E402
-from recon.scene import Quad, Scene  # noqa: E402
+from recon.scene import Quad, Scene, box_faces  # noqa: E402
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -62,31 +62,13 @@ def _merge(*meshes):
 
 def _room_quads(lo, hi):
     """Six inward-facing quads of the box [lo, hi] (corners CCW seen from inside)."""
-    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    quads = []
-    for axis in range(3):
-        for side, plane in ((0, lo[axis]), (1, hi[axis])):
-            n = np.zeros(3)
-            n[axis] = 1.0 if side == 0 else -1.0
-            u, w = [a for a in range(3) if a != axis]
-            c = np.zeros((4, 3))
-            for k, (a, b) in enumerate([(0, 0), (1, 0), (1, 1), (0, 1)]):
-                c[k, axis] = plane
-                c[k, u] = (lo, hi)[a][u]
-                c[k, w] = (lo, hi)[b][w]
-            if np.cross(c[1] - c[0], c[3] - c[0]) @ n < 0:
-                c = c[[0, 3, 2, 1]]
-            quads.append(Quad(f"wall{axis}{side}", c, n, np.full(3, 0.5), np.zeros(3)))
-    return quads
+    return [Quad(f"wall{axis}{side}", c, n, np.full(3, 0.5), np.zeros(3))
+            for axis, side, c, n in box_faces(lo, hi, inward=True)]
 
 
 def _cube_quads(lo, hi):
     """Six outward-facing quads of a floating cube."""
-    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    out = []
-    for q in _room_quads(lo, hi):
-        out.append(Quad("cube" + q.name, q.corners[[0, 3, 2, 1]], -q.normal, q.albedo, q.emission))
-    return out
+    return [Quad(f"cubewall{axis}{side}", c, n, np.full(3, 0.5), np.zeros(3)) for axis, side, c, n in box_faces(lo, hi)]
 
 
 def _scene(quads):
