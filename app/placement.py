@@ -21,7 +21,6 @@ states are kept, so undo/redo shows the earlier composite at once and bit for bi
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 import tempfile
@@ -34,7 +33,7 @@ from typing import Callable
 
 import numpy as np
 
-from recon.scene import Scene, SceneError, SceneObject, furniture_boxes, load_mesh, load_scene
+from recon.scene import Scene, SceneError, SceneObject, furniture_boxes, load_mesh, load_scene, read_json
 
 log = logging.getLogger("photoar")
 
@@ -546,12 +545,7 @@ class PlacementController:
 
 def _read_placement(path: Path) -> dict:
     """Parse and check a placement JSON; SceneError 'file: field: problem' on bad input."""
-    if not path.is_file():
-        raise SceneError(f"{path}: file not found")
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SceneError(f"{path}: malformed JSON ({e})") from None
+    data = read_json(path, SceneError)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise SceneError(f"{path}: field 'format' must be {FORMAT!r}")
     if data.get("version") != VERSION:

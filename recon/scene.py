@@ -156,15 +156,16 @@ def _box_quads(name: str, center: np.ndarray, size: np.ndarray, albedo: np.ndarr
     return quads
 
 
-def read_json(path: str | os.PathLike):
-    """Parsed JSON of `path`; FileNotFoundError / ValueError naming the file when it is missing or malformed."""
+def read_json(path: str | os.PathLike, error: type[Exception] | None = None):
+    """Parsed JSON of `path`. A missing file raises FileNotFoundError and malformed JSON ValueError,
+    both naming the file; with `error` (e.g. SceneError) both raise that instead."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: file not found")
+        raise (error or FileNotFoundError)(f"{path}: file not found")
     try:
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: malformed JSON ({e})") from None
+        raise (error or ValueError)(f"{path}: malformed JSON ({e})") from None
 
 
 def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scene:
@@ -173,12 +174,7 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
     path = root / "scene.json"
     if not root.is_dir():
         raise SceneError(f"{root}: scene folder not found")
-    if not path.is_file():
-        raise SceneError(f"{path}: file not found")
-    try:
-        d = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SceneError(f"{path}: malformed JSON ({e})") from None
+    d = read_json(path, SceneError)
     if not isinstance(d, dict):
         raise SceneError(f"{path}: top level must be an object")
 
