@@ -90,28 +90,28 @@ def project_probe(patches: PatchMesh, mesh: Occluder, light_probe: dict, probe_r
     origins, dirs, sa, pixel = probe_rays(light_probe, S)
     tri, _, _ = cast_rays(mesh, origins, dirs)
     hit = tri >= 0
+    patch, sa, pixel = patches.tri_patch[tri[hit]], sa[hit], pixel[hit]
     P = patches.n_patches
-    patch = patches.tri_patch[np.maximum(tri, 0)]
-    L_pix = probe_rgb.reshape(-1, 3).astype(np.float64)[pixel]
-    omega = np.bincount(patch[hit], sa[hit], minlength=P)
+    flux = sa[:, None] * probe_rgb.reshape(-1, 3).astype(np.float64)[pixel]  # (N,3) per sub-ray
+    omega = np.bincount(patch, sa, minlength=P)
     seen = omega > 0
+    pix_flux = np.zeros((S * probe_rgb.shape[1], 3))
+    np.add.at(pix_flux, pixel, flux)
     # start from the plain average, then split each pixel's flux by the current estimate
-    rad = np.zeros((P, 3))
-    for c in range(3):
-        rad[:, c] = np.bincount(patch[hit], sa[hit] * L_pix[hit, c], minlength=P)
+    rad = _sum_per_patch(patch, flux, P)
     rad[seen] /= omega[seen, None]
-    pix_flux = np.zeros((probe_rgb.shape[0] * probe_rgb.shape[1], 3))
-    np.add.at(pix_flux, pixel[hit], sa[hit, None] * L_pix[hit])
     for _ in range(iterations):
-        w = sa[hit, None] * rad[patch[hit]]  # expected flux of each sub-ray
+        w = sa[:, None] * rad[patch]  # expected flux of each sub-ray
         norm = np.zeros_like(pix_flux)
-        np.add.at(norm, pixel[hit], w)
-        share = w / np.maximum(norm[pixel[hit]], 1e-30)
-        new = np.zeros((P, 3))
-        for c in range(3):
-            new[:, c] = np.bincount(patch[hit], share[:, c] * pix_flux[pixel[hit], c], minlength=P)
+        np.add.at(norm, pixel, w)
+        new = _sum_per_patch(patch, w / np.maximum(norm[pixel], 1e-30) * pix_flux[pixel], P)
         rad[seen] = new[seen] / omega[seen, None]
     return rad, omega
+
+
+def _sum_per_patch(patch: np.ndarray, values: np.ndarray, n_patches: int) -> np.ndarray:
+    """Sums (P,3) of values (N,3) grouped by patch id (N,)."""
+    return np.stack([np.bincount(patch, values[:, c], minlength=n_patches) for c in range(3)], axis=1)
 
 
 def photo_radiance(pix_patch: np.ndarray, L_b: np.ndarray, saturated: np.ndarray, n_patches: int
