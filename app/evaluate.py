@@ -85,10 +85,10 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
         mask = np.rint(cov * 255).astype(np.uint8)
         against = "all-sources composite"
     rows = []
+    reg = metrics.regions(scene.photo, truth, mask)["affected"]  # the same for every row
     for n in passes:
         fr = frames[n]
         s = metrics.score_regions(fr.pixels, scene.photo, truth, mask)
-        reg = metrics.regions(scene.photo, truth, mask)["affected"]
         rows.append({"passes": "all" if n is None else n, "n_passes": fr.stats["passes"],
                      "frame_s": fr.stats["frame_s"], "traversal_s": fr.stats["timings"]["sources"],
                      "masks_s": fr.stats["timings"]["masks"],

@@ -146,11 +146,9 @@ class ShadowSources:
         strength = self.strength[pos]
         best = np.maximum.reduceat(strength, starts)
         group = np.repeat(np.arange(n), np.diff(np.append(starts, len(pos))))
-        first_best = np.full(n, -1)
-        is_best = strength >= best[group]
-        for k in np.flatnonzero(is_best)[::-1]:
-            first_best[group[k]] = k
-        eyes = self.eye_pos[ids[first_best]]
+        top = np.flatnonzero(strength >= best[group])  # each group's strongest member(s), in order
+        _, first = np.unique(group[top], return_index=True)
+        eyes = self.eye_pos[ids[top[first]]]
         # receiver pairs: leaf shafts (source node, receiver node) -> (receiver leaves, passes)
         k_lo = np.searchsorted(hi, t.lo[s_nodes], side="right")
         k_hi = np.searchsorted(lo, t.hi[s_nodes], side="left")
