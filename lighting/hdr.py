@@ -325,8 +325,10 @@ def merge_bracket(images: list[np.ndarray], times: list[float], response: np.nda
 
 # ----------------------------------------------------------------------------- scenes
 
-def _scene_probe_files(scene_dir: Path) -> tuple[list[Path], list[float], dict]:
-    sj = scene_dir / "scene.json"
+def scene_probe_files(scene_dir: Path) -> tuple[list[Path], list[float], dict]:
+    """A scene folder's probe bracket: (files, exposure times in s, the parsed scene.json);
+    errors name scene.json."""
+    sj = Path(scene_dir) / "scene.json"
     if not sj.is_file():
         raise FileNotFoundError(f"{sj}: no such file")
     try:
@@ -337,7 +339,7 @@ def _scene_probe_files(scene_dir: Path) -> tuple[list[Path], list[float], dict]:
         raise ValueError(f"{sj}: light_probe: missing or malformed ldr_files / exposure_times ({e})") from None
     if len(files) != len(times):
         raise ValueError(f"{sj}: light_probe: {len(files)} ldr_files but {len(times)} exposure_times")
-    return [scene_dir / f for f in files], [float(x) for x in times], scene
+    return [sj.parent / f for f in files], [float(x) for x in times], scene
 
 
 def load_scene_probe(scene_dir: str | Path, response: np.ndarray | None = None, method: str = "debevec",
@@ -350,7 +352,7 @@ def load_scene_probe(scene_dir: str | Path, response: np.ndarray | None = None, 
     Returns radiance float32 (256,256,3), probe-camera pixel grid.
     """
     scene_dir = Path(scene_dir)
-    paths, times, _ = _scene_probe_files(scene_dir)
+    paths, times, _ = scene_probe_files(scene_dir)
     images = [read_ldr(p) for p in paths]
     try:
         rad, _ = merge_bracket(images, times, response, method=method, calibration=calibration)

@@ -177,24 +177,22 @@ class CapturedProbe:
     light_probe: dict  # scene.json's light_probe block (pose, radius, files)
 
 
-def _light_probe_block(scene) -> tuple[dict, Path]:
-    import json
+def _light_probe(scene) -> tuple[dict, list[Path], list[float]]:
+    """The scene's light_probe block (pose checked), its bracket files and exposure times."""
+    from lighting import hdr
 
-    path = Path(scene.meta.get("json_path", scene.root / "scene.json"))
-    try:
-        lp = json.loads(path.read_text())["light_probe"]
-        for key in ("centre", "radius", "camera", "ldr_files", "exposure_times"):
-            lp[key]
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise ValueError(f"{path}: light_probe: missing or malformed ({e}); --lighting captured needs the "
-                         f"probe's pose and its bracket") from None
-    return lp, path
+    files, times, meta = hdr.scene_probe_files(scene.root)
+    lp = meta["light_probe"]
+    missing = [k for k in ("centre", "radius", "camera") if k not in lp]
+    if missing:
+        raise ValueError(f"{scene.root / 'scene.json'}: light_probe: missing {missing}; --lighting captured needs "
+                         f"the probe's pose and its bracket")
+    return lp, files, times
 
 
 def captured_files(scene) -> list[Path]:
     """The bracket files (probe_*.png) of a scene's light probe, in exposure order."""
-    lp, path = _light_probe_block(scene)
-    return [path.parent / f for f in lp["ldr_files"]]
+    return _light_probe(scene)[1]
 
 
 def load_captured_probe(scene) -> CapturedProbe:
@@ -202,13 +200,12 @@ def load_captured_probe(scene) -> CapturedProbe:
     from lighting import hdr
     from lighting.tonemap import CameraResponse
 
-    lp, path = _light_probe_block(scene)
-    files = captured_files(scene)
+    lp, files, times = _light_probe(scene)
     images = [hdr.read_ldr(f) for f in files]
     try:
-        rad, g = hdr.merge_bracket(images, lp["exposure_times"])
+        rad, g = hdr.merge_bracket(images, times)
     except ValueError as e:
-        raise ValueError(f"{path}: light_probe bracket: {e}") from None
+        raise ValueError(f"{scene.root / 'scene.json'}: light_probe bracket: {e}") from None
     response = CameraResponse(hdr.forward_table(g), g.T, scene.response.exposure_time)
     return CapturedProbe(rad, g, response, lp)
 

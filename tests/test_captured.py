@@ -119,3 +119,14 @@ def test_scene_without_probe_is_a_clear_error(tmp_path):
     assert main(["-q", "composite", str(d), "--out", str(out), "--lighting", "captured",
                  "--cache", str(tmp_path / "c")]) == 2
     assert not out.exists()
+
+
+def test_probe_without_a_pose_is_a_clear_error(tmp_path):
+    # a light_probe block with its bracket but no radius names scene.json and the missing field
+    from types import SimpleNamespace
+
+    meta = json.loads((shared_scene("window_room") / "scene.json").read_text())
+    del meta["light_probe"]["radius"]
+    (tmp_path / "scene.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=r"scene\.json: light_probe: missing \['radius'\]"):
+        R.load_captured_probe(SimpleNamespace(root=tmp_path))

@@ -17,7 +17,7 @@ def main(argv):
 
 
 def _bracket(scene_dir):
-    paths, times, _ = hdr._scene_probe_files(scene_dir)
+    paths, times, _ = hdr.scene_probe_files(scene_dir)
     return [hdr.read_ldr(p) for p in paths], times
 
 
