@@ -1,9 +1,11 @@
 """`photoar calibrate IMAGE --lines LINES.json [--scale-height H] --out DIR`: single-photo camera
 calibration from vanishing points (seed sec. 3, recon/vanishing.py).
 
-Writes camera.json (fx, fy, cx, cy, width, height, K, R, t, centre in the OpenCV convention of
-recon/camera.py, plus the vanishing points and the conditioning figure) and overlay.png (the
-segments, their lines to the vanishing points and the projected world axes), all or nothing.
+The clicked segments are snapped to the photo's edges first (recon/edgesnap.py; `--no-snap` keeps
+them as clicked). Writes camera.json (fx, fy, cx, cy, width, height, K, R, t, centre in the OpenCV
+convention of recon/camera.py, plus the vanishing points, which segments were snapped, and the
+conditioning figure) and overlay.png (the segments, their lines to the vanishing points and the
+projected world axes), all or nothing.
 """
 from __future__ import annotations
 
@@ -24,6 +26,9 @@ def register(sub) -> None:
                    help="camera height above the floor (m) through the origin pixel on the floor")
     p.add_argument("--flip-xz", action="store_true",
                    help="take world +X pointing leftwards in the image (default rightwards)")
+    p.add_argument("--no-snap", action="store_true",
+                   help="use the segments as clicked (default: snap each to the photo's edge under it, sub-pixel, "
+                        "where one is found unambiguously)")
     p.add_argument("--allow-ill-conditioned", action="store_true",
                    help="write the camera even when the focal length is ill-conditioned (flagged in camera.json)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
@@ -41,7 +46,7 @@ def run(a: argparse.Namespace) -> int:
     if a.scale_height is not None and not a.scale_height > 0:
         raise ValueError(f"--scale-height must be positive, got {a.scale_height}")
     calib = calibrate_lines(lines, w, h, camera_height=a.scale_height, src=str(a.lines), flip_xz=a.flip_xz,
-                            raise_ill_conditioned=not a.allow_ill_conditioned)
+                            raise_ill_conditioned=not a.allow_ill_conditioned, image=None if a.no_snap else photo)
     for n in calib.notes:
         log.warning("%s", n)
     K = calib.camera.K

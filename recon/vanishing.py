@@ -8,17 +8,22 @@ segment's endpoints from the line through its midpoint and the VP), robust to on
 than 3 px / 3 robust sigmas off). Intrinsics:
   * two families: principal point c at the image centre, focal length by eq. 1,
     f^2 = -(v - c) . (v' - c);
-  * three finite VPs: c = orthocentre of the VP triangle, f by eq. 1 from any pair.
+  * three finite VPs: c starts at the orthocentre of the VP triangle and is fitted, but is held at
+    the image centre unless freeing it lowers the fit's chi-square significantly (likelihood
+    ratio, 2 dof, 99.9 %): a free principal point costs more in noise than it gains when the true
+    one is near the centre, as in most cameras (window_room's clicks: focal 2.7 % -> 1.9 %).
 Rotation: the columns of R are the VP directions K^-1 v (third by cross product); signs: world +Y
 points up in the image, +X runs rightwards in the image (R[0,0] >= 0; `flip_xz` takes the other
 choice), Z = X x Y (right-handed). A joint least-squares refinement of (f, [c], R) over all
-segments makes the axes exactly orthogonal. Translation: the world origin lies on the ray through
-the user's origin pixel, in front of the camera, at the distance set by the camera height above
-the floor (y = 0) or by a known length along an axis from the origin; with neither, at unit
-distance (scale unknown).
+segments makes the axes exactly orthogonal; each segment counts by its noise. Given the photo, the
+segments are first snapped to its edges (recon/edgesnap.py: about 0.1 px instead of the clicks'
+0.5 px); a snapped segment the joint fit disagrees with by more than 3 sigma goes back to its
+click. Translation: the world origin lies on the ray through the user's origin pixel, in front of
+the camera, at the distance set by the camera height above the floor (y = 0) or by a known length
+along an axis from the origin; with neither, at unit distance (scale unknown).
 
-The standard deviation of f from the fit's covariance (0.5 px noise or the residual RMS, whichever
-is larger) flags ill-conditioned views: a near-frontal plane puts a VP near infinity and f is then
+The standard deviation of f from the fit's covariance (the segments' noise, scaled up when the
+residuals are larger) flags ill-conditioned views: a near-frontal plane puts a VP near infinity and f is then
 undetermined; `calibrate` raises IllConditionedError for them unless asked not to.
 
 Conventions: OpenCV camera (recon/camera.py): x_cam = R X + t, pixel centre of the top-left pixel
@@ -44,6 +49,7 @@ log = logging.getLogger(__name__)
 AXES = ("x", "y", "z")
 MIN_SEGMENT_PX = 1.0
 NOISE_FLOOR_PX = 0.5
+CHI2_2DOF_999 = 13.82  # 99.9 % point of the chi-square distribution with 2 degrees of freedom
 
 
 class IllConditionedError(ValueError):
@@ -55,6 +61,8 @@ class VanishingPoint:
     h: np.ndarray  # (3,) unit homogeneous pixel coordinates (u, v, 1) ~ h; h[2] ~ 0 at infinity
     inliers: np.ndarray  # (N,) bool, segments used
     residual_px: np.ndarray  # (N,) distance of each segment's endpoints from its line to the VP, px
+    snapped: np.ndarray | None = None  # (N,) bool: segment snapped to an image edge (recon/edgesnap.py)
+    segments: np.ndarray | None = None  # (N,4) the segments the fit used (snapped or as clicked), px
 
     @property
     def finite(self) -> bool:
@@ -72,7 +80,7 @@ class Calibration:
     vps: dict[str, VanishingPoint]
     focal_rel_sigma: float  # std(f)/f from the fit covariance
     ill_conditioned: bool
-    principal_point_from: str  # "image centre" | "orthocentre" | "given"
+    principal_point_from: str  # "image centre" | "three vanishing points" | "given"
     scale: str  # "camera height" | "known length" | "unknown (unit distance)" | "no origin"
     rms_px: float  # RMS segment residual of the joint fit, px
     notes: list[str] = field(default_factory=list)
@@ -89,7 +97,9 @@ class Calibration:
             "convention": "OpenCV: x_cam = R @ X_world + t, centre = -R^T t; u = fx x/z + cx, v = fy y/z + cy; "
                           "pixel (0,0) is the centre of the top-left pixel; world +Y up, metres",
             "vanishing_points": {a: {"h": v.h.tolist(), "px": None if v.px is None else v.px.tolist(),
-                                     "inliers": v.inliers.tolist(), "residual_px": v.residual_px.tolist()}
+                                     "inliers": v.inliers.tolist(), "residual_px": v.residual_px.tolist(),
+                                     "snapped": None if v.snapped is None else v.snapped.tolist(),
+                                     "segments": None if v.segments is None else v.segments.tolist()}
                                  for a, v in self.vps.items()},
             "focal_rel_sigma": self.focal_rel_sigma, "ill_conditioned": self.ill_conditioned,
             "principal_point_from": self.principal_point_from, "scale": self.scale, "rms_px": self.rms_px,
@@ -311,19 +321,18 @@ def calibrate(families: dict[str, np.ndarray], width: int, height: int, origin=N
               camera_height: float | None = None, known_length: dict | None = None,
               principal_point=None, flip_xz: bool = False, max_focal_rel_sigma: float = 0.05,
               raise_ill_conditioned: bool = True, sigma_px: float = NOISE_FLOOR_PX, pp_sigma_px: float | None = None,
-              src: str = "<lines>") -> Calibration:
+              image: np.ndarray | None = None, src: str = "<lines>") -> Calibration:
     """Calibrated camera from line families {axis: (N,4) pixel segments}; see the module docstring.
 
-    principal_point: (2,) pixels to hold fixed (default: image centre, or the orthocentre of three
-    finite VPs). Raises ValueError naming `src` on bad input, IllConditionedError when
+    principal_point: (2,) pixels to hold fixed (default: fitted when three finite VPs move it
+    significantly from the image centre, else the image centre). `image`: the photo (H,W[,3] uint8);
+    given, the segments are snapped to its edges (recon/edgesnap.py) and weighted by their noise. Raises ValueError naming `src` on bad input, IllConditionedError when
     std(f)/f > max_focal_rel_sigma (unless raise_ill_conditioned is False), or when eq. 1 has no
     solution while the VPs lie far outside the image (a near-frontal view). `sigma_px`: the smallest
     segment noise assumed for std(f) (0.5 px for hand-clicked endpoints; lower for fitted lines);
     `pp_sigma_px`: how far the true principal point may be from the image centre (1 sigma, px) when
     it is assumed there (default 1 % of the larger image side); it adds eq. 1's sensitivity to it
     to std(f)/f."""
-    from scipy.optimize import least_squares
-
     fams = {a.lower(): np.asarray(s, float) for a, s in families.items()}
     if len(fams) < 2:
         raise ValueError(f"{src}: need at least two line families, got {sorted(fams)}")
@@ -340,7 +349,7 @@ def calibrate(families: dict[str, np.ndarray], width: int, height: int, origin=N
             o = orthocentre(*(vps[a].px for a in AXES))
             fo = focal_from_vps(vps["x"].px, vps["y"].px, o)
             if np.all(np.abs(o - centre) < 0.25 * np.array([width, height])) and np.isfinite(fo):
-                c, pp_from, free_pp = o, "orthocentre", True
+                c, pp_from, free_pp = o, "three vanishing points", True
             else:
                 notes.append("orthocentre of the three VPs is implausible; principal point at the image centre")
         except np.linalg.LinAlgError:
@@ -367,19 +376,62 @@ def calibrate(families: dict[str, np.ndarray], width: int, height: int, origin=N
     Ki = np.linalg.inv(K0)
     R0 = _rotation_from_dirs({a: Ki @ v.h for a, v in vps.items()}, flip_xz)
 
-    segs = {a: fams[a][vps[a].inliers] for a in vps}
-    K, R, rel, rms = _refine(segs, f0, c, free_pp, R0, width, height, flip_xz, sigma_px)
-    if free_pp and not rel <= max_focal_rel_sigma:
-        # the orthocentre is poorly determined (a VP far out): hold the principal point at the centre
-        f1 = [focal_from_vps(vps[a].px, vps[b].px, centre) for a, b in combinations(finite, 2)]
-        f1 = [f for f in f1 if np.isfinite(f)]
-        if f1:
-            K1, R1, rel1, rms1 = _refine(segs, float(np.median(f1)), centre, False, R0, width, height, flip_xz,
-                                              sigma_px)
-            if rel1 < rel:
-                notes.append(f"principal point from three VPs is ill-conditioned (std(f)/f = {rel:.3g}); "
-                             "held at the image centre")
-                K, R, rel, rms, pp_from = K1, R1, rel1, rms1, "image centre"
+    clicked = {a: fams[a][vps[a].inliers] for a in vps}
+    segs = {a: s.copy() for a, s in clicked.items()}
+    sig = {a: np.full(len(s), float(sigma_px)) for a, s in clicked.items()}
+    snapped = {a: np.zeros(len(s), bool) for a, s in clicked.items()}
+    if image is not None:
+        from recon.edgesnap import EdgeImage, snap_segments
+
+        if np.asarray(image).shape[:2] != (height, width):
+            raise ValueError(f"{src}: the image is {np.asarray(image).shape[1::-1]} px, the calibration is for "
+                             f"{width}x{height}")
+        edges = EdgeImage(image)
+        for a in segs:
+            r = snap_segments(edges, clicked[a], sigma_px)
+            segs[a], sig[a], snapped[a] = r.segments, r.sigma_px, r.snapped
+
+    def solve(c, free):
+        """Joint fit; a snapped segment the fit disagrees with (> 3 sigma) goes back to its click.
+        Returns K, R, std(f)/f, RMS px, chi-square."""
+        while True:
+            K, R, rel, rms, chi2, nres = _refine(segs, sig, f0, c, free, R0, width, height, flip_xz)
+            worst = max(((abs(nres[a][i]), a, i) for a in segs for i in np.flatnonzero(snapped[a])),
+                        default=(0.0, None, None))
+            if worst[0] <= 3.0:
+                return K, R, rel, rms, chi2
+            _, a, i = worst
+            log.info("%s: family '%s': snapped segment %d disagrees with the fit (%.1f sigma); using the click",
+                     src, a, i, worst[0])
+            segs[a][i], sig[a][i], snapped[a][i] = clicked[a][i], sigma_px, False
+
+    if free_pp:
+        # model selection: hold the principal point at the image centre unless the three VPs move it
+        # significantly: likelihood ratio (chi-square, 2 dof, 99.9 %) of the free against the held fit,
+        # on the same segments (a revert in either fit re-runs both)
+        while True:
+            n = sum(int(m.sum()) for m in snapped.values())
+            held = solve(centre, False)
+            free = solve(c, True)
+            if sum(int(m.sum()) for m in snapped.values()) == n:
+                break
+        lr = held[4] - free[4]
+        cf = np.round(free[0][:2, 2], 1).tolist()
+        if lr > CHI2_2DOF_999 and free[2] <= max_focal_rel_sigma:
+            K, R, rel, rms, _ = free
+            notes.append(f"the three VPs move the principal point to {cf} (chi2 drop {lr:.1f} > {CHI2_2DOF_999} "
+                         "against the image centre): fitted")
+        else:
+            K, R, rel, rms, _ = held
+            pp_from = "image centre"
+            why = (f"not significantly better than the image centre (chi2 drop {lr:.2f} <= {CHI2_2DOF_999})"
+                   if not lr > CHI2_2DOF_999 else f"ill-conditioned (std(f)/f = {free[2]:.3g})")
+            notes.append(f"the three VPs put the principal point at {cf}, {why}: held at the image centre")
+    else:
+        K, R, rel, rms, _ = solve(c, False)
+    n_snapped = sum(int(m.sum()) for m in snapped.values())
+    if image is not None:
+        notes.append(f"{n_snapped} of {sum(len(m) for m in snapped.values())} segments snapped to image edges")
     idx = {a: AXES.index(a) for a in vps}
     rel_fit = rel
     if pp_sigma_px is None:
@@ -391,8 +443,12 @@ def calibrate(families: dict[str, np.ndarray], width: int, height: int, origin=N
              for a, b in combinations(finite, 2)]
         rel = float(np.hypot(rel_fit, min(g) * pp_sigma_px)) if g else rel
     ill = not rel <= max_focal_rel_sigma
+    used, snap_mask = {}, {}
+    for a in vps:
+        used[a], snap_mask[a] = fams[a].copy(), np.zeros(len(fams[a]), bool)
+        used[a][vps[a].inliers], snap_mask[a][vps[a].inliers] = segs[a], snapped[a]
     vps = {a: VanishingPoint(_unit(K @ R[:, idx[a]]), vps[a].inliers,
-                             np.abs(_seg_residual(fams[a], K @ R[:, idx[a]]))) for a in vps}
+                             np.abs(_seg_residual(used[a], K @ R[:, idx[a]])), snap_mask[a], used[a]) for a in vps}
     if ill:
         msg = (f"{src}: ill-conditioned vanishing points (std(f)/f = {rel:.3g} > {max_focal_rel_sigma}): a line "
                "family is nearly parallel in the image (near-frontal view), so the focal length is undetermined")
@@ -405,10 +461,12 @@ def calibrate(families: dict[str, np.ndarray], width: int, height: int, origin=N
     return Calibration(cam, vps, rel, ill, pp_from, scale, rms, notes)
 
 
-def _refine(segs: dict[str, np.ndarray], f0: float, c: np.ndarray, free_pp: bool, R0: np.ndarray, width: int,
-            height: int, flip_xz: bool, sigma_px: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+def _refine(segs: dict[str, np.ndarray], sig: dict[str, np.ndarray], f0: float, c: np.ndarray, free_pp: bool,
+            R0: np.ndarray, width: int, height: int, flip_xz: bool):
     """Joint least-squares fit of f, [principal point], R to all segments (the VPs are K R e_axis,
-    so the axes are exactly orthogonal). Returns K, R, std(f)/f, residual RMS (px)."""
+    so the axes are exactly orthogonal); each segment's residual is weighted by its noise `sig` (px
+    per endpoint). Returns K, R, std(f)/f, residual RMS (px), chi-square (sum of the squared
+    normalised residuals) and the normalised residual of every segment {axis: (N,)}."""
     from scipy.optimize import least_squares
 
     s0 = float(max(width, height))
@@ -419,25 +477,33 @@ def _refine(segs: dict[str, np.ndarray], f0: float, c: np.ndarray, free_pp: bool
         cc = x[1:3] * s0 if free_pp else c
         return np.array([[f, 0, cc[0]], [0, f, cc[1]], [0, 0, 1.0]]), _rotmat(x[-3:])
 
-    def fun(x):
+    def px(x):
         K, R = unpack(x)
-        return np.concatenate([_seg_residual(segs[a], K @ R[:, idx[a]]) for a in segs])
+        return {a: _seg_residual(segs[a], K @ R[:, idx[a]]) for a in segs}
+
+    def fun(x):  # endpoint distance r has variance sigma^2 / 2 (two endpoints, opposite)
+        r = px(x)
+        return np.concatenate([r[a] * np.sqrt(2.0) / sig[a] for a in segs])
 
     x0 = np.concatenate([[np.log(f0 / s0)], c / s0 if free_pp else [], _rotvec(R0)])
-    res = least_squares(fun, x0, loss="soft_l1", f_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    res = least_squares(fun, x0, xtol=1e-12, ftol=1e-12, gtol=1e-12)
     K, R = unpack(res.x)
     if not (np.all(np.isfinite(res.x)) and K[0, 0] > 0):
         raise ValueError(f"calibration fit failed (focal length {K[0, 0]:.3g})")
+    r = px(res.x)
+    nres = {a: r[a] * np.sqrt(2.0) / sig[a] for a in segs}
     R = _rotation_from_dirs({a: R[:, idx[a]] for a in segs}, flip_xz)  # re-apply the sign conventions
-    rms = float(np.sqrt(np.mean(fun(np.concatenate([res.x[:-3], _rotvec(R)])) ** 2)))
-    # conditioning: std of f from the linearised covariance (x[0] = log f, so std(x[0]) = std(f)/f)
-    sigma = max(rms, sigma_px)
+    rms = float(np.sqrt(np.mean(np.concatenate(list(r.values())) ** 2)))
+    # conditioning: linearised covariance, scaled up when the residuals exceed the assumed noise
+    # (x[0] = log f, so std(x[0]) = std(f)/f)
+    dof = max(len(res.fun) - len(res.x), 1)
+    scale = max(float(res.fun @ res.fun) / dof, 1.0)
     try:
-        cov = np.linalg.inv(res.jac.T @ res.jac) * sigma ** 2
+        cov = np.linalg.inv(res.jac.T @ res.jac) * scale
         rel = float(np.sqrt(max(cov[0, 0], 0.0)))
     except np.linalg.LinAlgError:
         rel = float("inf")
-    return K, R, rel, rms
+    return K, R, rel, rms, float(res.fun @ res.fun), nres
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -482,7 +548,7 @@ def _translation(K, R, origin, camera_height, known_length, src) -> tuple[np.nda
 
 def calibrate_lines(lines: dict, width: int, height: int, camera_height: float | None = None,
                     src: str = "<lines>", **kw) -> Calibration:
-    """calibrate() on a parsed LINES dict (parse_lines / load_lines)."""
+    """calibrate() on a parsed LINES dict (parse_lines / load_lines); `image=` snaps to the photo."""
     return calibrate(lines["families"], width, height, lines.get("origin"), camera_height,
                      lines.get("known_length"), src=src, **kw)
 
@@ -495,8 +561,9 @@ def rotation_error_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
 
 def draw_overlay(image: np.ndarray, calib: Calibration, families: dict[str, np.ndarray], origin=None,
                  axis_length: float | None = None) -> np.ndarray:
-    """BGR/RGB uint8 image (H,W,3) with the segments (x red, y green, z blue), lines from each
-    segment towards its VP, and the projected world axes at the origin. Returns a copy (RGB order)."""
+    """BGR/RGB uint8 image (H,W,3) with the segments (x red, y green, z blue; a white core where
+    snapped to the photo's edge; magenta: rejected), lines from each segment towards its VP, and the
+    projected world axes at the origin. Returns a copy (RGB order)."""
     import cv2
 
     img = image.copy()
@@ -521,6 +588,9 @@ def draw_overlay(image: np.ndarray, calib: Calibration, families: dict[str, np.n
             cv2.line(img, _pt(m), _pt(far), tuple(int(0.5 * c) for c in col[a]), 1, cv2.LINE_AA)
             thick = 2 if vp.inliers[k] else 1
             cv2.line(img, _pt(p), _pt(q), col[a] if vp.inliers[k] else (255, 0, 255), thick, cv2.LINE_AA)
+            if vp.snapped is not None and vp.snapped[k]:  # white core: the segment snapped to the photo's edge
+                sp = vp.segments[k]
+                cv2.line(img, _pt(sp[:2]), _pt(sp[2:]), (255, 255, 255), 1, cv2.LINE_AA)
     cam = calib.camera
     if calib.scale != "no origin":
         L = axis_length or (0.5 if calib.scale in ("camera height", "known length") else 0.1)
