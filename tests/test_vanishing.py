@@ -30,29 +30,32 @@ def _errors(calib, d, cam):
             np.linalg.norm(calib.camera.centre - cam.centre) / room)
 
 
-@pytest.mark.parametrize("name", SCENES)
-def test_scene_annotations_exact(name):
-    # exact projections of the annotated edges: the calibration is exact (eq. 1, VPs, origin ray, height)
-    d, cam = _scene(name)
-    lines = parse_lines(lines_from_scene(d, noisy=False))
-    calib = calibrate_lines(lines, cam.width, cam.height, camera_height=cam.centre[1])
-    ef, er, ec = _errors(calib, d, cam)
-    assert ef < 1e-3 and er < 0.01 and ec < 1e-3, (ef, er, ec)
-
-
 def _photo(name):
     import cv2
 
     return cv2.imread(str(shared_scene(name) / "background.png"))[:, :, ::-1].copy()
 
 
+def _calibrated(name, noisy=True, snap=False):
+    """The scene's annotations calibrated (scale: the true camera height); (calib, errors)."""
+    d, cam = _scene(name)
+    lines = parse_lines(lines_from_scene(d, noisy=noisy))
+    calib = calibrate_lines(lines, cam.width, cam.height, camera_height=cam.centre[1],
+                            image=_photo(name) if snap else None)
+    return calib, _errors(calib, d, cam)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_scene_annotations_exact(name):
+    # exact projections of the annotated edges: the calibration is exact (eq. 1, VPs, origin ray, height)
+    _, (ef, er, ec) = _calibrated(name, noisy=False)
+    assert ef < 1e-3 and er < 0.01 and ec < 1e-3, (ef, er, ec)
+
+
 @pytest.mark.parametrize("name", SCENES)
 def test_scene_annotations_snapped(name):
     # issue 6's acceptance: the clicked (noisy, sigma 0.5 px) endpoints, snapped to the photo's edges
-    d, cam = _scene(name)
-    lines = parse_lines(lines_from_scene(d, noisy=True))
-    calib = calibrate_lines(lines, cam.width, cam.height, camera_height=cam.centre[1], image=_photo(name))
-    ef, er, ec = _errors(calib, d, cam)
+    calib, (ef, er, ec) = _calibrated(name, snap=True)
     n = sum(int(v.snapped.sum()) for v in calib.vps.values())
     print(f"{name}: focal error {ef:.2%} (std(f)/f {calib.focal_rel_sigma:.2%}), rotation {er:.3f} deg, "
           f"centre {ec:.2%} of the room diagonal, principal point from {calib.principal_point_from}, {n} snapped")
@@ -63,10 +66,7 @@ def test_scene_annotations_snapped(name):
 @pytest.mark.parametrize("name", SCENES)
 def test_scene_annotations_clicks_only(name):
     # without the photo the clicks' noise limits the errors; the fit's own std(f)/f predicts them
-    d, cam = _scene(name)
-    lines = parse_lines(lines_from_scene(d, noisy=True))
-    calib = calibrate_lines(lines, cam.width, cam.height, camera_height=cam.centre[1])
-    ef, er, ec = _errors(calib, d, cam)
+    calib, (ef, er, ec) = _calibrated(name)
     print(f"{name} (clicks only): focal error {ef:.2%} (std(f)/f {calib.focal_rel_sigma:.2%}), rotation {er:.3f} "
           f"deg, centre {ec:.2%}")
     assert all(v.snapped is not None and not v.snapped.any() for v in calib.vps.values())
@@ -93,6 +93,13 @@ def test_snapping_over_noise_draws():
         print(name, {k: np.round(v, 4).tolist() for k, v in rms.items()})
         assert rms["snapped"][0] < 0.008 and rms["snapped"][0] < rms["clicks"][0]
         assert rms["snapped"][1] < 0.3 and rms["snapped"][1] < rms["clicks"][1]
+
+
+def test_snapping_needs_the_calibrated_image():
+    d, cam = _scene("window_room")
+    lines = parse_lines(lines_from_scene(d, noisy=True))
+    with pytest.raises(ValueError, match="L.json: the image is \\(320, 240\\) px"):
+        calibrate_lines(lines, cam.width, cam.height, image=_photo("window_room")[::2, ::2], src="L.json")
 
 
 def test_principal_point_off_centre_is_fitted():
