@@ -159,12 +159,14 @@ def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtyp
 
 
 def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
-                occluder: Occluder | None = None, eps: float = 1e-3, device: str | None = None) -> np.ndarray:
+                occluder: Occluder | None = None, eps: float = 1e-3, device: str | None = None,
+                split: int = 2048) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t): radiance-weighted form factors to emitting triangles.
 
     points/normals (N,3); triangles (T,3,3) vertices CCW seen from the emitting side; radiance (T,3);
     visibility of each triangle's centroid is tested against `occluder` (e.g. the object itself, so
-    its hidden faces do not count). Returns (N,3) float64 (= irradiance / pi).
+    its hidden faces do not count). Returns (N,3) float64 (= irradiance / pi). On the CPU more than
+    `split` points are run as two launches, one per core (runtime.run_parallel).
     """
     device = runtime.device(device)
     n = len(points)
@@ -173,13 +175,20 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
     tri = np.asarray(triangles, np.float64)
     tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
-    out = wp.zeros(n, dtype=wp.vec3, device=device)
-    wp.launch(_emitter_sum_kernel, dim=n,
-              inputs=[wp.array(np.asarray(points, np.float64), dtype=wp.vec3d, device=device),
-                      wp.array(np.asarray(normals, np.float64), dtype=wp.vec3d, device=device),
-                      wp.array(tri, dtype=wp.vec3d, device=device),
-                      wp.array(np.asarray(radiance, np.float32), dtype=wp.vec3, device=device),
-                      wp.array(tn.astype(np.float32), dtype=wp.vec3, device=device),
-                      wp.uint64(occluder.id if occluder is not None else 0), float(eps)],
-              outputs=[out], device=device)
-    return out.numpy().astype(np.float64)
+    shared = [wp.array(tri, dtype=wp.vec3d, device=device),
+              wp.array(np.asarray(radiance, np.float32), dtype=wp.vec3, device=device),
+              wp.array(tn.astype(np.float32), dtype=wp.vec3, device=device),
+              wp.uint64(occluder.id if occluder is not None else 0), float(eps)]
+    points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+
+    def run(s: int, e: int) -> np.ndarray:
+        out = wp.zeros(e - s, dtype=wp.vec3, device=device)
+        wp.launch(_emitter_sum_kernel, dim=e - s,
+                  inputs=[wp.array(points[s:e], dtype=wp.vec3d, device=device),
+                          wp.array(normals[s:e], dtype=wp.vec3d, device=device), *shared],
+                  outputs=[out], device=device)
+        return out.numpy().astype(np.float64)
+
+    if n <= split or not wp.get_device(device).is_cpu:
+        return run(0, n)
+    return np.concatenate(runtime.run_parallel([lambda: run(0, n // 2), lambda: run(n // 2, n)]))

@@ -257,6 +257,8 @@ def test_emitter_sum_is_linear_over_triangles(device):
     np.testing.assert_allclose(out, F @ B, rtol=1e-5, atol=1e-9)
     assert emitter_sum(pts[:0], nrm[:0], tri, B, device=device).shape == (0, 3)
     assert np.all(emitter_sum(pts, nrm, tri[:0], B[:0], device=device) == 0.0)
+    # split over two launches (CPU threads): the same numbers, in order
+    np.testing.assert_array_equal(emitter_sum(pts, nrm, tri, B, None, device=device, split=7), out)
 
 
 def test_ray_hit_barycentrics_rebuild_the_hit_point(device):
