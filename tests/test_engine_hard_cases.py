@@ -176,3 +176,29 @@ def test_black_object_reflects_nothing(scene, cache_dir):
                      quiet=True).render(black) for ol in (True, False)]
     outside = ~_coverage(scene, black)
     np.testing.assert_array_equal(frames[0].pixels[outside], frames[1].pixels[outside])
+
+
+def test_self_transfer_is_reused_while_the_object_slides(scene, engine, monkeypatch):
+    # the object's self-occlusion does not change under translation: computed once along a slide,
+    # again when it turns; the reused frame matches one computed afresh
+    import app.engine
+
+    calls = []
+    real = app.engine.self_transfer
+    monkeypatch.setattr(app.engine, "self_transfer", lambda *a, **k: calls.append(1) or real(*a, **k))
+    engine._prt_cache = None
+    engine.render(scene.obj)
+    moved = _translated(scene.obj, [0.37, 0.0, -0.21])
+    reused = engine.render(moved)
+    assert len(calls) == 1
+    engine._prt_cache = None
+    fresh = engine.render(moved)
+    assert len(calls) == 2
+    diff = np.abs(reused.pixels.astype(int) - fresh.pixels.astype(int))
+    assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
+    turned = copy.copy(scene.obj)
+    c = scene.obj.vertices.mean(0)
+    R = np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]])  # a quarter turn about the vertical
+    turned.vertices, turned.normals = (scene.obj.vertices - c) @ R.T + c, scene.obj.normals @ R.T
+    engine.render(turned)
+    assert len(calls) == 3
