@@ -250,6 +250,7 @@ class Engine:
         cam = scene.camera
         self.dirs = cam.pixel_rays().reshape(-1, 3)
         self.L_b = scene.response.to_radiance(scene.photo).reshape(-1, 3)  # (H*W,3)
+        self.L_b_levels = scene.response.to_levels(self.L_b)  # T(L_b): the frame where nothing changes
         hit = pre.pix_tri >= 0
         self.pix_patch = np.where(hit, pm.tri_patch[np.maximum(pre.pix_tri, 0)], -1)
         vert_row = np.full(len(pm.vert_pos), -1, np.int64)
@@ -392,7 +393,10 @@ class Engine:
             shadow[pix_sel] = L_b[pix_sel] * frac
             shadow[fill_sel] = L_b[fill_sel] * frac_fill
             room = np.maximum(L_b - shadow + add, 0.0)
-            room_levels = resp.to_levels(room)
+            # the response only where the room changed (the rest of the frame is T(L_b))
+            changed = np.flatnonzero((shadow != 0).any(1) | (add != 0).any(1))
+            room_levels = self.L_b_levels.copy()
+            room_levels[changed] = resp.to_levels(room[changed])
         else:
             levels = scene.photo.reshape(-1, 3).astype(np.float64)
             levels[pix_sel] -= O_pix
@@ -402,8 +406,11 @@ class Engine:
             room_levels = np.clip(levels, 0, 255)
             room = resp.to_radiance(room_levels)
         c = cov.reshape(-1, 1)
-        radiance = (1 - c) * room + c * obj_rad.reshape(-1, 3)
-        levels = (1 - c) * room_levels + c * resp.to_levels(obj_rad.reshape(-1, 3))
+        obj_rad = obj_rad.reshape(-1, 3)
+        on = np.flatnonzero(c[:, 0] > 0)
+        radiance = (1 - c) * room + c * obj_rad
+        levels = (1 - c) * room_levels
+        levels[on] += c[on] * resp.to_levels(obj_rad[on])
         pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8).reshape(H, W, 3)
         tick("compose", t)
         frame_s = time.perf_counter() - t_all
@@ -546,14 +553,19 @@ class Engine:
         has = np.zeros(n, bool)
         val[known] = values
         has[known] = True
-        acc = np.zeros((n, 3))
-        cnt = np.zeros(n)
         H, W = self.scene.camera.height, self.scene.camera.width
-        for dy, dx, ok_src, ok_dst in _window_pairs(H, W):
-            good = has[ok_src] & (self.pix_quad[ok_src] == self.pix_quad[ok_dst])
-            acc[ok_dst[good]] += val[ok_src[good]]
-            cnt[ok_dst[good]] += 1
-        return acc[missing] / np.maximum(cnt[missing], 1)[:, None]
+        my, mx = np.divmod(missing, W)
+        acc = np.zeros((len(missing), 3))
+        cnt = np.zeros(len(missing))
+        for dy in (-1, 0, 1):  # only the missing pixels' windows, not the whole frame
+            for dx in (-1, 0, 1):
+                sy, sx = my + dy, mx + dx
+                good = (sy >= 0) & (sy < H) & (sx >= 0) & (sx < W)
+                src = (sy * W + sx)[good]
+                good[good] = has[src] & (self.pix_quad[src] == self.pix_quad[missing[good]])
+                acc[good] += val[(sy * W + sx)[good]]
+                cnt[good] += 1
+        return acc / np.maximum(cnt, 1)[:, None]
 
     def _object_irradiance(self, pts: np.ndarray, nrm: np.ndarray, proxy_occ: Occluder, B: np.ndarray
                            ) -> np.ndarray:
