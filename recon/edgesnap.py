@@ -43,6 +43,7 @@ AMBIGUOUS = 0.5  # a second gradient peak this strong (relative) makes a sample 
 MIN_FOUND = 0.6  # fraction of the samples that must find the edge
 MAX_SPREAD_PX = 0.25  # robust spread of the sample edges about the fitted line
 SIGMA_FLOOR_PX = 0.1
+CHI2_2DOF_99 = 9.21  # 99 % point of the chi-square distribution with 2 degrees of freedom
 
 
 @dataclass
@@ -62,9 +63,11 @@ class EdgeImage:
         img = np.asarray(image)
         if img.ndim not in (2, 3) or img.dtype != np.uint8:
             raise ValueError(f"edge snapping needs an 8-bit gray or RGB image, got {img.dtype} {img.shape}")
+        from lighting.sources import luminance
+
         rgb = img if img.ndim == 3 else img[:, :, None]
         lin = (rgb[:, :, :3].astype(np.float32) / 255.0) ** 2.2
-        gray = lin @ np.array([0.2126, 0.7152, 0.0722], np.float32) if lin.shape[2] == 3 else lin[:, :, 0]
+        gray = (luminance(lin) if lin.shape[2] == 3 else lin[:, :, 0]).astype(np.float32)
         self.gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3) / 8.0
         self.gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3) / 8.0
         clipped = (rgb.max(axis=2) >= CLIP_LEVEL).astype(np.uint8)
@@ -108,11 +111,10 @@ class EdgeImage:
         # (a thin bar: its far side's response also drags the peak), of the same over 1 px away
         locmax = np.zeros_like(g, bool)
         locmax[:, 1:-1] = (g[:, 1:-1] >= g[:, :-2]) & (g[:, 1:-1] >= g[:, 2:])
-        far = np.abs(ss[None, :] - ss[k][:, None]) > 1.0
-        second = (g < -AMBIGUOUS * gmax[:, None]) | (locmax & far & (g > AMBIGUOUS * gmax[:, None]))
+        near = np.abs(ss[None, :] - ss[k][:, None]) <= 1.0  # within 1 px of the sample's peak
+        second = (g < -AMBIGUOUS * gmax[:, None]) | (locmax & ~near & (g > AMBIGUOUS * gmax[:, None]))
         ok &= ~np.any(second, axis=1)
         # centroid of the gradient above half its peak, within +-1 px of the peak
-        near = np.abs(ss[None, :] - ss[k][:, None]) <= 1.0
         w = np.where(near, np.clip(g - 0.5 * gmax[:, None], 0, None), 0.0)
         wsum = w.sum(axis=1)
         ok &= wsum > 0
@@ -124,14 +126,14 @@ class EdgeImage:
             return None
         vx, vy, x0, y0 = cv2.fitLine(pts.astype(np.float32), cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
         dd, p0 = np.array([vx, vy], float), np.array([x0, y0], float)
-        r = (pts - p0) @ np.array([-dd[1], dd[0]])
+        nn = np.array([-dd[1], dd[0]])  # the fitted line's normal
+        r = (pts - p0) @ nn
         spread = 1.4826 * float(np.median(np.abs(r - np.median(r))))
         if spread > MAX_SPREAD_PX:
             return None
         # the click must agree with the edge found: its endpoints' distances from the fitted line are
         # N(0, click sigma^2) if it is the same edge (chi-square, 2 dof, 99 %)
-        nn = np.array([-dd[1], dd[0]])
-        if ((a - p0) @ nn) ** 2 + ((b - p0) @ nn) ** 2 > 9.21 * click_sigma_px ** 2:
+        if ((a - p0) @ nn) ** 2 + ((b - p0) @ nn) ** 2 > CHI2_2DOF_99 * click_sigma_px ** 2:
             return None
         proj = lambda q: p0 + np.dot(q - p0, dd) * dd  # noqa: E731
         return np.concatenate([proj(a), proj(b)]), spread, int(len(pts))
