@@ -23,8 +23,8 @@ the camera, at the distance set by the camera height above the floor (y = 0) or 
 along an axis from the origin; with neither, at unit distance (scale unknown).
 
 The standard deviation of f from the fit's covariance (the segments' noise, scaled up when the
-residuals are larger) flags ill-conditioned views: a near-frontal plane puts a VP near infinity and f is then
-undetermined; `calibrate` raises IllConditionedError for them unless asked not to.
+residuals are larger) flags ill-conditioned views: a near-frontal plane puts a VP near infinity
+and f is then undetermined; `calibrate` raises IllConditionedError for them unless asked not to.
 
 Conventions: OpenCV camera (recon/camera.py): x_cam = R X + t, pixel centre of the top-left pixel
 at (0,0). LINES.json: {"x": [[u1,v1,u2,v2], ...], "y": [...], "z": [...], "origin": [u, v],
@@ -326,10 +326,12 @@ def calibrate(families: dict[str, np.ndarray], width: int, height: int, origin=N
 
     principal_point: (2,) pixels to hold fixed (default: fitted when three finite VPs move it
     significantly from the image centre, else the image centre). `image`: the photo (H,W[,3] uint8);
-    given, the segments are snapped to its edges (recon/edgesnap.py) and weighted by their noise. Raises ValueError naming `src` on bad input, IllConditionedError when
-    std(f)/f > max_focal_rel_sigma (unless raise_ill_conditioned is False), or when eq. 1 has no
-    solution while the VPs lie far outside the image (a near-frontal view). `sigma_px`: the smallest
-    segment noise assumed for std(f) (0.5 px for hand-clicked endpoints; lower for fitted lines);
+    given, the segments are snapped to its edges (recon/edgesnap.py) and weighted by their noise.
+    Raises ValueError naming `src` on bad input (also an image of another size), IllConditionedError
+    when std(f)/f > max_focal_rel_sigma (unless raise_ill_conditioned is False), or when eq. 1 has
+    no solution while the VPs lie far outside the image (a near-frontal view). `sigma_px`: the noise
+    of the segments as given (per endpoint, px: 0.5 for hand-clicked endpoints, lower for fitted
+    lines); it weights them in the fit and is the floor of the noise assumed for std(f);
     `pp_sigma_px`: how far the true principal point may be from the image centre (1 sigma, px) when
     it is assumed there (default 1 % of the larger image side); it adds eq. 1's sensitivity to it
     to std(f)/f."""
@@ -481,9 +483,11 @@ def _refine(segs: dict[str, np.ndarray], sig: dict[str, np.ndarray], f0: float, 
         K, R = unpack(x)
         return {a: _seg_residual(segs[a], K @ R[:, idx[a]]) for a in segs}
 
-    def fun(x):  # endpoint distance r has variance sigma^2 / 2 (two endpoints, opposite)
-        r = px(x)
-        return np.concatenate([r[a] * np.sqrt(2.0) / sig[a] for a in segs])
+    def normalised(r):  # endpoint distance r has variance sigma^2 / 2 (two endpoints, opposite)
+        return {a: r[a] * np.sqrt(2.0) / sig[a] for a in segs}
+
+    def fun(x):
+        return np.concatenate(list(normalised(px(x)).values()))
 
     x0 = np.concatenate([[np.log(f0 / s0)], c / s0 if free_pp else [], _rotvec(R0)])
     res = least_squares(fun, x0, xtol=1e-12, ftol=1e-12, gtol=1e-12)
@@ -491,7 +495,7 @@ def _refine(segs: dict[str, np.ndarray], sig: dict[str, np.ndarray], f0: float, 
     if not (np.all(np.isfinite(res.x)) and K[0, 0] > 0):
         raise ValueError(f"calibration fit failed (focal length {K[0, 0]:.3g})")
     r = px(res.x)
-    nres = {a: r[a] * np.sqrt(2.0) / sig[a] for a in segs}
+    nres = normalised(r)
     R = _rotation_from_dirs({a: R[:, idx[a]] for a in segs}, flip_xz)  # re-apply the sign conventions
     rms = float(np.sqrt(np.mean(np.concatenate(list(r.values())) ** 2)))
     # conditioning: linearised covariance, scaled up when the residuals exceed the assumed noise
