@@ -279,6 +279,7 @@ class Engine:
         log.info("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
         self._cost = {"fixed_s": 1.0, "per_pass_s": 0.01}  # refined after every frame
         self.dB_samples = 400  # object vertices that gather the second-order loss (the rest interpolate)
+        self._prt_cache = None  # (key, self_transfer result) of the last object shape (_self_transfer)
         self.near_factor = 2.0  # object light per pixel within this many bounding radii
         # occlusion masks: every pixel within mask_near_factor bounding radii of the object, farther
         # out (soft, slowly varying shadows) every second pixel in x and y, the rest filled in from
@@ -507,7 +508,7 @@ class Engine:
         local = v - v.mean(0)
         key = hashlib.sha1(np.round(local, 6).tobytes() + np.round(n, 6).tobytes()
                            + np.ascontiguousarray(f).tobytes() + str(self.params.prt_dirs).encode()).hexdigest()
-        cached = getattr(self, "_prt_cache", None)
+        cached = self._prt_cache
         if cached is None or cached[0] != key:
             own = Occluder(local, f, self.device)
             self._prt_cache = cached = (key, self_transfer(local, n, own, self.params.prt_dirs, device=self.device))
@@ -560,10 +561,10 @@ class Engine:
         for dy in (-1, 0, 1):  # only the missing pixels' windows, not the whole frame
             for dx in (-1, 0, 1):
                 sy, sx = my + dy, mx + dx
+                src = sy * W + sx
                 good = (sy >= 0) & (sy < H) & (sx >= 0) & (sx < W)
-                src = (sy * W + sx)[good]
-                good[good] = has[src] & (self.pix_quad[src] == self.pix_quad[missing[good]])
-                acc[good] += val[(sy * W + sx)[good]]
+                good[good] = has[src[good]] & (self.pix_quad[src[good]] == self.pix_quad[missing[good]])
+                acc[good] += val[src[good]]
                 cnt[good] += 1
         return acc / np.maximum(cnt, 1)[:, None]
 
