@@ -63,12 +63,13 @@ def plot_response(g: np.ndarray, path: Path, size: tuple[int, int] = (640, 420))
     for c, col in enumerate([(40, 40, 220), (40, 160, 40), (220, 80, 40)]):  # R, G, B in BGR
         pts = np.stack([px(lx[:, c]), py(lv)], -1).reshape(-1, 1, 2)
         cv2.polylines(img, [pts], False, col, 2, cv2.LINE_AA)
-    if not cv2.imwrite(str(path), img):
-        raise OSError(f"{path}: could not write PNG")
+    from recon.io import write_png
+
+    write_png(path, img[..., ::-1])  # drawn in OpenCV's BGR
 
 
 def run(a: argparse.Namespace) -> int:
-    from app.io import AtomicOutput, write_exr, write_json
+    from recon.io import AtomicOutput, write_exr, write_json
     from lighting import hdr
 
     if len(a.images) != len(a.times):

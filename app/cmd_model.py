@@ -30,7 +30,7 @@ def load_camera(path: Path):
     """recon.camera.Camera from a camera.json (flat fx..t) or a scene.json's main_camera."""
     from recon.camera import Camera
 
-    from recon.scene import read_json
+    from recon.io import read_json
 
     d = read_json(path)
     if isinstance(d, dict) and "main_camera" in d:
@@ -72,9 +72,8 @@ def draw_wireframe(photo: np.ndarray, model, camera) -> np.ndarray:
 
 
 def run(a: argparse.Namespace) -> int:
-    from app.io import AtomicOutput, write_json, write_png
+    from recon.io import AtomicOutput, read_image_rgb, write_json, write_png
     from recon.primitives import load_model, model_to_dict
-    from recon.scene import read_image_rgb
 
     model = load_model(a.scene)
     camera = load_camera(a.camera)

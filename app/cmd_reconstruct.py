@@ -6,7 +6,7 @@
 
 The pipeline (one step per module, like hloc): recon.multiview.reconstruct (pycolmap SfM, the
 largest model kept) -> metric alignment (recon.multiview) -> recon.roomfit.fit_room (room box +
-furniture boxes) -> outputs, written atomically (app.io.AtomicOutput):
+furniture boxes) -> outputs, written atomically (recon.io.AtomicOutput):
   cameras.json     per registered image K, R, t, centre (frame + units stated), the images left out
                    and why, the alignment, the room-fit report, timings
   points.ply       the SfM points (coloured), in the output frame
@@ -61,7 +61,7 @@ def register(sub) -> None:
 
 def load_camera(path: Path, image: str | None) -> tuple[Camera, str]:
     """Camera and the image it belongs to, from a camera.json or a scene.json (main_camera)."""
-    from recon.scene import read_json
+    from recon.io import read_json
 
     d = read_json(path)
     c = d.get("main_camera", d.get("camera", d)) if isinstance(d, dict) else None
@@ -136,7 +136,7 @@ def write_outputs(stage: Path, res, fit, timings: dict) -> str:
     """cameras.json, points.ply, primitives.json, model.ply, view.png into `stage`. Returns the render path."""
     import open3d as o3d
 
-    from app.io import write_json
+    from recon.io import write_json
     from recon import primitives as prim_mod
     from recon.view import model_mesh, render_png
 
@@ -172,7 +172,7 @@ def write_outputs(stage: Path, res, fit, timings: dict) -> str:
 
 
 def run_reconstruct(a: argparse.Namespace) -> int:
-    from app.io import AtomicOutput
+    from recon.io import AtomicOutput
     from recon import multiview as mv
 
     known = load_camera(a.camera, a.camera_image) if a.camera is not None else None

@@ -26,9 +26,7 @@ import dataclasses
 import hashlib
 import json
 import logging
-import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +51,7 @@ from lighting.sources import luminance, select_sources
 from lighting.transfer import intensity_transfers
 from recon.patches import PatchMesh, build_patches
 from recon.proxy import simplify, subdivide
+from recon.io import write_npz
 from recon.scene import Scene, SceneObject
 
 log = logging.getLogger("photoar")
@@ -132,19 +131,6 @@ def _hash_scene(scene: Scene, params: EngineParams) -> str:
             h.update(hashlib.sha256(f.read_bytes()).digest())
         h.update(hashlib.sha256(np.ascontiguousarray(scene.photo).tobytes()).digest())
     return h.hexdigest()
-
-
-def _save_npz_atomic(path: Path, **arrays) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-    os.close(fd)
-    try:
-        with open(tmp, "wb") as fh:  # a file object: np.savez would append ".npz" to a name
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _bar(total: int, desc: str, quiet: bool):
@@ -229,7 +215,7 @@ class Engine:
         pre = Precomputed(patches, G_c, recv_vert, G_v, B, pix_tri, pix_bary, pix_depth, albedo, origin, seconds)
         self._use_lighting(pre)
         if cache is not None:
-            _save_npz_atomic(cache, G_c=G_c, recv_vert=recv_vert, G_v=G_v, B=B, pix_tri=pix_tri, pix_bary=pix_bary,
+            write_npz(cache, G_c=G_c, recv_vert=recv_vert, G_v=G_v, B=B, pix_tri=pix_tri, pix_bary=pix_bary,
                              pix_depth=pix_depth, albedo=albedo, origin=origin, seconds=seconds)
         log.info("precompute: %d patches, %d receiver vertices, %.1f s", n_c, n_v, seconds)
         return pre, False

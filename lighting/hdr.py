@@ -73,7 +73,7 @@ def load_radiance(path: str | Path) -> np.ndarray:
         raise FileNotFoundError(f"{path}: no such HDR image")
     ext = path.suffix.lower()
     if ext == ".exr":
-        from app.io import read_exr
+        from recon.io import read_exr
 
         rgb = read_exr(path)
     elif ext in (".hdr", ".pfm"):

@@ -43,7 +43,6 @@ recon/camera.py.
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 from dataclasses import dataclass, field
@@ -241,7 +240,7 @@ def model_from_dict(d: dict, src: str = "<model>", infer_graph: bool | None = No
 def load_model(path: str | os.PathLike, infer_graph: bool | None = None) -> "PrimitiveModel":
     """Read a model JSON (or a scene.json) -> PrimitiveModel; ValueError/FileNotFoundError naming the file."""
     path = Path(path)
-    from recon.scene import read_json
+    from recon.io import read_json
 
     d = read_json(path)
     return model_from_dict(d, str(path), infer_graph)
@@ -255,17 +254,9 @@ def model_to_dict(model: "PrimitiveModel") -> dict:
 
 def save_model(path: str | os.PathLike, model: "PrimitiveModel") -> None:
     """Write the model JSON (schema in the module docstring), atomically (temp file, then rename)."""
-    import tempfile
+    from recon.io import write_json
 
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(json.dumps(model_to_dict(model), indent=1) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_json(path, model_to_dict(model), indent=1, sort_keys=False)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -595,7 +586,8 @@ class PrimitiveModel:
         their outward faces (axis-aligned boxes via recon.scene._box_quads, which drops faces flush
         against a room wall; rotated boxes as all six faces). With `root`, quad albedo textures
         ('albedo_texture', relative to root) are loaded as in recon.scene.load_scene."""
-        from recon.scene import Quad, _box_quads, read_image_rgb
+        from recon.scene import Quad, _box_quads
+        from recon.io import read_image_rgb
 
         if room_min is None or room_max is None:
             room_min, room_max = self.room_bounds()

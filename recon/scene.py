@@ -11,7 +11,6 @@ Units: metres, linear radiance in the scene's units, world +Y up.
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,10 +19,7 @@ import numpy as np
 
 from lighting.tonemap import CameraResponse
 from recon.camera import Camera
-
-
-class SceneError(ValueError):
-    """Bad scene input; the message names the file and the field or problem."""
+from recon.io import SceneError, read_image_rgb, read_json
 
 
 @dataclass
@@ -91,18 +87,6 @@ def _vec(value, n: int, where: str, path: Path, shape: tuple | None = None) -> n
     return arr
 
 
-def read_image_rgb(path: Path) -> np.ndarray:
-    """8-bit RGB image (H,W,3) uint8; SceneError naming the file if unreadable."""
-    import cv2
-
-    if not path.is_file():
-        raise SceneError(f"{path}: file not found")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise SceneError(f"{path}: not a readable image")
-    return img[..., ::-1].copy()
-
-
 def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Triangle mesh -> vertices (V,3), vertex normals (V,3), faces (F,3); SceneError if unusable."""
     import open3d as o3d
@@ -154,18 +138,6 @@ def _box_quads(name: str, center: np.ndarray, size: np.ndarray, albedo: np.ndarr
             continue  # face pressed against the wall/floor: never lit, never seen
         quads.append(Quad(f"{name}.{'xyz'[axis]}{'-+'[side]}", c, normal, albedo, np.zeros(3), "furniture"))
     return quads
-
-
-def read_json(path: str | os.PathLike, error: type[Exception] | None = None):
-    """Parsed JSON of `path`. A missing file raises FileNotFoundError and malformed JSON ValueError,
-    both naming the file; with `error` (e.g. SceneError) both raise that instead."""
-    path = Path(path)
-    if not path.is_file():
-        raise (error or FileNotFoundError)(f"{path}: file not found")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise (error or ValueError)(f"{path}: malformed JSON ({e})") from None
 
 
 def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scene:

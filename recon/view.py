@@ -208,7 +208,7 @@ def render_png(path: Path, points: np.ndarray, colors: np.ndarray | None, camera
                primitives: list[dict], size: tuple[int, int] = (1024, 768)) -> str:
     """Render the scene overview to `path` (RGB PNG). Returns the path taken:
     "open3d-window" ($DISPLAY), "open3d-xvfb" (a private Xvfb) or "cv2-projection" (fallback)."""
-    from app.io import write_png
+    from recon.io import write_png
 
     eye, look, up = _view_pose(points, cameras)
     geoms = geometries(points, colors, cameras, primitives)

@@ -69,7 +69,7 @@ def truth_response(d):
 def test_small_lamps_need_the_deconvolution(captured):
     # a 0.2 m lamp covers a few probe pixels: the plain per-ray average smears it into the ceiling
     # (measured: up to 18 % low), splitting each pixel's flux by the current estimate recovers it
-    from app.io import read_exr
+    from recon.io import read_exr
 
     d, _, _, eng = captured["lamps_room"]
     pm = eng.pre.patches

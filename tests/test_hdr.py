@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from app.io import read_exr, write_exr
+from recon.io import read_exr, write_exr
 from lighting import hdr
 from tests.conftest import SHARED, shared_scene
 
@@ -83,7 +83,7 @@ def test_cli_hdr_writes_outputs(tmp_path):
     L = np.exp(rng.uniform(np.log(0.02), np.log(4.0), (64, 96, 3))).astype(np.float32)
     times = [0.0625, 0.25, 1.0]
     paths = []
-    from app.io import write_png
+    from recon.io import write_png
 
     for i, t in enumerate(times):
         z = np.rint(255 * np.clip(L * t, 0, 1) ** (1 / 2.2)).astype(np.uint8)
@@ -105,7 +105,7 @@ def test_one_exposure_is_a_clear_error(tmp_path):
     z = np.full((8, 8, 3), 128, np.uint8)
     with pytest.raises(ValueError, match="at least 2 exposures"):
         hdr.merge_bracket([z], [0.1])
-    from app.io import write_png
+    from recon.io import write_png
 
     write_png(tmp_path / "a.png", z)
     out = tmp_path / "out"
