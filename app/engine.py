@@ -47,10 +47,11 @@ from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from lighting.irradiance import RoomLight
 from lighting.radiance import captured_files, captured_radiance_mesh, load_captured_probe
 from lighting.radiosity import gather
-from lighting.sources import luminance, select_sources
+from lighting.sources import select_sources
 from lighting.transfer import intensity_transfers
 from recon.patches import PatchMesh, build_patches
 from recon.proxy import simplify, subdivide
+from recon.response import luminance
 from recon.io import write_npz
 from recon.scene import Scene, SceneObject
 

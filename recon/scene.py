@@ -5,7 +5,7 @@ vanishing-point calibration, multi-view reconstruction):
   camera      calibrated main camera (recon.camera.Camera)
   quads       planar one-sided rectangles: room surfaces, box faces, emitters (Quad)
   obj         the synthetic object to insert, in world coordinates (SceneObject)
-  response    camera response (lighting.tonemap.CameraResponse)
+  response    camera response (recon.response.CameraResponse)
   photo       the 8-bit photograph of the empty room, (H,W,3) uint8 RGB
 Units: metres, linear radiance in the scene's units, world +Y up.
 """
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lighting.tonemap import CameraResponse
 from recon.camera import Camera
 from recon.io import SceneError, read_image_rgb, read_json
+from recon.response import CameraResponse
 
 
 @dataclass
