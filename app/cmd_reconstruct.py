@@ -20,7 +20,6 @@ y = 0, walls on the axes) in SfM units, or metres with --camera-height.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
@@ -63,33 +62,15 @@ def load_camera(path: Path, image: str | None) -> tuple[Camera, str]:
     """Camera and the image it belongs to, from a camera.json or a scene.json (main_camera)."""
     from recon.io import read_json
 
+    camera = Camera.load(path)
     d = read_json(path)
-    c = d.get("main_camera", d.get("camera", d)) if isinstance(d, dict) else None
-    if not isinstance(c, dict):
-        raise ValueError(f"{path}: expected a JSON object with K, R, t")
-    try:
-        Kd = c.get("K_matrix", c.get("K"))
-        if isinstance(Kd, dict):
-            K = np.array([[Kd["fx"], 0, Kd["cx"]], [0, Kd["fy"], Kd["cy"]], [0, 0, 1]], float)
-            w, h = int(Kd["width"]), int(Kd["height"])
-        else:
-            K = np.array(Kd, float).reshape(3, 3)
-            kd = c.get("K") if isinstance(c.get("K"), dict) else c
-            w, h = int(kd.get("width", c.get("width"))), int(kd.get("height", c.get("height")))
-        R = np.array(c["R"], float).reshape(3, 3)
-        t = np.array(c["t"], float).reshape(3)
-    except (KeyError, TypeError, ValueError) as e:
-        raise ValueError(f"{path}: camera needs K (matrix or fx/fy/cx/cy), width, height, R, t ({e!r})") from None
-    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
-        raise ValueError(f"{path}: camera has non-finite numbers")
-    if abs(np.linalg.det(R) - 1) > 1e-3 or np.abs(R @ R.T - np.eye(3)).max() > 1e-3:
-        raise ValueError(f"{path}: field 'R' is not a rotation matrix")
+    c = d.get("main_camera", d.get("camera", d))
     name = image or c.get("image") or c.get("file") or d.get("image")
     if name is None and "main_camera" in d:
         name = c.get("files", {}).get("background_png", "background.png")
     if name is None:
         raise ValueError(f"{path}: does not say which photo it calibrates; pass --camera-image NAME")
-    return Camera(K, R, t, w, h), Path(str(name)).name
+    return camera, Path(str(name)).name
 
 
 def _fit(res, opts_up):
@@ -203,16 +184,16 @@ def run_reconstruct(a: argparse.Namespace) -> int:
 def run_view(a: argparse.Namespace) -> int:
     import open3d as o3d
 
+    from recon.io import read_json
     from recon.view import show
 
     cams_path = a.dir / "cameras.json"
     for f in (cams_path, a.dir / "points.ply", a.dir / "primitives.json"):
         if not f.is_file():
             raise FileNotFoundError(f"{f}: file not found (is {a.dir} an output of `photoar reconstruct`?)")
-    d = json.loads(cams_path.read_text())
-    cams = {n: Camera(np.array(c["K"]), np.array(c["R"]), np.array(c["t"]), c["width"], c["height"])
-            for n, c in d.get("images", {}).items()}
+    d = read_json(cams_path)
+    cams = {n: Camera.from_json(c, cams_path, f"images.{n}.") for n, c in d.get("images", {}).items()}
     pcd = o3d.io.read_point_cloud(str(a.dir / "points.ply"))
-    prims = json.loads((a.dir / "primitives.json").read_text()).get("primitives", [])
+    prims = read_json(a.dir / "primitives.json").get("primitives", [])
     show(np.asarray(pcd.points), (np.asarray(pcd.colors) * 255).astype(np.uint8), cams, prims)
     return 0

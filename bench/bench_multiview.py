@@ -71,12 +71,7 @@ def bench_sceaux() -> dict:
 def bench_scene(name: str) -> dict:
     scene = SHARED / "scenes" / name
     d = json.loads((scene / "scene.json").read_text())
-
-    def cam(c):
-        return mv.Camera(np.array(c["K_matrix"]), np.array(c["R"]), np.array(c["t"]), c["K"]["width"],
-                         c["K"]["height"])
-
-    known = {"background.png": cam(d["main_camera"])}
+    known = {"background.png": mv.Camera.load(scene / "scene.json")}
     with tempfile.TemporaryDirectory() as tmp:
         (Path(tmp) / "background.png").symlink_to(scene / "background.png")
         for v in d["views"]:

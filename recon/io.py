@@ -179,6 +179,25 @@ def read_json(path: str | os.PathLike, error: type[Exception] | None = None):
         raise (error or ValueError)(f"{path}: malformed JSON ({e})") from None
 
 
+def json_field(d, key: str, where: str, path: str | os.PathLike):
+    """d[key]; SceneError "<path>: missing field '<where><key>'" when `d` is not an object or lacks it."""
+    if not isinstance(d, dict) or key not in d:
+        raise SceneError(f"{path}: missing field '{where}{key}'")
+    return d[key]
+
+
+def json_array(value, shape: tuple, where: str, path: str | os.PathLike) -> np.ndarray:
+    """`value` as a float64 array of exactly `shape` with finite entries; SceneError naming the
+    file and the field `where` otherwise."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SceneError(f"{path}: field '{where}' is not numeric") from None
+    if arr.shape != tuple(shape) or not np.all(np.isfinite(arr)):
+        raise SceneError(f"{path}: field '{where}' must be {tuple(shape)} finite numbers, got shape {arr.shape}")
+    return arr
+
+
 def json_safe(o):
     """`o` with numpy scalars/arrays and Paths turned into JSON types and every non-finite float
     (NaN, +-Infinity) replaced by None (JSON null). Dict keys become strings as json does."""
