@@ -10,7 +10,6 @@ metrics.json, atomically.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +43,7 @@ def _read(path: Path) -> np.ndarray:
 def run(a: argparse.Namespace) -> int:
     import cv2
 
-    from recon.io import AtomicOutput, write_json, write_png
+    from recon.io import AtomicOutput, dumps_json, write_json, write_png
     from lighting import metrics
 
     A, B = _read(a.a), _read(a.b)
@@ -78,7 +77,7 @@ def run(a: argparse.Namespace) -> int:
         if mk is None:
             raise FileNotFoundError(f"{mk_path}: file not found or unreadable")
         out["score"] = metrics.score_regions(A, bg, B, mk)
-    print(json.dumps(out))
+    print(dumps_json(out, sort_keys=False))  # valid JSON: an infinite PSNR (equal images) is null
     if a.out is not None:
         with AtomicOutput(a.out) as stage:
             write_png(stage / "error.png", metrics.error_heatmap(A, B, a.vmax, region=region))

@@ -115,11 +115,11 @@ def align_and_fit(res, known: tuple[Camera, str] | None, camera_height: float | 
 
 def write_outputs(stage: Path, res, fit, timings: dict) -> str:
     """cameras.json, points.ply, primitives.json, model.ply, view.png into `stage`. Returns the render path."""
-    import open3d as o3d
-
-    from recon.io import write_json
     from recon import primitives as prim_mod
+    from recon.io import open3d, write_json
     from recon.view import model_mesh, render_png
+
+    o3d = open3d()
 
     prims = fit.primitives()
     for p in prims:
@@ -182,10 +182,10 @@ def run_reconstruct(a: argparse.Namespace) -> int:
 
 
 def run_view(a: argparse.Namespace) -> int:
-    import open3d as o3d
-
-    from recon.io import read_json
+    from recon.io import open3d, read_json
     from recon.view import show
+
+    o3d = open3d()
 
     cams_path = a.dir / "cameras.json"
     for f in (cams_path, a.dir / "points.ply", a.dir / "primitives.json"):

@@ -263,7 +263,7 @@ class Engine:
         self.shadow_sources = ShadowSources(src, pm.centre, pm.normal, pm.corners, receivers, pre.G_c, pre.G_v,
                                             self.B_src, self.params.leaf_size, self.params.shaft_threshold)
         self.shaft_build_s = time.perf_counter() - t0
-        log.info("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
+        log.debug("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
         self._cost = {"fixed_s": 1.0, "per_pass_s": 0.01}  # refined after every frame
         self.dB_samples = 400  # object vertices that gather the second-order loss (the rest interpolate)
         self._prt_cache = None  # (key, self_transfer result) of the last object shape (_self_transfer)

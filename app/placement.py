@@ -76,7 +76,9 @@ def load_object_mesh(path: str | Path, size_m: float | None = None, albedo=None,
     and otherwise scales it to 0.6 m (the teapot is 6.4 units wide). Meshes above `max_faces`
     triangles are decimated (quadric error, Open3D): the engine shades every vertex per frame.
     """
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:

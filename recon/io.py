@@ -29,6 +29,22 @@ class SceneError(ValueError):
     """Bad input; the message names the file and the field or problem."""
 
 
+_open3d_quiet = False
+
+
+def open3d():
+    """The open3d module, its console log limited to errors (set here, once, for the process):
+    Open3D's warnings ("Read PLY failed", "appears to be a PointCloud") are not for users; the
+    caller turns a failure into one clear error."""
+    global _open3d_quiet
+    import open3d as o3d
+
+    if not _open3d_quiet:
+        o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+        _open3d_quiet = True
+    return o3d
+
+
 # ---------------------------------------------------------------------------------------------
 # Atomic writes
 

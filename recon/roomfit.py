@@ -127,7 +127,9 @@ def fit_room(points: np.ndarray, colors: np.ndarray | None, cam_centres: np.ndar
     cameras are assumed inside the room), cam_ups (M,3) camera up vectors (-R[1]) used when
     opts.up is None. Raises ValueError when the cloud is too small or no floor is found.
     """
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     opts = opts or FitOptions()
     P = np.asarray(points, np.float64)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.camera import Camera
-from recon.io import SceneError, json_array, json_field, read_image_rgb, read_json
+from recon.io import SceneError, json_array, json_field, open3d, read_image_rgb, read_json
 from recon.response import CameraResponse
 
 
@@ -71,16 +71,23 @@ class Scene:
 
 
 def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Triangle mesh -> vertices (V,3), vertex normals (V,3), faces (F,3); SceneError if unusable."""
-    import open3d as o3d
+    """Triangle mesh -> vertices (V,3), vertex normals (V,3), faces (F,3); SceneError if unusable.
 
+    Open3D's reader prints to the C-level stderr (RPly's messages, sometimes bytes of the file);
+    that is captured and its first line, cleaned, becomes part of the one error message."""
+    from kernels.runtime import captured_stderr
+
+    o3d = open3d()
     if not path.is_file():
         raise SceneError(f"{path}: file not found")
-    mesh = o3d.io.read_triangle_mesh(str(path))
+    with captured_stderr() as reader:
+        mesh = o3d.io.read_triangle_mesh(str(path))
     v = np.asarray(mesh.vertices, np.float64)
     f = np.asarray(mesh.triangles, np.int32)
     if len(v) == 0 or len(f) == 0:
-        raise SceneError(f"{path}: could not load a triangle mesh (no vertices or faces)")
+        said = "".join(c if c.isprintable() and c.isascii() else "?" for c in (reader.lines() or [""])[0])[:100]
+        raise SceneError(f"{path}: could not load a triangle mesh (no vertices or faces"
+                         f"{'; reader: ' + said.strip() if said.strip() else ''})")
     if not np.all(np.isfinite(v)) or f.max() >= len(v) or f.min() < 0:
         raise SceneError(f"{path}: mesh has non-finite vertices or out-of-range face indices")
     if not mesh.has_vertex_normals():
