@@ -69,13 +69,13 @@ def plot_response(g: np.ndarray, path: Path, size: tuple[int, int] = (640, 420))
 
 
 def run(a: argparse.Namespace) -> int:
-    from recon.io import AtomicOutput, write_exr, write_json
     from lighting import hdr
+    from recon.io import AtomicOutput, read_image_rgb, write_exr, write_json
 
     if len(a.images) != len(a.times):
         raise ValueError(f"{a.images[0]}: {len(a.images)} images but {len(a.times)} --times")
     t0 = time.perf_counter()
-    images = [hdr.read_ldr(p) for p in a.images]
+    images = [read_image_rgb(p) for p in a.images]
     try:
         g = hdr.calibrate_response(images, a.times, a.calibration)
         rad, g = hdr.merge_bracket(images, a.times, g, method=a.merge)

@@ -43,8 +43,8 @@ def _read(path: Path) -> np.ndarray:
 def run(a: argparse.Namespace) -> int:
     import cv2
 
-    from recon.io import AtomicOutput, dumps_json, write_json, write_png
     from lighting import metrics
+    from recon.io import AtomicOutput, dumps_json, write_json, write_png
 
     A, B = _read(a.a), _read(a.b)
     if A.shape != B.shape:

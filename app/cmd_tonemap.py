@@ -27,8 +27,8 @@ def register(sub) -> None:
 def run(a: argparse.Namespace) -> int:
     import numpy as np
 
-    from recon.io import read_exr, write_png
     from lighting.tonemap import display_tonemap, to_display_pixels
+    from recon.io import read_exr, write_png
 
     if not a.exr.is_file():
         raise FileNotFoundError(f"{a.exr}: file not found")

@@ -49,10 +49,10 @@ from lighting.radiance import captured_files, captured_radiance_mesh, load_captu
 from lighting.radiosity import gather
 from lighting.sources import select_sources
 from lighting.transfer import intensity_transfers
+from recon.io import write_npz
 from recon.patches import PatchMesh, build_patches
 from recon.proxy import simplify, subdivide
 from recon.response import luminance
-from recon.io import write_npz
 from recon.scene import Scene, SceneObject
 
 log = logging.getLogger("photoar")

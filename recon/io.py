@@ -113,15 +113,19 @@ def write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
 # 8-bit images
 
 def read_image_rgb(path: str | os.PathLike) -> np.ndarray:
-    """8-bit RGB image (H,W,3) uint8; SceneError naming the file if missing or unreadable."""
+    """8-bit image file (PNG, JPEG, ...) -> (H,W,3) uint8 RGB; grey images are expanded to three
+    channels and alpha dropped. SceneError naming the file if it is missing, unreadable or not
+    8-bit (a 16-bit image is refused rather than silently cut to 8 bits)."""
     import cv2
 
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"{path}: file not found")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     if img is None:
         raise SceneError(f"{path}: not a readable image")
+    if img.dtype != np.uint8:
+        raise SceneError(f"{path}: expected an 8-bit image, got {img.dtype}")
     return img[..., ::-1].copy()
 
 

@@ -46,8 +46,8 @@ def test_composite_from_captured_light(captured, name):
 def test_reflectivity_and_emitters_against_the_scene(captured, name):
     # photo-seen patches: recovered reflectivity vs the declared albedo, median relative error
     # < 15 % (measured 3-5 %); emitter patches: captured radiance within 20 % of the declared one
-    from recon.response import luminance
     from recon.patches import build_patches
+    from recon.response import luminance
 
     d, _, _, eng = captured[name]
     pm, p = eng.pre.patches, eng.params

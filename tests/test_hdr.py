@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from recon.io import read_exr, write_exr
 from lighting import hdr
+from recon.io import read_exr, read_image_rgb, write_exr
 from tests.conftest import SHARED, shared_scene
 
 
@@ -18,7 +18,7 @@ def main(argv):
 
 def _bracket(scene_dir):
     paths, times, _ = hdr.scene_probe_files(scene_dir)
-    return [hdr.read_ldr(p) for p in paths], times
+    return [read_image_rgb(p) for p in paths], times
 
 
 def _median_rel_err(rad, truth, valid):
@@ -61,7 +61,7 @@ def test_memorial_church_bracket():
     if not (md / "times.json").is_file():
         pytest.skip(f"{md} not available (../shared is absent)")
     tj = json.loads((md / "times.json").read_text())["images"]
-    images = [hdr.read_ldr(md / f)[::2, ::2] for f in tj]
+    images = [read_image_rgb(md / f)[::2, ::2] for f in tj]
     times = list(tj.values())
     rad, g = hdr.merge_bracket(images, times, method="robertson")  # see the report: MergeDebevec's triangle
     # weights let the film's fog level (z ~ 14-17 in every short exposure) bias it by tens of levels

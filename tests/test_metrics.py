@@ -52,9 +52,8 @@ def test_constant_offset_gives_its_size_and_blur_offset_ordering():
 def test_score_regions_mirrors_the_shared_scorer(tmp_path):
     """The same figures as ../shared/tools/score.py on a perturbed composite (a blurred,
     darkened truth), to 1e-9."""
-    from recon.io import write_png
     from lighting import metrics
-    from recon.io import read_image_rgb
+    from recon.io import read_image_rgb, write_png
 
     scene_dir = shared_scene("lamps_room")
     tr = read_image_rgb(scene_dir / "truth.png")

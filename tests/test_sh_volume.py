@@ -112,8 +112,8 @@ def test_object_moved_up_changes_shading_like_brute_force(window_light):
     import copy
 
     from kernels.visibility import Occluder, transfer_matrix
-    from recon.response import luminance
     from recon.proxy import simplify, subdivide
+    from recon.response import luminance
 
     scene, eng = window_light
     pm = eng.pre.patches
