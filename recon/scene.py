@@ -67,7 +67,7 @@ class Scene:
     camera: Camera
     quads: list[Quad]
     obj: SceneObject | None
-    response: CameraResponse
+    response: CameraResponse | None  # None: not given (captured light recovers it)
     photo: np.ndarray  # (H,W,3) uint8 RGB, the empty room
     room_min: np.ndarray
     room_max: np.ndarray
@@ -201,12 +201,14 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         raise SceneError(f"{path}: field 'main_camera.exposure_time' must be positive")
     camera = Camera(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), R, t, width, height, exposure)
 
-    resp = _field(d, "camera_response", "", path)
-    try:
-        response = CameraResponse(_field(resp, "forward_table", "camera_response.", path),
-                                  _field(resp, "inverse_table", "camera_response.", path), exposure)
-    except ValueError as e:
-        raise SceneError(f"{path}: field 'camera_response': {e}") from None
+    response = None  # optional: captured light recovers it from the probe bracket
+    if "camera_response" in d:
+        resp = d["camera_response"]
+        try:
+            response = CameraResponse(_field(resp, "forward_table", "camera_response.", path),
+                                      _field(resp, "inverse_table", "camera_response.", path), exposure)
+        except ValueError as e:
+            raise SceneError(f"{path}: field 'camera_response': {e}") from None
 
     quads: list[Quad] = []
     prims = _field(d, "primitives", "", path)
@@ -216,6 +218,8 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         where = f"primitives[{i}]"
         name = str(p.get("name", where)) if isinstance(p, dict) else where
         kind = _field(p, "type", where + ".", path)
+        if kind == "sun":
+            continue  # a far disk outside the room (FORMAT.md); captured light sees it through the probe
         albedo = _vec(p.get("albedo", [0, 0, 0]), 3, f"{where}.albedo", path)
         if kind == "box":
             center = _vec(_field(p, "center", where + ".", path), 3, f"{where}.center", path)
@@ -231,7 +235,7 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
             else:
                 flipped = False
             emission = _vec(p.get("emitted_radiance", [0, 0, 0]), 3, f"{where}.emitted_radiance", path) \
-                if p.get("emitter") else np.zeros(3)
+                if p.get("emitter") else np.zeros(3)  # an emitter without declared radiance: 0 (captured light)
             texture = None
             if load_textures and p.get("albedo_texture"):
                 img = read_image_rgb(root / p["albedo_texture"]).astype(np.float32) / 255.0
