@@ -157,15 +157,9 @@ def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
             raise ValueError(f"{f}: image is {img.shape[1]}x{img.shape[0]}, {a.probe[0]} is "
                              f"{shots[0].shape[1]}x{shots[0].shape[0]}: a bracket's images share one size")
     if a.probe_circle == "auto":
-        from recon.probecircle import crop_ball, find_ball
+        from recon.probecircle import crop_ball, find_ball_in_bracket
 
-        circles = np.array([find_ball(img, str(f)) for f, img in zip(a.probe, shots)])
-        c = np.median(circles, axis=0)
-        moved = np.abs(circles - c).max(axis=1)
-        if np.any(moved > 2.0):
-            bad = a.probe[int(np.argmax(moved))]
-            raise ValueError(f"{bad}: the ball moved between exposures (its circle is {moved.max():.1f} px off the "
-                             "others'); shoot the bracket from a tripod")
+        c = find_ball_in_bracket(shots, [str(f) for f in a.probe])
         log.info("probe ball at (%.2f, %.2f) px, radius %.2f px", *c)
         shots = [crop_ball(img, *c) for img in shots]
     elif shots[0].shape[0] != shots[0].shape[1]:

@@ -103,6 +103,27 @@ def refine_circle(img: np.ndarray, cx: float, cy: float, r: float, n_rays: int =
 def find_ball(img: np.ndarray, src: str = "<probe>") -> tuple[float, float, float]:
     """(cx, cy, r) px of the mirror ball in a photo: of the Hough candidates, refined, the circle with
     the strongest, most complete edge. ValueError naming `src` if there is none."""
+    return find_ball_scored(img, src)[0]
+
+
+def find_ball_in_bracket(images: list[np.ndarray], names: list[str]) -> tuple[float, float, float]:
+    """The ball's circle in a bracket shot from a tripod: the best-supported detection over the
+    exposures (a dark or washed-out exposure may show too little edge), checked on every image with
+    a clear edge (support at least half the best): re-fitted in a narrow band, it must stay within
+    2 px (else the camera moved)."""
+    found = [find_ball_scored(img, n) for img, n in zip(images, names)]
+    best, top = max(found, key=lambda f: f[1])
+    for img, n in zip(images, names):
+        (x, y, r), support = refine_circle(img, *best, bands=(0.05, 0.02))
+        off = max(np.hypot(x - best[0], y - best[1]), abs(r - best[2]))
+        if support > 0.5 * top and off > 2.0:
+            raise ValueError(f"{n}: the ball moved between exposures (its circle is {off:.1f} px off the best "
+                             "exposure's); shoot the bracket from a tripod")
+    return best
+
+
+def find_ball_scored(img: np.ndarray, src: str = "<probe>") -> tuple[tuple[float, float, float], float]:
+    """find_ball's circle and its edge support (refine_circle)."""
     best, best_support = None, 0.0
     for c in hough_circles(img):
         circle, support = refine_circle(img, *c)
@@ -110,7 +131,7 @@ def find_ball(img: np.ndarray, src: str = "<probe>") -> tuple[float, float, floa
             best, best_support = circle, support
     if best is None:
         raise ValueError(f"{src}: --probe-circle auto found no circle (the mirror ball) in the image")
-    return best
+    return best, best_support
 
 
 def crop_ball(img: np.ndarray, cx: float, cy: float, r: float, size: int = CROP_SIZE) -> np.ndarray:
