@@ -201,6 +201,9 @@ def write_room(room: Path, scene: dict, images: dict[str, np.ndarray], copies: d
     parent = room.resolve().parent
     parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{room.name}.partial-", dir=parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(stage, 0o777 & ~umask)  # mkdtemp makes it private; the room folder is an ordinary one
     try:
         for name, img in images.items():
             write_png(stage / name, img)

@@ -62,8 +62,11 @@ def first_hit(quads: list[tuple[np.ndarray, np.ndarray]], origins: np.ndarray, d
     return best
 
 
-def _agreement(light_probe: dict, probe_lum: np.ndarray, photo_lum: np.ndarray, photo_ok: np.ndarray,
+def _agreement(light_probe: dict, probe_lum: np.ndarray, photo: np.ndarray, g: np.ndarray, exposure_time: float,
                cam: dict, quads) -> tuple[float, int]:
+    """Correlation of log luminance between probe pixels and the photo pixels that see the same
+    surface points, and the number of pairs; the photo (uint8) is linearised through g only at
+    those pixels (a 12-megapixel photo is never converted whole)."""
     from lighting.radiance import probe_rays
 
     S = probe_lum.shape[0]
@@ -80,7 +83,7 @@ def _agreement(light_probe: dict, probe_lum: np.ndarray, photo_lum: np.ndarray, 
     u = np.where(front, K["fx"] * X[:, 0] / np.where(front, z, 1) + K["cx"], -1)
     v = np.where(front, K["fy"] * X[:, 1] / np.where(front, z, 1) + K["cy"], -1)
     ui, vi = np.round(u).astype(int), np.round(v).astype(int)
-    H, W = photo_lum.shape
+    H, W = photo.shape[:2]
     inimg = front & (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H)
     # visible from the camera: nothing nearer along the camera ray
     C = -R.T @ tc
@@ -90,13 +93,18 @@ def _agreement(light_probe: dict, probe_lum: np.ndarray, photo_lum: np.ndarray, 
     tv = first_hit(quads, np.repeat(C[None], len(idx), 0), d / dist[:, None])
     vis = np.zeros(len(P), bool)
     vis[idx] = tv > dist - 1e-2
-    sel = vis.copy()
-    sel[vis] &= photo_ok[vi[vis], ui[vis]]
+    z8 = photo[vi[vis], ui[vis]]  # (M,3) uint8
+    ok = np.all((z8 > 8) & (z8 < 247), axis=1)  # neither clipped nor in the noise
+    lum = (np.stack([g[z8[:, c], c] for c in range(3)], -1) / float(exposure_time)) @ LUMA
+    sel = np.zeros(len(P), bool)
+    sel[np.flatnonzero(vis)[ok]] = True
+    photo_lum = np.zeros(len(P))
+    photo_lum[vis] = lum
     sel &= pl > 0
     n = int(sel.sum())
     if n < 50:
         return float("nan"), n
-    a, b = np.log(pl[sel]), np.log(photo_lum[vi[sel], ui[sel]])
+    a, b = np.log(pl[sel]), np.log(photo_lum[sel])
     if a.std() < 1e-9 or b.std() < 1e-9:
         return float("nan"), n
     return float(np.corrcoef(a, b)[0, 1]), n
@@ -111,15 +119,12 @@ def check_probe_pose(light_probe: dict, shot_from, probe_images: list[np.ndarray
 
     rad, g = merge_bracket(probe_images, times)
     probe_lum = rad.astype(np.float64) @ LUMA
-    lin = np.stack([g[photo[..., c], c] for c in range(3)], -1) / float(exposure_time)
-    photo_lum = lin @ LUMA
-    photo_ok = np.all((photo > 8) & (photo < 247), axis=-1)
     quads = _quad_list(prims)
     c = np.asarray(light_probe["centre"], float)
     s = np.asarray(shot_from, float)
     turned = dict(light_probe)
     S = light_probe["camera"]["width"]
     turned["camera"] = probe_camera(c, light_probe["radius"], c + (s - c) * np.array([-1.0, 1.0, -1.0]), S, S)
-    cg, ng = _agreement(light_probe, probe_lum, photo_lum, photo_ok, cam, quads)
-    ct, nt = _agreement(turned, probe_lum, photo_lum, photo_ok, cam, quads)
+    cg, ng = _agreement(light_probe, probe_lum, photo, g, exposure_time, cam, quads)
+    ct, nt = _agreement(turned, probe_lum, photo, g, exposure_time, cam, quads)
     return PoseCheck(cg, ct, ng, nt)
