@@ -125,6 +125,9 @@ def _bad_cases(inp, tmp):
     import cv2
 
     cv2.imwrite(str(half), cv2.imread(str(inp["probes"][1]))[:128, :128])
+    oblong = [tmp / f"oblong_{i}.png" for i in range(len(inp["probes"]))]
+    for f, o in zip(inp["probes"], oblong):
+        cv2.imwrite(str(o), cv2.imread(str(f))[:, :200])
     return [
         ("photo missing", {"--photo": str(tmp / "nope.jpg")}, "nope.jpg: file not found"),
         ("photo garbage", {"--photo": str(w("garbage.png", b"not an image at all"))}, "garbage.png: not a readable"),
@@ -151,6 +154,10 @@ def _bad_cases(inp, tmp):
         ("probe sizes differ", {"--probe": [str(inp["probes"][0]), str(half), *map(str, inp["probes"][2:])]},
          "half.png: image is 128x128"),
         ("no exposure time", {"--exposure-time": None}, "photo.png: no exposure time"),
+        ("probe not square", {"--probe": list(map(str, oblong))}, "oblong_0.png: probe image is 200x256"),
+        ("probe without pose", {"--probe-centre": None}, "--probe-centre: required with --probe"),
+        ("ball outside the room", {"--probe-centre": "2,0.05,1"}, "--probe-centre: the ball"),
+        ("no probe times", {"--probe-times": None}, "ball_0.png: no exposure time: give --probe-times"),
         ("probe shot from the other side", {"--probe-shot-from": ",".join(
             str(c + (c - s)) if i != 1 else str(s) for i, (c, s) in enumerate(zip(inp["centre"], inp["shot_from"])))},
          "--probe-shot-from: the probe images disagree with the pose"),
@@ -364,3 +371,20 @@ def test_probe_pose_check_flags_the_turned_pose(name):
         print(name, label, res[label])
     assert not res["true"].turned_fits_better and res["true"].corr_given > 0.7
     assert res["flipped"].turned_fits_better
+
+
+def test_probe_times_from_exif(inputs, capsys):
+    """A bracket of JPEGs with EXIF ExposureTime needs no --probe-times; files given in any order
+    are sorted shortest first."""
+    import cv2
+
+    jpgs = []
+    for i, (f, t) in enumerate(zip(inputs["probes"], inputs["times"])):
+        jpgs.append(inputs["tmp"] / f"ball_exif_{i}.jpg")
+        jpgs[-1].write_bytes(_exif_jpeg(cv2.imread(str(f)), (int(round(t * 1e7)), 10 ** 7), 1))
+    room = inputs["tmp"] / "room_exif_probe"
+    argv = _replace(scene_argv(dict(inputs, probes=jpgs[::-1]), room, inputs["camera"]), "--probe-times", None)
+    rc, err = _run(argv, capsys)
+    assert rc == 0, err
+    got = json.loads((room / "scene.json").read_text())["light_probe"]["exposure_times"]
+    np.testing.assert_allclose(got, inputs["times"], rtol=1e-6)
