@@ -196,7 +196,8 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-5):
         raise SceneError(f"{path}: field 'main_camera.R' is not a rotation matrix")
     t = _vec(_field(cam, "t", "main_camera.", path), 3, "main_camera.t", path)
-    exposure = float(cam.get("exposure_time", 1.0))
+    exposure = float(_vec(_field(cam, "exposure_time", "main_camera.", path), 1, "main_camera.exposure_time", path,
+                          shape=()))  # never defaulted: a wrong exposure scales the object's brightness
     if not exposure > 0:
         raise SceneError(f"{path}: field 'main_camera.exposure_time' must be positive")
     camera = Camera(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), R, t, width, height, exposure)

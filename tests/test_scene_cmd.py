@@ -388,3 +388,17 @@ def test_probe_times_from_exif(inputs, capsys):
     assert rc == 0, err
     got = json.loads((room / "scene.json").read_text())["light_probe"]["exposure_times"]
     np.testing.assert_allclose(got, inputs["times"], rtol=1e-6)
+
+
+def test_load_scene_refuses_a_missing_exposure_time(inputs, tmp_path):
+    """A room folder whose main_camera has no exposure_time is refused, naming the field (it used
+    to become 1.0 silently)."""
+    from recon.scene import SceneError, load_scene
+
+    room = tmp_path / "r"
+    shutil.copytree(shared_scene("window_room"), room, ignore=shutil.ignore_patterns("views", "*.exr", "truth*"))
+    d = json.loads((room / "scene.json").read_text())
+    del d["main_camera"]["exposure_time"]
+    (room / "scene.json").write_text(json.dumps(d))
+    with pytest.raises(SceneError, match="main_camera.exposure_time"):
+        load_scene(room, load_textures=False)
