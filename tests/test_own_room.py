@@ -49,7 +49,10 @@ def test_own_room_flow(tmp_path, capsys, name):
     assert s["rmse_affected"] <= 0.6 * s["rmse_affected_if_untouched"]
     assert s["spurious"] < 0.01
     assert s["rmse_object"] <= 8
-    # 4. the probe photographed from the opposite side (tape pose turned about the ball) changes it
+    # 4. the probe photographed from the opposite side (tape pose turned about the ball) changes it;
+    #    one scene is enough for this (each composite is a full precompute)
+    if name != "window_room":
+        return
     c, sf = np.array(inp["centre"]), np.array(inp["shot_from"])
     opposite = c + (sf - c) * np.array([-1.0, 1.0, -1.0])
     room2 = tmp_path / "room_opposite"
