@@ -12,7 +12,7 @@ import pytest
 
 from app.cli import main
 from tests.conftest import score, shared_scene
-from tests.own_room import fmt, scene_argv, write_inputs
+from tests.own_room import fmt, own_room_cache, scene_argv, write_inputs  # noqa: F401 (fixture)
 
 
 def _composite(room, out, inp, cache):
@@ -22,12 +22,12 @@ def _composite(room, out, inp, cache):
 
 
 @pytest.mark.parametrize("name", ["window_room", "lamps_room"])
-def test_own_room_flow(tmp_path, capsys, name):
+def test_own_room_flow(tmp_path, capsys, own_room_cache, name):
     import cv2
 
     root = shared_scene(name)
     inp = write_inputs(root, tmp_path / "in")
-    cache = tmp_path / "cache"
+    cache = own_room_cache
     # 1. calibrate on the clicked lines with the camera height (tape)
     rc = main(["-q", "calibrate", str(inp["photo"]), "--lines", str(inp["lines"]), "--height", str(inp["height"]),
                "--out", str(tmp_path / "cal")])

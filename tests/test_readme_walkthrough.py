@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from tests.conftest import ROOT, score, shared_scene
-from tests.own_room import fmt, write_inputs
+from tests.own_room import fmt, own_room_cache, write_inputs  # noqa: F401 (fixture)
 
 MARKER = "<!-- own-room-walkthrough"
 
@@ -30,10 +30,10 @@ def test_walkthrough_is_generic():
         assert not re.search(r"(?<![\w_])\d", c), c
 
 
-def test_walkthrough_runs(tmp_path):
+def test_walkthrough_runs(tmp_path, own_room_cache):
     root = shared_scene("window_room")
     inp = write_inputs(root, tmp_path)
-    env = dict(os.environ, PYTHONPATH=str(ROOT), PHOTOAR_CACHE=str(tmp_path / "cache"),
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PHOTOAR_CACHE=str(own_room_cache),
                CAMERA_HEIGHT=repr(inp["height"]), PHOTO_TIME=repr(inp["exposure"]),
                BALL_TIMES=" ".join(map(repr, inp["times"])), BALL_CENTRE=fmt(inp["centre"]),
                BALL_RADIUS=repr(inp["radius"]), BALL_SHOT_FROM=fmt(inp["shot_from"]), PLACE=fmt(inp["place"]),
