@@ -402,3 +402,27 @@ def test_load_scene_refuses_a_missing_exposure_time(inputs, tmp_path):
     (room / "scene.json").write_text(json.dumps(d))
     with pytest.raises(SceneError, match="main_camera.exposure_time"):
         load_scene(room, load_textures=False)
+
+
+def test_model_output_as_primitives(inputs, capsys):
+    """`photoar model`'s model.json (recon.primitives schema, scene-graph fields, default albedo)
+    of the tape room gives the same geometry as the hand-written file."""
+    from recon.primitives import load_model, save_model
+
+    model_json = inputs["tmp"] / "model.json"
+    save_model(model_json, load_model(inputs["room"]))
+    rooms = {}
+    for label, prims in (("hand", inputs["room"]), ("model", model_json)):
+        room = inputs["tmp"] / f"room_{label}"
+        argv = _replace(scene_argv(inputs, room, inputs["camera"]), "--primitives", str(prims))
+        rc, err = _run(argv + ["--skip-probe-check"], capsys)
+        assert rc == 0, err
+        rooms[label] = json.loads((room / "scene.json").read_text())
+    geo = lambda d: {p["name"]: (p.get("corners"), p.get("center"), p.get("size"), p["role"]) for p in d["primitives"]}
+    a, b = geo(rooms["hand"]), geo(rooms["model"])
+    assert a.keys() == b.keys()
+    for k in a:
+        for x, y in zip(a[k][:3], b[k][:3]):
+            if x is not None:
+                np.testing.assert_allclose(x, y, atol=1e-9, err_msg=k)
+        assert a[k][3] == b[k][3]
