@@ -135,7 +135,7 @@ def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
     if not a.probe_radius > 0:
         raise ValueError(f"--probe-radius: must be positive, got {a.probe_radius}")
     shots, times = [], []
-    for i, f in enumerate(a.probe):
+    for f in a.probe:
         img, et = read_photo(f)
         shots.append(img)
         times.append(et)

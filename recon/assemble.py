@@ -79,9 +79,9 @@ def camera_centre(cam: dict) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------
 # Primitives
 
-def _geometry(raw: dict, prim, where: str) -> list[dict]:
+def _geometry(raw: dict, prim) -> list[dict]:
     """scene.json entries (FORMAT.md schema, geometry + role [+ albedo, emitter]) of one parsed primitive."""
-    role = prim.role if prim.role != "lamp" else "lamp"
+    role = prim.role
     extra: dict = {"role": role}
     if "albedo" in raw:
         extra["albedo"] = [float(x) for x in prim.albedo]
@@ -168,7 +168,7 @@ def parse_primitives(d, src: str) -> tuple[list[dict], np.ndarray, np.ndarray]:
             continue
         if prim.role == "room":
             room_pts.append(prim.vertices())
-        out += _geometry(raw, prim, where)
+        out += _geometry(raw, prim)
     if not room_pts:
         raise AssembleError(f"{src}: no room: give a box with \"role\": \"room\" (the room shell, inside "
                             "dimensions) or the room's surfaces as quads with role 'room'")

@@ -7,7 +7,6 @@ import os
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 from tests.conftest import ROOT, score, shared_scene
 from tests.own_room import fmt, own_room_cache, write_inputs  # noqa: F401 (fixture)
