@@ -232,6 +232,8 @@ def write_room(room: Path, scene: dict, images: dict[str, np.ndarray], copies: d
 
 
 def run(a: argparse.Namespace) -> int:
+    if a.room.exists() and not a.room.is_dir():
+        raise ValueError(f"{a.room}: exists and is not a folder")
     scene, images, copies = assemble(a)
     write_room(a.room, scene, images, copies)
     print(a.room / "scene.json")
