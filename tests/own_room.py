@@ -59,7 +59,8 @@ def object_pose(scene: dict, mesh: Path) -> tuple[list[float], float]:
 
 def write_inputs(scene_dir: Path, out: Path) -> dict:
     """Write the user's files for benchmark `scene_dir` into `out`: photo.png, lines.json, room.json,
-    probe_0N.png, chair/sphere mesh as object.ply. Returns the numbers a user would type."""
+    ball_N.png, the object's mesh as object.ply. Returns the numbers a user would type (the
+    object's albedo is the product's colour, which the user knows)."""
     scene = json.loads((scene_dir / "scene.json").read_text())
     out.mkdir(parents=True, exist_ok=True)
     shutil.copy(scene_dir / "background.png", out / "photo.png")
@@ -75,7 +76,8 @@ def write_inputs(scene_dir: Path, out: Path) -> dict:
     place, yaw = object_pose(scene, mesh)
     return {"scene": scene, "photo": out / "photo.png", "lines": out / "lines.json", "room": out / "room.json",
             "probes": probes, "mesh": out / "object.ply", "exposure": scene["main_camera"]["exposure_time"],
-            "height": scene["main_camera"]["centre"][1], "place": place, "yaw": yaw, **pa}
+            "height": scene["main_camera"]["centre"][1], "place": place, "yaw": yaw,
+            "albedo": scene["synthetic_object"]["albedo"], **pa}
 
 
 def fmt(v) -> str:

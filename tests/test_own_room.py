@@ -18,7 +18,7 @@ from tests.own_room import fmt, own_room_cache, scene_argv, write_inputs  # noqa
 def _composite(room, out, inp, cache):
     return main(["-q", "composite", str(room), "--out", str(out), "--lighting", "captured",
                  "--object", str(inp["mesh"]), "--place", fmt(inp["place"]), "--yaw", repr(inp["yaw"]),
-                 "--cache", str(cache)])
+                 "--object-albedo", fmt(inp["albedo"]), "--cache", str(cache)])
 
 
 @pytest.mark.parametrize("name", ["window_room", "lamps_room"])

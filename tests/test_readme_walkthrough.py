@@ -36,7 +36,7 @@ def test_walkthrough_runs(tmp_path, own_room_cache):
                CAMERA_HEIGHT=repr(inp["height"]), PHOTO_TIME=repr(inp["exposure"]),
                BALL_TIMES=" ".join(map(repr, inp["times"])), BALL_CENTRE=fmt(inp["centre"]),
                BALL_RADIUS=repr(inp["radius"]), BALL_SHOT_FROM=fmt(inp["shot_from"]), PLACE=fmt(inp["place"]),
-               YAW=repr(inp["yaw"]))
+               YAW=repr(inp["yaw"]), OBJECT_ALBEDO=fmt(inp["albedo"]))
     prelude = f'photoar() {{ "{sys.executable}" -m app.cli -q "$@"; }}\n'
     for cmd in walkthrough_commands():
         r = subprocess.run(["bash", "-c", prelude + cmd], cwd=tmp_path, env=env, capture_output=True, text=True)
