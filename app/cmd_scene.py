@@ -106,9 +106,10 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
     if not (np.isfinite(t) and t > 0):
         raise ValueError(f"--exposure-time: must be a positive number of seconds, got {t}")
     asm.check_camera_in_room(cam, lo, hi, str(a.camera), str(a.primitives))
-    if cam["ill_conditioned"] or (cam["focal_rel_sigma"] or 0) > 0.05:
-        log.warning("%s: the focal length is uncertain (std(f)/f = %.1f %%)", a.camera,
-                    100 * float(cam["focal_rel_sigma"] or float("nan")))
+    rel = cam["focal_rel_sigma"]
+    if cam["ill_conditioned"] or (isinstance(rel, (int, float)) and rel > 0.05):
+        log.warning("%s: the focal length is uncertain%s: the composite may be misregistered", a.camera,
+                    f" (std(f)/f = {rel:.1%})" if isinstance(rel, (int, float)) else "")
 
     images = {"background.png": photo}
     light_probe = None
@@ -183,6 +184,10 @@ def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
             raise ValueError(f"--probe: {e}") from None
         log.info("probe pose check: log-luminance correlation with the photo %.2f (turned 180 deg: %.2f)",
                  chk.corr_given, chk.corr_turned)
+        if not np.isfinite(chk.corr_given):
+            log.warning("--probe-shot-from: the probe pose could not be checked (the probe and the photo see too "
+                        "few surface points in common)")
+            return lp
         if chk.turned_fits_better:
             raise ValueError(f"--probe-shot-from: the probe images disagree with the pose (correlation with the photo "
                              f"{chk.corr_given:.2f}; with the ball shot from the opposite side {chk.corr_turned:.2f}): "
