@@ -54,14 +54,16 @@ def register(sub) -> None:
     g.add_argument("--probe-centre", type=_triple, default=None, metavar="X,Y,Z", help="ball centre (m, world)")
     g.add_argument("--probe-radius", type=float, default=None, metavar="R", help="ball radius (m)")
     g.add_argument("--probe-shot-from", type=_triple, default=None, metavar="X,Y,Z",
-                   help="where the ball was photographed from (m, world; the camera held upright)")
+                   help="where the ball was photographed from (m, world; the camera held upright). A value "
+                        "starting with '-' needs '=': --probe-shot-from=-0.5,1.2,2")
     g.add_argument("--probe-circle", choices=["inscribed", "auto"], default="inscribed",
                    help="inscribed: the images are square crops with the ball as their inscribed circle; auto: find "
                         "the ball in wider photos and crop it (default %(default)s)")
     g.add_argument("--skip-probe-check", action="store_true",
                    help="do not compare the probe pose with the images (see docs/scene-format.md)")
     s = p.add_argument_group("sun (a room lit through an opening)")
-    s.add_argument("--sun-direction", type=_triple, default=None, metavar="X,Y,Z", help="towards the sun (world)")
+    s.add_argument("--sun-direction", type=_triple, default=None, metavar="X,Y,Z", help="towards the sun (world); a value starting with '-' needs '=': "
+                        "--sun-direction=-0.74,0.62,0.27")
     s.add_argument("--sun-irradiance", type=_triple, default=None, metavar="R,G,B",
                    help="the sun's irradiance on a surface facing it (scene radiance units x sr)")
     p.set_defaults(run=run)

@@ -426,3 +426,19 @@ def test_model_output_as_primitives(inputs, capsys):
             if x is not None:
                 np.testing.assert_allclose(x, y, atol=1e-9, err_msg=k)
         assert a[k][3] == b[k][3]
+
+
+def test_sun_option_writes_the_sun(inputs, capsys):
+    """--sun-direction/--sun-irradiance (negative X written with '=') add FORMAT.md's sun entry,
+    and the folder still loads (the sun is outside the room model)."""
+    from recon.scene import load_scene
+
+    room = inputs["tmp"] / "room_sun"
+    argv = scene_argv(inputs, room, inputs["camera"]) + ["--skip-probe-check", "--sun-direction=-0.74,0.62,0.27",
+                                                         "--sun-irradiance", "50,48,43"]
+    rc, err = _run(argv, capsys)
+    assert rc == 0, err
+    sun = [p for p in json.loads((room / "scene.json").read_text())["primitives"] if p["type"] == "sun"]
+    assert len(sun) == 1 and sun[0]["irradiance_perpendicular"] == [50.0, 48.0, 43.0]
+    assert np.linalg.norm(sun[0]["direction_to_sun"]) == pytest.approx(1.0)
+    load_scene(room)
