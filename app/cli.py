@@ -33,6 +33,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "app.cmd_metrics",
     "app.cmd_tonemap",
     "app.cmd_gui",
+    "app.cmd_scene",
 )
 
 

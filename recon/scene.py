@@ -63,7 +63,7 @@ class Scene:
     camera: Camera
     quads: list[Quad]
     obj: SceneObject | None
-    response: CameraResponse
+    response: CameraResponse | None  # None: not given (captured light recovers it)
     photo: np.ndarray  # (H,W,3) uint8 RGB, the empty room
     room_min: np.ndarray
     room_max: np.ndarray
@@ -230,7 +230,9 @@ def parse_primitives(d, path: str | os.PathLike) -> list[PrimitiveSpec]:
     prims = json_field(d, "primitives", "", path)
     if not isinstance(prims, list) or not prims:
         raise SceneError(f"{path}: field 'primitives' must be a non-empty list")
-    return [parse_primitive(p, f"primitives[{i}]", path) for i, p in enumerate(prims)]
+    # the sun is a far disk outside the room (FORMAT.md), not a room primitive
+    return [parse_primitive(p, f"primitives[{i}]", path) for i, p in enumerate(prims)
+            if not (isinstance(p, dict) and p.get("type") == "sun")]
 
 
 def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scene:
@@ -250,15 +252,18 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         raise SceneError(f"{path}: field 'world.room_max' must exceed 'world.room_min'")
 
     cam = json_field(d, "main_camera", "", path)
+    json_field(cam, "exposure_time", "main_camera.", path)  # never defaulted: a wrong exposure scales the object
     camera = Camera.from_json(cam, path, "main_camera.")
     width, height, exposure = camera.width, camera.height, camera.exposure_time
 
-    resp = json_field(d, "camera_response", "", path)
-    try:
-        response = CameraResponse(json_field(resp, "forward_table", "camera_response.", path),
-                                  json_field(resp, "inverse_table", "camera_response.", path), exposure)
-    except ValueError as e:
-        raise SceneError(f"{path}: field 'camera_response': {e}") from None
+    response = None  # optional: captured light recovers it from the probe bracket
+    if "camera_response" in d:
+        resp = d["camera_response"]
+        try:
+            response = CameraResponse(json_field(resp, "forward_table", "camera_response.", path),
+                                      json_field(resp, "inverse_table", "camera_response.", path), exposure)
+        except ValueError as e:
+            raise SceneError(f"{path}: field 'camera_response': {e}") from None
 
     quads: list[Quad] = []
     for p in parse_primitives(d, path):

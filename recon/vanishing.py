@@ -320,7 +320,7 @@ def _rotmat(r: np.ndarray) -> np.ndarray:
 def calibrate(families: dict[str, np.ndarray], width: int, height: int, origin=None,
               camera_height: float | None = None, known_length: dict | None = None,
               principal_point=None, flip_xz: bool = False, max_focal_rel_sigma: float = 0.05,
-              raise_ill_conditioned: bool = True, sigma_px: float = NOISE_FLOOR_PX, pp_sigma_px: float | None = None,
+              refuse_focal_rel_sigma: float = 0.15, raise_ill_conditioned: bool = True, sigma_px: float = NOISE_FLOOR_PX, pp_sigma_px: float | None = None,
               image: np.ndarray | None = None, src: str = "<lines>") -> Calibration:
     """Calibrated camera from line families {axis: (N,4) pixel segments}; see the module docstring.
 
@@ -328,7 +328,9 @@ def calibrate(families: dict[str, np.ndarray], width: int, height: int, origin=N
     significantly from the image centre, else the image centre). `image`: the photo (H,W[,3] uint8);
     given, the segments are snapped to its edges (recon/edgesnap.py) and weighted by their noise.
     Raises ValueError naming `src` on bad input (also an image of another size), IllConditionedError
-    when std(f)/f > max_focal_rel_sigma (unless raise_ill_conditioned is False), or when eq. 1 has
+    when std(f)/f > refuse_focal_rel_sigma (the focal length is undetermined; unless
+    raise_ill_conditioned is False; above max_focal_rel_sigma the result is only flagged
+    `ill_conditioned` with a note), or when eq. 1 has
     no solution while the VPs lie far outside the image (a near-frontal view). `sigma_px`: the noise
     of the segments as given (per endpoint, px: 0.5 for hand-clicked endpoints, lower for fitted
     lines); it weights them in the fit and is the floor of the noise assumed for std(f);
@@ -452,10 +454,15 @@ def calibrate(families: dict[str, np.ndarray], width: int, height: int, origin=N
     vps = {a: VanishingPoint(_unit(K @ R[:, idx[a]]), vps[a].inliers,
                              np.abs(_seg_residual(used[a], K @ R[:, idx[a]])), snap_mask[a], used[a]) for a in vps}
     if ill:
-        msg = (f"{src}: ill-conditioned vanishing points (std(f)/f = {rel:.3g} > {max_focal_rel_sigma}): a line "
-               "family is nearly parallel in the image (near-frontal view), so the focal length is undetermined")
-        if raise_ill_conditioned:
-            raise IllConditionedError(msg)
+        if not rel <= refuse_focal_rel_sigma:
+            msg = (f"{src}: ill-conditioned vanishing points (std(f)/f = {rel:.3g} > {refuse_focal_rel_sigma}): a "
+                   "line family is nearly parallel in the image (near-frontal view), so the focal length is "
+                   "undetermined")
+            if raise_ill_conditioned:
+                raise IllConditionedError(msg)
+        else:
+            msg = (f"{src}: the focal length is uncertain: std(f)/f = {rel:.1%} (> {max_focal_rel_sigma:.0%}); "
+                   "lines that converge more strongly (a view more oblique to the walls) would pin it down")
         notes.append(msg)
 
     t, scale = _translation(K, R, origin, camera_height, known_length, src)

@@ -1,0 +1,247 @@
+"""`photoar scene ROOM --photo PHOTO --exposure-time S --camera CAMERA.json --primitives MODEL.json
+[--probe IMG... --probe-times T... --probe-centre X,Y,Z --probe-radius R --probe-shot-from X,Y,Z
+[--probe-circle auto]] [--sun-direction X,Y,Z --sun-irradiance R,G,B]`
+
+Assembles and validates a room folder (docs/scene-format.md, scene format 1): ROOM/scene.json,
+background.png (the photo, turned upright by its EXIF orientation), probe_XX.png (the bracket,
+shortest exposure first; cropped to the ball with --probe-circle auto), camera.json and
+primitives.json (copies of the inputs). The folder is staged beside ROOM and swapped in whole;
+files a previous run wrote and this one does not are gone, other files in ROOM are kept.
+The logic lives in recon/assemble.py (pure functions); this module reads and writes files.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger("photoar")
+
+OWNED = ("scene.json", "background.png", "camera.json", "primitives.json")
+
+
+def _triple(s: str) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(x) for x in s.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z numbers, got {s!r}") from None
+    if len(v) != 3 or not all(np.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z, got {s!r}")
+    return v
+
+
+def register(sub) -> None:
+    p = sub.add_parser("scene", help="assemble a room folder (scene.json) from a photo, its camera, a room model "
+                                     "and a mirror-ball bracket")
+    p.add_argument("room", type=Path, help="the room folder to write (created or updated)")
+    p.add_argument("--photo", type=Path, required=True, help="the photo of the empty room (JPEG/PNG)")
+    p.add_argument("--exposure-time", type=float, default=None, metavar="S",
+                   help="the photo's exposure time in seconds (default: its EXIF ExposureTime)")
+    p.add_argument("--camera", type=Path, required=True, help="camera.json of `photoar calibrate`")
+    p.add_argument("--primitives", type=Path, required=True,
+                   help="the room model: model.json of `photoar model`, primitives.json of `photoar reconstruct`, "
+                        'or {"primitives": [...]} with a box of role "room" (docs/scene-format.md)')
+    g = p.add_argument_group("light probe (a mirror-ball exposure bracket, for --lighting captured)")
+    g.add_argument("--probe", type=Path, nargs="+", default=None, metavar="IMG", help="the bracket's images")
+    g.add_argument("--probe-times", type=float, nargs="+", default=None, metavar="T",
+                   help="their exposure times in seconds, in the same order (default: EXIF ExposureTime)")
+    g.add_argument("--probe-centre", type=_triple, default=None, metavar="X,Y,Z", help="ball centre (m, world)")
+    g.add_argument("--probe-radius", type=float, default=None, metavar="R", help="ball radius (m)")
+    g.add_argument("--probe-shot-from", type=_triple, default=None, metavar="X,Y,Z",
+                   help="where the ball was photographed from (m, world; the camera held upright). A value "
+                        "starting with '-' needs '=': --probe-shot-from=-0.5,1.2,2")
+    g.add_argument("--probe-circle", choices=["inscribed", "auto"], default="inscribed",
+                   help="inscribed: the images are square crops with the ball as their inscribed circle; auto: find "
+                        "the ball in wider photos and crop it (default %(default)s)")
+    g.add_argument("--skip-probe-check", action="store_true",
+                   help="do not compare the probe pose with the images (see docs/scene-format.md)")
+    s = p.add_argument_group("sun (a room lit through an opening)")
+    s.add_argument("--sun-direction", type=_triple, default=None, metavar="X,Y,Z", help="towards the sun (world); a value starting with '-' needs '=': "
+                        "--sun-direction=-0.74,0.62,0.27")
+    s.add_argument("--sun-irradiance", type=_triple, default=None, metavar="R,G,B",
+                   help="the sun's irradiance on a surface facing it (scene radiance units x sr)")
+    p.set_defaults(run=run)
+
+
+def read_photo(path: Path) -> tuple[np.ndarray, float | None]:
+    """Upright 8-bit RGB image and its EXIF exposure time (None if absent); errors name the file."""
+    import cv2
+
+    from recon.exif import read_exif, upright
+
+    if not path.is_file():
+        raise ValueError(f"{path}: file not found")
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+    if img is None:
+        raise ValueError(f"{path}: not a readable image")
+    ex = read_exif(path)
+    return upright(img[..., ::-1], ex.orientation), ex.exposure_time
+
+
+def _read_json(path: Path):
+    from recon.io import read_json
+
+    return read_json(path)
+
+
+def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[str, bytes]]:
+    """The scene dict, the images to write (name -> RGB uint8) and the files to copy (name -> bytes)."""
+    from recon import assemble as asm
+
+    cam_raw = _read_json(a.camera)
+    cam = asm.parse_camera(cam_raw, str(a.camera))
+    prims_raw = _read_json(a.primitives)
+    prims, lo, hi = asm.parse_primitives(prims_raw, str(a.primitives))
+    photo, exif_t = read_photo(a.photo)
+    if photo.shape[:2] != (cam["height"], cam["width"]):
+        raise ValueError(f"{a.photo}: image is {photo.shape[1]}x{photo.shape[0]} (upright), {a.camera} says "
+                         f"{cam['width']}x{cam['height']}")
+    t = a.exposure_time if a.exposure_time is not None else exif_t
+    if t is None:
+        raise ValueError(f"{a.photo}: no exposure time: give --exposure-time S (the file has no EXIF ExposureTime)")
+    if not (np.isfinite(t) and t > 0):
+        raise ValueError(f"--exposure-time: must be a positive number of seconds, got {t}")
+    asm.check_camera_in_room(cam, lo, hi, str(a.camera), str(a.primitives))
+    rel = cam["focal_rel_sigma"]
+    if cam["ill_conditioned"] or (isinstance(rel, (int, float)) and rel > 0.05):
+        log.warning("%s: the focal length is uncertain%s: the composite may be misregistered", a.camera,
+                    f" (std(f)/f = {rel:.1%})" if isinstance(rel, (int, float)) else "")
+
+    images = {"background.png": photo}
+    light_probe = None
+    if a.probe:
+        light_probe = _probe(a, cam, prims, lo, hi, photo, t, images)
+    elif any(x is not None for x in (a.probe_times, a.probe_centre, a.probe_radius, a.probe_shot_from)):
+        raise ValueError("--probe: probe options given without the --probe images")
+    sun = None
+    if (a.sun_direction is None) != (a.sun_irradiance is None):
+        raise ValueError("--sun-direction/--sun-irradiance: give both or neither")
+    if a.sun_direction is not None:
+        sun = asm.sun_primitive(a.sun_direction, a.sun_irradiance, lo, hi)
+    scene = asm.scene_dict(a.room.name, cam, t, prims, lo, hi, light_probe, sun)
+    copies = {"camera.json": a.camera.read_bytes(), "primitives.json": a.primitives.read_bytes()}
+    return scene, images, copies
+
+
+def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
+    from recon import assemble as asm
+
+    for opt in ("probe_centre", "probe_radius", "probe_shot_from"):
+        if getattr(a, opt) is None:
+            raise ValueError(f"--{opt.replace('_', '-')}: required with --probe (the ball's tape-measured pose)")
+    if not a.probe_radius > 0:
+        raise ValueError(f"--probe-radius: must be positive, got {a.probe_radius}")
+    shots, times = [], []
+    for f in a.probe:
+        img, et = read_photo(f)
+        shots.append(img)
+        times.append(et)
+    if a.probe_times is not None:
+        if len(a.probe_times) != len(a.probe):
+            raise ValueError(f"--probe-times: {len(a.probe_times)} times for {len(a.probe)} --probe images")
+        times = list(a.probe_times)
+    for f, et in zip(a.probe, times):
+        if et is None:
+            raise ValueError(f"{f}: no exposure time: give --probe-times (the file has no EXIF ExposureTime)")
+        if not (np.isfinite(et) and et > 0):
+            raise ValueError(f"--probe-times: exposure times must be positive seconds, got {et} for {f}")
+    if len(set(times)) != len(times):
+        raise ValueError(f"--probe-times: exposure times must differ, got {times}")
+    if len(shots) < 2:
+        raise ValueError(f"--probe: a bracket needs at least two exposures, got {len(shots)}")
+    for f, img in zip(a.probe[1:], shots[1:]):
+        if img.shape != shots[0].shape:
+            raise ValueError(f"{f}: image is {img.shape[1]}x{img.shape[0]}, {a.probe[0]} is "
+                             f"{shots[0].shape[1]}x{shots[0].shape[0]}: a bracket's images share one size")
+    if a.probe_circle == "auto":
+        from recon.probecircle import crop_ball, find_ball_in_bracket
+
+        c = find_ball_in_bracket(shots, [str(f) for f in a.probe])
+        log.info("probe ball at (%.2f, %.2f) px, radius %.2f px", *c)
+        shots = [crop_ball(img, *c) for img in shots]
+    elif shots[0].shape[0] != shots[0].shape[1]:
+        raise ValueError(f"{a.probe[0]}: probe image is {shots[0].shape[1]}x{shots[0].shape[0]}: with "
+                         "--probe-circle inscribed it must be a square crop with the ball as its inscribed circle "
+                         "(use --probe-circle auto for a wider photo)")
+    order = np.argsort(times)
+    files = [f"probe_{k:02d}.png" for k in range(len(shots))]
+    for k, i in enumerate(order):
+        images[files[k]] = shots[i]
+    times = [float(times[i]) for i in order]
+    asm.check_probe_inside(a.probe_centre, a.probe_radius, a.probe_shot_from, lo, hi)
+    lp = asm.light_probe_block(a.probe_centre, a.probe_radius, a.probe_shot_from, shots[0].shape[0], files, times)
+    if not a.skip_probe_check:
+        from recon.probecheck import check_probe_pose
+
+        try:
+            chk = check_probe_pose(lp, a.probe_shot_from, [shots[i] for i in order], times, photo, photo_t, cam,
+                                   prims)
+        except ValueError as e:
+            raise ValueError(f"--probe: {e}") from None
+        log.info("probe pose check: log-luminance correlation with the photo %.2f (turned 180 deg: %.2f)",
+                 chk.corr_given, chk.corr_turned)
+        if not np.isfinite(chk.corr_given):
+            log.warning("--probe-shot-from: the probe pose could not be checked (the probe and the photo see too "
+                        "few surface points in common)")
+            return lp
+        if chk.turned_fits_better:
+            raise ValueError(f"--probe-shot-from: the probe images disagree with the pose (correlation with the photo "
+                             f"{chk.corr_given:.2f}; with the ball shot from the opposite side {chk.corr_turned:.2f}): "
+                             "check the shot-from point (or pass --skip-probe-check)")
+        if not chk.corr_given > 0.5:
+            log.warning("--probe-shot-from: the probe images agree poorly with the photo for this pose "
+                        "(log-luminance correlation %.2f)", chk.corr_given)
+    return lp
+
+
+def write_room(room: Path, scene: dict, images: dict[str, np.ndarray], copies: dict[str, bytes]) -> None:
+    """Stage the folder beside `room` and swap it in; keep files in `room` that no run of `scene` wrote."""
+    from recon.io import write_json, write_png
+
+    room = Path(room)
+    parent = room.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{room.name}.partial-", dir=parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(stage, 0o777 & ~umask)  # mkdtemp makes it private; the room folder is an ordinary one
+    try:
+        for name, img in images.items():
+            write_png(stage / name, img)
+        for name, data in copies.items():
+            (stage / name).write_bytes(data)
+        write_json(stage / "scene.json", scene)
+        old = None
+        if room.exists():
+            owned = set(OWNED)
+            try:
+                prev = json.loads((room / "scene.json").read_text())
+                owned |= set(prev.get("light_probe", {}).get("ldr_files", []))
+            except (OSError, ValueError, AttributeError):
+                pass
+            for f in room.iterdir():
+                if f.name not in owned and not f.name.startswith("probe_") and not (stage / f.name).exists():
+                    os.replace(f, stage / f.name)  # the user's own files stay
+            old = Path(tempfile.mkdtemp(prefix=f".{room.name}.old-", dir=parent))
+            os.replace(room, old / "room")
+        os.replace(stage, room)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        if stage.exists():
+            shutil.rmtree(stage, ignore_errors=True)
+
+
+def run(a: argparse.Namespace) -> int:
+    if a.room.exists() and not a.room.is_dir():
+        raise ValueError(f"{a.room}: exists and is not a folder")
+    scene, images, copies = assemble(a)
+    write_room(a.room, scene, images, copies)
+    print(a.room / "scene.json")
+    return 0
