@@ -41,7 +41,8 @@ class SfmOptions:
     max_features: SIFT features per image; max_image_size: longest side used for extraction (px,
     the poses and K stay in full-resolution pixels); single_camera: True = one shared camera,
     False = one per image, None = shared when all images have the same size and EXIF camera
-    model (COLMAP's `exif_camera_model`); camera: known intrinsics (K, width, height), shared
+    model (COLMAP's `exif_camera_model`), or the same size and no EXIF camera at all (photos
+    exported from one camera; per-image focal lengths then cost 5-9 cm on far walls, issue 18); camera: known intrinsics (K, width, height), shared
     and held fixed; num_threads: CPU threads for every stage; seed: COLMAP's random seed.
     """
 
@@ -156,7 +157,7 @@ def list_images(folder: Path) -> tuple[list[str], dict[str, str]]:
 
 
 def _shared_exif_camera(folder: Path, names: list[str]) -> bool:
-    """True when every image has the same size and the same (present) EXIF camera model."""
+    """True when every image has the same size and the same EXIF camera model (or none has one)."""
     import pycolmap
 
     keys = set()
@@ -165,7 +166,7 @@ def _shared_exif_camera(folder: Path, names: list[str]) -> bool:
         if b is None:
             return False
         keys.add((b.width, b.height, b.exif_camera_model()))
-    return len(keys) == 1 and next(iter(keys))[2] is not None
+    return len(keys) == 1  # one size and one EXIF camera model, or none on any (exported from one camera)
 
 
 def _to_camera(image, cam) -> Camera:

@@ -71,11 +71,11 @@ def scene_sfm(request, tmp_path_factory):
 
 @pytest.fixture(scope="module", params=["window_room", "lamps_room"])
 def scene_sfm_free(request, tmp_path_factory):
-    """SfM without any camera: one shared self-calibrated camera (--single-camera)."""
+    """SfM without any camera, default options: one shared self-calibrated camera (same size, no EXIF)."""
     scene = shared_scene(request.param)
     folder = tmp_path_factory.mktemp(request.param + "_free")
     d, known = scene_views(scene, folder)
-    res = mv.reconstruct(folder, sfm_opts(single_camera=True), progress=False)
+    res = mv.reconstruct(folder, sfm_opts(), progress=False)
     return d, known, res, folder
 
 
@@ -173,6 +173,7 @@ def test_uncalibrated_room_matches_truth_up_to_similarity(scene_sfm_free):
     from app.cmd_reconstruct import align_and_fit
 
     d, known, res, _ = scene_sfm_free
+    assert len({c.K[0, 0] for c in res.cameras.values()}) == 1  # one shared camera: same size, no EXIF
     truth = {p["name"]: p for p in d["primitives"]}
     out, fit, scale = align_and_fit(res, None)
     assert scale["source"] == "none" and scale["metres_per_unit"] is None and out.units == "sfm"
