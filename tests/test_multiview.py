@@ -195,7 +195,7 @@ def test_uncalibrated_room_matches_truth_up_to_similarity(scene_sfm_free):
               f"room {np.round(f.hi - f.lo, 3).tolist()}")
         assert abs(s2 - 1) < 0.03, (sc, s2)
         assert abs(sc["metres_per_unit"] / sim.s - 1) < 0.03
-    assert abs(fit_h.surfaces["floor"].position) < 1e-3  # floor at y = 0 (the refit moves it < 1 mm)
+    assert abs(fit_h.surfaces["floor"].position) < 0.005  # floor at y = 0 (the refit's RANSAC moves it by mm)
 
 
 def _args(folder: Path, out: Path, **kw):
