@@ -139,14 +139,16 @@ def parse_room_size(text: str | None) -> tuple[float, float, float] | None:
     return v
 
 
-def _fit(res, up, ref: str | None = None, margin: float | None = None, room_size=None):
+def _fit(res, up, ref: str | None = None, margin: float | None = None, room_size=None, aligned: bool = False):
+    """fit_room on an SfM result; aligned: the frame's axes are the room's (walls snapped to them)."""
     from recon.roomfit import FitOptions, fit_room
 
     C = np.array([c.centre for c in res.cameras.values()])
     ups = np.array([-c.R[1] for c in res.cameras.values()])
     right = tuple(res.cameras[ref].R[0]) if ref is not None else None
     return fit_room(res.points, res.colors, C, ups,
-                    FitOptions(up=up, margin=margin, room_size=room_size, ref_right=right))
+                    FitOptions(up=up, margin=margin, room_size=room_size, ref_right=right,
+                               axes=np.eye(3) if aligned else None))
 
 
 def _distance_scale(res, kd: tuple[str, str, float]) -> tuple[float, str]:
@@ -187,7 +189,7 @@ def align_and_fit(res, known: tuple[Camera, str] | None, camera_height: float | 
             s, detail = _distance_scale(res, known_distance)
             source = "known-distance"
         else:
-            fit0 = _fit(res.transformed(sim0), up)
+            fit0 = _fit(res.transformed(sim0), up, aligned=True)
             n, d = fit0.surface_plane("floor")
             s = mv.scale_from_height(float(n @ cam.centre + d), 0.0, float(cam.centre[1]))
             source, detail = "camera", (f"height of {name} above the fitted floor = its calibrated height "
@@ -195,7 +197,8 @@ def align_and_fit(res, known: tuple[Camera, str] | None, camera_height: float | 
         sim = sim0.then(mv.scale_about(cam.centre, s))
         out = res.transformed(sim, "m", f"pose of {name}; scale: {detail}")
         scale = {"source": source, "metres_per_unit": float(s), "detail": detail}
-        return out, _fit(out, up, margin=WALL_MARGIN_M, room_size=room_size), scale
+        # the calibrated world's X and Z come from the room's vanishing lines: the room is aligned with them
+        return out, _fit(out, up, margin=WALL_MARGIN_M, room_size=room_size, aligned=True), scale
     ref = ref or res.registered[0]
     if ref not in res.cameras:
         raise RuntimeError(f"{ref}: the reference photo (--camera-image) was not registered "
@@ -225,7 +228,7 @@ def align_and_fit(res, known: tuple[Camera, str] | None, camera_height: float | 
     out = res.transformed(sim, "m" if metric else "sfm", f"{how}; scale: {detail}")
     scale = {"source": source, "metres_per_unit": float(s) if metric else None, "detail": detail}
     return out, _fit(out, up, ref, margin=WALL_MARGIN_M if metric else None,
-                     room_size=room_size if metric else None), scale
+                     room_size=room_size if metric else None, aligned=True), scale
 
 
 def _cameras_json(res, timings: dict, scale: dict, room_fit: dict, how: str) -> dict:

@@ -58,7 +58,10 @@ class FitOptions:
     WALL_MARGIN_M / EYE_HEIGHT_M x the cameras' mean height above the floor); room_size: taped
     (W, H, D) along the room's x, y, z in the points' units (None: unknown); ref_right: the
     reference camera's right axis (R[0]) in the points' frame: room x is the horizontal axis
-    closest to it (None: closest to the frame's X)."""
+    closest to it (None: closest to the frame's X); axes: (3,3) rows x, y (up), z of a frame already
+    aligned with the room (a calibrated photo's world, whose X and Z come from the room's own
+    vanishing lines, or the room frame of a first fit): the walls are snapped to these axes
+    instead of turning the frame to the first wall, so that the room box has yaw 0 exactly."""
 
     tol: float | None = None
     up: tuple[float, float, float] | None = None
@@ -73,6 +76,7 @@ class FitOptions:
     margin: float | None = None
     room_size: tuple[float, float, float] | None = None
     ref_right: tuple[float, float, float] | None = None
+    axes: np.ndarray | None = None
 
 
 @dataclass
@@ -195,7 +199,9 @@ def fit_room(points: np.ndarray, colors: np.ndarray | None, cam_centres: np.ndar
     centre = np.median(Q, 0)
     tol = opts.tol or 0.01 * float(np.percentile(np.linalg.norm(Q - centre, axis=1), 90))
     cam_mean = C.mean(0)
-    if opts.up is not None:
+    if opts.axes is not None:
+        up, up_from, up_deg = np.asarray(opts.axes, np.float64)[1], "given (room axes given)", opts.angle_deg
+    elif opts.up is not None:
         up, up_from, up_deg = _unit(np.asarray(opts.up, np.float64)), "given", opts.angle_deg
     elif cam_ups is not None:
         up, up_from, up_deg = up_from_cameras(cam_ups), "floor normal (cameras' mean up to find it)", UPRIGHT_DEG
@@ -240,10 +246,12 @@ def fit_room(points: np.ndarray, colors: np.ndarray | None, cam_centres: np.ndar
                         f"{'given' if opts.up is not None else 'mean camera'} up), lies below every camera and "
                         f"bounds the points (stop: {stop})")
     floors[0]["label"] = "floor"
-    y = up if opts.up is not None else _unit(floors[0]["normal"])
+    y = up if opts.up is not None or opts.axes is not None else _unit(floors[0]["normal"])
     ceilings = [p for p in bounding if p["normal"] @ y < -cos_t]
     walls = [p for p in bounding if abs(p["normal"] @ y) < sin_t]
-    if walls:
+    if opts.axes is not None:
+        a = np.asarray(opts.axes, np.float64)[0]
+    elif walls:
         a = _unit(walls[0]["normal"] - (walls[0]["normal"] @ y) * y)
     elif opts.ref_right is not None:
         r = np.asarray(opts.ref_right, np.float64)
@@ -257,7 +265,7 @@ def fit_room(points: np.ndarray, colors: np.ndarray | None, cam_centres: np.ndar
     x = a if abs(a @ ref) >= abs(b @ ref) else b
     x = x if x @ ref >= 0 else -x
     z = np.cross(x, y)
-    axes = np.stack([x, y, z])
+    axes = np.stack([x, y, z]) if opts.axes is None else np.asarray(opts.axes, np.float64)
     R = Q @ axes.T  # room coordinates
     RC = C @ axes.T
     surfaces: dict[str, Surface] = {}
