@@ -120,7 +120,8 @@ def parse_known_distance(text: str | None) -> tuple[str, str, float] | None:
     try:
         m = float(parts[2])
     except (IndexError, ValueError):
-        raise ValueError(f"--known-distance: expected A,B,METRES (two photo names and a distance), got {text!r}") from None
+        raise ValueError(f"--known-distance: expected A,B,METRES (two photo names and a distance), "
+                         f"got {text!r}") from None
     if not (m > 0 and np.isfinite(m)) or not parts[0] or not parts[1] or parts[0] == parts[1]:
         raise ValueError(f"--known-distance: need two different photos and a positive distance, got {text!r}")
     return Path(parts[0]).name, Path(parts[1]).name, m

@@ -8,8 +8,9 @@ error, and the accuracy figures of issue 7 (temple: worst centre error in % of t
 after a similarity to the published calibration; Sceaux: focal length against openMVG's K; scenes:
 worst rotation / centre error after a similarity to the true cameras and worst plane error of the
 fitted floor and walls, in the calibrated main photo's frame or, without a camera, after a
-similarity on the camera centres; the fitted room's size and how many cameras it contains). Renders go to out/bench/multiview_<set>.png. Timings on a shared 2-core
-machine are inflated by contention.
+similarity on the camera centres; the fitted room's size and how many cameras it contains).
+Renders go to out/bench/multiview_<set>.png. Timings on a shared 2-core machine are inflated by
+contention.
 """
 from __future__ import annotations
 

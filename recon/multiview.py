@@ -42,7 +42,8 @@ class SfmOptions:
     the poses and K stay in full-resolution pixels); single_camera: True = one shared camera,
     False = one per image, None = shared when all images have the same size and EXIF camera
     model (COLMAP's `exif_camera_model`), or the same size and no EXIF camera at all (tried
-    first, see `reconstruct`); camera: known intrinsics (K, width, height), shared and held fixed; num_threads: CPU threads for every stage; seed: COLMAP's random seed.
+    first, see `reconstruct`); camera: known intrinsics (K, width, height), shared and held fixed;
+    num_threads: CPU threads for every stage; seed: COLMAP's random seed.
     """
 
     max_features: int = 4000

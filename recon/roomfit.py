@@ -129,7 +129,8 @@ class RoomFit:
                                       "fraction": float(s.n_points / max(self.n_clean, 1)),
                                       "rms": float(s.rms)},
                           "normal": n.tolist(), "offset": d})
-        return {"name": "room", "type": "box", "role": "room", "center": (((self.lo + self.hi) / 2) @ self.axes).tolist(),
+        centre = ((self.lo + self.hi) / 2) @ self.axes
+        return {"name": "room", "type": "box", "role": "room", "center": centre.tolist(),
                 "size": (self.hi - self.lo).tolist(), "yaw_deg": yaw, "walls": walls}
 
     def surface_plane(self, name: str) -> tuple[np.ndarray, float]:
