@@ -26,8 +26,10 @@ Method (photoar's own, built from Open3D's standard tools):
   4. furniture: points away from the room surfaces, inside the room, clustered by DBSCAN
      (Open3D `cluster_dbscan`); clusters with >= min_box_points become boxes (2-98 percentile
      extents in the room axes), dropped to the floor when they end near it.
-Output: primitives in the scene.json schema of ../shared/scenes/FORMAT.md (quads with corners,
-normal, name, role; boxes with center, size), world frame of the input points.
+Output (`RoomFit.primitives`): the user primitives format of `photoar scene --primitives`: the
+room as one box {name "room", type "box", role "room", center, size, yaw_deg, walls: [{name,
+observed, how, support: {points, fraction, rms}, normal, offset, albedo}]} and furniture boxes
+(role "furniture"), in the world frame of the input points (which must have +Y up).
 """
 from __future__ import annotations
 

@@ -279,7 +279,7 @@ def test_temple_ring_registration_and_centres(tmp_path):
 # ---- bad input --------------------------------------------------------------------------------
 
 
-def test_empty_folder_and_unreadable_images(tmp_path):
+def test_empty_folder_and_unreadable_images(tmp_path, capsys):
     # an empty folder and a folder of undecodable files end in errors that name the folder
     from app.cli import main
 
@@ -297,6 +297,13 @@ def test_empty_folder_and_unreadable_images(tmp_path):
         mv.reconstruct(tmp_path / "missing", progress=False)
     assert main(["-q", "reconstruct", str(empty), "--out", str(tmp_path / "out")]) == 2
     assert not (tmp_path / "out").exists()
+    # bad scale / tape options fail before SfM, naming the option
+    for opt, val, msg in (("--known-distance", "a.png,2", "--known-distance: expected A,B,METRES"),
+                          ("--known-distance", "a.png,a.png,2", "two different photos"),
+                          ("--room-size", "4,2.5", "--room-size: expected three positive numbers"),
+                          ("--room-size", "4,-2.5,3", "--room-size: expected three positive numbers")):
+        assert main(["-q", "reconstruct", str(empty), "--out", str(tmp_path / "out"), opt, val]) == 2
+        assert msg in capsys.readouterr().err
 
 
 def test_two_images_that_do_not_connect(tmp_path):
@@ -454,6 +461,16 @@ def test_view_rendering_paths(tmp_path):
              {"name": "b", "type": "box", "center": [0, 0.5, 0], "size": [0.5, 1, 0.5]}]
     mesh = view.model_mesh(prims)
     assert len(mesh.triangles) == 2 + 12
+    # a room box: observed walls green, guessed ones orange; its mesh faces point inwards
+    room = {"name": "room", "type": "box", "role": "room", "center": [0, 1, 0], "size": [4, 2, 3], "yaw_deg": 0.0,
+            "walls": [{"name": n, "observed": n in ("floor", "back")} for n in
+                      ("floor", "ceiling", "back", "front", "left", "right")]}
+    lines = view.scene_lines({}, [room], 5.0)
+    assert sorted(c for _, _, c in lines).count(view.OBSERVED_RGB) == 2 and len(lines) == 6
+    for name, q, seen in view.room_walls(room):
+        n = np.cross(q[1] - q[0], q[3] - q[0])
+        assert n @ (np.array([0, 1, 0]) - q.mean(0)) > 0, name  # towards the room's centre
+        assert seen == (name in ("floor", "back"))
     img = view._render_cv2(pts, None, cams, prims, *view._view_pose(pts, cams), (320, 240))
     assert img.shape == (240, 320, 3) and (img < 250).any()
     if not view.display_available():
