@@ -36,8 +36,7 @@ def register(sub) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
-    from app.io import AtomicOutput, write_json, write_png
-    from recon.scene import read_image_rgb
+    from recon.io import AtomicOutput, read_image_rgb, write_json, write_png
     from recon.vanishing import calibrate_lines, draw_overlay, load_lines
 
     photo = read_image_rgb(a.image)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -73,20 +72,6 @@ def register(sub) -> None:
     g.set_defaults(run=run)
 
 
-def _write_png_atomic(path: Path, rgb: np.ndarray) -> None:
-    from app.io import write_png
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
-    os.close(fd)
-    try:
-        write_png(Path(tmp), rgb)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
 def run(a: argparse.Namespace) -> int:
     from app.composite import default_cache_dir
     from app.engine import EngineParams
@@ -118,6 +103,7 @@ def run(a: argparse.Namespace) -> int:
     import open3d.visualization.gui as gui
 
     from app.gui import PlacementWindow
+    from recon.io import write_png
 
     app = gui.Application.instance
     app.initialize()
@@ -133,7 +119,7 @@ def run(a: argparse.Namespace) -> int:
              win.last_frame.stats.get("passes") if win.last_frame else "-", params.mode)
     if a.screenshot is not None:
         shot = win.screenshot()
-        _write_png_atomic(a.screenshot, shot)
+        write_png(a.screenshot, shot)  # atomic
         print(a.screenshot)
     win.closed = True
     win.window.close()

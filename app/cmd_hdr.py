@@ -63,18 +63,19 @@ def plot_response(g: np.ndarray, path: Path, size: tuple[int, int] = (640, 420))
     for c, col in enumerate([(40, 40, 220), (40, 160, 40), (220, 80, 40)]):  # R, G, B in BGR
         pts = np.stack([px(lx[:, c]), py(lv)], -1).reshape(-1, 1, 2)
         cv2.polylines(img, [pts], False, col, 2, cv2.LINE_AA)
-    if not cv2.imwrite(str(path), img):
-        raise OSError(f"{path}: could not write PNG")
+    from recon.io import write_png
+
+    write_png(path, img[..., ::-1])  # drawn in OpenCV's BGR
 
 
 def run(a: argparse.Namespace) -> int:
-    from app.io import AtomicOutput, write_exr, write_json
     from lighting import hdr
+    from recon.io import AtomicOutput, read_image_rgb, write_exr, write_json
 
     if len(a.images) != len(a.times):
         raise ValueError(f"{a.images[0]}: {len(a.images)} images but {len(a.times)} --times")
     t0 = time.perf_counter()
-    images = [hdr.read_ldr(p) for p in a.images]
+    images = [read_image_rgb(p) for p in a.images]
     try:
         g = hdr.calibrate_response(images, a.times, a.calibration)
         rad, g = hdr.merge_bracket(images, a.times, g, method=a.merge)

@@ -10,7 +10,6 @@ metrics.json, atomically.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -29,18 +28,12 @@ def register(sub) -> None:
 
 
 def _read(path: Path) -> np.ndarray:
-    from app.io import read_exr
-    from recon.scene import read_image_rgb
+    from recon.io import read_exr, read_image_rgb
 
     if not path.is_file():
         raise FileNotFoundError(f"{path}: file not found")
     if path.suffix.lower() == ".exr":
-        try:
-            img = read_exr(path).astype(np.float64)
-        except ValueError:
-            raise
-        except Exception as e:
-            raise ValueError(f"{path}: not a readable OpenEXR image ({e})") from None
+        img = read_exr(path).astype(np.float64)
         if not np.all(np.isfinite(img)):
             raise ValueError(f"{path}: image has NaN or infinite values")
         return img
@@ -50,8 +43,8 @@ def _read(path: Path) -> np.ndarray:
 def run(a: argparse.Namespace) -> int:
     import cv2
 
-    from app.io import AtomicOutput, write_json, write_png
     from lighting import metrics
+    from recon.io import AtomicOutput, dumps_json, write_json, write_png
 
     A, B = _read(a.a), _read(a.b)
     if A.shape != B.shape:
@@ -74,7 +67,7 @@ def run(a: argparse.Namespace) -> int:
     out = {"a": str(a.a), "b": str(a.b), "mask": str(a.mask) if a.mask else None,
            "units": "8-bit levels" if A.dtype == np.uint8 else "radiance", **metrics.compare(A, B, region)}
     if a.scene is not None:
-        from recon.scene import read_image_rgb
+        from recon.io import read_image_rgb
 
         if A.dtype != np.uint8:
             raise ValueError(f"{a.a}: --scene scores 8-bit composites only")
@@ -84,7 +77,7 @@ def run(a: argparse.Namespace) -> int:
         if mk is None:
             raise FileNotFoundError(f"{mk_path}: file not found or unreadable")
         out["score"] = metrics.score_regions(A, bg, B, mk)
-    print(json.dumps(out))
+    print(dumps_json(out, sort_keys=False))  # valid JSON: an infinite PSNR (equal images) is null
     if a.out is not None:
         with AtomicOutput(a.out) as stage:
             write_png(stage / "error.png", metrics.error_heatmap(A, B, a.vmax, region=region))

@@ -26,26 +26,6 @@ def register(sub) -> None:
     p.set_defaults(run=run)
 
 
-def load_camera(path: Path):
-    """recon.camera.Camera from a camera.json (flat fx..t) or a scene.json's main_camera."""
-    from recon.camera import Camera
-
-    from recon.scene import read_json
-
-    d = read_json(path)
-    if isinstance(d, dict) and "main_camera" in d:
-        d = dict(d["main_camera"], **d["main_camera"].get("K", {}))
-    try:
-        K = np.array([[float(d["fx"]), 0, float(d["cx"])], [0, float(d["fy"]), float(d["cy"])], [0, 0, 1.0]])
-        R, t = np.asarray(d["R"], float), np.asarray(d["t"], float)
-        w, h = int(d["width"]), int(d["height"])
-    except (KeyError, TypeError, ValueError) as e:
-        raise ValueError(f"{path}: needs fx, fy, cx, cy, width, height, R (3x3), t (3) ({e})") from None
-    if R.shape != (3, 3) or t.shape != (3,) or not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or K[0, 0] <= 0:
-        raise ValueError(f"{path}: R must be a 3x3 rotation, t 3 numbers, fx positive")
-    return Camera(K, R, t, w, h)
-
-
 def draw_wireframe(photo: np.ndarray, model, camera) -> np.ndarray:
     """RGB uint8 copy of `photo` with every primitive's edges (in front of the camera) and the image
     constraints (target pixel -> projected vertex)."""
@@ -72,12 +52,12 @@ def draw_wireframe(photo: np.ndarray, model, camera) -> np.ndarray:
 
 
 def run(a: argparse.Namespace) -> int:
-    from app.io import AtomicOutput, write_json, write_png
+    from recon.camera import Camera
+    from recon.io import AtomicOutput, read_image_rgb, write_json, write_png
     from recon.primitives import load_model, model_to_dict
-    from recon.scene import read_image_rgb
 
     model = load_model(a.scene)
-    camera = load_camera(a.camera)
+    camera = Camera.load(a.camera)
     photo = read_image_rgb(a.image)
     if photo.shape[:2] != (camera.height, camera.width):
         raise ValueError(f"{a.image}: image is {photo.shape[1]}x{photo.shape[0]}, camera {a.camera} says "

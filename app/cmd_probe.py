@@ -9,7 +9,6 @@ camera). Radiance in the file's units.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +30,7 @@ def register(sub) -> None:
 
 def run(a: argparse.Namespace) -> int:
     from lighting import hdr, probe
+    from recon.io import dumps_json
 
     rad = hdr.load_radiance(a.probe)
     R = probe.up_rotation(a.up or DEFAULT_UP[a.mapping])
@@ -42,5 +42,5 @@ def run(a: argparse.Namespace) -> int:
         raise ValueError(f"{a.probe}: {e}") from None
     if not np.all(np.isfinite(c)):
         raise RuntimeError(f"{a.probe}: SH fit is not finite")
-    print(json.dumps(probe.sh_to_dict(c)))
+    print(dumps_json(probe.sh_to_dict(c), sort_keys=False))
     return 0

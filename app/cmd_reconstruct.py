@@ -11,7 +11,7 @@ primitives.json and model.ply are not, and the message says what failed.
 
 The pipeline (one step per module, like hloc): recon.multiview.reconstruct (pycolmap SfM, the
 largest model kept) -> metric alignment (recon.multiview) -> recon.roomfit.fit_room (room box +
-furniture boxes) -> outputs, written atomically (app.io.AtomicOutput):
+furniture boxes) -> outputs, written atomically (recon.io.AtomicOutput):
   cameras.json     per registered image K, R, t, centre (frame + units stated), the images left out
                    and why, the alignment, the room-fit report, timings
   points.ply       the SfM points (coloured), in the output frame
@@ -29,7 +29,6 @@ scale, else in SfM units. Both files carry "scale": {"source", "metres_per_unit"
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
@@ -81,35 +80,17 @@ def register(sub) -> None:
 
 def load_camera(path: Path, image: str | None) -> tuple[Camera, str]:
     """Camera and the image it belongs to, from a camera.json or a scene.json (main_camera)."""
-    from recon.scene import read_json
+    from recon.io import read_json
 
+    camera = Camera.load(path)
     d = read_json(path)
-    c = d.get("main_camera", d.get("camera", d)) if isinstance(d, dict) else None
-    if not isinstance(c, dict):
-        raise ValueError(f"{path}: expected a JSON object with K, R, t")
-    try:
-        Kd = c.get("K_matrix", c.get("K"))
-        if isinstance(Kd, dict):
-            K = np.array([[Kd["fx"], 0, Kd["cx"]], [0, Kd["fy"], Kd["cy"]], [0, 0, 1]], float)
-            w, h = int(Kd["width"]), int(Kd["height"])
-        else:
-            K = np.array(Kd, float).reshape(3, 3)
-            kd = c.get("K") if isinstance(c.get("K"), dict) else c
-            w, h = int(kd.get("width", c.get("width"))), int(kd.get("height", c.get("height")))
-        R = np.array(c["R"], float).reshape(3, 3)
-        t = np.array(c["t"], float).reshape(3)
-    except (KeyError, TypeError, ValueError) as e:
-        raise ValueError(f"{path}: camera needs K (matrix or fx/fy/cx/cy), width, height, R, t ({e!r})") from None
-    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
-        raise ValueError(f"{path}: camera has non-finite numbers")
-    if abs(np.linalg.det(R) - 1) > 1e-3 or np.abs(R @ R.T - np.eye(3)).max() > 1e-3:
-        raise ValueError(f"{path}: field 'R' is not a rotation matrix")
+    c = d.get("main_camera", d.get("camera", d))
     name = image or c.get("image") or c.get("file") or d.get("image")
     if name is None and "main_camera" in d:
         name = c.get("files", {}).get("background_png", "background.png")
     if name is None:
         raise ValueError(f"{path}: does not say which photo it calibrates; pass --camera-image NAME")
-    return Camera(K, R, t, w, h), Path(str(name)).name
+    return camera, Path(str(name)).name
 
 
 def parse_known_distance(text: str | None) -> tuple[str, str, float] | None:
@@ -247,8 +228,9 @@ def _cameras_json(res, timings: dict, scale: dict, room_fit: dict, how: str) -> 
 
 
 def _write_points(path: Path, res) -> None:
-    import open3d as o3d
+    from recon.io import open3d
 
+    o3d = open3d()
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(res.points))
     pcd.colors = o3d.utility.Vector3dVector(res.colors / 255.0)
     if not o3d.io.write_point_cloud(str(path), pcd):
@@ -257,12 +239,11 @@ def _write_points(path: Path, res) -> None:
 
 def write_outputs(stage: Path, res, fit, timings: dict, scale: dict | None = None) -> str:
     """cameras.json, points.ply, primitives.json, model.ply, view.png into `stage`. Returns the render path."""
-    import open3d as o3d
-
-    from app.io import write_json
     from recon import primitives as prim_mod
+    from recon.io import open3d, write_json
     from recon.view import model_mesh, render_png
 
+    o3d = open3d()
     scale = scale or {"source": "none", "metres_per_unit": None, "detail": ""}
     prims = fit.primitives()
     for p in prims:
@@ -288,7 +269,7 @@ def write_outputs(stage: Path, res, fit, timings: dict, scale: dict | None = Non
 
 def write_partial(stage: Path, res, timings: dict, error: str) -> str:
     """cameras.json, points.ply and view.png of the SfM result (no room) into `stage`."""
-    from app.io import write_json
+    from recon.io import write_json
     from recon.view import render_png
 
     _write_points(stage / "points.ply", res)
@@ -301,7 +282,7 @@ def write_partial(stage: Path, res, timings: dict, error: str) -> str:
 
 def finish(res, a: argparse.Namespace, known: tuple[Camera, str] | None, timings: dict) -> int:
     """Everything after SfM: align, fit, write. Returns the exit status (0, 2 with --strict, 3 partial)."""
-    from app.io import AtomicOutput
+    from recon.io import AtomicOutput
     from recon.multiview import Similarity
 
     t1 = time.perf_counter()
@@ -352,18 +333,18 @@ def run_reconstruct(a: argparse.Namespace) -> int:
 
 
 def run_view(a: argparse.Namespace) -> int:
-    import open3d as o3d
-
+    from recon.io import open3d, read_json
     from recon.view import show
+
+    o3d = open3d()
 
     cams_path = a.dir / "cameras.json"
     for f in (cams_path, a.dir / "points.ply", a.dir / "primitives.json"):
         if not f.is_file():
             raise FileNotFoundError(f"{f}: file not found (is {a.dir} an output of `photoar reconstruct`?)")
-    d = json.loads(cams_path.read_text())
-    cams = {n: Camera(np.array(c["K"]), np.array(c["R"]), np.array(c["t"]), c["width"], c["height"])
-            for n, c in d.get("images", {}).items()}
+    d = read_json(cams_path)
+    cams = {n: Camera.from_json(c, cams_path, f"images.{n}.") for n, c in d.get("images", {}).items()}
     pcd = o3d.io.read_point_cloud(str(a.dir / "points.ply"))
-    prims = json.loads((a.dir / "primitives.json").read_text()).get("primitives", [])
+    prims = read_json(a.dir / "primitives.json").get("primitives", [])
     show(np.asarray(pcd.points), (np.asarray(pcd.colors) * 255).astype(np.uint8), cams, prims)
     return 0

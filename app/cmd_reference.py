@@ -224,7 +224,7 @@ def register(sub) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
-    from app.io import AtomicOutput, write_exr, write_json, write_png
+    from recon.io import AtomicOutput, write_exr, write_json, write_png
     from recon.scene import load_scene
 
     if a.noise_target is not None and not a.noise_target > 0:

@@ -7,8 +7,6 @@ written to a temporary file beside --out and renamed, so it appears whole or not
 from __future__ import annotations
 
 import argparse
-import os
-import tempfile
 from pathlib import Path
 
 
@@ -29,8 +27,8 @@ def register(sub) -> None:
 def run(a: argparse.Namespace) -> int:
     import numpy as np
 
-    from app.io import read_exr, write_png
     from lighting.tonemap import display_tonemap, to_display_pixels
+    from recon.io import read_exr, write_png
 
     if not a.exr.is_file():
         raise FileNotFoundError(f"{a.exr}: file not found")
@@ -38,26 +36,13 @@ def run(a: argparse.Namespace) -> int:
         raise ValueError(f"{a.out}: --out must name a .png file")
     if not (a.gamma > 0 and a.nits_per_unit > 0 and a.ld_max > 0):
         raise ValueError(f"{a.exr}: --gamma, --nits-per-unit and --ld-max must be positive")
-    try:
-        hdr = read_exr(a.exr)
-    except ValueError:
-        raise
-    except Exception as e:  # OpenEXR raises its own types for non-EXR input
-        raise ValueError(f"{a.exr}: not a readable OpenEXR image ({e})") from None
+    hdr = read_exr(a.exr)
     if not np.all(np.isfinite(hdr)):
         raise ValueError(f"{a.exr}: image has NaN or infinite values")
     kw = {"gamma": a.gamma}
     if a.op == "ward":
         kw.update(nits_per_unit=a.nits_per_unit, L_dmax=a.ld_max)
     pixels = to_display_pixels(display_tonemap(hdr, a.op, **kw))
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=a.out.parent, prefix=f".{a.out.stem}.", suffix=".png")
-    os.close(fd)
-    try:
-        write_png(Path(tmp), pixels)
-        os.replace(tmp, a.out)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    write_png(a.out, pixels)  # atomic: a temporary file renamed over --out
     print(a.out)
     return 0

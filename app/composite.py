@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from app.engine import Engine, EngineParams
-from app.io import AtomicOutput, write_exr, write_json, write_png
+from recon.io import AtomicOutput, write_exr, write_json, write_png
 from recon.scene import SceneError, check_object_inside, load_scene, make_object
 
 log = logging.getLogger("photoar")

@@ -26,9 +26,7 @@ import dataclasses
 import hashlib
 import json
 import logging
-import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,10 +47,12 @@ from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from lighting.irradiance import RoomLight
 from lighting.radiance import captured_files, captured_radiance_mesh, load_captured_probe
 from lighting.radiosity import gather
-from lighting.sources import luminance, select_sources
+from lighting.sources import select_sources
 from lighting.transfer import intensity_transfers
+from recon.io import write_npz
 from recon.patches import PatchMesh, build_patches
 from recon.proxy import simplify, subdivide
+from recon.response import luminance
 from recon.scene import Scene, SceneObject
 
 log = logging.getLogger("photoar")
@@ -132,19 +132,6 @@ def _hash_scene(scene: Scene, params: EngineParams) -> str:
             h.update(hashlib.sha256(f.read_bytes()).digest())
         h.update(hashlib.sha256(np.ascontiguousarray(scene.photo).tobytes()).digest())
     return h.hexdigest()
-
-
-def _save_npz_atomic(path: Path, **arrays) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-    os.close(fd)
-    try:
-        with open(tmp, "wb") as fh:  # a file object: np.savez would append ".npz" to a name
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _bar(total: int, desc: str, quiet: bool):
@@ -229,7 +216,7 @@ class Engine:
         pre = Precomputed(patches, G_c, recv_vert, G_v, B, pix_tri, pix_bary, pix_depth, albedo, origin, seconds)
         self._use_lighting(pre)
         if cache is not None:
-            _save_npz_atomic(cache, G_c=G_c, recv_vert=recv_vert, G_v=G_v, B=B, pix_tri=pix_tri, pix_bary=pix_bary,
+            write_npz(cache, G_c=G_c, recv_vert=recv_vert, G_v=G_v, B=B, pix_tri=pix_tri, pix_bary=pix_bary,
                              pix_depth=pix_depth, albedo=albedo, origin=origin, seconds=seconds)
         log.info("precompute: %d patches, %d receiver vertices, %.1f s", n_c, n_v, seconds)
         return pre, False
@@ -276,7 +263,7 @@ class Engine:
         self.shadow_sources = ShadowSources(src, pm.centre, pm.normal, pm.corners, receivers, pre.G_c, pre.G_v,
                                             self.B_src, self.params.leaf_size, self.params.shaft_threshold)
         self.shaft_build_s = time.perf_counter() - t0
-        log.info("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
+        log.debug("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
         self._cost = {"fixed_s": 1.0, "per_pass_s": 0.01}  # refined after every frame
         self.dB_samples = 400  # object vertices that gather the second-order loss (the rest interpolate)
         self._prt_cache = None  # (key, self_transfer result) of the last object shape (_self_transfer)

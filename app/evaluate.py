@@ -48,10 +48,10 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
 
     from app.composite import default_cache_dir
     from app.engine import Engine, EngineParams
-    from app.io import AtomicOutput, write_json, write_png
     from app.report import plot_xy, table
     from lighting import metrics
-    from recon.scene import SceneError, load_scene, read_image_rgb
+    from recon.io import AtomicOutput, read_image_rgb, write_json, write_png
+    from recon.scene import SceneError, load_scene
 
     scene = load_scene(scene_dir)
     if scene.obj is None:

@@ -137,7 +137,9 @@ def room_mesh(ctl: PlacementController):
     """Open3D TriangleMesh of the scene model, one colour per patch: patch radiance through the
     camera response once the engine is ready, the quads' albedo (emitters: their radiance)
     before."""
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     sc = ctl.scene
     eng = ctl.engine
@@ -159,7 +161,9 @@ def room_mesh(ctl: PlacementController):
 
 
 def frustum_lines(ctl: PlacementController, depth: float = 0.5):
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     cam = ctl.scene.camera
     W, H = cam.width, cam.height
@@ -178,9 +182,12 @@ class PlacementWindow:
 
     def __init__(self, ctl: PlacementController, mesh_choices: list[str], title: str = "photoar",
                  width: int = 1280, height: int = 720, object_size: float | None = None):
-        import open3d as o3d
         import open3d.visualization.gui as gui
         import open3d.visualization.rendering as rendering
+
+        from recon.io import open3d
+
+        o3d = open3d()
 
         self.o3d, self.gui, self.rendering = o3d, gui, rendering
         self.ctl = ctl

@@ -22,8 +22,6 @@ states are kept, so undo/redo shows the earlier composite at once and bit for bi
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 import threading
 import time
 from collections import OrderedDict
@@ -33,7 +31,8 @@ from typing import Callable
 
 import numpy as np
 
-from recon.scene import Scene, SceneError, SceneObject, furniture_boxes, load_mesh, load_scene, read_json
+from recon.scene import Scene, SceneError, SceneObject, furniture_boxes, load_mesh, load_scene
+from recon.io import read_json
 
 log = logging.getLogger("photoar")
 
@@ -77,7 +76,9 @@ def load_object_mesh(path: str | Path, size_m: float | None = None, albedo=None,
     and otherwise scales it to 0.6 m (the teapot is 6.4 units wide). Meshes above `max_faces`
     triangles are decimated (quadric error, Open3D): the engine shades every vertex per frame.
     """
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -505,18 +506,10 @@ class PlacementController:
 
     def save(self, path: str | Path) -> Path:
         """Write the placement as JSON atomically (a temporary file renamed over `path`)."""
-        from app.io import write_json
+        from recon.io import write_json
 
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        os.close(fd)
-        try:
-            write_json(Path(tmp), self.to_dict())
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        write_json(path, self.to_dict())
         return path
 
     def load(self, path: str | Path) -> Pose:

@@ -64,5 +64,6 @@ def plot_xy(series: dict[str, tuple[list[float], list[float]]], xlabel: str, yla
         for a, b in pts:
             cv2.circle(img, (px(a), py(b)), 4, col, -1, cv2.LINE_AA)
         cv2.putText(img, name, (W - mr - 170, mt + 20 + 18 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.5, col, 1, cv2.LINE_AA)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), img)
+    from recon.io import write_png
+
+    write_png(path, img[..., ::-1])  # drawn in OpenCV's BGR

@@ -42,9 +42,7 @@ def main() -> None:
             print(f"skip {name}: {path} not available")
             continue
         d = json.loads(path.read_text())
-        c = d["main_camera"]
-        cam = Camera(np.array(c["K_matrix"], float), np.array(c["R"]), np.array(c["t"]), c["K"]["width"],
-                     c["K"]["height"])
+        cam = Camera.load(path)
         room = float(np.linalg.norm(np.subtract(d["world"]["room_max"], d["world"]["room_min"])))
         photo = cv2.imread(str(path.parent / "background.png"))[:, :, ::-1].copy()
         true = lines_from_scene(d, noisy=False)

@@ -23,13 +23,13 @@ sys.path.insert(0, str(ROOT))
 
 from app import composite  # noqa: E402
 from app.engine import Engine, EngineParams  # noqa: E402
-from app.io import read_exr  # noqa: E402
 from app.report import table  # noqa: E402
 from lighting import metrics  # noqa: E402
 from lighting import radiance as R  # noqa: E402
-from lighting.sources import luminance  # noqa: E402
+from recon.io import read_exr, read_image_rgb  # noqa: E402
 from recon.patches import build_patches  # noqa: E402
-from recon.scene import load_scene, read_image_rgb  # noqa: E402
+from recon.response import luminance  # noqa: E402
+from recon.scene import load_scene  # noqa: E402
 
 
 def bench_scene(name: str, d: Path, cache: Path) -> dict:

@@ -23,9 +23,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.engine import Engine, EngineParams  # noqa: E402
-from app.io import write_png  # noqa: E402
 from app.report import plot_xy, table  # noqa: E402
 from kernels.visibility import segments_visible  # noqa: E402
+from recon.io import write_png  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
 

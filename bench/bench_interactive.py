@@ -28,7 +28,8 @@ from app.cli import demo_scene_dir  # noqa: E402
 from app.engine import Engine, EngineParams  # noqa: E402
 from app.report import plot_xy, table  # noqa: E402
 from lighting import metrics  # noqa: E402
-from recon.scene import load_scene, read_image_rgb  # noqa: E402
+from recon.scene import load_scene  # noqa: E402
+from recon.io import read_image_rgb  # noqa: E402
 
 
 def bench_scene(name: str, scene_dir: Path, out: Path) -> list[dict]:

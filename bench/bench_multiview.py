@@ -95,12 +95,7 @@ def bench_scene(name: str, mode: str) -> dict:
 
     scene = SHARED / "scenes" / name
     d = json.loads((scene / "scene.json").read_text())
-
-    def cam(c):
-        return mv.Camera(np.array(c["K_matrix"]), np.array(c["R"]), np.array(c["t"]), c["K"]["width"],
-                         c["K"]["height"])
-
-    known = {"background.png": cam(d["main_camera"])}
+    known = {"background.png": mv.Camera.load(scene / "scene.json")}
     calib = None
     if mode == "calibrated":
         photo = cv2.imread(str(scene / "background.png"))[:, :, ::-1].copy()
@@ -111,7 +106,7 @@ def bench_scene(name: str, mode: str) -> dict:
         (Path(tmp) / "background.png").symlink_to(scene / "background.png")
         for v in d["views"]:
             (Path(tmp) / Path(v["file"]).name).symlink_to(scene / v["file"])
-            known[Path(v["file"]).name] = cam(v)
+            known[Path(v["file"]).name] = mv.Camera.from_json(v, scene / "scene.json", "views.")
         res = mv.reconstruct(Path(tmp), mv.SfmOptions(camera=calib, max_features=8000, peak_threshold=0.002,
                                                       two_view_tracks=True), progress=False)
     err = mv.pose_errors(res.transformed(mv.similarity_from_poses(res, known), "m").cameras, known)

@@ -34,9 +34,7 @@ def main() -> None:
             print(f"skip {name}: {path} not available")
             continue
         d = json.loads(path.read_text())
-        c, K = d["main_camera"], d["main_camera"]["K"]
-        cam = Camera(np.array([[K["fx"], 0, K["cx"]], [0, K["fy"], K["cy"]], [0, 0, 1.0]]), np.array(c["R"]),
-                     np.array(c["t"]), K["width"], K["height"])
+        cam = Camera.load(path)
         model = model_from_dict(d)
         for p in model.prims:  # every vertex in front of the camera pinned where it projects
             uv, z = cam.project(p.vertices())

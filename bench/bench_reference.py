@@ -31,10 +31,10 @@ sys.path.insert(0, str(ROOT))
 
 from app.cmd_reference import LUM, build_tracer, render_reference  # noqa: E402
 from app.engine import Engine, EngineParams  # noqa: E402
-from app.io import read_exr, write_png  # noqa: E402
 from app.report import table  # noqa: E402
 from lighting import metrics  # noqa: E402
-from recon.scene import load_scene, read_image_rgb  # noqa: E402
+from recon.io import read_exr, read_image_rgb, write_png  # noqa: E402
+from recon.scene import load_scene  # noqa: E402
 
 
 def truth_shadow_region(scene_dir: Path) -> np.ndarray:

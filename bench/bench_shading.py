@@ -29,8 +29,8 @@ from kernels.irradiance_volume import build_volume  # noqa: E402
 from kernels.shade import self_transfer  # noqa: E402
 from kernels.visibility import Occluder, transfer_matrix  # noqa: E402
 from lighting import sh  # noqa: E402
-from lighting.sources import luminance  # noqa: E402
 from recon.proxy import subdivide  # noqa: E402
+from recon.response import luminance  # noqa: E402
 from recon.scene import inside_furniture, load_scene  # noqa: E402
 
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from lighting.hierarchy import receiver_octree, source_kdtree
 from lighting.shafts import ShaftHierarchy
-from lighting.sources import luminance
+from recon.response import luminance
 
 
 @dataclass

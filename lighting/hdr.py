@@ -35,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.io import read_image_rgb
+
 log = logging.getLogger(__name__)
 
 LOW, HIGH = 3, 251  # levels trusted for calibration (neither near black nor near saturation)
@@ -43,25 +45,6 @@ SATURATED = 254  # a pixel at or above this in the shortest exposure is clipped:
 
 
 # ----------------------------------------------------------------------------- loading
-
-def read_ldr(path: str | Path) -> np.ndarray:
-    """8-bit image file -> uint8 RGB (H,W,3). Grey images are expanded to 3 channels."""
-    import cv2
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such image")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ValueError(f"{path}: not a readable image")
-    if img.dtype != np.uint8:
-        raise ValueError(f"{path}: expected an 8-bit image, got {img.dtype}")
-    if img.ndim == 2:
-        img = np.repeat(img[..., None], 3, axis=2)
-    if img.shape[2] == 4:
-        img = img[..., :3]
-    return np.ascontiguousarray(img[..., ::-1])
-
 
 def load_radiance(path: str | Path) -> np.ndarray:
     """HDR image (.exr via OpenEXR, .hdr / .pfm via OpenCV) -> float32 RGB (H,W,3), linear.
@@ -73,7 +56,7 @@ def load_radiance(path: str | Path) -> np.ndarray:
         raise FileNotFoundError(f"{path}: no such HDR image")
     ext = path.suffix.lower()
     if ext == ".exr":
-        from app.io import read_exr
+        from recon.io import read_exr
 
         rgb = read_exr(path)
     elif ext in (".hdr", ".pfm"):
@@ -353,7 +336,7 @@ def load_scene_probe(scene_dir: str | Path, response: np.ndarray | None = None, 
     """
     scene_dir = Path(scene_dir)
     paths, times, _ = scene_probe_files(scene_dir)
-    images = [read_ldr(p) for p in paths]
+    images = [read_image_rgb(p) for p in paths]
     try:
         rad, _ = merge_bracket(images, times, response, method=method, calibration=calibration)
     except ValueError as e:

@@ -198,10 +198,11 @@ def captured_files(scene) -> list[Path]:
 def load_captured_probe(scene) -> CapturedProbe:
     """Merge the scene's probe bracket with a response recovered from the bracket itself."""
     from lighting import hdr
-    from lighting.tonemap import CameraResponse
+    from recon.io import read_image_rgb
+    from recon.response import CameraResponse
 
     lp, files, times = _light_probe(scene)
-    images = [hdr.read_ldr(f) for f in files]
+    images = [read_image_rgb(f) for f in files]
     try:
         rad, g = hdr.merge_bracket(images, times)
     except ValueError as e:

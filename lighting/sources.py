@@ -8,12 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
-
-
-def luminance(rgb: np.ndarray) -> np.ndarray:
-    """Rec.709 luminance of (..., 3) linear RGB."""
-    return np.asarray(rgb, np.float64) @ LUMA
+from recon.response import luminance
 
 
 def select_sources(radiance: np.ndarray, area: np.ndarray, fraction: float = 0.7) -> np.ndarray:

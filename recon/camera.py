@@ -5,9 +5,13 @@ the top-left pixel. Units: metres, pixels.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+
+from recon.io import SceneError, json_array, json_field, read_json
 
 
 @dataclass
@@ -18,6 +22,64 @@ class Camera:
     width: int
     height: int
     exposure_time: float = 1.0  # X = radiance * exposure_time enters the camera response
+
+    @classmethod
+    def from_json(cls, d, path: str | os.PathLike, where: str = "") -> "Camera":
+        """Camera from its JSON block; errors name `path` and the field (prefixed with `where`,
+        e.g. "main_camera."), as SceneError.
+
+        Accepted forms (all in the convention of this module):
+          * scene.json's main_camera: {"K": {fx, fy, cx, cy, width, height}, "R", "t",
+            "exposure_time" (optional, default 1)};
+          * `photoar calibrate`'s camera.json: the same "K" object (and flat copies, ignored);
+          * `photoar reconstruct`'s cameras.json entries: "K" (or "K_matrix") a 3x3 matrix,
+            with "width" and "height" beside it.
+        R must be a rotation (orthonormal, det +1), t 3 finite numbers, focal lengths and image
+        size positive."""
+        if not isinstance(d, dict):
+            raise SceneError(f"{path}: field '{where.rstrip('.') or 'camera'}' must be an object")
+        k = d.get("K", d.get("K_matrix"))
+        if isinstance(k, dict):
+            fx, fy, cx, cy = (float(json_array(json_field(k, key, f"{where}K.", path), (), f"{where}K.{key}", path))
+                              for key in ("fx", "fy", "cx", "cy"))
+            K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+            size_from, size_where = (k, f"{where}K.") if "width" in k or "height" in k else (d, where)
+        elif k is not None:
+            key = "K" if "K" in d else "K_matrix"
+            K = json_array(k, (3, 3), f"{where}{key}", path)
+            if not np.allclose(K[2], [0.0, 0.0, 1.0]):
+                raise SceneError(f"{path}: field '{where}{key}' must have last row [0, 0, 1]")
+            size_from, size_where = d, where
+        else:
+            raise SceneError(f"{path}: missing field '{where}K'")
+        size = []
+        for key in ("width", "height"):
+            v = json_field(size_from, key, size_where, path)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or v != int(v) or v <= 0:
+                raise SceneError(f"{path}: field '{size_where}{key}' must be a positive whole number, got {v!r}")
+            size.append(int(v))
+        if not (K[0, 0] > 0 and K[1, 1] > 0):
+            raise SceneError(f"{path}: field '{where}K' must have positive focal lengths, got fx={K[0, 0]}, "
+                             f"fy={K[1, 1]}")
+        R = json_array(json_field(d, "R", where, path), (3, 3), f"{where}R", path)
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+            raise SceneError(f"{path}: field '{where}R' is not a rotation matrix")
+        t = json_array(json_field(d, "t", where, path), (3,), f"{where}t", path)
+        exposure = float(json_array(d.get("exposure_time", 1.0), (), f"{where}exposure_time", path))
+        if not exposure > 0:
+            raise SceneError(f"{path}: field '{where}exposure_time' must be positive")
+        return cls(K, R, t, size[0], size[1], exposure)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Camera":
+        """Camera from a JSON file: `photoar calibrate`'s camera.json, or a scene.json (its
+        main_camera), or {"camera": {...}}; see from_json."""
+        path = Path(path)
+        d = read_json(path, SceneError)
+        for key in ("main_camera", "camera"):
+            if isinstance(d, dict) and key in d:
+                return cls.from_json(d[key], path, f"{key}.")
+        return cls.from_json(d, path)
 
     @property
     def centre(self) -> np.ndarray:

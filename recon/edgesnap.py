@@ -63,7 +63,7 @@ class EdgeImage:
         img = np.asarray(image)
         if img.ndim not in (2, 3) or img.dtype != np.uint8:
             raise ValueError(f"edge snapping needs an 8-bit gray or RGB image, got {img.dtype} {img.shape}")
-        from lighting.sources import luminance
+        from recon.response import luminance
 
         rgb = img if img.ndim == 3 else img[:, :, None]
         lin = (rgb[:, :, :3].astype(np.float32) / 255.0) ** 2.2

@@ -43,13 +43,15 @@ recon/camera.py.
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from recon.io import json_array, read_image_rgb, read_json, write_json
+from recon.scene import box_quads, parse_primitive, quad_primitive, rot_y
 
 log = logging.getLogger(__name__)
 
@@ -60,12 +62,6 @@ SIDES: dict[str, tuple[int, int]] = {"top": (1, 1), "bottom": (1, -1), "right": 
 _LOCKABLE = ("x", "y", "z", "size", "yaw")
 _KNOWN_KEYS = {"name", "type", "role", "albedo", "emitter", "emitted_radiance", "center", "size", "yaw_deg",
                "corners", "normal", "size_m", "parent", "attach", "gap", "locked"}
-
-
-def rot_y(a: float) -> np.ndarray:
-    """(3,3) rotation by `a` radians about world +Y (takes +Z towards +X)."""
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 @dataclass
@@ -170,46 +166,22 @@ class ImageConstraint:
 # ----------------------------------------------------------------------------------------------
 # Loading and saving
 
-def _num(value, shape: tuple, where: str, src: str) -> np.ndarray:
-    try:
-        a = np.asarray(value, float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{src}: field '{where}' is not numeric") from None
-    if a.shape != shape or not np.all(np.isfinite(a)):
-        raise ValueError(f"{src}: field '{where}' must be {shape} finite numbers, got shape {a.shape}")
-    return a
-
-
 def primitive_from_json(p: dict, where: str = "primitives[?]", src: str = "<model>") -> Primitive:
-    """One primitive from its JSON dict (schema in the module docstring); ValueError naming `src`."""
-    if not isinstance(p, dict):
-        raise ValueError(f"{src}: field '{where}' must be an object")
-    name = str(p.get("name", where))
-    kind = p.get("type")
+    """One primitive from its JSON dict (schema in the module docstring; validated by
+    recon.scene.parse_primitive, the one parser of primitives); ValueError naming `src`."""
+    spec = parse_primitive(p, where, src)
     common = dict(parent=p.get("parent"), gap=float(p.get("gap", 0.0)), locked=tuple(p.get("locked", ())),
-                  role=str(p.get("role", "furniture" if kind == "box" else "room")),
-                  albedo=_num(p.get("albedo", [0.5] * 3), (3,), f"{where}.albedo", src),
-                  emitter=bool(p.get("emitter", False)),
-                  emitted_radiance=_num(p.get("emitted_radiance", [0, 0, 0]), (3,), f"{where}.emitted_radiance",
-                                        src),
+                  role=spec.role, albedo=spec.albedo, emitter=spec.emitter, emitted_radiance=spec.emitted_radiance,
                   extra={k: v for k, v in p.items() if k not in _KNOWN_KEYS})
     if "attach" in p:
         common["attach"] = str(p["attach"])
-    if kind == "box":
-        size = _num(p.get("size"), (3,), f"{where}.size", src)
-        if np.any(size <= 0):
-            raise ValueError(f"{src}: field '{where}.size' must be positive")
-        prim = Primitive.box(name, _num(p.get("center"), (3,), f"{where}.center", src), size,
-                             float(p.get("yaw_deg", 0.0)), **common)
-    elif kind == "quad":
-        corners = _num(p.get("corners"), (4, 3), f"{where}.corners", src)
-        normal = _num(p["normal"], (3,), f"{where}.normal", src) if "normal" in p else None
+    if spec.kind == "box":
+        prim = Primitive.box(spec.name, spec.center, spec.size, spec.yaw_deg, **common)
+    else:
         try:
-            prim = Primitive.quad(name, corners, normal, **common)
+            prim = Primitive.quad(spec.name, spec.corners, spec.normal, **common)
         except ValueError as e:
             raise ValueError(f"{src}: field '{where}': {e}") from None
-    else:
-        raise ValueError(f"{src}: field '{where}.type' must be 'box' or 'quad', got {kind!r}")
     if prim.attach != "free" and prim.attach not in SIDES:
         raise ValueError(f"{src}: field '{where}.attach' must be one of {sorted(SIDES) + ['free']}, "
                          f"got {prim.attach!r}")
@@ -232,7 +204,7 @@ def model_from_dict(d: dict, src: str = "<model>", infer_graph: bool | None = No
         where = f"image_constraints[{i}]"
         if not isinstance(c, dict) or "primitive" not in c or "vertex" not in c:
             raise ValueError(f"{src}: field '{where}' needs 'primitive', 'vertex' and 'px'")
-        cons.append(ImageConstraint(str(c["primitive"]), int(c["vertex"]), _num(c.get("px"), (2,), f"{where}.px", src),
+        cons.append(ImageConstraint(str(c["primitive"]), int(c["vertex"]), json_array(c.get("px"), (2,), f"{where}.px", src),
                                     float(c.get("weight", 1.0))))
     model = PrimitiveModel(prims, cons, src=src, infer_graph=infer_graph)
     return model
@@ -241,8 +213,6 @@ def model_from_dict(d: dict, src: str = "<model>", infer_graph: bool | None = No
 def load_model(path: str | os.PathLike, infer_graph: bool | None = None) -> "PrimitiveModel":
     """Read a model JSON (or a scene.json) -> PrimitiveModel; ValueError/FileNotFoundError naming the file."""
     path = Path(path)
-    from recon.scene import read_json
-
     d = read_json(path)
     return model_from_dict(d, str(path), infer_graph)
 
@@ -255,17 +225,7 @@ def model_to_dict(model: "PrimitiveModel") -> dict:
 
 def save_model(path: str | os.PathLike, model: "PrimitiveModel") -> None:
     """Write the model JSON (schema in the module docstring), atomically (temp file, then rename)."""
-    import tempfile
-
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(json.dumps(model_to_dict(model), indent=1) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_json(path, model_to_dict(model), indent=1, sort_keys=False)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -591,34 +551,24 @@ class PrimitiveModel:
 
     def to_quads(self, room_min: np.ndarray | None = None, room_max: np.ndarray | None = None,
                  root: str | os.PathLike | None = None) -> list:
-        """The model as the engine's one-sided quads (recon.scene.Quad): quads as they are, boxes as
-        their outward faces (axis-aligned boxes via recon.scene._box_quads, which drops faces flush
-        against a room wall; rotated boxes as all six faces). With `root`, quad albedo textures
-        ('albedo_texture', relative to root) are loaded as in recon.scene.load_scene."""
-        from recon.scene import Quad, _box_quads, read_image_rgb
-
+        """The model as the engine's one-sided quads (recon.scene.Quad), built as recon.scene.load_scene
+        builds them (recon.scene.box_quads, quad_primitive). With `root`, quad albedo textures
+        ('albedo_texture', relative to root) are loaded too."""
         if room_min is None or room_max is None:
             room_min, room_max = self.room_bounds()
+        room_min, room_max = np.asarray(room_min), np.asarray(room_max)
         quads = []
         for p in self.prims:
             albedo = np.asarray(p.albedo, float)
             if p.kind == "box":
-                if abs(np.sin(p.yaw)) < 1e-9 or abs(np.cos(p.yaw)) < 1e-9:
-                    size = np.abs(rot_y(p.yaw)) @ p.size
-                    quads += _box_quads(p.name, p.center, size, albedo, np.asarray(room_min), np.asarray(room_max))
-                else:
-                    quads += _rotated_box_quads(p, albedo)
+                quads += box_quads(p.name, p.center, p.size, p.yaw, albedo, p.role, room_min, room_max)
                 continue
-            r = p.rotation()
             emission = np.asarray(p.emitted_radiance, float) if p.emitter else np.zeros(3)
             texture = None
             if root is not None and p.extra.get("albedo_texture"):
                 texture = read_image_rgb(Path(root) / p.extra["albedo_texture"]).astype(np.float32) / 255.0
-            corners = p.vertices()
-            if np.dot(np.cross(corners[1] - corners[0], corners[3] - corners[0]), r[:, 2]) < 0:
-                corners = corners[[0, 3, 2, 1]]
-                texture = None if texture is None else texture.transpose(1, 0, 2)
-            quads.append(Quad(p.name, corners, r[:, 2].copy(), albedo, emission, p.role, texture))
+            quads.append(quad_primitive(p.name, p.vertices(), p.rotation()[:, 2].copy(), albedo, emission, p.role,
+                                        texture))
         return quads
 
     def to_scene(self, base, root: str | os.PathLike | None = None):
@@ -628,23 +578,3 @@ class PrimitiveModel:
 
         lo, hi = self.room_bounds()
         return replace(base, quads=self.to_quads(lo, hi, root), room_min=lo, room_max=hi)
-
-
-def _rotated_box_quads(p: Primitive, albedo: np.ndarray) -> list:
-    from recon.scene import Quad
-
-    r, h = p.rotation(), p.size / 2
-    out = []
-    for axis in range(3):
-        for sign in (-1.0, 1.0):
-            u_ax, v_ax = [a for a in range(3) if a != axis]
-            local = np.zeros((4, 3))
-            local[:, axis] = sign * h[axis]
-            for k, (a, b) in enumerate([(-1, -1), (1, -1), (1, 1), (-1, 1)]):
-                local[k, u_ax], local[k, v_ax] = a * h[u_ax], b * h[v_ax]
-            c = p.center + local @ r.T
-            n = sign * r[:, axis]
-            if np.dot(np.cross(c[1] - c[0], c[3] - c[0]), n) < 0:
-                c = c[[0, 3, 2, 1]]
-            out.append(Quad(f"{p.name}.{'xyz'[axis]}{'-+'[sign > 0]}", c, n, albedo, np.zeros(3), p.role))
-    return out

@@ -187,7 +187,9 @@ def fit_room(points: np.ndarray, colors: np.ndarray | None, cam_centres: np.ndar
     (M,3) camera up vectors (-R[1]) used when opts.up is None. Raises RoomError (a ValueError)
     when the cloud is too small, no floor is found or the room does not contain every camera.
     """
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     opts = opts or FitOptions()
     P = np.asarray(points, np.float64).reshape(-1, 3)

@@ -5,25 +5,21 @@ vanishing-point calibration, multi-view reconstruction):
   camera      calibrated main camera (recon.camera.Camera)
   quads       planar one-sided rectangles: room surfaces, box faces, emitters (Quad)
   obj         the synthetic object to insert, in world coordinates (SceneObject)
-  response    camera response (lighting.tonemap.CameraResponse)
+  response    camera response (recon.response.CameraResponse)
   photo       the 8-bit photograph of the empty room, (H,W,3) uint8 RGB
 Units: metres, linear radiance in the scene's units, world +Y up.
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from lighting.tonemap import CameraResponse
 from recon.camera import Camera
-
-
-class SceneError(ValueError):
-    """Bad scene input; the message names the file and the field or problem."""
+from recon.io import SceneError, json_array, json_field, open3d, read_image_rgb, read_json
+from recon.response import CameraResponse
 
 
 @dataclass
@@ -74,46 +70,24 @@ class Scene:
     meta: dict = field(default_factory=dict)
 
 
-def _field(d: dict, key: str, where: str, path: Path):
-    if not isinstance(d, dict) or key not in d:
-        raise SceneError(f"{path}: missing field '{where}{key}'")
-    return d[key]
-
-
-def _vec(value, n: int, where: str, path: Path, shape: tuple | None = None) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise SceneError(f"{path}: field '{where}' is not numeric") from None
-    want = shape if shape is not None else (n,)
-    if arr.shape != want or not np.all(np.isfinite(arr)):
-        raise SceneError(f"{path}: field '{where}' must be {want} finite numbers, got shape {arr.shape}")
-    return arr
-
-
-def read_image_rgb(path: Path) -> np.ndarray:
-    """8-bit RGB image (H,W,3) uint8; SceneError naming the file if unreadable."""
-    import cv2
-
-    if not path.is_file():
-        raise SceneError(f"{path}: file not found")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise SceneError(f"{path}: not a readable image")
-    return img[..., ::-1].copy()
-
-
 def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Triangle mesh -> vertices (V,3), vertex normals (V,3), faces (F,3); SceneError if unusable."""
-    import open3d as o3d
+    """Triangle mesh -> vertices (V,3), vertex normals (V,3), faces (F,3); SceneError if unusable.
 
+    Open3D's reader prints to the C-level stderr (RPly's messages, sometimes bytes of the file);
+    that is captured and its first line, cleaned, becomes part of the one error message."""
+    from kernels.runtime import captured_stderr
+
+    o3d = open3d()
     if not path.is_file():
         raise SceneError(f"{path}: file not found")
-    mesh = o3d.io.read_triangle_mesh(str(path))
+    with captured_stderr() as reader:
+        mesh = o3d.io.read_triangle_mesh(str(path))
     v = np.asarray(mesh.vertices, np.float64)
     f = np.asarray(mesh.triangles, np.int32)
     if len(v) == 0 or len(f) == 0:
-        raise SceneError(f"{path}: could not load a triangle mesh (no vertices or faces)")
+        said = "".join(c if c.isprintable() and c.isascii() else "?" for c in (reader.lines() or [""])[0])[:100]
+        raise SceneError(f"{path}: could not load a triangle mesh (no vertices or faces"
+                         f"{'; reader: ' + said.strip() if said.strip() else ''})")
     if not np.all(np.isfinite(v)) or f.max() >= len(v) or f.min() < 0:
         raise SceneError(f"{path}: mesh has non-finite vertices or out-of-range face indices")
     if not mesh.has_vertex_normals():
@@ -144,28 +118,119 @@ def box_faces(lo, hi, inward: bool = False) -> list[tuple[int, int, np.ndarray, 
     return faces
 
 
-def _box_quads(name: str, center: np.ndarray, size: np.ndarray, albedo: np.ndarray,
-               room_min: np.ndarray, room_max: np.ndarray) -> list[Quad]:
-    """The six outward faces of an axis-aligned box, minus faces flush against a room wall."""
+def rot_y(a: float) -> np.ndarray:
+    """(3,3) rotation by `a` radians about world +Y (takes +Z towards +X)."""
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def box_quads(name: str, center: np.ndarray, size: np.ndarray, yaw: float, albedo: np.ndarray, role: str,
+              room_min: np.ndarray, room_max: np.ndarray) -> list[Quad]:
+    """The outward faces of a box (centre and full extents in m, turned by `yaw` radians about +Y),
+    named '<name>.x-' ... '<name>.z+'. An axis-aligned box (yaw a multiple of 90 degrees) loses the
+    faces flush against a room wall or the floor (never lit, never seen); a turned box keeps all six."""
+    center, size = np.asarray(center, np.float64), np.asarray(size, np.float64)
+    if abs(np.sin(yaw)) < 1e-9 or abs(np.cos(yaw)) < 1e-9:
+        size = np.abs(rot_y(yaw)) @ size
+        quads = []
+        for axis, side, c, normal in box_faces(center - size / 2, center + size / 2):
+            wall = (room_min, room_max)[side][axis]
+            if abs(c[0, axis] - wall) < 1e-6:
+                continue  # face pressed against the wall/floor
+            quads.append(Quad(f"{name}.{'xyz'[axis]}{'-+'[side]}", c, normal, albedo, np.zeros(3), role))
+        return quads
+    r, h = rot_y(yaw), size / 2
     quads = []
-    for axis, side, c, normal in box_faces(center - size / 2, center + size / 2):
-        wall = (room_min, room_max)[side][axis]
-        if abs(c[0, axis] - wall) < 1e-6:
-            continue  # face pressed against the wall/floor: never lit, never seen
-        quads.append(Quad(f"{name}.{'xyz'[axis]}{'-+'[side]}", c, normal, albedo, np.zeros(3), "furniture"))
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            u_ax, v_ax = [a for a in range(3) if a != axis]
+            local = np.zeros((4, 3))
+            local[:, axis] = sign * h[axis]
+            for k, (a, b) in enumerate([(-1, -1), (1, -1), (1, 1), (-1, 1)]):
+                local[k, u_ax], local[k, v_ax] = a * h[u_ax], b * h[v_ax]
+            c = center + local @ r.T
+            n = sign * r[:, axis]
+            if np.dot(np.cross(c[1] - c[0], c[3] - c[0]), n) < 0:
+                c = c[[0, 3, 2, 1]]
+            quads.append(Quad(f"{name}.{'xyz'[axis]}{'-+'[sign > 0]}", c, n, albedo, np.zeros(3), role))
     return quads
 
 
-def read_json(path: str | os.PathLike, error: type[Exception] | None = None):
-    """Parsed JSON of `path`. A missing file raises FileNotFoundError and malformed JSON ValueError,
-    both naming the file; with `error` (e.g. SceneError) both raise that instead."""
-    path = Path(path)
-    if not path.is_file():
-        raise (error or FileNotFoundError)(f"{path}: file not found")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise (error or ValueError)(f"{path}: malformed JSON ({e})") from None
+def quad_primitive(name: str, corners: np.ndarray, normal: np.ndarray, albedo: np.ndarray, emission: np.ndarray,
+                   role: str, texture: np.ndarray | None = None) -> Quad:
+    """A quad primitive as the engine's one-sided Quad: corners reordered (and the texture
+    transposed with them) so that (c1-c0)x(c3-c0) points to the lit side `normal`."""
+    corners = np.asarray(corners, np.float64)
+    normal = np.asarray(normal, np.float64)
+    normal = normal / max(np.linalg.norm(normal), 1e-12)
+    if np.dot(np.cross(corners[1] - corners[0], corners[3] - corners[0]), normal) < 0:
+        corners = corners[[0, 3, 2, 1]]
+        texture = None if texture is None else texture.transpose(1, 0, 2)
+    return Quad(name, corners, normal, albedo, emission, role, texture)
+
+
+@dataclass
+class PrimitiveSpec:
+    """One entry of a "primitives" list (scene.json, a model file, `photoar reconstruct`'s
+    primitives.json), validated; the schema is in recon/primitives.py's docstring. Units: metres."""
+    name: str
+    kind: str  # "box" | "quad"
+    role: str  # default "furniture" for a box, "room" for a quad
+    albedo: np.ndarray  # (3,) linear diffuse reflectance, default 0.5
+    emitter: bool
+    emitted_radiance: np.ndarray  # (3,), zero unless given
+    center: np.ndarray | None = None  # box: (3,)
+    size: np.ndarray | None = None  # box: (3,) positive full extents along its own axes
+    yaw_deg: float = 0.0  # box: turn about +Y, degrees
+    corners: np.ndarray | None = None  # quad: (4,3) c0..c3
+    normal: np.ndarray | None = None  # quad: (3,) unit lit side; None = as (c1-c0)x(c3-c0)
+    texture: str | None = None  # quad: 'albedo_texture', relative to the file's folder
+
+    @property
+    def quad_normal(self) -> np.ndarray:
+        """Quad: the lit side, given or (c1-c0)x(c3-c0), unit."""
+        c = self.corners
+        n = self.normal if self.normal is not None else np.cross(c[1] - c[0], c[3] - c[0])
+        return n / max(np.linalg.norm(n), 1e-12)
+
+
+def parse_primitive(p, where: str, path: str | os.PathLike) -> PrimitiveSpec:
+    """Validate one primitive's JSON (`where` e.g. "primitives[3]"); SceneError naming the file and field."""
+    if not isinstance(p, dict):
+        raise SceneError(f"{path}: field '{where}' must be an object")
+    kind = json_field(p, "type", where + ".", path)
+    if kind not in ("box", "quad"):
+        raise SceneError(f"{path}: field '{where}.type' must be 'box' or 'quad', got {kind!r}")
+    spec = PrimitiveSpec(str(p.get("name", where)), kind, str(p.get("role", "furniture" if kind == "box" else "room")),
+                         json_array(p.get("albedo", [0.5] * 3), (3,), f"{where}.albedo", path),
+                         bool(p.get("emitter", False)),
+                         json_array(p.get("emitted_radiance", [0.0] * 3), (3,), f"{where}.emitted_radiance", path))
+    if kind == "box":
+        spec.center = json_array(json_field(p, "center", where + ".", path), (3,), f"{where}.center", path)
+        spec.size = json_array(json_field(p, "size", where + ".", path), (3,), f"{where}.size", path)
+        if np.any(spec.size <= 0):
+            raise SceneError(f"{path}: field '{where}.size' must be positive")
+        spec.yaw_deg = float(json_array(p.get("yaw_deg", 0.0), (), f"{where}.yaw_deg", path))
+    else:
+        spec.corners = json_array(json_field(p, "corners", where + ".", path), (4, 3), f"{where}.corners", path)
+        if np.linalg.norm(np.cross(spec.corners[1] - spec.corners[0], spec.corners[3] - spec.corners[0])) < 1e-12:
+            raise SceneError(f"{path}: field '{where}.corners' is degenerate (zero-length side or collinear)")
+        if p.get("normal") is not None:
+            n = json_array(p["normal"], (3,), f"{where}.normal", path)
+            if not np.linalg.norm(n) > 1e-12:
+                raise SceneError(f"{path}: field '{where}.normal' must not be zero")
+            spec.normal = n / np.linalg.norm(n)
+        if p.get("albedo_texture"):
+            spec.texture = str(p["albedo_texture"])
+    return spec
+
+
+def parse_primitives(d, path: str | os.PathLike) -> list[PrimitiveSpec]:
+    """The validated "primitives" list of a JSON object (non-empty)."""
+    prims = json_field(d, "primitives", "", path)
+    if not isinstance(prims, list) or not prims:
+        raise SceneError(f"{path}: field 'primitives' must be a non-empty list")
+    return [parse_primitive(p, f"primitives[{i}]", path) for i, p in enumerate(prims)]
 
 
 def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scene:
@@ -178,75 +243,41 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
     if not isinstance(d, dict):
         raise SceneError(f"{path}: top level must be an object")
 
-    world = _field(d, "world", "", path)
-    room_min = _vec(_field(world, "room_min", "world.", path), 3, "world.room_min", path)
-    room_max = _vec(_field(world, "room_max", "world.", path), 3, "world.room_max", path)
+    world = json_field(d, "world", "", path)
+    room_min = json_array(json_field(world, "room_min", "world.", path), (3,), "world.room_min", path)
+    room_max = json_array(json_field(world, "room_max", "world.", path), (3,), "world.room_max", path)
     if np.any(room_max <= room_min):
         raise SceneError(f"{path}: field 'world.room_max' must exceed 'world.room_min'")
 
-    cam = _field(d, "main_camera", "", path)
-    k = _field(cam, "K", "main_camera.", path)
-    fx, fy, cx, cy = (float(_vec(_field(k, key, "main_camera.K.", path), 1, f"main_camera.K.{key}", path,
-                                 shape=()))
-                      for key in ("fx", "fy", "cx", "cy"))
-    width, height = int(_field(k, "width", "main_camera.K.", path)), int(_field(k, "height", "main_camera.K.", path))
-    if fx <= 0 or fy <= 0 or width <= 0 or height <= 0:
-        raise SceneError(f"{path}: field 'main_camera.K' must have positive focal lengths and size")
-    R = _vec(_field(cam, "R", "main_camera.", path), 3, "main_camera.R", path, shape=(3, 3))
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-5):
-        raise SceneError(f"{path}: field 'main_camera.R' is not a rotation matrix")
-    t = _vec(_field(cam, "t", "main_camera.", path), 3, "main_camera.t", path)
-    exposure = float(cam.get("exposure_time", 1.0))
-    if not exposure > 0:
-        raise SceneError(f"{path}: field 'main_camera.exposure_time' must be positive")
-    camera = Camera(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), R, t, width, height, exposure)
+    cam = json_field(d, "main_camera", "", path)
+    camera = Camera.from_json(cam, path, "main_camera.")
+    width, height, exposure = camera.width, camera.height, camera.exposure_time
 
-    resp = _field(d, "camera_response", "", path)
+    resp = json_field(d, "camera_response", "", path)
     try:
-        response = CameraResponse(_field(resp, "forward_table", "camera_response.", path),
-                                  _field(resp, "inverse_table", "camera_response.", path), exposure)
+        response = CameraResponse(json_field(resp, "forward_table", "camera_response.", path),
+                                  json_field(resp, "inverse_table", "camera_response.", path), exposure)
     except ValueError as e:
         raise SceneError(f"{path}: field 'camera_response': {e}") from None
 
     quads: list[Quad] = []
-    prims = _field(d, "primitives", "", path)
-    if not isinstance(prims, list) or not prims:
-        raise SceneError(f"{path}: field 'primitives' must be a non-empty list")
-    for i, p in enumerate(prims):
-        where = f"primitives[{i}]"
-        name = str(p.get("name", where)) if isinstance(p, dict) else where
-        kind = _field(p, "type", where + ".", path)
-        albedo = _vec(p.get("albedo", [0, 0, 0]), 3, f"{where}.albedo", path)
-        if kind == "box":
-            center = _vec(_field(p, "center", where + ".", path), 3, f"{where}.center", path)
-            size = _vec(_field(p, "size", where + ".", path), 3, f"{where}.size", path)
-            quads += _box_quads(name, center, size, albedo, room_min, room_max)
-        elif kind == "quad":
-            corners = _vec(_field(p, "corners", where + ".", path), 3, f"{where}.corners", path, shape=(4, 3))
-            normal = _vec(_field(p, "normal", where + ".", path), 3, f"{where}.normal", path)
-            normal = normal / max(np.linalg.norm(normal), 1e-12)
-            if np.dot(np.cross(corners[1] - corners[0], corners[3] - corners[0]), normal) < 0:
-                corners = corners[[0, 3, 2, 1]]  # keep (c1-c0)x(c3-c0) on the lit side
-                flipped = True
-            else:
-                flipped = False
-            emission = _vec(p.get("emitted_radiance", [0, 0, 0]), 3, f"{where}.emitted_radiance", path) \
-                if p.get("emitter") else np.zeros(3)
-            texture = None
-            if load_textures and p.get("albedo_texture"):
-                img = read_image_rgb(root / p["albedo_texture"]).astype(np.float32) / 255.0
-                texture = img.transpose(1, 0, 2) if flipped else img
-            quads.append(Quad(name, corners, normal, albedo, emission, str(p.get("role", "room")), texture))
+    for p in parse_primitives(d, path):
+        if p.kind == "box":
+            quads += box_quads(p.name, p.center, p.size, np.radians(p.yaw_deg), p.albedo, p.role, room_min, room_max)
         else:
-            raise SceneError(f"{path}: field '{where}.type' must be 'quad' or 'box', got {kind!r}")
+            texture = None
+            if load_textures and p.texture:
+                texture = read_image_rgb(root / p.texture).astype(np.float32) / 255.0
+            emission = p.emitted_radiance if p.emitter else np.zeros(3)
+            quads.append(quad_primitive(p.name, p.corners, p.quad_normal, p.albedo, emission, p.role, texture))
 
     obj = None
     if "synthetic_object" in d:
         so = d["synthetic_object"]
-        M = _vec(_field(so, "object_to_world", "synthetic_object.", path), 4, "synthetic_object.object_to_world",
-                 path, shape=(4, 4))
-        mesh_path = root / str(_field(so, "mesh", "synthetic_object.", path))
-        obj = make_object(mesh_path, M, _vec(so.get("albedo", [0.5] * 3), 3, "synthetic_object.albedo", path))
+        M = json_array(json_field(so, "object_to_world", "synthetic_object.", path), (4, 4),
+                       "synthetic_object.object_to_world", path)
+        mesh_path = root / str(json_field(so, "mesh", "synthetic_object.", path))
+        obj = make_object(mesh_path, M, json_array(so.get("albedo", [0.5] * 3), (3,), "synthetic_object.albedo", path))
         check_object_inside(obj, room_min, room_max, f"{path}: field 'synthetic_object.object_to_world'")
 
     files = cam.get("files", {}) if isinstance(cam.get("files", {}), dict) else {}

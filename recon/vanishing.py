@@ -150,7 +150,7 @@ def parse_lines(d: dict, src: str = "<lines>") -> dict:
 def load_lines(path: str | os.PathLike) -> dict:
     """Read LINES.json (see module docstring); errors name the file."""
     path = Path(path)
-    from recon.scene import read_json
+    from recon.io import read_json
 
     d = read_json(path)
     return parse_lines(d, str(path))

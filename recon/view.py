@@ -60,7 +60,9 @@ def frustum_lines(cam: Camera, depth: float) -> tuple[np.ndarray, list[tuple[int
 
 def model_mesh(primitives: list[dict]):
     """Open3D TriangleMesh of the room quads and furniture boxes (model.ply), per-vertex colours."""
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     V, F, C = [], [], []
     for p in primitives:
@@ -87,7 +89,9 @@ def model_mesh(primitives: list[dict]):
 
 
 def _lineset(points, edges, colour):
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     ls = o3d.geometry.LineSet(o3d.utility.Vector3dVector(np.asarray(points, float)),
                               o3d.utility.Vector2iVector(np.asarray(edges, np.int32).reshape(-1, 2)))
@@ -119,7 +123,9 @@ def scene_lines(cameras: dict[str, Camera], primitives: list[dict], extent: floa
 def geometries(points: np.ndarray, colors: np.ndarray | None, cameras: dict[str, Camera],
                primitives: list[dict]) -> list:
     """Open3D geometries: coloured point cloud, primitive wireframes, camera frusta."""
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, float)))
     if colors is not None and len(colors):
@@ -172,7 +178,9 @@ def display_available() -> bool:
 
 
 def _render_open3d(geoms, eye, look, up, size) -> np.ndarray:
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     vis = o3d.visualization.Visualizer()
     if not vis.create_window(window_name="photoar", width=size[0], height=size[1], visible=False):
@@ -233,7 +241,7 @@ def render_png(path: Path, points: np.ndarray, colors: np.ndarray | None, camera
                primitives: list[dict], size: tuple[int, int] = (1024, 768)) -> str:
     """Render the scene overview to `path` (RGB PNG). Returns the path taken:
     "open3d-window" ($DISPLAY), "open3d-xvfb" (a private Xvfb) or "cv2-projection" (fallback)."""
-    from app.io import write_png
+    from recon.io import write_png
 
     eye, look, up = _view_pose(points, cameras)
     geoms = geometries(points, colors, cameras, primitives)
@@ -269,7 +277,9 @@ def render_png(path: Path, points: np.ndarray, colors: np.ndarray | None, camera
 
 def show(points, colors, cameras, primitives) -> None:
     """Open an interactive Open3D window (needs a display)."""
-    import open3d as o3d
+    from recon.io import open3d
+
+    o3d = open3d()
 
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
         raise RuntimeError("no display: $DISPLAY is not set (view.png in the folder shows the same scene)")

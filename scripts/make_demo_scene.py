@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from lighting.tonemap import CameraResponse  # noqa: E402
+from recon.response import CameraResponse  # noqa: E402
 
 
 def main(src: Path, dst: Path) -> None:

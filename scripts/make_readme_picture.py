@@ -14,8 +14,7 @@ sys.path.insert(0, str(ROOT))
 
 from app import composite  # noqa: E402
 from app.cli import demo_scene_dir  # noqa: E402
-from app.io import write_png  # noqa: E402
-from recon.scene import read_image_rgb  # noqa: E402
+from recon.io import read_image_rgb, write_png  # noqa: E402
 
 
 def main() -> None:

@@ -46,8 +46,8 @@ def test_composite_from_captured_light(captured, name):
 def test_reflectivity_and_emitters_against_the_scene(captured, name):
     # photo-seen patches: recovered reflectivity vs the declared albedo, median relative error
     # < 15 % (measured 3-5 %); emitter patches: captured radiance within 20 % of the declared one
-    from lighting.sources import luminance
     from recon.patches import build_patches
+    from recon.response import luminance
 
     d, _, _, eng = captured[name]
     pm, p = eng.pre.patches, eng.params
@@ -69,7 +69,7 @@ def truth_response(d):
 def test_small_lamps_need_the_deconvolution(captured):
     # a 0.2 m lamp covers a few probe pixels: the plain per-ray average smears it into the ceiling
     # (measured: up to 18 % low), splitting each pixel's flux by the current estimate recovers it
-    from app.io import read_exr
+    from recon.io import read_exr
 
     d, _, _, eng = captured["lamps_room"]
     pm = eng.pre.patches

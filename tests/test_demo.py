@@ -4,7 +4,7 @@ import json
 import numpy as np
 
 from app.cli import demo_scene_dir, main as cli
-from app.io import read_exr
+from recon.io import read_exr
 from recon.scene import load_scene
 
 

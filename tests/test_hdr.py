@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from app.io import read_exr, write_exr
 from lighting import hdr
+from recon.io import read_exr, read_image_rgb, write_exr
 from tests.conftest import SHARED, shared_scene
 
 
@@ -18,7 +18,7 @@ def main(argv):
 
 def _bracket(scene_dir):
     paths, times, _ = hdr.scene_probe_files(scene_dir)
-    return [hdr.read_ldr(p) for p in paths], times
+    return [read_image_rgb(p) for p in paths], times
 
 
 def _median_rel_err(rad, truth, valid):
@@ -61,7 +61,7 @@ def test_memorial_church_bracket():
     if not (md / "times.json").is_file():
         pytest.skip(f"{md} not available (../shared is absent)")
     tj = json.loads((md / "times.json").read_text())["images"]
-    images = [hdr.read_ldr(md / f)[::2, ::2] for f in tj]
+    images = [read_image_rgb(md / f)[::2, ::2] for f in tj]
     times = list(tj.values())
     rad, g = hdr.merge_bracket(images, times, method="robertson")  # see the report: MergeDebevec's triangle
     # weights let the film's fog level (z ~ 14-17 in every short exposure) bias it by tens of levels
@@ -83,7 +83,7 @@ def test_cli_hdr_writes_outputs(tmp_path):
     L = np.exp(rng.uniform(np.log(0.02), np.log(4.0), (64, 96, 3))).astype(np.float32)
     times = [0.0625, 0.25, 1.0]
     paths = []
-    from app.io import write_png
+    from recon.io import write_png
 
     for i, t in enumerate(times):
         z = np.rint(255 * np.clip(L * t, 0, 1) ** (1 / 2.2)).astype(np.uint8)
@@ -105,7 +105,7 @@ def test_one_exposure_is_a_clear_error(tmp_path):
     z = np.full((8, 8, 3), 128, np.uint8)
     with pytest.raises(ValueError, match="at least 2 exposures"):
         hdr.merge_bracket([z], [0.1])
-    from app.io import write_png
+    from recon.io import write_png
 
     write_png(tmp_path / "a.png", z)
     out = tmp_path / "out"

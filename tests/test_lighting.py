@@ -16,9 +16,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from app.cli import demo_scene_dir  # noqa: E402
 from kernels.visibility import Occluder, transfer_matrix  # noqa: E402
 from lighting.radiosity import gather  # noqa: E402
-from lighting.sources import LUMA, select_sources  # noqa: E402
+from lighting.sources import select_sources  # noqa: E402
 from lighting.transfer import intensity_transfers  # noqa: E402
 from recon.patches import build_patches  # noqa: E402
+from recon.response import LUMA  # noqa: E402
 from recon.scene import Quad, Scene, box_faces, load_scene  # noqa: E402
 from tests.conftest import shared_scene  # noqa: E402
 

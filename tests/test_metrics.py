@@ -13,7 +13,7 @@ from tests.conftest import ROOT, score, shared_scene
 
 
 def _photo():
-    from recon.scene import read_image_rgb
+    from recon.io import read_image_rgb
 
     return read_image_rgb(shared_scene("window_room") / "truth.png")
 
@@ -52,9 +52,8 @@ def test_constant_offset_gives_its_size_and_blur_offset_ordering():
 def test_score_regions_mirrors_the_shared_scorer(tmp_path):
     """The same figures as ../shared/tools/score.py on a perturbed composite (a blurred,
     darkened truth), to 1e-9."""
-    from app.io import write_png
     from lighting import metrics
-    from recon.scene import read_image_rgb
+    from recon.io import read_image_rgb, write_png
 
     scene_dir = shared_scene("lamps_room")
     tr = read_image_rgb(scene_dir / "truth.png")

@@ -22,8 +22,7 @@ TEMPLE = SHARED / "data" / "multiview" / "middlebury_templeSparseRing"
 
 
 def _cam(c: dict) -> Camera:
-    return Camera(np.array(c["K_matrix"], float), np.array(c["R"], float), np.array(c["t"], float),
-                  c["K"]["width"], c["K"]["height"])
+    return Camera.from_json(c, "scene.json")
 
 
 def scene_views(scene: Path, dst: Path) -> tuple[dict, dict[str, Camera]]:

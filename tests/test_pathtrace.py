@@ -81,7 +81,7 @@ def test_object_shadow_and_exact_zero_difference_where_untouched(device):
 def _affected_pixels(scene_dir):
     """Flat indices of score.py's affected and object regions (what the energy ratio looks at)."""
     from lighting import metrics
-    from recon.scene import read_image_rgb
+    from recon.io import read_image_rgb
     import cv2
 
     bg, tr = read_image_rgb(scene_dir / "background.png"), read_image_rgb(scene_dir / "truth.png")
@@ -94,7 +94,7 @@ def test_reference_agrees_with_truth_energy(name, tmp_path):
     """The reference over its own scene model reproduces the path-traced truth's shadow energy:
     rendered at 4 spp where score.py looks (affected + object regions; elsewhere the photo)."""
     from app.cmd_reference import render_reference
-    from app.io import write_png
+    from recon.io import write_png
     from recon.scene import load_scene
 
     scene_dir = shared_scene(name)
@@ -111,7 +111,7 @@ def test_model_without_object_matches_background_exr():
     """I_noobj (4 bounces, textured model) against the truth renderer's background.exr on a
     pixel subsample: total radiance within 2 %; fewer bounces are darker."""
     from app.cmd_reference import build_tracer
-    from app.io import read_exr
+    from recon.io import read_exr
     from recon.scene import load_scene
 
     scene_dir = shared_scene("window_room")

@@ -13,9 +13,7 @@ from tests.conftest import shared_scene
 
 def _scene(name):
     d = json.loads((shared_scene(name) / "scene.json").read_text())
-    c, K = d["main_camera"], d["main_camera"]["K"]
-    cam = Camera(np.array([[K["fx"], 0, K["cx"]], [0, K["fy"], K["cy"]], [0, 0, 1.0]]), np.array(c["R"]),
-                 np.array(c["t"]), K["width"], K["height"])
+    cam = Camera.from_json(d["main_camera"], "scene.json", "main_camera.")
     return d, cam
 
 

@@ -152,7 +152,7 @@ def test_window_room_probe_sh_faces_the_window():
 
 def test_cli_probe_sh(tmp_path, capsys):
     from app.cli import main
-    from app.io import write_exr
+    from recon.io import write_exr
 
     d, sa, v = probe.latlong_directions(64, 32)
     write_exr(tmp_path / "p.exr", np.ones((32, 64, 3), np.float32))

@@ -68,7 +68,7 @@ def window_light(tmp_path_factory):
 def test_volume_against_brute_force(window_light):
     # 50 random interior points and normals: mean relative error < 3 % at 0.25 m spacing
     from kernels.visibility import transfer_matrix
-    from lighting.sources import luminance
+    from recon.response import luminance
 
     scene, eng = window_light
     pm, light = eng.pre.patches, eng.room_light
@@ -92,7 +92,7 @@ def test_volume_against_brute_force(window_light):
 def test_volume_hard_points(window_light):
     # 1 cm from a wall and under the desk: finite, non-negative, within 25 % of brute force
     from kernels.visibility import transfer_matrix
-    from lighting.sources import luminance
+    from recon.response import luminance
 
     scene, eng = window_light
     pm, light = eng.pre.patches, eng.room_light
@@ -112,8 +112,8 @@ def test_object_moved_up_changes_shading_like_brute_force(window_light):
     import copy
 
     from kernels.visibility import Occluder, transfer_matrix
-    from lighting.sources import luminance
     from recon.proxy import simplify, subdivide
+    from recon.response import luminance
 
     scene, eng = window_light
     pm = eng.pre.patches
@@ -143,7 +143,7 @@ def test_specular_map_sees_the_room_from_the_object(window_light):
     # the window's emitted radiance; towards the floor straight below, the floor's radiance
     import dataclasses
 
-    from lighting.sources import luminance
+    from recon.response import luminance
 
     scene, eng = window_light
     params = eng.params

@@ -70,7 +70,7 @@ def _segments_hit_box(p: np.ndarray, q: np.ndarray, lo: np.ndarray, hi: np.ndarr
 def test_traversal_finds_every_source_an_exhaustive_test_finds(engine):
     # for random object boxes, every (receiver, source) pair with light between them and a segment
     # (patch corners and centres) through the box is in the frame's list, for the right pass
-    from lighting.sources import luminance
+    from recon.response import luminance
 
     scene, eng = engine
     pm, ss = eng.pre.patches, eng.shadow_sources

@@ -1,0 +1,215 @@
+"""The bottom layer's I/O (recon/io.py), camera parser (recon/camera.py) and primitive parser
+(recon/scene.py): atomic writes, valid JSON, one clear error per bad field."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from recon.camera import Camera
+from recon.io import AtomicOutput, SceneError, dumps_json, read_exr, read_image_rgb, read_json, write_exr, \
+    write_json, write_npz, write_png
+from recon.primitives import primitive_from_json
+from recon.scene import parse_primitive
+from tests.conftest import shared_scene
+
+
+def strict_json(text: str):
+    """json.loads that refuses NaN / Infinity (Python's json accepts them by default)."""
+    def refuse(const):
+        raise ValueError(f"not valid JSON: {const}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def leftovers(folder):
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+# ---------------------------------------------------------------------------------------------
+# Atomic writes
+
+@pytest.mark.parametrize("writer, name", [
+    (lambda p: write_json(p, {"a": object()}), "out.json"),  # not serialisable: fails before writing
+    (lambda p: write_png(p, np.zeros((4, 4, 7), np.uint8)), "out.png"),  # OpenCV refuses 7 channels
+    (lambda p: write_npz(p, a=np.zeros(3), b=_Boom()), "out.npz"),  # fails while writing
+])
+def test_failed_write_keeps_the_old_file_and_leaves_nothing(tmp_path, writer, name):
+    target = tmp_path / name
+    target.write_bytes(b"old content")
+    with pytest.raises(Exception):
+        writer(target)
+    assert target.read_bytes() == b"old content"
+    assert leftovers(tmp_path) == []
+
+
+class _Boom:
+    """An 'array' whose conversion fails half-way through np.savez."""
+
+    def __array__(self, *a, **k):
+        raise RuntimeError("disk full (simulated)")
+
+
+def test_atomic_output_is_all_or_nothing(tmp_path):
+    out = tmp_path / "run"
+    with pytest.raises(RuntimeError):
+        with AtomicOutput(out) as stage:
+            write_json(stage / "a.json", {"x": 1})
+            raise RuntimeError("fails after the first file")
+    assert not out.exists() and leftovers(tmp_path) == []
+    with AtomicOutput(out) as stage:
+        write_json(stage / "a.json", {"x": 1})
+        write_png(stage / "b.png", np.full((2, 3, 3), 7, np.uint8))
+    assert sorted(p.name for p in out.iterdir()) == ["a.json", "b.png"] and leftovers(tmp_path) == []
+
+
+def test_image_round_trips(tmp_path):
+    rgb = np.random.default_rng(0).integers(0, 256, (5, 6, 3), dtype=np.uint8)
+    write_png(tmp_path / "x.png", rgb)
+    assert np.array_equal(read_image_rgb(tmp_path / "x.png"), rgb)  # RGB in, RGB out
+    hdr = np.random.default_rng(1).random((5, 6, 3)).astype(np.float32) * 100
+    write_exr(tmp_path / "x.exr", hdr)
+    assert np.array_equal(read_exr(tmp_path / "x.exr"), hdr)
+    assert leftovers(tmp_path) == []
+
+
+def test_unreadable_images_name_the_file(tmp_path):
+    bad = tmp_path / "bad.exr"
+    bad.write_bytes(b"not an exr")
+    with pytest.raises(SceneError, match="bad.exr: not a readable OpenEXR image"):
+        read_exr(bad)
+    with pytest.raises(SceneError, match="bad.exr: not a readable image"):
+        read_image_rgb(bad)
+    with pytest.raises(SceneError, match="missing.png: file not found"):
+        read_image_rgb(tmp_path / "missing.png")
+
+
+# ---------------------------------------------------------------------------------------------
+# JSON
+
+def test_write_json_turns_non_finite_floats_into_null(tmp_path):
+    data = {"sigma": float("inf"), "neg": -np.inf, "nan": np.float32("nan"), "arr": np.array([1.0, np.inf]),
+            "ok": np.float64(2.5), "n": np.int64(3), "flag": np.bool_(True), "nested": [{"x": math.nan}]}
+    write_json(tmp_path / "a.json", data)
+    got = strict_json((tmp_path / "a.json").read_text())
+    assert got == {"sigma": None, "neg": None, "nan": None, "arr": [1.0, None], "ok": 2.5, "n": 3, "flag": True,
+                   "nested": [{"x": None}]}
+    assert strict_json(dumps_json(data)) == got
+
+
+def test_strict_parser_refuses_infinity():
+    with pytest.raises(ValueError):
+        strict_json(json.dumps({"x": float("inf")}))
+
+
+def test_read_json_errors_name_the_file(tmp_path):
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(ValueError, match="bad.json: malformed JSON"):
+        read_json(tmp_path / "bad.json")
+    with pytest.raises(SceneError, match="none.json: file not found"):
+        read_json(tmp_path / "none.json", SceneError)
+
+
+def test_metrics_prints_and_writes_valid_json_for_equal_images(tmp_path, capsys):
+    """Equal images have an infinite PSNR; the outputs say null, not Infinity."""
+    from app.cli import main
+
+    img = np.random.default_rng(2).integers(0, 256, (8, 8, 3), dtype=np.uint8)
+    write_png(tmp_path / "a.png", img)
+    assert main(["-q", "metrics", str(tmp_path / "a.png"), str(tmp_path / "a.png"), "--out",
+                 str(tmp_path / "m")]) == 0
+    printed = strict_json(capsys.readouterr().out)
+    written = strict_json((tmp_path / "m" / "metrics.json").read_text())
+    assert printed["psnr_db"] is None and written["psnr_db"] is None and printed["rmse"] == 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# Camera parsing: one parser for scene.json, camera.json and cameras.json entries
+
+CAM = {"K": {"fx": 500.0, "fy": 500.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480},
+       "R": np.eye(3).tolist(), "t": [0.0, -1.5, 4.0], "exposure_time": 0.25}
+
+
+def test_camera_forms_agree(tmp_path):
+    a = Camera.from_json(CAM, "scene.json", "main_camera.")
+    K = [[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]]
+    b = Camera.from_json({"K": K, "R": CAM["R"], "t": CAM["t"], "width": 640, "height": 480}, "cameras.json")
+    write_json(tmp_path / "camera.json", {**CAM["K"], "K": CAM["K"], "K_matrix": K, "R": CAM["R"], "t": CAM["t"]})
+    c = Camera.load(tmp_path / "camera.json")
+    write_json(tmp_path / "scene.json", {"main_camera": CAM})
+    d = Camera.load(tmp_path / "scene.json")
+    for cam in (b, c, d):
+        assert np.array_equal(cam.K, a.K) and np.array_equal(cam.R, a.R) and np.array_equal(cam.t, a.t)
+        assert (cam.width, cam.height) == (640, 480)
+    assert a.exposure_time == d.exposure_time == 0.25 and b.exposure_time == 1.0
+    assert np.allclose(a.centre, [0.0, 1.5, -4.0])
+
+
+@pytest.mark.parametrize("change, field", [
+    (lambda c: c.pop("R"), "main_camera.R"),
+    (lambda c: c["K"].pop("fy"), "main_camera.K.fy"),
+    (lambda c: c.update(R=[[1, 0, 0], [0, 1, 0], [0, 0, -1]]), "main_camera.R"),  # a reflection
+    (lambda c: c.update(R=[[1, 0], [0, 1]]), "main_camera.R"),
+    (lambda c: c.update(t=[0, "x", 1]), "main_camera.t"),
+    (lambda c: c["K"].update(fx=-500.0), "main_camera.K"),
+    (lambda c: c["K"].update(width=640.5), "main_camera.K.width"),
+    (lambda c: c.update(exposure_time=0), "main_camera.exposure_time"),
+    (lambda c: c.pop("K"), "main_camera.K"),
+])
+def test_bad_camera_names_file_and_field(change, field):
+    cam = json.loads(json.dumps(CAM))
+    change(cam)
+    with pytest.raises(SceneError) as e:
+        Camera.from_json(cam, "room/scene.json", "main_camera.")
+    assert str(e.value).startswith("room/scene.json: ") and f"'{field}" in str(e.value), e.value
+
+
+def test_camera_json_of_calibrate_loads():
+    """`photoar calibrate`'s own output format (Calibration.to_json) reads back through Camera.load."""
+    from recon.vanishing import Calibration
+
+    cam = Camera.from_json(CAM, "x")
+    d = Calibration(cam, {}, float("inf"), True, "image centre", "camera height", 0.5).to_json()
+    back = Camera.from_json(strict_json(dumps_json(d)), "camera.json")
+    assert np.array_equal(back.K, cam.K) and np.array_equal(back.R, cam.R) and np.array_equal(back.t, cam.t)
+
+
+# ---------------------------------------------------------------------------------------------
+# Primitive parsing: scene.json and model files go through one parser
+
+@pytest.mark.parametrize("prim, field", [
+    ({"type": "box", "center": [0, 0, 0]}, "primitives[0].size"),
+    ({"type": "box", "center": [0, 0, 0], "size": [1, 0, 1]}, "primitives[0].size"),
+    ({"type": "quad", "corners": [[0, 0, 0], [1, 0, 0], [1, 1, 0]]}, "primitives[0].corners"),
+    ({"type": "quad", "corners": [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]]}, "primitives[0].corners"),
+    ({"type": "quad", "corners": [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], "normal": [0, 0, 0]},
+     "primitives[0].normal"),
+    ({"type": "sphere"}, "primitives[0].type"),
+    ({"type": "box", "center": [0, 0, 0], "size": [1, 1, 1], "albedo": [1, 1]}, "primitives[0].albedo"),
+])
+def test_bad_primitive_same_error_from_both_loaders(prim, field):
+    msgs = []
+    for parse in (lambda: parse_primitive(prim, "primitives[0]", "m.json"),
+                  lambda: primitive_from_json(prim, "primitives[0]", "m.json")):
+        with pytest.raises(ValueError) as e:
+            parse()
+        msgs.append(str(e.value))
+    assert msgs[0] == msgs[1] and msgs[0].startswith("m.json: ") and f"'{field}" in msgs[0], msgs
+
+
+def test_scene_and_model_give_the_same_quads():
+    """load_scene and PrimitiveModel.to_quads build the engine's quads the same way (every primitive
+    'free', so that the model's scene graph does not move any)."""
+    from recon.primitives import model_from_dict
+    from recon.scene import load_scene
+
+    root = shared_scene("lamps_room")
+    scene = load_scene(root)
+    d = read_json(root / "scene.json")
+    prims = [dict(p, attach="free") for p in d["primitives"]]
+    quads = model_from_dict({"primitives": prims}, "scene.json").to_quads(scene.room_min, scene.room_max, root)
+    assert [q.name for q in quads] == [q.name for q in scene.quads]
+    for a, b in zip(quads, scene.quads):
+        assert np.allclose(a.corners, b.corners, atol=1e-9) and np.allclose(a.normal, b.normal, atol=1e-9)
+        assert a.role == b.role and np.array_equal(a.emission, b.emission) and np.array_equal(a.albedo, b.albedo)
+        assert (a.texture is None) == (b.texture is None)

@@ -1,0 +1,70 @@
+"""Quiet, clean output: a normal run prints no library noise (Warp's missing-driver line, Open3D's
+warnings, the bytes of a garbage mesh file), and its JSON outputs are valid JSON.
+
+Warp prints its line from native code once per process, at initialisation, which an in-process
+test would not see again: those runs are subprocesses."""
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tests.conftest import ROOT
+
+NOISE = ("Warp", "CUDA", "Open3D", "RPly", "WARNING")
+
+
+def run(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, *args], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def strict_json(text: str):
+    def refuse(const):
+        raise ValueError(f"not valid JSON: {const}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_warp_initialisation_is_silent():
+    r = run("-c", "from kernels import runtime; print(runtime.device())")
+    assert r.returncode == 0 and r.stdout.strip() == "cpu"
+    assert r.stderr == "", r.stderr
+
+
+def test_quiet_demo_run_prints_only_its_result(tmp_path):
+    """`photoar -q demo` (coarse settings to keep it short): stderr empty, one stdout line, and
+    report.json valid JSON. Without -q the log lines are photoar's own, none from a library."""
+    out = tmp_path / "demo"
+    coarse = ["--patch-size", "0.6", "--map-res", "64", "--passes", "2", "--cache", str(tmp_path / "cache")]
+    r = run("-m", "app.cli", "-q", "demo", "--out", str(out), *coarse)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == "", r.stderr
+    assert r.stdout.splitlines() == [r.stdout.strip()] and "composite.png" in r.stdout
+    strict_json((out / "report.json").read_text())
+    r = run("-m", "app.cli", "demo", "--out", str(tmp_path / "demo2"), *coarse)  # warm cache: short
+    assert r.returncode == 0, r.stderr
+    assert not [ln for ln in r.stderr.splitlines() if any(n in ln for n in NOISE)], r.stderr
+
+
+@pytest.mark.parametrize("content", [
+    bytes(range(256)) * 2,  # binary garbage: RPly says "Wrong magic number"
+    b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n\x01\x02\xff\x1b[31mred\n",
+])
+def test_garbage_mesh_gives_one_clean_line(tmp_path, capfd, content):
+    """In-process; capfd sees the file descriptors, so native (C-level) output counts too."""
+    from app.cli import main
+
+    mesh = tmp_path / "garbage.ply"
+    mesh.write_bytes(content)
+    out = tmp_path / "out"
+    code = main(["composite", str(ROOT / "app" / "demo"), "--object", str(mesh), "--out", str(out),
+                 "--cache", str(tmp_path / "cache")])
+    r = capfd.readouterr()
+    assert code == 2
+    lines = r.err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"photoar: error: {mesh}: "), r.err
+    assert lines[0].isprintable() and lines[0].isascii()
+    assert r.out == "" and not out.exists()
