@@ -53,8 +53,8 @@ def register(sub) -> None:
                         "background.png for a scene.json); without --camera the one whose right names room x "
                         "and whose height --camera-height gives (default: the first registered in name order)")
     p.add_argument("--single-camera", action="store_true",
-                   help="all photos share one camera (default: shared when sizes and EXIF camera agree, or when the "
-                        "sizes agree and no photo has EXIF)")
+                   help="all photos share one camera (default: shared when sizes and EXIF camera agree; when the "
+                        "sizes agree and no photo has EXIF, shared unless that leaves photos out)")
     p.add_argument("--camera-height", type=float, default=None,
                    help="without --camera: height (m) above the floor of the reference photo (--camera-image, "
                         "default the first registered photo in name order), for scale")

@@ -194,6 +194,11 @@ def test_uncalibrated_room_matches_truth_up_to_similarity(scene_sfm_free):
               f"room {np.round(f.hi - f.lo, 3).tolist()}")
         assert abs(s2 - 1) < 0.03, (sc, s2)
         assert abs(sc["metres_per_unit"] / sim.s - 1) < 0.03
+    # the tape alone gives no scale when no dimension has both its walls seen (here: none has)
+    from recon.roomfit import RoomError
+
+    with pytest.raises(RoomError, match="--room-size alone cannot give the scale"):
+        align_and_fit(res, None, room_size=(5.0, 2.6, 4.0))
     assert abs(fit_h.surfaces["floor"].position) < 0.005  # floor at y = 0 (the refit's RANSAC moves it by mm)
 
 
