@@ -321,6 +321,11 @@ def run_reconstruct(a: argparse.Namespace) -> int:
     if a.camera_height is not None and not a.camera_height > 0:
         raise ValueError(f"--camera-height must be positive, got {a.camera_height}")
     parse_known_distance(a.known_distance), parse_room_size(a.room_size)  # bad options fail before SfM
+    if a.camera_height is not None and a.camera is not None:
+        raise ValueError("--camera-height applies without --camera (the calibrated camera's own height, from "
+                         "`photoar calibrate --scale-height`, gives the scale)")
+    if a.camera_height is not None and a.known_distance is not None:
+        raise ValueError("give one of --camera-height and --known-distance")
     opts = mv.SfmOptions(max_features=a.max_features, peak_threshold=a.peak_threshold, two_view_tracks=True,
                          single_camera=True if a.single_camera else None,
                          camera=known[0] if known else None)

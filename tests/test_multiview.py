@@ -308,6 +308,9 @@ def test_empty_folder_and_unreadable_images(tmp_path, capsys):
                           ("--room-size", "4,-2.5,3", "--room-size: expected three positive numbers")):
         assert main(["-q", "reconstruct", str(empty), "--out", str(tmp_path / "out"), opt, val]) == 2
         assert msg in capsys.readouterr().err
+    assert main(["-q", "reconstruct", str(empty), "--out", str(tmp_path / "out"), "--camera-height", "1.5",
+                 "--known-distance", "a.png,b.png,2"]) == 2
+    assert "give one of --camera-height and --known-distance" in capsys.readouterr().err
 
 
 def test_two_images_that_do_not_connect(tmp_path):
