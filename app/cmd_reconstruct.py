@@ -121,8 +121,10 @@ def parse_room_size(text: str | None) -> tuple[float, float, float] | None:
     return v
 
 
-def _fit(res, up, ref: str | None = None, margin: float | None = None, room_size=None, aligned: bool = False):
-    """fit_room on an SfM result; aligned: the frame's axes are the room's (walls snapped to them)."""
+def _fit(res, up, ref: str | None = None, margin: float | None = None, room_size=None, aligned: bool = False,
+         floor_y: float | None = None):
+    """fit_room on an SfM result; aligned: the frame's axes are the room's (walls snapped to them);
+    floor_y: the floor's height when the frame's scale was set by a height above it."""
     from recon.roomfit import FitOptions, fit_room
 
     C = np.array([c.centre for c in res.cameras.values()])
@@ -130,7 +132,7 @@ def _fit(res, up, ref: str | None = None, margin: float | None = None, room_size
     right = tuple(res.cameras[ref].R[0]) if ref is not None else None
     return fit_room(res.points, res.colors, C, ups,
                     FitOptions(up=up, margin=margin, room_size=room_size, ref_right=right,
-                               axes=np.eye(3) if aligned else None))
+                               axes=np.eye(3) if aligned else None, floor_y=floor_y))
 
 
 def _distance_scale(res, kd: tuple[str, str, float]) -> tuple[float, str]:
@@ -180,7 +182,8 @@ def align_and_fit(res, known: tuple[Camera, str] | None, camera_height: float | 
         out = res.transformed(sim, "m", f"pose of {name}; scale: {detail}")
         scale = {"source": source, "metres_per_unit": float(s), "detail": detail}
         # the calibrated world's X and Z come from the room's vanishing lines: the room is aligned with them
-        return out, _fit(out, up, margin=WALL_MARGIN_M, room_size=room_size, aligned=True), scale
+        return out, _fit(out, up, margin=WALL_MARGIN_M, room_size=room_size, aligned=True,
+                         floor_y=0.0 if source == "camera" else None), scale
     ref = ref or res.registered[0]
     if ref not in res.cameras:
         raise RuntimeError(f"{ref}: the reference photo (--camera-image) was not registered "
@@ -210,7 +213,7 @@ def align_and_fit(res, known: tuple[Camera, str] | None, camera_height: float | 
     out = res.transformed(sim, "m" if metric else "sfm", f"{how}; scale: {detail}")
     scale = {"source": source, "metres_per_unit": float(s) if metric else None, "detail": detail}
     return out, _fit(out, up, ref, margin=WALL_MARGIN_M if metric else None,
-                     room_size=room_size if metric else None, aligned=True), scale
+                     room_size=room_size if metric else None, aligned=True, floor_y=0.0), scale
 
 
 def _cameras_json(res, timings: dict, scale: dict, room_fit: dict, how: str) -> dict:

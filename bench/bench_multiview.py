@@ -9,7 +9,9 @@ after a similarity to the published calibration; Sceaux: focal length against op
 worst rotation / centre error after a similarity to the true cameras and worst plane error of the
 fitted floor and walls, in the calibrated main photo's frame or, without a camera, after a
 similarity on the camera centres; the fitted room's size and how many cameras it contains).
-Renders go to out/bench/multiview_<set>.png. Timings on a shared 2-core machine are inflated by
+Renders go to out/bench/multiview_<set>.png. `--composite` also composites each scene with
+captured light in its fitted room (the own-room acceptance: energy 0.8-1.25, rmse_affected at
+most 0.6 x untouched). Timings on a shared 2-core machine are inflated by
 contention.
 """
 from __future__ import annotations
@@ -126,24 +128,75 @@ def bench_scene(name: str, mode: str) -> dict:
                        f"{'x'.join(f'{v * sim.s:.2f}' for v in fit.hi - fit.lo)} m; {inside}/{len(al.cameras)} "
                        f"cameras inside; scale {scale['source']}; {len(fit.boxes)} boxes"}
     _render(f"{name}_{mode}", al, fit.primitives(), row)
+    row["primitives"] = fit.primitives()
     return row
+
+
+def bench_composite(name: str, prims: list[dict]) -> dict:
+    """Composite with captured light in the scene whose six room quads are replaced by the fitted room
+    box's walls (observed and guessed; furniture, window and lamps as in scene.json: a user models
+    them with `photoar model`), scored by ../shared/tools/score.py (the own-room acceptance)."""
+    import subprocess
+
+    from app.cli import main as cli
+    from recon.view import room_walls
+
+    src = SHARED / "scenes" / name
+    room = next(p for p in prims if p.get("role") == "room")
+    walls = {n: q for n, q, _ in room_walls(room)}
+    d = json.loads((src / "scene.json").read_text())
+    for p in d["primitives"]:
+        if p.get("role") == "room" and p["type"] == "quad":
+            q = walls[p["name"]]
+            n = np.cross(q[1] - q[0], q[3] - q[0])
+            for k in ("albedo_texture", "texture_shape"):
+                p.pop(k, None)
+            p.update(corners=q.tolist(), normal=(n / np.linalg.norm(n)).tolist(),
+                     size_m=[float(np.linalg.norm(q[1] - q[0])), float(np.linalg.norm(q[3] - q[0]))])
+    c, size = np.array(room["center"]), np.array(room["size"])
+    d["world"]["room_min"], d["world"]["room_max"] = (c - size / 2).tolist(), (c + size / 2).tolist()
+    with tempfile.TemporaryDirectory() as tmp:
+        dst = Path(tmp) / name
+        dst.mkdir()
+        for f in src.iterdir():
+            if f.name != "scene.json":
+                (dst / f.name).symlink_to(f)
+        (dst / "scene.json").write_text(json.dumps(d))
+        t0 = time.perf_counter()
+        if cli(["-q", "composite", str(dst), "--out", str(Path(tmp) / "out"), "--lighting", "captured",
+                "--cache", str(Path(tmp) / "cache")]) != 0:
+            raise RuntimeError(f"{name}: composite failed")
+        dt = time.perf_counter() - t0
+        out = subprocess.run([sys.executable, str(SHARED / "tools" / "score.py"), str(src),
+                              str(Path(tmp) / "out" / "composite.png")], capture_output=True, text=True, check=True)
+        sc = json.loads(out.stdout.strip().splitlines()[-1])
+    return {"set": f"{name} fitted room, captured light", "composite_s": dt, "energy": sc["energy_ratio"],
+            "rmse_affected": sc["rmse_affected"], "untouched": sc["rmse_affected_if_untouched"],
+            "spurious": sc["spurious"], "rmse_object": sc["rmse_object"]}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sets", default="temple,sceaux,window_room,lamps_room",
                     help="comma list; a scene runs twice: calibrated main photo, and no camera")
+    ap.add_argument("--composite", action="store_true",
+                    help="also composite each scene with captured light in its fitted room (calibrated) and score it")
     a = ap.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
-    rows = []
+    rows, comp = [], []
     for s in a.sets.split(","):
         if s in ("temple", "sceaux"):
             rows.append(bench_temple() if s == "temple" else bench_sceaux())
         else:
             rows += [bench_scene(s, "calibrated"), bench_scene(s, "free")]
+            if a.composite:
+                comp.append(bench_composite(s, rows[-2]["primitives"]))
         print(f"done {s}", file=sys.stderr)
     print(table(rows, ["set", "features_s", "matching_s", "mapping_s", "fit_s", "render_s", "registered",
                        "reproj_px", "accuracy"], floatfmt=".2f"))
+    if comp:
+        print(table(comp, ["set", "composite_s", "energy", "rmse_affected", "untouched", "spurious", "rmse_object"],
+                    floatfmt=".3f"))
 
 
 if __name__ == "__main__":

@@ -63,7 +63,10 @@ class FitOptions:
     closest to it (None: closest to the frame's X); axes: (3,3) rows x, y (up), z of a frame already
     aligned with the room (a calibrated photo's world, whose X and Z come from the room's own
     vanishing lines, or the room frame of a first fit): the walls are snapped to these axes
-    instead of turning the frame to the first wall, so that the room box has yaw 0 exactly."""
+    instead of turning the frame to the first wall, so that the room box has yaw 0 exactly;
+    floor_y: the floor's height when the frame defines it (a frame scaled by a camera's height
+    above the floor found in a first pass puts it at y = 0): the floor plane must still be found,
+    but sits there exactly instead of where this pass's RANSAC puts it (a few mm away)."""
 
     tol: float | None = None
     up: tuple[float, float, float] | None = None
@@ -79,6 +82,7 @@ class FitOptions:
     room_size: tuple[float, float, float] | None = None
     ref_right: tuple[float, float, float] | None = None
     axes: np.ndarray | None = None
+    floor_y: float | None = None
 
 
 @dataclass
@@ -285,6 +289,8 @@ def fit_room(points: np.ndarray, colors: np.ndarray | None, cam_centres: np.ndar
             continue
         p["label"] = name
         pos = float(np.median(R[p["inliers"], k]))
+        if name == "floor" and opts.floor_y is not None:
+            pos = float(opts.floor_y)
         surfaces[name] = Surface(name, k, side, pos, True, p["support"], p["normal"], p["offset"], p["rms"], "plane",
                                  qcol[p["inliers"]].mean(0) / 255.0)
 

@@ -199,7 +199,7 @@ def test_uncalibrated_room_matches_truth_up_to_similarity(scene_sfm_free):
 
     with pytest.raises(RoomError, match="--room-size alone cannot give the scale"):
         align_and_fit(res, None, room_size=(5.0, 2.6, 4.0))
-    assert abs(fit_h.surfaces["floor"].position) < 0.005  # floor at y = 0 (the refit's RANSAC moves it by mm)
+    assert fit_h.surfaces["floor"].position == 0.0 and fit.surfaces["floor"].position == 0.0  # floor at y = 0
 
 
 def _args(folder: Path, out: Path, **kw):
