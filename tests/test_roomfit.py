@@ -171,3 +171,28 @@ def test_model_fits_a_box_to_clicked_corners(tmp_path):
     print(f"desk from 6 clicked corners: centre error {np.round(err_c * 100, 2)} cm, size error "
           f"{np.round(err_s * 100, 2)} cm, yaw {np.degrees(fitted.yaw):.2f} deg")
     assert err_c.max() < 0.03 and err_s.max() < 0.05 and abs(np.degrees(fitted.yaw)) < 1.5
+
+
+def test_scale_from_tape_and_camera_height_on_a_synthetic_reconstruction():
+    # an SfM-like result (scale 0.23, turned) of a room whose left and right walls are both seen:
+    # --room-size alone gives metres from the width; --camera-height from the reference camera's height;
+    # the output frame has the floor at y = 0, the room box axis-aligned, every camera inside
+    from app.cmd_reconstruct import align_and_fit
+
+    rng = np.random.default_rng(6)
+    P, C, Rs = _room(rng, faces=("floor", "back", "left", "right"))
+    sim, Ps, Cs, Rss = _to_sfm(P, C, Rs)
+    K = np.array([[450.0, 0, 319.5], [0, 450.0, 239.5], [0, 0, 1]])
+    cams = {f"img{k}.png": Camera(K, R, -R @ c, 640, 480) for k, (R, c) in enumerate(zip(Rss, Cs))}
+    res = mv.SfmResult(cams, Ps, np.full((len(Ps), 3), 128, np.uint8), np.zeros(len(Ps)), [], {}, [sorted(cams)],
+                       0.5, {}, len(cams))
+    for kw, source in (({"room_size": (W, H, D)}, "room-size"), ({"camera_height": C[0, 1]}, "camera-height")):
+        out, fit, scale = align_and_fit(res, None, **kw)
+        assert scale["source"] == source and out.units == "m"
+        assert scale["metres_per_unit"] == pytest.approx(1 / sim.s, rel=0.003), scale
+        box = fit.room_box()
+        assert box["yaw_deg"] == 0.0 and fit.surfaces["floor"].position == 0.0
+        assert box["size"][0] == pytest.approx(W, abs=0.01)  # both side walls seen
+        assert fit.contains(np.array([c.centre for c in out.cameras.values()])).all()
+        if source == "room-size":  # the tape also places the unseen ceiling and front
+            assert box["size"][1] == pytest.approx(H, abs=0.01) and box["size"][2] == pytest.approx(D, abs=0.01)
