@@ -24,12 +24,29 @@ log = logging.getLogger("photoar.view")
 BOX_EDGES = [(0, 1), (1, 3), (3, 2), (2, 0), (4, 5), (5, 7), (7, 6), (6, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
 BOX_FACES = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
 QUAD_COLOUR = {"floor": (0.55, 0.45, 0.35), "ceiling": (0.85, 0.85, 0.85)}
+OBSERVED_RGB = (0.1, 0.6, 0.1)  # wireframe of a wall fitted to points
+GUESSED_RGB = (0.95, 0.55, 0.0)  # wireframe of a wall placed beyond the cameras or from the tape
+FURNITURE_RGB = (0.1, 0.3, 0.9)
+# room-box walls: corner indices (bits (x, y, z) as in box_corners), wound so the normal faces inwards
+ROOM_FACES = {"floor": (0, 1, 5, 4), "ceiling": (2, 6, 7, 3), "back": (0, 4, 6, 2), "front": (1, 3, 7, 5),
+              "left": (0, 2, 3, 1), "right": (4, 5, 7, 6)}
 
 
-def box_corners(center, size) -> np.ndarray:
-    """(8,3) corners of an axis-aligned box; index bits (x, y, z) = (i>>2 & 1, i>>1 & 1, i & 1)."""
+def box_corners(center, size, yaw_deg: float = 0.0) -> np.ndarray:
+    """(8,3) corners of a box turned by yaw_deg about +Y (R_y takes +Z towards +X, as in
+    recon/primitives.py); index bits (x, y, z) = (i>>2 & 1, i>>1 & 1, i & 1) in the box's own axes."""
     c, h = np.asarray(center, float), np.asarray(size, float) / 2
-    return np.array([c + h * (np.array([(i >> 2) & 1, (i >> 1) & 1, i & 1]) * 2 - 1) for i in range(8)])
+    a = np.radians(float(yaw_deg))
+    Ry = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    local = np.array([h * (np.array([(i >> 2) & 1, (i >> 1) & 1, i & 1]) * 2 - 1) for i in range(8)])
+    return c + local @ Ry.T
+
+
+def room_walls(p: dict) -> list[tuple[str, np.ndarray, bool]]:
+    """A room box's six walls as (name, corners (4,3), observed); a box without "walls" counts as observed."""
+    bc = box_corners(p["center"], p["size"], p.get("yaw_deg", 0.0))
+    seen = {w.get("name"): bool(w.get("observed", True)) for w in p.get("walls", []) if isinstance(w, dict)}
+    return [(n, bc[list(f)], seen.get(n, True)) for n, f in ROOM_FACES.items()]
 
 
 def frustum_lines(cam: Camera, depth: float) -> tuple[np.ndarray, list[tuple[int, int]]]:
@@ -50,14 +67,16 @@ def model_mesh(primitives: list[dict]):
     V, F, C = [], [], []
     for p in primitives:
         if p.get("type") == "quad":
-            quads = [np.asarray(p["corners"], float)]
+            quads = [(np.asarray(p["corners"], float), p.get("name"))]
+        elif p.get("type") == "box" and p.get("role") == "room":
+            quads = [(q, n) for n, q, _ in room_walls(p)]
         elif p.get("type") == "box":
-            bc = box_corners(p["center"], p["size"])
-            quads = [bc[list(f)] for f in BOX_FACES]
+            bc = box_corners(p["center"], p["size"], p.get("yaw_deg", 0.0))
+            quads = [(bc[list(f)], None) for f in BOX_FACES]
         else:
             continue
-        col = QUAD_COLOUR.get(p.get("name"), (0.7, 0.7, 0.65) if p.get("role") == "room" else (0.2, 0.5, 0.8))
-        for q in quads:
+        for q, name in quads:
+            col = QUAD_COLOUR.get(name, (0.7, 0.7, 0.65) if p.get("role") == "room" else (0.2, 0.5, 0.8))
             b = len(V) * 4
             V.append(q)
             F += [(b, b + 1, b + 2), (b, b + 2, b + 3)]
@@ -81,14 +100,20 @@ def _lineset(points, edges, colour):
 
 
 def scene_lines(cameras: dict[str, Camera], primitives: list[dict], extent: float) -> list[tuple]:
-    """Line geometry as (points (N,3), edges, rgb colour in [0,1]) for primitives and frusta."""
+    """Line geometry as (points (N,3), edges, rgb colour in [0,1]) for primitives and frusta: room walls
+    green where observed (fitted to points), orange where guessed; furniture blue; cameras red."""
     out = []
+    quad = [(0, 1), (1, 2), (2, 3), (3, 0)]
     for p in primitives:
         if p.get("type") == "quad":
-            out.append((np.asarray(p["corners"], float), [(0, 1), (1, 2), (2, 3), (3, 0)],
-                        (0.1, 0.6, 0.1) if p.get("fit", {}).get("observed", True) else (0.6, 0.6, 0.6)))
+            seen = p.get("fit", {}).get("observed", p.get("observed", True))
+            out.append((np.asarray(p["corners"], float), quad, OBSERVED_RGB if seen else GUESSED_RGB))
+        elif p.get("type") == "box" and p.get("role") == "room":
+            walls = room_walls(p)  # guessed first, so that the observed colour wins on shared edges
+            for _, q, seen in sorted(walls, key=lambda w: w[2]):
+                out.append((q, quad, OBSERVED_RGB if seen else GUESSED_RGB))
         elif p.get("type") == "box":
-            out.append((box_corners(p["center"], p["size"]), BOX_EDGES, (0.1, 0.3, 0.9)))
+            out.append((box_corners(p["center"], p["size"], p.get("yaw_deg", 0.0)), BOX_EDGES, FURNITURE_RGB))
     for cam in cameras.values():
         pts, edges = frustum_lines(cam, 0.06 * extent)
         out.append((pts, edges, (0.85, 0.1, 0.1)))
