@@ -453,3 +453,27 @@ def test_sun_option_writes_the_sun(inputs, capsys):
     assert len(sun) == 1 and sun[0]["irradiance_perpendicular"] == [50.0, 48.0, 43.0]
     assert np.linalg.norm(sun[0]["direction_to_sun"]) == pytest.approx(1.0)
     load_scene(room)
+
+
+def test_turned_box_becomes_the_shared_parsers_quads():
+    """A furniture box turned by 30 degrees is written as six quads, the same faces recon.scene's
+    box_quads gives for it (the one primitive parser); an axis-aligned box turned by 90 degrees
+    stays a box with x and z swapped."""
+    from recon.assemble import parse_primitives
+    from recon.scene import box_quads
+
+    room = {"name": "room", "type": "box", "role": "room", "center": [2, 1.3, 2], "size": [4, 2.6, 4]}
+    turned = {"name": "t", "type": "box", "center": [2, 0.4, 2], "size": [1.0, 0.8, 0.5], "yaw_deg": 30}
+    quarter = {"name": "q", "type": "box", "center": [1, 0.4, 1], "size": [1.0, 0.8, 0.5], "yaw_deg": 90}
+    prims, lo, hi = parse_primitives({"primitives": [room, turned, quarter]}, "m.json")
+    got = {p["name"]: p for p in prims}
+    want = box_quads("t", np.array(turned["center"]), np.array(turned["size"]), np.radians(30), np.full(3, 0.5),
+                     "furniture", lo, hi)
+    assert len(want) == 6
+    for q in want:
+        np.testing.assert_allclose(got[q.name]["corners"], q.corners, atol=1e-12)
+        np.testing.assert_allclose(got[q.name]["normal"], q.normal, atol=1e-12)
+    assert got["q"]["type"] == "box"
+    np.testing.assert_allclose(got["q"]["size"], [0.5, 0.8, 1.0], atol=1e-12)
+    np.testing.assert_allclose(lo, [0, 0, 0])
+    np.testing.assert_allclose(hi, [4, 2.6, 4])
