@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import math
 import sys
 from importlib import resources
 from pathlib import Path
@@ -56,6 +57,17 @@ def _positive_float(s: str) -> float:
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be positive, got {v}")
     return v
+
+
+def xyz_arg(s: str) -> tuple[float, float, float]:
+    """argparse type of a point or vector given as "X,Y,Z": three finite numbers."""
+    try:
+        v = tuple(float(x) for x in s.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3 or not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z, got {s!r}")
+    return v  # type: ignore[return-value]
 
 
 def _add_engine_args(p: argparse.ArgumentParser, passes: bool = True) -> None:

@@ -16,17 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from app.cli import xyz_arg
+
 log = logging.getLogger("photoar")
-
-
-def _xyz(s: str) -> tuple[float, float, float]:
-    try:
-        v = tuple(float(x) for x in s.split(","))
-    except ValueError:
-        v = ()
-    if len(v) != 3 or not np.all(np.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"expected X,Y,Z in metres, got {s!r}")
-    return v  # type: ignore[return-value]
 
 
 def _positive_int(s: str) -> int:
@@ -55,7 +47,7 @@ def register(sub) -> None:
     g.add_argument("--object-size", type=float, default=None,
                    help="largest extent of the object in metres (default: the file's units when they look like "
                         "metres, else 0.6 m)")
-    g.add_argument("--place", type=_xyz, default=None, metavar="X,Y,Z",
+    g.add_argument("--place", type=xyz_arg, default=None, metavar="X,Y,Z",
                    help="world point (m) for the object's bottom centre (default: the scene's object pose)")
     g.add_argument("--yaw", type=float, default=0.0, help="turn about +Y in degrees (with --place)")
     g.add_argument("--passes", type=_positive_int, default=20,

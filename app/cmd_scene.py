@@ -5,35 +5,23 @@
 Assembles and validates a room folder (docs/scene-format.md, scene format 1): ROOM/scene.json,
 background.png (the photo, turned upright by its EXIF orientation), probe_XX.png (the bracket,
 shortest exposure first; cropped to the ball with --probe-circle auto), camera.json and
-primitives.json (copies of the inputs). The folder is staged beside ROOM and swapped in whole;
+primitives.json (copies of the inputs). The folder is staged beside ROOM and swapped in whole (recon.io.AtomicFolder);
 files a previous run wrote and this one does not are gone, other files in ROOM are kept.
 The logic lives in recon/assemble.py (pure functions); this module reads and writes files.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import logging
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from app.cli import xyz_arg
+
 log = logging.getLogger("photoar")
 
 OWNED = ("scene.json", "background.png", "camera.json", "primitives.json")
-
-
-def _triple(s: str) -> tuple[float, float, float]:
-    try:
-        v = tuple(float(x) for x in s.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X,Y,Z numbers, got {s!r}") from None
-    if len(v) != 3 or not all(np.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z, got {s!r}")
-    return v
 
 
 def register(sub) -> None:
@@ -51,9 +39,9 @@ def register(sub) -> None:
     g.add_argument("--probe", type=Path, nargs="+", default=None, metavar="IMG", help="the bracket's images")
     g.add_argument("--probe-times", type=float, nargs="+", default=None, metavar="T",
                    help="their exposure times in seconds, in the same order (default: EXIF ExposureTime)")
-    g.add_argument("--probe-centre", type=_triple, default=None, metavar="X,Y,Z", help="ball centre (m, world)")
+    g.add_argument("--probe-centre", type=xyz_arg, default=None, metavar="X,Y,Z", help="ball centre (m, world)")
     g.add_argument("--probe-radius", type=float, default=None, metavar="R", help="ball radius (m)")
-    g.add_argument("--probe-shot-from", type=_triple, default=None, metavar="X,Y,Z",
+    g.add_argument("--probe-shot-from", type=xyz_arg, default=None, metavar="X,Y,Z",
                    help="where the ball was photographed from (m, world; the camera held upright). A value "
                         "starting with '-' needs '=': --probe-shot-from=-0.5,1.2,2")
     g.add_argument("--probe-circle", choices=["inscribed", "auto"], default="inscribed",
@@ -62,56 +50,44 @@ def register(sub) -> None:
     g.add_argument("--skip-probe-check", action="store_true",
                    help="do not compare the probe pose with the images (see docs/scene-format.md)")
     s = p.add_argument_group("sun (a room lit through an opening)")
-    s.add_argument("--sun-direction", type=_triple, default=None, metavar="X,Y,Z", help="towards the sun (world); a value starting with '-' needs '=': "
+    s.add_argument("--sun-direction", type=xyz_arg, default=None, metavar="X,Y,Z", help="towards the sun (world); a value starting with '-' needs '=': "
                         "--sun-direction=-0.74,0.62,0.27")
-    s.add_argument("--sun-irradiance", type=_triple, default=None, metavar="R,G,B",
+    s.add_argument("--sun-irradiance", type=xyz_arg, default=None, metavar="R,G,B",
                    help="the sun's irradiance on a surface facing it (scene radiance units x sr)")
     p.set_defaults(run=run)
 
 
 def read_photo(path: Path) -> tuple[np.ndarray, float | None]:
-    """Upright 8-bit RGB image and its EXIF exposure time (None if absent); errors name the file."""
-    import cv2
+    """Upright 8-bit RGB image (recon.io.read_image_rgb honours the EXIF orientation) and its EXIF
+    exposure time (None if absent); errors name the file."""
+    from recon.exif import read_exif
+    from recon.io import read_image_rgb
 
-    from recon.exif import read_exif, upright
-
-    if not path.is_file():
-        raise ValueError(f"{path}: file not found")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
-    if img is None:
-        raise ValueError(f"{path}: not a readable image")
-    ex = read_exif(path)
-    return upright(img[..., ::-1], ex.orientation), ex.exposure_time
-
-
-def _read_json(path: Path):
-    from recon.io import read_json
-
-    return read_json(path)
+    return read_image_rgb(path), read_exif(path).exposure_time
 
 
 def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[str, bytes]]:
     """The scene dict, the images to write (name -> RGB uint8) and the files to copy (name -> bytes)."""
     from recon import assemble as asm
+    from recon.camera import Camera
+    from recon.io import SceneError, read_json
 
-    cam_raw = _read_json(a.camera)
-    cam = asm.parse_camera(cam_raw, str(a.camera))
-    prims_raw = _read_json(a.primitives)
-    prims, lo, hi = asm.parse_primitives(prims_raw, str(a.primitives))
+    cam = Camera.load(a.camera)
+    prims, lo, hi = asm.parse_primitives(read_json(a.primitives, SceneError), str(a.primitives))
     photo, exif_t = read_photo(a.photo)
-    if photo.shape[:2] != (cam["height"], cam["width"]):
+    if photo.shape[:2] != (cam.height, cam.width):
         raise ValueError(f"{a.photo}: image is {photo.shape[1]}x{photo.shape[0]} (upright), {a.camera} says "
-                         f"{cam['width']}x{cam['height']}")
+                         f"{cam.width}x{cam.height}")
     t = a.exposure_time if a.exposure_time is not None else exif_t
     if t is None:
         raise ValueError(f"{a.photo}: no exposure time: give --exposure-time S (the file has no EXIF ExposureTime)")
     if not (np.isfinite(t) and t > 0):
         raise ValueError(f"--exposure-time: must be a positive number of seconds, got {t}")
     asm.check_camera_in_room(cam, lo, hi, str(a.camera), str(a.primitives))
-    rel = cam["focal_rel_sigma"]
-    if cam["ill_conditioned"] or (isinstance(rel, (int, float)) and rel > 0.05):
+    rel = cam.focal_rel_sigma
+    if cam.ill_conditioned or (rel is not None and rel > 0.05):
         log.warning("%s: the focal length is uncertain%s: the composite may be misregistered", a.camera,
-                    f" (std(f)/f = {rel:.1%})" if isinstance(rel, (int, float)) else "")
+                    f" (std(f)/f = {rel:.1%})" if rel is not None else "")
 
     images = {"background.png": photo}
     light_probe = None
@@ -177,7 +153,7 @@ def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
     asm.check_probe_inside(a.probe_centre, a.probe_radius, a.probe_shot_from, lo, hi)
     lp = asm.light_probe_block(a.probe_centre, a.probe_radius, a.probe_shot_from, shots[0].shape[0], files, times)
     if not a.skip_probe_check:
-        from recon.probecheck import check_probe_pose
+        from lighting.probecheck import check_probe_pose
 
         try:
             chk = check_probe_pose(lp, a.probe_shot_from, [shots[i] for i in order], times, photo, photo_t, cam,
@@ -201,41 +177,21 @@ def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
 
 
 def write_room(room: Path, scene: dict, images: dict[str, np.ndarray], copies: dict[str, bytes]) -> None:
-    """Stage the folder beside `room` and swap it in; keep files in `room` that no run of `scene` wrote."""
-    from recon.io import write_json, write_png
+    """Replace the folder `room` by the new version (recon.io.AtomicFolder); files in it that no run
+    of `scene` wrote (OWNED, probe_*, the previous scene's probe files) are the user's and stay."""
+    from recon.io import AtomicFolder, read_json, write_json, write_png
 
-    room = Path(room)
-    parent = room.resolve().parent
-    parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{room.name}.partial-", dir=parent))
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(stage, 0o777 & ~umask)  # mkdtemp makes it private; the room folder is an ordinary one
+    owned = set(OWNED)
     try:
+        owned |= set(read_json(Path(room) / "scene.json").get("light_probe", {}).get("ldr_files", []))
+    except (OSError, ValueError, AttributeError):
+        pass
+    with AtomicFolder(room, lambda name: name in owned or name.startswith("probe_")) as stage:
         for name, img in images.items():
             write_png(stage / name, img)
         for name, data in copies.items():
             (stage / name).write_bytes(data)
         write_json(stage / "scene.json", scene)
-        old = None
-        if room.exists():
-            owned = set(OWNED)
-            try:
-                prev = json.loads((room / "scene.json").read_text())
-                owned |= set(prev.get("light_probe", {}).get("ldr_files", []))
-            except (OSError, ValueError, AttributeError):
-                pass
-            for f in room.iterdir():
-                if f.name not in owned and not f.name.startswith("probe_") and not (stage / f.name).exists():
-                    os.replace(f, stage / f.name)  # the user's own files stay
-            old = Path(tempfile.mkdtemp(prefix=f".{room.name}.old-", dir=parent))
-            os.replace(room, old / "room")
-        os.replace(stage, room)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    finally:
-        if stage.exists():
-            shutil.rmtree(stage, ignore_errors=True)
 
 
 def run(a: argparse.Namespace) -> int:

@@ -3,9 +3,9 @@ has: a calibrated camera (camera.json of `photoar calibrate`), a primitive model
 `photoar reconstruct` or a hand-written geometry file), a photo with its exposure time, and
 optionally a mirror-ball bracket with its tape-measured pose and a sun.
 
-Pure functions: they parse, validate and build the scene.json dict; app/cmd_scene.py reads the
-files and writes the folder. Every problem raises AssembleError with one line
-`<file>: <field/problem>`.
+Pure functions: they validate and build the scene.json dict from inputs parsed by the shared
+parsers (recon.camera.Camera, recon.scene.parse_primitives); app/cmd_scene.py reads the files and
+writes the folder. Every problem raises recon.io.SceneError with one line `<file>: <field/problem>`.
 
 Conventions as in ../shared/scenes/FORMAT.md: metres, world +Y up, floor at y = 0 for a room box
 standing on the floor; OpenCV cameras x_cam = R X + t; the probe camera is orthographic, looks
@@ -17,6 +17,11 @@ import math
 
 import numpy as np
 
+from recon.camera import Camera
+from recon.io import SceneError
+from recon.scene import PrimitiveSpec, aligned_size, box_faces, box_quads, is_axis_aligned
+from recon.scene import parse_primitives as scene_primitives
+
 SCENE_FORMAT_VERSION = 1
 ROLES_EMITTING = ("window", "lamp", "ceiling_lamp", "point_lamp")
 ROLES = ("room", "furniture") + ROLES_EMITTING
@@ -26,167 +31,88 @@ SUN_ANGULAR_DIAMETER_DEG = 0.53
 SUN_DISTANCE_M = 2000.0
 
 
-class AssembleError(ValueError):
-    """Bad input to `photoar scene`; the message is `<file>: <field/problem>`."""
-
-
-def _vec(value, shape: tuple, where: str, src: str) -> np.ndarray:
-    try:
-        a = np.asarray(value, np.float64)
-    except (TypeError, ValueError):
-        raise AssembleError(f"{src}: field '{where}' is not numeric") from None
-    if a.shape != shape or not np.all(np.isfinite(a)):
-        raise AssembleError(f"{src}: field '{where}' must be {list(shape)} finite numbers, got shape {list(a.shape)}")
-    return a
-
-
-# ----------------------------------------------------------------------------------------------
-# Camera
-
-def parse_camera(d, src: str) -> dict:
-    """camera.json of `photoar calibrate` (K as a block or flat fx..height, R, t) -> {K, R, t,
-    width, height, focal_rel_sigma, ill_conditioned}; the world->camera rotation must be proper."""
-    if not isinstance(d, dict):
-        raise AssembleError(f"{src}: top level must be an object")
-    if "main_camera" in d and isinstance(d["main_camera"], dict):  # a scene.json as camera source
-        d = d["main_camera"]
-    k = d.get("K") if isinstance(d.get("K"), dict) else d
-    keys = ("fx", "fy", "cx", "cy", "width", "height")
-    missing = [x for x in keys if x not in k]
-    if missing:
-        raise AssembleError(f"{src}: missing field 'K' (needs {', '.join(keys)}; missing {', '.join(missing)})")
-    K = {x: float(_vec(k[x], (), f"K.{x}", src)) for x in keys}
-    if not (K["fx"] > 0 and K["fy"] > 0 and K["width"] >= 1 and K["height"] >= 1):
-        raise AssembleError(f"{src}: field 'K' must have positive fx, fy, width, height")
-    if K["width"] != int(K["width"]) or K["height"] != int(K["height"]):
-        raise AssembleError(f"{src}: field 'K.width'/'K.height' must be whole pixels")
-    K["width"], K["height"] = int(K["width"]), int(K["height"])
-    for x in ("R", "t"):
-        if x not in d:
-            raise AssembleError(f"{src}: missing field '{x}'")
-    R = _vec(d["R"], (3, 3), "R", src)
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
-        raise AssembleError(f"{src}: field 'R' is not a rotation matrix (R R^T = I and det R = +1 required)")
-    t = _vec(d["t"], (3,), "t", src)
-    return {"K": K, "R": R, "t": t, "width": K["width"], "height": K["height"],
-            "focal_rel_sigma": d.get("focal_rel_sigma"), "ill_conditioned": bool(d.get("ill_conditioned", False))}
-
-
-def camera_centre(cam: dict) -> np.ndarray:
-    return -cam["R"].T @ cam["t"]
-
-
-# ----------------------------------------------------------------------------------------------
-# Primitives
-
-def _geometry(raw: dict, prim) -> list[dict]:
-    """scene.json entries (FORMAT.md schema, geometry + role [+ albedo, emitter]) of one parsed primitive."""
-    role = prim.role
-    extra: dict = {"role": role}
-    if "albedo" in raw:
-        extra["albedo"] = [float(x) for x in prim.albedo]
-    emitting = role in ROLES_EMITTING
-    extra["emitter"] = emitting
-    if emitting and "emitted_radiance" in raw:
-        extra["emitted_radiance"] = [float(x) for x in prim.emitted_radiance]
-    if prim.kind == "quad":
-        v = prim.vertices()
-        return [{"name": prim.name, "type": "quad", "corners": v.tolist(),
-                 "normal": prim.rotation()[:, 2].tolist(), **extra}]
-    q = prim.yaw / (math.pi / 2)
-    if abs(q - round(q)) < 1e-9:  # axis-aligned: a FORMAT.md box
-        size = np.abs(np.round(np.cos(prim.yaw))) * prim.size + np.abs(np.round(np.sin(prim.yaw))) * prim.size[[2, 1, 0]]
-        return [{"name": prim.name, "type": "box", "center": prim.center.tolist(), "size": size.tolist(), **extra}]
-    # a turned box: its six outward faces as quads
-    r, h = prim.rotation(), prim.size / 2
-    out = []
-    for axis in range(3):
-        for sign in (-1.0, 1.0):
-            u_ax, v_ax = [a for a in range(3) if a != axis]
-            local = np.zeros((4, 3))
-            local[:, axis] = sign * h[axis]
-            for k, (a, b) in enumerate([(-1, -1), (1, -1), (1, 1), (-1, 1)]):
-                local[k, u_ax], local[k, v_ax] = a * h[u_ax], b * h[v_ax]
-            c = prim.center + local @ r.T
-            n = sign * r[:, axis]
-            if np.dot(np.cross(c[1] - c[0], c[3] - c[0]), n) < 0:
-                c = c[[0, 3, 2, 1]]
-            out.append({"name": f"{prim.name}.{'xyz'[axis]}{'-+'[sign > 0]}", "type": "quad", "corners": c.tolist(),
-                        "normal": n.tolist(), **extra})
-    return out
+def _quad_entry(name: str, corners: np.ndarray, normal: np.ndarray, extra: dict) -> dict:
+    return {"name": name, "type": "quad", "corners": np.asarray(corners).tolist(),
+            "normal": np.asarray(normal).tolist(), **extra}
 
 
 def room_quads(lo: np.ndarray, hi: np.ndarray, extra: dict | None = None) -> list[dict]:
     """The six inward quads of the room box [lo, hi] named floor/ceiling/back/front/left/right."""
-    from recon.scene import box_faces
+    return [_quad_entry(ROOM_FACE_NAMES[(axis, side)], c, n, {"role": "room", **(extra or {}), "emitter": False})
+            for axis, side, c, n in box_faces(lo, hi, inward=True)]
 
-    out = []
-    for axis, side, c, n in box_faces(lo, hi, inward=True):
-        out.append({"name": ROOM_FACE_NAMES[(axis, side)], "type": "quad", "role": "room", "corners": c.tolist(),
-                    "normal": n.tolist(), **(extra or {}), "emitter": False})
-    return out
+
+def _entries(spec: PrimitiveSpec, lo: np.ndarray, hi: np.ndarray) -> list[dict]:
+    """scene.json entries (geometry + role [+ albedo, emitted_radiance where given]) of one
+    primitive: a quad as it is, an axis-aligned box as a box, a turned box as its six faces."""
+    extra: dict = {"role": spec.role}
+    if "albedo" in spec.raw:
+        extra["albedo"] = spec.albedo.tolist()
+    extra["emitter"] = spec.role in ROLES_EMITTING
+    if extra["emitter"] and "emitted_radiance" in spec.raw:
+        extra["emitted_radiance"] = spec.emitted_radiance.tolist()
+    if spec.kind == "quad":
+        return [_quad_entry(spec.name, spec.corners, spec.quad_normal, extra)]
+    yaw = math.radians(spec.yaw_deg)
+    if is_axis_aligned(yaw):  # a FORMAT.md box
+        return [{"name": spec.name, "type": "box", "center": spec.center.tolist(),
+                 "size": aligned_size(spec.size, yaw).tolist(), **extra}]
+    return [_quad_entry(q.name, q.corners, q.normal, extra)
+            for q in box_quads(spec.name, spec.center, spec.size, yaw, spec.albedo, spec.role, lo, hi)]
 
 
 def parse_primitives(d, src: str) -> tuple[list[dict], np.ndarray, np.ndarray]:
-    """A primitives file (`photoar model` / `reconstruct` output or {"primitives": [...]}) ->
-    (scene.json primitives, room_min, room_max). A box with role "room" is the room shell (six
-    inward quads); quads with role "room" are room surfaces as they are."""
-    from recon.primitives import primitive_from_json
-
-    if not isinstance(d, dict) or not isinstance(d.get("primitives"), list) or not d["primitives"]:
-        raise AssembleError(f"{src}: field 'primitives' must be a non-empty list")
-    out: list[dict] = []
-    room_pts: list[np.ndarray] = []
+    """A primitives file (`photoar model` / `reconstruct` output or {"primitives": [...]}, parsed
+    by recon.scene.parse_primitives) -> (scene.json primitives, room_min, room_max). A box with role
+    "room" is the room shell (six inward quads); quads with role "room" are room surfaces as they are."""
+    specs = scene_primitives(d, src)
+    where = {id(raw): f"primitives[{i}]" for i, raw in enumerate(d["primitives"])}  # indices as in the file
     names: set[str] = set()
-    n_room_boxes = 0
-    for i, raw in enumerate(d["primitives"]):
-        where = f"primitives[{i}]"
-        if isinstance(raw, dict) and raw.get("type") == "sun":
-            continue  # a benchmark scene.json given as model: its sun is not geometry
-        try:
-            prim = primitive_from_json(raw, where, src)
-        except ValueError as e:
-            raise AssembleError(str(e)) from None
-        if prim.role not in ROLES:
-            raise AssembleError(f"{src}: field '{where}.role' must be one of {', '.join(ROLES)}, got {prim.role!r}")
-        if prim.name in names:
-            raise AssembleError(f"{src}: field '{where}.name': duplicate name {prim.name!r}")
-        names.add(prim.name)
-        if prim.role == "room" and prim.kind == "box":
-            n_room_boxes += 1
-            if n_room_boxes > 1:
-                raise AssembleError(f"{src}: field '{where}': a second box with role 'room' (one room shell only)")
-            q = prim.yaw / (math.pi / 2)
-            if abs(q - round(q)) > 1e-9:
-                raise AssembleError(f"{src}: field '{where}.yaw_deg': the room box must be axis-aligned (it "
-                                    "defines the world axes)")
-            v = prim.vertices()
-            lo, hi = v.min(0), v.max(0)
-            extra = {"albedo": [float(x) for x in prim.albedo]} if "albedo" in raw else None
-            out += room_quads(lo, hi, extra)
-            room_pts.append(v)
-            continue
-        if prim.role == "room":
-            room_pts.append(prim.vertices())
-        out += _geometry(raw, prim)
+    for p in specs:
+        if p.role not in ROLES:
+            raise SceneError(f"{src}: field '{where[id(p.raw)]}.role' must be one of {', '.join(ROLES)}, got "
+                             f"{p.role!r}")
+        if p.name in names:
+            raise SceneError(f"{src}: field '{where[id(p.raw)]}.name': duplicate name {p.name!r}")
+        names.add(p.name)
+    shells = [p for p in specs if p.role == "room" and p.kind == "box"]
+    if len(shells) > 1:
+        raise SceneError(f"{src}: field '{where[id(shells[1].raw)]}': a second box with role 'room' (one room "
+                         "shell only)")
+    room_pts = [p.corners for p in specs if p.role == "room" and p.kind == "quad"]
+    shell = None
+    if shells:
+        p = shells[0]
+        if not is_axis_aligned(math.radians(p.yaw_deg)):
+            raise SceneError(f"{src}: field '{where[id(p.raw)]}.yaw_deg': the room box must be axis-aligned (it "
+                             "defines the world axes)")
+        half = aligned_size(p.size, math.radians(p.yaw_deg)) / 2
+        shell = (p.center - half, p.center + half)
+        room_pts.append(np.stack(shell))
     if not room_pts:
-        raise AssembleError(f"{src}: no room: give a box with \"role\": \"room\" (the room shell, inside "
-                            "dimensions) or the room's surfaces as quads with role 'room'")
+        raise SceneError(f"{src}: no room: give a box with \"role\": \"room\" (the room shell, inside "
+                         "dimensions) or the room's surfaces as quads with role 'room'")
     pts = np.concatenate(room_pts)
     lo, hi = pts.min(0), pts.max(0)
     if np.any(hi - lo <= 1e-6):
-        raise AssembleError(f"{src}: the room is flat (extent {np.round(hi - lo, 3).tolist()} m)")
+        raise SceneError(f"{src}: the room is flat (extent {np.round(hi - lo, 3).tolist()} m)")
+    out: list[dict] = []
+    for p in specs:
+        if p.role == "room" and p.kind == "box":
+            out += room_quads(*shell, {"albedo": p.albedo.tolist()} if "albedo" in p.raw else None)
+        else:
+            out += _entries(p, lo, hi)
     return out, lo, hi
 
 
-def check_camera_in_room(cam: dict, lo: np.ndarray, hi: np.ndarray, camera_src: str, prims_src: str,
+def check_camera_in_room(cam: Camera, lo: np.ndarray, hi: np.ndarray, camera_src: str, prims_src: str,
                          tol: float = 1e-3) -> None:
     """The photo was taken inside the room: its camera centre lies in the room box."""
-    c = camera_centre(cam)
+    c = cam.centre
     if np.any(c < lo - tol) or np.any(c > hi + tol):
-        raise AssembleError(f"{camera_src}: the camera centre {np.round(c, 3).tolist()} m lies outside the room "
-                            f"{np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()} of {prims_src}: check the "
-                            "calibration's scale (camera height / known length) and the room's measurements")
+        raise SceneError(f"{camera_src}: the camera centre {np.round(c, 3).tolist()} m lies outside the room "
+                         f"{np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()} of {prims_src}: check the "
+                         "calibration's scale (camera height / known length) and the room's measurements")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -199,12 +125,12 @@ def probe_camera(centre, radius: float, shot_from, width: int, height: int, src:
     d = c - s
     dist = float(np.linalg.norm(d))
     if not dist > radius:
-        raise AssembleError(f"{src}: the shot-from point {s.tolist()} is inside the ball (distance {dist:.3f} m "
+        raise SceneError(f"{src}: the shot-from point {s.tolist()} is inside the ball (distance {dist:.3f} m "
                             f"<= radius {radius} m)")
     z = d / dist
     x = np.cross(z, [0.0, 1.0, 0.0])
     if np.linalg.norm(x) < 1e-3:
-        raise AssembleError(f"{src}: the probe was shot straight from above or below: an upright camera's roll "
+        raise SceneError(f"{src}: the probe was shot straight from above or below: an upright camera's roll "
                             "is undetermined; shoot it from the side")
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
@@ -219,7 +145,7 @@ def light_probe_block(centre, radius: float, shot_from, size: int, files: list[s
                       src: str = "--probe-shot-from") -> dict:
     """scene.json light_probe block for a square, ball-inscribed bracket of `size` px."""
     if not radius > 0:
-        raise AssembleError(f"--probe-radius: must be positive, got {radius}")
+        raise SceneError(f"--probe-radius: must be positive, got {radius}")
     cam = probe_camera(centre, radius, shot_from, size, size, src)
     return {"centre": [float(x) for x in centre], "radius": float(radius), "camera": cam,
             "ball_in_image": {"centre_px": [(size - 1) / 2.0, (size - 1) / 2.0], "radius_px": size / 2.0},
@@ -230,7 +156,7 @@ def check_probe_inside(centre, radius: float, shot_from, lo, hi) -> None:
     """The ball lies in the room (the shot-from point may not: only its direction is used)."""
     c = np.asarray(centre, float)
     if np.any(c - radius < lo - 1e-3) or np.any(c + radius > hi + 1e-3):
-        raise AssembleError(f"--probe-centre: the ball {c.tolist()} (radius {radius} m) is not inside the room "
+        raise SceneError(f"--probe-centre: the ball {c.tolist()} (radius {radius} m) is not inside the room "
                             f"{np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()}")
 
 
@@ -242,11 +168,11 @@ def sun_primitive(direction, irradiance, lo, hi) -> dict:
     room centre) whose irradiance on a surface facing it is `irradiance` (RGB, scene units)."""
     d = np.asarray(direction, float)
     if not np.linalg.norm(d) > 0:
-        raise AssembleError("--sun-direction: must be a non-zero vector")
+        raise SceneError("--sun-direction: must be a non-zero vector")
     d = d / np.linalg.norm(d)
     E = np.asarray(irradiance, float)
     if np.any(E < 0) or not np.any(E > 0):
-        raise AssembleError(f"--sun-irradiance: must be non-negative and not all zero, got {E.tolist()}")
+        raise SceneError(f"--sun-irradiance: must be non-negative and not all zero, got {E.tolist()}")
     half = math.radians(SUN_ANGULAR_DIAMETER_DEG / 2)
     projected_solid_angle = math.pi * math.sin(half) ** 2  # of the disk, = its solid angle to 1e-5
     centre = 0.5 * (np.asarray(lo) + np.asarray(hi)) + SUN_DISTANCE_M * d
@@ -259,7 +185,7 @@ def sun_primitive(direction, irradiance, lo, hi) -> dict:
 # ----------------------------------------------------------------------------------------------
 # The scene
 
-def scene_dict(name: str, cam: dict, exposure_time: float, prims: list[dict], lo, hi,
+def scene_dict(name: str, cam: Camera, exposure_time: float, prims: list[dict], lo, hi,
                light_probe: dict | None = None, sun: dict | None = None, camera_response: dict | None = None
                ) -> dict:
     """The scene.json of a user's room (docs/scene-format.md): only what the engine reads."""
@@ -267,7 +193,7 @@ def scene_dict(name: str, cam: dict, exposure_time: float, prims: list[dict], lo
         "name": name, "format_version": SCENE_FORMAT_VERSION,
         "world": {"room_min": [float(x) for x in lo], "room_max": [float(x) for x in hi], "up": [0.0, 1.0, 0.0],
                   "floor_y": float(lo[1])},
-        "main_camera": {"K": dict(cam["K"]), "R": cam["R"].tolist(), "t": cam["t"].tolist(),
+        "main_camera": {"K": cam.intrinsics_json(), "R": cam.R.tolist(), "t": cam.t.tolist(),
                         "exposure_time": float(exposure_time), "files": {"background_png": "background.png"}},
         "primitives": prims + ([sun] if sun else []),
     }

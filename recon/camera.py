@@ -22,6 +22,8 @@ class Camera:
     width: int
     height: int
     exposure_time: float = 1.0  # X = radiance * exposure_time enters the camera response
+    focal_rel_sigma: float | None = None  # std(f)/f of a calibration (camera.json), None = not given
+    ill_conditioned: bool = False  # calibrate flagged the focal length as uncertain
 
     @classmethod
     def from_json(cls, d, path: str | os.PathLike, where: str = "") -> "Camera":
@@ -31,7 +33,9 @@ class Camera:
         Accepted forms (all in the convention of this module):
           * scene.json's main_camera: {"K": {fx, fy, cx, cy, width, height}, "R", "t",
             "exposure_time" (optional, default 1)};
-          * `photoar calibrate`'s camera.json: the same "K" object (and flat copies, ignored);
+          * `photoar calibrate`'s camera.json: the same "K" object (and flat copies, ignored),
+            with the optional uncertainty "focal_rel_sigma" (std(f)/f; null = undetermined) and
+            "ill_conditioned" (bool);
           * `photoar reconstruct`'s cameras.json entries: "K" (or "K_matrix") a 3x3 matrix,
             with "width" and "height" beside it.
         R must be a rotation (orthonormal, det +1), t 3 finite numbers, focal lengths and image
@@ -68,7 +72,12 @@ class Camera:
         exposure = float(json_array(d.get("exposure_time", 1.0), (), f"{where}exposure_time", path))
         if not exposure > 0:
             raise SceneError(f"{path}: field '{where}exposure_time' must be positive")
-        return cls(K, R, t, size[0], size[1], exposure)
+        rel = d.get("focal_rel_sigma")
+        rel = None if rel is None else float(json_array(rel, (), f"{where}focal_rel_sigma", path))
+        ill = d.get("ill_conditioned", False)
+        if not isinstance(ill, bool):
+            raise SceneError(f"{path}: field '{where}ill_conditioned' must be true or false, got {ill!r}")
+        return cls(K, R, t, size[0], size[1], exposure, rel, ill)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Camera":
@@ -80,6 +89,12 @@ class Camera:
             if isinstance(d, dict) and key in d:
                 return cls.from_json(d[key], path, f"{key}.")
         return cls.from_json(d, path)
+
+    def intrinsics_json(self) -> dict:
+        """The "K" object of scene.json / camera.json: {fx, fy, cx, cy, width, height}."""
+        K = self.K
+        return {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+                "width": int(self.width), "height": int(self.height)}
 
     @property
     def centre(self) -> np.ndarray:

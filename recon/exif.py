@@ -2,7 +2,7 @@
 Orientation (0x0112, 1..8), read from the APP1 "Exif" segment (TIFF layout, either byte order).
 
 OpenCV decodes pixels but does not report EXIF, so this small reader parses the segment itself.
-`upright` applies an Orientation value to an image (H,W[,C]) so that row 0 is the top of the scene.
+The pixels are turned upright by recon.io.read_image_rgb (OpenCV's decoder honours Orientation).
 """
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
 TAG_ORIENTATION = 0x0112
 TAG_EXIF_IFD = 0x8769
@@ -108,16 +107,3 @@ def read_exif(path: str | os.PathLike) -> Exif:
     """EXIF fields of an image file (empty Exif for non-JPEGs)."""
     with open(Path(path), "rb") as f:
         return parse_exif(f.read(1 << 20))  # EXIF lives in the first 64 KiB of a JPEG
-
-
-def upright(image: np.ndarray, orientation: int | None) -> np.ndarray:
-    """The image turned so that row 0 is the scene's top, for EXIF orientation 1..8."""
-    o = orientation or 1
-    img = image
-    if o in (5, 6, 7, 8):
-        # 5: transpose; 6: rotate 90 clockwise; 7: transverse; 8: rotate 90 counter-clockwise
-        img = {5: lambda a: a.swapaxes(0, 1), 6: lambda a: np.rot90(a, -1),
-               7: lambda a: np.rot90(a, 2).swapaxes(0, 1), 8: lambda a: np.rot90(a, 1)}[o](img)
-    else:
-        img = {1: lambda a: a, 2: lambda a: a[:, ::-1], 3: lambda a: a[::-1, ::-1], 4: lambda a: a[::-1]}[o](img)
-    return np.ascontiguousarray(img)

@@ -5,7 +5,8 @@ Conventions:
   * EXR images are (H,W,3) float32 linear RGB, never gamma-encoded;
   * every writer here writes atomically: a hidden temporary file beside the target, renamed over
     it (os.replace) only once it is complete, so a crash or an error never leaves a half-written
-    file; AtomicOutput does the same for a whole output folder;
+    file; AtomicOutput does the same for the files of an output folder, AtomicFolder replaces
+    a whole folder (keeping the user's own files in it);
   * JSON is written as valid JSON (RFC 8259): non-finite floats (NaN, +-Infinity), which JSON
     cannot hold, are written as null. The conversion is deterministic (always null, wherever the
     value sits); a field that can be undetermined documents that null means "undetermined".
@@ -99,6 +100,56 @@ class AtomicOutput:
         return False
 
 
+class AtomicFolder(AtomicOutput):
+    """Replace the whole folder `out` by a new version, atomically; keep the user's own files.
+
+    with AtomicFolder(out, ours) as stage: write the complete new version into stage. On success
+    the files of the old `out` that the new version lacks and that `ours(name)` does not claim (the
+    user's own files) move into the stage, the old folder is renamed aside and the stage renamed
+    to `out` (so `out` never holds a mix of two versions, and files an earlier run wrote that this
+    one does not are gone), then the old folder is removed. On an exception `out` is left as it
+    was and nothing of the run remains. The new folder gets ordinary permissions (umask)."""
+
+    def __init__(self, out: str | os.PathLike, ours: Callable[[str], bool]):
+        super().__init__(out)
+        self.ours = ours
+
+    def __enter__(self) -> Path:
+        stage = super().__enter__()
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(stage, 0o777 & ~umask)  # mkdtemp makes it private; it becomes `out`
+        return stage
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        try:
+            if exc_type is None:
+                old, kept = None, []
+                try:
+                    if self.out.exists():
+                        for f in self.out.iterdir():
+                            if not self.ours(f.name) and not (self.stage / f.name).exists():
+                                os.replace(f, self.stage / f.name)
+                                kept.append(f.name)
+                        old = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.old-", dir=self.stage.parent))
+                        os.replace(self.out, old / self.out.name)
+                    os.replace(self.stage, self.out)
+                except BaseException:  # put the old folder and the user's files back as they were
+                    if old is not None and (old / self.out.name).exists():
+                        os.replace(old / self.out.name, self.out)
+                    for name in kept:
+                        os.replace(self.stage / name, self.out / name)
+                    if old is not None:
+                        with contextlib.suppress(OSError):
+                            os.rmdir(old)
+                    raise
+                if old is not None:
+                    shutil.rmtree(old, ignore_errors=True)
+        finally:
+            shutil.rmtree(self.stage, ignore_errors=True)
+        return False
+
+
 def write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
     """numpy .npz archive of `arrays`, atomically (np.savez on a file object: it would append
     ".npz" to a temporary name)."""
@@ -113,7 +164,8 @@ def write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
 # 8-bit images
 
 def read_image_rgb(path: str | os.PathLike) -> np.ndarray:
-    """8-bit image file (PNG, JPEG, ...) -> (H,W,3) uint8 RGB; grey images are expanded to three
+    """8-bit image file (PNG, JPEG, ...) -> (H,W,3) uint8 RGB, turned upright by its EXIF
+    Orientation (a phone's JPEG; OpenCV's decoder applies it); grey images are expanded to three
     channels and alpha dropped. SceneError naming the file if it is missing, unreadable or not
     8-bit (a 16-bit image is refused rather than silently cut to 8 bits)."""
     import cv2

@@ -124,14 +124,24 @@ def rot_y(a: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
+def is_axis_aligned(yaw: float) -> bool:
+    """A box turned by `yaw` radians about +Y is axis-aligned (yaw a multiple of 90 degrees)."""
+    return bool(abs(np.sin(yaw)) < 1e-9 or abs(np.cos(yaw)) < 1e-9)
+
+
+def aligned_size(size, yaw: float) -> np.ndarray:
+    """World extents (3,) of an axis-aligned box of local `size` turned by `yaw` (x and z swap at 90 deg)."""
+    return np.abs(rot_y(yaw)) @ np.asarray(size, np.float64)
+
+
 def box_quads(name: str, center: np.ndarray, size: np.ndarray, yaw: float, albedo: np.ndarray, role: str,
               room_min: np.ndarray, room_max: np.ndarray) -> list[Quad]:
     """The outward faces of a box (centre and full extents in m, turned by `yaw` radians about +Y),
     named '<name>.x-' ... '<name>.z+'. An axis-aligned box (yaw a multiple of 90 degrees) loses the
     faces flush against a room wall or the floor (never lit, never seen); a turned box keeps all six."""
     center, size = np.asarray(center, np.float64), np.asarray(size, np.float64)
-    if abs(np.sin(yaw)) < 1e-9 or abs(np.cos(yaw)) < 1e-9:
-        size = np.abs(rot_y(yaw)) @ size
+    if is_axis_aligned(yaw):
+        size = aligned_size(size, yaw)
         quads = []
         for axis, side, c, normal in box_faces(center - size / 2, center + size / 2):
             wall = (room_min, room_max)[side][axis]
@@ -185,6 +195,7 @@ class PrimitiveSpec:
     corners: np.ndarray | None = None  # quad: (4,3) c0..c3
     normal: np.ndarray | None = None  # quad: (3,) unit lit side; None = as (c1-c0)x(c3-c0)
     texture: str | None = None  # quad: 'albedo_texture', relative to the file's folder
+    raw: dict = field(default_factory=dict)  # the JSON object it was parsed from (which keys were given)
 
     @property
     def quad_normal(self) -> np.ndarray:
@@ -204,7 +215,8 @@ def parse_primitive(p, where: str, path: str | os.PathLike) -> PrimitiveSpec:
     spec = PrimitiveSpec(str(p.get("name", where)), kind, str(p.get("role", "furniture" if kind == "box" else "room")),
                          json_array(p.get("albedo", [0.5] * 3), (3,), f"{where}.albedo", path),
                          bool(p.get("emitter", False)),
-                         json_array(p.get("emitted_radiance", [0.0] * 3), (3,), f"{where}.emitted_radiance", path))
+                         json_array(p.get("emitted_radiance", [0.0] * 3), (3,), f"{where}.emitted_radiance", path),
+                         raw=p)
     if kind == "box":
         spec.center = json_array(json_field(p, "center", where + ".", path), (3,), f"{where}.center", path)
         spec.size = json_array(json_field(p, "size", where + ".", path), (3,), f"{where}.size", path)

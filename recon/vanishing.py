@@ -87,13 +87,10 @@ class Calibration:
 
     def to_json(self) -> dict:
         c = self.camera
-        K = c.K
+        k = c.intrinsics_json()
         return {
-            "fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
-            "width": int(c.width), "height": int(c.height),
-            "K": {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
-                  "width": int(c.width), "height": int(c.height)},
-            "K_matrix": K.tolist(), "R": c.R.tolist(), "t": c.t.tolist(), "centre": c.centre.tolist(),
+            **k, "K": k,
+            "K_matrix": c.K.tolist(), "R": c.R.tolist(), "t": c.t.tolist(), "centre": c.centre.tolist(),
             "convention": "OpenCV: x_cam = R @ X_world + t, centre = -R^T t; u = fx x/z + cx, v = fy y/z + cy; "
                           "pixel (0,0) is the centre of the top-left pixel; world +Y up, metres",
             "vanishing_points": {a: {"h": v.h.tolist(), "px": None if v.px is None else v.px.tolist(),

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from recon.camera import Camera
-from recon.io import AtomicOutput, SceneError, dumps_json, read_exr, read_image_rgb, read_json, write_exr, \
+from recon.io import AtomicFolder, AtomicOutput, SceneError, dumps_json, read_exr, read_image_rgb, read_json, write_exr, \
     write_json, write_npz, write_png
 from recon.primitives import primitive_from_json
 from recon.scene import parse_primitive
@@ -61,6 +61,28 @@ def test_atomic_output_is_all_or_nothing(tmp_path):
         write_json(stage / "a.json", {"x": 1})
         write_png(stage / "b.png", np.full((2, 3, 3), 7, np.uint8))
     assert sorted(p.name for p in out.iterdir()) == ["a.json", "b.png"] and leftovers(tmp_path) == []
+
+
+def test_atomic_folder_replaces_the_whole_folder_and_keeps_the_users_files(tmp_path):
+    """AtomicFolder: a new version replaces the folder whole (a file the old version had and the new
+    one does not is gone), files `ours` does not claim stay, and a failed run changes nothing."""
+    out = tmp_path / "room"
+    ours = lambda name: name.startswith("gen_")  # noqa: E731
+    with AtomicFolder(out, ours) as stage:
+        for name in ("gen_a.json", "gen_old.json"):
+            write_json(stage / name, {"v": 1})
+    (out / "notes.txt").write_text("the user's")
+    with pytest.raises(RuntimeError):
+        with AtomicFolder(out, ours) as stage:
+            write_json(stage / "gen_a.json", {"v": 2})
+            raise RuntimeError("fails half-way")
+    assert sorted(p.name for p in out.iterdir()) == ["gen_a.json", "gen_old.json", "notes.txt"]
+    assert read_json(out / "gen_a.json") == {"v": 1} and leftovers(tmp_path) == []
+    with AtomicFolder(out, ours) as stage:
+        write_json(stage / "gen_a.json", {"v": 2})
+    assert sorted(p.name for p in out.iterdir()) == ["gen_a.json", "notes.txt"]
+    assert read_json(out / "gen_a.json") == {"v": 2} and (out / "notes.txt").read_text() == "the user's"
+    assert leftovers(tmp_path) == []
 
 
 def test_image_round_trips(tmp_path):
@@ -172,6 +194,12 @@ def test_camera_json_of_calibrate_loads():
     d = Calibration(cam, {}, float("inf"), True, "image centre", "camera height", 0.5).to_json()
     back = Camera.from_json(strict_json(dumps_json(d)), "camera.json")
     assert np.array_equal(back.K, cam.K) and np.array_equal(back.R, cam.R) and np.array_equal(back.t, cam.t)
+    assert back.focal_rel_sigma is None and back.ill_conditioned is True  # inf is written as null
+    d.update(focal_rel_sigma=0.08, ill_conditioned=False)
+    back = Camera.from_json(d, "camera.json")
+    assert back.focal_rel_sigma == 0.08 and back.ill_conditioned is False
+    with pytest.raises(SceneError, match="camera.json: field 'ill_conditioned'"):
+        Camera.from_json(dict(d, ill_conditioned="yes"), "camera.json")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -47,9 +47,10 @@ def test_probe_camera_matches_benchmark(name):
 
 
 def test_probe_camera_straight_down_is_refused():
-    from recon.assemble import AssembleError, probe_camera
+    from recon.assemble import probe_camera
+    from recon.io import SceneError
 
-    with pytest.raises(AssembleError, match="roll is undetermined"):
+    with pytest.raises(SceneError, match="roll is undetermined"):
         probe_camera([1, 1, 1], 0.1, [1, 2, 1], 256, 256)
 
 
@@ -146,7 +147,7 @@ def _bad_cases(inp, tmp):
          "noroom.json: no room"),
         ("box without size", {"--primitives": str(w("nosize.json", {"primitives": [
             prims["primitives"][0], {"name": "b", "type": "box", "center": [1, 1, 1]}]}))},
-         "nosize.json: field 'primitives[1].size'"),
+         "nosize.json: missing field 'primitives[1].size'"),
         ("unknown role", {"--primitives": str(w("role.json", {"primitives": [
             prims["primitives"][0], dict(prims["primitives"][1], role="sofa")]}))}, "role.json: field 'primitives[1].role'"),
         ("times count", {"--probe-times": [str(t) for t in inp["times"][:3]]}, "--probe-times: 3 times for 5"),
@@ -234,19 +235,28 @@ def test_exif_parse(endian):
     assert parse_exif(b"\x89PNG....").orientation is None
 
 
+# the stored pixels -> the upright image, for EXIF Orientation 1..8 (the TIFF/EXIF specification)
+UPRIGHT = {1: lambda a: a, 2: lambda a: a[:, ::-1], 3: lambda a: a[::-1, ::-1], 4: lambda a: a[::-1],
+           5: lambda a: a.swapaxes(0, 1), 6: lambda a: np.rot90(a, -1), 7: lambda a: np.rot90(a, 2).swapaxes(0, 1),
+           8: lambda a: np.rot90(a, 1)}
+
+
 @pytest.mark.parametrize("orientation", range(1, 9))
-def test_exif_orientation_as_opencv(tmp_path, orientation):
-    """recon.exif.upright turns the raw pixels as OpenCV's own EXIF-aware decoder does."""
+def test_read_image_rgb_turns_by_exif_orientation(tmp_path, orientation):
+    """recon.io.read_image_rgb, the one image reader, returns the stored pixels turned as EXIF
+    Orientation says, and the EXIF reader finds the tag."""
     import cv2
 
-    from recon.exif import read_exif, upright
+    from recon.exif import read_exif
+    from recon.io import read_image_rgb
 
     rng = np.random.default_rng(orientation)
     img = cv2.resize(rng.integers(0, 255, (6, 10, 3), dtype=np.uint8), (80, 48), interpolation=cv2.INTER_NEAREST)
     f = tmp_path / "o.jpg"
     f.write_bytes(_exif_jpeg(img, (1, 60), orientation))
-    raw = cv2.imread(str(f), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
-    assert np.array_equal(upright(raw, read_exif(f).orientation), cv2.imread(str(f), cv2.IMREAD_COLOR))
+    raw = cv2.imread(str(f), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)[..., ::-1]
+    assert read_exif(f).orientation == orientation
+    assert np.array_equal(read_image_rgb(f), UPRIGHT[orientation](raw))
 
 
 def test_scene_reads_exif_and_turns_the_photo_upright(inputs, capsys):
@@ -351,13 +361,14 @@ def test_probe_pose_check_flags_the_turned_pose(name):
     pose turned 180 degrees; with a deliberately flipped shot-from point the check says so."""
     import cv2
 
-    from recon.assemble import light_probe_block, parse_camera, parse_primitives
-    from recon.probecheck import check_probe_pose
+    from lighting.probecheck import check_probe_pose
+    from recon.assemble import light_probe_block, parse_primitives
+    from recon.camera import Camera
     from tests.own_room import tape_room
 
     root = shared_scene(name)
     d = json.loads((root / "scene.json").read_text())
-    cam = parse_camera(d, name)
+    cam = Camera.from_json(d["main_camera"], name, "main_camera.")
     prims, lo, hi = parse_primitives(tape_room(d), name)
     lp = d["light_probe"]
     c, s = np.array(lp["centre"]), np.array(lp["camera"]["centre"])
@@ -442,3 +453,27 @@ def test_sun_option_writes_the_sun(inputs, capsys):
     assert len(sun) == 1 and sun[0]["irradiance_perpendicular"] == [50.0, 48.0, 43.0]
     assert np.linalg.norm(sun[0]["direction_to_sun"]) == pytest.approx(1.0)
     load_scene(room)
+
+
+def test_turned_box_becomes_the_shared_parsers_quads():
+    """A furniture box turned by 30 degrees is written as six quads, the same faces recon.scene's
+    box_quads gives for it (the one primitive parser); an axis-aligned box turned by 90 degrees
+    stays a box with x and z swapped."""
+    from recon.assemble import parse_primitives
+    from recon.scene import box_quads
+
+    room = {"name": "room", "type": "box", "role": "room", "center": [2, 1.3, 2], "size": [4, 2.6, 4]}
+    turned = {"name": "t", "type": "box", "center": [2, 0.4, 2], "size": [1.0, 0.8, 0.5], "yaw_deg": 30}
+    quarter = {"name": "q", "type": "box", "center": [1, 0.4, 1], "size": [1.0, 0.8, 0.5], "yaw_deg": 90}
+    prims, lo, hi = parse_primitives({"primitives": [room, turned, quarter]}, "m.json")
+    got = {p["name"]: p for p in prims}
+    want = box_quads("t", np.array(turned["center"]), np.array(turned["size"]), np.radians(30), np.full(3, 0.5),
+                     "furniture", lo, hi)
+    assert len(want) == 6
+    for q in want:
+        np.testing.assert_allclose(got[q.name]["corners"], q.corners, atol=1e-12)
+        np.testing.assert_allclose(got[q.name]["normal"], q.normal, atol=1e-12)
+    assert got["q"]["type"] == "box"
+    np.testing.assert_allclose(got["q"]["size"], [0.5, 0.8, 1.0], atol=1e-12)
+    np.testing.assert_allclose(lo, [0, 0, 0])
+    np.testing.assert_allclose(hi, [4, 2.6, 4])

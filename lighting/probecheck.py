@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from recon.camera import Camera
+
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -63,7 +65,7 @@ def first_hit(quads: list[tuple[np.ndarray, np.ndarray]], origins: np.ndarray, d
 
 
 def _agreement(light_probe: dict, probe_lum: np.ndarray, photo: np.ndarray, g: np.ndarray, exposure_time: float,
-               cam: dict, quads) -> tuple[float, int]:
+               cam: Camera, quads) -> tuple[float, int]:
     """Correlation of log luminance between probe pixels and the photo pixels that see the same
     surface points, and the number of pairs; the photo (uint8) is linearised through g only at
     those pixels (a 12-megapixel photo is never converted whole)."""
@@ -75,18 +77,13 @@ def _agreement(light_probe: dict, probe_lum: np.ndarray, photo: np.ndarray, g: n
     hit = np.isfinite(t)
     P = origins[hit] + t[hit, None] * dirs[hit]
     pl = probe_lum.reshape(-1)[pixel[hit]]
-    R, tc = cam["R"], cam["t"]
-    K = cam["K"]
-    X = P @ R.T + tc
-    z = X[:, 2]
+    uv, z = cam.project(P)
     front = z > 1e-6
-    u = np.where(front, K["fx"] * X[:, 0] / np.where(front, z, 1) + K["cx"], -1)
-    v = np.where(front, K["fy"] * X[:, 1] / np.where(front, z, 1) + K["cy"], -1)
-    ui, vi = np.round(u).astype(int), np.round(v).astype(int)
+    ui, vi = (np.round(np.where(front[:, None], uv, -1)).astype(int)).T
     H, W = photo.shape[:2]
     inimg = front & (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H)
     # visible from the camera: nothing nearer along the camera ray
-    C = -R.T @ tc
+    C = cam.centre
     idx = np.flatnonzero(inimg)
     d = P[idx] - C
     dist = np.linalg.norm(d, axis=1)
@@ -111,9 +108,9 @@ def _agreement(light_probe: dict, probe_lum: np.ndarray, photo: np.ndarray, g: n
 
 
 def check_probe_pose(light_probe: dict, shot_from, probe_images: list[np.ndarray], times: list[float],
-                     photo: np.ndarray, exposure_time: float, cam: dict, prims: list[dict]) -> PoseCheck:
+                     photo: np.ndarray, exposure_time: float, cam: Camera, prims: list[dict]) -> PoseCheck:
     """Agreement of the probe bracket with the photo for the given pose and the pose turned 180 deg
-    (module docstring). cam: recon.assemble.parse_camera's dict; prims: scene.json primitives."""
+    (module docstring). cam: the photo's camera; prims: scene.json primitives (recon.assemble)."""
     from lighting.hdr import merge_bracket
     from recon.assemble import probe_camera
 
