@@ -67,7 +67,7 @@ class Scene:
     camera: Camera
     quads: list[Quad]
     obj: SceneObject | None
-    response: CameraResponse
+    response: CameraResponse | None  # None: scene.json declares no camera_response
     photo: np.ndarray  # (H,W,3) uint8 RGB, the empty room
     room_min: np.ndarray
     room_max: np.ndarray
@@ -201,14 +201,17 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         raise SceneError(f"{path}: field 'main_camera.exposure_time' must be positive")
     camera = Camera(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), R, t, width, height, exposure)
 
-    resp = _field(d, "camera_response", "", path)
-    try:
-        response = CameraResponse(_field(resp, "forward_table", "camera_response.", path),
-                                  _field(resp, "inverse_table", "camera_response.", path), exposure)
-    except ValueError as e:
-        raise SceneError(f"{path}: field 'camera_response': {e}") from None
+    response = None  # no camera_response: only lighting that assumes or recovers one can run
+    if "camera_response" in d:
+        resp = d["camera_response"]
+        try:
+            response = CameraResponse(_field(resp, "forward_table", "camera_response.", path),
+                                      _field(resp, "inverse_table", "camera_response.", path), exposure)
+        except ValueError as e:
+            raise SceneError(f"{path}: field 'camera_response': {e}") from None
 
     quads: list[Quad] = []
+    unknown_emitters: list[str] = []
     prims = _field(d, "primitives", "", path)
     if not isinstance(prims, list) or not prims:
         raise SceneError(f"{path}: field 'primitives' must be a non-empty list")
@@ -232,6 +235,8 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
                 flipped = False
             emission = _vec(p.get("emitted_radiance", [0, 0, 0]), 3, f"{where}.emitted_radiance", path) \
                 if p.get("emitter") else np.zeros(3)
+            if p.get("emitter") and "emitted_radiance" not in p:
+                unknown_emitters.append(name)  # a window or lamp of unknown strength (photo light finds it)
             texture = None
             if load_textures and p.get("albedo_texture"):
                 img = read_image_rgb(root / p["albedo_texture"]).astype(np.float32) / 255.0
@@ -255,7 +260,7 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         raise SceneError(f"{root / files.get('background_png', 'background.png')}: image is "
                          f"{photo.shape[1]}x{photo.shape[0]}, camera says {width}x{height}")
     return Scene(str(d.get("name", root.name)), root, camera, quads, obj, response, photo, room_min, room_max,
-                 meta={"json_path": str(path)})
+                 meta={"json_path": str(path), "emitters_without_radiance": unknown_emitters})
 
 
 def make_object(mesh_path: Path, object_to_world: np.ndarray, albedo: np.ndarray) -> SceneObject:
