@@ -3,7 +3,7 @@
 usage: python scripts/make_three_lightings.py [--scene ../shared/scenes/window_room]
 Panels, left to right: known light (declared emitters and albedos), captured light (probe bracket
 and photo), photo light (the photo alone; the scene stripped of response, albedos, emitter
-radiance and probe), each at half size with its label. Writes docs/three_lightings.png (< 300 KB);
+radiance and probe), each cropped around the object and its shadows, 288 x 216, with its label. Writes docs/three_lightings.png (< 300 KB);
 out/three_lightings holds the runs.
 """
 from __future__ import annotations
@@ -22,7 +22,7 @@ from app import composite  # noqa: E402
 from app.engine import EngineParams  # noqa: E402
 from app.io import write_png  # noqa: E402
 from bench.bench_photolight import strip_scene  # noqa: E402
-from recon.scene import read_image_rgb  # noqa: E402
+from recon.scene import load_scene, read_image_rgb  # noqa: E402
 
 
 def main() -> None:
@@ -30,12 +30,23 @@ def main() -> None:
     ap.add_argument("--scene", type=Path, default=ROOT.parent / "shared" / "scenes" / "window_room")
     a = ap.parse_args()
     out, cache = ROOT / "out" / "three_lightings", ROOT / "out" / ".cache"
-    panels = []
+    panels, box = [], None
+    photo = read_image_rgb(a.scene / "background.png").astype(int)
     for lighting in ("known", "captured", "photo"):
         scene = strip_scene(a.scene, out / "stripped") if lighting == "photo" else a.scene
         composite.main(scene, out / lighting, EngineParams(lighting=lighting), cache_dir=cache, quiet=True)
         img = read_image_rgb(out / lighting / "composite.png")
-        img = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        if box is None:  # around the object: 2.2 x its projected height, 4:3
+            sc = load_scene(a.scene)
+            uv, _ = sc.camera.project(sc.obj.vertices)
+            H, W = photo.shape[:2]
+            h = min(int(2.2 * np.ptp(uv[:, 1])), H)
+            w = min(h * 4 // 3, W)
+            cx, cy = uv.mean(0)
+            y0, x0 = int(np.clip(cy - h / 2, 0, H - h)), int(np.clip(cx - w / 2, 0, W - w))
+            box = (y0, x0, h, w)
+        y0, x0, h, w = box
+        img = cv2.resize(img[y0:y0 + h, x0:x0 + w], (288, 216), interpolation=cv2.INTER_AREA)
         cv2.putText(img, f"{lighting} light", (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
         cv2.putText(img, f"{lighting} light", (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1,
                     cv2.LINE_AA)
