@@ -29,6 +29,7 @@ from app.engine import Engine, EngineParams  # noqa: E402
 from app.io import write_png  # noqa: E402
 from app.report import table  # noqa: E402
 from lighting.photolight import PhotoPriors, srgb_response  # noqa: E402
+from lighting.sources import luminance  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
 
@@ -78,7 +79,7 @@ def row(scene: str, prior: str, s: dict, fit: dict) -> dict:
             "rmse_aff": round(s["rmse_affected"], 2), "untouched": round(s["rmse_affected_if_untouched"], 2),
             "spurious": round(s["spurious"], 5), "rmse_object": round(s["rmse_object"], 2),
             "bias_object": round(s["bias_object"], 2), "implied_albedo": fit["implied_wall_albedo"],
-            "emitters": em}
+            "emitter_lum": round(sum(float(luminance(e["radiance"])) for e in fit["emitters"]), 2), "emitters": em}
 
 
 def main() -> int:
@@ -102,10 +103,16 @@ def main() -> int:
             eng = Engine(load_scene(d), EngineParams(lighting="photo"), quiet=True)
             pre_s = time.perf_counter() - t0
             declared = load_scene(src).quads
+            nominal_lum = 0.0
             for label, pr in variants:
                 frame, fit_s = relight(eng, pr)
                 s = score_png(src, frame.pixels, a.shared)
                 rows.append(row(name, label, s, eng.photo_light))
+                # summed emitter luminance against the nominal priors' (response variants: other units)
+                rows[-1]["emitter_change"] = f"{100 * (rows[-1]['emitter_lum'] / nominal_lum - 1):+.0f}%" \
+                    if label != "nominal" and nominal_lum > 0 else ""
+                if label == "nominal":
+                    nominal_lum = rows[-1]["emitter_lum"]
                 if label == "nominal":
                     times.append({"scene": name, "precompute_cold_s": round(pre_s, 1),
                                   "photo_light_fit_s": round(fit_s, 2),
