@@ -146,10 +146,8 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
                          f"no light to read")
     group, gquads = _unknown_groups(patches, count, clipped)
     ng = len(gquads)
-    names = [quad_names[q] if quad_names else f"quad {q}" for q in gquads]
-    for q, nm in zip(gquads, names):
-        if not emit[patches.quad == q].any():
-            names[names.index(nm)] = f"{nm} (clipped region)"
+    names = [(quad_names[q] if quad_names else f"quad {q}")
+             + ("" if emit[patches.quad == q].any() else " (clipped region)") for q in gquads]
 
     # ---- sets: S measured walls, K measured emitters, X unknown (grouped), U unseen reflectors
     S = np.flatnonzero(seen_wall)

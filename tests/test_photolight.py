@@ -85,6 +85,20 @@ def test_clipped_window_found_from_the_walls(room):
     assert np.median(np.abs(fit.radiance[unseen, 1] / B[unseen, 1] - 1)) < 0.15
 
 
+def test_clipped_region_outside_the_model_becomes_an_emitter(room):
+    # the same room, but the model does not mark the window: its clipped pixels make it an emitter
+    # patch group, fitted like a modelled one (within 5 %)
+    _, pm, G, B = room
+    pix_patch, photo, resp = _photo(pm, B, exposure=0.4)
+    unmarked = SimpleNamespace(quad=pm.quad, normal=pm.normal, n_patches=pm.n_patches,
+                               is_emitter=np.zeros(pm.n_patches, bool))
+    fit = PL.fit_photo_light(unmarked, G, pix_patch, photo, resp, where="test.png")
+    em = fit.report["emitters"]
+    assert len(em) == 1 and em[0]["name"].endswith("(clipped region)")
+    assert fit.report["clipped_region_patches"] == int(pm.is_emitter.sum())
+    assert np.abs(np.array(em[0]["radiance"]) / WINDOW - 1).max() < 0.05, em
+
+
 def test_albedo_prior_scales_the_window(room):
     # the walls fix rho * E: a 20 % higher albedo prior gives a dimmer window, by more than 1/1.2
     # since the light between the walls (measured) stays (measured 0.68)
