@@ -290,7 +290,7 @@ class Engine:
         emit = (fit.origin == 3) | pm.is_emitter  # fitted groups and the model's emitters
         pm.emission = np.where(emit[:, None], 1.0, 0.0)
         self.photo_light = {**fit.report, **{k: v for k, v in self.photo_light.items() if k.startswith("declared")}}
-        log.info("photo light: %s", {k: v for k, v in fit.report.items() if k != "warnings"})
+        log.info("photo light: %s", {k: v for k, v in self.photo_light.items() if k != "warnings"})
 
     def _setup(self) -> None:
         """Per-scene arrays derived from the precompute, shared by every frame."""

@@ -20,8 +20,10 @@ photo gives everything else, read through a response that is assumed, not measur
   (scipy.optimize.lsq_linear, e >= the clipped lower bound) of rho E_i(e) = L_i, with residuals
   relative to L_i (every wall counts alike, not only the bright ones near the window).
 * **Uncertainty.** The covariance sigma^2 (J^T J)^-1 of the fit (sigma^2 from the residual, J the
-  weighted design matrix) gives a 1-sigma relative error per emitter; it ignores the priors,
-  whose effect bench/bench_photolight.py measures (the albedo prior scales the emitters ~ 1/rho).
+  weighted design matrix) gives a 1-sigma relative error per emitter; it ignores the priors. The
+  fit is repeated with the wall albedo prior at -20 % / +20 % (the transfers' solve is shared, so
+  this costs two small least squares) and each emitter's relative change is reported beside it;
+  bench/bench_photolight.py measures all three priors' effect on the composite.
 
 Priors (not fitted to any scene): wall albedo 0.55 (a mid-grey painted wall; interior walls are
 0.5-0.8, floors 0.2-0.5, so one grey value for every seen surface), unseen reflectivity 0.5 (the
@@ -181,34 +183,19 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     if not pr.relative:
         w = np.full(len(S), 1.0 / np.median(wall_lum))
     w = np.where(fit_on, w, 0.0)
-    e = np.zeros((ng, 3))
-    std = np.full((ng, 3), np.nan)
     lower = np.zeros((ng, 3))
-    at_bound = np.zeros((ng, 3), bool)
-    resid = np.zeros(3)
     for g in range(ng):  # the clipped pixels' radiance is a lower bound of their emitter
         px = np.flatnonzero(ok & sat & (group[np.maximum(pix_patch, 0)] == g))
         if len(px):
             lower[g] = np.median(L_b[px], axis=0)
-    unresolved = np.zeros(ng, bool)
-    if ng:
-        J = w[:, None] * rho * A1
-        reach = np.abs(J).sum(0)
-        unresolved = reach <= 1e-9 * max(reach.max(), 1e-300)  # no measured wall sees the group
-        for c in range(3):
-            b = w * (L_S[:, c] - rho * a0[:, c])
-            sol = lsq_linear(J, b, bounds=(lower[:, c], np.inf), method="bvls")
-            e[:, c] = sol.x
-            res = J @ sol.x - b
-            resid[c] = float(np.sqrt(np.mean(res[fit_on] ** 2)))
-            at_bound[:, c] = sol.x <= lower[:, c] * (1 + 1e-9) + 1e-300
-            free = ~at_bound[:, c] & ~unresolved
-            dof = max(int(fit_on.sum()) - int(free.sum()), 1)
-            if free.any():
-                cov = np.sum(res ** 2) / dof * np.linalg.pinv(J[:, free].T @ J[:, free])
-                std[free, c] = np.sqrt(np.clip(np.diag(cov), 0, None))
-        if not np.all(np.isfinite(e)):
-            raise RuntimeError(f"{where}: inverse radiosity gave non-finite emitter radiance")
+    reach = np.abs(w[:, None] * A1).sum(0)
+    unresolved = reach <= 1e-9 * max(reach.max(initial=0.0), 1e-300)  # no measured wall sees the group
+    e, std, at_bound, resid = _solve_emitters(w[:, None] * A1, w, L_S, a0, rho, lower, unresolved)
+    # the prior's share of the uncertainty: the same fit with the albedo prior -20 % / +20 %
+    e_lo = _solve_emitters(w[:, None] * A1, w, L_S, a0, 0.8 * rho, lower, unresolved)[0]
+    e_hi = _solve_emitters(w[:, None] * A1, w, L_S, a0, min(1.2 * rho, 0.999), lower, unresolved)[0]
+    if not np.all(np.isfinite(e)):
+        raise RuntimeError(f"{where}: inverse radiosity gave non-finite emitter radiance")
 
     B = known + M @ e
     if len(U):
@@ -232,9 +219,11 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     for g, nm in enumerate(names):
         lum = float(luminance(e[g]))
         rel = float(luminance(np.nan_to_num(std[g])) / lum) if lum > 0 else float("nan")
+        prior = [float(luminance(x[g])) / lum - 1 if lum > 0 else float("nan") for x in (e_lo, e_hi)]
         emitters.append({"name": nm, "radiance": [round(float(v), 4) for v in e[g]],
                          "lower_bound": [round(float(v), 4) for v in lower[g]],
                          "rel_std": None if not np.isfinite(rel) else round(rel, 4),
+                         "albedo_prior_x0.8_x1.2": [None if not np.isfinite(v) else round(v, 4) for v in prior],
                          "at_lower_bound": bool(at_bound[g].all()), "seen_by_walls": bool(not unresolved[g]),
                          "patches": int(np.sum(group == g))})
     report = {"response": "sRGB (assumed)" if pr.gamma_scale == 1 else f"sRGB^-1 ** {pr.gamma_scale} (assumed)",
@@ -247,6 +236,32 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
               "emitters": emitters}
     _warn(report, where, emit, count)
     return PhotoLight(B, refl, origin, report)
+
+
+def _solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarray, rho: float,
+                    lower: np.ndarray, unresolved: np.ndarray):
+    """Bounded least squares of rho (a0 + A1 e) = L_S per channel, rows weighted by w (J1 = w A1).
+    Returns e (G,3), its 1-sigma std (G,3) (NaN where at a bound or not seen), at_bound (G,3) and
+    the RMS weighted residual per channel (3,)."""
+    ng, fit_on = J1.shape[1], w > 0
+    e, std = np.zeros((ng, 3)), np.full((ng, 3), np.nan)
+    at_bound, resid = np.zeros((ng, 3), bool), np.zeros(3)
+    if ng == 0:
+        return e, std, at_bound, resid
+    J = rho * J1
+    for c in range(3):
+        b = w * (L_S[:, c] - rho * a0[:, c])
+        sol = lsq_linear(J, b, bounds=(lower[:, c], np.inf), method="bvls")
+        e[:, c] = sol.x
+        res = J @ sol.x - b
+        resid[c] = float(np.sqrt(np.mean(res[fit_on] ** 2)))
+        at_bound[:, c] = sol.x <= lower[:, c] * (1 + 1e-9) + 1e-300
+        free = ~at_bound[:, c] & ~unresolved
+        dof = max(int(fit_on.sum()) - int(free.sum()), 1)
+        if free.any():
+            cov = np.sum(res ** 2) / dof * np.linalg.pinv(J[:, free].T @ J[:, free])
+            std[free, c] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return e, std, at_bound, resid
 
 
 def _warn(report: dict, where: str, emit: np.ndarray, count: np.ndarray) -> None:

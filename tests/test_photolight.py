@@ -77,6 +77,8 @@ def test_clipped_window_found_from_the_walls(room):
     rel = np.abs(np.array(em[0]["radiance"]) / WINDOW - 1)
     assert rel.max() < 0.05, em
     assert 0 < em[0]["rel_std"] < 0.2 and not em[0]["at_lower_bound"]
+    lo, hi = em[0]["albedo_prior_x0.8_x1.2"]  # the prior's share of the uncertainty: dimmer with more albedo
+    assert lo > 0.2 and -0.45 < hi < -0.15, (lo, hi)
     assert abs(fit.report["implied_wall_albedo"] - RHO) < 0.03
     assert np.all(np.isfinite(fit.radiance)) and not fit.report["warnings"]
     # unseen patches gathered: within 10 % of the radiosity (they use the 0.5 unseen prior, not 0.55)
