@@ -16,7 +16,7 @@ import sys
 from importlib import resources
 from pathlib import Path
 
-from app.engine import EngineParams
+from app.engine import LIGHTINGS, EngineParams
 
 log = logging.getLogger("photoar")
 
@@ -87,10 +87,10 @@ def _add_engine_args(p: argparse.ArgumentParser, passes: bool = True) -> None:
                    help="share of total patch power kept as shadow sources (default %(default)s)")
     g.add_argument("--patch-size", type=_positive_float, default=d.patch_size, help="metres (default %(default)s)")
     g.add_argument("--map-res", type=_positive_int, default=d.map_res, help="shadow-map size (default %(default)s)")
-    g.add_argument("--lighting", choices=["known", "captured"], default=d.lighting,
+    g.add_argument("--lighting", choices=LIGHTINGS, default=d.lighting,
                    help="known: the scene's declared emitters; captured: the bracketed mirror-ball probe "
-                        "(probe_*.png) and the photo, with the response recovered from the bracket "
-                        "(default %(default)s)")
+                        "(probe_*.png) and the photo, with the response recovered from the bracket; photo: "
+                        "the photo alone (sRGB assumed, emitters fitted to the walls) (default %(default)s)")
     g.add_argument("--specular", type=float, default=d.specular,
                    help="k_s of the object's Phong-like specular lobe, in [0, 1] (default %(default)s: Lambertian)")
     g.add_argument("--shininess", type=float, default=d.shininess, help="Phong exponent (default %(default)s)")

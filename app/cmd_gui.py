@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from app.cli import xyz_arg
+from app.engine import LIGHTINGS
 
 log = logging.getLogger("photoar")
 
@@ -54,6 +55,8 @@ def register(sub) -> None:
                    help="shadow passes per frame (default %(default)s; the window's slider changes it)")
     g.add_argument("--all-sources", action="store_true", help="one shadow pass per source (slow)")
     g.add_argument("--mode", choices=["hdr", "ldr"], default="hdr", help="compositing path (default %(default)s)")
+    g.add_argument("--lighting", choices=LIGHTINGS, default="known",
+                   help="room light: declared emitters, the probe bracket, or the photo alone (default %(default)s)")
     g.add_argument("--screenshot", type=Path, default=None,
                    help="after the frames, save a PNG of the window and exit")
     g.add_argument("--frames", type=_positive_int, default=None,
@@ -74,7 +77,7 @@ def run(a: argparse.Namespace) -> int:
                            "e.g. `xvfb-run -a photoar gui SCENE_DIR --screenshot shot.png`")
     if a.object_size is not None and not a.object_size > 0:
         raise ValueError(f"{a.object}: --object-size must be positive, got {a.object_size}")
-    params = EngineParams(passes=None if a.all_sources else a.passes, mode=a.mode)
+    params = EngineParams(passes=None if a.all_sources else a.passes, mode=a.mode, lighting=a.lighting)
     ctl = PlacementController.open(a.scene, params=params, cache_dir=a.cache or default_cache_dir(),
                                    quiet=a.quiet)
     if ctl.params is not params:  # a saved placement brought its own budget

@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from app.engine import LIGHTINGS
+
 log = logging.getLogger("photoar")
 LUM = np.array([0.2126, 0.7152, 0.0722])  # Rec.709 luminance weights (RGB)
 
@@ -215,9 +217,10 @@ def register(sub) -> None:
                         "benchmark truth)")
     p.add_argument("--patch-size", type=float, default=0.18, help="model patch size, metres (default %(default)s)")
     p.add_argument("--no-textures", action="store_true", help="per-patch mean albedo instead of the quads' textures")
-    p.add_argument("--lighting", choices=["known", "captured"], default="known",
+    p.add_argument("--lighting", choices=LIGHTINGS, default="known",
                    help="known: the scene's declared emitters; captured: the engine's radiance mesh from the "
-                        "probe bracket and the photo (default %(default)s)")
+                        "probe bracket and the photo; photo: the engine's radiance mesh from the photo alone "
+                        "(default %(default)s)")
     p.add_argument("--cache", type=Path, default=None, help="engine precompute cache (--lighting captured)")
     p.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default cpu)")
     p.set_defaults(run=run)
@@ -235,11 +238,11 @@ def run(a: argparse.Namespace) -> int:
     if scene.obj is None:
         raise ValueError(f"{a.scene / 'scene.json'}: missing field 'synthetic_object' (nothing to insert)")
     kw: dict = {}
-    if a.lighting == "captured":
+    if a.lighting in ("captured", "photo"):
         from app.composite import default_cache_dir
         from app.engine import Engine, EngineParams
 
-        eng = Engine(scene, EngineParams(lighting="captured"), cache_dir=a.cache or default_cache_dir(),
+        eng = Engine(scene, EngineParams(lighting=a.lighting), cache_dir=a.cache or default_cache_dir(),
                      device=a.device, quiet=a.quiet)
         scene = eng.scene  # carries the response recovered from the bracket
         kw = dict(tracer=build_tracer(scene, textures=False, patches=eng.pre.patches, device=a.device),

@@ -57,6 +57,8 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
         from lighting.radiance import RadianceMesh
 
         report["radiance_mesh"] = RadianceMesh(engine.pre.B[-1], engine.pre.albedo, engine.pre.origin).summary()
+    if params.lighting == "photo":
+        report["photo_light"] = engine.photo_light
     with AtomicOutput(out) as stage:
         write_png(stage / "composite.png", frame.pixels)
         write_exr(stage / "composite.exr", frame.radiance)

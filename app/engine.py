@@ -57,6 +57,7 @@ from recon.scene import Scene, SceneObject
 
 log = logging.getLogger("photoar")
 CACHE_VERSION = 5
+LIGHTINGS = ("known", "captured", "photo")  # EngineParams.lighting (the CLI's --lighting choices)
 
 
 @dataclass
@@ -81,7 +82,8 @@ class EngineParams:
     specular: float = 0.0  # k_s of the object's Phong-like specular lobe (0: Lambertian, as in the benchmarks)
     shininess: float = 32.0  # Phong exponent n of that lobe
     envmap_res: int = 16  # face size of the pre-filtered cube map looked up per pixel
-    lighting: str = "known"  # known: declared emitters + radiosity; captured: probe bracket + photo (sec. 4.2)
+    lighting: str = "known"  # known: declared emitters + radiosity; captured: probe bracket + photo (sec. 4.2);
+    # photo: the photo alone, emitters fitted to the walls (lighting.photolight)
     fps: float | None = None  # target frame rate: choose the pass count from measured per-pass cost
     leaf_size: int = 8  # receiver octree leaf size (sec. 6.2)
     shaft_threshold: float = 0.02  # stop refining a shaft below this share of each receiver's light
@@ -130,8 +132,19 @@ def _hash_scene(scene: Scene, params: EngineParams) -> str:
     if params.lighting == "captured":
         for f in captured_files(scene):
             h.update(hashlib.sha256(f.read_bytes()).digest())
+    if params.lighting in ("captured", "photo"):
         h.update(hashlib.sha256(np.ascontiguousarray(scene.photo).tobytes()).digest())
     return h.hexdigest()
+
+
+def _need_declared(scene: Scene, lighting: str) -> None:
+    """Known (or captured) lighting on a scene that declares no response or emitters of unknown strength."""
+    path = scene.meta.get("json_path", scene.root / "scene.json")
+    if scene.response is None and lighting == "known":
+        raise ValueError(f"{path}: no camera_response; --lighting photo assumes one")
+    if scene.meta.get("emitters_without_radiance") and lighting == "known":
+        raise ValueError(f"{path}: emitters without emitted_radiance "
+                         f"({', '.join(scene.meta['emitters_without_radiance'])}); --lighting photo estimates them")
 
 
 def _bar(total: int, desc: str, quiet: bool):
@@ -143,18 +156,19 @@ class Engine:
     """Owns one scene's precomputed data and composites object poses into its photo."""
 
     def __init__(self, scene: Scene, params: EngineParams | None = None, cache_dir: str | Path | None = None,
-                 device: str | None = None, quiet: bool = False):
+                 device: str | None = None, quiet: bool = False, photo_priors=None):
         self.scene = scene
         self.params = params or EngineParams()
         if self.params.mode not in ("hdr", "ldr"):
             raise ValueError(f"mode must be 'hdr' or 'ldr', got {self.params.mode!r}")
-        if self.params.lighting not in ("known", "captured"):
-            raise ValueError(f"lighting must be 'known' or 'captured', got {self.params.lighting!r}")
+        if self.params.lighting not in LIGHTINGS:
+            raise ValueError(f"lighting must be one of {LIGHTINGS}, got {self.params.lighting!r}")
         if not 0.0 <= self.params.specular <= 1.0 or self.params.shininess < 0:
             raise ValueError(f"specular must be in [0, 1] and shininess >= 0, got {self.params.specular}, "
                              f"{self.params.shininess}")
         self.device = runtime.device(device)
         self.quiet = quiet
+        self.photo_priors = photo_priors  # lighting "photo": lighting.photolight.PhotoPriors (None: defaults)
         self.cache_dir = Path(cache_dir) if cache_dir else None
         t0 = time.perf_counter()
         self.probe = None
@@ -162,6 +176,11 @@ class Engine:
             # the camera response comes from the probe bracket too: nothing declared is used
             self.probe = load_captured_probe(scene)
             self.scene = scene = dataclasses.replace(scene, response=self.probe.response)
+        self.photo_light: dict = {}  # lighting "photo": the fit's report (lighting.photolight)
+        if self.params.lighting == "photo":
+            self.scene = scene = self._photo_scene(scene)
+        elif scene.response is None or scene.meta.get("emitters_without_radiance"):
+            _need_declared(scene, self.params.lighting)
         self.pre, self.cache_hit = self._precompute()
         self._setup()
         self.room_light  # the SH volume is per-scene work too
@@ -209,6 +228,8 @@ class Engine:
             log.info("radiance mesh from captured light: %s", rm.summary())
             B = np.stack([rm.radiance] * (p.bounces + 1))
             albedo, origin = rm.reflectivity, rm.origin
+        elif p.lighting == "photo":  # filled in by _use_lighting (cheap; redone on a cache hit)
+            B, albedo, origin = np.zeros((p.bounces + 1, n_c, 3)), patches.albedo, np.full(n_c, -1, np.int8)
         else:
             B = np.stack(gather(G_c, patches.albedo, patches.emission, p.bounces))
             albedo, origin = patches.albedo, np.full(n_c, -1, np.int8)
@@ -224,11 +245,39 @@ class Engine:
     def _use_lighting(self, pre: Precomputed) -> None:
         """Make the patch mesh carry the reflectivity and emitter radiance the precompute used."""
         pm = pre.patches
+        if self.params.lighting == "photo":
+            self._fit_photo_light(pre)
         pm.albedo = np.asarray(pre.albedo, np.float64)
-        if self.params.lighting == "captured":
+        if self.params.lighting in ("captured", "photo"):
             # which patches emit is the model's (its window and lamp quads); how bright is captured
             emit = pm.is_emitter
             pm.emission = np.where(emit[:, None], np.maximum(pre.B[-1], 1e-12), 0.0)
+
+    def _photo_scene(self, scene: Scene) -> Scene:
+        """The scene with the assumed response and the model's emitters of unknown strength
+        (lighting.photolight.prepare_scene); the declared emitters are kept for the report only."""
+        from lighting.photolight import prepare_scene
+
+        scene, declared = prepare_scene(scene, self.photo_priors)
+        self.photo_light = {"declared_emitters_unused": declared}
+        return scene
+
+    def _fit_photo_light(self, pre: Precomputed) -> None:
+        """Radiance mesh from the photo alone into `pre` (B, albedo, origin), report in photo_light."""
+        from lighting.photolight import fit_photo_light
+
+        pm, scene = pre.patches, self.scene
+        pm.emission = np.array([q.emission for q in scene.quads])[pm.quad]  # the model's emitters
+        pix_patch = np.where(pre.pix_tri >= 0, pm.tri_patch[np.maximum(pre.pix_tri, 0)], -1)
+        where = str(scene.root / "background.png")
+        fit = fit_photo_light(pm, pre.G_c, pix_patch, scene.photo, scene.response, self.photo_priors,
+                              [q.name for q in scene.quads], where, [q.role for q in scene.quads])
+        pre.B = np.stack([fit.radiance] * (self.params.bounces + 1))
+        pre.albedo, pre.origin = fit.reflectivity, fit.origin
+        emit = (fit.origin == 3) | pm.is_emitter  # fitted groups and the model's emitters
+        pm.emission = np.where(emit[:, None], 1.0, 0.0)
+        self.photo_light = {**fit.report, **{k: v for k, v in self.photo_light.items() if k.startswith("declared")}}
+        log.info("photo light: %s", {k: v for k, v in self.photo_light.items() if k != "warnings"})
 
     def _setup(self) -> None:
         """Per-scene arrays derived from the precompute, shared by every frame."""

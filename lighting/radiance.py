@@ -207,7 +207,7 @@ def load_captured_probe(scene) -> CapturedProbe:
         rad, g = hdr.merge_bracket(images, times)
     except ValueError as e:
         raise ValueError(f"{scene.root / 'scene.json'}: light_probe bracket: {e}") from None
-    response = CameraResponse(hdr.forward_table(g), g.T, scene.response.exposure_time)
+    response = CameraResponse(hdr.forward_table(g), g.T, scene.camera.exposure_time)
     return CapturedProbe(rad, g, response, lp)
 
 

@@ -278,7 +278,10 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
             raise SceneError(f"{path}: field 'camera_response': {e}") from None
 
     quads: list[Quad] = []
+    unknown_emitters: list[str] = []  # windows or lamps of unknown strength (photo light finds them)
     for p in parse_primitives(d, path):
+        if p.emitter and "emitted_radiance" not in p.raw:
+            unknown_emitters.append(p.name)
         if p.kind == "box":
             quads += box_quads(p.name, p.center, p.size, np.radians(p.yaw_deg), p.albedo, p.role, room_min, room_max)
         else:
@@ -303,7 +306,7 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         raise SceneError(f"{root / files.get('background_png', 'background.png')}: image is "
                          f"{photo.shape[1]}x{photo.shape[0]}, camera says {width}x{height}")
     return Scene(str(d.get("name", root.name)), root, camera, quads, obj, response, photo, room_min, room_max,
-                 meta={"json_path": str(path)})
+                 meta={"json_path": str(path), "emitters_without_radiance": unknown_emitters})
 
 
 def make_object(mesh_path: Path, object_to_world: np.ndarray, albedo: np.ndarray) -> SceneObject:

@@ -1,0 +1,295 @@
+"""Radiance mesh from the photo alone: no probe, no declared response, no declared emitters (issue 19).
+
+The scene model gives the geometry, the camera and which quads emit (role window / lamp); the
+photo gives everything else, read through a response that is assumed, not measured:
+
+* **Response.** The photo is read through the standard sRGB curve (IEC 61966-2-1), optionally
+  raised to `gamma_scale` (the response prior varied by the sensitivity bench); radiance is
+  sRGB-linear / exposure_time, in the scene's arbitrary units.
+* **Photo-seen patches** (at least `min_pixels` unclipped pixels) take the photo's mean radiance,
+  as in captured light (lighting.radiance.photo_radiance).
+* **Emitters** are the model's window / lamp quads and the clipped regions of the photo (patches
+  most of whose pixels have a channel at 255). A patch the photo shows unclipped keeps its
+  measured radiance; the rest of each emitter quad (clipped, or out of view) is one unknown RGB
+  radiance per quad, at least as bright as its clipped pixels show (a lower bound).
+* **Inverse radiosity.** The walls show how strong the unknown emitters are: a photo-seen wall
+  patch i has radiance L_i = rho * E_i with E_i = sum_j G_ij B_j (irradiance/pi through the
+  transfers G, visibility included) and the wall albedo prior rho. Unseen patches gather,
+  B_U = r (G_U. B), r = the unseen reflectivity prior, solved exactly: (I - r G_UU) B_U = r G_U,rest B_rest.
+  E_i is then linear in the unknown radiances e; e is the bounded linear least-squares solution
+  (scipy.optimize.lsq_linear, e >= the clipped lower bound) of rho E_i(e) = L_i, with residuals
+  relative to L_i (every wall counts alike, not only the bright ones near the window).
+* **Uncertainty.** The covariance sigma^2 (J^T J)^-1 of the fit (sigma^2 from the residual, J the
+  weighted design matrix) gives a 1-sigma relative error per emitter; it ignores the priors. The
+  fit is repeated with the wall albedo prior at -20 % / +20 % (the transfers' solve is shared, so
+  this costs two small least squares) and each emitter's relative change is reported beside it;
+  bench/bench_photolight.py measures all three priors' effect on the composite.
+
+Priors (not fitted to any scene): wall albedo 0.55 (a mid-grey painted wall; interior walls are
+0.5-0.8, floors 0.2-0.5, so one grey value for every seen surface), unseen reflectivity 0.5 (the
+seed's value for patches nobody sees), response sRGB.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from lighting.radiance import GATHERED, PHOTO, photo_radiance
+from lighting.sources import luminance
+from lighting.tonemap import CameraResponse
+from recon.patches import PatchMesh
+
+log = logging.getLogger("photoar")
+
+FITTED = 3  # origin code: emitter radiance estimated by inverse radiosity (next to radiance.PHOTO/PROBE/GATHERED)
+EMITTER_ROLES = ("window", "lamp", "ceiling_lamp", "point_lamp")
+
+
+@dataclass
+class PhotoPriors:
+    """What photo light assumes instead of measuring (module docstring)."""
+
+    wall_albedo: float = 0.55  # reflectivity of every photo-seen surface in the inverse radiosity
+    unseen_reflectivity: float = 0.5  # reflectivity of patches the photo does not see
+    gamma_scale: float = 1.0  # linear = sRGB^-1(z) ** gamma_scale (1: plain sRGB)
+    min_pixels: int = 4  # unclipped pixels a patch needs to be measured by the photo
+    clipped_share: float = 0.5  # a patch is a clipped region when this share of its pixels is clipped
+    relative: bool = True  # residuals relative to each wall's radiance (False: absolute)
+
+
+@dataclass
+class PhotoLight:
+    """Per-patch radiance (P,3), reflectivity (P,3), origin (P,) int8 and the report of the fit."""
+
+    radiance: np.ndarray
+    reflectivity: np.ndarray
+    origin: np.ndarray
+    report: dict = field(default_factory=dict)
+
+
+def srgb_response(exposure_time: float = 1.0, gamma_scale: float = 1.0) -> CameraResponse:
+    """The sRGB transfer curve as a CameraResponse (linear X in [0,1] <-> 8-bit), optionally with the
+    linear value raised to `gamma_scale` (X = srgb^-1(z) ** gamma_scale)."""
+    if not gamma_scale > 0 or not exposure_time > 0:
+        raise ValueError(f"gamma_scale and exposure_time must be positive, got {gamma_scale}, {exposure_time}")
+    z = np.arange(256) / 255.0
+    inv = np.where(z <= 0.04045, z / 12.92, ((z + 0.055) / 1.055) ** 2.4) ** gamma_scale
+    xl = z ** (1.0 / gamma_scale)  # forward samples at X = i/255
+    fwd = np.where(xl <= 0.0031308, 12.92 * xl, 1.055 * xl ** (1 / 2.4) - 0.055)
+    return CameraResponse(np.tile(fwd, (3, 1)), np.tile(inv, (3, 1)), exposure_time)
+
+
+def prepare_scene(scene, priors: PhotoPriors | None = None):
+    """The scene as photo light sees it: the sRGB response, window / lamp quads marked as emitters
+    (placeholder radiance 1, replaced by the fit) and nothing declared. Returns (scene, declared):
+    declared = {quad name: emitted_radiance} from scene.json, for the report only."""
+    priors = priors or PhotoPriors()
+    declared = {q.name: [float(v) for v in q.emission] for q in scene.quads if np.any(q.emission > 0)}
+    quads = [dataclasses.replace(q, emission=np.ones(3) if q.role in EMITTER_ROLES else np.zeros(3),
+                                 albedo=np.zeros(3), texture=None)  # declared albedos are not used
+             for q in scene.quads]
+    response = srgb_response(scene.camera.exposure_time, priors.gamma_scale)
+    return dataclasses.replace(scene, quads=quads, response=response), declared
+
+
+def _unknown_groups(patches: PatchMesh, photo_count: np.ndarray, clipped: np.ndarray
+                    ) -> tuple[np.ndarray, list[int]]:
+    """Group id (P,) of each patch whose radiance the fit must find (-1: none) and the quad of each
+    group: the unmeasured patches of an emitter quad, and the clipped patches of any other quad."""
+    unknown = (patches.is_emitter & (photo_count == 0)) | clipped
+    quads = sorted(set(patches.quad[unknown].tolist()))
+    lut = {q: g for g, q in enumerate(quads)}
+    group = np.full(patches.n_patches, -1, np.int64)
+    group[unknown] = [lut[q] for q in patches.quad[unknown]]
+    return group, quads
+
+
+def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, photo: np.ndarray,
+                    response: CameraResponse, priors: PhotoPriors | None = None,
+                    quad_names: list[str] | None = None, where: str = "photo",
+                    quad_roles: list[str] | None = None) -> PhotoLight:
+    """The radiance mesh from the photo (module docstring).
+
+    patches: the scene's patch mesh, is_emitter = the model's window / lamp quads; G (P,P) patch ->
+    patch transfers (irradiance/pi at the row patch per unit radiance of the column patch);
+    pix_patch (N,) patch seen by each photo pixel (-1 none); photo (N,3) uint8; `where` names the
+    photo in errors; quad_roles (one per quad, None: all "room") pick the walls the fit reads (the
+    vertical room surfaces; floors, ceilings and furniture vary too much in albedo for one prior).
+    Raises ValueError when the photo holds no usable light.
+    """
+    pr = priors or PhotoPriors()
+    if not 0 < pr.wall_albedo < 1 or not 0 <= pr.unseen_reflectivity < 1:
+        raise ValueError(f"wall albedo must be in (0, 1) and unseen reflectivity in [0, 1), got "
+                         f"{pr.wall_albedo}, {pr.unseen_reflectivity}")
+    P = patches.n_patches
+    photo = np.asarray(photo).reshape(-1, 3)
+    L_b = response.to_radiance(photo)
+    sat = np.any(photo >= 255, axis=1)
+    rad, count = photo_radiance(pix_patch, L_b, sat, P)
+    ok = pix_patch >= 0
+    n_all = np.bincount(pix_patch[ok], minlength=P)
+    n_sat = np.bincount(pix_patch[ok & sat], minlength=P)
+    emit = patches.is_emitter
+    clipped = ~emit & (n_sat >= pr.min_pixels) & (n_sat >= pr.clipped_share * np.maximum(n_all, 1))
+    measured = (count >= pr.min_pixels) & ~clipped
+    count = np.where(measured, count, 0)
+    seen_wall = measured & ~emit
+    if not seen_wall.any():
+        raise ValueError(f"{where}: no surface of the room model is seen unclipped in the photo; photo light "
+                         f"needs the walls")
+    wall_lum = luminance(rad[seen_wall])
+    wall_px = ok & seen_wall[np.maximum(pix_patch, 0)]
+    if np.median(photo[wall_px].max(axis=1)) < 1:
+        raise ValueError(f"{where}: the photo is black where it sees the walls (median wall level < 1): "
+                         f"no light to read")
+    group, gquads = _unknown_groups(patches, count, clipped)
+    ng = len(gquads)
+    names = [(quad_names[q] if quad_names else f"quad {q}")
+             + ("" if emit[patches.quad == q].any() else " (clipped region)") for q in gquads]
+
+    # ---- sets: S measured walls, K measured emitters, X unknown (grouped), U unseen reflectors
+    S = np.flatnonzero(seen_wall)
+    roles = np.array(quad_roles if quad_roles is not None else ["room"] * (patches.quad.max() + 1))
+    vertical = (roles[patches.quad] == "room") & (np.abs(patches.normal[:, 1]) < 0.5)
+    fit_on = vertical[S]
+    if fit_on.sum() < max(ng, 1):
+        fit_on[:] = True  # no wall in view: every seen surface carries the prior (warned below)
+    K = np.flatnonzero(measured & emit)
+    X = np.flatnonzero(group >= 0)
+    U = np.flatnonzero(~measured & (group < 0) & ~emit)
+    known = np.zeros((P, 3))
+    known[S], known[K] = rad[S], rad[K]
+    M = np.zeros((P, ng))
+    M[X, group[X]] = 1.0
+    G64 = np.asarray(G, np.float64)
+    r = pr.unseen_reflectivity
+    if len(U):
+        A_uu = np.eye(len(U)) - r * G64[np.ix_(U, U)]
+        rhs = np.concatenate([r * (G64[U] @ known), r * (G64[U] @ M)], axis=1)
+        Z = np.linalg.solve(A_uu, rhs)
+        Z0, Z1 = Z[:, :3], Z[:, 3:]
+    else:
+        Z0, Z1 = np.zeros((0, 3)), np.zeros((0, ng))
+    a0 = G64[S] @ known + G64[np.ix_(S, U)] @ Z0  # (|S|,3) irradiance/pi from what is known
+    A1 = G64[S] @ M + G64[np.ix_(S, U)] @ Z1  # (|S|,ng) per unit radiance of each unknown group
+
+    rho = pr.wall_albedo
+    L_S = rad[S]
+    w = 1.0 / np.maximum(wall_lum, 1e-3 * np.median(wall_lum))  # relative residuals
+    if not pr.relative:
+        w = np.full(len(S), 1.0 / np.median(wall_lum))
+    w = np.where(fit_on, w, 0.0)
+    lower = np.zeros((ng, 3))
+    for g in range(ng):  # the clipped pixels' radiance is a lower bound of their emitter
+        px = np.flatnonzero(ok & sat & (group[np.maximum(pix_patch, 0)] == g))
+        if len(px):
+            lower[g] = np.median(L_b[px], axis=0)
+    reach = np.abs(w[:, None] * A1).sum(0)
+    unresolved = reach <= 1e-9 * max(reach.max(initial=0.0), 1e-300)  # no measured wall sees the group
+    e, std, at_bound, resid = _solve_emitters(w[:, None] * A1, w, L_S, a0, rho, lower, unresolved)
+    # the prior's share of the uncertainty: the same fit with the albedo prior -20 % / +20 %
+    e_lo = _solve_emitters(w[:, None] * A1, w, L_S, a0, 0.8 * rho, lower, unresolved)[0]
+    e_hi = _solve_emitters(w[:, None] * A1, w, L_S, a0, min(1.2 * rho, 0.999), lower, unresolved)[0]
+    if not np.all(np.isfinite(e)):
+        raise RuntimeError(f"{where}: inverse radiosity gave non-finite emitter radiance")
+
+    B = known + M @ e
+    if len(U):
+        B[U] = Z0 + Z1 @ e
+    E = G64 @ B
+    with np.errstate(divide="ignore", invalid="ignore"):
+        refl = np.where(E > 0, B / E, r)
+    refl = np.clip(np.nan_to_num(refl, nan=r), 0.0, 1.0)
+    refl[U] = r
+    refl[emit | (group >= 0)] = 0.0
+    origin = np.full(P, GATHERED, np.int8)
+    origin[measured] = PHOTO
+    origin[X] = FITTED
+    if not np.all(np.isfinite(B)) or not np.all(np.isfinite(refl)):
+        raise RuntimeError(f"{where}: photo light gave non-finite patch radiance")
+
+    # ---- what the walls say about the prior: the albedo they imply with the fitted light
+    E_S = a0 + A1 @ e
+    implied = float(np.median(luminance(L_S[fit_on]) / np.maximum(luminance(E_S[fit_on]), 1e-300)))
+    emitters = []
+    for g, nm in enumerate(names):
+        lum = float(luminance(e[g]))
+        rel = float(luminance(np.nan_to_num(std[g])) / lum) if lum > 0 else float("nan")
+        prior = [float(luminance(x[g])) / lum - 1 if lum > 0 else float("nan") for x in (e_lo, e_hi)]
+        emitters.append({"name": nm, "radiance": [round(float(v), 4) for v in e[g]],
+                         "lower_bound": [round(float(v), 4) for v in lower[g]],
+                         "rel_std": None if not np.isfinite(rel) else round(rel, 4),
+                         "albedo_prior_x0.8_x1.2": [None if not np.isfinite(v) else round(v, 4) for v in prior],
+                         "at_lower_bound": bool(at_bound[g].all()), "seen_by_walls": bool(not unresolved[g]),
+                         "patches": int(np.sum(group == g))})
+    report = {"response": "sRGB (assumed)" if pr.gamma_scale == 1 else f"sRGB^-1 ** {pr.gamma_scale} (assumed)",
+              "wall_albedo_prior": pr.wall_albedo, "unseen_reflectivity": r,
+              "implied_wall_albedo": round(implied, 4),
+              "fit_rms_relative_residual": [round(float(v), 4) for v in resid],
+              "fitted_on": "walls" if not fit_on.all() or vertical[S].all() else "all seen surfaces (no wall in view)",
+              "wall_patches_fitted": int(fit_on.sum()), "patches_from_photo": int(measured.sum()), "patches_gathered": int(len(U)),
+              "patches_fitted": int(len(X)), "clipped_region_patches": int(clipped.sum()),
+              "emitters": emitters}
+    _warn(report, where, emit, count)
+    return PhotoLight(B, refl, origin, report)
+
+
+def _solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarray, rho: float,
+                    lower: np.ndarray, unresolved: np.ndarray):
+    """Bounded least squares of rho (a0 + A1 e) = L_S per channel, rows weighted by w (J1 = w A1).
+    Returns e (G,3), its 1-sigma std (G,3) (NaN where at a bound or not seen), at_bound (G,3) and
+    the RMS weighted residual per channel (3,)."""
+    ng, fit_on = J1.shape[1], w > 0
+    e, std = np.zeros((ng, 3)), np.full((ng, 3), np.nan)
+    at_bound, resid = np.zeros((ng, 3), bool), np.zeros(3)
+    if ng == 0:
+        return e, std, at_bound, resid
+    J = rho * J1
+    for c in range(3):
+        b = w * (L_S[:, c] - rho * a0[:, c])
+        sol = lsq_linear(J, b, bounds=(lower[:, c], np.inf), method="bvls")
+        e[:, c] = sol.x
+        res = J @ sol.x - b
+        resid[c] = float(np.sqrt(np.mean(res[fit_on] ** 2)))
+        at_bound[:, c] = sol.x <= lower[:, c] * (1 + 1e-9) + 1e-300
+        free = ~at_bound[:, c] & ~unresolved
+        dof = max(int(fit_on.sum()) - int(free.sum()), 1)
+        if free.any():
+            cov = np.sum(res ** 2) / dof * np.linalg.pinv(J[:, free].T @ J[:, free])
+            std[free, c] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return e, std, at_bound, resid
+
+
+def _warn(report: dict, where: str, emit: np.ndarray, count: np.ndarray) -> None:
+    """Warnings for the hard cases: no light source, emitters the walls cannot pin down, walls darker
+    than the albedo prior allows."""
+    ems = report["emitters"]
+    report["warnings"] = warn = []
+    if not emit.any() and report["clipped_region_patches"] == 0:
+        warn.append("no window or lamp in the model and no clipped region in the photo: the room is lit "
+                    "only by the light its surfaces show")
+    elif not ems and not (emit & (count > 0)).any():
+        warn.append("no emitter is seen in the photo or needs fitting")
+    for em in ems:
+        if not em["seen_by_walls"]:
+            warn.append(f"{em['name']}: no wall seen in the photo receives its light; radiance set to its "
+                        f"lower bound {em['lower_bound']}")
+        elif em["at_lower_bound"] and any(v > 0 for v in em["lower_bound"]):
+            warn.append(f"{em['name']}: the walls are darker than the albedo prior {report['wall_albedo_prior']} "
+                        f"allows with this emitter as bright as the photo shows it (implied wall albedo "
+                        f"{report['implied_wall_albedo']}); radiance held at the photo's lower bound")
+        elif em["at_lower_bound"]:
+            warn.append(f"{em['name']}: the walls need no light from it (radiance 0)")
+        elif em["rel_std"] is not None and em["rel_std"] > 0.5:
+            warn.append(f"{em['name']}: radiance poorly determined by the walls (+-{100 * em['rel_std']:.0f} %)")
+    if report["fitted_on"] != "walls":
+        warn.append("no wall of the room is seen: the albedo prior is applied to floor, ceiling and furniture")
+    if report["implied_wall_albedo"] < 0.5 * report["wall_albedo_prior"]:
+        warn.append(f"the walls are darker than the albedo prior {report['wall_albedo_prior']} allows: with the "
+                    f"light the photo shows they reflect only {report['implied_wall_albedo']}")
+    for msg in warn:
+        log.warning("photo light: %s: %s", where, msg)
