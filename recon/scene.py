@@ -22,6 +22,9 @@ from lighting.tonemap import CameraResponse
 from recon.camera import Camera
 
 
+LIGHT_ROLES = ("window", "lamp", "ceiling_lamp", "point_lamp")
+
+
 class SceneError(ValueError):
     """Bad scene input; the message names the file and the field or problem."""
 
@@ -33,12 +36,19 @@ class Quad:
     normal: np.ndarray  # (3,) unit, the lit / emitting side
     albedo: np.ndarray  # (3,) linear diffuse reflectance (mean)
     emission: np.ndarray  # (3,) emitted radiance, zero for non-emitters
-    role: str = "room"  # room | furniture | window | ceiling_lamp | point_lamp
+    role: str = "room"  # room | furniture | window | lamp | ceiling_lamp | point_lamp
     texture: np.ndarray | None = None  # (Ht,Wt,3) float linear albedo, or None
+    declared_emitter: bool = False  # scene.json says "emitter": true (with or without emitted_radiance)
 
     @property
     def is_emitter(self) -> bool:
         return bool(np.any(self.emission > 0))
+
+    @property
+    def light_shaped(self) -> bool:
+        """A quad that may emit (declared emitter, or a window/lamp role): cut into finer patches
+        so its soft shadows are resolved, whether or not its radiance is declared."""
+        return self.is_emitter or self.declared_emitter or self.role in LIGHT_ROLES
 
 
 @dataclass
@@ -67,7 +77,7 @@ class Scene:
     camera: Camera
     quads: list[Quad]
     obj: SceneObject | None
-    response: CameraResponse
+    response: CameraResponse | None  # None: not declared (captured light recovers it from the bracket)
     photo: np.ndarray  # (H,W,3) uint8 RGB, the empty room
     room_min: np.ndarray
     room_max: np.ndarray
@@ -201,12 +211,14 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         raise SceneError(f"{path}: field 'main_camera.exposure_time' must be positive")
     camera = Camera(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), R, t, width, height, exposure)
 
-    resp = _field(d, "camera_response", "", path)
-    try:
-        response = CameraResponse(_field(resp, "forward_table", "camera_response.", path),
-                                  _field(resp, "inverse_table", "camera_response.", path), exposure)
-    except ValueError as e:
-        raise SceneError(f"{path}: field 'camera_response': {e}") from None
+    response = None  # optional: captured light recovers it from the probe bracket
+    if "camera_response" in d:
+        resp = d["camera_response"]
+        try:
+            response = CameraResponse(_field(resp, "forward_table", "camera_response.", path),
+                                      _field(resp, "inverse_table", "camera_response.", path), exposure)
+        except ValueError as e:
+            raise SceneError(f"{path}: field 'camera_response': {e}") from None
 
     quads: list[Quad] = []
     prims = _field(d, "primitives", "", path)
@@ -236,7 +248,8 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
             if load_textures and p.get("albedo_texture"):
                 img = read_image_rgb(root / p["albedo_texture"]).astype(np.float32) / 255.0
                 texture = img.transpose(1, 0, 2) if flipped else img
-            quads.append(Quad(name, corners, normal, albedo, emission, str(p.get("role", "room")), texture))
+            quads.append(Quad(name, corners, normal, albedo, emission, str(p.get("role", "room")), texture,
+                              bool(p.get("emitter"))))
         else:
             raise SceneError(f"{path}: field '{where}.type' must be 'quad' or 'box', got {kind!r}")
 
