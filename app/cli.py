@@ -122,6 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--object-size", type=float, default=None,
                    help="largest extent of the object in metres (default: the file's units when they look like "
                         "metres, else 0.6 m, as the GUI)")
+    c.add_argument("--object-albedo", type=_xyz, default=None, metavar="R,G,B",
+                   help="linear diffuse reflectance of --object in [0, 1] (default: the scene's synthetic_object "
+                        "albedo for its own mesh, else 0.6 grey, as the GUI)")
     c.add_argument("--placement", type=Path, default=None,
                    help="placement JSON saved by `photoar gui` (mesh, position, yaw, lift, scale)")
     c.add_argument("--work-res", type=int, default=None, metavar="PX",
@@ -159,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         if a.command == "composite":
             composite.main(a.scene, a.out, params, cache_dir=a.cache, object_mesh=a.object, quiet=a.quiet,
                            device=a.device, place=a.place, yaw=a.yaw, object_size=a.object_size,
-                           placement=a.placement, work_res=a.work_res)
+                           placement=a.placement, work_res=a.work_res, object_albedo=a.object_albedo)
             print(a.out / "composite.png")
         elif a.command == "demo":
             report = composite.main(demo_scene_dir(), a.out, params, cache_dir=a.cache or a.out.parent / ".cache",

@@ -23,7 +23,7 @@ def default_cache_dir() -> Path:
 
 
 def place_object(scene, object_mesh=None, place=None, yaw: float = 0.0, object_size: float | None = None,
-                 placement=None) -> SceneObject:
+                 placement=None, albedo=None) -> SceneObject:
     """The object to composite, posed (see `main`); SceneError naming the file when there is none
     or it lies outside the room, one warning line when it sinks into furniture."""
     from app.placement import PlacementController, Pose
@@ -43,14 +43,15 @@ def place_object(scene, object_mesh=None, place=None, yaw: float = 0.0, object_s
         if mesh is None:
             raise SceneError(f"{json_path}: no 'synthetic_object' mesh for --place; give --object MESH")
         ctl = PlacementController(scene)
-        om = ctl.load_mesh(mesh, object_size, max_faces=1 << 30)  # the composite keeps every face
+        om = ctl.load_mesh(mesh, object_size, albedo, max_faces=1 << 30)  # the composite keeps every face
         obj = ctl.scene_object(Pose(om.path, tuple(float(x) for x in place), float(yaw)))
         where = f"{mesh}: object at --place {list(place)} --yaw {yaw:g}"
     elif object_mesh is not None:
         if scene.obj is None:
             raise SceneError(f"{json_path}: no 'synthetic_object' pose for {object_mesh}; give --place X,Y,Z "
                              f"[--yaw DEG]")
-        obj = make_object(Path(object_mesh), scene.obj.object_to_world, scene.obj.albedo)
+        obj = make_object(Path(object_mesh), scene.obj.object_to_world,
+                          scene.obj.albedo if albedo is None else albedo)
         where = f"{object_mesh}: placed object"
     elif scene.obj is None:
         raise SceneError(f"{json_path}: missing field 'synthetic_object'; give --object MESH --place X,Y,Z "
@@ -69,19 +70,19 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
          cache_dir: str | Path | None = None, object_mesh: str | Path | None = None,
          quiet: bool = False, device: str | None = None, place=None, yaw: float = 0.0,
          object_size: float | None = None, placement: str | Path | None = None,
-         work_res: int | None = None) -> dict:
+         work_res: int | None = None, object_albedo=None) -> dict:
     """Composite the scene's object (or `object_mesh`) into its photo.
 
     The object stands at, in order of preference: the saved GUI placement `placement`; `place`
     (the bottom centre of the mesh's bounding box, world metres) turned by `yaw` degrees about +Y,
     exactly as `photoar gui --place --yaw` (app.placement, mesh units as the GUI reads them,
     `object_size` its largest extent in metres); the scene's synthetic_object pose.
-    `work_res`: see app.workres. Returns the report (also written as out/report.json).
+    `object_albedo` (3,) overrides the mesh's albedo. `work_res`: see app.workres. Returns the report (also written as out/report.json).
     """
     params = params or EngineParams()
     t0 = time.perf_counter()
     scene = load_scene(scene_dir)
-    scene.obj = place_object(scene, object_mesh, place, yaw, object_size, placement)
+    scene.obj = place_object(scene, object_mesh, place, yaw, object_size, placement, object_albedo)
     load_s = time.perf_counter() - t0
     engine = Engine(scene, params, cache_dir=cache_dir if cache_dir is not None else default_cache_dir(),
                     device=device, quiet=quiet)
