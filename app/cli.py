@@ -128,8 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--placement", type=Path, default=None,
                    help="placement JSON saved by `photoar gui` (mesh, position, yaw, lift, scale)")
     c.add_argument("--work-res", type=int, default=None, metavar="PX",
-                   help="composite at most PX pixels on the long side and bring the change to the full-resolution "
-                        "photo (default: the photo's own resolution)")
+                   help="the engine works at most PX pixels on the long side; the composite is written at the "
+                        "photo's full resolution (default 1024; 0: work at the photo's own resolution)")
     _add_engine_args(c)
 
     d = sub.add_parser("demo", help="composite the bundled demo scene and print where the picture is")

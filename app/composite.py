@@ -11,6 +11,7 @@ from pathlib import Path
 
 from app.engine import Engine, EngineParams
 from app.io import AtomicOutput, write_exr, write_json, write_png
+from app.workres import DEFAULT_WORK_RES, full_resolution, working_scene
 from recon.scene import SceneError, SceneObject, check_object_inside, inside_furniture, load_scene, make_object
 
 log = logging.getLogger("photoar")
@@ -77,16 +78,25 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
     (the bottom centre of the mesh's bounding box, world metres) turned by `yaw` degrees about +Y,
     exactly as `photoar gui --place --yaw` (app.placement, mesh units as the GUI reads them,
     `object_size` its largest extent in metres); the scene's synthetic_object pose.
-    `object_albedo` (3,) overrides the mesh's albedo. `work_res`: see app.workres. Returns the report (also written as out/report.json).
+    `object_albedo` (3,) overrides the mesh's albedo. `work_res`: the long side (pixels) the engine
+    works at, the composite is written at the photo's resolution (app.workres; default 1024, 0:
+    the photo's own). Returns the report (also written as out/report.json).
     """
     params = params or EngineParams()
     t0 = time.perf_counter()
     scene = load_scene(scene_dir)
     scene.obj = place_object(scene, object_mesh, place, yaw, object_size, placement, object_albedo)
     load_s = time.perf_counter() - t0
-    engine = Engine(scene, params, cache_dir=cache_dir if cache_dir is not None else default_cache_dir(),
+    work = working_scene(scene, DEFAULT_WORK_RES if work_res is None else work_res)
+    engine = Engine(work, params, cache_dir=cache_dir if cache_dir is not None else default_cache_dir(),
                     device=device, quiet=quiet)
     frame = engine.render(scene.obj)
+    pixels, radiance = frame.pixels, frame.radiance
+    full_s = 0.0
+    if work is not scene:
+        t1 = time.perf_counter()
+        pixels, radiance = full_resolution(engine, frame, scene)
+        full_s = time.perf_counter() - t1
     report = {
         "scene": str(scene_dir),
         "load_s": load_s,
@@ -94,6 +104,9 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
         "precompute_cache_hit": engine.cache_hit,
         "precompute_uncached_s": engine.pre.seconds,
         **frame.stats,
+        "resolution": [scene.camera.width, scene.camera.height],
+        "working_resolution": [work.camera.width, work.camera.height],
+        "full_resolution_s": full_s,
         "lighting": params.lighting,
         "params": {k: getattr(params, k) for k in params.__dataclass_fields__},
     }
@@ -103,8 +116,8 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
         report["radiance_mesh"] = RadianceMesh(engine.pre.B[-1], engine.pre.albedo, engine.pre.origin,
                                              engine.pre.emitter).summary()
     with AtomicOutput(out) as stage:
-        write_png(stage / "composite.png", frame.pixels)
-        write_exr(stage / "composite.exr", frame.radiance)
+        write_png(stage / "composite.png", pixels)
+        write_exr(stage / "composite.exr", radiance)
         write_json(stage / "report.json", report)
     log.info("wrote %s (precompute %.1f s, frame %.2f s, %d sources)", Path(out) / "composite.png",
              engine.precompute_s, frame.stats["frame_s"], frame.stats["n_sources"])

@@ -119,6 +119,8 @@ class Frame:
     radiance: np.ndarray  # (H,W,3) float32 composite radiance (HDR path estimate)
     pixels: np.ndarray  # (H,W,3) uint8 composite photo
     stats: dict = field(default_factory=dict)
+    room: np.ndarray | None = None  # (H,W,3) float32 radiance of the room with the object's effect, object unseen
+    coverage: np.ndarray | None = None  # (H,W) float32 share of each pixel the object covers
 
 
 def _hash_scene(scene: Scene, params: EngineParams) -> str:
@@ -459,13 +461,17 @@ class Engine:
         if calibration_s:
             stats["fps_calibration_s"] = calibration_s
         self._last_shading = (shade_mesh, self._last_L_vert, obj.albedo) if hits.hit.any() else None
-        return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats)
+        return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats,
+                     room.reshape(H, W, 3).astype(np.float32), cov.astype(np.float32))
 
     # ------------------------------------------------------------------ pieces
-    def _object_hits(self, verts: np.ndarray, faces: np.ndarray) -> "ObjectHits":
-        """Sub-pixel camera rays against the object mesh, depth-tested against the scene model."""
-        cam = self.scene.camera
-        H, W, s = cam.height, cam.width, max(1, self.params.supersample)
+    def _object_hits(self, verts: np.ndarray, faces: np.ndarray, camera=None, supersample: int | None = None
+                     ) -> "ObjectHits":
+        """Sub-pixel camera rays against the object mesh, depth-tested against the scene model
+        (camera: default the scene's; another one sees the same world, e.g. the full-resolution
+        photo's, app.workres)."""
+        cam = camera or self.scene.camera
+        H, W, s = cam.height, cam.width, max(1, supersample or self.params.supersample)
         uv, z = cam.project(verts)
         if np.any(z <= 1e-6):
             u0, v0, u1, v1 = 0, 0, W - 1, H - 1
