@@ -74,6 +74,9 @@ def register(sub) -> None:
 
     add_lighting_arg(g)
     g.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default cpu)")
+    g.add_argument("--work-res", type=int, default=1024, metavar="PX",
+                   help="preview and drag at most PX pixels on the photo's long side (default %(default)s; 0: the "
+                        "photo's own); `photoar composite --placement` writes the full resolution")
     g.set_defaults(run=run)
 
 
@@ -103,7 +106,7 @@ def run(a: argparse.Namespace) -> int:
         raise ValueError(f"{a.object}: --object-size must be positive, got {a.object_size}")
     params = EngineParams(passes=None if a.all_sources else a.passes, mode=a.mode, lighting=a.lighting)
     ctl = PlacementController.open(a.scene, params=params, cache_dir=a.cache or default_cache_dir(),
-                                   quiet=a.quiet)
+                                   quiet=a.quiet, work_res=a.work_res)
     ctl.device = a.device
     if ctl.params is not params:  # a saved placement brought its own budget
         params = ctl.params

@@ -144,12 +144,12 @@ def room_mesh(ctl: PlacementController):
     if eng is not None:
         pm = eng.pre.patches
         v = pm.vert_pos[pm.tris].reshape(-1, 3)
-        col = sc.response.to_levels(eng.pre.B[-1][pm.tri_patch]) / 255.0
+        col = eng.scene.response.to_levels(eng.pre.B[-1][pm.tri_patch]) / 255.0  # captured: recovered response
     else:
         corners = np.array([q.corners for q in sc.quads])
         v = corners[:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3)
-        quad_col = np.array([sc.response.to_levels(q.emission)[None][0] / 255.0 if q.is_emitter else q.albedo
-                             for q in sc.quads])
+        quad_col = np.array([sc.response.to_levels(q.emission)[None][0] / 255.0
+                             if q.is_emitter and sc.response is not None else q.albedo for q in sc.quads])
         col = np.repeat(quad_col, 2, axis=0)
     m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v),
                                   o3d.utility.Vector3iVector(np.arange(len(v)).reshape(-1, 3)))

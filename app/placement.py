@@ -187,17 +187,20 @@ class PlacementController:
     # ------------------------------------------------------------------ construction
     @classmethod
     def open(cls, path: str | Path, params=None, cache_dir: str | Path | None = None,
-             quiet: bool = True) -> "PlacementController":
-        """A benchmark scene folder, or a saved placement JSON (which names its scene folder)."""
+             quiet: bool = True, work_res: int | None = None) -> "PlacementController":
+        """A benchmark scene folder, or a saved placement JSON (which names its scene folder);
+        work_res: preview at most this many pixels on the photo's long side (app.workres)."""
+        from app.workres import working_scene
+
         path = Path(path)
         if path.is_file() and path.suffix.lower() == ".json" and path.name != "scene.json":
             data = _read_placement(path)
-            ctl = cls(load_scene(data["scene"]), params, cache_dir, quiet)
+            ctl = cls(working_scene(load_scene(data["scene"]), work_res), params, cache_dir, quiet)
             ctl._apply_saved(data, path)
             return ctl
         if path.is_file() and path.name == "scene.json":
             path = path.parent
-        return cls(load_scene(path), params, cache_dir, quiet)
+        return cls(working_scene(load_scene(path), work_res), params, cache_dir, quiet)
 
     def start_engine(self, params=None):
         """Build the engine (precompute, cached under cache_dir); returns it."""
