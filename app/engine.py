@@ -332,7 +332,7 @@ class Engine:
     def render(self, obj: SceneObject) -> Frame:
         """Composite the object at its pose; returns the frame with per-phase timings in stats."""
         calibration_s = 0.0
-        if self.params.fps is not None and self._cost is None:
+        if self.params.fps is not None and self._cost is None and self._passes_override is None:
             calibration_s = self._calibrate(obj)
         p, pre, pm, scene = self.params, self.pre, self.pre.patches, self.scene
         cam = scene.camera
