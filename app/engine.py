@@ -128,6 +128,7 @@ def _hash_scene(scene: Scene, params: EngineParams) -> str:
     h.update(json.dumps({"v": CACHE_VERSION, **params.cache_key()}, sort_keys=True).encode())
     for q in scene.quads:
         h.update(q.name.encode())
+        h.update(f"{q.role}|{q.declared_emitter}".encode())  # how finely it is cut, whether it is lifted
         for a in (q.corners, q.normal, q.albedo, q.emission):
             h.update(np.ascontiguousarray(a, np.float64).tobytes())
         if q.texture is not None:
@@ -216,7 +217,8 @@ class Engine:
         elif not patches.is_emitter.any():
             raise ValueError(f"{_scene_json(scene)}: no emitters (no primitive declares emitted_radiance), so "
                              f"--lighting known would leave the room dark; use --lighting captured")
-        self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device)
+        shaped = np.array([q.light_shaped for q in scene.quads], bool)[patches.quad]
+        self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device, lift=shaped | patches.is_emitter)
         key = _hash_scene(scene, p)
         cache = self.cache_dir / f"{scene.name}-{key[:20]}.npz" if self.cache_dir else None
         if cache is not None and cache.is_file():
@@ -781,12 +783,14 @@ def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.nda
     return out
 
 
-def _scene_meshes(patches: PatchMesh, device: str) -> tuple[Occluder, Occluder]:
-    """(occluder for light: non-emitting patches; camera mesh: every patch, emitters lifted 1 mm
-    off the wall they sit on so the ID buffer sees them rather than the wall)."""
+def _scene_meshes(patches: PatchMesh, device: str, lift: np.ndarray | None = None) -> tuple[Occluder, Occluder]:
+    """(occluder for light: non-emitting patches; camera mesh: every patch, emitters (or the
+    patches `lift` (P,) bool: quads that may emit, Quad.light_shaped) lifted 1 mm off the wall
+    they sit on so the ID buffer and the probe's rays see them rather than the wall)."""
     solid_tri = ~patches.is_emitter[patches.tri_patch]
+    lifted = patches.is_emitter if lift is None else lift
+    emit = patches.tris[lifted[patches.tri_patch]].ravel()
     lift = np.zeros_like(patches.vert_pos)
-    emit = patches.tris[~solid_tri].ravel()
     lift[emit] = patches.vert_normal[emit] * 1e-3
     return (Occluder(patches.vert_pos, patches.tris[solid_tri], device),
             Occluder(patches.vert_pos + lift, patches.tris, device))
