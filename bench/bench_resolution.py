@@ -9,7 +9,10 @@ scorer (../shared/tools/score.py) takes that folder, so the composite is scored 
 truth upsampled the same way. Each row runs in a fresh process, cache cold, so peak RSS
 (resource.getrusage ru_maxrss) and time are that row's own. Rows: the photo at its own size;
 4000x3000 at the default working resolution (1024 px); 4000x3000 worked at 640 px (the same
-working frame as the first row: the difference is the full-resolution step alone).
+working frame as the first row: the difference is the full-resolution step alone). The at640_
+columns score each composite resized back to 640x480 (area average) against the original truth:
+the scorer's 2 px blur and its 2-level thresholds are not scale-free, so they tell whether the
+full-resolution step kept the working frame's accuracy.
 """
 from __future__ import annotations
 
@@ -46,6 +49,11 @@ def upsampled_scene(src: Path, dst: Path, factor: float) -> Path:
         img = cv2.imread(str(src / name), flag)
         cv2.imwrite(str(dst / name), cv2.resize(img, (W, H), interpolation=cv2.INTER_LINEAR))
     return dst
+
+
+def _score(scorer: Path, scene: Path, png: Path) -> dict:
+    r = subprocess.run([sys.executable, str(scorer), str(scene), str(png)], capture_output=True, text=True, check=True)
+    return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 def child(scene: str, out: str, work_res: int, lighting: str, cache: str) -> None:
@@ -91,15 +99,24 @@ def main() -> None:
             if r.returncode != 0:
                 raise SystemExit(f"{label}: composite failed:\n{r.stderr[-3000:]}")
             m = json.loads(r.stdout.strip().splitlines()[-1])
-            s = json.loads(subprocess.run([sys.executable, str(scorer), str(scene), str(out / "composite.png")],
-                                          capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1])
+            s = _score(scorer, scene, out / "composite.png")
+            if scene is not src:  # the full-resolution composite brought back to 640x480, scored as the first row
+                import cv2
+
+                small = cv2.resize(cv2.imread(str(out / "composite.png")), (640, 480), interpolation=cv2.INTER_AREA)
+                cv2.imwrite(str(out / "back_to_640.png"), small)
+                s640 = _score(scorer, src, out / "back_to_640.png")
+            else:
+                s640 = s
             rows.append({"photo": label, "working": "x".join(map(str, m["working"])),
                          "peak_rss_MB": round(m["peak_rss_mb"]), "total_s": round(m["total_s"], 1),
                          "precompute_s": round(m["precompute_s"], 1), "frame_s": round(m["frame_s"], 2),
                          "full_res_s": round(m["full_resolution_s"], 2), "energy": round(s["energy_ratio"], 3),
                          "rmse_aff": round(s["rmse_affected"], 2),
                          "untouched": round(s["rmse_affected_if_untouched"], 2),
-                         "spurious": round(s["spurious"], 4), "rmse_obj": round(s["rmse_object"], 2)})
+                         "spurious": round(s["spurious"], 4), "rmse_obj": round(s["rmse_object"], 2),
+                         "at640_energy": round(s640["energy_ratio"], 3), "at640_rmse_aff": round(s640["rmse_affected"], 2),
+                         "at640_rmse_obj": round(s640["rmse_object"], 2)})
             print(json.dumps(rows[-1]), flush=True)
     print(table(rows, list(rows[0])))
 
