@@ -16,7 +16,7 @@ import sys
 from importlib import resources
 from pathlib import Path
 
-from app.engine import LIGHTINGS, EngineParams
+from app.engine import LIGHTING, EngineParams
 
 log = logging.getLogger("photoar")
 
@@ -87,10 +87,7 @@ def _add_engine_args(p: argparse.ArgumentParser, passes: bool = True) -> None:
                    help="share of total patch power kept as shadow sources (default %(default)s)")
     g.add_argument("--patch-size", type=_positive_float, default=d.patch_size, help="metres (default %(default)s)")
     g.add_argument("--map-res", type=_positive_int, default=d.map_res, help="shadow-map size (default %(default)s)")
-    g.add_argument("--lighting", choices=LIGHTINGS, default=d.lighting,
-                   help="known: the scene's declared emitters; captured: the bracketed mirror-ball probe "
-                        "(probe_*.png) and the photo, with the response recovered from the bracket; photo: "
-                        "the photo alone (sRGB assumed, emitters fitted to the walls) (default %(default)s)")
+    add_lighting_arg(g, d.lighting)
     g.add_argument("--specular", type=float, default=d.specular,
                    help="k_s of the object's Phong-like specular lobe, in [0, 1] (default %(default)s: Lambertian)")
     g.add_argument("--shininess", type=float, default=d.shininess, help="Phong exponent (default %(default)s)")
@@ -99,6 +96,12 @@ def _add_engine_args(p: argparse.ArgumentParser, passes: bool = True) -> None:
     g.add_argument("--cache", type=Path, default=None,
                    help="folder for per-scene precompute (default $PHOTOAR_CACHE or ~/.cache/photoar)")
     g.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default cpu)")
+
+
+def add_lighting_arg(g, default: str = "known") -> None:
+    """--lighting, with the choices and their meaning from app.engine.LIGHTING (one list)."""
+    g.add_argument("--lighting", choices=list(LIGHTING), default=default,
+                   help="; ".join(f"{k}: {v}" for k, v in LIGHTING.items()) + " (default %(default)s)")
 
 
 def _params(a: argparse.Namespace) -> EngineParams:
@@ -117,7 +120,23 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("composite", help="composite a scene's synthetic object into its photo")
     c.add_argument("scene", type=Path, help="scene folder (scene.json, background.png, object mesh)")
     c.add_argument("--out", type=Path, required=True, help="output folder")
-    c.add_argument("--object", type=Path, default=None, help="another mesh to place at the scene's object pose")
+    c.add_argument("--object", type=Path, default=None,
+                   help="object mesh (PLY/OBJ/GLB): at --place/--yaw, else at the scene's object pose")
+    c.add_argument("--place", type=xyz_arg, default=None, metavar="X,Y,Z",
+                   help="world point (m) for the bottom centre of the mesh's bounding box (as `photoar gui --place`)")
+    c.add_argument("--yaw", type=float, default=0.0,
+                   help="right-handed turn about +Y through the --place point, degrees (default %(default)s)")
+    c.add_argument("--object-size", type=float, default=None,
+                   help="largest extent of the object in metres (default: the file's units when they look like "
+                        "metres, else 0.6 m, as the GUI)")
+    c.add_argument("--object-albedo", type=xyz_arg, default=None, metavar="R,G,B",
+                   help="linear diffuse reflectance of --object in [0, 1] (default: the scene's synthetic_object "
+                        "albedo for its own mesh, else 0.6 grey, as the GUI)")
+    c.add_argument("--placement", type=Path, default=None,
+                   help="placement JSON saved by `photoar gui` (mesh, position, yaw, lift, scale)")
+    c.add_argument("--work-res", type=int, default=None, metavar="PX",
+                   help="the engine works at most PX pixels on the long side; the composite is written at the "
+                        "photo's full resolution (default 1024; 0: work at the photo's own resolution)")
     _add_engine_args(c)
 
     d = sub.add_parser("demo", help="composite the bundled demo scene and print where the picture is")
@@ -148,11 +167,13 @@ def main(argv: list[str] | None = None) -> int:
         from app import composite
 
         if a.command == "composite":
-            composite.main(a.scene, a.out, params, cache_dir=a.cache, object_mesh=a.object, quiet=a.quiet)
+            composite.main(a.scene, a.out, params, cache_dir=a.cache, object_mesh=a.object, quiet=a.quiet,
+                           device=a.device, place=a.place, yaw=a.yaw, object_size=a.object_size,
+                           placement=a.placement, work_res=a.work_res, object_albedo=a.object_albedo)
             print(a.out / "composite.png")
         elif a.command == "demo":
             report = composite.main(demo_scene_dir(), a.out, params, cache_dir=a.cache or a.out.parent / ".cache",
-                                    quiet=a.quiet)
+                                    quiet=a.quiet, device=a.device)
             print(f"demo composite: {a.out / 'composite.png'}  (precompute {report['precompute_s']:.1f} s, "
                   f"frame {report['frame_s']:.2f} s, {report['n_sources']} shadow sources)")
         return 0

@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from app.cli import xyz_arg
-from app.engine import LIGHTINGS
 
 log = logging.getLogger("photoar")
 
@@ -55,8 +54,6 @@ def register(sub) -> None:
                    help="shadow passes per frame (default %(default)s; the window's slider changes it)")
     g.add_argument("--all-sources", action="store_true", help="one shadow pass per source (slow)")
     g.add_argument("--mode", choices=["hdr", "ldr"], default="hdr", help="compositing path (default %(default)s)")
-    g.add_argument("--lighting", choices=LIGHTINGS, default="known",
-                   help="room light: declared emitters, the probe bracket, or the photo alone (default %(default)s)")
     g.add_argument("--screenshot", type=Path, default=None,
                    help="after the frames, save a PNG of the window and exit")
     g.add_argument("--frames", type=_positive_int, default=None,
@@ -64,6 +61,13 @@ def register(sub) -> None:
     g.add_argument("--window", type=_size, default=(1280, 720), metavar="WxH", help="window size (default 1280x720)")
     g.add_argument("--cache", type=Path, default=None,
                    help="folder for per-scene precompute (default $PHOTOAR_CACHE or ~/.cache/photoar)")
+    from app.cli import add_lighting_arg
+
+    add_lighting_arg(g)
+    g.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default cpu)")
+    g.add_argument("--work-res", type=int, default=1024, metavar="PX",
+                   help="preview and drag at most PX pixels on the photo's long side (default %(default)s; 0: the "
+                        "photo's own); `photoar composite --placement` writes the full resolution")
     g.set_defaults(run=run)
 
 
@@ -79,7 +83,8 @@ def run(a: argparse.Namespace) -> int:
         raise ValueError(f"{a.object}: --object-size must be positive, got {a.object_size}")
     params = EngineParams(passes=None if a.all_sources else a.passes, mode=a.mode, lighting=a.lighting)
     ctl = PlacementController.open(a.scene, params=params, cache_dir=a.cache or default_cache_dir(),
-                                   quiet=a.quiet)
+                                   quiet=a.quiet, work_res=a.work_res)
+    ctl.device = a.device
     if ctl.params is not params:  # a saved placement brought its own budget
         params = ctl.params
     mesh = a.object

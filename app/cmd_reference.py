@@ -29,7 +29,6 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from app.engine import LIGHTINGS
 
 log = logging.getLogger("photoar")
 LUM = np.array([0.2126, 0.7152, 0.0722])  # Rec.709 luminance weights (RGB)
@@ -217,10 +216,9 @@ def register(sub) -> None:
                         "benchmark truth)")
     p.add_argument("--patch-size", type=float, default=0.18, help="model patch size, metres (default %(default)s)")
     p.add_argument("--no-textures", action="store_true", help="per-patch mean albedo instead of the quads' textures")
-    p.add_argument("--lighting", choices=LIGHTINGS, default="known",
-                   help="known: the scene's declared emitters; captured: the engine's radiance mesh from the "
-                        "probe bracket and the photo; photo: the engine's radiance mesh from the photo alone "
-                        "(default %(default)s)")
+    from app.cli import add_lighting_arg
+
+    add_lighting_arg(p)
     p.add_argument("--cache", type=Path, default=None, help="engine precompute cache (--lighting captured)")
     p.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default cpu)")
     p.set_defaults(run=run)
@@ -248,6 +246,12 @@ def run(a: argparse.Namespace) -> int:
         kw = dict(tracer=build_tracer(scene, textures=False, patches=eng.pre.patches, device=a.device),
                   photo_radiance=eng.L_b, response=scene.response)
     else:
+        if scene.response is None:
+            raise ValueError(f"{a.scene / 'scene.json'}: missing field 'camera_response'; --lighting known needs "
+                             f"the camera's response (or use --lighting captured)")
+        if not any(q.is_emitter for q in scene.quads):
+            raise ValueError(f"{a.scene / 'scene.json'}: no emitters (no primitive declares emitted_radiance); "
+                             f"use --lighting captured")
         kw = dict(patch_size=a.patch_size, textures=not a.no_textures, device=a.device)
     ref = render_reference(scene, a.spp, seed=a.seed, batch_spp=a.batch_spp, noise_target=a.noise_target,
                            bounces=a.bounces, quiet=a.quiet, **kw)

@@ -45,7 +45,7 @@ from kernels.visibility import Occluder, emitter_sum, transfer_matrix
 from lighting.frame_sources import ShadowSources
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from lighting.irradiance import RoomLight
-from lighting.radiance import captured_files, captured_radiance_mesh, load_captured_probe
+from lighting.radiance import captured_radiance_mesh, load_captured_probe
 from lighting.radiosity import gather
 from lighting.sources import select_sources
 from lighting.transfer import intensity_transfers
@@ -56,8 +56,14 @@ from recon.response import luminance
 from recon.scene import Scene, SceneObject
 
 log = logging.getLogger("photoar")
-CACHE_VERSION = 5
-LIGHTINGS = ("known", "captured", "photo")  # EngineParams.lighting (the CLI's --lighting choices)
+CACHE_VERSION = 6
+# How the room is lit (EngineParams.lighting; the one list the command line and the engine use):
+LIGHTING = {
+    "known": "the scene's declared emitters (emitted_radiance) and radiosity",
+    "captured": "the bracketed mirror-ball probe and the photo; emitters are the patches brighter than any "
+                "reflector could be, the camera response is recovered from the bracket",
+    "photo": "the photo alone: sRGB assumed, window/lamp radiance fitted to the walls (lighting.photolight)",
+}
 
 
 @dataclass
@@ -107,6 +113,7 @@ class Precomputed:
     albedo: np.ndarray  # (P,3) patch reflectivity used (declared, or recovered from captured light)
     origin: np.ndarray  # (P,) int8 where each patch's radiance came from (lighting.radiance codes; known: -1)
     seconds: float = 0.0
+    emitter: np.ndarray | None = None  # (P,) bool patches that emit (captured: decided from the radiance)
 
 
 @dataclass
@@ -114,6 +121,8 @@ class Frame:
     radiance: np.ndarray  # (H,W,3) float32 composite radiance (HDR path estimate)
     pixels: np.ndarray  # (H,W,3) uint8 composite photo
     stats: dict = field(default_factory=dict)
+    room: np.ndarray | None = None  # (H,W,3) float32 radiance of the room with the object's effect, object unseen
+    coverage: np.ndarray | None = None  # (H,W) float32 share of each pixel the object covers
 
 
 def _hash_scene(scene: Scene, params: EngineParams) -> str:
@@ -121,6 +130,7 @@ def _hash_scene(scene: Scene, params: EngineParams) -> str:
     h.update(json.dumps({"v": CACHE_VERSION, **params.cache_key()}, sort_keys=True).encode())
     for q in scene.quads:
         h.update(q.name.encode())
+        h.update(f"{q.role}|{q.declared_emitter}".encode())  # how finely it is cut, whether it is lifted
         for a in (q.corners, q.normal, q.albedo, q.emission):
             h.update(np.ascontiguousarray(a, np.float64).tobytes())
         if q.texture is not None:
@@ -128,23 +138,37 @@ def _hash_scene(scene: Scene, params: EngineParams) -> str:
     cam = scene.camera
     for a in (cam.K, cam.R, cam.t):
         h.update(np.ascontiguousarray(a, np.float64).tobytes())
-    h.update(f"{cam.width}x{cam.height}".encode())
+    h.update(f"{cam.width}x{cam.height} exposure {cam.exposure_time!r}".encode())
+    h.update(hashlib.sha256(np.ascontiguousarray(scene.photo).tobytes()).digest())
+    if scene.response is not None:
+        for a in (scene.response.forward_table, scene.response.inverse_table):
+            h.update(np.ascontiguousarray(a, np.float64).tobytes())
     if params.lighting == "captured":
-        for f in captured_files(scene):
+        # the probe's files, and everything scene.json says about them: pose (centre, radius,
+        # camera R/t/pixel size/principal point), exposure times, file names
+        from lighting.hdr import scene_probe_files
+
+        files, times, meta = scene_probe_files(scene.root)
+        h.update(json.dumps(meta.get("light_probe"), sort_keys=True, default=str).encode())
+        for f in files:
             h.update(hashlib.sha256(f.read_bytes()).digest())
-    if params.lighting in ("captured", "photo"):
-        h.update(hashlib.sha256(np.ascontiguousarray(scene.photo).tobytes()).digest())
     return h.hexdigest()
 
 
-def _need_declared(scene: Scene, lighting: str) -> None:
-    """Known (or captured) lighting on a scene that declares no response or emitters of unknown strength."""
-    path = scene.meta.get("json_path", scene.root / "scene.json")
-    if scene.response is None and lighting == "known":
-        raise ValueError(f"{path}: no camera_response; --lighting photo assumes one")
-    if scene.meta.get("emitters_without_radiance") and lighting == "known":
-        raise ValueError(f"{path}: emitters without emitted_radiance "
-                         f"({', '.join(scene.meta['emitters_without_radiance'])}); --lighting photo estimates them")
+def _scene_json(scene: Scene) -> str:
+    return str(scene.meta.get("json_path", Path(scene.root) / "scene.json"))
+
+
+def _need_declared(scene: Scene) -> None:
+    """Known lighting on a scene whose response or some emitter's radiance is not declared."""
+    if scene.response is None:
+        raise ValueError(f"{_scene_json(scene)}: missing field 'camera_response'; --lighting known needs the "
+                         f"camera's response (or use --lighting captured, which recovers it from the probe "
+                         f"bracket, or --lighting photo, which assumes one)")
+    if scene.meta.get("emitters_without_radiance"):
+        raise ValueError(f"{_scene_json(scene)}: emitters without emitted_radiance "
+                         f"({', '.join(scene.meta['emitters_without_radiance'])}); use --lighting captured or "
+                         f"--lighting photo, which estimate them")
 
 
 def _bar(total: int, desc: str, quiet: bool):
@@ -161,8 +185,8 @@ class Engine:
         self.params = params or EngineParams()
         if self.params.mode not in ("hdr", "ldr"):
             raise ValueError(f"mode must be 'hdr' or 'ldr', got {self.params.mode!r}")
-        if self.params.lighting not in LIGHTINGS:
-            raise ValueError(f"lighting must be one of {LIGHTINGS}, got {self.params.lighting!r}")
+        if self.params.lighting not in LIGHTING:
+            raise ValueError(f"lighting must be one of {sorted(LIGHTING)}, got {self.params.lighting!r}")
         if not 0.0 <= self.params.specular <= 1.0 or self.params.shininess < 0:
             raise ValueError(f"specular must be in [0, 1] and shininess >= 0, got {self.params.specular}, "
                              f"{self.params.shininess}")
@@ -180,7 +204,7 @@ class Engine:
         if self.params.lighting == "photo":
             self.scene = scene = self._photo_scene(scene)
         elif scene.response is None or scene.meta.get("emitters_without_radiance"):
-            _need_declared(scene, self.params.lighting)
+            _need_declared(scene)
         self.pre, self.cache_hit = self._precompute()
         self._setup()
         self.room_light  # the SH volume is per-scene work too
@@ -191,14 +215,20 @@ class Engine:
         p = self.params
         scene = self.scene
         patches = build_patches(scene, p.patch_size, p.emitter_patch_size)
-        self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device)
+        if p.lighting == "captured":
+            patches.emission[:] = 0.0  # declared radiance is never read: emitters come from the capture
+        elif p.lighting == "known" and not patches.is_emitter.any():
+            raise ValueError(f"{_scene_json(scene)}: no emitters (no primitive declares emitted_radiance), so "
+                             f"--lighting known would leave the room dark; use --lighting captured")
+        shaped = np.array([q.light_shaped for q in scene.quads], bool)[patches.quad]
+        self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device, lift=shaped | patches.is_emitter)
         key = _hash_scene(scene, p)
         cache = self.cache_dir / f"{scene.name}-{key[:20]}.npz" if self.cache_dir else None
         if cache is not None and cache.is_file():
             try:
                 z = np.load(cache)
                 pre = Precomputed(patches, z["G_c"], z["recv_vert"], z["G_v"], z["B"], z["pix_tri"], z["pix_bary"],
-                                  z["pix_depth"], z["albedo"], z["origin"], float(z["seconds"]))
+                                  z["pix_depth"], z["albedo"], z["origin"], float(z["seconds"]), z["emitter"])
                 log.info("precompute: cache hit %s", cache)
                 self._use_lighting(pre)
                 return pre, True
@@ -227,18 +257,20 @@ class Engine:
             rm = captured_radiance_mesh(patches, G_c, self.cam_occ, self.probe, scene, pix_patch)
             log.info("radiance mesh from captured light: %s", rm.summary())
             B = np.stack([rm.radiance] * (p.bounces + 1))
-            albedo, origin = rm.reflectivity, rm.origin
+            albedo, origin, emitter = rm.reflectivity, rm.origin, rm.emitter
         elif p.lighting == "photo":  # filled in by _use_lighting (cheap; redone on a cache hit)
             B, albedo, origin = np.zeros((p.bounces + 1, n_c, 3)), patches.albedo, np.full(n_c, -1, np.int8)
+            emitter = patches.is_emitter
         else:
             B = np.stack(gather(G_c, patches.albedo, patches.emission, p.bounces))
-            albedo, origin = patches.albedo, np.full(n_c, -1, np.int8)
+            albedo, origin, emitter = patches.albedo, np.full(n_c, -1, np.int8), patches.is_emitter
         seconds = time.perf_counter() - t0
-        pre = Precomputed(patches, G_c, recv_vert, G_v, B, pix_tri, pix_bary, pix_depth, albedo, origin, seconds)
+        pre = Precomputed(patches, G_c, recv_vert, G_v, B, pix_tri, pix_bary, pix_depth, albedo, origin, seconds,
+                          emitter)
         self._use_lighting(pre)
         if cache is not None:
             write_npz(cache, G_c=G_c, recv_vert=recv_vert, G_v=G_v, B=B, pix_tri=pix_tri, pix_bary=pix_bary,
-                             pix_depth=pix_depth, albedo=albedo, origin=origin, seconds=seconds)
+                      pix_depth=pix_depth, albedo=albedo, origin=origin, seconds=seconds, emitter=emitter)
         log.info("precompute: %d patches, %d receiver vertices, %.1f s", n_c, n_v, seconds)
         return pre, False
 
@@ -249,8 +281,9 @@ class Engine:
             self._fit_photo_light(pre)
         pm.albedo = np.asarray(pre.albedo, np.float64)
         if self.params.lighting in ("captured", "photo"):
-            # which patches emit is the model's (its window and lamp quads); how bright is captured
-            emit = pm.is_emitter
+            # which patches emit and how bright: captured, both from the captured radiance
+            # (lighting.radiance.emitters); photo, the fitted groups and the model's emitters
+            emit = np.asarray(pre.emitter, bool) if self.params.lighting == "captured" else pm.is_emitter
             pm.emission = np.where(emit[:, None], np.maximum(pre.B[-1], 1e-12), 0.0)
 
     def _photo_scene(self, scene: Scene) -> Scene:
@@ -313,7 +346,8 @@ class Engine:
                                             self.B_src, self.params.leaf_size, self.params.shaft_threshold)
         self.shaft_build_s = time.perf_counter() - t0
         log.debug("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
-        self._cost = {"fixed_s": 1.0, "per_pass_s": 0.01}  # refined after every frame
+        self._cost: dict | None = None  # measured fixed and per-pass frame cost (--fps), refined every frame
+        self._passes_override: int | None = None  # pass count of the calibration frame
         self.dB_samples = 400  # object vertices that gather the second-order loss (the rest interpolate)
         self._prt_cache = None  # (key, self_transfer result) of the last object shape (_self_transfer)
         self.near_factor = 2.0  # object light per pixel within this many bounding radii
@@ -334,6 +368,9 @@ class Engine:
     # ------------------------------------------------------------------ per frame
     def render(self, obj: SceneObject) -> Frame:
         """Composite the object at its pose; returns the frame with per-phase timings in stats."""
+        calibration_s = 0.0
+        if self.params.fps is not None and self._cost is None and self._passes_override is None:
+            calibration_s = self._calibrate(obj)
         p, pre, pm, scene = self.params, self.pre, self.pre.patches, self.scene
         cam = scene.camera
         H, W = cam.height, cam.width
@@ -458,13 +495,20 @@ class Engine:
                  "n_receiver_vertices": int(len(pre.recv_vert)), "n_mask_pixels": int(len(pix_sel)),
                  "n_filled_pixels": int(len(fill_sel)), "proxy_triangles": int(len(pf)), "mode": p.mode,
                  "shaft_build_s": self.shaft_build_s, **self.shadow_sources.stats()}
-        return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats)
+        if calibration_s:
+            stats["fps_calibration_s"] = calibration_s
+        self._last_shading = (shade_mesh, self._last_L_vert, obj.albedo) if hits.hit.any() else None
+        return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats,
+                     room.reshape(H, W, 3).astype(np.float32), cov.astype(np.float32))
 
     # ------------------------------------------------------------------ pieces
-    def _object_hits(self, verts: np.ndarray, faces: np.ndarray) -> "ObjectHits":
-        """Sub-pixel camera rays against the object mesh, depth-tested against the scene model."""
-        cam = self.scene.camera
-        H, W, s = cam.height, cam.width, max(1, self.params.supersample)
+    def _object_hits(self, verts: np.ndarray, faces: np.ndarray, camera=None, supersample: int | None = None
+                     ) -> "ObjectHits":
+        """Sub-pixel camera rays against the object mesh, depth-tested against the scene model
+        (camera: default the scene's; another one sees the same world, e.g. the full-resolution
+        photo's, app.workres)."""
+        cam = camera or self.scene.camera
+        H, W, s = cam.height, cam.width, max(1, supersample or self.params.supersample)
         uv, z = cam.project(verts)
         if np.any(z <= 1e-6):
             u0, v0, u1, v1 = 0, 0, W - 1, H - 1
@@ -552,9 +596,11 @@ class Engine:
 
     def _shade_object(self, obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
         """Object radiance (H,W,3) from `object_vertex_radiance`, interpolated at the camera hits."""
+        self._last_L_vert = None
         if not hits.hit.any():
             return np.zeros((hits.H, hits.W, 3))
         L_vert = self.object_vertex_radiance(obj, mesh, proxy_occ, dB)
+        self._last_L_vert = L_vert
         v, n, f = mesh
         h = hits.hit
         sub = np.zeros((len(h), 3))
@@ -654,10 +700,24 @@ class Engine:
         self._n_object_light_pixels = len(sel)
         return R_pix, R_cen
 
+    def _calibrate(self, obj: SceneObject) -> float:
+        """Measure the frame's fixed and per-pass cost before --fps chooses a pass count: one
+        frame of this object at one batch of passes (its result is discarded). Returns seconds."""
+        t0 = time.perf_counter()
+        self._passes_override = self.params.batch if self.params.passes is None else \
+            min(self.params.batch, self.params.passes)
+        try:
+            self.render(obj)
+        finally:
+            self._passes_override = None
+        return time.perf_counter() - t0
+
     def _passes_for_frame(self) -> int | None:
         """The pass budget: --passes, or the passes that fit 1/--fps from the measured costs."""
         p = self.params
-        if p.fps is None:
+        if self._passes_override is not None:
+            return self._passes_override
+        if p.fps is None or self._cost is None:
             return p.passes
         budget = 1.0 / p.fps - self._cost["fixed_s"]
         n = int(budget / max(self._cost["per_pass_s"], 1e-6))
@@ -758,12 +818,14 @@ def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.nda
     return out
 
 
-def _scene_meshes(patches: PatchMesh, device: str) -> tuple[Occluder, Occluder]:
-    """(occluder for light: non-emitting patches; camera mesh: every patch, emitters lifted 1 mm
-    off the wall they sit on so the ID buffer sees them rather than the wall)."""
+def _scene_meshes(patches: PatchMesh, device: str, lift: np.ndarray | None = None) -> tuple[Occluder, Occluder]:
+    """(occluder for light: non-emitting patches; camera mesh: every patch, emitters (or the
+    patches `lift` (P,) bool: quads that may emit, Quad.light_shaped) lifted 1 mm off the wall
+    they sit on so the ID buffer and the probe's rays see them rather than the wall)."""
     solid_tri = ~patches.is_emitter[patches.tri_patch]
+    lifted = patches.is_emitter if lift is None else lift
+    emit = patches.tris[lifted[patches.tri_patch]].ravel()
     lift = np.zeros_like(patches.vert_pos)
-    emit = patches.tris[~solid_tri].ravel()
     lift[emit] = patches.vert_normal[emit] * 1e-3
     return (Occluder(patches.vert_pos, patches.tris[solid_tri], device),
             Occluder(patches.vert_pos + lift, patches.tris, device))

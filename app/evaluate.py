@@ -42,7 +42,7 @@ def parse_passes(text: str) -> list[int | None]:
 
 
 def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], params=None, cache_dir=None,
-         quiet: bool = False, reference_spp: int | None = None) -> list[dict]:
+         quiet: bool = False, reference_spp: int | None = None, device: str | None = None) -> list[dict]:
     """Rows of the evaluation (also written to out/evaluation.json and the plot)."""
     import dataclasses
 
@@ -57,7 +57,8 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
     if scene.obj is None:
         raise SceneError(f"{Path(scene_dir) / 'scene.json'}: missing field 'synthetic_object'")
     params = params or EngineParams()
-    engine = Engine(scene, params, cache_dir=cache_dir if cache_dir is not None else default_cache_dir(), quiet=quiet)
+    engine = Engine(scene, params, cache_dir=cache_dir if cache_dir is not None else default_cache_dir(),
+                    device=device, quiet=quiet)
     frames = {}
     order = sorted(set(passes), key=lambda p: (p is None, p or 0))
     if None not in order and not (Path(scene_dir) / "truth.png").is_file() and reference_spp is None:
@@ -73,9 +74,13 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
         mask = cv2.imread(str(Path(scene_dir) / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
         against = "truth.png"
     elif reference_spp is not None:
-        from app.cmd_reference import render_reference
+        from app.cmd_reference import build_tracer, render_reference
 
-        ref = render_reference(scene, reference_spp, quiet=quiet)
+        kw = {"device": device}
+        if params.lighting != "known":  # the model lit as the engine lights it (its radiance mesh)
+            kw = {"tracer": build_tracer(engine.scene, textures=False, patches=engine.pre.patches, device=device)}
+        ref = render_reference(engine.scene, reference_spp, quiet=quiet, photo_radiance=engine.L_b,
+                               response=engine.scene.response, **kw)
         truth = ref.pixels
         mask = np.rint(ref.coverage * 255).astype(np.uint8)
         against = f"path-traced reference ({ref.spp} spp)"
@@ -131,7 +136,8 @@ def _run(a) -> int:
     import dataclasses
 
     params = dataclasses.replace(_params(a), passes=None)
-    rows = main(a.scene, a.out, a.passes, params, cache_dir=a.cache, quiet=a.quiet, reference_spp=a.reference_spp)
+    rows = main(a.scene, a.out, a.passes, params, cache_dir=a.cache, quiet=a.quiet, reference_spp=a.reference_spp,
+                device=a.device)
     for r in rows:
         print(f"passes {r['passes']}: frame {r['frame_s']:.2f} s, energy {r['energy_ratio']:.3f}, "
               f"rmse {r['rmse_affected']:.2f}, spurious {r['spurious']:.4f}")

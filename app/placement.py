@@ -165,6 +165,7 @@ class PlacementController:
 
         self.scene = scene
         self.params = params
+        self.device: str | None = None  # Warp device of the engine (None: kernels.runtime's default)
         self.cache_dir = cache_dir
         self.quiet = quiet
         self.engine = None
@@ -187,24 +188,27 @@ class PlacementController:
     # ------------------------------------------------------------------ construction
     @classmethod
     def open(cls, path: str | Path, params=None, cache_dir: str | Path | None = None,
-             quiet: bool = True) -> "PlacementController":
-        """A benchmark scene folder, or a saved placement JSON (which names its scene folder)."""
+             quiet: bool = True, work_res: int | None = None) -> "PlacementController":
+        """A benchmark scene folder, or a saved placement JSON (which names its scene folder);
+        work_res: preview at most this many pixels on the photo's long side (app.workres)."""
+        from app.workres import working_scene
+
         path = Path(path)
         if path.is_file() and path.suffix.lower() == ".json" and path.name != "scene.json":
             data = _read_placement(path)
-            ctl = cls(load_scene(data["scene"]), params, cache_dir, quiet)
+            ctl = cls(working_scene(load_scene(data["scene"]), work_res), params, cache_dir, quiet)
             ctl._apply_saved(data, path)
             return ctl
         if path.is_file() and path.name == "scene.json":
             path = path.parent
-        return cls(load_scene(path), params, cache_dir, quiet)
+        return cls(working_scene(load_scene(path), work_res), params, cache_dir, quiet)
 
     def start_engine(self, params=None):
         """Build the engine (precompute, cached under cache_dir); returns it."""
         from app.engine import Engine, EngineParams
 
         params = params or self.params or EngineParams(passes=20)
-        eng = Engine(self.scene, params, cache_dir=self.cache_dir, quiet=self.quiet)
+        eng = Engine(self.scene, params, cache_dir=self.cache_dir, device=self.device, quiet=self.quiet)
         with self._lock:
             self.engine = eng
             self.params = eng.params
@@ -225,14 +229,16 @@ class PlacementController:
                         out.append(str(p.resolve()))
         return out
 
-    def load_mesh(self, path: str | Path, size_m: float | None = None, albedo=None) -> ObjectMesh:
-        """Load (once) the mesh at `path`; the scene's own object keeps its albedo."""
+    def load_mesh(self, path: str | Path, size_m: float | None = None, albedo=None,
+                  max_faces: int = 4000) -> ObjectMesh:
+        """Load (once) the mesh at `path`; the scene's own object keeps its albedo. Meshes above
+        `max_faces` are decimated (load_object_mesh; `photoar composite` keeps them whole)."""
         key = str(Path(path).resolve())
         if key not in self.meshes or (size_m is not None and self.meshes[key].size_m != size_m):
             if albedo is None and self.scene.obj is not None and \
                     Path(self.scene.obj.source).resolve() == Path(key):
                 albedo = self.scene.obj.albedo
-            self.meshes[key] = load_object_mesh(key, size_m, albedo)
+            self.meshes[key] = load_object_mesh(key, size_m, albedo, max_faces)
         return self.meshes[key]
 
     def set_object(self, path: str | Path, size_m: float | None = None, albedo=None) -> Pose:

@@ -5,8 +5,10 @@ usage: python bench/bench_captured.py [--shared ../shared]
 Per shared scene: each emitter's captured radiance (area-weighted over its patches) against the
 declared one; the largest per-patch emitter error with and without the EM split of pixel flux
 (from probe_truth.exr, so only the projection is measured); the median relative error of the
-recovered reflectivity per source of a patch's radiance (photo, probe, gathered); and the
-scorer's figures for `composite --lighting captured`.
+recovered reflectivity per source of a patch's radiance (photo, probe, gathered); the share of
+the declared emitters' power on the patches found to emit from the captured radiance alone
+(emitter_power_found) and the power of patches wrongly found to emit (emitter_extra, same unit);
+and the scorer's figures for `composite --lighting captured`.
 """
 from __future__ import annotations
 
@@ -62,6 +64,11 @@ def bench_scene(name: str, d: Path, cache: Path) -> dict:
         rel = np.abs(luminance(pm.albedo[sel]) / luminance(truth.albedo[sel]) - 1)
         row[f"refl_err_{label}"] = float(np.median(rel)) if sel.any() else float("nan")
         row[f"n_{label}"] = int(sel.sum())
+    # emitters found from the radiance alone (nothing declared is read) against the declared ones
+    power = luminance(truth.emission) * truth.area
+    found = eng.pre.emitter
+    row["emitter_power_found"] = float(power[found].sum() / power.sum())
+    row["emitter_extra"] = float((luminance(eng.pre.B[-1]) * pm.area)[found & ~em].sum() / power.sum())
     mask = cv2.imread(str(d / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
     s = metrics.score_regions(pixels, scene.photo, read_image_rgb(d / "truth.png"), mask)
     row.update(energy=s["energy_ratio"], rmse=s["rmse_affected"], untouched=s["rmse_affected_if_untouched"],

@@ -3,7 +3,8 @@
 The seed builds its radiance mesh from HDR captures: every patch of the scene model gets the
 radiance that the light probe (or the photo) sees on it; reflectivity is the photo's radiance
 divided by the irradiance gathered from that mesh; patches that neither the probe nor the photo
-sees gather irradiance and reflect it with reflectivity 0.5. Emitters are simply bright patches.
+sees gather irradiance and reflect it with reflectivity 0.5. Emitters are simply bright patches:
+those brighter than a perfect reflector could be under the light they gather (`emitters`).
 
 Per patch, in order of preference:
 1. the photo: the mean of the camera-seen, unsaturated pixels on the patch (at least
@@ -45,11 +46,15 @@ class RadianceMesh:
     radiance: np.ndarray
     reflectivity: np.ndarray
     origin: np.ndarray
+    emitter: np.ndarray | None = None  # (P,) bool: patches that emit (see `emitters`)
 
     def summary(self) -> dict:
-        return {"patches_from_photo": int(np.sum(self.origin == PHOTO)),
-                "patches_from_probe": int(np.sum(self.origin == PROBE)),
-                "patches_gathered": int(np.sum(self.origin == GATHERED))}
+        out = {"patches_from_photo": int(np.sum(self.origin == PHOTO)),
+               "patches_from_probe": int(np.sum(self.origin == PROBE)),
+               "patches_gathered": int(np.sum(self.origin == GATHERED))}
+        if self.emitter is not None:
+            out["emitter_patches"] = int(np.sum(self.emitter))
+        return out
 
 
 def probe_rays(light_probe: dict, size: int, rim: float = probe_maps.DEFAULT_RIM, sub: int = 3
@@ -133,7 +138,7 @@ def photo_radiance(pix_patch: np.ndarray, L_b: np.ndarray, saturated: np.ndarray
 
 
 def build_radiance_mesh(G: np.ndarray, probe_rad: np.ndarray, probe_omega: np.ndarray, photo_rad: np.ndarray,
-                        photo_count: np.ndarray, is_emitter: np.ndarray, min_pixels: int = 4,
+                        photo_count: np.ndarray, is_emitter: np.ndarray | None = None, min_pixels: int = 4,
                         min_omega: float = 1e-6, unseen_reflectivity: float = 0.5, iterations: int = 20
                         ) -> RadianceMesh:
     """Combine photo, probe and gathering (module docstring) into one radiance mesh.
@@ -141,6 +146,7 @@ def build_radiance_mesh(G: np.ndarray, probe_rad: np.ndarray, probe_omega: np.nd
     G (P,P): patch -> patch transfers (irradiance/pi at row patch per unit radiance of column
     patch, visibility included). Reflectivity of measured non-emitting patches is
     L / (G @ L), clipped to [0, 1]; emitters get 0, unseen patches `unseen_reflectivity`.
+    Emitters are `is_emitter` where given, else decided from the radiance (`emitters`).
     """
     P = len(G)
     origin = np.full(P, GATHERED, np.int8)
@@ -159,10 +165,30 @@ def build_radiance_mesh(G: np.ndarray, probe_rad: np.ndarray, probe_omega: np.nd
         rho = np.where(E > 0, L / E, unseen_reflectivity)
     rho = np.clip(np.nan_to_num(rho, nan=unseen_reflectivity), 0.0, 1.0)
     rho[unseen] = unseen_reflectivity
-    rho[is_emitter] = 0.0
     if not np.all(np.isfinite(L)):
         raise RuntimeError("radiance mesh: non-finite patch radiance (check the probe image)")
-    return RadianceMesh(L, rho, origin)
+    emit = emitters(L, E, origin, G64.sum(1)) if is_emitter is None else np.asarray(is_emitter, bool)
+    rho[emit] = 0.0
+    return RadianceMesh(L, rho, origin, emit)
+
+
+def emitters(radiance: np.ndarray, gathered: np.ndarray, origin: np.ndarray, openness: np.ndarray) -> np.ndarray:
+    """(P,) bool: measured patches brighter than any reflector could be where they are.
+
+    A surface of reflectivity rho reflects rho * E (E = G @ L, irradiance/pi gathered at the
+    patch centre from the rest of the mesh); no reflector exceeds rho = 1, so a patch whose
+    captured luminance exceeds its gathered luminance emits. This is the seed's "emitters are
+    simply bright patches" as a physical bound, with no declared radiance and no role: a window,
+    a lamp or a lit screen. Not judged (never emitters): gathered patches (their radiance is 0.5 E
+    by construction) and patches whose centre is buried (openness, the sum of the centre's form
+    factors, is 1 for a point that sees the closed room over its whole hemisphere; below 1/2 the
+    centre lies mostly behind a lamp 2 mm off the ceiling or under a box, and its irradiance says
+    nothing about the uncovered rim that the probe or the photo saw).
+    """
+    from lighting.sources import luminance
+
+    judged = (origin != GATHERED) & (np.asarray(openness) >= 0.5)
+    return judged & (luminance(radiance) > luminance(gathered))
 
 
 # ----------------------------------------------------------------------------- scenes
@@ -223,4 +249,4 @@ def captured_radiance_mesh(patches: PatchMesh, G: np.ndarray, mesh: Occluder, pr
     L_b = probe.response.to_radiance(photo)
     sat = np.any(photo >= 255, axis=1)
     photo_rad, count = photo_radiance(pix_patch, L_b, sat, patches.n_patches)
-    return build_radiance_mesh(G, probe_rad, omega, photo_rad, count, patches.is_emitter)
+    return build_radiance_mesh(G, probe_rad, omega, photo_rad, count)

@@ -1,7 +1,8 @@
 """Patch mesh over the scene model's quads (seed sec. 6: source and receiver patches).
 
-Every quad is cut into a grid of rectangular patches no larger than `patch_size` (emitters use
-the finer `emitter_patch_size`, since a soft shadow is built from one hard shadow per patch).
+Every quad is cut into a grid of rectangular patches no larger than `patch_size`. Quads that may
+emit (Quad.light_shaped: a declared emitter or a window/lamp role, radiance declared or not) use
+the finer `emitter_patch_size`, since a soft shadow is built from one hard shadow per patch.
 Each patch is also split into two triangles for ray casting and per-pixel interpolation; grid
 vertices are not shared between quads (normals differ), so per-vertex data is one-sided.
 
@@ -79,7 +80,7 @@ def build_patches(scene: Scene, patch_size: float = 0.25, emitter_patch_size: fl
                                               "tris")}
     n_vert = 0
     for qi, q in enumerate(scene.quads):
-        size = emitter_patch_size if q.is_emitter else patch_size
+        size = emitter_patch_size if q.light_shaped else patch_size
         U, V = q.corners[1] - q.corners[0], q.corners[3] - q.corners[0]
         nu = max(1, int(np.ceil(np.linalg.norm(U) / size - 1e-9)))
         nv = max(1, int(np.ceil(np.linalg.norm(V) / size - 1e-9)))

@@ -21,6 +21,8 @@ from recon.camera import Camera
 from recon.io import SceneError, json_array, json_field, open3d, read_image_rgb, read_json
 from recon.response import CameraResponse
 
+LIGHT_ROLES = ("window", "lamp", "ceiling_lamp", "point_lamp")  # quads that may emit
+
 
 @dataclass
 class Quad:
@@ -29,12 +31,19 @@ class Quad:
     normal: np.ndarray  # (3,) unit, the lit / emitting side
     albedo: np.ndarray  # (3,) linear diffuse reflectance (mean)
     emission: np.ndarray  # (3,) emitted radiance, zero for non-emitters
-    role: str = "room"  # room | furniture | window | ceiling_lamp | point_lamp
+    role: str = "room"  # room | furniture | window | lamp | ceiling_lamp | point_lamp
     texture: np.ndarray | None = None  # (Ht,Wt,3) float linear albedo, or None
+    declared_emitter: bool = False  # scene.json says "emitter": true (with or without emitted_radiance)
 
     @property
     def is_emitter(self) -> bool:
         return bool(np.any(self.emission > 0))
+
+    @property
+    def light_shaped(self) -> bool:
+        """A quad that may emit (declared emitter, or a window/lamp role): cut into finer patches
+        so its soft shadows are resolved, whether or not its radiance is declared."""
+        return self.is_emitter or self.declared_emitter or self.role in LIGHT_ROLES
 
 
 @dataclass
@@ -167,7 +176,7 @@ def box_quads(name: str, center: np.ndarray, size: np.ndarray, yaw: float, albed
 
 
 def quad_primitive(name: str, corners: np.ndarray, normal: np.ndarray, albedo: np.ndarray, emission: np.ndarray,
-                   role: str, texture: np.ndarray | None = None) -> Quad:
+                   role: str, texture: np.ndarray | None = None, declared_emitter: bool = False) -> Quad:
     """A quad primitive as the engine's one-sided Quad: corners reordered (and the texture
     transposed with them) so that (c1-c0)x(c3-c0) points to the lit side `normal`."""
     corners = np.asarray(corners, np.float64)
@@ -176,7 +185,7 @@ def quad_primitive(name: str, corners: np.ndarray, normal: np.ndarray, albedo: n
     if np.dot(np.cross(corners[1] - corners[0], corners[3] - corners[0]), normal) < 0:
         corners = corners[[0, 3, 2, 1]]
         texture = None if texture is None else texture.transpose(1, 0, 2)
-    return Quad(name, corners, normal, albedo, emission, role, texture)
+    return Quad(name, corners, normal, albedo, emission, role, texture, declared_emitter)
 
 
 @dataclass
@@ -289,7 +298,8 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
             if load_textures and p.texture:
                 texture = read_image_rgb(root / p.texture).astype(np.float32) / 255.0
             emission = p.emitted_radiance if p.emitter else np.zeros(3)
-            quads.append(quad_primitive(p.name, p.corners, p.quad_normal, p.albedo, emission, p.role, texture))
+            quads.append(quad_primitive(p.name, p.corners, p.quad_normal, p.albedo, emission, p.role, texture,
+                                        p.emitter))
 
     obj = None
     if "synthetic_object" in d:

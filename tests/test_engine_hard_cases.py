@@ -61,19 +61,14 @@ def _translated(obj, delta):
     return o
 
 
-def test_no_emitters_leaves_photo(scene, tmp_path):
-    # a scene without emitters has no sources: the photo comes back unchanged outside the object, no NaN
+def test_no_emitters_is_a_clear_error(scene, tmp_path):
+    # known light in a scene that declares no emitter would leave the room dark and the object
+    # black: a clear error naming scene.json that points to captured light, before any precompute
     dark = copy.copy(scene)
     dark.quads = [replace(q, emission=np.zeros(3)) for q in scene.quads]
-    eng = Engine(dark, EngineParams(**FAST), cache_dir=tmp_path, device="cpu", quiet=True)
-    assert not eng.cache_hit
-    assert np.all(eng.pre.B == 0)
-    frame = eng.render(dark.obj)
-    assert frame.stats["n_sources"] == 0
-    assert np.isfinite(frame.radiance).all() and frame.radiance.min() >= 0
-    cov = _coverage(dark, dark.obj)
-    assert 0.005 < cov.mean() < 0.3
-    np.testing.assert_array_equal(frame.pixels[~cov], dark.photo[~cov])
+    with pytest.raises(ValueError, match=r"scene\.json: no emitters .*--lighting captured"):
+        Engine(dark, EngineParams(**FAST), cache_dir=tmp_path, device="cpu", quiet=True)
+    assert not list(tmp_path.iterdir())
 
 
 def test_object_touching_floor_and_wall(scene, engine, full_frame):

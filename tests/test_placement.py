@@ -176,3 +176,68 @@ def test_save_load_roundtrip_and_bad_files(demo, tmp_path):
         ctl.load(tmp_path / "nothing.json")
     with pytest.raises(SceneError, match="notamesh.txt: not a mesh file"):
         ctl.set_object(tmp_path / "notamesh.txt")
+
+
+def _pose_from_matrix(M: np.ndarray, mesh_vertices: np.ndarray) -> tuple[list[float], float]:
+    """--place (the bounding box's bottom centre in world) and --yaw (deg) of a rotation about +Y
+    plus translation, as `photoar composite` and `photoar gui` read them."""
+    lo, hi = mesh_vertices.min(0), mesh_vertices.max(0)
+    pivot = np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
+    return (M[:3, :3] @ pivot + M[:3, 3]).tolist(), float(np.degrees(np.arctan2(M[0, 2], M[0, 0])))
+
+
+def test_composite_place_and_yaw_match_the_scene_pose(tmp_path, capsys):
+    # the scene's own mesh at --place/--yaw derived from its object_to_world: the same world
+    # vertices (1e-6 m) and the same composite, also from a folder with no synthetic_object;
+    # --placement (the GUI's saved JSON) gives the same pose too
+    import shutil
+
+    import cv2
+
+    from app.cli import main as cli
+    from app.composite import place_object
+    from recon.scene import load_mesh, load_scene
+
+    scene = load_scene(demo_scene_dir())
+    mesh = scene.root / "object_chair.ply"
+    place, yaw = _pose_from_matrix(scene.obj.object_to_world, load_mesh(mesh)[0])
+    assert abs(yaw - 20.0) < 1e-9  # the demo chair is turned 20 degrees
+    placed = place_object(scene, mesh, place, yaw)
+    assert np.abs(placed.vertices - scene.obj.vertices).max() < 1e-6
+    assert np.abs(placed.normals - scene.obj.normals).max() < 1e-6
+
+    ctl = PlacementController(scene)
+    ctl.set_object(mesh)
+    ctl.place_at(place)
+    ctl.rotate(yaw - ctl.pose.yaw_deg)
+    ctl.save(tmp_path / "placement.json")
+    saved = place_object(scene, placement=tmp_path / "placement.json")
+    assert np.abs(saved.vertices - scene.obj.vertices).max() < 1e-6
+
+    bare = tmp_path / "bare"
+    shutil.copytree(demo_scene_dir(), bare)
+    meta = json.loads((bare / "scene.json").read_text())
+    del meta["synthetic_object"]
+    (bare / "scene.json").write_text(json.dumps(meta))
+    common = ["--patch-size", "0.35", "--passes", "20", "--cache", str(tmp_path / "cache")]
+    assert cli(["-q", "composite", str(demo_scene_dir()), "--out", str(tmp_path / "a"), *common]) == 0
+    assert cli(["-q", "composite", str(bare), "--out", str(tmp_path / "b"), "--object", str(mesh),
+                "--place", ",".join(map(repr, place)), "--yaw", repr(yaw), "--object-albedo", "0.7,0.36,0.2",
+                *common]) == 0
+    a = cv2.imread(str(tmp_path / "a" / "composite.png"))
+    b = cv2.imread(str(tmp_path / "b" / "composite.png"))
+    assert (a != scene.photo[..., ::-1]).any()
+    assert np.abs(a.astype(int) - b).max() <= 1, np.abs(a.astype(int) - b).max()
+    capsys.readouterr()
+
+
+def test_composite_warns_when_the_object_sinks_into_furniture(caplog):
+    # a chair pushed half into the demo's shelf (x 4.58-5.0 m): one warning line naming the mesh
+    from app.composite import place_object
+    from recon.scene import load_scene
+
+    scene = load_scene(demo_scene_dir())
+    with caplog.at_level("WARNING", logger="photoar"):
+        place_object(scene, scene.root / "object_chair.ply", [4.6, 0.0, 2.7], 0.0)
+    lines = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(lines) == 1 and "object_chair.ply" in lines[0] and "inside furniture" in lines[0], lines

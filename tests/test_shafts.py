@@ -174,7 +174,7 @@ def test_fps_budget_follows_the_measured_cost(engine):
     import dataclasses
 
     _, eng = engine
-    params, cost = eng.params, dict(eng._cost)
+    params, cost = eng.params, eng._cost
     try:
         eng._cost = {"fixed_s": 0.05, "per_pass_s": 0.002}
         eng.params = dataclasses.replace(params, fps=10.0, passes=None)
@@ -185,6 +185,23 @@ def test_fps_budget_follows_the_measured_cost(engine):
         assert eng._passes_for_frame() == 1  # over budget already: one pass
     finally:
         eng.params, eng._cost = params, cost
+
+
+def test_fps_measures_before_the_first_frame(tmp_path):
+    # the first --fps frame is budgeted from a measured calibration frame, not a guessed cost:
+    # at a generous rate (10 s per frame) it gets more than one pass, and its budget matches the
+    # measured costs
+    from app.cli import demo_scene_dir
+    from app.engine import Engine, EngineParams
+    from recon.scene import load_scene
+
+    scene = load_scene(demo_scene_dir())
+    eng = Engine(scene, EngineParams(patch_size=0.35, emitter_patch_size=0.2, fps=0.1), cache_dir=tmp_path,
+                 device="cpu", quiet=True)
+    assert eng._cost is None
+    fr = eng.render(scene.obj)
+    assert fr.stats["fps_calibration_s"] > 0
+    assert fr.stats["passes"] > 1, fr.stats["passes"]
 
 
 def test_evaluate_against_a_path_traced_reference(tmp_path):
