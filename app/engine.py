@@ -166,9 +166,9 @@ def _need_declared(scene: Scene) -> None:
                          f"camera's response (or use --lighting captured, which recovers it from the probe "
                          f"bracket, or --lighting photo, which assumes one)")
     if scene.meta.get("emitters_without_radiance"):
-        raise ValueError(f"{_scene_json(scene)}: emitters without emitted_radiance "
-                         f"({', '.join(scene.meta['emitters_without_radiance'])}); use --lighting captured or "
-                         f"--lighting photo, which estimate them")
+        raise ValueError(f"{_scene_json(scene)}: no emitters of declared strength for --lighting known "
+                         f"(emitters without emitted_radiance: {', '.join(scene.meta['emitters_without_radiance'])});"
+                         f" use --lighting captured or --lighting photo, which estimate them")
 
 
 def _bar(total: int, desc: str, quiet: bool):
