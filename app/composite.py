@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from app.engine import Engine, EngineParams
+from app.report import stages_ms
 from app.workres import DEFAULT_WORK_RES, full_resolution, working_scene
 from recon.io import AtomicOutput, write_exr, write_json, write_png
 from recon.scene import SceneError, SceneObject, check_object_inside, inside_furniture, load_scene, make_object
@@ -104,6 +105,7 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
         "precompute_cache_hit": engine.cache_hit,
         "precompute_uncached_s": engine.pre.seconds,
         **frame.stats,
+        "stages_ms": stages_ms(frame.stats),
         "resolution": [scene.camera.width, scene.camera.height],
         "working_resolution": [work.camera.width, work.camera.height],
         "full_resolution_s": full_s,

@@ -194,6 +194,7 @@ class Engine:
         self.quiet = quiet
         self.photo_priors = photo_priors  # lighting "photo": lighting.photolight.PhotoPriors (None: defaults)
         self.cache_dir = Path(cache_dir) if cache_dir else None
+        self.n_precompute = 0  # per-scene work done (precompute, SH volume): no frame may add to it
         t0 = time.perf_counter()
         self.probe = None
         if self.params.lighting == "captured":
@@ -212,6 +213,7 @@ class Engine:
 
     # ------------------------------------------------------------------ precompute
     def _precompute(self) -> tuple[Precomputed, bool]:
+        self.n_precompute += 1
         p = self.params
         scene = self.scene
         patches = build_patches(scene, p.patch_size, p.emitter_patch_size)
@@ -532,6 +534,7 @@ class Engine:
     def room_light(self) -> RoomLight:
         """SH9 volume of the indirect light plus the emitters (built on first use, ~2-5 s)."""
         if self._room_light is None:
+            self.n_precompute += 1
             pm, sc = self.pre.patches, self.scene
             self._room_light = RoomLight(pm, self.B_src, sc.room_min, sc.room_max, self.scene_occ,
                                          self.params.volume_spacing, self.device)

@@ -9,6 +9,12 @@ lighting/metrics.py) and `speed_vs_error.png` (frame time against rmse_affected)
 measured against the scene's `truth.png` when there is one, else against the path-traced
 reference of `photoar reference` (`--reference-spp N`), else against the all-sources composite
 (then that row itself scores zero).
+
+`--path N` adds a drag: N poses of the object along a straight line over the floor through its
+pose (app.dragpath), rendered at the smallest pass budget given, from the same precompute.
+evaluation.json gets "path": positions (N), passes, frame_s_mean and frame_s_p95 over frames
+2..N (the first frame pays one-off work: kernels, the object's shape), and the per-phase mean
+"stages_ms". Every row has the frame's per-phase "stages_ms" too.
 """
 from __future__ import annotations
 
@@ -42,13 +48,15 @@ def parse_passes(text: str) -> list[int | None]:
 
 
 def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], params=None, cache_dir=None,
-         quiet: bool = False, reference_spp: int | None = None, device: str | None = None) -> list[dict]:
-    """Rows of the evaluation (also written to out/evaluation.json and the plot)."""
+         quiet: bool = False, reference_spp: int | None = None, device: str | None = None,
+         path: int | None = None) -> list[dict]:
+    """Rows of the evaluation (also written to out/evaluation.json and the plot); path: poses of
+    the drag (None: no drag)."""
     import dataclasses
 
     from app.composite import default_cache_dir
     from app.engine import Engine, EngineParams
-    from app.report import plot_xy, table
+    from app.report import plot_xy, stages_ms, table
     from lighting import metrics
     from recon.io import AtomicOutput, read_image_rgb, write_json, write_png
     from recon.scene import SceneError, load_scene
@@ -100,19 +108,47 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
                      "energy_ratio": s["energy_ratio"], "rmse_affected": s["rmse_affected"],
                      "spurious": s["spurious"], "rmse_object": s["rmse_object"],
                      "ssim_affected": metrics.ssim(fr.pixels, truth, reg) if reg.any() else 1.0,
-                     "n_sources": fr.stats["n_sources"], "against": against})
+                     "n_sources": fr.stats["n_sources"], "against": against, "stages_ms": stages_ms(fr.stats)})
     log.info("\n%s", table(rows, ["passes", "frame_s", "traversal_s", "energy_ratio", "rmse_affected", "spurious",
                                   "ssim_affected"]))
+    extra = {}
+    if path is not None:
+        finite = [n for n in passes if n is not None]
+        extra["path"] = drag_path(engine, scene, min(finite) if finite else None, path, params)
+        log.info("path of %d positions at %s passes: mean %.3f s, p95 %.3f s", path, extra["path"]["passes"],
+                 extra["path"]["frame_s_mean"], extra["path"]["frame_s_p95"])
     with AtomicOutput(out) as stage:
         write_json(stage / "evaluation.json", {"scene": str(scene_dir), "against": against,
                                                "precompute_s": engine.precompute_s, "rows": rows,
-                                               **engine.shadow_sources.stats()})
+                                               **engine.shadow_sources.stats(), **extra})
         plot_xy({"photoar": ([r["frame_s"] for r in rows], [r["rmse_affected"] for r in rows])},
                 "frame time (s)", f"RMSE over affected pixels (levels) vs {against}", stage / "speed_vs_error.png",
                 title=f"{scene.name}: passes {', '.join(str(r['passes']) for r in rows)}")
         for n in passes:
             write_png(stage / f"composite_{'all' if n is None else n}.png", frames[n].pixels)
     return rows
+
+
+def drag_path(engine, scene, passes: int | None, n: int, params) -> dict:
+    """Frame times of n poses along a drag over the floor (app.dragpath) at `passes`; the first
+    frame is excluded. Raises RuntimeError if a frame ran per-scene precompute."""
+    import dataclasses
+
+    from app.dragpath import drag_offsets, moved
+    from app.report import mean_stages_ms
+
+    offsets = drag_offsets(scene, scene.obj, n)
+    engine.params = dataclasses.replace(params, passes=passes)
+    before = engine.n_precompute
+    stats = [engine.render(moved(scene.obj, o)).stats for o in offsets]
+    if engine.n_precompute != before:
+        raise RuntimeError(f"per-scene precompute ran {engine.n_precompute - before} time(s) inside the drag path")
+    times = np.array([s["frame_s"] for s in stats[1:]])
+    return {"positions": int(n), "passes": "all" if passes is None else passes,
+            "frame_s_mean": float(times.mean()), "frame_s_p95": float(np.percentile(times, 95)),
+            "frame_s": [float(s["frame_s"]) for s in stats], "offsets_m": offsets.tolist(),
+            "length_m": float(np.linalg.norm(offsets[-1] - offsets[0])), "precompute_runs": engine.n_precompute - before,
+            "stages_ms": mean_stages_ms(stats[1:])}
 
 
 def register(sub) -> None:
@@ -126,8 +162,21 @@ def register(sub) -> None:
     e.add_argument("--reference-spp", type=int, default=None,
                    help="without truth.png: measure against a path-traced reference at this many samples per "
                         "pixel (default: against the all-sources composite)")
+    e.add_argument("--path", type=_path_positions, default=None, metavar="N",
+                   help="also time a drag: N object poses along a straight line over the floor through the "
+                        "object's pose, at the smallest budget of --passes (first frame excluded)")
     _add_engine_args(e, passes=False)
     e.set_defaults(run=_run)
+
+
+def _path_positions(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"path positions must be an integer, got {text!r}") from None
+    if v < 2:
+        raise argparse.ArgumentTypeError(f"a path needs at least 2 positions (the first frame is excluded), got {v}")
+    return v
 
 
 def _run(a) -> int:
@@ -137,9 +186,15 @@ def _run(a) -> int:
 
     params = dataclasses.replace(_params(a), passes=None)
     rows = main(a.scene, a.out, a.passes, params, cache_dir=a.cache, quiet=a.quiet, reference_spp=a.reference_spp,
-                device=a.device)
+                device=a.device, path=a.path)
     for r in rows:
         print(f"passes {r['passes']}: frame {r['frame_s']:.2f} s, energy {r['energy_ratio']:.3f}, "
               f"rmse {r['rmse_affected']:.2f}, spurious {r['spurious']:.4f}")
+    if a.path is not None:
+        import json
+
+        pth = json.loads((a.out / "evaluation.json").read_text())["path"]
+        print(f"path of {pth['positions']} positions at {pth['passes']} passes: frame mean "
+              f"{pth['frame_s_mean']:.3f} s, p95 {pth['frame_s_p95']:.3f} s (first frame excluded)")
     print(a.out / "evaluation.json")
     return 0

@@ -67,3 +67,15 @@ def plot_xy(series: dict[str, tuple[list[float], list[float]]], xlabel: str, yla
     from recon.io import write_png
 
     write_png(path, img[..., ::-1])  # drawn in OpenCV's BGR
+
+
+def stages_ms(stats: dict) -> dict[str, float]:
+    """The engine's per-phase frame timings (Frame.stats["timings"], seconds) in milliseconds,
+    in the order the frame runs them."""
+    return {k: 1e3 * float(v) for k, v in stats.get("timings", {}).items()}
+
+
+def mean_stages_ms(all_stats: list[dict]) -> dict[str, float]:
+    """Per-phase mean milliseconds over several frames (phases missing from a frame count as 0)."""
+    names = list(dict.fromkeys(k for s in all_stats for k in s.get("timings", {})))
+    return {k: 1e3 * float(np.mean([s.get("timings", {}).get(k, 0.0) for s in all_stats])) for k in names}

@@ -1,0 +1,65 @@
+"""`photoar evaluate --path N` (app.dragpath, app.evaluate.drag_path) on the bundled demo scene."""
+import json
+
+import numpy as np
+import pytest
+
+from app.cli import demo_scene_dir, main
+
+
+def test_drag_stays_in_room_off_furniture_through_pose():
+    from app.dragpath import drag_offsets, moved
+    from recon.scene import furniture_boxes, load_scene
+
+    scene = load_scene(demo_scene_dir())
+    off = drag_offsets(scene, scene.obj, 9)
+    assert off.shape == (9, 3) and np.all(off[:, 1] == 0)
+    # a straight line through the object's own pose (offset 0 lies on the segment)
+    d = off[-1] - off[0]
+    assert np.linalg.norm(d) > 0.3
+    t = -off[0] @ d / (d @ d)
+    assert -1e-9 <= t <= 1 + 1e-9 and np.linalg.norm(off[0] + t * d) < 1e-9
+    for o in off:
+        v = moved(scene.obj, o).vertices
+        lo, hi = v.min(0), v.max(0)
+        assert np.all(lo >= scene.room_min) and np.all(hi <= scene.room_max)
+        for b_lo, b_hi in furniture_boxes(scene):
+            assert not np.all((lo < b_hi - 1e-3) & (hi > b_lo + 1e-3))
+    with pytest.raises(ValueError, match="at least 2"):
+        drag_offsets(scene, scene.obj, 1)
+
+
+def test_evaluate_path_and_stage_table(tmp_path):
+    out = tmp_path / "eval"
+    assert main(["-q", "evaluate", str(demo_scene_dir()), "--passes", "20,all", "--path", "4", "--out", str(out),
+                 "--patch-size", "0.35", "--cache", str(tmp_path / "cache")]) == 0
+    ev = json.loads((out / "evaluation.json").read_text())
+    p = ev["path"]
+    assert p["positions"] == 4 and p["passes"] == 20 and p["precompute_runs"] == 0
+    assert len(p["frame_s"]) == 4 and len(p["offsets_m"]) == 4
+    rest = np.array(p["frame_s"][1:])  # the first frame is excluded
+    assert p["frame_s_mean"] == pytest.approx(rest.mean())
+    assert rest.min() <= p["frame_s_p95"] <= rest.max()
+    # the per-stage table: the engine's phases, which add up to (at most) the frame time
+    for r in ev["rows"]:
+        st = r["stages_ms"]
+        assert {"proxy", "object", "sources", "masks", "object_shading", "object_light", "compose"} <= set(st)
+        assert 0 < sum(st.values()) <= 1e3 * r["frame_s"] + 1e-6
+    assert set(p["stages_ms"]) >= {"masks", "compose"}
+
+
+def test_path_counts_precompute_inside_the_drag(tmp_path):
+    # the counter fires when per-scene work runs during a frame: drop the SH volume, which the
+    # object's shading rebuilds on first use
+    from app.engine import Engine, EngineParams
+    from app.evaluate import drag_path
+    from recon.scene import load_scene
+
+    scene = load_scene(demo_scene_dir())
+    params = EngineParams(patch_size=0.35)
+    eng = Engine(scene, params, cache_dir=tmp_path / "cache", quiet=True)
+    assert eng.n_precompute == 2  # the transfers and the SH volume
+    assert drag_path(eng, scene, 10, 2, params)["precompute_runs"] == 0
+    eng._room_light = None
+    with pytest.raises(RuntimeError, match="precompute ran 1 time"):
+        drag_path(eng, scene, 10, 2, params)
