@@ -98,6 +98,44 @@ class EngineParams:
         return {k: getattr(self, k) for k in ("patch_size", "emitter_patch_size", "vis_side", "bounces", "lighting")}
 
 
+@dataclass(frozen=True)
+class FrameConfig:
+    """Per-frame settings for Engine.render: a new one per change, never mutated (a frame and
+    the key it is kept under read the same values)."""
+
+    passes: int | None = None  # shadow maps per frame (None = one per source, the all-sources frame)
+    mode: str = "hdr"  # hdr: T(L_b - eps); ldr: I_b - sum S_ij M_ij
+    fps: float | None = None  # target frame rate: passes from the measured per-pass cost (passes caps it)
+
+    def __post_init__(self):
+        if self.fps is not None and not self.fps > 0:
+            raise ValueError(f"fps must be positive, got {self.fps!r}")
+        if self.mode not in ("hdr", "ldr"):
+            raise ValueError(f"mode must be 'hdr' or 'ldr', got {self.mode!r}")
+        if self.passes is not None and (isinstance(self.passes, bool) or not isinstance(self.passes, (int, np.integer))
+                                        or self.passes < 1):
+            raise ValueError(f"passes must be an integer of at least 1 or None (all sources), got {self.passes!r}")
+
+
+@dataclass
+class _Refinement:
+    """Engine.refine's state: the all-sources frame of one pose, composited a batch at a time."""
+
+    key: tuple  # (pose key, mode)
+    steps: object  # the generator of Engine._frame_steps
+    compute_s: float = 0.0  # seconds spent in refine calls on this pose
+    calls: int = 0  # refine calls on this pose
+    frame: "Frame | None" = None  # the finished frame
+
+
+def _pose_key(obj: SceneObject) -> bytes:
+    """What makes two objects the same for a frame: geometry, normals and albedo."""
+    h = hashlib.sha1()
+    for a in (obj.vertices, obj.normals, obj.faces, obj.albedo):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.digest()
+
+
 @dataclass
 class Precomputed:
     """Per-scene data that does not depend on the object (cached on disk)."""
@@ -208,6 +246,7 @@ class Engine:
             _need_declared(scene)
         self.pre, self.cache_hit = self._precompute()
         self._setup()
+        self._refining: _Refinement | None = None  # refine(): the pose being refined
         self.room_light  # the SH volume is per-scene work too
         self.precompute_s = time.perf_counter() - t0
 
@@ -368,12 +407,63 @@ class Engine:
         self.lattice_cover = cover
 
     # ------------------------------------------------------------------ per frame
-    def render(self, obj: SceneObject) -> Frame:
-        """Composite the object at its pose; returns the frame with per-phase timings in stats."""
+    def frame_config(self) -> FrameConfig:
+        """The FrameConfig of the engine's params (what render uses when given none)."""
+        return FrameConfig(self.params.passes, self.params.mode, self.params.fps)
+
+    def render(self, obj: SceneObject, config: FrameConfig | None = None) -> Frame:
+        """Composite the object at its pose within `config` (default: frame_config()); returns the
+        frame with per-phase timings in stats."""
+        steps = self._frame_steps(obj, config or self.frame_config())
+        while True:
+            try:
+                next(steps)
+            except StopIteration as done:
+                return done.value
+
+    def refine(self, obj: SceneObject, config: FrameConfig | None = None, budget_s: float | None = None
+               ) -> Frame | None:
+        """Progressive refinement at rest: advance the all-sources frame of this pose (config's mode;
+        its passes are ignored) by batches of shadow maps for about `budget_s` seconds (None: to the
+        end). Returns that frame once every source is in (again at once on later calls for the same
+        pose), None before. A call for another pose or mode starts over; render() calls in between
+        do not disturb it. Its stats add refine_s (compute in refine calls) and refine_calls."""
+        cfg = FrameConfig(None, (config or self.frame_config()).mode)  # every source, no --fps budget
+        key = (_pose_key(obj), cfg.mode)
+        st = self._refining
+        if st is None or st.key != key:
+            self._refining = st = _Refinement(key, self._frame_steps(obj, cfg))
+        if st.frame is not None:
+            return st.frame
+        t0 = time.perf_counter()
+        cost = self._cost  # gaps between calls must not enter the --fps cost model
+        st.calls += 1
+        try:
+            while True:
+                try:
+                    next(st.steps)
+                except StopIteration as done:
+                    st.frame = done.value
+                    break
+                if budget_s is not None and time.perf_counter() - t0 >= budget_s:
+                    break
+        except BaseException:
+            self._refining = None
+            raise
+        finally:
+            self._cost = cost
+            st.compute_s += time.perf_counter() - t0
+        if st.frame is not None:
+            st.frame.stats.update(refine_s=st.compute_s, refine_calls=st.calls)
+        return st.frame
+
+    def _frame_steps(self, obj: SceneObject, config: FrameConfig):
+        """render()'s work as a generator: yields after each batch of shadow maps, returns the Frame."""
         calibration_s = 0.0
-        if self.params.fps is not None and self._cost is None and self._passes_override is None:
-            calibration_s = self._calibrate(obj)
-        p, pre, pm, scene = self.params, self.pre, self.pre.patches, self.scene
+        if config.fps is not None and self._cost is None and self._passes_override is None:
+            calibration_s = self._calibrate(obj, config)
+        p = dataclasses.replace(self.params, passes=config.passes, mode=config.mode, fps=config.fps)  # never written
+        pre, pm, scene = self.pre, self.pre.patches, self.scene
         cam = scene.camera
         H, W = cam.height, cam.width
         timings: dict[str, float] = {}
@@ -398,7 +488,7 @@ class Engine:
         t = tick("object", t)
 
         # ---- source list from the shaft hierarchy, grouped into the frame's passes (sec. 6.2.1, 6.4)
-        fs = self.shadow_sources.select(pv.min(0), pv.max(0), self._passes_for_frame())
+        fs = self.shadow_sources.select(pv.min(0), pv.max(0), self._passes_for_frame(p))
         eyes, W_v, W_c, cand = fs.eyes, fs.W_v, fs.W_c, fs.cand
         t = tick("sources", t)
 
@@ -428,6 +518,7 @@ class Engine:
                 lambda: pix_sums[0].add(self.maps, n, first, cand_wp, wv_wp),
                 lambda: (pix_sums[1].add(self.maps, n, first, cand_wp, wv_wp),
                          cen_sum.add(self.maps, n, first, cand_wp, wc_wp))])
+            yield first + n  # sources done: refine() may stop here and resume on its next call
         wp.synchronize_device(self.device)
         O_pix = np.concatenate([ps.result()[0] for ps in pix_sums])
         O_cen, _ = cen_sum.result()
@@ -703,21 +794,23 @@ class Engine:
         self._n_object_light_pixels = len(sel)
         return R_pix, R_cen
 
-    def _calibrate(self, obj: SceneObject) -> float:
+    def _calibrate(self, obj: SceneObject, config: FrameConfig | None = None) -> float:
         """Measure the frame's fixed and per-pass cost before --fps chooses a pass count: one
         frame of this object at one batch of passes (its result is discarded). Returns seconds."""
         t0 = time.perf_counter()
-        self._passes_override = self.params.batch if self.params.passes is None else \
-            min(self.params.batch, self.params.passes)
+        config = config or self.frame_config()
+        self._passes_override = self.params.batch if config.passes is None else \
+            min(self.params.batch, config.passes)
         try:
-            self.render(obj)
+            self.render(obj, config)
         finally:
             self._passes_override = None
         return time.perf_counter() - t0
 
-    def _passes_for_frame(self) -> int | None:
-        """The pass budget: --passes, or the passes that fit 1/--fps from the measured costs."""
-        p = self.params
+    def _passes_for_frame(self, p: EngineParams | None = None) -> int | None:
+        """The pass budget: --passes, or the passes that fit 1/--fps from the measured costs
+        (p: this frame's params, default the engine's)."""
+        p = self.params if p is None else p
         if self._passes_override is not None:
             return self._passes_override
         if p.fps is None or self._cost is None:

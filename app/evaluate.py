@@ -72,8 +72,7 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
     if None not in order and not (Path(scene_dir) / "truth.png").is_file() and reference_spp is None:
         order.append(None)  # the all-sources frame is the reference
     for n in order:
-        engine.params = dataclasses.replace(params, passes=n)
-        frames[n] = engine.render(scene.obj)
+        frames[n] = engine.render(scene.obj, dataclasses.replace(engine.frame_config(), passes=n))
     truth_png = Path(scene_dir) / "truth.png"
     if truth_png.is_file() and (Path(scene_dir) / "truth_mask.png").is_file():
         truth = read_image_rgb(truth_png)
@@ -114,7 +113,11 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
     extra = {}
     if path is not None:
         finite = [n for n in passes if n is not None]
-        extra["path"] = drag_path(engine, scene, min(finite) if finite else None, path, params)
+        extra["path"], converged = drag_path(engine, scene, min(finite) if finite else None, path)
+        extra["converge_s"] = extra["path"]["converge_s"]
+        if None in frames:  # the refined frame against the all-sources row (levels)
+            extra["path"]["converge_rmse_vs_all"] = float(np.sqrt(np.mean(
+                (converged.pixels.astype(np.float64) - frames[None].pixels) ** 2)))
         log.info("path of %d positions at %s passes: mean %.3f s, p95 %.3f s", path, extra["path"]["passes"],
                  extra["path"]["frame_s_mean"], extra["path"]["frame_s_p95"])
     with AtomicOutput(out) as stage:
@@ -129,18 +132,28 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
     return rows
 
 
-def drag_path(engine, scene, passes: int | None, n: int, params) -> dict:
+def drag_path(engine, scene, passes: int | None, n: int):
     """Frame times of n poses along a drag over the floor (app.dragpath) at `passes`; the first
-    frame is excluded. Raises RuntimeError if a frame ran per-scene precompute."""
+    frame is excluded. Then the release: the object back at its own pose, one frame at `passes`
+    and Engine.refine (steps of 1/30 s) until the all-sources frame; converge_s is the time from
+    that move to it. Returns (the "path" entry, the converged Frame). Raises RuntimeError if a frame ran per-scene precompute."""
+    import time
+
     import dataclasses
 
     from app.dragpath import drag_offsets, moved
     from app.report import mean_stages_ms
 
     offsets = drag_offsets(scene, scene.obj, n)
-    engine.params = dataclasses.replace(params, passes=passes)
+    cfg = dataclasses.replace(engine.frame_config(), passes=passes)
     before = engine.n_precompute
-    stats = [engine.render(moved(scene.obj, o)).stats for o in offsets]
+    stats = [engine.render(moved(scene.obj, o), cfg).stats for o in offsets]
+    t0 = time.perf_counter()
+    engine.render(scene.obj, cfg)
+    steps = 1
+    while (done := engine.refine(scene.obj, cfg, budget_s=1 / 30)) is None:
+        steps += 1
+    converge_s = time.perf_counter() - t0
     if engine.n_precompute != before:
         raise RuntimeError(f"per-scene precompute ran {engine.n_precompute - before} time(s) inside the drag path")
     times = np.array([s["frame_s"] for s in stats[1:]])
@@ -148,7 +161,8 @@ def drag_path(engine, scene, passes: int | None, n: int, params) -> dict:
             "frame_s_mean": float(times.mean()), "frame_s_p95": float(np.percentile(times, 95)),
             "frame_s": [float(s["frame_s"]) for s in stats], "offsets_m": offsets.tolist(),
             "length_m": float(np.linalg.norm(offsets[-1] - offsets[0])), "precompute_runs": engine.n_precompute - before,
-            "stages_ms": mean_stages_ms(stats[1:])}
+            "stages_ms": mean_stages_ms(stats[1:]), "converge_s": converge_s, "converge_frames": steps,
+            "refine_s": done.stats["refine_s"]}, done
 
 
 def register(sub) -> None:

@@ -46,6 +46,9 @@ def test_evaluate_path_and_stage_table(tmp_path):
         assert {"proxy", "object", "sources", "masks", "object_shading", "object_light", "compose"} <= set(st)
         assert 0 < sum(st.values()) <= 1e3 * r["frame_s"] + 1e-6
     assert set(p["stages_ms"]) >= {"masks", "compose"}
+    # at rest after the drag: refined to the all-sources frame (the "all" row) at the object's pose
+    assert ev["converge_s"] == p["converge_s"] > 0 and p["converge_frames"] > 1
+    assert p["converge_rmse_vs_all"] <= 0.05
 
 
 def test_path_counts_precompute_inside_the_drag(tmp_path):
@@ -59,7 +62,8 @@ def test_path_counts_precompute_inside_the_drag(tmp_path):
     params = EngineParams(patch_size=0.35)
     eng = Engine(scene, params, cache_dir=tmp_path / "cache", quiet=True)
     assert eng.n_precompute == 2  # the transfers and the SH volume
-    assert drag_path(eng, scene, 10, 2, params)["precompute_runs"] == 0
+    path, converged = drag_path(eng, scene, 10, 2)
+    assert path["precompute_runs"] == 0 and converged.stats["passes"] > 10
     eng._room_light = None
     with pytest.raises(RuntimeError, match="precompute ran 1 time"):
-        drag_path(eng, scene, 10, 2, params)
+        drag_path(eng, scene, 10, 2)
