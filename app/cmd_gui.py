@@ -85,8 +85,6 @@ def run(a: argparse.Namespace) -> int:
     ctl = PlacementController.open(a.scene, params=params, cache_dir=a.cache or default_cache_dir(),
                                    quiet=a.quiet, work_res=a.work_res)
     ctl.device = a.device
-    if ctl.params is not params:  # a saved placement brought its own budget
-        params = ctl.params
     mesh = a.object
     if mesh is None and ctl.pose.mesh is None:
         if ctl.scene.obj is None:
@@ -116,7 +114,7 @@ def run(a: argparse.Namespace) -> int:
     win.run_frames(n)
     times = win.frame_times
     log.info("%d frames, %.2f s mean per frame (passes %s, %s)", len(times), float(np.mean(times)) if times else 0.0,
-             win.last_frame.stats.get("passes") if win.last_frame else "-", params.mode)
+             win.last_frame.stats.get("passes") if win.last_frame else "-", ctl.config.mode)
     if a.screenshot is not None:
         shot = win.screenshot()
         write_png(a.screenshot, shot)  # atomic

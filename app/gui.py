@@ -12,8 +12,10 @@ arrow keys slide 5 cm along world x/z, Z undo, Y redo.
 
 Threads: the per-scene precompute runs in a worker thread (progress bar, window stays
 responsive); frames are composited in a second worker that always renders the newest pose
-(edits made while a frame is running coalesce into one frame). Widgets are touched only on the
-main thread (Application.post_to_main_thread).
+(edits made while a frame is running coalesce into one frame); while the pose rests the same
+worker refines it to the all-sources frame a slice at a time (PlacementController.refine; the
+next edit interrupts it). Widgets are touched only on the main thread
+(Application.post_to_main_thread).
 """
 from __future__ import annotations
 
@@ -37,6 +39,7 @@ ROTATE_STEP = 15.0  # deg
 LIFT_STEP = 0.02  # m
 MOVE_STEP = 0.05  # m
 SCALE_STEP = 1.1
+REFINE_SLICE_S = 0.05  # s of refinement between checks for a new edit (the drag frame stays on screen meanwhile)
 
 
 # ---------------------------------------------------------------------------- X11 screenshot
@@ -247,7 +250,7 @@ class PlacementWindow:
         p.add_child(gui.Label("Compositing path"))
         self.mode = gui.RadioButton(gui.RadioButton.HORIZ)
         self.mode.set_items(["HDR", "LDR"])
-        self.mode.selected_index = 1 if (ctl.params is not None and ctl.params.mode == "ldr") else 0
+        self.mode.selected_index = 1 if ctl.config.mode == "ldr" else 0
         self.mode.set_on_selection_changed(self._on_mode)
         p.add_child(self.mode)
         p.add_fixed(0.5 * em)
@@ -361,6 +364,22 @@ class PlacementWindow:
             if not fr.stats["cached"]:
                 self.frame_times.append(fr.stats["frame_s"])
             self.app.post_to_main_thread(self.window, lambda fr=fr, pose=pose: self._show_frame(fr, pose))
+            if not fr.stats.get("converged") and self._script is None:
+                self._refine_at_rest(pose)
+
+    def _refine_at_rest(self, pose: Pose) -> None:
+        """While `pose` is the current one and no edit is waiting, add sources a slice at a time;
+        show the all-sources frame when it is complete."""
+        while not self.closed and not self._dirty and pose == self.ctl.pose:
+            try:
+                fr = self.ctl.refine(pose, budget_s=REFINE_SLICE_S)
+            except Exception as e:  # noqa: BLE001 - an engine error must not kill the window
+                log.exception("refinement failed")
+                self.error = f"refinement failed: {e}"
+                return
+            if fr is not None:
+                self.app.post_to_main_thread(self.window, lambda fr=fr, pose=pose: self._show_frame(fr, pose))
+                return
 
     # ------------------------------------------------------------------ showing
     def _show_frame(self, fr, pose: Pose) -> None:

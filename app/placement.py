@@ -16,8 +16,11 @@ surface (floor, desk top) is the resting point; a hit on a wall or an emitter dr
 straight down from just in front of that surface onto whatever is below.
 
 Every edit is one undoable step; a drag is one step (begin_gesture / end_gesture). Frames come
-from app.engine.Engine within the pass budget (`passes`, None = all sources); frames of recent
-states are kept, so undo/redo shows the earlier composite at once and bit for bit.
+from app.engine.Engine within the frame settings `config` (an app.engine.FrameConfig: pass budget,
+None = all sources, and compositing mode), which set_budget replaces whole and never edits, so a
+frame and the key it is kept under always agree; frames of recent states are kept, so undo/redo
+shows the earlier composite at once and bit for bit. At rest, `refine` adds the remaining
+sources a slice of time per call until the all-sources frame of the pose (Engine.refine).
 """
 from __future__ import annotations
 
@@ -169,6 +172,7 @@ class PlacementController:
         self.cache_dir = cache_dir
         self.quiet = quiet
         self.engine = None
+        self._config = None  # FrameConfig of the next frames (None: from params; see `config`)
         self.meshes: dict[str, ObjectMesh] = {}
         self.pose = Pose()
         self.undo_stack: list[Pose] = []
@@ -212,6 +216,8 @@ class PlacementController:
         with self._lock:
             self.engine = eng
             self.params = eng.params
+            if self._config is None:
+                self._config = eng.frame_config()
         return eng
 
     # ------------------------------------------------------------------ object choice
@@ -434,26 +440,30 @@ class PlacementController:
 
     # ------------------------------------------------------------------ frames
     @property
+    def config(self):
+        """The FrameConfig of the next frames (frozen; set_budget replaces it)."""
+        from app.engine import FrameConfig
+
+        with self._lock:
+            if self._config is None:
+                p = self.params
+                self._config = FrameConfig(20, "hdr") if p is None else FrameConfig(p.passes, p.mode, p.fps)
+            return self._config
+
+    @property
     def passes(self) -> int | None:
-        return self.params.passes if self.params is not None else None
+        return self.config.passes
 
     def set_budget(self, passes: int | None | str = "keep", mode: str | None = None) -> None:
         """Shadow passes per frame (None: one per source; "keep": unchanged) and compositing mode
         ('hdr' | 'ldr'; None: unchanged)."""
-        from app.engine import EngineParams
-
         if passes != "keep" and passes is not None and (not isinstance(passes, int) or passes < 1):
             raise ValueError(f"passes must be at least 1, got {passes}")
         if mode is not None and mode not in ("hdr", "ldr"):
             raise ValueError(f"mode must be 'hdr' or 'ldr', got {mode!r}")
-        with self._lock:
-            if self.params is None:
-                self.params = EngineParams()
-            # the engine reads both per frame; neither enters the precompute's cache key
-            if passes != "keep":
-                self.params.passes = passes
-            if mode is not None:
-                self.params.mode = mode
+        with self._lock:  # a new FrameConfig: a frame already running keeps the one it was given
+            cfg = self.config
+            self._config = replace(cfg, passes=cfg.passes if passes == "keep" else passes, mode=mode or cfg.mode)
 
     def render(self, pose: Pose | None = None) -> FrameResult:
         """Composite `pose` (default: the current one) through the engine.
@@ -467,7 +477,8 @@ class PlacementController:
             pose = self.pose if pose is None else pose
             if eng is None:
                 raise RuntimeError(f"{self.scene.root}: the engine is not ready (precompute still running)")
-            key = (pose, eng.params.passes, eng.params.mode)
+            cfg = self.config
+            key = (pose, cfg)
             if key in self._frames:
                 self._frames.move_to_end(key)
                 fr = self._frames[key]
@@ -479,12 +490,47 @@ class PlacementController:
             rad = eng.L_b.reshape(H, W, 3).astype(np.float32)
             fr = FrameResult(self.scene.photo.copy(), rad, {"passes": 0, "engine_s": 0.0})
         else:
-            f = eng.render(obj)
+            f = eng.render(obj, cfg)
             fr = FrameResult(f.pixels, f.radiance, {"passes": f.stats["passes"], "engine_s": f.stats["frame_s"],
                                                     "timings": f.stats.get("timings", {})})
         fr.pixels.setflags(write=False)
         fr.radiance.setflags(write=False)
-        fr.stats.update(mode=eng.params.mode, budget=eng.params.passes)
+        fr.stats.update(mode=cfg.mode, budget=cfg.passes, converged=obj is None or (cfg.passes is None and cfg.fps is None))
+        with self._lock:
+            self._frames[key] = fr
+            while len(self._frames) > self._frame_cache:
+                self._frames.popitem(last=False)
+        return FrameResult(fr.pixels, fr.radiance, {**fr.stats, "cached": False, "frame_s": time.perf_counter() - t0})
+
+    def refine(self, pose: Pose | None = None, budget_s: float | None = None) -> FrameResult | None:
+        """At rest: advance the all-sources frame of `pose` (default: the current one) for about
+        `budget_s` seconds (None: to the end) and return it once every source is in, else None.
+        The finished frame is kept like any other (budget None), so later calls return it at once.
+        stats as render's, with converged True and engine_s the refinement's compute time."""
+        t0 = time.perf_counter()
+        with self._lock:
+            eng = self.engine
+            pose = self.pose if pose is None else pose
+            if eng is None:
+                raise RuntimeError(f"{self.scene.root}: the engine is not ready (precompute still running)")
+            cfg = replace(self.config, passes=None, fps=None)
+            key = (pose, cfg)
+            if key in self._frames:
+                self._frames.move_to_end(key)
+                fr = self._frames[key]
+                return FrameResult(fr.pixels, fr.radiance, {**fr.stats, "cached": True,
+                                                            "frame_s": time.perf_counter() - t0})
+        obj = self.scene_object(pose)
+        if obj is None:  # the photo itself: nothing to refine
+            return self.render(pose)
+        f = eng.refine(obj, cfg, budget_s)
+        if f is None:
+            return None
+        fr = FrameResult(f.pixels, f.radiance, {"passes": f.stats["passes"], "engine_s": f.stats["refine_s"],
+                                                "timings": f.stats.get("timings", {}), "mode": cfg.mode,
+                                                "budget": None, "converged": True})
+        fr.pixels.setflags(write=False)
+        fr.radiance.setflags(write=False)
         with self._lock:
             self._frames[key] = fr
             while len(self._frames) > self._frame_cache:
@@ -506,8 +552,8 @@ class PlacementController:
             d["object"] = {"mesh": om.path, "size_m": om.size_m, "albedo": om.albedo.tolist(),
                            "position": list(pose.position), "yaw_deg": pose.yaw_deg, "lift": pose.lift,
                            "scale": pose.scale, "object_to_world": pose.matrix(om).tolist()}
-        if self.params is not None:
-            d["engine"] = {"passes": self.params.passes, "mode": self.params.mode}
+        if self.params is not None or self._config is not None:
+            d["engine"] = {"passes": self.config.passes, "mode": self.config.mode}
         return d
 
     def save(self, path: str | Path) -> Path:

@@ -162,7 +162,7 @@ def test_save_load_roundtrip_and_bad_files(demo, tmp_path):
     other = PlacementController.open(path)
     assert other.pose == ctl.pose
     assert np.allclose(other.scene_object().vertices, ctl.scene_object().vertices)
-    assert other.params.passes == 10
+    assert other.config.passes == 10 and other.params is None  # the budget is a FrameConfig, not params
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
     with pytest.raises(SceneError, match="bad.json: malformed JSON"):
@@ -241,3 +241,33 @@ def test_composite_warns_when_the_object_sinks_into_furniture(caplog):
         place_object(scene, scene.root / "object_chair.ply", [4.6, 0.0, 2.7], 0.0)
     lines = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert len(lines) == 1 and "object_chair.ply" in lines[0] and "inside furniture" in lines[0], lines
+
+
+def test_budget_is_a_new_frame_config_and_refine_converges_at_rest(demo):
+    # the drag frame at the budget, then refine() at rest until the all-sources frame of the pose;
+    # set_budget replaces the FrameConfig (a frame already holding the old one keeps it)
+    from app.engine import FrameConfig
+
+    ctl = demo
+    ctl.set_object(ctl.scene.obj.source)
+    ctl.set_budget(10, "hdr")
+    held = ctl.config
+    params_before = dict(vars(ctl.engine.params))
+    drag = ctl.render()
+    assert drag.stats["budget"] == 10 and not drag.stats["converged"]
+    ctl.set_budget(12)
+    assert held.passes == 10 and ctl.config.passes == 12 and ctl.config is not held
+    assert vars(ctl.engine.params) == params_before  # the engine's params are never written
+    ctl.set_budget(10)
+    calls = 0
+    while (fr := ctl.refine(budget_s=0.0)) is None:
+        calls += 1
+        assert calls < 1000
+    exact = ctl.engine.render(ctl.scene_object(), FrameConfig(None, "hdr"))
+    rmse = float(np.sqrt(np.mean((fr.pixels.astype(float) - exact.pixels) ** 2)))
+    print(f"refined in {calls + 1} calls of one batch, rmse {rmse:.4f} levels against the all-sources frame")
+    assert calls > 0 and rmse <= 0.05 and fr.stats["converged"] and fr.stats["passes"] == exact.stats["passes"]
+    assert ctl.refine().stats["cached"]  # at rest: kept
+    # a move starts a new refinement; the drag frame comes back at the budget
+    ctl.move_by(0.2, 0.0)
+    assert ctl.render().stats["budget"] == 10 and ctl.refine(budget_s=0.0) is None
