@@ -242,8 +242,9 @@ class Engine:
         self.photo_light: dict = {}  # lighting "photo": the fit's report (lighting.photolight)
         if self.params.lighting == "photo":
             self.scene = scene = self._photo_scene(scene)
-        elif scene.response is None or scene.meta.get("emitters_without_radiance"):
-            _need_declared(scene)
+        elif self.params.lighting == "known" and (scene.response is None
+                                                  or scene.meta.get("emitters_without_radiance")):
+            _need_declared(scene)  # captured: the probe gives the response and the emitters
         self.pre, self.cache_hit = self._precompute()
         self._setup()
         self._refining: _Refinement | None = None  # refine(): the pose being refined
