@@ -218,8 +218,11 @@ class Engine:
     """Owns one scene's precomputed data and composites object poses into its photo."""
 
     def __init__(self, scene: Scene, params: EngineParams | None = None, cache_dir: str | Path | None = None,
-                 device: str | None = None, quiet: bool = False, photo_priors=None):
+                 device: str | None = None, quiet: bool = False, photo_priors=None, progress=None):
+        """progress: optional callable(done, total) during the precompute (transfer rows; called with
+        (total, total) once the engine is ready, also on a cache hit), from the constructing thread."""
         self.scene = scene
+        self._progress = progress
         self.params = params or EngineParams()
         if self.params.mode not in ("hdr", "ldr"):
             raise ValueError(f"mode must be 'hdr' or 'ldr', got {self.params.mode!r}")
@@ -233,6 +236,7 @@ class Engine:
         self.photo_priors = photo_priors  # lighting "photo": lighting.photolight.PhotoPriors (None: defaults)
         self.cache_dir = Path(cache_dir) if cache_dir else None
         self.n_precompute = 0  # per-scene work done (precompute, SH volume): no frame may add to it
+        self._progress_total = 1  # precompute steps (transfer rows) reported to `progress`
         t0 = time.perf_counter()
         self.probe = None
         if self.params.lighting == "captured":
@@ -250,6 +254,8 @@ class Engine:
         self._refining: _Refinement | None = None  # refine(): the pose being refined
         self.room_light  # the SH volume is per-scene work too
         self.precompute_s = time.perf_counter() - t0
+        if progress is not None:
+            progress(self._progress_total, self._progress_total)
 
     # ------------------------------------------------------------------ precompute
     def _precompute(self) -> tuple[Precomputed, bool]:
@@ -287,13 +293,22 @@ class Engine:
         recv_vert = np.unique(patches.tris[np.isin(patches.tri_patch, seen)].ravel()).astype(np.int32)
 
         n_c, n_v = patches.n_patches, len(recv_vert)
+        self._progress_total = n_c + n_v
         with _bar(n_c + n_v, "precompute transfers", self.quiet) as bar:
+            done = [0]
+
+            def step(k: int) -> None:  # the progress bar and the caller's progress(done, total)
+                bar.update(k)
+                done[0] += k
+                if self._progress is not None:
+                    self._progress(min(done[0], n_c + n_v), n_c + n_v)
+
             G_c = transfer_matrix(patches.centre, patches.normal, patches.corners, patches.normal, [self.scene_occ],
-                                  n_side=1, device=dev, progress=bar.update)
+                                  n_side=1, device=dev, progress=step)
             np.fill_diagonal(G_c, 0.0)
             G_v = transfer_matrix(patches.vert_inset[recv_vert], patches.vert_normal[recv_vert], patches.corners,
                                   patches.normal, [self.scene_occ], n_side=p.vis_side, device=dev,
-                                  progress=bar.update)
+                                  progress=step)
         if p.lighting == "captured":
             pix_patch = np.where(pix_tri >= 0, patches.tri_patch[np.maximum(pix_tri, 0)], -1)
             rm = captured_radiance_mesh(patches, G_c, self.cam_occ, self.probe, scene, pix_patch)
@@ -408,6 +423,12 @@ class Engine:
         self.lattice_cover = cover
 
     # ------------------------------------------------------------------ per frame
+    @property
+    def lighting(self) -> str:
+        """How the room is lit (a key of LIGHTING), fixed for the engine's life: another lighting is
+        another precompute, i.e. another Engine."""
+        return self.params.lighting
+
     def frame_config(self) -> FrameConfig:
         """The FrameConfig of the engine's params (what render uses when given none)."""
         return FrameConfig(self.params.passes, self.params.mode, self.params.fps)

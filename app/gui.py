@@ -208,6 +208,7 @@ class PlacementWindow:
         self._render_cv = threading.Condition()
         self._script: Callable[[], bool] | None = None  # headless mode: decides whether to render more
         self._pre_t0 = time.perf_counter()
+        self._pre_fraction: float | None = None  # share of the precompute done (Engine's progress callback)
 
         w = self.window = self.app.create_window(title, width, height)
         em = w.theme.font_size
@@ -253,6 +254,15 @@ class PlacementWindow:
         self.mode.selected_index = 1 if ctl.config.mode == "ldr" else 0
         self.mode.set_on_selection_changed(self._on_mode)
         p.add_child(self.mode)
+        from app.engine import LIGHTING
+
+        p.add_child(gui.Label("Lighting"))
+        self.lighting = gui.Combobox()
+        for name in LIGHTING:
+            self.lighting.add_item(name)
+        self.lighting.selected_text = ctl.lighting
+        self.lighting.set_on_selection_changed(self._on_lighting)
+        p.add_child(self.lighting)
         p.add_fixed(0.5 * em)
         self.frame_label = gui.Label("frame: -")
         self.pass_label = gui.Label("passes: -")
@@ -295,7 +305,7 @@ class PlacementWindow:
             self._select_choice(ctl.pose.mesh)
             self._show_pose(ctl.pose)
             self._show_object()
-        threading.Thread(target=self._precompute, name="photoar-precompute", daemon=True).start()
+        self._start_precompute()
         threading.Thread(target=self._render_loop, name="photoar-render", daemon=True).start()
 
     # ------------------------------------------------------------------ layout
@@ -319,7 +329,9 @@ class PlacementWindow:
     # ------------------------------------------------------------------ workers
     def _precompute(self) -> None:
         try:
-            eng = self.ctl.start_engine()
+            eng = self.ctl.start_engine(progress=self._on_precompute_progress)
+            if eng is not self.ctl.engine:  # the lighting changed meanwhile: its own precompute follows
+                return
             msg = (f"precompute {eng.precompute_s:.1f} s" + (" (cached)" if eng.cache_hit else "")
                    + f", {eng.pre.patches.n_patches} patches")
         except Exception as e:  # noqa: BLE001 - shown in the window, and ends a headless run
@@ -337,6 +349,14 @@ class PlacementWindow:
         self.app.post_to_main_thread(self.window, done)
         self.engine_ready.set()
         self.request_frame()
+
+    def _on_precompute_progress(self, done: int, total: int) -> None:
+        self._pre_fraction = done / max(total, 1)  # read by _on_tick on the main thread
+
+    def _start_precompute(self) -> None:
+        self.engine_ready.clear()
+        self._pre_t0, self._pre_fraction = time.perf_counter(), None
+        threading.Thread(target=self._precompute, name="photoar-precompute", daemon=True).start()
 
     def request_frame(self) -> None:
         with self._render_cv:
@@ -436,8 +456,9 @@ class PlacementWindow:
     def _on_tick(self) -> bool:
         if not self.engine_ready.is_set() and self.error is None:
             t = time.perf_counter() - self._pre_t0
-            self.progress.value = 1.0 - math.exp(-t / 30.0)  # no fraction from the engine: time-based
-            self.status.text = f"precomputing the scene ... {t:.0f} s"
+            f = self._pre_fraction
+            self.progress.value = f if f is not None else 1.0 - math.exp(-t / 30.0)  # cached: no steps reported
+            self.status.text = f"precomputing the scene ({self.ctl.lighting} light) ... {t:.0f} s"
             return True
         return False
 
@@ -538,6 +559,13 @@ class PlacementWindow:
     def _on_mode(self, index: int) -> None:
         self.ctl.set_budget(mode="ldr" if index == 1 else "hdr")
         self.request_frame()
+
+    def _on_lighting(self, text: str, index: int) -> None:
+        if text == self.ctl.lighting:
+            return
+        self.engine_ready.clear()  # frames wait for the new engine
+        self.ctl.set_lighting(text)  # another precompute (cached per lighting)
+        self._start_precompute()
 
     def _on_undo(self) -> None:
         self.ctl.undo()

@@ -207,18 +207,47 @@ class PlacementController:
             path = path.parent
         return cls(working_scene(load_scene(path), work_res), params, cache_dir, quiet)
 
-    def start_engine(self, params=None):
-        """Build the engine (precompute, cached under cache_dir); returns it."""
+    def start_engine(self, params=None, progress=None):
+        """Build the engine (precompute, cached under cache_dir); returns it. progress: callable(done,
+        total) during the precompute (app.engine.Engine)."""
         from app.engine import Engine, EngineParams
 
+        started = self.params
+        own = params is None  # built from the controller's params, which set_lighting may replace meanwhile
         params = params or self.params or EngineParams(passes=20)
-        eng = Engine(self.scene, params, cache_dir=self.cache_dir, device=self.device, quiet=self.quiet)
+        eng = Engine(self.scene, params, cache_dir=self.cache_dir, device=self.device, quiet=self.quiet,
+                     progress=progress)
         with self._lock:
+            if own and self.params is not started:
+                return eng  # set_lighting ran meanwhile: this engine is not the controller's
             self.engine = eng
             self.params = eng.params
             if self._config is None:
                 self._config = eng.frame_config()
         return eng
+
+    def set_lighting(self, lighting: str) -> bool:
+        """Light the room another way (a key of app.engine.LIGHTING). The engine is per lighting: when
+        it changes, the engine and the kept frames are dropped and start_engine must run again
+        (the precompute, cached per lighting). Returns whether it changed."""
+        from app.engine import LIGHTING, EngineParams
+
+        if lighting not in LIGHTING:
+            raise ValueError(f"lighting must be one of {sorted(LIGHTING)}, got {lighting!r}")
+        with self._lock:
+            old = self.params.lighting if self.params is not None else EngineParams().lighting
+            if lighting == old:
+                return False
+            self.params = replace(self.params or EngineParams(passes=self.config.passes), lighting=lighting)
+            self.engine = None
+            self._frames.clear()
+        return True
+
+    @property
+    def lighting(self) -> str:
+        from app.engine import EngineParams
+
+        return (self.params or EngineParams()).lighting
 
     # ------------------------------------------------------------------ object choice
     def object_choices(self, extra_dirs: list[str | Path] = ()) -> list[str]:

@@ -1,6 +1,7 @@
 """Placement controller (app/placement.py), no window: picking against the analytic floor hit,
 moves that change only pixels the object affects, undo bit for bit, JSON save/load, bad input."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -271,3 +272,37 @@ def test_budget_is_a_new_frame_config_and_refine_converges_at_rest(demo):
     # a move starts a new refinement; the drag frame comes back at the budget
     ctl.move_by(0.2, 0.0)
     assert ctl.render().stats["budget"] == 10 and ctl.refine(budget_s=0.0) is None
+
+
+def test_public_engine_api_progress_lighting_and_no_param_writes(tmp_path):
+    # Engine(progress=...) reports the precompute's transfer rows in order and ends at (total, total);
+    # set_lighting drops the engine (another precompute); app/gui.py and app/placement.py never
+    # assign to engine or controller params
+    import re
+
+    from app.engine import EngineParams
+    from app.placement import PlacementController as PC
+
+    ctl = PC.open(demo_scene_dir(), params=EngineParams(passes=10, patch_size=0.35), cache_dir=tmp_path / "cache")
+    calls = []
+    eng = ctl.start_engine(progress=lambda done, total: calls.append((done, total)))
+    total = calls[-1][1]
+    assert len(calls) > 2 and calls[-1] == (total, total) and total > eng.pre.patches.n_patches
+    assert all(d1 <= d2 and t == total for (d1, t), (d2, _) in zip(calls, calls[1:]))
+    cached = []
+    ctl.engine = None
+    ctl.start_engine(progress=lambda d, t: cached.append((d, t)))
+    assert cached and cached[-1][0] == cached[-1][1]  # a cache hit still says it is done
+    assert ctl.lighting == "known" and not ctl.set_lighting("known") and ctl.engine is not None
+    with pytest.raises(ValueError, match="lighting must be one of"):
+        ctl.set_lighting("candles")
+    params = ctl.params
+    assert ctl.set_lighting("photo") and ctl.engine is None and ctl.lighting == "photo"
+    assert params.lighting == "known"  # replaced, not written
+    with pytest.raises(RuntimeError, match="not ready"):
+        ctl.render()
+    root = Path(__file__).resolve().parents[1] / "app"
+    for name in ("gui.py", "placement.py"):
+        src = (root / name).read_text()
+        writes = re.findall(r"(?:params|engine\.params)\.\w+\s*=(?!=)", src)
+        assert not writes, (name, writes)
