@@ -125,6 +125,7 @@ class _Refinement:
     steps: object  # the generator of Engine._frame_steps
     compute_s: float = 0.0  # seconds spent in refine calls on this pose
     calls: int = 0  # refine calls on this pose
+    frames_seen: int = -1  # Engine._frames_started after its last step (another frame in between: restart)
     frame: "Frame | None" = None  # the finished frame
 
 
@@ -252,6 +253,7 @@ class Engine:
         self.pre, self.cache_hit = self._precompute()
         self._setup()
         self._refining: _Refinement | None = None  # refine(): the pose being refined
+        self._frames_started = 0  # frames begun (render and refine): refine restarts after another
         self.room_light  # the SH volume is per-scene work too
         self.precompute_s = time.perf_counter() - t0
         if progress is not None:
@@ -407,6 +409,10 @@ class Engine:
         self._passes_override: int | None = None  # pass count of the calibration frame
         self.dB_samples = 400  # object vertices that gather the second-order loss (the rest interpolate)
         self._prt_cache = None  # (key, self_transfer result) of the last object shape (_self_transfer)
+        self.shape_cache = True  # keep the object's proxy, shading mesh and BVHs per shape (_object_shape)
+        self._shape: dict | None = None  # the last shape's (_object_shape)
+        self._shade_occ = None  # (shading-mesh vertices, their Occluder) of the current frame
+        self.n_shape_builds = 0  # object shapes simplified/subdivided so far
         self.near_factor = 2.0  # object light per pixel within this many bounding radii
         # occlusion masks: every pixel within mask_near_factor bounding radii of the object, farther
         # out (soft, slowly varying shadows) every second pixel in x and y, the rest filled in from
@@ -448,11 +454,15 @@ class Engine:
         """Progressive refinement at rest: advance the all-sources frame of this pose (config's mode;
         its passes are ignored) by batches of shadow maps for about `budget_s` seconds (None: to the
         end). Returns that frame once every source is in (again at once on later calls for the same
-        pose), None before. A call for another pose or mode starts over; render() calls in between
-        do not disturb it. Its stats add refine_s (compute in refine calls) and refine_calls."""
+        pose), None before. A call for another pose or mode starts over, and so does a call after
+        another frame was rendered in between (it re-aims the shared shadow maps and BVHs). Its stats add refine_s (compute in refine calls) and refine_calls."""
         cfg = FrameConfig(None, (config or self.frame_config()).mode)  # every source, no --fps budget
         key = (_pose_key(obj), cfg.mode)
         st = self._refining
+        if st is not None and st.frame is None and st.frames_seen not in (-1, self._frames_started):
+            # another frame ran since the last step: it re-aimed the shared shadow maps and the object's
+            # BVHs at its own pose, so this one starts over
+            st = None
         if st is None or st.key != key:
             self._refining = st = _Refinement(key, self._frame_steps(obj, cfg))
         if st.frame is not None:
@@ -475,12 +485,14 @@ class Engine:
         finally:
             self._cost = cost
             st.compute_s += time.perf_counter() - t0
+            st.frames_seen = self._frames_started
         if st.frame is not None:
             st.frame.stats.update(refine_s=st.compute_s, refine_calls=st.calls)
         return st.frame
 
     def _frame_steps(self, obj: SceneObject, config: FrameConfig):
         """render()'s work as a generator: yields after each batch of shadow maps, returns the Frame."""
+        self._frames_started += 1
         calibration_s = 0.0
         if config.fps is not None and self._cost is None and self._passes_override is None:
             calibration_s = self._calibrate(obj, config)
@@ -497,15 +509,13 @@ class Engine:
             return now
 
         t = time.perf_counter()
-        pv, pf, _ = simplify(obj.vertices, obj.faces, p.proxy_faces)
-        proxy_occ = Occluder(pv, pf, self.device)
+        pv, pf, proxy_occ, shade_mesh, shade_occ = self._object_shape(obj)
         centre = 0.5 * (pv.min(0) + pv.max(0))
         radius = float(np.linalg.norm(pv - centre, axis=1).max())
         t = tick("proxy", t)
 
         # ---- object pixels: coverage and depth against the scene model
-        shade_mesh = subdivide(obj.vertices, obj.normals, obj.faces, max_edge=0.08, max_faces=3000)
-        hits = self._object_hits(shade_mesh[0], shade_mesh[2])
+        hits = self._object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ)
         cov = hits.coverage()
         t = tick("object", t)
 
@@ -617,8 +627,37 @@ class Engine:
                      room.reshape(H, W, 3).astype(np.float32), cov.astype(np.float32))
 
     # ------------------------------------------------------------------ pieces
-    def _object_hits(self, verts: np.ndarray, faces: np.ndarray, camera=None, supersample: int | None = None
-                     ) -> "ObjectHits":
+    def _object_shape(self, obj: SceneObject):
+        """(proxy vertices, proxy faces, proxy Occluder, shading mesh (v, n, f), shading-mesh Occluder)
+        of the object at its pose. The simplification, the subdivision and both BVHs are made once
+        per object shape, kept in the shape's own frame (centred: the key is the centred mesh to
+        1 um, as _self_transfer's); a pose that only moves the object translates them and refits
+        the BVHs (Warp Mesh.refit) instead (shape_cache False: made afresh every frame)."""
+        p, v = self.params, obj.vertices
+        offset = v.mean(0)
+        key = hashlib.sha1(np.round(v - offset, 6).tobytes() + np.round(obj.normals, 6).tobytes()
+                           + np.ascontiguousarray(obj.faces).tobytes() + str(p.proxy_faces).encode()).hexdigest()
+        sh = self._shape if self.shape_cache else None
+        if sh is None or sh["key"] != key:
+            pv, pf, _ = simplify(v, obj.faces, p.proxy_faces)
+            sv, sn, sf = subdivide(v, obj.normals, obj.faces, max_edge=0.08, max_faces=3000)
+            sh = {"key": key, "offset": offset, "pv": pv - offset, "pf": pf, "sv": sv - offset, "sn": sn, "sf": sf,
+                  "proxy_occ": Occluder(pv, pf, self.device), "shade_occ": Occluder(sv, sf, self.device)}
+            if self.shape_cache:
+                self._shape = sh
+            self.n_shape_builds += 1
+        pv, sv = sh["pv"] + offset, sh["sv"] + offset
+        if not np.array_equal(offset, sh["offset"]):  # moved: translate the BVHs' points and refit
+            for occ, pts in ((sh["proxy_occ"], pv), (sh["shade_occ"], sv)):
+                if occ.mesh is not None:
+                    occ._pts.assign(pts.astype(np.float32))
+                    occ.mesh.refit()
+            sh["offset"] = offset
+        self._shade_occ = (sv, sh["shade_occ"])  # object_vertex_radiance's own-shadow mesh, this frame
+        return pv, sh["pf"], sh["proxy_occ"], (sv, sh["sn"], sh["sf"]), sh["shade_occ"]
+
+    def _object_hits(self, verts: np.ndarray, faces: np.ndarray, camera=None, supersample: int | None = None,
+                     occluder: Occluder | None = None) -> "ObjectHits":
         """Sub-pixel camera rays against the object mesh, depth-tested against the scene model
         (camera: default the scene's; another one sees the same world, e.g. the full-resolution
         photo's, app.workres)."""
@@ -639,7 +678,7 @@ class Engine:
         U, V = np.meshgrid(uu, vv)
         d = np.stack([U, V, np.ones_like(U)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        tri, bary, depth = cast_rays(Occluder(verts, faces, self.device), cam.centre, d)
+        tri, bary, depth = cast_rays(occluder or Occluder(verts, faces, self.device), cam.centre, d)
         _, _, scene_depth = cast_rays(self.cam_occ, cam.centre, d)
         return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, (tri >= 0) & (depth < scene_depth))
 
@@ -664,7 +703,8 @@ class Engine:
         pm = self.pre.patches
         # the shading mesh shadows itself: the coarse proxy would cut through its surface and
         # shadow vertices that lie outside it
-        own = Occluder(v, f, self.device)
+        cached = self._shade_occ
+        own = cached[1] if cached is not None and cached[0] is v else Occluder(v, f, self.device)
         T, hit_face, hit_bary = self._self_transfer(v, n, f)
         E = np.einsum("vk,vkc->vc", T.astype(np.float64), self.room_light.indirect_sh(v))
         E += self.room_light.direct(v, n, [own], n_side=1)

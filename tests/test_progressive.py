@@ -34,9 +34,6 @@ def test_refine_converges_to_the_all_sources_frame(demo):
         fr = eng.refine(scene.obj, FrameConfig(passes=10), budget_s=0.0)  # one batch per call
         if fr is not None:
             break
-        # a render in between (e.g. the GUI's kept frame) does not disturb the refinement
-        if calls == 2:
-            eng.render(scene.obj, FrameConfig(passes=10))
         assert calls < 1000
     n_batches = -(-exact.stats["passes"] // eng.params.batch)
     # spread over calls: one batch of shadow maps each, then the shading and compositing
@@ -50,6 +47,10 @@ def test_refine_starts_over_when_the_pose_changes(demo):
     scene, eng = demo
     other = moved(scene.obj, np.array([-0.3, 0.0, 0.0]))
     eng.refine(moved(scene.obj, np.array([-0.6, 0.0, 0.0])), budget_s=0.0)  # a pose left mid-way
+    assert eng.refine(other, budget_s=0.0) is None
+    # a frame of another pose in between moves the shared shadow-map proxy and the object's BVHs:
+    # the refinement of `other` must not finish with them
+    eng.render(moved(scene.obj, np.array([-0.9, 0.0, 0.0])), FrameConfig(passes=10))
     fr = eng.refine(other)  # to the end
     exact = eng.render(other, FrameConfig(passes=None))
     assert _rmse(fr.pixels, exact.pixels) <= 0.05
@@ -70,3 +71,31 @@ def test_frame_config_is_frozen_validated_and_never_written(demo):
     for bad in ({"passes": 0}, {"passes": 2.5}, {"mode": "sdr"}, {"fps": 0.0}):
         with pytest.raises(ValueError):
             FrameConfig(**bad)
+
+
+def test_object_shape_is_built_once_per_shape_and_refit_when_dragged(demo):
+    # the proxy, the shading mesh and their BVHs are kept per shape: a drag translates and refits
+    # them; the frames equal those made afresh (shape_cache off); a turn is a new shape
+    from app.dragpath import drag_offsets
+
+    scene, eng = demo
+    cfg = FrameConfig(passes=10)
+    eng.render(scene.obj, cfg)
+    builds = eng.n_shape_builds
+    for o in drag_offsets(scene, scene.obj, 3):
+        obj = moved(scene.obj, o)
+        kept = eng.render(obj, cfg)
+        eng.shape_cache = False
+        try:
+            fresh = eng.render(obj, cfg)
+        finally:
+            eng.shape_cache = True
+        assert _rmse(kept.pixels, fresh.pixels) <= 0.05, o
+    assert eng.n_shape_builds == builds + 3  # only the three fresh ones
+    c, s = np.cos(0.5), np.sin(0.5)
+    R = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    centre = scene.obj.vertices.mean(0)
+    turned = dataclasses.replace(scene.obj, vertices=(scene.obj.vertices - centre) @ R.T + centre,
+                                 normals=scene.obj.normals @ R.T)
+    eng.render(turned, cfg)
+    assert eng.n_shape_builds == builds + 4
