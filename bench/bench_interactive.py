@@ -9,6 +9,11 @@ scorer (energy ratio, rmse_affected, spurious), and at 50 passes with the seed's
 dropping the shafts below the 2 % threshold (photoar keeps them coarse); then a path of 30 object positions rendered at
 50 passes from the one precompute, with its mean and max frame time. The seed's target is
 33 ms per frame at 50 passes. Writes a table (stdout) and speed_vs_error.png per scene.
+
+--shape-cache-ab: only a drag at 50 passes (app.dragpath), each position rendered with the object's
+shape kept (proxy, shading mesh, BVHs translated and refit: Engine.shape_cache) and made afresh,
+interleaved so that both see the same machine load; prints the mean frame and shape-phase times.
+--scenes picks scenes (default both shared ones).
 """
 from __future__ import annotations
 
@@ -87,14 +92,43 @@ def bench_scene(name: str, scene_dir: Path, out: Path) -> list[dict]:
     return rows
 
 
+def bench_shape_cache(name: str, scene_dir: Path, n: int = 12) -> None:
+    from app.dragpath import drag_offsets, moved
+    from app.engine import FrameConfig
+
+    scene = load_scene(scene_dir)
+    with tempfile.TemporaryDirectory() as cache:
+        eng = Engine(scene, EngineParams(), cache_dir=cache, quiet=True)
+    cfg = FrameConfig(passes=50)
+    eng.render(scene.obj, cfg)  # warm: kernels compiled, the shape kept
+    t = {True: [], False: []}
+    for k, o in enumerate(drag_offsets(scene, scene.obj, n)):
+        for on in ((True, False) if k % 2 else (False, True)):
+            eng.shape_cache = on
+            st = eng.render(moved(scene.obj, o), cfg).stats
+            t[on].append((st["frame_s"], st["timings"]["proxy"] + st["timings"]["object"]))
+    eng.shape_cache = True
+    for on in (False, True):
+        a = np.array(t[on])
+        print(f"{name}: drag of {n} positions at 50 passes, shape {'kept, refit' if on else 'made every frame'}: "
+              f"frame mean {1e3 * a[:, 0].mean():.0f} ms (median {1e3 * np.median(a[:, 0]):.0f}), "
+              f"proxy+object phases mean {1e3 * a[:, 1].mean():.0f} ms (median {1e3 * np.median(a[:, 1]):.0f})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "bench_interactive")
+    ap.add_argument("--scenes", default="window_room,lamps_room", help="comma-separated shared scene names")
+    ap.add_argument("--shape-cache-ab", action="store_true", help="only the drag with the shape kept / made afresh")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
-    scenes = [(n, a.shared / "scenes" / n) for n in ("window_room", "lamps_room")
+    scenes = [(n, a.shared / "scenes" / n) for n in a.scenes.split(",")
               if (a.shared / "scenes" / n / "scene.json").is_file()] or [("demo", demo_scene_dir())]
+    if a.shape_cache_ab:
+        for n, d in scenes:
+            bench_shape_cache(n, d)
+        return
     rows = [r for n, d in scenes for r in bench_scene(n, d, a.out)]
     cols = [c for c in ("scene", "passes", "n_maps", "traversal_ms", "masks_ms", "shading_ms", "obj_light_ms",
                         "frame_ms", "energy", "rmse", "spurious") if any(c in r for r in rows)]
