@@ -209,6 +209,7 @@ def _run(a) -> int:
 
         pth = json.loads((a.out / "evaluation.json").read_text())["path"]
         print(f"path of {pth['positions']} positions at {pth['passes']} passes: frame mean "
-              f"{pth['frame_s_mean']:.3f} s, p95 {pth['frame_s_p95']:.3f} s (first frame excluded)")
+              f"{pth['frame_s_mean']:.3f} s, p95 {pth['frame_s_p95']:.3f} s (first frame excluded); at rest "
+              f"all sources after {pth['converge_s']:.2f} s")
     print(a.out / "evaluation.json")
     return 0

@@ -67,3 +67,10 @@ def test_path_counts_precompute_inside_the_drag(tmp_path):
     eng._room_light = None
     with pytest.raises(RuntimeError, match="precompute ran 1 time"):
         drag_path(eng, scene, 10, 2)
+
+
+def test_path_needs_two_positions(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["evaluate", str(demo_scene_dir()), "--passes", "50,all", "--path", "1", "--out", str(tmp_path / "o")])
+    assert e.value.code == 2 and "at least 2 positions" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
