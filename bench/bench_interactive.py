@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import dataclasses
 import sys
 import tempfile
 from pathlib import Path
@@ -30,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.cli import demo_scene_dir  # noqa: E402
-from app.engine import Engine, EngineParams  # noqa: E402
+from app.engine import Engine, EngineParams, FrameConfig  # noqa: E402
 from app.report import plot_xy, table  # noqa: E402
 from lighting import metrics  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
@@ -51,11 +50,9 @@ def bench_scene(name: str, scene_dir: Path, out: Path) -> list[dict]:
         truth = read_image_rgb(scene_dir / "truth.png")
         mask = cv2.imread(str(scene_dir / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
     rows = []
-    base = eng.params
     for n in (10, 20, 50, None):
-        eng.params = dataclasses.replace(base, passes=n)
-        eng.render(scene.obj)  # warm (kernels compiled, buffers sized)
-        fr = eng.render(scene.obj)
+        eng.render(scene.obj, FrameConfig(passes=n))  # warm (kernels compiled, buffers sized)
+        fr = eng.render(scene.obj, FrameConfig(passes=n))
         tm = fr.stats["timings"]
         row = {"scene": name, "passes": "all" if n is None else n, "n_maps": fr.stats["passes"],
                "traversal_ms": 1e3 * tm["sources"], "masks_ms": 1e3 * tm["masks"],
@@ -67,21 +64,19 @@ def bench_scene(name: str, scene_dir: Path, out: Path) -> list[dict]:
         rows.append(row)
     if truth is not None:
         # the seed's rule: drop the shafts stopped by the 2 % threshold instead of keeping them coarse
-        eng.params = dataclasses.replace(base, passes=50)
         eng.shadow_sources.keep_weak = False
-        fr = eng.render(scene.obj)
+        fr = eng.render(scene.obj, FrameConfig(passes=50))
         eng.shadow_sources.keep_weak = True
         s = metrics.score_regions(fr.pixels, scene.photo, truth, mask)
         rows.append({"scene": name, "passes": "50, drop weak", "n_maps": fr.stats["passes"],
                      "frame_ms": 1e3 * fr.stats["frame_s"], "energy": s["energy_ratio"], "rmse": s["rmse_affected"],
                      "spurious": s["spurious"]})
     # a path of 30 positions at 50 passes, from the same precompute
-    eng.params = dataclasses.replace(base, passes=50)
     times = []
     for k in range(30):
         obj = copy.copy(scene.obj)
         obj.vertices = scene.obj.vertices + [0.02 * k, 0.0, -0.015 * k]
-        times.append(eng.render(obj).stats["frame_s"])
+        times.append(eng.render(obj, FrameConfig(passes=50)).stats["frame_s"])
     print(f"{name}: path of 30 positions at 50 passes: mean {1e3 * np.mean(times):.0f} ms, "
           f"max {1e3 * np.max(times):.0f} ms, no rebuild (precompute {eng.precompute_s:.1f} s once)")
     if truth is not None:
@@ -94,8 +89,6 @@ def bench_scene(name: str, scene_dir: Path, out: Path) -> list[dict]:
 
 def bench_shape_cache(name: str, scene_dir: Path, n: int = 12) -> None:
     from app.dragpath import drag_offsets, moved
-    from app.engine import FrameConfig
-
     scene = load_scene(scene_dir)
     with tempfile.TemporaryDirectory() as cache:
         eng = Engine(scene, EngineParams(), cache_dir=cache, quiet=True)
