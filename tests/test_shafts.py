@@ -115,30 +115,28 @@ def test_fewer_passes_keep_the_receivers(engine):
         np.testing.assert_array_equal(part.cand.any(1), full.cand.any(1))
 
 
-def test_thirty_frames_along_a_path_reuse_the_precompute(engine, monkeypatch):
-    # moving the object over 30 positions renders from the cached precompute: nothing is rebuilt
-    from app.engine import Engine
+def test_thirty_frames_along_a_path_reuse_the_precompute(engine):
+    # moving the object over 30 positions renders from the precompute: nothing per-scene is rebuilt
+    # (the engine counts its precompute and SH-volume builds), and the object's shape is made once
+    from app.engine import FrameConfig
 
     scene, eng = engine
-    monkeypatch.setattr(Engine, "_precompute", lambda self: pytest.fail("precompute rebuilt"))
-    shafts = eng.shadow_sources
-    params = eng.params
-    eng.params = copy.copy(params)
-    eng.params.passes = 10
-    try:
-        base = scene.obj
-        lit = []
-        for k in range(30):
-            obj = copy.copy(base)
-            obj.vertices = base.vertices + [0.03 * k, 0.0, -0.02 * k]
-            fr = eng.render(obj)
-            assert fr.stats["passes"] <= 10
-            lit.append(fr.radiance)
-        assert eng.shadow_sources is shafts
-        # the frames differ: the shadow follows the object
-        assert np.abs(lit[0] - lit[-1]).max() > 0.01
-    finally:
-        eng.params = params
+    shafts, room_light = eng.shadow_sources, eng.room_light
+    runs = eng.n_precompute
+    base = scene.obj
+    eng.render(base, FrameConfig(passes=10))
+    shapes = eng.n_shape_builds
+    lit = []
+    for k in range(30):
+        obj = copy.copy(base)
+        obj.vertices = base.vertices + [0.03 * k, 0.0, -0.02 * k]
+        fr = eng.render(obj, FrameConfig(passes=10))
+        assert fr.stats["passes"] <= 10
+        lit.append(fr.radiance)
+    assert eng.n_precompute == runs and eng.shadow_sources is shafts and eng.room_light is room_light
+    assert eng.n_shape_builds == shapes  # translated and refit, not simplified/subdivided again
+    # the frames differ: the shadow follows the object
+    assert np.abs(lit[0] - lit[-1]).max() > 0.01
 
 
 def test_evaluate_writes_rows_per_budget(tmp_path):
