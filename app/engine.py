@@ -196,12 +196,12 @@ class Engine:
         self.cache_dir = Path(cache_dir) if cache_dir else None
         t0 = time.perf_counter()
         self.probe = None
+        self.photo_light: dict = {}  # lighting "photo": the fit's report (lighting.photolight)
         if self.params.lighting == "captured":
             # the camera response comes from the probe bracket too: nothing declared is used
             self.probe = load_captured_probe(scene)
             self.scene = scene = dataclasses.replace(scene, response=self.probe.response)
-        self.photo_light: dict = {}  # lighting "photo": the fit's report (lighting.photolight)
-        if self.params.lighting == "photo":
+        elif self.params.lighting == "photo":
             self.scene = scene = self._photo_scene(scene)
         elif scene.response is None or scene.meta.get("emitters_without_radiance"):
             _need_declared(scene)
