@@ -35,6 +35,7 @@ class Quad:
     emission: np.ndarray  # (3,) emitted radiance, zero for non-emitters
     role: str = "room"  # room | furniture | window | ceiling_lamp | point_lamp
     texture: np.ndarray | None = None  # (Ht,Wt,3) float linear albedo, or None
+    opening: bool = False  # a window that is a hole in its wall: sky (and sun) come through it
 
     @property
     def is_emitter(self) -> bool:
@@ -61,6 +62,23 @@ class SceneObject:
 
 
 @dataclass
+class Sun:
+    """A far directional disk emitter (FORMAT.md "Openings, sky and sun"); lights the room only
+    through opening quads. Units: irradiance in the scene's radiance units x sr."""
+
+    direction: np.ndarray  # (3,) unit vector from the room towards the sun
+    angular_diameter_deg: float  # full apparent diameter of the disk
+    irradiance: np.ndarray  # (3,) irradiance on a surface facing the sun (irradiance_perpendicular)
+    radiance: np.ndarray  # (3,) radiance of the disk (emitted_radiance); 0 if not given
+    distance_m: float = float("inf")  # distance of the disk from the room centre (inf: parallel rays)
+
+    @property
+    def half_angle(self) -> float:
+        """Angular radius of the disk, radians."""
+        return float(np.radians(0.5 * self.angular_diameter_deg))
+
+
+@dataclass
 class Scene:
     name: str
     root: Path
@@ -72,6 +90,7 @@ class Scene:
     room_min: np.ndarray
     room_max: np.ndarray
     meta: dict = field(default_factory=dict)
+    sun: Sun | None = None  # the sun, in scenes with an opening
 
 
 def _field(d: dict, key: str, where: str, path: Path):
@@ -209,6 +228,7 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         raise SceneError(f"{path}: field 'camera_response': {e}") from None
 
     quads: list[Quad] = []
+    sun: Sun | None = None
     prims = _field(d, "primitives", "", path)
     if not isinstance(prims, list) or not prims:
         raise SceneError(f"{path}: field 'primitives' must be a non-empty list")
@@ -236,9 +256,14 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
             if load_textures and p.get("albedo_texture"):
                 img = read_image_rgb(root / p["albedo_texture"]).astype(np.float32) / 255.0
                 texture = img.transpose(1, 0, 2) if flipped else img
-            quads.append(Quad(name, corners, normal, albedo, emission, str(p.get("role", "room")), texture))
+            quads.append(Quad(name, corners, normal, albedo, emission, str(p.get("role", "room")), texture,
+                              bool(p.get("opening", False))))
+        elif kind == "sun":
+            if sun is not None:
+                raise SceneError(f"{path}: field '{where}': a second sun (only one 'sun' primitive is allowed)")
+            sun = parse_sun(p, where, path)
         else:
-            raise SceneError(f"{path}: field '{where}.type' must be 'quad' or 'box', got {kind!r}")
+            raise SceneError(f"{path}: field '{where}.type' must be 'quad', 'box' or 'sun', got {kind!r}")
 
     obj = None
     if "synthetic_object" in d:
@@ -255,7 +280,29 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         raise SceneError(f"{root / files.get('background_png', 'background.png')}: image is "
                          f"{photo.shape[1]}x{photo.shape[0]}, camera says {width}x{height}")
     return Scene(str(d.get("name", root.name)), root, camera, quads, obj, response, photo, room_min, room_max,
-                 meta={"json_path": str(path)})
+                 meta={"json_path": str(path)}, sun=sun)
+
+
+def parse_sun(p: dict, where: str, path: Path) -> Sun:
+    """The `sun` primitive (FORMAT.md), validated: SceneError naming the file and field."""
+    d = _vec(_field(p, "direction_to_sun", where + ".", path), 3, f"{where}.direction_to_sun", path)
+    norm = float(np.linalg.norm(d))
+    if norm < 1e-9 or abs(norm - 1.0) > 1e-3:
+        raise SceneError(f"{path}: field '{where}.direction_to_sun' must be a unit vector, has length {norm:.6g}")
+    diam = float(_vec(p.get("angular_diameter_deg", 0.53), 1, f"{where}.angular_diameter_deg", path, shape=()))
+    if not 0.0 <= diam < 90.0:
+        raise SceneError(f"{path}: field '{where}.angular_diameter_deg' must be in [0, 90) degrees, got {diam}")
+    E = _vec(_field(p, "irradiance_perpendicular", where + ".", path), 3, f"{where}.irradiance_perpendicular",
+             path)
+    L = _vec(p.get("emitted_radiance", [0.0, 0.0, 0.0]), 3, f"{where}.emitted_radiance", path)
+    for key, v in (("irradiance_perpendicular", E), ("emitted_radiance", L)):
+        if np.any(v < 0):
+            raise SceneError(f"{path}: field '{where}.{key}' must be non-negative, got {v.tolist()}")
+    dist = float(_vec(p.get("distance_m", float("inf")), 1, f"{where}.distance_m", path, shape=())) \
+        if p.get("distance_m") is not None else float("inf")
+    if not dist > 0:
+        raise SceneError(f"{path}: field '{where}.distance_m' must be positive, got {dist}")
+    return Sun(d / norm, diam, E, L, dist)
 
 
 def make_object(mesh_path: Path, object_to_world: np.ndarray, albedo: np.ndarray) -> SceneObject:
