@@ -50,6 +50,8 @@ from lighting.irradiance import RoomLight
 from lighting.radiance import captured_files, captured_radiance_mesh, load_captured_probe
 from lighting.radiosity import gather
 from lighting.sources import luminance, select_sources
+from lighting.sun import SunLight, gather_with_sun, openings, surface_albedo
+from kernels.sunshadow import SunShadowMap
 from lighting.transfer import intensity_transfers
 from recon.patches import PatchMesh, build_patches
 from recon.proxy import simplify, subdivide
@@ -123,6 +125,9 @@ def _hash_scene(scene: Scene, params: EngineParams) -> str:
             h.update(np.ascontiguousarray(a, np.float64).tobytes())
         if q.texture is not None:
             h.update(hashlib.sha256(np.ascontiguousarray(q.texture).tobytes()).digest())
+    if scene.sun is not None:  # sun: direction, size, strength, and which quads are openings
+        h.update(np.concatenate([scene.sun.direction, [scene.sun.angular_diameter_deg], scene.sun.irradiance,
+                                 [float(q.opening) for q in scene.quads]]).astype(np.float64).tobytes())
     cam = scene.camera
     for a in (cam.K, cam.R, cam.t):
         h.update(np.ascontiguousarray(a, np.float64).tobytes())
@@ -186,6 +191,7 @@ class Engine:
         scene = self.scene
         patches = build_patches(scene, p.patch_size, p.emitter_patch_size)
         self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device)
+        self._sun_init(patches)
         key = _hash_scene(scene, p)
         cache = self.cache_dir / f"{scene.name}-{key[:20]}.npz" if self.cache_dir else None
         if cache is not None and cache.is_file():
@@ -223,7 +229,11 @@ class Engine:
             B = np.stack([rm.radiance] * (p.bounces + 1))
             albedo, origin = rm.reflectivity, rm.origin
         else:
-            B = np.stack(gather(G_c, patches.albedo, patches.emission, p.bounces))
+            if self.sun_light is not None and self.sun_light.active:  # sun: its patch light joins the radiosity
+                B = np.stack(gather_with_sun(G_c, patches.albedo, patches.emission, self._sun_patch_light(),
+                                             p.bounces))
+            else:
+                B = np.stack(gather(G_c, patches.albedo, patches.emission, p.bounces))
             albedo, origin = patches.albedo, np.full(n_c, -1, np.int8)
         seconds = time.perf_counter() - t0
         pre = Precomputed(patches, G_c, recv_vert, G_v, B, pix_tri, pix_bary, pix_depth, albedo, origin, seconds)
@@ -266,8 +276,11 @@ class Engine:
         self.E_x = np.zeros_like(self.L_b)
         rp = self.recv_pix
         self.E_x[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], self.E_v[self.pix_rows[rp]])
+        self._sun_setup_pixels()  # sun: its direct light joins E_x; clipped sunlit pixels get model radiance
         with np.errstate(divide="ignore", invalid="ignore"):
             self.rho_x = np.where(self.E_x > 0, np.minimum(self.L_b / self.E_x, 1.0), 0.0)
+        if self.sun_pix is not None:
+            self.rho_x[self.sun_clipped] = self.sun_rho_clipped
         self.maps = ShadowMaps(self.params.batch, self.params.map_res, device=dev)
         self._room_light = None
         t0 = time.perf_counter()
@@ -361,6 +374,11 @@ class Engine:
         # ---- the object lit by the room, whose patches in its shadow send it less light
         dB_shadow = np.zeros((pm.n_patches, 3))
         dB_shadow[cen_sel] = -pm.albedo[cen_sel] * O_cen
+        sun_loss = None
+        if self.sun_pix is not None:  # sun: one pass, its loss on pixels and patches (second order)
+            sun_loss, sun_loss_c = self._sun_frame(obj)
+            dB_shadow -= pm.albedo * sun_loss_c
+            t = tick("sun", t)
         obj_rad = self._shade_object(obj, shade_mesh, hits, proxy_occ, dB_shadow)
         t = tick("object_shading", t)
 
@@ -369,6 +387,11 @@ class Engine:
         R_cen = np.zeros((pm.n_patches, 3))
         if p.object_light:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
+            if self.sun_pix is not None:  # sun: the object's sunlit faces light the room too
+                c = pv[pf].mean(1)
+                nt = np.cross(pv[pf[:, 1]] - pv[pf[:, 0]], pv[pf[:, 2]] - pv[pf[:, 0]])
+                nt /= np.maximum(np.linalg.norm(nt, axis=1, keepdims=True), 1e-12)
+                tri_rad = tri_rad + obj.albedo * self.sun_light.irradiance(c, nt, [proxy_occ])
             R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius)
         t = tick("object_light", t)
 
@@ -393,6 +416,9 @@ class Engine:
             frac_fill = self._fill(pix_sel, frac, fill_sel)
             shadow[pix_sel] = L_b[pix_sel] * frac
             shadow[fill_sel] = L_b[fill_sel] * frac_fill
+            if sun_loss is not None:  # sun: its occluded share of the (model, where clipped) radiance
+                sp = self.sun_pix
+                shadow[sp] += L_b[sp] * np.clip(sun_loss / np.maximum(E_x[sp], 1e-12), 0.0, 1.0)
             room = np.maximum(L_b - shadow + add, 0.0)
             # the response only where the room changed (the rest of the frame is T(L_b))
             changed = np.flatnonzero((shadow != 0).any(1) | (add != 0).any(1))
@@ -402,6 +428,10 @@ class Engine:
             levels = scene.photo.reshape(-1, 3).astype(np.float64)
             levels[pix_sel] -= O_pix
             levels[fill_sel] -= self._fill(pix_sel, O_pix, fill_sel)
+            if sun_loss is not None:  # sun: levels lost from its occluded share
+                sp = self.sun_pix
+                share = np.clip(sun_loss / np.maximum(E_x[sp], 1e-12), 0.0, 1.0)
+                levels[sp] += resp.to_levels(L_b[sp] * (1 - share)) - resp.to_levels(L_b[sp])
             extra = np.abs(add).sum(1) > 0
             levels[extra] += resp.to_levels(np.maximum(L_b[extra] + add[extra], 0.0)) - resp.to_levels(L_b[extra])
             room_levels = np.clip(levels, 0, 255)
@@ -417,7 +447,9 @@ class Engine:
         frame_s = time.perf_counter() - t_all
         if n_src:
             self._cost = {"per_pass_s": timings["masks"] / n_src, "fixed_s": frame_s - timings["masks"]}
-        stats = {"frame_s": frame_s, "timings": timings, "n_sources": int(fs.n_listed), "passes": int(n_src),
+        n_sun = int(sun_loss is not None)  # sun: one more source and pass
+        stats = {"frame_s": frame_s, "timings": timings, "n_sources": int(fs.n_listed) + n_sun,
+                 "passes": int(n_src) + n_sun,
                  "n_patches": int(pm.n_patches), "n_receiver_patches": fs.n_receivers,
                  "n_receiver_vertices": int(len(pre.recv_vert)), "n_mask_pixels": int(len(pix_sel)),
                  "n_filled_pixels": int(len(fill_sel)), "proxy_triangles": int(len(pf)), "mode": p.mode,
@@ -472,6 +504,8 @@ class Engine:
         T, hit_face, hit_bary = self._self_transfer(v, n, f)
         E = np.einsum("vk,vkc->vc", T.astype(np.float64), self.room_light.indirect_sh(v))
         E += self.room_light.direct(v, n, [own], n_side=1)
+        if getattr(self, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
+            E += self.sun_light.irradiance(v, n, [own])
         if dB is not None:
             # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
             loss = np.abs(luminance(dB)) * pm.area
@@ -618,14 +652,100 @@ class Engine:
         self._n_object_light_pixels = len(sel)
         return R_pix, R_cen
 
+    # ------------------------------------------------------------------ sun (lighting.sun, kernels.sunshadow)
+    def _sun_init(self, patches: PatchMesh) -> None:
+        """The scene's sun seen through its openings (None without a sun)."""
+        sun = self.scene.sun
+        self.sun_light = None
+        self._sun_patch = None
+        self._sun_pm = patches
+        if sun is not None:
+            where = self.scene.meta.get("json_path", self.scene.name)
+            self.sun_light = SunLight(sun, openings(self.scene), self.scene_occ, where=f"{where}: sun")
+
+    @property
+    def sun_on(self) -> bool:
+        """True when the sun lights some surface: it then takes one pass of every frame."""
+        return self.sun_light is not None and self.sun_light.active and self._sun_patch_light().any()
+
+    def _sun_patch_light(self) -> np.ndarray:
+        """Direct sun irradiance/pi (P,3) averaged over each patch (computed once)."""
+        if self._sun_patch is None:
+            pm = self._sun_pm
+            self._sun_patch = np.zeros((pm.n_patches, 3))
+            if self.sun_light is not None and self.sun_light.active:
+                self._sun_patch = self.sun_light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)
+        return self._sun_patch
+
+    def _sun_setup_pixels(self) -> None:
+        """Per-pixel direct sun E_sun (added to E_x), the sample points of sunlit patches, the sun map.
+
+        The sunlit patch clips in the photo: there L_b is a floor, not the radiance, and a shadow
+        term that is a share of L_b would be far too small. On clipped sunlit pixels L_b is
+        replaced by the model's radiance rho x (E_x + E_sun), rho the surface's albedo (declared
+        texture, or the patch reflectivity the captured light recovered), so the sun's shadow
+        there is the absolute rho x E_sun x occluded share."""
+        self.sun_pix = None
+        if not self.sun_on:
+            return
+        pre, pm, cam = self.pre, self.pre.patches, self.scene.camera
+        rp = np.flatnonzero(self.recv_pix)
+        nrm = pm.normal[self.pix_patch[rp]]
+        vis = self.sun_light.visibility(self.pix_pos[rp], nrm)
+        lit = vis > 0
+        self.sun_pix = rp[lit]
+        E_sun = vis[lit, None] * (self.scene.sun.irradiance / np.pi)
+        self.sun_E = E_sun
+        self.E_x[self.sun_pix] += E_sun
+        # pixel footprint on the surface (m): filter radius of the shadow lookup (box ~ disk)
+        depth = pre.pix_depth[self.sun_pix].astype(np.float64)
+        cos_v = np.abs(np.einsum("nc,nc->n", self.dirs[self.sun_pix], nrm[lit]))
+        self.sun_fp = 0.5 * depth / cam.K[0, 0] / np.sqrt(np.maximum(cos_v, 0.05))
+        self.sun_pts = self.pix_pos[self.sun_pix] + nrm[lit] * 1e-3
+        # clipped sunlit pixels: model radiance instead of the photo's floor
+        sat = (self.scene.photo.reshape(-1, 3)[self.sun_pix] >= 254).any(1)
+        idx = self.sun_pix[sat]
+        quad = pm.quad[self.pix_patch[idx]]
+        if self.params.lighting == "known":
+            rho = surface_albedo(self.scene, quad, self.pix_pos[idx].astype(np.float64), pm.albedo[self.pix_patch[idx]])
+        else:
+            rho = pm.albedo[self.pix_patch[idx]]
+        self.sun_clipped, self.sun_rho_clipped = idx, rho
+        self.L_b[idx] = np.maximum(self.L_b[idx], rho * self.E_x[idx])
+        # sample points of sunlit patches (second order: the patches' lost sun)
+        lit_c = np.flatnonzero(self._sun_patch_light().any(1))
+        n_side = 4
+        f = (np.arange(n_side) + 0.5) / n_side
+        fu, fv = [a.ravel() for a in np.meshgrid(f, f)]
+        c0 = pm.corners[lit_c, 0]
+        pts = (c0[:, None] + fu[None, :, None] * (pm.corners[lit_c, 1] - c0)[:, None]
+               + fv[None, :, None] * (pm.corners[lit_c, 3] - c0)[:, None]).reshape(-1, 3)
+        nrm_c = np.repeat(pm.normal[lit_c], len(fu), axis=0)
+        self.sun_c_patch = lit_c
+        self.sun_c_vis = self.sun_light.visibility(pts, nrm_c).reshape(len(lit_c), len(fu))
+        self.sun_c_pts = pts + nrm_c * 1e-3
+        self.sun_map = SunShadowMap(self.scene.sun.direction, self.scene.sun.half_angle, device=self.device)
+
+    def _sun_frame(self, obj: SceneObject) -> tuple[np.ndarray, np.ndarray]:
+        """The sun's pass: its shadow map of the object, the irradiance/pi it loses at the sunlit
+        pixels (len(sun_pix),3) and at every patch (P,3)."""
+        pm = self.pre.patches
+        self.sun_map.render(obj.vertices, obj.faces)
+        occ_pix = self.sun_map.occlusion(self.sun_pts, self.sun_fp)
+        occ_c = self.sun_map.occlusion(self.sun_c_pts).reshape(self.sun_c_vis.shape)
+        loss_c = np.zeros((pm.n_patches, 3))
+        loss_c[self.sun_c_patch] = (self.sun_c_vis * occ_c).mean(1)[:, None] * (self.scene.sun.irradiance / np.pi)
+        return occ_pix[:, None] * self.sun_E, loss_c
+
     def _passes_for_frame(self) -> int | None:
         """The pass budget: --passes, or the passes that fit 1/--fps from the measured costs."""
         p = self.params
+        sun = int(self.sun_on)  # sun: one pass of the budget, never dropped
         if p.fps is None:
-            return p.passes
+            return None if p.passes is None else max(1, p.passes - sun)
         budget = 1.0 / p.fps - self._cost["fixed_s"]
         n = int(budget / max(self._cost["per_pass_s"], 1e-6))
-        return max(1, min(n, p.passes or n))
+        return max(1, min(n, p.passes or n) - sun)
 
     def _ldr_weights(self, W_v: np.ndarray) -> np.ndarray:
         """Intensity transfers S_ij (Vr,S,3) in levels at receiver vertices (fig. 13)."""

@@ -1,0 +1,169 @@
+"""Direct sunlight through openings: the sunlit region, sun irradiance, and its share of radiosity.
+
+The sun (recon.scene.Sun) is a far disk of angular diameter ~0.53 deg. Its direct light at a point p
+with normal n is, in irradiance/pi (the units of the rest of photoar: the radiance a white
+Lambertian surface would reflect):
+
+    E_sun(p) = E_perp / pi * max(n . d, 0) * V(p)
+
+d = direction_to_sun, E_perp = irradiance_perpendicular, V = 1 when the ray p -> sun leaves the
+room through an opening quad before hitting anything solid (the scene model; optionally the object).
+Rays are parallel: the sun's finite distance moves its direction by < 0.1 deg inside a room. The
+0.53 deg disk only matters for penumbrae, which kernels.sunshadow handles.
+
+A sun below the horizon (d_y <= 0: the ground outside hides it), a scene without openings, or a sun
+whose rays miss every opening give zero direct light everywhere, with a warning, never NaN.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from kernels.raycast import cast_rays
+from kernels.visibility import Occluder
+from recon.scene import Quad, Scene, Sun
+
+log = logging.getLogger("photoar")
+
+
+def openings(scene: Scene) -> list[Quad]:
+    """The scene's opening quads (windows that are holes in their wall)."""
+    return [q for q in scene.quads if q.opening]
+
+
+def gather_with_sun(G: np.ndarray, albedo: np.ndarray, emission: np.ndarray, sun_direct: np.ndarray,
+                    bounces: int) -> list[np.ndarray]:
+    """Radiosity iterates [B^(0) .. B^(bounces)] (each (P,3)) with the sun as one more emitter.
+
+    sun_direct (P,3) = the sun's direct irradiance/pi on each patch. The sun's disk is B^(0) (not
+    a patch), so its reflection rho * sun_direct enters from B^(1) on, one bounce like any emitter's:
+    B^(k) = E + rho * (sun_direct + G @ B^(k-1)) (lighting.radiosity.gather with one more source).
+    """
+    if G.shape[0] != G.shape[1] or G.shape[0] != len(albedo) or len(sun_direct) != len(albedo):
+        raise ValueError(f"transfer matrix {G.shape} / sun light {np.shape(sun_direct)} do not match "
+                         f"{len(albedo)} patches")
+    G64 = G.astype(np.float64)
+    B = [np.asarray(emission, np.float64)]
+    for _ in range(bounces):
+        B.append(emission + albedo * (sun_direct + G64 @ B[-1]))
+    return B
+
+
+class SunLight:
+    """The scene's sun seen through its openings, against the scene model's solid surfaces."""
+
+    def __init__(self, sun: Sun, holes: list[Quad], occluder: Occluder, where: str = "sun"):
+        self.sun = sun
+        self.d = np.asarray(sun.direction, np.float64) / np.linalg.norm(sun.direction)
+        self.openings = list(holes)
+        self.occluder = occluder
+        self.device = occluder.device
+        self.reason = ""
+        if self.d[1] <= 0.0:
+            self.reason = f"{where}: the sun is below the horizon (direction_to_sun y = {self.d[1]:.3g}): no direct sun"
+        elif not self.openings:
+            self.reason = f"{where}: the scene has no opening (window with \"opening\": true): no direct sun"
+        elif not np.any(sun.irradiance > 0):
+            self.reason = f"{where}: irradiance_perpendicular is zero: no direct sun"
+        elif not any(np.dot(q.normal, self.d) < -1e-9 for q in self.openings):
+            self.reason = f"{where}: the sun is parallel to or behind every opening: no direct sun"
+        if self.reason:
+            log.warning("%s", self.reason)
+
+    @property
+    def active(self) -> bool:
+        """False when the sun cannot light anything (see `reason`)."""
+        return not self.reason
+
+    def exit_distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance (N,) m along d from each point to the first opening it leaves through (inf: none)."""
+        p = np.asarray(points, np.float64)
+        best = np.full(len(p), np.inf)
+        for q in self.openings:
+            denom = float(np.dot(self.d, q.normal))
+            if denom >= -1e-9:  # parallel to the opening or entering through its back: no passage
+                continue
+            c0 = q.corners[0]
+            t = (p - c0) @ q.normal / -denom
+            hit = p + t[:, None] * self.d
+            U, V = q.corners[1] - c0, q.corners[3] - c0
+            u = (hit - c0) @ U / (U @ U)
+            v = (hit - c0) @ V / (V @ V)
+            ok = (t > 0) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+            best = np.where(ok & (t < best), t, best)
+        return best
+
+    def visibility(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = (),
+                   eps: float = 1e-3) -> np.ndarray:
+        """(N,) float: max(n.d, 0) x [sun's centre seen through an opening, unblocked]."""
+        p = np.asarray(points, np.float64)
+        n = np.asarray(normals, np.float64)
+        out = np.zeros(len(p))
+        if not self.active or len(p) == 0:
+            return out
+        cos = n @ self.d
+        cand = np.flatnonzero(cos > 0)
+        if len(cand) == 0:
+            return out
+        start = p[cand] + n[cand] * eps
+        t_exit = self.exit_distance(start)
+        go = np.isfinite(t_exit)
+        idx, start, t_exit = cand[go], start[go], t_exit[go]
+        dirs = np.broadcast_to(self.d, start.shape)
+        free = np.ones(len(idx), bool)
+        for occ in (self.occluder, *extra):
+            if occ is None or occ.id == 0 or len(idx) == 0:
+                continue
+            _, _, depth = cast_rays(occ, start, dirs, max_t=float(t_exit.max()) + 1.0)
+            free &= ~(depth < t_exit)
+        out[idx[free]] = cos[idx[free]]
+        return out
+
+    def irradiance(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = ()) -> np.ndarray:
+        """Direct sun irradiance/pi (N,3) at points with normals."""
+        return self.visibility(points, normals, extra)[:, None] * (self.sun.irradiance / np.pi)
+
+    def patch_irradiance(self, corners: np.ndarray, normals: np.ndarray, solid: np.ndarray,
+                         n_side: int = 6) -> np.ndarray:
+        """Mean direct sun irradiance/pi (P,3) over each patch (corners (P,4,3)), from n_side^2
+        stratified points; zero on patches where `solid` is False (emitters)."""
+        P = len(corners)
+        out = np.zeros((P, 3))
+        if not self.active:
+            return out
+        idx = np.flatnonzero(solid & (normals @ self.d > 0))
+        f = (np.arange(n_side) + 0.5) / n_side
+        fu, fv = [a.ravel() for a in np.meshgrid(f, f)]
+        c0 = corners[idx, 0]
+        U, V = corners[idx, 1] - c0, corners[idx, 3] - c0
+        pts = c0[:, None] + fu[None, :, None] * U[:, None] + fv[None, :, None] * V[:, None]
+        nrm = np.repeat(normals[idx], len(fu), axis=0)
+        vis = self.visibility(pts.reshape(-1, 3), nrm).reshape(len(idx), len(fu)).mean(1)
+        out[idx] = vis[:, None] * (self.sun.irradiance / np.pi)
+        if not out.any():
+            self.reason = "sun: its rays miss every opening or reach no surface: no direct sun"
+            log.warning("%s", self.reason)
+        return out
+
+
+def surface_albedo(scene: Scene, quad: np.ndarray, points: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Linear albedo (N,3) at surface points on quads `quad` (indices into scene.quads): the texel
+    under each point where the quad has a texture, else `fallback` (N,3) (e.g. the patch mean)."""
+    out = np.array(fallback, np.float64, copy=True)
+    for qi in np.unique(quad):
+        if qi < 0:
+            continue
+        q = scene.quads[int(qi)]
+        if q.texture is None:
+            continue
+        sel = np.flatnonzero(quad == qi)
+        c0 = q.corners[0]
+        U, V = q.corners[1] - c0, q.corners[3] - c0
+        a = (points[sel] - c0) @ U / (U @ U)
+        b = (points[sel] - c0) @ V / (V @ V)
+        ht, wt = q.texture.shape[:2]
+        col = np.clip(np.floor(a * wt).astype(int), 0, wt - 1)
+        row = np.clip(np.floor(b * ht).astype(int), 0, ht - 1)
+        out[sel] = q.texture[row, col]
+    return out
