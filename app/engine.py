@@ -399,6 +399,8 @@ class Engine:
         dE_x = np.zeros((H * W, 3))
         if p.second_order:
             dB = dB_shadow + pm.albedo * R_cen
+            if sun_loss is not None:  # sun: its lost patch light is the room's main source, passed on
+                dB = dB + self._sun_more_bounces(-pm.albedo * sun_loss_c)  # for every bounce the camera sees
             nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
             dE_v = pre.G_v[:, nz].astype(np.float64) @ dB[nz]
             rp = self.recv_pix
@@ -505,7 +507,8 @@ class Engine:
         E = np.einsum("vk,vkc->vc", T.astype(np.float64), self.room_light.indirect_sh(v))
         E += self.room_light.direct(v, n, [own], n_side=1)
         if getattr(self, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
-            E += self.sun_light.irradiance(v, n, [own])
+            self._obj_sun_vert = self.sun_light.irradiance(v, n, [own])  # (sharpened per camera hit later)
+            E += self._obj_sun_vert
         if dB is not None:
             # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
             loss = np.abs(luminance(dB)) * pm.area
@@ -558,6 +561,13 @@ class Engine:
         sub = np.zeros((len(h), 3))
         corners = f[hits.tri[h]]
         sub[h] = np.einsum("nk,nkc->nc", hits.bary[h], L_vert[corners])
+        if getattr(self, "sun_pix", None) is not None:  # sun: its direct light per camera hit (a sharp edge
+            pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])  # across a face, not a vertex blend)
+            nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+            E_hit = self.sun_light.irradiance(pos, nrm, [Occluder(v, f, self.device)])
+            E_interp = np.einsum("nk,nkc->nc", hits.bary[h], self._obj_sun_vert[corners])
+            sub[h] = np.maximum(sub[h] + obj.albedo * (E_hit - E_interp), 0.0)
         if self.params.specular > 0:
             pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])
             nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
@@ -710,7 +720,21 @@ class Engine:
             rho = surface_albedo(self.scene, quad, self.pix_pos[idx].astype(np.float64), pm.albedo[self.pix_patch[idx]])
         else:
             rho = pm.albedo[self.pix_patch[idx]]
-        self.sun_clipped, self.sun_rho_clipped = idx, rho
+        # pixels next to the sunlit ones (partly sunlit, centre in shade) and the clipped ones: the
+        # photo's L_b / E_x is no reflectance there; take the surface's albedo
+        H, W = cam.height, cam.width
+        lit_img = np.zeros(H * W, bool)
+        lit_img[self.sun_pix] = True
+        near = np.zeros(H * W, bool)
+        for dy, dx, src, dst in _window_pairs(H, W):
+            near[dst] |= lit_img[src]
+        edge = np.flatnonzero(near & ~lit_img & self.recv_pix)
+        quad_e = pm.quad[self.pix_patch[edge]]
+        rho_e = surface_albedo(self.scene, quad_e, self.pix_pos[edge].astype(np.float64),
+                               pm.albedo[self.pix_patch[edge]]) if self.params.lighting == "known" \
+            else pm.albedo[self.pix_patch[edge]]
+        self.sun_clipped = np.concatenate([idx, edge])
+        self.sun_rho_clipped = np.concatenate([rho, rho_e])
         self.L_b[idx] = np.maximum(self.L_b[idx], rho * self.E_x[idx])
         # sample points of sunlit patches (second order: the patches' lost sun)
         lit_c = np.flatnonzero(self._sun_patch_light().any(1))
@@ -736,6 +760,20 @@ class Engine:
         loss_c = np.zeros((pm.n_patches, 3))
         loss_c[self.sun_c_patch] = (self.sun_c_vis * occ_c).mean(1)[:, None] * (self.scene.sun.irradiance / np.pi)
         return occ_pix[:, None] * self.sun_E, loss_c
+
+    def _sun_more_bounces(self, dB1: np.ndarray) -> np.ndarray:
+        """The change of patch radiance dB1 (P,3) (first bounce: the sun a patch no longer reflects)
+        passed through the patch transfers for the later bounces: sum_{k=1}^{bounces-2} (rho G)^k dB1.
+        One pass through G_v is the engine's second order; the sun's loss is first-bounce light, so
+        the camera also sees its third and fourth bounces."""
+        pm, G = self.pre.patches, self.pre.G_c
+        out = np.zeros_like(dB1)
+        cur = dB1
+        for _ in range(max(self.params.bounces - 2, 0)):
+            nz = np.flatnonzero(np.abs(cur).sum(1) > 0)
+            cur = pm.albedo * (G[:, nz].astype(np.float64) @ cur[nz])
+            out += cur
+        return out
 
     def _passes_for_frame(self) -> int | None:
         """The pass budget: --passes, or the passes that fit 1/--fps from the measured costs."""
