@@ -388,10 +388,7 @@ class Engine:
         if p.object_light:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
             if self.sun_pix is not None:  # sun: the object's sunlit faces light the room too
-                c = pv[pf].mean(1)
-                nt = np.cross(pv[pf[:, 1]] - pv[pf[:, 0]], pv[pf[:, 2]] - pv[pf[:, 0]])
-                nt /= np.maximum(np.linalg.norm(nt, axis=1, keepdims=True), 1e-12)
-                tri_rad = tri_rad + obj.albedo * self.sun_light.irradiance(c, nt, [proxy_occ])
+                tri_rad = tri_rad + obj.albedo * self.sun_light.triangle_irradiance(pv[pf], [proxy_occ])
             R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius)
         t = tick("object_light", t)
 
@@ -399,8 +396,10 @@ class Engine:
         dE_x = np.zeros((H * W, 3))
         if p.second_order:
             dB = dB_shadow + pm.albedo * R_cen
-            if sun_loss is not None:  # sun: its lost patch light is the room's main source, passed on
-                dB = dB + self._sun_more_bounces(-pm.albedo * sun_loss_c)  # for every bounce the camera sees
+            if sun_loss is not None:  # sun: the sunlit patch light the object blocks (the room's main
+                # source) and the sunlit object's own light are first-bounce changes: passed on for every
+                # bounce the camera sees, not once
+                dB = dB + self._sun_more_bounces(pm.albedo * (R_cen - sun_loss_c))
             nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
             dE_v = pre.G_v[:, nz].astype(np.float64) @ dB[nz]
             rp = self.recv_pix
@@ -762,7 +761,8 @@ class Engine:
         return occ_pix[:, None] * self.sun_E, loss_c
 
     def _sun_more_bounces(self, dB1: np.ndarray) -> np.ndarray:
-        """The change of patch radiance dB1 (P,3) (first bounce: the sun a patch no longer reflects)
+        """The change of patch radiance dB1 (P,3) (first bounce: sun a patch no longer reflects, or light
+        of the sunlit object)
         passed through the patch transfers for the later bounces: sum_{k=1}^{bounces-2} (rho G)^k dB1.
         One pass through G_v is the engine's second order; the sun's loss is first-bounce light, so
         the camera also sees its third and fourth bounces."""

@@ -124,6 +124,18 @@ class SunLight:
         """Direct sun irradiance/pi (N,3) at points with normals."""
         return self.visibility(points, normals, extra)[:, None] * (self.sun.irradiance / np.pi)
 
+    def triangle_irradiance(self, tris: np.ndarray, extra: list[Occluder] = (), n: int = 6) -> np.ndarray:
+        """Mean direct sun irradiance/pi (T,3) over triangles (T,3,3) (CCW seen from the lit side),
+        from n(n+1)/2 barycentric points each: a face half in its own shadow gets half."""
+        tris = np.asarray(tris, np.float64)
+        nt = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        nt /= np.maximum(np.linalg.norm(nt, axis=1, keepdims=True), 1e-12)
+        bary = np.array([(i + 1 / 3, j + 1 / 3) for i in range(n) for j in range(n - i)]) / n
+        w = np.stack([1 - bary.sum(1), bary[:, 0], bary[:, 1]], 1)  # (K,3)
+        pts = np.einsum("kc,tcx->tkx", w, tris).reshape(-1, 3)
+        vis = self.visibility(pts, np.repeat(nt, len(w), axis=0), extra).reshape(len(tris), len(w)).mean(1)
+        return vis[:, None] * (self.sun.irradiance / np.pi)
+
     def patch_irradiance(self, corners: np.ndarray, normals: np.ndarray, solid: np.ndarray,
                          n_side: int = 6) -> np.ndarray:
         """Mean direct sun irradiance/pi (P,3) over each patch (corners (P,4,3)), from n_side^2
