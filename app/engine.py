@@ -377,9 +377,11 @@ class Engine:
         sun_loss = None
         if self.sun_pix is not None:  # sun: one pass, its loss on pixels and patches (second order)
             sun_loss, sun_loss_c = self._sun_frame(obj)
-            dB_shadow -= pm.albedo * sun_loss_c
+            self._sun_dB = -pm.albedo * sun_loss_c  # the object gathers it exactly (object_vertex_radiance)
             t = tick("sun", t)
         obj_rad = self._shade_object(obj, shade_mesh, hits, proxy_occ, dB_shadow)
+        if sun_loss is not None:
+            dB_shadow = dB_shadow + self._sun_dB
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres
@@ -508,6 +510,12 @@ class Engine:
         if getattr(self, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
             self._obj_sun_vert = self.sun_light.irradiance(v, n, [own])  # (sharpened per camera hit later)
             E += self._obj_sun_vert
+            # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
+            # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
+            ch = np.flatnonzero(np.abs(self._sun_dB).sum(1) > 0) if self._sun_dB is not None else []
+            if len(ch):
+                E += transfer_matrix(v, n, pm.corners[ch], pm.normal[ch], [self.scene_occ, own], n_side=2,
+                                     eps=2e-3, device=self.device).astype(np.float64) @ self._sun_dB[ch]
         if dB is not None:
             # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
             loss = np.abs(luminance(dB)) * pm.area
@@ -695,6 +703,7 @@ class Engine:
         texture, or the patch reflectivity the captured light recovered), so the sun's shadow
         there is the absolute rho x E_sun x occluded share."""
         self.sun_pix = None
+        self._sun_dB = None  # the sun the object blocks from each patch, this frame (P,3)
         if not self.sun_on:
             return
         pre, pm, cam = self.pre, self.pre.patches, self.scene.camera
