@@ -50,7 +50,7 @@ from lighting.irradiance import RoomLight
 from lighting.radiance import captured_files, captured_radiance_mesh, load_captured_probe
 from lighting.radiosity import gather
 from lighting.sources import luminance, select_sources
-from lighting.sun import SunLight, gather_with_sun, openings, surface_albedo
+from lighting.sun import SunLight, estimate_sun, gather_with_sun, openings, surface_albedo
 from kernels.sunshadow import SunShadowMap
 from lighting.transfer import intensity_transfers
 from recon.patches import PatchMesh, build_patches
@@ -457,6 +457,8 @@ class Engine:
                  "n_receiver_vertices": int(len(pre.recv_vert)), "n_mask_pixels": int(len(pix_sel)),
                  "n_filled_pixels": int(len(fill_sel)), "proxy_triangles": int(len(pf)), "mode": p.mode,
                  "shaft_build_s": self.shaft_build_s, **self.shadow_sources.stats()}
+        if self.sun_estimate is not None:  # sun: the captured estimate against the declared sun
+            stats["sun_estimate"] = self.sun_estimate
         return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats)
 
     # ------------------------------------------------------------------ pieces
@@ -704,6 +706,9 @@ class Engine:
         there is the absolute rho x E_sun x occluded share."""
         self.sun_pix = None
         self._sun_dB = None  # the sun the object blocks from each patch, this frame (P,3)
+        self.sun_estimate = None
+        if self.params.lighting == "captured":
+            self._sun_captured()
         if not self.sun_on:
             return
         pre, pm, cam = self.pre, self.pre.patches, self.scene.camera
@@ -757,6 +762,33 @@ class Engine:
         self.sun_c_vis = self.sun_light.visibility(pts, nrm_c).reshape(len(lit_c), len(fu))
         self.sun_c_pts = pts + nrm_c * 1e-3
         self.sun_map = SunShadowMap(self.scene.sun.direction, self.scene.sun.half_angle, device=self.device)
+
+    def _sun_captured(self) -> None:
+        """Captured light: the sun estimated from the photo and the radiance mesh (lighting.sun
+        .estimate_sun) replaces the declared one; the sunlit patches' reflectivity is their radiance
+        over the gathered light plus that sun. The declared sun, if any, is only reported against."""
+        pre, pm, scene = self.pre, self.pre.patches, self.scene
+        if not openings(scene):
+            self.sun_light = None
+            return
+        sat = np.any(scene.photo.reshape(-1, 3) >= 255, axis=1)
+        sun, info = estimate_sun(scene, pm, self.pix_patch, self.pix_pos.astype(np.float64), self.dirs, self.L_b,
+                                 sat, self.recv_pix, pre.B[-1], pre.G_c, self.scene_occ)
+        self._sun_patch = None
+        self.sun_light = SunLight(sun, openings(scene), self.scene_occ, where="sun estimate") if sun else None
+        if sun is not None and scene.sun is not None:
+            d0 = scene.sun.direction / np.linalg.norm(scene.sun.direction)
+            info["declared_direction"] = d0.tolist()
+            info["direction_error_deg"] = float(np.degrees(np.arccos(np.clip(sun.direction @ d0, -1, 1))))
+            info["declared_irradiance_perpendicular"] = scene.sun.irradiance.tolist()
+            info["strength_ratio"] = float(luminance(sun.irradiance) / max(luminance(scene.sun.irradiance), 1e-12))
+        self.sun_estimate = info
+        log.info("sun estimate: %s", info)
+        if self.sun_light is not None and self.sun_light.active:
+            E_sun = self._sun_patch_light()
+            lit = np.flatnonzero(E_sun.any(1))
+            E = pre.G_c[lit].astype(np.float64) @ pre.B[-1] + E_sun[lit]
+            pm.albedo[lit] = np.clip(pre.B[-1][lit] / np.maximum(E, 1e-12), 0.0, 1.0)
 
     def _sun_frame(self, obj: SceneObject) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass: its shadow map of the object, the irradiance/pi it loses at the sunlit

@@ -179,3 +179,128 @@ def surface_albedo(scene: Scene, quad: np.ndarray, points: np.ndarray, fallback:
         row = np.clip(np.floor(b * ht).astype(int), 0, ht - 1)
         out[sel] = q.texture[row, col]
     return out
+
+
+# ----------------------------------------------------------------------------- captured light
+SUN_DIAMETER_DEG = 0.53  # the sun's mean apparent diameter seen from the earth (a constant of nature)
+
+
+def sunlit_pixels(L_b: np.ndarray, saturated: np.ndarray, pix_quad: np.ndarray, recv: np.ndarray,
+                  min_ratio: float = 3.0) -> np.ndarray:
+    """(N,) bool: receiver pixels lit by the sun in the photo. Per quad, saturated pixels, and pixels
+    above the Otsu split of the quad's log-luminance when the bright class is at least `min_ratio`
+    times the dark one (direct sun is many times the sky's light; a smooth gradient is not split)."""
+    from lighting.sources import luminance
+
+    out = np.zeros(len(L_b), bool)
+    lum = np.log(np.maximum(luminance(L_b), 1e-9))
+    for q in np.unique(pix_quad[recv]):
+        idx = np.flatnonzero(recv & (pix_quad == q))
+        if len(idx) < 50:
+            continue
+        v = lum[idx]
+        order = np.sort(v)
+        c = np.cumsum(order)
+        k = np.arange(1, len(v))
+        m0 = c[:-1] / k
+        m1 = (c[-1] - c[:-1]) / (len(v) - k)
+        between = k * (len(v) - k) * (m1 - m0) ** 2
+        i = int(np.argmax(between))
+        bright = v > order[i]
+        if np.exp(m1[i] - m0[i]) >= min_ratio:
+            out[idx[bright]] = True
+    out |= saturated & recv
+    return out
+
+
+def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, dirs: np.ndarray,
+                 L_b: np.ndarray, saturated: np.ndarray, recv: np.ndarray, B: np.ndarray, G_c: np.ndarray,
+                 occluder: Occluder) -> tuple[Sun | None, dict]:
+    """The sun from the photo and the captured radiance mesh (no declared sun used).
+
+    Direction: the sunlit patch on a plane is the opening projected along d, so the area-weighted
+    centroid of the sunlit pixels of the largest lit plane is the opening's centroid moved along
+    -d; then (azimuth, elevation) are refined by maximising the overlap of the predicted sunlit pixels
+    with the observed ones (Nelder-Mead). Strength: on fully sunlit patches the radiance is
+    rho (E_ind + E_perp cos / pi); rho is the reflectivity of the unlit patches of the same quad
+    (the same material), E_ind the gathered irradiance of the radiance mesh (the probe sees the patch
+    unclipped where the photo clips), so E_perp = pi (L / rho - E_ind) / cos, median over patches.
+    Returns (Sun or None, info)."""
+    from scipy.optimize import minimize
+
+    from lighting.sources import luminance
+
+    holes = openings(scene)
+    info: dict = {}
+    if not holes:
+        return None, {"reason": "no opening"}
+    pix_quad = np.where(pix_patch >= 0, pm.quad[np.maximum(pix_patch, 0)], -1)
+    lit = sunlit_pixels(L_b, saturated, pix_quad, recv)
+    if lit.sum() < 50:
+        return None, {"reason": "no sunlit region in the photo"}
+    nrm = pm.normal[np.maximum(pix_patch, 0)]
+    # surface area per pixel ~ depth^2 / |cos(view, normal)|
+    depth = np.linalg.norm(pix_pos - scene.camera.centre, axis=1)
+    area = depth ** 2 / np.maximum(np.abs(np.einsum("nc,nc->n", dirs, nrm)), 0.05)
+    quads, counts = np.unique(pix_quad[lit], return_counts=True)
+    main = quads[np.argmax([area[lit & (pix_quad == q)].sum() for q in quads])]
+    sel = lit & (pix_quad == main)
+    c_patch = (pix_pos[sel] * area[sel, None]).sum(0) / area[sel].sum()
+    cand = []
+    for q in holes:
+        d = q.corners.mean(0) - c_patch
+        d /= np.linalg.norm(d)
+        if d @ q.normal < 0 and d[1] > 0:
+            cand.append(d)
+    if not cand:
+        return None, {"reason": "the sunlit region is not in view of an opening"}
+    # overlap refinement on pixels near the lit region (on every receiver surface)
+    near = recv.copy()
+    test = np.flatnonzero(near)
+    test = test[:: max(1, len(test) // 60000)]
+    observed = lit[test]
+
+    def sun_of(a):
+        az, el = a
+        return np.array([np.cos(el) * np.cos(az), np.sin(el), np.cos(el) * np.sin(az)])
+
+    def cost(a):
+        light = SunLight(Sun(sun_of(a), SUN_DIAMETER_DEG, np.ones(3), np.zeros(3)), holes, occluder,
+                         where="sun estimate")
+        pred = light.visibility(pix_pos[test], nrm[test]) > 0
+        return 1.0 - (pred & observed).sum() / max((pred | observed).sum(), 1)
+
+    best = None
+    for d in cand:
+        a0 = np.array([np.arctan2(d[2], d[0]), np.arcsin(np.clip(d[1], -1, 1))])
+        res = minimize(cost, a0, method="Nelder-Mead",
+                       options={"initial_simplex": [a0, a0 + [0.02, 0], a0 + [0, 0.02]], "xatol": 1e-4,
+                                "fatol": 1e-5, "maxiter": 80})
+        if best is None or res.fun < best[1]:
+            best = (res.x, res.fun, a0)
+    d = sun_of(best[0])
+    info.update(direction=d.tolist(), direction_from_centroid=sun_of(best[2]).tolist(), overlap=float(1.0 - best[1]))
+    # strength from fully sunlit patches
+    light = SunLight(Sun(d, SUN_DIAMETER_DEG, np.full(3, np.pi), np.zeros(3)), holes, occluder, where="sun estimate")
+    e = light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)[:, 0]  # = cos x sunlit share
+    cos = np.maximum(pm.normal @ d, 0.0)
+    full = (e > 0.98 * cos) & (cos > 0.2)
+    E_ind = np.asarray(G_c, np.float64) @ B
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho_all = np.where(E_ind > 0, B / E_ind, 0.0)
+    est = []
+    for q in np.unique(pm.quad[full]):
+        unlit = (pm.quad == q) & (e == 0) & ~pm.is_emitter & (luminance(E_ind) > 0)
+        on = full & (pm.quad == q)
+        if unlit.sum() < 3:
+            continue
+        rho = np.median(rho_all[unlit], axis=0)
+        if np.any(rho <= 0):
+            continue
+        s = np.pi * (B[on] / rho - E_ind[on]) / cos[on, None]
+        est.append(s)
+    if not est:
+        return None, {**info, "reason": "no fully sunlit patch with unlit patches of the same surface"}
+    E_perp = np.maximum(np.median(np.concatenate(est), axis=0), 0.0)
+    info["irradiance_perpendicular"] = E_perp.tolist()
+    return Sun(d, SUN_DIAMETER_DEG, E_perp, np.zeros(3)), info
