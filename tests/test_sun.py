@@ -173,12 +173,34 @@ def test_sun_room_known_scores(sun_composite):
     assert rep["passes"] == 64  # the sun is one of the 64 passes
 
 
-@pytest.mark.xfail(strict=True, reason="open: energy_ratio 1.17 (acceptance 0.9-1.1), spurious 0.17 (< 0.005), "
-                                       "rmse_object 15 (<= 6) on sun_room; see the sun report")
-def test_sun_room_known_full_acceptance(sun_composite):
+def test_sun_room_known_energy(sun_composite):
     scene, out = sun_composite
     s = score(scene, out / "composite.png")
-    assert 0.9 <= s["energy_ratio"] <= 1.1 and s["spurious"] < 0.005 and s["rmse_object"] <= 6, s
+    assert 0.9 <= s["energy_ratio"] <= 1.1, s
+
+
+@pytest.mark.xfail(strict=True, reason="open: spurious 0.16 (acceptance < 0.005) and rmse_object 7.7 (<= 6) on "
+                                       "sun_room: the truth changes 71 % of the pixels, our field is off by 1-2 "
+                                       "levels around its zero crossings")
+def test_sun_room_known_spurious_and_object(sun_composite):
+    scene, out = sun_composite
+    s = score(scene, out / "composite.png")
+    assert s["spurious"] < 0.005 and s["rmse_object"] <= 6, s
+
+
+def test_sun_room_captured_estimate_and_scores(tmp_path):
+    # --lighting captured: the sun estimated from the photo (the declared one only reported against)
+    from app.cli import main as cli
+
+    scene = shared_scene("sun_room")
+    assert cli(["-q", "composite", str(scene), "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c"),
+                "--passes", "64", "--lighting", "captured"]) == 0
+    est = json.loads((tmp_path / "o" / "report.json").read_text())["sun_estimate"]
+    assert est["direction_error_deg"] <= 2.0, est
+    assert abs(est["strength_ratio"] - 1.0) <= 0.25, est
+    s = score(scene, tmp_path / "o" / "composite.png")
+    assert 0.75 <= s["energy_ratio"] <= 1.3, s
+    assert s["rmse_affected"] <= 0.6 * s["rmse_affected_if_untouched"], s
 
 
 def _edge_crossings(lum, shadow, lit):
