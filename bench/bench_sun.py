@@ -7,12 +7,17 @@ its PCSS lookups, and what it adds to the second order and the object), against 
 with the sun switched off (all --passes for the room's patches). Then the sun shadow alone: one
 PCSS map against N jittered binary maps (directions spread over the 0.53 deg disk), time and the
 mean absolute difference of the occluded share on the sunlit pixels from a 64-map reference.
-Prints tables; timings are warm (second and later frames).
+Last, the scorer's figures for the --passes frame with known and with captured light, and the
+captured sun estimate against the declared sun. Prints tables; timings are warm (second and later
+frames).
 """
 from __future__ import annotations
 
 import argparse
+import json
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -22,6 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.engine import Engine, EngineParams  # noqa: E402
+from app.io import write_png  # noqa: E402
 from app.report import table  # noqa: E402
 from kernels.sunshadow import SunShadowMap, vogel_disk  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
@@ -85,6 +91,23 @@ def main(argv=None) -> int:
         rows.append({"method": f"jittered, {n} maps", "s": time.perf_counter() - t0,
                      "mean_abs_err": float(np.abs(j - ref).mean()), "max_abs_err": float(np.abs(j - ref).max())})
     print(table(rows, ["method", "s", "mean_abs_err", "max_abs_err"]))
+
+    rows = []
+    cap = Engine(scene, EngineParams(passes=a.passes, lighting="captured"), cache_dir=a.cache, quiet=True)
+    for name, eng in (("known", engine), ("captured", cap)):
+        frame = eng.render(obj)
+        with tempfile.TemporaryDirectory() as tmp:
+            png = Path(tmp) / "c.png"
+            write_png(png, frame.pixels)
+            out = subprocess.run([sys.executable, str(a.shared / "tools" / "score.py"),
+                                  str(a.shared / "scenes" / "sun_room"), str(png)], capture_output=True, text=True,
+                                 check=True)
+        rows.append({"lighting": name, **json.loads(out.stdout.strip().splitlines()[-1])})
+    print(table(rows, ["lighting", "energy_ratio", "rmse_affected", "rmse_affected_if_untouched", "spurious",
+                       "rmse_object", "bias_object"]))
+    est = cap.sun_estimate or {}
+    print(table([{k: (f"{v:.4g}" if isinstance(v, float) else str(np.round(v, 4).tolist()))
+                  for k, v in est.items()}], list(est)))
     return 0
 
 
