@@ -398,12 +398,13 @@ class Engine:
         dE_x = np.zeros((H * W, 3))
         if p.second_order:
             dB = dB_shadow + pm.albedo * R_cen
+            nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
+            dE_v = pre.G_v[:, nz].astype(np.float64) @ dB[nz]
             if sun_loss is not None:  # sun: the sunlit patch light the object blocks (the room's main
                 # source) and the sunlit object's own light are first-bounce changes: passed on for every
                 # bounce the camera sees, not once
-                dB = dB + self._sun_more_bounces(pm.albedo * (R_cen - sun_loss_c))
-            nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
-            dE_v = pre.G_v[:, nz].astype(np.float64) @ dB[nz]
+                more = self._sun_more_bounces(pm.albedo * (R_cen - sun_loss_c))
+                dE_v += pre.G_v @ more.astype(np.float32)
             rp = self.recv_pix
             dE_x[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], dE_v[self.pix_rows[rp]])
         t = tick("second_order", t)
@@ -516,7 +517,7 @@ class Engine:
             # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
             ch = np.flatnonzero(np.abs(self._sun_dB).sum(1) > 0) if self._sun_dB is not None else []
             if len(ch):
-                E += transfer_matrix(v, n, pm.corners[ch], pm.normal[ch], [self.scene_occ, own], n_side=2,
+                E += transfer_matrix(v, n, pm.corners[ch], pm.normal[ch], [self.scene_occ, own], n_side=1,
                                      eps=2e-3, device=self.device).astype(np.float64) @ self._sun_dB[ch]
         if dB is not None:
             # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
@@ -811,8 +812,9 @@ class Engine:
         out = np.zeros_like(dB1)
         cur = dB1
         for _ in range(max(self.params.bounces - 2, 0)):
-            nz = np.flatnonzero(np.abs(cur).sum(1) > 0)
-            cur = pm.albedo * (G[:, nz].astype(np.float64) @ cur[nz])
+            nz = np.flatnonzero(np.abs(cur).sum(1) > 0)  # float32 products: no float64 copy of G
+            cur = pm.albedo * (G[:, nz] @ cur[nz].astype(np.float32) if len(nz) < len(cur) // 4
+                               else G @ cur.astype(np.float32))
             out += cur
         return out
 

@@ -33,11 +33,6 @@ from kernels.sunshadow import SunShadowMap, vogel_disk  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
 
-def frame_time(engine: Engine, obj, repeat: int) -> float:
-    engine.render(obj)  # warm
-    return float(np.median([engine.render(obj).stats["frame_s"] for _ in range(repeat)]))
-
-
 def jittered(engine: Engine, obj, n: int) -> np.ndarray:
     """Mean binary occlusion over n maps toward points spread over the sun's disk."""
     sun = engine.scene.sun
@@ -58,22 +53,24 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
     ap.add_argument("--passes", type=int, default=50)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--cache", type=Path, default=None)
     a = ap.parse_args(argv)
     scene = load_scene(a.shared / "scenes" / "sun_room")
     engine = Engine(scene, EngineParams(passes=a.passes), cache_dir=a.cache, quiet=True)
     obj = scene.obj
-    with_sun = frame_time(engine, obj, a.repeat)
-    saved = engine.sun_pix
-    engine.sun_pix = None  # the same frame without the sun: all passes for the patches
-    sun_on = type(engine).sun_on
-    type(engine).sun_on = property(lambda self: False)
-    try:
-        without = frame_time(engine, obj, a.repeat)
-    finally:
-        type(engine).sun_on = sun_on
-        engine.sun_pix = saved
+    # the same frame with the sun switched off (all --passes for the patches), interleaved with the
+    # sun frames so that the load of a shared machine falls on both alike
+    saved, sun_on = engine.sun_pix, type(engine).sun_on
+    engine.render(obj)
+    t_sun, t_no = [], []
+    for _ in range(a.repeat):
+        engine.sun_pix, type(engine).sun_on = saved, sun_on
+        t_sun.append(engine.render(obj).stats["frame_s"])
+        engine.sun_pix, type(engine).sun_on = None, property(lambda self: False)
+        t_no.append(engine.render(obj).stats["frame_s"])
+    engine.sun_pix, type(engine).sun_on = saved, sun_on
+    with_sun, without = float(np.median(t_sun)), float(np.median(t_no))
     print(table([{"frame": f"{a.passes} passes, sun one of them", "frame_s": with_sun},
                  {"frame": f"{a.passes} passes, no sun", "frame_s": without},
                  {"frame": "overhead (fraction)", "frame_s": with_sun / without - 1.0}], ["frame", "frame_s"]))
