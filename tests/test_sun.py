@@ -293,3 +293,23 @@ def test_captured_estimate_recovers_other_suns(tmp_path, direction):
 def luminance_ratio(a, b):
     w = np.array([0.2126, 0.7152, 0.0722])
     return float(a @ w / (b @ w))
+
+
+@pytest.mark.parametrize("direction, why", [([-0.7, -0.3, 0.2], "below the horizon"),
+                                            ([0.0, 0.6, 0.8], "parallel")])
+def test_engine_with_a_sun_that_cannot_enter(tmp_path, direction, why, caplog):
+    # the whole frame with such a sun: a warning naming the cause, no sun pass, a finite picture
+    import dataclasses
+    import logging
+
+    from app.engine import Engine, EngineParams
+
+    s = load_scene(shared_scene("sun_room"), load_textures=False)
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    s.sun = dataclasses.replace(s.sun, direction=d)
+    with caplog.at_level(logging.WARNING, logger="photoar"):
+        e = Engine(s, EngineParams(patch_size=0.4, emitter_patch_size=0.3, passes=8), cache_dir=tmp_path, quiet=True)
+        fr = e.render(s.obj)
+    assert any(why in r.getMessage() for r in caplog.records)
+    assert not e.sun_on and fr.stats["passes"] == 8
+    assert np.all(np.isfinite(fr.radiance))
