@@ -215,7 +215,7 @@ def sunlit_pixels(L_b: np.ndarray, saturated: np.ndarray, pix_quad: np.ndarray, 
 
 def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, dirs: np.ndarray,
                  L_b: np.ndarray, saturated: np.ndarray, recv: np.ndarray, B: np.ndarray, G_c: np.ndarray,
-                 occluder: Occluder) -> tuple[Sun | None, dict]:
+                 occluder: Occluder, min_overlap: float = 0.5) -> tuple[Sun | None, dict]:
     """The sun from the photo and the captured radiance mesh (no declared sun used).
 
     Direction: the sunlit patch on a plane is the opening projected along d, so the area-weighted
@@ -225,6 +225,8 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     rho (E_ind + E_perp cos / pi); rho is the reflectivity of the unlit patches of the same quad
     (the same material), E_ind the gathered irradiance of the radiance mesh (the probe sees the patch
     unclipped where the photo clips), so E_perp = pi (L / rho - E_ind) / cos, median over patches.
+    No sun (None, with info["reason"]) when nothing is lit, or when the best direction's predicted
+    sunlit pixels overlap the observed ones less than `min_overlap` (intersection over union).
     Returns (Sun or None, info)."""
     from scipy.optimize import minimize
 
@@ -280,6 +282,9 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
             best = (res.x, res.fun, a0)
     d = sun_of(best[0])
     info.update(direction=d.tolist(), direction_from_centroid=sun_of(best[2]).tolist(), overlap=float(1.0 - best[1]))
+    if info["overlap"] < min_overlap:  # bright surfaces that no sun through the openings explains
+        return None, {**info, "reason": f"no sun direction explains the bright region (overlap "
+                                        f"{info['overlap']:.2f} < {min_overlap})"}
     # strength from fully sunlit patches
     light = SunLight(Sun(d, SUN_DIAMETER_DEG, np.full(3, np.pi), np.zeros(3)), holes, occluder, where="sun estimate")
     e = light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)[:, 0]  # = cos x sunlit share

@@ -313,3 +313,19 @@ def test_engine_with_a_sun_that_cannot_enter(tmp_path, direction, why, caplog):
     assert any(why in r.getMessage() for r in caplog.records)
     assert not e.sun_on and fr.stats["passes"] == 8
     assert np.all(np.isfinite(fr.radiance))
+
+
+def test_captured_estimate_finds_no_sun_in_a_sunless_photo(tmp_path):
+    # the same room lit by its sky alone: no sun is invented
+    from app.engine import Engine, EngineParams
+    from lighting.sun import estimate_sun
+
+    s = load_scene(shared_scene("sun_room"), load_textures=False)
+    s.sun = None
+    e = Engine(s, EngineParams(patch_size=0.3, emitter_patch_size=0.2), cache_dir=tmp_path, quiet=True)
+    pm = e.pre.patches
+    L = np.where(e.recv_pix[:, None], pm.albedo[np.maximum(e.pix_patch, 0)] * e.E_x, 0.0)
+    sat = np.any(L * s.camera.exposure_time >= 1.0, axis=1) & e.recv_pix
+    sun, info = estimate_sun(s, pm, e.pix_patch, e.pix_pos.astype(float), e.dirs, L, sat, e.recv_pix, e.pre.B[-1],
+                             e.pre.G_c, e.scene_occ)
+    assert sun is None and info["reason"], info
