@@ -766,8 +766,8 @@ class Engine:
 
     def _sun_captured(self) -> None:
         """Captured light: the sun estimated from the photo and the radiance mesh (lighting.sun
-        .estimate_sun) replaces the declared one; the sunlit patches' reflectivity is their radiance
-        over the gathered light plus that sun. The declared sun, if any, is only reported against."""
+        .estimate_sun) replaces the declared one; the sunlit patches take the reflectivity of their
+        surface's unlit patches. The declared sun, if any, is only reported against."""
         pre, pm, scene = self.pre, self.pre.patches, self.scene
         if not openings(scene):
             self.sun_light = None
@@ -786,10 +786,13 @@ class Engine:
         self.sun_estimate = info
         log.info("sun estimate: %s", info)
         if self.sun_light is not None and self.sun_light.active:
-            E_sun = self._sun_patch_light()
-            lit = np.flatnonzero(E_sun.any(1))
-            E = pre.G_c[lit].astype(np.float64) @ pre.B[-1] + E_sun[lit]
-            pm.albedo[lit] = np.clip(pre.B[-1][lit] / np.maximum(E, 1e-12), 0.0, 1.0)
+            # sunlit patches: the photo clips there and the probe sees them coarsely; take the
+            # reflectivity of the unlit patches of the same surface (as the strength estimate does)
+            lit = self._sun_patch_light().any(1)
+            for q in np.unique(pm.quad[lit]):
+                same = (pm.quad == q) & ~pm.is_emitter
+                if (same & ~lit).sum() >= 3:
+                    pm.albedo[same & lit] = np.median(pm.albedo[same & ~lit], axis=0)
 
     def _sun_frame(self, obj: SceneObject) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass: its shadow map of the object, the irradiance/pi it loses at the sunlit
