@@ -17,6 +17,13 @@ L_b is the photo through the inverse camera response, G the form-factor x visibi
 Writing the shadow term as a ratio of the photo makes it independent of how well the radiosity
 reproduces the absolute brightness of the room; only the split of light between sources matters.
 
+Sun (a `sun` primitive and an opening; lighting.sun, kernels.sunshadow): the sun's direct light
+rho E_sun on the patches joins the radiosity; E_x includes E_sun, and where the photo clips L_b is
+the model's rho E_x (rho: the surface's albedo), so the sun's shadow there is absolute,
+rho E_sun x occluded share (PCSS on an orthographic map, one pass of the budget). The sun the
+object blocks and the sunlit object's light are first-bounce changes, passed on for every bounce
+the camera sees (not once); the object gets the sun per camera hit with self-shadowing.
+
 The LDR path replaces L_ij by intensity transfers S_ij (lighting.transfer, fig. 13) subtracted
 from the 8-bit photo.
 """
@@ -679,7 +686,7 @@ class Engine:
         self.sun_light = None
         self._sun_patch = None
         self._sun_pm = patches
-        if sun is not None:
+        if sun is not None and self.params.lighting == "known":  # captured: estimated in _sun_captured
             where = self.scene.meta.get("json_path", self.scene.name)
             self.sun_light = SunLight(sun, openings(self.scene), self.scene_occ, where=f"{where}: sun")
 
