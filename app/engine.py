@@ -454,9 +454,10 @@ class Engine:
         levels = (1 - c) * room_levels
         obj_levels = resp.to_levels(obj_rad[on])
         levels[on] += c[on] * obj_levels
-        # where the object clips (a sunlit face) its level is only a floor: the camera averages
-        # radiance over the pixel before its response, so mix the edge pixels in radiance there
-        edge = on[(obj_levels >= 255).any(1) & (c[on, 0] < 1)]
+        # where the object or the room behind it clips (a sunlit face, a sunlit floor) a level is only
+        # a floor: the camera averages radiance over the pixel before its response, so mix the edge
+        # pixels in radiance there
+        edge = on[((obj_levels >= 255) | (room_levels[on] >= 255)).any(1) & (c[on, 0] < 1)]
         levels[edge] = resp.to_levels(radiance[edge])
         pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8).reshape(H, W, 3)
         tick("compose", t)
