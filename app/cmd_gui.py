@@ -47,6 +47,9 @@ def register(sub) -> None:
     g.add_argument("--object-size", type=float, default=None,
                    help="largest extent of the object in metres (default: the file's units when they look like "
                         "metres, else 0.6 m)")
+    g.add_argument("--object-albedo", type=xyz_arg, default=None, metavar="R,G,B",
+                   help="the object's diffuse colour, linear RGB in [0, 1] (default: the scene's object albedo for "
+                        "its own mesh, else 0.6 grey)")
     g.add_argument("--place", type=xyz_arg, default=None, metavar="X,Y,Z",
                    help="world point (m) for the object's bottom centre (default: the scene's object pose)")
     g.add_argument("--yaw", type=float, default=0.0, help="turn about +Y in degrees (with --place)")
@@ -91,7 +94,7 @@ def run(a: argparse.Namespace) -> int:
             raise ValueError(f"{ctl.scene.root / 'scene.json'}: no synthetic_object; give --object MESH")
         mesh = Path(ctl.scene.obj.source)
     if mesh is not None:
-        ctl.set_object(mesh, a.object_size)
+        ctl.set_object(mesh, a.object_size, a.object_albedo)
     if a.place is not None:
         ctl.place_at(a.place)
         if a.yaw:

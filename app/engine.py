@@ -17,6 +17,13 @@ L_b is the photo through the inverse camera response, G the form-factor x visibi
 Writing the shadow term as a ratio of the photo makes it independent of how well the radiosity
 reproduces the absolute brightness of the room; only the split of light between sources matters.
 
+Sun (a `sun` primitive and an opening; lighting.sun, kernels.sunshadow): the sun's direct light
+rho E_sun on the patches joins the radiosity; E_x includes E_sun, and where the photo clips L_b is
+the model's rho E_x (rho: the surface's albedo), so the sun's shadow there is absolute,
+rho E_sun x occluded share (PCSS on an orthographic map, one pass of the budget). The sun the
+object blocks and the sunlit object's light are first-bounce changes, passed on for every bounce
+the camera sees (not once); the object gets the sun per camera hit with self-shadowing.
+
 The LDR path replaces L_ij by intensity transfers S_ij (lighting.transfer, fig. 13) subtracted
 from the 8-bit photo.
 """
@@ -48,6 +55,8 @@ from lighting.irradiance import RoomLight
 from lighting.radiance import captured_radiance_mesh, load_captured_probe
 from lighting.radiosity import gather
 from lighting.sources import select_sources
+from lighting.sun import SunLight, estimate_sun, gather_with_sun, openings, surface_albedo
+from kernels.sunshadow import SunShadowMap
 from lighting.transfer import intensity_transfers
 from recon.io import write_npz
 from recon.patches import PatchMesh, build_patches
@@ -174,6 +183,9 @@ def _hash_scene(scene: Scene, params: EngineParams) -> str:
             h.update(np.ascontiguousarray(a, np.float64).tobytes())
         if q.texture is not None:
             h.update(hashlib.sha256(np.ascontiguousarray(q.texture).tobytes()).digest())
+    if scene.sun is not None:  # sun: direction, size, strength, and which quads are openings
+        h.update(np.concatenate([scene.sun.direction, [scene.sun.angular_diameter_deg], scene.sun.irradiance,
+                                 [float(q.opening) for q in scene.quads]]).astype(np.float64).tobytes())
     cam = scene.camera
     for a in (cam.K, cam.R, cam.t):
         h.update(np.ascontiguousarray(a, np.float64).tobytes())
@@ -240,12 +252,12 @@ class Engine:
         self._progress_total = 1  # precompute steps (transfer rows) reported to `progress`
         t0 = time.perf_counter()
         self.probe = None
+        self.photo_light: dict = {}  # lighting "photo": the fit's report (lighting.photolight)
         if self.params.lighting == "captured":
             # the camera response comes from the probe bracket too: nothing declared is used
             self.probe = load_captured_probe(scene)
             self.scene = scene = dataclasses.replace(scene, response=self.probe.response)
-        self.photo_light: dict = {}  # lighting "photo": the fit's report (lighting.photolight)
-        if self.params.lighting == "photo":
+        elif self.params.lighting == "photo":
             self.scene = scene = self._photo_scene(scene)
         elif self.params.lighting == "known" and (scene.response is None
                                                   or scene.meta.get("emitters_without_radiance")):
@@ -267,11 +279,12 @@ class Engine:
         patches = build_patches(scene, p.patch_size, p.emitter_patch_size)
         if p.lighting == "captured":
             patches.emission[:] = 0.0  # declared radiance is never read: emitters come from the capture
-        elif p.lighting == "known" and not patches.is_emitter.any():
+        elif p.lighting == "known" and not patches.is_emitter.any() and scene.sun is None:
             raise ValueError(f"{_scene_json(scene)}: no emitters (no primitive declares emitted_radiance), so "
                              f"--lighting known would leave the room dark; use --lighting captured")
         shaped = np.array([q.light_shaped for q in scene.quads], bool)[patches.quad]
         self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device, lift=shaped | patches.is_emitter)
+        self._sun_init(patches)
         key = _hash_scene(scene, p)
         cache = self.cache_dir / f"{scene.name}-{key[:20]}.npz" if self.cache_dir else None
         if cache is not None and cache.is_file():
@@ -321,7 +334,11 @@ class Engine:
             B, albedo, origin = np.zeros((p.bounces + 1, n_c, 3)), patches.albedo, np.full(n_c, -1, np.int8)
             emitter = patches.is_emitter
         else:
-            B = np.stack(gather(G_c, patches.albedo, patches.emission, p.bounces))
+            if self.sun_light is not None and self.sun_light.active:  # sun: its patch light joins the radiosity
+                B = np.stack(gather_with_sun(G_c, patches.albedo, patches.emission, self._sun_patch_light(),
+                                             p.bounces))
+            else:
+                B = np.stack(gather(G_c, patches.albedo, patches.emission, p.bounces))
             albedo, origin, emitter = patches.albedo, np.full(n_c, -1, np.int8), patches.is_emitter
         seconds = time.perf_counter() - t0
         pre = Precomputed(patches, G_c, recv_vert, G_v, B, pix_tri, pix_bary, pix_depth, albedo, origin, seconds,
@@ -394,8 +411,11 @@ class Engine:
         self.E_x = np.zeros_like(self.L_b)
         rp = self.recv_pix
         self.E_x[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], self.E_v[self.pix_rows[rp]])
+        self._sun_setup_pixels()  # sun: its direct light joins E_x; clipped sunlit pixels get model radiance
         with np.errstate(divide="ignore", invalid="ignore"):
             self.rho_x = np.where(self.E_x > 0, np.minimum(self.L_b / self.E_x, 1.0), 0.0)
+        if self.sun_pix is not None:
+            self.rho_x[self.sun_clipped] = self.sun_rho_clipped
         self.maps = ShadowMaps(self.params.batch, self.params.map_res, device=dev)
         self._room_light = None
         t0 = time.perf_counter()
@@ -559,7 +579,14 @@ class Engine:
         # ---- the object lit by the room, whose patches in its shadow send it less light
         dB_shadow = np.zeros((pm.n_patches, 3))
         dB_shadow[cen_sel] = -pm.albedo[cen_sel] * O_cen
+        sun_loss = None
+        if self.sun_pix is not None:  # sun: one pass, its loss on pixels and patches (second order)
+            sun_loss, sun_loss_c = self._sun_frame(obj)
+            self._sun_dB = -pm.albedo * sun_loss_c  # the object gathers it exactly (object_vertex_radiance)
+            t = tick("sun", t)
         obj_rad = self._shade_object(obj, shade_mesh, hits, proxy_occ, dB_shadow)
+        if sun_loss is not None:
+            dB_shadow = dB_shadow + self._sun_dB
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres
@@ -567,6 +594,8 @@ class Engine:
         R_cen = np.zeros((pm.n_patches, 3))
         if p.object_light:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
+            if self.sun_pix is not None:  # sun: the object's sunlit faces light the room too
+                tri_rad = tri_rad + obj.albedo * self.sun_light.triangle_irradiance(pv[pf], [proxy_occ])
             R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius)
         t = tick("object_light", t)
 
@@ -576,6 +605,11 @@ class Engine:
             dB = dB_shadow + pm.albedo * R_cen
             nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
             dE_v = pre.G_v[:, nz].astype(np.float64) @ dB[nz]
+            if sun_loss is not None:  # sun: the sunlit patch light the object blocks (the room's main
+                # source) and the sunlit object's own light are first-bounce changes: passed on for every
+                # bounce the camera sees, not once
+                more = self._sun_more_bounces(pm.albedo * (R_cen - sun_loss_c))
+                dE_v += pre.G_v @ more.astype(np.float32)
             rp = self.recv_pix
             dE_x[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], dE_v[self.pix_rows[rp]])
         t = tick("second_order", t)
@@ -591,6 +625,9 @@ class Engine:
             frac_fill = self._fill(pix_sel, frac, fill_sel)
             shadow[pix_sel] = L_b[pix_sel] * frac
             shadow[fill_sel] = L_b[fill_sel] * frac_fill
+            if sun_loss is not None:  # sun: its occluded share of the (model, where clipped) radiance
+                sp = self.sun_pix
+                shadow[sp] += L_b[sp] * np.clip(sun_loss / np.maximum(E_x[sp], 1e-12), 0.0, 1.0)
             room = np.maximum(L_b - shadow + add, 0.0)
             # the response only where the room changed (the rest of the frame is T(L_b))
             changed = np.flatnonzero((shadow != 0).any(1) | (add != 0).any(1))
@@ -600,6 +637,10 @@ class Engine:
             levels = scene.photo.reshape(-1, 3).astype(np.float64)
             levels[pix_sel] -= O_pix
             levels[fill_sel] -= self._fill(pix_sel, O_pix, fill_sel)
+            if sun_loss is not None:  # sun: levels lost from its occluded share
+                sp = self.sun_pix
+                share = np.clip(sun_loss / np.maximum(E_x[sp], 1e-12), 0.0, 1.0)
+                levels[sp] += resp.to_levels(L_b[sp] * (1 - share)) - resp.to_levels(L_b[sp])
             extra = np.abs(add).sum(1) > 0
             levels[extra] += resp.to_levels(np.maximum(L_b[extra] + add[extra], 0.0)) - resp.to_levels(L_b[extra])
             room_levels = np.clip(levels, 0, 255)
@@ -609,17 +650,27 @@ class Engine:
         on = np.flatnonzero(c[:, 0] > 0)
         radiance = (1 - c) * room + c * obj_rad
         levels = (1 - c) * room_levels
-        levels[on] += c[on] * resp.to_levels(obj_rad[on])
+        obj_levels = resp.to_levels(obj_rad[on])
+        levels[on] += c[on] * obj_levels
+        # where the object or the room behind it clips (a sunlit face, a sunlit floor) a level is only
+        # a floor: the camera averages radiance over the pixel before its response, so mix the edge
+        # pixels in radiance there
+        edge = on[((obj_levels >= 255) | (room_levels[on] >= 255)).any(1) & (c[on, 0] < 1)]
+        levels[edge] = resp.to_levels(radiance[edge])
         pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8).reshape(H, W, 3)
         tick("compose", t)
         frame_s = time.perf_counter() - t_all
         if n_src:
             self._cost = {"per_pass_s": timings["masks"] / n_src, "fixed_s": frame_s - timings["masks"]}
-        stats = {"frame_s": frame_s, "timings": timings, "n_sources": int(fs.n_listed), "passes": int(n_src),
+        n_sun = int(sun_loss is not None)  # sun: one more source and pass
+        stats = {"frame_s": frame_s, "timings": timings, "n_sources": int(fs.n_listed) + n_sun,
+                 "passes": int(n_src) + n_sun,
                  "n_patches": int(pm.n_patches), "n_receiver_patches": fs.n_receivers,
                  "n_receiver_vertices": int(len(pre.recv_vert)), "n_mask_pixels": int(len(pix_sel)),
                  "n_filled_pixels": int(len(fill_sel)), "proxy_triangles": int(len(pf)), "mode": p.mode,
                  "shaft_build_s": self.shaft_build_s, **self.shadow_sources.stats()}
+        if self.sun_estimate is not None:  # sun: the captured estimate against the declared sun
+            stats["sun_estimate"] = self.sun_estimate
         if calibration_s:
             stats["fps_calibration_s"] = calibration_s
         self._last_shading = (shade_mesh, self._last_L_vert, obj.albedo) if hits.hit.any() else None
@@ -708,6 +759,15 @@ class Engine:
         T, hit_face, hit_bary = self._self_transfer(v, n, f)
         E = np.einsum("vk,vkc->vc", T.astype(np.float64), self.room_light.indirect_sh(v))
         E += self.room_light.direct(v, n, [own], n_side=1)
+        if getattr(self, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
+            self._obj_sun_vert = self.sun_light.irradiance(v, n, [own])  # (sharpened per camera hit later)
+            E += self._obj_sun_vert
+            # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
+            # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
+            ch = np.flatnonzero(np.abs(self._sun_dB).sum(1) > 0) if self._sun_dB is not None else []
+            if len(ch):
+                E += transfer_matrix(v, n, pm.corners[ch], pm.normal[ch], [self.scene_occ, own], n_side=1,
+                                     eps=2e-3, device=self.device).astype(np.float64) @ self._sun_dB[ch]
         if dB is not None:
             # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
             loss = np.abs(luminance(dB)) * pm.area
@@ -762,6 +822,15 @@ class Engine:
         sub = np.zeros((len(h), 3))
         corners = f[hits.tri[h]]
         sub[h] = np.einsum("nk,nkc->nc", hits.bary[h], L_vert[corners])
+        if getattr(self, "sun_pix", None) is not None:  # sun: its direct light per camera hit (a sharp edge
+            pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])  # across a face, not a vertex blend)
+            nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+            own = self._shade_occ[1] if self._shade_occ is not None and self._shade_occ[0] is v else \
+                Occluder(v, f, self.device)
+            E_hit = self.sun_light.irradiance(pos, nrm, [own])
+            E_interp = np.einsum("nk,nkc->nc", hits.bary[h], self._obj_sun_vert[corners])
+            sub[h] = np.maximum(sub[h] + obj.albedo * (E_hit - E_interp), 0.0)
         if self.params.specular > 0:
             pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])
             nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
@@ -869,17 +938,167 @@ class Engine:
             self._passes_override = None
         return time.perf_counter() - t0
 
+    # ------------------------------------------------------------------ sun (lighting.sun, kernels.sunshadow)
+    def _sun_init(self, patches: PatchMesh) -> None:
+        """The scene's sun seen through its openings (None without a sun)."""
+        sun = self.scene.sun
+        self.sun_light = None
+        self._sun_patch = None
+        self._sun_pm = patches
+        if sun is not None and self.params.lighting == "known":  # captured: estimated in _sun_captured
+            where = self.scene.meta.get("json_path", self.scene.name)
+            self.sun_light = SunLight(sun, openings(self.scene), self.scene_occ, where=f"{where}: sun")
+
+    @property
+    def sun_on(self) -> bool:
+        """True when the sun lights some surface: it then takes one pass of every frame."""
+        return self.sun_light is not None and self.sun_light.active and self._sun_patch_light().any()
+
+    def _sun_patch_light(self) -> np.ndarray:
+        """Direct sun irradiance/pi (P,3) averaged over each patch (computed once)."""
+        if self._sun_patch is None:
+            pm = self._sun_pm
+            self._sun_patch = np.zeros((pm.n_patches, 3))
+            if self.sun_light is not None and self.sun_light.active:
+                self._sun_patch = self.sun_light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)
+        return self._sun_patch
+
+    def _sun_setup_pixels(self) -> None:
+        """Per-pixel direct sun E_sun (added to E_x), the sample points of sunlit patches, the sun map.
+
+        The sunlit patch clips in the photo: there L_b is a floor, not the radiance, and a shadow
+        term that is a share of L_b would be far too small. On clipped sunlit pixels L_b is
+        replaced by the model's radiance rho x (E_x + E_sun), rho the surface's albedo (declared
+        texture, or the patch reflectivity the captured light recovered), so the sun's shadow
+        there is the absolute rho x E_sun x occluded share."""
+        self.sun_pix = None
+        self._sun_dB = None  # the sun the object blocks from each patch, this frame (P,3)
+        self.sun_estimate = None
+        if self.params.lighting == "captured":
+            self._sun_captured()
+        if not self.sun_on:
+            return
+        pre, pm, cam = self.pre, self.pre.patches, self.scene.camera
+        rp = np.flatnonzero(self.recv_pix)
+        nrm = pm.normal[self.pix_patch[rp]]
+        vis = self.sun_light.visibility(self.pix_pos[rp], nrm)
+        lit = vis > 0
+        self.sun_pix = rp[lit]
+        E_sun = vis[lit, None] * (self.scene.sun.irradiance / np.pi)
+        self.sun_E = E_sun
+        self.E_x[self.sun_pix] += E_sun
+        # pixel footprint on the surface (m): filter radius of the shadow lookup (box ~ disk)
+        depth = pre.pix_depth[self.sun_pix].astype(np.float64)
+        cos_v = np.abs(np.einsum("nc,nc->n", self.dirs[self.sun_pix], nrm[lit]))
+        self.sun_fp = 0.5 * depth / cam.K[0, 0] / np.sqrt(np.maximum(cos_v, 0.05))
+        self.sun_pts = self.pix_pos[self.sun_pix] + nrm[lit] * 1e-3
+        # clipped sunlit pixels: model radiance instead of the photo's floor
+        sat = (self.scene.photo.reshape(-1, 3)[self.sun_pix] >= 254).any(1)
+        idx = self.sun_pix[sat]
+        quad = pm.quad[self.pix_patch[idx]]
+        if self.params.lighting == "known":
+            rho = surface_albedo(self.scene, quad, self.pix_pos[idx].astype(np.float64), pm.albedo[self.pix_patch[idx]])
+        else:
+            rho = pm.albedo[self.pix_patch[idx]]
+        # pixels next to the sunlit ones (partly sunlit, centre in shade) and the clipped ones: the
+        # photo's L_b / E_x is no reflectance there; take the surface's albedo
+        H, W = cam.height, cam.width
+        lit_img = np.zeros(H * W, bool)
+        lit_img[self.sun_pix] = True
+        near = np.zeros(H * W, bool)
+        for dy, dx, src, dst in _window_pairs(H, W):
+            near[dst] |= lit_img[src]
+        edge = np.flatnonzero(near & ~lit_img & self.recv_pix)
+        quad_e = pm.quad[self.pix_patch[edge]]
+        rho_e = surface_albedo(self.scene, quad_e, self.pix_pos[edge].astype(np.float64),
+                               pm.albedo[self.pix_patch[edge]]) if self.params.lighting == "known" \
+            else pm.albedo[self.pix_patch[edge]]
+        self.sun_clipped = np.concatenate([idx, edge])
+        self.sun_rho_clipped = np.concatenate([rho, rho_e])
+        self.L_b[idx] = np.maximum(self.L_b[idx], rho * self.E_x[idx])
+        # sample points of sunlit patches (second order: the patches' lost sun)
+        lit_c = np.flatnonzero(self._sun_patch_light().any(1))
+        n_side = 4
+        f = (np.arange(n_side) + 0.5) / n_side
+        fu, fv = [a.ravel() for a in np.meshgrid(f, f)]
+        c0 = pm.corners[lit_c, 0]
+        pts = (c0[:, None] + fu[None, :, None] * (pm.corners[lit_c, 1] - c0)[:, None]
+               + fv[None, :, None] * (pm.corners[lit_c, 3] - c0)[:, None]).reshape(-1, 3)
+        nrm_c = np.repeat(pm.normal[lit_c], len(fu), axis=0)
+        self.sun_c_patch = lit_c
+        self.sun_c_vis = self.sun_light.visibility(pts, nrm_c).reshape(len(lit_c), len(fu))
+        self.sun_c_pts = pts + nrm_c * 1e-3
+        self.sun_map = SunShadowMap(self.scene.sun.direction, self.scene.sun.half_angle, device=self.device)
+
+    def _sun_captured(self) -> None:
+        """Captured light: the sun estimated from the photo and the radiance mesh (lighting.sun
+        .estimate_sun) replaces the declared one; the sunlit patches take the reflectivity of their
+        surface's unlit patches. The declared sun, if any, is only reported against."""
+        pre, pm, scene = self.pre, self.pre.patches, self.scene
+        if not openings(scene):
+            self.sun_light = None
+            return
+        sat = np.any(scene.photo.reshape(-1, 3) >= 255, axis=1)
+        sun, info = estimate_sun(scene, pm, self.pix_patch, self.pix_pos.astype(np.float64), self.dirs, self.L_b,
+                                 sat, self.recv_pix, pre.B[-1], pre.G_c, self.scene_occ)
+        self._sun_patch = None
+        self.sun_light = SunLight(sun, openings(scene), self.scene_occ, where="sun estimate") if sun else None
+        if sun is not None and scene.sun is not None:
+            d0 = scene.sun.direction / np.linalg.norm(scene.sun.direction)
+            info["declared_direction"] = d0.tolist()
+            info["direction_error_deg"] = float(np.degrees(np.arccos(np.clip(sun.direction @ d0, -1, 1))))
+            info["declared_irradiance_perpendicular"] = scene.sun.irradiance.tolist()
+            info["strength_ratio"] = float(luminance(sun.irradiance) / max(luminance(scene.sun.irradiance), 1e-12))
+        self.sun_estimate = info
+        log.info("sun estimate: %s", info)
+        if self.sun_light is not None and self.sun_light.active:
+            # sunlit patches: the photo clips there and the probe sees them coarsely; take the
+            # reflectivity of the unlit patches of the same surface (as the strength estimate does)
+            lit = self._sun_patch_light().any(1)
+            for q in np.unique(pm.quad[lit]):
+                same = (pm.quad == q) & ~pm.is_emitter
+                if (same & ~lit).sum() >= 3:
+                    pm.albedo[same & lit] = np.median(pm.albedo[same & ~lit], axis=0)
+
+    def _sun_frame(self, obj: SceneObject) -> tuple[np.ndarray, np.ndarray]:
+        """The sun's pass: its shadow map of the object, the irradiance/pi it loses at the sunlit
+        pixels (len(sun_pix),3) and at every patch (P,3)."""
+        pm = self.pre.patches
+        self.sun_map.render(obj.vertices, obj.faces)
+        occ_pix = self.sun_map.occlusion(self.sun_pts, self.sun_fp)
+        occ_c = self.sun_map.occlusion(self.sun_c_pts).reshape(self.sun_c_vis.shape)
+        loss_c = np.zeros((pm.n_patches, 3))
+        loss_c[self.sun_c_patch] = (self.sun_c_vis * occ_c).mean(1)[:, None] * (self.scene.sun.irradiance / np.pi)
+        return occ_pix[:, None] * self.sun_E, loss_c
+
+    def _sun_more_bounces(self, dB1: np.ndarray) -> np.ndarray:
+        """The change of patch radiance dB1 (P,3) (first bounce: sun a patch no longer reflects, or light
+        of the sunlit object)
+        passed through the patch transfers for the later bounces: sum_{k=1}^{bounces-2} (rho G)^k dB1.
+        One pass through G_v is the engine's second order; the sun's loss is first-bounce light, so
+        the camera also sees its third and fourth bounces."""
+        pm, G = self.pre.patches, self.pre.G_c
+        out = np.zeros_like(dB1)
+        cur = dB1
+        for _ in range(max(self.params.bounces - 2, 0)):
+            nz = np.flatnonzero(np.abs(cur).sum(1) > 0)  # float32 products: no float64 copy of G
+            cur = pm.albedo * (G[:, nz] @ cur[nz].astype(np.float32) if len(nz) < len(cur) // 4
+                               else G @ cur.astype(np.float32))
+            out += cur
+        return out
+
     def _passes_for_frame(self, p: EngineParams | None = None) -> int | None:
         """The pass budget: --passes, or the passes that fit 1/--fps from the measured costs
         (p: this frame's params, default the engine's)."""
         p = self.params if p is None else p
         if self._passes_override is not None:
             return self._passes_override
+        sun = int(self.sun_on)  # sun: one pass of the budget, never dropped
         if p.fps is None or self._cost is None:
-            return p.passes
+            return None if p.passes is None else max(1, p.passes - sun)
         budget = 1.0 / p.fps - self._cost["fixed_s"]
         n = int(budget / max(self._cost["per_pass_s"], 1e-6))
-        return max(1, min(n, p.passes or n))
+        return max(1, min(n, p.passes or n) - sun)
 
     def _ldr_weights(self, W_v: np.ndarray) -> np.ndarray:
         """Intensity transfers S_ij (Vr,S,3) in levels at receiver vertices (fig. 13)."""

@@ -213,7 +213,21 @@ def _light_probe(scene) -> tuple[dict, list[Path], list[float]]:
     if missing:
         raise ValueError(f"{scene.root / 'scene.json'}: light_probe: missing {missing}; --lighting captured needs "
                          f"the probe's pose and its bracket")
+    _check_probe_pose(lp, scene.root / "scene.json")
     return lp, files, times
+
+
+def _check_probe_pose(lp: dict, path: Path) -> None:
+    """The probe pose's fields, checked before any work: centre (3,) m, radius > 0 m, camera.R a
+    rotation (det +1); SceneError naming the file and field (never a KeyError deep inside)."""
+    from recon.io import SceneError, json_array, json_field
+
+    json_array(lp["centre"], (3,), "light_probe.centre", path)
+    if not float(json_array(lp["radius"], (), "light_probe.radius", path)) > 0:
+        raise SceneError(f"{path}: field 'light_probe.radius' must be positive")
+    R = json_array(json_field(lp["camera"], "R", "light_probe.camera.", path), (3, 3), "light_probe.camera.R", path)
+    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-5) and np.linalg.det(R) > 0):
+        raise SceneError(f"{path}: field 'light_probe.camera.R' is not a rotation matrix")
 
 
 def captured_files(scene) -> list[Path]:

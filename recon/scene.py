@@ -34,6 +34,7 @@ class Quad:
     role: str = "room"  # room | furniture | window | lamp | ceiling_lamp | point_lamp
     texture: np.ndarray | None = None  # (Ht,Wt,3) float linear albedo, or None
     declared_emitter: bool = False  # scene.json says "emitter": true (with or without emitted_radiance)
+    opening: bool = False  # a window that is a hole in its wall: sky (and sun) come through it
 
     @property
     def is_emitter(self) -> bool:
@@ -66,6 +67,23 @@ class SceneObject:
 
 
 @dataclass
+class Sun:
+    """A far directional disk emitter (FORMAT.md "Openings, sky and sun"); lights the room only
+    through opening quads. Units: irradiance in the scene's radiance units x sr."""
+
+    direction: np.ndarray  # (3,) unit vector from the room towards the sun
+    angular_diameter_deg: float  # full apparent diameter of the disk
+    irradiance: np.ndarray  # (3,) irradiance on a surface facing the sun (irradiance_perpendicular)
+    radiance: np.ndarray  # (3,) radiance of the disk (emitted_radiance); 0 if not given
+    distance_m: float = float("inf")  # distance of the disk from the room centre (inf: parallel rays)
+
+    @property
+    def half_angle(self) -> float:
+        """Angular radius of the disk, radians."""
+        return float(np.radians(0.5 * self.angular_diameter_deg))
+
+
+@dataclass
 class Scene:
     name: str
     root: Path
@@ -77,6 +95,7 @@ class Scene:
     room_min: np.ndarray
     room_max: np.ndarray
     meta: dict = field(default_factory=dict)
+    sun: Sun | None = None  # the sun, in scenes with an opening
 
 
 def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -176,7 +195,8 @@ def box_quads(name: str, center: np.ndarray, size: np.ndarray, yaw: float, albed
 
 
 def quad_primitive(name: str, corners: np.ndarray, normal: np.ndarray, albedo: np.ndarray, emission: np.ndarray,
-                   role: str, texture: np.ndarray | None = None, declared_emitter: bool = False) -> Quad:
+                   role: str, texture: np.ndarray | None = None, declared_emitter: bool = False,
+                   opening: bool = False) -> Quad:
     """A quad primitive as the engine's one-sided Quad: corners reordered (and the texture
     transposed with them) so that (c1-c0)x(c3-c0) points to the lit side `normal`."""
     corners = np.asarray(corners, np.float64)
@@ -185,7 +205,7 @@ def quad_primitive(name: str, corners: np.ndarray, normal: np.ndarray, albedo: n
     if np.dot(np.cross(corners[1] - corners[0], corners[3] - corners[0]), normal) < 0:
         corners = corners[[0, 3, 2, 1]]
         texture = None if texture is None else texture.transpose(1, 0, 2)
-    return Quad(name, corners, normal, albedo, emission, role, texture, declared_emitter)
+    return Quad(name, corners, normal, albedo, emission, role, texture, declared_emitter, opening)
 
 
 @dataclass
@@ -287,6 +307,12 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
             raise SceneError(f"{path}: field 'camera_response': {e}") from None
 
     quads: list[Quad] = []
+    sun: Sun | None = None  # the sun entry (parse_primitives leaves it out: it is no room primitive)
+    for i, p in enumerate(d.get("primitives") or []):
+        if isinstance(p, dict) and p.get("type") == "sun":
+            if sun is not None:
+                raise SceneError(f"{path}: field 'primitives[{i}]': a second sun (only one 'sun' primitive is allowed)")
+            sun = parse_sun(p, f"primitives[{i}]", path)
     unknown_emitters: list[str] = []  # windows or lamps of unknown strength (photo light finds them)
     for p in parse_primitives(d, path):
         if p.emitter and "emitted_radiance" not in p.raw:
@@ -299,7 +325,7 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
                 texture = read_image_rgb(root / p.texture).astype(np.float32) / 255.0
             emission = p.emitted_radiance if p.emitter else np.zeros(3)
             quads.append(quad_primitive(p.name, p.corners, p.quad_normal, p.albedo, emission, p.role, texture,
-                                        p.emitter))
+                                        p.emitter, bool(p.raw.get("opening", False))))
 
     obj = None
     if "synthetic_object" in d:
@@ -316,7 +342,29 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         raise SceneError(f"{root / files.get('background_png', 'background.png')}: image is "
                          f"{photo.shape[1]}x{photo.shape[0]}, camera says {width}x{height}")
     return Scene(str(d.get("name", root.name)), root, camera, quads, obj, response, photo, room_min, room_max,
-                 meta={"json_path": str(path), "emitters_without_radiance": unknown_emitters})
+                 meta={"json_path": str(path), "emitters_without_radiance": unknown_emitters}, sun=sun)
+
+
+def parse_sun(p: dict, where: str, path: Path) -> Sun:
+    """The `sun` primitive (FORMAT.md), validated: SceneError naming the file and field."""
+    d = json_array(json_field(p, "direction_to_sun", where + ".", path), (3,), f"{where}.direction_to_sun", path)
+    norm = float(np.linalg.norm(d))
+    if norm < 1e-9 or abs(norm - 1.0) > 1e-3:
+        raise SceneError(f"{path}: field '{where}.direction_to_sun' must be a unit vector, has length {norm:.6g}")
+    diam = float(json_array(p.get("angular_diameter_deg", 0.53), (), f"{where}.angular_diameter_deg", path))
+    if not 0.0 <= diam < 90.0:
+        raise SceneError(f"{path}: field '{where}.angular_diameter_deg' must be in [0, 90) degrees, got {diam}")
+    E = json_array(json_field(p, "irradiance_perpendicular", where + ".", path), (3,),
+                   f"{where}.irradiance_perpendicular", path)
+    L = json_array(p.get("emitted_radiance", [0.0, 0.0, 0.0]), (3,), f"{where}.emitted_radiance", path)
+    for key, v in (("irradiance_perpendicular", E), ("emitted_radiance", L)):
+        if np.any(v < 0):
+            raise SceneError(f"{path}: field '{where}.{key}' must be non-negative, got {v.tolist()}")
+    dist = float(json_array(p["distance_m"], (), f"{where}.distance_m", path)) \
+        if p.get("distance_m") is not None else float("inf")
+    if not dist > 0:
+        raise SceneError(f"{path}: field '{where}.distance_m' must be positive, got {dist}")
+    return Sun(d / norm, diam, E, L, dist)
 
 
 def make_object(mesh_path: Path, object_to_world: np.ndarray, albedo: np.ndarray) -> SceneObject:

@@ -42,3 +42,10 @@ def score(scene_dir: Path, composite_png: Path) -> dict:
     out = subprocess.run([sys.executable, str(scorer), str(scene_dir), str(composite_png)], capture_output=True,
                          text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="session")
+def own_room_cache(tmp_path_factory) -> Path:
+    """One precompute cache for the own-room tests: the same user files give the same room
+    folder (content-hashed), so the walkthrough's composite reuses test_own_room's precompute."""
+    return tmp_path_factory.mktemp("own_room_cache")

@@ -14,13 +14,6 @@ import pytest
 from recon.vanishing import lines_from_scene
 
 
-@pytest.fixture(scope="session")
-def own_room_cache(tmp_path_factory) -> Path:
-    """One precompute cache for the own-room tests: the same user files give the same room
-    folder (content-hashed), so the walkthrough's composite reuses test_own_room's precompute."""
-    return tmp_path_factory.mktemp("own_room_cache")
-
-
 def tape_room(scene: dict) -> dict:
     """{"primitives": [...]}: the room as one box of role "room", furniture boxes, window/lamp quads."""
     lo, hi = np.array(scene["world"]["room_min"]), np.array(scene["world"]["room_max"])

@@ -1,5 +1,6 @@
 """The engine from captured light: radiance mesh from the probe bracket and the photo (issue 3, sec. 4.2)."""
 import json
+import re
 import shutil
 
 import numpy as np
@@ -174,3 +175,21 @@ def test_probe_without_a_pose_is_a_clear_error(tmp_path):
     (tmp_path / "scene.json").write_text(json.dumps(meta))
     with pytest.raises(ValueError, match=r"scene\.json: light_probe: missing \['radius'\]"):
         R.load_captured_probe(SimpleNamespace(root=tmp_path))
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda lp: lp["camera"].pop("R"), "light_probe.camera.R"),
+    (lambda lp: lp["camera"].__setitem__("R", [[1, 0, 0], [0, 1, 0], [0, 0, -1]]), "light_probe.camera.R"),
+    (lambda lp: lp.__setitem__("radius", -0.1), "light_probe.radius"),
+])
+def test_bad_probe_pose_is_one_clear_line_before_any_work(tmp_path, edit, field):
+    # issue 16: light_probe.camera without R ended in a KeyError traceback after 12 s
+    from types import SimpleNamespace
+
+    from recon.io import SceneError
+
+    meta = json.loads((shared_scene("window_room") / "scene.json").read_text())
+    edit(meta["light_probe"])
+    (tmp_path / "scene.json").write_text(json.dumps(meta))
+    with pytest.raises(SceneError, match=rf"scene\.json: .*'{re.escape(field)}"):
+        R._light_probe(SimpleNamespace(root=tmp_path))

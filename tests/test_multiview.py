@@ -486,3 +486,37 @@ def test_view_rendering_paths(tmp_path):
     assert how in ("open3d-window", "open3d-xvfb"), how
     assert cv2.imread(str(tmp_path / "v.png")).std() > 1
     assert os.environ.get("DISPLAY") is None or how == "open3d-window"
+
+
+def test_reconstructed_room_feeds_scene_and_composite(scene_sfm, tmp_path, capsys, own_room_cache):
+    # issue 18: the fitted room feeds `photoar scene --primitives`; the composite with captured light
+    # then meets the own-room acceptance (energy 0.8-1.25, rmse_affected <= 0.6 x untouched). The
+    # whole chain is the user's: calibrate (clicked lines, camera height) -> reconstruct with that
+    # camera -> scene (reconstructed room, probe bracket with its tape pose) -> composite.
+    from app.cli import main
+    from tests.conftest import score
+    from tests.own_room import fmt, write_inputs
+
+    d, _, _, folder, _ = scene_sfm
+    src = shared_scene(d["name"])
+    inp = write_inputs(src, tmp_path / "in")
+    assert main(["-q", "calibrate", str(inp["photo"]), "--lines", str(inp["lines"]), "--height", str(inp["height"]),
+                 "--out", str(tmp_path / "cal")]) == 0, capsys.readouterr().err
+    rec = tmp_path / "rec"
+    assert main(["-q", "reconstruct", str(folder), "--out", str(rec), "--camera",
+                 str(tmp_path / "cal" / "camera.json")]) == 0, capsys.readouterr().err
+    room = tmp_path / "room"
+    rc = main(["-q", "scene", str(room), "--photo", str(inp["photo"]), "--exposure-time", str(inp["exposure"]),
+               "--camera", str(tmp_path / "cal" / "camera.json"), "--primitives", str(rec / "primitives.json"),
+               "--probe", *map(str, inp["probes"]), "--probe-times", *map(str, inp["times"]),
+               "--probe-centre", fmt(inp["centre"]), "--probe-radius", str(inp["radius"]),
+               "--probe-shot-from", fmt(inp["shot_from"])])
+    assert rc == 0, capsys.readouterr().err
+    rc = main(["-q", "composite", str(room), "--out", str(tmp_path / "out"), "--lighting", "captured",
+               "--object", str(inp["mesh"]), "--place", fmt(inp["place"]), "--yaw", repr(inp["yaw"]),
+               "--object-albedo", fmt(inp["albedo"]), "--cache", str(own_room_cache)])
+    assert rc == 0, capsys.readouterr().err
+    s = score(src, tmp_path / "out" / "composite.png")
+    print(f"{d['name']} reconstructed room, captured light: {json.dumps(s)}")
+    assert 0.8 <= s["energy_ratio"] <= 1.25
+    assert s["rmse_affected"] <= 0.6 * s["rmse_affected_if_untouched"]

@@ -12,7 +12,7 @@ import pytest
 
 from app.cli import main
 from tests.conftest import score, shared_scene
-from tests.own_room import fmt, own_room_cache, scene_argv, write_inputs  # noqa: F401 (fixture)
+from tests.own_room import fmt, scene_argv, write_inputs
 
 
 def _composite(room, out, inp, cache):

@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 from tests.conftest import ROOT, score, shared_scene
-from tests.own_room import fmt, own_room_cache, write_inputs  # noqa: F401 (fixture)
+from tests.own_room import fmt, write_inputs
 
 MARKER = "<!-- own-room-walkthrough"
 

@@ -1,0 +1,116 @@
+"""Sun benchmark: the cost of the sun's pass in a frame, and PCSS against jittered sun maps.
+
+usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 3]
+
+On sun_room: the frame with --passes shadow passes, the sun being one of them (the sun's map,
+its PCSS lookups, and what it adds to the second order and the object), against the same frame
+with the sun switched off (all --passes for the room's patches). Then the sun shadow alone: one
+PCSS map against N jittered binary maps (directions spread over the 0.53 deg disk), time and the
+mean absolute difference of the occluded share on the sunlit pixels from a 64-map reference.
+Last, the scorer's figures for the --passes frame with known and with captured light, and the
+captured sun estimate against the declared sun. Prints tables; timings are warm (second and later
+frames).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from app.engine import Engine, EngineParams  # noqa: E402
+from app.io import write_png  # noqa: E402
+from app.report import table  # noqa: E402
+from kernels.sunshadow import SunShadowMap, vogel_disk  # noqa: E402
+from recon.scene import load_scene  # noqa: E402
+
+
+def jittered(engine: Engine, obj, n: int) -> np.ndarray:
+    """Mean binary occlusion over n maps toward points spread over the sun's disk."""
+    sun = engine.scene.sun
+    d = sun.direction / np.linalg.norm(sun.direction)
+    helper = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    a = np.cross(helper, d)
+    a /= np.linalg.norm(a)
+    b = np.cross(d, a)
+    acc = np.zeros(len(engine.sun_pts))
+    for u, v in vogel_disk(n) * np.tan(sun.half_angle):
+        m = SunShadowMap(d + u * a + v * b, 0.0, device=engine.device)
+        m.render(obj.vertices, obj.faces)
+        acc += m.occlusion(engine.sun_pts, engine.sun_fp)
+    return acc / n
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
+    ap.add_argument("--passes", type=int, default=50)
+    ap.add_argument("--repeat", type=int, default=9)
+    ap.add_argument("--cache", type=Path, default=None)
+    a = ap.parse_args(argv)
+    scene = load_scene(a.shared / "scenes" / "sun_room")
+    engine = Engine(scene, EngineParams(passes=a.passes), cache_dir=a.cache, quiet=True)
+    obj = scene.obj
+    # the same frame with the sun switched off (all --passes for the patches), interleaved with the
+    # sun frames so that the load of a shared machine falls on both alike
+    saved, sun_on = engine.sun_pix, type(engine).sun_on
+    engine.render(obj)
+    t_sun, t_no = [], []
+    for _ in range(a.repeat):
+        engine.sun_pix, type(engine).sun_on = saved, sun_on
+        t_sun.append(engine.render(obj).stats["frame_s"])
+        engine.sun_pix, type(engine).sun_on = None, property(lambda self: False)
+        t_no.append(engine.render(obj).stats["frame_s"])
+    engine.sun_pix, type(engine).sun_on = saved, sun_on
+    with_sun, without = float(np.median(t_sun)), float(np.median(t_no))
+    best = float(min(t_sun) / min(t_no) - 1.0)  # least disturbed frames of each
+    paired = float(np.median(np.array(t_sun) / np.array(t_no)) - 1.0)  # neighbouring frames
+    print(table([{"frame": f"{a.passes} passes, sun one of them", "frame_s": with_sun},
+                 {"frame": f"{a.passes} passes, no sun", "frame_s": without},
+                 {"frame": "overhead of the medians", "frame_s": with_sun / without - 1.0},
+                 {"frame": "overhead of the fastest", "frame_s": best},
+                 {"frame": "overhead, median of pairs", "frame_s": paired}], ["frame", "frame_s"]))
+
+    ref = jittered(engine, obj, 64)
+    rows = []
+    t0 = time.perf_counter()
+    engine.sun_map.render(obj.vertices, obj.faces)
+    pcss = engine.sun_map.occlusion(engine.sun_pts, engine.sun_fp)
+    rows.append({"method": "PCSS, 1 map, 48 taps", "s": time.perf_counter() - t0,
+                 "mean_abs_err": float(np.abs(pcss - ref).mean()), "max_abs_err": float(np.abs(pcss - ref).max())})
+    for n in (4, 8, 16):
+        t0 = time.perf_counter()
+        j = jittered(engine, obj, n)
+        rows.append({"method": f"jittered, {n} maps", "s": time.perf_counter() - t0,
+                     "mean_abs_err": float(np.abs(j - ref).mean()), "max_abs_err": float(np.abs(j - ref).max())})
+    print(table(rows, ["method", "s", "mean_abs_err", "max_abs_err"]))
+
+    rows = []
+    cap = Engine(scene, EngineParams(passes=a.passes, lighting="captured"), cache_dir=a.cache, quiet=True)
+    for name, eng in (("known", engine), ("captured", cap)):
+        frame = eng.render(obj)
+        with tempfile.TemporaryDirectory() as tmp:
+            png = Path(tmp) / "c.png"
+            write_png(png, frame.pixels)
+            out = subprocess.run([sys.executable, str(a.shared / "tools" / "score.py"),
+                                  str(a.shared / "scenes" / "sun_room"), str(png)], capture_output=True, text=True,
+                                 check=True)
+        rows.append({"lighting": name, **json.loads(out.stdout.strip().splitlines()[-1])})
+    print(table(rows, ["lighting", "energy_ratio", "rmse_affected", "rmse_affected_if_untouched", "spurious",
+                       "rmse_object", "bias_object"]))
+    est = cap.sun_estimate or {}
+    print(table([{k: (f"{v:.4g}" if isinstance(v, float) else str(np.round(v, 4).tolist()))
+                  for k, v in est.items()}], list(est)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,177 @@
+"""The object's sun shadow: an orthographic depth map toward the sun, looked up with
+percentage-closer soft shadows (PCSS) for the penumbra of the sun's disk.
+
+Map: the object's triangles projected along -d (d = unit direction to the sun) onto a square
+res x res grid covering the object's bounding sphere; each texel keeps the smallest depth
+z = (p - c) . (-d) (metres, growing away from the sun), +inf where empty. Rasterised one thread per
+triangle with `atomic_min` (as kernels.shadowmap).
+
+Lookup at a receiver point p (depth z_r) with a footprint radius r_fp (m, the pixel's size on the
+surface; 0 for a point):
+1. blocker search over a disk of radius (z_r - z_min) tan(a) + r_fp (a = the disk's angular radius,
+   z_min the map's smallest depth): the mean depth z_b of the taps closer than z_r - bias;
+2. the penumbra radius w = (z_r - z_b) tan(a); the occluded share is the fraction of taps, over a disk
+   of radius sqrt(w^2 + r_fp^2), closer than z_r - bias.
+Taps are a fixed golden-angle (Vogel) spiral. A point outside the map is unoccluded.
+"""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from kernels import runtime
+
+
+@wp.struct
+class SunMap:
+    centre: wp.vec3  # map origin (object bounding-sphere centre), world
+    right: wp.vec3
+    up: wp.vec3
+    fwd: wp.vec3  # -d: from the sun into the room
+    half: float  # half-width of the map, metres
+    res: int
+    depth: wp.array2d(dtype=wp.float32)
+    z_min: float
+    tan_a: float  # tan of the sun disk's angular radius
+    bias: float
+    taps: wp.array(dtype=wp.vec2)  # unit-disk tap pattern
+
+
+@wp.func
+def _project(m: SunMap, p: wp.vec3) -> wp.vec3:
+    """World point -> (texel x, texel y, depth)."""
+    d = p - m.centre
+    s = float(m.res) / (2.0 * m.half)
+    return wp.vec3(wp.dot(d, m.right) * s + float(m.res) * 0.5 - 0.5,
+                   wp.dot(d, m.up) * s + float(m.res) * 0.5 - 0.5, wp.dot(d, m.fwd))
+
+
+@wp.func
+def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
+    return (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])
+
+
+@wp.kernel
+def _raster(m: SunMap, verts: wp.array(dtype=wp.vec3), tris: wp.array2d(dtype=wp.int32)):
+    t = wp.tid()
+    a = _project(m, verts[tris[t, 0]])
+    b = _project(m, verts[tris[t, 1]])
+    c = _project(m, verts[tris[t, 2]])
+    area = _edge(a, b, c[0], c[1])
+    if wp.abs(area) < 1.0e-12:
+        return
+    x0 = wp.max(int(wp.ceil(wp.min(wp.min(a[0], b[0]), c[0]))), 0)
+    x1 = wp.min(int(wp.floor(wp.max(wp.max(a[0], b[0]), c[0]))), m.res - 1)
+    y0 = wp.max(int(wp.ceil(wp.min(wp.min(a[1], b[1]), c[1]))), 0)
+    y1 = wp.min(int(wp.floor(wp.max(wp.max(a[1], b[1]), c[1]))), m.res - 1)
+    for iy in range(y0, y1 + 1):
+        for ix in range(x0, x1 + 1):
+            w0 = _edge(b, c, float(ix), float(iy)) / area
+            w1 = _edge(c, a, float(ix), float(iy)) / area
+            w2 = 1.0 - w0 - w1
+            if w0 >= -1.0e-6 and w1 >= -1.0e-6 and w2 >= -1.0e-6:
+                wp.atomic_min(m.depth, iy, ix, w0 * a[2] + w1 * b[2] + w2 * c[2])
+
+
+@wp.func
+def _tap_depth(m: SunMap, x: float, y: float) -> float:
+    ix = int(wp.floor(x + 0.5))
+    iy = int(wp.floor(y + 0.5))
+    if ix < 0 or iy < 0 or ix >= m.res or iy >= m.res:
+        return wp.inf
+    return m.depth[iy, ix]
+
+
+@wp.kernel
+def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.float32),
+          out: wp.array(dtype=wp.float32)):
+    i = wp.tid()
+    q = _project(m, pos[i])
+    zr = q[2]
+    out[i] = 0.0
+    if zr - m.bias <= m.z_min:
+        return
+    s = float(m.res) / (2.0 * m.half)  # texels per metre
+    n = m.taps.shape[0]
+    r_fp = footprint[i]
+    r_search = ((zr - m.z_min) * m.tan_a + r_fp) * s
+    zsum = float(0.0)
+    nb = float(0.0)
+    for k in range(n):
+        t = m.taps[k]
+        z = _tap_depth(m, q[0] + t[0] * r_search, q[1] + t[1] * r_search)
+        if z < zr - m.bias:
+            zsum += z
+            nb += 1.0
+    if nb == 0.0:
+        return
+    w = (zr - zsum / nb) * m.tan_a
+    r = wp.sqrt(w * w + r_fp * r_fp) * s
+    blocked = float(0.0)
+    for k in range(n):
+        t = m.taps[k]
+        if _tap_depth(m, q[0] + t[0] * r, q[1] + t[1] * r) < zr - m.bias:
+            blocked += 1.0
+    out[i] = blocked / float(n)
+
+
+def vogel_disk(n: int) -> np.ndarray:
+    """n points (n,2) spread evenly over the unit disk (golden-angle spiral)."""
+    k = np.arange(n) + 0.5
+    r = np.sqrt(k / n)
+    a = k * np.pi * (3.0 - np.sqrt(5.0))
+    return np.stack([r * np.cos(a), r * np.sin(a)], 1)
+
+
+class SunShadowMap:
+    """One orthographic map of an occluder toward the sun, re-rendered per pose."""
+
+    def __init__(self, direction: np.ndarray, angular_radius: float, res: int = 1024, taps: int = 48,
+                 bias: float = 2e-3, device: str | None = None):
+        self.device = runtime.device(device)
+        d = np.asarray(direction, np.float64)
+        d /= np.linalg.norm(d)
+        fwd = -d
+        helper = np.array([0.0, 1.0, 0.0]) if abs(fwd[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        right = np.cross(helper, fwd)
+        right /= np.linalg.norm(right)
+        up = np.cross(fwd, right)
+        self.m = SunMap()
+        self.m.right, self.m.up, self.m.fwd = (wp.vec3(*map(float, a)) for a in (right, up, fwd))
+        self.m.res = int(res)
+        self.m.tan_a = float(np.tan(angular_radius))
+        self.m.bias = float(bias)
+        self.m.depth = wp.zeros((res, res), dtype=wp.float32, device=self.device)
+        self.m.taps = wp.array(vogel_disk(taps).astype(np.float32), dtype=wp.vec2, device=self.device)
+        self.m.centre = wp.vec3(0.0, 0.0, 0.0)
+        self.m.half = 1.0
+        self.m.z_min = float("inf")
+
+    def render(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        """Rasterise the occluder (world coordinates) into the map."""
+        v = np.asarray(vertices, np.float64)
+        c = 0.5 * (v.min(0) + v.max(0))
+        r = float(np.linalg.norm(v - c, axis=1).max()) * 1.01 + 1e-3
+        self.m.centre = wp.vec3(*map(float, c))
+        self.m.half = r
+        self.m.depth.fill_(float("inf"))
+        fwd = np.array(self.m.fwd, np.float64)
+        self.m.z_min = float(((v - c) @ fwd).min())
+        wp.launch(_raster, dim=len(faces),
+                  inputs=[self.m, wp.array(v.astype(np.float32), dtype=wp.vec3, device=self.device),
+                          wp.array(np.asarray(faces, np.int32), dtype=wp.int32, device=self.device)],
+                  device=self.device)
+
+    def occlusion(self, points: np.ndarray, footprint: np.ndarray | None = None) -> np.ndarray:
+        """Share (N,) in [0,1] of the sun's disk the occluder hides from each point, averaged over a
+        disk of radius `footprint` (N,) m around it (0: the point itself)."""
+        n = len(points)
+        if n == 0:
+            return np.zeros(0)
+        fp = np.zeros(n, np.float32) if footprint is None else np.asarray(footprint, np.float32)
+        out = wp.zeros(n, dtype=wp.float32, device=self.device)
+        wp.launch(_pcss, dim=n, inputs=[self.m, wp.array(np.asarray(points, np.float32), dtype=wp.vec3,
+                                                         device=self.device),
+                                        wp.array(fp, dtype=wp.float32, device=self.device)],
+                  outputs=[out], device=self.device)
+        return out.numpy().astype(np.float64)

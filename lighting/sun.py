@@ -1,0 +1,311 @@
+"""Direct sunlight through openings: the sunlit region, sun irradiance, and its share of radiosity.
+
+The sun (recon.scene.Sun) is a far disk of angular diameter ~0.53 deg. Its direct light at a point p
+with normal n is, in irradiance/pi (the units of the rest of photoar: the radiance a white
+Lambertian surface would reflect):
+
+    E_sun(p) = E_perp / pi * max(n . d, 0) * V(p)
+
+d = direction_to_sun, E_perp = irradiance_perpendicular, V = 1 when the ray p -> sun leaves the
+room through an opening quad before hitting anything solid (the scene model; optionally the object).
+Rays are parallel: the sun's finite distance moves its direction by < 0.1 deg inside a room. The
+0.53 deg disk only matters for penumbrae, which kernels.sunshadow handles.
+
+A sun below the horizon (d_y <= 0: the ground outside hides it), a scene without openings, or a sun
+whose rays miss every opening give zero direct light everywhere, with a warning, never NaN.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from kernels.raycast import cast_rays
+from kernels.visibility import Occluder
+from recon.scene import Quad, Scene, Sun
+
+log = logging.getLogger("photoar")
+
+
+def openings(scene: Scene) -> list[Quad]:
+    """The scene's opening quads (windows that are holes in their wall)."""
+    return [q for q in scene.quads if q.opening]
+
+
+def gather_with_sun(G: np.ndarray, albedo: np.ndarray, emission: np.ndarray, sun_direct: np.ndarray,
+                    bounces: int) -> list[np.ndarray]:
+    """Radiosity iterates [B^(0) .. B^(bounces)] (each (P,3)) with the sun as one more emitter.
+
+    sun_direct (P,3) = the sun's direct irradiance/pi on each patch. The sun's disk is B^(0) (not
+    a patch), so its reflection rho * sun_direct enters from B^(1) on, one bounce like any emitter's:
+    B^(k) = E + rho * (sun_direct + G @ B^(k-1)) (lighting.radiosity.gather with one more source).
+    """
+    if G.shape[0] != G.shape[1] or G.shape[0] != len(albedo) or len(sun_direct) != len(albedo):
+        raise ValueError(f"transfer matrix {G.shape} / sun light {np.shape(sun_direct)} do not match "
+                         f"{len(albedo)} patches")
+    G64 = G.astype(np.float64)
+    B = [np.asarray(emission, np.float64)]
+    for _ in range(bounces):
+        B.append(emission + albedo * (sun_direct + G64 @ B[-1]))
+    return B
+
+
+class SunLight:
+    """The scene's sun seen through its openings, against the scene model's solid surfaces."""
+
+    def __init__(self, sun: Sun, holes: list[Quad], occluder: Occluder, where: str = "sun"):
+        self.sun = sun
+        self.d = np.asarray(sun.direction, np.float64) / np.linalg.norm(sun.direction)
+        self.openings = list(holes)
+        self.occluder = occluder
+        self.device = occluder.device
+        self.reason = ""
+        if self.d[1] <= 0.0:
+            self.reason = f"{where}: the sun is below the horizon (direction_to_sun y = {self.d[1]:.3g}): no direct sun"
+        elif not self.openings:
+            self.reason = f"{where}: the scene has no opening (window with \"opening\": true): no direct sun"
+        elif not np.any(sun.irradiance > 0):
+            self.reason = f"{where}: irradiance_perpendicular is zero: no direct sun"
+        elif not any(np.dot(q.normal, self.d) < -1e-9 for q in self.openings):
+            self.reason = f"{where}: the sun is parallel to or behind every opening: no direct sun"
+        if self.reason:
+            log.warning("%s", self.reason)
+
+    @property
+    def active(self) -> bool:
+        """False when the sun cannot light anything (see `reason`)."""
+        return not self.reason
+
+    def exit_distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance (N,) m along d from each point to the first opening it leaves through (inf: none)."""
+        p = np.asarray(points, np.float64)
+        best = np.full(len(p), np.inf)
+        for q in self.openings:
+            denom = float(np.dot(self.d, q.normal))
+            if denom >= -1e-9:  # parallel to the opening or entering through its back: no passage
+                continue
+            c0 = q.corners[0]
+            t = (p - c0) @ q.normal / -denom
+            hit = p + t[:, None] * self.d
+            U, V = q.corners[1] - c0, q.corners[3] - c0
+            u = (hit - c0) @ U / (U @ U)
+            v = (hit - c0) @ V / (V @ V)
+            ok = (t > 0) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+            best = np.where(ok & (t < best), t, best)
+        return best
+
+    def visibility(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = (),
+                   eps: float = 1e-3) -> np.ndarray:
+        """(N,) float: max(n.d, 0) x [sun's centre seen through an opening, unblocked]."""
+        p = np.asarray(points, np.float64)
+        n = np.asarray(normals, np.float64)
+        out = np.zeros(len(p))
+        if not self.active or len(p) == 0:
+            return out
+        cos = n @ self.d
+        cand = np.flatnonzero(cos > 0)
+        if len(cand) == 0:
+            return out
+        start = p[cand] + n[cand] * eps
+        t_exit = self.exit_distance(start)
+        go = np.isfinite(t_exit)
+        idx, start, t_exit = cand[go], start[go], t_exit[go]
+        dirs = np.broadcast_to(self.d, start.shape)
+        free = np.ones(len(idx), bool)
+        for occ in (self.occluder, *extra):
+            if occ is None or occ.id == 0 or len(idx) == 0:
+                continue
+            _, _, depth = cast_rays(occ, start, dirs, max_t=float(t_exit.max()) + 1.0)
+            free &= ~(depth < t_exit)
+        out[idx[free]] = cos[idx[free]]
+        return out
+
+    def irradiance(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = ()) -> np.ndarray:
+        """Direct sun irradiance/pi (N,3) at points with normals."""
+        return self.visibility(points, normals, extra)[:, None] * (self.sun.irradiance / np.pi)
+
+    def triangle_irradiance(self, tris: np.ndarray, extra: list[Occluder] = (), n: int = 6) -> np.ndarray:
+        """Mean direct sun irradiance/pi (T,3) over triangles (T,3,3) (CCW seen from the lit side),
+        from n(n+1)/2 barycentric points each: a face half in its own shadow gets half."""
+        tris = np.asarray(tris, np.float64)
+        nt = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        nt /= np.maximum(np.linalg.norm(nt, axis=1, keepdims=True), 1e-12)
+        bary = np.array([(i + 1 / 3, j + 1 / 3) for i in range(n) for j in range(n - i)]) / n
+        w = np.stack([1 - bary.sum(1), bary[:, 0], bary[:, 1]], 1)  # (K,3)
+        pts = np.einsum("kc,tcx->tkx", w, tris).reshape(-1, 3)
+        vis = self.visibility(pts, np.repeat(nt, len(w), axis=0), extra).reshape(len(tris), len(w)).mean(1)
+        return vis[:, None] * (self.sun.irradiance / np.pi)
+
+    def patch_irradiance(self, corners: np.ndarray, normals: np.ndarray, solid: np.ndarray,
+                         n_side: int = 6) -> np.ndarray:
+        """Mean direct sun irradiance/pi (P,3) over each patch (corners (P,4,3)), from n_side^2
+        stratified points; zero on patches where `solid` is False (emitters)."""
+        P = len(corners)
+        out = np.zeros((P, 3))
+        if not self.active:
+            return out
+        idx = np.flatnonzero(solid & (normals @ self.d > 0))
+        f = (np.arange(n_side) + 0.5) / n_side
+        fu, fv = [a.ravel() for a in np.meshgrid(f, f)]
+        c0 = corners[idx, 0]
+        U, V = corners[idx, 1] - c0, corners[idx, 3] - c0
+        pts = c0[:, None] + fu[None, :, None] * U[:, None] + fv[None, :, None] * V[:, None]
+        nrm = np.repeat(normals[idx], len(fu), axis=0)
+        vis = self.visibility(pts.reshape(-1, 3), nrm).reshape(len(idx), len(fu)).mean(1)
+        out[idx] = vis[:, None] * (self.sun.irradiance / np.pi)
+        if not out.any():
+            self.reason = "sun: its rays miss every opening or reach no surface: no direct sun"
+            log.warning("%s", self.reason)
+        return out
+
+
+def surface_albedo(scene: Scene, quad: np.ndarray, points: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Linear albedo (N,3) at surface points on quads `quad` (indices into scene.quads): the texel
+    under each point where the quad has a texture, else `fallback` (N,3) (e.g. the patch mean)."""
+    out = np.array(fallback, np.float64, copy=True)
+    for qi in np.unique(quad):
+        if qi < 0:
+            continue
+        q = scene.quads[int(qi)]
+        if q.texture is None:
+            continue
+        sel = np.flatnonzero(quad == qi)
+        c0 = q.corners[0]
+        U, V = q.corners[1] - c0, q.corners[3] - c0
+        a = (points[sel] - c0) @ U / (U @ U)
+        b = (points[sel] - c0) @ V / (V @ V)
+        ht, wt = q.texture.shape[:2]
+        col = np.clip(np.floor(a * wt).astype(int), 0, wt - 1)
+        row = np.clip(np.floor(b * ht).astype(int), 0, ht - 1)
+        out[sel] = q.texture[row, col]
+    return out
+
+
+# ----------------------------------------------------------------------------- captured light
+SUN_DIAMETER_DEG = 0.53  # the sun's mean apparent diameter seen from the earth (a constant of nature)
+
+
+def sunlit_pixels(L_b: np.ndarray, saturated: np.ndarray, pix_quad: np.ndarray, recv: np.ndarray,
+                  min_ratio: float = 3.0) -> np.ndarray:
+    """(N,) bool: receiver pixels lit by the sun in the photo. Per quad, saturated pixels, and pixels
+    above the Otsu split of the quad's log-luminance when the bright class is at least `min_ratio`
+    times the dark one (direct sun is many times the sky's light; a smooth gradient is not split)."""
+    from lighting.sources import luminance
+
+    out = np.zeros(len(L_b), bool)
+    lum = np.log(np.maximum(luminance(L_b), 1e-9))
+    for q in np.unique(pix_quad[recv]):
+        idx = np.flatnonzero(recv & (pix_quad == q))
+        if len(idx) < 50:
+            continue
+        v = lum[idx]
+        order = np.sort(v)
+        c = np.cumsum(order)
+        k = np.arange(1, len(v))
+        m0 = c[:-1] / k
+        m1 = (c[-1] - c[:-1]) / (len(v) - k)
+        between = k * (len(v) - k) * (m1 - m0) ** 2
+        i = int(np.argmax(between))
+        bright = v > order[i]
+        if np.exp(m1[i] - m0[i]) >= min_ratio:
+            out[idx[bright]] = True
+    out |= saturated & recv
+    return out
+
+
+def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, dirs: np.ndarray,
+                 L_b: np.ndarray, saturated: np.ndarray, recv: np.ndarray, B: np.ndarray, G_c: np.ndarray,
+                 occluder: Occluder, min_overlap: float = 0.5) -> tuple[Sun | None, dict]:
+    """The sun from the photo and the captured radiance mesh (no declared sun used).
+
+    Direction: the sunlit patch on a plane is the opening projected along d, so the area-weighted
+    centroid of the sunlit pixels of the largest lit plane is the opening's centroid moved along
+    -d; then (azimuth, elevation) are refined by maximising the overlap of the predicted sunlit pixels
+    with the observed ones (Nelder-Mead). Strength: on fully sunlit patches the radiance is
+    rho (E_ind + E_perp cos / pi); rho is the reflectivity of the unlit patches of the same quad
+    (the same material), E_ind the gathered irradiance of the radiance mesh (the probe sees the patch
+    unclipped where the photo clips), so E_perp = pi (L / rho - E_ind) / cos, median over patches.
+    No sun (None, with info["reason"]) when nothing is lit, or when the best direction's predicted
+    sunlit pixels overlap the observed ones less than `min_overlap` (intersection over union).
+    Returns (Sun or None, info)."""
+    from scipy.optimize import minimize
+
+    from lighting.sources import luminance
+
+    holes = openings(scene)
+    info: dict = {}
+    if not holes:
+        return None, {"reason": "no opening"}
+    pix_quad = np.where(pix_patch >= 0, pm.quad[np.maximum(pix_patch, 0)], -1)
+    lit = sunlit_pixels(L_b, saturated, pix_quad, recv)
+    if lit.sum() < 50:
+        return None, {"reason": "no sunlit region in the photo"}
+    nrm = pm.normal[np.maximum(pix_patch, 0)]
+    # surface area per pixel ~ depth^2 / |cos(view, normal)|
+    depth = np.linalg.norm(pix_pos - scene.camera.centre, axis=1)
+    area = depth ** 2 / np.maximum(np.abs(np.einsum("nc,nc->n", dirs, nrm)), 0.05)
+    quads, counts = np.unique(pix_quad[lit], return_counts=True)
+    main = quads[np.argmax([area[lit & (pix_quad == q)].sum() for q in quads])]
+    sel = lit & (pix_quad == main)
+    c_patch = (pix_pos[sel] * area[sel, None]).sum(0) / area[sel].sum()
+    cand = []
+    for q in holes:
+        d = q.corners.mean(0) - c_patch
+        d /= np.linalg.norm(d)
+        if d @ q.normal < 0 and d[1] > 0:
+            cand.append(d)
+    if not cand:
+        return None, {"reason": "the sunlit region is not in view of an opening"}
+    # overlap refinement on pixels near the lit region (on every receiver surface)
+    near = recv.copy()
+    test = np.flatnonzero(near)
+    test = test[:: max(1, len(test) // 60000)]
+    observed = lit[test]
+
+    def sun_of(a):
+        az, el = a
+        return np.array([np.cos(el) * np.cos(az), np.sin(el), np.cos(el) * np.sin(az)])
+
+    def cost(a):
+        light = SunLight(Sun(sun_of(a), SUN_DIAMETER_DEG, np.ones(3), np.zeros(3)), holes, occluder,
+                         where="sun estimate")
+        pred = light.visibility(pix_pos[test], nrm[test]) > 0
+        return 1.0 - (pred & observed).sum() / max((pred | observed).sum(), 1)
+
+    best = None
+    for d in cand:
+        a0 = np.array([np.arctan2(d[2], d[0]), np.arcsin(np.clip(d[1], -1, 1))])
+        res = minimize(cost, a0, method="Nelder-Mead",
+                       options={"initial_simplex": [a0, a0 + [0.02, 0], a0 + [0, 0.02]], "xatol": 1e-4,
+                                "fatol": 1e-5, "maxiter": 80})
+        if best is None or res.fun < best[1]:
+            best = (res.x, res.fun, a0)
+    d = sun_of(best[0])
+    info.update(direction=d.tolist(), direction_from_centroid=sun_of(best[2]).tolist(), overlap=float(1.0 - best[1]))
+    if info["overlap"] < min_overlap:  # bright surfaces that no sun through the openings explains
+        return None, {**info, "reason": f"no sun direction explains the bright region (overlap "
+                                        f"{info['overlap']:.2f} < {min_overlap})"}
+    # strength from fully sunlit patches
+    light = SunLight(Sun(d, SUN_DIAMETER_DEG, np.full(3, np.pi), np.zeros(3)), holes, occluder, where="sun estimate")
+    e = light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)[:, 0]  # = cos x sunlit share
+    cos = np.maximum(pm.normal @ d, 0.0)
+    full = (e > 0.98 * cos) & (cos > 0.2)
+    E_ind = np.asarray(G_c, np.float64) @ B
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho_all = np.where(E_ind > 0, B / E_ind, 0.0)
+    est = []
+    for q in np.unique(pm.quad[full]):
+        unlit = (pm.quad == q) & (e == 0) & ~pm.is_emitter & (luminance(E_ind) > 0)
+        on = full & (pm.quad == q)
+        if unlit.sum() < 3:
+            continue
+        rho = np.median(rho_all[unlit], axis=0)
+        if np.any(rho <= 0):
+            continue
+        s = np.pi * (B[on] / rho - E_ind[on]) / cos[on, None]
+        est.append(s)
+    if not est:
+        return None, {**info, "reason": "no fully sunlit patch with unlit patches of the same surface"}
+    E_perp = np.maximum(np.median(np.concatenate(est), axis=0), 0.0)
+    info["irradiance_perpendicular"] = E_perp.tolist()
+    return Sun(d, SUN_DIAMETER_DEG, E_perp, np.zeros(3)), info
