@@ -53,8 +53,9 @@ def register(sub) -> None:
     g.add_argument("--place", type=xyz_arg, default=None, metavar="X,Y,Z",
                    help="world point (m) for the object's bottom centre (default: the scene's object pose)")
     g.add_argument("--yaw", type=float, default=0.0, help="turn about +Y in degrees (with --place)")
-    g.add_argument("--passes", type=_positive_int, default=20,
-                   help="shadow passes per frame (default %(default)s; the window's slider changes it)")
+    g.add_argument("--passes", type=_positive_int, default=50,
+                   help="shadow passes per frame while the object moves (default %(default)s; the window's slider "
+                        "changes it); at rest the frame is refined to all sources")
     g.add_argument("--all-sources", action="store_true", help="one shadow pass per source (slow)")
     g.add_argument("--mode", choices=["hdr", "ldr"], default="hdr", help="compositing path (default %(default)s)")
     g.add_argument("--screenshot", type=Path, default=None,

@@ -241,7 +241,7 @@ class PlacementWindow:
         p.add_child(gui.Label("Shadow passes per frame"))
         self.slider = gui.Slider(gui.Slider.INT)
         self.slider.set_limits(10, 50)
-        self.slider.int_value = int(ctl.passes) if ctl.passes else 20
+        self.slider.int_value = int(ctl.passes) if ctl.passes else 50
         self.slider.set_on_value_changed(self._on_passes)
         p.add_child(self.slider)
         self.all_sources = gui.Checkbox("all sources")

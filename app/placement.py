@@ -44,6 +44,7 @@ VERSION = 1
 MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".off", ".stl")
 UP_COS = 0.7  # a surface whose normal has n_y above this is one an object can rest on
 ROOM_MARGIN = 2e-3  # m kept between the object's bounding box and the room's walls
+DRAG_PASSES = 50  # default pass budget of a frame while the object moves (refine() completes it at rest)
 
 
 # ---------------------------------------------------------------------------- object meshes
@@ -214,7 +215,7 @@ class PlacementController:
 
         started = self.params
         own = params is None  # built from the controller's params, which set_lighting may replace meanwhile
-        params = params or self.params or EngineParams(passes=20)
+        params = params or self.params or EngineParams(passes=DRAG_PASSES)
         eng = Engine(self.scene, params, cache_dir=self.cache_dir, device=self.device, quiet=self.quiet,
                      progress=progress)
         with self._lock:
@@ -476,7 +477,7 @@ class PlacementController:
         with self._lock:
             if self._config is None:
                 p = self.params
-                self._config = FrameConfig(20, "hdr") if p is None else FrameConfig(p.passes, p.mode, p.fps)
+                self._config = FrameConfig(DRAG_PASSES, "hdr") if p is None else FrameConfig(p.passes, p.mode, p.fps)
             return self._config
 
     @property
