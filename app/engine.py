@@ -233,7 +233,9 @@ class Engine:
             raise ValueError(f"{_scene_json(scene)}: no emitters (no primitive declares emitted_radiance), so "
                              f"--lighting known would leave the room dark; use --lighting captured")
         shaped = np.array([q.light_shaped for q in scene.quads], bool)[patches.quad]
-        self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device, lift=shaped | patches.is_emitter)
+        holes = np.array([q.opening for q in scene.quads], bool)[patches.quad]
+        self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device, lift=shaped | patches.is_emitter,
+                                                     holes=holes)
         self._sun_init(patches)
         key = _hash_scene(scene, p)
         cache = self.cache_dir / f"{scene.name}-{key[:20]}.npz" if self.cache_dir else None
@@ -1050,11 +1052,14 @@ def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.nda
     return out
 
 
-def _scene_meshes(patches: PatchMesh, device: str, lift: np.ndarray | None = None) -> tuple[Occluder, Occluder]:
-    """(occluder for light: non-emitting patches; camera mesh: every patch, emitters (or the
-    patches `lift` (P,) bool: quads that may emit, Quad.light_shaped) lifted 1 mm off the wall
-    they sit on so the ID buffer and the probe's rays see them rather than the wall)."""
-    solid_tri = ~patches.is_emitter[patches.tri_patch]
+def _scene_meshes(patches: PatchMesh, device: str, lift: np.ndarray | None = None,
+                  holes: np.ndarray | None = None) -> tuple[Occluder, Occluder]:
+    """(occluder for light: non-emitting patches, less the openings `holes` (P,) bool, which light
+    passes through; camera mesh: every patch, emitters (or the patches `lift` (P,) bool: quads that
+    may emit, Quad.light_shaped) lifted 1 mm off the wall they sit on so the ID buffer and the probe's
+    rays see them rather than the wall)."""
+    solid = ~patches.is_emitter if holes is None else ~patches.is_emitter & ~holes
+    solid_tri = solid[patches.tri_patch]
     lifted = patches.is_emitter if lift is None else lift
     emit = patches.tris[lifted[patches.tri_patch]].ravel()
     lift = np.zeros_like(patches.vert_pos)

@@ -188,9 +188,6 @@ def test_sun_room_known_spurious_and_object(sun_composite):
     assert s["spurious"] < 0.005 and s["rmse_object"] <= 6, s
 
 
-@pytest.mark.xfail(strict=True, reason="open (issue 20): since captured light finds emitters from the radiance alone "
-                   "(issue 16), the sunlit floor is flagged as an emitter in the radiance mesh and the strength "
-                   "estimate finds no fully sunlit reflector: no sun is estimated on sun_room")
 def test_sun_room_captured_estimate_and_scores(tmp_path):
     # --lighting captured: the sun estimated from the photo (the declared one only reported against)
     from app.cli import main as cli
