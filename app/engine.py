@@ -283,7 +283,9 @@ class Engine:
             raise ValueError(f"{_scene_json(scene)}: no emitters (no primitive declares emitted_radiance), so "
                              f"--lighting known would leave the room dark; use --lighting captured")
         shaped = np.array([q.light_shaped for q in scene.quads], bool)[patches.quad]
-        self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device, lift=shaped | patches.is_emitter)
+        holes = np.array([q.opening for q in scene.quads], bool)[patches.quad]
+        self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device, lift=shaped | patches.is_emitter,
+                                                     holes=holes)
         self._sun_init(patches)
         key = _hash_scene(scene, p)
         cache = self.cache_dir / f"{scene.name}-{key[:20]}.npz" if self.cache_dir else None
@@ -1039,8 +1041,15 @@ class Engine:
             self.sun_light = None
             return
         sat = np.any(scene.photo.reshape(-1, 3) >= 255, axis=1)
+        # the captured radiance flags the sunlit patch as an emitter (brighter than the mesh, which
+        # holds no sun, can light it); the sun is looked for on every surface but windows and lamps
+        shaped = np.array([q.light_shaped for q in scene.quads], bool)[pm.quad]
+        recv_any = (pre.pix_tri >= 0) & (self.pix_rows.min(1) >= 0) & ~shaped[np.maximum(self.pix_patch, 0)]
+        flagged = pm.is_emitter & ~shaped  # plain surfaces the radiance test flagged: tried as sunlit
+        kept = pm.emission[flagged].copy()
+        pm.emission[flagged] = 0.0
         sun, info = estimate_sun(scene, pm, self.pix_patch, self.pix_pos.astype(np.float64), self.dirs, self.L_b,
-                                 sat, self.recv_pix, pre.B[-1], pre.G_c, self.scene_occ)
+                                 sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ)
         self._sun_patch = None
         self.sun_light = SunLight(sun, openings(scene), self.scene_occ, where="sun estimate") if sun else None
         if sun is not None and scene.sun is not None:
@@ -1052,13 +1061,21 @@ class Engine:
         self.sun_estimate = info
         log.info("sun estimate: %s", info)
         if self.sun_light is not None and self.sun_light.active:
+            # patches the sun lights are reflectors, not emitters: receivers of the object's shadows;
+            # the other flagged ones emit again
+            lit = self._sun_patch_light().any(1)
+            pm.emission[flagged & ~lit] = kept[~lit[flagged]]
+            new = recv_any & ~self.recv_pix & lit[np.maximum(self.pix_patch, 0)]
+            self.recv_pix |= new
+            self.E_x[new] = np.einsum("nk,nkc->nc", pre.pix_bary[new], self.E_v[self.pix_rows[new]])
             # sunlit patches: the photo clips there and the probe sees them coarsely; take the
             # reflectivity of the unlit patches of the same surface (as the strength estimate does)
-            lit = self._sun_patch_light().any(1)
             for q in np.unique(pm.quad[lit]):
                 same = (pm.quad == q) & ~pm.is_emitter
                 if (same & ~lit).sum() >= 3:
                     pm.albedo[same & lit] = np.median(pm.albedo[same & ~lit], axis=0)
+        else:
+            pm.emission[flagged] = kept  # no sun: what the radiance flagged emits
 
     def _sun_frame(self, obj: SceneObject) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass: its shadow map of the object, the irradiance/pi it loses at the sunlit
@@ -1195,11 +1212,14 @@ def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.nda
     return out
 
 
-def _scene_meshes(patches: PatchMesh, device: str, lift: np.ndarray | None = None) -> tuple[Occluder, Occluder]:
-    """(occluder for light: non-emitting patches; camera mesh: every patch, emitters (or the
-    patches `lift` (P,) bool: quads that may emit, Quad.light_shaped) lifted 1 mm off the wall
-    they sit on so the ID buffer and the probe's rays see them rather than the wall)."""
-    solid_tri = ~patches.is_emitter[patches.tri_patch]
+def _scene_meshes(patches: PatchMesh, device: str, lift: np.ndarray | None = None,
+                  holes: np.ndarray | None = None) -> tuple[Occluder, Occluder]:
+    """(occluder for light: non-emitting patches, less the openings `holes` (P,) bool, which light
+    passes through; camera mesh: every patch, emitters (or the patches `lift` (P,) bool: quads that
+    may emit, Quad.light_shaped) lifted 1 mm off the wall they sit on so the ID buffer and the probe's
+    rays see them rather than the wall)."""
+    solid = ~patches.is_emitter if holes is None else ~patches.is_emitter & ~holes
+    solid_tri = solid[patches.tri_patch]
     lifted = patches.is_emitter if lift is None else lift
     emit = patches.tris[lifted[patches.tri_patch]].ravel()
     lift = np.zeros_like(patches.vert_pos)

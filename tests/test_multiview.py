@@ -500,6 +500,7 @@ def test_reconstructed_room_feeds_scene_and_composite(scene_sfm, tmp_path, capsy
     d, _, _, folder, _ = scene_sfm
     src = shared_scene(d["name"])
     inp = write_inputs(src, tmp_path / "in")
+    inp["photo"] = folder / "background.png"  # the main photo, calibrated under the name it has among the views
     assert main(["-q", "calibrate", str(inp["photo"]), "--lines", str(inp["lines"]), "--height", str(inp["height"]),
                  "--out", str(tmp_path / "cal")]) == 0, capsys.readouterr().err
     rec = tmp_path / "rec"
