@@ -111,6 +111,22 @@ def _params(a: argparse.Namespace) -> EngineParams:
                         object_light=not a.no_object_light, second_order=not a.no_second_order)
 
 
+def add_object_args(p) -> None:
+    """The object and its pose: one definition for `composite` and `gui`, so --place/--yaw mean the same."""
+    p.add_argument("--object", type=Path, default=None,
+                   help="object mesh (PLY/OBJ/GLB): at --place/--yaw, else at the scene's object pose")
+    p.add_argument("--place", type=xyz_arg, default=None, metavar="X,Y,Z",
+                   help="world point (m) for the bottom centre of the mesh's bounding box")
+    p.add_argument("--yaw", type=float, default=0.0,
+                   help="right-handed turn about +Y through the --place point, degrees (default %(default)s)")
+    p.add_argument("--object-size", type=float, default=None,
+                   help="largest extent of the object in metres (default: the file's units when they look like "
+                        "metres, else 0.6 m)")
+    p.add_argument("--object-albedo", type=xyz_arg, default=None, metavar="R,G,B",
+                   help="linear diffuse reflectance of --object in [0, 1] (default: the scene's synthetic_object "
+                        "albedo for its own mesh, else 0.6 grey)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="photoar", description="Insert synthetic objects into photographs of rooms, "
                                  "lit by the room's light and casting soft shadows.")
@@ -120,18 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("composite", help="composite a scene's synthetic object into its photo")
     c.add_argument("scene", type=Path, help="scene folder (scene.json, background.png, object mesh)")
     c.add_argument("--out", type=Path, required=True, help="output folder")
-    c.add_argument("--object", type=Path, default=None,
-                   help="object mesh (PLY/OBJ/GLB): at --place/--yaw, else at the scene's object pose")
-    c.add_argument("--place", type=xyz_arg, default=None, metavar="X,Y,Z",
-                   help="world point (m) for the bottom centre of the mesh's bounding box (as `photoar gui --place`)")
-    c.add_argument("--yaw", type=float, default=0.0,
-                   help="right-handed turn about +Y through the --place point, degrees (default %(default)s)")
-    c.add_argument("--object-size", type=float, default=None,
-                   help="largest extent of the object in metres (default: the file's units when they look like "
-                        "metres, else 0.6 m, as the GUI)")
-    c.add_argument("--object-albedo", type=xyz_arg, default=None, metavar="R,G,B",
-                   help="linear diffuse reflectance of --object in [0, 1] (default: the scene's synthetic_object "
-                        "albedo for its own mesh, else 0.6 grey, as the GUI)")
+    add_object_args(c)
     c.add_argument("--placement", type=Path, default=None,
                    help="placement JSON saved by `photoar gui` (mesh, position, yaw, lift, scale)")
     c.add_argument("--work-res", type=int, default=None, metavar="PX",

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.cli import xyz_arg
+from app.cli import add_object_args
 
 log = logging.getLogger("photoar")
 
@@ -42,17 +42,7 @@ def register(sub) -> None:
     g = sub.add_parser("gui", help="interactive placement window (Open3D): click to place, drag to move",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     g.add_argument("scene", type=Path, help="scene folder, or a placement JSON saved from the window")
-    g.add_argument("--object", type=Path, default=None,
-                   help="object mesh (PLY/OBJ/GLB; default: the scene's own object)")
-    g.add_argument("--object-size", type=float, default=None,
-                   help="largest extent of the object in metres (default: the file's units when they look like "
-                        "metres, else 0.6 m)")
-    g.add_argument("--object-albedo", type=xyz_arg, default=None, metavar="R,G,B",
-                   help="the object's diffuse colour, linear RGB in [0, 1] (default: the scene's object albedo for "
-                        "its own mesh, else 0.6 grey)")
-    g.add_argument("--place", type=xyz_arg, default=None, metavar="X,Y,Z",
-                   help="world point (m) for the object's bottom centre (default: the scene's object pose)")
-    g.add_argument("--yaw", type=float, default=0.0, help="turn about +Y in degrees (with --place)")
+    add_object_args(g)
     g.add_argument("--passes", type=_positive_int, default=50,
                    help="shadow passes per frame while the object moves (default %(default)s; the window's slider "
                         "changes it); at rest the frame is refined to all sources")

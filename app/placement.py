@@ -509,11 +509,9 @@ class PlacementController:
                 raise RuntimeError(f"{self.scene.root}: the engine is not ready (precompute still running)")
             cfg = self.config
             key = (pose, cfg)
-            if key in self._frames:
-                self._frames.move_to_end(key)
-                fr = self._frames[key]
-                return FrameResult(fr.pixels, fr.radiance, {**fr.stats, "cached": True,
-                                                            "frame_s": time.perf_counter() - t0})
+            kept = self._kept_frame(key, t0)
+            if kept is not None:
+                return kept
         obj = self.scene_object(pose)
         if obj is None:
             H, W = self.scene.camera.height, self.scene.camera.width
@@ -532,6 +530,15 @@ class PlacementController:
                 self._frames.popitem(last=False)
         return FrameResult(fr.pixels, fr.radiance, {**fr.stats, "cached": False, "frame_s": time.perf_counter() - t0})
 
+    def _kept_frame(self, key, t0: float) -> FrameResult | None:
+        """The frame kept under `key` (pose, config), marked cached and timed from t0; None if not
+        kept. Call with the lock held."""
+        fr = self._frames.get(key)
+        if fr is None:
+            return None
+        self._frames.move_to_end(key)
+        return FrameResult(fr.pixels, fr.radiance, {**fr.stats, "cached": True, "frame_s": time.perf_counter() - t0})
+
     def refine(self, pose: Pose | None = None, budget_s: float | None = None) -> FrameResult | None:
         """At rest: advance the all-sources frame of `pose` (default: the current one) for about
         `budget_s` seconds (None: to the end) and return it once every source is in, else None.
@@ -545,11 +552,9 @@ class PlacementController:
                 raise RuntimeError(f"{self.scene.root}: the engine is not ready (precompute still running)")
             cfg = replace(self.config, passes=None, fps=None)
             key = (pose, cfg)
-            if key in self._frames:
-                self._frames.move_to_end(key)
-                fr = self._frames[key]
-                return FrameResult(fr.pixels, fr.radiance, {**fr.stats, "cached": True,
-                                                            "frame_s": time.perf_counter() - t0})
+            kept = self._kept_frame(key, t0)
+            if kept is not None:
+                return kept
         obj = self.scene_object(pose)
         if obj is None:  # the photo itself: nothing to refine
             return self.render(pose)
