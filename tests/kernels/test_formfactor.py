@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy.integrate import dblquad
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from kernels.formfactor import point_to_polygon  # noqa: E402
 

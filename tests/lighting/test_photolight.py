@@ -17,7 +17,7 @@ import pytest
 from lighting import photolight as PL
 from lighting.radiosity import gather
 from tests.conftest import score, shared_scene
-from tests.test_gui import xvfb  # noqa: F401  (the Xvfb display fixture)
+from tests.app.test_gui import xvfb  # noqa: F401  (the Xvfb display fixture)
 
 SCENES = ["window_room", "lamps_room"]
 ROOM = np.array([3.0, 2.5, 3.0])

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import binary_dilation
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from app.cli import demo_scene_dir  # noqa: E402
 from app.engine import Engine, EngineParams  # noqa: E402

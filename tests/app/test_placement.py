@@ -301,7 +301,7 @@ def test_public_engine_api_progress_lighting_and_no_param_writes(tmp_path):
     assert params.lighting == "known"  # replaced, not written
     with pytest.raises(RuntimeError, match="not ready"):
         ctl.render()
-    root = Path(__file__).resolve().parents[1] / "app"
+    root = Path(__file__).resolve().parents[2] / "app"
     for name in ("gui.py", "placement.py"):
         src = (root / name).read_text()
         writes = re.findall(r"(?:params|engine\.params)\.\w+\s*=(?!=)", src)

@@ -3,7 +3,7 @@ floor below them, unobserved walls beyond the cameras or from the tape, rooms th
 their cameras; and the assisted furniture path (`photoar model` fits a box to clicked corners).
 
 Analytic: a synthetic room seen by pitched-down cameras, put into an arbitrary SfM-like frame
-(rotation, scale 0.23, offset). The shared scenes are in tests/test_multiview.py.
+(rotation, scale 0.23, offset). The shared scenes are in tests/recon/test_multiview.py.
 """
 import json
 

@@ -7,7 +7,7 @@ import pytest
 
 from app.cli import build_parser, main
 from tests.conftest import SHARED
-from tests.test_vanishing import _board_families
+from tests.recon.test_vanishing import _board_families
 
 
 def test_known_length_in_help(capsys):

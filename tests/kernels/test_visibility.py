@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from kernels.formfactor import point_to_polygon  # noqa: E402
 from kernels.visibility import Occluder, emitter_sum, segments_visible, transfer_matrix  # noqa: E402

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from kernels.composite import MaskedSum  # noqa: E402
 from kernels.shadowmap import ShadowMaps  # noqa: E402
