@@ -31,80 +31,127 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import logging
 import sys
 import time
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import warp as wp
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
+from app.stages import precompute as scene_precompute
+from app.stages.precompute import (CACHE_VERSION, LIGHTING, Lighting, PrecomputeConfig,  # noqa: F401 (re-exported)
+                                   Precomputed, hash_scene as _hash_scene)
+from app.stages.receiver_map import receiver_map, reflectance
 from kernels import runtime
 from kernels.composite import MaskedSum
 from kernels.raycast import cast_rays
 from kernels.shadowmap import ShadowMaps
 from kernels.shade import self_transfer
 from kernels.visibility import Occluder, emitter_sum, transfer_matrix
-from lighting.frame_sources import ShadowSources
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from lighting.irradiance import RoomLight
-from lighting.radiance import captured_radiance_mesh, load_captured_probe
-from lighting.radiosity import gather
-from lighting.sources import select_sources
-from lighting.sun import SunLight, estimate_sun, gather_with_sun, openings, surface_albedo
+from lighting.radiance import load_captured_probe
+from lighting.sun import SunLight, estimate_sun, openings, surface_albedo
 from kernels.sunshadow import SunShadowMap
 from lighting.transfer import intensity_transfers
-from recon.io import write_npz
-from recon.patches import PatchMesh, build_patches
+from recon.patches import PatchMesh
 from recon.proxy import simplify, subdivide
 from recon.response import luminance
 from recon.scene import Scene, SceneObject
 
 log = logging.getLogger("photoar")
-CACHE_VERSION = 6
-# How the room is lit (EngineParams.lighting; the one list the command line and the engine use):
-LIGHTING = {
-    "known": "the scene's declared emitters (emitted_radiance) and radiosity",
-    "captured": "the bracketed mirror-ball probe and the photo; emitters are the patches brighter than any "
-                "reflector could be, the camera response is recovered from the bracket",
-    "photo": "the photo alone: sRGB assumed, window/lamp radiance fitted to the walls (lighting.photolight)",
-}
 
 
-@dataclass
+Mode = Literal["hdr", "ldr"]
+
+
+def _knob(default, doc: str):
+    """A config field with its documentation (the command line's help is made from it, cli.py)."""
+    return field(default=default, metadata={"doc": doc})
+
+
+def _check_literals(cfg) -> None:
+    """ValueError naming the field when a Literal-typed field of the dataclass `cfg` holds a value
+    outside its choices."""
+    hints = _LITERAL_FIELDS.get(type(cfg))
+    if hints is None:
+        hints = _LITERAL_FIELDS[type(cfg)] = {
+            k: typing.get_args(t) for k, t in typing.get_type_hints(type(cfg)).items()
+            if typing.get_origin(t) is Literal}
+    for name, choices in hints.items():
+        value = getattr(cfg, name)
+        if value not in choices:
+            raise ValueError(f"{name} must be one of {', '.join(map(repr, choices))}, got {value!r}")
+
+
+_LITERAL_FIELDS: dict[type, dict[str, tuple]] = {}
+
+
+def _check_frame(passes, fps) -> None:
+    if fps is not None and not fps > 0:
+        raise ValueError(f"fps must be positive, got {fps!r}")
+    if passes is not None and (isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 1):
+        raise ValueError(f"passes must be an integer of at least 1 or None (all sources), got {passes!r}")
+
+
+@dataclass(frozen=True)
 class EngineParams:
-    """Knobs of the engine; every one trades accuracy against time (see bench/)."""
+    """Knobs of the engine; every one trades accuracy against time (see bench/). Frozen: a changed
+    knob is a new EngineParams (dataclasses.replace). The knobs of the scene precompute are its
+    cache key (`precompute`); the field docs are the command line's help (app.cli)."""
 
-    patch_size: float = 0.18  # m, receiver/source patches (bench/bench_patch_size.py)
-    emitter_patch_size: float = 0.1  # m, emitters are cut finer: one hard shadow per patch
-    vis_side: int = 2  # visibility samples per patch side for receiver transfers (n^2 rays)
-    bounces: int = 4  # light bounces the camera sees (the benchmark truth: 4)
-    source_fraction: float = 1.0  # share of total power kept in the source set (seed: 0.7)
-    passes: int | None = None  # shadow maps per frame (None = one per source)
-    map_res: int = 256  # shadow-map resolution
-    batch: int = 64  # shadow maps rendered at once
-    mode: str = "hdr"  # hdr: T(L_b - eps); ldr: I_b - sum S_ij M_ij
-    object_light: bool = True  # light reflected by the object onto the room
-    second_order: bool = True  # re-propagate the change of patch radiance once
-    proxy_faces: int = 300  # target size of the occluder proxy
-    supersample: int = 2  # object coverage rays per pixel side
-    volume_spacing: float = 0.25  # m, SH irradiance volume grid
-    prt_dirs: int = 128  # directions per vertex for the object's self-occlusion transfer
-    specular: float = 0.0  # k_s of the object's Phong-like specular lobe (0: Lambertian, as in the benchmarks)
-    shininess: float = 32.0  # Phong exponent n of that lobe
-    envmap_res: int = 16  # face size of the pre-filtered cube map looked up per pixel
-    lighting: str = "known"  # known: declared emitters + radiosity; captured: probe bracket + photo (sec. 4.2);
-    # photo: the photo alone, emitters fitted to the walls (lighting.photolight)
-    fps: float | None = None  # target frame rate: choose the pass count from measured per-pass cost
-    leaf_size: int = 8  # receiver octree leaf size (sec. 6.2)
-    shaft_threshold: float = 0.02  # stop refining a shaft below this share of each receiver's light
+    patch_size: float = _knob(0.18, "metres, receiver/source patches (bench/bench_patch_size.py)")
+    emitter_patch_size: float = _knob(0.1, "metres, emitters are cut finer: one hard shadow per patch")
+    vis_side: int = _knob(2, "visibility samples per patch side for receiver transfers (n^2 rays)")
+    bounces: int = _knob(4, "light bounces the camera sees (the benchmark truth: 4)")
+    source_fraction: float = _knob(1.0, "share of total patch power kept as shadow sources (seed: 0.7)")
+    passes: int | None = _knob(None, "shadow maps per frame; sources are grouped into this many representatives "
+                                     "(default: one per source)")
+    map_res: int = _knob(256, "shadow-map size")
+    batch: int = _knob(64, "shadow maps rendered at once")
+    mode: Mode = _knob("hdr", "hdr: T(L_b - eps) in floating point; ldr: subtract intensity transfers S_ij from "
+                              "the 8-bit photo (seed fig. 13)")
+    object_light: bool = _knob(True, "light the object reflects onto the room")
+    second_order: bool = _knob(True, "re-propagate the object's effect once (the change of patch radiance)")
+    proxy_faces: int = _knob(300, "target size of the occluder proxy")
+    supersample: int = _knob(2, "object coverage rays per pixel side")
+    volume_spacing: float = _knob(0.25, "metres, SH irradiance volume grid")
+    prt_dirs: int = _knob(128, "directions per vertex for the object's self-occlusion transfer")
+    specular: float = _knob(0.0, "k_s of the object's Phong-like specular lobe, in [0, 1] (0: Lambertian, as in "
+                                 "the benchmarks)")
+    shininess: float = _knob(32.0, "Phong exponent")
+    envmap_res: int = _knob(16, "face size of the pre-filtered cube map looked up per pixel")
+    lighting: Lighting = _knob("known", "; ".join(f"{k}: {v}" for k, v in LIGHTING.items()))
+    fps: float | None = _knob(None, "target frame rate: the pass count is chosen from the measured cost per pass "
+                                    "(at most --passes)")
+    leaf_size: int = _knob(8, "receiver octree leaf size (sec. 6.2)")
+    shaft_threshold: float = _knob(0.02, "stop refining a shaft below this share of each receiver's light")
+
+    def __post_init__(self):
+        _check_literals(self)
+        if not 0.0 <= self.specular <= 1.0 or self.shininess < 0:
+            raise ValueError(f"specular must be in [0, 1] and shininess >= 0, got {self.specular}, "
+                             f"{self.shininess}")
+        _check_frame(self.passes, self.fps)
+
+    @classmethod
+    def doc(cls, name: str) -> str:
+        """The documentation of field `name` (the command line's help)."""
+        return cls.__dataclass_fields__[name].metadata["doc"]
+
+    @property
+    def precompute(self) -> PrecomputeConfig:
+        """The knobs the scene precompute reads: exactly its cache key."""
+        return PrecomputeConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(PrecomputeConfig)})
 
     def cache_key(self) -> dict:
-        return {k: getattr(self, k) for k in ("patch_size", "emitter_patch_size", "vis_side", "bounces", "lighting")}
+        return self.precompute.cache_key()
 
 
 @dataclass(frozen=True)
@@ -113,17 +160,12 @@ class FrameConfig:
     the key it is kept under read the same values)."""
 
     passes: int | None = None  # shadow maps per frame (None = one per source, the all-sources frame)
-    mode: str = "hdr"  # hdr: T(L_b - eps); ldr: I_b - sum S_ij M_ij
+    mode: Mode = "hdr"  # hdr: T(L_b - eps); ldr: I_b - sum S_ij M_ij
     fps: float | None = None  # target frame rate: passes from the measured per-pass cost (passes caps it)
 
     def __post_init__(self):
-        if self.fps is not None and not self.fps > 0:
-            raise ValueError(f"fps must be positive, got {self.fps!r}")
-        if self.mode not in ("hdr", "ldr"):
-            raise ValueError(f"mode must be 'hdr' or 'ldr', got {self.mode!r}")
-        if self.passes is not None and (isinstance(self.passes, bool) or not isinstance(self.passes, (int, np.integer))
-                                        or self.passes < 1):
-            raise ValueError(f"passes must be an integer of at least 1 or None (all sources), got {self.passes!r}")
+        _check_literals(self)
+        _check_frame(self.passes, self.fps)
 
 
 @dataclass
@@ -147,84 +189,12 @@ def _pose_key(obj: SceneObject) -> bytes:
 
 
 @dataclass
-class Precomputed:
-    """Per-scene data that does not depend on the object (cached on disk)."""
-
-    patches: PatchMesh
-    G_c: np.ndarray  # (P,P) float32 patch-centre -> patch transfers
-    recv_vert: np.ndarray  # (Vr,) vertex ids of receiver vertices (vertices of camera-seen patches)
-    G_v: np.ndarray  # (Vr,P) float32 receiver-vertex -> patch transfers
-    B: np.ndarray  # (bounces+1, P, 3) radiosity iterates
-    pix_tri: np.ndarray  # (H*W,) int32 scene triangle per pixel (-1 none)
-    pix_bary: np.ndarray  # (H*W,3) float32
-    pix_depth: np.ndarray  # (H*W,) float32 metres along the ray
-    albedo: np.ndarray  # (P,3) patch reflectivity used (declared, or recovered from captured light)
-    origin: np.ndarray  # (P,) int8 where each patch's radiance came from (lighting.radiance codes; known: -1)
-    seconds: float = 0.0
-    emitter: np.ndarray | None = None  # (P,) bool patches that emit (captured: decided from the radiance)
-
-
-@dataclass
 class Frame:
     radiance: np.ndarray  # (H,W,3) float32 composite radiance (HDR path estimate)
     pixels: np.ndarray  # (H,W,3) uint8 composite photo
     stats: dict = field(default_factory=dict)
     room: np.ndarray | None = None  # (H,W,3) float32 radiance of the room with the object's effect, object unseen
     coverage: np.ndarray | None = None  # (H,W) float32 share of each pixel the object covers
-
-
-def _hash_scene(scene: Scene, params: EngineParams) -> str:
-    h = hashlib.sha256()
-    h.update(json.dumps({"v": CACHE_VERSION, **params.cache_key()}, sort_keys=True).encode())
-    for q in scene.quads:
-        h.update(q.name.encode())
-        h.update(f"{q.role}|{q.declared_emitter}".encode())  # how finely it is cut, whether it is lifted
-        for a in (q.corners, q.normal, q.albedo, q.emission):
-            h.update(np.ascontiguousarray(a, np.float64).tobytes())
-        if q.texture is not None:
-            h.update(hashlib.sha256(np.ascontiguousarray(q.texture).tobytes()).digest())
-    if scene.sun is not None:  # sun: direction, size, strength, and which quads are openings
-        h.update(np.concatenate([scene.sun.direction, [scene.sun.angular_diameter_deg], scene.sun.irradiance,
-                                 [float(q.opening) for q in scene.quads]]).astype(np.float64).tobytes())
-    cam = scene.camera
-    for a in (cam.K, cam.R, cam.t):
-        h.update(np.ascontiguousarray(a, np.float64).tobytes())
-    h.update(f"{cam.width}x{cam.height} exposure {cam.exposure_time!r}".encode())
-    h.update(hashlib.sha256(np.ascontiguousarray(scene.photo).tobytes()).digest())
-    if scene.response is not None:
-        for a in (scene.response.forward_table, scene.response.inverse_table):
-            h.update(np.ascontiguousarray(a, np.float64).tobytes())
-    if params.lighting == "captured":
-        # the probe's files, and everything scene.json says about them: pose (centre, radius,
-        # camera R/t/pixel size/principal point), exposure times, file names
-        from lighting.hdr import scene_probe_files
-
-        files, times, meta = scene_probe_files(scene.root)
-        h.update(json.dumps(meta.get("light_probe"), sort_keys=True, default=str).encode())
-        for f in files:
-            h.update(hashlib.sha256(f.read_bytes()).digest())
-    return h.hexdigest()
-
-
-def _scene_json(scene: Scene) -> str:
-    return str(scene.meta.get("json_path", Path(scene.root) / "scene.json"))
-
-
-def _need_declared(scene: Scene) -> None:
-    """Known lighting on a scene whose response or some emitter's radiance is not declared."""
-    if scene.response is None:
-        raise ValueError(f"{_scene_json(scene)}: missing field 'camera_response'; --lighting known needs the "
-                         f"camera's response (or use --lighting captured, which recovers it from the probe "
-                         f"bracket, or --lighting photo, which assumes one)")
-    if scene.meta.get("emitters_without_radiance"):
-        raise ValueError(f"{_scene_json(scene)}: no emitters of declared strength for --lighting known "
-                         f"(emitters without emitted_radiance: {', '.join(scene.meta['emitters_without_radiance'])});"
-                         f" use --lighting captured or --lighting photo, which estimate them")
-
-
-def _bar(total: int, desc: str, quiet: bool):
-    return tqdm(total=total, desc=desc, unit="pt", disable=quiet or not sys.stderr.isatty(), leave=False,
-                dynamic_ncols=True)
 
 
 class Engine:
@@ -236,19 +206,14 @@ class Engine:
         (total, total) once the engine is ready, also on a cache hit), from the constructing thread."""
         self.scene = scene
         self._progress = progress
-        self.params = params or EngineParams()
-        if self.params.mode not in ("hdr", "ldr"):
-            raise ValueError(f"mode must be 'hdr' or 'ldr', got {self.params.mode!r}")
-        if self.params.lighting not in LIGHTING:
-            raise ValueError(f"lighting must be one of {sorted(LIGHTING)}, got {self.params.lighting!r}")
-        if not 0.0 <= self.params.specular <= 1.0 or self.params.shininess < 0:
-            raise ValueError(f"specular must be in [0, 1] and shininess >= 0, got {self.params.specular}, "
-                             f"{self.params.shininess}")
+        self.params = params or EngineParams()  # frozen, validated when made
         self.device = runtime.device(device)
         self.quiet = quiet
         self.photo_priors = photo_priors  # lighting "photo": lighting.photolight.PhotoPriors (None: defaults)
         self.cache_dir = Path(cache_dir) if cache_dir else None
-        self.n_precompute = 0  # per-scene work done (precompute, SH volume): no frame may add to it
+        self.n_precompute = 0  # per-scene work done, not read from the cache (precompute, shafts, SH volume):
+        # no frame may add to it
+        self.n_cache_loads = 0  # per-scene artefacts read from the cache: no frame may add to it either
         self._progress_total = 1  # precompute steps (transfer rows) reported to `progress`
         t0 = time.perf_counter()
         self.probe = None
@@ -261,7 +226,7 @@ class Engine:
             self.scene = scene = self._photo_scene(scene)
         elif self.params.lighting == "known" and (scene.response is None
                                                   or scene.meta.get("emitters_without_radiance")):
-            _need_declared(scene)  # captured: the probe gives the response and the emitters
+            scene_precompute.need_declared(scene)  # captured: the probe gives the response and the emitters
         self.pre, self.cache_hit = self._precompute()
         self._setup()
         self._refining: _Refinement | None = None  # refine(): the pose being refined
@@ -273,96 +238,29 @@ class Engine:
 
     # ------------------------------------------------------------------ precompute
     def _precompute(self) -> tuple[Precomputed, bool]:
-        self.n_precompute += 1
-        p = self.params
-        scene = self.scene
-        patches = build_patches(scene, p.patch_size, p.emitter_patch_size)
-        if p.lighting == "captured":
-            patches.emission[:] = 0.0  # declared radiance is never read: emitters come from the capture
-        elif p.lighting == "known" and not patches.is_emitter.any() and scene.sun is None:
-            raise ValueError(f"{_scene_json(scene)}: no emitters (no primitive declares emitted_radiance), so "
-                             f"--lighting known would leave the room dark; use --lighting captured")
-        shaped = np.array([q.light_shaped for q in scene.quads], bool)[patches.quad]
-        holes = np.array([q.opening for q in scene.quads], bool)[patches.quad]
-        self.scene_occ, self.cam_occ = _scene_meshes(patches, self.device, lift=shaped | patches.is_emitter,
-                                                     holes=holes)
+        """The scene precompute (app.stages.precompute), from the cache when its key is there."""
+        cfg, scene = self.params.precompute, self.scene
+        patches = scene_precompute.scene_patches(scene, cfg)
+        self.scene_occ, self.cam_occ = scene_precompute.scene_occluders(scene, patches, self.device)
         self._sun_init(patches)
-        key = _hash_scene(scene, p)
-        cache = self.cache_dir / f"{scene.name}-{key[:20]}.npz" if self.cache_dir else None
-        if cache is not None and cache.is_file():
-            try:
-                z = np.load(cache)
-                pre = Precomputed(patches, z["G_c"], z["recv_vert"], z["G_v"], z["B"], z["pix_tri"], z["pix_bary"],
-                                  z["pix_depth"], z["albedo"], z["origin"], float(z["seconds"]), z["emitter"])
-                log.info("precompute: cache hit %s", cache)
-                self._use_lighting(pre)
-                return pre, True
-            except (OSError, KeyError, ValueError, EOFError) as e:
-                log.warning("precompute: ignoring unreadable cache %s (%s)", cache, e)
-        t0 = time.perf_counter()
-        dev = self.device
-        solid = ~patches.is_emitter
-        cam = scene.camera
-        pix_tri, pix_bary, pix_depth = cast_rays(self.cam_occ, cam.centre, cam.pixel_rays().reshape(-1, 3))
-
-        seen = np.unique(patches.tri_patch[pix_tri[pix_tri >= 0]])
-        seen = seen[solid[seen]]
-        recv_vert = np.unique(patches.tris[np.isin(patches.tri_patch, seen)].ravel()).astype(np.int32)
-
-        n_c, n_v = patches.n_patches, len(recv_vert)
-        self._progress_total = n_c + n_v
-        with _bar(n_c + n_v, "precompute transfers", self.quiet) as bar:
-            done = [0]
-
-            def step(k: int) -> None:  # the progress bar and the caller's progress(done, total)
-                bar.update(k)
-                done[0] += k
-                if self._progress is not None:
-                    self._progress(min(done[0], n_c + n_v), n_c + n_v)
-
-            G_c = transfer_matrix(patches.centre, patches.normal, patches.corners, patches.normal, [self.scene_occ],
-                                  n_side=1, device=dev, progress=step)
-            np.fill_diagonal(G_c, 0.0)
-            G_v = transfer_matrix(patches.vert_inset[recv_vert], patches.vert_normal[recv_vert], patches.corners,
-                                  patches.normal, [self.scene_occ], n_side=p.vis_side, device=dev,
-                                  progress=step)
-        if p.lighting == "captured":
-            pix_patch = np.where(pix_tri >= 0, patches.tri_patch[np.maximum(pix_tri, 0)], -1)
-            rm = captured_radiance_mesh(patches, G_c, self.cam_occ, self.probe, scene, pix_patch)
-            log.info("radiance mesh from captured light: %s", rm.summary())
-            B = np.stack([rm.radiance] * (p.bounces + 1))
-            albedo, origin, emitter = rm.reflectivity, rm.origin, rm.emitter
-        elif p.lighting == "photo":  # filled in by _use_lighting (cheap; redone on a cache hit)
-            B, albedo, origin = np.zeros((p.bounces + 1, n_c, 3)), patches.albedo, np.full(n_c, -1, np.int8)
-            emitter = patches.is_emitter
-        else:
-            if self.sun_light is not None and self.sun_light.active:  # sun: its patch light joins the radiosity
-                B = np.stack(gather_with_sun(G_c, patches.albedo, patches.emission, self._sun_patch_light(),
-                                             p.bounces))
-            else:
-                B = np.stack(gather(G_c, patches.albedo, patches.emission, p.bounces))
-            albedo, origin, emitter = patches.albedo, np.full(n_c, -1, np.int8), patches.is_emitter
-        seconds = time.perf_counter() - t0
-        pre = Precomputed(patches, G_c, recv_vert, G_v, B, pix_tri, pix_bary, pix_depth, albedo, origin, seconds,
-                          emitter)
+        pre, hit, self._progress_total = scene_precompute.precompute(
+            scene, cfg, patches, self.scene_occ, self.cam_occ, device=self.device, cache_dir=self.cache_dir,
+            probe=self.probe, sun_patch_light=lambda: self._sun_patch_light() if self.sun_light is not None
+            and self.sun_light.active else None, progress=self._progress, quiet=self.quiet)
+        self._count(hit)
         self._use_lighting(pre)
-        if cache is not None:
-            write_npz(cache, G_c=G_c, recv_vert=recv_vert, G_v=G_v, B=B, pix_tri=pix_tri, pix_bary=pix_bary,
-                      pix_depth=pix_depth, albedo=albedo, origin=origin, seconds=seconds, emitter=emitter)
-        log.info("precompute: %d patches, %d receiver vertices, %.1f s", n_c, n_v, seconds)
-        return pre, False
+        return pre, hit
+
+    def _count(self, hit: bool) -> None:
+        """Count one per-scene artefact: read from the cache (hit) or built (real per-scene work)."""
+        if hit:
+            self.n_cache_loads += 1
+        else:
+            self.n_precompute += 1
 
     def _use_lighting(self, pre: Precomputed) -> None:
         """Make the patch mesh carry the reflectivity and emitter radiance the precompute used."""
-        pm = pre.patches
-        if self.params.lighting == "photo":
-            self._fit_photo_light(pre)
-        pm.albedo = np.asarray(pre.albedo, np.float64)
-        if self.params.lighting in ("captured", "photo"):
-            # which patches emit and how bright: captured, both from the captured radiance
-            # (lighting.radiance.emitters); photo, the fitted groups and the model's emitters
-            emit = np.asarray(pre.emitter, bool) if self.params.lighting == "captured" else pm.is_emitter
-            pm.emission = np.where(emit[:, None], np.maximum(pre.B[-1], 1e-12), 0.0)
+        scene_precompute.use_lighting(pre, self.params.lighting, self._fit_photo_light)
 
     def _photo_scene(self, scene: Scene) -> Scene:
         """The scene with the assumed response and the model's emitters of unknown strength
@@ -375,19 +273,8 @@ class Engine:
 
     def _fit_photo_light(self, pre: Precomputed) -> None:
         """Radiance mesh from the photo alone into `pre` (B, albedo, origin), report in photo_light."""
-        from lighting.photolight import fit_photo_light
-
-        pm, scene = pre.patches, self.scene
-        pm.emission = np.array([q.emission for q in scene.quads])[pm.quad]  # the model's emitters
-        pix_patch = np.where(pre.pix_tri >= 0, pm.tri_patch[np.maximum(pre.pix_tri, 0)], -1)
-        where = str(scene.root / "background.png")
-        fit = fit_photo_light(pm, pre.G_c, pix_patch, scene.photo, scene.response, self.photo_priors,
-                              [q.name for q in scene.quads], where, [q.role for q in scene.quads])
-        pre.B = np.stack([fit.radiance] * (self.params.bounces + 1))
-        pre.albedo, pre.origin = fit.reflectivity, fit.origin
-        emit = (fit.origin == 3) | pm.is_emitter  # fitted groups and the model's emitters
-        pm.emission = np.where(emit[:, None], 1.0, 0.0)
-        self.photo_light = {**fit.report, **{k: v for k, v in self.photo_light.items() if k.startswith("declared")}}
+        report = scene_precompute.fit_photo_light(pre, self.scene, self.params.bounces, self.photo_priors)
+        self.photo_light = {**report, **{k: v for k, v in self.photo_light.items() if k.startswith("declared")}}
         log.info("photo light: %s", {k: v for k, v in self.photo_light.items() if k != "warnings"})
 
     def _setup(self) -> None:
@@ -395,37 +282,28 @@ class Engine:
         pre, pm, scene = self.pre, self.pre.patches, self.scene
         dev = self.device
         cam = scene.camera
-        self.dirs = cam.pixel_rays().reshape(-1, 3)
-        self.L_b = scene.response.to_radiance(scene.photo).reshape(-1, 3)  # (H*W,3)
-        self.L_b_levels = scene.response.to_levels(self.L_b)  # T(L_b): the frame where nothing changes
-        hit = pre.pix_tri >= 0
-        self.pix_patch = np.where(hit, pm.tri_patch[np.maximum(pre.pix_tri, 0)], -1)
-        vert_row = np.full(len(pm.vert_pos), -1, np.int64)
-        vert_row[pre.recv_vert] = np.arange(len(pre.recv_vert))
-        self.pix_rows = np.where(hit[:, None], vert_row[pm.tris[np.maximum(pre.pix_tri, 0)]], -1)
-        self.pix_pos = (cam.centre + self.dirs * np.where(hit, pre.pix_depth, 0.0)[:, None]).astype(np.float32)
-        # receiver pixels: seen surface that is a non-emitter receiver patch with all vertices known
-        self.recv_pix = hit & (self.pix_rows.min(1) >= 0) & ~pm.is_emitter[np.maximum(self.pix_patch, 0)]
         b = self.params.bounces
         self.B_src = pre.B[b - 1]  # what receivers gather (one bounce less than the camera sees)
         self.B_obj = pre.B[max(b - 2, 0)]  # light that reaches the camera via the object has one bounce less
-        self.E_v = pre.G_v.astype(np.float64) @ self.B_src  # (Vr,3) irradiance/pi at receiver vertices
-        self.E_x = np.zeros_like(self.L_b)
-        rp = self.recv_pix
-        self.E_x[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], self.E_v[self.pix_rows[rp]])
+        # receiver map (app.stages.receiver_map): dirs, L_b, L_b_levels, pix_patch, pix_rows, pix_pos,
+        # recv_pix, E_v, E_x
+        for name, value in vars(receiver_map(scene, pre, self.B_src)).items():
+            setattr(self, name, value)
         self._sun_setup_pixels()  # sun: its direct light joins E_x; clipped sunlit pixels get model radiance
-        with np.errstate(divide="ignore", invalid="ignore"):
-            self.rho_x = np.where(self.E_x > 0, np.minimum(self.L_b / self.E_x, 1.0), 0.0)
+        self.rho_x = reflectance(self.L_b, self.E_x)
         if self.sun_pix is not None:
             self.rho_x[self.sun_clipped] = self.sun_rho_clipped
         self.maps = ShadowMaps(self.params.batch, self.params.map_res, device=dev)
         self._room_light = None
         t0 = time.perf_counter()
-        src = select_sources(self.B_src, pm.area, self.params.source_fraction)
-        receivers = np.flatnonzero(~pm.is_emitter)
-        self.shadow_sources = ShadowSources(src, pm.centre, pm.normal, pm.corners, receivers, pre.G_c, pre.G_v,
-                                            self.B_src, self.params.leaf_size, self.params.shaft_threshold)
-        self.shaft_build_s = time.perf_counter() - t0
+        p = self.params
+        key = scene_precompute.shadow_sources_key(pre, self.B_src, p.source_fraction, p.leaf_size,
+                                                  p.shaft_threshold) if self.cache_dir is not None else ""
+        self.shadow_sources, hit = scene_precompute.shadow_sources(
+            pre, self.B_src, p.source_fraction, p.leaf_size, p.shaft_threshold,
+            scene_precompute.cache_file(self.cache_dir, scene, "shafts-", key))
+        self._count(hit)
+        self.shaft_build_s = time.perf_counter() - t0  # built, or read from the cache (hit)
         log.debug("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
         self._cost: dict | None = None  # measured fixed and per-pass frame cost (--fps), refined every frame
         self._passes_override: int | None = None  # pass count of the calibration frame
@@ -739,10 +617,13 @@ class Engine:
     def room_light(self) -> RoomLight:
         """SH9 volume of the indirect light plus the emitters (built on first use, ~2-5 s)."""
         if self._room_light is None:
-            self.n_precompute += 1
-            pm, sc = self.pre.patches, self.scene
-            self._room_light = RoomLight(pm, self.B_src, sc.room_min, sc.room_max, self.scene_occ,
-                                         self.params.volume_spacing, self.device)
+            pm, sc, spacing = self.pre.patches, self.scene, self.params.volume_spacing
+            key = scene_precompute.room_light_key(pm, self.B_src, sc.room_min, sc.room_max, self.scene_occ,
+                                                  spacing) if self.cache_dir is not None else ""
+            self._room_light, hit = scene_precompute.room_light(
+                pm, self.B_src, sc.room_min, sc.room_max, self.scene_occ, spacing, self.device,
+                scene_precompute.cache_file(self.cache_dir, sc, "sh-", key))
+            self._count(hit)
         return self._room_light
 
     def object_vertex_radiance(self, obj: SceneObject, mesh, proxy_occ: Occluder,
@@ -1210,22 +1091,6 @@ def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.nda
         known = known | new
     out[~known] = out[known].mean(0)
     return out
-
-
-def _scene_meshes(patches: PatchMesh, device: str, lift: np.ndarray | None = None,
-                  holes: np.ndarray | None = None) -> tuple[Occluder, Occluder]:
-    """(occluder for light: non-emitting patches, less the openings `holes` (P,) bool, which light
-    passes through; camera mesh: every patch, emitters (or the patches `lift` (P,) bool: quads that
-    may emit, Quad.light_shaped) lifted 1 mm off the wall they sit on so the ID buffer and the probe's
-    rays see them rather than the wall)."""
-    solid = ~patches.is_emitter if holes is None else ~patches.is_emitter & ~holes
-    solid_tri = solid[patches.tri_patch]
-    lifted = patches.is_emitter if lift is None else lift
-    emit = patches.tris[lifted[patches.tri_patch]].ravel()
-    lift = np.zeros_like(patches.vert_pos)
-    lift[emit] = patches.vert_normal[emit] * 1e-3
-    return (Occluder(patches.vert_pos, patches.tris[solid_tri], device),
-            Occluder(patches.vert_pos + lift, patches.tris, device))
 
 
 def _window_pairs(H: int, W: int):

@@ -21,7 +21,10 @@ class RoomLight:
     """Indirect light in an SH9 volume plus the emitter patches, from one radiance mesh."""
 
     def __init__(self, patches: PatchMesh, radiance: np.ndarray, room_min: np.ndarray, room_max: np.ndarray,
-                 occluder: Occluder, spacing: float = 0.25, device: str | None = None):
+                 occluder: Occluder, spacing: float = 0.25, device: str | None = None,
+                 volume: IrradianceVolume | None = None):
+        """volume: the SH volume of exactly these inputs when already built (app.stages.precompute's
+        cache); None builds it."""
         self.patches = patches
         self.radiance = np.asarray(radiance, np.float64)
         self.occluder = occluder
@@ -29,8 +32,8 @@ class RoomLight:
         emit = patches.is_emitter
         self.emitters = np.flatnonzero(emit & (self.radiance.sum(1) > 0))
         indirect = np.where(emit[:, None], 0.0, self.radiance)
-        self.volume: IrradianceVolume = build_volume(room_min, room_max, spacing, patches.corners, patches.normal,
-                                                     indirect, occluder, patches.tri_patch, device)
+        self.volume: IrradianceVolume = volume if volume is not None else build_volume(
+            room_min, room_max, spacing, patches.corners, patches.normal, indirect, occluder, patches.tri_patch, device)
 
     def indirect_sh(self, points: np.ndarray) -> np.ndarray:
         """Radiance SH coefficients (N,9,3) of the non-emitting patches at points (N,3)."""
