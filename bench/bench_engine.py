@@ -22,7 +22,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.engine import Engine, EngineParams  # noqa: E402
+from app.engine import Engine, EngineParams, FrameConfig  # noqa: E402
 from app.report import plot_xy, table  # noqa: E402
 from kernels.visibility import segments_visible  # noqa: E402
 from recon.io import write_png  # noqa: E402
@@ -93,9 +93,9 @@ def main() -> None:
         ray_rows.append({"scene": name, **ray_throughput(engine)})
         xs, ys = [], []
         for passes in a.passes:
-            engine.params.passes = passes or None
-            engine.render(scene.obj)  # warm: kernels compiled, caches filled
-            frame = engine.render(scene.obj)
+            cfg = FrameConfig(passes=passes or None, mode=a.mode)  # EngineParams is frozen: a frame config each
+            engine.render(scene.obj, cfg)  # warm: kernels compiled, caches filled
+            frame = engine.render(scene.obj, cfg)
             row = scored_row(a.shared, scene_dir, a.out / f"{name}_p{passes}.png", frame, scene=name,
                              passes=frame.stats["passes"], precompute_s=engine.precompute_s,
                              masks_s=frame.stats["timings"]["masks"])
