@@ -13,10 +13,11 @@ import importlib
 import logging
 import math
 import sys
+import typing
 from importlib import resources
 from pathlib import Path
 
-from app.engine import LIGHTING, EngineParams
+from app.engine import LIGHTING, EngineParams, Mode
 
 log = logging.getLogger("photoar")
 
@@ -70,38 +71,38 @@ def xyz_arg(s: str) -> tuple[float, float, float]:
     return v  # type: ignore[return-value]
 
 
+def _engine_arg(g, flag: str, name: str, **kw) -> None:
+    """Option `flag` for EngineParams field `name`: its default is the field's, its help the field's
+    documentation (EngineParams.doc), so the command line and the config cannot drift apart."""
+    default = EngineParams.__dataclass_fields__[name].default
+    shown = " (default %(default)s)" if default is not None else ""
+    g.add_argument(flag, default=default, help=EngineParams.doc(name) + shown, **kw)
+
+
 def _add_engine_args(p: argparse.ArgumentParser, passes: bool = True) -> None:
-    d = EngineParams()
     g = p.add_argument_group("engine")
-    g.add_argument("--mode", choices=["hdr", "ldr"], default=d.mode,
-                   help="hdr: T(L_b - eps) in floating point; ldr: subtract intensity transfers S_ij from the "
-                        "8-bit photo (seed fig. 13) (default %(default)s)")
+    _engine_arg(g, "--mode", "mode", choices=list(typing.get_args(Mode)))
     if passes:
-        g.add_argument("--passes", type=_positive_int, default=None,
-                       help="shadow maps per frame; sources are grouped into this many representatives "
-                            "(default: one per source)")
-    g.add_argument("--fps", type=_positive_float, default=None,
-                   help="target frame rate: the pass count is chosen from the measured cost per pass "
-                        "(at most --passes)")
-    g.add_argument("--source-fraction", type=_fraction, default=d.source_fraction,
-                   help="share of total patch power kept as shadow sources (default %(default)s)")
-    g.add_argument("--patch-size", type=_positive_float, default=d.patch_size, help="metres (default %(default)s)")
-    g.add_argument("--map-res", type=_positive_int, default=d.map_res, help="shadow-map size (default %(default)s)")
-    add_lighting_arg(g, d.lighting)
-    g.add_argument("--specular", type=float, default=d.specular,
-                   help="k_s of the object's Phong-like specular lobe, in [0, 1] (default %(default)s: Lambertian)")
-    g.add_argument("--shininess", type=float, default=d.shininess, help="Phong exponent (default %(default)s)")
-    g.add_argument("--no-object-light", action="store_true", help="ignore light the object reflects onto the room")
-    g.add_argument("--no-second-order", action="store_true", help="skip re-propagating the object's effect")
+        _engine_arg(g, "--passes", "passes", type=_positive_int)
+    _engine_arg(g, "--fps", "fps", type=_positive_float)
+    _engine_arg(g, "--source-fraction", "source_fraction", type=_fraction)
+    _engine_arg(g, "--patch-size", "patch_size", type=_positive_float)
+    _engine_arg(g, "--map-res", "map_res", type=_positive_int)
+    add_lighting_arg(g, EngineParams().lighting)
+    _engine_arg(g, "--specular", "specular", type=float)
+    _engine_arg(g, "--shininess", "shininess", type=float)
+    g.add_argument("--no-object-light", action="store_true", help="turn off: " + EngineParams.doc("object_light"))
+    g.add_argument("--no-second-order", action="store_true", help="turn off: " + EngineParams.doc("second_order"))
     g.add_argument("--cache", type=Path, default=None,
                    help="folder for per-scene precompute (default $PHOTOAR_CACHE or ~/.cache/photoar)")
     g.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default cpu)")
 
 
 def add_lighting_arg(g, default: str = "known") -> None:
-    """--lighting, with the choices and their meaning from app.engine.LIGHTING (one list)."""
+    """--lighting, with the choices and their meaning from app.engine.LIGHTING (one list, the
+    documentation of EngineParams.lighting)."""
     g.add_argument("--lighting", choices=list(LIGHTING), default=default,
-                   help="; ".join(f"{k}: {v}" for k, v in LIGHTING.items()) + " (default %(default)s)")
+                   help=EngineParams.doc("lighting") + " (default %(default)s)")
 
 
 def _params(a: argparse.Namespace) -> EngineParams:

@@ -53,20 +53,28 @@ def test_evaluate_path_and_stage_table(tmp_path):
 
 def test_path_counts_precompute_inside_the_drag(tmp_path):
     # the counter fires when per-scene work runs during a frame: drop the SH volume, which the
-    # object's shading rebuilds on first use
+    # object's shading rebuilds on first use, and invalidate its cache file (a cache hit is not work)
     from app.engine import Engine, EngineParams
     from app.evaluate import drag_path
     from recon.scene import load_scene
 
     scene = load_scene(demo_scene_dir())
     params = EngineParams(patch_size=0.35)
-    eng = Engine(scene, params, cache_dir=tmp_path / "cache", quiet=True)
-    assert eng.n_precompute == 2  # the transfers and the SH volume
+    cache = tmp_path / "cache"
+    eng = Engine(scene, params, cache_dir=cache, quiet=True)
+    assert (eng.n_precompute, eng.n_cache_loads) == (3, 0)  # the transfers, the shafts and the SH volume
     path, converged = drag_path(eng, scene, 10, 2)
     assert path["precompute_runs"] == 0 and converged.stats["passes"] > 10
+    assert (eng.n_precompute, eng.n_cache_loads) == (3, 0)  # nothing per-scene ran or was read in the drag
+    eng._room_light = None  # read back from its cache file on first use: not work
+    drag_path(eng, scene, 10, 2)
+    assert (eng.n_precompute, eng.n_cache_loads) == (3, 1)
     eng._room_light = None
+    (sh_file,) = cache.glob("*-sh-*.npz")
+    sh_file.write_bytes(b"not an npz")  # a deliberately invalidated cache: rebuilt inside the drag
     with pytest.raises(RuntimeError, match="precompute ran 1 time"):
         drag_path(eng, scene, 10, 2)
+    assert eng.n_precompute == 4
 
 
 def test_path_needs_two_positions(tmp_path, capsys):

@@ -167,24 +167,6 @@ def test_evaluate_rejects_bad_budgets(tmp_path, capsys):
     assert "pass counts" in capsys.readouterr().err
 
 
-def test_fps_budget_follows_the_measured_cost(engine):
-    # --fps picks the pass count that fits the frame time from the last frame's measured costs
-    import dataclasses
-
-    _, eng = engine
-    params, cost = eng.params, eng._cost
-    try:
-        eng._cost = {"fixed_s": 0.05, "per_pass_s": 0.002}
-        eng.params = dataclasses.replace(params, fps=10.0, passes=None)
-        assert eng._passes_for_frame() == 25  # (0.1 - 0.05) / 0.002
-        eng.params = dataclasses.replace(params, fps=10.0, passes=12)
-        assert eng._passes_for_frame() == 12  # never more than --passes
-        eng.params = dataclasses.replace(params, fps=100.0, passes=None)
-        assert eng._passes_for_frame() == 1  # over budget already: one pass
-    finally:
-        eng.params, eng._cost = params, cost
-
-
 def test_fps_measures_before_the_first_frame(tmp_path):
     # the first --fps frame is budgeted from a measured calibration frame, not a guessed cost:
     # at a generous rate (10 s per frame) it gets more than one pass, and its budget matches the
