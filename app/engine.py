@@ -138,7 +138,7 @@ class EngineParams:
         if not 0.0 <= self.specular <= 1.0 or self.shininess < 0:
             raise ValueError(f"specular must be in [0, 1] and shininess >= 0, got {self.specular}, "
                              f"{self.shininess}")
-        _check_frame(self.passes, self.fps)
+        # passes and fps are checked by the FrameConfig a frame is made with (frame_config)
 
     @classmethod
     def doc(cls, name: str) -> str:
