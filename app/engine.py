@@ -285,10 +285,11 @@ class Engine:
         b = self.params.bounces
         self.B_src = pre.B[b - 1]  # what receivers gather (one bounce less than the camera sees)
         self.B_obj = pre.B[max(b - 2, 0)]  # light that reaches the camera via the object has one bounce less
-        # receiver map (app.stages.receiver_map): dirs, L_b, L_b_levels, pix_patch, pix_rows, pix_pos,
-        # recv_pix, E_v, E_x
-        for name, value in vars(receiver_map(scene, pre, self.B_src)).items():
-            setattr(self, name, value)
+        rm = receiver_map(scene, pre, self.B_src)  # pixels <-> receiver vertices (app.stages.receiver_map)
+        self.dirs, self.L_b, self.L_b_levels = rm.dirs, rm.L_b, rm.L_b_levels  # (H*W,3) rays, photo radiance, T(L_b)
+        self.pix_patch, self.pix_rows, self.pix_pos = rm.pix_patch, rm.pix_rows, rm.pix_pos
+        self.recv_pix = rm.recv_pix  # seen non-emitter surface with all three receiver vertices known
+        self.E_v, self.E_x = rm.E_v, rm.E_x  # irradiance/pi at receiver vertices and per receiver pixel
         self._sun_setup_pixels()  # sun: its direct light joins E_x; clipped sunlit pixels get model radiance
         self.rho_x = reflectance(self.L_b, self.E_x)
         if self.sun_pix is not None:
