@@ -289,8 +289,9 @@ def fit_photo_light(pre: Precomputed, scene: Scene, bounces: int, priors) -> dic
 # ---------------------------------------------------------------------------------------------
 # artefacts built from the precompute, cached by their inputs
 
-_SHAFT_CODE = ("lighting.frame_sources", "lighting.shafts", "lighting.hierarchy", "lighting.sources")
-_VOLUME_CODE = ("kernels.irradiance_volume", "lighting.irradiance")
+# the code each artefact's build runs (its source files are part of the key)
+_SHAFT_CODE = ("lighting.frame_sources", "lighting.shafts", "lighting.hierarchy", "lighting.sources", "recon.response")
+_VOLUME_CODE = ("kernels.irradiance_volume", "kernels.visibility", "lighting.irradiance")
 
 
 def shadow_sources(pre: Precomputed, B_src: np.ndarray, source_fraction: float, leaf_size: int,
