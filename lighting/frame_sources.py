@@ -41,16 +41,19 @@ class FrameSources:
 class ShadowSources:
     def __init__(self, src: np.ndarray, centres: np.ndarray, normals: np.ndarray, corners: np.ndarray,
                  receivers: np.ndarray, G_c: np.ndarray, G_v: np.ndarray, B: np.ndarray,
-                 leaf_size: int = 8, threshold: float = 0.02, keep_weak: bool = True):
+                 leaf_size: int = 8, threshold: float = 0.02, keep_weak: bool = True, block: int = 4):
         """src (S,) source patch ids; receivers (R,) receiver patch ids; G_c (P,P), G_v (Vr,P)
-        transfers; B (P,3) source radiance; centres/normals (P,3), corners (P,4,3) m."""
+        transfers; B (P,3) source radiance; centres/normals (P,3), corners (P,4,3) m. block: source
+        positions per column of the cluster-weight prefix table (its memory is 1/block of one
+        float32 (Vr+P, S, 3) table; a cluster's weight costs up to 2 (block-1) raw columns more)."""
         self.P = len(centres)
         self.keep_weak = keep_weak
         self.G_v, self.G_c, self.B = G_v, G_c, B
         self.empty = len(src) == 0 or len(receivers) == 0  # nothing lights anything: no passes ever
         if self.empty:
             return
-        self.src_tree = source_kdtree(np.asarray(src), centres, corners)
+        self.block = max(int(block), 1)
+        self.src_tree = source_kdtree(np.asarray(src), centres, corners, self.block)
         self.recv_tree = receiver_octree(np.asarray(receivers), centres, corners, leaf_size)
         self.src_ids = self.src_tree.order  # source patch id at each KD position
         self.eye_pos = centres + normals * 1e-3
@@ -66,13 +69,91 @@ class ShadowSources:
         self.leaf_of_recv = np.full(self.P, -1, np.int64)
         self.leaf_of_recv[ro] = self.recv_tree.leaf_of_position()
         self.n_recv_leaves = int(self.recv_tree.leaf_hi[0]) if len(ro) else 0
+        self.prefix = self._weight_prefix()
+
+    def _weight_prefix(self) -> np.ndarray:
+        """(S // block + 1 (+1), Vr + P, 3) float32: row b holds, for every receiver vertex (G_v
+        rows) then every patch centre (G_c rows), the transfer G * B summed over the sources at KD
+        positions [0, b * block); a last row holds the sum over all S when S is not a multiple of
+        block. Summed in float64: a difference of two rows is within 1.2e-7 of the receiver's
+        total transfer of the exact sum."""
+        k, so = self.block, self.src_ids
+        S = len(so)
+        bounds = np.append(np.arange(0, S + 1, k), [S] if S % k else [])
+        rows = self.G_v.shape[0] + self.P
+        out = np.zeros((len(bounds), rows, 3), np.float32)
+        run = np.zeros((rows, 3))
+        step = 128  # blocks per chunk (bounds the float64 temporaries)
+        for b0 in range(0, len(bounds) - 1, step):
+            b1 = min(len(bounds) - 1, b0 + step)
+            cols = so[bounds[b0]:bounds[b1]]
+            seg = bounds[b0:b1] - bounds[b0]  # block starts within the chunk
+            Bc = np.asarray(self.B[cols], np.float64)
+            for G, r0, r1 in ((self.G_v, 0, self.G_v.shape[0]), (self.G_c, self.G_v.shape[0], rows)):
+                gb = np.asarray(G[:, cols], np.float64)[:, :, None] * Bc[None]
+                cum = np.cumsum(np.add.reduceat(gb, seg, axis=1), axis=1) + run[r0:r1, None, :]
+                out[b0 + 1:b1 + 1, r0:r1] = cum.transpose(1, 0, 2)
+                run[r0:r1] = cum[:, -1]
+        return out
 
     def stats(self) -> dict:
         if self.empty:
-            return {"shafts": 0, "leaf_shafts": 0, "shaft_mb": 0.0, "source_nodes": 0, "receiver_nodes": 0}
+            return {"shafts": 0, "leaf_shafts": 0, "shaft_mb": 0.0, "source_nodes": 0, "receiver_nodes": 0,
+                    "weight_table_mb": 0.0}
         return {"shafts": self.shafts.n_shafts, "leaf_shafts": self.shafts.n_leaf_shafts,
                 "shaft_mb": self.shafts.nbytes / 2 ** 20, "source_nodes": self.src_tree.n_nodes,
-                "receiver_nodes": self.recv_tree.n_nodes}
+                "receiver_nodes": self.recv_tree.n_nodes, "weight_table_mb": self.prefix.nbytes / 2 ** 20}
+
+    def weights(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(W_v (Vr,n,3), W_c (P,n,3)) float32: per node [lo, hi) of KD positions (sorted, disjoint,
+        each holding a marked source), the transfers G * B summed over its marked sources. Each
+        node's marked runs are split into whole blocks (a difference of two prefix rows) and at most
+        block-1 raw columns at either end."""
+        Vr, k = self.G_v.shape[0], self.block
+        n = len(lo)
+        edge = np.diff(np.concatenate([[0], marked.astype(np.int8), [0]]))
+        rs, re = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)  # marked runs [rs, re)
+        i0 = np.searchsorted(re, lo, side="right")
+        count = np.searchsorted(rs, hi, side="left") - i0
+        node = np.repeat(np.arange(n), count)
+        first = np.cumsum(count) - count
+        run = np.arange(len(node)) - first[node] + i0[node]
+        a, b = np.maximum(rs[run], lo[node]), np.minimum(re[run], hi[node])  # segments, sorted by node
+        S, last = len(self.src_ids), len(self.prefix) - 1
+        A, Bk = -(-a // k) * k, np.where(b == S, S, b // k * k)  # S has its own prefix row
+
+        def row(x):
+            return np.where(x == S, last, x // k)
+
+        whole = A <= Bk
+        W = np.zeros((n, Vr + self.P, 3), np.float32)
+        tab = np.flatnonzero(A < Bk)  # segments holding whole blocks (sorted by node)
+        if len(tab):
+            t_node = node[tab]
+            starts = np.flatnonzero(np.diff(np.concatenate([[-1], t_node])))
+            W[t_node[starts]] = np.add.reduceat(self.prefix[row(Bk[tab])] - self.prefix[row(A[tab])], starts, axis=0)
+        # raw columns: [a, A) and [Bk, b) of whole segments, [a, b) of the others
+        r_lo = np.concatenate([a, np.where(whole, Bk, b)])
+        r_hi = np.concatenate([np.where(whole, A, b), b])
+        r_node = np.concatenate([node, node])
+        o = np.argsort(r_node, kind="stable")
+        r_lo, r_hi, r_node = r_lo[o], r_hi[o], r_node[o]
+        length = r_hi - r_lo
+        keep = length > 0
+        r_lo, length, r_node = r_lo[keep], length[keep], r_node[keep]
+        if len(r_lo):
+            col_node = np.repeat(r_node, length)
+            pos = np.arange(len(col_node)) - np.repeat(np.cumsum(length) - length, length) + np.repeat(r_lo, length)
+            ids = self.src_ids[pos]
+            Bc = self.B[ids].astype(np.float32)
+            starts = np.flatnonzero(np.diff(np.concatenate([[-1], col_node])))
+            owners = col_node[starts]
+            W[owners, :Vr] += np.add.reduceat(np.asarray(self.G_v[:, ids], np.float32).T[:, :, None] * Bc[:, None],
+                                              starts, axis=0)
+            W[owners, Vr:] += np.add.reduceat(np.asarray(self.G_c[:, ids], np.float32).T[:, :, None] * Bc[:, None],
+                                              starts, axis=0)
+        np.maximum(W, 0.0, out=W)  # a difference of rounded prefixes where the exact sum is 0
+        return np.ascontiguousarray(W[:, :Vr].transpose(1, 0, 2)), np.ascontiguousarray(W[:, Vr:].transpose(1, 0, 2))
 
     # ------------------------------------------------------------------ per frame
     def traverse(self, box_min: np.ndarray, box_max: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -137,11 +218,12 @@ class ShadowSources:
         pos = np.flatnonzero(marked)  # marked KD positions, in order: each node holds a run of them
         starts = np.searchsorted(pos, lo)
         ids = self.src_ids[pos]
-        B = self.B[ids]
-        W_v = np.add.reduceat(np.asarray(self.G_v[:, ids], np.float32)[:, :, None] * B[None].astype(np.float32),
-                              starts, axis=1)
-        W_c = np.add.reduceat(np.asarray(self.G_c[:, ids], np.float32)[:, :, None] * B[None].astype(np.float32),
-                              starts, axis=1)
+        if n == len(pos):  # one source per pass (the all-sources frame): its own transfers
+            B = self.B[ids].astype(np.float32)
+            W_v = np.asarray(self.G_v[:, ids], np.float32)[:, :, None] * B[None]
+            W_c = np.asarray(self.G_c[:, ids], np.float32)[:, :, None] * B[None]
+        else:
+            W_v, W_c = self.weights(lo, hi, marked)
         # eye: the member with the largest transfer
         strength = self.strength[pos]
         best = np.maximum.reduceat(strength, starts)
