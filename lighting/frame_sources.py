@@ -131,7 +131,8 @@ class ShadowSources:
         if len(tab):
             t_node = node[tab]
             starts = np.flatnonzero(np.diff(np.concatenate([[-1], t_node])))
-            W[t_node[starts]] = np.add.reduceat(self.prefix[row(Bk[tab])] - self.prefix[row(A[tab])], starts, axis=0)
+            W[t_node[starts]] = np.add.reduceat(self.prefix[row(Bk[tab])].astype(np.float64)
+                                                - self.prefix[row(A[tab])], starts, axis=0)
         # raw columns: [a, A) and [Bk, b) of whole segments, [a, b) of the others
         r_lo = np.concatenate([a, np.where(whole, Bk, b)])
         r_hi = np.concatenate([np.where(whole, A, b), b])
@@ -145,13 +146,12 @@ class ShadowSources:
             col_node = np.repeat(r_node, length)
             pos = np.arange(len(col_node)) - np.repeat(np.cumsum(length) - length, length) + np.repeat(r_lo, length)
             ids = self.src_ids[pos]
-            Bc = self.B[ids].astype(np.float32)
+            Bc = np.asarray(self.B[ids], np.float64)
             starts = np.flatnonzero(np.diff(np.concatenate([[-1], col_node])))
             owners = col_node[starts]
-            W[owners, :Vr] += np.add.reduceat(np.asarray(self.G_v[:, ids], np.float32).T[:, :, None] * Bc[:, None],
-                                              starts, axis=0)
-            W[owners, Vr:] += np.add.reduceat(np.asarray(self.G_c[:, ids], np.float32).T[:, :, None] * Bc[:, None],
-                                              starts, axis=0)
+            for G, rows in ((self.G_v, slice(0, Vr)), (self.G_c, slice(Vr, None))):  # float64 sums
+                W[owners, rows] += np.add.reduceat(np.asarray(G[:, ids], np.float64).T[:, :, None] * Bc[:, None],
+                                                   starts, axis=0)
         np.maximum(W, 0.0, out=W)  # a difference of rounded prefixes where the exact sum is 0
         return np.ascontiguousarray(W[:, :Vr].transpose(1, 0, 2)), np.ascontiguousarray(W[:, Vr:].transpose(1, 0, 2))
 
@@ -167,12 +167,13 @@ class ShadowSources:
         marked = np.cumsum(diff[:-1]) > 0
         return marked, s_nodes, r_nodes
 
-    def representatives(self, marked: np.ndarray, passes: int | None) -> list[int]:
+    def representatives(self, marked: np.ndarray, passes: int | None, key: np.ndarray | None = None) -> list[int]:
         """KD nodes (sorted by position) covering every marked source, at most `passes` of them
-        when the marked sources allow (sec. 6.4: split the node with the largest transfer)."""
+        when the marked sources allow (sec. 6.4: split the node with the largest key summed over
+        its marked members; key (S,) per KD position, default the mean transfer `strength`)."""
         t = self.src_tree
         cm = np.concatenate([[0], np.cumsum(marked)])
-        cs = np.concatenate([[0.0], np.cumsum(np.where(marked, self.strength, 0.0))])
+        cs = np.concatenate([[0.0], np.cumsum(np.where(marked, self.strength if key is None else key, 0.0))])
         n_marked = int(cm[-1])
         if n_marked == 0:
             return []
@@ -200,6 +201,21 @@ class ShadowSources:
         nodes = done + [n for _, n in heap]
         return sorted(nodes, key=lambda n: t.lo[n])
 
+    def eyes(self, starts: np.ndarray, pos: np.ndarray, key: np.ndarray) -> np.ndarray:
+        """(n,3) shadow-map eyes of the nodes whose marked members are pos[starts[k]:starts[k+1]]:
+        the centroid of their eyes weighted by key (per KD position; the members' plain centroid
+        where their keys sum to 0); a node of one member keeps that member's eye."""
+        e = self.eye_pos[self.src_ids[pos]]
+        w = key[pos]
+        wsum = np.add.reduceat(w, starts)
+        eyes = np.add.reduceat(w[:, None] * e, starts) / np.where(wsum > 0, wsum, 1.0)[:, None]
+        flat = wsum <= 0
+        if flat.any():
+            eyes[flat] = (np.add.reduceat(e, starts) / np.diff(np.append(starts, len(pos)))[:, None])[flat]
+        one = np.diff(np.append(starts, len(pos))) == 1
+        eyes[one] = e[starts[one]]
+        return eyes
+
     def select(self, box_min: np.ndarray, box_max: np.ndarray, passes: int | None) -> FrameSources:
         """The frame's shadow passes for an object inside the box (module docstring)."""
         if passes is not None and passes < 1:
@@ -209,7 +225,8 @@ class ShadowSources:
         if not self.empty:
             t = self.src_tree
             marked, s_nodes, r_nodes = self.traverse(box_min, box_max)
-            nodes = self.representatives(marked, passes)
+            key = self.strength
+            nodes = self.representatives(marked, passes, key)
         n = len(nodes)
         if n == 0:
             return FrameSources(np.zeros((0, 3)), np.zeros((Vr, 0, 3)), np.zeros((self.P, 0, 3)),
@@ -224,13 +241,7 @@ class ShadowSources:
             W_c = np.asarray(self.G_c[:, ids], np.float32)[:, :, None] * B[None]
         else:
             W_v, W_c = self.weights(lo, hi, marked)
-        # eye: the member with the largest transfer
-        strength = self.strength[pos]
-        best = np.maximum.reduceat(strength, starts)
-        group = np.repeat(np.arange(n), np.diff(np.append(starts, len(pos))))
-        top = np.flatnonzero(strength >= best[group])  # each group's strongest member(s), in order
-        _, first = np.unique(group[top], return_index=True)
-        eyes = self.eye_pos[ids[top[first]]]
+        eyes = self.eye_pos[ids] if n == len(pos) else self.eyes(starts, pos, key)
         # receiver pairs: leaf shafts (source node, receiver node) -> (receiver leaves, passes)
         k_lo = np.searchsorted(hi, t.lo[s_nodes], side="right")
         k_hi = np.searchsorted(lo, t.hi[s_nodes], side="left")

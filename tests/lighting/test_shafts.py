@@ -122,6 +122,34 @@ def test_fewer_passes_keep_the_receivers(engine):
         np.testing.assert_array_equal(part.cand.any(1), full.cand.any(1))
 
 
+def test_cluster_weights_from_the_prefix_table_equal_the_member_sums(engine):
+    # the per-scene block prefix table gives each pass the float64 sum of G * B over its marked
+    # members (the per-frame formulation it replaced), to 1e-5 of the receiver's transfer from all sources,
+    # also for source lists with many runs (random marks: raw columns at every run end)
+    scene, eng = engine
+    ss = eng.shadow_sources
+    t = ss.src_tree
+    lo, hi = scene.obj.vertices.min(0), scene.obj.vertices.max(0)
+    rng = np.random.default_rng(1)
+    G = np.concatenate([eng.pre.G_v, eng.pre.G_c]).astype(np.float64)
+    total = (G[:, ss.src_ids] @ ss.B[ss.src_ids])[:, None, :] + 1e-30  # each receiver's light from every source
+    for trial in range(3):
+        marked = ss.traverse(lo, hi)[0].copy()
+        if trial:
+            marked &= rng.random(len(marked)) < 0.5 if trial == 1 else np.arange(len(marked)) % 7 != 3
+        for passes in (1, 7, 50, int(marked.sum()) - 1):
+            nodes = ss.representatives(marked, passes)
+            W_v, W_c = ss.weights(t.lo[nodes], t.hi[nodes], marked)
+            got = np.concatenate([W_v, W_c])
+            want = np.zeros_like(got, dtype=np.float64)
+            for k, nd in enumerate(nodes):
+                ids = ss.src_ids[t.lo[nd]:t.hi[nd]][marked[t.lo[nd]:t.hi[nd]]]
+                want[:, k] = G[:, ids] @ ss.B[ids]
+            err = np.abs(got - want) / total
+            assert err.max() <= 1e-5, (trial, passes, err.max())  # measured <= 1.4e-6 (460 runs)
+            assert got.min() >= 0
+
+
 def test_thirty_frames_along_a_path_reuse_the_precompute(engine):
     # moving the object over 30 positions renders from the precompute: nothing per-scene is rebuilt
     # (the engine counts its precompute and SH-volume builds), and the object's shape is made once
