@@ -424,7 +424,8 @@ class Engine:
         src = select_sources(self.B_src, pm.area, self.params.source_fraction)
         receivers = np.flatnonzero(~pm.is_emitter)
         self.shadow_sources = ShadowSources(src, pm.centre, pm.normal, pm.corners, receivers, pre.G_c, pre.G_v,
-                                            self.B_src, self.params.leaf_size, self.params.shaft_threshold)
+                                            self.B_src, self.params.leaf_size, self.params.shaft_threshold,
+                                            recv_points=pm.vert_pos[pre.recv_vert], device=dev)
         self.shaft_build_s = time.perf_counter() - t0
         log.debug("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
         self._cost: dict | None = None  # measured fixed and per-pass frame cost (--fps), refined every frame

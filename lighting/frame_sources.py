@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kernels.blocked import BlockedTransfer
 from lighting.hierarchy import receiver_octree, source_kdtree
 from lighting.shafts import ShaftHierarchy
 from recon.response import luminance
@@ -41,11 +42,15 @@ class FrameSources:
 class ShadowSources:
     def __init__(self, src: np.ndarray, centres: np.ndarray, normals: np.ndarray, corners: np.ndarray,
                  receivers: np.ndarray, G_c: np.ndarray, G_v: np.ndarray, B: np.ndarray,
-                 leaf_size: int = 8, threshold: float = 0.02, keep_weak: bool = True, block: int = 4):
+                 leaf_size: int = 8, threshold: float = 0.02, keep_weak: bool = True, block: int = 4,
+                 recv_points: np.ndarray | None = None, device: str | None = None):
         """src (S,) source patch ids; receivers (R,) receiver patch ids; G_c (P,P), G_v (Vr,P)
         transfers; B (P,3) source radiance; centres/normals (P,3), corners (P,4,3) m. block: source
         positions per column of the cluster-weight prefix table (its memory is 1/block of one
-        float32 (Vr+P, S, 3) table; a cluster's weight costs up to 2 (block-1) raw columns more)."""
+        float32 (Vr+P, S, 3) table; a cluster's weight costs up to 2 (block-1) raw columns more).
+        recv_points (Vr,3) m: the receiver vertices of the G_v rows; with them the representatives
+        split, and place their eyes, by the light the object's box can block (blocked_key); without
+        them by each source's mean transfer (strength). device: where that kernel runs."""
         self.P = len(centres)
         self.keep_weak = keep_weak
         self.G_v, self.G_c, self.B = G_v, G_c, B
@@ -70,6 +75,35 @@ class ShadowSources:
         self.leaf_of_recv[ro] = self.recv_tree.leaf_of_position()
         self.n_recv_leaves = int(self.recv_tree.leaf_hi[0]) if len(ro) else 0
         self.prefix = self._weight_prefix()
+        self.blocked = None
+        if recv_points is not None:
+            self.blocked = self._blocked_transfer(np.asarray(recv_points, np.float64), lum_B, device)
+
+    def _blocked_transfer(self, points: np.ndarray, lum_B: np.ndarray, device: str | None) -> BlockedTransfer:
+        """The kernel's inputs per block of `block` KD positions (a block is one source to it: its
+        eye the strength-weighted centroid of its members', its transfer theirs summed)."""
+        so, k = self.src_ids, self.block
+        starts = np.arange(0, len(so), k)
+        w = self.strength
+        wsum = np.add.reduceat(w, starts)
+        e = self.eye_pos[so]
+        eye = np.where((wsum > 0)[:, None], np.add.reduceat(w[:, None] * e, starts) / np.where(wsum > 0, wsum, 1)[:, None],
+                       np.add.reduceat(e, starts) / np.diff(np.append(starts, len(so)))[:, None])
+        g = np.add.reduceat(np.asarray(self.G_v[:, so], np.float64) * lum_B[None, :], starts, axis=1)
+        return BlockedTransfer(points, eye, g.T, device)
+
+    def blocked_key(self, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
+        """(S,) per KD position: the luminance transfer to the receiver vertices whose segment to the
+        source's block meets the box (BlockedTransfer), shared among the block's members by strength
+        (evenly where their strength is 0)."""
+        so, k = self.src_ids, self.block
+        starts = np.arange(0, len(so), k)
+        b = self.blocked(box_min, box_max)
+        size = np.diff(np.append(starts, len(so)))
+        wsum = np.add.reduceat(self.strength, starts)
+        share = np.where(np.repeat(wsum, size) > 0, self.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
+                         1.0 / np.repeat(size, size))
+        return np.repeat(b, size) * share
 
     def _weight_prefix(self) -> np.ndarray:
         """(S // block + 1 (+1), Vr + P, 3) float32: row b holds, for every receiver vertex (G_v
@@ -210,7 +244,9 @@ class ShadowSources:
         wsum = np.add.reduceat(w, starts)
         eyes = np.add.reduceat(w[:, None] * e, starts) / np.where(wsum > 0, wsum, 1.0)[:, None]
         flat = wsum <= 0
-        if flat.any():
+        if flat.any() and key is not self.strength:  # the mean transfer, then the plain centroid
+            eyes[flat] = self.eyes(starts, pos, self.strength)[flat]
+        elif flat.any():
             eyes[flat] = (np.add.reduceat(e, starts) / np.diff(np.append(starts, len(pos)))[:, None])[flat]
         one = np.diff(np.append(starts, len(pos))) == 1
         eyes[one] = e[starts[one]]
@@ -226,6 +262,8 @@ class ShadowSources:
             t = self.src_tree
             marked, s_nodes, r_nodes = self.traverse(box_min, box_max)
             key = self.strength
+            if self.blocked is not None and passes is not None and passes < marked.sum():
+                key = self.blocked_key(box_min, box_max)
             nodes = self.representatives(marked, passes, key)
         n = len(nodes)
         if n == 0:
