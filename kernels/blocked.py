@@ -36,12 +36,18 @@ def _blocked_kernel(pts: wp.array(dtype=wp.vec3), eyes: wp.array(dtype=wp.vec3),
                     lo: wp.vec3, hi: wp.vec3, out: wp.array(dtype=wp.float32)):
     j = wp.tid()
     e = eyes[j]
+    c = 0.5 * (lo + hi)
+    rad2 = wp.length_sq(hi - c)
     acc = float(0.0)
     for r in range(pts.shape[0]):
         w = g[j, r]
         if w > 0.0:
-            if _segment_meets_box(pts[r], e, lo, hi):
-                acc += w
+            p = pts[r]
+            v = e - p
+            t = wp.clamp(wp.dot(c - p, v) / wp.max(wp.dot(v, v), 1.0e-20), 0.0, 1.0)
+            if wp.length_sq(p + t * v - c) <= rad2:  # the segment passes the box's bounding sphere
+                if _segment_meets_box(p, e, lo, hi):
+                    acc += w
     out[j] = acc
 
 

@@ -164,9 +164,12 @@ class ShadowSources:
         tab = np.flatnonzero(A < Bk)  # segments holding whole blocks (sorted by node)
         if len(tab):
             t_node = node[tab]
-            starts = np.flatnonzero(np.diff(np.concatenate([[-1], t_node])))
-            W[t_node[starts]] = np.add.reduceat(self.prefix[row(Bk[tab])].astype(np.float64)
-                                                - self.prefix[row(A[tab])], starts, axis=0)
+            if len(np.unique(t_node)) == len(t_node):  # one block run per node (a whole marked node)
+                W[t_node] = self.prefix[row(Bk[tab])] - self.prefix[row(A[tab])]
+            else:  # many runs: float64 sums
+                starts = np.flatnonzero(np.diff(np.concatenate([[-1], t_node])))
+                W[t_node[starts]] = np.add.reduceat(self.prefix[row(Bk[tab])].astype(np.float64)
+                                                    - self.prefix[row(A[tab])], starts, axis=0)
         # raw columns: [a, A) and [Bk, b) of whole segments, [a, b) of the others
         r_lo = np.concatenate([a, np.where(whole, Bk, b)])
         r_hi = np.concatenate([np.where(whole, A, b), b])
