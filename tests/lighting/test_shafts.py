@@ -150,6 +150,29 @@ def test_cluster_weights_from_the_prefix_table_equal_the_member_sums(engine):
             assert got.min() >= 0
 
 
+def test_representative_eyes_are_blocked_light_centroids(engine):
+    # sec. 6.4 with the blocked-light key: the frame's eyes are the key-weighted centroids of each
+    # chosen node's marked members (inside their bounds; a one-member node keeps its own eye), and
+    # the heap splits by that key
+    scene, eng = engine
+    ss = eng.shadow_sources
+    t = ss.src_tree
+    lo, hi = scene.obj.vertices.min(0), scene.obj.vertices.max(0)
+    marked = ss.traverse(lo, hi)[0]
+    key = ss.blocked_key(lo, hi)
+    assert key.sum() > 0 and (key == 0).any()  # the box blocks some sources' light, not all
+    nodes = ss.representatives(marked, 50, key)
+    pos = np.flatnonzero(marked)
+    starts = np.searchsorted(pos, t.lo[nodes])
+    fs = ss.select(lo, hi, 50)
+    np.testing.assert_allclose(fs.eyes, ss.eyes(starts, pos, key))
+    for k, nd in enumerate(nodes):
+        e = ss.eye_pos[ss.src_ids[t.lo[nd]:t.hi[nd]][marked[t.lo[nd]:t.hi[nd]]]]
+        assert np.all(fs.eyes[k] >= e.min(0) - 1e-9) and np.all(fs.eyes[k] <= e.max(0) + 1e-9)
+        if len(e) == 1:
+            np.testing.assert_array_equal(fs.eyes[k], e[0])
+
+
 def test_thirty_frames_along_a_path_reuse_the_precompute(engine):
     # moving the object over 30 positions renders from the precompute: nothing per-scene is rebuilt
     # (the engine counts its precompute and SH-volume builds), and the object's shape is made once
