@@ -423,9 +423,13 @@ class Engine:
         t0 = time.perf_counter()
         src = select_sources(self.B_src, pm.area, self.params.source_fraction)
         receivers = np.flatnonzero(~pm.is_emitter)
+        # each receiver vertex's pixel footprint (the representatives' key counts the light the camera sees)
+        vert_pixels = np.bincount(self.pix_rows[self.recv_pix].ravel(), pre.pix_bary[self.recv_pix].ravel(),
+                                  len(pre.recv_vert))
         self.shadow_sources = ShadowSources(src, pm.centre, pm.normal, pm.corners, receivers, pre.G_c, pre.G_v,
                                             self.B_src, self.params.leaf_size, self.params.shaft_threshold,
-                                            recv_points=pm.vert_pos[pre.recv_vert], device=dev)
+                                            recv_points=pm.vert_pos[pre.recv_vert], device=dev,
+                                            recv_weights=vert_pixels)
         self.shaft_build_s = time.perf_counter() - t0
         log.debug("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
         self._cost: dict | None = None  # measured fixed and per-pass frame cost (--fps), refined every frame

@@ -10,11 +10,12 @@ fall on its blocks). Per frame, `select(box_min, box_max, passes)`:
    `passes` nodes by repeatedly splitting the marked node with the largest key (a heap), sec. 6.4.
    The seed's key is the mean transfer to the receivers; here, given the receiver vertices, it is
    the transfer to the receiver vertices whose segment to the source meets the object's box (the
-   light the object can block this frame, kernels/blocked.py). Without a budget every marked
+   light the object can block this frame, kernels/blocked.py), each vertex weighted by its pixel
+   footprint (the light the camera sees blocked). Without a budget every marked
    source is its own pass;
 3. gives each chosen node a shadow-map eye at the key-weighted centroid of its marked members
-   (the seed: the centre of the most contributing member; the centroid halves the 50-pass error
-   on the benchmark rooms), and weights that sum the transfers of its marked members (the cluster
+   (the seed: the centre of the most contributing member; the centroid cuts the 50-pass rmse by
+   a third or more on the benchmark rooms), and weights that sum the transfers of its marked members (the cluster
    keeps their energy): a difference of two prefix rows per run of whole blocks, raw columns at
    the ends;
 4. gives the (receiver patch, pass) pairs that can be shadowed: only those pixels are touched.
@@ -50,14 +51,17 @@ class ShadowSources:
     def __init__(self, src: np.ndarray, centres: np.ndarray, normals: np.ndarray, corners: np.ndarray,
                  receivers: np.ndarray, G_c: np.ndarray, G_v: np.ndarray, B: np.ndarray,
                  leaf_size: int = 8, threshold: float = 0.02, keep_weak: bool = True, block: int = 4,
-                 recv_points: np.ndarray | None = None, device: str | None = None):
+                 recv_points: np.ndarray | None = None, device: str | None = None,
+                 recv_weights: np.ndarray | None = None):
         """src (S,) source patch ids; receivers (R,) receiver patch ids; G_c (P,P), G_v (Vr,P)
         transfers; B (P,3) source radiance; centres/normals (P,3), corners (P,4,3) m. block: source
         positions per column of the cluster-weight prefix table (its memory is 1/block of one
         float32 (Vr+P, S, 3) table; a cluster's weight costs up to 2 (block-1) raw columns more).
         recv_points (Vr,3) m: the receiver vertices of the G_v rows; with them the representatives
         split, and place their eyes, by the light the object's box can block (blocked_key); without
-        them by each source's mean transfer (strength). device: where that kernel runs."""
+        them by each source's mean transfer (strength). recv_weights (Vr,): each receiver vertex's
+        weight in that key (the engine: its pixel footprint, so the key counts the blocked light the
+        camera sees; default 1). device: where that kernel runs."""
         self.P = len(centres)
         self.keep_weak = keep_weak
         self.G_v, self.G_c, self.B = G_v, G_c, B
@@ -84,11 +88,13 @@ class ShadowSources:
         self.prefix = self._weight_prefix()
         self.blocked = None
         if recv_points is not None:
-            self.blocked = self._blocked_transfer(np.asarray(recv_points, np.float64), lum_B, device)
+            self.blocked = self._blocked_transfer(np.asarray(recv_points, np.float64), lum_B, device, recv_weights)
 
-    def _blocked_transfer(self, points: np.ndarray, lum_B: np.ndarray, device: str | None) -> BlockedTransfer:
+    def _blocked_transfer(self, points: np.ndarray, lum_B: np.ndarray, device: str | None,
+                          recv_weights: np.ndarray | None = None) -> BlockedTransfer:
         """The kernel's inputs per block of `block` KD positions (a block is one source to it: its
-        eye the strength-weighted centroid of its members', its transfer theirs summed)."""
+        eye the strength-weighted centroid of its members', its transfer theirs summed), transfers
+        to each receiver vertex scaled by recv_weights."""
         so, k = self.src_ids, self.block
         starts = np.arange(0, len(so), k)
         w = self.strength
@@ -97,6 +103,8 @@ class ShadowSources:
         eye = np.where((wsum > 0)[:, None], np.add.reduceat(w[:, None] * e, starts) / np.where(wsum > 0, wsum, 1)[:, None],
                        np.add.reduceat(e, starts) / np.diff(np.append(starts, len(so)))[:, None])
         g = np.add.reduceat(np.asarray(self.G_v[:, so], np.float64) * lum_B[None, :], starts, axis=1)
+        if recv_weights is not None:
+            g *= np.asarray(recv_weights, np.float64)[:, None]
         return BlockedTransfer(points, eye, g.T, device)
 
     def blocked_key(self, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
