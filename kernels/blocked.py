@@ -62,6 +62,9 @@ class BlockedTransfer:
         self.eyes = wp.array(np.asarray(eyes, np.float32), dtype=wp.vec3, device=d)
         self.g = wp.array(np.ascontiguousarray(g, np.float32), dtype=wp.float32, device=d)
         self.out = wp.zeros(len(eyes), dtype=wp.float32, device=d)
+        self.cpu = wp.get_device(d).is_cpu
+        # the result's host copy, allocated once (a GPU array's .numpy() would allocate every call)
+        self.host = self.out if self.cpu else wp.zeros(len(eyes), dtype=wp.float32, device="cpu", pinned=True)
 
     def __call__(self, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
         """(S,) float64 transfer from each source to the receivers whose segment meets the box."""
@@ -70,4 +73,7 @@ class BlockedTransfer:
         wp.launch(_blocked_kernel, dim=len(self.out),
                   inputs=[self.pts, self.eyes, self.g, wp.vec3(*map(float, box_min)), wp.vec3(*map(float, box_max))],
                   outputs=[self.out], device=self.device)
-        return self.out.numpy().astype(np.float64)
+        if not self.cpu:
+            wp.copy(self.host, self.out)
+            wp.synchronize_device(self.device)
+        return self.host.numpy().astype(np.float64)
