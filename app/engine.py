@@ -304,6 +304,10 @@ class Engine:
             pre, self.B_src, p.source_fraction, p.leaf_size, p.shaft_threshold,
             scene_precompute.cache_file(self.cache_dir, scene, "shafts-", key))
         self._count(hit)
+        # each receiver vertex's pixel footprint (the representatives' key counts the light the camera sees)
+        vert_pixels = np.bincount(self.pix_rows[self.recv_pix].ravel(), pre.pix_bary[self.recv_pix].ravel(),
+                                  len(pre.recv_vert))
+        self.shadow_sources.use_receivers(pm.vert_pos[pre.recv_vert], dev, vert_pixels)
         self.shaft_build_s = time.perf_counter() - t0  # built, or read from the cache (hit)
         log.debug("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
         self._cost: dict | None = None  # measured fixed and per-pass frame cost (--fps), refined every frame

@@ -1,15 +1,23 @@
 """Per-frame source list and representative source set under a pass budget (seed sec. 6.2.1, 6.4).
 
 `ShadowSources` is built once per scene from the source set, the transfers and the radiance
-mesh: a source KD-tree, a receiver octree over the non-emitting patches, and the shaft
-hierarchy between them. Per frame, `select(box_min, box_max, passes)`:
+mesh: a source KD-tree, a receiver octree over the non-emitting patches, the shaft hierarchy
+between them, and a block prefix table of the transfers G * B over the KD order (the KD splits
+fall on its blocks). Per frame, `select(box_min, box_max, passes)`:
 1. traverses the shafts with the object's box: the sources of the leaf shafts met (each counted
    once: the frame tag of the seed is a boolean mark here) and, per leaf shaft, its receivers;
 2. marks the KD-tree nodes holding those sources (the tag pushed up to the root) and picks
-   `passes` nodes by repeatedly splitting the marked node with the largest transfer to the
-   receivers (a heap), sec. 6.4; without a budget every marked source is its own pass;
-3. gives each chosen node a shadow-map eye at the centre of its most contributing member, and
-   weights that sum the transfers of its marked members (the cluster keeps their energy);
+   `passes` nodes by repeatedly splitting the marked node with the largest key (a heap), sec. 6.4.
+   The seed's key is the mean transfer to the receivers; here, given the receiver vertices, it is
+   the transfer to the receiver vertices whose segment to the source meets the object's box (the
+   light the object can block this frame, kernels/blocked.py), each vertex weighted by its pixel
+   footprint (the light the camera sees blocked). Without a budget every marked
+   source is its own pass;
+3. gives each chosen node a shadow-map eye at the key-weighted centroid of its marked members
+   (the seed: the centre of the most contributing member; the centroid cuts the 50-pass rmse by
+   a third or more on the benchmark rooms), and weights that sum the transfers of its marked members (the cluster
+   keeps their energy): a difference of two prefix rows per run of whole blocks, raw columns at
+   the ends;
 4. gives the (receiver patch, pass) pairs that can be shadowed: only those pixels are touched.
 """
 from __future__ import annotations
@@ -19,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kernels.blocked import BlockedTransfer
 from lighting.hierarchy import receiver_octree, source_kdtree
 from lighting.shafts import ShaftHierarchy
 from recon.response import luminance
@@ -41,16 +50,26 @@ class FrameSources:
 class ShadowSources:
     def __init__(self, src: np.ndarray, centres: np.ndarray, normals: np.ndarray, corners: np.ndarray,
                  receivers: np.ndarray, G_c: np.ndarray, G_v: np.ndarray, B: np.ndarray,
-                 leaf_size: int = 8, threshold: float = 0.02, keep_weak: bool = True):
+                 leaf_size: int = 8, threshold: float = 0.02, keep_weak: bool = True, block: int = 4,
+                 recv_points: np.ndarray | None = None, device: str | None = None,
+                 recv_weights: np.ndarray | None = None):
         """src (S,) source patch ids; receivers (R,) receiver patch ids; G_c (P,P), G_v (Vr,P)
-        transfers; B (P,3) source radiance; centres/normals (P,3), corners (P,4,3) m."""
+        transfers; B (P,3) source radiance; centres/normals (P,3), corners (P,4,3) m. block: source
+        positions per column of the cluster-weight prefix table (its memory is 1/block of one
+        float32 (Vr+P, S, 3) table; a cluster's weight costs up to 2 (block-1) raw columns more).
+        recv_points (Vr,3) m: the receiver vertices of the G_v rows; with them the representatives
+        split, and place their eyes, by the light the object's box can block (blocked_key); without
+        them by each source's mean transfer (strength). recv_weights (Vr,): each receiver vertex's
+        weight in that key (the engine: its pixel footprint, so the key counts the blocked light the
+        camera sees; default 1). device: where that kernel runs."""
         self.P = len(centres)
         self.keep_weak = keep_weak
         self.G_v, self.G_c, self.B = G_v, G_c, B
         self.empty = len(src) == 0 or len(receivers) == 0  # nothing lights anything: no passes ever
         if self.empty:
             return
-        self.src_tree = source_kdtree(np.asarray(src), centres, corners)
+        self.block = max(int(block), 1)
+        self.src_tree = source_kdtree(np.asarray(src), centres, corners, self.block)
         self.recv_tree = receiver_octree(np.asarray(receivers), centres, corners, leaf_size)
         self.src_ids = self.src_tree.order  # source patch id at each KD position
         self.eye_pos = centres + normals * 1e-3
@@ -66,13 +85,137 @@ class ShadowSources:
         self.leaf_of_recv = np.full(self.P, -1, np.int64)
         self.leaf_of_recv[ro] = self.recv_tree.leaf_of_position()
         self.n_recv_leaves = int(self.recv_tree.leaf_hi[0]) if len(ro) else 0
+        self.prefix = self._weight_prefix()
+        self.blocked = None
+        if recv_points is not None:
+            self.use_receivers(recv_points, device, recv_weights)
+
+    def use_receivers(self, recv_points: np.ndarray, device: str | None = None,
+                      recv_weights: np.ndarray | None = None) -> None:
+        """Split and place the representatives by the light the object's box can block (see
+        __init__'s recv_points/recv_weights). Kept apart from the construction because it holds
+        device buffers: the rest is a per-scene artefact cached on disk (app.stages.precompute)."""
+        if self.empty:
+            return
+        lum_B = luminance(self.B[self.src_ids])
+        self.blocked = self._blocked_transfer(np.asarray(recv_points, np.float64), lum_B, device, recv_weights)
+
+    def _blocked_transfer(self, points: np.ndarray, lum_B: np.ndarray, device: str | None,
+                          recv_weights: np.ndarray | None = None) -> BlockedTransfer:
+        """The kernel's inputs per block of `block` KD positions (a block is one source to it: its
+        eye the strength-weighted centroid of its members', its transfer theirs summed), transfers
+        to each receiver vertex scaled by recv_weights."""
+        so, k = self.src_ids, self.block
+        starts = np.arange(0, len(so), k)
+        w = self.strength
+        wsum = np.add.reduceat(w, starts)
+        e = self.eye_pos[so]
+        eye = np.where((wsum > 0)[:, None], np.add.reduceat(w[:, None] * e, starts) / np.where(wsum > 0, wsum, 1)[:, None],
+                       np.add.reduceat(e, starts) / np.diff(np.append(starts, len(so)))[:, None])
+        g = np.add.reduceat(np.asarray(self.G_v[:, so], np.float64) * lum_B[None, :], starts, axis=1)
+        if recv_weights is not None:
+            g *= np.asarray(recv_weights, np.float64)[:, None]
+        return BlockedTransfer(points, eye, g.T, device)
+
+    def blocked_key(self, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
+        """(S,) per KD position: the luminance transfer to the receiver vertices whose segment to the
+        source's block meets the box (BlockedTransfer), shared among the block's members by strength
+        (evenly where their strength is 0)."""
+        so, k = self.src_ids, self.block
+        starts = np.arange(0, len(so), k)
+        b = self.blocked(box_min, box_max)
+        size = np.diff(np.append(starts, len(so)))
+        wsum = np.add.reduceat(self.strength, starts)
+        share = np.where(np.repeat(wsum, size) > 0, self.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
+                         1.0 / np.repeat(size, size))
+        return np.repeat(b, size) * share
+
+    def _weight_prefix(self) -> np.ndarray:
+        """(S // block + 1 (+1), Vr + P, 3) float32: row b holds, for every receiver vertex (G_v
+        rows) then every patch centre (G_c rows), the transfer G * B summed over the sources at KD
+        positions [0, b * block); a last row holds the sum over all S when S is not a multiple of
+        block. Summed in float64: a difference of two rows is within 1.2e-7 of the receiver's
+        total transfer of the exact sum."""
+        k, so = self.block, self.src_ids
+        S = len(so)
+        bounds = np.append(np.arange(0, S + 1, k), [S] if S % k else []).astype(np.int64)
+        rows = self.G_v.shape[0] + self.P
+        out = np.zeros((len(bounds), rows, 3), np.float32)
+        run = np.zeros((rows, 3))
+        step = 128  # blocks per chunk (bounds the float64 temporaries)
+        for b0 in range(0, len(bounds) - 1, step):
+            b1 = min(len(bounds) - 1, b0 + step)
+            cols = so[bounds[b0]:bounds[b1]]
+            seg = bounds[b0:b1] - bounds[b0]  # block starts within the chunk
+            Bc = np.asarray(self.B[cols], np.float64)
+            for G, r0, r1 in ((self.G_v, 0, self.G_v.shape[0]), (self.G_c, self.G_v.shape[0], rows)):
+                gb = np.asarray(G[:, cols], np.float64)[:, :, None] * Bc[None]
+                cum = np.cumsum(np.add.reduceat(gb, seg, axis=1), axis=1) + run[r0:r1, None, :]
+                out[b0 + 1:b1 + 1, r0:r1] = cum.transpose(1, 0, 2)
+                run[r0:r1] = cum[:, -1]
+        return out
 
     def stats(self) -> dict:
         if self.empty:
-            return {"shafts": 0, "leaf_shafts": 0, "shaft_mb": 0.0, "source_nodes": 0, "receiver_nodes": 0}
+            return {"shafts": 0, "leaf_shafts": 0, "shaft_mb": 0.0, "source_nodes": 0, "receiver_nodes": 0,
+                    "weight_table_mb": 0.0}
         return {"shafts": self.shafts.n_shafts, "leaf_shafts": self.shafts.n_leaf_shafts,
                 "shaft_mb": self.shafts.nbytes / 2 ** 20, "source_nodes": self.src_tree.n_nodes,
-                "receiver_nodes": self.recv_tree.n_nodes}
+                "receiver_nodes": self.recv_tree.n_nodes, "weight_table_mb": self.prefix.nbytes / 2 ** 20}
+
+    def weights(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(W_v (Vr,n,3), W_c (P,n,3)) float32: per node [lo, hi) of KD positions (sorted, disjoint,
+        each holding a marked source), the transfers G * B summed over its marked sources. Each
+        node's marked runs are split into whole blocks (a difference of two prefix rows) and at most
+        block-1 raw columns at either end."""
+        Vr, k = self.G_v.shape[0], self.block
+        n = len(lo)
+        edge = np.diff(np.concatenate([[0], marked.astype(np.int8), [0]]))
+        rs, re = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)  # marked runs [rs, re)
+        i0 = np.searchsorted(re, lo, side="right")
+        count = np.searchsorted(rs, hi, side="left") - i0
+        node = np.repeat(np.arange(n), count)
+        first = np.cumsum(count) - count
+        run = np.arange(len(node)) - first[node] + i0[node]
+        a, b = np.maximum(rs[run], lo[node]), np.minimum(re[run], hi[node])  # segments, sorted by node
+        S, last = len(self.src_ids), len(self.prefix) - 1
+        A, Bk = -(-a // k) * k, np.where(b == S, S, b // k * k)  # S has its own prefix row
+
+        def row(x):
+            return np.where(x == S, last, x // k)
+
+        whole = A <= Bk
+        W = np.zeros((n, Vr + self.P, 3), np.float32)
+        tab = np.flatnonzero(A < Bk)  # segments holding whole blocks (sorted by node)
+        if len(tab):
+            t_node = node[tab]
+            if len(np.unique(t_node)) == len(t_node):  # one block run per node (a whole marked node)
+                W[t_node] = self.prefix[row(Bk[tab])] - self.prefix[row(A[tab])]
+            else:  # many runs: float64 sums
+                starts = np.flatnonzero(np.diff(np.concatenate([[-1], t_node])))
+                W[t_node[starts]] = np.add.reduceat(self.prefix[row(Bk[tab])].astype(np.float64)
+                                                    - self.prefix[row(A[tab])], starts, axis=0)
+        # raw columns: [a, A) and [Bk, b) of whole segments, [a, b) of the others
+        r_lo = np.concatenate([a, np.where(whole, Bk, b)])
+        r_hi = np.concatenate([np.where(whole, A, b), b])
+        r_node = np.concatenate([node, node])
+        o = np.argsort(r_node, kind="stable")
+        r_lo, r_hi, r_node = r_lo[o], r_hi[o], r_node[o]
+        length = r_hi - r_lo
+        keep = length > 0
+        r_lo, length, r_node = r_lo[keep], length[keep], r_node[keep]
+        if len(r_lo):
+            col_node = np.repeat(r_node, length)
+            pos = np.arange(len(col_node)) - np.repeat(np.cumsum(length) - length, length) + np.repeat(r_lo, length)
+            ids = self.src_ids[pos]
+            Bc = np.asarray(self.B[ids], np.float64)
+            starts = np.flatnonzero(np.diff(np.concatenate([[-1], col_node])))
+            owners = col_node[starts]
+            for G, rows in ((self.G_v, slice(0, Vr)), (self.G_c, slice(Vr, None))):  # float64 sums
+                W[owners, rows] += np.add.reduceat(np.asarray(G[:, ids], np.float64).T[:, :, None] * Bc[:, None],
+                                                   starts, axis=0)
+        np.maximum(W, 0.0, out=W)  # a difference of rounded prefixes where the exact sum is 0
+        return np.ascontiguousarray(W[:, :Vr].transpose(1, 0, 2)), np.ascontiguousarray(W[:, Vr:].transpose(1, 0, 2))
 
     # ------------------------------------------------------------------ per frame
     def traverse(self, box_min: np.ndarray, box_max: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -86,12 +229,13 @@ class ShadowSources:
         marked = np.cumsum(diff[:-1]) > 0
         return marked, s_nodes, r_nodes
 
-    def representatives(self, marked: np.ndarray, passes: int | None) -> list[int]:
+    def representatives(self, marked: np.ndarray, passes: int | None, key: np.ndarray | None = None) -> list[int]:
         """KD nodes (sorted by position) covering every marked source, at most `passes` of them
-        when the marked sources allow (sec. 6.4: split the node with the largest transfer)."""
+        when the marked sources allow (sec. 6.4: split the node with the largest key summed over
+        its marked members; key (S,) per KD position, default the mean transfer `strength`)."""
         t = self.src_tree
         cm = np.concatenate([[0], np.cumsum(marked)])
-        cs = np.concatenate([[0.0], np.cumsum(np.where(marked, self.strength, 0.0))])
+        cs = np.concatenate([[0.0], np.cumsum(np.where(marked, self.strength if key is None else key, 0.0))])
         n_marked = int(cm[-1])
         if n_marked == 0:
             return []
@@ -119,6 +263,23 @@ class ShadowSources:
         nodes = done + [n for _, n in heap]
         return sorted(nodes, key=lambda n: t.lo[n])
 
+    def eyes(self, starts: np.ndarray, pos: np.ndarray, key: np.ndarray) -> np.ndarray:
+        """(n,3) shadow-map eyes of the nodes whose marked members are pos[starts[k]:starts[k+1]]:
+        the centroid of their eyes weighted by key (per KD position; the members' plain centroid
+        where their keys sum to 0); a node of one member keeps that member's eye."""
+        e = self.eye_pos[self.src_ids[pos]]
+        w = key[pos]
+        wsum = np.add.reduceat(w, starts)
+        eyes = np.add.reduceat(w[:, None] * e, starts) / np.where(wsum > 0, wsum, 1.0)[:, None]
+        flat = wsum <= 0
+        if flat.any() and key is not self.strength:  # the mean transfer, then the plain centroid
+            eyes[flat] = self.eyes(starts, pos, self.strength)[flat]
+        elif flat.any():
+            eyes[flat] = (np.add.reduceat(e, starts) / np.diff(np.append(starts, len(pos)))[:, None])[flat]
+        one = np.diff(np.append(starts, len(pos))) == 1
+        eyes[one] = e[starts[one]]
+        return eyes
+
     def select(self, box_min: np.ndarray, box_max: np.ndarray, passes: int | None) -> FrameSources:
         """The frame's shadow passes for an object inside the box (module docstring)."""
         if passes is not None and passes < 1:
@@ -128,7 +289,10 @@ class ShadowSources:
         if not self.empty:
             t = self.src_tree
             marked, s_nodes, r_nodes = self.traverse(box_min, box_max)
-            nodes = self.representatives(marked, passes)
+            key = self.strength
+            if self.blocked is not None and passes is not None and passes < marked.sum():
+                key = self.blocked_key(box_min, box_max)
+            nodes = self.representatives(marked, passes, key)
         n = len(nodes)
         if n == 0:
             return FrameSources(np.zeros((0, 3)), np.zeros((Vr, 0, 3)), np.zeros((self.P, 0, 3)),
@@ -137,18 +301,13 @@ class ShadowSources:
         pos = np.flatnonzero(marked)  # marked KD positions, in order: each node holds a run of them
         starts = np.searchsorted(pos, lo)
         ids = self.src_ids[pos]
-        B = self.B[ids]
-        W_v = np.add.reduceat(np.asarray(self.G_v[:, ids], np.float32)[:, :, None] * B[None].astype(np.float32),
-                              starts, axis=1)
-        W_c = np.add.reduceat(np.asarray(self.G_c[:, ids], np.float32)[:, :, None] * B[None].astype(np.float32),
-                              starts, axis=1)
-        # eye: the member with the largest transfer
-        strength = self.strength[pos]
-        best = np.maximum.reduceat(strength, starts)
-        group = np.repeat(np.arange(n), np.diff(np.append(starts, len(pos))))
-        top = np.flatnonzero(strength >= best[group])  # each group's strongest member(s), in order
-        _, first = np.unique(group[top], return_index=True)
-        eyes = self.eye_pos[ids[top[first]]]
+        if n == len(pos):  # one source per pass (the all-sources frame): its own transfers
+            B = self.B[ids].astype(np.float32)
+            W_v = np.asarray(self.G_v[:, ids], np.float32)[:, :, None] * B[None]
+            W_c = np.asarray(self.G_c[:, ids], np.float32)[:, :, None] * B[None]
+        else:
+            W_v, W_c = self.weights(lo, hi, marked)
+        eyes = self.eye_pos[ids] if n == len(pos) else self.eyes(starts, pos, key)
         # receiver pairs: leaf shafts (source node, receiver node) -> (receiver leaves, passes)
         k_lo = np.searchsorted(hi, t.lo[s_nodes], side="right")
         k_hi = np.searchsorted(lo, t.hi[s_nodes], side="left")

@@ -94,9 +94,13 @@ def receiver_octree(ids: np.ndarray, centres: np.ndarray, corners: np.ndarray, l
     return _build(ids, centres, pmin, pmax, split)
 
 
-def source_kdtree(ids: np.ndarray, centres: np.ndarray, corners: np.ndarray) -> Tree:
+def source_kdtree(ids: np.ndarray, centres: np.ndarray, corners: np.ndarray, align: int = 1) -> Tree:
     """Binary KD-tree over source patches `ids`, split at the median of the longest axis down to
-    single patches (the deep hierarchy sec. 6.4 needs for fine control of the pass count)."""
+    single patches (the deep hierarchy sec. 6.4 needs for fine control of the pass count).
+
+    align: a node of at least 2 * align patches splits at the multiple of `align` nearest its
+    median, so every such node starts (and, unless it ends the order, ends) at a multiple of
+    `align` in `order`: the blocks of a prefix table over that order (ShadowSources.weights)."""
     pmin, pmax = corners.min(1), corners.max(1)
 
     def split(m: np.ndarray):
@@ -106,6 +110,8 @@ def source_kdtree(ids: np.ndarray, centres: np.ndarray, corners: np.ndarray) -> 
         ax = int(np.argmax(c.max(0) - c.min(0)))
         o = np.argsort(c[:, ax], kind="stable")
         h = len(m) // 2
+        if align > 1 and len(m) >= 2 * align:
+            h = min(max(int(round(h / align)) * align, align), len(m) // align * align)
         return [m[o[:h]], m[o[h:]]]
 
     return _build(ids, centres, pmin, pmax, split)

@@ -66,7 +66,8 @@ def box_outside(normals: np.ndarray, offsets: np.ndarray, umin: np.ndarray, umax
                 box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
     """(N,) True where the box (3,) lies wholly outside shaft n (union box (N,3) and planes)."""
     out = np.any((box_max < umin) | (box_min > umax), axis=1)
-    lowest = np.where(normals > 0, normals * box_min, normals * box_max).sum(2)  # min of n.x over the box
+    c, h = 0.5 * (box_min + box_max), 0.5 * (box_max - box_min)
+    lowest = normals @ c - np.abs(normals) @ h  # min of n.x over the box
     return out | np.any(lowest > offsets + 1e-9, axis=1)
 
 
