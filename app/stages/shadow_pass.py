@@ -46,6 +46,9 @@ class Masks:
     O_cen: np.ndarray
 
 
+TILE = 8  # pixels: side of the image blocks whose points share a list of maps that may shadow them
+
+
 class ShadowPass:
     """The shadow-pass stage of one scene (see the module docstring)."""
 
@@ -76,7 +79,10 @@ class ShadowPass:
         bary = np.concatenate([pix_bary[self.recv], np.tile([1.0, 0.0, 0.0], (P, 1))])
         pos = np.concatenate([pix_pos[self.recv], patches.centre + patches.normal * 1e-3])
         group = np.concatenate([pix_patch[self.recv], np.arange(P)])
-        self.sums = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch)
+        # culling cells: the pixels of a patch in one TILE x TILE block (a centre is a cell of its own)
+        ty, tx = np.divmod(self.recv, W)
+        tile = np.concatenate([(ty // TILE) * (W // TILE + 1) + tx // TILE, np.full(P, -1)])
+        self.sums = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
         # exact on every frame they are wanted (lattice, or no lattice neighbour): in scan order;
         # the rest (filled unless near the object): sorted by patch, with each patch's range
         static = (self.lattice | ~self.lattice_cover)[self.recv]
