@@ -14,8 +14,9 @@ Map layout: depth (S, res, res) float32 metres along the map's forward axis, +in
 Buffers are allocated once at the batch capacity (kernels.buffers); a frame's proxy is the
 object's BVH kept per shape (set_proxy takes it), so rendering a batch allocates nothing.
 `may_occlude` bounds a map's shadow: only points inside the cone from the eye around the
-proxy's bounding sphere, and behind its nearest depth, can be occluded (the masked sums skip
-the rest, kernels.composite).
+proxy's bounding sphere, behind its nearest depth, and whose texels lie in a COARSE x COARSE
+block of the map that some triangle's bounding box touched (`coarse`, marked while
+rasterising) can be occluded; the masked sums skip the rest (kernels.composite).
 """
 from __future__ import annotations
 
@@ -29,6 +30,9 @@ from kernels.buffers import Buffer
 from kernels.visibility import Occluder, segment_blocked
 
 
+COARSE = 8  # texels per side of the blocks of `MapSet.coarse`
+
+
 @wp.struct
 class MapSet:
     origin: wp.array(dtype=wp.vec3)  # (S,) map eye, world
@@ -39,6 +43,7 @@ class MapSet:
     ray: wp.array(dtype=wp.int32)  # 1: resolve by ray casting against the proxy
     near: wp.array(dtype=wp.float32)  # view depth below which nothing of the proxy lies (m)
     depth: wp.array3d(dtype=wp.float32)
+    coarse: wp.array3d(dtype=wp.int32)  # (S, ceil(res/COARSE), same): 1 where a triangle may have drawn
     res: int
     bias: float
     proxy: wp.uint64
@@ -89,13 +94,30 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     cos_h = 1.0 / wp.sqrt(1.0 + tan_h * tan_h)
     lateral = wp.length(d - ms.fwd[s] * z)
     # signed distance of c from the cone's surface (a lower bound behind the apex)
-    return lateral * cos_h - z * tan_h * cos_h <= r
-
-
-@wp.kernel
-def _clear_kernel(ms: MapSet, first: int):
-    k, iy, ix = wp.tid()
-    ms.depth[first + k, iy, ix] = wp.inf
+    if lateral * cos_h - z * tan_h * cos_h > r:
+        return False
+    if z - r <= 1.0e-6:
+        return True
+    # the texels the sphere's points look up: within `ext` of the centre's projection, as
+    # |(a+e)/(z+f) - a/z| <= r (z + |a|) / (z (z - r)) for |e|, |f| <= r; +1 for the rounding
+    a = wp.dot(d, ms.right[s])
+    b = wp.dot(d, ms.up[s])
+    k = ms.inv_tan[s] * float(ms.res) * 0.5
+    half = float(ms.res) * 0.5 - 0.5
+    ext = r * (z + wp.max(wp.abs(a), wp.abs(b))) / (z * (z - r)) * k + 1.0
+    xc = a / z * k + half
+    yc = b / z * k + half
+    x0 = wp.max(int(wp.floor(xc - ext)), 0)
+    x1 = wp.min(int(wp.floor(xc + ext)), ms.res - 1)
+    y0 = wp.max(int(wp.floor(yc - ext)), 0)
+    y1 = wp.min(int(wp.floor(yc + ext)), ms.res - 1)
+    if x0 > x1 or y0 > y1:
+        return False
+    for cy in range(y0 / COARSE, y1 / COARSE + 1):
+        for cx in range(x0 / COARSE, x1 / COARSE + 1):
+            if ms.coarse[s, cy, cx] != 0:
+                return True
+    return False
 
 
 @wp.func
@@ -127,6 +149,11 @@ def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris:
     x1 = wp.min(int(wp.floor(wp.max(wp.max(a[0], b[0]), c[0]))), ms.res - 1)
     y0 = wp.max(int(wp.ceil(wp.min(wp.min(a[1], b[1]), c[1]))), 0)
     y1 = wp.min(int(wp.floor(wp.max(wp.max(a[1], b[1]), c[1]))), ms.res - 1)
+    if x0 > x1 or y0 > y1:
+        return
+    for cy in range(y0 / COARSE, y1 / COARSE + 1):  # the blocks this triangle may draw in
+        for cx in range(x0 / COARSE, x1 / COARSE + 1):
+            ms.coarse[s, cy, cx] = 1
     for iy in range(y0, y1 + 1):
         for ix in range(x0, x1 + 1):
             px = float(ix)
@@ -158,6 +185,8 @@ class ShadowMaps:
         for k, b in self._frame.items():
             setattr(self.ms, k, b.dev)
         self.ms.depth = wp.full((cap, self.res, self.res), float("inf"), dtype=wp.float32, device=d)
+        n_coarse = -(-self.res // COARSE)
+        self.ms.coarse = wp.zeros((cap, n_coarse, n_coarse), dtype=wp.int32, device=d)
         self.ms.res = self.res
         self.ms.bias = self.bias
         self.ms.proxy = wp.uint64(0)
@@ -205,16 +234,15 @@ class ShadowMaps:
         for k, v in (("origin", eyes), ("right", right), ("up", up), ("fwd", fwd), ("inv_tan", inv_tan),
                      ("near", dist - r), ("ray", use_ray)):
             self._frame[k].upload(v)
+        self.ms.depth.fill_(float("inf"))  # one fill of the whole batch (a kernel per texel costs far more)
+        self.ms.coarse.zero_()
         self.n = n
         return n
 
     def raster(self, lo: int, hi: int) -> None:
-        """Clear and draw maps lo..hi-1 of the prepared batch (one launch each; disjoint ranges
-        may run concurrently)."""
-        if hi <= lo:
-            return
-        wp.launch(_clear_kernel, dim=(hi - lo, self.res, self.res), inputs=[self.ms, lo], device=self.device)
-        if self._n_tris:
+        """Draw maps lo..hi-1 of the prepared batch (one launch; disjoint ranges may run
+        concurrently)."""
+        if self._n_tris and hi > lo:
             wp.launch(_raster_kernel, dim=(hi - lo, self._n_tris), inputs=[self.ms, lo, self._verts, self._tris],
                       device=self.device)
 
