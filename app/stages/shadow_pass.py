@@ -46,6 +46,10 @@ class Masks:
     O_cen: np.ndarray
 
 
+# Map size of frames whose maps stand for clusters of sources (a pass budget): 128 scores as
+# well as 256 there; a map per source (the all-sources frame at rest) keeps EngineParams.map_res,
+# whose hard lamp shadows lose at 128 (bench/bench_shadow_pass.py measures both).
+CLUSTER_MAP_RES = 128
 TILE = 8  # pixels: side of the image blocks whose points share a list of maps that may shadow them
 
 
@@ -54,10 +58,13 @@ class ShadowPass:
 
     def __init__(self, pix_pos: np.ndarray, pix_rows: np.ndarray, pix_bary: np.ndarray, pix_patch: np.ndarray,
                  recv_pix: np.ndarray, patches: PatchMesh, n_recv_vert: int, width: int, height: int,
-                 batch: int, map_res: int, device: str, quiet: bool = True, near_factor: float = 1.5):
+                 batch: int, map_res: int, device: str, quiet: bool = True, near_factor: float = 1.5,
+                 cluster_map_res: int = CLUSTER_MAP_RES):
         """pix_*: per pixel (H*W) surface point (m), receiver-vertex rows and barycentrics, patch
         (-1 none); recv_pix (H*W,) bool the receiver pixels; n_recv_vert: rows of the pixel
-        transfers W_v; batch: maps per batch; near_factor: exact pixels within this many bounding
+        transfers W_v; batch: maps per batch; map_res: map size of a frame with one map per
+        source (the all-sources frame), cluster_map_res (at most map_res) that of a frame whose
+        maps stand for clusters of sources; near_factor: exact pixels within this many bounding
         radii of the object."""
         self.device, self.quiet, self.batch = device, quiet, batch
         self.near_factor = near_factor
@@ -96,7 +103,10 @@ class ShadowPass:
         self.rest_start = np.searchsorted(self.rest_patch, np.arange(P + 1))
         self.patch_centre, self.patch_radius = patches.centre, patches.radius
         self.emitter = patches.is_emitter
-        self.maps = ShadowMaps(batch, map_res, device=device)
+        self.maps_full = ShadowMaps(batch, map_res, device=device)
+        res = min(cluster_map_res, map_res)
+        self.maps_cluster = self.maps_full if res == map_res else ShadowMaps(batch, res, device=device)
+        self.maps = self.maps_full  # the last frame's
         self.weights = Buffer((n_recv_vert + P, batch), wp.vec3, device)  # pixel rows, then centre rows
         self.cand = Buffer((P, batch), wp.uint8, device)
         self._fill = WindowFill(W, H, self.pix_quad, device)
@@ -104,17 +114,20 @@ class ShadowPass:
 
     # ------------------------------------------------------------------ per frame
     def run(self, proxy: tuple[np.ndarray, np.ndarray, Occluder | None], centre: np.ndarray, radius: float,
-            coverage: np.ndarray, cand: np.ndarray, eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray):
+            coverage: np.ndarray, cand: np.ndarray, eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray,
+            per_source: bool = True):
         """The frame's masks, as a generator: yields the sources done after each batch of maps
         (Engine.refine may pause there) and returns the Masks.
 
         proxy: (vertices (V,3) m, triangles (F,3), its BVH or None); centre/radius: the object's
         bounding sphere (m); coverage (H,W) share of each pixel the object covers; cand (P,S)
         bool receiver patch x pass; eyes (S,3) m; W_pix (Vr,S,3) pixel-row transfers (radiance,
-        or LDR intensity), W_c (P,S,3) patch-centre transfers."""
+        or LDR intensity), W_c (P,S,3) patch-centre transfers; per_source: one map per source
+        (maps of map_res), else maps of clusters (cluster_map_res)."""
         pix_pt, fill_pt, cen = self._select(centre, radius, coverage, cand)
         R = self.n_pix_points
         self.sums.select(np.concatenate([pix_pt, R + cen]))
+        self.maps = self.maps_full if per_source else self.maps_cluster
         self.maps.set_proxy(proxy[0], proxy[1], proxy[2])
         n_src, dev = len(eyes), self.device
         for first in tqdm(range(0, n_src, self.batch), desc="shadow passes", unit="batch", leave=False,
