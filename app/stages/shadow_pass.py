@@ -59,12 +59,12 @@ class ShadowPass:
     def __init__(self, pix_pos: np.ndarray, pix_rows: np.ndarray, pix_bary: np.ndarray, pix_patch: np.ndarray,
                  recv_pix: np.ndarray, patches: PatchMesh, n_recv_vert: int, width: int, height: int,
                  batch: int, map_res: int, device: str, quiet: bool = True, near_factor: float = 1.5,
-                 cluster_map_res: int = CLUSTER_MAP_RES):
+                 cluster_map_res: int | None = None):
         """pix_*: per pixel (H*W) surface point (m), receiver-vertex rows and barycentrics, patch
         (-1 none); recv_pix (H*W,) bool the receiver pixels; n_recv_vert: rows of the pixel
         transfers W_v; batch: maps per batch; map_res: map size of a frame with one map per
-        source (the all-sources frame), cluster_map_res (at most map_res) that of a frame whose
-        maps stand for clusters of sources; near_factor: exact pixels within this many bounding
+        source (the all-sources frame), cluster_map_res (at most map_res; default
+        CLUSTER_MAP_RES) that of a frame whose maps stand for clusters of sources; near_factor: exact pixels within this many bounding
         radii of the object."""
         self.device, self.quiet, self.batch = device, quiet, batch
         self.near_factor = near_factor
@@ -104,7 +104,7 @@ class ShadowPass:
         self.patch_centre, self.patch_radius = patches.centre, patches.radius
         self.emitter = patches.is_emitter
         self.maps_full = ShadowMaps(batch, map_res, device=device)
-        res = min(cluster_map_res, map_res)
+        res = min(cluster_map_res or CLUSTER_MAP_RES, map_res)
         self.maps_cluster = self.maps_full if res == map_res else ShadowMaps(batch, res, device=device)
         self.maps = self.maps_full  # the last frame's
         self.weights = Buffer((n_recv_vert + P, batch), wp.vec3, device)  # pixel rows, then centre rows
