@@ -125,6 +125,20 @@ def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
     return (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])
 
 
+@wp.func
+def _row_span(p: wp.vec3, q: wp.vec3, y: float, lo: float, hi: float):
+    """(lo, hi) widened to hold where the edge p-q crosses the row y (both ends of an edge
+    within a texel of the row and too flat to intersect reliably)."""
+    if y < wp.min(p[1], q[1]) - 1.0 or y > wp.max(p[1], q[1]) + 1.0:
+        return lo, hi
+    dy = q[1] - p[1]
+    if wp.abs(dy) > 1.0e-3:
+        t = wp.clamp((y - p[1]) / dy, 0.0, 1.0)
+        x = p[0] + t * (q[0] - p[0])
+        return wp.min(lo, x), wp.max(hi, x)
+    return wp.min(lo, wp.min(p[0], q[0])), wp.max(hi, wp.max(p[0], q[0]))
+
+
 @wp.kernel
 def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris: wp.array(dtype=wp.int32)):
     k, t = wp.tid()
@@ -155,9 +169,16 @@ def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris:
         for cx in range(x0 / COARSE, x1 / COARSE + 1):
             ms.coarse[s, cy, cx] = 1
     for iy in range(y0, y1 + 1):
-        for ix in range(x0, x1 + 1):
+        py = float(iy)
+        # the row's texels that can pass the test below: between the edges' crossings of the row,
+        # widened by 2 texels for the float32 rounding (the test decides, as over the whole box)
+        lo = float(ms.res)
+        hi = -1.0
+        lo, hi = _row_span(a, b, py, lo, hi)
+        lo, hi = _row_span(b, c, py, lo, hi)
+        lo, hi = _row_span(c, a, py, lo, hi)
+        for ix in range(wp.max(int(wp.floor(lo - 2.0)), x0), wp.min(int(wp.ceil(hi + 2.0)), x1) + 1):
             px = float(ix)
-            py = float(iy)
             w0 = _edge(b, c, px, py) / area
             w1 = _edge(c, a, px, py) / area
             w2 = 1.0 - w0 - w1
