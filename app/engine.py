@@ -49,9 +49,7 @@ from app.stages.precompute import (CACHE_VERSION, LIGHTING, Lighting, Precompute
                                    Precomputed, hash_scene as _hash_scene)
 from app.stages.receiver_map import receiver_map, reflectance
 from kernels import runtime
-from kernels.composite import MaskedSum
 from kernels.raycast import cast_rays
-from kernels.shadowmap import ShadowMaps
 from kernels.shade import self_transfer
 from kernels.visibility import Occluder, emitter_sum, transfer_matrix
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
@@ -64,6 +62,7 @@ from recon.patches import PatchMesh
 from recon.proxy import simplify, subdivide
 from recon.response import luminance
 from recon.scene import Scene, SceneObject
+from app.stages.shadow_pass import ShadowPass, window_pairs as _window_pairs
 
 log = logging.getLogger("photoar")
 
@@ -294,7 +293,6 @@ class Engine:
         self.rho_x = reflectance(self.L_b, self.E_x)
         if self.sun_pix is not None:
             self.rho_x[self.sun_clipped] = self.sun_rho_clipped
-        self.maps = ShadowMaps(self.params.batch, self.params.map_res, device=dev)
         self._room_light = None
         t0 = time.perf_counter()
         p = self.params
@@ -319,19 +317,10 @@ class Engine:
         self._shade_occ = None  # (shading-mesh vertices, their Occluder) of the current frame
         self.n_shape_builds = 0  # object shapes simplified/subdivided so far
         self.near_factor = 2.0  # object light per pixel within this many bounding radii
-        # occlusion masks: every pixel within mask_near_factor bounding radii of the object, farther
-        # out (soft, slowly varying shadows) every second pixel in x and y, the rest filled in from
-        # looked-up neighbours on the same quad
-        self.mask_near_factor = 1.5
-        H, W = cam.height, cam.width
-        yy, xx = np.mgrid[0:H, 0:W]
-        lattice = ((yy % 2 == 0) & (xx % 2 == 0)).reshape(-1)
-        self.pix_quad = np.where(self.pix_patch >= 0, pm.quad[np.maximum(self.pix_patch, 0)], -1)
-        self.lattice = lattice & self.recv_pix
-        cover = np.zeros(H * W, bool)
-        for dy, dx, ok_src, ok_dst in _window_pairs(H, W):
-            cover[ok_dst] |= self.lattice[ok_src] & (self.pix_quad[ok_src] == self.pix_quad[ok_dst])
-        self.lattice_cover = cover
+        # occlusion masks (app.stages.shadow_pass): exact near the object and on a lattice farther out
+        self.shadow_pass = ShadowPass(self.pix_pos, self.pix_rows, pre.pix_bary, self.pix_patch, self.recv_pix, pm,
+                                      len(pre.recv_vert), cam.width, cam.height, self.params.batch,
+                                      self.params.map_res, dev, quiet=self.quiet)
 
     # ------------------------------------------------------------------ per frame
     @property
@@ -429,36 +418,14 @@ class Engine:
         eyes, W_v, W_c, cand = fs.eyes, fs.W_v, fs.W_c, fs.cand
         t = tick("sources", t)
 
-        # ---- occlusion masks: pixels and patch centres
-        want = self.recv_pix & (cov.reshape(-1) < 1.0) & cand.any(1)[np.maximum(self.pix_patch, 0)]
-        near = np.linalg.norm(self.pix_pos - centre, axis=1) < self.mask_near_factor * radius
-        exact = want & (near | self.lattice | ~self.lattice_cover)
-        pix_sel = np.flatnonzero(exact)
-        fill_sel = np.flatnonzero(want & ~exact)
-        halves = np.array_split(pix_sel, 2)  # two accumulators: each launch runs on its own core
-        pix_sums = [MaskedSum(self.pix_pos[h], self.pix_rows[h], pre.pix_bary[h], self.pix_patch[h], self.device)
-                    for h in halves]
-        cen_sel = np.flatnonzero(cand.any(1) & ~pm.is_emitter)
-        cen_sum = MaskedSum(pm.centre[cen_sel] + pm.normal[cen_sel] * 1e-3, np.repeat(cen_sel[:, None], 3, 1),
-                            np.tile([1.0, 0.0, 0.0], (len(cen_sel), 1)), cen_sel, self.device)
+        # ---- occlusion masks: listed pixels and patch centres (app.stages.shadow_pass; yields per batch)
         if p.mode == "ldr":
             S_v = self._ldr_weights(W_v)
-        self.maps.set_proxy(pv, pf)
-        cand_wp = wp.array(cand.astype(np.uint8), dtype=wp.uint8, device=self.device)
-        wv_wp = wp.array((S_v if p.mode == "ldr" else W_v).astype(np.float32), dtype=wp.vec3, device=self.device)
-        wc_wp = wp.array(W_c.astype(np.float32), dtype=wp.vec3, device=self.device)
         n_src = len(eyes)
-        for first in tqdm(range(0, n_src, p.batch), desc="shadow passes", unit="batch", leave=False,
-                          disable=self.quiet or n_src <= 4 * p.batch or not sys.stderr.isatty()):
-            n = self.maps.render(eyes[first:first + p.batch])
-            runtime.run_parallel([
-                lambda: pix_sums[0].add(self.maps, n, first, cand_wp, wv_wp),
-                lambda: (pix_sums[1].add(self.maps, n, first, cand_wp, wv_wp),
-                         cen_sum.add(self.maps, n, first, cand_wp, wc_wp))])
-            yield first + n  # sources done: refine() may stop here and resume on its next call
-        wp.synchronize_device(self.device)
-        O_pix = np.concatenate([ps.result()[0] for ps in pix_sums])
-        O_cen, _ = cen_sum.result()
+        masks = yield from self.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov, cand, eyes,
+                                                S_v if p.mode == "ldr" else W_v, W_c, fs.n_listed == n_src)
+        pix_sel, fill_sel, cen_sel, O_pix, O_cen = (masks.pix_sel, masks.fill_sel, masks.cen_sel, masks.O_pix,
+                                                    masks.O_cen)
         t = tick("masks", t)
 
         # ---- the object lit by the room, whose patches in its shadow send it less light
@@ -741,27 +708,8 @@ class Engine:
 
     def _fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray) -> np.ndarray:
         """Values (len(missing),3) at pixels `missing`: mean of the known pixels in their 3x3
-        window that lie on the same quad (every missing pixel has one, see lattice_cover)."""
-        if len(missing) == 0:
-            return np.zeros((0, 3))
-        n = len(self.L_b)
-        val = np.zeros((n, 3))
-        has = np.zeros(n, bool)
-        val[known] = values
-        has[known] = True
-        H, W = self.scene.camera.height, self.scene.camera.width
-        my, mx = np.divmod(missing, W)
-        acc = np.zeros((len(missing), 3))
-        cnt = np.zeros(len(missing))
-        for dy in (-1, 0, 1):  # only the missing pixels' windows, not the whole frame
-            for dx in (-1, 0, 1):
-                sy, sx = my + dy, mx + dx
-                src = sy * W + sx
-                good = (sy >= 0) & (sy < H) & (sx >= 0) & (sx < W)
-                good[good] = has[src[good]] & (self.pix_quad[src[good]] == self.pix_quad[missing[good]])
-                acc[good] += val[src[good]]
-                cnt[good] += 1
-        return acc / np.maximum(cnt, 1)[:, None]
+        window that lie on the same quad (ShadowPass.fill; a reused buffer, use it at once)."""
+        return self.shadow_pass.fill(known, values, missing)
 
     def _object_irradiance(self, pts: np.ndarray, nrm: np.ndarray, proxy_occ: Occluder, B: np.ndarray
                            ) -> np.ndarray:
@@ -1098,19 +1046,3 @@ def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.nda
     return out
 
 
-def _window_pairs(H: int, W: int):
-    """(dy, dx, src, dst) flat pixel index pairs for every offset of a 3x3 window (cached)."""
-    key = (H, W)
-    if key not in _WINDOW_CACHE:
-        yy, xx = np.mgrid[0:H, 0:W]
-        pairs = []
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                sy, sx = yy + dy, xx + dx
-                ok = (sy >= 0) & (sy < H) & (sx >= 0) & (sx < W)
-                pairs.append((dy, dx, (sy * W + sx)[ok], (yy * W + xx)[ok]))
-        _WINDOW_CACHE[key] = pairs
-    return _WINDOW_CACHE[key]
-
-
-_WINDOW_CACHE: dict = {}

@@ -10,6 +10,13 @@ A source inside (or nearly inside) the bounding sphere cannot be covered by one 
 for those the lookup casts the exact ray x -> source against the proxy instead (flag `ray`).
 
 Map layout: depth (S, res, res) float32 metres along the map's forward axis, +inf = empty.
+
+Buffers are allocated once at the batch capacity (kernels.buffers); a frame's proxy is the
+object's BVH kept per shape (set_proxy takes it), so rendering a batch allocates nothing.
+`may_occlude` bounds a map's shadow: only points inside the cone from the eye around the
+proxy's bounding sphere, behind its nearest depth, and whose texels lie in a COARSE x COARSE
+block of the map that some triangle's bounding box touched (`coarse`, marked while
+rasterising) can be occluded; the masked sums skip the rest (kernels.composite).
 """
 from __future__ import annotations
 
@@ -19,7 +26,11 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
+from kernels.buffers import Buffer
 from kernels.visibility import Occluder, segment_blocked
+
+
+COARSE = 8  # texels per side of the blocks of `MapSet.coarse`
 
 
 @wp.struct
@@ -30,7 +41,9 @@ class MapSet:
     fwd: wp.array(dtype=wp.vec3)
     inv_tan: wp.array(dtype=wp.float32)  # 1 / tan(half field of view)
     ray: wp.array(dtype=wp.int32)  # 1: resolve by ray casting against the proxy
+    near: wp.array(dtype=wp.float32)  # view depth below which nothing of the proxy lies (m)
     depth: wp.array3d(dtype=wp.float32)
+    coarse: wp.array3d(dtype=wp.int32)  # (S, ceil(res/COARSE), same): 1 where a triangle may have drawn
     res: int
     bias: float
     proxy: wp.uint64
@@ -66,23 +79,81 @@ def occluded(ms: MapSet, s: int, p: wp.vec3) -> bool:
 
 
 @wp.func
+def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
+    """False when no point of the sphere (c, r) can be occluded in map s (conservative; a
+    ray-mode map always answers True): the sphere lies outside the cone from the eye that
+    holds the proxy's bounding sphere (widened by a texel for the nearest-texel lookup), or
+    wholly in front of the proxy's nearest depth."""
+    if ms.ray[s] == 1:
+        return True
+    d = c - ms.origin[s]
+    z = wp.dot(d, ms.fwd[s])
+    if z + r <= ms.near[s]:
+        return False
+    tan_h = (1.0 + 2.0 / float(ms.res)) / ms.inv_tan[s] + 1.0e-5
+    cos_h = 1.0 / wp.sqrt(1.0 + tan_h * tan_h)
+    lateral = wp.length(d - ms.fwd[s] * z)
+    # signed distance of c from the cone's surface (a lower bound behind the apex)
+    if lateral * cos_h - z * tan_h * cos_h > r:
+        return False
+    if z - r <= 1.0e-6:
+        return True
+    # the texels the sphere's points look up: within `ext` of the centre's projection, as
+    # |(a+e)/(z+f) - a/z| <= r (z + |a|) / (z (z - r)) for |e|, |f| <= r; +1 for the rounding
+    a = wp.dot(d, ms.right[s])
+    b = wp.dot(d, ms.up[s])
+    k = ms.inv_tan[s] * float(ms.res) * 0.5
+    half = float(ms.res) * 0.5 - 0.5
+    ext = r * (z + wp.max(wp.abs(a), wp.abs(b))) / (z * (z - r)) * k + 1.0
+    xc = a / z * k + half
+    yc = b / z * k + half
+    x0 = wp.max(int(wp.floor(xc - ext)), 0)
+    x1 = wp.min(int(wp.floor(xc + ext)), ms.res - 1)
+    y0 = wp.max(int(wp.floor(yc - ext)), 0)
+    y1 = wp.min(int(wp.floor(yc + ext)), ms.res - 1)
+    if x0 > x1 or y0 > y1:
+        return False
+    for cy in range(y0 / COARSE, y1 / COARSE + 1):
+        for cx in range(x0 / COARSE, x1 / COARSE + 1):
+            if ms.coarse[s, cy, cx] != 0:
+                return True
+    return False
+
+
+@wp.func
 def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
     return (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])
 
 
+@wp.func
+def _row_span(p: wp.vec3, q: wp.vec3, y: float, lo: float, hi: float):
+    """(lo, hi) widened to hold where the edge p-q crosses the row y (both ends of an edge
+    within a texel of the row and too flat to intersect reliably)."""
+    if y < wp.min(p[1], q[1]) - 1.0 or y > wp.max(p[1], q[1]) + 1.0:
+        return lo, hi
+    dy = q[1] - p[1]
+    if wp.abs(dy) > 1.0e-3:
+        t = wp.clamp((y - p[1]) / dy, 0.0, 1.0)
+        x = p[0] + t * (q[0] - p[0])
+        return wp.min(lo, x), wp.max(hi, x)
+    return wp.min(lo, wp.min(p[0], q[0])), wp.max(hi, wp.max(p[0], q[0]))
+
+
 @wp.kernel
-def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris: wp.array2d(dtype=wp.int32)):
+def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris: wp.array(dtype=wp.int32)):
     k, t = wp.tid()
     s = first + k
     if ms.ray[s] == 1:
         return
-    p0 = verts[tris[t, 0]]
+    v0 = verts[tris[3 * t]]
+    v1 = verts[tris[3 * t + 1]]
+    v2 = verts[tris[3 * t + 2]]
     if ms.cull == 1:
-        if wp.dot(wp.cross(verts[tris[t, 1]] - p0, verts[tris[t, 2]] - p0), p0 - ms.origin[s]) > 0.0:
+        if wp.dot(wp.cross(v1 - v0, v2 - v0), v0 - ms.origin[s]) > 0.0:
             return
-    a = _to_map(ms, s, verts[tris[t, 0]])
-    b = _to_map(ms, s, verts[tris[t, 1]])
-    c = _to_map(ms, s, verts[tris[t, 2]])
+    a = _to_map(ms, s, v0)
+    b = _to_map(ms, s, v1)
+    c = _to_map(ms, s, v2)
     if a[2] <= 1.0e-6 or b[2] <= 1.0e-6 or c[2] <= 1.0e-6:
         return
     area = _edge(a, b, c[0], c[1])
@@ -92,10 +163,22 @@ def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris:
     x1 = wp.min(int(wp.floor(wp.max(wp.max(a[0], b[0]), c[0]))), ms.res - 1)
     y0 = wp.max(int(wp.ceil(wp.min(wp.min(a[1], b[1]), c[1]))), 0)
     y1 = wp.min(int(wp.floor(wp.max(wp.max(a[1], b[1]), c[1]))), ms.res - 1)
+    if x0 > x1 or y0 > y1:
+        return
+    for cy in range(y0 / COARSE, y1 / COARSE + 1):  # the blocks this triangle may draw in
+        for cx in range(x0 / COARSE, x1 / COARSE + 1):
+            ms.coarse[s, cy, cx] = 1
     for iy in range(y0, y1 + 1):
-        for ix in range(x0, x1 + 1):
+        py = float(iy)
+        # the row's texels that can pass the test below: between the edges' crossings of the row,
+        # widened by 2 texels for the float32 rounding (the test decides, as over the whole box)
+        lo = float(ms.res)
+        hi = -1.0
+        lo, hi = _row_span(a, b, py, lo, hi)
+        lo, hi = _row_span(b, c, py, lo, hi)
+        lo, hi = _row_span(c, a, py, lo, hi)
+        for ix in range(wp.max(int(wp.floor(lo - 2.0)), x0), wp.min(int(wp.ceil(hi + 2.0)), x1) + 1):
             px = float(ix)
-            py = float(iy)
             w0 = _edge(b, c, px, py) / area
             w1 = _edge(c, a, px, py) / area
             w2 = 1.0 - w0 - w1
@@ -114,36 +197,47 @@ class ShadowMaps:
     device: str | None = None
 
     def __post_init__(self) -> None:
-        self.device = runtime.device(self.device)
-        d = self.device
+        self.device = d = runtime.device(self.device)
+        cap = self.capacity
+        self._frame = {k: Buffer(cap, wp.vec3, d) for k in ("origin", "right", "up", "fwd")}
+        self._frame.update(inv_tan=Buffer(cap, wp.float32, d), near=Buffer(cap, wp.float32, d),
+                           ray=Buffer(cap, wp.int32, d))
         self.ms = MapSet()
-        self.ms.origin = wp.zeros(self.capacity, dtype=wp.vec3, device=d)
-        self.ms.right = wp.zeros(self.capacity, dtype=wp.vec3, device=d)
-        self.ms.up = wp.zeros(self.capacity, dtype=wp.vec3, device=d)
-        self.ms.fwd = wp.zeros(self.capacity, dtype=wp.vec3, device=d)
-        self.ms.inv_tan = wp.zeros(self.capacity, dtype=wp.float32, device=d)
-        self.ms.ray = wp.zeros(self.capacity, dtype=wp.int32, device=d)
-        self.ms.depth = wp.zeros((self.capacity, self.res, self.res), dtype=wp.float32, device=d)
+        for k, b in self._frame.items():
+            setattr(self.ms, k, b.dev)
+        self.ms.depth = wp.full((cap, self.res, self.res), float("inf"), dtype=wp.float32, device=d)
+        n_coarse = -(-self.res // COARSE)
+        self.ms.coarse = wp.zeros((cap, n_coarse, n_coarse), dtype=wp.int32, device=d)
         self.ms.res = self.res
         self.ms.bias = self.bias
         self.ms.proxy = wp.uint64(0)
         self.ms.cull = 0
+        self.n = 0  # maps in the current batch
         self._proxy: Occluder | None = None
-        self._verts = None
-        self._tris = None
+        self._closed: tuple[bytes, bool] | None = None  # (mesh key, closed) of the last proxy
 
-    def set_proxy(self, vertices: np.ndarray, triangles: np.ndarray) -> None:
-        """The occluder (object proxy, world coordinates) that every map of the next batches shows."""
-        self._proxy = Occluder(vertices, triangles, self.device)
+    def set_proxy(self, vertices: np.ndarray, triangles: np.ndarray, occluder: Occluder | None = None) -> None:
+        """The occluder (object proxy, world coordinates) that every map of the next batches shows.
+        occluder: its BVH over these vertices and triangles, if the caller keeps one (the engine's
+        per-shape proxy, refit when dragged): then nothing is built or uploaded here."""
+        vertices = np.asarray(vertices, np.float64)
+        triangles = np.asarray(triangles, np.int32)
+        self._proxy = occluder if occluder is not None else Occluder(vertices, triangles, self.device)
         self.ms.proxy = wp.uint64(self._proxy.id)
-        self.ms.cull = int(_is_closed(vertices, triangles))
-        self._verts = self._proxy._pts
-        self._tris = wp.array(np.asarray(triangles, np.int32), dtype=wp.int32, device=self.device)
-        self._centre = 0.5 * (vertices.min(0) + vertices.max(0))
-        self._radius = float(np.linalg.norm(vertices - self._centre, axis=1).max())
+        mesh = self._proxy.mesh
+        self._verts, self._tris = (mesh.points, mesh.indices) if mesh is not None else (None, None)
+        self._n_tris = len(triangles) if mesh is not None else 0
+        centred = np.round(vertices - vertices.mean(0), 6) if len(vertices) else vertices
+        key = triangles.tobytes() + centred.tobytes()  # closedness depends on the shape, not the pose
+        if self._closed is None or self._closed[0] != key:
+            self._closed = (key, _is_closed(vertices, triangles) if self._n_tris else False)
+        self.ms.cull = int(self._closed[1])
+        self._centre = 0.5 * (vertices.min(0) + vertices.max(0)) if len(vertices) else np.zeros(3)
+        self._radius = float(np.linalg.norm(vertices - self._centre, axis=1).max()) if len(vertices) else 0.0
 
-    def render(self, eyes: np.ndarray) -> int:
-        """Render maps from eye points (n<=capacity, 3) towards the proxy; returns n."""
+    def prepare(self, eyes: np.ndarray) -> int:
+        """Aim maps 0..n-1 from eye points (n<=capacity, 3) at the proxy; returns n. The maps are
+        drawn by raster (over index ranges, app.runtime.split) or render."""
         n = len(eyes)
         if n > self.capacity:
             raise ValueError(f"{n} maps exceed the batch capacity {self.capacity}")
@@ -158,19 +252,25 @@ class ShadowMaps:
         up = np.cross(fwd, right)
         sin_h = np.clip(r / np.maximum(dist, 1e-12), 0.0, 0.999)
         inv_tan = np.sqrt(1 - sin_h ** 2) / np.maximum(sin_h, 1e-6)
-        pad = lambda a, dt: np.concatenate([a, np.zeros((self.capacity - n,) + a.shape[1:], dt)]).astype(dt)
-        self.ms.origin.assign(pad(eyes, np.float32))
-        self.ms.right.assign(pad(right, np.float32))
-        self.ms.up.assign(pad(up, np.float32))
-        self.ms.fwd.assign(pad(fwd, np.float32))
-        self.ms.inv_tan.assign(pad(inv_tan, np.float32))
-        self.ms.ray.assign(pad(use_ray.astype(np.int32), np.int32))
-        self.ms.depth.fill_(float("inf"))
-        half = (n + 1) // 2  # two launches: on the CPU each runs on its own core
-        runtime.run_parallel([
-            lambda a=a, b=b: wp.launch(_raster_kernel, dim=(b - a, len(self._tris)),
-                                       inputs=[self.ms, a, self._verts, self._tris], device=self.device)
-            for a, b in ((0, half), (half, n)) if b > a])
+        for k, v in (("origin", eyes), ("right", right), ("up", up), ("fwd", fwd), ("inv_tan", inv_tan),
+                     ("near", dist - r), ("ray", use_ray)):
+            self._frame[k].upload(v)
+        self.ms.depth.fill_(float("inf"))  # one fill of the whole batch (a kernel per texel costs far more)
+        self.ms.coarse.zero_()
+        self.n = n
+        return n
+
+    def raster(self, lo: int, hi: int) -> None:
+        """Draw maps lo..hi-1 of the prepared batch (one launch; disjoint ranges may run
+        concurrently)."""
+        if self._n_tris and hi > lo:
+            wp.launch(_raster_kernel, dim=(hi - lo, self._n_tris), inputs=[self.ms, lo, self._verts, self._tris],
+                      device=self.device)
+
+    def render(self, eyes: np.ndarray) -> int:
+        """Render maps from eye points (n<=capacity, 3) towards the proxy, in one launch; returns n."""
+        n = self.prepare(eyes)
+        self.raster(0, n)
         return n
 
     def depth_numpy(self) -> np.ndarray:

@@ -244,3 +244,43 @@ def test_closed_cube_inward(device):
 def test_closed_cube_inconsistent_winding(device):
     # a closed cube whose top face is wound inward (a common mesh defect) still shadows like the solid box
     _check_cube(device, flip=(3,))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# culling: the lists of maps that may shadow a cell of points change no sum
+# ----------------------------------------------------------------------------------------------------------
+
+def test_culling_changes_no_sum(device):
+    # points around and under a closed cube and a plate (many near a shadow's edge), eyes on every side
+    # incl. one in ray mode, cells of a few points each: culled and unculled sums agree exactly, and the
+    # culling drops most (point, map) pairs that the shadows miss
+    rng = np.random.default_rng(5)
+    v, t = _cube()
+    eyes = np.vstack([EYES, [[2.5, 1.0, 0.3], [-2.0, 0.4, -1.5], [0.1, 1.45, -0.05], [0.0, 4.0, 2.5]]])
+    pts = np.vstack([_floor_grid(step=0.04), rng.uniform([-3, 0, -3], [3, 2.5, 3], (4000, 3))])
+    pts = pts[np.all((pts < CUBE_LO - 0.01) | (pts > CUBE_HI + 0.01), axis=1)]  # none inside the cube
+    n, S = len(pts), len(eyes)
+    W = rng.uniform(0.5, 2.0, (n, S, 3)).astype(np.float32)
+    rows = np.repeat(np.arange(n, dtype=np.int32)[:, None], 3, 1)
+    bary = np.tile([1.0, 0.0, 0.0], (n, 1))
+    group = (np.floor(pts[:, 0]) + 4).astype(np.int32)  # strips of points 1 m wide
+    tile = (np.floor(pts[:, 2] / 0.1) * 100 + np.floor(pts[:, 1] / 0.1)).astype(np.int64)  # 10 cm cells
+    cand = np.ones((group.max() + 1, S), np.uint8)
+    maps = ShadowMaps(S, 128, device=device)
+    maps.set_proxy(v, t)
+    assert maps.render(eyes) == S
+    out = []
+    for cull in (True, False):
+        ms = MaskedSum(pts, rows, bary, group, device, cull=cull, tile=tile, max_maps=S)
+        ms.add(maps, S, 0, _wp2(cand, wp.uint8, device), _wp2(W, wp.vec3, device))
+        out.append(ms.result() + (ms.n_list.numpy()[ms.point_cell].sum(),))
+    (a1, c1, pairs1), (a0, c0, pairs0) = out
+    np.testing.assert_array_equal(c1, c0)
+    np.testing.assert_array_equal(a1, a0)
+    assert 0.02 < (c0 > 0).mean() < 0.9 and c0.sum() > 500
+    assert pairs0 == n * S and pairs1 < 0.5 * pairs0
+    # the counts are the exact ones away from the silhouette
+    ref = _exact_box(pts, eyes, CUBE_LO, CUBE_HI).sum(1)
+    clear = _exact_box(pts, eyes, CUBE_LO - 0.02, CUBE_HI + 0.02).sum(1) == \
+        _exact_box(pts, eyes, CUBE_LO + 0.02, CUBE_HI - 0.02).sum(1)
+    np.testing.assert_array_equal(c1[clear], ref[clear])
