@@ -1,0 +1,188 @@
+"""Compose stage: the second order and the compositing of a frame (HDR or LDR), on what changed.
+
+The reference it reproduces (the engine's numpy form before issue 17), per pixel x of the frame:
+
+  dE_v   = G_v dB                              second order at receiver vertices, dB = the change of
+                                               patch radiance (shadowed patches, object light) (P,3)
+  add_x  = rho_x (R_x + sum_k b_k dE_v[row_k])  object light R plus second order, irradiance/pi
+  HDR:   room = max(L_b - shadow + add, 0), shadow = L_b x clip(O_x / E_x, 0, 1) on the listed
+         pixels (and the filled ones); levels = T(room) where shadow or add is non-zero, else T(L_b)
+  LDR:   levels = I_b - O_x (+ T(max(L_b + add, 0)) - T(L_b)); room = T^-1(clip(levels, 0, 255))
+  pixel  = (1 - c) levels + c T(L_obj)  (c: the object's coverage), or T of the radiance mix where
+         either side clips
+
+Per scene (ComposeStage.__init__): the pixel -> receiver-vertex rows restricted to receiver pixels,
+T(L_b), the LDR frame's unchanged radiance, the transposed G_v (rows = patches, so a frame gathers
+only the changed patches' rows), the response's breakpoints and lookup grids, and every per-pixel
+buffer at full-frame size (kernels.compose.Compositor). Per frame the numpy work is on listed pixels
+only (the shadow pass's pix_sel / fill_sel, the sun's pixels, the object's coverage, the sparse object
+light): values are written into the persistent buffers and the previous frame's entries reset; one
+kernel (two launches, one per core) then composes every pixel. The returned images are copies: the
+Frame owns them (a kept frame, Engine.refine's, must not change under the next one).
+
+Object light R comes in one of three forms (the object-light stage's choice):
+  - an (N,3) array: dense, every pixel (the engine's form today);
+  - (idx, values): per-pixel values at pixels idx, zero elsewhere;
+  - (R_v, idx, values): R_v (Vr,3) at receiver vertices, interpolated at receiver pixels like the
+    transfers, and per-pixel values at pixels idx in its place there.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from kernels.compose import Compositor
+from lighting.transfer import intensity_transfers
+
+FillFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]  # (known, values, missing) -> values
+
+
+class ComposeStage:
+    """One scene's compose stage: per-scene tables and per-frame buffers, made once."""
+
+    def __init__(self, *, L_b: np.ndarray, L_b_levels: np.ndarray, E_x: np.ndarray, rho_x: np.ndarray,
+                 recv_pix: np.ndarray, pix_rows: np.ndarray, pix_bary: np.ndarray, photo: np.ndarray, response,
+                 G_v: np.ndarray, E_v: np.ndarray, recv_vert: np.ndarray, patches, shape: tuple[int, int],
+                 device: str):
+        """Arrays are the engine's per-scene ones (N = H*W pixels; Vr receiver vertices; P patches):
+        L_b, L_b_levels, E_x, rho_x (N,3); recv_pix (N,) bool; pix_rows (N,3) receiver-vertex rows;
+        pix_bary (N,3); photo (H,W,3) uint8; G_v (Vr,P) float32; E_v (Vr,3); patches the PatchMesh."""
+        self.H, self.W = shape
+        self.L_b, self.E_x, self.rho_x = L_b, E_x, rho_x
+        self.response = response
+        self.G_v = G_v
+        self.G_vT = np.ascontiguousarray(G_v.T)  # (P,Vr): a frame's changed patches are rows
+        self.E_v, self.recv_vert, self.patches = E_v, recv_vert, patches
+        self.recv_pix, self.pix_rows, self.pix_bary = recv_pix, pix_rows, pix_bary
+        self._rho_v = None  # LDR: reflectance at receiver vertices (ldr_weights), made on first use
+        self.photo_levels = photo.reshape(-1, 3).astype(np.float64)
+        rows = np.where(recv_pix[:, None], pix_rows, -1)
+        T_Lb = response.to_levels(L_b)
+        xs, ys = response.breakpoints()
+        still = {"hdr": (L_b_levels, L_b), "ldr": (self.photo_levels, response.to_radiance(self.photo_levels))}
+        self.k = Compositor(L_b, T_Lb, rho_x, rows, pix_bary, still, xs, ys, response.exposure_time,
+                            len(recv_vert), device)
+        self._written: dict[str, list[np.ndarray]] = {"shade": [], "r": [], "obj": []}  # last frame's indices
+        self._r_dense = False  # the last frame's object light filled all of r_pix
+
+    # ------------------------------------------------------------------ second order
+    def second_order(self, dB: np.ndarray, more: np.ndarray | None = None) -> np.ndarray:
+        """dE_v (Vr,3) float64: the change of patch radiance dB (P,3) passed on once to the receiver
+        vertices (G_v dB, over the changed patches only), plus `more` (P,3) (the sun's later bounces,
+        float32 products as the sun stage defines them) through all of G_v."""
+        nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
+        dE_v = self.G_vT[nz].T.astype(np.float64) @ dB[nz]
+        if more is not None:
+            dE_v += self.G_v @ more.astype(np.float32)
+        return dE_v
+
+    # ------------------------------------------------------------------ LDR weights
+    def ldr_weights(self, W_v: np.ndarray) -> np.ndarray:
+        """Intensity transfers S_ij (Vr,S,3) in levels at receiver vertices (fig. 13) from the
+        radiance transfers W_v (Vr,S,3)."""
+        rho_v = self.rho_v
+        return intensity_transfers(rho_v * self.E_v, rho_v[:, None, :] * W_v, self.response.to_levels)
+
+    @property
+    def rho_v(self) -> np.ndarray:
+        """(Vr,3) reflectance at receiver vertices: the barycentric-weighted mean of the receiver pixels'
+        rho_x around each vertex, the patch albedo where no pixel sees it (per scene, made once)."""
+        if self._rho_v is None:
+            pm = self.patches
+            rp = np.flatnonzero(self.recv_pix)
+            rows, bary = self.pix_rows[rp], self.pix_bary[rp].astype(np.float64)
+            n = len(self.recv_vert)
+            num = np.zeros((n, 3))
+            den = np.zeros(n)
+            for k in range(3):
+                np.add.at(num, rows[:, k], bary[:, k:k + 1] * self.rho_x[rp])
+                np.add.at(den, rows[:, k], bary[:, k])
+            vert_patch = np.zeros(len(pm.vert_pos), np.int64)
+            vert_patch[pm.tris.ravel()] = np.repeat(pm.tri_patch, 3)
+            albedo_v = pm.albedo[vert_patch[self.recv_vert]]
+            self._rho_v = np.where(den[:, None] > 0, num / np.maximum(den, 1e-12)[:, None], albedo_v)
+        return self._rho_v
+
+    # ------------------------------------------------------------------ compose
+    def frame(self, mode: str, pix_sel: np.ndarray, O_pix: np.ndarray, fill_sel: np.ndarray, fill: FillFn,
+              R_pix, dE_v: np.ndarray | None, cov: np.ndarray, obj_rad: np.ndarray,
+              sun_pix: np.ndarray | None = None, sun_loss: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(radiance (H,W,3) float32, pixels (H,W,3) uint8, room (H,W,3) float32) of the frame.
+
+        pix_sel, O_pix: the shadow pass's pixels and their occluded sums (HDR: irradiance/pi, LDR:
+        levels); fill_sel and `fill`, which fills a value at fill_sel from known pix_sel values (HDR:
+        the occluded share, LDR: O); R_pix the object light (module docstring: dense, (idx, values) or
+        (R_v, idx, values)); dE_v the second order (None: off); cov (H,W) and obj_rad (H,W,3) the
+        object's coverage and radiance; sun_pix, sun_loss (len(sun_pix),3) the sun's lost irradiance/pi."""
+        k, ldr = self.k, mode == "ldr"
+        self._reset()
+        L_b, E_x = self.L_b, self.E_x
+        # ---- shadows on the listed pixels (HDR: radiance taken; LDR: levels taken)
+        if ldr:
+            k.shade[pix_sel] = -O_pix
+            k.shade[fill_sel] = -fill(pix_sel, O_pix, fill_sel)
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                frac = np.where(E_x[pix_sel] > 0, np.clip(O_pix / E_x[pix_sel], 0.0, 1.0), 0.0)
+            k.shade[pix_sel] = L_b[pix_sel] * frac
+            k.shade[fill_sel] = L_b[fill_sel] * fill(pix_sel, frac, fill_sel)
+        written = [pix_sel, fill_sel]
+        if sun_loss is not None:  # sun: its occluded share of the (model, where clipped) radiance
+            sp = sun_pix
+            share = np.clip(sun_loss / np.maximum(E_x[sp], 1e-12), 0.0, 1.0)
+            if ldr:  # levels lost from its occluded share
+                resp = self.response
+                k.shade[sp] += resp.to_levels(L_b[sp] * (1 - share)) - resp.to_levels(L_b[sp])
+            else:
+                k.shade[sp] += L_b[sp] * share
+            written.append(sp)
+        self._written["shade"] = written
+        # ---- object light and second order
+        all_r = False
+        add_v = k.add_v
+        if dE_v is None:
+            k.dE_v[:] = 0.0
+        else:
+            k.dE_v[:] = dE_v
+        if isinstance(R_pix, np.ndarray):  # dense
+            k.r_pix[:] = R_pix
+            all_r = self._r_dense = True
+            add_v[:] = k.dE_v
+        else:
+            if self._r_dense:
+                k.r_pix[:] = 0.0
+                self._r_dense = False
+            if len(R_pix) == 3:
+                R_v, idx, vals = R_pix
+                np.add(k.dE_v, R_v, out=add_v)
+            else:
+                idx, vals = R_pix
+                add_v[:] = k.dE_v
+            k.r_pix[idx] = vals
+            k.r_flag[idx] = 1
+            self._written["r"] = [idx]
+        # ---- the object
+        c = cov.reshape(-1)
+        on = np.flatnonzero(c > 0)
+        k.cov[on] = c[on]
+        k.obj[on] = obj_rad.reshape(-1, 3)[on]
+        self._written["obj"] = [on]
+        k.run(ldr, all_r)
+        H, W = self.H, self.W
+        return (k.rad.reshape(H, W, 3).copy(), k.pix.reshape(H, W, 3).copy(), k.room.reshape(H, W, 3).copy())
+
+    def _reset(self) -> None:
+        """Zero what the last frame wrote into the per-pixel buffers."""
+        k = self.k
+        for idx in self._written["shade"]:
+            k.shade[idx] = 0.0
+        for idx in self._written["r"]:
+            k.r_pix[idx] = 0.0
+            k.r_flag[idx] = 0
+        for idx in self._written["obj"]:
+            k.cov[idx] = 0.0
+            k.obj[idx] = 0.0
+        for key in self._written:
+            self._written[key] = []
