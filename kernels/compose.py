@@ -10,8 +10,8 @@ One thread per pixel of the frame, float64 throughout, so that it reproduces the
 
 T is the camera response as recon.response.CameraResponse evaluates it: np.interp over the merged
 breakpoints, here found through a uniform grid of start indices (`response_grid`) so that a lookup
-is one load and a short scan instead of a bisection. Its result is the same segment and the same
-formula as np.interp's.
+is one load and a short scan instead of a bisection, with the segment slopes precomputed as np.interp
+computes them (`segment_slopes`). Its result is the same segment and the same formula as np.interp's.
 """
 from __future__ import annotations
 
@@ -27,9 +27,17 @@ def response_grid(xp: np.ndarray, cells: int = GRID_CELLS) -> np.ndarray:
     return np.stack([np.maximum(np.searchsorted(x, starts, side="right") - 1, 0) for x in xp]).astype(np.int32)
 
 
+def segment_slopes(xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """(C, n) float64: (fp[j+1] - fp[j]) / (xp[j+1] - xp[j]) as np.interp computes it (ties and the last
+    entry: 0, never used)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (fp[:, 1:] - fp[:, :-1]) / (xp[:, 1:] - xp[:, :-1])
+    return np.concatenate([np.where(np.isfinite(s), s, 0.0), np.zeros((len(xp), 1))], axis=1)
+
+
 @wp.func
 def interp(x: wp.float64, c: int, xp: wp.array2d(dtype=wp.float64), fp: wp.array2d(dtype=wp.float64),
-           grid: wp.array2d(dtype=wp.int32)) -> wp.float64:
+           slope: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32)) -> wp.float64:
     """np.interp(x, xp[c], fp[c]) for sorted xp (ties allowed): the last j with xp[j] <= x."""
     n = xp.shape[1]
     if x < xp[c, 0]:
@@ -37,8 +45,7 @@ def interp(x: wp.float64, c: int, xp: wp.array2d(dtype=wp.float64), fp: wp.array
     if x >= xp[c, n - 1]:
         return fp[c, n - 1]
     ng = grid.shape[1]
-    k = int(x * wp.float64(ng))
-    k = wp.clamp(k, 0, ng - 1)
+    k = wp.clamp(int(x * wp.float64(ng)), 0, ng - 1)
     j = grid[c, k]
     while xp[c, j + 1] <= x:  # x < xp[n-1]: stops before the end
         j += 1
@@ -46,27 +53,34 @@ def interp(x: wp.float64, c: int, xp: wp.array2d(dtype=wp.float64), fp: wp.array
         j -= 1
     if xp[c, j] == x:
         return fp[c, j]
-    slope = (fp[c, j + 1] - fp[c, j]) / (xp[c, j + 1] - xp[c, j])
-    return slope * (x - xp[c, j]) + fp[c, j]
-
-
-@wp.func
-def to_levels(L: wp.float64, c: int, exposure: wp.float64, xs: wp.array2d(dtype=wp.float64),
-              ys: wp.array2d(dtype=wp.float64), gx: wp.array2d(dtype=wp.int32)) -> wp.float64:
-    """T(L): radiance -> continuous level in [0, 255] (CameraResponse.to_levels)."""
-    x = wp.clamp(L * exposure, wp.float64(0.0), wp.float64(1.0))
-    return wp.float64(255.0) * interp(x, c, xs, ys, gx)
+    return slope[c, j] * (x - xp[c, j]) + fp[c, j]
 
 
 @wp.struct
 class Response:
-    """The camera response's breakpoints and their lookup grids (one row per channel)."""
+    """The camera response's breakpoints, segment slopes and lookup grids (one row per channel)."""
 
     xs: wp.array2d(dtype=wp.float64)  # exposure-scaled radiance, sorted
     ys: wp.array2d(dtype=wp.float64)  # response in [0, 1], sorted
+    sx: wp.array2d(dtype=wp.float64)  # segment_slopes(xs, ys): T
+    sy: wp.array2d(dtype=wp.float64)  # segment_slopes(ys, xs): T^-1
     gx: wp.array2d(dtype=wp.int32)  # response_grid(xs)
     gy: wp.array2d(dtype=wp.int32)  # response_grid(ys)
     exposure: wp.float64
+
+
+@wp.func
+def to_levels(L: wp.float64, c: int, r: Response) -> wp.float64:
+    """T(L): radiance -> continuous level in [0, 255] (CameraResponse.to_levels)."""
+    x = wp.clamp(L * r.exposure, wp.float64(0.0), wp.float64(1.0))
+    return wp.float64(255.0) * interp(x, c, r.xs, r.ys, r.sx, r.gx)
+
+
+@wp.func
+def to_radiance(z: wp.float64, c: int, r: Response) -> wp.float64:
+    """T^-1(z) of a continuous level (CameraResponse.to_radiance on float input)."""
+    y = wp.clamp(z / wp.float64(255.0), wp.float64(0.0), wp.float64(1.0))
+    return interp(y, c, r.ys, r.xs, r.sy, r.gy) / r.exposure
 
 
 @wp.struct
@@ -79,7 +93,7 @@ class Room:
     still_room: wp.array2d(dtype=wp.float64)  # room radiance where nothing changes (HDR: L_b; LDR: T^-1(photo))
     rho: wp.array2d(dtype=wp.float64)  # reflectance L_b / E_x
     rows: wp.array2d(dtype=wp.int32)  # receiver-vertex rows per pixel (-1: not a receiver pixel)
-    bary: wp.array2d(dtype=wp.float64)  # barycentric weights of those rows
+    bary: wp.array2d(dtype=wp.float32)  # barycentric weights of those rows
 
 
 @wp.struct
@@ -96,6 +110,51 @@ class Changes:
     obj: wp.array2d(dtype=wp.float64)  # object radiance where cov > 0
 
 
+@wp.func
+def gain(i: int, c: int, use_r: bool, r0: int, r1: int, r2: int, b0: wp.float64, b1: wp.float64,
+         b2: wp.float64, room: Room, ch: Changes) -> wp.float64:
+    """rho x (object light + second order) at pixel i, channel c (irradiance/pi -> radiance)."""
+    a = wp.float64(0.0)
+    if use_r:
+        a = ch.r_pix[i, c]
+    if r0 >= 0:
+        if use_r:
+            a = a + (b0 * ch.dE_v[r0, c] + b1 * ch.dE_v[r1, c] + b2 * ch.dE_v[r2, c])
+        else:
+            a = b0 * ch.add_v[r0, c] + b1 * ch.add_v[r1, c] + b2 * ch.add_v[r2, c]
+    return room.rho[i, c] * a
+
+
+@wp.func
+def room_hdr(i: int, c: int, moved: bool, s: wp.float64, g: wp.float64, room: Room, r: Response) -> wp.vec2d:
+    """(room radiance, its level) of one channel, HDR."""
+    if moved:
+        m = wp.max(room.L_b[i, c] - s + g, wp.float64(0.0))
+        return wp.vec2d(m, to_levels(m, c, r))
+    return wp.vec2d(room.L_b[i, c], room.still[i, c])
+
+
+@wp.func
+def room_ldr(i: int, c: int, moved: bool, added: bool, s: wp.float64, g: wp.float64, room: Room,
+             r: Response) -> wp.vec2d:
+    """(room radiance, its level) of one channel, LDR: levels changed, radiance from them."""
+    if not moved:
+        return wp.vec2d(room.still_room[i, c], room.still[i, c])
+    z = room.still[i, c] + s
+    if added:
+        z = z + (to_levels(wp.max(room.L_b[i, c] + g, wp.float64(0.0)), c, r) - room.T_Lb[i, c])
+    z = wp.clamp(z, wp.float64(0.0), wp.float64(255.0))
+    return wp.vec2d(to_radiance(z, c, r), z)
+
+
+@wp.func
+def write(i: int, c: int, rad: wp.float64, room: wp.float64, lev: wp.float64, out_rad: wp.array2d(dtype=wp.float32),
+          out_room: wp.array2d(dtype=wp.float32), out_pix: wp.array2d(dtype=wp.uint8)):
+    out_rad[i, c] = wp.float32(rad)
+    out_room[i, c] = wp.float32(room)
+    out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(lev), wp.float64(0.0), wp.float64(255.0))))
+
+
 @wp.kernel
 def compose_kernel(first: int, ldr: int, room: Room, ch: Changes, resp: Response,
                    out_rad: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
@@ -106,65 +165,86 @@ def compose_kernel(first: int, ldr: int, room: Room, ch: Changes, resp: Response
     full = wp.float64(255.0)
     use_r = ch.all_r != 0 or ch.r_flag[i] != wp.uint8(0)
     r0 = room.rows[i, 0]
-    add = wp.vec3d()
-    for c in range(3):
-        a = zero
-        if use_r:
-            a = ch.r_pix[i, c]
-        if r0 >= 0:
-            b0 = room.bary[i, 0]
-            b1 = room.bary[i, 1]
-            b2 = room.bary[i, 2]
-            r1 = room.rows[i, 1]
-            r2 = room.rows[i, 2]
-            if use_r:
-                a = a + (b0 * ch.dE_v[r0, c] + b1 * ch.dE_v[r1, c] + b2 * ch.dE_v[r2, c])
-            else:
-                a = b0 * ch.add_v[r0, c] + b1 * ch.add_v[r1, c] + b2 * ch.add_v[r2, c]
-        add[c] = room.rho[i, c] * a
-    added = add[0] != zero or add[1] != zero or add[2] != zero
-    changed = ch.shade[i, 0] != zero or ch.shade[i, 1] != zero or ch.shade[i, 2] != zero
-    rad = wp.vec3d()
-    lev = wp.vec3d()
-    for c in range(3):
-        if ldr == 0:
-            if changed or added:
-                rad[c] = wp.max(room.L_b[i, c] - ch.shade[i, c] + add[c], zero)
-                lev[c] = to_levels(rad[c], c, resp.exposure, resp.xs, resp.ys, resp.gx)
-            else:
-                rad[c] = room.still_room[i, c]
-                lev[c] = room.still[i, c]
-        else:
-            z = room.still[i, c] + ch.shade[i, c]
-            if added:
-                z = z + (to_levels(wp.max(room.L_b[i, c] + add[c], zero), c, resp.exposure, resp.xs, resp.ys,
-                                   resp.gx) - room.T_Lb[i, c])
-            if changed or added:
-                lev[c] = wp.clamp(z, zero, full)
-                y = wp.clamp(lev[c] / full, zero, one)
-                rad[c] = interp(y, c, resp.ys, resp.xs, resp.gy) / resp.exposure
-            else:
-                lev[c] = z
-                rad[c] = room.still_room[i, c]
-    out = lev
+    r1 = int(0)
+    r2 = int(0)
+    b0 = zero
+    b1 = zero
+    b2 = zero
+    if r0 >= 0:
+        r1 = room.rows[i, 1]
+        r2 = room.rows[i, 2]
+        b0 = wp.float64(room.bary[i, 0])
+        b1 = wp.float64(room.bary[i, 1])
+        b2 = wp.float64(room.bary[i, 2])
+    g0 = gain(i, 0, use_r, r0, r1, r2, b0, b1, b2, room, ch)
+    g1 = gain(i, 1, use_r, r0, r1, r2, b0, b1, b2, room, ch)
+    g2 = gain(i, 2, use_r, r0, r1, r2, b0, b1, b2, room, ch)
+    s0 = ch.shade[i, 0]
+    s1 = ch.shade[i, 1]
+    s2 = ch.shade[i, 2]
+    added = g0 != zero or g1 != zero or g2 != zero
+    moved = added or s0 != zero or s1 != zero or s2 != zero
+    q0 = wp.vec2d()
+    q1 = wp.vec2d()
+    q2 = wp.vec2d()
+    if ldr == 0:
+        q0 = room_hdr(i, 0, moved, s0, g0, room, resp)
+        q1 = room_hdr(i, 1, moved, s1, g1, room, resp)
+        q2 = room_hdr(i, 2, moved, s2, g2, room, resp)
+    else:
+        q0 = room_ldr(i, 0, moved, added, s0, g0, room, resp)
+        q1 = room_ldr(i, 1, moved, added, s1, g1, room, resp)
+        q2 = room_ldr(i, 2, moved, added, s2, g2, room, resp)
     cov = ch.cov[i]
-    px = rad
-    if cov > zero:
-        clips = lev[0] >= full or lev[1] >= full or lev[2] >= full
-        ol = wp.vec3d()
-        for c in range(3):
-            px[c] = (one - cov) * rad[c] + cov * ch.obj[i, c]
-            ol[c] = to_levels(ch.obj[i, c], c, resp.exposure, resp.xs, resp.ys, resp.gx)
-            out[c] = (one - cov) * lev[c] + cov * ol[c]
-            if ol[c] >= full:
-                clips = True
-        if clips and cov < one:  # a level there is only a floor: mix in radiance
-            for c in range(3):
-                out[c] = to_levels(px[c], c, resp.exposure, resp.xs, resp.ys, resp.gx)
-    for c in range(3):
-        out_rad[i, c] = wp.float32(px[c])
-        out_room[i, c] = wp.float32(rad[c])
-        out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(out[c]), zero, full)))
+    if cov == zero:
+        write(i, 0, q0[0], q0[0], q0[1], out_rad, out_room, out_pix)
+        write(i, 1, q1[0], q1[0], q1[1], out_rad, out_room, out_pix)
+        write(i, 2, q2[0], q2[0], q2[1], out_rad, out_room, out_pix)
+        return
+    # the object: mix levels, or radiance where a level is only a floor (it clips on either side)
+    o0 = ch.obj[i, 0]
+    o1 = ch.obj[i, 1]
+    o2 = ch.obj[i, 2]
+    p0 = (one - cov) * q0[0] + cov * o0
+    p1 = (one - cov) * q1[0] + cov * o1
+    p2 = (one - cov) * q2[0] + cov * o2
+    t0 = to_levels(o0, 0, resp)
+    t1 = to_levels(o1, 1, resp)
+    t2 = to_levels(o2, 2, resp)
+    l0 = (one - cov) * q0[1] + cov * t0
+    l1 = (one - cov) * q1[1] + cov * t1
+    l2 = (one - cov) * q2[1] + cov * t2
+    clips = t0 >= full or t1 >= full or t2 >= full or q0[1] >= full or q1[1] >= full or q2[1] >= full
+    if clips and cov < one:
+        l0 = to_levels(p0, 0, resp)
+        l1 = to_levels(p1, 1, resp)
+        l2 = to_levels(p2, 2, resp)
+    write(i, 0, p0, q0[0], l0, out_rad, out_room, out_pix)
+    write(i, 1, p1, q1[0], l1, out_rad, out_room, out_pix)
+    write(i, 2, p2, q2[0], l2, out_rad, out_room, out_pix)
+
+
+@wp.kernel
+def second_order_kernel(first: int, G_v: wp.array2d(dtype=wp.float32), nz: wp.array(dtype=wp.int32), n_nz: int,
+                        dB: wp.array2d(dtype=wp.float64), dE_v: wp.array2d(dtype=wp.float64),
+                        add_v: wp.array2d(dtype=wp.float64)):
+    """dE_v[v] = sum_k G_v[v, nz[k]] dB[nz[k]] (float64 sums of the float32 transfers); add_v = dE_v."""
+    v = first + wp.tid()
+    a0 = wp.float64(0.0)
+    a1 = wp.float64(0.0)
+    a2 = wp.float64(0.0)
+    for k in range(n_nz):
+        p = nz[k]
+        g = wp.float64(G_v[v, p])
+        a0 += g * dB[p, 0]
+        a1 += g * dB[p, 1]
+        a2 += g * dB[p, 2]
+    dE_v[v, 0] = a0
+    dE_v[v, 1] = a1
+    dE_v[v, 2] = a2
+    add_v[v, 0] = a0
+    add_v[v, 1] = a1
+    add_v[v, 2] = a2
 
 
 class _Mirror:
@@ -201,9 +281,10 @@ class Compositor:
     the whole frame into `rad`, `room` (float32) and `pix` (uint8), (N,3) numpy views owned here."""
 
     def __init__(self, L_b: np.ndarray, T_Lb: np.ndarray, rho: np.ndarray, rows: np.ndarray, bary: np.ndarray,
-                 still: dict, xs: np.ndarray, ys: np.ndarray, exposure: float, n_vert: int, device: str):
+                 still: dict, xs: np.ndarray, ys: np.ndarray, exposure: float, G_v: np.ndarray, device: str):
         """still: {"hdr": (levels, room radiance), "ldr": (levels, room radiance)} where nothing changes;
-        rows: (N,3) receiver-vertex rows, -1 for pixels that are no receiver."""
+        rows: (N,3) receiver-vertex rows, -1 for pixels that are no receiver; G_v (Vr,P) the
+        receiver-vertex transfers (second_order)."""
         from kernels import runtime
 
         self.device = d = runtime.device(device)
@@ -218,7 +299,7 @@ class Compositor:
             return m.dev
 
         base = dict(L_b=static(L_b), T_Lb=static(T_Lb), rho=static(rho), rows=static(rows.astype(np.int32), wp.int32),
-                    bary=static(bary.astype(np.float64)))
+                    bary=static(bary.astype(np.float32), wp.float32))  # the precompute's float32 weights
         self.rooms = {}
         for mode, (lev, rad) in still.items():
             r = Room()
@@ -228,8 +309,14 @@ class Compositor:
             self.rooms[mode] = r
         self.resp = Response()
         self.resp.xs, self.resp.ys = static(xs), static(ys)
+        self.resp.sx, self.resp.sy = static(segment_slopes(xs, ys)), static(segment_slopes(ys, xs))
         self.resp.gx, self.resp.gy = static(response_grid(xs), wp.int32), static(response_grid(ys), wp.int32)
         self.resp.exposure = float(exposure)
+        n_vert, n_patch = G_v.shape
+        self.n_vert = n_vert
+        self._G_v = static(np.asarray(G_v, np.float32), wp.float32)
+        self._nz = _Mirror((max(n_patch, 1),), wp.int32, d)
+        self._dB = _Mirror((max(n_patch, 1), 3), f64, d)
         self._m = {"shade": _Mirror((n, 3), f64, d), "r_pix": _Mirror((n, 3), f64, d),
                    "r_flag": _Mirror((n,), wp.uint8, d), "cov": _Mirror((n,), f64, d), "obj": _Mirror((n, 3), f64, d),
                    "dE_v": _Mirror((max(n_vert, 1), 3), f64, d), "add_v": _Mirror((max(n_vert, 1), 3), f64, d)}
@@ -242,6 +329,29 @@ class Compositor:
                      "pix": _Mirror((n, 3), wp.uint8, d)}
         for k, m in self._out.items():
             setattr(self, k, m.np)
+
+    def second_order(self, dB: np.ndarray) -> None:
+        """dE_v = G_v dB over the patches where dB (P,3) is non-zero, into `dE_v` (and `add_v`); two
+        launches, one per core."""
+        from kernels import runtime
+
+        nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
+        self._nz.np[:len(nz)] = nz
+        self._dB.np[:] = dB
+        self._nz.push()
+        self._dB.push()
+        m = self._m
+        half = self.n_vert // 2
+
+        def launch(first: int, dim: int):
+            return lambda: wp.launch(second_order_kernel, dim=dim, device=self.device,
+                                     inputs=[first, self._G_v, self._nz.dev, len(nz), self._dB.dev, m["dE_v"].dev,
+                                             m["add_v"].dev])
+
+        runtime.run_parallel([launch(0, half), launch(half, self.n_vert - half)])
+        wp.synchronize_device(self.device)
+        m["dE_v"].pull()
+        m["add_v"].pull()
 
     def run(self, ldr: bool, all_r: bool) -> None:
         """Compose every pixel from the host views into rad, room and pix; two launches, one per core."""

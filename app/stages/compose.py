@@ -12,8 +12,8 @@ The reference it reproduces (the engine's numpy form before issue 17), per pixel
          either side clips
 
 Per scene (ComposeStage.__init__): the pixel -> receiver-vertex rows restricted to receiver pixels,
-T(L_b), the LDR frame's unchanged radiance, the transposed G_v (rows = patches, so a frame gathers
-only the changed patches' rows), the response's breakpoints and lookup grids, and every per-pixel
+T(L_b), the LDR frame's unchanged radiance, G_v in the kernel's buffer (a frame sums over the
+changed patches only), the response's breakpoints and lookup grids, and every per-pixel
 buffer at full-frame size (kernels.compose.Compositor). Per frame the numpy work is on listed pixels
 only (the shadow pass's pix_sel / fill_sel, the sun's pixels, the object's coverage, the sparse object
 light): values are written into the persistent buffers and the previous frame's entries reset; one
@@ -51,8 +51,6 @@ class ComposeStage:
         self.H, self.W = shape
         self.L_b, self.E_x, self.rho_x = L_b, E_x, rho_x
         self.response = response
-        self.G_v = G_v
-        self.G_vT = np.ascontiguousarray(G_v.T)  # (P,Vr): a frame's changed patches are rows
         self.E_v, self.recv_vert, self.patches = E_v, recv_vert, patches
         self.recv_pix, self.pix_rows, self.pix_bary = recv_pix, pix_rows, pix_bary
         self._rho_v = None  # LDR: reflectance at receiver vertices (ldr_weights), made on first use
@@ -61,21 +59,17 @@ class ComposeStage:
         T_Lb = response.to_levels(L_b)
         xs, ys = response.breakpoints()
         still = {"hdr": (L_b_levels, L_b), "ldr": (self.photo_levels, response.to_radiance(self.photo_levels))}
-        self.k = Compositor(L_b, T_Lb, rho_x, rows, pix_bary, still, xs, ys, response.exposure_time,
-                            len(recv_vert), device)
+        self.k = Compositor(L_b, T_Lb, rho_x, rows, pix_bary, still, xs, ys, response.exposure_time, G_v, device)
         self._written: dict[str, list[np.ndarray]] = {"shade": [], "r": [], "obj": []}  # last frame's indices
         self._r_dense = False  # the last frame's object light filled all of r_pix
 
     # ------------------------------------------------------------------ second order
     def second_order(self, dB: np.ndarray, more: np.ndarray | None = None) -> np.ndarray:
         """dE_v (Vr,3) float64: the change of patch radiance dB (P,3) passed on once to the receiver
-        vertices (G_v dB, over the changed patches only), plus `more` (P,3) (the sun's later bounces,
-        float32 products as the sun stage defines them) through all of G_v."""
-        nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
-        dE_v = self.G_vT[nz].T.astype(np.float64) @ dB[nz]
-        if more is not None:
-            dE_v += self.G_v @ more.astype(np.float32)
-        return dE_v
+        vertices, G_v dB over the changed patches only, plus `more` (P,3) (the sun's later bounces).
+        Returns the stage's own buffer (valid until the next frame)."""
+        self.k.second_order(dB if more is None else dB + more)
+        return self.k.dE_v
 
     # ------------------------------------------------------------------ LDR weights
     def ldr_weights(self, W_v: np.ndarray) -> np.ndarray:
@@ -144,7 +138,7 @@ class ComposeStage:
         add_v = k.add_v
         if dE_v is None:
             k.dE_v[:] = 0.0
-        else:
+        elif dE_v is not k.dE_v:
             k.dE_v[:] = dE_v
         if isinstance(R_pix, np.ndarray):  # dense
             k.r_pix[:] = R_pix

@@ -6,7 +6,7 @@ import pytest
 import warp as wp
 
 from app.stages.compose import ComposeStage
-from kernels.compose import GRID_CELLS, interp, response_grid
+from kernels.compose import GRID_CELLS, interp, response_grid, segment_slopes
 from lighting.photolight import srgb_response
 
 H, W, VR, P = 24, 32, 40, 12
@@ -145,10 +145,10 @@ def test_compose_matches_the_numpy_reference(scene, mode):
 
 @wp.kernel
 def _interp_kernel(x: wp.array(dtype=wp.float64), c: int, xp: wp.array2d(dtype=wp.float64),
-                   fp: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32),
-                   out: wp.array(dtype=wp.float64)):
+                   fp: wp.array2d(dtype=wp.float64), slope: wp.array2d(dtype=wp.float64),
+                   grid: wp.array2d(dtype=wp.int32), out: wp.array(dtype=wp.float64)):
     i = wp.tid()
-    out[i] = interp(x[i], c, xp, fp, grid)
+    out[i] = interp(x[i], c, xp, fp, slope, grid)
 
 
 @pytest.mark.parametrize("inverse", [False, True])
@@ -174,5 +174,6 @@ def test_response_lookup_is_np_interp_on_hard_values(inverse):
         wp.launch(_interp_kernel, dim=len(pts), device=dev,
                   inputs=[wp.array(pts, dtype=wp.float64, device=dev), c, wp.array(xp, dtype=wp.float64, device=dev),
                           wp.array(fp, dtype=wp.float64, device=dev),
+                          wp.array(segment_slopes(xp, fp), dtype=wp.float64, device=dev),
                           wp.array(response_grid(xp), dtype=wp.int32, device=dev), out])
         assert np.array_equal(out.numpy(), np.interp(pts, xp[c], fp[c]))
