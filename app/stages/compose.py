@@ -180,3 +180,52 @@ class ComposeStage:
             k.obj[idx] = 0.0
         for key in self._written:
             self._written[key] = []
+
+
+def compose_reference(mode: str, L_b, L_b_levels, E_x, rho_x, recv_pix, pix_rows, pix_bary, photo, response,
+                      pix_sel, O_pix, fill_sel, fill: FillFn, R_pix, dE_v, cov, obj_rad, sun_pix=None,
+                      sun_loss=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The engine's numpy form of the second order's interpolation and the compose step (before
+    issue 17), over full-frame arrays: the specification ComposeStage.frame reproduces (tests/kernels/
+    test_compose.py, bench/bench_compose.py). R_pix dense (N,3); returns (radiance, pixels, room) (N,3)."""
+    resp = response
+    dE_x = np.zeros_like(L_b)
+    if dE_v is not None:
+        rp = recv_pix
+        dE_x[rp] = np.einsum("nk,nkc->nc", pix_bary[rp], dE_v[pix_rows[rp]])
+    add = rho_x * (R_pix + dE_x)  # light gained (object reflection) or lost second-hand
+    if mode == "hdr":
+        shadow = np.zeros_like(L_b)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            frac = np.where(E_x[pix_sel] > 0, np.clip(O_pix / E_x[pix_sel], 0.0, 1.0), 0.0)
+        shadow[pix_sel] = L_b[pix_sel] * frac
+        shadow[fill_sel] = L_b[fill_sel] * fill(pix_sel, frac, fill_sel)
+        if sun_loss is not None:
+            shadow[sun_pix] += L_b[sun_pix] * np.clip(sun_loss / np.maximum(E_x[sun_pix], 1e-12), 0.0, 1.0)
+        room = np.maximum(L_b - shadow + add, 0.0)
+        changed = np.flatnonzero((shadow != 0).any(1) | (add != 0).any(1))
+        room_levels = L_b_levels.copy()
+        room_levels[changed] = resp.to_levels(room[changed])
+    else:
+        levels = photo.reshape(-1, 3).astype(np.float64)
+        levels[pix_sel] -= O_pix
+        levels[fill_sel] -= fill(pix_sel, O_pix, fill_sel)
+        if sun_loss is not None:
+            share = np.clip(sun_loss / np.maximum(E_x[sun_pix], 1e-12), 0.0, 1.0)
+            levels[sun_pix] += resp.to_levels(L_b[sun_pix] * (1 - share)) - resp.to_levels(L_b[sun_pix])
+        extra = np.abs(add).sum(1) > 0
+        levels[extra] += resp.to_levels(np.maximum(L_b[extra] + add[extra], 0.0)) - resp.to_levels(L_b[extra])
+        room_levels = np.clip(levels, 0, 255)
+        room = resp.to_radiance(room_levels)
+    c = cov.reshape(-1, 1)
+    obj_rad = obj_rad.reshape(-1, 3)
+    on = np.flatnonzero(c[:, 0] > 0)
+    radiance = (1 - c) * room + c * obj_rad
+    levels = (1 - c) * room_levels
+    obj_levels = resp.to_levels(obj_rad[on])
+    levels[on] += c[on] * obj_levels
+    # where the object or the room behind it clips a level is only a floor: mix in radiance there
+    edge = on[((obj_levels >= 255) | (room_levels[on] >= 255)).any(1) & (c[on, 0] < 1)]
+    levels[edge] = resp.to_levels(radiance[edge])
+    pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8)
+    return radiance.astype(np.float32), pixels, room.astype(np.float32)

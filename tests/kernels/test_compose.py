@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from app.stages.compose import ComposeStage
+from app.stages.compose import ComposeStage, compose_reference
 from kernels.compose import GRID_CELLS, interp, response_grid, segment_slopes
 from lighting.photolight import srgb_response
 
@@ -18,47 +18,11 @@ def _fill(known, values, missing):
 
 
 def _reference(mode, scene, pix_sel, O_pix, fill_sel, R_pix, dE_v, cov, obj_rad, sun_pix, sun_loss):
-    """Engine._frame_steps' second-order interpolation and compose blocks before issue 17."""
-    L_b, E_x, rho, resp = scene["L_b"], scene["E_x"], scene["rho_x"], scene["response"]
-    rp = scene["recv_pix"]
-    dE_x = np.zeros((H * W, 3))
-    if dE_v is not None:
-        dE_x[rp] = np.einsum("nk,nkc->nc", scene["pix_bary"][rp], dE_v[scene["pix_rows"][rp]])
-    add = rho * (R_pix + dE_x)
-    if mode == "hdr":
-        shadow = np.zeros_like(L_b)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            frac = np.where(E_x[pix_sel] > 0, np.clip(O_pix / E_x[pix_sel], 0.0, 1.0), 0.0)
-        shadow[pix_sel] = L_b[pix_sel] * frac
-        shadow[fill_sel] = L_b[fill_sel] * _fill(pix_sel, frac, fill_sel)
-        if sun_loss is not None:
-            shadow[sun_pix] += L_b[sun_pix] * np.clip(sun_loss / np.maximum(E_x[sun_pix], 1e-12), 0.0, 1.0)
-        room = np.maximum(L_b - shadow + add, 0.0)
-        changed = np.flatnonzero((shadow != 0).any(1) | (add != 0).any(1))
-        room_levels = scene["L_b_levels"].copy()
-        room_levels[changed] = resp.to_levels(room[changed])
-    else:
-        levels = scene["photo"].reshape(-1, 3).astype(np.float64)
-        levels[pix_sel] -= O_pix
-        levels[fill_sel] -= _fill(pix_sel, O_pix, fill_sel)
-        if sun_loss is not None:
-            share = np.clip(sun_loss / np.maximum(E_x[sun_pix], 1e-12), 0.0, 1.0)
-            levels[sun_pix] += resp.to_levels(L_b[sun_pix] * (1 - share)) - resp.to_levels(L_b[sun_pix])
-        extra = np.abs(add).sum(1) > 0
-        levels[extra] += resp.to_levels(np.maximum(L_b[extra] + add[extra], 0.0)) - resp.to_levels(L_b[extra])
-        room_levels = np.clip(levels, 0, 255)
-        room = resp.to_radiance(room_levels)
-    c = cov.reshape(-1, 1)
-    obj_rad = obj_rad.reshape(-1, 3)
-    on = np.flatnonzero(c[:, 0] > 0)
-    radiance = (1 - c) * room + c * obj_rad
-    levels = (1 - c) * room_levels
-    obj_levels = resp.to_levels(obj_rad[on])
-    levels[on] += c[on] * obj_levels
-    edge = on[((obj_levels >= 255) | (room_levels[on] >= 255)).any(1) & (c[on, 0] < 1)]
-    levels[edge] = resp.to_levels(radiance[edge])
-    pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8).reshape(H, W, 3)
-    return radiance.reshape(H, W, 3).astype(np.float32), pixels, room.reshape(H, W, 3).astype(np.float32)
+    sc = scene
+    out = compose_reference(mode, sc["L_b"], sc["L_b_levels"], sc["E_x"], sc["rho_x"], sc["recv_pix"], sc["pix_rows"],
+                            sc["pix_bary"], sc["photo"], sc["response"], pix_sel, O_pix, fill_sel, _fill, R_pix, dE_v,
+                            cov, obj_rad, sun_pix, sun_loss)
+    return tuple(a.reshape(H, W, 3) for a in out)
 
 
 @pytest.fixture(scope="module")
