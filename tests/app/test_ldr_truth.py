@@ -20,7 +20,7 @@ from tests.conftest import score, shared_scene
 
 
 @pytest.fixture(scope="module")
-def scored(tmp_path_factory):
+def scored(tmp_path_factory, shared_scenes_cache):
     """{scene: (LDR scores, HDR scores, report.json)}: the LDR composite from the command line, the
     HDR frame from an engine on the same cached precompute."""
     from app.engine import Engine, EngineParams, FrameConfig
@@ -30,9 +30,9 @@ def scored(tmp_path_factory):
     for name in ("window_room", "lamps_room"):
         scene_dir = shared_scene(name)
         tmp = tmp_path_factory.mktemp(name)
-        assert cli(["-q", "composite", str(scene_dir), "--out", str(tmp / "ldr"), "--cache", str(tmp / "cache"),
+        assert cli(["-q", "composite", str(scene_dir), "--out", str(tmp / "ldr"), "--cache", str(shared_scenes_cache),
                     "--mode", "ldr"]) == 0
-        eng = Engine(load_scene(scene_dir), EngineParams(), cache_dir=tmp / "cache", quiet=True)
+        eng = Engine(load_scene(scene_dir), EngineParams(), cache_dir=shared_scenes_cache, quiet=True)
         assert eng.cache_hit
         write_png(tmp / "hdr.png", eng.render(eng.scene.obj, FrameConfig(passes=None, mode="hdr")).pixels)
         rep = json.loads((tmp / "ldr" / "report.json").read_text())

@@ -87,14 +87,16 @@ def test_compose_matches_the_numpy_reference(scene, mode):
         dE_v = stage.second_order(dB) if frame != 2 else None
         np.testing.assert_allclose(dE_v if dE_v is not None else 0.0,
                                    scene["G_v"].astype(np.float64) @ dB if dE_v is not None else 0.0, rtol=1e-12)
-        forms = {"dense": _dense(scene, R), "sparse": (R[1], _dense(scene, R)[R[1]]), "vertex": R}
+        dense = _dense(scene, R)
+        forms = {"dense": dense, "sparse": (R[1], dense[R[1]]), "vertex": R}
         if frame == 2:  # the sparse form alone: no light elsewhere
             forms = {"sparse": (R[1], R[2])}
         for name, R_pix in forms.items():
-            ref_R = _dense(scene, (np.zeros((VR, 3)), R[1], R[2])) if name == "sparse" and frame == 2 else _dense(scene, R)
-            if name == "sparse" and frame != 2:
+            if name == "sparse":
                 ref_R = np.zeros((H * W, 3))
-                ref_R[R[1]] = R_pix[1]
+                ref_R[R_pix[0]] = R_pix[1]
+            else:
+                ref_R = dense
             args = (pix_sel, O_pix, fill_sel)
             got = stage.frame(mode, *args, _fill, R_pix, dE_v, cov, obj, sun_pix if sun else None,
                               sun_loss if sun else None)
