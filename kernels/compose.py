@@ -100,7 +100,8 @@ class Room:
 class Changes:
     """This frame's changes (H*W rows unless noted); zero where nothing changes."""
 
-    shade: wp.array2d(dtype=wp.float64)  # HDR: radiance the shadows take; LDR: level change of the shadows
+    shade: wp.array2d(dtype=wp.float64)  # HDR: the share of L_b the shadows take; LDR: the levels they take
+    sun: wp.array2d(dtype=wp.float64)  # the sun's occluded share of L_b (sunlit pixels)
     r_pix: wp.array2d(dtype=wp.float64)  # object light per pixel where r_flag (irradiance/pi)
     r_flag: wp.array(dtype=wp.uint8)  # 1: r_pix holds the pixel's object light, the vertices give dE only
     all_r: int  # 1: every pixel's object light is in r_pix (the dense form)
@@ -127,7 +128,7 @@ def gain(i: int, c: int, use_r: bool, r0: int, r1: int, r2: int, b0: wp.float64,
 
 @wp.func
 def room_hdr(i: int, c: int, moved: bool, s: wp.float64, g: wp.float64, room: Room, r: Response) -> wp.vec2d:
-    """(room radiance, its level) of one channel, HDR."""
+    """(room radiance, its level) of one channel, HDR; s the radiance the shadows take."""
     if moved:
         m = wp.max(room.L_b[i, c] - s + g, wp.float64(0.0))
         return wp.vec2d(m, to_levels(m, c, r))
@@ -135,12 +136,15 @@ def room_hdr(i: int, c: int, moved: bool, s: wp.float64, g: wp.float64, room: Ro
 
 
 @wp.func
-def room_ldr(i: int, c: int, moved: bool, added: bool, s: wp.float64, g: wp.float64, room: Room,
+def room_ldr(i: int, c: int, moved: bool, added: bool, o: wp.float64, u: wp.float64, g: wp.float64, room: Room,
              r: Response) -> wp.vec2d:
-    """(room radiance, its level) of one channel, LDR: levels changed, radiance from them."""
+    """(room radiance, its level) of one channel, LDR: the levels the shadows take (o), the sun's
+    occluded share (u) and the light added (g) change the photo's level; radiance from the level."""
     if not moved:
         return wp.vec2d(room.still_room[i, c], room.still[i, c])
-    z = room.still[i, c] + s
+    z = room.still[i, c] - o
+    if u != wp.float64(0.0):
+        z = z + (to_levels(room.L_b[i, c] * (wp.float64(1.0) - u), c, r) - room.T_Lb[i, c])
     if added:
         z = z + (to_levels(wp.max(room.L_b[i, c] + g, wp.float64(0.0)), c, r) - room.T_Lb[i, c])
     z = wp.clamp(z, wp.float64(0.0), wp.float64(255.0))
@@ -179,22 +183,29 @@ def compose_kernel(first: int, ldr: int, room: Room, ch: Changes, resp: Response
     g0 = gain(i, 0, use_r, r0, r1, r2, b0, b1, b2, room, ch)
     g1 = gain(i, 1, use_r, r0, r1, r2, b0, b1, b2, room, ch)
     g2 = gain(i, 2, use_r, r0, r1, r2, b0, b1, b2, room, ch)
-    s0 = ch.shade[i, 0]
-    s1 = ch.shade[i, 1]
-    s2 = ch.shade[i, 2]
+    f0 = ch.shade[i, 0]
+    f1 = ch.shade[i, 1]
+    f2 = ch.shade[i, 2]
+    u0 = ch.sun[i, 0]
+    u1 = ch.sun[i, 1]
+    u2 = ch.sun[i, 2]
     added = g0 != zero or g1 != zero or g2 != zero
-    moved = added or s0 != zero or s1 != zero or s2 != zero
     q0 = wp.vec2d()
     q1 = wp.vec2d()
     q2 = wp.vec2d()
-    if ldr == 0:
+    if ldr == 0:  # the radiance the shadows take: the occluded share of L_b, then the sun's
+        s0 = room.L_b[i, 0] * f0 + room.L_b[i, 0] * u0
+        s1 = room.L_b[i, 1] * f1 + room.L_b[i, 1] * u1
+        s2 = room.L_b[i, 2] * f2 + room.L_b[i, 2] * u2
+        moved = added or s0 != zero or s1 != zero or s2 != zero
         q0 = room_hdr(i, 0, moved, s0, g0, room, resp)
         q1 = room_hdr(i, 1, moved, s1, g1, room, resp)
         q2 = room_hdr(i, 2, moved, s2, g2, room, resp)
     else:
-        q0 = room_ldr(i, 0, moved, added, s0, g0, room, resp)
-        q1 = room_ldr(i, 1, moved, added, s1, g1, room, resp)
-        q2 = room_ldr(i, 2, moved, added, s2, g2, room, resp)
+        moved = added or f0 != zero or f1 != zero or f2 != zero or u0 != zero or u1 != zero or u2 != zero
+        q0 = room_ldr(i, 0, moved, added, f0, u0, g0, room, resp)
+        q1 = room_ldr(i, 1, moved, added, f1, u1, g1, room, resp)
+        q2 = room_ldr(i, 2, moved, added, f2, u2, g2, room, resp)
     cov = ch.cov[i]
     if cov == zero:
         write(i, 0, q0[0], q0[0], q0[1], out_rad, out_room, out_pix)
@@ -276,7 +287,7 @@ class _Mirror:
 class Compositor:
     """compose_kernel's inputs and outputs, allocated once per scene at full frame size.
 
-    The caller writes this frame's changes into the host views (`shade`, `r_pix`, `r_flag`, `cov`,
+    The caller writes this frame's changes into the host views (`shade`, `sun`, `r_pix`, `r_flag`, `cov`,
     `obj`: (N,...) numpy; `dE_v`, `add_v`: (Vr,3)) and resets what it wrote before; `run` composes
     the whole frame into `rad`, `room` (float32) and `pix` (uint8), (N,3) numpy views owned here."""
 
@@ -317,7 +328,7 @@ class Compositor:
         self._G_v = static(np.asarray(G_v, np.float32), wp.float32)
         self._nz = _Mirror((max(n_patch, 1),), wp.int32, d)
         self._dB = _Mirror((max(n_patch, 1), 3), f64, d)
-        self._m = {"shade": _Mirror((n, 3), f64, d), "r_pix": _Mirror((n, 3), f64, d),
+        self._m = {"shade": _Mirror((n, 3), f64, d), "sun": _Mirror((n, 3), f64, d), "r_pix": _Mirror((n, 3), f64, d),
                    "r_flag": _Mirror((n,), wp.uint8, d), "cov": _Mirror((n,), f64, d), "obj": _Mirror((n, 3), f64, d),
                    "dE_v": _Mirror((max(n_vert, 1), 3), f64, d), "add_v": _Mirror((max(n_vert, 1), 3), f64, d)}
         self.ch = Changes()

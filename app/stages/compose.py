@@ -60,7 +60,7 @@ class ComposeStage:
         xs, ys = response.breakpoints()
         still = {"hdr": (L_b_levels, L_b), "ldr": (self.photo_levels, response.to_radiance(self.photo_levels))}
         self.k = Compositor(L_b, T_Lb, rho_x, rows, pix_bary, still, xs, ys, response.exposure_time, G_v, device)
-        self._written: dict[str, list[np.ndarray]] = {"shade": [], "r": [], "obj": []}  # last frame's indices
+        self._written: dict[str, list[np.ndarray]] = {"shade": [], "sun": [], "r": [], "obj": []}  # last frame's
         self._r_dense = False  # the last frame's object light filled all of r_pix
 
     # ------------------------------------------------------------------ second order
@@ -112,27 +112,20 @@ class ComposeStage:
         object's coverage and radiance; sun_pix, sun_loss (len(sun_pix),3) the sun's lost irradiance/pi."""
         k, ldr = self.k, mode == "ldr"
         self._reset()
-        L_b, E_x = self.L_b, self.E_x
-        # ---- shadows on the listed pixels (HDR: radiance taken; LDR: levels taken)
+        E_x = self.E_x
+        # ---- shadows on the listed pixels (HDR: the share of L_b taken; LDR: the levels taken)
         if ldr:
-            k.shade[pix_sel] = -O_pix
-            k.shade[fill_sel] = -fill(pix_sel, O_pix, fill_sel)
+            k.shade[pix_sel] = O_pix
+            k.shade[fill_sel] = fill(pix_sel, O_pix, fill_sel)
         else:
             with np.errstate(divide="ignore", invalid="ignore"):
                 frac = np.where(E_x[pix_sel] > 0, np.clip(O_pix / E_x[pix_sel], 0.0, 1.0), 0.0)
-            k.shade[pix_sel] = L_b[pix_sel] * frac
-            k.shade[fill_sel] = L_b[fill_sel] * fill(pix_sel, frac, fill_sel)
-        written = [pix_sel, fill_sel]
+            k.shade[pix_sel] = frac
+            k.shade[fill_sel] = fill(pix_sel, frac, fill_sel)
+        self._written["shade"] = [pix_sel, fill_sel]
         if sun_loss is not None:  # sun: its occluded share of the (model, where clipped) radiance
-            sp = sun_pix
-            share = np.clip(sun_loss / np.maximum(E_x[sp], 1e-12), 0.0, 1.0)
-            if ldr:  # levels lost from its occluded share
-                resp = self.response
-                k.shade[sp] += resp.to_levels(L_b[sp] * (1 - share)) - resp.to_levels(L_b[sp])
-            else:
-                k.shade[sp] += L_b[sp] * share
-            written.append(sp)
-        self._written["shade"] = written
+            k.sun[sun_pix] = np.clip(sun_loss / np.maximum(E_x[sun_pix], 1e-12), 0.0, 1.0)
+            self._written["sun"] = [sun_pix]
         # ---- object light and second order
         all_r = False
         add_v = k.add_v
@@ -168,16 +161,23 @@ class ComposeStage:
         return (k.rad.reshape(H, W, 3).copy(), k.pix.reshape(H, W, 3).copy(), k.room.reshape(H, W, 3).copy())
 
     def _reset(self) -> None:
-        """Zero what the last frame wrote into the per-pixel buffers."""
+        """Zero what the last frame wrote into the per-pixel buffers (all of a buffer when the frame
+        wrote much of it: one memset is cheaper than a scatter then)."""
         k = self.k
-        for idx in self._written["shade"]:
-            k.shade[idx] = 0.0
-        for idx in self._written["r"]:
-            k.r_pix[idx] = 0.0
-            k.r_flag[idx] = 0
-        for idx in self._written["obj"]:
-            k.cov[idx] = 0.0
-            k.obj[idx] = 0.0
+
+        def clear(buf: np.ndarray, written: list[np.ndarray]) -> None:
+            if sum(len(i) for i in written) > len(buf) // 8:
+                buf.fill(0)
+            else:
+                for idx in written:
+                    buf[idx] = 0
+
+        clear(k.shade, self._written["shade"])
+        clear(k.sun, self._written["sun"])
+        clear(k.r_pix, self._written["r"])
+        clear(k.r_flag, self._written["r"])
+        clear(k.cov, self._written["obj"])
+        clear(k.obj, self._written["obj"])
         for key in self._written:
             self._written[key] = []
 
