@@ -78,8 +78,8 @@ def _dense(scene, R):
 
 
 @pytest.mark.parametrize("mode", ["hdr", "ldr"])
-def test_compose_matches_the_numpy_reference(scene, mode):
-    stage = ComposeStage(**scene, patches=None, shape=(H, W), device="cpu")
+def test_compose_matches_the_numpy_reference(scene, mode, device):
+    stage = ComposeStage(**scene, patches=None, shape=(H, W), device=device)
     rng = np.random.default_rng(1 if mode == "hdr" else 2)
     for frame in range(4):  # the buffers are reset between frames: each frame alone must match
         pix_sel, O_pix, fill_sel, R, dB, cov, obj, sun_pix, sun_loss = _frame_inputs(rng, scene, mode)
@@ -118,10 +118,9 @@ def _interp_kernel(x: wp.array(dtype=wp.float64), c: int, xp: wp.array2d(dtype=w
 
 
 @pytest.mark.parametrize("inverse", [False, True])
-def test_response_lookup_is_np_interp_on_hard_values(inverse):
+def test_response_lookup_is_np_interp_on_hard_values(inverse, device):
     """The kernel's table lookup equals np.interp bit for bit: at the breakpoints (ties included), one
     ulp either side of them and of the grid's cell starts, at 0 and 1, and outside the range."""
-    from app.engine import Engine  # noqa: F401  (warp initialised as the engine does)
     from recon.response import CameraResponse
 
     g = np.linspace(0, 1, 256)
@@ -135,7 +134,7 @@ def test_response_lookup_is_np_interp_on_hard_values(inverse):
         pts = np.concatenate([xp[c], np.nextafter(xp[c], 2), np.nextafter(xp[c], -1), cells,
                               np.nextafter(cells, -1), np.nextafter(cells, 2), [-0.5, 1.5],
                               np.random.default_rng(c).random(2000)])
-        dev = "cpu"
+        dev = device
         out = wp.zeros(len(pts), dtype=wp.float64, device=dev)
         wp.launch(_interp_kernel, dim=len(pts), device=dev,
                   inputs=[wp.array(pts, dtype=wp.float64, device=dev), c, wp.array(xp, dtype=wp.float64, device=dev),
