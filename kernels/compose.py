@@ -35,52 +35,50 @@ def segment_slopes(xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     return np.concatenate([np.where(np.isfinite(s), s, 0.0), np.zeros((len(xp), 1))], axis=1)
 
 
+def pack_response(xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The response's breakpoints (xs, ys) (C,n) packed for `lookup`: tables (2C, 3n) float64, rows
+    0..C-1 [xs | ys | slopes] (T), rows C..2C-1 [ys | xs | slopes] (T^-1); grids (2C, GRID_CELLS)."""
+    tab = np.concatenate([np.concatenate([xs, ys, segment_slopes(xs, ys)], 1),
+                          np.concatenate([ys, xs, segment_slopes(ys, xs)], 1)])
+    return tab, np.concatenate([response_grid(xs), response_grid(ys)])
+
+
 @wp.func
-def interp(x: wp.float64, c: int, xp: wp.array2d(dtype=wp.float64), fp: wp.array2d(dtype=wp.float64),
-           slope: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32)) -> wp.float64:
-    """np.interp(x, xp[c], fp[c]) for sorted xp (ties allowed): the last j with xp[j] <= x."""
-    n = xp.shape[1]
-    if x < xp[c, 0]:
-        return fp[c, 0]
-    if x >= xp[c, n - 1]:
-        return fp[c, n - 1]
+def lookup(x: wp.float64, row: int, tab: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32)
+           ) -> wp.float64:
+    """np.interp(x, xp, fp) for sorted xp (ties allowed; the last j with xp[j] <= x) on row `row` of
+    the packed tables (pack_response: [xp | fp | slope]; rows 0-2: T per channel, 3-5: T^-1)."""
+    n = tab.shape[1] // 3
+    if x < tab[row, 0]:
+        return tab[row, n]
+    if x >= tab[row, n - 1]:
+        return tab[row, 2 * n - 1]
     ng = grid.shape[1]
     k = wp.clamp(int(x * wp.float64(ng)), 0, ng - 1)
-    j = grid[c, k]
-    while xp[c, j + 1] <= x:  # x < xp[n-1]: stops before the end
+    j = grid[row, k]
+    while tab[row, j + 1] <= x:  # x < xp[n-1]: stops before the end
         j += 1
-    while xp[c, j] > x:  # the cell's start rounded above x
+    while tab[row, j] > x:  # the cell's start rounded above x
         j -= 1
-    if xp[c, j] == x:
-        return fp[c, j]
-    return slope[c, j] * (x - xp[c, j]) + fp[c, j]
-
-
-@wp.struct
-class Response:
-    """The camera response's breakpoints, segment slopes and lookup grids (one row per channel)."""
-
-    xs: wp.array2d(dtype=wp.float64)  # exposure-scaled radiance, sorted
-    ys: wp.array2d(dtype=wp.float64)  # response in [0, 1], sorted
-    sx: wp.array2d(dtype=wp.float64)  # segment_slopes(xs, ys): T
-    sy: wp.array2d(dtype=wp.float64)  # segment_slopes(ys, xs): T^-1
-    gx: wp.array2d(dtype=wp.int32)  # response_grid(xs)
-    gy: wp.array2d(dtype=wp.int32)  # response_grid(ys)
-    exposure: wp.float64
+    if tab[row, j] == x:
+        return tab[row, n + j]
+    return tab[row, 2 * n + j] * (x - tab[row, j]) + tab[row, n + j]
 
 
 @wp.func
-def to_levels(L: wp.float64, c: int, r: Response) -> wp.float64:
+def to_levels(L: wp.float64, c: int, exposure: wp.float64, tab: wp.array2d(dtype=wp.float64),
+              grid: wp.array2d(dtype=wp.int32)) -> wp.float64:
     """T(L): radiance -> continuous level in [0, 255] (CameraResponse.to_levels)."""
-    x = wp.clamp(L * r.exposure, wp.float64(0.0), wp.float64(1.0))
-    return wp.float64(255.0) * interp(x, c, r.xs, r.ys, r.sx, r.gx)
+    x = wp.clamp(L * exposure, wp.float64(0.0), wp.float64(1.0))
+    return wp.float64(255.0) * lookup(x, c, tab, grid)
 
 
 @wp.func
-def to_radiance(z: wp.float64, c: int, r: Response) -> wp.float64:
+def to_radiance(z: wp.float64, c: int, exposure: wp.float64, tab: wp.array2d(dtype=wp.float64),
+                grid: wp.array2d(dtype=wp.int32)) -> wp.float64:
     """T^-1(z) of a continuous level (CameraResponse.to_radiance on float input)."""
     y = wp.clamp(z / wp.float64(255.0), wp.float64(0.0), wp.float64(1.0))
-    return interp(y, c, r.ys, r.xs, r.sy, r.gy) / r.exposure
+    return lookup(y, 3 + c, tab, grid) / exposure
 
 
 @wp.struct
@@ -111,128 +109,88 @@ class Changes:
     obj: wp.array2d(dtype=wp.float64)  # object radiance where cov > 0
 
 
-@wp.func
-def gain(i: int, c: int, use_r: bool, r0: int, r1: int, r2: int, b0: wp.float64, b1: wp.float64,
-         b2: wp.float64, room: Room, ch: Changes) -> wp.float64:
-    """rho x (object light + second order) at pixel i, channel c (irradiance/pi -> radiance)."""
-    a = wp.float64(0.0)
-    if use_r:
-        a = ch.r_pix[i, c]
-    if r0 >= 0:
-        if use_r:
-            a = a + (b0 * ch.dE_v[r0, c] + b1 * ch.dE_v[r1, c] + b2 * ch.dE_v[r2, c])
-        else:
-            a = b0 * ch.add_v[r0, c] + b1 * ch.add_v[r1, c] + b2 * ch.add_v[r2, c]
-    return room.rho[i, c] * a
-
-
-@wp.func
-def room_hdr(i: int, c: int, moved: bool, s: wp.float64, g: wp.float64, room: Room, r: Response) -> wp.vec2d:
-    """(room radiance, its level) of one channel, HDR; s the radiance the shadows take."""
-    if moved:
-        m = wp.max(room.L_b[i, c] - s + g, wp.float64(0.0))
-        return wp.vec2d(m, to_levels(m, c, r))
-    return wp.vec2d(room.L_b[i, c], room.still[i, c])
-
-
-@wp.func
-def room_ldr(i: int, c: int, moved: bool, added: bool, o: wp.float64, u: wp.float64, g: wp.float64, room: Room,
-             r: Response) -> wp.vec2d:
-    """(room radiance, its level) of one channel, LDR: the levels the shadows take (o), the sun's
-    occluded share (u) and the light added (g) change the photo's level; radiance from the level."""
-    if not moved:
-        return wp.vec2d(room.still_room[i, c], room.still[i, c])
-    z = room.still[i, c] - o
-    if u != wp.float64(0.0):
-        z = z + (to_levels(room.L_b[i, c] * (wp.float64(1.0) - u), c, r) - room.T_Lb[i, c])
-    if added:
-        z = z + (to_levels(wp.max(room.L_b[i, c] + g, wp.float64(0.0)), c, r) - room.T_Lb[i, c])
-    z = wp.clamp(z, wp.float64(0.0), wp.float64(255.0))
-    return wp.vec2d(to_radiance(z, c, r), z)
-
-
-@wp.func
-def write(i: int, c: int, rad: wp.float64, room: wp.float64, lev: wp.float64, out_rad: wp.array2d(dtype=wp.float32),
-          out_room: wp.array2d(dtype=wp.float32), out_pix: wp.array2d(dtype=wp.uint8)):
-    out_rad[i, c] = wp.float32(rad)
-    out_room[i, c] = wp.float32(room)
-    out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(lev), wp.float64(0.0), wp.float64(255.0))))
-
-
 @wp.kernel
-def compose_kernel(first: int, ldr: int, room: Room, ch: Changes, resp: Response,
+def compose_kernel(first: int, ldr: int, room: Room, ch: Changes, tab: wp.array2d(dtype=wp.float64),
+                   grid: wp.array2d(dtype=wp.int32), exposure: wp.float64,
                    out_rad: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
                    out_pix: wp.array2d(dtype=wp.uint8)):
+    # (no struct goes to a wp.func: Warp passes it by value, which costs more than the pixel's work)
     i = first + wp.tid()
     zero = wp.float64(0.0)
     one = wp.float64(1.0)
     full = wp.float64(255.0)
     use_r = ch.all_r != 0 or ch.r_flag[i] != wp.uint8(0)
     r0 = room.rows[i, 0]
-    r1 = int(0)
-    r2 = int(0)
-    b0 = zero
-    b1 = zero
-    b2 = zero
-    if r0 >= 0:
-        r1 = room.rows[i, 1]
-        r2 = room.rows[i, 2]
-        b0 = wp.float64(room.bary[i, 0])
-        b1 = wp.float64(room.bary[i, 1])
-        b2 = wp.float64(room.bary[i, 2])
-    g0 = gain(i, 0, use_r, r0, r1, r2, b0, b1, b2, room, ch)
-    g1 = gain(i, 1, use_r, r0, r1, r2, b0, b1, b2, room, ch)
-    g2 = gain(i, 2, use_r, r0, r1, r2, b0, b1, b2, room, ch)
-    f0 = ch.shade[i, 0]
-    f1 = ch.shade[i, 1]
-    f2 = ch.shade[i, 2]
-    u0 = ch.sun[i, 0]
-    u1 = ch.sun[i, 1]
-    u2 = ch.sun[i, 2]
-    added = g0 != zero or g1 != zero or g2 != zero
-    q0 = wp.vec2d()
-    q1 = wp.vec2d()
-    q2 = wp.vec2d()
-    if ldr == 0:  # the radiance the shadows take: the occluded share of L_b, then the sun's
-        s0 = room.L_b[i, 0] * f0 + room.L_b[i, 0] * u0
-        s1 = room.L_b[i, 1] * f1 + room.L_b[i, 1] * u1
-        s2 = room.L_b[i, 2] * f2 + room.L_b[i, 2] * u2
-        moved = added or s0 != zero or s1 != zero or s2 != zero
-        q0 = room_hdr(i, 0, moved, s0, g0, room, resp)
-        q1 = room_hdr(i, 1, moved, s1, g1, room, resp)
-        q2 = room_hdr(i, 2, moved, s2, g2, room, resp)
+    # light added: rho x (object light + second order), irradiance/pi -> radiance
+    g = wp.vec3d()
+    for c in range(3):
+        a = zero
+        if use_r:
+            a = ch.r_pix[i, c]
+        if r0 >= 0:
+            b0 = wp.float64(room.bary[i, 0])
+            b1 = wp.float64(room.bary[i, 1])
+            b2 = wp.float64(room.bary[i, 2])
+            r1 = room.rows[i, 1]
+            r2 = room.rows[i, 2]
+            if use_r:
+                a = a + (b0 * ch.dE_v[r0, c] + b1 * ch.dE_v[r1, c] + b2 * ch.dE_v[r2, c])
+            else:
+                a = b0 * ch.add_v[r0, c] + b1 * ch.add_v[r1, c] + b2 * ch.add_v[r2, c]
+        g[c] = room.rho[i, c] * a
+    added = g[0] != zero or g[1] != zero or g[2] != zero
+    f = wp.vec3d(ch.shade[i, 0], ch.shade[i, 1], ch.shade[i, 2])
+    u = wp.vec3d(ch.sun[i, 0], ch.sun[i, 1], ch.sun[i, 2])
+    rad = wp.vec3d()  # room radiance
+    lev = wp.vec3d()  # its level
+    if ldr == 0:
+        # the radiance the shadows take: the occluded share of L_b, then the sun's
+        s = wp.vec3d()
+        for c in range(3):
+            s[c] = room.L_b[i, c] * f[c] + room.L_b[i, c] * u[c]
+        if added or s[0] != zero or s[1] != zero or s[2] != zero:
+            for c in range(3):
+                rad[c] = wp.max(room.L_b[i, c] - s[c] + g[c], zero)
+                lev[c] = to_levels(rad[c], c, exposure, tab, grid)
+        else:
+            for c in range(3):
+                rad[c] = room.L_b[i, c]
+                lev[c] = room.still[i, c]
     else:
-        moved = added or f0 != zero or f1 != zero or f2 != zero or u0 != zero or u1 != zero or u2 != zero
-        q0 = room_ldr(i, 0, moved, added, f0, u0, g0, room, resp)
-        q1 = room_ldr(i, 1, moved, added, f1, u1, g1, room, resp)
-        q2 = room_ldr(i, 2, moved, added, f2, u2, g2, room, resp)
+        # the photo's level less the shadows' levels, the sun's and plus the added light's change
+        if added or f[0] != zero or f[1] != zero or f[2] != zero or u[0] != zero or u[1] != zero or u[2] != zero:
+            for c in range(3):
+                z = room.still[i, c] - f[c]
+                if u[c] != zero:
+                    z = z + (to_levels(room.L_b[i, c] * (one - u[c]), c, exposure, tab, grid) - room.T_Lb[i, c])
+                if added:
+                    z = z + (to_levels(wp.max(room.L_b[i, c] + g[c], zero), c, exposure, tab, grid) - room.T_Lb[i, c])
+                z = wp.clamp(z, zero, full)
+                lev[c] = z
+                rad[c] = to_radiance(z, c, exposure, tab, grid)
+        else:
+            for c in range(3):
+                rad[c] = room.still_room[i, c]
+                lev[c] = room.still[i, c]
+    px = wp.vec3d(rad[0], rad[1], rad[2])  # the pixel's radiance
+    out = wp.vec3d(lev[0], lev[1], lev[2])  # its level
     cov = ch.cov[i]
-    if cov == zero:
-        write(i, 0, q0[0], q0[0], q0[1], out_rad, out_room, out_pix)
-        write(i, 1, q1[0], q1[0], q1[1], out_rad, out_room, out_pix)
-        write(i, 2, q2[0], q2[0], q2[1], out_rad, out_room, out_pix)
-        return
-    # the object: mix levels, or radiance where a level is only a floor (it clips on either side)
-    o0 = ch.obj[i, 0]
-    o1 = ch.obj[i, 1]
-    o2 = ch.obj[i, 2]
-    p0 = (one - cov) * q0[0] + cov * o0
-    p1 = (one - cov) * q1[0] + cov * o1
-    p2 = (one - cov) * q2[0] + cov * o2
-    t0 = to_levels(o0, 0, resp)
-    t1 = to_levels(o1, 1, resp)
-    t2 = to_levels(o2, 2, resp)
-    l0 = (one - cov) * q0[1] + cov * t0
-    l1 = (one - cov) * q1[1] + cov * t1
-    l2 = (one - cov) * q2[1] + cov * t2
-    clips = t0 >= full or t1 >= full or t2 >= full or q0[1] >= full or q1[1] >= full or q2[1] >= full
-    if clips and cov < one:
-        l0 = to_levels(p0, 0, resp)
-        l1 = to_levels(p1, 1, resp)
-        l2 = to_levels(p2, 2, resp)
-    write(i, 0, p0, q0[0], l0, out_rad, out_room, out_pix)
-    write(i, 1, p1, q1[0], l1, out_rad, out_room, out_pix)
-    write(i, 2, p2, q2[0], l2, out_rad, out_room, out_pix)
+    if cov > zero:
+        # the object: mix levels, or radiance where a level is only a floor (it clips on either side)
+        clips = lev[0] >= full or lev[1] >= full or lev[2] >= full
+        for c in range(3):
+            px[c] = (one - cov) * rad[c] + cov * ch.obj[i, c]
+            t = to_levels(ch.obj[i, c], c, exposure, tab, grid)
+            out[c] = (one - cov) * lev[c] + cov * t
+            if t >= full:
+                clips = True
+        if clips and cov < one:
+            for c in range(3):
+                out[c] = to_levels(px[c], c, exposure, tab, grid)
+    for c in range(3):
+        out_rad[i, c] = wp.float32(px[c])
+        out_room[i, c] = wp.float32(rad[c])
+        out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(out[c]), zero, full)))
 
 
 @wp.kernel
@@ -318,11 +276,10 @@ class Compositor:
                 setattr(r, k, v)
             r.still, r.still_room = static(lev), static(rad)
             self.rooms[mode] = r
-        self.resp = Response()
-        self.resp.xs, self.resp.ys = static(xs), static(ys)
-        self.resp.sx, self.resp.sy = static(segment_slopes(xs, ys)), static(segment_slopes(ys, xs))
-        self.resp.gx, self.resp.gy = static(response_grid(xs), wp.int32), static(response_grid(ys), wp.int32)
-        self.resp.exposure = float(exposure)
+        # the response packed for `lookup`: rows 0-2 T per channel, 3-5 T^-1; [xp | fp | slope]
+        tab, grid = pack_response(xs, ys)
+        self._tab, self._grid = static(tab), static(grid, wp.int32)
+        self._exposure = float(exposure)
         n_vert, n_patch = G_v.shape
         self.n_vert = n_vert
         self._G_v = static(np.asarray(G_v, np.float32), wp.float32)
@@ -376,8 +333,8 @@ class Compositor:
 
         def launch(first: int, dim: int):
             return lambda: wp.launch(compose_kernel, dim=dim, device=self.device,
-                                     inputs=[first, int(ldr), room, self.ch, self.resp, o["rad"].dev, o["room"].dev,
-                                             o["pix"].dev])
+                                     inputs=[first, int(ldr), room, self.ch, self._tab, self._grid, self._exposure,
+                                             o["rad"].dev, o["room"].dev, o["pix"].dev])
 
         runtime.run_parallel([launch(0, half), launch(half, self.n - half)])
         wp.synchronize_device(self.device)

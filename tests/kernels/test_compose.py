@@ -6,7 +6,7 @@ import pytest
 import warp as wp
 
 from app.stages.compose import ComposeStage, compose_reference
-from kernels.compose import GRID_CELLS, interp, response_grid, segment_slopes
+from kernels.compose import GRID_CELLS, lookup, pack_response
 from lighting.photolight import srgb_response
 
 H, W, VR, P = 24, 32, 40, 12
@@ -110,11 +110,10 @@ def test_compose_matches_the_numpy_reference(scene, mode, device):
 
 
 @wp.kernel
-def _interp_kernel(x: wp.array(dtype=wp.float64), c: int, xp: wp.array2d(dtype=wp.float64),
-                   fp: wp.array2d(dtype=wp.float64), slope: wp.array2d(dtype=wp.float64),
+def _lookup_kernel(x: wp.array(dtype=wp.float64), row: int, tab: wp.array2d(dtype=wp.float64),
                    grid: wp.array2d(dtype=wp.int32), out: wp.array(dtype=wp.float64)):
     i = wp.tid()
-    out[i] = interp(x[i], c, xp, fp, slope, grid)
+    out[i] = lookup(x[i], row, tab, grid)
 
 
 @pytest.mark.parametrize("inverse", [False, True])
@@ -129,16 +128,15 @@ def test_response_lookup_is_np_interp_on_hard_values(inverse, device):
     inv = np.tile(np.minimum(g, 0.95) ** 2.6, (3, 1))
     xs, ys = CameraResponse(fwd, inv).breakpoints()
     xp, fp = (ys, xs) if inverse else (xs, ys)
+    tab, grid = pack_response(xs, ys)
+    tab_wp = wp.array(tab, dtype=wp.float64, device=device)
+    grid_wp = wp.array(grid, dtype=wp.int32, device=device)
     cells = np.arange(GRID_CELLS + 1) / GRID_CELLS
     for c in range(3):
         pts = np.concatenate([xp[c], np.nextafter(xp[c], 2), np.nextafter(xp[c], -1), cells,
                               np.nextafter(cells, -1), np.nextafter(cells, 2), [-0.5, 1.5],
                               np.random.default_rng(c).random(2000)])
-        dev = device
-        out = wp.zeros(len(pts), dtype=wp.float64, device=dev)
-        wp.launch(_interp_kernel, dim=len(pts), device=dev,
-                  inputs=[wp.array(pts, dtype=wp.float64, device=dev), c, wp.array(xp, dtype=wp.float64, device=dev),
-                          wp.array(fp, dtype=wp.float64, device=dev),
-                          wp.array(segment_slopes(xp, fp), dtype=wp.float64, device=dev),
-                          wp.array(response_grid(xp), dtype=wp.int32, device=dev), out])
+        out = wp.zeros(len(pts), dtype=wp.float64, device=device)
+        wp.launch(_lookup_kernel, dim=len(pts), device=device,
+                  inputs=[wp.array(pts, dtype=wp.float64, device=device), 3 * inverse + c, tab_wp, grid_wp, out])
         assert np.array_equal(out.numpy(), np.interp(pts, xp[c], fp[c]))
