@@ -15,10 +15,15 @@ computes them (`segment_slopes`). Its result is the same segment and the same fo
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import warp as wp
 
+from kernels import runtime
+
 GRID_CELLS = 4096  # uniform cells per channel over [0, 1] in the lookup grid
+Split = Callable[[Callable[[int, int], None], int], None]  # split(launch(lo, hi), n): runs [0, n) in ranges
 
 
 def response_grid(xp: np.ndarray, cells: int = GRID_CELLS) -> np.ndarray:
@@ -254,8 +259,6 @@ class Compositor:
         """still: {"hdr": (levels, room radiance), "ldr": (levels, room radiance)} where nothing changes;
         rows: (N,3) receiver-vertex rows, -1 for pixels that are no receiver; G_v (Vr,P) the
         receiver-vertex transfers (second_order)."""
-        from kernels import runtime
-
         self.device = d = runtime.device(device)
         n = len(L_b)
         self.n = n
@@ -298,45 +301,39 @@ class Compositor:
         for k, m in self._out.items():
             setattr(self, k, m.np)
 
-    def second_order(self, dB: np.ndarray) -> None:
-        """dE_v = G_v dB over the patches where dB (P,3) is non-zero, into `dE_v` (and `add_v`); two
-        launches, one per core."""
-        from kernels import runtime
-
+    def second_order(self, dB: np.ndarray, split: Split) -> None:
+        """dE_v = G_v dB over the patches where dB (P,3) is non-zero, into `dE_v` (and `add_v`), the
+        receiver vertices cut into index ranges by `split` (one launch per range)."""
         nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
         self._nz.np[:len(nz)] = nz
         self._dB.np[:] = dB
         self._nz.push()
         self._dB.push()
         m = self._m
-        half = self.n_vert // 2
 
-        def launch(first: int, dim: int):
-            return lambda: wp.launch(second_order_kernel, dim=dim, device=self.device,
-                                     inputs=[first, self._G_v, self._nz.dev, len(nz), self._dB.dev, m["dE_v"].dev,
-                                             m["add_v"].dev])
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(second_order_kernel, dim=hi - lo, device=self.device,
+                      inputs=[lo, self._G_v, self._nz.dev, len(nz), self._dB.dev, m["dE_v"].dev, m["add_v"].dev])
 
-        runtime.run_parallel([launch(0, half), launch(half, self.n_vert - half)])
+        split(launch, self.n_vert)
         wp.synchronize_device(self.device)
         m["dE_v"].pull()
         m["add_v"].pull()
 
-    def run(self, ldr: bool, all_r: bool) -> None:
-        """Compose every pixel from the host views into rad, room and pix; two launches, one per core."""
-        from kernels import runtime
-
+    def run(self, ldr: bool, all_r: bool, split: Split) -> None:
+        """Compose every pixel from the host views into rad, room and pix, the pixels cut into index
+        ranges by `split` (one launch per range)."""
         for m in self._m.values():
             m.push()
         self.ch.all_r = int(all_r)
         room, o = self.rooms["ldr" if ldr else "hdr"], self._out
-        half = self.n // 2
 
-        def launch(first: int, dim: int):
-            return lambda: wp.launch(compose_kernel, dim=dim, device=self.device,
-                                     inputs=[first, int(ldr), room, self.ch, self._tab, self._grid, self._exposure,
-                                             o["rad"].dev, o["room"].dev, o["pix"].dev])
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(compose_kernel, dim=hi - lo, device=self.device,
+                      inputs=[lo, int(ldr), room, self.ch, self._tab, self._grid, self._exposure, o["rad"].dev,
+                              o["room"].dev, o["pix"].dev])
 
-        runtime.run_parallel([launch(0, half), launch(half, self.n - half)])
+        split(launch, self.n)
         wp.synchronize_device(self.device)
         for m in o.values():
             m.pull()

@@ -32,10 +32,19 @@ from typing import Callable
 
 import numpy as np
 
+from kernels import runtime
 from kernels.compose import Compositor
 from lighting.transfer import intensity_transfers
 
 FillFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]  # (known, values, missing) -> values
+
+
+def split(launch: Callable[[int, int], None], n: int) -> None:
+    """Run launch(lo, hi) over [0, n) in two halves, one per CPU core (Warp releases the GIL during a
+    CPU launch). The two-core split's one place after issue 17 is app.runtime.split (branch shadow):
+    this function then becomes a call to it."""
+    half = n // 2
+    runtime.run_parallel([lambda: launch(0, half), lambda: launch(half, n)])
 
 
 class ComposeStage:
@@ -68,7 +77,7 @@ class ComposeStage:
         """dE_v (Vr,3) float64: the change of patch radiance dB (P,3) passed on once to the receiver
         vertices, G_v dB over the changed patches only, plus `more` (P,3) (the sun's later bounces).
         Returns the stage's own buffer (valid until the next frame)."""
-        self.k.second_order(dB if more is None else dB + more)
+        self.k.second_order(dB if more is None else dB + more, split)
         return self.k.dE_v
 
     # ------------------------------------------------------------------ LDR weights
@@ -156,7 +165,7 @@ class ComposeStage:
         k.cov[on] = c[on]
         k.obj[on] = obj_rad.reshape(-1, 3)[on]
         self._written["obj"] = [on]
-        k.run(ldr, all_r)
+        k.run(ldr, all_r, split)
         H, W = self.H, self.W
         return (k.rad.reshape(H, W, 3).copy(), k.pix.reshape(H, W, 3).copy(), k.room.reshape(H, W, 3).copy())
 
