@@ -86,116 +86,104 @@ def to_radiance(z: wp.float64, c: int, exposure: wp.float64, tab: wp.array2d(dty
     return lookup(y, 3 + c, tab, grid) / exposure
 
 
-@wp.struct
-class Room:
-    """Per-scene, pose-independent pixel data (H*W rows)."""
-
-    L_b: wp.array2d(dtype=wp.float64)  # photo radiance (model radiance where the sun clips)
-    T_Lb: wp.array2d(dtype=wp.float64)  # T(L_b)
-    still: wp.array2d(dtype=wp.float64)  # levels where nothing changes (HDR: Engine.L_b_levels; LDR: photo)
-    still_room: wp.array2d(dtype=wp.float64)  # room radiance where nothing changes (HDR: L_b; LDR: T^-1(photo))
-    rho: wp.array2d(dtype=wp.float64)  # reflectance L_b / E_x
-    rows: wp.array2d(dtype=wp.int32)  # receiver-vertex rows per pixel (-1: not a receiver pixel)
-    bary: wp.array2d(dtype=wp.float32)  # barycentric weights of those rows
-
-
-@wp.struct
-class Changes:
-    """This frame's changes (H*W rows unless noted); zero where nothing changes."""
-
-    shade: wp.array2d(dtype=wp.float64)  # HDR: the share of L_b the shadows take; LDR: the levels they take
-    sun: wp.array2d(dtype=wp.float64)  # the sun's occluded share of L_b (sunlit pixels)
-    r_pix: wp.array2d(dtype=wp.float64)  # object light per pixel where r_flag (irradiance/pi)
-    r_flag: wp.array(dtype=wp.uint8)  # 1: r_pix holds the pixel's object light, the vertices give dE only
-    all_r: int  # 1: every pixel's object light is in r_pix (the dense form)
-    dE_v: wp.array2d(dtype=wp.float64)  # (Vr,3) second-order irradiance/pi at receiver vertices
-    add_v: wp.array2d(dtype=wp.float64)  # (Vr,3) dE_v plus the object light at receiver vertices
-    cov: wp.array(dtype=wp.float64)  # object coverage
-    obj: wp.array2d(dtype=wp.float64)  # object radiance where cov > 0
+# Per-pixel data packed one row per pixel (one memory stream, not twenty): columns of Compositor.px
+# (per scene) and Compositor.chg (per frame), 3 per quantity unless noted.
+PX_LB, PX_TLB, PX_STILL_HDR, PX_STILL_LDR, PX_ROOM_LDR, PX_RHO = 0, 3, 6, 9, 12, 15  # PX_WIDTH 18
+PX_WIDTH = 18
+CH_SHADE, CH_SUN, CH_R, CH_OBJ, CH_COV = 0, 3, 6, 9, 12  # CH_COV: 1 column; CH_WIDTH 13
+CH_WIDTH = 13
 
 
 @wp.kernel
-def compose_kernel(first: int, ldr: int, room: Room, ch: Changes, tab: wp.array2d(dtype=wp.float64),
-                   grid: wp.array2d(dtype=wp.int32), exposure: wp.float64,
-                   out_rad: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
+def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows: wp.array2d(dtype=wp.int32),
+                   bary: wp.array2d(dtype=wp.float32), chg: wp.array2d(dtype=wp.float64),
+                   r_flag: wp.array(dtype=wp.uint8), all_r: int, dE_v: wp.array2d(dtype=wp.float64),
+                   add_v: wp.array2d(dtype=wp.float64), tab: wp.array2d(dtype=wp.float64),
+                   grid: wp.array2d(dtype=wp.int32), exposure: wp.float64, out: wp.array2d(dtype=wp.float32),
                    out_pix: wp.array2d(dtype=wp.uint8)):
-    # (no struct goes to a wp.func: Warp passes it by value, which costs more than the pixel's work)
+    """px: L_b, T(L_b), the unchanged levels (HDR, LDR), the LDR unchanged radiance, rho (PX_*);
+    rows/bary: receiver-vertex rows (-1: no receiver) and weights; chg: this frame's occluded share
+    (HDR; LDR: levels taken), the sun's occluded share, object light where r_flag (or all_r), object
+    radiance and coverage (CH_*); dE_v/add_v (Vr,3) second order (plus object light) at receiver
+    vertices. out: radiance (0-2) and room radiance (3-5) float32; out_pix the 8-bit frame."""
     i = first + wp.tid()
     zero = wp.float64(0.0)
     one = wp.float64(1.0)
     full = wp.float64(255.0)
-    use_r = ch.all_r != 0 or ch.r_flag[i] != wp.uint8(0)
-    r0 = room.rows[i, 0]
+    use_r = all_r != 0 or r_flag[i] != wp.uint8(0)
+    r0 = rows[i, 0]
     # light added: rho x (object light + second order), irradiance/pi -> radiance
     g = wp.vec3d()
     for c in range(3):
         a = zero
         if use_r:
-            a = ch.r_pix[i, c]
+            a = chg[i, CH_R + c]
         if r0 >= 0:
-            b0 = wp.float64(room.bary[i, 0])
-            b1 = wp.float64(room.bary[i, 1])
-            b2 = wp.float64(room.bary[i, 2])
-            r1 = room.rows[i, 1]
-            r2 = room.rows[i, 2]
+            b0 = wp.float64(bary[i, 0])
+            b1 = wp.float64(bary[i, 1])
+            b2 = wp.float64(bary[i, 2])
+            r1 = rows[i, 1]
+            r2 = rows[i, 2]
             if use_r:
-                a = a + (b0 * ch.dE_v[r0, c] + b1 * ch.dE_v[r1, c] + b2 * ch.dE_v[r2, c])
+                a = a + (b0 * dE_v[r0, c] + b1 * dE_v[r1, c] + b2 * dE_v[r2, c])
             else:
-                a = b0 * ch.add_v[r0, c] + b1 * ch.add_v[r1, c] + b2 * ch.add_v[r2, c]
-        g[c] = room.rho[i, c] * a
+                a = b0 * add_v[r0, c] + b1 * add_v[r1, c] + b2 * add_v[r2, c]
+        g[c] = px[i, PX_RHO + c] * a
     added = g[0] != zero or g[1] != zero or g[2] != zero
-    f = wp.vec3d(ch.shade[i, 0], ch.shade[i, 1], ch.shade[i, 2])
-    u = wp.vec3d(ch.sun[i, 0], ch.sun[i, 1], ch.sun[i, 2])
+    f = wp.vec3d(chg[i, CH_SHADE], chg[i, CH_SHADE + 1], chg[i, CH_SHADE + 2])
+    u = wp.vec3d(chg[i, CH_SUN], chg[i, CH_SUN + 1], chg[i, CH_SUN + 2])
     rad = wp.vec3d()  # room radiance
     lev = wp.vec3d()  # its level
     if ldr == 0:
         # the radiance the shadows take: the occluded share of L_b, then the sun's
         s = wp.vec3d()
         for c in range(3):
-            s[c] = room.L_b[i, c] * f[c] + room.L_b[i, c] * u[c]
+            s[c] = px[i, PX_LB + c] * f[c] + px[i, PX_LB + c] * u[c]
         if added or s[0] != zero or s[1] != zero or s[2] != zero:
             for c in range(3):
-                rad[c] = wp.max(room.L_b[i, c] - s[c] + g[c], zero)
+                rad[c] = wp.max(px[i, PX_LB + c] - s[c] + g[c], zero)
                 lev[c] = to_levels(rad[c], c, exposure, tab, grid)
         else:
             for c in range(3):
-                rad[c] = room.L_b[i, c]
-                lev[c] = room.still[i, c]
+                rad[c] = px[i, PX_LB + c]
+                lev[c] = px[i, PX_STILL_HDR + c]
     else:
         # the photo's level less the shadows' levels, the sun's and plus the added light's change
         if added or f[0] != zero or f[1] != zero or f[2] != zero or u[0] != zero or u[1] != zero or u[2] != zero:
             for c in range(3):
-                z = room.still[i, c] - f[c]
+                L = px[i, PX_LB + c]
+                z = px[i, PX_STILL_LDR + c] - f[c]
                 if u[c] != zero:
-                    z = z + (to_levels(room.L_b[i, c] * (one - u[c]), c, exposure, tab, grid) - room.T_Lb[i, c])
+                    z = z + (to_levels(L * (one - u[c]), c, exposure, tab, grid) - px[i, PX_TLB + c])
                 if added:
-                    z = z + (to_levels(wp.max(room.L_b[i, c] + g[c], zero), c, exposure, tab, grid) - room.T_Lb[i, c])
+                    z = z + (to_levels(wp.max(L + g[c], zero), c, exposure, tab, grid) - px[i, PX_TLB + c])
                 z = wp.clamp(z, zero, full)
                 lev[c] = z
                 rad[c] = to_radiance(z, c, exposure, tab, grid)
         else:
             for c in range(3):
-                rad[c] = room.still_room[i, c]
-                lev[c] = room.still[i, c]
-    px = wp.vec3d(rad[0], rad[1], rad[2])  # the pixel's radiance
-    out = wp.vec3d(lev[0], lev[1], lev[2])  # its level
-    cov = ch.cov[i]
+                rad[c] = px[i, PX_ROOM_LDR + c]
+                lev[c] = px[i, PX_STILL_LDR + c]
+    pr = wp.vec3d(rad[0], rad[1], rad[2])  # the pixel's radiance
+    pl = wp.vec3d(lev[0], lev[1], lev[2])  # its level
+    cov = chg[i, CH_COV]
     if cov > zero:
         # the object: mix levels, or radiance where a level is only a floor (it clips on either side)
         clips = lev[0] >= full or lev[1] >= full or lev[2] >= full
         for c in range(3):
-            px[c] = (one - cov) * rad[c] + cov * ch.obj[i, c]
-            t = to_levels(ch.obj[i, c], c, exposure, tab, grid)
-            out[c] = (one - cov) * lev[c] + cov * t
+            o = chg[i, CH_OBJ + c]
+            pr[c] = (one - cov) * rad[c] + cov * o
+            t = to_levels(o, c, exposure, tab, grid)
+            pl[c] = (one - cov) * lev[c] + cov * t
             if t >= full:
                 clips = True
         if clips and cov < one:
             for c in range(3):
-                out[c] = to_levels(px[c], c, exposure, tab, grid)
+                pl[c] = to_levels(pr[c], c, exposure, tab, grid)
     for c in range(3):
-        out_rad[i, c] = wp.float32(px[c])
-        out_room[i, c] = wp.float32(rad[c])
-        out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(out[c]), zero, full)))
+        out[i, c] = wp.float32(pr[c])
+        out[i, 3 + c] = wp.float32(rad[c])
+        out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(pl[c]), zero, full)))
 
 
 @wp.kernel
@@ -250,35 +238,34 @@ class _Mirror:
 class Compositor:
     """compose_kernel's inputs and outputs, allocated once per scene at full frame size.
 
-    The caller writes this frame's changes into the host views (`shade`, `sun`, `r_pix`, `r_flag`, `cov`,
-    `obj`: (N,...) numpy; `dE_v`, `add_v`: (Vr,3)) and resets what it wrote before; `run` composes
-    the whole frame into `rad`, `room` (float32) and `pix` (uint8), (N,3) numpy views owned here."""
+    The caller writes this frame's changes into the host views (`shade`, `sun`, `r_pix`, `obj`:
+    (N,3), `cov`, `r_flag`: (N,) numpy views; `dE_v`, `add_v`: (Vr,3)) and resets what it wrote
+    before; `run` composes the whole frame into `rad`, `room` (float32) and `pix` (uint8), (N,3)
+    numpy views owned here."""
 
     def __init__(self, L_b: np.ndarray, T_Lb: np.ndarray, rho: np.ndarray, rows: np.ndarray, bary: np.ndarray,
                  still: dict, xs: np.ndarray, ys: np.ndarray, exposure: float, G_v: np.ndarray, device: str):
-        """still: {"hdr": (levels, room radiance), "ldr": (levels, room radiance)} where nothing changes;
-        rows: (N,3) receiver-vertex rows, -1 for pixels that are no receiver; G_v (Vr,P) the
-        receiver-vertex transfers (second_order)."""
+        """still: {"hdr": (levels, room radiance), "ldr": (levels, room radiance)} where nothing changes
+        (the HDR room radiance is L_b); rows: (N,3) receiver-vertex rows, -1 for pixels that are no
+        receiver; G_v (Vr,P) the receiver-vertex transfers (second_order)."""
         self.device = d = runtime.device(device)
         n = len(L_b)
         self.n = n
         f64 = wp.float64
-        self._keep = []  # the static arrays the structs point to
+        self._keep = []  # the static arrays
 
         def static(a, dtype=f64):
             m = _Mirror.of(np.ascontiguousarray(a), dtype, d)
             self._keep.append(m)
             return m.dev
 
-        base = dict(L_b=static(L_b), T_Lb=static(T_Lb), rho=static(rho), rows=static(rows.astype(np.int32), wp.int32),
-                    bary=static(bary.astype(np.float32), wp.float32))  # the precompute's float32 weights
-        self.rooms = {}
-        for mode, (lev, rad) in still.items():
-            r = Room()
-            for k, v in base.items():
-                setattr(r, k, v)
-            r.still, r.still_room = static(lev), static(rad)
-            self.rooms[mode] = r
+        px = np.empty((n, PX_WIDTH))
+        for col, a in ((PX_LB, L_b), (PX_TLB, T_Lb), (PX_STILL_HDR, still["hdr"][0]), (PX_STILL_LDR, still["ldr"][0]),
+                       (PX_ROOM_LDR, still["ldr"][1]), (PX_RHO, rho)):
+            px[:, col:col + 3] = a
+        self._px = static(px)
+        self._rows = static(rows.astype(np.int32), wp.int32)
+        self._bary = static(bary.astype(np.float32), wp.float32)  # the precompute's float32 weights
         # the response packed for `lookup`: rows 0-2 T per channel, 3-5 T^-1; [xp | fp | slope]
         tab, grid = pack_response(xs, ys)
         self._tab, self._grid = static(tab), static(grid, wp.int32)
@@ -288,18 +275,15 @@ class Compositor:
         self._G_v = static(np.asarray(G_v, np.float32), wp.float32)
         self._nz = _Mirror((max(n_patch, 1),), wp.int32, d)
         self._dB = _Mirror((max(n_patch, 1), 3), f64, d)
-        self._m = {"shade": _Mirror((n, 3), f64, d), "sun": _Mirror((n, 3), f64, d), "r_pix": _Mirror((n, 3), f64, d),
-                   "r_flag": _Mirror((n,), wp.uint8, d), "cov": _Mirror((n,), f64, d), "obj": _Mirror((n, 3), f64, d),
+        self._m = {"chg": _Mirror((n, CH_WIDTH), f64, d), "r_flag": _Mirror((n,), wp.uint8, d),
                    "dE_v": _Mirror((max(n_vert, 1), 3), f64, d), "add_v": _Mirror((max(n_vert, 1), 3), f64, d)}
-        self.ch = Changes()
-        for k, m in self._m.items():
-            setattr(self.ch, k, m.dev)
-            setattr(self, k, m.np)
-        self.ch.all_r = 0
-        self._out = {"rad": _Mirror((n, 3), wp.float32, d), "room": _Mirror((n, 3), wp.float32, d),
-                     "pix": _Mirror((n, 3), wp.uint8, d)}
-        for k, m in self._out.items():
-            setattr(self, k, m.np)
+        chg = self._m["chg"].np
+        self.shade, self.sun = chg[:, CH_SHADE:CH_SHADE + 3], chg[:, CH_SUN:CH_SUN + 3]
+        self.r_pix, self.obj, self.cov = chg[:, CH_R:CH_R + 3], chg[:, CH_OBJ:CH_OBJ + 3], chg[:, CH_COV]
+        self.r_flag, self.dE_v, self.add_v = self._m["r_flag"].np, self._m["dE_v"].np, self._m["add_v"].np
+        self._out = _Mirror((n, 6), wp.float32, d)
+        self._out_pix = _Mirror((n, 3), wp.uint8, d)
+        self.rad, self.room, self.pix = self._out.np[:, 0:3], self._out.np[:, 3:6], self._out_pix.np
 
     def second_order(self, dB: np.ndarray, split: Split) -> None:
         """dE_v = G_v dB over the patches where dB (P,3) is non-zero, into `dE_v` (and `add_v`), the
@@ -325,15 +309,15 @@ class Compositor:
         ranges by `split` (one launch per range)."""
         for m in self._m.values():
             m.push()
-        self.ch.all_r = int(all_r)
-        room, o = self.rooms["ldr" if ldr else "hdr"], self._out
+        m = self._m
 
         def launch(lo: int, hi: int) -> None:
             wp.launch(compose_kernel, dim=hi - lo, device=self.device,
-                      inputs=[lo, int(ldr), room, self.ch, self._tab, self._grid, self._exposure, o["rad"].dev,
-                              o["room"].dev, o["pix"].dev])
+                      inputs=[lo, int(ldr), self._px, self._rows, self._bary, m["chg"].dev, m["r_flag"].dev,
+                              int(all_r), m["dE_v"].dev, m["add_v"].dev, self._tab, self._grid, self._exposure,
+                              self._out.dev, self._out_pix.dev])
 
         split(launch, self.n)
         wp.synchronize_device(self.device)
-        for m in o.values():
-            m.pull()
+        self._out.pull()
+        self._out_pix.pull()
