@@ -45,6 +45,7 @@ from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from app.stages import precompute as scene_precompute
+from app.stages.compose import ComposeStage
 from app.stages.precompute import (CACHE_VERSION, LIGHTING, Lighting, PrecomputeConfig,  # noqa: F401 (re-exported)
                                    Precomputed, hash_scene as _hash_scene)
 from app.stages.receiver_map import receiver_map, reflectance
@@ -228,6 +229,7 @@ class Engine:
             scene_precompute.need_declared(scene)  # captured: the probe gives the response and the emitters
         self.pre, self.cache_hit = self._precompute()
         self._setup()
+        self.compose = self._compose_stage()  # per-scene tables and per-frame buffers of the compose stage
         self._refining: _Refinement | None = None  # refine(): the pose being refined
         self._frames_started = 0  # frames begun (render and refine): refine restarts after another
         self.room_light  # the SH volume is per-scene work too
@@ -451,65 +453,20 @@ class Engine:
             R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius)
         t = tick("object_light", t)
 
-        # ---- second order: change of patch radiance, passed on once to receiver vertices
-        dE_x = np.zeros((H * W, 3))
+        # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)
+        dE_v = None
         if p.second_order:
-            dB = dB_shadow + pm.albedo * R_cen
-            nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
-            dE_v = pre.G_v[:, nz].astype(np.float64) @ dB[nz]
+            more = None
             if sun_loss is not None:  # sun: the sunlit patch light the object blocks (the room's main
                 # source) and the sunlit object's own light are first-bounce changes: passed on for every
                 # bounce the camera sees, not once
                 more = self._sun_more_bounces(pm.albedo * (R_cen - sun_loss_c))
-                dE_v += pre.G_v @ more.astype(np.float32)
-            rp = self.recv_pix
-            dE_x[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], dE_v[self.pix_rows[rp]])
+            dE_v = self.compose.second_order(dB_shadow + pm.albedo * R_cen, more)
         t = tick("second_order", t)
 
-        # ---- compose
-        L_b, E_x, rho = self.L_b, self.E_x, self.rho_x
-        add = rho * (R_pix + dE_x)  # light gained (object reflection) or lost second-hand
-        resp = scene.response
-        if p.mode == "hdr":
-            shadow = np.zeros_like(L_b)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                frac = np.where(E_x[pix_sel] > 0, np.clip(O_pix / E_x[pix_sel], 0.0, 1.0), 0.0)
-            frac_fill = self._fill(pix_sel, frac, fill_sel)
-            shadow[pix_sel] = L_b[pix_sel] * frac
-            shadow[fill_sel] = L_b[fill_sel] * frac_fill
-            if sun_loss is not None:  # sun: its occluded share of the (model, where clipped) radiance
-                sp = self.sun_pix
-                shadow[sp] += L_b[sp] * np.clip(sun_loss / np.maximum(E_x[sp], 1e-12), 0.0, 1.0)
-            room = np.maximum(L_b - shadow + add, 0.0)
-            # the response only where the room changed (the rest of the frame is T(L_b))
-            changed = np.flatnonzero((shadow != 0).any(1) | (add != 0).any(1))
-            room_levels = self.L_b_levels.copy()
-            room_levels[changed] = resp.to_levels(room[changed])
-        else:
-            levels = scene.photo.reshape(-1, 3).astype(np.float64)
-            levels[pix_sel] -= O_pix
-            levels[fill_sel] -= self._fill(pix_sel, O_pix, fill_sel)
-            if sun_loss is not None:  # sun: levels lost from its occluded share
-                sp = self.sun_pix
-                share = np.clip(sun_loss / np.maximum(E_x[sp], 1e-12), 0.0, 1.0)
-                levels[sp] += resp.to_levels(L_b[sp] * (1 - share)) - resp.to_levels(L_b[sp])
-            extra = np.abs(add).sum(1) > 0
-            levels[extra] += resp.to_levels(np.maximum(L_b[extra] + add[extra], 0.0)) - resp.to_levels(L_b[extra])
-            room_levels = np.clip(levels, 0, 255)
-            room = resp.to_radiance(room_levels)
-        c = cov.reshape(-1, 1)
-        obj_rad = obj_rad.reshape(-1, 3)
-        on = np.flatnonzero(c[:, 0] > 0)
-        radiance = (1 - c) * room + c * obj_rad
-        levels = (1 - c) * room_levels
-        obj_levels = resp.to_levels(obj_rad[on])
-        levels[on] += c[on] * obj_levels
-        # where the object or the room behind it clips (a sunlit face, a sunlit floor) a level is only
-        # a floor: the camera averages radiance over the pixel before its response, so mix the edge
-        # pixels in radiance there
-        edge = on[((obj_levels >= 255) | (room_levels[on] >= 255)).any(1) & (c[on, 0] < 1)]
-        levels[edge] = resp.to_levels(radiance[edge])
-        pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8).reshape(H, W, 3)
+        # ---- compose (app.stages.compose): HDR or LDR, on the pixels that changed
+        radiance, pixels, room = self.compose.frame(p.mode, pix_sel, O_pix, fill_sel, self._fill, R_pix, dE_v, cov,
+                                                    obj_rad, self.sun_pix, sun_loss)
         tick("compose", t)
         frame_s = time.perf_counter() - t_all
         if n_src:
@@ -526,8 +483,7 @@ class Engine:
         if calibration_s:
             stats["fps_calibration_s"] = calibration_s
         self._last_shading = (shade_mesh, self._last_L_vert, obj.albedo) if hits.hit.any() else None
-        return Frame(radiance.reshape(H, W, 3).astype(np.float32), pixels, stats,
-                     room.reshape(H, W, 3).astype(np.float32), cov.astype(np.float32))
+        return Frame(radiance, pixels, stats, room, cov.astype(np.float32))
 
     # ------------------------------------------------------------------ pieces
     def _object_shape(self, obj: SceneObject):
@@ -952,23 +908,17 @@ class Engine:
         return max(1, min(n, p.passes or n) - sun)
 
     def _ldr_weights(self, W_v: np.ndarray) -> np.ndarray:
-        """Intensity transfers S_ij (Vr,S,3) in levels at receiver vertices (fig. 13)."""
-        pre = self.pre
-        rp = np.flatnonzero(self.recv_pix)
-        rows, bary = self.pix_rows[rp], pre.pix_bary[rp].astype(np.float64)
-        n = len(pre.recv_vert)
-        num = np.zeros((n, 3))
-        den = np.zeros(n)
-        for k in range(3):
-            np.add.at(num, rows[:, k], bary[:, k:k + 1] * self.rho_x[rp])
-            np.add.at(den, rows[:, k], bary[:, k])
-        albedo_v = np.zeros((n, 3))
-        vert_patch = np.zeros(len(pre.patches.vert_pos), np.int64)
-        vert_patch[pre.patches.tris.ravel()] = np.repeat(pre.patches.tri_patch, 3)
-        albedo_v[:] = pre.patches.albedo[vert_patch[pre.recv_vert]]
-        rho_v = np.where(den[:, None] > 0, num / np.maximum(den, 1e-12)[:, None], albedo_v)
-        L_i = rho_v * self.E_v
-        return intensity_transfers(L_i, rho_v[:, None, :] * W_v, self.scene.response.to_levels)
+        """Intensity transfers S_ij (Vr,S,3) in levels at receiver vertices (fig. 13; app.stages.compose)."""
+        return self.compose.ldr_weights(W_v)
+
+    def _compose_stage(self) -> ComposeStage:
+        """The compose stage over this scene's per-pixel arrays (after _setup: the sun's changes are in)."""
+        pre, cam = self.pre, self.scene.camera
+        return ComposeStage(L_b=self.L_b, L_b_levels=self.L_b_levels, E_x=self.E_x, rho_x=self.rho_x,
+                            recv_pix=self.recv_pix, pix_rows=self.pix_rows, pix_bary=pre.pix_bary,
+                            photo=self.scene.photo, response=self.scene.response, G_v=pre.G_v, E_v=self.E_v,
+                            recv_vert=pre.recv_vert, patches=pre.patches, shape=(cam.height, cam.width),
+                            device=self.device)
 
 
 @dataclass

@@ -44,6 +44,11 @@ class CameraResponse:
             self._xs.append(x)
             self._ys.append(y)
 
+    def breakpoints(self) -> tuple[np.ndarray, np.ndarray]:
+        """(xs, ys), each (3, 512): the merged, sorted samples f interpolates piecewise-linearly
+        per channel (f: np.interp(x, xs[c], ys[c]); f_inv: np.interp(y, ys[c], xs[c]))."""
+        return np.stack(self._xs), np.stack(self._ys)
+
     def f(self, x: np.ndarray) -> np.ndarray:
         """Response on exposure-scaled radiance X (..., 3) -> [0,1] (float, not quantised)."""
         x = np.clip(np.asarray(x, np.float64), 0.0, 1.0)

@@ -49,3 +49,11 @@ def own_room_cache(tmp_path_factory) -> Path:
     """One precompute cache for the own-room tests: the same user files give the same room
     folder (content-hashed), so the walkthrough's composite reuses test_own_room's precompute."""
     return tmp_path_factory.mktemp("own_room_cache")
+
+
+@pytest.fixture(scope="session")
+def shared_scenes_cache(tmp_path_factory) -> Path:
+    """One precompute cache for the shared benchmark scenes over the session (content-hashed, so
+    every test that composites window_room or lamps_room with default parameters pays its
+    precompute once)."""
+    return tmp_path_factory.mktemp("shared_scenes_cache")

@@ -1,0 +1,142 @@
+"""The compose stage (app.stages.compose, kernels.compose) against the engine's numpy form it replaced,
+on a synthetic frame with every case: shadows on listed and filled pixels, non-receiver pixels, the
+object light in its three forms, the sun's loss, partial coverage, and clipping on either side."""
+import numpy as np
+import pytest
+import warp as wp
+
+from app.stages.compose import ComposeStage, compose_reference
+from kernels.compose import GRID_CELLS, lookup, pack_response
+from lighting.photolight import srgb_response
+
+H, W, VR, P = 24, 32, 40, 12
+
+
+def _fill(known, values, missing):
+    """Any fill works for the comparison: the mean of the known values, scaled per pixel."""
+    return np.outer(1.0 + 0.01 * (missing % 7), values.mean(0)) if len(missing) else np.zeros((0, 3))
+
+
+def _reference(mode, scene, pix_sel, O_pix, fill_sel, R_pix, dE_v, cov, obj_rad, sun_pix, sun_loss):
+    sc = scene
+    out = compose_reference(mode, sc["L_b"], sc["L_b_levels"], sc["E_x"], sc["rho_x"], sc["recv_pix"], sc["pix_rows"],
+                            sc["pix_bary"], sc["photo"], sc["response"], pix_sel, O_pix, fill_sel, _fill, R_pix, dE_v,
+                            cov, obj_rad, sun_pix, sun_loss)
+    return tuple(a.reshape(H, W, 3) for a in out)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    rng = np.random.default_rng(7)
+    resp = srgb_response(exposure_time=0.7)
+    n = H * W
+    photo = rng.integers(0, 256, (H, W, 3)).astype(np.uint8)
+    photo.reshape(-1, 3)[rng.random(n) < 0.05] = 255  # clipped pixels
+    L_b = resp.to_radiance(photo).reshape(-1, 3)
+    recv_pix = rng.random(n) < 0.8
+    pix_rows = rng.integers(0, VR, (n, 3))
+    pix_rows[rng.random(n) < 0.05, 1] = -1  # no vertex there: never a receiver pixel
+    recv_pix &= pix_rows.min(1) >= 0
+    bary = rng.random((n, 3)).astype(np.float32)
+    bary /= bary.sum(1, keepdims=True)
+    E_x = np.where(recv_pix[:, None], rng.uniform(0.2, 2.0, (n, 3)), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho_x = np.where(E_x > 0, np.minimum(L_b / E_x, 1.0), 0.0)
+    return dict(L_b=L_b, L_b_levels=resp.to_levels(L_b), E_x=E_x, rho_x=rho_x, recv_pix=recv_pix, pix_rows=pix_rows,
+                pix_bary=bary, photo=photo, response=resp, G_v=rng.random((VR, P)).astype(np.float32) * 0.05,
+                E_v=rng.random((VR, 3)), recv_vert=np.arange(VR))
+
+
+def _frame_inputs(rng, scene, mode):
+    n = H * W
+    perm = rng.permutation(np.flatnonzero(scene["recv_pix"]))
+    pix_sel, fill_sel = np.sort(perm[:300]), np.sort(perm[300:450])
+    E = scene["E_x"][pix_sel]
+    O_pix = rng.uniform(0, 1.3, (len(pix_sel), 3)) * (E if mode == "hdr" else 30.0)
+    O_pix[:20] = 0.0  # listed but unshadowed
+    R_idx = np.sort(rng.choice(np.flatnonzero(scene["recv_pix"]), 200, replace=False))
+    R_vals = rng.uniform(0, 0.05, (200, 3))
+    R_v = rng.uniform(0, 0.01, (VR, 3))
+    dB = np.zeros((P, 3))
+    dB[[1, 4, 7]] = rng.uniform(-0.3, 0.1, (3, 3))
+    cov = np.zeros((H, W))
+    cov[5:15, 8:20] = rng.choice([0.25, 0.5, 1.0], (10, 12))
+    obj = np.zeros((H, W, 3))
+    obj[5:15, 8:20] = rng.uniform(0, 1.6, (10, 12, 3))  # some clip
+    sun_pix = np.sort(rng.choice(n, 100, replace=False))
+    sun_loss = rng.uniform(0, 0.5, (100, 3))
+    return pix_sel, O_pix, fill_sel, (R_v, R_idx, R_vals), dB, cov, obj, sun_pix, sun_loss
+
+
+def _dense(scene, R):
+    R_v, idx, vals = R
+    out = np.zeros((H * W, 3))
+    rp = scene["recv_pix"]
+    out[rp] = np.einsum("nk,nkc->nc", scene["pix_bary"][rp], R_v[scene["pix_rows"][rp]])
+    out[idx] = vals
+    return out
+
+
+@pytest.mark.parametrize("mode", ["hdr", "ldr"])
+def test_compose_matches_the_numpy_reference(scene, mode, device):
+    stage = ComposeStage(**scene, patches=None, shape=(H, W), device=device)
+    rng = np.random.default_rng(1 if mode == "hdr" else 2)
+    for frame in range(4):  # the buffers are reset between frames: each frame alone must match
+        pix_sel, O_pix, fill_sel, R, dB, cov, obj, sun_pix, sun_loss = _frame_inputs(rng, scene, mode)
+        sun = frame % 2 == 1
+        dE_v = stage.second_order(dB) if frame != 2 else None
+        np.testing.assert_allclose(dE_v if dE_v is not None else 0.0,
+                                   scene["G_v"].astype(np.float64) @ dB if dE_v is not None else 0.0, rtol=1e-12)
+        dense = _dense(scene, R)
+        forms = {"dense": dense, "sparse": (R[1], dense[R[1]]), "vertex": R}
+        if frame == 2:  # the sparse form alone: no light elsewhere
+            forms = {"sparse": (R[1], R[2])}
+        for name, R_pix in forms.items():
+            if name == "sparse":
+                ref_R = np.zeros((H * W, 3))
+                ref_R[R_pix[0]] = R_pix[1]
+            else:
+                ref_R = dense
+            args = (pix_sel, O_pix, fill_sel)
+            got = stage.frame(mode, *args, _fill, R_pix, dE_v, cov, obj, sun_pix if sun else None,
+                              sun_loss if sun else None)
+            want = _reference(mode, scene, *args, ref_R, dE_v, cov, obj, sun_pix if sun else None,
+                              sun_loss if sun else None)
+            # identical 8-bit frames; radiance to float32 rounding (sums may associate differently)
+            assert np.array_equal(got[1], want[1]), (mode, frame, name, np.abs(got[1].astype(int) - want[1]).max())
+            for g, w in ((got[0], want[0]), (got[2], want[2])):
+                np.testing.assert_allclose(g, w, rtol=2e-7, atol=1e-12)
+            assert (got[1] != scene["photo"]).any()  # the frame did change something
+
+
+@wp.kernel
+def _lookup_kernel(x: wp.array(dtype=wp.float64), row: int, tab: wp.array2d(dtype=wp.float64),
+                   grid: wp.array2d(dtype=wp.int32), out: wp.array(dtype=wp.float64)):
+    i = wp.tid()
+    out[i] = lookup(x[i], row, tab, grid)
+
+
+@pytest.mark.parametrize("inverse", [False, True])
+def test_response_lookup_is_np_interp_on_hard_values(inverse, device):
+    """The kernel's table lookup equals np.interp bit for bit: at the breakpoints (ties included), one
+    ulp either side of them and of the grid's cell starts, at 0 and 1, and outside the range."""
+    from recon.response import CameraResponse
+
+    g = np.linspace(0, 1, 256)
+    # a response with a flat top (ties in ys) and a steep toe (crowded xs near 0)
+    fwd = np.tile(np.minimum(g ** (1 / 2.6) * 1.05, 1.0), (3, 1))
+    inv = np.tile(np.minimum(g, 0.95) ** 2.6, (3, 1))
+    xs, ys = CameraResponse(fwd, inv).breakpoints()
+    xp, fp = (ys, xs) if inverse else (xs, ys)
+    tab, grid = pack_response(xs, ys)
+    tab_wp = wp.array(tab, dtype=wp.float64, device=device)
+    grid_wp = wp.array(grid, dtype=wp.int32, device=device)
+    cells = np.arange(GRID_CELLS + 1) / GRID_CELLS
+    for c in range(3):
+        pts = np.concatenate([xp[c], np.nextafter(xp[c], 2), np.nextafter(xp[c], -1), cells,
+                              np.nextafter(cells, -1), np.nextafter(cells, 2), [-0.5, 1.5],
+                              np.random.default_rng(c).random(2000)])
+        out = wp.zeros(len(pts), dtype=wp.float64, device=device)
+        wp.launch(_lookup_kernel, dim=len(pts), device=device,
+                  inputs=[wp.array(pts, dtype=wp.float64, device=device), 3 * inverse + c, tab_wp, grid_wp, out])
+        assert np.array_equal(out.numpy(), np.interp(pts, xp[c], fp[c]))
