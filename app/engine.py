@@ -600,7 +600,7 @@ class Engine:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
             if self.sun_pix is not None:  # sun: the object's sunlit faces light the room too
                 tri_rad = tri_rad + obj.albedo * self.sun_light.triangle_irradiance(pv[pf], [proxy_occ])
-            R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius)
+            R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, cov.reshape(-1) >= 1.0)
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices
@@ -751,9 +751,9 @@ class Engine:
         """object_light.triangle_radiance (app/stages/object_light.py)."""
         return object_light.triangle_radiance(self, obj, pv, pf, proxy_occ, B)
 
-    def _object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius):
+    def _object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius, covered=None):
         """object_light.object_light (app/stages/object_light.py)."""
-        return object_light.object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius)
+        return object_light.object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius, covered)
 
     def _calibrate(self, obj: SceneObject, config: FrameConfig | None = None) -> float:
         """Measure the frame's fixed and per-pass cost before --fps chooses a pass count: one
