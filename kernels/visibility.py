@@ -218,3 +218,4 @@ def distance_to(occluder: Occluder, points: np.ndarray, max_dist: float = 1.0e3)
                                                wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device),
                                                float(max_dist)], outputs=[out], device=device)
     return out.numpy()
+

@@ -161,11 +161,12 @@ def object_hits(eng: "Engine", verts: np.ndarray, faces: np.ndarray, camera=None
 
 
 def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
-                           dB: np.ndarray | None = None) -> np.ndarray:
+                    dB: np.ndarray | None = None) -> np.ndarray:
     """Outgoing radiance (V,3) at the shading mesh's vertices (mesh = (verts, normals, faces)).
 
     albedo x (indirect SH9 x self-occlusion transfer + exact emitters + dB, the change of the
     room's patches in the object's shadow), plus one bounce between the object's own parts.
+    Everything is evaluated once per distinct (position, normal) of the mesh (ShapeShading.uniq).
     """
     v, n, f = mesh
     pm = eng.pre.patches
@@ -173,17 +174,19 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     # shadow vertices that lie outside it
     cached = eng._shade_occ
     own = cached[1] if cached is not None and cached[0] is v else Occluder(v, f, eng.device)
-    T, hit_face, hit_bary = eng._self_transfer(v, n, f)
-    E = np.einsum("vk,vkc->vc", T.astype(np.float64), eng.room_light.indirect_sh(v))
-    E += eng.room_light.direct(v, n, [own], n_side=1)
+    ss = shape_shading(eng, v, n, f)
+    vu, nu = v[ss.uniq], n[ss.uniq]
+    E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
+    E = eng.room_light.direct(vu, nu, [own], n_side=1)
+    sun_u = None
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
-        eng._obj_sun_vert = eng.sun_light.irradiance(v, n, [own])  # (sharpened per camera hit later)
-        E += eng._obj_sun_vert
+        sun_u = eng.sun_light.irradiance(vu, nu, [own])
+        eng._obj_sun_vert = sun_u[ss.inv]  # (sharpened per camera hit later)
         # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
         if len(ch):
-            E += transfer_matrix(v, n, pm.corners[ch], pm.normal[ch], [eng.scene_occ, own], n_side=1,
+            E += transfer_matrix(vu, nu, pm.corners[ch], pm.normal[ch], [eng.scene_occ, own], n_side=1,
                                  eps=2e-3, device=eng.device).astype(np.float64) @ eng._sun_dB[ch]
     if dB is not None:
         # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
@@ -195,22 +198,84 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         if len(changed):
             # the loss varies slowly over the object (the shadowed patches are beyond it):
             # gather it at a spread subset of vertices and interpolate by position and normal
-            sub = np.arange(0, len(v), max(1, len(v) // eng.dB_samples))
-            G = transfer_matrix(v[sub], n[sub], pm.corners[changed], pm.normal[changed],
+            sub = ss.sub
+            G = transfer_matrix(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed],
                                 [eng.scene_occ, own], n_side=1, eps=2e-3, device=eng.device)
-            E += _interpolate_on_surface(v, n, sub, G.astype(np.float64) @ dB[changed])
-    L_vert = obj.albedo * np.maximum(E, 0.0)
+            E += ss.interpolate(G.astype(np.float64) @ dB[changed])
+    # the parts object_light's triangle radiance reuses (object_light.triangle_radiance)
+    eng._obj_irradiance = (v, ss, E_ind, E.copy())
+    E += E_ind
+    if sun_u is not None:
+        E += sun_u
+    L_vert = obj.albedo * np.maximum(E, 0.0)[ss.inv]
     # vertices buried inside another part of the object (a chair's back-rest inside its seat)
     # see almost nothing; their values would darken the visible triangles they belong to
-    hit = hit_face >= 0
-    buried = hit.mean(axis=1) > 0.7
-    L_vert = _fill_from_neighbours(L_vert, f, buried)
+    L_vert = _fill_from_neighbours(L_vert, f, ss.buried)
     # one bounce between the object's own parts: occluded directions see the object's radiance
-    if hit.any():
-        bounce = np.zeros(hit_face.shape + (3,))
-        bounce[hit] = np.einsum("mk,mkc->mc", hit_bary[hit], L_vert[f[hit_face[hit]]])
-        L_vert = _fill_from_neighbours(L_vert + obj.albedo * bounce.mean(axis=1), f, buried)
+    if ss.bounce is not None:
+        L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
     return L_vert
+
+
+def _knn_weights(lu: np.ndarray, nu: np.ndarray, sub: np.ndarray, k: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """_interpolate_on_surface's neighbours (U,k) into `sub` and their weights (U,k) summing to 1."""
+    k = min(k, len(sub))
+    d, j = cKDTree(lu[sub]).query(lu, k=k)
+    d, j = d.reshape(len(lu), k), j.reshape(len(lu), k)
+    cos = np.einsum("vc,vkc->vk", nu, nu[sub][j])
+    w = np.maximum(cos, 0.0) ** 2 / (d + 1e-3)
+    w[w.sum(1) == 0, 0] = 1.0
+    return j, w / w.sum(1, keepdims=True)
+
+
+class ShapeShading:
+    """What the shading needs of one object shape, made once in its own frame (centred: a
+    translation changes none of it): the distinct (position, normal) vertices, their self-occlusion
+    transfer (kernels.shade.self_transfer), which of them are buried, the self-bounce operator, and
+    the sample vertices of the dB gather with their interpolation weights."""
+
+    def __init__(self, local: np.ndarray, n: np.ndarray, f: np.ndarray, prt_dirs: int, dB_samples: int, device):
+        import scipy.sparse as sp
+
+        key = np.round(np.concatenate([local, n], 1), 6)
+        _, self.uniq, self.inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        self.inv = self.inv.reshape(-1)
+        own = Occluder(local, f, device)
+        T, hit_face, hit_bary = self_transfer(local, n, own, prt_dirs, device=device)
+        self.transfer = (T, hit_face, hit_bary)  # at every vertex (Engine._self_transfer)
+        self.T = T[self.uniq].astype(np.float64)
+        hit = hit_face >= 0
+        self.buried = hit.mean(axis=1) > 0.7
+        self.bounce = None
+        if hit.any():
+            rows, k = np.nonzero(hit)
+            cols = f[hit_face[rows, k]]  # (m,3)
+            self.bounce = sp.csr_matrix((hit_bary[rows, k].reshape(-1).astype(np.float64) / hit.shape[1],
+                                         (np.repeat(rows, 3), cols.reshape(-1))), shape=(len(local), len(local)))
+        lu, nu = local[self.uniq], n[self.uniq]
+        self.normals = nu
+        self.key = ""  # shape_shading's key
+        # spread over the mesh in its own order (faces), as distinct vertices
+        self.sub = np.unique(self.inv[np.arange(0, len(local), max(1, len(local) // max(dB_samples, 1)))])
+        self._knn = _knn_weights(lu, nu, self.sub)
+
+    def interpolate(self, values: np.ndarray) -> np.ndarray:
+        """Values (U,C) at the distinct vertices from values (len(sub),C) at `sub` (as
+        _interpolate_on_surface: inverse distance x normal cosine squared, 6 nearest)."""
+        j, w = self._knn
+        return np.einsum("vk,vkc->vc", w, values[j])
+
+
+def shape_shading(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndarray) -> ShapeShading:
+    """ShapeShading of the mesh, kept for the last shape (the key is the centred mesh to 1 um)."""
+    local = v - v.mean(0)
+    key = hashlib.sha1(np.round(local, 6).tobytes() + np.round(n, 6).tobytes()
+                       + np.ascontiguousarray(f).tobytes() + str(eng.params.prt_dirs).encode()).hexdigest()
+    cached = eng._prt_cache
+    if cached is None or cached[0] != key:
+        eng._prt_cache = cached = (key, ShapeShading(local, n, f, eng.params.prt_dirs, eng.dB_samples, eng.device))
+        cached[1].key = key
+    return cached[1]
 
 
 def self_transfer_cached(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndarray):
@@ -219,19 +284,13 @@ def self_transfer_cached(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndar
     (the key is the centred mesh to 1 um). Centred, the float32 ray casts give the same answer at
     every position: in world coordinates 3-4 % of the rays grazing a neighbouring face flipped
     between positions 0.4 m apart, up to 13 levels on the object while dragging."""
-    local = v - v.mean(0)
-    key = hashlib.sha1(np.round(local, 6).tobytes() + np.round(n, 6).tobytes()
-                       + np.ascontiguousarray(f).tobytes() + str(eng.params.prt_dirs).encode()).hexdigest()
-    cached = eng._prt_cache
-    if cached is None or cached[0] != key:
-        own = Occluder(local, f, eng.device)
-        eng._prt_cache = cached = (key, self_transfer(local, n, own, eng.params.prt_dirs, device=eng.device))
-    return cached[1]
+    return shape_shading(eng, v, n, f).transfer
 
 
 def shade_object(eng: "Engine", obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
     """Object radiance (H,W,3) from `object_vertex_radiance`, interpolated at the camera hits."""
     eng._last_L_vert = None
+    eng._obj_irradiance = None
     if not hits.hit.any():
         return np.zeros((hits.H, hits.W, 3))
     L_vert = eng.object_vertex_radiance(obj, mesh, proxy_occ, dB)
