@@ -202,8 +202,6 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
             G = transfer_matrix(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed],
                                 [eng.scene_occ, own], n_side=1, eps=2e-3, device=eng.device)
             E += ss.interpolate(G.astype(np.float64) @ dB[changed])
-    # the parts object_light's triangle radiance reuses (object_light.triangle_radiance)
-    eng._obj_irradiance = (v, ss, E_ind, E.copy())
     E += E_ind
     if sun_u is not None:
         E += sun_u
@@ -290,7 +288,6 @@ def self_transfer_cached(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndar
 def shade_object(eng: "Engine", obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
     """Object radiance (H,W,3) from `object_vertex_radiance`, interpolated at the camera hits."""
     eng._last_L_vert = None
-    eng._obj_irradiance = None
     if not hits.hit.any():
         return np.zeros((hits.H, hits.W, 3))
     L_vert = eng.object_vertex_radiance(obj, mesh, proxy_occ, dB)
