@@ -220,7 +220,8 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
     An adaptive screen grid: at each stride of GRID_STRIDES a pixel whose cell (its four nodes)
     lies on its own quad (one plane), at least GRID_CLEARANCE cell diagonals from the object's
     proxy (the light varies on the scale of that distance) and whose nodes differ by at most
-    GRID_TOLERANCE levels takes the bilinear blend of the nodes, evaluated exactly
+    GRID_TOLERANCE levels (x (coarsest / stride)^2 at a finer stride: a blend's error falls with
+    the cell's area) takes the bilinear blend of the nodes, evaluated exactly
     (kernels.visibility.emitter_sum); the rest go on to the next, finer stride, and what is left
     after the finest is evaluated per pixel (contact, quad edges, the object's silhouette).
     """
@@ -271,7 +272,8 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
             corner = known_val[np.searchsorted(known_idx, nodes[ok])]  # (m,4,3)
             fp = p[ok]
             spread = eng.rho_x[fp] * (corner.max(1) - corner.min(1))
-            smooth = (resp.to_levels(eng.L_b[fp] + spread) - resp.to_levels(eng.L_b[fp])).max(1) <= GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2
+            gain = (resp.to_levels(eng.L_b[fp] + spread) - resp.to_levels(eng.L_b[fp])).max(1)
+            smooth = gain <= GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2
             fy = ((y - y0)[ok] / s)[:, None]
             fx = ((x - x0)[ok] / s)[:, None]
             blend = ((1 - fy) * ((1 - fx) * corner[:, 0] + fx * corner[:, 1]) +
