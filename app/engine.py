@@ -50,6 +50,8 @@ from app.stages.precompute import (CACHE_VERSION, LIGHTING, Lighting, Precompute
                                    Precomputed, hash_scene as _hash_scene)
 from app.stages.receiver_map import receiver_map, reflectance
 from kernels import runtime
+from app.stages import object_light, object_shading
+from app.stages.object_shading import ObjectHits, _fill_from_neighbours, _interpolate_on_surface  # noqa: F401 (moved)
 from kernels.raycast import cast_rays
 from kernels.shade import self_transfer
 from kernels.visibility import Occluder, emitter_sum, transfer_matrix
@@ -450,7 +452,7 @@ class Engine:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
             if self.sun_pix is not None:  # sun: the object's sunlit faces light the room too
                 tri_rad = tri_rad + obj.albedo * self.sun_light.triangle_irradiance(pv[pf], [proxy_occ])
-            R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius)
+            R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, cov.reshape(-1) >= 1.0)
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)
@@ -487,59 +489,13 @@ class Engine:
 
     # ------------------------------------------------------------------ pieces
     def _object_shape(self, obj: SceneObject):
-        """(proxy vertices, proxy faces, proxy Occluder, shading mesh (v, n, f), shading-mesh Occluder)
-        of the object at its pose. The simplification, the subdivision and both BVHs are made once
-        per object shape, kept in the shape's own frame (centred: the key is the centred mesh to
-        1 um, as _self_transfer's); a pose that only moves the object translates them and refits
-        the BVHs (Warp Mesh.refit) instead (shape_cache False: made afresh every frame)."""
-        p, v = self.params, obj.vertices
-        offset = v.mean(0)
-        key = hashlib.sha1(np.round(v - offset, 6).tobytes() + np.round(obj.normals, 6).tobytes()
-                           + np.ascontiguousarray(obj.faces).tobytes() + str(p.proxy_faces).encode()).hexdigest()
-        sh = self._shape if self.shape_cache else None
-        if sh is None or sh["key"] != key:
-            pv, pf, _ = simplify(v, obj.faces, p.proxy_faces)
-            sv, sn, sf = subdivide(v, obj.normals, obj.faces, max_edge=0.08, max_faces=3000)
-            sh = {"key": key, "offset": offset, "pv": pv - offset, "pf": pf, "sv": sv - offset, "sn": sn, "sf": sf,
-                  "proxy_occ": Occluder(pv, pf, self.device), "shade_occ": Occluder(sv, sf, self.device)}
-            if self.shape_cache:
-                self._shape = sh
-            self.n_shape_builds += 1
-        pv, sv = sh["pv"] + offset, sh["sv"] + offset
-        if not np.array_equal(offset, sh["offset"]):  # moved: translate the BVHs' points and refit
-            for occ, pts in ((sh["proxy_occ"], pv), (sh["shade_occ"], sv)):
-                if occ.mesh is not None:
-                    occ._pts.assign(pts.astype(np.float32))
-                    occ.mesh.refit()
-            sh["offset"] = offset
-        self._shade_occ = (sv, sh["shade_occ"])  # object_vertex_radiance's own-shadow mesh, this frame
-        return pv, sh["pf"], sh["proxy_occ"], (sv, sh["sn"], sh["sf"]), sh["shade_occ"]
+        """object_shading.object_shape (app/stages/object_shading.py)."""
+        return object_shading.object_shape(self, obj)
 
     def _object_hits(self, verts: np.ndarray, faces: np.ndarray, camera=None, supersample: int | None = None,
                      occluder: Occluder | None = None) -> "ObjectHits":
-        """Sub-pixel camera rays against the object mesh, depth-tested against the scene model
-        (camera: default the scene's; another one sees the same world, e.g. the full-resolution
-        photo's, app.workres)."""
-        cam = camera or self.scene.camera
-        H, W, s = cam.height, cam.width, max(1, supersample or self.params.supersample)
-        uv, z = cam.project(verts)
-        if np.any(z <= 1e-6):
-            u0, v0, u1, v1 = 0, 0, W - 1, H - 1
-        else:
-            u0, v0 = np.floor(uv.min(0) - 1).astype(int)
-            u1, v1 = np.ceil(uv.max(0) + 1).astype(int)
-            u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
-        if u0 > u1 or v0 > v1:
-            return ObjectHits(H, W, s, (0, 0, -1, -1), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0, bool))
-        offs = (np.arange(s) + 0.5) / s - 0.5
-        uu = (np.arange(u0, u1 + 1)[:, None] + offs).reshape(-1)
-        vv = (np.arange(v0, v1 + 1)[:, None] + offs).reshape(-1)
-        U, V = np.meshgrid(uu, vv)
-        d = np.stack([U, V, np.ones_like(U)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        tri, bary, depth = cast_rays(occluder or Occluder(verts, faces, self.device), cam.centre, d)
-        _, _, scene_depth = cast_rays(self.cam_occ, cam.centre, d)
-        return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, (tri >= 0) & (depth < scene_depth))
+        """object_shading.object_hits (app/stages/object_shading.py)."""
+        return object_shading.object_hits(self, verts, faces, camera=camera, supersample=supersample, occluder=occluder)
 
     @property
     def room_light(self) -> RoomLight:
@@ -556,111 +512,20 @@ class Engine:
 
     def object_vertex_radiance(self, obj: SceneObject, mesh, proxy_occ: Occluder,
                                dB: np.ndarray | None = None) -> np.ndarray:
-        """Outgoing radiance (V,3) at the shading mesh's vertices (mesh = (verts, normals, faces)).
-
-        albedo x (indirect SH9 x self-occlusion transfer + exact emitters + dB, the change of the
-        room's patches in the object's shadow), plus one bounce between the object's own parts.
-        """
-        v, n, f = mesh
-        pm = self.pre.patches
-        # the shading mesh shadows itself: the coarse proxy would cut through its surface and
-        # shadow vertices that lie outside it
-        cached = self._shade_occ
-        own = cached[1] if cached is not None and cached[0] is v else Occluder(v, f, self.device)
-        T, hit_face, hit_bary = self._self_transfer(v, n, f)
-        E = np.einsum("vk,vkc->vc", T.astype(np.float64), self.room_light.indirect_sh(v))
-        E += self.room_light.direct(v, n, [own], n_side=1)
-        if getattr(self, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
-            self._obj_sun_vert = self.sun_light.irradiance(v, n, [own])  # (sharpened per camera hit later)
-            E += self._obj_sun_vert
-            # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
-            # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
-            ch = np.flatnonzero(np.abs(self._sun_dB).sum(1) > 0) if self._sun_dB is not None else []
-            if len(ch):
-                E += transfer_matrix(v, n, pm.corners[ch], pm.normal[ch], [self.scene_occ, own], n_side=1,
-                                     eps=2e-3, device=self.device).astype(np.float64) @ self._sun_dB[ch]
-        if dB is not None:
-            # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
-            loss = np.abs(luminance(dB)) * pm.area
-            order = np.argsort(-loss)
-            order = order[loss[order] > 0]
-            keep = int(np.searchsorted(np.cumsum(loss[order]), 0.95 * loss.sum())) + 1 if len(order) else 0
-            changed = order[:keep]
-            if len(changed):
-                # the loss varies slowly over the object (the shadowed patches are beyond it):
-                # gather it at a spread subset of vertices and interpolate by position and normal
-                sub = np.arange(0, len(v), max(1, len(v) // self.dB_samples))
-                G = transfer_matrix(v[sub], n[sub], pm.corners[changed], pm.normal[changed],
-                                    [self.scene_occ, own], n_side=1, eps=2e-3, device=self.device)
-                E += _interpolate_on_surface(v, n, sub, G.astype(np.float64) @ dB[changed])
-        L_vert = obj.albedo * np.maximum(E, 0.0)
-        # vertices buried inside another part of the object (a chair's back-rest inside its seat)
-        # see almost nothing; their values would darken the visible triangles they belong to
-        hit = hit_face >= 0
-        buried = hit.mean(axis=1) > 0.7
-        L_vert = _fill_from_neighbours(L_vert, f, buried)
-        # one bounce between the object's own parts: occluded directions see the object's radiance
-        if hit.any():
-            bounce = np.zeros(hit_face.shape + (3,))
-            bounce[hit] = np.einsum("mk,mkc->mc", hit_bary[hit], L_vert[f[hit_face[hit]]])
-            L_vert = _fill_from_neighbours(L_vert + obj.albedo * bounce.mean(axis=1), f, buried)
-        return L_vert
+        """object_shading.vertex_radiance (app/stages/object_shading.py)."""
+        return object_shading.vertex_radiance(self, obj, mesh, proxy_occ, dB)
 
     def _self_transfer(self, v: np.ndarray, n: np.ndarray, f: np.ndarray):
-        """kernels.shade.self_transfer in the object's own frame (centred), kept for the last mesh
-        shape: self-occlusion does not change when the object slides, only when it turns or changes
-        (the key is the centred mesh to 1 um). Centred, the float32 ray casts give the same answer at
-        every position: in world coordinates 3-4 % of the rays grazing a neighbouring face flipped
-        between positions 0.4 m apart, up to 13 levels on the object while dragging."""
-        local = v - v.mean(0)
-        key = hashlib.sha1(np.round(local, 6).tobytes() + np.round(n, 6).tobytes()
-                           + np.ascontiguousarray(f).tobytes() + str(self.params.prt_dirs).encode()).hexdigest()
-        cached = self._prt_cache
-        if cached is None or cached[0] != key:
-            own = Occluder(local, f, self.device)
-            self._prt_cache = cached = (key, self_transfer(local, n, own, self.params.prt_dirs, device=self.device))
-        return cached[1]
+        """object_shading.self_transfer_cached (app/stages/object_shading.py)."""
+        return object_shading.self_transfer_cached(self, v, n, f)
 
     def _shade_object(self, obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
-        """Object radiance (H,W,3) from `object_vertex_radiance`, interpolated at the camera hits."""
-        self._last_L_vert = None
-        if not hits.hit.any():
-            return np.zeros((hits.H, hits.W, 3))
-        L_vert = self.object_vertex_radiance(obj, mesh, proxy_occ, dB)
-        self._last_L_vert = L_vert
-        v, n, f = mesh
-        h = hits.hit
-        sub = np.zeros((len(h), 3))
-        corners = f[hits.tri[h]]
-        sub[h] = np.einsum("nk,nkc->nc", hits.bary[h], L_vert[corners])
-        if getattr(self, "sun_pix", None) is not None:  # sun: its direct light per camera hit (a sharp edge
-            pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])  # across a face, not a vertex blend)
-            nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
-            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-            own = self._shade_occ[1] if self._shade_occ is not None and self._shade_occ[0] is v else \
-                Occluder(v, f, self.device)
-            E_hit = self.sun_light.irradiance(pos, nrm, [own])
-            E_interp = np.einsum("nk,nkc->nc", hits.bary[h], self._obj_sun_vert[corners])
-            sub[h] = np.maximum(sub[h] + obj.albedo * (E_hit - E_interp), 0.0)
-        if self.params.specular > 0:
-            pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])
-            nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
-            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-            view = pos - self.scene.camera.centre
-            view /= np.linalg.norm(view, axis=1, keepdims=True)
-            env = self.specular_map(0.5 * (v.min(0) + v.max(0)))
-            sub[h] += self.params.specular * env.lookup(reflect(view, nrm))
-        return hits.average(sub)
+        """object_shading.shade_object (app/stages/object_shading.py)."""
+        return object_shading.shade_object(self, obj, mesh, hits, proxy_occ, dB=dB)
 
     def specular_map(self, centre: np.ndarray) -> CubeMap:
-        """The room's radiance seen from `centre` (the object's centre, object absent), pre-filtered
-        with the Phong lobe of `shininess` (seed sec. 5, fig. 9)."""
-        p, pm = self.params, self.pre.patches
-        res_in = max(2 * p.envmap_res, int(np.ceil(2 * np.sqrt(p.shininess))))
-        dirs, _ = cube_directions(res_in)
-        tri, _, _ = cast_rays(self.cam_occ, np.asarray(centre, np.float64), dirs)
-        L = np.where((tri >= 0)[:, None], self.B_src[pm.tri_patch[np.maximum(tri, 0)]], 0.0)
-        return phong_prefilter(L, res_in, p.shininess, p.envmap_res)
+        """object_shading.specular_map (app/stages/object_shading.py)."""
+        return object_shading.specular_map(self, centre)
 
     def _fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray) -> np.ndarray:
         """Values (len(missing),3) at pixels `missing`: mean of the known pixels in their 3x3
@@ -669,53 +534,16 @@ class Engine:
 
     def _object_irradiance(self, pts: np.ndarray, nrm: np.ndarray, proxy_occ: Occluder, B: np.ndarray
                            ) -> np.ndarray:
-        """Irradiance/pi (N,3) at object surface points from patches of radiance B (P,3), with
-        self-occlusion."""
-        pm = self.pre.patches
-        G = transfer_matrix(pts, nrm, pm.corners, pm.normal, [self.scene_occ, proxy_occ], n_side=1,
-                            eps=2e-3, device=self.device)
-        return G.astype(np.float64) @ B
+        """object_light.object_irradiance (app/stages/object_light.py)."""
+        return object_light.object_irradiance(self, pts, nrm, proxy_occ, B)
 
     def _object_triangle_radiance(self, obj: SceneObject, pv, pf, proxy_occ, B: np.ndarray) -> np.ndarray:
-        """Outgoing radiance (T,3) of each proxy triangle, lit at its centroid by patches of radiance B."""
-        c = pv[pf].mean(1)
-        n = np.cross(pv[pf[:, 1]] - pv[pf[:, 0]], pv[pf[:, 2]] - pv[pf[:, 0]])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        return obj.albedo * self._object_irradiance(c, n, proxy_occ, B)
+        """object_light.triangle_radiance (app/stages/object_light.py)."""
+        return object_light.triangle_radiance(self, obj, pv, pf, proxy_occ, B)
 
-    def _object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius):
-        """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi.
-
-        Far from the object the reflected light varies slowly: it is evaluated at receiver vertices
-        and interpolated like the transfers. Within `near_factor` bounding radii of the object's
-        centre, where it changes fast (contact, under a seat), it is evaluated per pixel; there only
-        pixels whose upper bound of gain exceeds a quarter level are computed.
-        """
-        pre, pm = self.pre, self.pre.patches
-        resp = self.scene.response
-        tris = pv[pf]
-        rv = pre.recv_vert
-        R_v = emitter_sum(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, device=self.device)
-        R_pix = np.zeros((len(self.L_b), 3))
-        rp = np.flatnonzero(self.recv_pix)
-        R_pix[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], R_v[self.pix_rows[rp]])
-        dist = np.linalg.norm(self.pix_pos[rp] - centre, axis=1)
-        near = dist < self.near_factor * radius
-        rp, dist = rp[near], dist[near]
-        f_bound = np.minimum(1.0, (radius / np.maximum(dist, 1e-6)) ** 2)
-        bound = self.rho_x[rp] * tri_rad.max(0) * f_bound[:, None]
-        gain = (resp.to_levels(self.L_b[rp] + bound) - resp.to_levels(self.L_b[rp])).max(1)
-        sel = rp[gain > 0.25]
-        normals = pm.normal[self.pix_patch[sel]]
-        R_pix[sel] = emitter_sum(self.pix_pos[sel], normals, tris, tri_rad, proxy_occ, device=self.device)
-        # patch centres, for the second-order term
-        dist_c = np.linalg.norm(pm.centre - centre, axis=1)
-        reach = np.minimum(1.0, (radius / np.maximum(dist_c, 1e-6)) ** 2) * luminance(tri_rad.max(0))
-        near_c = np.flatnonzero((reach > 1e-4 * luminance(self.B_src).mean()) & ~pm.is_emitter)
-        R_cen = np.zeros((pm.n_patches, 3))
-        R_cen[near_c] = emitter_sum(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, device=self.device)
-        self._n_object_light_pixels = len(sel)
-        return R_pix, R_cen
+    def _object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius, covered=None):
+        """object_light.object_light (app/stages/object_light.py)."""
+        return object_light.object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius, covered)
 
     def _calibrate(self, obj: SceneObject, config: FrameConfig | None = None) -> float:
         """Measure the frame's fixed and per-pass cost before --fps chooses a pass count: one
@@ -919,80 +747,5 @@ class Engine:
                             photo=self.scene.photo, response=self.scene.response, G_v=pre.G_v, E_v=self.E_v,
                             recv_vert=pre.recv_vert, patches=pre.patches, shape=(cam.height, cam.width),
                             device=self.device)
-
-
-@dataclass
-class ObjectHits:
-    """Sub-pixel camera hits on the object inside the rectangle (u0, v0, u1, v1), s x s per pixel."""
-
-    H: int
-    W: int
-    s: int
-    rect: tuple[int, int, int, int]
-    tri: np.ndarray  # (n,) object triangle per sub-sample (-1 none)
-    bary: np.ndarray  # (n,3)
-    hit: np.ndarray  # (n,) bool: object seen (in front of the scene)
-
-    def average(self, sub: np.ndarray) -> np.ndarray:
-        """Mean of per-sub-sample values (n,3) over each pixel's hits -> (H,W,3)."""
-        u0, v0, u1, v1 = self.rect
-        out = np.zeros((self.H, self.W, 3))
-        if u1 < u0:
-            return out
-        hh, ww, s = v1 - v0 + 1, u1 - u0 + 1, self.s
-        hitm = self.hit.reshape(hh, s, ww, s)
-        total = (sub * self.hit[:, None]).reshape(hh, s, ww, s, 3).sum(axis=(1, 3))
-        out[v0:v1 + 1, u0:u1 + 1] = total / np.maximum(hitm.sum(axis=(1, 3)), 1)[..., None]
-        return out
-
-    def coverage(self) -> np.ndarray:
-        """Fraction (H,W) of each pixel's sub-samples that see the object."""
-        u0, v0, u1, v1 = self.rect
-        cov = np.zeros((self.H, self.W))
-        if u1 >= u0:
-            hh, ww, s = v1 - v0 + 1, u1 - u0 + 1, self.s
-            cov[v0:v1 + 1, u0:u1 + 1] = self.hit.reshape(hh, s, ww, s).mean(axis=(1, 3))
-        return cov
-
-
-def _interpolate_on_surface(v: np.ndarray, n: np.ndarray, sub: np.ndarray, values: np.ndarray, k: int = 6
-                            ) -> np.ndarray:
-    """Values (V,C) at every vertex from values (len(sub),C) at vertices `sub`: inverse-distance
-    weights over the k nearest samples, times the cosine between normals squared (so a seat's top
-    does not take the value of its underside)."""
-    if len(sub) == len(v):
-        return values
-    k = min(k, len(sub))
-    d, j = cKDTree(v[sub]).query(v, k=k)
-    d, j = d.reshape(len(v), k), j.reshape(len(v), k)
-    cos = np.einsum("vc,vkc->vk", n, n[sub][j])
-    w = np.maximum(cos, 0.0) ** 2 / (d + 1e-3)
-    w[w.sum(1) == 0, 0] = 1.0  # no sample faces the same way: take the nearest
-    return np.einsum("vk,vkc->vc", w / w.sum(1, keepdims=True), values[j])
-
-
-def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.ndarray, rounds: int = 8
-                          ) -> np.ndarray:
-    """Values (V,C) with the `missing` vertices replaced by the mean of their known mesh
-    neighbours, grown over `rounds` rings (what is still missing then gets the known mean)."""
-    if not missing.any() or missing.all():
-        return values
-    out = values.copy()
-    known = ~missing
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.concatenate([e, e[:, ::-1]])
-    for _ in range(rounds):
-        src = known[e[:, 0]] & ~known[e[:, 1]]
-        if not src.any():
-            break
-        acc = np.zeros_like(out)
-        cnt = np.zeros(len(out))
-        np.add.at(acc, e[src, 1], out[e[src, 0]])
-        np.add.at(cnt, e[src, 1], 1)
-        new = cnt > 0
-        out[new] = acc[new] / cnt[new, None]
-        known = known | new
-    out[~known] = out[known].mean(0)
-    return out
 
 

@@ -118,3 +118,4 @@ def point_to_polygon(points: np.ndarray, normals: np.ndarray, polygons: np.ndarr
                       wp.array(polygons, dtype=wp.vec3d, device=device), polygons.shape[1]],
               outputs=[out], device=device)
     return out.numpy()
+

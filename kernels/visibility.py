@@ -192,3 +192,30 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
     if n <= split or not wp.get_device(device).is_cpu:
         return run(0, n)
     return np.concatenate(runtime.run_parallel([lambda: run(0, n // 2), lambda: run(n // 2, n)]))
+
+
+@wp.kernel
+def _distance_kernel(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), max_dist: float,
+                     out: wp.array(dtype=wp.float32)):
+    i = wp.tid()
+    p = points[i]
+    q = wp.mesh_query_point_no_sign(mesh, p, max_dist)
+    if q.result:
+        out[i] = wp.length(wp.mesh_eval_position(mesh, q.face, q.u, q.v) - p)
+    else:
+        out[i] = max_dist
+
+
+def distance_to(occluder: Occluder, points: np.ndarray, max_dist: float = 1.0e3) -> np.ndarray:
+    """(N,) float32 distance from points (N,3) to the nearest triangle of the occluder mesh (m;
+    `max_dist` where none lies within it or the mesh is empty)."""
+    n = len(points)
+    if n == 0 or occluder.mesh is None:
+        return np.full(n, max_dist, np.float32)
+    device = occluder.device
+    out = wp.empty(n, dtype=wp.float32, device=device)
+    wp.launch(_distance_kernel, dim=n, inputs=[wp.uint64(occluder.id),
+                                               wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device),
+                                               float(max_dist)], outputs=[out], device=device)
+    return out.numpy()
+

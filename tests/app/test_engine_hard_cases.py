@@ -177,11 +177,11 @@ def test_black_object_reflects_nothing(scene, cache_dir):
 def test_self_transfer_is_reused_while_the_object_slides(scene, engine, monkeypatch):
     # the object's self-occlusion does not change under translation: computed once along a slide,
     # again when it turns; the reused frame matches one computed afresh
-    import app.engine
+    import app.stages.object_shading as stage
 
     calls = []
-    real = app.engine.self_transfer
-    monkeypatch.setattr(app.engine, "self_transfer", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = stage.self_transfer
+    monkeypatch.setattr(stage, "self_transfer", lambda *a, **k: calls.append(1) or real(*a, **k))
     engine._prt_cache = None
     engine.render(scene.obj)
     moved = _translated(scene.obj, [0.37, 0.0, -0.21])

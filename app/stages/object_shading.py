@@ -1,0 +1,328 @@
+"""Object shading stage: the object's shape (proxy, shading mesh, BVHs kept per shape), its pixels
+(camera hits depth-tested against the scene) and its outgoing radiance (DESIGN "Per-frame stages").
+
+Radiance at the shading mesh's vertices = albedo x (indirect SH9 volume x the object's own
+self-occlusion transfer (precomputed radiance transfer, kept per shape in the object's frame)
++ the emitters with visibility + the change of the room's patches in the object's shadow), plus
+one bounce between the object's own parts; interpolated at the camera hits. Units: radiance.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from kernels.raycast import cast_rays
+from kernels.shade import self_transfer
+from kernels.visibility import Occluder, transfer_matrix
+from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
+from recon.proxy import simplify, subdivide
+from recon.response import luminance
+from recon.scene import SceneObject
+
+if TYPE_CHECKING:
+    from app.engine import Engine
+
+
+@dataclass
+class ObjectHits:
+    """Sub-pixel camera hits on the object inside the rectangle (u0, v0, u1, v1), s x s per pixel."""
+
+    H: int
+    W: int
+    s: int
+    rect: tuple[int, int, int, int]
+    tri: np.ndarray  # (n,) object triangle per sub-sample (-1 none)
+    bary: np.ndarray  # (n,3)
+    hit: np.ndarray  # (n,) bool: object seen (in front of the scene)
+
+    def average(self, sub: np.ndarray) -> np.ndarray:
+        """Mean of per-sub-sample values (n,3) over each pixel's hits -> (H,W,3)."""
+        u0, v0, u1, v1 = self.rect
+        out = np.zeros((self.H, self.W, 3))
+        if u1 < u0:
+            return out
+        hh, ww, s = v1 - v0 + 1, u1 - u0 + 1, self.s
+        hitm = self.hit.reshape(hh, s, ww, s)
+        total = (sub * self.hit[:, None]).reshape(hh, s, ww, s, 3).sum(axis=(1, 3))
+        out[v0:v1 + 1, u0:u1 + 1] = total / np.maximum(hitm.sum(axis=(1, 3)), 1)[..., None]
+        return out
+
+    def coverage(self) -> np.ndarray:
+        """Fraction (H,W) of each pixel's sub-samples that see the object."""
+        u0, v0, u1, v1 = self.rect
+        cov = np.zeros((self.H, self.W))
+        if u1 >= u0:
+            hh, ww, s = v1 - v0 + 1, u1 - u0 + 1, self.s
+            cov[v0:v1 + 1, u0:u1 + 1] = self.hit.reshape(hh, s, ww, s).mean(axis=(1, 3))
+        return cov
+
+
+
+def _interpolate_on_surface(v: np.ndarray, n: np.ndarray, sub: np.ndarray, values: np.ndarray, k: int = 6
+                            ) -> np.ndarray:
+    """Values (V,C) at every vertex from values (len(sub),C) at vertices `sub`: inverse-distance
+    weights over the k nearest samples, times the cosine between normals squared (so a seat's top
+    does not take the value of its underside)."""
+    if len(sub) == len(v):
+        return values
+    k = min(k, len(sub))
+    d, j = cKDTree(v[sub]).query(v, k=k)
+    d, j = d.reshape(len(v), k), j.reshape(len(v), k)
+    cos = np.einsum("vc,vkc->vk", n, n[sub][j])
+    w = np.maximum(cos, 0.0) ** 2 / (d + 1e-3)
+    w[w.sum(1) == 0, 0] = 1.0  # no sample faces the same way: take the nearest
+    return np.einsum("vk,vkc->vc", w / w.sum(1, keepdims=True), values[j])
+
+
+def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.ndarray, rounds: int = 8
+                          ) -> np.ndarray:
+    """Values (V,C) with the `missing` vertices replaced by the mean of their known mesh
+    neighbours, grown over `rounds` rings (what is still missing then gets the known mean)."""
+    if not missing.any() or missing.all():
+        return values
+    out = values.copy()
+    known = ~missing
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.concatenate([e, e[:, ::-1]])
+    for _ in range(rounds):
+        src = known[e[:, 0]] & ~known[e[:, 1]]
+        if not src.any():
+            break
+        acc = np.zeros_like(out)
+        cnt = np.zeros(len(out))
+        np.add.at(acc, e[src, 1], out[e[src, 0]])
+        np.add.at(cnt, e[src, 1], 1)
+        new = cnt > 0
+        out[new] = acc[new] / cnt[new, None]
+        known = known | new
+    out[~known] = out[known].mean(0)
+    return out
+
+
+def object_shape(eng: "Engine", obj: SceneObject):
+    """(proxy vertices, proxy faces, proxy Occluder, shading mesh (v, n, f), shading-mesh Occluder)
+    of the object at its pose. The simplification, the subdivision and both BVHs are made once
+    per object shape, kept in the shape's own frame (centred: the key is the centred mesh to
+    1 um, as _self_transfer's); a pose that only moves the object translates them and refits
+    the BVHs (Warp Mesh.refit) instead (shape_cache False: made afresh every frame)."""
+    p, v = eng.params, obj.vertices
+    offset = v.mean(0)
+    key = hashlib.sha1(np.round(v - offset, 6).tobytes() + np.round(obj.normals, 6).tobytes()
+                       + np.ascontiguousarray(obj.faces).tobytes() + str(p.proxy_faces).encode()).hexdigest()
+    sh = eng._shape if eng.shape_cache else None
+    if sh is None or sh["key"] != key:
+        pv, pf, _ = simplify(v, obj.faces, p.proxy_faces)
+        sv, sn, sf = subdivide(v, obj.normals, obj.faces, max_edge=0.08, max_faces=3000)
+        sh = {"key": key, "offset": offset, "pv": pv - offset, "pf": pf, "sv": sv - offset, "sn": sn, "sf": sf,
+              "proxy_occ": Occluder(pv, pf, eng.device), "shade_occ": Occluder(sv, sf, eng.device)}
+        if eng.shape_cache:
+            eng._shape = sh
+        eng.n_shape_builds += 1
+    pv, sv = sh["pv"] + offset, sh["sv"] + offset
+    if not np.array_equal(offset, sh["offset"]):  # moved: translate the BVHs' points and refit
+        for occ, pts in ((sh["proxy_occ"], pv), (sh["shade_occ"], sv)):
+            if occ.mesh is not None:
+                occ._pts.assign(pts.astype(np.float32))
+                occ.mesh.refit()
+        sh["offset"] = offset
+    eng._shade_occ = (sv, sh["shade_occ"])  # object_vertex_radiance's own-shadow mesh, this frame
+    return pv, sh["pf"], sh["proxy_occ"], (sv, sh["sn"], sh["sf"]), sh["shade_occ"]
+
+
+def object_hits(eng: "Engine", verts: np.ndarray, faces: np.ndarray, camera=None, supersample: int | None = None,
+                 occluder: Occluder | None = None) -> "ObjectHits":
+    """Sub-pixel camera rays against the object mesh, depth-tested against the scene model
+    (camera: default the scene's; another one sees the same world, e.g. the full-resolution
+    photo's, app.workres)."""
+    cam = camera or eng.scene.camera
+    H, W, s = cam.height, cam.width, max(1, supersample or eng.params.supersample)
+    uv, z = cam.project(verts)
+    if np.any(z <= 1e-6):
+        u0, v0, u1, v1 = 0, 0, W - 1, H - 1
+    else:
+        u0, v0 = np.floor(uv.min(0) - 1).astype(int)
+        u1, v1 = np.ceil(uv.max(0) + 1).astype(int)
+        u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
+    if u0 > u1 or v0 > v1:
+        return ObjectHits(H, W, s, (0, 0, -1, -1), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0, bool))
+    offs = (np.arange(s) + 0.5) / s - 0.5
+    uu = (np.arange(u0, u1 + 1)[:, None] + offs).reshape(-1)
+    vv = (np.arange(v0, v1 + 1)[:, None] + offs).reshape(-1)
+    U, V = np.meshgrid(uu, vv)
+    d = np.stack([U, V, np.ones_like(U)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    tri, bary, depth = cast_rays(occluder or Occluder(verts, faces, eng.device), cam.centre, d)
+    _, _, scene_depth = cast_rays(eng.cam_occ, cam.centre, d)
+    return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, (tri >= 0) & (depth < scene_depth))
+
+
+def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
+                    dB: np.ndarray | None = None) -> np.ndarray:
+    """Outgoing radiance (V,3) at the shading mesh's vertices (mesh = (verts, normals, faces)).
+
+    albedo x (indirect SH9 x self-occlusion transfer + exact emitters + dB, the change of the
+    room's patches in the object's shadow), plus one bounce between the object's own parts.
+    Everything is evaluated once per distinct (position, normal) of the mesh (ShapeShading.uniq).
+    """
+    v, n, f = mesh
+    pm = eng.pre.patches
+    # the shading mesh shadows itself: the coarse proxy would cut through its surface and
+    # shadow vertices that lie outside it
+    cached = eng._shade_occ
+    own = cached[1] if cached is not None and cached[0] is v else Occluder(v, f, eng.device)
+    ss = shape_shading(eng, v, n, f)
+    vu, nu = v[ss.uniq], n[ss.uniq]
+    E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
+    E = eng.room_light.direct(vu, nu, [own], n_side=1)
+    sun_u = None
+    if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
+        sun_u = eng.sun_light.irradiance(vu, nu, [own])
+        eng._obj_sun_vert = sun_u[ss.inv]  # (sharpened per camera hit later)
+        # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
+        # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
+        ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
+        if len(ch):
+            E += transfer_matrix(vu, nu, pm.corners[ch], pm.normal[ch], [eng.scene_occ, own], n_side=1,
+                                 eps=2e-3, device=eng.device).astype(np.float64) @ eng._sun_dB[ch]
+    if dB is not None:
+        # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
+        loss = np.abs(luminance(dB)) * pm.area
+        order = np.argsort(-loss)
+        order = order[loss[order] > 0]
+        keep = int(np.searchsorted(np.cumsum(loss[order]), 0.95 * loss.sum())) + 1 if len(order) else 0
+        changed = order[:keep]
+        if len(changed):
+            # the loss varies slowly over the object (the shadowed patches are beyond it):
+            # gather it at a spread subset of vertices and interpolate by position and normal
+            sub = ss.sub
+            G = transfer_matrix(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed],
+                                [eng.scene_occ, own], n_side=1, eps=2e-3, device=eng.device)
+            E += ss.interpolate(G.astype(np.float64) @ dB[changed])
+    E += E_ind
+    if sun_u is not None:
+        E += sun_u
+    L_vert = obj.albedo * np.maximum(E, 0.0)[ss.inv]
+    # vertices buried inside another part of the object (a chair's back-rest inside its seat)
+    # see almost nothing; their values would darken the visible triangles they belong to
+    L_vert = _fill_from_neighbours(L_vert, f, ss.buried)
+    # one bounce between the object's own parts: occluded directions see the object's radiance
+    if ss.bounce is not None:
+        L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
+    return L_vert
+
+
+def _knn_weights(lu: np.ndarray, nu: np.ndarray, sub: np.ndarray, k: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """_interpolate_on_surface's neighbours (U,k) into `sub` and their weights (U,k) summing to 1."""
+    k = min(k, len(sub))
+    d, j = cKDTree(lu[sub]).query(lu, k=k)
+    d, j = d.reshape(len(lu), k), j.reshape(len(lu), k)
+    cos = np.einsum("vc,vkc->vk", nu, nu[sub][j])
+    w = np.maximum(cos, 0.0) ** 2 / (d + 1e-3)
+    w[w.sum(1) == 0, 0] = 1.0
+    return j, w / w.sum(1, keepdims=True)
+
+
+class ShapeShading:
+    """What the shading needs of one object shape, made once in its own frame (centred: a
+    translation changes none of it): the distinct (position, normal) vertices, their self-occlusion
+    transfer (kernels.shade.self_transfer), which of them are buried, the self-bounce operator, and
+    the sample vertices of the dB gather with their interpolation weights."""
+
+    def __init__(self, local: np.ndarray, n: np.ndarray, f: np.ndarray, prt_dirs: int, dB_samples: int, device):
+        import scipy.sparse as sp
+
+        key = np.round(np.concatenate([local, n], 1), 6)
+        _, self.uniq, self.inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        self.inv = self.inv.reshape(-1)
+        own = Occluder(local, f, device)
+        T, hit_face, hit_bary = self_transfer(local, n, own, prt_dirs, device=device)
+        self.transfer = (T, hit_face, hit_bary)  # at every vertex (Engine._self_transfer)
+        self.T = T[self.uniq].astype(np.float64)
+        hit = hit_face >= 0
+        self.buried = hit.mean(axis=1) > 0.7
+        self.bounce = None
+        if hit.any():
+            rows, k = np.nonzero(hit)
+            cols = f[hit_face[rows, k]]  # (m,3)
+            self.bounce = sp.csr_matrix((hit_bary[rows, k].reshape(-1).astype(np.float64) / hit.shape[1],
+                                         (np.repeat(rows, 3), cols.reshape(-1))), shape=(len(local), len(local)))
+        lu, nu = local[self.uniq], n[self.uniq]
+        self.normals = nu
+        self.key = ""  # shape_shading's key
+        # spread over the mesh in its own order (faces), as distinct vertices
+        self.sub = np.unique(self.inv[np.arange(0, len(local), max(1, len(local) // max(dB_samples, 1)))])
+        self._knn = _knn_weights(lu, nu, self.sub)
+
+    def interpolate(self, values: np.ndarray) -> np.ndarray:
+        """Values (U,C) at the distinct vertices from values (len(sub),C) at `sub` (as
+        _interpolate_on_surface: inverse distance x normal cosine squared, 6 nearest)."""
+        j, w = self._knn
+        return np.einsum("vk,vkc->vc", w, values[j])
+
+
+def shape_shading(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndarray) -> ShapeShading:
+    """ShapeShading of the mesh, kept for the last shape (the key is the centred mesh to 1 um)."""
+    local = v - v.mean(0)
+    key = hashlib.sha1(np.round(local, 6).tobytes() + np.round(n, 6).tobytes()
+                       + np.ascontiguousarray(f).tobytes() + str(eng.params.prt_dirs).encode()).hexdigest()
+    cached = eng._prt_cache
+    if cached is None or cached[0] != key:
+        eng._prt_cache = cached = (key, ShapeShading(local, n, f, eng.params.prt_dirs, eng.dB_samples, eng.device))
+        cached[1].key = key
+    return cached[1]
+
+
+def self_transfer_cached(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndarray):
+    """kernels.shade.self_transfer in the object's own frame (centred), kept for the last mesh
+    shape: self-occlusion does not change when the object slides, only when it turns or changes
+    (the key is the centred mesh to 1 um). Centred, the float32 ray casts give the same answer at
+    every position: in world coordinates 3-4 % of the rays grazing a neighbouring face flipped
+    between positions 0.4 m apart, up to 13 levels on the object while dragging."""
+    return shape_shading(eng, v, n, f).transfer
+
+
+def shade_object(eng: "Engine", obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
+    """Object radiance (H,W,3) from `object_vertex_radiance`, interpolated at the camera hits."""
+    eng._last_L_vert = None
+    if not hits.hit.any():
+        return np.zeros((hits.H, hits.W, 3))
+    L_vert = eng.object_vertex_radiance(obj, mesh, proxy_occ, dB)
+    eng._last_L_vert = L_vert
+    v, n, f = mesh
+    h = hits.hit
+    sub = np.zeros((len(h), 3))
+    corners = f[hits.tri[h]]
+    sub[h] = np.einsum("nk,nkc->nc", hits.bary[h], L_vert[corners])
+    if getattr(eng, "sun_pix", None) is not None:  # sun: its direct light per camera hit (a sharp edge
+        pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])  # across a face, not a vertex blend)
+        nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+        own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
+            Occluder(v, f, eng.device)
+        E_hit = eng.sun_light.irradiance(pos, nrm, [own])
+        E_interp = np.einsum("nk,nkc->nc", hits.bary[h], eng._obj_sun_vert[corners])
+        sub[h] = np.maximum(sub[h] + obj.albedo * (E_hit - E_interp), 0.0)
+    if eng.params.specular > 0:
+        pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])
+        nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+        view = pos - eng.scene.camera.centre
+        view /= np.linalg.norm(view, axis=1, keepdims=True)
+        env = eng.specular_map(0.5 * (v.min(0) + v.max(0)))
+        sub[h] += eng.params.specular * env.lookup(reflect(view, nrm))
+    return hits.average(sub)
+
+
+def specular_map(eng: "Engine", centre: np.ndarray) -> CubeMap:
+    """The room's radiance seen from `centre` (the object's centre, object absent), pre-filtered
+    with the Phong lobe of `shininess` (seed sec. 5, fig. 9)."""
+    p, pm = eng.params, eng.pre.patches
+    res_in = max(2 * p.envmap_res, int(np.ceil(2 * np.sqrt(p.shininess))))
+    dirs, _ = cube_directions(res_in)
+    tri, _, _ = cast_rays(eng.cam_occ, np.asarray(centre, np.float64), dirs)
+    L = np.where((tri >= 0)[:, None], eng.B_src[pm.tri_patch[np.maximum(tri, 0)]], 0.0)
+    return phong_prefilter(L, res_in, p.shininess, p.envmap_res)
