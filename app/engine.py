@@ -596,9 +596,10 @@ class Engine:
         R_cen = np.zeros((pm.n_patches, 3))
         if p.object_light:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
-            if self.sun_pix is not None:  # sun: the object's sunlit faces light the room too
-                tri_rad = tri_rad + obj.albedo * self.sun_light.triangle_irradiance(pv[pf], [proxy_occ])
-            R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius)
+            pv_l, pf_l = pv, pf
+            if self.sun_pix is not None:  # sun: the object's sunlit parts light the room too (small pieces)
+                pv_l, pf_l, tri_rad = self._sun_object_emitters(pv, pf, tri_rad, obj.albedo, proxy_occ, radius)
+            R_pix, R_cen = self._object_light(pv_l, pf_l, tri_rad, proxy_occ, centre, radius)
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices
@@ -1087,6 +1088,18 @@ class Engine:
         loss_c = np.zeros((pm.n_patches, 3))
         loss_c[self.sun_c_patch] = (self.sun_c_vis * occ_c).mean(1)[:, None] * (self.scene.sun.irradiance / np.pi)
         return occ_pix[:, None] * self.sun_E, loss_c
+
+    def _sun_object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
+                             proxy_occ: Occluder, radius: float):
+        """The proxy (pv, pf) with its room-lit radiance tri_rad (T,3), plus its sunlit parts as small
+        emitting pieces (lighting.sun.SunLight.sunlit_elements, pieces of radius/8 m): (vertices,
+        faces, radiance) for the object-light stage."""
+        sub, E = self.sun_light.sunlit_elements(pv[pf], [proxy_occ], size=radius / 8.0)
+        if len(sub) == 0:
+            return pv, pf, tri_rad
+        v = np.concatenate([pv, sub.reshape(-1, 3)])
+        f = np.concatenate([pf, len(pv) + np.arange(3 * len(sub)).reshape(-1, 3)])
+        return v, f, np.concatenate([tri_rad, albedo * E])
 
     def _sun_more_bounces(self, dB1: np.ndarray) -> np.ndarray:
         """The change of patch radiance dB1 (P,3) (first bounce: sun a patch no longer reflects, or light
