@@ -57,6 +57,7 @@ from lighting.radiosity import gather
 from lighting.sources import select_sources
 from lighting.sun import SunLight, estimate_sun, gather_with_sun, openings, surface_albedo
 from kernels.sunshadow import SunShadowMap
+from app.stages.sun import SunStage
 from lighting.transfer import intensity_transfers
 from recon.io import write_npz
 from recon.patches import PatchMesh, build_patches
@@ -589,6 +590,9 @@ class Engine:
         obj_rad = self._shade_object(obj, shade_mesh, hits, proxy_occ, dB_shadow)
         if sun_loss is not None:
             dB_shadow = dB_shadow + self._sun_dB
+            if self._last_L_vert is not None:  # sun: the outline where sunlight clips, sampled finely
+                self.sun_stage.refine_clipped_edges(cam, self.cam_occ, shade_mesh, shade_occ, self._last_L_vert,
+                                                    self._obj_sun_vert, obj.albedo, cov, obj_rad, self.sun_photo_clip)
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres
@@ -1032,6 +1036,9 @@ class Engine:
         self.sun_c_vis = self.sun_light.visibility(pts, nrm_c).reshape(len(lit_c), len(fu))
         self.sun_c_pts = pts + nrm_c * 1e-3
         self.sun_map = SunShadowMap(self.scene.sun.direction, self.scene.sun.half_angle, device=self.device)
+        self.sun_photo_clip = (self.scene.photo.reshape(-1, 3) >= 254).any(1)
+        self.sun_stage = SunStage(self.sun_light, self.sun_pts, self.sun_fp, self.sun_E, self.sun_c_patch,
+                                  self.sun_c_pts, self.sun_c_vis, pm.n_patches, self.device)
 
     def _sun_captured(self) -> None:
         """Captured light: the sun estimated from the photo and the radiance mesh (lighting.sun
