@@ -1,10 +1,11 @@
 """Sun benchmark: the cost of the sun's pass in a frame, and PCSS against jittered sun maps.
 
-usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 3]
+usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 8] [--ab-only]
 
-On sun_room: the frame with --passes shadow passes, the sun being one of them (the sun's map,
-its PCSS lookups, and what it adds to the second order and the object), against the same frame
-with the sun switched off (all --passes for the room's patches). Then the sun shadow alone: one
+On sun_room, one engine: the drag frame with --passes shadow passes, the sun being one of them (the
+sun's map, its PCSS lookups, its pieces of object light, the outline where it clips, what it adds to
+the second order and the object), against the same frame with the sun switched off (all --passes for
+the room's patches), interleaved pose by pose; prints the ratio. Then the sun shadow alone: one
 PCSS map against N jittered binary maps (directions spread over the 0.53 deg disk), time and the
 mean absolute difference of the occluded share on the sunlit pixels from a 64-map reference.
 Last, the scorer's figures for the --passes frame with known and with captured light, and the
@@ -26,8 +27,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from app.dragpath import drag_offsets, moved  # noqa: E402
 from app.engine import Engine, EngineParams  # noqa: E402
-from app.io import write_png  # noqa: E402
+from recon.io import write_png  # noqa: E402
 from app.report import table  # noqa: E402
 from kernels.sunshadow import SunShadowMap, vogel_disk  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
@@ -41,11 +43,11 @@ def jittered(engine: Engine, obj, n: int) -> np.ndarray:
     a = np.cross(helper, d)
     a /= np.linalg.norm(a)
     b = np.cross(d, a)
-    acc = np.zeros(len(engine.sun_pts))
+    acc = np.zeros(len(engine.sun_stage.pts))
     for u, v in vogel_disk(n) * np.tan(sun.half_angle):
         m = SunShadowMap(d + u * a + v * b, 0.0, device=engine.device)
         m.render(obj.vertices, obj.faces)
-        acc += m.occlusion(engine.sun_pts, engine.sun_fp)
+        acc += m.occlusion(engine.sun_stage.pts, engine.sun_stage.footprint)
     return acc / n
 
 
@@ -53,37 +55,55 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
     ap.add_argument("--passes", type=int, default=50)
-    ap.add_argument("--repeat", type=int, default=9)
+    ap.add_argument("--repeat", type=int, default=8, help="drag poses of the A/B")
     ap.add_argument("--cache", type=Path, default=None)
+    ap.add_argument("--ab-only", action="store_true", help="only the sun on/off A/B")
     a = ap.parse_args(argv)
     scene = load_scene(a.shared / "scenes" / "sun_room")
     engine = Engine(scene, EngineParams(passes=a.passes), cache_dir=a.cache, quiet=True)
     obj = scene.obj
-    # the same frame with the sun switched off (all --passes for the patches), interleaved with the
-    # sun frames so that the load of a shared machine falls on both alike
+    # A/B on one engine: the same drag frame with the sun and with the sun switched off (all --passes
+    # for the room's patches), interleaved pose by pose in ABBA order so that a shared machine's load
+    # and the engine's per-shape caches fall on both alike
     saved, sun_on = engine.sun_pix, type(engine).sun_on
-    engine.render(obj)
-    t_sun, t_no = [], []
-    for _ in range(a.repeat):
-        engine.sun_pix, type(engine).sun_on = saved, sun_on
-        t_sun.append(engine.render(obj).stats["frame_s"])
-        engine.sun_pix, type(engine).sun_on = None, property(lambda self: False)
-        t_no.append(engine.render(obj).stats["frame_s"])
-    engine.sun_pix, type(engine).sun_on = saved, sun_on
+
+    def sun(on: bool) -> None:
+        engine.sun_pix, type(engine).sun_on = (saved, sun_on) if on else (None, property(lambda self: False))
+
+    offs = drag_offsets(scene, obj, a.repeat + 1)
+    engine.render(moved(obj, offs[0]))
+    t_sun, t_no, ms_sun = [], [], []
+    stages: dict[bool, list[dict]] = {True: [], False: []}
+    for i, o in enumerate(offs[1:]):
+        for on in ((True, False) if i % 2 == 0 else (False, True)):
+            sun(on)
+            st = engine.render(moved(obj, o)).stats
+            (t_sun if on else t_no).append(st["frame_s"])
+            stages[on].append(st["timings"])
+            if on:
+                ms_sun.append(st["timings"]["sun"])
+    sun(True)
+    print(table([{"stage": k, "sun_ms": 1e3 * float(np.median([t.get(k, 0.0) for t in stages[True]])),
+                  "no_sun_ms": 1e3 * float(np.median([t.get(k, 0.0) for t in stages[False]]))}
+                 for k in stages[True][-1]], ["stage", "sun_ms", "no_sun_ms"]))
     with_sun, without = float(np.median(t_sun)), float(np.median(t_no))
     best = float(min(t_sun) / min(t_no) - 1.0)  # least disturbed frames of each
     paired = float(np.median(np.array(t_sun) / np.array(t_no)) - 1.0)  # neighbouring frames
     print(table([{"frame": f"{a.passes} passes, sun one of them", "frame_s": with_sun},
                  {"frame": f"{a.passes} passes, no sun", "frame_s": without},
+                 {"frame": "sun's own pass (timings['sun'])", "frame_s": float(np.median(ms_sun))},
+                 {"frame": "ratio sun / no sun (medians)", "frame_s": with_sun / without},
                  {"frame": "overhead of the medians", "frame_s": with_sun / without - 1.0},
                  {"frame": "overhead of the fastest", "frame_s": best},
                  {"frame": "overhead, median of pairs", "frame_s": paired}], ["frame", "frame_s"]))
 
+    if a.ab_only:
+        return 0
     ref = jittered(engine, obj, 64)
     rows = []
     t0 = time.perf_counter()
-    engine.sun_map.render(obj.vertices, obj.faces)
-    pcss = engine.sun_map.occlusion(engine.sun_pts, engine.sun_fp)
+    engine.sun_stage.map.render(obj.vertices, obj.faces)
+    pcss = engine.sun_stage.map.occlusion(engine.sun_stage.pts, engine.sun_stage.footprint)
     rows.append({"method": "PCSS, 1 map, 48 taps", "s": time.perf_counter() - t0,
                  "mean_abs_err": float(np.abs(pcss - ref).mean()), "max_abs_err": float(np.abs(pcss - ref).max())})
     for n in (4, 8, 16):

@@ -137,11 +137,12 @@ class SunLight:
         return vis[:, None] * (self.sun.irradiance / np.pi)
 
     def sunlit_elements(self, tris: np.ndarray, extra: list[Occluder] = (), size: float = 0.05,
-                        max_split: int = 12, n: int = 2) -> tuple[np.ndarray, np.ndarray]:
+                        max_split: int = 12, n: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The sunlit parts of an emitting surface (triangles (T,3,3), CCW seen from the lit side) as
         small triangles: (sub-triangles (S,3,3), their mean direct sun irradiance/pi (S,3)), only the
         lit ones. Each triangle is split regularly into m^2 pieces, m = ceil(longest edge / size)
-        (at most max_split); each piece's irradiance is the mean over n(n+1)/2 points.
+        (at most max_split); each piece's irradiance is the mean over n(n+1)/2 points. Also returns
+        the index (S,) of the triangle each piece comes from.
 
         Why: light a sunlit object throws onto the room has sharp structure on its faces (its own
         shadows, e.g. a seat's over its legs). Emitted as whole faces with their mean sun and one
@@ -150,20 +151,21 @@ class SunLight:
         position and partial visibility."""
         tris = np.asarray(tris, np.float64)
         if not self.active or len(tris) == 0:
-            return np.zeros((0, 3, 3)), np.zeros((0, 3))
+            return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, np.int64)
         nt = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         facing = np.flatnonzero(nt @ self.d > 0)  # faces turned from the sun get no direct sun
         tris = tris[facing]
         edge = np.linalg.norm(tris - np.roll(tris, 1, axis=1), axis=2).max(1)
         m_all = np.clip(np.ceil(edge / size).astype(int), 1, max_split)
-        pieces = []
+        pieces, parent = [], []
         for m in np.unique(m_all):
-            t = tris[m_all == m]
-            pieces.append(_split_triangles(t, int(m)))
-        sub = np.concatenate(pieces)
+            sel = np.flatnonzero(m_all == m)
+            pieces.append(_split_triangles(tris[sel], int(m)))
+            parent.append(np.repeat(facing[sel], int(m) ** 2))
+        sub, parent = np.concatenate(pieces), np.concatenate(parent)
         E = self.triangle_irradiance(sub, extra, n=n)
         lit = np.flatnonzero(E.any(1))
-        return sub[lit], E[lit]
+        return sub[lit], E[lit], parent[lit]
 
     def patch_irradiance(self, corners: np.ndarray, normals: np.ndarray, solid: np.ndarray,
                          n_side: int = 6) -> np.ndarray:
@@ -189,6 +191,27 @@ class SunLight:
 
 
 _SPLIT_CACHE: dict[int, np.ndarray] = {}  # m -> barycentric corners of the m^2 pieces
+
+
+def lumped_emitters(tris: np.ndarray, pieces: np.ndarray, E: np.ndarray, parent: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """One emitting triangle per parent triangle for the far field of lit pieces (sunlit_elements):
+    the parent scaled about its centroid by sqrt(lit area / area) and moved to the lit pieces'
+    power-weighted centroid, with their mean irradiance: the same power, from where the lit part is.
+    Returns (triangles (F,3,3), irradiance (F,3)), F = parents with a lit piece."""
+    tris = np.asarray(tris, np.float64)
+    a = 0.5 * np.linalg.norm(np.cross(pieces[:, 1] - pieces[:, 0], pieces[:, 2] - pieces[:, 0]), axis=1)
+    w = a * E.sum(1)
+    faces, inv = np.unique(parent, return_inverse=True)
+    A_lit = np.bincount(inv, a, len(faces))
+    P = np.stack([np.bincount(inv, a * E[:, c], len(faces)) for c in range(3)], 1)
+    W = np.maximum(np.bincount(inv, w, len(faces)), 1e-30)
+    centre = np.stack([np.bincount(inv, w * pieces[:, :, c].mean(1), len(faces)) for c in range(3)], 1) / W[:, None]
+    T = tris[faces]
+    A = 0.5 * np.linalg.norm(np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]), axis=1)
+    s = np.sqrt(np.clip(A_lit / np.maximum(A, 1e-30), 0.0, 1.0))
+    out = centre[:, None] + s[:, None, None] * (T - T.mean(1, keepdims=True))
+    return out, P / np.maximum(A_lit, 1e-30)[:, None]
 
 
 def _split_triangles(tris: np.ndarray, m: int) -> np.ndarray:

@@ -37,14 +37,16 @@ class SunStage:
         self.n_patches = n_patches
         self.E_perp = light.sun.irradiance / np.pi
         self.map = SunShadowMap(light.sun.direction, light.sun.half_angle, device=device)
+        self._pix = self.map.points(pts, footprint)  # kept on the device: no buffers per frame
+        self._cen = self.map.points(c_pts)
         self.device = device
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
         patch (P,3), mean over its sample points)."""
         self.map.render(vertices, faces)
-        occ_pix = self.map.occlusion(self.pts, self.footprint)
-        occ_c = self.map.occlusion(self.c_pts).reshape(self.c_vis.shape)
+        occ_pix = self.map.occlusion_at(self._pix)
+        occ_c = self.map.occlusion_at(self._cen).reshape(self.c_vis.shape)
         loss_c = np.zeros((self.n_patches, 3))
         loss_c[self.c_patch] = (self.c_vis * occ_c).mean(1)[:, None] * self.E_perp
         return occ_pix[:, None] * self.E_pix, loss_c
@@ -67,8 +69,8 @@ class SunStage:
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
                         proxy_occ: Occluder, radius: float):
         """The proxy (pv, pf) with its room-lit radiance tri_rad (T,3), plus its sunlit parts as small
-        emitting pieces (SunLight.sunlit_elements, pieces of radius/8 m): (vertices, faces, radiance)."""
-        sub, E = self.light.sunlit_elements(pv[pf], [proxy_occ], size=radius / 8.0)
+        emitting pieces (SunLight.sunlit_elements, pieces of radius/4 m): (vertices, faces, radiance)."""
+        sub, E, _ = self.light.sunlit_elements(pv[pf], [proxy_occ], size=radius / 4.0)
         if len(sub) == 0:
             return pv, pf, tri_rad
         v = np.concatenate([pv, sub.reshape(-1, 3)])
