@@ -992,7 +992,7 @@ class Engine:
         vis = self.sun_light.visibility(self.pix_pos[rp], nrm)
         lit = vis > 0
         self.sun_pix = rp[lit]
-        E_sun = vis[lit, None] * (self.scene.sun.irradiance / np.pi)
+        E_sun = vis[lit, None] * (self.sun_light.sun.irradiance / np.pi)  # the estimate with captured light
         self.sun_E = E_sun
         self.E_x[self.sun_pix] += E_sun
         # pixel footprint on the surface (m): filter radius of the shadow lookup (box ~ disk)

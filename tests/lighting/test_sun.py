@@ -251,6 +251,28 @@ def test_sun_room_captured_estimate_and_scores(tmp_path):
     assert s["rmse_affected"] <= 0.6 * s["rmse_affected_if_untouched"], s
 
 
+def test_captured_sun_without_a_declared_one(tmp_path):
+    # a sunny photo whose scene.json declares no sun (as a user's room): the estimate alone drives
+    # the sun's shadow, its loss and its bounce (the declared sun must not be needed anywhere)
+    from app.cli import main as cli
+
+    src = shared_scene("sun_room")
+    room = tmp_path / "room"
+    room.mkdir()
+    for f in src.iterdir():
+        if f.name != "scene.json":
+            (room / f.name).symlink_to(f)
+    d = json.loads((src / "scene.json").read_text())
+    d["primitives"] = [p for p in d["primitives"] if p.get("type") != "sun"]
+    (room / "scene.json").write_text(json.dumps(d))
+    assert cli(["-q", "composite", str(room), "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c"),
+                "--passes", "64", "--lighting", "captured"]) == 0
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert "irradiance_perpendicular" in rep["sun_estimate"] and "strength_ratio" not in rep["sun_estimate"]
+    s = score(src, tmp_path / "o" / "composite.png")
+    assert 0.75 <= s["energy_ratio"] <= 1.3 and s["rmse_affected"] <= 0.6 * s["rmse_affected_if_untouched"], s
+
+
 def _edge_crossings(lum, shadow, lit):
     """Per row: x positions (sub-pixel) where the luminance crosses halfway between the shadow's
     and the lit floor's level, at the ends of each run of `shadow` pixels bordered by `lit` ones."""
