@@ -40,6 +40,7 @@ class SunStage:
         self._pix = self.map.points(pts, footprint)  # kept on the device: no buffers per frame
         self._cen = self.map.points(c_pts)
         self.device = device
+        self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
@@ -79,8 +80,8 @@ class SunStage:
 
     def refine_clipped_edges(self, camera, cam_occ: Occluder, mesh, own: Occluder, L_vert: np.ndarray,
                              sun_vert: np.ndarray, albedo: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray,
-                             clipped: np.ndarray, s: int = 8) -> np.ndarray:
-        """Coverage and object radiance re-sampled with s x s rays on the object's outline pixels
+                             clipped: np.ndarray, s: int | None = None) -> np.ndarray:
+        """Coverage and object radiance re-sampled with s x s rays (default edge_samples) on the object's outline pixels
         that touch clipping light (in place on cov (H,W) and obj_rad (H,W,3)); returns those pixels.
 
         Outline: pixels partly covered, or uncovered/covered ones beside a pixel that is not;
@@ -89,6 +90,7 @@ class SunStage:
         white level). Object radiance per ray: L_vert interpolated, with the sun per hit (its
         self-shadow edge) as Engine._shade_object does."""
         H, W = cov.shape
+        s = s or self.edge_samples
         v, n, f = mesh
         lum = obj_rad @ np.array([0.2126, 0.7152, 0.0722])
         bright = (lum >= 1.0) | clipped.reshape(H, W)
