@@ -193,27 +193,6 @@ class SunLight:
 _SPLIT_CACHE: dict[int, np.ndarray] = {}  # m -> barycentric corners of the m^2 pieces
 
 
-def lumped_emitters(tris: np.ndarray, pieces: np.ndarray, E: np.ndarray, parent: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """One emitting triangle per parent triangle for the far field of lit pieces (sunlit_elements):
-    the parent scaled about its centroid by sqrt(lit area / area) and moved to the lit pieces'
-    power-weighted centroid, with their mean irradiance: the same power, from where the lit part is.
-    Returns (triangles (F,3,3), irradiance (F,3)), F = parents with a lit piece."""
-    tris = np.asarray(tris, np.float64)
-    a = 0.5 * np.linalg.norm(np.cross(pieces[:, 1] - pieces[:, 0], pieces[:, 2] - pieces[:, 0]), axis=1)
-    w = a * E.sum(1)
-    faces, inv = np.unique(parent, return_inverse=True)
-    A_lit = np.bincount(inv, a, len(faces))
-    P = np.stack([np.bincount(inv, a * E[:, c], len(faces)) for c in range(3)], 1)
-    W = np.maximum(np.bincount(inv, w, len(faces)), 1e-30)
-    centre = np.stack([np.bincount(inv, w * pieces[:, :, c].mean(1), len(faces)) for c in range(3)], 1) / W[:, None]
-    T = tris[faces]
-    A = 0.5 * np.linalg.norm(np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]), axis=1)
-    s = np.sqrt(np.clip(A_lit / np.maximum(A, 1e-30), 0.0, 1.0))
-    out = centre[:, None] + s[:, None, None] * (T - T.mean(1, keepdims=True))
-    return out, P / np.maximum(A_lit, 1e-30)[:, None]
-
-
 def _split_triangles(tris: np.ndarray, m: int) -> np.ndarray:
     """Each triangle (T,3,3) split regularly into m^2 congruent pieces (T*m^2,3,3), same winding."""
     if m not in _SPLIT_CACHE:

@@ -5,6 +5,7 @@ shadow edge lies where the plate's edge projects along d, its penumbra 2 h tan(0
 Scenes: sun_room composited with --lighting known and scored against the path-traced truth.
 """
 import copy
+import dataclasses
 import json
 
 import numpy as np
@@ -131,6 +132,31 @@ def test_opening_blocked_by_geometry_is_no_sun(room):
 
 
 # ---------------------------------------------------------------- PCSS kernel, analytic
+def test_sunlit_pieces_keep_the_power_and_the_self_shadow(room):
+    # a 1 m x 1 m floor square lit whole: pieces carry its power, area x E_perp cos / pi; with a plate
+    # 0.2 m above covering its left half (x < 0), the pieces' power is the lit area's and no piece
+    # lies in the plate's shadow (the sun goes straight up through a roof opening here)
+    from kernels.visibility import Occluder
+    from lighting.sun import SunLight
+
+    s, pm, _ = room
+    roof = dataclasses.replace(next(q for q in s.quads if q.opening), corners=np.array(
+        [[-5, 3, -5], [5, 3, -5], [5, 3, 5], [-5, 3, 5]], float), normal=np.array([0.0, -1.0, 0.0]))
+    sun = Sun(np.array([0.0, 1.0, 0.0]), 0.53, np.array([30.0, 30.0, 30.0]), np.zeros(3))
+    sq = np.array([[[-0.5, 0, -0.5], [0.5, 0, 0.5], [0.5, 0, -0.5]], [[-0.5, 0, -0.5], [-0.5, 0, 0.5], [0.5, 0, 0.5]]])
+    open_sky = SunLight(sun, [roof], Occluder(None, None, "cpu"))
+    pieces, E, parent = open_sky.sunlit_elements(sq, size=0.1)
+    area = 0.5 * np.linalg.norm(np.cross(pieces[:, 1] - pieces[:, 0], pieces[:, 2] - pieces[:, 0]), axis=1)
+    assert set(parent) == {0, 1} and area.sum() == pytest.approx(1.0)
+    assert (area[:, None] * E).sum(0) == pytest.approx(np.full(3, 30.0 / np.pi))
+    plate = np.array([[-0.6, 0.2, -0.6], [0.0, 0.2, -0.6], [0.0, 0.2, 0.6], [-0.6, 0.2, 0.6]])
+    shaded = SunLight(sun, [roof], Occluder(plate, np.array([[0, 1, 2], [0, 2, 3]]), "cpu"))
+    pieces, E, _ = shaded.sunlit_elements(sq, size=0.1)
+    area = 0.5 * np.linalg.norm(np.cross(pieces[:, 1] - pieces[:, 0], pieces[:, 2] - pieces[:, 0]), axis=1)
+    assert (area[:, None] * E).sum(0)[0] == pytest.approx(0.5 * 30.0 / np.pi, rel=0.05)
+    assert pieces.mean(1)[:, 0].min() > -0.05  # lit pieces lie right of the shadow edge (x = 0)
+
+
 def test_pcss_edge_and_penumbra_of_a_plate(device):
     from kernels.sunshadow import SunShadowMap
 
