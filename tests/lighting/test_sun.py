@@ -179,6 +179,30 @@ def test_pcss_edge_and_penumbra_of_a_plate(device):
     assert 0.6 * expect < width < 1.6 * expect + 2e-3
 
 
+def test_sun_map_allocates_nothing_after_the_first_frame(monkeypatch):
+    # the sun's per-frame pass (render + lookups on kept points) makes no Warp arrays once its
+    # buffers exist: a moved object of the same size reuses them
+    import warp as wp
+
+    from kernels import runtime
+    from kernels.sunshadow import SunShadowMap
+
+    runtime.init()
+    m = SunShadowMap(np.array([0.3, 1.0, 0.0]), np.radians(0.265), res=64, device="cpu")
+    pts = m.points(np.random.default_rng(0).uniform(-1, 1, (500, 3)) * [1, 0, 1], np.full(500, 1e-3))
+    v = np.array([[-0.2, 0.5, -0.2], [0.2, 0.5, -0.2], [0.2, 0.5, 0.2], [-0.2, 0.5, 0.2]])
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    m.render(v, f)
+    first = m.occlusion_at(pts).copy()
+    made = []
+    for name in ("array", "empty", "zeros", "full", "clone"):
+        orig = getattr(wp, name)
+        monkeypatch.setattr(wp, name, lambda *a, _o=orig, _n=name, **k: made.append(_n) or _o(*a, **k))
+    m.render(v + [0.05, 0, 0], f)
+    moved = m.occlusion_at(pts)
+    assert made == [] and first.max() > 0.5 and not np.array_equal(first, moved)
+
+
 # ---------------------------------------------------------------- sun_room end to end
 @pytest.fixture(scope="module")
 def sun_composite(tmp_path_factory):
