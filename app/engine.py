@@ -17,12 +17,13 @@ L_b is the photo through the inverse camera response, G the form-factor x visibi
 Writing the shadow term as a ratio of the photo makes it independent of how well the radiosity
 reproduces the absolute brightness of the room; only the split of light between sources matters.
 
-Sun (a `sun` primitive and an opening; lighting.sun, kernels.sunshadow): the sun's direct light
-rho E_sun on the patches joins the radiosity; E_x includes E_sun, and where the photo clips L_b is
-the model's rho E_x (rho: the surface's albedo), so the sun's shadow there is absolute,
-rho E_sun x occluded share (PCSS on an orthographic map, one pass of the budget). The sun the
-object blocks and the sunlit object's light are first-bounce changes, passed on for every bounce
-the camera sees (not once); the object gets the sun per camera hit with self-shadowing.
+Sun (a `sun` primitive and an opening; lighting.sun, kernels.sunshadow; per frame app.stages.sun):
+the sun's direct light rho E_sun on the patches joins the radiosity; E_x includes E_sun, and where
+the photo clips L_b is the model's rho E_x (rho: the surface's albedo), so the sun's shadow there is
+absolute, rho E_sun x occluded share (PCSS on an orthographic map, one pass of the budget). The sun
+the object blocks and the sunlit object's light (from small lit pieces of its faces) are first-bounce
+changes, passed on for every bounce the camera sees (not once); the object gets the sun per camera
+hit with self-shadowing, and its outline beside clipping light is sampled finely.
 
 The LDR path replaces L_ij by intensity transfers S_ij (lighting.transfer, fig. 13) subtracted
 from the 8-bit photo.
@@ -59,7 +60,7 @@ from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from lighting.irradiance import RoomLight
 from lighting.radiance import load_captured_probe
 from lighting.sun import SunLight, estimate_sun, openings, surface_albedo
-from kernels.sunshadow import SunShadowMap
+from app.stages.sun import SunStage
 from lighting.transfer import intensity_transfers
 from recon.patches import PatchMesh
 from recon.proxy import simplify, subdivide
@@ -437,12 +438,15 @@ class Engine:
         dB_shadow[cen_sel] = -pm.albedo[cen_sel] * O_cen
         sun_loss = None
         if self.sun_pix is not None:  # sun: one pass, its loss on pixels and patches (second order)
-            sun_loss, sun_loss_c = self._sun_frame(obj)
+            sun_loss, sun_loss_c = self.sun_stage.frame(obj.vertices, obj.faces)
             self._sun_dB = -pm.albedo * sun_loss_c  # the object gathers it exactly (object_vertex_radiance)
             t = tick("sun", t)
         obj_rad = self._shade_object(obj, shade_mesh, hits, proxy_occ, dB_shadow)
         if sun_loss is not None:
             dB_shadow = dB_shadow + self._sun_dB
+            if self._last_L_vert is not None:  # sun: the outline where sunlight clips, sampled finely
+                self.sun_stage.refine_clipped_edges(cam, self.cam_occ, shade_mesh, shade_occ, self._last_L_vert,
+                                                    self._obj_sun_vert, obj.albedo, cov, obj_rad, self.sun_photo_clip)
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres
@@ -450,9 +454,10 @@ class Engine:
         R_cen = np.zeros((pm.n_patches, 3))
         if p.object_light:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
-            if self.sun_pix is not None:  # sun: the object's sunlit faces light the room too
-                tri_rad = tri_rad + obj.albedo * self.sun_light.triangle_irradiance(pv[pf], [proxy_occ])
-            R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, cov.reshape(-1) >= 1.0)
+            pv_l, pf_l = pv, pf
+            if self.sun_pix is not None:  # sun: the object's sunlit parts light the room too (small pieces)
+                pv_l, pf_l, tri_rad = self.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, proxy_occ, radius)
+            R_pix, R_cen = self._object_light(pv_l, pf_l, tri_rad, proxy_occ, centre, radius, cov.reshape(-1) >= 1.0)
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)
@@ -462,7 +467,7 @@ class Engine:
             if sun_loss is not None:  # sun: the sunlit patch light the object blocks (the room's main
                 # source) and the sunlit object's own light are first-bounce changes: passed on for every
                 # bounce the camera sees, not once
-                more = self._sun_more_bounces(pm.albedo * (R_cen - sun_loss_c))
+                more = self.sun_stage.more_bounces(pm.albedo * (R_cen - sun_loss_c), pm.albedo, pre.G_c, p.bounces)
             dE_v = self.compose.second_order(dB_shadow + pm.albedo * R_cen, more)
         t = tick("second_order", t)
 
@@ -592,6 +597,7 @@ class Engine:
         texture, or the patch reflectivity the captured light recovered), so the sun's shadow
         there is the absolute rho x E_sun x occluded share."""
         self.sun_pix = None
+        self.sun_stage: SunStage | None = None  # the sun's per-frame work (app.stages.sun)
         self._sun_dB = None  # the sun the object blocks from each patch, this frame (P,3)
         self.sun_estimate = None
         if self.params.lighting == "captured":
@@ -604,7 +610,7 @@ class Engine:
         vis = self.sun_light.visibility(self.pix_pos[rp], nrm)
         lit = vis > 0
         self.sun_pix = rp[lit]
-        E_sun = vis[lit, None] * (self.scene.sun.irradiance / np.pi)
+        E_sun = vis[lit, None] * (self.sun_light.sun.irradiance / np.pi)  # the estimate with captured light
         self.sun_E = E_sun
         self.E_x[self.sun_pix] += E_sun
         # pixel footprint on the surface (m): filter radius of the shadow lookup (box ~ disk)
@@ -648,7 +654,9 @@ class Engine:
         self.sun_c_patch = lit_c
         self.sun_c_vis = self.sun_light.visibility(pts, nrm_c).reshape(len(lit_c), len(fu))
         self.sun_c_pts = pts + nrm_c * 1e-3
-        self.sun_map = SunShadowMap(self.scene.sun.direction, self.scene.sun.half_angle, device=self.device)
+        self.sun_photo_clip = (self.scene.photo.reshape(-1, 3) >= 254).any(1)
+        self.sun_stage = SunStage(self.sun_light, self.sun_pts, self.sun_fp, self.sun_E, self.sun_c_patch,
+                                  self.sun_c_pts, self.sun_c_vis, pm.n_patches, self.device)
 
     def _sun_captured(self) -> None:
         """Captured light: the sun estimated from the photo and the radiance mesh (lighting.sun
@@ -694,33 +702,6 @@ class Engine:
                     pm.albedo[same & lit] = np.median(pm.albedo[same & ~lit], axis=0)
         else:
             pm.emission[flagged] = kept  # no sun: what the radiance flagged emits
-
-    def _sun_frame(self, obj: SceneObject) -> tuple[np.ndarray, np.ndarray]:
-        """The sun's pass: its shadow map of the object, the irradiance/pi it loses at the sunlit
-        pixels (len(sun_pix),3) and at every patch (P,3)."""
-        pm = self.pre.patches
-        self.sun_map.render(obj.vertices, obj.faces)
-        occ_pix = self.sun_map.occlusion(self.sun_pts, self.sun_fp)
-        occ_c = self.sun_map.occlusion(self.sun_c_pts).reshape(self.sun_c_vis.shape)
-        loss_c = np.zeros((pm.n_patches, 3))
-        loss_c[self.sun_c_patch] = (self.sun_c_vis * occ_c).mean(1)[:, None] * (self.scene.sun.irradiance / np.pi)
-        return occ_pix[:, None] * self.sun_E, loss_c
-
-    def _sun_more_bounces(self, dB1: np.ndarray) -> np.ndarray:
-        """The change of patch radiance dB1 (P,3) (first bounce: sun a patch no longer reflects, or light
-        of the sunlit object)
-        passed through the patch transfers for the later bounces: sum_{k=1}^{bounces-2} (rho G)^k dB1.
-        One pass through G_v is the engine's second order; the sun's loss is first-bounce light, so
-        the camera also sees its third and fourth bounces."""
-        pm, G = self.pre.patches, self.pre.G_c
-        out = np.zeros_like(dB1)
-        cur = dB1
-        for _ in range(max(self.params.bounces - 2, 0)):
-            nz = np.flatnonzero(np.abs(cur).sum(1) > 0)  # float32 products: no float64 copy of G
-            cur = pm.albedo * (G[:, nz] @ cur[nz].astype(np.float32) if len(nz) < len(cur) // 4
-                               else G @ cur.astype(np.float32))
-            out += cur
-        return out
 
     def _passes_for_frame(self, p: EngineParams | None = None) -> int | None:
         """The pass budget: --passes, or the passes that fit 1/--fps from the measured costs

@@ -1,10 +1,13 @@
 """Sun benchmark: the cost of the sun's pass in a frame, and PCSS against jittered sun maps.
 
-usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 3]
+usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 8] [--ab-only]
 
-On sun_room: the frame with --passes shadow passes, the sun being one of them (the sun's map,
-its PCSS lookups, and what it adds to the second order and the object), against the same frame
-with the sun switched off (all --passes for the room's patches). Then the sun shadow alone: one
+On sun_room, one engine: the drag frame with --passes shadow passes, the sun being one of them (the
+sun's map, its PCSS lookups, its pieces of object light, the outline where it clips, what it adds to
+the second order and the object), against the same frame with the sun switched off (all --passes for
+the room's patches), interleaved pose by pose; prints the ratio. Then the sunlit object's light at
+pixels around it from whole faces and from the lit pieces against a dense Monte Carlo reference, and
+rmse_object with the clipped outline re-sampled 4 x 4 and 8 x 8. Then the sun shadow alone: one
 PCSS map against N jittered binary maps (directions spread over the 0.53 deg disk), time and the
 mean absolute difference of the occluded share on the sunlit pixels from a 64-map reference.
 Last, the scorer's figures for the --passes frame with known and with captured light, and the
@@ -26,9 +29,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from app.dragpath import drag_offsets, moved  # noqa: E402
 from app.engine import Engine, EngineParams  # noqa: E402
-from app.io import write_png  # noqa: E402
+from recon.io import write_png  # noqa: E402
 from app.report import table  # noqa: E402
+from kernels.raycast import cast_rays  # noqa: E402
 from kernels.sunshadow import SunShadowMap, vogel_disk  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
@@ -41,49 +46,136 @@ def jittered(engine: Engine, obj, n: int) -> np.ndarray:
     a = np.cross(helper, d)
     a /= np.linalg.norm(a)
     b = np.cross(d, a)
-    acc = np.zeros(len(engine.sun_pts))
+    acc = np.zeros(len(engine.sun_stage.pts))
     for u, v in vogel_disk(n) * np.tan(sun.half_angle):
         m = SunShadowMap(d + u * a + v * b, 0.0, device=engine.device)
         m.render(obj.vertices, obj.faces)
-        acc += m.occlusion(engine.sun_pts, engine.sun_fp)
+        acc += m.occlusion(engine.sun_stage.pts, engine.sun_stage.footprint)
     return acc / n
+
+
+def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: int = 0) -> list[dict]:
+    """The sunlit object's light (irradiance/pi, luminance) at floor and wall pixels around it: whole
+    faces (mean sun, one visibility test each), the lit pieces the engine uses, and a dense Monte
+    Carlo reference (n_mc area samples on the object, sun and receiver visibility per sample)."""
+    from kernels.visibility import Occluder, emitter_sum
+    from lighting.sources import luminance
+
+    V, F = obj.vertices, obj.faces
+    occ = Occluder(V, F, engine.device)
+    T = V[F]
+    nt = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+    A = 0.5 * np.linalg.norm(nt, axis=1)
+    nt /= 2 * A[:, None]
+    rng = np.random.default_rng(seed)
+    ti = rng.choice(len(F), n_mc, p=A / A.sum())
+    r1, r2 = np.sqrt(rng.random(n_mc)), rng.random(n_mc)
+    P = (1 - r1)[:, None] * T[ti, 0] + (r1 * (1 - r2))[:, None] * T[ti, 1] + (r1 * r2)[:, None] * T[ti, 2]
+    Nn = nt[ti]
+    L = obj.albedo * engine.sun_light.irradiance(P, Nn, [occ])  # radiance of each sample
+    faces = obj.albedo * engine.sun_light.triangle_irradiance(T, [occ])
+    radius = float(np.linalg.norm(V - 0.5 * (V.min(0) + V.max(0)), axis=1).max())
+    sub, E, _ = engine.sun_light.sunlit_elements(T, [occ], size=radius / 4.0)
+    uv, _ = engine.scene.camera.project(0.5 * (V.min(0) + V.max(0))[None])
+    cu, cv = uv[0]
+    W = engine.scene.camera.width
+    rows = []
+    for du, dv in ((-150, 130), (-60, 60), (-20, 35), (-180, -120), (80, -40)):
+        i = int(round(cv + dv)) * W + int(round(cu + du))
+        if not engine.recv_pix[i]:
+            continue
+        p = engine.pix_pos[i].astype(np.float64)
+        pn = engine.pre.patches.normal[engine.pix_patch[i]]
+        d = P - p
+        r = np.linalg.norm(d, axis=1)
+        d /= r[:, None]
+        ce, cr = np.maximum(-(d * Nn).sum(1), 0), np.maximum(d @ pn, 0)
+        act = np.flatnonzero((ce > 0) & (cr > 0) & (L.sum(1) > 0))
+        o = p + pn * 1e-3
+        dd = P[act] - o
+        rr = np.linalg.norm(dd, axis=1)
+        dd /= rr[:, None]
+        _, _, d_obj = cast_rays(occ, o, dd)
+        _, _, d_room = cast_rays(engine.scene_occ, o, dd)
+        a = act[(d_obj > rr - 2e-3) & (d_room > rr - 2e-3)]
+        mc = luminance((L[a] * (ce[a] * cr[a] / (np.pi * r[a] ** 2))[:, None]).sum(0) * A.sum() / n_mc)
+        f = luminance(emitter_sum(p[None], pn[None], T, faces, occ, device=engine.device)[0])
+        pc = luminance(emitter_sum(p[None], pn[None], sub, obj.albedo * E, occ, device=engine.device)[0])
+        rows.append({"pixel (du, dv)": f"({du}, {dv})", "monte_carlo": mc, "faces": f, "pieces": pc,
+                     "faces/mc": f / max(mc, 1e-12), "pieces/mc": pc / max(mc, 1e-12)})
+    return rows
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
     ap.add_argument("--passes", type=int, default=50)
-    ap.add_argument("--repeat", type=int, default=9)
+    ap.add_argument("--repeat", type=int, default=8, help="drag poses of the A/B")
     ap.add_argument("--cache", type=Path, default=None)
+    ap.add_argument("--ab-only", action="store_true", help="only the sun on/off A/B")
     a = ap.parse_args(argv)
     scene = load_scene(a.shared / "scenes" / "sun_room")
     engine = Engine(scene, EngineParams(passes=a.passes), cache_dir=a.cache, quiet=True)
     obj = scene.obj
-    # the same frame with the sun switched off (all --passes for the patches), interleaved with the
-    # sun frames so that the load of a shared machine falls on both alike
+    # A/B on one engine: the same drag frame with the sun and with the sun switched off (all --passes
+    # for the room's patches), interleaved pose by pose in ABBA order so that a shared machine's load
+    # and the engine's per-shape caches fall on both alike
     saved, sun_on = engine.sun_pix, type(engine).sun_on
-    engine.render(obj)
-    t_sun, t_no = [], []
-    for _ in range(a.repeat):
-        engine.sun_pix, type(engine).sun_on = saved, sun_on
-        t_sun.append(engine.render(obj).stats["frame_s"])
-        engine.sun_pix, type(engine).sun_on = None, property(lambda self: False)
-        t_no.append(engine.render(obj).stats["frame_s"])
-    engine.sun_pix, type(engine).sun_on = saved, sun_on
+
+    def sun(on: bool) -> None:
+        engine.sun_pix, type(engine).sun_on = (saved, sun_on) if on else (None, property(lambda self: False))
+
+    offs = drag_offsets(scene, obj, a.repeat + 1)
+    engine.render(moved(obj, offs[0]))
+    t_sun, t_no, ms_sun = [], [], []
+    stages: dict[bool, list[dict]] = {True: [], False: []}
+    for i, o in enumerate(offs[1:]):
+        for on in ((True, False) if i % 2 == 0 else (False, True)):
+            sun(on)
+            st = engine.render(moved(obj, o)).stats
+            (t_sun if on else t_no).append(st["frame_s"])
+            stages[on].append(st["timings"])
+            if on:
+                ms_sun.append(st["timings"]["sun"])
+    sun(True)
+    print(table([{"stage": k, "sun_ms": 1e3 * float(np.median([t.get(k, 0.0) for t in stages[True]])),
+                  "no_sun_ms": 1e3 * float(np.median([t.get(k, 0.0) for t in stages[False]]))}
+                 for k in stages[True][-1]], ["stage", "sun_ms", "no_sun_ms"]))
     with_sun, without = float(np.median(t_sun)), float(np.median(t_no))
     best = float(min(t_sun) / min(t_no) - 1.0)  # least disturbed frames of each
     paired = float(np.median(np.array(t_sun) / np.array(t_no)) - 1.0)  # neighbouring frames
     print(table([{"frame": f"{a.passes} passes, sun one of them", "frame_s": with_sun},
                  {"frame": f"{a.passes} passes, no sun", "frame_s": without},
+                 {"frame": "sun's own pass (timings['sun'])", "frame_s": float(np.median(ms_sun))},
+                 {"frame": "ratio sun / no sun (medians)", "frame_s": with_sun / without},
                  {"frame": "overhead of the medians", "frame_s": with_sun / without - 1.0},
                  {"frame": "overhead of the fastest", "frame_s": best},
                  {"frame": "overhead, median of pairs", "frame_s": paired}], ["frame", "frame_s"]))
 
+    if a.ab_only:
+        return 0
+    print(table(pieces_against_monte_carlo(engine, obj), ["pixel (du, dv)", "monte_carlo", "faces", "pieces",
+                                                          "faces/mc", "pieces/mc"]))
+    rows = []
+    for s in (4, 8):  # the outline where sunlight clips, re-sampled s x s (the frame's own: 2 x 2)
+        engine.sun_stage.edge_samples = s
+        frame = engine.render(obj)
+        with tempfile.TemporaryDirectory() as tmp:
+            png = Path(tmp) / "c.png"
+            write_png(png, frame.pixels)
+            out = subprocess.run([sys.executable, str(a.shared / "tools" / "score.py"),
+                                  str(a.shared / "scenes" / "sun_room"), str(png)], capture_output=True, text=True,
+                                 check=True)
+        sc = json.loads(out.stdout.strip().splitlines()[-1])
+        rows.append({"outline rays": f"{s} x {s}", "object_shading_ms": 1e3 * frame.stats["timings"]["object_shading"],
+                     "rmse_object": sc["rmse_object"], "bias_object": sc["bias_object"]})
+    engine.sun_stage.edge_samples = 4
+    print(table(rows, ["outline rays", "object_shading_ms", "rmse_object", "bias_object"]))
     ref = jittered(engine, obj, 64)
     rows = []
     t0 = time.perf_counter()
-    engine.sun_map.render(obj.vertices, obj.faces)
-    pcss = engine.sun_map.occlusion(engine.sun_pts, engine.sun_fp)
+    engine.sun_stage.map.render(obj.vertices, obj.faces)
+    pcss = engine.sun_stage.map.occlusion(engine.sun_stage.pts, engine.sun_stage.footprint)
     rows.append({"method": "PCSS, 1 map, 48 taps", "s": time.perf_counter() - t0,
                  "mean_abs_err": float(np.abs(pcss - ref).mean()), "max_abs_err": float(np.abs(pcss - ref).max())})
     for n in (4, 8, 16):

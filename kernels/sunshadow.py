@@ -146,9 +146,11 @@ class SunShadowMap:
         self.m.centre = wp.vec3(0.0, 0.0, 0.0)
         self.m.half = 1.0
         self.m.z_min = float("inf")
+        self._verts = _Buffer(wp.vec3, self.device)
+        self._tris = _Buffer(wp.int32, self.device, cols=3)
 
     def render(self, vertices: np.ndarray, faces: np.ndarray) -> None:
-        """Rasterise the occluder (world coordinates) into the map."""
+        """Rasterise the occluder (world coordinates) into the map (buffers kept between calls)."""
         v = np.asarray(vertices, np.float64)
         c = 0.5 * (v.min(0) + v.max(0))
         r = float(np.linalg.norm(v - c, axis=1).max()) * 1.01 + 1e-3
@@ -157,21 +159,58 @@ class SunShadowMap:
         self.m.depth.fill_(float("inf"))
         fwd = np.array(self.m.fwd, np.float64)
         self.m.z_min = float(((v - c) @ fwd).min())
-        wp.launch(_raster, dim=len(faces),
-                  inputs=[self.m, wp.array(v.astype(np.float32), dtype=wp.vec3, device=self.device),
-                          wp.array(np.asarray(faces, np.int32), dtype=wp.int32, device=self.device)],
-                  device=self.device)
+        verts = self._verts.put(v.astype(np.float32))
+        tris = self._tris.put(np.asarray(faces, np.int32))
+        wp.launch(_raster, dim=len(faces), inputs=[self.m, verts, tris], device=self.device)
+
+    def points(self, points: np.ndarray, footprint: np.ndarray | None = None) -> "LookupPoints":
+        """A fixed set of receiver points (N,3) [footprints (N,) m] kept on the device, for
+        `occlusion_at` every frame without new buffers."""
+        return LookupPoints(points, footprint, self.device)
+
+    def occlusion_at(self, pts: "LookupPoints") -> np.ndarray:
+        """occlusion() of a kept point set (N,) (a view of the kept output buffer: copy to keep)."""
+        if pts.n == 0:
+            return np.zeros(0)
+        wp.launch(_pcss, dim=pts.n, inputs=[self.m, pts.pos, pts.fp], outputs=[pts.out], device=self.device)
+        return pts.out.numpy()[:pts.n]
 
     def occlusion(self, points: np.ndarray, footprint: np.ndarray | None = None) -> np.ndarray:
         """Share (N,) in [0,1] of the sun's disk the occluder hides from each point, averaged over a
         disk of radius `footprint` (N,) m around it (0: the point itself)."""
-        n = len(points)
-        if n == 0:
-            return np.zeros(0)
-        fp = np.zeros(n, np.float32) if footprint is None else np.asarray(footprint, np.float32)
-        out = wp.zeros(n, dtype=wp.float32, device=self.device)
-        wp.launch(_pcss, dim=n, inputs=[self.m, wp.array(np.asarray(points, np.float32), dtype=wp.vec3,
-                                                         device=self.device),
-                                        wp.array(fp, dtype=wp.float32, device=self.device)],
-                  outputs=[out], device=self.device)
-        return out.numpy().astype(np.float64)
+        return self.occlusion_at(self.points(points, footprint)).astype(np.float64)
+
+
+class LookupPoints:
+    """Receiver points, their footprints and an output buffer on the device (SunShadowMap.points)."""
+
+    def __init__(self, points: np.ndarray, footprint: np.ndarray | None, device: str):
+        self.n = len(points)
+        fp = np.zeros(self.n, np.float32) if footprint is None else np.asarray(footprint, np.float32)
+        self.pos = wp.array(np.asarray(points, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+        self.fp = wp.array(fp, dtype=wp.float32, device=device)
+        self.out = wp.zeros(max(self.n, 1), dtype=wp.float32, device=device)
+
+
+class _Buffer:
+    """A device array reused between calls: grown (doubled) only when a call needs more room;
+    `put` copies host data in (through a kept host staging array off the CPU)."""
+
+    def __init__(self, dtype, device: str, cols: int = 0):
+        self.dtype, self.device, self.cols = dtype, device, cols  # cols: a 2-D buffer's row length
+        self.dev = None
+        self.host = None
+
+    def put(self, data: np.ndarray) -> wp.array:
+        n = len(data)
+        if self.dev is None or self.dev.shape[0] < n:
+            shape = (max(n, 2 * (0 if self.dev is None else self.dev.shape[0])),) + ((self.cols,) if self.cols else ())
+            self.dev = wp.empty(shape, dtype=self.dtype, device=self.device)
+            self.host = None if wp.get_device(self.device).is_cpu else \
+                wp.empty(shape, dtype=self.dtype, device="cpu", pinned=True)
+        if self.host is None:
+            self.dev.numpy()[:n] = data
+        else:
+            self.host.numpy()[:n] = data
+            wp.copy(self.dev, self.host, count=n * int(np.prod(self.dev.shape[1:])))
+        return self.dev

@@ -136,6 +136,37 @@ class SunLight:
         vis = self.visibility(pts, np.repeat(nt, len(w), axis=0), extra).reshape(len(tris), len(w)).mean(1)
         return vis[:, None] * (self.sun.irradiance / np.pi)
 
+    def sunlit_elements(self, tris: np.ndarray, extra: list[Occluder] = (), size: float = 0.05,
+                        max_split: int = 12, n: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The sunlit parts of an emitting surface (triangles (T,3,3), CCW seen from the lit side) as
+        small triangles: (sub-triangles (S,3,3), their mean direct sun irradiance/pi (S,3)), only the
+        lit ones. Each triangle is split regularly into m^2 pieces, m = ceil(longest edge / size)
+        (at most max_split); each piece's irradiance is the mean over n(n+1)/2 points. Also returns
+        the index (S,) of the triangle each piece comes from.
+
+        Why: light a sunlit object throws onto the room has sharp structure on its faces (its own
+        shadows, e.g. a seat's over its legs). Emitted as whole faces with their mean sun and one
+        visibility test each (kernels.visibility.emitter_sum), a floor point beside a chair got
+        0.3x-1.8x the light of a dense Monte Carlo reference; the pieces keep both the lit part's
+        position and partial visibility."""
+        tris = np.asarray(tris, np.float64)
+        if not self.active or len(tris) == 0:
+            return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, np.int64)
+        nt = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        facing = np.flatnonzero(nt @ self.d > 0)  # faces turned from the sun get no direct sun
+        tris = tris[facing]
+        edge = np.linalg.norm(tris - np.roll(tris, 1, axis=1), axis=2).max(1)
+        m_all = np.clip(np.ceil(edge / size).astype(int), 1, max_split)
+        pieces, parent = [], []
+        for m in np.unique(m_all):
+            sel = np.flatnonzero(m_all == m)
+            pieces.append(_split_triangles(tris[sel], int(m)))
+            parent.append(np.repeat(facing[sel], int(m) ** 2))
+        sub, parent = np.concatenate(pieces), np.concatenate(parent)
+        E = self.triangle_irradiance(sub, extra, n=n)
+        lit = np.flatnonzero(E.any(1))
+        return sub[lit], E[lit], parent[lit]
+
     def patch_irradiance(self, corners: np.ndarray, normals: np.ndarray, solid: np.ndarray,
                          n_side: int = 6) -> np.ndarray:
         """Mean direct sun irradiance/pi (P,3) over each patch (corners (P,4,3)), from n_side^2
@@ -157,6 +188,21 @@ class SunLight:
             self.reason = "sun: its rays miss every opening or reach no surface: no direct sun"
             log.warning("%s", self.reason)
         return out
+
+
+_SPLIT_CACHE: dict[int, np.ndarray] = {}  # m -> barycentric corners of the m^2 pieces
+
+
+def _split_triangles(tris: np.ndarray, m: int) -> np.ndarray:
+    """Each triangle (T,3,3) split regularly into m^2 congruent pieces (T*m^2,3,3), same winding."""
+    if m not in _SPLIT_CACHE:
+        up = [((i, j), (i + 1, j), (i, j + 1)) for i in range(m) for j in range(m - i)]
+        down = [((i + 1, j), (i + 1, j + 1), (i, j + 1)) for i in range(m) for j in range(m - i - 1)]
+        ij = np.array(up + down, np.float64) / m  # (m^2, 3 corners, (b1, b2))
+        _SPLIT_CACHE[m] = ij
+    ij = _SPLIT_CACHE[m]
+    w = np.stack([1.0 - ij[..., 0] - ij[..., 1], ij[..., 0], ij[..., 1]], -1)  # (m^2,3,3) barycentric
+    return np.einsum("kcw,twx->tkcx", w, tris).reshape(-1, 3, 3)
 
 
 def surface_albedo(scene: Scene, quad: np.ndarray, points: np.ndarray, fallback: np.ndarray) -> np.ndarray:

@@ -5,6 +5,7 @@ shadow edge lies where the plate's edge projects along d, its penumbra 2 h tan(0
 Scenes: sun_room composited with --lighting known and scored against the path-traced truth.
 """
 import copy
+import dataclasses
 import json
 
 import numpy as np
@@ -131,6 +132,31 @@ def test_opening_blocked_by_geometry_is_no_sun(room):
 
 
 # ---------------------------------------------------------------- PCSS kernel, analytic
+def test_sunlit_pieces_keep_the_power_and_the_self_shadow(room):
+    # a 1 m x 1 m floor square lit whole: pieces carry its power, area x E_perp cos / pi; with a plate
+    # 0.2 m above covering its left half (x < 0), the pieces' power is the lit area's and no piece
+    # lies in the plate's shadow (the sun goes straight up through a roof opening here)
+    from kernels.visibility import Occluder
+    from lighting.sun import SunLight
+
+    s, pm, _ = room
+    roof = dataclasses.replace(next(q for q in s.quads if q.opening), corners=np.array(
+        [[-5, 3, -5], [5, 3, -5], [5, 3, 5], [-5, 3, 5]], float), normal=np.array([0.0, -1.0, 0.0]))
+    sun = Sun(np.array([0.0, 1.0, 0.0]), 0.53, np.array([30.0, 30.0, 30.0]), np.zeros(3))
+    sq = np.array([[[-0.5, 0, -0.5], [0.5, 0, 0.5], [0.5, 0, -0.5]], [[-0.5, 0, -0.5], [-0.5, 0, 0.5], [0.5, 0, 0.5]]])
+    open_sky = SunLight(sun, [roof], Occluder(None, None, "cpu"))
+    pieces, E, parent = open_sky.sunlit_elements(sq, size=0.1)
+    area = 0.5 * np.linalg.norm(np.cross(pieces[:, 1] - pieces[:, 0], pieces[:, 2] - pieces[:, 0]), axis=1)
+    assert set(parent) == {0, 1} and area.sum() == pytest.approx(1.0)
+    assert (area[:, None] * E).sum(0) == pytest.approx(np.full(3, 30.0 / np.pi))
+    plate = np.array([[-0.6, 0.2, -0.6], [0.0, 0.2, -0.6], [0.0, 0.2, 0.6], [-0.6, 0.2, 0.6]])
+    shaded = SunLight(sun, [roof], Occluder(plate, np.array([[0, 1, 2], [0, 2, 3]]), "cpu"))
+    pieces, E, _ = shaded.sunlit_elements(sq, size=0.1)
+    area = 0.5 * np.linalg.norm(np.cross(pieces[:, 1] - pieces[:, 0], pieces[:, 2] - pieces[:, 0]), axis=1)
+    assert (area[:, None] * E).sum(0)[0] == pytest.approx(0.5 * 30.0 / np.pi, rel=0.05)
+    assert pieces.mean(1)[:, 0].min() > -0.05  # lit pieces lie right of the shadow edge (x = 0)
+
+
 def test_pcss_edge_and_penumbra_of_a_plate(device):
     from kernels.sunshadow import SunShadowMap
 
@@ -151,6 +177,30 @@ def test_pcss_edge_and_penumbra_of_a_plate(device):
     width = pen.max() - pen.min()
     expect = 2 * h / d[1] * np.tan(a) / d[1]
     assert 0.6 * expect < width < 1.6 * expect + 2e-3
+
+
+def test_sun_map_allocates_nothing_after_the_first_frame(monkeypatch):
+    # the sun's per-frame pass (render + lookups on kept points) makes no Warp arrays once its
+    # buffers exist: a moved object of the same size reuses them
+    import warp as wp
+
+    from kernels import runtime
+    from kernels.sunshadow import SunShadowMap
+
+    runtime.init()
+    m = SunShadowMap(np.array([0.3, 1.0, 0.0]), np.radians(0.265), res=64, device="cpu")
+    pts = m.points(np.random.default_rng(0).uniform(-1, 1, (500, 3)) * [1, 0, 1], np.full(500, 1e-3))
+    v = np.array([[-0.2, 0.5, -0.2], [0.2, 0.5, -0.2], [0.2, 0.5, 0.2], [-0.2, 0.5, 0.2]])
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    m.render(v, f)
+    first = m.occlusion_at(pts).copy()
+    made = []
+    for name in ("array", "empty", "zeros", "full", "clone"):
+        orig = getattr(wp, name)
+        monkeypatch.setattr(wp, name, lambda *a, _o=orig, _n=name, **k: made.append(_n) or _o(*a, **k))
+    m.render(v + [0.05, 0, 0], f)
+    moved = m.occlusion_at(pts)
+    assert made == [] and first.max() > 0.5 and not np.array_equal(first, moved)
 
 
 # ---------------------------------------------------------------- sun_room end to end
@@ -179,13 +229,61 @@ def test_sun_room_known_energy(sun_composite):
     assert 0.9 <= s["energy_ratio"] <= 1.1, s
 
 
-@pytest.mark.xfail(strict=True, reason="open: spurious 0.16 (acceptance < 0.005) and rmse_object 6.27 (<= 6) on "
-                                       "sun_room: the truth changes 71 % of the pixels, our field is off by 1-2 "
-                                       "levels around its zero crossings")
-def test_sun_room_known_spurious_and_object(sun_composite):
+def test_sun_room_known_object(sun_composite):
+    # the object: sunlit faces that clip, their self-shadows, and the outline beside clipping light
     scene, out = sun_composite
     s = score(scene, out / "composite.png")
-    assert s["spurious"] < 0.005 and s["rmse_object"] <= 6, s
+    assert s["rmse_object"] <= 6 and abs(s["bias_object"]) <= 1.5, s
+
+
+def _spurious_noise_floor(scene, sims: int = 4, seed: int = 0) -> float:
+    """The `spurious` figure an exact answer would score against this scene's noisy truth.
+
+    score.py calls a pixel 'rest' where the blurred |truth - background| is at most 2 levels: the
+    truth's Monte Carlo noise decides that wherever the true change is near 2 levels. Model: the
+    true change m = the truth's change blurred with sigma 4 px; the noise per pixel = the local rms
+    of the truth's change about its sigma-1.5 blur (x1.3 for what that blur removes), Gaussian,
+    blurred with the scorer's sigma 2. Spurious of the exact answer = share of simulated 'rest'
+    pixels where |m| > 2, mean over `sims` draws."""
+    import cv2
+
+    w = np.array([0.0722, 0.7152, 0.2126])
+    bg = cv2.imread(str(scene / "background.png")).astype(float) @ w
+    tr = cv2.imread(str(scene / "truth.png")).astype(float) @ w
+    mask = cv2.dilate((cv2.imread(str(scene / "truth_mask.png"), 0) > 127).astype(np.uint8),
+                      np.ones((5, 5), np.uint8)) > 0
+    blur = lambda x, s: cv2.GaussianBlur(x, (0, 0), s)  # noqa: E731
+    raw = tr - bg
+    m = blur(raw, 4.0)
+    sd = 1.3 * np.sqrt(blur((raw - blur(raw, 1.5)) ** 2, 6.0))
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(sims):
+        rest = ~mask & (np.abs(m + blur(rng.standard_normal(raw.shape) * sd, 2.0)) <= 2.0)
+        out.append(float((np.abs(m)[rest] > 2.0).mean()))
+    return float(np.mean(out))
+
+
+def test_spurious_noise_floor_of_the_truth():
+    # the floor is what the scorer's noise allows: small on the window and lamps rooms (whose
+    # composites score 0.001-0.006), ~0.1 on sun_room (light through a small opening renders
+    # noisily, and the change is near 2 levels over much of the room)
+    assert _spurious_noise_floor(shared_scene("window_room")) < 0.005
+    assert _spurious_noise_floor(shared_scene("sun_room")) > 0.05
+
+
+def test_sun_room_known_spurious_at_the_noise_floor(sun_composite):
+    scene, out = sun_composite
+    s = score(scene, out / "composite.png")
+    assert s["spurious"] <= 1.2 * _spurious_noise_floor(scene), s
+
+
+@pytest.mark.xfail(strict=True, reason="acceptance spurious < 0.005 is below the noise floor of sun_room's truth "
+                                       "(~0.10 for an exact answer, _spurious_noise_floor); we score ~0.107")
+def test_sun_room_known_spurious_acceptance(sun_composite):
+    scene, out = sun_composite
+    s = score(scene, out / "composite.png")
+    assert s["spurious"] < 0.005, s
 
 
 def test_sun_room_captured_estimate_and_scores(tmp_path):
@@ -201,6 +299,28 @@ def test_sun_room_captured_estimate_and_scores(tmp_path):
     s = score(scene, tmp_path / "o" / "composite.png")
     assert 0.75 <= s["energy_ratio"] <= 1.3, s
     assert s["rmse_affected"] <= 0.6 * s["rmse_affected_if_untouched"], s
+
+
+def test_captured_sun_without_a_declared_one(tmp_path):
+    # a sunny photo whose scene.json declares no sun (as a user's room): the estimate alone drives
+    # the sun's shadow, its loss and its bounce (the declared sun must not be needed anywhere)
+    from app.cli import main as cli
+
+    src = shared_scene("sun_room")
+    room = tmp_path / "room"
+    room.mkdir()
+    for f in src.iterdir():
+        if f.name != "scene.json":
+            (room / f.name).symlink_to(f)
+    d = json.loads((src / "scene.json").read_text())
+    d["primitives"] = [p for p in d["primitives"] if p.get("type") != "sun"]
+    (room / "scene.json").write_text(json.dumps(d))
+    assert cli(["-q", "composite", str(room), "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c"),
+                "--passes", "64", "--lighting", "captured"]) == 0
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert "irradiance_perpendicular" in rep["sun_estimate"] and "strength_ratio" not in rep["sun_estimate"]
+    s = score(src, tmp_path / "o" / "composite.png")
+    assert 0.75 <= s["energy_ratio"] <= 1.3 and s["rmse_affected"] <= 0.6 * s["rmse_affected_if_untouched"], s
 
 
 def _edge_crossings(lum, shadow, lit):

@@ -1,0 +1,132 @@
+"""The sun stage: the directional source's per-frame work (DESIGN "Per-frame stages", issue 20).
+
+Per frame, on listed points only (the sunlit pixels and sample points of sunlit patches, fixed per
+scene; the object's proxy and its silhouette):
+- `SunStage.frame`: one orthographic PCSS shadow map of the object toward the sun (the sun's one
+  pass of the budget), the irradiance/pi it takes from the sunlit pixels and from every patch;
+- `SunStage.more_bounces`: a first-bounce change of patch radiance passed on for the later bounces;
+- `SunStage.object_emitters`: the object's sunlit parts as small emitting pieces for the
+  object-light stage;
+- `SunStage.refine_clipped_edges`: the object's outline where a sunlit face or sunlit floor clips,
+  re-sampled finely (a clipping neighbour is tens of times brighter: 2x2 samples a pixel put the
+  coverage, hence the pixel, tens of levels off).
+Units: irradiance/pi (the radiance a white Lambertian surface reflects), as in app.engine.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from kernels.raycast import cast_rays
+from kernels.sunshadow import SunShadowMap
+from kernels.visibility import Occluder
+from lighting.sun import SunLight
+
+
+class SunStage:
+    """The sun's per-frame work for one scene (built by Engine._sun_setup_pixels)."""
+
+    def __init__(self, light: SunLight, pts: np.ndarray, footprint: np.ndarray, E_pix: np.ndarray,
+                 c_patch: np.ndarray, c_pts: np.ndarray, c_vis: np.ndarray, n_patches: int, device: str):
+        """light: the sun through the openings; pts (N,3), footprint (N,) m, E_pix (N,3): the sunlit
+        pixels' lookup points, pixel footprints and direct sun; c_patch (Pc,), c_pts (Pc*K,3),
+        c_vis (Pc,K): sunlit patches, their K sample points and the sun's visibility there."""
+        self.light = light
+        self.pts, self.footprint, self.E_pix = pts, footprint.astype(np.float32), E_pix
+        self.c_patch, self.c_pts, self.c_vis = c_patch, c_pts, c_vis
+        self.n_patches = n_patches
+        self.E_perp = light.sun.irradiance / np.pi
+        self.map = SunShadowMap(light.sun.direction, light.sun.half_angle, device=device)
+        self._pix = self.map.points(pts, footprint)  # kept on the device: no buffers per frame
+        self._cen = self.map.points(c_pts)
+        self.device = device
+        self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
+
+    def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
+        patch (P,3), mean over its sample points)."""
+        self.map.render(vertices, faces)
+        occ_pix = self.map.occlusion_at(self._pix)
+        occ_c = self.map.occlusion_at(self._cen).reshape(self.c_vis.shape)
+        loss_c = np.zeros((self.n_patches, 3))
+        loss_c[self.c_patch] = (self.c_vis * occ_c).mean(1)[:, None] * self.E_perp
+        return occ_pix[:, None] * self.E_pix, loss_c
+
+    @staticmethod
+    def more_bounces(dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, bounces: int) -> np.ndarray:
+        """sum_{k=1}^{bounces-2} (rho G)^k dB1: a first-bounce change of patch radiance dB1 (P,3)
+        (sun a patch no longer reflects, light of the sunlit object) through the patch transfers G
+        (P,P) for the later bounces the camera sees (one pass through G_v is the engine's second
+        order)."""
+        out = np.zeros_like(dB1)
+        cur = dB1
+        for _ in range(max(bounces - 2, 0)):
+            nz = np.flatnonzero(np.abs(cur).sum(1) > 0)  # float32 products: no float64 copy of G
+            cur = albedo * (G[:, nz] @ cur[nz].astype(np.float32) if len(nz) < len(cur) // 4
+                            else G @ cur.astype(np.float32))
+            out += cur
+        return out
+
+    def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
+                        proxy_occ: Occluder, radius: float):
+        """The proxy (pv, pf) with its room-lit radiance tri_rad (T,3), plus its sunlit parts as small
+        emitting pieces (SunLight.sunlit_elements, pieces of radius/4 m): (vertices, faces, radiance)."""
+        sub, E, _ = self.light.sunlit_elements(pv[pf], [proxy_occ], size=radius / 4.0)
+        if len(sub) == 0:
+            return pv, pf, tri_rad
+        v = np.concatenate([pv, sub.reshape(-1, 3)])
+        f = np.concatenate([pf, len(pv) + np.arange(3 * len(sub)).reshape(-1, 3)])
+        return v, f, np.concatenate([tri_rad, albedo * E])
+
+    def refine_clipped_edges(self, camera, cam_occ: Occluder, mesh, own: Occluder, L_vert: np.ndarray,
+                             sun_vert: np.ndarray, albedo: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray,
+                             clipped: np.ndarray, s: int | None = None) -> np.ndarray:
+        """Coverage and object radiance re-sampled with s x s rays (default edge_samples) on the object's outline pixels
+        that touch clipping light (in place on cov (H,W) and obj_rad (H,W,3)); returns those pixels.
+
+        Outline: pixels partly covered, or uncovered/covered ones beside a pixel that is not;
+        clipping: the photo clips there or next to it (`clipped` (H*W,) bool, a sunlit floor) or
+        the object's radiance there or next to it is 1 or more (a sunlit face; radiance 1 is the
+        white level). Object radiance per ray: L_vert interpolated, with the sun per hit (its
+        self-shadow edge) as Engine._shade_object does."""
+        H, W = cov.shape
+        s = s or self.edge_samples
+        v, n, f = mesh
+        lum = obj_rad @ np.array([0.2126, 0.7152, 0.0722])
+        bright = (lum >= 1.0) | clipped.reshape(H, W)
+        on = (cov > 0).astype(np.uint8)
+        box = np.ones((3, 3), np.uint8)
+        near_on = cv2.dilate(on, box) > 0
+        inner = cv2.erode(on, box, borderType=cv2.BORDER_REPLICATE) > 0
+        near_bright = cv2.dilate(bright.astype(np.uint8), box) > 0
+        outline = near_on & ~inner & near_bright  # partly covered pixels are never inner
+        py, px = np.nonzero(outline)
+        if len(py) == 0:
+            return np.zeros(0, np.int64)
+        offs = (np.arange(s) + 0.5) / s - 0.5
+        ou, ov = [a.ravel() for a in np.meshgrid(offs, offs)]
+        U = (px[:, None] + ou[None]).ravel()
+        V = (py[:, None] + ov[None]).ravel()
+        d = np.stack([U, V, np.ones_like(U)], -1) @ np.linalg.inv(camera.K).T @ camera.R
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        tri, bary, depth = cast_rays(own, camera.centre, d)
+        _, _, scene_depth = cast_rays(cam_occ, camera.centre, d)
+        hit = (tri >= 0) & (depth < scene_depth)
+        rad = np.zeros((len(d), 3))
+        h = np.flatnonzero(hit)
+        corners = f[tri[h]]
+        b = bary[h].astype(np.float64)
+        rad[h] = np.einsum("nk,nkc->nc", b, L_vert[corners])
+        if sun_vert is not None and len(h):
+            pos = np.einsum("nk,nkc->nc", b, v[corners])
+            nrm = np.einsum("nk,nkc->nc", b, n[corners])
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+            E_hit = self.light.irradiance(pos, nrm, [own])
+            rad[h] = np.maximum(rad[h] + albedo * (E_hit - np.einsum("nk,nkc->nc", b, sun_vert[corners])), 0.0)
+        k = s * s
+        hits = hit.reshape(-1, k)
+        c = hits.mean(1)
+        mean = rad.reshape(-1, k, 3).sum(1) / np.maximum(hits.sum(1), 1)[:, None]
+        cov[py, px] = c
+        obj_rad[py, px] = np.where(c[:, None] > 0, mean, obj_rad[py, px])
+        return py * W + px
