@@ -54,7 +54,7 @@ def test_malformed_sun_names_file_and_field(tmp_path, edit, words):
 def room():
     from kernels import runtime
     from recon.patches import build_patches
-    from app.engine import _scene_meshes
+    from app.stages.precompute import scene_meshes as _scene_meshes
 
     runtime.init()
     s = load_scene(shared_scene("sun_room"), load_textures=False)
