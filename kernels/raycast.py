@@ -41,7 +41,7 @@ def cast_rays(mesh: Occluder, origin: np.ndarray, dirs: np.ndarray, max_t: float
     """
     device = mesh.device
     n = len(dirs)
-    origins = np.asarray(origin, np.float32).reshape(-1, 3)
+    origins = np.asarray(origin).reshape(-1, 3)
     if len(origins) not in (1, n):
         raise ValueError(f"cast_rays: {len(origins)} origins for {n} rays")
     if workspace is None:  # one launch over every ray, fresh buffers
@@ -54,7 +54,7 @@ def cast_rays(mesh: Occluder, origin: np.ndarray, dirs: np.ndarray, max_t: float
     tri = ws.buffer("tri", block, wp.int32, device)
     bary = ws.buffer("bary", block, wp.vec3, device)
     depth = ws.buffer("depth", block, wp.float32, device)
-    dirs = np.asarray(dirs, np.float32)
+    dirs = np.asarray(dirs)  # cast to float32 as it is copied into the buffer
     for s in range(0, n, block):
         e = min(n, s + block)
         o = origins if len(origins) == 1 else origins[s:e]
