@@ -58,3 +58,65 @@ class Buffer:
             return 0
         per_row = int(np.prod(self.dev.shape[1:])) if self.dev.ndim > 1 else 1
         return rows * per_row
+
+
+class Workspace:
+    """Named Buffers kept by one call site of a kernel wrapper (e.g. transfer_matrix's inputs and
+    outputs), reused from call to call so that a frame allocates nothing once they exist.
+
+    The wrappers given a Workspace work in blocks of at most `rows` points (rays, receivers) and
+    `sources` patches per launch, so its buffers have a fixed capacity whatever the frame asks
+    for; inputs of a size fixed per object shape (its triangles) are allocated on the first call
+    and again only when a later request outgrows them (at 1.5x). Not shared between threads: a
+    wrapper that runs two launches at once uses one name per launch ("points0", "points1")."""
+
+    def __init__(self, rows: int = 16384, sources: int = 1024) -> None:
+        self.rows = rows
+        self.sources = sources
+        self._buffers: dict[str, Buffer] = {}
+
+    def buffer(self, name: str, rows: int, dtype, device: str, cols: tuple[int, ...] = ()) -> Buffer:
+        """The Buffer `name` holding at least `rows` rows of shape `cols` (and at least the
+        requested size along each of `cols`) of `dtype` on `device`."""
+        b = self._buffers.get(name)
+        if b is not None and b.device == device and b.dev.dtype == dtype and b.dev.ndim == 1 + len(cols):
+            have = b.dev.shape
+            if have[0] >= rows and all(h >= c for h, c in zip(have[1:], cols)):
+                return b
+            # it outgrew its buffer: leave room for the next growth (1.5x along what grew)
+            rows = have[0] if have[0] >= rows else int(1.5 * rows)
+            cols = tuple(h if h >= c else int(1.5 * c) for h, c in zip(have[1:], cols))
+        b = self._buffers[name] = Buffer((max(rows, 1), *cols), dtype, device)
+        return b
+
+    def upload(self, name: str, values: np.ndarray, dtype, device: str, capacity: int = 0) -> wp.array:
+        """`values` (n rows) copied into buffer `name` (at least max(n, capacity) rows; trailing
+        shape from `dtype`'s length when a vector type) and pushed; returns the device view of
+        its first n rows."""
+        values = np.asarray(values)
+        n = len(values)
+        b = self.buffer(name, max(n, capacity), dtype, device,
+                        values.shape[1:-1] if _is_vector(dtype) else values.shape[1:])
+        b.host[(slice(0, n), *(slice(0, k) for k in values.shape[1:]))] = values
+        b.push(n)
+        return _rows(b.dev, values.shape[:-1] if _is_vector(dtype) else values.shape)
+
+
+def _is_vector(dtype) -> bool:
+    return getattr(dtype, "_length_", 0) > 0
+
+
+def _rows(a: wp.array, shape: tuple[int, ...]) -> wp.array:
+    """The view of `a`'s leading block of `shape` (no memory allocated)."""
+    if a.ndim == 1:
+        return a[:shape[0]]
+    return a[:shape[0], :shape[1]] if a.ndim == 2 else a[tuple(slice(0, k) for k in shape)]
+
+
+def workspace(owner, site: str) -> Workspace:
+    """The Workspace of call site `site` kept on `owner` (e.g. the engine: one per kernel call in
+    a per-frame stage), made on first use."""
+    sites = owner.__dict__.setdefault("_workspaces", {})
+    if site not in sites:
+        sites[site] = Workspace()
+    return sites[site]

@@ -16,6 +16,7 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
+from kernels.buffers import Workspace
 from kernels.formfactor import polygon_ff
 
 
@@ -94,11 +95,14 @@ class Occluder:
 def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.ndarray,
                     patch_normals: np.ndarray, occluders: list[Occluder], n_side: int = 2,
                     eps: float = 1e-4, device: str | None = None, progress=None,
-                    chunk: int = 256) -> np.ndarray:
+                    chunk: int = 256, workspace: Workspace | None = None) -> np.ndarray:
     """G (N,M) float32 = form factor x visibility from points (N,3) [normals (N,3)] to quads (M,4,3).
 
     `occluders`: up to two Occluder meshes; `n_side`^2 visibility samples per patch;
-    `progress`: optional callable(n_done) called after each chunk of receiver points.
+    `progress`: optional callable(n_done) called after each chunk of receiver points;
+    `workspace`: the call site's buffers (kernels.buffers.Workspace), kept between calls: the
+    patches go in blocks of its capacity and nothing is allocated after its first call (None:
+    fresh buffers, every patch in one launch).
     """
     device = runtime.device(device)
     n, m = len(points), len(patch_corners)
@@ -106,25 +110,34 @@ def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.n
     if n == 0 or m == 0:
         return out
     occ = list(occluders) + [Occluder(None, None, device)] * (2 - len(occluders))
-    polys = wp.array(np.asarray(patch_corners, np.float64), dtype=wp.vec3d, device=device)
-    pn = wp.array(np.asarray(patch_normals, np.float32), dtype=wp.vec3, device=device)
-    def run(s: int) -> int:
-        e = min(n, s + chunk)
-        res = wp.zeros((e - s, m), dtype=wp.float32, device=device)
-        wp.launch(_transfer_kernel, dim=(e - s, m),
-                  inputs=[wp.array(np.asarray(points[s:e], np.float64), dtype=wp.vec3d, device=device),
-                          wp.array(np.asarray(normals[s:e], np.float64), dtype=wp.vec3d, device=device),
-                          polys, pn, wp.uint64(occ[0].id), wp.uint64(occ[1].id), int(n_side), float(eps)],
-                  outputs=[res], device=device)
-        out[s:e] = res.numpy()
-        return e - s
+    if workspace is None:  # every patch in one launch per chunk, fresh buffers
+        ws, rows, cols = Workspace(), min(n, chunk), m
+    else:  # the workspace's capacity: `chunk` points x ws.sources patches per launch
+        ws, rows, cols = workspace, chunk, workspace.sources
+    points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+    patch_corners, patch_normals = np.asarray(patch_corners, np.float64), np.asarray(patch_normals, np.float32)
+    for c0 in range(0, m, cols):
+        c1 = min(m, c0 + cols)
+        polys = ws.upload("polys", patch_corners[c0:c1], wp.vec3d, device, cols)
+        pn = ws.upload("poly_normals", patch_normals[c0:c1], wp.vec3, device, cols)
 
-    starts = list(range(0, n, chunk))
-    for k in range(0, len(starts), 2):  # two chunks at a time: one per core on the CPU
-        done = runtime.run_parallel([lambda s=s: run(s) for s in starts[k:k + 2]])
-        if progress is not None:
-            for d in done:
-                progress(d)
+        def run(s: int, slot: int) -> int:  # slot: which of the two concurrent launches (its own buffers)
+            e = min(n, s + chunk)
+            res = ws.buffer(f"out{slot}", rows, wp.float32, device, (cols,))
+            wp.launch(_transfer_kernel, dim=(e - s, c1 - c0),
+                      inputs=[ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, rows),
+                              ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, rows),
+                              polys, pn, wp.uint64(occ[0].id), wp.uint64(occ[1].id), int(n_side), float(eps)],
+                      outputs=[res.dev[:e - s, :c1 - c0]], device=device)
+            out[s:e, c0:c1] = res.pull(e - s)[:, :c1 - c0]
+            return e - s
+
+        starts = list(range(0, n, chunk))
+        for k in range(0, len(starts), 2):  # two chunks at a time: one per core on the CPU
+            done = runtime.run_parallel([lambda s=s, i=i: run(s, i) for i, s in enumerate(starts[k:k + 2])])
+            if progress is not None and c1 == m:
+                for d in done:
+                    progress(d)
     return out
 
 
@@ -160,13 +173,16 @@ def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtyp
 
 def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
                 occluder: Occluder | None = None, eps: float = 1e-3, device: str | None = None,
-                split: int = 2048) -> np.ndarray:
+                split: int = 2048, workspace: Workspace | None = None) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t): radiance-weighted form factors to emitting triangles.
 
     points/normals (N,3); triangles (T,3,3) vertices CCW seen from the emitting side; radiance (T,3);
     visibility of each triangle's centroid is tested against `occluder` (e.g. the object itself, so
     its hidden faces do not count). Returns (N,3) float64 (= irradiance / pi). On the CPU more than
-    `split` points are run as two launches, one per core (runtime.run_parallel).
+    `split` points are run as two launches, one per core (runtime.run_parallel). `workspace`: the
+    call site's buffers (kernels.buffers.Workspace), kept between calls: launches of at most its
+    capacity in points, nothing allocated after its first call for a given set of triangles
+    (None: fresh buffers).
     """
     device = runtime.device(device)
     n = len(points)
@@ -175,23 +191,30 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
     tri = np.asarray(triangles, np.float64)
     tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
-    shared = [wp.array(tri, dtype=wp.vec3d, device=device),
-              wp.array(np.asarray(radiance, np.float32), dtype=wp.vec3, device=device),
-              wp.array(tn.astype(np.float32), dtype=wp.vec3, device=device),
+    if workspace is None:  # fresh buffers, one launch per half
+        ws, block = Workspace(), n
+    else:  # launches of at most the workspace's capacity
+        ws, block = workspace, workspace.rows
+    shared = [ws.upload("tris", tri, wp.vec3d, device),
+              ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device),
+              ws.upload("tri_normals", tn.astype(np.float32), wp.vec3, device),
               wp.uint64(occluder.id if occluder is not None else 0), float(eps)]
     points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+    out = np.empty((n, 3))
 
-    def run(s: int, e: int) -> np.ndarray:
-        out = wp.zeros(e - s, dtype=wp.vec3, device=device)
+    def run(s: int, e: int, slot: int) -> None:  # slot: which concurrent launch (its own buffers)
+        res = ws.buffer(f"out{slot}", block, wp.vec3, device)
         wp.launch(_emitter_sum_kernel, dim=e - s,
-                  inputs=[wp.array(points[s:e], dtype=wp.vec3d, device=device),
-                          wp.array(normals[s:e], dtype=wp.vec3d, device=device), *shared],
-                  outputs=[out], device=device)
-        return out.numpy().astype(np.float64)
+                  inputs=[ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, block),
+                          ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, block), *shared],
+                  outputs=[res.dev[:e - s]], device=device)
+        out[s:e] = res.pull(e - s)
 
-    if n <= split or not wp.get_device(device).is_cpu:
-        return run(0, n)
-    return np.concatenate(runtime.run_parallel([lambda: run(0, n // 2), lambda: run(n // 2, n)]))
+    halves = [(0, n)] if n <= split or not wp.get_device(device).is_cpu else [(0, n // 2), (n // 2, n)]
+    parts = [[(s, min(e, s + block)) for s in range(a, e, block)] for a, e in halves]
+    for k in range(max(len(p) for p in parts)):  # the halves side by side, one per core on the CPU
+        runtime.run_parallel([lambda r=p[k], i=i: run(*r, i) for i, p in enumerate(parts) if k < len(p)])
+    return out
 
 
 @wp.kernel
@@ -206,16 +229,27 @@ def _distance_kernel(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), max_dist:
         out[i] = max_dist
 
 
-def distance_to(occluder: Occluder, points: np.ndarray, max_dist: float = 1.0e3) -> np.ndarray:
+def distance_to(occluder: Occluder, points: np.ndarray, max_dist: float = 1.0e3,
+                workspace: Workspace | None = None) -> np.ndarray:
     """(N,) float32 distance from points (N,3) to the nearest triangle of the occluder mesh (m;
-    `max_dist` where none lies within it or the mesh is empty)."""
+    `max_dist` where none lies within it or the mesh is empty). `workspace`: the call site's
+    buffers (kernels.buffers.Workspace), kept between calls: launches of at most its capacity,
+    nothing allocated after its first call (None: fresh buffers, one launch)."""
     n = len(points)
     if n == 0 or occluder.mesh is None:
         return np.full(n, max_dist, np.float32)
     device = occluder.device
-    out = wp.empty(n, dtype=wp.float32, device=device)
-    wp.launch(_distance_kernel, dim=n, inputs=[wp.uint64(occluder.id),
-                                               wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device),
-                                               float(max_dist)], outputs=[out], device=device)
-    return out.numpy()
-
+    if workspace is None:  # fresh buffers, one launch
+        ws, block = Workspace(), n
+    else:  # launches of at most the workspace's capacity
+        ws, block = workspace, workspace.rows
+    points = np.asarray(points, np.float32)
+    res = ws.buffer("out", block, wp.float32, device)
+    out = np.empty(n, np.float32)
+    for s in range(0, n, block):
+        e = min(n, s + block)
+        wp.launch(_distance_kernel, dim=e - s, inputs=[wp.uint64(occluder.id),
+                                                       ws.upload("points", points[s:e], wp.vec3, device, block),
+                                                       float(max_dist)], outputs=[res.dev[:e - s]], device=device)
+        out[s:e] = res.pull(e - s)
+    return out

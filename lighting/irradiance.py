@@ -40,13 +40,15 @@ class RoomLight:
         return self.volume.lookup(points)
 
     def direct(self, points: np.ndarray, normals: np.ndarray, occluders: list[Occluder] = (),
-               n_side: int = 2, eps: float = 2e-3) -> np.ndarray:
-        """Irradiance/pi (N,3) from the emitter patches, exact, with visibility."""
+               n_side: int = 2, eps: float = 2e-3, workspace=None) -> np.ndarray:
+        """Irradiance/pi (N,3) from the emitter patches, exact, with visibility (`workspace`:
+        kernels.buffers.Workspace of the caller's call site, or None)."""
         if len(self.emitters) == 0 or len(points) == 0:
             return np.zeros((len(points), 3))
         pm = self.patches
         G = transfer_matrix(points, normals, pm.corners[self.emitters], pm.normal[self.emitters],
-                            [self.occluder, *occluders][:2], n_side=n_side, eps=eps, device=self.device)
+                            [self.occluder, *occluders][:2], n_side=n_side, eps=eps, device=self.device,
+                            workspace=workspace)
         return G.astype(np.float64) @ self.radiance[self.emitters]
 
     def irradiance(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:

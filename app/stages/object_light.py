@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from kernels.buffers import Workspace, workspace
 from kernels.visibility import Occluder, distance_to, emitter_sum, segments_visible, transfer_matrix
 from recon.response import luminance
 from recon.scene import SceneObject
@@ -21,7 +22,7 @@ def object_irradiance(eng: "Engine", pts: np.ndarray, nrm: np.ndarray, proxy_occ
     self-occlusion."""
     pm = eng.pre.patches
     G = transfer_matrix(pts, nrm, pm.corners, pm.normal, [eng.scene_occ, proxy_occ], n_side=1,
-                        eps=2e-3, device=eng.device)
+                        eps=2e-3, device=eng.device, workspace=workspace(eng, "object_irradiance"))
     return G.astype(np.float64) @ B
 
 
@@ -52,7 +53,7 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     tvis = proxy_shape(eng, pv, pf, proxy_occ).visibility
     rv = pre.recv_vert
     R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, eng.device,
-                     tvis)
+                     tvis, workspace(eng, "object_light.vertices"))
     R_pix = np.zeros((len(eng.L_b), 3))
     # the pixels of the patches with a vertex that gets a visible share of the object's light
     reach_v = luminance(R_v) * float(eng.rho_x.max()) > 5e-4 * float(luminance(eng.B_src).mean())
@@ -77,7 +78,7 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
     R_cen = np.zeros((pm.n_patches, 3))
     R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, centre, radius,
-                               eng.device, tvis)
+                               eng.device, tvis, workspace(eng, "object_light.centres"))
     eng._n_object_light_pixels = len(sel)
     return R_pix, R_cen
 
@@ -154,16 +155,19 @@ def proxy_shape(eng: "Engine", pv: np.ndarray, pf: np.ndarray, proxy_occ: Occlud
 
 
 def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
-               centre: np.ndarray, radius: float, device, tvis: TriangleVisibility | None = None) -> np.ndarray:
+               centre: np.ndarray, radius: float, device, tvis: TriangleVisibility | None = None,
+               ws: Workspace | None = None) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3) at points (N,3) [normals (N,3)]: exact (emitter_sum) within
     FAR_FIELD bounding radii of the object; beyond, where each triangle subtends a small solid angle,
     the point-source form factor A_t cos_x cos_t / (pi r^2) times the triangle's own visibility
-    towards x from the per-shape table `tvis` (the object is the only occluder, as in emitter_sum)."""
+    towards x from the per-shape table `tvis` (the object is the only occluder, as in emitter_sum).
+    ws: the call site's kernel buffers (kernels.buffers.Workspace), or None."""
     out = np.zeros((len(points), 3))
     far = np.linalg.norm(points - centre, axis=1) > FAR_FIELD * radius
     near = np.flatnonzero(~far)
     if len(near):
-        out[near] = emitter_sum(points[near], normals[near], tris, tri_rad, proxy_occ, device=device, split=256)
+        out[near] = emitter_sum(points[near], normals[near], tris, tri_rad, proxy_occ, device=device, split=256,
+                                workspace=ws)
     far = np.flatnonzero(far)
     if len(far):
         c = tris.mean(1)
@@ -237,7 +241,7 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
         new = np.setdiff1d(idx, known_idx)
         if len(new):
             val = emitter_sum(eng.pix_pos[new], pm.normal[eng.pix_patch[new]], tris, tri_rad, proxy_occ,
-                              device=eng.device, split=256)
+                              device=eng.device, split=256, workspace=workspace(eng, "near_pixels.exact"))
             known_idx = np.concatenate([known_idx, new])
             known_val = np.concatenate([known_val, val])
             order = np.argsort(known_idx)
@@ -261,7 +265,7 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
         if ok.any():
             # clearance: the cell's nodes' distance to the proxy
             cn = np.unique(nodes[ok])
-            d = distance_to(proxy_occ, eng.pix_pos[cn])
+            d = distance_to(proxy_occ, eng.pix_pos[cn], workspace=workspace(eng, "near_pixels.clearance"))
             d_node = d[np.searchsorted(cn, nodes[ok])].min(1)
             diag = np.linalg.norm(eng.pix_pos[nodes[ok, 0]] - eng.pix_pos[nodes[ok, 3]], axis=1)
             clear = np.zeros(len(todo), bool)

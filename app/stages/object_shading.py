@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
+from kernels.buffers import workspace
 from kernels.raycast import cast_rays
 from kernels.shade import self_transfer
 from kernels.visibility import Occluder, transfer_matrix
@@ -155,8 +156,9 @@ def object_hits(eng: "Engine", verts: np.ndarray, faces: np.ndarray, camera=None
     U, V = np.meshgrid(uu, vv)
     d = np.stack([U, V, np.ones_like(U)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    tri, bary, depth = cast_rays(occluder or Occluder(verts, faces, eng.device), cam.centre, d)
-    _, _, scene_depth = cast_rays(eng.cam_occ, cam.centre, d)
+    tri, bary, depth = cast_rays(occluder or Occluder(verts, faces, eng.device), cam.centre, d,
+                                 workspace=workspace(eng, "object_hits.object"))
+    _, _, scene_depth = cast_rays(eng.cam_occ, cam.centre, d, workspace=workspace(eng, "object_hits.scene"))
     return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, (tri >= 0) & (depth < scene_depth))
 
 
@@ -177,7 +179,7 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     ss = shape_shading(eng, v, n, f)
     vu, nu = v[ss.uniq], n[ss.uniq]
     E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
-    E = eng.room_light.direct(vu, nu, [own], n_side=1)
+    E = eng.room_light.direct(vu, nu, [own], n_side=1, workspace=workspace(eng, "vertex_radiance.direct"))
     sun_u = None
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
         sun_u = eng.sun_light.irradiance(vu, nu, [own])
@@ -187,7 +189,8 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
         if len(ch):
             E += transfer_matrix(vu, nu, pm.corners[ch], pm.normal[ch], [eng.scene_occ, own], n_side=1,
-                                 eps=2e-3, device=eng.device).astype(np.float64) @ eng._sun_dB[ch]
+                                 eps=2e-3, device=eng.device, workspace=workspace(eng, "vertex_radiance.sun_dB")
+                                 ).astype(np.float64) @ eng._sun_dB[ch]
     if dB is not None:
         # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
         loss = np.abs(luminance(dB)) * pm.area
@@ -200,7 +203,8 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
             # gather it at a spread subset of vertices and interpolate by position and normal
             sub = ss.sub
             G = transfer_matrix(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed],
-                                [eng.scene_occ, own], n_side=1, eps=2e-3, device=eng.device)
+                                [eng.scene_occ, own], n_side=1, eps=2e-3, device=eng.device,
+                                workspace=workspace(eng, "vertex_radiance.dB"))
             E += ss.interpolate(G.astype(np.float64) @ dB[changed])
     E += E_ind
     if sun_u is not None:
@@ -323,6 +327,6 @@ def specular_map(eng: "Engine", centre: np.ndarray) -> CubeMap:
     p, pm = eng.params, eng.pre.patches
     res_in = max(2 * p.envmap_res, int(np.ceil(2 * np.sqrt(p.shininess))))
     dirs, _ = cube_directions(res_in)
-    tri, _, _ = cast_rays(eng.cam_occ, np.asarray(centre, np.float64), dirs)
+    tri, _, _ = cast_rays(eng.cam_occ, np.asarray(centre, np.float64), dirs, workspace=workspace(eng, "specular_map"))
     L = np.where((tri >= 0)[:, None], eng.B_src[pm.tri_patch[np.maximum(tri, 0)]], 0.0)
     return phong_prefilter(L, res_in, p.shininess, p.envmap_res)

@@ -1,0 +1,93 @@
+"""Kernel wrappers given a kernels.buffers.Workspace (issue 17, item 2): the same numbers as a fresh
+call, bit for bit, with the work cut into blocks smaller than the request, and no Warp array
+allocated once the workspace has its buffers (sizes that change from call to call included)."""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from kernels import runtime
+from kernels.buffers import Workspace
+from kernels.raycast import cast_rays
+from kernels.visibility import Occluder, distance_to, emitter_sum, transfer_matrix
+
+
+def _box(lo, hi):
+    """A closed axis-aligned box (8 vertices, 12 triangles, outward CCW)."""
+    x0, y0, z0 = lo
+    x1, y1, z1 = hi
+    v = np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)], np.float64)
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], np.int32)
+    return v, f
+
+
+class _Allocations:
+    """Counts Warp arrays that own new memory made inside the block."""
+
+    def __enter__(self):
+        self.n, self._init = 0, wp.array.__init__
+        init = self._init
+
+        def counting(arr, *a, **k):
+            init(arr, *a, **k)
+            if getattr(arr, "deleter", None) is not None and getattr(arr, "ptr", None):
+                self.n += 1
+        wp.array.__init__ = counting
+        return self
+
+    def __exit__(self, *exc):
+        wp.array.__init__ = self._init
+
+
+def _calls(rng, occ, n_pts, n_src):
+    """Each wrapper on random points and n_src random quads / triangles, with and without `ws`."""
+    pts = rng.uniform(-2, 2, (n_pts, 3))
+    nrm = rng.normal(size=(n_pts, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    c = rng.uniform(-2, 2, (n_src, 1, 3))
+    quads = c + np.array([[0, 0, 0], [0.3, 0, 0], [0.3, 0.3, 0], [0, 0.3, 0]])
+    qn = np.tile([0.0, 0.0, 1.0], (n_src, 1))
+    tris = quads[:, :3]
+    rad = rng.uniform(0, 1, (n_src, 3))
+    return [
+        lambda ws: cast_rays(occ, np.zeros(3), nrm, workspace=ws),
+        lambda ws: cast_rays(occ, pts, nrm, workspace=ws),
+        lambda ws: transfer_matrix(pts, nrm, quads, qn, [occ], n_side=2, chunk=16, workspace=ws),
+        lambda ws: emitter_sum(pts, nrm, tris, rad, occ, split=40, workspace=ws),
+        lambda ws: distance_to(occ, pts, workspace=ws),
+    ]
+
+
+def test_workspace_gives_the_same_numbers_in_blocks():
+    device = runtime.device()
+    occ = Occluder(*_box((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5)), device)
+    rng = np.random.default_rng(3)
+    # blocks of 32 points and 7 patches: every wrapper runs several launches (and two in parallel)
+    calls = _calls(rng, occ, 100, 20)
+    for call in calls:
+        ws = Workspace(rows=32, sources=7)
+        fresh, reused = call(None), call(ws)
+        for a, b in zip(*(x if isinstance(x, tuple) else (x,) for x in (fresh, reused))):
+            assert a.shape == b.shape and np.array_equal(a, b)
+        assert np.abs(np.asarray(fresh[0] if isinstance(fresh, tuple) else fresh)).sum() > 0  # real work
+
+
+def test_workspace_allocates_nothing_after_its_first_call():
+    device = runtime.device()
+    occ = Occluder(*_box((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5)), device)
+    rng = np.random.default_rng(4)
+    workspaces = [Workspace(rows=64, sources=16) for _ in _calls(rng, occ, 1, 1)]
+    for i, call in enumerate(_calls(rng, occ, 50, 40)):
+        call(workspaces[i])
+    # more points and more patches than the first call: blocks of the same capacity; fewer: views
+    for n_pts, n_src in ((200, 40), (7, 40), (130, 40)):
+        for i, call in enumerate(_calls(rng, occ, n_pts, n_src)):
+            with _Allocations() as count:
+                out = call(workspaces[i])
+            assert count.n == 0, f"call {i} with {n_pts} points allocated {count.n} arrays"
+            assert len(out[0] if isinstance(out, tuple) else out) == n_pts
+    # without a workspace every call allocates, as before
+    with _Allocations() as count:
+        _calls(rng, occ, 10, 4)[2](None)
+    assert count.n > 0
