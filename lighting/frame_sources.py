@@ -32,6 +32,8 @@ from lighting.hierarchy import receiver_octree, source_kdtree
 from lighting.shafts import ShaftHierarchy
 from recon.response import luminance
 
+BOX_GRID_M = 1e-3  # the object's box is grown outward to this grid before selection (select)
+
 
 @dataclass
 class FrameSources:
@@ -286,6 +288,11 @@ class ShadowSources:
             raise ValueError("passes must be at least 1")
         Vr = self.G_v.shape[0]
         nodes = []
+        # the box grown outward to a 1 mm grid: a pose that moves by less (float noise, the same pose
+        # reached another way) selects the same passes; the shafts and the blocked-light key test
+        # segments against the box, so a micro-metre change could otherwise flip a cluster split
+        box_min = np.floor(np.asarray(box_min, np.float64) / BOX_GRID_M) * BOX_GRID_M
+        box_max = np.ceil(np.asarray(box_max, np.float64) / BOX_GRID_M) * BOX_GRID_M
         if not self.empty:
             t = self.src_tree
             marked, s_nodes, r_nodes = self.traverse(box_min, box_max)
