@@ -157,7 +157,10 @@ def test_representative_eyes_are_blocked_light_centroids(engine):
     scene, eng = engine
     ss = eng.shadow_sources
     t = ss.src_tree
-    lo, hi = scene.obj.vertices.min(0), scene.obj.vertices.max(0)
+    from lighting.frame_sources import BOX_GRID_M
+
+    g = BOX_GRID_M  # select() grows the box outward to this grid first
+    lo, hi = np.floor(scene.obj.vertices.min(0) / g) * g, np.ceil(scene.obj.vertices.max(0) / g) * g
     marked = ss.traverse(lo, hi)[0]
     key = ss.blocked_key(lo, hi)
     assert key.sum() > 0 and (key == 0).any()  # the box blocks some sources' light, not all
