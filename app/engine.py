@@ -33,7 +33,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import logging
-import sys
 import time
 import typing
 from dataclasses import dataclass, field
@@ -41,29 +40,22 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import warp as wp
-from scipy.spatial import cKDTree
-from tqdm import tqdm
 
 from app.stages import precompute as scene_precompute
 from app.stages.compose import ComposeStage
-from app.stages.precompute import (CACHE_VERSION, LIGHTING, Lighting, PrecomputeConfig,  # noqa: F401 (re-exported)
+from app.stages.precompute import (LIGHTING, Lighting, PrecomputeConfig,  # noqa: F401 (re-exported)
                                    Precomputed, hash_scene as _hash_scene)
 from app.stages.receiver_map import receiver_map, reflectance
 from kernels import runtime
 from app.stages import object_light, object_shading
-from app.stages.object_shading import ObjectHits, _fill_from_neighbours, _interpolate_on_surface  # noqa: F401 (moved)
-from kernels.raycast import cast_rays
-from kernels.shade import self_transfer
-from kernels.visibility import Occluder, emitter_sum, transfer_matrix
-from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
+from app.stages.object_shading import ObjectHits
+from kernels.visibility import Occluder
+from lighting.envmap import CubeMap
 from lighting.irradiance import RoomLight
 from lighting.radiance import load_captured_probe
 from lighting.sun import SunLight, estimate_sun, openings, surface_albedo
 from app.stages.sun import SunStage
-from lighting.transfer import intensity_transfers
 from recon.patches import PatchMesh
-from recon.proxy import simplify, subdivide
 from recon.response import luminance
 from recon.scene import Scene, SceneObject
 from app.stages.shadow_pass import ShadowPass, window_pairs as _window_pairs

@@ -5,7 +5,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
 from app.cli import demo_scene_dir
 from app.placement import PlacementController, load_object_mesh

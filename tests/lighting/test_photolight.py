@@ -8,7 +8,6 @@ everything photo light may not use, scored by ../shared/tools/score.py.
 """
 import json
 import logging
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np

@@ -4,7 +4,6 @@ Analytic: the sunlit floor of an opening has area A_open |n_open.d| / (n_floor.d
 shadow edge lies where the plate's edge projects along d, its penumbra 2 h tan(0.265 deg) / sin(elev).
 Scenes: sun_room composited with --lighting known and scored against the path-traced truth.
 """
-import copy
 import dataclasses
 import json
 

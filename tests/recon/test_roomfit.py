@@ -13,7 +13,7 @@ import pytest
 from recon import multiview as mv
 from recon.camera import Camera
 from recon.roomfit import WALL_MARGIN_M, EYE_HEIGHT_M, FitOptions, RoomError, fit_room, up_from_cameras
-from tests.conftest import SHARED, shared_scene
+from tests.conftest import shared_scene
 
 W, H, D = 4.5, 2.7, 5.0  # room [0,W] x [0,H] x [0,D], back wall z = 0, left wall x = 0
 
