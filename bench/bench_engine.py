@@ -24,6 +24,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.engine import Engine, EngineParams, FrameConfig  # noqa: E402
 from app.report import plot_xy, table  # noqa: E402
+from bench import shared_scenes  # noqa: E402
 from kernels.visibility import segments_visible  # noqa: E402
 from recon.io import write_png  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
@@ -82,11 +83,7 @@ def main() -> None:
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     results, ray_rows, curves = [], [], {}
-    for name in a.scenes:
-        scene_dir = a.shared / "scenes" / name
-        if not (scene_dir / "scene.json").is_file():
-            print(f"skip {name}: {scene_dir} not found")
-            continue
+    for name, scene_dir in shared_scenes(a.shared, a.scenes):
         scene = load_scene(scene_dir)
         with tempfile.TemporaryDirectory() as cache:
             engine = Engine(scene, EngineParams(mode=a.mode), cache_dir=cache, quiet=True)

@@ -18,6 +18,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.engine import Engine, EngineParams  # noqa: E402
 from app.report import plot_xy, table  # noqa: E402
+from bench import shared_scenes  # noqa: E402
 from bench.bench_engine import scored_row  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
@@ -31,11 +32,7 @@ def main() -> None:
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     rows, curves = [], {}
-    for name in a.scenes:
-        scene_dir = a.shared / "scenes" / name
-        if not (scene_dir / "scene.json").is_file():
-            print(f"skip {name}: {scene_dir} not found")
-            continue
+    for name, scene_dir in shared_scenes(a.shared, a.scenes):
         scene = load_scene(scene_dir)
         xs, ys = [], []
         for size in a.sizes:

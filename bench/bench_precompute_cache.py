@@ -22,6 +22,7 @@ sys.path.insert(0, str(ROOT))
 from app.cli import demo_scene_dir  # noqa: E402
 from app.engine import Engine, EngineParams  # noqa: E402
 from app.report import table  # noqa: E402
+from bench import shared_scenes  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
 
@@ -34,11 +35,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:  # compile the kernels outside the timings
         Engine(load_scene(demo_scene_dir()), EngineParams(patch_size=0.5), cache_dir=tmp, quiet=True)
     rows = []
-    for name in a.scenes:
-        scene_dir = a.shared / "scenes" / name
-        if not (scene_dir / "scene.json").is_file():
-            print(f"skip {name}: {scene_dir} not found")
-            continue
+    for name, scene_dir in shared_scenes(a.shared, a.scenes):
         scene = load_scene(scene_dir)
         with tempfile.TemporaryDirectory() as cache:
             for k in range(1 + a.warm):

@@ -106,6 +106,17 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
     return rows
 
 
+def shared_score(shared: Path, pixels: np.ndarray) -> dict:
+    """The shared scorer's figures (../shared/tools/score.py, run as the judges run it) for an 8-bit
+    composite of sun_room."""
+    with tempfile.TemporaryDirectory() as tmp:
+        png = Path(tmp) / "c.png"
+        write_png(png, pixels)
+        out = subprocess.run([sys.executable, str(shared / "tools" / "score.py"), str(shared / "scenes" / "sun_room"),
+                              str(png)], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
@@ -160,13 +171,7 @@ def main(argv=None) -> int:
     for s in (4, 8):  # the outline where sunlight clips, re-sampled s x s (the frame's own: 2 x 2)
         engine.sun_stage.edge_samples = s
         frame = engine.render(obj)
-        with tempfile.TemporaryDirectory() as tmp:
-            png = Path(tmp) / "c.png"
-            write_png(png, frame.pixels)
-            out = subprocess.run([sys.executable, str(a.shared / "tools" / "score.py"),
-                                  str(a.shared / "scenes" / "sun_room"), str(png)], capture_output=True, text=True,
-                                 check=True)
-        sc = json.loads(out.stdout.strip().splitlines()[-1])
+        sc = shared_score(a.shared, frame.pixels)
         rows.append({"outline rays": f"{s} x {s}", "object_shading_ms": 1e3 * frame.stats["timings"]["object_shading"],
                      "rmse_object": sc["rmse_object"], "bias_object": sc["bias_object"]})
     engine.sun_stage.edge_samples = 4
@@ -188,14 +193,7 @@ def main(argv=None) -> int:
     rows = []
     cap = Engine(scene, EngineParams(passes=a.passes, lighting="captured"), cache_dir=a.cache, quiet=True)
     for name, eng in (("known", engine), ("captured", cap)):
-        frame = eng.render(obj)
-        with tempfile.TemporaryDirectory() as tmp:
-            png = Path(tmp) / "c.png"
-            write_png(png, frame.pixels)
-            out = subprocess.run([sys.executable, str(a.shared / "tools" / "score.py"),
-                                  str(a.shared / "scenes" / "sun_room"), str(png)], capture_output=True, text=True,
-                                 check=True)
-        rows.append({"lighting": name, **json.loads(out.stdout.strip().splitlines()[-1])})
+        rows.append({"lighting": name, **shared_score(a.shared, eng.render(obj).pixels)})
     print(table(rows, ["lighting", "energy_ratio", "rmse_affected", "rmse_affected_if_untouched", "spurious",
                        "rmse_object", "bias_object"]))
     est = cap.sun_estimate or {}
