@@ -178,10 +178,9 @@ def main(argv: list[str] | None = None) -> int:
                            placement=a.placement, work_res=a.work_res, object_albedo=a.object_albedo)
             print(a.out / "composite.png")
         elif a.command == "demo":
-            report = composite.main(demo_scene_dir(), a.out, params, cache_dir=a.cache or a.out.parent / ".cache",
-                                    quiet=a.quiet, device=a.device)
-            print(f"demo composite: {a.out / 'composite.png'}  (precompute {report['precompute_s']:.1f} s, "
-                  f"frame {report['frame_s']:.2f} s, {report['n_sources']} shadow sources)")
+            composite.main(demo_scene_dir(), a.out, params, cache_dir=a.cache or a.out.parent / ".cache",
+                           quiet=a.quiet, device=a.device)
+            print(a.out / "composite.png")  # as composite: the path on stdout, the timings in the log line
         return 0
     except (SceneError, FileNotFoundError, RuntimeError, ValueError) as e:
         print(f"photoar: error: {e}", file=sys.stderr)
