@@ -3,6 +3,7 @@ irradiance / pi (DESIGN "Per-frame stages"). The object's proxy triangles are th
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -35,7 +36,21 @@ def triangle_radiance(eng: "Engine", obj: SceneObject, pv, pf, proxy_occ, B: np.
     return obj.albedo * eng._object_irradiance(c, proxy_shape(eng, pv, pf, proxy_occ).normals, proxy_occ, B)
 
 
-def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, covered: np.ndarray | None = None):
+@dataclass
+class ExtraEmitters:
+    """Emitters the object has besides its proxy's triangles (the sunlit pieces of its faces,
+    app.stages.sun): triangles for the exact sum near the object, point emitters beyond FAR_FIELD."""
+
+    tris: np.ndarray  # (S,3,3) CCW seen from the emitting side
+    rad: np.ndarray  # (S,3) radiance
+    far_c: np.ndarray  # (F,3) point emitters' positions
+    far_tn: np.ndarray  # (F,3) twice their area x unit normal
+    far_rad: np.ndarray  # (F,3) radiance
+    far_seen: np.ndarray  # (F, 6 CUBE_RES^2) bool: the directions each one sees out of the object
+
+
+def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, covered: np.ndarray | None = None,
+                 extra: ExtraEmitters | None = None):
     """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi.
 
     Far from the object the reflected light varies slowly: it is evaluated at receiver vertices
@@ -44,16 +59,24 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     under a seat), it is evaluated per pixel where the upper bound of its gain exceeds a quarter
     level: exactly on an adaptive screen grid, blended between the grid's nodes where the light
     varies slowly (_near_pixels). covered: optional (H*W,) bool, pixels the object hides entirely
-    (their room is not seen: left at the interpolated value).
+    (their room is not seen: left at the interpolated value). extra: emitters besides the proxy's
+    triangles (ExtraEmitters), or None.
     """
     pre, pm = eng.pre, eng.pre.patches
     resp = eng.scene.response
     table = pixel_table(eng)
     tris = pv[pf]
     tvis = proxy_shape(eng, pv, pf, proxy_occ).visibility
+    far = None
+    if extra is not None:
+        tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        far = (np.concatenate([tris.mean(1), extra.far_c]), np.concatenate([tn, extra.far_tn]),
+               np.concatenate([tri_rad, extra.far_rad]), np.concatenate([tvis.seen, extra.far_seen]))
+        tris = np.concatenate([tris, extra.tris])
+        tri_rad = np.concatenate([tri_rad, extra.rad])
     rv = pre.recv_vert
     R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, eng.device,
-                     tvis, workspace(eng, "object_light.vertices"))
+                     tvis, workspace(eng, "object_light.vertices"), far)
     R_pix = np.zeros((len(eng.L_b), 3))
     # the pixels of the patches with a vertex that gets a visible share of the object's light
     reach_v = luminance(R_v) * float(eng.rho_x.max()) > 5e-4 * float(luminance(eng.B_src).mean())
@@ -78,7 +101,7 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
     R_cen = np.zeros((pm.n_patches, 3))
     R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, centre, radius,
-                               eng.device, tvis, workspace(eng, "object_light.centres"))
+                               eng.device, tvis, workspace(eng, "object_light.centres"), far)
     eng._n_object_light_pixels = len(sel)
     return R_pix, R_cen
 
@@ -131,8 +154,13 @@ class TriangleVisibility:
 
     def lookup(self, tri_to_point: np.ndarray) -> np.ndarray:
         """(N,T) float: 1 where the direction (N,T,3) from triangle t leaves the object unblocked."""
-        t = np.broadcast_to(np.arange(self.seen.shape[0]), tri_to_point.shape[:2])
-        return self.seen[t, _cube_bin(tri_to_point, CUBE_RES)].astype(np.float64)
+        return _seen_lookup(self.seen, tri_to_point)
+
+
+def _seen_lookup(seen: np.ndarray, tri_to_point: np.ndarray) -> np.ndarray:
+    """(N,T) float: seen[t, cell of the direction (N,T,3) from emitter t] (a visibility table's rows)."""
+    t = np.broadcast_to(np.arange(seen.shape[0]), tri_to_point.shape[:2])
+    return seen[t, _cube_bin(tri_to_point, CUBE_RES)].astype(np.float64)
 
 
 class ProxyShape:
@@ -145,9 +173,14 @@ class ProxyShape:
         self.normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
+def shape_key(pv: np.ndarray, pf: np.ndarray) -> str:
+    """The key of a proxy's shape: the centred proxy to 1 um (a translation keeps it)."""
+    return hashlib.sha1(np.round(pv - pv.mean(0), 6).tobytes() + np.ascontiguousarray(pf).tobytes()).hexdigest()
+
+
 def proxy_shape(eng: "Engine", pv: np.ndarray, pf: np.ndarray, proxy_occ: Occluder) -> ProxyShape:
-    """The proxy's ProxyShape, kept for the last shape (the key is the centred proxy to 1 um)."""
-    key = hashlib.sha1(np.round(pv - pv.mean(0), 6).tobytes() + np.ascontiguousarray(pf).tobytes()).hexdigest()
+    """The proxy's ProxyShape, kept for the last shape (shape_key)."""
+    key = shape_key(pv, pf)
     cached = getattr(eng, "_proxy_shape", None)
     if cached is None or cached[0] != key:
         cached = eng._proxy_shape = (key, ProxyShape(pv[pf], proxy_occ))
@@ -156,12 +189,14 @@ def proxy_shape(eng: "Engine", pv: np.ndarray, pf: np.ndarray, proxy_occ: Occlud
 
 def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
                centre: np.ndarray, radius: float, device, tvis: TriangleVisibility | None = None,
-               ws: Workspace | None = None) -> np.ndarray:
+               ws: Workspace | None = None, far_emitters: tuple | None = None) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3) at points (N,3) [normals (N,3)]: exact (emitter_sum) within
     FAR_FIELD bounding radii of the object; beyond, where each triangle subtends a small solid angle,
     the point-source form factor A_t cos_x cos_t / (pi r^2) times the triangle's own visibility
     towards x from the per-shape table `tvis` (the object is the only occluder, as in emitter_sum).
-    ws: the call site's kernel buffers (kernels.buffers.Workspace), or None."""
+    ws: the call site's kernel buffers (kernels.buffers.Workspace), or None. far_emitters: the point
+    emitters used beyond FAR_FIELD instead of the triangles' centroids, (positions (F,3), twice area x
+    unit normal (F,3), radiance (F,3), visibility table rows (F, 6 CUBE_RES^2) bool), or None."""
     out = np.zeros((len(points), 3))
     far = np.linalg.norm(points - centre, axis=1) > FAR_FIELD * radius
     near = np.flatnonzero(~far)
@@ -170,16 +205,20 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
                                 workspace=ws)
     far = np.flatnonzero(far)
     if len(far):
-        c = tris.mean(1)
-        tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # (T,3) twice the area x normal
+        if far_emitters is None:
+            c = tris.mean(1)
+            tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # (T,3) twice the area x normal
+            rad, seen = tri_rad, (tvis.seen if tvis is not None else None)
+        else:
+            c, tn, rad, seen = far_emitters
         d = c[None] - points[far][:, None]  # (N,T,3) point -> triangle
         r2 = np.einsum("ntc,ntc->nt", d, d)
         cos_x = np.maximum(np.einsum("ntc,nc->nt", d, normals[far]), 0.0)
         cos_t = np.maximum(-np.einsum("ntc,tc->nt", d, tn), 0.0)  # |tn| = 2 area; both cosines carry 1/r
         g = cos_x * cos_t * 0.5 / (np.pi * r2 * r2)
-        if tvis is not None:
-            g *= tvis.lookup(-d)
-        out[far] = g @ tri_rad
+        if seen is not None:
+            g *= _seen_lookup(seen, -d)
+        out[far] = g @ rad
     return out
 
 

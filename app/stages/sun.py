@@ -20,7 +20,8 @@ import numpy as np
 from kernels.raycast import cast_rays
 from kernels.sunshadow import SunShadowMap
 from kernels.visibility import Occluder
-from lighting.sun import SunLight
+from app.stages.object_light import ExtraEmitters, shape_key
+from lighting.sun import SunLight, SunlitPieces
 
 
 class SunStage:
@@ -41,6 +42,7 @@ class SunStage:
         self._cen = self.map.points(c_pts)
         self.device = device
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
+        self._pieces: tuple[str, SunlitPieces] | None = None  # the last proxy shape's (object_emitters)
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
@@ -68,15 +70,55 @@ class SunStage:
         return out
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
-                        proxy_occ: Occluder, radius: float):
-        """The proxy (pv, pf) with its room-lit radiance tri_rad (T,3), plus its sunlit parts as small
-        emitting pieces (SunLight.sunlit_elements, pieces of radius/4 m): (vertices, faces, radiance)."""
-        sub, E, _ = self.light.sunlit_elements(pv[pf], [proxy_occ], size=radius / 4.0)
-        if len(sub) == 0:
-            return pv, pf, tri_rad
-        v = np.concatenate([pv, sub.reshape(-1, 3)])
-        f = np.concatenate([pf, len(pv) + np.arange(3 * len(sub)).reshape(-1, 3)])
-        return v, f, np.concatenate([tri_rad, albedo * E])
+                        proxy_occ: Occluder, radius: float, seen: np.ndarray
+                        ) -> tuple[np.ndarray, ExtraEmitters | None]:
+        """The proxy's sunlit parts as emitters for the object-light stage: (tri_rad (T,3) of the
+        proxy (pv, pf) with the sun of its wholly sunlit faces added, the lit pieces of its partly
+        sunlit faces (ExtraEmitters) or None).
+
+        The pieces (lighting.sun.SunlitPieces, radius/4 m) and the object's own shadow on them are
+        made once per shape; per frame only the room's shadow on them is tested. A face whole in
+        the sun emits as one triangle (the same light at the same place); a partly lit face's lit
+        pieces keep where its light leaves and what each receiver sees of it. Beyond FAR_FIELD
+        radii a partly lit face's lit pieces are one point emitter at their power centroid with
+        the face's row `seen` (T, 6 CUBE_RES^2) of the proxy's visibility table."""
+        tris = pv[pf]
+        pieces = self._pieces_of(pv, pf, tris, proxy_occ, radius)
+        if len(pieces) == 0:
+            return tri_rad, None
+        origin = tris.reshape(-1, 3).mean(0)
+        share = pieces.lit_share(origin)
+        T = len(pf)
+        lit = share > 0
+        whole = np.bincount(pieces.parent, (share >= 1.0).astype(float), T) == np.bincount(pieces.parent, minlength=T)
+        whole &= np.bincount(pieces.parent, minlength=T) > 0
+        E_face = np.zeros(T)  # cos of the wholly sunlit faces
+        E_face[pieces.parent] = pieces.cos
+        tri_rad = tri_rad + albedo * (np.where(whole, E_face, 0.0)[:, None] * self.E_perp)
+        part = np.flatnonzero(lit & ~whole[pieces.parent])
+        if len(part) == 0:
+            return tri_rad, None
+        rad = albedo * ((share[part] * pieces.cos[part])[:, None] * self.E_perp)
+        sub = pieces.tris(origin)[part]
+        # far field: one point emitter per partly lit face at its lit pieces' power centroid
+        par, inv = np.unique(pieces.parent[part], return_inverse=True)
+        a = pieces.area[part]
+        w = a * share[part]
+        A = np.bincount(inv, a, len(par))
+        c = np.stack([np.bincount(inv, w * sub[:, :, k].mean(1), len(par)) for k in range(3)], 1)
+        c /= np.bincount(inv, w, len(par))[:, None]
+        power = np.stack([np.bincount(inv, a * rad[:, k], len(par)) for k in range(3)], 1)
+        nrm = pieces.normal[part][np.unique(inv, return_index=True)[1]]
+        extra = ExtraEmitters(sub, rad, c, 2.0 * A[:, None] * nrm, power / A[:, None], seen[par])
+        return tri_rad, extra
+
+    def _pieces_of(self, pv: np.ndarray, pf: np.ndarray, tris: np.ndarray, proxy_occ: Occluder,
+                   radius: float) -> SunlitPieces:
+        """The SunlitPieces of this proxy shape (kept for the last shape, object_light.shape_key)."""
+        key = shape_key(pv, pf)
+        if self._pieces is None or self._pieces[0] != key:
+            self._pieces = (key, SunlitPieces(self.light, tris, proxy_occ, size=radius / 4.0))
+        return self._pieces[1]
 
     def refine_clipped_edges(self, camera, cam_occ: Occluder, mesh, own: Occluder, L_vert: np.ndarray,
                              sun_vert: np.ndarray, albedo: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray,
