@@ -17,6 +17,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from kernels import runtime
+from kernels.buffers import Workspace
 from kernels.raycast import cast_rays
 from kernels.sunshadow import SunShadowMap
 from kernels.visibility import Occluder
@@ -43,6 +45,7 @@ class SunStage:
         self.device = device
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
         self._pieces: tuple[str, SunlitPieces] | None = None  # the last proxy shape's (object_emitters)
+        self._ws = {k: Workspace() for k in ("edge.object", "edge.scene")}  # kept ray buffers per call site
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
@@ -134,9 +137,15 @@ class SunStage:
         H, W = cov.shape
         s = s or self.edge_samples
         v, n, f = mesh
-        lum = obj_rad @ np.array([0.2126, 0.7152, 0.0722])
-        bright = (lum >= 1.0) | clipped.reshape(H, W)
-        on = (cov > 0).astype(np.uint8)
+        rows, cols = np.flatnonzero(cov.any(1)), np.flatnonzero(cov.any(0))
+        if len(rows) == 0:
+            return np.zeros(0, np.int64)
+        # the object's box and 2 pixels around it: every outline pixel and its 3x3 window lie inside
+        y0, y1 = max(rows[0] - 2, 0), min(rows[-1] + 3, H)
+        x0, x1 = max(cols[0] - 2, 0), min(cols[-1] + 3, W)
+        lum = obj_rad[y0:y1, x0:x1] @ np.array([0.2126, 0.7152, 0.0722])
+        bright = (lum >= 1.0) | clipped.reshape(H, W)[y0:y1, x0:x1]
+        on = (cov[y0:y1, x0:x1] > 0).astype(np.uint8)
         box = np.ones((3, 3), np.uint8)
         near_on = cv2.dilate(on, box) > 0
         inner = cv2.erode(on, box, borderType=cv2.BORDER_REPLICATE) > 0
@@ -145,14 +154,16 @@ class SunStage:
         py, px = np.nonzero(outline)
         if len(py) == 0:
             return np.zeros(0, np.int64)
+        py, px = py + y0, px + x0
         offs = (np.arange(s) + 0.5) / s - 0.5
         ou, ov = [a.ravel() for a in np.meshgrid(offs, offs)]
         U = (px[:, None] + ou[None]).ravel()
         V = (py[:, None] + ov[None]).ravel()
         d = np.stack([U, V, np.ones_like(U)], -1) @ np.linalg.inv(camera.K).T @ camera.R
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        tri, bary, depth = cast_rays(own, camera.centre, d)
-        _, _, scene_depth = cast_rays(cam_occ, camera.centre, d)
+        (tri, bary, depth), (_, _, scene_depth) = runtime.run_parallel([  # one cast per core on the CPU
+            lambda: cast_rays(own, camera.centre, d, workspace=self._ws["edge.object"]),
+            lambda: cast_rays(cam_occ, camera.centre, d, workspace=self._ws["edge.scene"])])
         hit = (tri >= 0) & (depth < scene_depth)
         rad = np.zeros((len(d), 3))
         h = np.flatnonzero(hit)
