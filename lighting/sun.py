@@ -17,9 +17,11 @@ whose rays miss every opening give zero direct light everywhere, with a warning,
 from __future__ import annotations
 
 import logging
+import threading
 
 import numpy as np
 
+from kernels import runtime
 from kernels.buffers import Workspace
 from kernels.raycast import cast_rays
 from kernels.visibility import Occluder
@@ -60,7 +62,8 @@ class SunLight:
         self.openings = list(holes)
         self.occluder = occluder
         self.device = occluder.device
-        self._ws = Workspace()  # visibility's ray buffers, kept from call to call (render thread only)
+        self._ws: list[Workspace] = []  # visibility's ray buffers per occluder, kept from call to call (not
+        # shared between threads: one caller at a time)
         self.reason = ""
         if self.d[1] <= 0.0:
             self.reason = f"{where}: the sun is below the horizon (direction_to_sun y = {self.d[1]:.3g}): no direct sun"
@@ -114,10 +117,15 @@ class SunLight:
         idx, start, t_exit = cand[go], start[go], t_exit[go]
         dirs = np.broadcast_to(self.d, start.shape)
         free = np.ones(len(idx), bool)
-        for occ in (self.occluder, *extra):
-            if occ is None or occ.id == 0 or len(idx) == 0:
-                continue
-            _, _, depth = cast_rays(occ, start, dirs, max_t=float(t_exit.max()) + 1.0, workspace=self._ws)
+        occs = [o for o in (self.occluder, *extra) if o is not None and o.id != 0] if len(idx) else []
+        while len(self._ws) < len(occs):
+            self._ws.append(Workspace())
+        max_t = float(t_exit.max()) + 1.0 if len(idx) else 0.0
+        jobs = [lambda o=o, w=w: cast_rays(o, start, dirs, max_t=max_t, workspace=w)[2]
+                for o, w in zip(occs, self._ws)]
+        # the room and the object side by side, one per core on the CPU (not from inside a pooled launch)
+        pooled = threading.current_thread().name.startswith("photoar")
+        for depth in (runtime.run_parallel(jobs) if not pooled else [j() for j in jobs]):
             free &= ~(depth < t_exit)
         out[idx[free]] = cos[idx[free]]
         return out
