@@ -257,11 +257,13 @@ def _emitter_sum_seen_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array
 
 def emitter_sum_seen(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
                      seen: np.ndarray, res: int, device: str | None = None, split: int = 2048,
-                     workspace: Workspace | None = None) -> np.ndarray:
+                     workspace: Workspace | None = None, capacity: int = 0) -> np.ndarray:
     """emitter_sum with each triangle's visibility from a table instead of a ray: seen (T, 6 res^2)
     bool/uint8, 1 where the direction from triangle t's centroid (cube_cell) leaves its occluder
     (a per-shape table of small emitters on an object that moves; the occluder is then the object
-    alone, as in emitter_sum). Returns (N,3) float64 (= irradiance / pi)."""
+    alone, as in emitter_sum). Returns (N,3) float64 (= irradiance / pi). capacity: triangles the
+    workspace's buffers hold at least (e.g. all the emitters a shape may have: a frame with fewer
+    allocates nothing)."""
     device = runtime.device(device)
     n = len(points)
     if n == 0 or len(triangles) == 0:
@@ -271,11 +273,11 @@ def emitter_sum_seen(points: np.ndarray, normals: np.ndarray, triangles: np.ndar
     else:
         ws, block = workspace, workspace.rows
     seen = np.asarray(seen)
-    table = ws.buffer("seen", len(seen), wp.uint8, device, (seen.shape[1],))
+    table = ws.buffer("seen", max(len(seen), capacity), wp.uint8, device, (seen.shape[1],))
     table.host[:len(seen), :seen.shape[1]] = seen
     table.push(len(seen))
-    shared = [ws.upload("tris", np.asarray(triangles, np.float64), wp.vec3d, device),
-              ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device),
+    shared = [ws.upload("tris", np.asarray(triangles, np.float64), wp.vec3d, device, capacity),
+              ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device, capacity),
               table.dev[:len(seen)], int(res)]
     points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
     out = np.empty((n, 3))

@@ -46,6 +46,7 @@ class ExtraEmitters:
     rad: np.ndarray  # (S,3) radiance
     seen: np.ndarray  # (S, 6 res^2) bool: the directions each one sees out of the object (its visibility)
     res: int  # cells per cube face side of `seen`
+    capacity: int  # the most such emitters the shape can have (kernel buffers are made that large once)
     far_c: np.ndarray  # (F,3) point emitters' positions
     far_tn: np.ndarray  # (F,3) twice their area x unit normal
     far_rad: np.ndarray  # (F,3) radiance
@@ -267,7 +268,7 @@ def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, device=device, split=256, workspace=ws)
     if extra is not None and len(extra.tris):
         out += emitter_sum_seen(points, normals, extra.tris, extra.rad, extra.seen, extra.res, device=device,
-                                split=256, workspace=_extra_workspace(ws))
+                                split=256, workspace=_extra_workspace(ws), capacity=extra.capacity)
     return out
 
 

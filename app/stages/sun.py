@@ -116,7 +116,7 @@ class SunStage:
         c /= np.bincount(inv, w, len(par))[:, None]
         power = np.stack([np.bincount(inv, a * rad[:, k], len(par)) for k in range(3)], 1)
         nrm = pieces.normal[part][np.unique(inv, return_index=True)[1]]
-        extra = ExtraEmitters(sub, rad, table.seen[part], table.res, c, 2.0 * A[:, None] * nrm, power / A[:, None], seen[par])
+        extra = ExtraEmitters(sub, rad, table.seen[part], table.res, len(pieces), c, 2.0 * A[:, None] * nrm, power / A[:, None], seen[par])
         return tri_rad, extra
 
     def _pieces_of(self, pv: np.ndarray, pf: np.ndarray, tris: np.ndarray, proxy_occ: Occluder,
