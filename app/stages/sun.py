@@ -5,8 +5,10 @@ scene; the object's proxy and its silhouette):
 - `SunStage.frame`: one orthographic PCSS shadow map of the object toward the sun (the sun's one
   pass of the budget), the irradiance/pi it takes from the sunlit pixels and from every patch;
 - `SunStage.more_bounces`: a first-bounce change of patch radiance passed on for the later bounces;
-- `SunStage.object_emitters`: the object's sunlit parts as small emitting pieces for the
-  object-light stage;
+- `SunStage.object_emitters`: the object's sunlit parts for the object-light stage: its sun-facing
+  faces split once per shape in object space (lighting.sun.SunlitPieces, with the object's own shadow
+  and each piece's visibility table), per frame only the room's shadow on them tested; wholly lit
+  faces emit whole, partly lit faces their lit pieces;
 - `SunStage.refine_clipped_edges`: the object's outline where a sunlit face or sunlit floor clips,
   re-sampled finely (a clipping neighbour is tens of times brighter: 2x2 samples a pixel put the
   coverage, hence the pixel, tens of levels off).
@@ -25,9 +27,9 @@ from app.stages.object_light import ExtraEmitters, TriangleVisibility, shape_key
 from lighting.sun import SunLight, SunlitPieces
 
 
-PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility table (~6 degrees): the light of
-# the pieces at floor points beside a chair within 1.1 % of a Monte Carlo reference, as with a ray per
-# piece (8 cells: 1.5 %; /tmp/light/mc_pieces.py's comparison, now bench/bench_sun.py's pieces table)
+PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility table (~6 degrees): at floor
+# points beside sun_room's chair their light was within 1.1 % of a Monte Carlo reference on average, as with
+# a ray per piece (8 cells: 1.5 %); bench/bench_sun.py prints the pieces against Monte Carlo per pixel
 
 
 class SunStage:
