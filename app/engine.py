@@ -651,7 +651,7 @@ class Engine:
         self.sun_c_pts = pts + nrm_c * 1e-3
         self.sun_photo_clip = (self.scene.photo.reshape(-1, 3) >= 254).any(1)
         self.sun_stage = SunStage(self.sun_light, self.sun_pts, self.sun_fp, self.sun_E, self.sun_c_patch,
-                                  self.sun_c_pts, self.sun_c_vis, pm.n_patches, self.device)
+                                  self.sun_c_pts, self.sun_c_vis, pm.n_patches, self.device, patches=pm)
 
     def _sun_captured(self) -> None:
         """Captured light: the sun estimated from the photo and the radiance mesh (lighting.sun

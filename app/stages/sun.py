@@ -36,10 +36,12 @@ class SunStage:
     """The sun's per-frame work for one scene (built by Engine._sun_setup_pixels)."""
 
     def __init__(self, light: SunLight, pts: np.ndarray, footprint: np.ndarray, E_pix: np.ndarray,
-                 c_patch: np.ndarray, c_pts: np.ndarray, c_vis: np.ndarray, n_patches: int, device: str):
+                 c_patch: np.ndarray, c_pts: np.ndarray, c_vis: np.ndarray, n_patches: int, device: str,
+                 patches=None):
         """light: the sun through the openings; pts (N,3), footprint (N,) m, E_pix (N,3): the sunlit
         pixels' lookup points, pixel footprints and direct sun; c_patch (Pc,), c_pts (Pc*K,3),
-        c_vis (Pc,K): sunlit patches, their K sample points and the sun's visibility there."""
+        c_vis (Pc,K): sunlit patches, their K sample points and the sun's visibility there; patches:
+        the scene's PatchMesh (the clusters of more_bounces' later passes)."""
         self.light = light
         self.pts, self.footprint, self.E_pix = pts, footprint.astype(np.float32), E_pix
         self.c_patch, self.c_pts, self.c_vis = c_patch, c_pts, c_vis
@@ -50,6 +52,8 @@ class SunStage:
         self._cen = self.map.points(c_pts)
         self.device = device
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
+        self.patches = patches
+        self._coarse: tuple[np.ndarray, CoarseTransfer] | None = None  # (G, its clusters' transfers)
         self._pieces: tuple[str, SunlitPieces, TriangleVisibility] | None = None  # the last proxy shape's (object_emitters)
         self._ws = {k: Workspace() for k in ("edge.object", "edge.scene")}  # kept ray buffers per call site
 
@@ -63,20 +67,35 @@ class SunStage:
         loss_c[self.c_patch] = (self.c_vis * occ_c).mean(1)[:, None] * self.E_perp
         return occ_pix[:, None] * self.E_pix, loss_c
 
-    @staticmethod
-    def more_bounces(dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, bounces: int) -> np.ndarray:
+    def more_bounces(self, dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, bounces: int) -> np.ndarray:
         """sum_{k=1}^{bounces-2} (rho G)^k dB1: a first-bounce change of patch radiance dB1 (P,3)
         (sun a patch no longer reflects, light of the sunlit object) through the patch transfers G
         (P,P) for the later bounces the camera sees (one pass through G_v is the engine's second
-        order)."""
+        order). The first pass is exact (dB1 is sharp: the object's shadow, its contact); the
+        later ones carry a change already spread over the room by G and gather it from clusters
+        of neighbouring patches (CoarseTransfer: their area-weighted mean through the clusters'
+        summed transfers), a tenth of the work of G."""
         out = np.zeros_like(dB1)
         cur = dB1
-        for _ in range(max(bounces - 2, 0)):
-            nz = np.flatnonzero(np.abs(cur).sum(1) > 0)  # float32 products: no float64 copy of G
-            cur = albedo * (G[:, nz] @ cur[nz].astype(np.float32) if len(nz) < len(cur) // 4
-                            else G @ cur.astype(np.float32))
+        coarse = None
+        for k in range(max(bounces - 2, 0)):
+            if k == 0:
+                nz = np.flatnonzero(np.abs(cur).sum(1) > 0)  # float32 products: no float64 copy of G
+                cur = albedo * (G[:, nz] @ cur[nz].astype(np.float32) if len(nz) < len(cur) // 4
+                                else G @ cur.astype(np.float32))
+            else:
+                coarse = coarse or self._coarse_transfer(G)
+                cur = albedo * coarse.gather(cur)
             out += cur
         return out
+
+    def _coarse_transfer(self, G: np.ndarray) -> "CoarseTransfer":
+        """The CoarseTransfer of G over this scene's patches (made on first use, kept per scene)."""
+        if self._coarse is None or self._coarse[0] is not G:
+            if self.patches is None:
+                raise ValueError("SunStage: later bounces need the patch mesh (patches=)")
+            self._coarse = (G, CoarseTransfer(G, self.patches))
+        return self._coarse[1]
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
                         proxy_occ: Occluder, radius: float, seen: np.ndarray
@@ -197,3 +216,28 @@ class SunStage:
         cov[py, px] = c
         obj_rad[py, px] = np.where(c[:, None] > 0, mean, obj_rad[py, px])
         return py * W + px
+
+
+class CoarseTransfer:
+    """Patch transfers G (P,P) gathered from clusters of neighbouring patches: G_c (P,C) float32, the
+    sum of G's columns over each cluster, so that G x ~ G_c x_c with x_c the area-weighted mean of x
+    over each cluster (exact where x is constant on a cluster). Clusters: the patches of one quad
+    whose centres fall in one cube of twice the median patch side (about 2 x 2 patches)."""
+
+    def __init__(self, G: np.ndarray, patches):
+        side = 2.0 * float(np.median(np.sqrt(patches.area)))
+        key = np.column_stack([patches.quad, np.floor(patches.centre / side).astype(np.int64)])
+        _, cl = np.unique(key, axis=0, return_inverse=True)
+        self.cluster = cl.ravel()
+        self.n = int(self.cluster.max()) + 1
+        order = np.argsort(self.cluster, kind="stable")
+        starts = np.searchsorted(self.cluster[order], np.arange(self.n))
+        self.G = np.ascontiguousarray(np.add.reduceat(G[:, order], starts, axis=1), np.float32)  # (P,C)
+        self.area = np.asarray(patches.area, np.float64)
+        self.cluster_area = np.bincount(self.cluster, self.area, self.n)
+
+    def gather(self, x: np.ndarray) -> np.ndarray:
+        """~G x (P,3) for x (P,3)."""
+        xc = np.stack([np.bincount(self.cluster, self.area * x[:, c], self.n) for c in range(3)], 1)
+        xc /= np.maximum(self.cluster_area, 1e-30)[:, None]
+        return self.G @ xc.astype(np.float32)
