@@ -448,9 +448,7 @@ class Engine:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
             extra = None
             if self.sun_pix is not None:  # sun: the object's sunlit parts light the room too (small pieces)
-                tri_rad, extra = self.sun_stage.object_emitters(
-                    pv, pf, tri_rad, obj.albedo, proxy_occ, radius,
-                    object_light.proxy_shape(self, pv, pf, proxy_occ).visibility.seen)
+                tri_rad, extra = self.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, proxy_occ, radius)
             R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, cov.reshape(-1) >= 1.0,
                                               extra)
         t = tick("object_light", t)

@@ -60,7 +60,6 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
     (app.stages.sun.SunStage.object_emitters: wholly lit faces whole, partly lit faces' lit pieces with
     their per-shape visibility table), and a dense Monte Carlo reference (n_mc area samples on the
     object, sun and receiver visibility per sample)."""
-    from app.stages.object_light import TriangleVisibility
     from kernels.visibility import Occluder, emitter_sum, emitter_sum_seen
     from lighting.sources import luminance
 
@@ -79,8 +78,7 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
     faces = obj.albedo * engine.sun_light.triangle_irradiance(T, [occ])
     radius = float(np.linalg.norm(V - 0.5 * (V.min(0) + V.max(0)), axis=1).max())
     sub, E, _ = engine.sun_light.sunlit_elements(T, [occ], size=radius / 4.0)
-    sun_rad, extra = engine.sun_stage.object_emitters(V, F, np.zeros((len(F), 3)), obj.albedo, occ, radius,
-                                                      TriangleVisibility(T, occ).seen)
+    sun_rad, extra = engine.sun_stage.object_emitters(V, F, np.zeros((len(F), 3)), obj.albedo, occ, radius)
     uv, _ = engine.scene.camera.project(0.5 * (V.min(0) + V.max(0))[None])
     cu, cv = uv[0]
     W = engine.scene.camera.width

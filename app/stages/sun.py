@@ -23,7 +23,7 @@ from kernels.buffers import Workspace
 from kernels.raycast import cast_rays
 from kernels.sunshadow import SunShadowMap
 from kernels.visibility import Occluder
-from app.stages.object_light import ExtraEmitters, TriangleVisibility, shape_key
+from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
 from lighting.sun import SunLight, SunlitPieces
 
 
@@ -57,7 +57,7 @@ class SunStage:
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
         self.patches = patches
         self._coarse: tuple[np.ndarray, CoarseTransfer] | None = None  # (G, its clusters' transfers)
-        self._pieces: tuple[str, SunlitPieces, TriangleVisibility] | None = None  # the last proxy shape's (object_emitters)
+        self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
         self._ws = {k: Workspace() for k in ("edge.object", "edge.scene")}  # kept ray buffers per call site
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -101,8 +101,7 @@ class SunStage:
         return self._coarse[1]
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
-                        proxy_occ: Occluder, radius: float, seen: np.ndarray
-                        ) -> tuple[np.ndarray, ExtraEmitters | None]:
+                        proxy_occ: Occluder, radius: float) -> tuple[np.ndarray, ExtraEmitters | None]:
         """The proxy's sunlit parts as emitters for the object-light stage: (tri_rad (T,3) of the
         proxy (pv, pf) with the sun of its wholly sunlit faces added, the lit pieces of its partly
         sunlit faces (ExtraEmitters) or None).
@@ -111,10 +110,10 @@ class SunStage:
         made once per shape; per frame only the room's shadow on them is tested. A face whole in
         the sun emits as one triangle (the same light at the same place); a partly lit face's lit
         pieces keep where its light leaves and what each receiver sees of it. Beyond FAR_FIELD
-        radii a partly lit face's lit pieces are one point emitter at their power centroid with
-        the face's row `seen` (T, 6 CUBE_RES^2) of the proxy's visibility table."""
+        radii a partly lit face's lit pieces are one point emitter at their power centroid that sees
+        a direction as much as they do (power-weighted, their table at CUBE_RES cells a side)."""
         tris = pv[pf]
-        pieces, table = self._pieces_of(pv, pf, tris, proxy_occ, radius)
+        pieces, table, coarse = self._pieces_of(pv, pf, tris, proxy_occ, radius)
         if len(pieces) == 0:
             return tri_rad, None
         origin = tris.reshape(-1, 3).mean(0)
@@ -140,21 +139,29 @@ class SunStage:
         c /= np.bincount(inv, w, len(par))[:, None]
         power = np.stack([np.bincount(inv, a * rad[:, k], len(par)) for k in range(3)], 1)
         nrm = pieces.normal[part][np.unique(inv, return_index=True)[1]]
-        extra = ExtraEmitters(sub, rad, table.seen[part], table.res, len(pieces), c, 2.0 * A[:, None] * nrm, power / A[:, None], seen[par])
+        far_seen = np.zeros((len(par), coarse.shape[1]))
+        np.add.at(far_seen, inv, w[:, None] * coarse[part])
+        far_seen /= np.bincount(inv, w, len(par))[:, None]
+        extra = ExtraEmitters(sub, rad, table.seen[part], table.res, len(pieces), c, 2.0 * A[:, None] * nrm,
+                              power / A[:, None], far_seen)
         return tri_rad, extra
 
     def _pieces_of(self, pv: np.ndarray, pf: np.ndarray, tris: np.ndarray, proxy_occ: Occluder,
-                   radius: float) -> tuple[SunlitPieces, TriangleVisibility]:
-        """The SunlitPieces of this proxy shape and their visibility table (the directions each piece
-        sees out of the object, PIECE_TABLE_RES cells per cube side), kept for the last shape
+                   radius: float) -> tuple[SunlitPieces, TriangleVisibility, np.ndarray]:
+        """The SunlitPieces of this proxy shape, their visibility table (the directions each piece
+        sees out of the object, PIECE_TABLE_RES cells per cube side) and that table as the share of
+        each of CUBE_RES^2 cells per cube face it sees (S, 6 CUBE_RES^2) float, kept for the last shape
         (object_light.shape_key)."""
         key = shape_key(pv, pf)
         if self._pieces is None or self._pieces[0] != key:
             pieces = SunlitPieces(self.light, tris, proxy_occ, size=radius / 4.0)
             table = TriangleVisibility(pieces.tris(tris.reshape(-1, 3).mean(0)), proxy_occ, res=PIECE_TABLE_RES) \
                 if len(pieces) else None
-            self._pieces = (key, pieces, table)
-        return self._pieces[1], self._pieces[2]
+            k = PIECE_TABLE_RES // CUBE_RES
+            coarse = table.seen.reshape(-1, 6, CUBE_RES, k, CUBE_RES, k).mean((3, 5)).reshape(len(pieces), -1) \
+                if table is not None else None
+            self._pieces = (key, pieces, table, coarse)
+        return self._pieces[1:]
 
     def refine_clipped_edges(self, camera, cam_occ: Occluder, mesh, own: Occluder, L_vert: np.ndarray,
                              sun_vert: np.ndarray, albedo: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray,

@@ -303,8 +303,7 @@ def test_sunlit_object_light_matches_a_ray_per_piece(sun_drag):
     v = np.concatenate([pv, sub.reshape(-1, 3)])
     f = np.concatenate([pf, len(pv) + np.arange(3 * len(sub)).reshape(-1, 3)])
     ref_p, ref_c = OL.object_light(e, v, f, np.concatenate([tri_rad, obj.albedo * E]), occ, centre, radius, cov)
-    rad2, extra = e.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, occ, radius,
-                                              OL.proxy_shape(e, pv, pf, occ).visibility.seen)
+    rad2, extra = e.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, occ, radius)
     ours_p, ours_c = e._object_light(pv, pf, rad2, occ, centre, radius, cov, extra)
     assert extra is not None and len(extra.tris) < len(sub)
     sun_p = np.abs(ref_p - base_p).sum()
