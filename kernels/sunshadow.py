@@ -142,7 +142,7 @@ class SunShadowMap:
         up = np.cross(fwd, right)
         self.m = SunMap()
         self.m.right, self.m.up, self.m.fwd = (wp.vec3(*map(float, a)) for a in (right, up, fwd))
-        self.m.res = self.res = int(res)
+        self.m.res = int(res)
         self.m.tan_a = float(np.tan(angular_radius))
         self.m.bias = float(bias)
         self.m.depth = wp.zeros((res, res), dtype=wp.float32, device=self.device)
@@ -153,14 +153,11 @@ class SunShadowMap:
         self._verts = _Buffer(wp.vec3, self.device)
         self._tris = _Buffer(wp.int32, self.device, cols=3)
 
-    def render(self, vertices: np.ndarray, faces: np.ndarray, texel: float | None = None) -> None:
-        """Rasterise the occluder (world coordinates) into the map (buffers kept between calls).
-        texel: the texel size wanted (m): the map then uses that many texels across the occluder's
-        bounding sphere, at most the `res` it was made with (None: `res`)."""
+    def render(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        """Rasterise the occluder (world coordinates) into the map (buffers kept between calls)."""
         v = np.asarray(vertices, np.float64)
         c = 0.5 * (v.min(0) + v.max(0))
         r = float(np.linalg.norm(v - c, axis=1).max()) * 1.01 + 1e-3
-        self.m.res = self.res if texel is None else int(np.clip(np.ceil(2.0 * r / texel), 16, self.res))
         self.m.centre = wp.vec3(*map(float, c))
         self.m.half = r
         self.m.depth.fill_(float("inf"))

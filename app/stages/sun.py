@@ -48,9 +48,6 @@ class SunStage:
         self.n_patches = n_patches
         self.E_perp = light.sun.irradiance / np.pi
         self.map = SunShadowMap(light.sun.direction, light.sun.half_angle, device=device)
-        # the map's texel: a quarter of the finest sunlit pixels' size (their footprint radius / 2; the
-        # lookups filter over the footprint): finer maps move the shadow's edge by < 0.1 px
-        self.texel = 0.5 * float(np.percentile(self.footprint, 10)) if len(self.footprint) else None
         self._pix = self.map.points(pts, footprint)  # kept on the device: no buffers per frame
         self._cen = self.map.points(c_pts)
         self.device = device
@@ -63,7 +60,7 @@ class SunStage:
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
         patch (P,3), mean over its sample points)."""
-        self.map.render(vertices, faces, self.texel)
+        self.map.render(vertices, faces)
         occ_pix = self.map.occlusion_at(self._pix)
         occ_c = self.map.occlusion_at(self._cen).reshape(self.c_vis.shape)
         loss_c = np.zeros((self.n_patches, 3))
