@@ -446,10 +446,11 @@ class Engine:
         R_cen = np.zeros((pm.n_patches, 3))
         if p.object_light:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
-            pv_l, pf_l = pv, pf
+            extra = None
             if self.sun_pix is not None:  # sun: the object's sunlit parts light the room too (small pieces)
-                pv_l, pf_l, tri_rad = self.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, proxy_occ, radius)
-            R_pix, R_cen = self._object_light(pv_l, pf_l, tri_rad, proxy_occ, centre, radius, cov.reshape(-1) >= 1.0)
+                tri_rad, extra = self.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, proxy_occ, radius)
+            R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, cov.reshape(-1) >= 1.0,
+                                              extra)
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)
@@ -538,9 +539,9 @@ class Engine:
         """object_light.triangle_radiance (app/stages/object_light.py)."""
         return object_light.triangle_radiance(self, obj, pv, pf, proxy_occ, B)
 
-    def _object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius, covered=None):
+    def _object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius, covered=None, extra=None):
         """object_light.object_light (app/stages/object_light.py)."""
-        return object_light.object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius, covered)
+        return object_light.object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius, covered, extra)
 
     def _calibrate(self, obj: SceneObject, config: FrameConfig | None = None) -> float:
         """Measure the frame's fixed and per-pass cost before --fps chooses a pass count: one
@@ -648,7 +649,7 @@ class Engine:
         self.sun_c_pts = pts + nrm_c * 1e-3
         self.sun_photo_clip = (self.scene.photo.reshape(-1, 3) >= 254).any(1)
         self.sun_stage = SunStage(self.sun_light, self.sun_pts, self.sun_fp, self.sun_E, self.sun_c_patch,
-                                  self.sun_c_pts, self.sun_c_vis, pm.n_patches, self.device)
+                                  self.sun_c_pts, self.sun_c_vis, pm.n_patches, self.device, patches=pm)
 
     def _sun_captured(self) -> None:
         """Captured light: the sun estimated from the photo and the radiance mesh (lighting.sun

@@ -56,9 +56,11 @@ def jittered(engine: Engine, obj, n: int) -> np.ndarray:
 
 def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: int = 0) -> list[dict]:
     """The sunlit object's light (irradiance/pi, luminance) at floor and wall pixels around it: whole
-    faces (mean sun, one visibility test each), the lit pieces the engine uses, and a dense Monte
-    Carlo reference (n_mc area samples on the object, sun and receiver visibility per sample)."""
-    from kernels.visibility import Occluder, emitter_sum
+    faces (mean sun, one visibility test each), every lit piece with a ray each, the engine's emitters
+    (app.stages.sun.SunStage.object_emitters: wholly lit faces whole, partly lit faces' lit pieces with
+    their per-shape visibility table), and a dense Monte Carlo reference (n_mc area samples on the
+    object, sun and receiver visibility per sample)."""
+    from kernels.visibility import Occluder, emitter_sum, emitter_sum_seen
     from lighting.sources import luminance
 
     V, F = obj.vertices, obj.faces
@@ -76,6 +78,7 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
     faces = obj.albedo * engine.sun_light.triangle_irradiance(T, [occ])
     radius = float(np.linalg.norm(V - 0.5 * (V.min(0) + V.max(0)), axis=1).max())
     sub, E, _ = engine.sun_light.sunlit_elements(T, [occ], size=radius / 4.0)
+    sun_rad, extra = engine.sun_stage.object_emitters(V, F, np.zeros((len(F), 3)), obj.albedo, occ, radius)
     uv, _ = engine.scene.camera.project(0.5 * (V.min(0) + V.max(0))[None])
     cu, cv = uv[0]
     W = engine.scene.camera.width
@@ -101,8 +104,14 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
         mc = luminance((L[a] * (ce[a] * cr[a] / (np.pi * r[a] ** 2))[:, None]).sum(0) * A.sum() / n_mc)
         f = luminance(emitter_sum(p[None], pn[None], T, faces, occ, device=engine.device)[0])
         pc = luminance(emitter_sum(p[None], pn[None], sub, obj.albedo * E, occ, device=engine.device)[0])
-        rows.append({"pixel (du, dv)": f"({du}, {dv})", "monte_carlo": mc, "faces": f, "pieces": pc,
-                     "faces/mc": f / max(mc, 1e-12), "pieces/mc": pc / max(mc, 1e-12)})
+        en = emitter_sum(p[None], pn[None], T, sun_rad, occ, device=engine.device)[0]
+        if extra is not None:
+            en = en + emitter_sum_seen(p[None], pn[None], extra.tris, extra.rad, extra.seen, extra.res,
+                                       device=engine.device)[0]
+        en = luminance(en)
+        rows.append({"pixel (du, dv)": f"({du}, {dv})", "monte_carlo": mc, "faces": f, "pieces": pc, "engine": en,
+                     "faces/mc": f / max(mc, 1e-12), "pieces/mc": pc / max(mc, 1e-12),
+                     "engine/mc": en / max(mc, 1e-12)})
     return rows
 
 
@@ -166,7 +175,7 @@ def main(argv=None) -> int:
     if a.ab_only:
         return 0
     print(table(pieces_against_monte_carlo(engine, obj), ["pixel (du, dv)", "monte_carlo", "faces", "pieces",
-                                                          "faces/mc", "pieces/mc"]))
+                                                          "engine", "faces/mc", "pieces/mc", "engine/mc"]))
     rows = []
     for s in (4, 8):  # the outline where sunlight clips, re-sampled s x s (the frame's own: 2 x 2)
         engine.sun_stage.edge_samples = s

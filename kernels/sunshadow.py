@@ -95,6 +95,10 @@ def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.
     n = m.taps.shape[0]
     r_fp = footprint[i]
     r_search = ((zr - m.z_min) * m.tan_a + r_fp) * s
+    lo = -0.5 - r_search  # every tap of a point this far outside the map falls outside it: unoccluded
+    hi = float(m.res) - 0.5 + r_search
+    if q[0] < lo or q[1] < lo or q[0] > hi or q[1] > hi:
+        return
     zsum = float(0.0)
     nb = float(0.0)
     for k in range(n):

@@ -217,6 +217,86 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
     return out
 
 
+@wp.func
+def cube_cell(d: wp.vec3, r: int) -> int:
+    """Cube-map cell of direction d (any length): face 2 axis + (negative), then r x r cells over
+    the other two coordinates in axis order (app.stages.object_light._cube_bin's layout)."""
+    ax = wp.abs(d)
+    a = int(0)
+    if ax[1] > ax[a]:
+        a = 1
+    if ax[2] > ax[a]:
+        a = 2
+    m = wp.max(ax[a], 1.0e-30)
+    neg = int(0)
+    if d[a] < 0.0:
+        neg = 1
+    u = d[(a + 1) % 3] / m
+    v = d[(a + 2) % 3] / m
+    iu = wp.clamp(int((u + 1.0) * 0.5 * float(r)), 0, r - 1)
+    iv = wp.clamp(int((v + 1.0) * 0.5 * float(r)), 0, r - 1)
+    return ((2 * a + neg) * r + iu) * r + iv
+
+
+@wp.kernel
+def _emitter_sum_seen_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                             tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                             seen: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    p = points[i]
+    n = normals[i]
+    total = wp.vec3(0.0, 0.0, 0.0)
+    for t in range(tris.shape[0]):
+        f = polygon_ff(p, n, tris, t, 3)
+        if f > wp.float64(0.0):
+            centroid = (tris[t, 0] + tris[t, 1] + tris[t, 2]) / wp.float64(3.0)
+            if seen[t, cube_cell(wp.vec3(p - centroid), res)] != wp.uint8(0):
+                total += radiance[t] * float(f)
+    out[i] = total
+
+
+def emitter_sum_seen(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
+                     seen: np.ndarray, res: int, device: str | None = None, split: int = 2048,
+                     workspace: Workspace | None = None, capacity: int = 0) -> np.ndarray:
+    """emitter_sum with each triangle's visibility from a table instead of a ray: seen (T, 6 res^2)
+    bool/uint8, 1 where the direction from triangle t's centroid (cube_cell) leaves its occluder
+    (a per-shape table of small emitters on an object that moves; the occluder is then the object
+    alone, as in emitter_sum). Returns (N,3) float64 (= irradiance / pi). capacity: triangles the
+    workspace's buffers hold at least (e.g. all the emitters a shape may have: a frame with fewer
+    allocates nothing)."""
+    device = runtime.device(device)
+    n = len(points)
+    if n == 0 or len(triangles) == 0:
+        return np.zeros((n, 3))
+    if workspace is None:
+        ws, block = Workspace(), n
+    else:
+        ws, block = workspace, workspace.rows
+    seen = np.asarray(seen)
+    table = ws.buffer("seen", max(len(seen), capacity), wp.uint8, device, (seen.shape[1],))
+    table.host[:len(seen), :seen.shape[1]] = seen
+    table.push(len(seen))
+    shared = [ws.upload("tris", np.asarray(triangles, np.float64), wp.vec3d, device, capacity),
+              ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device, capacity),
+              table.dev[:len(seen)], int(res)]
+    points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+    out = np.empty((n, 3))
+
+    def run(s: int, e: int, slot: int) -> None:  # slot: which concurrent launch (its own buffers)
+        r = ws.buffer(f"out{slot}", block, wp.vec3, device)
+        wp.launch(_emitter_sum_seen_kernel, dim=e - s,
+                  inputs=[ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, block),
+                          ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, block), *shared],
+                  outputs=[r.dev[:e - s]], device=device)
+        out[s:e] = r.pull(e - s)
+
+    halves = [(0, n)] if n <= split or not wp.get_device(device).is_cpu else [(0, n // 2), (n // 2, n)]
+    parts = [[(s, min(e, s + block)) for s in range(a, e, block)] for a, e in halves]
+    for k in range(max(len(p) for p in parts)):  # the halves side by side, one per core on the CPU
+        runtime.run_parallel([lambda r=p[k], i=i: run(*r, i) for i, p in enumerate(parts) if k < len(p)])
+    return out
+
+
 @wp.kernel
 def _distance_kernel(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), max_dist: float,
                      out: wp.array(dtype=wp.float32)):

@@ -17,9 +17,12 @@ whose rays miss every opening give zero direct light everywhere, with a warning,
 from __future__ import annotations
 
 import logging
+import threading
 
 import numpy as np
 
+from kernels import runtime
+from kernels.buffers import Workspace
 from kernels.raycast import cast_rays
 from kernels.visibility import Occluder
 from recon.scene import Quad, Scene, Sun
@@ -59,6 +62,8 @@ class SunLight:
         self.openings = list(holes)
         self.occluder = occluder
         self.device = occluder.device
+        self._ws: list[Workspace] = []  # visibility's ray buffers per occluder, kept from call to call (not
+        # shared between threads: one caller at a time)
         self.reason = ""
         if self.d[1] <= 0.0:
             self.reason = f"{where}: the sun is below the horizon (direction_to_sun y = {self.d[1]:.3g}): no direct sun"
@@ -112,10 +117,15 @@ class SunLight:
         idx, start, t_exit = cand[go], start[go], t_exit[go]
         dirs = np.broadcast_to(self.d, start.shape)
         free = np.ones(len(idx), bool)
-        for occ in (self.occluder, *extra):
-            if occ is None or occ.id == 0 or len(idx) == 0:
-                continue
-            _, _, depth = cast_rays(occ, start, dirs, max_t=float(t_exit.max()) + 1.0)
+        occs = [o for o in (self.occluder, *extra) if o is not None and o.id != 0] if len(idx) else []
+        while len(self._ws) < len(occs):
+            self._ws.append(Workspace())
+        max_t = float(t_exit.max()) + 1.0 if len(idx) else 0.0
+        jobs = [lambda o=o, w=w: cast_rays(o, start, dirs, max_t=max_t, workspace=w)[2]
+                for o, w in zip(occs, self._ws)]
+        # the room and the object side by side, one per core on the CPU (not from inside a pooled launch)
+        pooled = threading.current_thread().name.startswith("photoar")
+        for depth in (runtime.run_parallel(jobs) if not pooled else [j() for j in jobs]):
             free &= ~(depth < t_exit)
         out[idx[free]] = cos[idx[free]]
         return out
@@ -188,6 +198,72 @@ class SunLight:
             self.reason = "sun: its rays miss every opening or reach no surface: no direct sun"
             log.warning("%s", self.reason)
         return out
+
+
+class SunlitPieces:
+    """The sun-facing faces of one object shape split into small pieces once, in object space, with
+    the object's own shadow on them; per frame only the room's part of the sun (openings, walls)
+    is tested (issue 20: the frame's cost of the sunlit object's light).
+
+    Each sun-facing triangle (T,3,3) is split regularly into m^2 pieces, m = ceil(longest edge /
+    size) (at most max_split); each piece carries n(n+1)/2 barycentric sample points. A translation
+    changes neither the pieces nor the object's shadow on them (the sun's rays are parallel), so
+    both are kept per shape and moved with the object (`offset`). Pieces hold `parent` (S,) (the
+    index of their triangle), `area` (S,) m^2, `self_lit` (S,K) bool (sample points the object itself
+    leaves in the sun)."""
+
+    def __init__(self, light: "SunLight", tris: np.ndarray, own: Occluder | None, size: float,
+                 max_split: int = 12, n: int = 2, eps: float = 1e-3):
+        tris = np.asarray(tris, np.float64)
+        self.light = light
+        self.origin = tris.reshape(-1, 3).mean(0) if len(tris) else np.zeros(3)
+        nt = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]) if len(tris) else np.zeros((0, 3))
+        facing = np.flatnonzero(nt @ light.d > 0) if light.active else np.zeros(0, np.int64)
+        f_tris = tris[facing]
+        edge = np.linalg.norm(f_tris - np.roll(f_tris, 1, axis=1), axis=2).max(1) if len(facing) else np.zeros(0)
+        m_all = np.clip(np.ceil(edge / size).astype(int), 1, max_split)
+        pieces, parent = [np.zeros((0, 3, 3))], [np.zeros(0, np.int64)]
+        for m in np.unique(m_all):
+            sel = np.flatnonzero(m_all == m)
+            pieces.append(_split_triangles(f_tris[sel], int(m)))
+            parent.append(np.repeat(facing[sel], int(m) ** 2))
+        sub, self.parent = np.concatenate(pieces), np.concatenate(parent)
+        self.tris0 = sub - self.origin  # (S,3,3) relative to the shape's origin
+        nrm = nt[self.parent] if len(self.parent) else np.zeros((0, 3))
+        self.area = 0.5 * np.linalg.norm(nrm, axis=1) / np.maximum(
+            np.bincount(self.parent, minlength=len(tris))[self.parent], 1) if len(self.parent) else np.zeros(0)
+        self.normal = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+        self.cos = self.normal @ light.d
+        bary = np.array([(i + 1 / 3, j + 1 / 3) for i in range(n) for j in range(n - i)]) / n
+        w = np.stack([1 - bary.sum(1), bary[:, 0], bary[:, 1]], 1)  # (K,3)
+        self.k = len(w)
+        self.pts0 = (np.einsum("kc,scx->skx", w, self.tris0) + self.normal[:, None] * eps).reshape(-1, 3)
+        self.self_lit = np.ones((len(sub), self.k), bool)
+        if own is not None and own.id != 0 and len(sub):
+            _, _, depth = cast_rays(own, self.pts0 + self.origin, np.broadcast_to(light.d, self.pts0.shape))
+            self.self_lit = ~np.isfinite(depth).reshape(len(sub), self.k)
+        self._room = np.zeros(len(self.pts0), bool)
+        self._start = np.zeros_like(self.pts0)
+        self._cand = np.flatnonzero(self.self_lit.ravel())  # points the object leaves in the sun
+        self._cand_nrm = np.repeat(self.normal, self.k, axis=0)[self._cand]
+
+    def __len__(self) -> int:
+        return len(self.parent)
+
+    def tris(self, origin: np.ndarray) -> np.ndarray:
+        """The pieces (S,3,3) with the shape's origin at `origin` (3,)."""
+        return self.tris0 + origin
+
+    def lit_share(self, origin: np.ndarray) -> np.ndarray:
+        """(S,) the share of each piece's sample points in the sun with the shape's origin at
+        `origin`: the object's own shadow (per shape) and the room's (openings, walls; per frame)."""
+        if len(self.parent) == 0:
+            return np.zeros(0)
+        np.add(self.pts0, origin, out=self._start)
+        self._room[:] = False
+        c = self._cand
+        self._room[c] = self.light.visibility(self._start[c], self._cand_nrm, eps=0.0) > 0
+        return self._room.reshape(len(self.parent), self.k).mean(1)
 
 
 _SPLIT_CACHE: dict[int, np.ndarray] = {}  # m -> barycentric corners of the m^2 pieces

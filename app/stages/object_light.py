@@ -3,12 +3,14 @@ irradiance / pi (DESIGN "Per-frame stages"). The object's proxy triangles are th
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from kernels.buffers import Workspace, workspace
-from kernels.visibility import Occluder, distance_to, emitter_sum, segments_visible, transfer_matrix
+from kernels.visibility import (Occluder, distance_to, emitter_sum, emitter_sum_seen, segments_visible,
+                                transfer_matrix)
 from recon.response import luminance
 from recon.scene import SceneObject
 
@@ -35,7 +37,24 @@ def triangle_radiance(eng: "Engine", obj: SceneObject, pv, pf, proxy_occ, B: np.
     return obj.albedo * eng._object_irradiance(c, proxy_shape(eng, pv, pf, proxy_occ).normals, proxy_occ, B)
 
 
-def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, covered: np.ndarray | None = None):
+@dataclass
+class ExtraEmitters:
+    """Emitters the object has besides its proxy's triangles (the sunlit pieces of its faces,
+    app.stages.sun): triangles for the exact sum near the object, point emitters beyond FAR_FIELD."""
+
+    tris: np.ndarray  # (S,3,3) CCW seen from the emitting side
+    rad: np.ndarray  # (S,3) radiance
+    seen: np.ndarray  # (S, 6 res^2) bool: the directions each one sees out of the object (its visibility)
+    res: int  # cells per cube face side of `seen`
+    capacity: int  # the most such emitters the shape can have (kernel buffers are made that large once)
+    far_c: np.ndarray  # (F,3) point emitters' positions
+    far_tn: np.ndarray  # (F,3) twice their area x unit normal
+    far_rad: np.ndarray  # (F,3) radiance
+    far_seen: np.ndarray  # (F, 6 CUBE_RES^2) bool: the directions each one sees out of the object
+
+
+def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, covered: np.ndarray | None = None,
+                 extra: ExtraEmitters | None = None):
     """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi.
 
     Far from the object the reflected light varies slowly: it is evaluated at receiver vertices
@@ -44,16 +63,23 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     under a seat), it is evaluated per pixel where the upper bound of its gain exceeds a quarter
     level: exactly on an adaptive screen grid, blended between the grid's nodes where the light
     varies slowly (_near_pixels). covered: optional (H*W,) bool, pixels the object hides entirely
-    (their room is not seen: left at the interpolated value).
+    (their room is not seen: left at the interpolated value). extra: emitters besides the proxy's
+    triangles (ExtraEmitters), or None.
     """
     pre, pm = eng.pre, eng.pre.patches
     resp = eng.scene.response
     table = pixel_table(eng)
     tris = pv[pf]
     tvis = proxy_shape(eng, pv, pf, proxy_occ).visibility
+    far = None
+    if extra is not None:
+        tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        far = (np.concatenate([tris.mean(1), extra.far_c]), np.concatenate([tn, extra.far_tn]),
+               np.concatenate([tri_rad, extra.far_rad]), np.concatenate([tvis.seen, extra.far_seen]))
+    max_rad = tri_rad.max(0) if extra is None else np.maximum(tri_rad.max(0), extra.rad.max(0))
     rv = pre.recv_vert
     R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, eng.device,
-                     tvis, workspace(eng, "object_light.vertices"))
+                     tvis, workspace(eng, "object_light.vertices"), far, extra)
     R_pix = np.zeros((len(eng.L_b), 3))
     # the pixels of the patches with a vertex that gets a visible share of the object's light
     reach_v = luminance(R_v) * float(eng.rho_x.max()) > 5e-4 * float(luminance(eng.B_src).mean())
@@ -65,20 +91,20 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     near = dist < eng.near_factor * radius
     rp, dist = rp[near], dist[near]
     f_bound = np.minimum(1.0, (radius / np.maximum(dist, 1e-6)) ** 2)
-    bound = eng.rho_x[rp] * tri_rad.max(0) * f_bound[:, None]
+    bound = eng.rho_x[rp] * max_rad * f_bound[:, None]
     gain = (resp.to_levels(eng.L_b[rp] + bound) - resp.to_levels(eng.L_b[rp])).max(1)
     sel = rp[gain > 0.25]
     if covered is not None:
         sel = sel[~covered[sel]]
     if len(sel):
-        R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ)
+        R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra)
     # patch centres, for the second-order term
     dist_c = np.linalg.norm(pm.centre - centre, axis=1)
-    reach = np.minimum(1.0, (radius / np.maximum(dist_c, 1e-6)) ** 2) * luminance(tri_rad.max(0))
+    reach = np.minimum(1.0, (radius / np.maximum(dist_c, 1e-6)) ** 2) * luminance(max_rad)
     near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
     R_cen = np.zeros((pm.n_patches, 3))
     R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, centre, radius,
-                               eng.device, tvis, workspace(eng, "object_light.centres"))
+                               eng.device, tvis, workspace(eng, "object_light.centres"), far, extra)
     eng._n_object_light_pixels = len(sel)
     return R_pix, R_cen
 
@@ -120,8 +146,9 @@ class TriangleVisibility:
     """Which directions each proxy triangle's centroid sees out of the object (T, 6 CUBE_RES^2) bool,
     one ray per cube-map cell against the proxy itself. Per shape: a translation changes nothing."""
 
-    def __init__(self, tris: np.ndarray, proxy_occ: Occluder, eps: float = 1e-3):
-        dirs = _cube_dirs(CUBE_RES)
+    def __init__(self, tris: np.ndarray, proxy_occ: Occluder, eps: float = 1e-3, res: int = CUBE_RES):
+        self.res = res
+        dirs = _cube_dirs(res)
         c = tris.mean(1)
         tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
@@ -131,8 +158,13 @@ class TriangleVisibility:
 
     def lookup(self, tri_to_point: np.ndarray) -> np.ndarray:
         """(N,T) float: 1 where the direction (N,T,3) from triangle t leaves the object unblocked."""
-        t = np.broadcast_to(np.arange(self.seen.shape[0]), tri_to_point.shape[:2])
-        return self.seen[t, _cube_bin(tri_to_point, CUBE_RES)].astype(np.float64)
+        return _seen_lookup(self.seen, tri_to_point, self.res)
+
+
+def _seen_lookup(seen: np.ndarray, tri_to_point: np.ndarray, res: int = CUBE_RES) -> np.ndarray:
+    """(N,T) float: seen[t, cell of the direction (N,T,3) from emitter t] (a visibility table's rows)."""
+    t = np.broadcast_to(np.arange(seen.shape[0]), tri_to_point.shape[:2])
+    return seen[t, _cube_bin(tri_to_point, res)].astype(np.float64)
 
 
 class ProxyShape:
@@ -145,9 +177,14 @@ class ProxyShape:
         self.normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
+def shape_key(pv: np.ndarray, pf: np.ndarray) -> str:
+    """The key of a proxy's shape: the centred proxy to 1 um (a translation keeps it)."""
+    return hashlib.sha1(np.round(pv - pv.mean(0), 6).tobytes() + np.ascontiguousarray(pf).tobytes()).hexdigest()
+
+
 def proxy_shape(eng: "Engine", pv: np.ndarray, pf: np.ndarray, proxy_occ: Occluder) -> ProxyShape:
-    """The proxy's ProxyShape, kept for the last shape (the key is the centred proxy to 1 um)."""
-    key = hashlib.sha1(np.round(pv - pv.mean(0), 6).tobytes() + np.ascontiguousarray(pf).tobytes()).hexdigest()
+    """The proxy's ProxyShape, kept for the last shape (shape_key)."""
+    key = shape_key(pv, pf)
     cached = getattr(eng, "_proxy_shape", None)
     if cached is None or cached[0] != key:
         cached = eng._proxy_shape = (key, ProxyShape(pv[pf], proxy_occ))
@@ -156,30 +193,37 @@ def proxy_shape(eng: "Engine", pv: np.ndarray, pf: np.ndarray, proxy_occ: Occlud
 
 def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
                centre: np.ndarray, radius: float, device, tvis: TriangleVisibility | None = None,
-               ws: Workspace | None = None) -> np.ndarray:
+               ws: Workspace | None = None, far_emitters: tuple | None = None,
+               extra: ExtraEmitters | None = None) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3) at points (N,3) [normals (N,3)]: exact (emitter_sum) within
     FAR_FIELD bounding radii of the object; beyond, where each triangle subtends a small solid angle,
     the point-source form factor A_t cos_x cos_t / (pi r^2) times the triangle's own visibility
     towards x from the per-shape table `tvis` (the object is the only occluder, as in emitter_sum).
-    ws: the call site's kernel buffers (kernels.buffers.Workspace), or None."""
+    ws: the call site's kernel buffers (kernels.buffers.Workspace), or None. far_emitters: the point
+    emitters used beyond FAR_FIELD instead of the triangles' centroids, (positions (F,3), twice area x
+    unit normal (F,3), radiance (F,3), visibility table rows (F, 6 CUBE_RES^2) bool), or None. extra:
+    more emitters summed exactly within FAR_FIELD (_exact_sum), or None."""
     out = np.zeros((len(points), 3))
     far = np.linalg.norm(points - centre, axis=1) > FAR_FIELD * radius
     near = np.flatnonzero(~far)
     if len(near):
-        out[near] = emitter_sum(points[near], normals[near], tris, tri_rad, proxy_occ, device=device, split=256,
-                                workspace=ws)
+        out[near] = _exact_sum(points[near], normals[near], tris, tri_rad, proxy_occ, device, ws, extra)
     far = np.flatnonzero(far)
     if len(far):
-        c = tris.mean(1)
-        tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # (T,3) twice the area x normal
+        if far_emitters is None:
+            c = tris.mean(1)
+            tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # (T,3) twice the area x normal
+            rad, seen = tri_rad, (tvis.seen if tvis is not None else None)
+        else:
+            c, tn, rad, seen = far_emitters
         d = c[None] - points[far][:, None]  # (N,T,3) point -> triangle
         r2 = np.einsum("ntc,ntc->nt", d, d)
         cos_x = np.maximum(np.einsum("ntc,nc->nt", d, normals[far]), 0.0)
         cos_t = np.maximum(-np.einsum("ntc,tc->nt", d, tn), 0.0)  # |tn| = 2 area; both cosines carry 1/r
         g = cos_x * cos_t * 0.5 / (np.pi * r2 * r2)
-        if tvis is not None:
-            g *= tvis.lookup(-d)
-        out[far] = g @ tri_rad
+        if seen is not None:
+            g *= _seen_lookup(seen, -d)
+        out[far] = g @ rad
     return out
 
 
@@ -217,8 +261,29 @@ GRID_TOLERANCE = 0.5  # levels: a cell of the coarsest stride whose nodes differ
 GRID_CLEARANCE = 2.0  # a cell is blended only this many cell diagonals away from the object or farther
 
 
-def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder
-                 ) -> np.ndarray:
+def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
+               device, ws: Workspace | None, extra: ExtraEmitters | None = None) -> np.ndarray:
+    """sum_t B_t F(x -> t) V(x, t) (N,3): the proxy's triangles with a ray each (emitter_sum), plus the
+    extra emitters with their visibility from their per-shape table (emitter_sum_seen)."""
+    out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, device=device, split=256, workspace=ws)
+    if extra is not None and len(extra.tris):
+        out += emitter_sum_seen(points, normals, extra.tris, extra.rad, extra.seen, extra.res, device=device,
+                                split=256, workspace=_extra_workspace(ws), capacity=extra.capacity)
+    return out
+
+
+def _extra_workspace(ws: Workspace | None) -> Workspace | None:
+    """The buffers of the extra emitters' sum at a call site (kept beside the site's own)."""
+    if ws is None:
+        return None
+    extra = getattr(ws, "_extra", None)
+    if extra is None:
+        extra = ws._extra = Workspace(ws.rows, ws.sources)
+    return extra
+
+
+def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
+                 extra: ExtraEmitters | None = None) -> np.ndarray:
     """The object's light (len(sel),3), irradiance/pi, at the listed pixels `sel` near the object.
 
     An adaptive screen grid: at each stride of GRID_STRIDES a pixel whose cell (its four nodes)
@@ -240,8 +305,8 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
         nonlocal known_idx, known_val
         new = np.setdiff1d(idx, known_idx)
         if len(new):
-            val = emitter_sum(eng.pix_pos[new], pm.normal[eng.pix_patch[new]], tris, tri_rad, proxy_occ,
-                              device=eng.device, split=256, workspace=workspace(eng, "near_pixels.exact"))
+            val = _exact_sum(eng.pix_pos[new], pm.normal[eng.pix_patch[new]], tris, tri_rad, proxy_occ, eng.device,
+                             workspace(eng, "near_pixels.exact"), extra)
             known_idx = np.concatenate([known_idx, new])
             known_val = np.concatenate([known_val, val])
             order = np.argsort(known_idx)

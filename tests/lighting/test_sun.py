@@ -156,6 +156,60 @@ def test_sunlit_pieces_keep_the_power_and_the_self_shadow(room):
     assert pieces.mean(1)[:, 0].min() > -0.05  # lit pieces lie right of the shadow edge (x = 0)
 
 
+def test_sunlit_pieces_kept_per_shape_follow_the_object(room):
+    # SunlitPieces splits once and keeps the object's own shadow; moved with the object and its
+    # room shadow tested per frame, the lit pieces and their sun are sunlit_elements' of the moved
+    # object, piece for piece (three poses, one of them partly out of the sunlit patch)
+    from kernels.visibility import Occluder
+    from lighting.sun import SunLight, SunlitPieces, openings
+
+    s, pm, occ = room
+    light = SunLight(s.sun, openings(s), occ)
+    V, F = s.obj.vertices, s.obj.faces
+    pieces = SunlitPieces(light, V[F], Occluder(V, F, "cpu"), size=0.1)
+    origin = V[F].reshape(-1, 3).mean(0)
+    E_perp = s.sun.irradiance / np.pi
+    counts = []
+    for off in ([0.0, 0.0, 0.0], [0.4, 0.0, -0.3], [-1.2, 0.0, 0.8]):
+        off = np.asarray(off)
+        sub, E, parent = light.sunlit_elements(V[F] + off, [Occluder(V + off, F, "cpu")], size=0.1)
+        share = pieces.lit_share(origin + off)
+        lit = np.flatnonzero(share > 0)
+        np.testing.assert_allclose(pieces.tris(origin + off)[lit], sub, atol=1e-9)
+        np.testing.assert_allclose((share * pieces.cos)[lit, None] * E_perp, E, rtol=1e-9)
+        np.testing.assert_array_equal(pieces.parent[lit], parent)
+        counts.append(len(lit))
+    assert min(counts) > 0 and len(set(counts)) > 1, counts
+
+
+def test_emitter_sum_with_a_visibility_table_matches_rays():
+    # small emitting triangles on a floor square half under a plate 0.1 m above it: receivers on a
+    # wall beside it gather the same light with each emitter's visibility from its per-direction
+    # table (32 cells a cube side) as with a ray per emitter; with nothing in the way, exactly
+    from app.stages.object_light import TriangleVisibility
+    from kernels.visibility import Occluder, emitter_sum, emitter_sum_seen
+    from lighting.sun import _split_triangles
+
+    sq = np.array([[[-0.5, 0, -0.5], [-0.5, 0, 0.5], [0.5, 0, 0.5]], [[-0.5, 0, -0.5], [0.5, 0, 0.5], [0.5, 0, -0.5]]])
+    tris = _split_triangles(sq, 6)
+    rad = np.random.default_rng(0).uniform(0.5, 1.0, (len(tris), 3))
+    plate = Occluder(np.array([[-0.7, 0.1, -0.7], [0.0, 0.1, -0.7], [0.0, 0.1, 0.7], [-0.7, 0.1, 0.7]]),
+                     np.array([[0, 2, 1], [0, 3, 2]]), "cpu")
+    y, z = np.meshgrid(np.linspace(0.05, 1.0, 12), np.linspace(-0.8, 0.8, 12))
+    pts = np.stack([np.full(y.size, -1.0), y.ravel(), z.ravel()], 1)
+    nrm = np.tile([1.0, 0.0, 0.0], (len(pts), 1))
+    none = Occluder(None, None, "cpu")
+    total = []
+    for occ, tol in ((none, 1e-9), (plate, 0.05)):
+        table = TriangleVisibility(tris, occ, res=32)
+        rays = emitter_sum(pts, nrm, tris, rad, occ, device="cpu")
+        seen = emitter_sum_seen(pts, nrm, tris, rad, table.seen, 32, device="cpu")
+        assert rays[:, 0].max() > 0
+        np.testing.assert_allclose(seen, rays, rtol=tol, atol=tol * rays.max())
+        total.append(rays.sum())
+    assert total[1] < 0.9 * total[0]  # the plate matters
+
+
 def test_pcss_edge_and_penumbra_of_a_plate(device):
     from kernels.sunshadow import SunShadowMap
 
@@ -200,6 +254,63 @@ def test_sun_map_allocates_nothing_after_the_first_frame(monkeypatch):
     m.render(v + [0.05, 0, 0], f)
     moved = m.occlusion_at(pts)
     assert made == [] and first.max() > 0.5 and not np.array_equal(first, moved)
+
+
+# ---------------------------------------------------------------- the sun's per-frame work on sun_room
+@pytest.fixture(scope="module")
+def sun_drag(tmp_path_factory):
+    """A coarse sun_room engine, its first drag frame made, and the Warp allocations of frames 2..5."""
+    from app.dragpath import drag_offsets, moved
+    from app.engine import Engine, EngineParams, FrameConfig
+    from tests.app.test_frame_allocations import counting_allocations
+
+    s = load_scene(shared_scene("sun_room"), load_textures=False)
+    e = Engine(s, EngineParams(patch_size=0.4, emitter_patch_size=0.3), cache_dir=tmp_path_factory.mktemp("c"),
+               quiet=True)
+    offs = drag_offsets(s, s.obj, 5)
+    e.render(moved(s.obj, offs[0]), FrameConfig(passes=8))
+    with counting_allocations() as events:
+        frames = [e.render(moved(s.obj, o), FrameConfig(passes=8)) for o in offs[1:]]
+    return s, e, frames, events
+
+
+def test_sun_frame_allocates_nothing_after_the_first_frame(sun_drag):
+    # the sun's map, its lookups, the sunlit pieces (per shape) and their light, the clipped outline:
+    # no Warp array or BVH made over frames 2..N of a drag (the whole frame, the sun's stages included)
+    from tests.app.test_frame_allocations import _report
+
+    s, e, frames, events = sun_drag
+    assert e.sun_on and all(f.stats["timings"]["sun"] > 0 for f in frames)
+    assert not events, _report(events)
+
+
+def test_sunlit_object_light_matches_a_ray_per_piece(sun_drag):
+    # the object-light stage's sunlit emitters (wholly lit faces folded into the proxy, partly lit
+    # faces' pieces with their per-shape visibility table, one point per face in the far field)
+    # against every lit piece as its own triangle with a ray per receiver (the form before issue
+    # 20's cost work): the same light on the pixels and patch centres within a few per cent
+    from app.stages import object_light as OL
+
+    s, e, frames, _ = sun_drag
+    obj = s.obj
+    pv, pf, occ, _, _ = e._object_shape(obj)
+    centre = 0.5 * (pv.min(0) + pv.max(0))
+    radius = float(np.linalg.norm(pv - centre, axis=1).max())
+    tri_rad = e._object_triangle_radiance(obj, pv, pf, occ, e.B_obj)
+    cov = np.zeros(len(e.L_b), bool)
+    base_p, base_c = e._object_light(pv, pf, tri_rad, occ, centre, radius, cov)
+    sub, E, _ = e.sun_light.sunlit_elements(pv[pf], [occ], size=radius / 4.0)
+    v = np.concatenate([pv, sub.reshape(-1, 3)])
+    f = np.concatenate([pf, len(pv) + np.arange(3 * len(sub)).reshape(-1, 3)])
+    ref_p, ref_c = OL.object_light(e, v, f, np.concatenate([tri_rad, obj.albedo * E]), occ, centre, radius, cov)
+    rad2, extra = e.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, occ, radius)
+    ours_p, ours_c = e._object_light(pv, pf, rad2, occ, centre, radius, cov, extra)
+    assert extra is not None and len(extra.tris) < len(sub)
+    sun_p = np.abs(ref_p - base_p).sum()
+    assert sun_p > 0.5 * np.abs(base_p).sum()  # the sun's share of the object's light is large here
+    assert np.abs(ours_p - ref_p).sum() < 0.05 * sun_p
+    area = e.pre.patches.area[:, None]
+    assert (ours_c * area).sum() == pytest.approx((ref_c * area).sum(), rel=0.04)
 
 
 # ---------------------------------------------------------------- sun_room end to end
