@@ -14,7 +14,8 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
-from kernels.visibility import Occluder
+from kernels.formfactor import polygon_ff
+from kernels.visibility import Occluder, segment_blocked
 
 
 @wp.func
@@ -88,3 +89,175 @@ def self_transfer(points: np.ndarray, normals: np.ndarray, mesh: Occluder, n_dir
     wp.launch(_transfer_kernel, dim=n, inputs=[pts, nrm, wp.uint64(mesh.id), int(n_dirs), float(eps), 1.0e3],
               outputs=[out, face, bary], device=device)
     return out.numpy(), face.numpy(), bary.numpy()
+
+
+# ---------------------------------------------------------------- patch light with sampled visibility
+# sum_j F(x_i -> patch j) V(x_i, j) c_j at the object's vertices, where the visibility V (one ray to
+# each patch's centre against the room and, where the object can shadow itself, the object) is cast
+# only at a spread subset of the vertices ("samples"); a vertex whose nearest samples on the same
+# side all agree about patch j takes their answer, and only where they disagree (a shadow's edge)
+# or too few of them face the patch is the ray cast. The form factor is exact at every vertex.
+
+_MIN_AGREE = 2  # samples that must agree before a vertex takes their visibility without a ray
+
+
+@wp.func
+def _patch_visible(mesh_a: wp.uint64, mesh_b: wp.uint64, own: int, p: wp.vec3d, n: wp.vec3d,
+                   polys: wp.array2d(dtype=wp.vec3d), poly_normals: wp.array(dtype=wp.vec3), j: int,
+                   eps: float) -> int:
+    """1 when the segment from p (lifted by eps along n) to patch j's centre (lifted along its
+    normal) is blocked by neither mesh (mesh_b only tested when `own` is not 0), else 0."""
+    a = wp.vec3(p) + wp.vec3(n) * eps
+    c0 = wp.vec3(polys[j, 0])
+    b = c0 + (wp.vec3(polys[j, 1]) - c0) * 0.5 + (wp.vec3(polys[j, 3]) - c0) * 0.5 + poly_normals[j] * eps
+    if segment_blocked(mesh_a, a, b):
+        return 0
+    if own != 0 and segment_blocked(mesh_b, a, b):
+        return 0
+    return 1
+
+
+@wp.kernel
+def _sample_visibility_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                              samples: wp.array(dtype=wp.int32), own: wp.array(dtype=wp.int32),
+                              polys: wp.array2d(dtype=wp.vec3d), poly_normals: wp.array(dtype=wp.vec3),
+                              mesh_a: wp.uint64, mesh_b: wp.uint64, eps: float, lo: int,
+                              vis: wp.array2d(dtype=wp.int8)):
+    s0, j = wp.tid()
+    s = s0 + lo
+    i = samples[s]
+    p = points[i]
+    n = normals[i]
+    if polygon_ff(p, n, polys, j, 4) <= wp.float64(0.0):
+        vis[s, j] = wp.int8(-1)  # faces away: says nothing about its neighbours
+    else:
+        vis[s, j] = wp.int8(_patch_visible(mesh_a, mesh_b, own[i], p, n, polys, poly_normals, j, eps))
+
+
+@wp.kernel
+def _sampled_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                        own: wp.array(dtype=wp.int32), sample_of: wp.array(dtype=wp.int32),
+                        nbr: wp.array2d(dtype=wp.int32), vis: wp.array2d(dtype=wp.int8),
+                        polys: wp.array2d(dtype=wp.vec3d), poly_normals: wp.array(dtype=wp.vec3),
+                        colors: wp.array(dtype=wp.vec3), n_patches: int, mesh_a: wp.uint64, mesh_b: wp.uint64,
+                        eps: float, min_agree: int, lo: int, out: wp.array(dtype=wp.vec3),
+                        cast: wp.array(dtype=wp.int32)):
+    i = wp.tid() + lo
+    p = points[i]
+    n = normals[i]
+    me = sample_of[i]
+    total = wp.vec3(0.0, 0.0, 0.0)
+    rays = int(0)
+    for j in range(n_patches):
+        f = polygon_ff(p, n, polys, j, 4)
+        if f <= wp.float64(0.0):
+            continue
+        v = int(-1)
+        if me >= 0:
+            v = int(vis[me, j])
+        if v < 0:
+            seen = int(0)
+            hidden = int(0)
+            for k in range(nbr.shape[1]):
+                s = nbr[i, k]
+                if s >= 0:
+                    x = int(vis[s, j])
+                    if x == 1:
+                        seen += 1
+                    elif x == 0:
+                        hidden += 1
+            if seen >= min_agree and hidden == 0:
+                v = 1
+            elif hidden >= min_agree and seen == 0:
+                v = 0
+            else:
+                v = _patch_visible(mesh_a, mesh_b, own[i], p, n, polys, poly_normals, j, eps)
+                rays += 1
+        if v == 1:
+            total += colors[j] * float(f)
+    out[i] = total
+    cast[i] = rays
+
+
+class SampledPatchSum:
+    """sum_j F_ij V_ij c_j (irradiance/pi for colours in radiance) from patches j at fixed points
+    (one object shape's distinct vertices, in the world at this frame's pose), the visibility ray
+    cast at `samples` and, elsewhere, only where the `nbr` samples of a point disagree (module
+    note above). Buffers are made once at capacity (`max_patches` per launch; more patches go in
+    blocks), so a frame allocates nothing.
+
+    own (N,) bool: points the object can shadow (its own mesh is tested only there); samples (S,)
+    indices into the points; nbr (N,k) indices into `samples` of each point's neighbours (-1: none).
+    """
+
+    def __init__(self, own: np.ndarray, samples: np.ndarray, nbr: np.ndarray, device: str,
+                 max_patches: int = 512):
+        from kernels.buffers import Buffer
+
+        self.device = device
+        self.n, self.m = len(own), int(max_patches)
+        sample_of = np.full(self.n, -1, np.int32)
+        sample_of[samples] = np.arange(len(samples), dtype=np.int32)
+        dev = device
+        self._own = Buffer(max(self.n, 1), wp.int32, dev, fill=np.asarray(own, np.int32) if self.n else None)
+        self._samples = Buffer(max(len(samples), 1), wp.int32, dev)
+        self._samples.upload(np.asarray(samples, np.int32))
+        self._sample_of = Buffer(max(self.n, 1), wp.int32, dev)
+        self._sample_of.upload(sample_of)
+        self._nbr = Buffer((max(self.n, 1), nbr.shape[1]), wp.int32, dev)
+        self._nbr.upload(np.asarray(nbr, np.int32))
+        self.n_samples = len(samples)
+        self._vis = Buffer((max(self.n_samples, 1), self.m), wp.int8, dev)
+        self._points = Buffer(max(self.n, 1), wp.vec3d, dev)
+        self._normals = Buffer(max(self.n, 1), wp.vec3d, dev)
+        self._polys = Buffer((self.m, 4), wp.vec3d, dev)
+        self._pn = Buffer(self.m, wp.vec3, dev)
+        self._colors = Buffer(self.m, wp.vec3, dev)
+        self._out = Buffer(max(self.n, 1), wp.vec3, dev)
+        self._cast = Buffer(max(self.n, 1), wp.int32, dev)
+        self.rays_cast = 0  # visibility rays of the last call outside the samples (a measure of coherence)
+
+    def __call__(self, points: np.ndarray, normals: np.ndarray, corners: np.ndarray, patch_normals: np.ndarray,
+                 colors: np.ndarray, occluders: list[Occluder], eps: float, split=None) -> np.ndarray:
+        """(N,3) float64 sum over patches (corners (M,4,3), normals (M,3), colors (M,3)) at the
+        points (N,3) with unit normals (N,3); occluders: [room, object]. `split(launch, n)` runs
+        launch(lo, hi) over ranges covering [0, n) (app.runtime.split; None: one launch)."""
+        n = len(points)
+        if n != self.n:
+            raise ValueError(f"{n} points, the sum was made for {self.n}")
+        out = np.zeros((n, 3))
+        self.rays_cast = 0
+        if n == 0 or len(corners) == 0:
+            return out
+        run = split or (lambda launch, k: launch(0, k))
+        dev = self.device
+        mesh_a = wp.uint64(occluders[0].id)
+        mesh_b = wp.uint64(occluders[1].id if len(occluders) > 1 else 0)
+        self._points.upload(np.asarray(points, np.float64))
+        self._normals.upload(np.asarray(normals, np.float64))
+        for c0 in range(0, len(corners), self.m):
+            c1 = min(len(corners), c0 + self.m)
+            m = c1 - c0
+            self._polys.upload(np.asarray(corners[c0:c1], np.float64))
+            self._pn.upload(np.asarray(patch_normals[c0:c1], np.float32))
+            self._colors.upload(np.asarray(colors[c0:c1], np.float32))
+            common = [self._polys.dev, self._pn.dev, mesh_a, mesh_b, float(eps)]
+
+            def sample(lo: int, hi: int) -> None:
+                wp.launch(_sample_visibility_kernel, dim=(hi - lo, m),
+                          inputs=[self._points.dev, self._normals.dev, self._samples.dev, self._own.dev, *common,
+                                  int(lo)], outputs=[self._vis.dev], device=dev)
+
+            def gather(lo: int, hi: int) -> None:
+                wp.launch(_sampled_sum_kernel, dim=hi - lo,
+                          inputs=[self._points.dev, self._normals.dev, self._own.dev, self._sample_of.dev,
+                                  self._nbr.dev, self._vis.dev, self._polys.dev, self._pn.dev, self._colors.dev,
+                                  int(m), mesh_a, mesh_b, float(eps), _MIN_AGREE, int(lo)],
+                          outputs=[self._out.dev, self._cast.dev], device=dev)
+
+            if self.n_samples:
+                run(sample, self.n_samples)
+            run(gather, n)
+            out += self._out.pull(n)
+            self.rays_cast += int(self._cast.pull(n).sum())
+        return out

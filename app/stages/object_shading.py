@@ -8,6 +8,7 @@ one bounce between the object's own parts; interpolated at the camera hits. Unit
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -15,9 +16,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
+from app.runtime import split as _split
 from kernels.buffers import workspace
 from kernels.raycast import cast_rays
-from kernels.shade import self_transfer
+from kernels.shade import SampledPatchSum, self_transfer
 from kernels.visibility import Occluder, transfer_matrix
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from recon.proxy import simplify, subdivide
@@ -26,6 +28,9 @@ from recon.scene import SceneObject
 
 if TYPE_CHECKING:
     from app.engine import Engine
+
+
+VIS_STRIDE = 4  # distinct vertices per visibility sample (kernels.shade.SampledPatchSum; 1: a ray per pair)
 
 
 @dataclass
@@ -179,7 +184,10 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     ss = shape_shading(eng, v, n, f)
     vu, nu = v[ss.uniq], n[ss.uniq]
     E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
-    E = eng.room_light.direct(vu, nu, [own], n_side=1, workspace=workspace(eng, "vertex_radiance.direct"))
+    split = functools.partial(_split, device=eng.device)
+    rl = eng.room_light  # the emitters, exact form factors, visibility cast at samples (ShapeShading)
+    em = rl.emitters
+    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [rl.occluder, own], 2e-3, split)
     sun_u = None
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
         sun_u = eng.sun_light.irradiance(vu, nu, [own])
@@ -202,10 +210,8 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
             # the loss varies slowly over the object (the shadowed patches are beyond it):
             # gather it at a spread subset of vertices and interpolate by position and normal
             sub = ss.sub
-            G = transfer_matrix(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed],
-                                [eng.scene_occ, own], n_side=1, eps=2e-3, device=eng.device,
-                                workspace=workspace(eng, "vertex_radiance.dB"))
-            E += ss.interpolate(G.astype(np.float64) @ dB[changed])
+            E += ss.interpolate(ss.dB_sum(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed], dB[changed],
+                                          [eng.scene_occ, own], 2e-3, split))
     E += E_ind
     if sun_u is not None:
         E += sun_u
@@ -217,6 +223,37 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     if ss.bounce is not None:
         L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
     return L_vert
+
+
+def _visibility_samples(p: np.ndarray, faces: np.ndarray, samples: np.ndarray, hidden: np.ndarray,
+                        rings: int = 2, k: int = 6, tol: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """(samples, nbr): the sample indices (S,) and, for each of the N points, its k nearest samples
+    (N,k; -1: none) among those at most `rings` edges away on the mesh (faces (F,3) over the
+    points) whose share of the hemisphere the object hides (`hidden` (N,), from the self-occlusion
+    transfer) is within `tol` of the point's, SampledPatchSum's inputs: a neighbour on the same
+    surface and in the same place with respect to the object's other parts, never one across a gap,
+    on another face of a sharp corner or under a part that stands on this one."""
+    import scipy.sparse as sp
+
+    N = len(p)
+    samples = np.asarray(samples, np.int32)
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    A = sp.csr_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(N, N))
+    A = (A + sp.identity(N, format="csr")).astype(bool).astype(np.float32)
+    R = A
+    for _ in range(rings - 1):
+        R = (R @ A).astype(bool).astype(np.float32)
+    R = R[:, samples].tocoo()  # (N,S): sample within `rings` edges
+    nbr = np.full((N, k), -1, np.int32)
+    if R.nnz:
+        d = np.linalg.norm(p[R.row] - p[samples[R.col]], axis=1)
+        d[np.abs(hidden[R.row] - hidden[samples[R.col]]) > tol] = np.inf
+        order = np.lexsort((d, R.row))
+        rows, cols = R.row[order], R.col[order]
+        rank = np.arange(len(rows)) - np.searchsorted(rows, rows)
+        keep = (rank < k) & np.isfinite(d[order])
+        nbr[rows[keep], rank[keep]] = cols[keep]
+    return samples, nbr
 
 
 def _knn_weights(lu: np.ndarray, nu: np.ndarray, sub: np.ndarray, k: int = 6) -> tuple[np.ndarray, np.ndarray]:
@@ -236,7 +273,8 @@ class ShapeShading:
     transfer (kernels.shade.self_transfer), which of them are buried, the self-bounce operator, and
     the sample vertices of the dB gather with their interpolation weights."""
 
-    def __init__(self, local: np.ndarray, n: np.ndarray, f: np.ndarray, prt_dirs: int, dB_samples: int, device):
+    def __init__(self, local: np.ndarray, n: np.ndarray, f: np.ndarray, prt_dirs: int, dB_samples: int, device,
+                 vis_stride: int = 4):
         import scipy.sparse as sp
 
         key = np.round(np.concatenate([local, n], 1), 6)
@@ -260,6 +298,15 @@ class ShapeShading:
         # spread over the mesh in its own order (faces), as distinct vertices
         self.sub = np.unique(self.inv[np.arange(0, len(local), max(1, len(local) // max(dB_samples, 1)))])
         self._knn = _knn_weights(lu, nu, self.sub)
+        # emitter and dB light with the visibility cast at a spread subset (kernels.shade.SampledPatchSum);
+        # only the vertices the object hides some direction from test their rays against it
+        own_u = hit.any(axis=1)[self.uniq]
+        hidden_u = hit.mean(axis=1)[self.uniq]
+        in_order = np.argsort(self.uniq)  # distinct vertices in the mesh's own order (spread)
+        fu = self.inv[f]  # faces over the distinct vertices
+        self.direct_sum = SampledPatchSum(own_u, *_visibility_samples(lu, fu, in_order[::vis_stride], hidden_u), device)
+        self.dB_sum = SampledPatchSum(own_u[self.sub], np.arange(len(self.sub), dtype=np.int32),
+                                      np.full((len(self.sub), 1), -1, np.int32), device)
 
     def interpolate(self, values: np.ndarray) -> np.ndarray:
         """Values (U,C) at the distinct vertices from values (len(sub),C) at `sub` (as
@@ -272,10 +319,12 @@ def shape_shading(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndarray) ->
     """ShapeShading of the mesh, kept for the last shape (the key is the centred mesh to 1 um)."""
     local = v - v.mean(0)
     key = hashlib.sha1(np.round(local, 6).tobytes() + np.round(n, 6).tobytes()
-                       + np.ascontiguousarray(f).tobytes() + str(eng.params.prt_dirs).encode()).hexdigest()
+                       + np.ascontiguousarray(f).tobytes()
+                       + f"{eng.params.prt_dirs} {getattr(eng, 'vis_stride', VIS_STRIDE)}".encode()).hexdigest()
     cached = eng._prt_cache
     if cached is None or cached[0] != key:
-        eng._prt_cache = cached = (key, ShapeShading(local, n, f, eng.params.prt_dirs, eng.dB_samples, eng.device))
+        eng._prt_cache = cached = (key, ShapeShading(local, n, f, eng.params.prt_dirs, eng.dB_samples, eng.device,
+                                                     getattr(eng, "vis_stride", VIS_STRIDE)))
         cached[1].key = key
     return cached[1]
 
