@@ -261,3 +261,73 @@ class SampledPatchSum:
             out += self._out.pull(n)
             self.rays_cast += int(self._cast.pull(n).sum())
         return out
+
+
+# ---------------------------------------------------------------- the object's camera hits
+@wp.kernel
+def _object_hits_kernel(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, pix_to_dir: wp.mat33, u0: int, v0: int,
+                        cols: int, s: int, first: int, lo: int, tri: wp.array(dtype=wp.int32),
+                        bary: wp.array(dtype=wp.vec3), hit: wp.array(dtype=wp.uint8)):
+    k = wp.tid() + lo  # within the block
+    i = first + k  # sub-sample, row-major over the rectangle's (rows * s) x (cols * s) grid
+    r = i // (cols * s)
+    c = i - r * (cols * s)
+    u = float(u0 + c // s) + (float(c % s) + 0.5) / float(s) - 0.5
+    v = float(v0 + r // s) + (float(r % s) + 0.5) / float(s) - 0.5
+    d = wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0))
+    q = wp.mesh_query_ray(obj, centre, d, 1.0e6)
+    if q.result:
+        tri[k] = q.face
+        bary[k] = wp.vec3(q.u, q.v, 1.0 - q.u - q.v)  # Warp: p = u p0 + v p1 + (1-u-v) p2
+        # seen unless the scene model lies in front (only asked where the object is hit)
+        hit[k] = wp.uint8(1)
+        if scene != wp.uint64(0):
+            qs = wp.mesh_query_ray(scene, centre, d, q.t)
+            if qs.result and qs.t <= q.t:
+                hit[k] = wp.uint8(0)
+    else:
+        tri[k] = -1
+        bary[k] = wp.vec3(0.0, 0.0, 0.0)
+        hit[k] = wp.uint8(0)
+
+
+class CameraHits:
+    """Sub-pixel camera rays through a pixel rectangle against the object's mesh, each depth-tested
+    against the scene model only where it hits the object (the frame's "object" stage). Buffers of
+    `block` rays are made once; a larger rectangle goes in blocks."""
+
+    def __init__(self, device: str, block: int = 65536):
+        from kernels.buffers import Buffer
+
+        self.device, self.block = device, block
+        self._tri = Buffer(block, wp.int32, device)
+        self._bary = Buffer(block, wp.vec3, device)
+        self._hit = Buffer(block, wp.uint8, device)
+
+    def __call__(self, obj: Occluder, scene: Occluder, centre: np.ndarray, pix_to_dir: np.ndarray,
+                 rect: tuple[int, int, int, int], s: int, split=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(tri (n,) int32 (-1: none), bary (n,3) float32, hit (n,) bool) for the s x s sub-samples
+        of the pixels u0..u1, v0..v1 (inclusive), row-major over the sub-sample grid, the ray of
+        pixel position (u, v) being pix_to_dir @ (u, v, 1) normalised (pix_to_dir = R^T K^-1).
+        `split(launch, n)` runs launch(lo, hi) over ranges covering [0, n) (None: one launch)."""
+        u0, v0, u1, v1 = rect
+        cols, rows = u1 - u0 + 1, v1 - v0 + 1
+        n = rows * s * cols * s
+        tri, bary, hit = np.empty(n, np.int32), np.empty((n, 3), np.float32), np.empty(n, bool)
+        run = split or (lambda launch, k: launch(0, k))
+        M = wp.mat33(*np.asarray(pix_to_dir, np.float32).reshape(-1))
+        c = wp.vec3(*np.asarray(centre, np.float32))
+        for first in range(0, n, self.block):
+            m = min(self.block, n - first)
+
+            def launch(lo: int, hi: int) -> None:
+                wp.launch(_object_hits_kernel, dim=hi - lo,
+                          inputs=[wp.uint64(obj.id), wp.uint64(scene.id), c, M, int(u0), int(v0), int(cols), int(s),
+                                  int(first), int(lo)],
+                          outputs=[self._tri.dev, self._bary.dev, self._hit.dev], device=self.device)
+
+            run(launch, m)
+            tri[first:first + m] = self._tri.pull(m)
+            bary[first:first + m] = self._bary.pull(m)
+            hit[first:first + m] = self._hit.pull(m) != 0
+        return tri, bary, hit

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 from app.runtime import split as _split
 from kernels.buffers import workspace
 from kernels.raycast import cast_rays
-from kernels.shade import SampledPatchSum, self_transfer
+from kernels.shade import CameraHits, SampledPatchSum, self_transfer
 from kernels.visibility import Occluder, transfer_matrix
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from recon.proxy import simplify, subdivide
@@ -155,16 +155,13 @@ def object_hits(eng: "Engine", verts: np.ndarray, faces: np.ndarray, camera=None
         u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
     if u0 > u1 or v0 > v1:
         return ObjectHits(H, W, s, (0, 0, -1, -1), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0, bool))
-    offs = (np.arange(s) + 0.5) / s - 0.5
-    uu = (np.arange(u0, u1 + 1)[:, None] + offs).reshape(-1)
-    vv = (np.arange(v0, v1 + 1)[:, None] + offs).reshape(-1)
-    U, V = np.meshgrid(uu, vv)
-    d = np.stack([U, V, np.ones_like(U)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    tri, bary, depth = cast_rays(occluder or Occluder(verts, faces, eng.device), cam.centre, d,
-                                 workspace=workspace(eng, "object_hits.object"))
-    _, _, scene_depth = cast_rays(eng.cam_occ, cam.centre, d, workspace=workspace(eng, "object_hits.scene"))
-    return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, (tri >= 0) & (depth < scene_depth))
+    ch = eng.__dict__.get("_camera_hits")
+    if ch is None:
+        ch = eng._camera_hits = CameraHits(eng.device)
+    tri, bary, hit = ch(occluder or Occluder(verts, faces, eng.device), eng.cam_occ, cam.centre,
+                        cam.R.T @ np.linalg.inv(cam.K), (u0, v0, u1, v1), s,
+                        functools.partial(_split, device=eng.device))
+    return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, hit)
 
 
 def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
@@ -256,6 +253,22 @@ def _visibility_samples(p: np.ndarray, faces: np.ndarray, samples: np.ndarray, h
     return samples, nbr
 
 
+def _near_samples(p: np.ndarray, n: np.ndarray, samples: np.ndarray, hidden: np.ndarray, k: int = 6,
+                  tol: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """_visibility_samples for points with no mesh between them: each point's k nearest samples
+    (N,k; -1: none) that face the same way (normal cosine > 0) and whose hidden share is within
+    `tol` of the point's."""
+    samples = np.asarray(samples, np.int32)
+    if len(samples) == 0:
+        return samples, np.full((len(p), 1), -1, np.int32)
+    k = min(k, len(samples))
+    _, j = cKDTree(p[samples]).query(p, k=k)
+    j = j.reshape(len(p), k)
+    s = samples[j]
+    ok = (np.einsum("vc,vkc->vk", n, n[s]) > 0) & (np.abs(hidden[:, None] - hidden[s]) <= tol)
+    return samples, np.where(ok, j, -1).astype(np.int32)
+
+
 def _knn_weights(lu: np.ndarray, nu: np.ndarray, sub: np.ndarray, k: int = 6) -> tuple[np.ndarray, np.ndarray]:
     """_interpolate_on_surface's neighbours (U,k) into `sub` and their weights (U,k) summing to 1."""
     k = min(k, len(sub))
@@ -305,8 +318,9 @@ class ShapeShading:
         in_order = np.argsort(self.uniq)  # distinct vertices in the mesh's own order (spread)
         fu = self.inv[f]  # faces over the distinct vertices
         self.direct_sum = SampledPatchSum(own_u, *_visibility_samples(lu, fu, in_order[::vis_stride], hidden_u), device)
-        self.dB_sum = SampledPatchSum(own_u[self.sub], np.arange(len(self.sub), dtype=np.int32),
-                                      np.full((len(self.sub), 1), -1, np.int32), device)
+        sub = self.sub  # spread thinly over the mesh: neighbours by distance, not by mesh edges
+        self.dB_sum = SampledPatchSum(own_u[sub], *_near_samples(lu[sub], nu[sub], np.arange(0, len(sub), vis_stride),
+                                                                  hidden_u[sub]), device)
 
     def interpolate(self, values: np.ndarray) -> np.ndarray:
         """Values (U,C) at the distinct vertices from values (len(sub),C) at `sub` (as
