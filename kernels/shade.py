@@ -96,9 +96,28 @@ def self_transfer(points: np.ndarray, normals: np.ndarray, mesh: Occluder, n_dir
 # each patch's centre against the room and, where the object can shadow itself, the object) is cast
 # only at a spread subset of the vertices ("samples"); a vertex whose nearest samples on the same
 # side all agree about patch j takes their answer, and only where they disagree (a shadow's edge)
-# or too few of them face the patch is the ray cast. The form factor is exact at every vertex.
+# or too few of them face the patch is the ray cast.
+#
+# Patches come in groups of one colour that tile a convex polygon (an emitter's quad cut into
+# patches): the form factor is additive over a partition of the polygon (horizon clipping
+# included), so a group adds c_g (F(polygon) - sum of F over its hidden patches), exact, with a
+# form factor per group and per hidden patch instead of one per patch.
 
 _MIN_AGREE = 2  # samples that must agree before a vertex takes their visibility without a ray
+
+
+@wp.func
+def _faces(p: wp.vec3d, n: wp.vec3d, polys: wp.array2d(dtype=wp.vec3d), j: int) -> bool:
+    """True when p lies in front of quad j (its emitting side) and some of the quad above p's
+    horizon: exactly where polygon_ff can be positive."""
+    v0 = polys[j, 0]
+    ns = wp.cross(polys[j, 1] - v0, polys[j, 2] - v0)
+    if wp.dot(ns, p - v0) <= wp.float64(0.0):
+        return False
+    for e in range(4):
+        if wp.dot(n, polys[j, e] - p) > wp.float64(0.0):
+            return True
+    return False
 
 
 @wp.func
@@ -128,7 +147,7 @@ def _sample_visibility_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.arra
     i = samples[s]
     p = points[i]
     n = normals[i]
-    if polygon_ff(p, n, polys, j, 4) <= wp.float64(0.0):
+    if not _faces(p, n, polys, j):
         vis[s, j] = wp.int8(-1)  # faces away: says nothing about its neighbours
     else:
         vis[s, j] = wp.int8(_patch_visible(mesh_a, mesh_b, own[i], p, n, polys, poly_normals, j, eps))
@@ -139,8 +158,9 @@ def _sampled_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtyp
                         own: wp.array(dtype=wp.int32), sample_of: wp.array(dtype=wp.int32),
                         nbr: wp.array2d(dtype=wp.int32), vis: wp.array2d(dtype=wp.int8),
                         polys: wp.array2d(dtype=wp.vec3d), poly_normals: wp.array(dtype=wp.vec3),
-                        colors: wp.array(dtype=wp.vec3), n_patches: int, mesh_a: wp.uint64, mesh_b: wp.uint64,
-                        eps: float, min_agree: int, lo: int, out: wp.array(dtype=wp.vec3),
+                        colors: wp.array(dtype=wp.vec3), group_start: wp.array(dtype=wp.int32),
+                        group_polys: wp.array2d(dtype=wp.vec3d), n_groups: int, mesh_a: wp.uint64,
+                        mesh_b: wp.uint64, eps: float, min_agree: int, lo: int, out: wp.array(dtype=wp.vec3),
                         cast: wp.array(dtype=wp.int32)):
     i = wp.tid() + lo
     p = points[i]
@@ -148,35 +168,88 @@ def _sampled_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtyp
     me = sample_of[i]
     total = wp.vec3(0.0, 0.0, 0.0)
     rays = int(0)
-    for j in range(n_patches):
-        f = polygon_ff(p, n, polys, j, 4)
-        if f <= wp.float64(0.0):
-            continue
-        v = int(-1)
-        if me >= 0:
-            v = int(vis[me, j])
-        if v < 0:
-            seen = int(0)
-            hidden = int(0)
-            for k in range(nbr.shape[1]):
-                s = nbr[i, k]
-                if s >= 0:
-                    x = int(vis[s, j])
-                    if x == 1:
-                        seen += 1
-                    elif x == 0:
-                        hidden += 1
-            if seen >= min_agree and hidden == 0:
-                v = 1
-            elif hidden >= min_agree and seen == 0:
-                v = 0
-            else:
-                v = _patch_visible(mesh_a, mesh_b, own[i], p, n, polys, poly_normals, j, eps)
-                rays += 1
-        if v == 1:
-            total += colors[j] * float(f)
+    for g in range(n_groups):
+        j0 = group_start[g]
+        j1 = group_start[g + 1]
+        facing = int(0)
+        hidden_ff = wp.float64(0.0)
+        seen_ff = wp.float64(0.0)
+        for j in range(j0, j1):
+            if not _faces(p, n, polys, j):
+                continue
+            facing += 1
+            v = int(-1)
+            if me >= 0:
+                v = int(vis[me, j])
+            if v < 0:
+                seen = int(0)
+                hidden = int(0)
+                for k in range(nbr.shape[1]):
+                    s = nbr[i, k]
+                    if s >= 0:
+                        x = int(vis[s, j])
+                        if x == 1:
+                            seen += 1
+                        elif x == 0:
+                            hidden += 1
+                if seen >= min_agree and hidden == 0:
+                    v = 1
+                elif hidden >= min_agree and seen == 0:
+                    v = 0
+                else:
+                    v = _patch_visible(mesh_a, mesh_b, own[i], p, n, polys, poly_normals, j, eps)
+                    rays += 1
+            if j1 - j0 == 1:
+                if v == 1:
+                    seen_ff = polygon_ff(p, n, polys, j, 4)
+            elif v == 0:
+                hidden_ff += polygon_ff(p, n, polys, j, 4)
+        if facing > 0:
+            f = seen_ff
+            if j1 - j0 > 1:
+                f = wp.max(polygon_ff(p, n, group_polys, g, 4) - hidden_ff, wp.float64(0.0))
+            total += colors[j0] * float(f)
     out[i] = total
     cast[i] = rays
+
+
+def patch_groups(corners: np.ndarray, quad: np.ndarray, colors: np.ndarray, rtol: float = 1e-6
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(order, start, polys): the patches (corners (M,4,3), their surface `quad` (M,), colours
+    (M,3)) ordered so that each group of one surface and one colour whose patches tile a rectangle
+    is contiguous: group g is order[start[g]:start[g+1]], its rectangle polys[g] (4,3), CCW as the
+    patches. A group that tiles no rectangle is split into single patches (their own corners)."""
+    m = len(corners)
+    key = np.c_[quad, colors]
+    _, gid = np.unique(key, axis=0, return_inverse=True)
+    gid = gid.reshape(-1)
+    order, start, polys = [], [0], []
+    for g in np.unique(gid):
+        idx = np.flatnonzero(gid == g)
+        rect = None
+        if len(idx) > 1:
+            c = corners[idx]
+            o = c[0, 0]
+            e0, e1 = c[0, 1] - c[0, 0], c[0, 3] - c[0, 0]
+            u0, u1 = e0 / np.linalg.norm(e0), e1 / np.linalg.norm(e1)
+            pu, pv = (c - o) @ u0, (c - o) @ u1
+            area = np.linalg.norm(np.cross(c[:, 2] - c[:, 0], c[:, 3] - c[:, 1]), axis=1).sum() / 2
+            r = [o + u0 * a + u1 * b for a, b in ((pu.min(), pv.min()), (pu.max(), pv.min()),
+                                                   (pu.max(), pv.max()), (pu.min(), pv.max()))]
+            r_area = np.linalg.norm(np.cross(r[2] - r[0], r[3] - r[1])) / 2
+            if abs(np.dot(u0, u1)) < 1e-9 and abs(r_area - area) <= rtol * max(area, 1e-30):
+                rect = np.array(r)
+        if rect is not None:
+            order.extend(idx)
+            start.append(len(order))
+            polys.append(rect)
+        else:
+            for j in idx:
+                order.append(j)
+                start.append(len(order))
+                polys.append(corners[j])
+    return (np.array(order, np.int64), np.array(start, np.int32),
+            np.array(polys, np.float64).reshape(-1, 4, 3) if polys else np.zeros((0, 4, 3)))
 
 
 class SampledPatchSum:
@@ -195,7 +268,7 @@ class SampledPatchSum:
         from kernels.buffers import Buffer
 
         self.device = device
-        self.n, self.m = len(own), int(max_patches)
+        self.n, self.m = len(own), max(int(max_patches), 1)
         sample_of = np.full(self.n, -1, np.int32)
         sample_of[samples] = np.arange(len(samples), dtype=np.int32)
         dev = device
@@ -213,15 +286,20 @@ class SampledPatchSum:
         self._polys = Buffer((self.m, 4), wp.vec3d, dev)
         self._pn = Buffer(self.m, wp.vec3, dev)
         self._colors = Buffer(self.m, wp.vec3, dev)
+        self._start = Buffer(self.m + 1, wp.int32, dev)
+        self._gpolys = Buffer((self.m, 4), wp.vec3d, dev)
         self._out = Buffer(max(self.n, 1), wp.vec3, dev)
         self._cast = Buffer(max(self.n, 1), wp.int32, dev)
         self.rays_cast = 0  # visibility rays of the last call outside the samples (a measure of coherence)
 
     def __call__(self, points: np.ndarray, normals: np.ndarray, corners: np.ndarray, patch_normals: np.ndarray,
-                 colors: np.ndarray, occluders: list[Occluder], eps: float, split=None) -> np.ndarray:
+                 colors: np.ndarray, occluders: list[Occluder], eps: float, split=None,
+                 groups: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """(N,3) float64 sum over patches (corners (M,4,3), normals (M,3), colors (M,3)) at the
         points (N,3) with unit normals (N,3); occluders: [room, object]. `split(launch, n)` runs
-        launch(lo, hi) over ranges covering [0, n) (app.runtime.split; None: one launch)."""
+        launch(lo, hi) over ranges covering [0, n) (app.runtime.split; None: one launch).
+        groups: (start (G+1,), polys (G,4,3)) of patch_groups, the patches given in its order
+        (then at most `max_patches` of them); None: every patch alone."""
         n = len(points)
         if n != self.n:
             raise ValueError(f"{n} points, the sum was made for {self.n}")
@@ -229,6 +307,8 @@ class SampledPatchSum:
         self.rays_cast = 0
         if n == 0 or len(corners) == 0:
             return out
+        if groups is not None and len(corners) > self.m:
+            raise ValueError(f"{len(corners)} grouped patches exceed the capacity {self.m}")
         run = split or (lambda launch, k: launch(0, k))
         dev = self.device
         mesh_a = wp.uint64(occluders[0].id)
@@ -241,18 +321,27 @@ class SampledPatchSum:
             self._polys.upload(np.asarray(corners[c0:c1], np.float64))
             self._pn.upload(np.asarray(patch_normals[c0:c1], np.float32))
             self._colors.upload(np.asarray(colors[c0:c1], np.float32))
-            common = [self._polys.dev, self._pn.dev, mesh_a, mesh_b, float(eps)]
+            if groups is None:
+                self._start.host[:m + 1] = np.arange(m + 1)
+                self._start.push(m + 1)
+                n_groups = m
+            else:
+                n_groups = len(groups[0]) - 1
+                self._start.upload(np.asarray(groups[0], np.int32))
+                self._gpolys.upload(np.asarray(groups[1], np.float64))
 
             def sample(lo: int, hi: int) -> None:
                 wp.launch(_sample_visibility_kernel, dim=(hi - lo, m),
-                          inputs=[self._points.dev, self._normals.dev, self._samples.dev, self._own.dev, *common,
-                                  int(lo)], outputs=[self._vis.dev], device=dev)
+                          inputs=[self._points.dev, self._normals.dev, self._samples.dev, self._own.dev,
+                                  self._polys.dev, self._pn.dev, mesh_a, mesh_b, float(eps), int(lo)],
+                          outputs=[self._vis.dev], device=dev)
 
             def gather(lo: int, hi: int) -> None:
                 wp.launch(_sampled_sum_kernel, dim=hi - lo,
                           inputs=[self._points.dev, self._normals.dev, self._own.dev, self._sample_of.dev,
                                   self._nbr.dev, self._vis.dev, self._polys.dev, self._pn.dev, self._colors.dev,
-                                  int(m), mesh_a, mesh_b, float(eps), _MIN_AGREE, int(lo)],
+                                  self._start.dev, self._gpolys.dev, int(n_groups), mesh_a, mesh_b, float(eps),
+                                  _MIN_AGREE, int(lo)],
                           outputs=[self._out.dev, self._cast.dev], device=dev)
 
             if self.n_samples:

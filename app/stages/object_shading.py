@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 from app.runtime import split as _split
 from kernels.buffers import workspace
 from kernels.raycast import cast_rays
-from kernels.shade import CameraHits, SampledPatchSum, self_transfer
+from kernels.shade import CameraHits, SampledPatchSum, patch_groups, self_transfer
 from kernels.visibility import Occluder, transfer_matrix
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from recon.proxy import simplify, subdivide
@@ -183,8 +183,9 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
     split = functools.partial(_split, device=eng.device)
     rl = eng.room_light  # the emitters, exact form factors, visibility cast at samples (ShapeShading)
-    em = rl.emitters
-    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [rl.occluder, own], 2e-3, split)
+    em, groups = emitter_groups(eng)
+    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [rl.occluder, own], 2e-3, split,
+                      groups)
     sun_u = None
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
         sun_u = eng.sun_light.irradiance(vu, nu, [own])
@@ -220,6 +221,18 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     if ss.bounce is not None:
         L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
     return L_vert
+
+
+def emitter_groups(eng: "Engine") -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """The room's emitter patches in kernels.shade.patch_groups order (one group per surface and
+    radiance that tiles a rectangle) and the groups (start, polys), made once per engine."""
+    cached = eng.__dict__.get("_emitter_groups")
+    if cached is None:
+        rl, pm = eng.room_light, eng.pre.patches
+        em = rl.emitters
+        order, start, polys = patch_groups(pm.corners[em], pm.quad[em], rl.radiance[em])
+        cached = eng._emitter_groups = (em[order], (start, polys))
+    return cached
 
 
 def _visibility_samples(p: np.ndarray, faces: np.ndarray, samples: np.ndarray, hidden: np.ndarray,
@@ -287,7 +300,7 @@ class ShapeShading:
     the sample vertices of the dB gather with their interpolation weights."""
 
     def __init__(self, local: np.ndarray, n: np.ndarray, f: np.ndarray, prt_dirs: int, dB_samples: int, device,
-                 vis_stride: int = 4):
+                 vis_stride: int = 4, n_emitters: int = 512):
         import scipy.sparse as sp
 
         key = np.round(np.concatenate([local, n], 1), 6)
@@ -317,7 +330,8 @@ class ShapeShading:
         hidden_u = hit.mean(axis=1)[self.uniq]
         in_order = np.argsort(self.uniq)  # distinct vertices in the mesh's own order (spread)
         fu = self.inv[f]  # faces over the distinct vertices
-        self.direct_sum = SampledPatchSum(own_u, *_visibility_samples(lu, fu, in_order[::vis_stride], hidden_u), device)
+        self.direct_sum = SampledPatchSum(own_u, *_visibility_samples(lu, fu, in_order[::vis_stride], hidden_u), device,
+                                          max_patches=max(n_emitters, 1))
         sub = self.sub  # spread thinly over the mesh: neighbours by distance, not by mesh edges
         self.dB_sum = SampledPatchSum(own_u[sub], *_near_samples(lu[sub], nu[sub], np.arange(0, len(sub), vis_stride),
                                                                   hidden_u[sub]), device)
@@ -338,7 +352,8 @@ def shape_shading(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndarray) ->
     cached = eng._prt_cache
     if cached is None or cached[0] != key:
         eng._prt_cache = cached = (key, ShapeShading(local, n, f, eng.params.prt_dirs, eng.dB_samples, eng.device,
-                                                     getattr(eng, "vis_stride", VIS_STRIDE)))
+                                                     getattr(eng, "vis_stride", VIS_STRIDE),
+                                                     len(eng.room_light.emitters)))
         cached[1].key = key
     return cached[1]
 
