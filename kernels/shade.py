@@ -219,7 +219,8 @@ def patch_groups(corners: np.ndarray, quad: np.ndarray, colors: np.ndarray, rtol
     (M,3)) ordered so that each group of one surface and one colour whose patches tile a rectangle
     is contiguous: group g is order[start[g]:start[g+1]], its rectangle polys[g] (4,3), CCW as the
     patches. A group that tiles no rectangle is split into single patches (their own corners)."""
-    m = len(corners)
+    if len(corners) == 0:
+        return np.zeros(0, np.int64), np.zeros(1, np.int32), np.zeros((0, 4, 3))
     key = np.c_[quad, colors]
     _, gid = np.unique(key, axis=0, return_inverse=True)
     gid = gid.reshape(-1)

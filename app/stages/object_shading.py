@@ -20,7 +20,7 @@ from app.runtime import split as _split
 from kernels.buffers import workspace
 from kernels.raycast import cast_rays
 from kernels.shade import CameraHits, SampledPatchSum, patch_groups, self_transfer
-from kernels.visibility import Occluder, transfer_matrix
+from kernels.visibility import Occluder
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from recon.proxy import simplify, subdivide
 from recon.response import luminance
@@ -179,9 +179,9 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     cached = eng._shade_occ
     own = cached[1] if cached is not None and cached[0] is v else Occluder(v, f, eng.device)
     ss = shape_shading(eng, v, n, f)
+    split = functools.partial(_split, device=eng.device)
     vu, nu = v[ss.uniq], n[ss.uniq]
     E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
-    split = functools.partial(_split, device=eng.device)
     rl = eng.room_light  # the emitters, exact form factors, visibility cast at samples (ShapeShading)
     em, groups = emitter_groups(eng)
     E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [rl.occluder, own], 2e-3, split,
@@ -193,10 +193,9 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
-        if len(ch):
-            E += transfer_matrix(vu, nu, pm.corners[ch], pm.normal[ch], [eng.scene_occ, own], n_side=1,
-                                 eps=2e-3, device=eng.device, workspace=workspace(eng, "vertex_radiance.sun_dB")
-                                 ).astype(np.float64) @ eng._sun_dB[ch]
+        if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
+            E += ss.sun_dB_sum(vu, nu, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [eng.scene_occ, own], 2e-3,
+                               split)
     if dB is not None:
         # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
         loss = np.abs(luminance(dB)) * pm.area
@@ -330,8 +329,9 @@ class ShapeShading:
         hidden_u = hit.mean(axis=1)[self.uniq]
         in_order = np.argsort(self.uniq)  # distinct vertices in the mesh's own order (spread)
         fu = self.inv[f]  # faces over the distinct vertices
-        self.direct_sum = SampledPatchSum(own_u, *_visibility_samples(lu, fu, in_order[::vis_stride], hidden_u), device,
-                                          max_patches=max(n_emitters, 1))
+        samples = _visibility_samples(lu, fu, in_order[::vis_stride], hidden_u)
+        self.direct_sum = SampledPatchSum(own_u, *samples, device, max_patches=max(n_emitters, 1))
+        self.sun_dB_sum = SampledPatchSum(own_u, *samples, device)  # the sun the object blocks from the room
         sub = self.sub  # spread thinly over the mesh: neighbours by distance, not by mesh edges
         self.dB_sum = SampledPatchSum(own_u[sub], *_near_samples(lu[sub], nu[sub], np.arange(0, len(sub), vis_stride),
                                                                   hidden_u[sub]), device)
