@@ -8,6 +8,7 @@ one bounce between the object's own parts; interpolated at the camera hits. Unit
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -15,10 +16,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
+from app.runtime import split as _split
 from kernels.buffers import workspace
 from kernels.raycast import cast_rays
-from kernels.shade import self_transfer
-from kernels.visibility import Occluder, transfer_matrix
+from kernels.shade import CameraHits, SampledPatchSum, patch_groups, self_transfer
+from kernels.visibility import Occluder
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
 from recon.proxy import simplify, subdivide
 from recon.response import luminance
@@ -26,6 +28,9 @@ from recon.scene import SceneObject
 
 if TYPE_CHECKING:
     from app.engine import Engine
+
+
+VIS_STRIDE = 4  # distinct vertices per visibility sample (kernels.shade.SampledPatchSum; 1: a ray per pair)
 
 
 @dataclass
@@ -150,16 +155,13 @@ def object_hits(eng: "Engine", verts: np.ndarray, faces: np.ndarray, camera=None
         u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
     if u0 > u1 or v0 > v1:
         return ObjectHits(H, W, s, (0, 0, -1, -1), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0, bool))
-    offs = (np.arange(s) + 0.5) / s - 0.5
-    uu = (np.arange(u0, u1 + 1)[:, None] + offs).reshape(-1)
-    vv = (np.arange(v0, v1 + 1)[:, None] + offs).reshape(-1)
-    U, V = np.meshgrid(uu, vv)
-    d = np.stack([U, V, np.ones_like(U)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    tri, bary, depth = cast_rays(occluder or Occluder(verts, faces, eng.device), cam.centre, d,
-                                 workspace=workspace(eng, "object_hits.object"))
-    _, _, scene_depth = cast_rays(eng.cam_occ, cam.centre, d, workspace=workspace(eng, "object_hits.scene"))
-    return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, (tri >= 0) & (depth < scene_depth))
+    ch = eng.__dict__.get("_camera_hits")
+    if ch is None:
+        ch = eng._camera_hits = CameraHits(eng.device)
+    tri, bary, hit = ch(occluder or Occluder(verts, faces, eng.device), eng.cam_occ, cam.centre,
+                        cam.R.T @ np.linalg.inv(cam.K), (u0, v0, u1, v1), s,
+                        functools.partial(_split, device=eng.device))
+    return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, hit)
 
 
 def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
@@ -177,9 +179,13 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     cached = eng._shade_occ
     own = cached[1] if cached is not None and cached[0] is v else Occluder(v, f, eng.device)
     ss = shape_shading(eng, v, n, f)
+    split = functools.partial(_split, device=eng.device)
     vu, nu = v[ss.uniq], n[ss.uniq]
     E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
-    E = eng.room_light.direct(vu, nu, [own], n_side=1, workspace=workspace(eng, "vertex_radiance.direct"))
+    rl = eng.room_light  # the emitters, exact form factors, visibility cast at samples (ShapeShading)
+    em, groups = emitter_groups(eng)
+    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [rl.occluder, own], 2e-3, split,
+                      groups)
     sun_u = None
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
         sun_u = eng.sun_light.irradiance(vu, nu, [own])
@@ -187,10 +193,9 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
-        if len(ch):
-            E += transfer_matrix(vu, nu, pm.corners[ch], pm.normal[ch], [eng.scene_occ, own], n_side=1,
-                                 eps=2e-3, device=eng.device, workspace=workspace(eng, "vertex_radiance.sun_dB")
-                                 ).astype(np.float64) @ eng._sun_dB[ch]
+        if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
+            E += ss.sun_dB_sum(vu, nu, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [eng.scene_occ, own], 2e-3,
+                               split)
     if dB is not None:
         # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
         loss = np.abs(luminance(dB)) * pm.area
@@ -202,10 +207,8 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
             # the loss varies slowly over the object (the shadowed patches are beyond it):
             # gather it at a spread subset of vertices and interpolate by position and normal
             sub = ss.sub
-            G = transfer_matrix(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed],
-                                [eng.scene_occ, own], n_side=1, eps=2e-3, device=eng.device,
-                                workspace=workspace(eng, "vertex_radiance.dB"))
-            E += ss.interpolate(G.astype(np.float64) @ dB[changed])
+            E += ss.interpolate(ss.dB_sum(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed], dB[changed],
+                                          [eng.scene_occ, own], 2e-3, split))
     E += E_ind
     if sun_u is not None:
         E += sun_u
@@ -217,6 +220,65 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     if ss.bounce is not None:
         L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
     return L_vert
+
+
+def emitter_groups(eng: "Engine") -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """The room's emitter patches in kernels.shade.patch_groups order (one group per surface and
+    radiance that tiles a rectangle) and the groups (start, polys), made once per engine."""
+    cached = eng.__dict__.get("_emitter_groups")
+    if cached is None:
+        rl, pm = eng.room_light, eng.pre.patches
+        em = rl.emitters
+        order, start, polys = patch_groups(pm.corners[em], pm.quad[em], rl.radiance[em])
+        cached = eng._emitter_groups = (em[order], (start, polys))
+    return cached
+
+
+def _visibility_samples(p: np.ndarray, faces: np.ndarray, samples: np.ndarray, hidden: np.ndarray,
+                        rings: int = 2, k: int = 6, tol: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """(samples, nbr): the sample indices (S,) and, for each of the N points, its k nearest samples
+    (N,k; -1: none) among those at most `rings` edges away on the mesh (faces (F,3) over the
+    points) whose share of the hemisphere the object hides (`hidden` (N,), from the self-occlusion
+    transfer) is within `tol` of the point's, SampledPatchSum's inputs: a neighbour on the same
+    surface and in the same place with respect to the object's other parts, never one across a gap,
+    on another face of a sharp corner or under a part that stands on this one."""
+    import scipy.sparse as sp
+
+    N = len(p)
+    samples = np.asarray(samples, np.int32)
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    A = sp.csr_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(N, N))
+    A = (A + sp.identity(N, format="csr")).astype(bool).astype(np.float32)
+    R = A
+    for _ in range(rings - 1):
+        R = (R @ A).astype(bool).astype(np.float32)
+    R = R[:, samples].tocoo()  # (N,S): sample within `rings` edges
+    nbr = np.full((N, k), -1, np.int32)
+    if R.nnz:
+        d = np.linalg.norm(p[R.row] - p[samples[R.col]], axis=1)
+        d[np.abs(hidden[R.row] - hidden[samples[R.col]]) > tol] = np.inf
+        order = np.lexsort((d, R.row))
+        rows, cols = R.row[order], R.col[order]
+        rank = np.arange(len(rows)) - np.searchsorted(rows, rows)
+        keep = (rank < k) & np.isfinite(d[order])
+        nbr[rows[keep], rank[keep]] = cols[keep]
+    return samples, nbr
+
+
+def _near_samples(p: np.ndarray, n: np.ndarray, samples: np.ndarray, hidden: np.ndarray, k: int = 6,
+                  tol: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """_visibility_samples for points with no mesh between them: each point's k nearest samples
+    (N,k; -1: none) that face the same way (normal cosine > 0) and whose hidden share is within
+    `tol` of the point's."""
+    samples = np.asarray(samples, np.int32)
+    if len(samples) == 0:
+        return samples, np.full((len(p), 1), -1, np.int32)
+    k = min(k, len(samples))
+    _, j = cKDTree(p[samples]).query(p, k=k)
+    j = j.reshape(len(p), k)
+    s = samples[j]
+    ok = (np.einsum("vc,vkc->vk", n, n[s]) > 0) & (np.abs(hidden[:, None] - hidden[s]) <= tol)
+    return samples, np.where(ok, j, -1).astype(np.int32)
 
 
 def _knn_weights(lu: np.ndarray, nu: np.ndarray, sub: np.ndarray, k: int = 6) -> tuple[np.ndarray, np.ndarray]:
@@ -236,7 +298,8 @@ class ShapeShading:
     transfer (kernels.shade.self_transfer), which of them are buried, the self-bounce operator, and
     the sample vertices of the dB gather with their interpolation weights."""
 
-    def __init__(self, local: np.ndarray, n: np.ndarray, f: np.ndarray, prt_dirs: int, dB_samples: int, device):
+    def __init__(self, local: np.ndarray, n: np.ndarray, f: np.ndarray, prt_dirs: int, dB_samples: int, device,
+                 vis_stride: int = 4, n_emitters: int = 512):
         import scipy.sparse as sp
 
         key = np.round(np.concatenate([local, n], 1), 6)
@@ -260,6 +323,18 @@ class ShapeShading:
         # spread over the mesh in its own order (faces), as distinct vertices
         self.sub = np.unique(self.inv[np.arange(0, len(local), max(1, len(local) // max(dB_samples, 1)))])
         self._knn = _knn_weights(lu, nu, self.sub)
+        # emitter and dB light with the visibility cast at a spread subset (kernels.shade.SampledPatchSum);
+        # only the vertices the object hides some direction from test their rays against it
+        own_u = hit.any(axis=1)[self.uniq]
+        hidden_u = hit.mean(axis=1)[self.uniq]
+        in_order = np.argsort(self.uniq)  # distinct vertices in the mesh's own order (spread)
+        fu = self.inv[f]  # faces over the distinct vertices
+        samples = _visibility_samples(lu, fu, in_order[::vis_stride], hidden_u)
+        self.direct_sum = SampledPatchSum(own_u, *samples, device, max_patches=max(n_emitters, 1))
+        self.sun_dB_sum = SampledPatchSum(own_u, *samples, device)  # the sun the object blocks from the room
+        sub = self.sub  # spread thinly over the mesh: neighbours by distance, not by mesh edges
+        self.dB_sum = SampledPatchSum(own_u[sub], *_near_samples(lu[sub], nu[sub], np.arange(0, len(sub), vis_stride),
+                                                                  hidden_u[sub]), device)
 
     def interpolate(self, values: np.ndarray) -> np.ndarray:
         """Values (U,C) at the distinct vertices from values (len(sub),C) at `sub` (as
@@ -272,10 +347,13 @@ def shape_shading(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndarray) ->
     """ShapeShading of the mesh, kept for the last shape (the key is the centred mesh to 1 um)."""
     local = v - v.mean(0)
     key = hashlib.sha1(np.round(local, 6).tobytes() + np.round(n, 6).tobytes()
-                       + np.ascontiguousarray(f).tobytes() + str(eng.params.prt_dirs).encode()).hexdigest()
+                       + np.ascontiguousarray(f).tobytes()
+                       + f"{eng.params.prt_dirs} {getattr(eng, 'vis_stride', VIS_STRIDE)}".encode()).hexdigest()
     cached = eng._prt_cache
     if cached is None or cached[0] != key:
-        eng._prt_cache = cached = (key, ShapeShading(local, n, f, eng.params.prt_dirs, eng.dB_samples, eng.device))
+        eng._prt_cache = cached = (key, ShapeShading(local, n, f, eng.params.prt_dirs, eng.dB_samples, eng.device,
+                                                     getattr(eng, "vis_stride", VIS_STRIDE),
+                                                     len(eng.room_light.emitters)))
         cached[1].key = key
     return cached[1]
 
