@@ -90,10 +90,13 @@ class ShadowPass:
         ty, tx = np.divmod(self.recv, W)
         tile = np.concatenate([(ty // TILE) * (W // TILE + 1) + tx // TILE, np.full(P, -1)])
         self.sums = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
-        # exact on every frame they are wanted (lattice, or no lattice neighbour): in scan order;
+        # exact on every frame they are wanted (lattice, or no lattice neighbour): cell by cell;
         # the rest (filled unless near the object): sorted by patch, with each patch's range
         static = (self.lattice | ~self.lattice_cover)[self.recv]
         self.lat_pt = np.flatnonzero(static)
+        # cell by cell (the near ones too, per frame): a cell's points share its list of maps and look up
+        # nearby texels of them, which the masked sums' memory traffic favours (the sums are unchanged)
+        self.lat_pt = self.lat_pt[np.argsort(self.sums.point_cell[self.lat_pt], kind="stable")]
         self.lat_patch = pix_patch[self.recv[self.lat_pt]]
         rest = np.flatnonzero(~static)
         rest = rest[np.argsort(pix_patch[self.recv[rest]], kind="stable")]
@@ -165,7 +168,8 @@ class ShadowPass:
         span = np.repeat(lo - np.concatenate([[0], np.cumsum(hi - lo)[:-1]]), hi - lo) + np.arange((hi - lo).sum())
         close = span[np.linalg.norm(self.rest_pos[span] - centre, axis=1) < reach]
         rest[close] = False
-        pix_pt = np.concatenate([lat, self.rest_pt[close]])
+        near_pt = self.rest_pt[close]
+        pix_pt = np.concatenate([lat, near_pt[np.argsort(self.sums.point_cell[near_pt], kind="stable")]])
         fill_pt = self.rest_pt[rest]
         covered = np.flatnonzero(coverage.reshape(-1) >= 1.0)
         if len(covered):  # pixels the object hides completely: no shadow to show
