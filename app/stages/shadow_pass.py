@@ -137,7 +137,7 @@ class ShadowPass:
                           disable=self.quiet or n_src <= 4 * self.batch or not sys.stderr.isatty()):
             n = self.maps.prepare(eyes[first:first + self.batch])
             runtime.split(self.maps.raster, n, dev, min_items=1)
-            self._upload_batch(cand, W_pix, W_c, first, n)
+            self._upload_batch(cand, W_pix, W_c, first, n, cen)
             self.sums.prepare(self.maps, n, 0, self.cand.dev)
             runtime.split(lambda lo, hi: self.sums.accumulate(self.maps, 0, self.weights.dev, lo, hi),
                           self.sums.n, dev, min_items=2048)
@@ -180,12 +180,16 @@ class ShadowPass:
         cen = np.flatnonzero(ok & ~self.emitter)
         return pix_pt, fill_pt, cen
 
-    def _upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int) -> None:
-        """Sources first..first+n-1's transfers and candidate flags into the batch buffers."""
+    def _upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int,
+                      cen: np.ndarray) -> None:
+        """Sources first..first+n-1's transfers and candidate flags into the batch buffers. Of the
+        patch-centre rows only those of the frame's centres `cen` that are candidates of some source
+        of the batch: the masked sums read no other (a centre's list holds its candidates only)."""
         Vr = self.n_recv_vert
         w = self.weights.host
         w[:Vr, :n] = W_pix[:, first:first + n]
-        w[Vr:, :n] = W_c[:, first:first + n]
+        c = cen[cand[cen, first:first + n].any(1)]
+        w[Vr + c, :n] = W_c[c, first:first + n]
         self.weights.push()
         self.cand.host[:, :n] = cand[:, first:first + n]
         self.cand.push()
