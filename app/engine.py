@@ -58,7 +58,6 @@ from app.stages.sun import SunStage
 from recon.patches import PatchMesh
 from recon.response import luminance
 from recon.scene import Scene, SceneObject
-from app.stages import shadow_pass
 from app.stages.shadow_pass import ShadowPass, window_pairs as _window_pairs
 
 log = logging.getLogger("photoar")
@@ -420,13 +419,8 @@ class Engine:
         if p.mode == "ldr":
             S_v = self._ldr_weights(W_v)
         n_src = len(eyes)
-        guide = None
-        if fs.n_listed == n_src and n_src > shadow_pass.GUIDE_PASSES:  # a map per source: guided coarse lattice
-            g = self.shadow_sources.select(pv.min(0), pv.max(0), shadow_pass.GUIDE_PASSES)
-            guide = (g.eyes, self._ldr_weights(g.W_v) if p.mode == "ldr" else g.W_v, g.W_c, g.cand)
         masks = yield from self.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov, cand, eyes,
-                                                S_v if p.mode == "ldr" else W_v, W_c, fs.n_listed == n_src,
-                                                guide, None if p.mode == "ldr" else self.E_x)
+                                                S_v if p.mode == "ldr" else W_v, W_c, fs.n_listed == n_src)
         pix_sel, fill_sel, cen_sel, O_pix, O_cen = (masks.pix_sel, masks.fill_sel, masks.cen_sel, masks.O_pix,
                                                     masks.O_cen)
         t = tick("masks", t)

@@ -51,13 +51,6 @@ class Masks:
 # whose hard lamp shadows lose at 128 (bench/bench_shadow_pass.py measures both).
 CLUSTER_MAP_RES = 128
 TILE = 8  # pixels: side of the image blocks whose points share a list of maps that may shadow them
-# All-sources frame (a map per source): the lattice pixels between those of the coarse lattice (every
-# fourth pixel) are interpolated from their coarse neighbours where a guide (the frame's shadow from
-# GUIDE_PASSES clusters of its sources, cheap) varies linearly there within GUIDE_TOLERANCE of the
-# pixel's light (HDR: E_x; LDR: the full 255 levels), and summed exactly elsewhere (shadow edges,
-# contact, quad boundaries). The tolerance is a share of the light, well below a display level.
-GUIDE_PASSES = 50
-GUIDE_TOLERANCE = 0.002
 
 
 class ShadowPass:
@@ -97,11 +90,11 @@ class ShadowPass:
         ty, tx = np.divmod(self.recv, W)
         tile = np.concatenate([(ty // TILE) * (W // TILE + 1) + tx // TILE, np.full(P, -1)])
         self.sums = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
-        # exact on every frame they are wanted (lattice, or no lattice neighbour): cell by cell;
+        # exact on every frame they are wanted (lattice, or no lattice neighbour): in scan order (the
+        # masked sums take them cell by cell);
         # the rest (filled unless near the object): sorted by patch, with each patch's range
         static = (self.lattice | ~self.lattice_cover)[self.recv]
         self.lat_pt = np.flatnonzero(static)
-        self.lat_pt = self.lat_pt[np.argsort(self.sums.point_cell[self.lat_pt], kind="stable")]  # cell by cell
         self.lat_patch = pix_patch[self.recv[self.lat_pt]]
         rest = np.flatnonzero(~static)
         rest = rest[np.argsort(pix_patch[self.recv[rest]], kind="stable")]
@@ -109,16 +102,6 @@ class ShadowPass:
         self.rest_patch = pix_patch[self.recv[rest]]
         self.rest_pos = pix_pos[self.recv[rest]].astype(np.float64)
         self.rest_start = np.searchsorted(self.rest_patch, np.arange(P + 1))
-        # pixels that may be interpolated in an all-sources frame (run's guide), two levels: the lattice
-        # pixels off the coarse lattice (every 4th pixel) from their 2 or 4 coarse neighbours, then the
-        # pixels off the lattice from their 2 or 4 lattice neighbours; all on the pixel's quad
-        self.levels = [_midpoints(((yy % 2 == 0) & (xx % 2 == 0) & ~((yy % 4 == 0) & (xx % 4 == 0))).reshape(-1),
-                                  2, self.pix_quad, recv_pix, W, H),
-                       _midpoints(~((yy % 2 == 0) & (xx % 2 == 0)).reshape(-1), 1, self.pix_quad, recv_pix, W, H)]
-        self.level = np.zeros(H * W, np.int8)  # 1, 2: the pixel's level above; 0: always summed
-        for k, (pix, _) in enumerate(self.levels):
-            self.level[pix] = k + 1
-        self._slot = np.full(H * W, -1, np.int64)  # scratch: a pixel's row in this frame's values
         self.patch_centre, self.patch_radius = patches.centre, patches.radius
         self.emitter = patches.is_emitter
         self.maps_full = ShadowMaps(batch, map_res, device=device)
@@ -133,7 +116,7 @@ class ShadowPass:
     # ------------------------------------------------------------------ per frame
     def run(self, proxy: tuple[np.ndarray, np.ndarray, Occluder | None], centre: np.ndarray, radius: float,
             coverage: np.ndarray, cand: np.ndarray, eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray,
-            per_source: bool = True, guide: tuple | None = None, scale: np.ndarray | None = None):
+            per_source: bool = True):
         """The frame's masks, as a generator: yields the sources done after each batch of maps
         (Engine.refine may pause there) and returns the Masks.
 
@@ -141,42 +124,12 @@ class ShadowPass:
         bounding sphere (m); coverage (H,W) share of each pixel the object covers; cand (P,S)
         bool receiver patch x pass; eyes (S,3) m; W_pix (Vr,S,3) pixel-row transfers (radiance,
         or LDR intensity), W_c (P,S,3) patch-centre transfers; per_source: one map per source
-        (maps of map_res), else maps of clusters (cluster_map_res). guide: with per_source, the
-        (eyes, W_pix, W_c, cand) of a few clusters of the same sources: the coarse lattice's
-        in-between pixels where the guide's shadow is linear within GUIDE_TOLERANCE x `scale`
-        (H*W,) (the pixel's light in the sums' unit; None: 255 levels) are interpolated, not summed."""
+        (maps of map_res), else maps of clusters (cluster_map_res)."""
         pix_pt, fill_pt, cen = self._select(centre, radius, coverage, cand)
         R = self.n_pix_points
+        self.sums.select(np.concatenate([pix_pt, R + cen]))
         self.maps = self.maps_full if per_source else self.maps_cluster
-        level = np.zeros(len(pix_pt), np.int8)
-        if per_source and guide is not None and len(pix_pt):
-            self.maps = self.maps_cluster
-            self.maps.set_proxy(proxy[0], proxy[1], proxy[2])
-            self.sums.select(pix_pt)
-            G = yield from self._batches(guide[3], guide[0], guide[1], guide[2], cen[:0])
-            level = self._levels(pix_pt, G, scale)
-            self.maps = self.maps_full
-        order = np.argsort(level, kind="stable")  # summed ones first, then level 1, level 2
-        pix_pt, level = pix_pt[order], level[order]
-        n_pix = int((level == 0).sum())
-        self.sums.select(np.concatenate([pix_pt[:n_pix], R + cen]))
         self.maps.set_proxy(proxy[0], proxy[1], proxy[2])
-        acc = yield from self._batches(cand, eyes, W_pix, W_c, cen)
-        pix_sel = self.recv[pix_pt]
-        O_pix = np.empty((len(pix_pt), 3))
-        O_pix[:n_pix] = acc[:n_pix]
-        if n_pix < len(pix_pt):  # the mean of their neighbours, summed or of the level before
-            slot = self._slot
-            slot[pix_sel] = np.arange(len(pix_sel))
-            for k, (pix, nb) in enumerate(self.levels):
-                rows = np.flatnonzero(level == k + 1)
-                O_pix[rows] = O_pix[slot[nb[np.searchsorted(pix, pix_sel[rows])]]].mean(1)
-            slot[pix_sel] = -1
-        return Masks(pix_sel, self.recv[fill_pt], cen, O_pix, acc[n_pix:])
-
-    def _batches(self, cand: np.ndarray, eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, cen: np.ndarray):
-        """Sum over the selected points the masks of sources `eyes` in batches of self.maps (a
-        generator: yields the sources done after each batch); returns the sums (n,3)."""
         n_src, dev = len(eyes), self.device
         for first in tqdm(range(0, n_src, self.batch), desc="shadow passes", unit="batch", leave=False,
                           disable=self.quiet or n_src <= 4 * self.batch or not sys.stderr.isatty()):
@@ -187,31 +140,9 @@ class ShadowPass:
             runtime.split(lambda lo, hi: self.sums.accumulate(self.maps, 0, self.weights.dev, lo, hi),
                           self.sums.n, dev, min_items=2048)
             yield first + n  # sources done: refine() may stop here and resume on its next call
-        return self.sums.result()[0]
-
-    def _levels(self, pix_pt: np.ndarray, G: np.ndarray, scale: np.ndarray | None) -> np.ndarray:
-        """(len(pix_pt),) int8: 1 or 2 for the points to interpolate at that level (self.levels), 0 for
-        those to sum. A point is interpolated when all its neighbours are points of the frame that are
-        summed or interpolated at a level before, and the guide's sums G (rows of pix_pt) there differ
-        from their neighbours' mean by at most GUIDE_TOLERANCE x scale in every channel."""
-        pix = self.recv[pix_pt]
-        level = np.zeros(len(pix_pt), np.int8)
-        slot = self._slot
-        slot[pix] = np.arange(len(pix))
-        for k, (lp, nb_all) in enumerate(self.levels):
-            rows = np.flatnonzero(self.level[pix] == k + 1)
-            if not len(rows):
-                continue
-            nb = slot[nb_all[np.searchsorted(lp, pix[rows])]]
-            ok = (nb >= 0).all(1)
-            rows, nb = rows[ok], nb[ok]
-            ok = (level[nb] <= k).all(1)  # neighbours summed, or interpolated at an earlier level
-            rows, nb = rows[ok], nb[ok]
-            tol = GUIDE_TOLERANCE * (np.full(len(rows), 255.0) if scale is None else scale[pix[rows]])
-            tol = tol.reshape(len(rows), -1)  # per pixel, or per pixel and channel
-            level[rows[np.all(np.abs(G[rows] - G[nb].mean(1)) <= tol, 1)]] = k + 1
-        slot[pix] = -1
-        return level
+        acc, _ = self.sums.result()
+        n_pix = len(pix_pt)
+        return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, acc[:n_pix], acc[n_pix:])
 
     def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray) -> np.ndarray:
         """Values (len(missing),3) at pixels `missing`: mean of the `known` pixels' values in
@@ -277,22 +208,3 @@ def window_pairs(H: int, W: int):
 
 
 _WINDOW_CACHE: dict = {}
-
-
-def _midpoints(where: np.ndarray, step: int, quad: np.ndarray, recv: np.ndarray, W: int, H: int
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """(pixels, neighbours (n,4)) of the pixels `where` (H*W,) bool whose 2 (a coordinate multiple of
-    2*step: listed twice) or 4 (none) neighbours at +-step (flat indices) lie inside the image, on the
-    pixel's own quad and are receivers; pixels ascending."""
-    pix = np.flatnonzero(where & recv)
-    y, x = np.divmod(pix, W)
-    dy = np.where(y % (2 * step) == step, step, 0)
-    dx = np.where(x % (2 * step) == step, step, 0)
-    inside = (y - dy >= 0) & (y + dy < H) & (x - dx >= 0) & (x + dx < W)
-    four = (dy > 0) & (dx > 0)
-    nb = np.stack([(y - dy) * W + x - dx, (y + dy) * W + x + dx,
-                   np.where(four, (y - dy) * W + x + dx, (y - dy) * W + x - dx),
-                   np.where(four, (y + dy) * W + x - dx, (y + dy) * W + x + dx)], 1)
-    nb = np.where(inside[:, None], nb, 0)
-    ok = inside & (dy + dx > 0) & np.all((quad[nb] == quad[pix][:, None]) & recv[nb], 1)
-    return pix[ok], nb[ok].astype(np.int64)

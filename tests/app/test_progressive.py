@@ -8,7 +8,6 @@ import pytest
 from app.cli import demo_scene_dir
 from app.dragpath import moved
 from app.engine import Engine, EngineParams, FrameConfig
-from app.stages import shadow_pass
 from recon.scene import load_scene
 
 
@@ -37,9 +36,8 @@ def test_refine_converges_to_the_all_sources_frame(demo):
             break
         assert calls < 1000
     n_batches = -(-exact.stats["passes"] // eng.params.batch)
-    n_guide = -(-shadow_pass.GUIDE_PASSES // eng.params.batch)  # the guide's clusters (ShadowPass.run)
     # spread over calls: one batch of shadow maps each, then the shading and compositing
-    assert n_batches > 1 and calls == n_guide + n_batches + 1
+    assert n_batches > 1 and calls == n_batches + 1
     assert _rmse(fr.pixels, exact.pixels) <= 0.05
     assert fr.stats["passes"] == exact.stats["passes"] and fr.stats["refine_calls"] == calls
     assert eng.refine(scene.obj) is fr  # converged: later calls at rest return it at once
