@@ -28,10 +28,10 @@ from kernels.visibility import segment_blocked
 
 
 @wp.kernel
-def _list_kernel(ms: MapSet, n_maps: int, col0: int, centre: wp.array(dtype=wp.vec3),
+def _list_kernel(ms: MapSet, g0: int, n_maps: int, col0: int, centre: wp.array(dtype=wp.vec3),
                  radius: wp.array(dtype=wp.float32), cand: wp.array2d(dtype=wp.uint8), cull: int,
                  lists: wp.array2d(dtype=wp.int32), n_list: wp.array(dtype=wp.int32)):
-    g = wp.tid()
+    g = g0 + wp.tid()
     m = int(0)
     for s in range(n_maps):
         if cand[g, col0 + s] == wp.uint8(0):
@@ -45,11 +45,11 @@ def _list_kernel(ms: MapSet, n_maps: int, col0: int, centre: wp.array(dtype=wp.v
 
 
 @wp.kernel
-def _cell_list_kernel(ms: MapSet, cell_group: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.uint8),
+def _cell_list_kernel(ms: MapSet, c0: int, cell_group: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.uint8),
                       centre: wp.array(dtype=wp.vec3), radius: wp.array(dtype=wp.float32), cull: int,
                       g_lists: wp.array2d(dtype=wp.int32), g_n: wp.array(dtype=wp.int32),
                       lists: wp.array2d(dtype=wp.int32), n_list: wp.array(dtype=wp.int32)):
-    c = wp.tid()
+    c = c0 + wp.tid()
     m = int(0)
     if active[c] != wp.uint8(0):
         g = cell_group[c]
@@ -173,7 +173,8 @@ class MaskedSum:
         self.n = self.idx.upload(idx[rank])
         c = cell[rank]
         starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]]) if len(c) else np.zeros(0, np.int64)
-        self.n_runs = self.run_cell.upload(c[starts])
+        self._run_cell = c[starts]
+        self.n_runs = self.run_cell.upload(self._run_cell)
         self.run_start.upload(np.r_[starts, len(c)])
         self._run_start = np.r_[starts, len(c)]
         self.active.host[:] = 0
@@ -185,17 +186,41 @@ class MaskedSum:
         self.acc.dev.zero_()
         self.count.dev.zero_()
 
-    def prepare(self, maps: ShadowMaps, n_maps: int, first: int, cand: wp.array) -> None:
+    def prepare(self, maps: ShadowMaps, n_maps: int, first: int, cand: wp.array, split=None) -> None:
         """Each cell's list of maps 0..n_maps-1 of `maps` (sources first.. of `cand`'s columns)
-        that may occlude its points. Run once per batch, before accumulate."""
+        that may occlude its points. Run once per batch, before accumulate. split: optional
+        callable(launch(lo, hi), n) that runs a launch over index ranges (app.runtime.split);
+        default one launch."""
         if n_maps > self.max_maps:
             raise ValueError(f"{n_maps} maps exceed the {self.max_maps} this MaskedSum lists per batch")
-        wp.launch(_list_kernel, dim=self.n_groups,
-                  inputs=[maps.ms, n_maps, first, self.g_centre.dev, self.g_radius.dev, cand, self.cull],
-                  outputs=[self.g_lists, self.g_n], device=self.device)
-        wp.launch(_cell_list_kernel, dim=self.n_cells,
-                  inputs=[maps.ms, self.cell_group.dev, self.active.dev, self.c_centre.dev, self.c_radius.dev,
-                          self.cull, self.g_lists, self.g_n], outputs=[self.lists, self.n_list], device=self.device)
+        split = split or (lambda launch, n: launch(0, n))
+
+        def groups(lo: int, hi: int) -> None:
+            wp.launch(_list_kernel, dim=hi - lo,
+                      inputs=[maps.ms, lo, n_maps, first, self.g_centre.dev, self.g_radius.dev, cand, self.cull],
+                      outputs=[self.g_lists, self.g_n], device=self.device)
+
+        def cells(lo: int, hi: int) -> None:
+            wp.launch(_cell_list_kernel, dim=hi - lo,
+                      inputs=[maps.ms, lo, self.cell_group.dev, self.active.dev, self.c_centre.dev,
+                              self.c_radius.dev, self.cull, self.g_lists, self.g_n],
+                      outputs=[self.lists, self.n_list], device=self.device)
+
+        split(groups, self.n_groups)
+        split(cells, self.n_cells)
+
+    def balanced(self, k: int) -> list[tuple[int, int]]:
+        """[0, n) cut at runs into at most k ranges of the prepared batch's selected points with
+        near-equal work (points x maps listed: the masked sums' (point, map) pairs), for k
+        concurrent accumulate calls (a cut by point count leaves the heavy cells near the
+        object to one of them)."""
+        if k <= 1 or self.n_runs <= 1:
+            return [(0, self.n)] if self.n else []
+        n_list = self.n_list.numpy()  # the CPU array itself (parts > 1 only on the CPU)
+        work = np.cumsum(np.diff(self._run_start) * (n_list[self._run_cell] + 1))
+        cut = np.searchsorted(work, work[-1] * np.arange(1, k) / k)
+        bounds = np.unique(np.r_[0, self._run_start[np.minimum(cut + 1, self.n_runs)], self.n])
+        return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
     def accumulate(self, maps: ShadowMaps, first: int, weights: wp.array, lo: int = 0, hi: int | None = None) -> None:
         """Add the prepared batch's masked sums to selected points lo..hi-1 (in the cell-by-cell

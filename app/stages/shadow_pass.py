@@ -136,9 +136,11 @@ class ShadowPass:
             n = self.maps.prepare(eyes[first:first + self.batch])
             runtime.split(self.maps.raster, n, dev, min_items=1)
             self._upload_batch(cand, W_pix, W_c, first, n, cen)
-            self.sums.prepare(self.maps, n, 0, self.cand.dev)
-            runtime.split(lambda lo, hi: self.sums.accumulate(self.maps, 0, self.weights.dev, lo, hi),
-                          self.sums.n, dev, min_items=2048)
+            self.sums.prepare(self.maps, n, 0, self.cand.dev,
+                              split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
+            # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
+            runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
+                         for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
             yield first + n  # sources done: refine() may stop here and resume on its next call
         acc, _ = self.sums.result()
         n_pix = len(pix_pt)
