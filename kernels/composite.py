@@ -132,6 +132,9 @@ class MaskedSum:
         cells, point_cell = np.unique(group * span + (tile - (tile.min() if self.size else 0)), return_inverse=True)
         self.n_cells = C = max(len(cells), 1)
         self.point_cell = point_cell.reshape(-1)
+        self._by_cell = np.argsort(self.point_cell, kind="stable")  # the points cell by cell
+        self._mark = np.zeros(self.size, bool)  # scratch of select()
+        self._slot = np.zeros(self.size, np.int64)
         n_alloc = max(self.size, 1)  # Warp arrays of zero length cannot be launched over
         self.pos = Buffer(n_alloc, wp.vec3, d)
         self.rows = Buffer((n_alloc, 3), wp.int32, d)
@@ -166,12 +169,23 @@ class MaskedSum:
         """Sum over the points `idx` (indices into the constructor's points; None: all of them)
         from now on, starting from zero; result() rows follow idx's order."""
         idx = np.arange(self.size) if idx is None else np.asarray(idx, np.int64).reshape(-1)
-        cell = self.point_cell[idx]
-        rank = np.argsort(cell, kind="stable")  # cell by cell: runs of one cell's points
-        self.order = np.empty(len(idx), np.int64)
-        self.order[rank] = np.arange(len(idx))
-        self.n = self.idx.upload(idx[rank])
-        c = cell[rank]
+        # cell by cell (runs of one cell's points): the points in the constructor's cell order, kept
+        # where selected (linear in the points; distinct indices, else a sort)
+        mark = self._mark
+        mark[idx] = True
+        if int(mark.sum()) == len(idx):
+            ordered = self._by_cell[mark[self._by_cell]]
+            mark[idx] = False
+            self._slot[ordered] = np.arange(len(ordered))
+            self.order = self._slot[idx]
+        else:
+            mark[idx] = False
+            rank = np.argsort(self.point_cell[idx], kind="stable")
+            ordered = idx[rank]
+            self.order = np.empty(len(idx), np.int64)
+            self.order[rank] = np.arange(len(idx))
+        self.n = self.idx.upload(ordered)
+        c = self.point_cell[ordered]
         starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]]) if len(c) else np.zeros(0, np.int64)
         self._run_cell = c[starts]
         self.n_runs = self.run_cell.upload(self._run_cell)
