@@ -23,14 +23,15 @@ import warp as wp
 
 from kernels import runtime
 from kernels.buffers import Buffer
-from kernels.shadowmap import MapSet, ShadowMaps, may_occlude, occluded
+from kernels.shadowmap import MapSet, ShadowMaps, may_occlude
+from kernels.visibility import segment_blocked
 
 
 @wp.kernel
-def _list_kernel(ms: MapSet, n_maps: int, col0: int, centre: wp.array(dtype=wp.vec3),
+def _list_kernel(ms: MapSet, g0: int, n_maps: int, col0: int, centre: wp.array(dtype=wp.vec3),
                  radius: wp.array(dtype=wp.float32), cand: wp.array2d(dtype=wp.uint8), cull: int,
                  lists: wp.array2d(dtype=wp.int32), n_list: wp.array(dtype=wp.int32)):
-    g = wp.tid()
+    g = g0 + wp.tid()
     m = int(0)
     for s in range(n_maps):
         if cand[g, col0 + s] == wp.uint8(0):
@@ -44,11 +45,11 @@ def _list_kernel(ms: MapSet, n_maps: int, col0: int, centre: wp.array(dtype=wp.v
 
 
 @wp.kernel
-def _cell_list_kernel(ms: MapSet, cell_group: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.uint8),
+def _cell_list_kernel(ms: MapSet, c0: int, cell_group: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.uint8),
                       centre: wp.array(dtype=wp.vec3), radius: wp.array(dtype=wp.float32), cull: int,
                       g_lists: wp.array2d(dtype=wp.int32), g_n: wp.array(dtype=wp.int32),
                       lists: wp.array2d(dtype=wp.int32), n_list: wp.array(dtype=wp.int32)):
-    c = wp.tid()
+    c = c0 + wp.tid()
     m = int(0)
     if active[c] != wp.uint8(0):
         g = cell_group[c]
@@ -63,28 +64,49 @@ def _cell_list_kernel(ms: MapSet, cell_group: wp.array(dtype=wp.int32), active: 
 
 
 @wp.kernel
-def _masked_sum_kernel(ms: MapSet, lo: int, col0: int, idx: wp.array(dtype=wp.int32),
+def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, run_start: wp.array(dtype=wp.int32),
+                       run_cell: wp.array(dtype=wp.int32), idx: wp.array(dtype=wp.int32),
                        pos: wp.array(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32),
-                       bary: wp.array(dtype=wp.vec3), cell: wp.array(dtype=wp.int32),
-                       lists: wp.array2d(dtype=wp.int32), n_list: wp.array(dtype=wp.int32),
-                       weights: wp.array2d(dtype=wp.vec3),
+                       bary: wp.array(dtype=wp.vec3), lists: wp.array2d(dtype=wp.int32),
+                       n_list: wp.array(dtype=wp.int32), weights: wp.array2d(dtype=wp.vec3),
                        acc: wp.array(dtype=wp.vec3), count: wp.array(dtype=wp.float32)):
-    i = lo + wp.tid()
-    k = idx[i]
-    g = cell[k]
-    p = pos[k]
-    b = bary[k]
-    total = wp.vec3(0.0, 0.0, 0.0)
-    hits = float(0.0)
-    for t in range(n_list[g]):
-        s = lists[g, t]
-        if occluded(ms, s, p):
-            j = col0 + s
-            w = weights[rows[k, 0], j] * b[0] + weights[rows[k, 1], j] * b[1] + weights[rows[k, 2], j] * b[2]
-            total += w
-            hits += 1.0
-    acc[i] = acc[i] + total
-    count[i] = count[i] + hits
+    # one thread per run (the selected points of one cell, consecutive), clipped to points lo..hi-1:
+    # map by map of the cell's list, the map's frame is read once for all the run's points
+    r = run0 + wp.tid()
+    a = wp.max(run_start[r], lo)
+    b = wp.min(run_start[r + 1], hi)
+    c = run_cell[r]
+    half = float(ms.res) * 0.5
+    for t in range(n_list[c]):
+        s = lists[c, t]
+        j = col0 + s
+        o = ms.origin[s]
+        if ms.ray[s] == 1:
+            for i in range(a, b):
+                k = idx[i]
+                if segment_blocked(ms.proxy, pos[k], o):
+                    bk = bary[k]
+                    acc[i] = acc[i] + (weights[rows[k, 0], j] * bk[0] + weights[rows[k, 1], j] * bk[1]
+                                       + weights[rows[k, 2], j] * bk[2])
+                    count[i] = count[i] + 1.0
+            continue
+        f = ms.fwd[s]
+        rt = ms.right[s]
+        up = ms.up[s]
+        it = ms.inv_tan[s]
+        for i in range(a, b):
+            k = idx[i]
+            d = pos[k] - o
+            z = wp.dot(d, f)
+            if z > 1.0e-6:  # the lookup of kernels.shadowmap.occluded, with the map's frame at hand
+                ix = int(wp.floor(wp.dot(d, rt) / z * it * half + half - 0.5 + 0.5))
+                iy = int(wp.floor(wp.dot(d, up) / z * it * half + half - 0.5 + 0.5))
+                if ix >= 0 and iy >= 0 and ix < ms.res and iy < ms.res:
+                    if z > ms.depth[s, iy, ix] + ms.bias:
+                        bk = bary[k]
+                        acc[i] = acc[i] + (weights[rows[k, 0], j] * bk[0] + weights[rows[k, 1], j] * bk[1]
+                                           + weights[rows[k, 2], j] * bk[2])
+                        count[i] = count[i] + 1.0
 
 
 class MaskedSum:
@@ -110,6 +132,9 @@ class MaskedSum:
         cells, point_cell = np.unique(group * span + (tile - (tile.min() if self.size else 0)), return_inverse=True)
         self.n_cells = C = max(len(cells), 1)
         self.point_cell = point_cell.reshape(-1)
+        self._by_cell = np.argsort(self.point_cell, kind="stable")  # the points cell by cell
+        self._mark = np.zeros(self.size, bool)  # scratch of select()
+        self._slot = np.zeros(self.size, np.int64)
         n_alloc = max(self.size, 1)  # Warp arrays of zero length cannot be launched over
         self.pos = Buffer(n_alloc, wp.vec3, d)
         self.rows = Buffer((n_alloc, 3), wp.int32, d)
@@ -130,7 +155,11 @@ class MaskedSum:
         self.g_n = wp.zeros(G, dtype=wp.int32, device=d)
         self.lists = wp.zeros((C, max_maps), dtype=wp.int32, device=d)
         self.n_list = wp.zeros(C, dtype=wp.int32, device=d)
-        self.idx = Buffer(n_alloc, wp.int32, d)
+        self.idx = Buffer(n_alloc, wp.int32, d)  # the selected points, cell by cell
+        self.run_start = Buffer(n_alloc + 1, wp.int32, d)  # runs: the selected points of one cell
+        self.run_cell = Buffer(n_alloc, wp.int32, d)
+        self.order = np.arange(0)  # selected point i (select's order) is summed in row order[i]
+        self.n_runs = 0
         self.acc = Buffer(n_alloc, wp.vec3, d)
         self.count = Buffer(n_alloc, wp.float32, d)
         self.n = 0
@@ -139,15 +168,31 @@ class MaskedSum:
     def select(self, idx: np.ndarray | None = None) -> None:
         """Sum over the points `idx` (indices into the constructor's points; None: all of them)
         from now on, starting from zero; result() rows follow idx's order."""
-        if idx is None:
-            self.idx.host[:self.size] = np.arange(self.size)
-            self.idx.push(self.size)
-            self.n = self.size
-            self.active.host[:] = 1
+        idx = np.arange(self.size) if idx is None else np.asarray(idx, np.int64).reshape(-1)
+        # cell by cell (runs of one cell's points): the points in the constructor's cell order, kept
+        # where selected (linear in the points; distinct indices, else a sort)
+        mark = self._mark
+        mark[idx] = True
+        if int(mark.sum()) == len(idx):
+            ordered = self._by_cell[mark[self._by_cell]]
+            mark[idx] = False
+            self._slot[ordered] = np.arange(len(ordered))
+            self.order = self._slot[idx]
         else:
-            self.n = self.idx.upload(idx)
-            self.active.host[:] = 0
-            self.active.host[self.point_cell[np.asarray(idx, np.int64)]] = 1
+            mark[idx] = False
+            rank = np.argsort(self.point_cell[idx], kind="stable")
+            ordered = idx[rank]
+            self.order = np.empty(len(idx), np.int64)
+            self.order[rank] = np.arange(len(idx))
+        self.n = self.idx.upload(ordered)
+        c = self.point_cell[ordered]
+        starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]]) if len(c) else np.zeros(0, np.int64)
+        self._run_cell = c[starts]
+        self.n_runs = self.run_cell.upload(self._run_cell)
+        self.run_start.upload(np.r_[starts, len(c)])
+        self._run_start = np.r_[starts, len(c)]
+        self.active.host[:] = 0
+        self.active.host[c[starts]] = 1
         self.active.push()
         self.reset()
 
@@ -155,27 +200,54 @@ class MaskedSum:
         self.acc.dev.zero_()
         self.count.dev.zero_()
 
-    def prepare(self, maps: ShadowMaps, n_maps: int, first: int, cand: wp.array) -> None:
+    def prepare(self, maps: ShadowMaps, n_maps: int, first: int, cand: wp.array, split=None) -> None:
         """Each cell's list of maps 0..n_maps-1 of `maps` (sources first.. of `cand`'s columns)
-        that may occlude its points. Run once per batch, before accumulate."""
+        that may occlude its points. Run once per batch, before accumulate. split: optional
+        callable(launch(lo, hi), n) that runs a launch over index ranges (app.runtime.split);
+        default one launch."""
         if n_maps > self.max_maps:
             raise ValueError(f"{n_maps} maps exceed the {self.max_maps} this MaskedSum lists per batch")
-        wp.launch(_list_kernel, dim=self.n_groups,
-                  inputs=[maps.ms, n_maps, first, self.g_centre.dev, self.g_radius.dev, cand, self.cull],
-                  outputs=[self.g_lists, self.g_n], device=self.device)
-        wp.launch(_cell_list_kernel, dim=self.n_cells,
-                  inputs=[maps.ms, self.cell_group.dev, self.active.dev, self.c_centre.dev, self.c_radius.dev,
-                          self.cull, self.g_lists, self.g_n], outputs=[self.lists, self.n_list], device=self.device)
+        split = split or (lambda launch, n: launch(0, n))
+
+        def groups(lo: int, hi: int) -> None:
+            wp.launch(_list_kernel, dim=hi - lo,
+                      inputs=[maps.ms, lo, n_maps, first, self.g_centre.dev, self.g_radius.dev, cand, self.cull],
+                      outputs=[self.g_lists, self.g_n], device=self.device)
+
+        def cells(lo: int, hi: int) -> None:
+            wp.launch(_cell_list_kernel, dim=hi - lo,
+                      inputs=[maps.ms, lo, self.cell_group.dev, self.active.dev, self.c_centre.dev,
+                              self.c_radius.dev, self.cull, self.g_lists, self.g_n],
+                      outputs=[self.lists, self.n_list], device=self.device)
+
+        split(groups, self.n_groups)
+        split(cells, self.n_cells)
+
+    def balanced(self, k: int) -> list[tuple[int, int]]:
+        """[0, n) cut at runs into at most k ranges of the prepared batch's selected points with
+        near-equal work (points x maps listed: the masked sums' (point, map) pairs), for k
+        concurrent accumulate calls (a cut by point count leaves the heavy cells near the
+        object to one of them)."""
+        if k <= 1 or self.n_runs <= 1:
+            return [(0, self.n)] if self.n else []
+        n_list = self.n_list.numpy()  # the CPU array itself (parts > 1 only on the CPU)
+        work = np.cumsum(np.diff(self._run_start) * (n_list[self._run_cell] + 1))
+        cut = np.searchsorted(work, work[-1] * np.arange(1, k) / k)
+        bounds = np.unique(np.r_[0, self._run_start[np.minimum(cut + 1, self.n_runs)], self.n])
+        return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
     def accumulate(self, maps: ShadowMaps, first: int, weights: wp.array, lo: int = 0, hi: int | None = None) -> None:
-        """Add the prepared batch's masked sums to selected points lo..hi-1 (default all); disjoint
-        ranges may run concurrently. `weights` (rows, sources) vec3, column first + map."""
+        """Add the prepared batch's masked sums to selected points lo..hi-1 (in the cell-by-cell
+        order the sums keep; default all); disjoint ranges may run concurrently. `weights` (rows,
+        sources) vec3, column first + map."""
         hi = self.n if hi is None else min(hi, self.n)
         if hi <= lo:
             return
-        wp.launch(_masked_sum_kernel, dim=hi - lo,
-                  inputs=[maps.ms, lo, first, self.idx.dev, self.pos.dev, self.rows.dev, self.bary.dev,
-                          self.cell.dev, self.lists, self.n_list, weights],
+        r0 = int(np.searchsorted(self._run_start, lo, side="right")) - 1
+        r1 = int(np.searchsorted(self._run_start, hi, side="left"))
+        wp.launch(_masked_sum_kernel, dim=r1 - r0,
+                  inputs=[maps.ms, lo, hi, first, r0, self.run_start.dev, self.run_cell.dev, self.idx.dev,
+                          self.pos.dev, self.rows.dev, self.bary.dev, self.lists, self.n_list, weights],
                   outputs=[self.acc.dev, self.count.dev], device=self.device)
 
     def add(self, maps: ShadowMaps, n_maps: int, first: int, cand: wp.array, weights: wp.array) -> None:
@@ -188,7 +260,8 @@ class MaskedSum:
     def result(self) -> tuple[np.ndarray, np.ndarray]:
         """(n,3) float64 masked sums and (n,) number of occluded sources per selected point."""
         wp.synchronize_device(self.device)
-        return (self.acc.pull(self.n).astype(np.float64), self.count.pull(self.n).astype(np.float64))
+        return (self.acc.pull(self.n)[self.order].astype(np.float64),
+                self.count.pull(self.n)[self.order].astype(np.float64))
 
 
 def _spheres(pos: np.ndarray, label: np.ndarray, n: int, device: str) -> tuple[Buffer, Buffer]:

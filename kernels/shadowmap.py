@@ -15,8 +15,8 @@ Buffers are allocated once at the batch capacity (kernels.buffers); a frame's pr
 object's BVH kept per shape (set_proxy takes it), so rendering a batch allocates nothing.
 `may_occlude` bounds a map's shadow: only points inside the cone from the eye around the
 proxy's bounding sphere, behind its nearest depth, and whose texels lie in a COARSE x COARSE
-block of the map that some triangle's bounding box touched (`coarse`, marked while
-rasterising) can be occluded; the masked sums skip the rest (kernels.composite).
+block of the map that some triangle's row span touched (`coarse`, marked while rasterising)
+can be occluded; the masked sums skip the rest (kernels.composite).
 """
 from __future__ import annotations
 
@@ -165,9 +165,6 @@ def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris:
     y1 = wp.min(int(wp.floor(wp.max(wp.max(a[1], b[1]), c[1]))), ms.res - 1)
     if x0 > x1 or y0 > y1:
         return
-    for cy in range(y0 / COARSE, y1 / COARSE + 1):  # the blocks this triangle may draw in
-        for cx in range(x0 / COARSE, x1 / COARSE + 1):
-            ms.coarse[s, cy, cx] = 1
     for iy in range(y0, y1 + 1):
         py = float(iy)
         # the row's texels that can pass the test below: between the edges' crossings of the row,
@@ -177,7 +174,12 @@ def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris:
         lo, hi = _row_span(a, b, py, lo, hi)
         lo, hi = _row_span(b, c, py, lo, hi)
         lo, hi = _row_span(c, a, py, lo, hi)
-        for ix in range(wp.max(int(wp.floor(lo - 2.0)), x0), wp.min(int(wp.ceil(hi + 2.0)), x1) + 1):
+        xs = wp.max(int(wp.floor(lo - 2.0)), x0)
+        xe = wp.min(int(wp.ceil(hi + 2.0)), x1)
+        if xs <= xe:  # the blocks this row of the triangle may draw in
+            for cx in range(xs / COARSE, xe / COARSE + 1):
+                ms.coarse[s, iy / COARSE, cx] = 1
+        for ix in range(xs, xe + 1):
             px = float(ix)
             w0 = _edge(b, c, px, py) / area
             w1 = _edge(c, a, px, py) / area

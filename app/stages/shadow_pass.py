@@ -90,7 +90,8 @@ class ShadowPass:
         ty, tx = np.divmod(self.recv, W)
         tile = np.concatenate([(ty // TILE) * (W // TILE + 1) + tx // TILE, np.full(P, -1)])
         self.sums = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
-        # exact on every frame they are wanted (lattice, or no lattice neighbour): in scan order;
+        # exact on every frame they are wanted (lattice, or no lattice neighbour): in scan order (the
+        # masked sums take them cell by cell);
         # the rest (filled unless near the object): sorted by patch, with each patch's range
         static = (self.lattice | ~self.lattice_cover)[self.recv]
         self.lat_pt = np.flatnonzero(static)
@@ -134,10 +135,12 @@ class ShadowPass:
                           disable=self.quiet or n_src <= 4 * self.batch or not sys.stderr.isatty()):
             n = self.maps.prepare(eyes[first:first + self.batch])
             runtime.split(self.maps.raster, n, dev, min_items=1)
-            self._upload_batch(cand, W_pix, W_c, first, n)
-            self.sums.prepare(self.maps, n, 0, self.cand.dev)
-            runtime.split(lambda lo, hi: self.sums.accumulate(self.maps, 0, self.weights.dev, lo, hi),
-                          self.sums.n, dev, min_items=2048)
+            self._upload_batch(cand, W_pix, W_c, first, n, cen)
+            self.sums.prepare(self.maps, n, 0, self.cand.dev,
+                              split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
+            # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
+            runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
+                         for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
             yield first + n  # sources done: refine() may stop here and resume on its next call
         acc, _ = self.sums.result()
         n_pix = len(pix_pt)
@@ -176,12 +179,16 @@ class ShadowPass:
         cen = np.flatnonzero(ok & ~self.emitter)
         return pix_pt, fill_pt, cen
 
-    def _upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int) -> None:
-        """Sources first..first+n-1's transfers and candidate flags into the batch buffers."""
+    def _upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int,
+                      cen: np.ndarray) -> None:
+        """Sources first..first+n-1's transfers and candidate flags into the batch buffers. Of the
+        patch-centre rows only those of the frame's centres `cen` that are candidates of some source
+        of the batch: the masked sums read no other (a centre's list holds its candidates only)."""
         Vr = self.n_recv_vert
         w = self.weights.host
         w[:Vr, :n] = W_pix[:, first:first + n]
-        w[Vr:, :n] = W_c[:, first:first + n]
+        c = cen[cand[cen, first:first + n].any(1)]
+        w[Vr + c, :n] = W_c[c, first:first + n]
         self.weights.push()
         self.cand.host[:, :n] = cand[:, first:first + n]
         self.cand.push()

@@ -48,6 +48,7 @@ def test_evaluate_path_and_stage_table(tmp_path):
     assert set(p["stages_ms"]) >= {"masks", "compose"}
     # at rest after the drag: refined to the all-sources frame (the "all" row) at the object's pose
     assert ev["converge_s"] == p["converge_s"] > 0 and p["converge_frames"] > 1
+    assert 0 < p["release_frame_s"] < p["converge_s"] and "all-sources frame" in p["converge_measures"]
     assert p["converge_rmse_vs_all"] <= 0.05
 
 

@@ -99,3 +99,48 @@ def test_frames_use_the_map_size_of_their_kind(demo):
     assert fr.stats["passes"] == 3 and fr.stats["n_sources"] > 3 and sp.maps is sp.maps_cluster
     fr = eng.render(scene.obj, FrameConfig(passes=None))
     assert fr.stats["passes"] == fr.stats["n_sources"] and sp.maps is sp.maps_full
+
+
+def test_masked_sums_are_cut_by_work_and_equal_whatever_the_cut(demo):
+    # the all-sources frame's masks: the points are summed cell by cell, in ranges of near-equal
+    # (point, map) pairs; every cut gives the same sums as one range, in the caller's point order
+    scene, eng = demo
+    sp, sums = eng.shadow_pass, eng.shadow_pass.sums
+    obj = scene.obj
+    pv, pf, occ, _, _ = eng._object_shape(obj)
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    centre = 0.5 * (pv.min(0) + pv.max(0))
+    radius = float(np.linalg.norm(pv - centre, axis=1).max())
+    cov = np.zeros((scene.camera.height, scene.camera.width))
+    pix_pt, _, cen = sp._select(centre, radius, cov, fs.cand)
+    pts = np.concatenate([pix_pt, sp.n_pix_points + cen])
+    out = []
+    for k in (1, 2, 3):
+        sums.select(pts)
+        order = sums.idx.host[:sums.n].copy()
+        assert np.array_equal(order[sums.order], pts)  # result rows follow the caller's order
+        assert np.all(np.diff(sums.point_cell[order]) >= 0)  # summed cell by cell
+        maps = sp.maps_full
+        maps.set_proxy(pv, pf, occ)
+        for first in range(0, min(len(fs.eyes), 3 * sp.batch), sp.batch):  # the first three batches
+            n = maps.prepare(fs.eyes[first:first + sp.batch])
+            maps.raster(0, n)
+            sp._upload_batch(fs.cand, fs.W_v, fs.W_c, first, n, cen)
+            sums.prepare(maps, n, 0, sp.cand.dev, split=lambda launch, m: [launch(a, b) for a, b in
+                                                                            ((0, m // 2), (m // 2, m))])
+            parts = sums.balanced(k)
+            # contiguous, covering every point, cut between runs (a cell's points in one part)
+            assert parts[0][0] == 0 and parts[-1][1] == sums.n and len(parts) <= k
+            assert all(a[1] == b[0] for a, b in zip(parts[:-1], parts[1:]))
+            assert set(p[0] for p in parts) <= set(sums._run_start.tolist())
+            if first == 0 and k == 2:  # the parts' work (pairs, and a unit per point): within one run's
+                work = np.diff(sums._run_start) * (sums.n_list.numpy()[sums._run_cell] + 1)
+                per = [work[(sums._run_start[:-1] >= a) & (sums._run_start[:-1] < b)].sum() for a, b in parts]
+                assert len(parts) == 2 and abs(per[0] - per[1]) <= work.max()
+            for a, b in parts:
+                sums.accumulate(maps, 0, sp.weights.dev, a, b)
+        out.append(sums.result())
+    for acc, count in out[1:]:
+        np.testing.assert_array_equal(acc, out[0][0])
+        np.testing.assert_array_equal(count, out[0][1])
+    assert out[0][1].sum() > 0
