@@ -157,6 +157,20 @@ class ShadowSources:
                 run[r0:r1] = cum[:, -1]
         return out
 
+    def _single_transfers(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(W_v (Vr,n,3), W_c (P,n,3)) float32 of one pass per source `ids`, read-only. The last
+        list's are kept: the all-sources frames of poses whose box meets the same sources (every
+        frame of Engine.refine, a room whose shafts all meet the object) reuse them."""
+        last = getattr(self, "_single", None)
+        if last is not None and np.array_equal(last[0], ids):
+            return last[1], last[2]
+        self._single = None  # the old arrays go before the new ones are made
+        B = self.B[ids].astype(np.float32)
+        W_v, W_c = _column_transfers(self.G_v, ids, B), _column_transfers(self.G_c, ids, B)
+        W_v.flags.writeable = W_c.flags.writeable = False
+        self._single = (ids.copy(), W_v, W_c)
+        return W_v, W_c
+
     def stats(self) -> dict:
         if self.empty:
             return {"shafts": 0, "leaf_shafts": 0, "shaft_mb": 0.0, "source_nodes": 0, "receiver_nodes": 0,
@@ -309,8 +323,7 @@ class ShadowSources:
         starts = np.searchsorted(pos, lo)
         ids = self.src_ids[pos]
         if n == len(pos):  # one source per pass (the all-sources frame): its own transfers
-            B = self.B[ids].astype(np.float32)
-            W_v, W_c = _column_transfers(self.G_v, ids, B), _column_transfers(self.G_c, ids, B)
+            W_v, W_c = self._single_transfers(ids)
         else:
             W_v, W_c = self.weights(lo, hi, marked)
         eyes = self.eye_pos[ids] if n == len(pos) else self.eyes(starts, pos, key)
