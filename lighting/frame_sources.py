@@ -157,6 +157,20 @@ class ShadowSources:
                 run[r0:r1] = cum[:, -1]
         return out
 
+    def _single_transfers(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(W_v (Vr,n,3), W_c (P,n,3)) float32 of one pass per source `ids`, read-only. The last
+        list's are kept: the all-sources frames of poses whose box meets the same sources (every
+        frame of Engine.refine, a room whose shafts all meet the object) reuse them."""
+        last = getattr(self, "_single", None)
+        if last is not None and np.array_equal(last[0], ids):
+            return last[1], last[2]
+        self._single = None  # the old arrays go before the new ones are made
+        B = self.B[ids].astype(np.float32)
+        W_v, W_c = _column_transfers(self.G_v, ids, B), _column_transfers(self.G_c, ids, B)
+        W_v.flags.writeable = W_c.flags.writeable = False
+        self._single = (ids.copy(), W_v, W_c)
+        return W_v, W_c
+
     def stats(self) -> dict:
         if self.empty:
             return {"shafts": 0, "leaf_shafts": 0, "shaft_mb": 0.0, "source_nodes": 0, "receiver_nodes": 0,
@@ -309,9 +323,7 @@ class ShadowSources:
         starts = np.searchsorted(pos, lo)
         ids = self.src_ids[pos]
         if n == len(pos):  # one source per pass (the all-sources frame): its own transfers
-            B = self.B[ids].astype(np.float32)
-            W_v = np.asarray(self.G_v[:, ids], np.float32)[:, :, None] * B[None]
-            W_c = np.asarray(self.G_c[:, ids], np.float32)[:, :, None] * B[None]
+            W_v, W_c = self._single_transfers(ids)
         else:
             W_v, W_c = self.weights(lo, hi, marked)
         eyes = self.eye_pos[ids] if n == len(pos) else self.eyes(starts, pos, key)
@@ -324,8 +336,20 @@ class ShadowSources:
         ok = k_hi > k_lo
         for a, b, sgn in ((l_lo, k_lo, 1), (l_lo, k_hi, -1), (l_hi, k_lo, -1), (l_hi, k_hi, 1)):
             np.add.at(D, (a[ok], b[ok]), sgn)
-        leaf_pass = np.cumsum(np.cumsum(D, axis=0), axis=1)[:-1, :-1] > 0
+        np.cumsum(D, axis=0, dtype=np.int32, out=D)  # in place, int32: counts of leaf shafts (no int64 temporaries)
+        np.cumsum(D, axis=1, dtype=np.int32, out=D)
+        leaf_pass = D[:-1, :-1] > 0
         cand = np.zeros((self.P, n), bool)
         inside = self.leaf_of_recv >= 0
         cand[inside] = leaf_pass[self.leaf_of_recv[inside]]
         return FrameSources(eyes, W_v, W_c, cand, int(marked.sum()), int(cand.any(1).sum()))
+
+
+def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int = 256) -> np.ndarray:
+    """(R, n, 3) float32 G[:, ids] * B (B (n,3) float32): the transfers of single sources, in slabs
+    of `rows` rows (a slab's gathered columns stay in cache; the same products as one broadcast)."""
+    out = np.empty((G.shape[0], len(ids), 3), np.float32)
+    for r0 in range(0, G.shape[0], rows):
+        g = np.asarray(G[r0:r0 + rows].take(ids, axis=1), np.float32)
+        np.multiply(g[:, :, None], B[None], out=out[r0:r0 + rows])
+    return out

@@ -150,6 +150,31 @@ def test_cluster_weights_from_the_prefix_table_equal_the_member_sums(engine):
             assert got.min() >= 0
 
 
+def test_all_sources_transfers_are_each_sources_own_and_kept_for_the_same_list(engine):
+    # one pass per source: W = G[:, id] * B[id] (float32, as the plain broadcast gives it); a second
+    # all-sources frame meeting the same sources gets the same read-only arrays, another list its own
+    scene, eng = engine
+    ss = eng.shadow_sources
+    v = scene.obj.vertices
+    lo, hi = v.min(0), v.max(0)
+    full = ss.select(lo, hi, None)
+    ids = ss.src_ids[np.flatnonzero(ss.traverse(lo, hi)[0])]
+    B = ss.B[ids].astype(np.float32)
+    np.testing.assert_array_equal(full.W_v, np.asarray(eng.pre.G_v[:, ids], np.float32)[:, :, None] * B[None])
+    np.testing.assert_array_equal(full.W_c, np.asarray(eng.pre.G_c[:, ids], np.float32)[:, :, None] * B[None])
+    assert full.W_v.dtype == full.W_c.dtype == np.float32
+    from lighting.frame_sources import _column_transfers
+    np.testing.assert_array_equal(_column_transfers(eng.pre.G_c, ids, B, rows=7), full.W_c)  # many slabs
+    assert not full.W_v.flags.writeable and not full.W_c.flags.writeable
+    again = ss.select(lo, hi, None)
+    assert again.W_v is full.W_v and again.W_c is full.W_c
+    half = ss._single_transfers(ids[::2])  # another list (in a room every box meets every source)
+    np.testing.assert_array_equal(half[1], np.asarray(eng.pre.G_c[:, ids[::2]], np.float32)[:, :, None] * B[::2][None])
+    later = ss.select(lo, hi, None)
+    assert later.W_c is not full.W_c
+    np.testing.assert_array_equal(later.W_c, full.W_c)
+
+
 def test_representative_eyes_are_blocked_light_centroids(engine):
     # sec. 6.4 with the blocked-light key: the frame's eyes are the key-weighted centroids of each
     # chosen node's marked members (inside their bounds; a one-member node keeps its own eye), and
