@@ -12,9 +12,15 @@ the sums are those of testing every map); then each cell (the points of a group 
 `tile`, e.g. an 8x8 block of pixels) keeps those of its group's maps whose cone meets the cell's
 own, smaller sphere, and a point loops over its cell's list only.
 
+The sums go cell by cell: `select` orders the selected points by cell, and one thread takes a
+run (a cell's selected points) map by map of the cell's list, reading the map's frame once for
+the run and looking up nearby texels point after point. The work of a point is the length of its
+cell's list, so concurrent ranges are cut by work (`balanced`), not by point count: the cells near
+the object list most maps.
+
 The points are uploaded once (MaskedSum's constructor); a frame sums over a listed subset of
-them (`select`), in any number of index ranges (app.runtime.split). Nothing is allocated after
-construction.
+them (`select`), in any number of index ranges (app.runtime.split, or `balanced`). No Warp array
+is allocated after construction.
 """
 from __future__ import annotations
 
@@ -139,9 +145,8 @@ class MaskedSum:
         self.pos = Buffer(n_alloc, wp.vec3, d)
         self.rows = Buffer((n_alloc, 3), wp.int32, d)
         self.bary = Buffer(n_alloc, wp.vec3, d)
-        self.cell = Buffer(n_alloc, wp.int32, d)
         for buf, v in ((self.pos, pos), (self.rows, np.asarray(rows).reshape(-1, 3)),
-                       (self.bary, np.asarray(bary).reshape(-1, 3)), (self.cell, self.point_cell)):
+                       (self.bary, np.asarray(bary).reshape(-1, 3))):
             buf.upload(v)
         # bounding spheres (centre, radius) of each group's and each cell's points: what the
         # shadow cones are tested against (a margin for float32 points)
