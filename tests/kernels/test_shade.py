@@ -80,7 +80,8 @@ def test_sampled_visibility_casts_few_rays_and_keeps_the_edge(setup):
 def test_camera_hits_match_rays_cast_one_by_one():
     K = np.array([[60.0, 0, 32], [0, 60.0, 24], [0, 0, 1]])
     R, centre = np.eye(3), np.zeros(3)
-    obj_v = np.array([[-0.5, -0.4, 2.0], [0.5, -0.4, 2.0], [0.5, 0.4, 2.0], [-0.5, 0.4, 2.0]])  # a plate facing the camera...
+    # a plate facing the camera...
+    obj_v = np.array([[-0.5, -0.4, 2.0], [0.5, -0.4, 2.0], [0.5, 0.4, 2.0], [-0.5, 0.4, 2.0]])
     obj = Occluder(obj_v, np.array([[0, 1, 2], [0, 2, 3]], np.int32), "cpu")
     scene_v = np.array([[0.0, -1, 1.5], [1, -1, 1.5], [1, 1, 1.5], [0.0, 1, 1.5]])  # ...half hidden in front
     scene = Occluder(scene_v, np.array([[0, 1, 2], [0, 2, 3]], np.int32), "cpu")
