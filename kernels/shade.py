@@ -125,13 +125,14 @@ def _patch_visible(mesh_a: wp.uint64, mesh_b: wp.uint64, own: int, p: wp.vec3d, 
                    polys: wp.array2d(dtype=wp.vec3d), poly_normals: wp.array(dtype=wp.vec3), j: int,
                    eps: float) -> int:
     """1 when the segment from p (lifted by eps along n) to patch j's centre (lifted along its
-    normal) is blocked by neither mesh (mesh_b only tested when `own` is not 0), else 0."""
+    normal) is blocked by neither mesh, else 0. `own` 0 says mesh_b lies wholly behind p's tangent
+    plane: a segment leaving p upwards cannot meet it, and only one going below the plane is tested."""
     a = wp.vec3(p) + wp.vec3(n) * eps
     c0 = wp.vec3(polys[j, 0])
     b = c0 + (wp.vec3(polys[j, 1]) - c0) * 0.5 + (wp.vec3(polys[j, 3]) - c0) * 0.5 + poly_normals[j] * eps
     if segment_blocked(mesh_a, a, b):
         return 0
-    if own != 0 and segment_blocked(mesh_b, a, b):
+    if (own != 0 or wp.dot(wp.vec3(n), b - a) <= 0.0) and segment_blocked(mesh_b, a, b):
         return 0
     return 1
 
@@ -260,7 +261,8 @@ class SampledPatchSum:
     note above). Buffers are made once at capacity (`max_patches` per launch; more patches go in
     blocks), so a frame allocates nothing.
 
-    own (N,) bool: points the object can shadow (its own mesh is tested only there); samples (S,)
+    own (N,) bool: False where the object's mesh (occluders[1]) lies wholly behind the point's
+    tangent plane (then only segments going below that plane are tested against it); samples (S,)
     indices into the points; nbr (N,k) indices into `samples` of each point's neighbours (-1: none).
     """
 

@@ -234,8 +234,20 @@ def emitter_groups(eng: "Engine") -> tuple[np.ndarray, tuple[np.ndarray, np.ndar
     return cached
 
 
+def _object_above(p: np.ndarray, n: np.ndarray, mesh_points: np.ndarray, tol: float = 1e-6,
+                  block: int = 512) -> np.ndarray:
+    """(N,) bool: some of the mesh's points lie more than `tol` metres above the plane through
+    p (N,3) with normal n (N,3), i.e. the mesh can block a ray leaving p upwards."""
+    out = np.zeros(len(p), bool)
+    for s in range(0, len(p), block):
+        e = min(len(p), s + block)
+        h = n[s:e] @ mesh_points.T - np.einsum("vc,vc->v", n[s:e], p[s:e])[:, None]
+        out[s:e] = h.max(axis=1) > tol
+    return out
+
+
 def _visibility_samples(p: np.ndarray, faces: np.ndarray, samples: np.ndarray, hidden: np.ndarray,
-                        rings: int = 2, k: int = 6, tol: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+                        rings: int = 3, k: int = 6, tol: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
     """(samples, nbr): the sample indices (S,) and, for each of the N points, its k nearest samples
     (N,k; -1: none) among those at most `rings` edges away on the mesh (faces (F,3) over the
     points) whose share of the hemisphere the object hides (`hidden` (N,), from the self-occlusion
@@ -265,7 +277,7 @@ def _visibility_samples(p: np.ndarray, faces: np.ndarray, samples: np.ndarray, h
     return samples, nbr
 
 
-def _near_samples(p: np.ndarray, n: np.ndarray, samples: np.ndarray, hidden: np.ndarray, k: int = 6,
+def _near_samples(p: np.ndarray, n: np.ndarray, samples: np.ndarray, hidden: np.ndarray, k: int = 10,
                   tol: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
     """_visibility_samples for points with no mesh between them: each point's k nearest samples
     (N,k; -1: none) that face the same way (normal cosine > 0) and whose hidden share is within
@@ -324,8 +336,9 @@ class ShapeShading:
         self.sub = np.unique(self.inv[np.arange(0, len(local), max(1, len(local) // max(dB_samples, 1)))])
         self._knn = _knn_weights(lu, nu, self.sub)
         # emitter and dB light with the visibility cast at a spread subset (kernels.shade.SampledPatchSum);
-        # only the vertices the object hides some direction from test their rays against it
-        own_u = hit.any(axis=1)[self.uniq]
+        # a vertex whose tangent plane has the whole object behind it (a convex part) tests against the
+        # object only the rays that go below that plane
+        own_u = _object_above(lu, nu, local)
         hidden_u = hit.mean(axis=1)[self.uniq]
         in_order = np.argsort(self.uniq)  # distinct vertices in the mesh's own order (spread)
         fu = self.inv[f]  # faces over the distinct vertices

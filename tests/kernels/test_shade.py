@@ -80,7 +80,8 @@ def test_sampled_visibility_casts_few_rays_and_keeps_the_edge(setup):
 def test_camera_hits_match_rays_cast_one_by_one():
     K = np.array([[60.0, 0, 32], [0, 60.0, 24], [0, 0, 1]])
     R, centre = np.eye(3), np.zeros(3)
-    obj_v = np.array([[-0.5, -0.4, 2.0], [0.5, -0.4, 2.0], [0.5, 0.4, 2.0], [-0.5, 0.4, 2.0]])  # a plate facing the camera...
+    # a plate facing the camera...
+    obj_v = np.array([[-0.5, -0.4, 2.0], [0.5, -0.4, 2.0], [0.5, 0.4, 2.0], [-0.5, 0.4, 2.0]])
     obj = Occluder(obj_v, np.array([[0, 1, 2], [0, 2, 3]], np.int32), "cpu")
     scene_v = np.array([[0.0, -1, 1.5], [1, -1, 1.5], [1, 1, 1.5], [0.0, 1, 1.5]])  # ...half hidden in front
     scene = Occluder(scene_v, np.array([[0, 1, 2], [0, 2, 3]], np.int32), "cpu")
@@ -98,3 +99,35 @@ def test_camera_hits_match_rays_cast_one_by_one():
     assert np.array_equal(tri, t_ref) and np.array_equal(hit, hit_ref)
     assert 0 < hit.sum() < (t_ref >= 0).sum()  # some of the object hidden by the scene, some seen
     assert np.allclose(bary[t_ref >= 0], b_ref[t_ref >= 0], atol=1e-4)
+
+
+def test_convex_object_tests_its_own_mesh_only_below_the_tangent_plane(setup):
+    """Points on a box's faces: the box lies behind every face's plane (object_shading._object_above
+    says so), yet a face's points see lamp patches whose centres lie below their horizon through
+    the box: those segments are still tested against it, and the sum equals the exact one."""
+    from app.stages.object_shading import _object_above
+
+    lamp, normals, colors, _, _, room, _ = setup
+    lo, hi = np.array([-0.3, 0.0, -0.3]), np.array([0.35, 0.6, 0.3])  # x = 0.35 cuts a lamp patch
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], np.int32)
+    box = Occluder(corners, faces, "cpu")
+    g = np.linspace(-0.25, 0.25, 5)
+    side = np.array([(0.35, y, z) for y in np.linspace(0.05, 0.55, 5) for z in g])  # +x face
+    top = np.array([(x, 0.6, z) for x in g for z in g])
+    pts = np.concatenate([side, top])
+    nrm = np.concatenate([np.tile([1.0, 0, 0], (len(side), 1)), np.tile([0, 1.0, 0], (len(top), 1))])
+    own = _object_above(pts, nrm, corners)
+    assert not own.any()
+    far_room = Occluder(*_plate(5.0, 6.0, 5.0, 6.0, 1.0), "cpu")  # nothing of the room in the way
+    exact = transfer_matrix(pts, nrm, lamp, normals, [far_room, box], n_side=1, eps=2e-3,
+                            device="cpu").astype(np.float64) @ colors
+    n = len(pts)
+    s = SampledPatchSum(own, np.arange(n), np.full((n, 1), -1), "cpu", max_patches=len(lamp))
+    got = s(pts, nrm, lamp, normals, colors, [far_room, box], 2e-3)
+    assert np.abs(got - exact).max() <= 1e-5 * np.abs(exact).max()
+    no_box = transfer_matrix(pts, nrm, lamp, normals, [far_room], n_side=1, eps=2e-3,
+                             device="cpu").astype(np.float64) @ colors
+    ns = len(side)  # the box does hide from the side's points the lamp patches their horizon cuts
+    assert np.any((no_box[:ns, 0] > 0) & (exact[:ns, 0] < 0.5 * no_box[:ns, 0]))
