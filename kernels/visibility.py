@@ -199,12 +199,20 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device),
               ws.upload("tri_normals", tn.astype(np.float32), wp.vec3, device),
               wp.uint64(occluder.id if occluder is not None else 0), float(eps)]
+    return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
+
+
+def _point_launches(kernel, points: np.ndarray, normals: np.ndarray, shared: list, ws: Workspace, block: int,
+                    device: str, split: int) -> np.ndarray:
+    """kernel(points, normals, *shared, out) over N points in launches of at most `block` points,
+    the two halves side by side (one per core) on the CPU when N > split: (N,3) float64."""
+    n = len(points)
     points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
     out = np.empty((n, 3))
 
     def run(s: int, e: int, slot: int) -> None:  # slot: which concurrent launch (its own buffers)
         res = ws.buffer(f"out{slot}", block, wp.vec3, device)
-        wp.launch(_emitter_sum_kernel, dim=e - s,
+        wp.launch(kernel, dim=e - s,
                   inputs=[ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, block),
                           ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, block), *shared],
                   outputs=[res.dev[:e - s]], device=device)
@@ -279,22 +287,7 @@ def emitter_sum_seen(points: np.ndarray, normals: np.ndarray, triangles: np.ndar
     shared = [ws.upload("tris", np.asarray(triangles, np.float64), wp.vec3d, device, capacity),
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device, capacity),
               table.dev[:len(seen)], int(res)]
-    points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
-    out = np.empty((n, 3))
-
-    def run(s: int, e: int, slot: int) -> None:  # slot: which concurrent launch (its own buffers)
-        r = ws.buffer(f"out{slot}", block, wp.vec3, device)
-        wp.launch(_emitter_sum_seen_kernel, dim=e - s,
-                  inputs=[ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, block),
-                          ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, block), *shared],
-                  outputs=[r.dev[:e - s]], device=device)
-        out[s:e] = r.pull(e - s)
-
-    halves = [(0, n)] if n <= split or not wp.get_device(device).is_cpu else [(0, n // 2), (n // 2, n)]
-    parts = [[(s, min(e, s + block)) for s in range(a, e, block)] for a, e in halves]
-    for k in range(max(len(p) for p in parts)):  # the halves side by side, one per core on the CPU
-        runtime.run_parallel([lambda r=p[k], i=i: run(*r, i) for i, p in enumerate(parts) if k < len(p)])
-    return out
+    return _point_launches(_emitter_sum_seen_kernel, points, normals, shared, ws, block, device, split)
 
 
 @wp.kernel
