@@ -420,7 +420,8 @@ class Engine:
             S_v = self._ldr_weights(W_v)
         n_src = len(eyes)
         masks = yield from self.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov, cand, eyes,
-                                                S_v if p.mode == "ldr" else W_v, W_c, fs.n_listed == n_src)
+                                                S_v if p.mode == "ldr" else W_v, W_c, fs.n_listed == n_src,
+                                                spread=fs.spread)
         pix_sel, fill_sel, cen_sel, O_pix, O_cen = (masks.pix_sel, masks.fill_sel, masks.cen_sel, masks.O_pix,
                                                     masks.O_cen)
         t = tick("masks", t)

@@ -69,6 +69,61 @@ def _cell_list_kernel(ms: MapSet, c0: int, cell_group: wp.array(dtype=wp.int32),
     n_list[c] = m
 
 
+PCSS_TAPS = 5  # samples per axis of the blocker search and of the filter
+
+
+@wp.func
+def _texel_depth(ms: MapSet, s: int, x: float, y: float) -> float:
+    ix = int(wp.floor(x + 0.5))
+    iy = int(wp.floor(y + 0.5))
+    if ix < 0 or iy < 0 or ix >= ms.res or iy >= ms.res:
+        return float(1.0e30)
+    return ms.depth[s, iy, ix]
+
+
+@wp.func
+def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, lk: float) -> float:
+    """Occluded share (0..1) of map s's cluster of sources at the point seen at texel (x, y)
+    and view depth z (PCSS): lk = the cluster's half-width (m) x texels per unit tangent. A
+    blocker at depth zb shifts by lk (z - zb) / (z zb) texels as the source moves across the
+    cluster, so the lookup is box-filtered over that half-width, zb the mean depth of the
+    blockers found in the widest such box (zb = the proxy's nearest depth). Below half a
+    texel it is the hard lookup of kernels.shadowmap.occluded."""
+    zn = wp.max(ms.near[s], 1.0e-3)
+    rs = wp.min(lk * wp.max(z - zn, 0.0) / (z * zn), float(ms.res))
+    if rs < 0.5:
+        if z > _texel_depth(ms, s, x, y) + ms.bias:
+            return 1.0
+        return 0.0
+    zsum = float(0.0)
+    nb = float(0.0)
+    n = PCSS_TAPS
+    for a in range(n):
+        for b in range(n):
+            dx = (2.0 * (float(a) + 0.5) / float(n) - 1.0) * rs
+            dy = (2.0 * (float(b) + 0.5) / float(n) - 1.0) * rs
+            t = _texel_depth(ms, s, x + dx, y + dy)
+            if z > t + ms.bias:
+                zsum += t
+                nb += 1.0
+    if nb == 0.0:
+        return 0.0
+    zb = wp.max(zsum / nb, zn)
+    r = wp.min(lk * (z - zb) / (z * zb), rs)
+    if r < 0.5:
+        if z > _texel_depth(ms, s, x, y) + ms.bias:
+            return 1.0
+        return 0.0
+    hit = float(0.0)
+    for a in range(n):
+        for b in range(n):
+            dx = (2.0 * (float(a) + 0.5) / float(n) - 1.0) * r
+            dy = (2.0 * (float(b) + 0.5) / float(n) - 1.0) * r
+            if z > _texel_depth(ms, s, x + dx, y + dy) + ms.bias:
+                hit += 1.0
+    return hit / float(n * n)
+
+
 @wp.kernel
 def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, run_start: wp.array(dtype=wp.int32),
                        run_cell: wp.array(dtype=wp.int32), idx: wp.array(dtype=wp.int32),
@@ -100,11 +155,20 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, run_s
         rt = ms.right[s]
         up = ms.up[s]
         it = ms.inv_tan[s]
+        sp = ms.spread[s]
         for i in range(a, b):
             k = idx[i]
             d = pos[k] - o
             z = wp.dot(d, f)
-            if z > 1.0e-6:  # the lookup of kernels.shadowmap.occluded, with the map's frame at hand
+            if z > 1.0e-6 and sp > 0.0:  # a cluster map: its penumbra
+                fr = penumbra(ms, s, wp.dot(d, rt) / z * it * half + half - 0.5,
+                              wp.dot(d, up) / z * it * half + half - 0.5, z, sp * it * half)
+                if fr > 0.0:
+                    bk = bary[k]
+                    acc[i] = acc[i] + fr * (weights[rows[k, 0], j] * bk[0] + weights[rows[k, 1], j] * bk[1]
+                                            + weights[rows[k, 2], j] * bk[2])
+                    count[i] = count[i] + fr
+            elif z > 1.0e-6:  # the lookup of kernels.shadowmap.occluded, with the map's frame at hand
                 ix = int(wp.floor(wp.dot(d, rt) / z * it * half + half - 0.5 + 0.5))
                 iy = int(wp.floor(wp.dot(d, up) / z * it * half + half - 0.5 + 0.5))
                 if ix >= 0 and iy >= 0 and ix < ms.res and iy < ms.res:

@@ -42,6 +42,7 @@ class MapSet:
     inv_tan: wp.array(dtype=wp.float32)  # 1 / tan(half field of view)
     ray: wp.array(dtype=wp.int32)  # 1: resolve by ray casting against the proxy
     near: wp.array(dtype=wp.float32)  # view depth below which nothing of the proxy lies (m)
+    spread: wp.array(dtype=wp.float32)  # half-width of the cluster of sources the map stands for (m; 0: a point)
     depth: wp.array3d(dtype=wp.float32)
     coarse: wp.array3d(dtype=wp.int32)  # (S, ceil(res/COARSE), same): 1 where a triangle may have drawn
     res: int
@@ -90,7 +91,9 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     z = wp.dot(d, ms.fwd[s])
     if z + r <= ms.near[s]:
         return False
-    tan_h = (1.0 + 2.0 / float(ms.res)) / ms.inv_tan[s] + 1.0e-5
+    # a cluster map's penumbra (kernels.composite.penumbra) reaches spread / near farther out
+    pen = ms.spread[s] / wp.max(ms.near[s], 1.0e-3)
+    tan_h = (1.0 + 2.0 / float(ms.res)) / ms.inv_tan[s] + 1.0e-5 + pen
     cos_h = 1.0 / wp.sqrt(1.0 + tan_h * tan_h)
     lateral = wp.length(d - ms.fwd[s] * z)
     # signed distance of c from the cone's surface (a lower bound behind the apex)
@@ -104,7 +107,7 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     b = wp.dot(d, ms.up[s])
     k = ms.inv_tan[s] * float(ms.res) * 0.5
     half = float(ms.res) * 0.5 - 0.5
-    ext = r * (z + wp.max(wp.abs(a), wp.abs(b))) / (z * (z - r)) * k + 1.0
+    ext = r * (z + wp.max(wp.abs(a), wp.abs(b))) / (z * (z - r)) * k + 1.0 + pen * k
     xc = a / z * k + half
     yc = b / z * k + half
     x0 = wp.max(int(wp.floor(xc - ext)), 0)
@@ -203,7 +206,7 @@ class ShadowMaps:
         cap = self.capacity
         self._frame = {k: Buffer(cap, wp.vec3, d) for k in ("origin", "right", "up", "fwd")}
         self._frame.update(inv_tan=Buffer(cap, wp.float32, d), near=Buffer(cap, wp.float32, d),
-                           ray=Buffer(cap, wp.int32, d))
+                           ray=Buffer(cap, wp.int32, d), spread=Buffer(cap, wp.float32, d))
         self.ms = MapSet()
         for k, b in self._frame.items():
             setattr(self.ms, k, b.dev)
@@ -237,9 +240,11 @@ class ShadowMaps:
         self._centre = 0.5 * (vertices.min(0) + vertices.max(0)) if len(vertices) else np.zeros(3)
         self._radius = float(np.linalg.norm(vertices - self._centre, axis=1).max()) if len(vertices) else 0.0
 
-    def prepare(self, eyes: np.ndarray) -> int:
+    def prepare(self, eyes: np.ndarray, spread: np.ndarray | None = None) -> int:
         """Aim maps 0..n-1 from eye points (n<=capacity, 3) at the proxy; returns n. The maps are
-        drawn by raster (over index ranges, app.runtime.split) or render."""
+        drawn by raster (over index ranges, app.runtime.split) or render. spread (n,) m: the
+        half-width of the cluster of sources each map stands for (default 0: point sources, a
+        hard lookup); the masked sums filter a map's lookup by it (kernels.composite.penumbra)."""
         n = len(eyes)
         if n > self.capacity:
             raise ValueError(f"{n} maps exceed the batch capacity {self.capacity}")
@@ -255,7 +260,8 @@ class ShadowMaps:
         sin_h = np.clip(r / np.maximum(dist, 1e-12), 0.0, 0.999)
         inv_tan = np.sqrt(1 - sin_h ** 2) / np.maximum(sin_h, 1e-6)
         for k, v in (("origin", eyes), ("right", right), ("up", up), ("fwd", fwd), ("inv_tan", inv_tan),
-                     ("near", dist - r), ("ray", use_ray)):
+                     ("near", dist - r), ("ray", use_ray),
+                     ("spread", np.zeros(n) if spread is None else np.asarray(spread, np.float64)[:n])):
             self._frame[k].upload(v)
         self.ms.depth.fill_(float("inf"))  # one fill of the whole batch (a kernel per texel costs far more)
         self.ms.coarse.zero_()

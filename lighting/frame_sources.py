@@ -47,6 +47,7 @@ class FrameSources:
     cand: np.ndarray
     n_listed: int
     n_receivers: int
+    spread: np.ndarray | None = None  # (n,) m: half-width of each pass's cluster across its eye's view (0: one source)
 
 
 class ShadowSources:
@@ -296,6 +297,28 @@ class ShadowSources:
         eyes[one] = e[starts[one]]
         return eyes
 
+    def spread(self, starts: np.ndarray, pos: np.ndarray, key: np.ndarray, eyes: np.ndarray,
+               target: np.ndarray) -> np.ndarray:
+        """(n,) m: each node's extent across its eye's view, the PCSS light size of its map
+        (kernels.composite.penumbra): the RMS distance per axis (sqrt of half the mean squared
+        distance perpendicular to the direction from the eye to `target`, the object) of its marked
+        members (pos[starts[k]:starts[k+1]]) from the eye, weighted by key as the eye is (uniformly
+        where the keys sum to 0). A node of one member has 0 (a point source)."""
+        e = self.eye_pos[self.src_ids[pos]]
+        cnt = np.diff(np.append(starts, len(pos)))
+        node = np.repeat(np.arange(len(starts)), cnt)
+        w = key[pos].astype(np.float64)
+        flat = np.add.reduceat(w, starts) <= 0
+        w = np.where(flat[node], 1.0, w)
+        wsum = np.add.reduceat(w, starts)
+        fwd = target - eyes
+        fwd /= np.maximum(np.linalg.norm(fwd, axis=1, keepdims=True), 1e-12)
+        d = e - eyes[node]
+        d -= (d * fwd[node]).sum(1, keepdims=True) * fwd[node]
+        out = np.sqrt(0.5 * np.add.reduceat(w * (d * d).sum(1), starts) / wsum)
+        out[cnt == 1] = 0.0
+        return out
+
     def select(self, box_min: np.ndarray, box_max: np.ndarray, passes: int | None) -> FrameSources:
         """The frame's shadow passes for an object inside the box (module docstring)."""
         if passes is not None and passes < 1:
@@ -327,6 +350,8 @@ class ShadowSources:
         else:
             W_v, W_c = self.weights(lo, hi, marked)
         eyes = self.eye_pos[ids] if n == len(pos) else self.eyes(starts, pos, key)
+        spread = (np.zeros(n) if n == len(pos) else
+                  self.spread(starts, pos, key, eyes, 0.5 * (box_min + box_max)))
         # receiver pairs: leaf shafts (source node, receiver node) -> (receiver leaves, passes)
         k_lo = np.searchsorted(hi, t.lo[s_nodes], side="right")
         k_hi = np.searchsorted(lo, t.hi[s_nodes], side="left")
@@ -342,7 +367,7 @@ class ShadowSources:
         cand = np.zeros((self.P, n), bool)
         inside = self.leaf_of_recv >= 0
         cand[inside] = leaf_pass[self.leaf_of_recv[inside]]
-        return FrameSources(eyes, W_v, W_c, cand, int(marked.sum()), int(cand.any(1).sum()))
+        return FrameSources(eyes, W_v, W_c, cand, int(marked.sum()), int(cand.any(1).sum()), spread)
 
 
 def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int = 256) -> np.ndarray:

@@ -284,3 +284,47 @@ def test_culling_changes_no_sum(device):
     clear = _exact_box(pts, eyes, CUBE_LO - 0.02, CUBE_HI + 0.02).sum(1) == \
         _exact_box(pts, eyes, CUBE_LO + 0.02, CUBE_HI - 0.02).sum(1)
     np.testing.assert_array_equal(c1[clear], ref[clear])
+
+
+# ----------------------------------------------------------------------------------------------------------
+# cluster maps: the penumbra of a map that stands for a spread of sources (kernels.composite.penumbra)
+# ----------------------------------------------------------------------------------------------------------
+
+def _cluster_sums(device, pts, eyes, spread, cull=True, res=256):
+    S = len(eyes)
+    maps = ShadowMaps(S, res, device=device)
+    maps.set_proxy(PLATE_V, PLATE_F)
+    n = maps.prepare(eyes, spread)
+    maps.raster(0, n)
+    ms = MaskedSum(pts, np.zeros((len(pts), 3), np.int32), np.tile([1.0, 0.0, 0.0], (len(pts), 1)),
+                   np.zeros(len(pts), np.int32), device, cull=cull, max_maps=S)
+    ms.add(maps, n, 0, _wp2(np.ones((1, S), np.uint8), wp.uint8, device),
+           _wp2(np.ones((1, S, 3), np.float32), wp.vec3, device))
+    return ms.result()
+
+
+def test_zero_spread_is_the_hard_lookup(device):
+    # clusters of zero extent (point sources) give exactly today's lookup
+    pts = _floor_grid(step=0.05)
+    hard = _run(device, pts, EYES)
+    zero = _cluster_sums(device, pts, EYES, np.zeros(len(EYES)))
+    np.testing.assert_array_equal(zero[0], hard[0])
+    np.testing.assert_array_equal(zero[1], hard[1])
+
+
+def test_spread_gives_the_square_light_penumbra(device):
+    # a map of spread h from (0, 2.5, 0) looking down: the occluded share is close to the mean hard mask
+    # of a square of point sources of half-width h about the eye; culling changes nothing
+    h = 0.2
+    pts = _floor_grid(step=0.02, ext=1.5)
+    eye = np.array([[0.0, 2.5, 0.0]])
+    _, frac = _cluster_sums(device, pts, eye, np.array([h]))
+    _, frac0 = _cluster_sums(device, pts, eye, np.array([h]), cull=False)
+    np.testing.assert_array_equal(frac, frac0)
+    g = np.linspace(-h, h, 21)
+    grid = np.array([[x, 2.5, z] for x in g for z in g])
+    ref = _exact(pts, grid)[0].mean(1)
+    pen = (ref > 0) & (ref < 1)
+    assert pen.sum() > 500 and np.all((frac >= 0) & (frac <= 1))
+    assert np.abs(frac - ref).mean() < 0.02 and np.abs(frac - ref)[pen].mean() < 0.08
+    assert np.abs(frac[pen] - 0.5).mean() < 0.45  # soft: not the hard 0/1 of one point source
