@@ -108,6 +108,8 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, lk: float) -> flo
                 nb += 1.0
     if nb == 0.0:
         return 0.0
+    if nb == float(n * n):  # every tap of the widest box blocked: the narrower filter box too (umbra)
+        return 1.0
     zb = wp.max(zsum / nb, zn)
     r = wp.min(lk * (z - zb) / (z * zb), rs)
     if r < 0.5:
