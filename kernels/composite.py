@@ -82,16 +82,19 @@ def _texel_depth(ms: MapSet, s: int, x: float, y: float) -> float:
 
 
 @wp.func
-def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, lk: float) -> float:
+def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: wp.vec2) -> float:
     """Occluded share (0..1) of map s's cluster of sources at the point seen at texel (x, y)
-    and view depth z (PCSS): lk = the cluster's half-width (m) x texels per unit tangent. A
-    blocker at depth zb shifts by lk (z - zb) / (z zb) texels as the source moves across the
-    cluster, so the lookup is box-filtered over that half-width, zb the mean depth of the
-    blockers found in the widest such box (zb = the proxy's nearest depth). Below half a
-    texel it is the hard lookup of kernels.shadowmap.occluded."""
+    and view depth z (PCSS): a1, a2 = the cluster's half-axes (m, MapSet.axis1/2) x texels per
+    unit tangent, in the map's (right, up). A blocker at depth zb shifts by a (z - zb) / (z zb)
+    texels as the source moves by a across the cluster, so the lookup is filtered over the
+    parallelogram u a1 + v a2 (|u|, |v| <= 1) so scaled, zb the mean depth of the blockers found
+    in the widest such one (zb = the proxy's nearest depth). Below half a texel it is the hard
+    lookup of kernels.shadowmap.occluded."""
     zn = wp.max(ms.near[s], 1.0e-3)
-    rs = wp.min(lk * wp.max(z - zn, 0.0) / (z * zn), float(ms.res))
-    if rs < 0.5:
+    l1 = wp.max(wp.length(a1), wp.length(a2))
+    gs = wp.max(z - zn, 0.0) / (z * zn)
+    gs = wp.min(gs, float(ms.res) / wp.max(l1, 1.0e-9))
+    if gs * l1 < 0.5:
         if z > _texel_depth(ms, s, x, y) + ms.bias:
             return 1.0
         return 0.0
@@ -100,9 +103,9 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, lk: float) -> flo
     n = PCSS_TAPS
     for a in range(n):
         for b in range(n):
-            dx = (2.0 * (float(a) + 0.5) / float(n) - 1.0) * rs
-            dy = (2.0 * (float(b) + 0.5) / float(n) - 1.0) * rs
-            t = _texel_depth(ms, s, x + dx, y + dy)
+            u = (2.0 * (float(a) + 0.5) / float(n) - 1.0) * gs
+            v = (2.0 * (float(b) + 0.5) / float(n) - 1.0) * gs
+            t = _texel_depth(ms, s, x + u * a1[0] + v * a2[0], y + u * a1[1] + v * a2[1])
             if z > t + ms.bias:
                 zsum += t
                 nb += 1.0
@@ -111,17 +114,17 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, lk: float) -> flo
     if nb == float(n * n):  # every tap of the widest box blocked: the narrower filter box too (umbra)
         return 1.0
     zb = wp.max(zsum / nb, zn)
-    r = wp.min(lk * (z - zb) / (z * zb), rs)
-    if r < 0.5:
+    g = wp.min((z - zb) / (z * zb), gs)
+    if g * l1 < 0.5:
         if z > _texel_depth(ms, s, x, y) + ms.bias:
             return 1.0
         return 0.0
     hit = float(0.0)
     for a in range(n):
         for b in range(n):
-            dx = (2.0 * (float(a) + 0.5) / float(n) - 1.0) * r
-            dy = (2.0 * (float(b) + 0.5) / float(n) - 1.0) * r
-            if z > _texel_depth(ms, s, x + dx, y + dy) + ms.bias:
+            u = (2.0 * (float(a) + 0.5) / float(n) - 1.0) * g
+            v = (2.0 * (float(b) + 0.5) / float(n) - 1.0) * g
+            if z > _texel_depth(ms, s, x + u * a1[0] + v * a2[0], y + u * a1[1] + v * a2[1]) + ms.bias:
                 hit += 1.0
     return hit / float(n * n)
 
@@ -158,13 +161,15 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, run_s
         up = ms.up[s]
         it = ms.inv_tan[s]
         sp = ms.spread[s]
+        a1 = wp.vec2(wp.dot(ms.axis1[s], rt), wp.dot(ms.axis1[s], up)) * (it * half)
+        a2 = wp.vec2(wp.dot(ms.axis2[s], rt), wp.dot(ms.axis2[s], up)) * (it * half)
         for i in range(a, b):
             k = idx[i]
             d = pos[k] - o
             z = wp.dot(d, f)
             if z > 1.0e-6 and sp > 0.0:  # a cluster map: its penumbra
                 fr = penumbra(ms, s, wp.dot(d, rt) / z * it * half + half - 0.5,
-                              wp.dot(d, up) / z * it * half + half - 0.5, z, sp * it * half)
+                              wp.dot(d, up) / z * it * half + half - 0.5, z, a1, a2)
                 if fr > 0.0:
                     bk = bary[k]
                     acc[i] = acc[i] + fr * (weights[rows[k, 0], j] * bk[0] + weights[rows[k, 1], j] * bk[1]

@@ -43,6 +43,8 @@ class MapSet:
     ray: wp.array(dtype=wp.int32)  # 1: resolve by ray casting against the proxy
     near: wp.array(dtype=wp.float32)  # view depth below which nothing of the proxy lies (m)
     spread: wp.array(dtype=wp.float32)  # half-width of the cluster of sources the map stands for (m; 0: a point)
+    axis1: wp.array(dtype=wp.vec3)  # the cluster's half-axes across the view (m; |axis1| = spread)
+    axis2: wp.array(dtype=wp.vec3)
     depth: wp.array3d(dtype=wp.float32)
     coarse: wp.array3d(dtype=wp.int32)  # (S, ceil(res/COARSE), same): 1 where a triangle may have drawn
     res: int
@@ -204,7 +206,7 @@ class ShadowMaps:
     def __post_init__(self) -> None:
         self.device = d = runtime.device(self.device)
         cap = self.capacity
-        self._frame = {k: Buffer(cap, wp.vec3, d) for k in ("origin", "right", "up", "fwd")}
+        self._frame = {k: Buffer(cap, wp.vec3, d) for k in ("origin", "right", "up", "fwd", "axis1", "axis2")}
         self._frame.update(inv_tan=Buffer(cap, wp.float32, d), near=Buffer(cap, wp.float32, d),
                            ray=Buffer(cap, wp.int32, d), spread=Buffer(cap, wp.float32, d))
         self.ms = MapSet()
@@ -240,11 +242,13 @@ class ShadowMaps:
         self._centre = 0.5 * (vertices.min(0) + vertices.max(0)) if len(vertices) else np.zeros(3)
         self._radius = float(np.linalg.norm(vertices - self._centre, axis=1).max()) if len(vertices) else 0.0
 
-    def prepare(self, eyes: np.ndarray, spread: np.ndarray | None = None) -> int:
+    def prepare(self, eyes: np.ndarray, spread: np.ndarray | None = None, axes: np.ndarray | None = None) -> int:
         """Aim maps 0..n-1 from eye points (n<=capacity, 3) at the proxy; returns n. The maps are
         drawn by raster (over index ranges, app.runtime.split) or render. spread (n,) m: the
         half-width of the cluster of sources each map stands for (default 0: point sources, a
-        hard lookup); the masked sums filter a map's lookup by it (kernels.composite.penumbra)."""
+        hard lookup); the masked sums filter a map's lookup by it (kernels.composite.penumbra);
+        axes (n,2,3) m: the cluster's half-axes across the view, of lengths <= spread (default
+        spread along the map's right and up: a square)."""
         n = len(eyes)
         if n > self.capacity:
             raise ValueError(f"{n} maps exceed the batch capacity {self.capacity}")
@@ -259,9 +263,12 @@ class ShadowMaps:
         up = np.cross(fwd, right)
         sin_h = np.clip(r / np.maximum(dist, 1e-12), 0.0, 0.999)
         inv_tan = np.sqrt(1 - sin_h ** 2) / np.maximum(sin_h, 1e-6)
+        sp = np.zeros(n) if spread is None else np.asarray(spread, np.float64)[:n]
+        ax = (np.stack([sp[:, None] * right, sp[:, None] * up], 1) if axes is None
+              else np.asarray(axes, np.float64)[:n])
         for k, v in (("origin", eyes), ("right", right), ("up", up), ("fwd", fwd), ("inv_tan", inv_tan),
                      ("near", dist - r), ("ray", use_ray),
-                     ("spread", np.zeros(n) if spread is None else np.asarray(spread, np.float64)[:n])):
+                     ("spread", sp), ("axis1", ax[:, 0]), ("axis2", ax[:, 1])):
             self._frame[k].upload(v)
         self.ms.depth.fill_(float("inf"))  # one fill of the whole batch (a kernel per texel costs far more)
         self.ms.coarse.zero_()

@@ -47,7 +47,7 @@ class FrameSources:
     cand: np.ndarray
     n_listed: int
     n_receivers: int
-    spread: np.ndarray | None = None  # (n,) m: half-width of each pass's cluster across its eye's view (0: one source)
+    spread: np.ndarray | None = None  # (n,2,3) m: half-axes of each pass's cluster across its eye's view (0: one source)
 
 
 class ShadowSources:
@@ -299,9 +299,9 @@ class ShadowSources:
 
     def spread(self, starts: np.ndarray, pos: np.ndarray, key: np.ndarray, eyes: np.ndarray,
                target: np.ndarray) -> np.ndarray:
-        """(n,) m: each node's extent across its eye's view, the PCSS light size of its map
-        (kernels.composite.penumbra): the RMS distance per axis (sqrt of half the mean squared
-        distance perpendicular to the direction from the eye to `target`, the object) of its marked
+        """(n,2,3) m: each node's extent across its eye's view, the PCSS light size of its map
+        (kernels.composite.penumbra): the principal half-axes, each of the RMS distance along it,
+        of the offsets perpendicular to the direction from the eye to `target` (the object) of its marked
         members (pos[starts[k]:starts[k+1]]) from the eye, weighted by key as the eye is (uniformly
         where the keys sum to 0). A node of one member has 0 (a point source)."""
         e = self.eye_pos[self.src_ids[pos]]
@@ -315,9 +315,12 @@ class ShadowSources:
         fwd /= np.maximum(np.linalg.norm(fwd, axis=1, keepdims=True), 1e-12)
         d = e - eyes[node]
         d -= (d * fwd[node]).sum(1, keepdims=True) * fwd[node]
-        out = np.sqrt(0.5 * np.add.reduceat(w * (d * d).sum(1), starts) / wsum)
-        out[cnt == 1] = 0.0
-        return out
+        C = np.add.reduceat(w[:, None, None] * d[:, :, None] * d[:, None, :], starts) / wsum[:, None, None]
+        lam, vec = np.linalg.eigh(C)  # ascending; the smallest is ~0, along the view
+        axes = np.sqrt(np.maximum(lam[:, None, [2, 1]], 0.0)) * vec[:, :, [2, 1]]  # (n,3,2) columns
+        axes = axes.transpose(0, 2, 1)  # (n,2,3): the RMS half-axes, largest first
+        axes[cnt == 1] = 0.0
+        return axes
 
     def select(self, box_min: np.ndarray, box_max: np.ndarray, passes: int | None) -> FrameSources:
         """The frame's shadow passes for an object inside the box (module docstring)."""
@@ -350,7 +353,7 @@ class ShadowSources:
         else:
             W_v, W_c = self.weights(lo, hi, marked)
         eyes = self.eye_pos[ids] if n == len(pos) else self.eyes(starts, pos, key)
-        spread = (np.zeros(n) if n == len(pos) else
+        spread = (np.zeros((n, 2, 3)) if n == len(pos) else
                   self.spread(starts, pos, key, eyes, 0.5 * (box_min + box_max)))
         # receiver pairs: leaf shafts (source node, receiver node) -> (receiver leaves, passes)
         k_lo = np.searchsorted(hi, t.lo[s_nodes], side="right")

@@ -124,8 +124,8 @@ class ShadowPass:
         bounding sphere (m); coverage (H,W) share of each pixel the object covers; cand (P,S)
         bool receiver patch x pass; eyes (S,3) m; W_pix (Vr,S,3) pixel-row transfers (radiance,
         or LDR intensity), W_c (P,S,3) patch-centre transfers; per_source: one map per source
-        (maps of map_res), else maps of clusters (cluster_map_res); spread (S,) m: the half-width
-        of each cluster (FrameSources.spread), whose penumbra a cluster map's lookup filters by
+        (maps of map_res), else maps of clusters (cluster_map_res); spread (S,2,3) m: each
+        cluster's half-axes across its view (FrameSources.spread), whose penumbra a cluster map's lookup filters by
         (kernels.composite.penumbra; ignored with per_source, whose maps keep the hard lookup)."""
         pix_pt, fill_pt, cen = self._select(centre, radius, coverage, cand)
         R = self.n_pix_points
@@ -135,8 +135,9 @@ class ShadowPass:
         n_src, dev = len(eyes), self.device
         for first in tqdm(range(0, n_src, self.batch), desc="shadow passes", unit="batch", leave=False,
                           disable=self.quiet or n_src <= 4 * self.batch or not sys.stderr.isatty()):
+            ax = None if per_source or spread is None else spread[first:first + self.batch]
             n = self.maps.prepare(eyes[first:first + self.batch],
-                                  None if per_source or spread is None else spread[first:first + self.batch])
+                                  None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
             runtime.split(self.maps.raster, n, dev, min_items=1)
             self._upload_batch(cand, W_pix, W_c, first, n, cen)
             self.sums.prepare(self.maps, n, 0, self.cand.dev,

@@ -290,11 +290,11 @@ def test_culling_changes_no_sum(device):
 # cluster maps: the penumbra of a map that stands for a spread of sources (kernels.composite.penumbra)
 # ----------------------------------------------------------------------------------------------------------
 
-def _cluster_sums(device, pts, eyes, spread, cull=True, res=256):
+def _cluster_sums(device, pts, eyes, spread, cull=True, res=256, axes=None):
     S = len(eyes)
     maps = ShadowMaps(S, res, device=device)
     maps.set_proxy(PLATE_V, PLATE_F)
-    n = maps.prepare(eyes, spread)
+    n = maps.prepare(eyes, spread, axes)
     maps.raster(0, n)
     ms = MaskedSum(pts, np.zeros((len(pts), 3), np.int32), np.tile([1.0, 0.0, 0.0], (len(pts), 1)),
                    np.zeros(len(pts), np.int32), device, cull=cull, max_maps=S)
@@ -328,3 +328,16 @@ def test_spread_gives_the_square_light_penumbra(device):
     assert pen.sum() > 500 and np.all((frac >= 0) & (frac <= 1))
     assert np.abs(frac - ref).mean() < 0.02 and np.abs(frac - ref)[pen].mean() < 0.08
     assert np.abs(frac[pen] - 0.5).mean() < 0.45  # soft: not the hard 0/1 of one point source
+
+
+def test_spread_along_one_axis_gives_the_line_light_penumbra(device):
+    # half-axes (h along x, 0): a line of sources along x; the penumbra is soft across x-edges only
+    h = 0.2
+    pts = _floor_grid(step=0.02, ext=1.5)
+    eye = np.array([[0.0, 2.5, 0.0]])
+    _, frac = _cluster_sums(device, pts, eye, np.array([h]), axes=np.array([[[h, 0.0, 0.0], [0.0, 0.0, 0.0]]]))
+    line = np.array([[x, 2.5, 0.0] for x in np.linspace(-h, h, 41)])
+    ref = _exact(pts, line)[0].mean(1)
+    assert np.abs(frac - ref).mean() < 0.02
+    z_edge = (np.abs(np.abs(pts[:, 2]) - HALF * 2.5 / 1.5) < 0.03) & (np.abs(pts[:, 0]) < 0.5)
+    assert z_edge.sum() > 20 and np.all((frac[z_edge] == 0) | (frac[z_edge] == 1))  # hard along z
