@@ -47,7 +47,7 @@ class FrameSources:
     cand: np.ndarray
     n_listed: int
     n_receivers: int
-    spread: np.ndarray | None = None  # (n,2,3) m: half-axes of each pass's cluster across its eye's view (0: one source)
+    spread: np.ndarray | None = None  # (n,2,3) m: each pass's cluster's half-axes across its view (0: one source)
 
 
 class ShadowSources:
