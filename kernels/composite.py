@@ -29,7 +29,7 @@ import warp as wp
 
 from kernels import runtime
 from kernels.buffers import Buffer
-from kernels.shadowmap import MapSet, ShadowMaps, may_occlude
+from kernels.shadowmap import MapSet, ShadowMaps, may_occlude, texel_depth
 from kernels.visibility import segment_blocked
 
 
@@ -73,12 +73,11 @@ PCSS_TAPS = 5  # samples per axis of the blocker search and of the filter
 
 
 @wp.func
-def _texel_depth(ms: MapSet, s: int, x: float, y: float) -> float:
-    ix = int(wp.floor(x + 0.5))
-    iy = int(wp.floor(y + 0.5))
-    if ix < 0 or iy < 0 or ix >= ms.res or iy >= ms.res:
-        return float(1.0e30)
-    return ms.depth[s, iy, ix]
+def _hard(ms: MapSet, s: int, x: float, y: float, z: float) -> float:
+    """kernels.shadowmap.occluded's lookup at pixel position (x, y) and view depth z: 1 or 0."""
+    if z > texel_depth(ms, s, x, y) + ms.bias:
+        return 1.0
+    return 0.0
 
 
 @wp.func
@@ -95,9 +94,7 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: 
     gs = wp.max(z - zn, 0.0) / (z * zn)
     gs = wp.min(gs, float(ms.res) / wp.max(l1, 1.0e-9))
     if gs * l1 < 0.5:
-        if z > _texel_depth(ms, s, x, y) + ms.bias:
-            return 1.0
-        return 0.0
+        return _hard(ms, s, x, y, z)
     zsum = float(0.0)
     nb = float(0.0)
     n = PCSS_TAPS
@@ -105,7 +102,7 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: 
         for b in range(n):
             u = (2.0 * (float(a) + 0.5) / float(n) - 1.0) * gs
             v = (2.0 * (float(b) + 0.5) / float(n) - 1.0) * gs
-            t = _texel_depth(ms, s, x + u * a1[0] + v * a2[0], y + u * a1[1] + v * a2[1])
+            t = texel_depth(ms, s, x + u * a1[0] + v * a2[0], y + u * a1[1] + v * a2[1])
             if z > t + ms.bias:
                 zsum += t
                 nb += 1.0
@@ -116,17 +113,23 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: 
     zb = wp.max(zsum / nb, zn)
     g = wp.min((z - zb) / (z * zb), gs)
     if g * l1 < 0.5:
-        if z > _texel_depth(ms, s, x, y) + ms.bias:
-            return 1.0
-        return 0.0
+        return _hard(ms, s, x, y, z)
     hit = float(0.0)
     for a in range(n):
         for b in range(n):
             u = (2.0 * (float(a) + 0.5) / float(n) - 1.0) * g
             v = (2.0 * (float(b) + 0.5) / float(n) - 1.0) * g
-            if z > _texel_depth(ms, s, x + u * a1[0] + v * a2[0], y + u * a1[1] + v * a2[1]) + ms.bias:
+            if z > texel_depth(ms, s, x + u * a1[0] + v * a2[0], y + u * a1[1] + v * a2[1]) + ms.bias:
                 hit += 1.0
     return hit / float(n * n)
+
+
+@wp.func
+def _weight(weights: wp.array2d(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32), bary: wp.array(dtype=wp.vec3),
+            k: int, j: int) -> wp.vec3:
+    """Point k's transfer for column j: its three weight rows blended by its barycentrics."""
+    bk = bary[k]
+    return weights[rows[k, 0], j] * bk[0] + weights[rows[k, 1], j] * bk[1] + weights[rows[k, 2], j] * bk[2]
 
 
 @wp.kernel
@@ -151,9 +154,7 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, run_s
             for i in range(a, b):
                 k = idx[i]
                 if segment_blocked(ms.proxy, pos[k], o):
-                    bk = bary[k]
-                    acc[i] = acc[i] + (weights[rows[k, 0], j] * bk[0] + weights[rows[k, 1], j] * bk[1]
-                                       + weights[rows[k, 2], j] * bk[2])
+                    acc[i] = acc[i] + _weight(weights, rows, bary, k, j)
                     count[i] = count[i] + 1.0
             continue
         f = ms.fwd[s]
@@ -167,23 +168,17 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, run_s
             k = idx[i]
             d = pos[k] - o
             z = wp.dot(d, f)
-            if z > 1.0e-6 and sp > 0.0:  # a cluster map: its penumbra
-                fr = penumbra(ms, s, wp.dot(d, rt) / z * it * half + half - 0.5,
-                              wp.dot(d, up) / z * it * half + half - 0.5, z, a1, a2)
+            if z > 1.0e-6:  # kernels.shadowmap._to_map with the map's frame at hand
+                x = wp.dot(d, rt) / z * it * half + half - 0.5
+                y = wp.dot(d, up) / z * it * half + half - 0.5
+                fr = float(0.0)
+                if sp > 0.0:  # a cluster map: its penumbra
+                    fr = penumbra(ms, s, x, y, z, a1, a2)
+                else:  # one source: the hard lookup of kernels.shadowmap.occluded
+                    fr = _hard(ms, s, x, y, z)
                 if fr > 0.0:
-                    bk = bary[k]
-                    acc[i] = acc[i] + fr * (weights[rows[k, 0], j] * bk[0] + weights[rows[k, 1], j] * bk[1]
-                                            + weights[rows[k, 2], j] * bk[2])
+                    acc[i] = acc[i] + fr * _weight(weights, rows, bary, k, j)
                     count[i] = count[i] + fr
-            elif z > 1.0e-6:  # the lookup of kernels.shadowmap.occluded, with the map's frame at hand
-                ix = int(wp.floor(wp.dot(d, rt) / z * it * half + half - 0.5 + 0.5))
-                iy = int(wp.floor(wp.dot(d, up) / z * it * half + half - 0.5 + 0.5))
-                if ix >= 0 and iy >= 0 and ix < ms.res and iy < ms.res:
-                    if z > ms.depth[s, iy, ix] + ms.bias:
-                        bk = bary[k]
-                        acc[i] = acc[i] + (weights[rows[k, 0], j] * bk[0] + weights[rows[k, 1], j] * bk[1]
-                                           + weights[rows[k, 2], j] * bk[2])
-                        count[i] = count[i] + 1.0
 
 
 class MaskedSum:

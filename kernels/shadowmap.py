@@ -74,11 +74,18 @@ def occluded(ms: MapSet, s: int, p: wp.vec3) -> bool:
     q = _to_map(ms, s, p)
     if q[2] <= 1.0e-6:
         return False
-    ix = int(wp.floor(q[0] + 0.5))
-    iy = int(wp.floor(q[1] + 0.5))
+    return q[2] > texel_depth(ms, s, q[0], q[1]) + ms.bias
+
+
+@wp.func
+def texel_depth(ms: MapSet, s: int, x: float, y: float) -> float:
+    """Map s's depth at the texel nearest pixel position (x, y) (_to_map's), 1e30 off the map
+    (nothing drawn there)."""
+    ix = int(wp.floor(x + 0.5))
+    iy = int(wp.floor(y + 0.5))
     if ix < 0 or iy < 0 or ix >= ms.res or iy >= ms.res:
-        return False
-    return q[2] > ms.depth[s, iy, ix] + ms.bias
+        return float(1.0e30)
+    return ms.depth[s, iy, ix]
 
 
 @wp.func
