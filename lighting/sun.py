@@ -162,17 +162,7 @@ class SunLight:
         tris = np.asarray(tris, np.float64)
         if not self.active or len(tris) == 0:
             return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, np.int64)
-        nt = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-        facing = np.flatnonzero(nt @ self.d > 0)  # faces turned from the sun get no direct sun
-        tris = tris[facing]
-        edge = np.linalg.norm(tris - np.roll(tris, 1, axis=1), axis=2).max(1)
-        m_all = np.clip(np.ceil(edge / size).astype(int), 1, max_split)
-        pieces, parent = [], []
-        for m in np.unique(m_all):
-            sel = np.flatnonzero(m_all == m)
-            pieces.append(_split_triangles(tris[sel], int(m)))
-            parent.append(np.repeat(facing[sel], int(m) ** 2))
-        sub, parent = np.concatenate(pieces), np.concatenate(parent)
+        sub, parent = _sun_facing_pieces(tris, self.d, size, max_split)
         E = self.triangle_irradiance(sub, extra, n=n)
         lit = np.flatnonzero(E.any(1))
         return sub[lit], E[lit], parent[lit]
@@ -218,16 +208,8 @@ class SunlitPieces:
         self.light = light
         self.origin = tris.reshape(-1, 3).mean(0) if len(tris) else np.zeros(3)
         nt = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]) if len(tris) else np.zeros((0, 3))
-        facing = np.flatnonzero(nt @ light.d > 0) if light.active else np.zeros(0, np.int64)
-        f_tris = tris[facing]
-        edge = np.linalg.norm(f_tris - np.roll(f_tris, 1, axis=1), axis=2).max(1) if len(facing) else np.zeros(0)
-        m_all = np.clip(np.ceil(edge / size).astype(int), 1, max_split)
-        pieces, parent = [np.zeros((0, 3, 3))], [np.zeros(0, np.int64)]
-        for m in np.unique(m_all):
-            sel = np.flatnonzero(m_all == m)
-            pieces.append(_split_triangles(f_tris[sel], int(m)))
-            parent.append(np.repeat(facing[sel], int(m) ** 2))
-        sub, self.parent = np.concatenate(pieces), np.concatenate(parent)
+        sub, self.parent = (_sun_facing_pieces(tris, light.d, size, max_split) if light.active and len(tris)
+                            else (np.zeros((0, 3, 3)), np.zeros(0, np.int64)))
         self.tris0 = sub - self.origin  # (S,3,3) relative to the shape's origin
         nrm = nt[self.parent] if len(self.parent) else np.zeros((0, 3))
         self.area = 0.5 * np.linalg.norm(nrm, axis=1) / np.maximum(
@@ -267,6 +249,25 @@ class SunlitPieces:
 
 
 _SPLIT_CACHE: dict[int, np.ndarray] = {}  # m -> barycentric corners of the m^2 pieces
+
+
+def _sun_facing_pieces(tris: np.ndarray, d: np.ndarray, size: float, max_split: int
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles (T,3,3) (CCW seen from their front) whose front faces the sun direction d, each
+    split regularly into m^2 pieces, m = ceil(longest edge / size) clipped to 1..max_split:
+    (pieces (S,3,3), index (S,) of the triangle each comes from). Faces turned from the sun get no
+    direct sun, so they have no pieces."""
+    nt = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    facing = np.flatnonzero(nt @ d > 0)
+    f_tris = tris[facing]
+    edge = np.linalg.norm(f_tris - np.roll(f_tris, 1, axis=1), axis=2).max(1) if len(facing) else np.zeros(0)
+    m_all = np.clip(np.ceil(edge / size).astype(int), 1, max_split)
+    pieces, parent = [np.zeros((0, 3, 3))], [np.zeros(0, np.int64)]
+    for m in np.unique(m_all):
+        sel = np.flatnonzero(m_all == m)
+        pieces.append(_split_triangles(f_tris[sel], int(m)))
+        parent.append(np.repeat(facing[sel], int(m) ** 2))
+    return np.concatenate(pieces), np.concatenate(parent)
 
 
 def _split_triangles(tris: np.ndarray, m: int) -> np.ndarray:
