@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from kernels.buffers import Workspace, workspace
+from kernels.farfield import point_emitter_sum
 from kernels.visibility import (Occluder, distance_to, emitter_sum, emitter_sum_seen, segments_visible,
                                 transfer_matrix)
 from recon.response import luminance
@@ -30,11 +31,107 @@ def object_irradiance(eng: "Engine", pts: np.ndarray, nrm: np.ndarray, proxy_occ
 
 def triangle_radiance(eng: "Engine", obj: SceneObject, pv, pf, proxy_occ, B: np.ndarray) -> np.ndarray:
     """Outgoing radiance (T,3) of each proxy triangle, lit at its centroid by patches of radiance B
-    (P,3), gathered over every patch with visibility past the scene and the proxy (object_irradiance).
+    (P,3), gathered with visibility past the scene and the proxy (object_irradiance) over a coarse
+    set of patches (PatchBlocks.gather_set): the emitters and the patches near the object as they
+    are, the other patches merged in blocks of BLOCK x BLOCK of a quad.
     (The SH9 volume x the proxy's self transfer in place of the non-emitting patches was measured and
     left out: on lamps_room it lit the proxy brighter and raised spurious from 0.0037 to 0.0050.)"""
     c = pv[pf].mean(1)
-    return obj.albedo * eng._object_irradiance(c, proxy_shape(eng, pv, pf, proxy_occ).normals, proxy_occ, B)
+    centre = 0.5 * (pv.min(0) + pv.max(0))
+    radius = float(np.linalg.norm(pv - centre, axis=1).max())
+    corners, normals, B_set = patch_blocks(eng).gather_set(B, centre, radius)
+    G = transfer_matrix(c, proxy_shape(eng, pv, pf, proxy_occ).normals, corners, normals,
+                        [eng.scene_occ, proxy_occ], n_side=1, eps=2e-3, device=eng.device,
+                        workspace=workspace(eng, "object_irradiance"))
+    return obj.albedo * (G.astype(np.float64) @ B_set)
+
+
+BLOCK = 2  # patches a side of a block of non-emitting patches gathered as one (PatchBlocks)
+BLOCK_NEAR = 4.0  # a block is split into its patches within this many block radii of the object's sphere
+
+
+class PatchBlocks:
+    """The non-emitting quads' patches merged in blocks of BLOCK x BLOCK (fewer at a quad's edge), per
+    scene: a block's corners span its patches (one rectangle of the quad), its radiance is their
+    area-weighted mean. Seen from a point d away a block of radius r differs from its patches' sum
+    by O(r/d) of the radiance's variation over it (the form factor's gradient across it) and by the
+    visibility of its centre standing for its patches', so only blocks farther than BLOCK_NEAR
+    block radii from the object's bounding sphere are used whole (gather_set)."""
+
+    def __init__(self, pm):
+        members, corners = [], []
+        for qi in np.unique(pm.quad):
+            idx = np.flatnonzero(pm.quad == qi)
+            grid = _patch_grid(pm, idx)
+            if grid is None or pm.is_emitter[idx].any():
+                continue
+            nu, nv = grid
+            grid = idx.reshape(nu, nv)  # build_patches' order: iu major
+            for u0 in range(0, nu, BLOCK):
+                for v0 in range(0, nv, BLOCK):
+                    g = grid[u0:u0 + BLOCK, v0:v0 + BLOCK]
+                    if g.size == 1:
+                        continue
+                    members.append(g.ravel())
+                    corners.append([pm.corners[g[0, 0], 0], pm.corners[g[-1, 0], 1], pm.corners[g[-1, -1], 2],
+                                    pm.corners[g[0, -1], 3]])
+        n = pm.n_patches
+        self.block_of = np.full(n, -1)  # (P,) block of each patch, -1: gathered alone
+        for b, m in enumerate(members):
+            self.block_of[m] = b
+        self.corners = np.array(corners, np.float64).reshape(-1, 4, 3)
+        self.normal = pm.normal[[m[0] for m in members]] if members else np.zeros((0, 3))
+        self.centre = self.corners.mean(1)
+        self.radius = np.linalg.norm(self.corners - self.centre[:, None], axis=2).max(1)
+        inb = np.flatnonzero(self.block_of >= 0)
+        area = np.bincount(self.block_of[inb], pm.area[inb], len(members))
+        self._rows, self._w = inb, pm.area[inb] / area[self.block_of[inb]]
+        self._alone = np.flatnonzero(self.block_of < 0)
+        self._pm = pm
+
+    def gather_set(self, B: np.ndarray, centre: np.ndarray, radius: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(corners (M,4,3), normals (M,3), radiance (M,3)) of the patches and blocks to gather B (P,3)
+        from at an object of bounding sphere (centre, radius): blocks within BLOCK_NEAR block radii of
+        the sphere given as their patches."""
+        pm = self._pm
+        far = np.linalg.norm(self.centre - centre, axis=1) - radius > BLOCK_NEAR * self.radius
+        split = np.flatnonzero(~far)
+        fine = self._alone
+        if len(split):
+            fine = np.concatenate([fine, self._rows[np.isin(self.block_of[self._rows], split)]])
+        fb = np.flatnonzero(far)
+        B_blk = np.zeros((len(self.centre), 3))
+        np.add.at(B_blk, self.block_of[self._rows], self._w[:, None] * B[self._rows])
+        return (np.concatenate([pm.corners[fine], self.corners[fb]]), np.concatenate([pm.normal[fine], self.normal[fb]]),
+                np.concatenate([B[fine], B_blk[fb]]))
+
+
+def _patch_grid(pm, idx: np.ndarray) -> tuple[int, int] | None:
+    """(nu, nv) of one quad's patches idx (recon.patches.build_patches: iu major, corner 0 -> 1 along
+    u, 0 -> 3 along v), or None where they do not form that grid."""
+    c = pm.corners[idx]
+    ev, eu = c[0, 3] - c[0, 0], c[0, 1] - c[0, 0]
+    size = max(np.linalg.norm(ev), np.linalg.norm(eu), 1e-12)
+    d = c[:, 0] - c[0, 0]
+    off_v = np.linalg.norm(d - np.outer(d @ ev / (ev @ ev), ev), axis=1) > 1e-6 * size  # left the first column
+    nv = int(np.argmax(off_v)) if off_v.any() else len(idx)
+    nu = len(idx) // nv
+    if nu * nv != len(idx) or nu * nv < 2:
+        return None
+    g = c.reshape(nu, nv, 4, 3)
+    expect = c[0, 0] + np.arange(nu)[:, None, None] * eu + np.arange(nv)[None, :, None] * ev
+    if np.abs(g[:, :, 0] - expect).max() > 1e-6 * size * max(nu, nv):
+        return None
+    return nu, nv
+
+
+def patch_blocks(eng: "Engine") -> PatchBlocks:
+    """The engine's PatchBlocks (made on first use: it depends on the scene only)."""
+    b = getattr(eng, "_patch_blocks", None)
+    if b is None or b._pm is not eng.pre.patches:
+        b = eng._patch_blocks = PatchBlocks(eng.pre.patches)
+    return b
 
 
 @dataclass
@@ -86,16 +183,23 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     touched = np.zeros(len(pm.vert_pos), bool)
     touched[rv[reach_v]] = True
     rp = table.pixels_of(np.unique(pm.tri_patch[touched[pm.tris].any(1)]))
-    R_pix[rp] = np.einsum("nk,nkc->nc", pre.pix_bary[rp], R_v[eng.pix_rows[rp]])
+    # near the object the pixels whose gain may pass a quarter level are evaluated per pixel
+    # (_near_pixels); the others take the vertices' light, interpolated
     dist = np.linalg.norm(eng.pix_pos[rp] - centre, axis=1)
-    near = dist < eng.near_factor * radius
-    rp, dist = rp[near], dist[near]
-    f_bound = np.minimum(1.0, (radius / np.maximum(dist, 1e-6)) ** 2)
-    bound = eng.rho_x[rp] * max_rad * f_bound[:, None]
-    gain = (resp.to_levels(eng.L_b[rp] + bound) - resp.to_levels(eng.L_b[rp])).max(1)
-    sel = rp[gain > 0.25]
+    ni = np.flatnonzero(dist < eng.near_factor * radius)
+    f_bound = np.minimum(1.0, (radius / np.maximum(dist[ni], 1e-6)) ** 2)
+    bound = eng.rho_x[rp[ni]] * max_rad * f_bound[:, None]
+    gain = (resp.to_levels(eng.L_b[rp[ni]] + bound) - _levels_of_photo(eng)[rp[ni]]).max(1)
+    si = ni[gain > 0.25]
     if covered is not None:
-        sel = sel[~covered[sel]]
+        si = si[~covered[rp[si]]]
+    sel = rp[si]
+    rest = np.ones(len(rp), bool)
+    rest[si] = False
+    ri = rp[rest]
+    bary, rows = pre.pix_bary[ri], eng.pix_rows[ri]
+    R_pix[ri] = (bary[:, 0, None] * R_v[rows[:, 0]] + bary[:, 1, None] * R_v[rows[:, 1]]
+                 + bary[:, 2, None] * R_v[rows[:, 2]])
     if len(sel):
         R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra)
     # patch centres, for the second-order term
@@ -213,17 +317,12 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
         if far_emitters is None:
             c = tris.mean(1)
             tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # (T,3) twice the area x normal
-            rad, seen = tri_rad, (tvis.seen if tvis is not None else None)
+            rad = tri_rad
+            seen = tvis.seen if tvis is not None else np.ones((len(tris), 6 * CUBE_RES ** 2), bool)
         else:
             c, tn, rad, seen = far_emitters
-        d = c[None] - points[far][:, None]  # (N,T,3) point -> triangle
-        r2 = np.einsum("ntc,ntc->nt", d, d)
-        cos_x = np.maximum(np.einsum("ntc,nc->nt", d, normals[far]), 0.0)
-        cos_t = np.maximum(-np.einsum("ntc,tc->nt", d, tn), 0.0)  # |tn| = 2 area; both cosines carry 1/r
-        g = cos_x * cos_t * 0.5 / (np.pi * r2 * r2)
-        if seen is not None:
-            g *= _seen_lookup(seen, -d)
-        out[far] = g @ rad
+        out[far] = point_emitter_sum(points[far], normals[far], c, tn, rad, seen, CUBE_RES, device=device,
+                                     split=256, workspace=_sub_workspace(ws, "far"), capacity=2 * len(tris))
     return out
 
 
@@ -268,18 +367,59 @@ def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, device=device, split=256, workspace=ws)
     if extra is not None and len(extra.tris):
         out += emitter_sum_seen(points, normals, extra.tris, extra.rad, extra.seen, extra.res, device=device,
-                                split=256, workspace=_extra_workspace(ws), capacity=extra.capacity)
+                                split=256, workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
     return out
 
 
-def _extra_workspace(ws: Workspace | None) -> Workspace | None:
-    """The buffers of the extra emitters' sum at a call site (kept beside the site's own)."""
+def _sub_workspace(ws: Workspace | None, name: str) -> Workspace | None:
+    """The buffers of a second kernel at a call site (the extra emitters' sum, the far field), kept
+    beside the site's own."""
     if ws is None:
         return None
-    extra = getattr(ws, "_extra", None)
-    if extra is None:
-        extra = ws._extra = Workspace(ws.rows, ws.sources)
-    return extra
+    subs = ws.__dict__.setdefault("_subs", {})
+    if name not in subs:
+        subs[name] = Workspace(ws.rows, ws.sources)
+    return subs[name]
+
+
+class _ScreenValues:
+    """Exact object light at screen pixels, kept in dense (H*W,) maps for one frame's _near_pixels
+    (made once per engine; `clear` resets the pixels written, so no pass over the frame)."""
+
+    def __init__(self, n_pixels: int):
+        self.known = np.zeros(n_pixels, bool)
+        self.value = np.zeros((n_pixels, 3))
+        self._written: list[np.ndarray] = []
+        self.count = 0
+
+    def add(self, idx: np.ndarray, values_of) -> None:
+        """Evaluate values_of(pixels) at the distinct pixels `idx` not yet known."""
+        new = idx[~self.known[idx]]
+        if len(new):
+            self.value[new] = values_of(new)
+            self.known[new] = True
+            self._written.append(new)
+            self.count += len(new)
+
+    def clear(self) -> None:
+        for w in self._written:
+            self.known[w] = False
+        self._written, self.count = [], 0
+
+
+def _levels_of_photo(eng: "Engine") -> np.ndarray:
+    """T(L_b) (H*W,3) of the engine's current L_b (kept while L_b is the same array)."""
+    cached = getattr(eng, "_ol_photo_levels", None)
+    if cached is None or cached[0] is not eng.L_b:
+        cached = eng._ol_photo_levels = (eng.L_b, eng.scene.response.to_levels(eng.L_b))
+    return cached[1]
+
+
+def _distinct(idx: np.ndarray, size: int) -> np.ndarray:
+    """The sorted distinct values of idx (ints in [0, size)) through a mark array (no sort)."""
+    mark = np.zeros(size, bool)
+    mark[idx] = True
+    return np.flatnonzero(mark)
 
 
 def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
@@ -293,24 +433,21 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
     the cell's area) takes the bilinear blend of the nodes, evaluated exactly
     (kernels.visibility.emitter_sum); the rest go on to the next, finer stride, and what is left
     after the finest is evaluated per pixel (contact, quad edges, the object's silhouette).
+    The cells' tests (quad, clearance) are made once per cell, the pixels only look them up.
     """
     pm = eng.pre.patches
     H, W = eng.scene.camera.height, eng.scene.camera.width
     resp = eng.scene.response
+    levels = _levels_of_photo(eng)
+    sv = getattr(eng, "_ol_screen", None)
+    if sv is None or len(sv.known) != H * W:
+        sv = eng._ol_screen = _ScreenValues(H * W)
+    sv.clear()
+    ws = workspace(eng, "near_pixels.exact")
 
-    known_idx = np.zeros(0, np.int64)
-    known_val = np.zeros((0, 3))
-
-    def exact(idx: np.ndarray) -> None:
-        nonlocal known_idx, known_val
-        new = np.setdiff1d(idx, known_idx)
-        if len(new):
-            val = _exact_sum(eng.pix_pos[new], pm.normal[eng.pix_patch[new]], tris, tri_rad, proxy_occ, eng.device,
-                             workspace(eng, "near_pixels.exact"), extra)
-            known_idx = np.concatenate([known_idx, new])
-            known_val = np.concatenate([known_val, val])
-            order = np.argsort(known_idx)
-            known_idx, known_val = known_idx[order], known_val[order]
+    def values_of(idx: np.ndarray) -> np.ndarray:
+        return _exact_sum(eng.pix_pos[idx], pm.normal[eng.pix_patch[idx]], tris, tri_rad, proxy_occ, eng.device,
+                          ws, extra)
 
     out = np.zeros((len(sel), 3))
     todo = np.arange(len(sel))
@@ -320,31 +457,39 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
             break
         p = sel[todo]
         y, x = np.divmod(p, W)
-        y0, x0 = y - y % s, x - x % s
+        Wc = (W - 1) // s + 1
+        cid = (y // s) * Wc + x // s
+        cells = _distinct(cid, ((H - 1) // s + 1) * Wc)  # the cells holding pixels to do
+        slot = np.zeros(((H - 1) // s + 1) * Wc, np.int64)
+        slot[cells] = np.arange(len(cells))
+        slot = slot[cid]  # each pixel's row in `cells`
+        y0, x0 = (cells // Wc) * s, (cells % Wc) * s
         ny = np.stack([y0, y0, y0 + s, y0 + s], 1)
         nx = np.stack([x0, x0 + s, x0, x0 + s], 1)
         inside = (ny < H) & (nx < W)
         nodes = np.where(inside, ny * W + nx, 0)
-        ok = (inside & eng.recv_pix[nodes]
-              & (pm.quad[np.maximum(eng.pix_patch[nodes], 0)] == quad_sel[todo][:, None])).all(1)
-        if ok.any():
+        q = pm.quad[np.maximum(eng.pix_patch[nodes], 0)]
+        cell_ok = (inside & eng.recv_pix[nodes]).all(1) & (q == q[:, :1]).all(1)  # one quad, receivers
+        ok = cell_ok[slot] & (q[slot, 0] == quad_sel[todo])  # ... the pixel's own
+        has = np.zeros(len(cells), bool)
+        has[slot[ok]] = True
+        if has.any():
             # clearance: the cell's nodes' distance to the proxy
-            cn = np.unique(nodes[ok])
+            cn = np.unique(nodes[has])
             d = distance_to(proxy_occ, eng.pix_pos[cn], workspace=workspace(eng, "near_pixels.clearance"))
-            d_node = d[np.searchsorted(cn, nodes[ok])].min(1)
-            diag = np.linalg.norm(eng.pix_pos[nodes[ok, 0]] - eng.pix_pos[nodes[ok, 3]], axis=1)
-            clear = np.zeros(len(todo), bool)
-            clear[np.flatnonzero(ok)] = d_node > GRID_CLEARANCE * diag
-            ok &= clear
+            d_node = d[np.searchsorted(cn, nodes[has])].min(1)
+            diag = np.linalg.norm(eng.pix_pos[nodes[has, 0]] - eng.pix_pos[nodes[has, 3]], axis=1)
+            has[np.flatnonzero(has)] = d_node > GRID_CLEARANCE * diag
+            ok &= has[slot]
         if ok.any():
-            exact(np.unique(nodes[ok]))
-            corner = known_val[np.searchsorted(known_idx, nodes[ok])]  # (m,4,3)
+            sv.add(np.unique(nodes[has]), values_of)
+            corner = sv.value[nodes[slot[ok]]]  # (m,4,3)
             fp = p[ok]
             spread = eng.rho_x[fp] * (corner.max(1) - corner.min(1))
-            gain = (resp.to_levels(eng.L_b[fp] + spread) - resp.to_levels(eng.L_b[fp])).max(1)
+            gain = (resp.to_levels(eng.L_b[fp] + spread) - levels[fp]).max(1)
             smooth = gain <= GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2
-            fy = ((y - y0)[ok] / s)[:, None]
-            fx = ((x - x0)[ok] / s)[:, None]
+            fy = ((y[ok] % s) / s)[:, None]
+            fx = ((x[ok] % s) / s)[:, None]
             blend = ((1 - fy) * ((1 - fx) * corner[:, 0] + fx * corner[:, 1]) +
                      fy * ((1 - fx) * corner[:, 2] + fx * corner[:, 3]))
             done = np.flatnonzero(ok)[smooth]
@@ -353,7 +498,7 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
             keep[done] = False
             todo = todo[keep]
     if len(todo):
-        exact(sel[todo])
-        out[todo] = known_val[np.searchsorted(known_idx, sel[todo])]
-    eng._n_object_light_exact = len(known_idx)
+        sv.add(sel[todo], values_of)
+        out[todo] = sv.value[sel[todo]]
+    eng._n_object_light_exact = sv.count
     return out

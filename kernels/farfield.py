@@ -1,0 +1,64 @@
+"""Point emitters with a per-emitter visibility table: the far field of a small object's light.
+
+Beyond a few bounding radii each emitting triangle (or lit piece) of an object subtends a small
+solid angle and acts as a point source: B_t A_t cos_x cos_t / (pi r^2), times the fraction of the
+direction from the emitter towards the receiver that leaves the object (a cube-map table per
+emitter, kernels.visibility.cube_cell's layout, made once per object shape). Irradiance / pi.
+"""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from kernels import runtime
+from kernels.buffers import Workspace
+from kernels.visibility import _point_launches, cube_cell
+
+
+@wp.kernel
+def _point_emitters_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                           centres: wp.array(dtype=wp.vec3d), area_normals: wp.array(dtype=wp.vec3d),
+                           radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.float32), res: int,
+                           out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    p = points[i]
+    n = normals[i]
+    total = wp.vec3(0.0, 0.0, 0.0)
+    for t in range(centres.shape[0]):
+        d = centres[t] - p  # receiver -> emitter
+        cos_x = wp.dot(d, n)
+        cos_t = -wp.dot(d, area_normals[t])  # |area_normals| = 2 area; both cosines carry 1/r
+        if cos_x > wp.float64(0.0) and cos_t > wp.float64(0.0):
+            w = seen[t, cube_cell(wp.vec3(-d), res)]
+            if w > 0.0:
+                r2 = wp.dot(d, d)
+                g = cos_x * cos_t * wp.float64(0.5) / (wp.float64(wp.pi) * r2 * r2)
+                total += radiance[t] * (float(g) * w)
+    out[i] = total
+
+
+def point_emitter_sum(points: np.ndarray, normals: np.ndarray, centres: np.ndarray, area_normals: np.ndarray,
+                      radiance: np.ndarray, seen: np.ndarray, res: int, device: str | None = None,
+                      split: int = 2048, workspace: Workspace | None = None, capacity: int = 0) -> np.ndarray:
+    """sum_t B_t A_t cos_x cos_t / (pi r^2) seen_t(x) (N,3) float64 (= irradiance / pi) at points (N,3)
+    [unit normals (N,3)] from point emitters at centres (F,3) with area_normals (F,3) = twice the area x
+    the unit normal, radiance (F,3) and visibility table seen (F, 6 res^2) (bool or the fraction of
+    the cell's directions that leave the occluder). workspace: the call site's buffers, nothing
+    allocated after the first call while F <= max(capacity, the first F); None: fresh buffers."""
+    device = runtime.device(device)
+    n = len(points)
+    if n == 0 or len(centres) == 0:
+        return np.zeros((n, 3))
+    if workspace is None:
+        ws, block = Workspace(), n
+    else:
+        ws, block = workspace, workspace.rows
+    seen = np.asarray(seen)
+    table = ws.buffer("seen", max(len(seen), capacity), wp.float32, device, (seen.shape[1],))
+    table.host[:len(seen), :seen.shape[1]] = seen
+    table.push(len(seen))
+    shared = [ws.upload("centres", np.asarray(centres, np.float64), wp.vec3d, device, capacity),
+              ws.upload("area_normals", np.asarray(area_normals, np.float64), wp.vec3d, device, capacity),
+              ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device, capacity),
+              table.dev[:len(seen), :seen.shape[1]], int(res)]
+    return _point_launches(_point_emitters_kernel, points, normals, shared, ws, block, device, split)
