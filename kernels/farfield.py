@@ -11,7 +11,7 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
-from kernels.buffers import Workspace
+from kernels.buffers import Buffer, Workspace
 from kernels.visibility import _point_launches, cube_cell
 
 
@@ -62,3 +62,45 @@ def point_emitter_sum(points: np.ndarray, normals: np.ndarray, centres: np.ndarr
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device, capacity),
               table.dev[:len(seen), :seen.shape[1]], int(res)]
     return _point_launches(_point_emitters_kernel, points, normals, shared, ws, block, device, split)
+
+
+@wp.kernel
+def _interpolate_kernel(pix_patch: wp.array(dtype=wp.int32), pix_rows: wp.array2d(dtype=wp.int32),
+                        pix_bary: wp.array2d(dtype=wp.float32), patch_on: wp.array(dtype=wp.uint8),
+                        values: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    p = pix_patch[i]
+    v = wp.vec3(0.0, 0.0, 0.0)
+    if p >= 0:
+        if patch_on[p] != wp.uint8(0):
+            for k in range(3):
+                v += values[pix_rows[i, k]] * pix_bary[i, k]
+    out[i] = v
+
+
+class VertexInterpolation:
+    """Per-vertex values interpolated onto the pixels of a set of patches (one kernel over the frame,
+    no pixel list): pixel i of patch pix_patch[i] >= 0 takes sum_k pix_bary[i,k] values[pix_rows[i,k]].
+    The per-scene tables are uploaded once; per frame the patches and the values (buffers made on
+    the first call at the scene's size: nothing allocated after)."""
+
+    def __init__(self, pix_patch: np.ndarray, pix_rows: np.ndarray, pix_bary: np.ndarray, n_patches: int,
+                 n_values: int, device: str | None = None):
+        self.device = runtime.device(device)
+        n = len(pix_patch)
+        self._patch = Buffer(n, wp.int32, self.device, fill=np.asarray(pix_patch, np.int32))
+        self._rows = Buffer((n, 3), wp.int32, self.device, fill=np.maximum(np.asarray(pix_rows), 0).astype(np.int32))
+        self._bary = Buffer((n, 3), wp.float32, self.device, fill=np.asarray(pix_bary, np.float32))
+        self._on = Buffer(max(n_patches, 1), wp.uint8, self.device)
+        self._values = Buffer(max(n_values, 1), wp.vec3, self.device)
+        self._out = Buffer(n, wp.vec3, self.device)
+
+    def run(self, patch_on: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(N,3) float64: the interpolated values on the pixels of the patches where patch_on (P,) bool,
+        0 elsewhere; values (n_values,3)."""
+        self._on.upload(np.asarray(patch_on, np.uint8))
+        self._values.upload(np.asarray(values, np.float32))
+        wp.launch(_interpolate_kernel, dim=self._out.capacity,
+                  inputs=[self._patch.dev, self._rows.dev, self._bary.dev, self._on.dev, self._values.dev],
+                  outputs=[self._out.dev], device=self.device)
+        return self._out.pull().astype(np.float64)

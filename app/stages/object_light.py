@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from kernels.buffers import Workspace, workspace
-from kernels.farfield import point_emitter_sum
+from kernels.farfield import VertexInterpolation, point_emitter_sum
 from kernels.visibility import (Occluder, distance_to, emitter_sum, emitter_sum_seen, segments_visible,
                                 transfer_matrix)
 from recon.response import luminance
@@ -177,29 +177,27 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     rv = pre.recv_vert
     R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, eng.device,
                      tvis, workspace(eng, "object_light.vertices"), far, extra)
-    R_pix = np.zeros((len(eng.L_b), 3))
-    # the pixels of the patches with a vertex that gets a visible share of the object's light
+    # the pixels of the patches with a vertex that gets a visible share of the object's light take
+    # the vertices' light, interpolated
     reach_v = luminance(R_v) * float(eng.rho_x.max()) > 5e-4 * float(luminance(eng.B_src).mean())
     touched = np.zeros(len(pm.vert_pos), bool)
     touched[rv[reach_v]] = True
-    rp = table.pixels_of(np.unique(pm.tri_patch[touched[pm.tris].any(1)]))
+    patch_on = np.zeros(pm.n_patches, bool)
+    patch_on[pm.tri_patch[touched[pm.tris].any(1)]] = True
+    R_pix = vertex_interpolation(eng).run(patch_on, R_v)
     # near the object the pixels whose gain may pass a quarter level are evaluated per pixel
-    # (_near_pixels); the others take the vertices' light, interpolated
+    # (_near_pixels): the pixels of the touched patches that reach within near_factor radii
+    near_p = np.flatnonzero(patch_on & (np.linalg.norm(pm.centre - centre, axis=1)
+                                        < eng.near_factor * radius + pm.radius))
+    rp = table.pixels_of(near_p)
     dist = np.linalg.norm(eng.pix_pos[rp] - centre, axis=1)
-    ni = np.flatnonzero(dist < eng.near_factor * radius)
-    f_bound = np.minimum(1.0, (radius / np.maximum(dist[ni], 1e-6)) ** 2)
-    bound = eng.rho_x[rp[ni]] * max_rad * f_bound[:, None]
-    gain = (resp.to_levels(eng.L_b[rp[ni]] + bound) - _levels_of_photo(eng)[rp[ni]]).max(1)
-    si = ni[gain > 0.25]
+    rp, dist = rp[dist < eng.near_factor * radius], dist[dist < eng.near_factor * radius]
+    f_bound = np.minimum(1.0, (radius / np.maximum(dist, 1e-6)) ** 2)
+    bound = eng.rho_x[rp] * max_rad * f_bound[:, None]
+    gain = (resp.to_levels(eng.L_b[rp] + bound) - _levels_of_photo(eng)[rp]).max(1)
+    sel = rp[gain > 0.25]
     if covered is not None:
-        si = si[~covered[rp[si]]]
-    sel = rp[si]
-    rest = np.ones(len(rp), bool)
-    rest[si] = False
-    ri = rp[rest]
-    bary, rows = pre.pix_bary[ri], eng.pix_rows[ri]
-    R_pix[ri] = (bary[:, 0, None] * R_v[rows[:, 0]] + bary[:, 1, None] * R_v[rows[:, 1]]
-                 + bary[:, 2, None] * R_v[rows[:, 2]])
+        sel = sel[~covered[sel]]
     if len(sel):
         R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra)
     # patch centres, for the second-order term
@@ -346,6 +344,17 @@ class PixelTable:
         return np.sort(self.pixels[idx])
 
 
+def vertex_interpolation(eng: "Engine") -> VertexInterpolation:
+    """The engine's VertexInterpolation of the receiver vertices' light onto the receiver pixels (made
+    on first use: it depends on the scene only)."""
+    t = getattr(eng, "_ol_interpolation", None)
+    if t is None:
+        t = eng._ol_interpolation = VertexInterpolation(np.where(eng.recv_pix, eng.pix_patch, -1), eng.pix_rows,
+                                                        eng.pre.pix_bary, eng.pre.patches.n_patches,
+                                                        len(eng.pre.recv_vert), eng.device)
+    return t
+
+
 def pixel_table(eng: "Engine") -> PixelTable:
     """The engine's PixelTable (made on first use: it depends on the scene only)."""
     t = getattr(eng, "_pixel_table", None)
@@ -483,9 +492,11 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
             ok &= has[slot]
         if ok.any():
             sv.add(np.unique(nodes[has]), values_of)
-            corner = sv.value[nodes[slot[ok]]]  # (m,4,3)
+            cc = sv.value[nodes[has]]  # (cells, 4, 3) the cells' node values
+            h = np.cumsum(has)[slot[ok]] - 1  # each pixel's row in cc
+            corner = cc[h]  # (m,4,3)
             fp = p[ok]
-            spread = eng.rho_x[fp] * (corner.max(1) - corner.min(1))
+            spread = eng.rho_x[fp] * (cc.max(1) - cc.min(1))[h]
             gain = (resp.to_levels(eng.L_b[fp] + spread) - levels[fp]).max(1)
             smooth = gain <= GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2
             fy = ((y[ok] % s) / s)[:, None]
