@@ -33,7 +33,7 @@ def triangle_radiance(eng: "Engine", obj: SceneObject, pv, pf, proxy_occ, B: np.
     """Outgoing radiance (T,3) of each proxy triangle, lit at its centroid by patches of radiance B
     (P,3), gathered with visibility past the scene and the proxy (object_irradiance) over a coarse
     set of patches (PatchBlocks.gather_set): the emitters and the patches near the object as they
-    are, the other patches merged in blocks of BLOCK x BLOCK of a quad.
+    are, the other patches merged in blocks of a quad's patches, coarser farther away.
     (The SH9 volume x the proxy's self transfer in place of the non-emitting patches was measured and
     left out: on lamps_room it lit the proxy brighter and raised spurious from 0.0037 to 0.0050.)"""
     c = pv[pf].mean(1)
@@ -46,65 +46,84 @@ def triangle_radiance(eng: "Engine", obj: SceneObject, pv, pf, proxy_occ, B: np.
     return obj.albedo * (G.astype(np.float64) @ B_set)
 
 
-BLOCK = 2  # patches a side of a block of non-emitting patches gathered as one (PatchBlocks)
-BLOCK_NEAR = 4.0  # a block is split into its patches within this many block radii of the object's sphere
+BLOCKS = (2,)  # patches a side of the blocks of non-emitting patches gathered as one, fine to coarse
+# (2, 4) was measured: lamps_room's triangle_radiance 2.8x cheaper than every patch instead of 2.1x, but
+# its all-sources spurious 0.0048 -> 0.0051 (0.0049 with 2 alone)
+BLOCK_NEAR = 4.0  # a block is split within this many block radii of the object's sphere (PatchBlocks)
 
 
-class PatchBlocks:
-    """The non-emitting quads' patches merged in blocks of BLOCK x BLOCK (fewer at a quad's edge), per
-    scene: a block's corners span its patches (one rectangle of the quad), its radiance is their
-    area-weighted mean. Seen from a point d away a block of radius r differs from its patches' sum
-    by O(r/d) of the radiance's variation over it (the form factor's gradient across it) and by the
-    visibility of its centre standing for its patches', so only blocks farther than BLOCK_NEAR
-    block radii from the object's bounding sphere are used whole (gather_set)."""
+class _Level:
+    """One size of PatchBlocks: per block its corners (B,4,3), normal, centre, radius; per patch its
+    block (-1: none) and its area share of it."""
 
-    def __init__(self, pm):
+    def __init__(self, pm, grids: list[tuple[np.ndarray, int, int]], k: int):
         members, corners = [], []
-        for qi in np.unique(pm.quad):
-            idx = np.flatnonzero(pm.quad == qi)
-            grid = _patch_grid(pm, idx)
-            if grid is None or pm.is_emitter[idx].any():
-                continue
-            nu, nv = grid
+        for idx, nu, nv in grids:
             grid = idx.reshape(nu, nv)  # build_patches' order: iu major
-            for u0 in range(0, nu, BLOCK):
-                for v0 in range(0, nv, BLOCK):
-                    g = grid[u0:u0 + BLOCK, v0:v0 + BLOCK]
-                    if g.size == 1:
-                        continue
-                    members.append(g.ravel())
-                    corners.append([pm.corners[g[0, 0], 0], pm.corners[g[-1, 0], 1], pm.corners[g[-1, -1], 2],
-                                    pm.corners[g[0, -1], 3]])
-        n = pm.n_patches
-        self.block_of = np.full(n, -1)  # (P,) block of each patch, -1: gathered alone
+            for u0 in range(0, nu, k):
+                for v0 in range(0, nv, k):
+                    g = grid[u0:u0 + k, v0:v0 + k]
+                    if g.size > 1:
+                        members.append(g.ravel())
+                        corners.append([pm.corners[g[0, 0], 0], pm.corners[g[-1, 0], 1], pm.corners[g[-1, -1], 2],
+                                        pm.corners[g[0, -1], 3]])
+        self.block_of = np.full(pm.n_patches, -1)
         for b, m in enumerate(members):
             self.block_of[m] = b
         self.corners = np.array(corners, np.float64).reshape(-1, 4, 3)
         self.normal = pm.normal[[m[0] for m in members]] if members else np.zeros((0, 3))
         self.centre = self.corners.mean(1)
-        self.radius = np.linalg.norm(self.corners - self.centre[:, None], axis=2).max(1)
-        inb = np.flatnonzero(self.block_of >= 0)
-        area = np.bincount(self.block_of[inb], pm.area[inb], len(members))
-        self._rows, self._w = inb, pm.area[inb] / area[self.block_of[inb]]
-        self._alone = np.flatnonzero(self.block_of < 0)
+        self.radius = np.linalg.norm(self.corners - self.centre[:, None], axis=2).max(1) if members else np.zeros(0)
+        self.rows = np.flatnonzero(self.block_of >= 0)
+        area = np.bincount(self.block_of[self.rows], pm.area[self.rows], len(members))
+        self.share = pm.area[self.rows] / area[self.block_of[self.rows]]
+
+    def radiance(self, B: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+        """The area-weighted mean of B (P,3) over each of `blocks` (n,3)."""
+        b = self.block_of[self.rows]
+        w = self.share[:, None] * B[self.rows]
+        out = np.stack([np.bincount(b, w[:, c], len(self.centre)) for c in range(3)], 1)
+        return out[blocks]
+
+
+class PatchBlocks:
+    """The non-emitting quads' patches merged in blocks of k x k of each size k in BLOCKS (fewer at a
+    quad's edge), per scene: a block's corners span its patches (one rectangle of the quad: form
+    factors add over it), its radiance is their area-weighted mean. Seen from a point d away a
+    block of radius r differs from its patches' sum by O(r/d) of the radiance's variation over it
+    (the form factor's gradient across it) and by the visibility of its centre standing for its
+    patches', so a block is used whole only farther than BLOCK_NEAR block radii from the object's
+    bounding sphere, the coarsest such block (gather_set)."""
+
+    def __init__(self, pm):
+        grids = []
+        for qi in np.unique(pm.quad):
+            idx = np.flatnonzero(pm.quad == qi)
+            grid = _patch_grid(pm, idx)
+            if grid is not None and not pm.is_emitter[idx].any():
+                grids.append((idx, *grid))
+        self.levels = [_Level(pm, grids, k) for k in BLOCKS]
         self._pm = pm
 
     def gather_set(self, B: np.ndarray, centre: np.ndarray, radius: float
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(corners (M,4,3), normals (M,3), radiance (M,3)) of the patches and blocks to gather B (P,3)
-        from at an object of bounding sphere (centre, radius): blocks within BLOCK_NEAR block radii of
-        the sphere given as their patches."""
+        from at an object of bounding sphere (centre, radius): each patch in the coarsest of its
+        blocks farther than BLOCK_NEAR block radii from the sphere, or alone."""
         pm = self._pm
-        far = np.linalg.norm(self.centre - centre, axis=1) - radius > BLOCK_NEAR * self.radius
-        split = np.flatnonzero(~far)
-        fine = self._alone
-        if len(split):
-            fine = np.concatenate([fine, self._rows[np.isin(self.block_of[self._rows], split)]])
-        fb = np.flatnonzero(far)
-        B_blk = np.zeros((len(self.centre), 3))
-        np.add.at(B_blk, self.block_of[self._rows], self._w[:, None] * B[self._rows])
-        return (np.concatenate([pm.corners[fine], self.corners[fb]]), np.concatenate([pm.normal[fine], self.normal[fb]]),
-                np.concatenate([B[fine], B_blk[fb]]))
+        free = np.ones(pm.n_patches, bool)  # patches not yet in a chosen block
+        corners, normals, rad = [], [], []
+        for lv in self.levels[::-1]:
+            far = np.linalg.norm(lv.centre - centre, axis=1) - radius > BLOCK_NEAR * lv.radius
+            rows = lv.rows[free[lv.rows] & far[lv.block_of[lv.rows]]]
+            used = np.unique(lv.block_of[rows])
+            free[rows] = False
+            corners.append(lv.corners[used])
+            normals.append(lv.normal[used])
+            rad.append(lv.radiance(B, used))
+        fine = np.flatnonzero(free)
+        return (np.concatenate([pm.corners[fine], *corners]), np.concatenate([pm.normal[fine], *normals]),
+                np.concatenate([B[fine], *rad]))
 
 
 def _patch_grid(pm, idx: np.ndarray) -> tuple[int, int] | None:

@@ -30,16 +30,17 @@ def demo(tmp_path_factory):
     return scene, eng, frame, pv, pf, proxy_occ
 
 
-def test_patch_blocks_span_their_patches(demo):
+@pytest.mark.parametrize("level", range(len(OL.BLOCKS)))
+def test_patch_blocks_span_their_patches(demo, level):
     # each block is the rectangle of its patches: with no occluder a block's form factor is the sum of
     # its patches' (form factors add over area), so a radiance uniform over it gathers exactly
     _, eng, _, pv, pf, proxy_occ = demo
     pm = eng.pre.patches
-    blocks = OL.patch_blocks(eng)
-    assert len(blocks.centre) > 10 and (blocks.block_of >= 0).sum() > 3 * len(blocks.centre)
-    assert not pm.is_emitter[blocks.block_of >= 0].any()
-    np.testing.assert_allclose(np.bincount(blocks.block_of[blocks.block_of >= 0],
-                                           pm.area[blocks.block_of >= 0], len(blocks.centre)),
+    blocks = OL.patch_blocks(eng).levels[level]
+    inb = np.flatnonzero(blocks.block_of >= 0)
+    assert len(blocks.centre) > 4 and len(inb) > 3 * len(blocks.centre)
+    assert not pm.is_emitter[inb].any()
+    np.testing.assert_allclose(np.bincount(blocks.block_of[inb], pm.area[inb], len(blocks.centre)),
                                np.linalg.norm(np.cross(blocks.corners[:, 1] - blocks.corners[:, 0],
                                                        blocks.corners[:, 3] - blocks.corners[:, 0]), axis=1),
                                rtol=1e-9)
@@ -47,7 +48,6 @@ def test_patch_blocks_span_their_patches(demo):
     nrm = OL.proxy_shape(eng, pv, pf, proxy_occ).normals
     fine = transfer_matrix(pts, nrm, pm.corners, pm.normal, [], n_side=1, device="cpu")
     coarse = transfer_matrix(pts, nrm, blocks.corners, blocks.normal, [], n_side=1, device="cpu")
-    inb = np.flatnonzero(blocks.block_of >= 0)
     summed = np.zeros_like(coarse)
     np.add.at(summed.T, blocks.block_of[inb], fine[:, inb].T)
     # patches behind a point's plane clip to 0 one by one: compare blocks wholly in front
