@@ -94,7 +94,8 @@ def bench(scene_dir: Path, n: int, repeat: int) -> None:
     print(f"{scene_dir.name}: object-light stage, warm median over {len(frames)} drag frames x {repeat}: "
           f"coarse {1e3 * np.median(times['coarse']):.0f} ms, exact {1e3 * np.median(times['exact']):.0f} ms; "
           f"coarse vs exact: proxy light total {100 * np.abs(rows[:, 0]).max():.2f} %, pixel levels max "
-          f"{rows[:, 1].max():.2f} rms {rows[:, 2].max():.3f}, patch centres total {100 * np.abs(rows[:, 3]).max():.2f} %")
+          f"{rows[:, 1].max():.2f} rms {rows[:, 2].max():.3f}, patch centres total "
+          f"{100 * np.abs(rows[:, 3]).max():.2f} %")
 
 
 def main() -> None:

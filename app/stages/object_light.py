@@ -42,6 +42,7 @@ def triangle_radiance(eng: "Engine", obj: SceneObject, pv, pf, proxy_occ, B: np.
     corners, normals, B_set = patch_blocks(eng).gather_set(B, centre, radius)
     G = transfer_matrix(c, proxy_shape(eng, pv, pf, proxy_occ).normals, corners, normals,
                         [eng.scene_occ, proxy_occ], n_side=1, eps=2e-3, device=eng.device,
+                        chunk=max(16, -(-len(c) // 2)),  # two launches side by side: both cores
                         workspace=workspace(eng, "object_irradiance"))
     return obj.albedo * (G.astype(np.float64) @ B_set)
 
@@ -366,12 +367,13 @@ class PixelTable:
 def vertex_interpolation(eng: "Engine") -> VertexInterpolation:
     """The engine's VertexInterpolation of the receiver vertices' light onto the receiver pixels (made
     on first use: it depends on the scene only)."""
-    t = getattr(eng, "_ol_interpolation", None)
-    if t is None:
-        t = eng._ol_interpolation = VertexInterpolation(np.where(eng.recv_pix, eng.pix_patch, -1), eng.pix_rows,
-                                                        eng.pre.pix_bary, eng.pre.patches.n_patches,
-                                                        len(eng.pre.recv_vert), eng.device)
-    return t
+    key = (eng.pre.patches, eng.recv_pix, eng.pix_rows)
+    cached = getattr(eng, "_ol_interpolation", None)
+    if cached is None or any(a is not b for a, b in zip(cached[0], key)):
+        interp = VertexInterpolation(np.where(eng.recv_pix, eng.pix_patch, -1), eng.pix_rows, eng.pre.pix_bary,
+                                     eng.pre.patches.n_patches, len(eng.pre.recv_vert), eng.device)
+        cached = eng._ol_interpolation = (key, interp)
+    return cached[1]
 
 
 def pixel_table(eng: "Engine") -> PixelTable:
