@@ -175,7 +175,9 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi.
 
     Far from the object the reflected light varies slowly: it is evaluated at receiver vertices
-    and interpolated like the transfers, on the pixels of the patches it reaches (PixelTable).
+    and interpolated like the transfers, on the pixels of the patches it reaches (one kernel over
+    the frame, kernels.farfield.VertexInterpolation); beyond FAR_FIELD radii the proxy's triangles
+    are point emitters (kernels.farfield.point_emitter_sum).
     Within `near_factor` bounding radii of the object's centre, where it changes fast (contact,
     under a seat), it is evaluated per pixel where the upper bound of its gain exceeds a quarter
     level: exactly on an adaptive screen grid, blended between the grid's nodes where the light
