@@ -28,19 +28,44 @@ def test_refine_converges_to_the_all_sources_frame(demo):
     exact = eng.render(scene.obj, FrameConfig(passes=None))
     drag = eng.render(scene.obj, FrameConfig(passes=10))  # the frame shown while dragging
     assert _rmse(drag.pixels, exact.pixels) > 0.5  # 10 passes are visibly not the all-sources frame
-    calls = 0
+    schedule = eng.refine_schedule(scene.obj, FrameConfig(passes=10))
+    # before the all-sources frame, a frame twice as fine as the drag frame on full-size maps
+    assert [c.passes for c in schedule] == [20, None] and schedule[0].full_maps and not schedule[1].full_maps
+    calls, shown = 0, []
     while True:
         calls += 1
         fr = eng.refine(scene.obj, FrameConfig(passes=10), budget_s=0.0)  # one batch per call
         if fr is not None:
-            break
+            shown.append((calls, fr))
+            if fr.stats["exact"]:
+                break
         assert calls < 1000
-    n_batches = -(-exact.stats["passes"] // eng.params.batch)
-    # spread over calls: one batch of shadow maps each, then the shading and compositing
-    assert n_batches > 1 and calls == n_batches + 1
+    n_batches = [-(-n // eng.params.batch) for n in (20, exact.stats["passes"])]
+    # spread over calls: one batch of shadow maps each, then each frame's shading and compositing
+    assert n_batches[1] > 1 and calls == sum(n_batches) + 2
+    (c_mid, mid), (c_end, fr) = shown
+    assert c_mid == n_batches[0] + 1 and not mid.stats["exact"] and mid.stats["passes"] == 20
+    assert mid.stats["refine_frames"] == 0 and fr.stats["refine_frames"] == 1
+    # the intermediate frame is shown before the exact one and is closer to it than the drag frame
+    assert _rmse(mid.pixels, exact.pixels) < _rmse(drag.pixels, exact.pixels)
     assert _rmse(fr.pixels, exact.pixels) <= 0.05
     assert fr.stats["passes"] == exact.stats["passes"] and fr.stats["refine_calls"] == calls
     assert eng.refine(scene.obj) is fr  # converged: later calls at rest return it at once
+
+
+def test_refine_schedule_is_set_by_the_drag_budget_and_the_source_count(demo):
+    scene, eng = demo
+    listed = int(eng.shadow_sources.traverse(scene.obj.vertices.min(0), scene.obj.vertices.max(0))[0].sum())
+    for passes in (1, 10, listed // 16, listed // 16 + 1, listed):
+        sched = eng.refine_schedule(scene.obj, FrameConfig(passes=passes))
+        assert sched[-1] == FrameConfig(None)
+        # an intermediate frame only where it holds at most 1/8 of the all-sources frame's maps
+        assert len(sched) == (2 if 2 * passes <= listed / 8 else 1), (passes, listed)
+    assert eng.refine_schedule(scene.obj, FrameConfig(passes=None)) == [FrameConfig(None)]
+    assert eng.refine_schedule(scene.obj, FrameConfig(passes=10, mode="ldr"))[0].mode == "ldr"
+    # without a budget the call runs to the all-sources frame (no intermediate one is returned)
+    fr = eng.refine(moved(scene.obj, np.array([-0.3, 0.0, 0.0])), FrameConfig(passes=10))
+    assert fr.stats["exact"] and fr.stats["refine_calls"] == 1 and fr.stats["refine_frames"] == 0
 
 
 def test_refine_starts_over_when_the_pose_changes(demo):
