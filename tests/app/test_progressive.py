@@ -124,3 +124,34 @@ def test_object_shape_is_built_once_per_shape_and_refit_when_dragged(demo):
                                  normals=scene.obj.normals @ R.T)
     eng.render(turned, cfg)
     assert eng.n_shape_builds == builds + 4
+
+
+def test_placement_refine_shows_intermediate_frames_at_rest(tmp_path):
+    # the GUI's path (PlacementController.refine(intermediate=True)): the frame at rest before the
+    # all-sources one comes back unconverged and is not kept; the old contract (None until the
+    # all-sources frame) holds without intermediate
+    from app.placement import PlacementController
+
+    ctl = PlacementController.open(demo_scene_dir(), params=EngineParams(passes=10, patch_size=0.35),
+                                   cache_dir=tmp_path / "cache", quiet=True)
+    ctl.start_engine()
+    ctl.set_object(ctl.scene.obj.source)
+    drag = ctl.render()
+    assert drag.stats["budget"] == 10 and not drag.stats["converged"]
+    got = []
+    while not (got and got[-1].stats["converged"]):
+        fr = ctl.refine(budget_s=0.0, intermediate=True)
+        if fr is not None:
+            got.append(fr)
+        assert len(got) < 5
+    mid, end = got
+    assert not mid.stats["converged"] and mid.stats["passes"] == 20 and end.stats["passes"] > 20
+    kept = ctl.refine()  # at rest: the all-sources frame is kept, not the intermediate one
+    assert kept.stats["cached"] and kept.stats["converged"] and np.array_equal(kept.pixels, end.pixels)
+    ctl.move_by(0.2, 0.0)
+    ctl.render()
+    calls = 0
+    while (fr := ctl.refine(budget_s=0.0)) is None:  # intermediate frames are not returned
+        calls += 1
+        assert calls < 1000
+    assert fr.stats["converged"] and fr.stats["passes"] > 20
