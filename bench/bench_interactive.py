@@ -13,6 +13,14 @@ dropping the shafts below the 2 % threshold (photoar keeps them coarse); then a 
 --shape-cache-ab: only a drag at 50 passes (app.dragpath), each position rendered with the object's
 shape kept (proxy, shading mesh, BVHs translated and refit: Engine.shape_cache) and made afresh,
 interleaved so that both see the same machine load; prints the mean frame and shape-phase times.
+--refine: progressive refinement at rest (Engine.refine, issue 17): per scene, the rmse_affected
+against the truth and the frame time of cluster frames at 50/100/200/400 passes on the drag
+frames' maps (CLUSTER_MAP_RES) and on full-size maps (FrameConfig.full_maps, what refine's
+intermediate frame uses), next to the all-sources frame; then --repeat times, interleaved, the
+release at the object's pose (a 50-pass frame, then refine in 1/30 s slices) with refine's
+schedule and with the all-sources frame alone (the old refine): seconds from the move to the
+first frame within 0.05 rmse_affected of the all-sources frame's (converge) and to the
+all-sources frame (exact). Medians.
 --scenes picks scenes (default both shared ones).
 """
 from __future__ import annotations
@@ -108,16 +116,90 @@ def bench_shape_cache(name: str, scene_dir: Path, n: int = 12) -> None:
               f"proxy+object phases mean {1e3 * a[:, 1].mean():.0f} ms (median {1e3 * np.median(a[:, 1]):.0f})")
 
 
+def _release(eng, scene, rmse, schedule: bool) -> tuple[float, float, list]:
+    """(converge_s, exact_s, [(t_s, passes, rmse)]) of one release: a 50-pass frame at the object's
+    pose, then Engine.refine in 1/30 s slices (schedule False: the all-sources frame alone)."""
+    import time
+
+    from app.dragpath import moved
+
+    cfg = FrameConfig(passes=50)
+    eng.render(moved(scene.obj, np.array([0.1, 0.0, 0.0])), cfg)  # the drag's last frame elsewhere
+    saved = eng.refine_schedule
+    if not schedule:
+        eng.refine_schedule = lambda obj, config=None: [FrameConfig(None, cfg.mode)]
+    try:
+        t0 = time.perf_counter()
+        shown = [(time.perf_counter() - t0, eng.render(scene.obj, cfg))]
+        while True:
+            fr = eng.refine(scene.obj, cfg, budget_s=1 / 30)
+            if fr is not None:
+                shown.append((time.perf_counter() - t0, fr))
+                if fr.stats["exact"]:
+                    break
+    finally:
+        eng.refine_schedule = saved
+    out = [(t, f.stats["passes"], rmse(f.pixels)) for t, f in shown]
+    conv = next(t for t, _, r in out if r <= out[-1][2] + 0.05)
+    return conv, out[-1][0], out
+
+
+def bench_refine(name: str, scene_dir: Path, repeat: int) -> None:
+    import cv2
+
+    from app.stages.shadow_pass import CLUSTER_MAP_RES
+
+    scene = load_scene(scene_dir)
+    if not (scene_dir / "truth.png").is_file():
+        print(f"{name}: no truth.png, skipped")
+        return
+    truth = read_image_rgb(scene_dir / "truth.png")
+    mask = cv2.imread(str(scene_dir / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+
+    def rmse(px):
+        return metrics.score_regions(px, scene.photo, truth, mask)["rmse_affected"]
+
+    from app.composite import default_cache_dir
+
+    eng = Engine(scene, EngineParams(), cache_dir=default_cache_dir(), quiet=True)  # the precompute is not timed
+    eng.render(scene.obj, FrameConfig(passes=50))  # warm
+    rows = []
+    for n, full in [(50, False), (100, False), (200, False), (400, False), (50, True), (100, True), (200, True),
+                    (400, True), (None, False)]:
+        fr = eng.render(scene.obj, FrameConfig(passes=n, full_maps=full))
+        rows.append({"scene": name, "passes": "all" if n is None else n,
+                     "maps_px": eng.params.map_res if full or n is None else min(CLUSTER_MAP_RES, eng.params.map_res),
+                     "frame_s": fr.stats["frame_s"], "masks_s": fr.stats["timings"]["masks"],
+                     "rmse_affected": rmse(fr.pixels)})
+    print(table(rows, ["scene", "passes", "maps_px", "frame_s", "masks_s", "rmse_affected"]))
+    res = {True: [], False: []}
+    for k in range(repeat):
+        for sched in ((True, False) if k % 2 == 0 else (False, True)):
+            res[sched].append(_release(eng, scene, rmse, sched))
+    for sched in (False, True):
+        c = np.median([r[0] for r in res[sched]])
+        e = np.median([r[1] for r in res[sched]])
+        shown = ", ".join(f"{p} passes at {t:.2f} s rmse {r:.3f}" for t, p, r in res[sched][-1][2])
+        print(f"{name}: release at rest, {'refine schedule' if sched else 'all-sources frame alone'}: converge "
+              f"{c:.2f} s, exact {e:.2f} s (median of {repeat}); shown: {shown}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "bench_interactive")
     ap.add_argument("--scenes", default="window_room,lamps_room", help="comma-separated shared scene names")
     ap.add_argument("--shape-cache-ab", action="store_true", help="only the drag with the shape kept / made afresh")
+    ap.add_argument("--refine", action="store_true", help="only progressive refinement at rest (see above)")
+    ap.add_argument("--repeat", type=int, default=3, help="--refine: releases per variant (default 3)")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     scenes = [(n, a.shared / "scenes" / n) for n in a.scenes.split(",")
               if (a.shared / "scenes" / n / "scene.json").is_file()] or [("demo", demo_scene_dir())]
+    if a.refine:
+        for n, d in scenes:
+            bench_refine(n, d, a.repeat)
+        return
     if a.shape_cache_ab:
         for n, d in scenes:
             bench_shape_cache(n, d)
