@@ -155,3 +155,25 @@ def test_placement_refine_shows_intermediate_frames_at_rest(tmp_path):
         calls += 1
         assert calls < 1000
     assert fr.stats["converged"] and fr.stats["passes"] > 20
+    # the window's refinement at rest (app/gui.py, without a display: what the method touches) shows
+    # the intermediate frame, then the all-sources frame, and stops there
+    import types
+
+    from app.gui import PlacementWindow
+
+    class Win:
+        closed, _dirty, refined_frames, error, window = False, False, 0, None, None
+
+        def __init__(self):
+            self.ctl, self.shown = ctl, []
+            self.app = types.SimpleNamespace(post_to_main_thread=lambda window, f: f())
+
+        def _show_frame(self, fr, pose):
+            self.shown.append((fr, pose))
+
+    ctl.move_by(0.2, 0.0)
+    ctl.render()
+    win = Win()
+    PlacementWindow._refine_at_rest(win, ctl.pose)
+    assert [f.stats["converged"] for f, _ in win.shown] == [False, True] and win.refined_frames == 2
+    assert win.shown[0][0].stats["passes"] == 20 and all(p == ctl.pose for _, p in win.shown)
