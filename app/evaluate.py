@@ -180,10 +180,10 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None):
              else len(shown) - 1)
     converge_s, converge_frames = shown[first][0], shown[first][1]
     if scores is not None:
-        measures = (f"seconds from the last move (the frame at `passes` of the object's own pose) until the first frame "
-                    f"shown at rest (that frame, Engine.refine's intermediate frames, the all-sources frame) whose "
-                    f"rmse_affected against the truth is within {CONVERGE_RMSE} of the all-sources frame's; exact_s: "
-                    f"until Engine.refine returns the all-sources frame itself")
+        measures = (f"seconds from the last move (the frame at `passes` of the object's own pose) until the first "
+                    f"frame shown at rest (that frame, Engine.refine's intermediate frames, the all-sources frame) "
+                    f"whose rmse_affected against the truth is within {CONVERGE_RMSE} of the all-sources frame's; "
+                    f"exact_s: until Engine.refine returns the all-sources frame itself")
     else:
         measures = ("seconds from the last move (the frame at `passes` of the object's own pose) until Engine.refine "
                     "returns the all-sources frame of that pose (no truth to score the intermediate frames): "

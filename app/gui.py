@@ -14,8 +14,8 @@ Threads: the per-scene precompute runs in a worker thread (progress bar, window 
 responsive); frames are composited in a second worker that always renders the newest pose
 (edits made while a frame is running coalesce into one frame); while the pose rests the same
 worker refines it a slice at a time, showing each frame at rest as it comes (a finer cluster
-frame, then the all-sources frame: PlacementController.refine; the next edit interrupts it). Widgets are touched only on the main thread
-(Application.post_to_main_thread).
+frame, then the all-sources frame: PlacementController.refine; the next edit interrupts it).
+Widgets are touched only on the main thread (Application.post_to_main_thread).
 """
 from __future__ import annotations
 
