@@ -167,7 +167,9 @@ class FrameConfig:
 
 # Progressive refinement at rest (Engine.refine): before the all-sources frame, one frame of
 # REFINE_STEP times the drag frame's passes (one level of the source tree finer), when that is at
-# most REFINE_MAX_SHARE of the all-sources frame's maps (else the exact frame comes soon enough).
+# most REFINE_MAX_SHARE of the all-sources frame's maps (else the exact frame comes soon enough) and,
+# once both were timed, when it takes less time than the all-sources frame (else it would show
+# nothing sooner and only delay the exact frame).
 REFINE_STEP = 2
 REFINE_MAX_SHARE = 1 / 8
 
@@ -181,6 +183,7 @@ class _Refinement:
     steps: object  # the generator of Engine._frame_steps of the frame being made
     todo: list = field(default_factory=list)  # FrameConfigs of the frames after it (the last: all sources)
     shown: int = 0  # intermediate frames returned so far
+    stage_s: float = 0.0  # compute seconds of the frame being made (refine calls only)
     compute_s: float = 0.0  # seconds spent in refine calls on this pose
     calls: int = 0  # refine calls on this pose
     frames_seen: int = -1  # Engine._frames_started after its last step (another frame in between: restart)
@@ -239,6 +242,7 @@ class Engine:
         self.compose = self._compose_stage()  # per-scene tables and per-frame buffers of the compose stage
         self._refining: _Refinement | None = None  # refine(): the pose being refined
         self._frames_started = 0  # frames begun (render and refine): refine restarts after another
+        self._rest_s: dict[str, float] = {}  # refine's last measured compute seconds: "finer", "exact" frame
         self.room_light  # the SH volume is per-scene work too
         self.precompute_s = time.perf_counter() - t0
         if progress is not None:
@@ -381,11 +385,15 @@ class Engine:
         cost = self._cost  # gaps between calls must not enter the --fps cost model
         st.calls += 1
         out = None
+        mark = t0
         try:
             while True:
                 try:
                     next(st.steps)
                 except StopIteration as done:
+                    now = time.perf_counter()
+                    self._rest_s["finer" if st.todo else "exact"] = st.stage_s + now - mark  # refine_schedule's
+                    st.stage_s, mark = 0.0, now
                     if not st.todo:
                         st.frame = out = done.value
                         break
@@ -403,7 +411,9 @@ class Engine:
             raise
         finally:
             self._cost = cost
-            st.compute_s += time.perf_counter() - t0
+            now = time.perf_counter()
+            st.compute_s += now - t0
+            st.stage_s += now - mark
             st.frames_seen = self._frames_started
         if out is st.frame and out is not None:
             out.stats.update(exact=True, refine_frames=st.shown)
@@ -417,11 +427,16 @@ class Engine:
         REFINE_STEP x that many passes on maps of the all-sources size, if that is at most
         REFINE_MAX_SHARE of the pose's listed sources (a cluster frame that fine is within a few
         hundredths of the all-sources rmse on the benchmark rooms and costs a fraction of it;
-        bench/bench_interactive.py --refine measures both). Per pose: a traversal of the shafts
-        with the object's box (no per-scene work)."""
+        bench/bench_interactive.py --refine measures both), and unless the last such frame refine
+        made took at least the time of the last all-sources frame it made (then it would show no
+        quality sooner, only delay the exact frame). Per pose: a traversal of the shafts with the
+        object's box (no per-scene work)."""
         config = config or self.frame_config()
         out = [FrameConfig(None, config.mode)]
         if config.passes is None or self.shadow_sources.empty:
+            return out
+        t = self._rest_s
+        if "finer" in t and "exact" in t and t["finer"] >= t["exact"]:
             return out
         n = REFINE_STEP * config.passes
         listed = int(self.shadow_sources.traverse(obj.vertices.min(0), obj.vertices.max(0))[0].sum())

@@ -62,6 +62,16 @@ def test_refine_schedule_is_set_by_the_drag_budget_and_the_source_count(demo):
         # an intermediate frame only where it holds at most 1/8 of the all-sources frame's maps
         assert len(sched) == (2 if 2 * passes <= listed / 8 else 1), (passes, listed)
     assert eng.refine_schedule(scene.obj, FrameConfig(passes=None)) == [FrameConfig(None)]
+    # once timed: no finer frame when it took as long as the all-sources frame (it would show nothing sooner)
+    saved = dict(eng._rest_s)
+    assert set(saved) == {"finer", "exact"} and 0 < saved["finer"] < saved["exact"]  # refine timed both
+    try:
+        eng._rest_s.update(finer=1.0, exact=1.0)
+        assert eng.refine_schedule(scene.obj, FrameConfig(passes=10)) == [FrameConfig(None)]
+        eng._rest_s.update(finer=0.9)
+        assert len(eng.refine_schedule(scene.obj, FrameConfig(passes=10))) == 2
+    finally:
+        eng._rest_s.update(saved)
     assert eng.refine_schedule(scene.obj, FrameConfig(passes=10, mode="ldr"))[0].mode == "ldr"
     # without a budget the call runs to the all-sources frame (no intermediate one is returned)
     fr = eng.refine(moved(scene.obj, np.array([-0.3, 0.0, 0.0])), FrameConfig(passes=10))
