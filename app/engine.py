@@ -363,7 +363,7 @@ class Engine:
         for about `budget_s` seconds (None: to the end). config.passes is the budget of the frame
         shown while dragging (it sets the intermediate frames; None: none). Returns a frame as soon
         as one is complete: an intermediate frame (stats["exact"] False; with budget_s None none is
-        returned, the call runs on), or the all-sources frame (stats["exact"] True, again at once on
+        made, the call goes straight on to the all-sources frame), or the all-sources frame (stats["exact"] True, again at once on
         later calls for the same pose); None when the call completed no frame. A call for another
         pose or mode starts over, and so does a call after another frame was rendered in between (it
         re-aims the shared shadow maps and BVHs). Its stats add refine_s (compute in refine calls so
@@ -381,6 +381,8 @@ class Engine:
             self._refining = st = _Refinement(key, self._frame_steps(obj, first), todo)
         if st.frame is not None:
             return st.frame
+        if budget_s is None and st.todo:  # to the end: no intermediate frame would be shown, skip them
+            st.steps, st.todo = self._frame_steps(obj, st.todo[-1]), []
         t0 = time.perf_counter()
         cost = self._cost  # gaps between calls must not enter the --fps cost model
         st.calls += 1

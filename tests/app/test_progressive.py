@@ -73,9 +73,17 @@ def test_refine_schedule_is_set_by_the_drag_budget_and_the_source_count(demo):
     finally:
         eng._rest_s.update(saved)
     assert eng.refine_schedule(scene.obj, FrameConfig(passes=10, mode="ldr"))[0].mode == "ldr"
-    # without a budget the call runs to the all-sources frame (no intermediate one is returned)
+    # without a budget the call runs to the all-sources frame (no intermediate one is made), also when one
+    # was under way
+    starts = eng._frames_started
     fr = eng.refine(moved(scene.obj, np.array([-0.3, 0.0, 0.0])), FrameConfig(passes=10))
     assert fr.stats["exact"] and fr.stats["refine_calls"] == 1 and fr.stats["refine_frames"] == 0
+    assert eng._frames_started == starts + 1
+    other = moved(scene.obj, np.array([-0.6, 0.0, 0.0]))
+    assert eng.refine(other, FrameConfig(passes=10), budget_s=0.0) is None  # the finer frame begun
+    fr = eng.refine(other, FrameConfig(passes=10))
+    assert fr.stats["exact"] and fr.stats["refine_frames"] == 0
+    assert _rmse(fr.pixels, eng.render(other, FrameConfig(passes=None)).pixels) <= 0.05
 
 
 def test_refine_starts_over_when_the_pose_changes(demo):
