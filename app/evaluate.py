@@ -28,6 +28,8 @@ import numpy as np
 
 log = logging.getLogger("photoar")
 
+CONVERGE_RMSE = 0.05  # levels: "all-source quality" (issue 17): rmse_affected within this of the all-sources frame's
+
 
 def parse_passes(text: str) -> list[int | None]:
     """'10,20,50,all' -> [10, 20, 50, None]."""
@@ -199,9 +201,6 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None):
                         **({"rmse_affected": scores[i]} if scores is not None else {})}
                        for i, (t, _, f) in enumerate(shown)]}
     return entry, done
-
-
-CONVERGE_RMSE = 0.05  # levels: "all-source quality" (issue 17): rmse_affected within this of the all-sources frame's
 
 
 def register(sub) -> None:
