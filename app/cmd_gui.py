@@ -45,7 +45,8 @@ def register(sub) -> None:
     add_object_args(g)
     g.add_argument("--passes", type=_positive_int, default=50,
                    help="shadow passes per frame while the object moves (default %(default)s; the window's slider "
-                        "changes it); at rest the frame is refined to all sources")
+                        "changes it); at rest the window shows a frame of twice as many passes, then the "
+                        "all-sources frame (Engine.refine)")
     g.add_argument("--all-sources", action="store_true", help="one shadow pass per source (slow)")
     g.add_argument("--mode", choices=["hdr", "ldr"], default="hdr", help="compositing path (default %(default)s)")
     g.add_argument("--screenshot", type=Path, default=None,

@@ -157,18 +157,33 @@ class FrameConfig:
     passes: int | None = None  # shadow maps per frame (None = one per source, the all-sources frame)
     mode: Mode = "hdr"  # hdr: T(L_b - eps); ldr: I_b - sum S_ij M_ij
     fps: float | None = None  # target frame rate: passes from the measured per-pass cost (passes caps it)
+    full_maps: bool = False  # cluster maps at the all-sources map size (EngineParams.map_res), not the drag
+    # frames' smaller one: Engine.refine's intermediate frames at rest (hard lamp shadows need it)
 
     def __post_init__(self):
         _check_literals(self)
         _check_frame(self.passes, self.fps)
 
 
+# Progressive refinement at rest (Engine.refine): before the all-sources frame, one frame of
+# REFINE_STEP times the drag frame's passes (one level of the source tree finer), when that is at
+# most REFINE_MAX_SHARE of the all-sources frame's maps (else the exact frame comes soon enough) and,
+# once both were timed, when it takes less time than the all-sources frame (else it would show
+# nothing sooner and only delay the exact frame).
+REFINE_STEP = 2
+REFINE_MAX_SHARE = 1 / 8
+
+
 @dataclass
 class _Refinement:
-    """Engine.refine's state: the all-sources frame of one pose, composited a batch at a time."""
+    """Engine.refine's state: the frames of one pose at rest (refine_schedule), each composited a
+    batch at a time, the last the all-sources frame."""
 
     key: tuple  # (pose key, mode)
-    steps: object  # the generator of Engine._frame_steps
+    steps: object  # the generator of Engine._frame_steps of the frame being made
+    todo: list = field(default_factory=list)  # FrameConfigs of the frames after it (the last: all sources)
+    shown: int = 0  # intermediate frames returned so far
+    stage_s: float = 0.0  # compute seconds of the frame being made (refine calls only)
     compute_s: float = 0.0  # seconds spent in refine calls on this pose
     calls: int = 0  # refine calls on this pose
     frames_seen: int = -1  # Engine._frames_started after its last step (another frame in between: restart)
@@ -227,6 +242,7 @@ class Engine:
         self.compose = self._compose_stage()  # per-scene tables and per-frame buffers of the compose stage
         self._refining: _Refinement | None = None  # refine(): the pose being refined
         self._frames_started = 0  # frames begun (render and refine): refine restarts after another
+        self._rest_s: dict[str, float] = {}  # refine's last measured compute seconds: "finer", "exact" frame
         self.room_light  # the SH volume is per-scene work too
         self.precompute_s = time.perf_counter() - t0
         if progress is not None:
@@ -342,12 +358,18 @@ class Engine:
 
     def refine(self, obj: SceneObject, config: FrameConfig | None = None, budget_s: float | None = None
                ) -> Frame | None:
-        """Progressive refinement at rest: advance the all-sources frame of this pose (config's mode;
-        its passes are ignored) by batches of shadow maps for about `budget_s` seconds (None: to the
-        end). Returns that frame once every source is in (again at once on later calls for the same
-        pose), None before. A call for another pose or mode starts over, and so does a call after
-        another frame was rendered in between (it re-aims the shared shadow maps and BVHs). Its stats add refine_s (compute in refine calls) and refine_calls."""
-        cfg = FrameConfig(None, (config or self.frame_config()).mode)  # every source, no --fps budget
+        """Progressive refinement at rest: advance the frames of this pose at rest (refine_schedule:
+        intermediate frames, then the all-sources frame in config's mode) by batches of shadow maps
+        for about `budget_s` seconds (None: to the end). config.passes is the budget of the frame
+        shown while dragging (it sets the intermediate frames; None: none). Returns a frame as soon
+        as one is complete: an intermediate frame (stats["exact"] False; with budget_s None none is
+        made, the call goes straight on to the all-sources frame), or the all-sources frame (stats["exact"] True, again at once on
+        later calls for the same pose); None when the call completed no frame. A call for another
+        pose or mode starts over, and so does a call after another frame was rendered in between (it
+        re-aims the shared shadow maps and BVHs). Its stats add refine_s (compute in refine calls so
+        far), refine_calls and refine_frames (intermediate frames returned before it)."""
+        config = config or self.frame_config()
+        cfg = FrameConfig(None, config.mode)  # every source, no --fps budget
         key = (_pose_key(obj), cfg.mode)
         st = self._refining
         if st is not None and st.frame is None and st.frames_seen not in (-1, self._frames_started):
@@ -355,19 +377,35 @@ class Engine:
             # BVHs at its own pose, so this one starts over
             st = None
         if st is None or st.key != key:
-            self._refining = st = _Refinement(key, self._frame_steps(obj, cfg))
+            first, *todo = self.refine_schedule(obj, config)
+            self._refining = st = _Refinement(key, self._frame_steps(obj, first), todo)
         if st.frame is not None:
             return st.frame
+        if budget_s is None and st.todo:  # to the end: no intermediate frame would be shown, skip them
+            st.steps, st.todo = self._frame_steps(obj, st.todo[-1]), []
         t0 = time.perf_counter()
         cost = self._cost  # gaps between calls must not enter the --fps cost model
         st.calls += 1
+        out = None
+        mark = t0
         try:
             while True:
                 try:
                     next(st.steps)
                 except StopIteration as done:
-                    st.frame = done.value
-                    break
+                    now = time.perf_counter()
+                    self._rest_s["finer" if st.todo else "exact"] = st.stage_s + now - mark  # refine_schedule's
+                    st.stage_s, mark = 0.0, now
+                    if not st.todo:
+                        st.frame = out = done.value
+                        break
+                    st.steps = self._frame_steps(obj, st.todo.pop(0))  # the next frame of the schedule
+                    if budget_s is not None:  # show the intermediate frame now
+                        out = done.value
+                        out.stats.update(exact=False, refine_frames=st.shown)
+                        st.shown += 1
+                        break
+                    continue
                 if budget_s is not None and time.perf_counter() - t0 >= budget_s:
                     break
         except BaseException:
@@ -375,11 +413,38 @@ class Engine:
             raise
         finally:
             self._cost = cost
-            st.compute_s += time.perf_counter() - t0
+            now = time.perf_counter()
+            st.compute_s += now - t0
+            st.stage_s += now - mark
             st.frames_seen = self._frames_started
-        if st.frame is not None:
-            st.frame.stats.update(refine_s=st.compute_s, refine_calls=st.calls)
-        return st.frame
+        if out is st.frame and out is not None:
+            out.stats.update(exact=True, refine_frames=st.shown)
+        if out is not None:
+            out.stats.update(refine_s=st.compute_s, refine_calls=st.calls)
+        return out
+
+    def refine_schedule(self, obj: SceneObject, config: FrameConfig | None = None) -> list[FrameConfig]:
+        """The frames Engine.refine makes of `obj`'s pose at rest, in order: the last is the
+        all-sources frame; before it, when the drag budget config.passes is set, a frame of
+        REFINE_STEP x that many passes on maps of the all-sources size, if that is at most
+        REFINE_MAX_SHARE of the pose's listed sources (a cluster frame that fine is within a few
+        hundredths of the all-sources rmse on the benchmark rooms and costs a fraction of it;
+        bench/bench_interactive.py --refine measures both), and unless the last such frame refine
+        made took at least the time of the last all-sources frame it made (then it would show no
+        quality sooner, only delay the exact frame). Per pose: a traversal of the shafts with the
+        object's box (no per-scene work)."""
+        config = config or self.frame_config()
+        out = [FrameConfig(None, config.mode)]
+        if config.passes is None or self.shadow_sources.empty:
+            return out
+        t = self._rest_s
+        if "finer" in t and "exact" in t and t["finer"] >= t["exact"]:
+            return out
+        n = REFINE_STEP * config.passes
+        listed = int(self.shadow_sources.traverse(obj.vertices.min(0), obj.vertices.max(0))[0].sum())
+        if n <= REFINE_MAX_SHARE * listed:
+            out.insert(0, FrameConfig(n, config.mode, full_maps=True))
+        return out
 
     def _frame_steps(self, obj: SceneObject, config: FrameConfig):
         """render()'s work as a generator: yields after each batch of shadow maps, returns the Frame."""
@@ -421,7 +486,7 @@ class Engine:
         n_src = len(eyes)
         masks = yield from self.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov, cand, eyes,
                                                 S_v if p.mode == "ldr" else W_v, W_c, fs.n_listed == n_src,
-                                                spread=fs.spread)
+                                                spread=fs.spread, full_maps=config.full_maps)
         pix_sel, fill_sel, cen_sel, O_pix, O_cen = (masks.pix_sel, masks.fill_sel, masks.cen_sel, masks.O_pix,
                                                     masks.O_cen)
         t = tick("masks", t)

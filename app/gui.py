@@ -13,9 +13,9 @@ arrow keys slide 5 cm along world x/z, Z undo, Y redo.
 Threads: the per-scene precompute runs in a worker thread (progress bar, window stays
 responsive); frames are composited in a second worker that always renders the newest pose
 (edits made while a frame is running coalesce into one frame); while the pose rests the same
-worker refines it to the all-sources frame a slice at a time (PlacementController.refine; the
-next edit interrupts it). Widgets are touched only on the main thread
-(Application.post_to_main_thread).
+worker refines it a slice at a time, showing each frame at rest as it comes (a finer cluster
+frame, then the all-sources frame: PlacementController.refine; the next edit interrupts it).
+Widgets are touched only on the main thread (Application.post_to_main_thread).
 """
 from __future__ import annotations
 
@@ -199,6 +199,7 @@ class PlacementWindow:
         self.object_size = object_size
         self.choices = list(dict.fromkeys(mesh_choices))
         self.frames_shown = 0
+        self.refined_frames = 0  # frames at rest shown by _refine_at_rest (intermediate and all-sources)
         self.last_frame = None  # FrameResult on display
         self.frame_times: list[float] = []  # seconds per engine frame (not kept ones)
         self.error: str | None = None
@@ -389,17 +390,20 @@ class PlacementWindow:
 
     def _refine_at_rest(self, pose: Pose) -> None:
         """While `pose` is the current one and no edit is waiting, add sources a slice at a time;
-        show the all-sources frame when it is complete."""
+        show each frame at rest as it is complete (Engine.refine's intermediate frames, then the
+        all-sources frame)."""
         while not self.closed and not self._dirty and pose == self.ctl.pose:
             try:
-                fr = self.ctl.refine(pose, budget_s=REFINE_SLICE_S)
+                fr = self.ctl.refine(pose, budget_s=REFINE_SLICE_S, intermediate=True)
             except Exception as e:  # noqa: BLE001 - an engine error must not kill the window
                 log.exception("refinement failed")
                 self.error = f"refinement failed: {e}"
                 return
             if fr is not None:
+                self.refined_frames += 1
                 self.app.post_to_main_thread(self.window, lambda fr=fr, pose=pose: self._show_frame(fr, pose))
-                return
+                if fr.stats["converged"]:
+                    return
 
     # ------------------------------------------------------------------ showing
     def _show_frame(self, fr, pose: Pose) -> None:

@@ -539,11 +539,14 @@ class PlacementController:
         self._frames.move_to_end(key)
         return FrameResult(fr.pixels, fr.radiance, {**fr.stats, "cached": True, "frame_s": time.perf_counter() - t0})
 
-    def refine(self, pose: Pose | None = None, budget_s: float | None = None) -> FrameResult | None:
+    def refine(self, pose: Pose | None = None, budget_s: float | None = None,
+               intermediate: bool = False) -> FrameResult | None:
         """At rest: advance the all-sources frame of `pose` (default: the current one) for about
         `budget_s` seconds (None: to the end) and return it once every source is in, else None.
-        The finished frame is kept like any other (budget None), so later calls return it at once.
-        stats as render's, with converged True and engine_s the refinement's compute time."""
+        intermediate: also return Engine.refine's intermediate frames as they come (converged
+        False; the drag budget sets them, Engine.refine_schedule). The finished frame is kept like
+        any other (budget None), so later calls return it at once. stats as render's, with
+        converged True and engine_s the refinement's compute time."""
         t0 = time.perf_counter()
         with self._lock:
             eng = self.engine
@@ -558,14 +561,17 @@ class PlacementController:
         obj = self.scene_object(pose)
         if obj is None:  # the photo itself: nothing to refine
             return self.render(pose)
-        f = eng.refine(obj, cfg, budget_s)
-        if f is None:
+        f = eng.refine(obj, replace(self.config, fps=None), budget_s)  # the drag budget sets the frames at rest
+        if f is None or not (f.stats["exact"] or intermediate):
             return None
         fr = FrameResult(f.pixels, f.radiance, {"passes": f.stats["passes"], "engine_s": f.stats["refine_s"],
                                                 "timings": f.stats.get("timings", {}), "mode": cfg.mode,
-                                                "budget": None, "converged": True})
+                                                "budget": None, "converged": bool(f.stats["exact"])})
         fr.pixels.setflags(write=False)
         fr.radiance.setflags(write=False)
+        if not f.stats["exact"]:  # an intermediate frame: shown, not kept
+            return FrameResult(fr.pixels, fr.radiance, {**fr.stats, "cached": False,
+                                                        "frame_s": time.perf_counter() - t0})
         with self._lock:
             self._frames[key] = fr
             while len(self._frames) > self._frame_cache:

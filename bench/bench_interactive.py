@@ -13,6 +13,17 @@ dropping the shafts below the 2 % threshold (photoar keeps them coarse); then a 
 --shape-cache-ab: only a drag at 50 passes (app.dragpath), each position rendered with the object's
 shape kept (proxy, shading mesh, BVHs translated and refit: Engine.shape_cache) and made afresh,
 interleaved so that both see the same machine load; prints the mean frame and shape-phase times.
+--refine: progressive refinement at rest (Engine.refine, issue 17): per scene, the rmse_affected
+against the truth and the frame time of cluster frames at 50/100/200/400 passes on the drag
+frames' maps (CLUSTER_MAP_RES) and on full-size maps (FrameConfig.full_maps, what refine's
+intermediate frame uses), next to the all-sources frame; then --repeat times, interleaved, the
+release at the object's pose (a 50-pass frame, then refine in 1/30 s slices) with refine's
+schedule and with the all-sources frame alone (the old refine): seconds from the move to the
+first frame within 0.05 rmse_affected of the all-sources frame's (converge) and to the
+all-sources frame (exact). Medians.
+--refine-hybrid: the other design of progressive refinement, frames exact for the sources done and
+clustered for the rest, in its intermediate state: the K sources of the largest blocked-light key
+with a map each and the rest in C clusters (full-size maps), against C' clusters alone.
 --scenes picks scenes (default both shared ones).
 """
 from __future__ import annotations
@@ -108,16 +119,160 @@ def bench_shape_cache(name: str, scene_dir: Path, n: int = 12) -> None:
               f"proxy+object phases mean {1e3 * a[:, 1].mean():.0f} ms (median {1e3 * np.median(a[:, 1]):.0f})")
 
 
+def _release(eng, scene, rmse, schedule: bool) -> tuple[float, float, list]:
+    """(converge_s, exact_s, [(t_s, passes, rmse)]) of one release: a 50-pass frame at the object's
+    pose, then Engine.refine in 1/30 s slices (schedule False: the all-sources frame alone)."""
+    import time
+
+    from app.dragpath import moved
+
+    cfg = FrameConfig(passes=50)
+    eng.render(moved(scene.obj, np.array([0.1, 0.0, 0.0])), cfg)  # the drag's last frame elsewhere
+    saved = eng.refine_schedule
+    eng._refining = None  # a finished refinement of this pose would be returned at once
+    if not schedule:
+        eng.refine_schedule = lambda obj, config=None: [FrameConfig(None, cfg.mode)]
+    try:
+        t0 = time.perf_counter()
+        release = eng.render(scene.obj, cfg)
+        shown = [(time.perf_counter() - t0, release)]
+        while True:
+            fr = eng.refine(scene.obj, cfg, budget_s=1 / 30)
+            if fr is not None:
+                shown.append((time.perf_counter() - t0, fr))
+                if fr.stats["exact"]:
+                    break
+    finally:
+        eng.refine_schedule = saved
+    out = [(t, f.stats["passes"], rmse(f.pixels)) for t, f in shown]
+    conv = next(t for t, _, r in out if r <= out[-1][2] + 0.05)
+    return conv, out[-1][0], out
+
+
+def bench_refine(name: str, scene_dir: Path, repeat: int) -> None:
+    import cv2
+
+    from app.stages.shadow_pass import CLUSTER_MAP_RES
+
+    scene = load_scene(scene_dir)
+    if not (scene_dir / "truth.png").is_file():
+        print(f"{name}: no truth.png, skipped")
+        return
+    truth = read_image_rgb(scene_dir / "truth.png")
+    mask = cv2.imread(str(scene_dir / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+
+    def rmse(px):
+        return metrics.score_regions(px, scene.photo, truth, mask)["rmse_affected"]
+
+    from app.composite import default_cache_dir
+
+    eng = Engine(scene, EngineParams(), cache_dir=default_cache_dir(), quiet=True)  # the precompute is not timed
+    eng.render(scene.obj, FrameConfig(passes=50))  # warm
+    rows = []
+    for n, full in [(50, False), (100, False), (200, False), (400, False), (100, True), (200, True), (400, True),
+                    (None, False)]:
+        fr = eng.render(scene.obj, FrameConfig(passes=n, full_maps=full))
+        rows.append({"scene": name, "passes": "all" if n is None else n,
+                     "maps_px": eng.params.map_res if full or n is None else min(CLUSTER_MAP_RES, eng.params.map_res),
+                     "frame_s": fr.stats["frame_s"], "masks_s": fr.stats["timings"]["masks"],
+                     "rmse_affected": rmse(fr.pixels)})
+    print(table(rows, ["scene", "passes", "maps_px", "frame_s", "masks_s", "rmse_affected"]))
+    res = {True: [], False: []}
+    for k in range(repeat):
+        for sched in ((True, False) if k % 2 == 0 else (False, True)):
+            res[sched].append(_release(eng, scene, rmse, sched))
+    for sched in (False, True):
+        c = np.median([r[0] for r in res[sched]])
+        e = np.median([r[1] for r in res[sched]])
+        shown = ", ".join(f"{p} passes at {t:.2f} s rmse {r:.3f}" for t, p, r in res[sched][-1][2])
+        print(f"{name}: release at rest, {'refine schedule' if sched else 'all-sources frame alone'}: converge "
+              f"{c:.2f} s, exact {e:.2f} s (median of {repeat}); shown: {shown}")
+
+
+def _hybrid_select(ss, K: int, C: int):
+    """A ShadowSources.select stand-in: the K marked sources of the largest blocked_key one pass each,
+    the other marked ones in C representatives (receiver pairs: every pair of a receiver some pass
+    of the all-sources list can shadow)."""
+    from lighting.frame_sources import BOX_GRID_M, FrameSources, _column_transfers
+
+    orig = ss.select
+
+    def select(box_min, box_max, passes):
+        full = orig(box_min, box_max, None)
+        lo_b = np.floor(np.asarray(box_min, np.float64) / BOX_GRID_M) * BOX_GRID_M
+        hi_b = np.ceil(np.asarray(box_max, np.float64) / BOX_GRID_M) * BOX_GRID_M
+        marked = ss.traverse(lo_b, hi_b)[0]
+        key = ss.blocked_key(lo_b, hi_b)
+        pos = np.flatnonzero(marked)
+        top = pos[np.argsort(-key[pos])[:K]]
+        rest = marked.copy()
+        rest[top] = False
+        nodes = ss.representatives(rest, C, key)
+        lo, hi = ss.src_tree.lo[nodes], ss.src_tree.hi[nodes]
+        rpos = np.flatnonzero(rest)
+        starts = np.searchsorted(rpos, lo)
+        wv, wc = ss.weights(lo, hi, rest)
+        eyes = ss.eyes(starts, rpos, key)
+        spread = ss.spread(starts, rpos, key, eyes, 0.5 * (lo_b + hi_b))
+        ids = ss.src_ids[top]
+        b = ss.B[ids].astype(np.float32)
+        n = len(ids) + len(nodes)
+        cand = np.repeat(full.cand.any(1, keepdims=True), n, axis=1)
+        return FrameSources(np.concatenate([ss.eye_pos[ids], eyes]),
+                            np.concatenate([_column_transfers(ss.G_v, ids, b), wv], 1),
+                            np.concatenate([_column_transfers(ss.G_c, ids, b), wc], 1), cand, full.n_listed,
+                            full.n_receivers, np.concatenate([np.zeros((len(ids), 2, 3)), spread]))
+    return select
+
+
+def bench_refine_hybrid(name: str, scene_dir: Path) -> None:
+    import cv2
+
+    from app.composite import default_cache_dir
+
+    scene = load_scene(scene_dir)
+    if not (scene_dir / "truth.png").is_file():
+        print(f"{name}: no truth.png, skipped")
+        return
+    truth = read_image_rgb(scene_dir / "truth.png")
+    mask = cv2.imread(str(scene_dir / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+    eng = Engine(scene, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
+    eng.render(scene.obj, FrameConfig(passes=50))  # warm
+    ss, rows = eng.shadow_sources, []
+    for K, C in ((50, 50), (100, 50), (200, 50), (0, 100)):
+        ss.select = _hybrid_select(ss, K, C)
+        try:
+            fr = eng.render(scene.obj, FrameConfig(passes=K + C, full_maps=True))
+        finally:
+            del ss.select  # the class's own again
+        s = metrics.score_regions(fr.pixels, scene.photo, truth, mask)
+        rows.append({"scene": name, "exact": K, "clusters": C, "frame_s": fr.stats["frame_s"],
+                     "masks_s": fr.stats["timings"]["masks"], "rmse_affected": s["rmse_affected"],
+                     "energy": s["energy_ratio"]})
+    print(table(rows, ["scene", "exact", "clusters", "frame_s", "masks_s", "rmse_affected", "energy"]))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "bench_interactive")
     ap.add_argument("--scenes", default="window_room,lamps_room", help="comma-separated shared scene names")
     ap.add_argument("--shape-cache-ab", action="store_true", help="only the drag with the shape kept / made afresh")
+    ap.add_argument("--refine", action="store_true", help="only progressive refinement at rest (see above)")
+    ap.add_argument("--repeat", type=int, default=3, help="--refine: releases per variant (default 3)")
+    ap.add_argument("--refine-hybrid", action="store_true", help="only the exact-plus-clusters frames (see above)")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     scenes = [(n, a.shared / "scenes" / n) for n in a.scenes.split(",")
               if (a.shared / "scenes" / n / "scene.json").is_file()] or [("demo", demo_scene_dir())]
+    if a.refine_hybrid:
+        for n, d in scenes:
+            bench_refine_hybrid(n, d)
+        return
+    if a.refine:
+        for n, d in scenes:
+            bench_refine(n, d, a.repeat)
+        return
     if a.shape_cache_ab:
         for n, d in scenes:
             bench_shape_cache(n, d)

@@ -116,7 +116,7 @@ class ShadowPass:
     # ------------------------------------------------------------------ per frame
     def run(self, proxy: tuple[np.ndarray, np.ndarray, Occluder | None], centre: np.ndarray, radius: float,
             coverage: np.ndarray, cand: np.ndarray, eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray,
-            per_source: bool = True, spread: np.ndarray | None = None):
+            per_source: bool = True, spread: np.ndarray | None = None, full_maps: bool = False):
         """The frame's masks, as a generator: yields the sources done after each batch of maps
         (Engine.refine may pause there) and returns the Masks.
 
@@ -126,11 +126,12 @@ class ShadowPass:
         or LDR intensity), W_c (P,S,3) patch-centre transfers; per_source: one map per source
         (maps of map_res), else maps of clusters (cluster_map_res); spread (S,2,3) m: each
         cluster's half-axes across its view (FrameSources.spread), whose penumbra a cluster map's lookup filters by
-        (kernels.composite.penumbra; ignored with per_source, whose maps keep the hard lookup)."""
+        (kernels.composite.penumbra; ignored with per_source, whose maps keep the hard lookup);
+        full_maps: cluster maps of map_res too (Engine.refine's frames at rest)."""
         pix_pt, fill_pt, cen = self._select(centre, radius, coverage, cand)
         R = self.n_pix_points
         self.sums.select(np.concatenate([pix_pt, R + cen]))
-        self.maps = self.maps_full if per_source else self.maps_cluster
+        self.maps = self.maps_full if per_source or full_maps else self.maps_cluster
         self.maps.set_proxy(proxy[0], proxy[1], proxy[2])
         n_src, dev = len(eyes), self.device
         for first in tqdm(range(0, n_src, self.batch), desc="shadow passes", unit="batch", leave=False,

@@ -50,6 +50,37 @@ def test_evaluate_path_and_stage_table(tmp_path):
     assert ev["converge_s"] == p["converge_s"] > 0 and p["converge_frames"] > 1
     assert 0 < p["release_frame_s"] < p["converge_s"] and "all-sources frame" in p["converge_measures"]
     assert p["converge_rmse_vs_all"] <= 0.05
+    # no truth.png: converge_s is the time to the exact all-sources frame, after the frames shown at rest
+    assert ev["exact_s"] == p["exact_s"] == p["converge_s"] == p["shown"][-1]["t_s"]
+    assert [s["exact"] for s in p["shown"]] == [False] * (len(p["shown"]) - 1) + [True]
+    assert "rmse_affected" not in p["shown"][0] and "no truth" in p["converge_measures"]
+
+
+def test_evaluate_reaches_all_source_quality_before_the_exact_frame(shared_scenes_cache, tmp_path, capsys):
+    # window_room has a truth: converge_s is the time to the first frame at rest within 0.05 rmse_affected
+    # of the all-sources frame's, exact_s the time to the all-sources frame itself (Engine.refine's last)
+    from tests.conftest import shared_scene
+
+    out = tmp_path / "eval"
+    assert main(["-q", "evaluate", str(shared_scene("window_room")), "--passes", "50,all", "--path", "2",
+                 "--out", str(out), "--cache", str(shared_scenes_cache)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("path of"))
+    ev = json.loads((out / "evaluation.json").read_text())
+    p, shown = ev["path"], ev["path"]["shown"]
+    assert f"all-source quality after {p['converge_s']:.2f} s" in line and f"after {p['exact_s']:.2f} s" in line
+    assert [s["exact"] for s in shown] == [False, False, True]  # the release frame, refine's finer frame, all sources
+    assert [s["passes"] for s in shown[:2]] == [50, 100] and shown[2]["passes"] == ev["rows"][1]["n_passes"]
+    t = [s["t_s"] for s in shown]
+    assert 0 < p["release_frame_s"] <= t[0] < t[1] < t[2]
+    # refine ends in the all-sources frame: its score is the "all" row's
+    assert p["converge_rmse_vs_all"] <= 0.05
+    assert shown[2]["rmse_affected"] == pytest.approx(ev["rows"][1]["rmse_affected"], abs=0.01)
+    # the finer frame is closer to the truth than the release frame and within 0.05 of the all-sources frame:
+    # all-source quality is reached there, before the exact frame
+    assert shown[1]["rmse_affected"] < shown[0]["rmse_affected"] - 0.05
+    assert shown[1]["rmse_affected"] <= shown[2]["rmse_affected"] + 0.05
+    assert ev["converge_s"] == p["converge_s"] == t[1] < p["exact_s"] == ev["exact_s"] == t[2]
+    assert p["converge_frames"] < p["exact_frames"] and "within 0.05" in p["converge_measures"]
 
 
 def test_path_counts_precompute_inside_the_drag(tmp_path):

@@ -28,19 +28,62 @@ def test_refine_converges_to_the_all_sources_frame(demo):
     exact = eng.render(scene.obj, FrameConfig(passes=None))
     drag = eng.render(scene.obj, FrameConfig(passes=10))  # the frame shown while dragging
     assert _rmse(drag.pixels, exact.pixels) > 0.5  # 10 passes are visibly not the all-sources frame
-    calls = 0
+    schedule = eng.refine_schedule(scene.obj, FrameConfig(passes=10))
+    # before the all-sources frame, a frame twice as fine as the drag frame on full-size maps
+    assert [c.passes for c in schedule] == [20, None] and schedule[0].full_maps and not schedule[1].full_maps
+    calls, shown = 0, []
     while True:
         calls += 1
         fr = eng.refine(scene.obj, FrameConfig(passes=10), budget_s=0.0)  # one batch per call
         if fr is not None:
-            break
+            shown.append((calls, fr))
+            if fr.stats["exact"]:
+                break
         assert calls < 1000
-    n_batches = -(-exact.stats["passes"] // eng.params.batch)
-    # spread over calls: one batch of shadow maps each, then the shading and compositing
-    assert n_batches > 1 and calls == n_batches + 1
+    n_batches = [-(-n // eng.params.batch) for n in (20, exact.stats["passes"])]
+    # spread over calls: one batch of shadow maps each, then each frame's shading and compositing
+    assert n_batches[1] > 1 and calls == sum(n_batches) + 2
+    (c_mid, mid), (c_end, fr) = shown
+    assert c_mid == n_batches[0] + 1 and not mid.stats["exact"] and mid.stats["passes"] == 20
+    assert mid.stats["refine_frames"] == 0 and fr.stats["refine_frames"] == 1
+    # the intermediate frame is shown before the exact one and is closer to it than the drag frame
+    assert _rmse(mid.pixels, exact.pixels) < _rmse(drag.pixels, exact.pixels)
     assert _rmse(fr.pixels, exact.pixels) <= 0.05
     assert fr.stats["passes"] == exact.stats["passes"] and fr.stats["refine_calls"] == calls
     assert eng.refine(scene.obj) is fr  # converged: later calls at rest return it at once
+
+
+def test_refine_schedule_is_set_by_the_drag_budget_and_the_source_count(demo):
+    scene, eng = demo
+    listed = int(eng.shadow_sources.traverse(scene.obj.vertices.min(0), scene.obj.vertices.max(0))[0].sum())
+    for passes in (1, 10, listed // 16, listed // 16 + 1, listed):
+        sched = eng.refine_schedule(scene.obj, FrameConfig(passes=passes))
+        assert sched[-1] == FrameConfig(None)
+        # an intermediate frame only where it holds at most 1/8 of the all-sources frame's maps
+        assert len(sched) == (2 if 2 * passes <= listed / 8 else 1), (passes, listed)
+    assert eng.refine_schedule(scene.obj, FrameConfig(passes=None)) == [FrameConfig(None)]
+    # once timed: no finer frame when it took as long as the all-sources frame (it would show nothing sooner)
+    saved = dict(eng._rest_s)
+    assert set(saved) == {"finer", "exact"} and 0 < saved["finer"] < saved["exact"]  # refine timed both
+    try:
+        eng._rest_s.update(finer=1.0, exact=1.0)
+        assert eng.refine_schedule(scene.obj, FrameConfig(passes=10)) == [FrameConfig(None)]
+        eng._rest_s.update(finer=0.9)
+        assert len(eng.refine_schedule(scene.obj, FrameConfig(passes=10))) == 2
+    finally:
+        eng._rest_s.update(saved)
+    assert eng.refine_schedule(scene.obj, FrameConfig(passes=10, mode="ldr"))[0].mode == "ldr"
+    # without a budget the call runs to the all-sources frame (no intermediate one is made), also when one
+    # was under way
+    starts = eng._frames_started
+    fr = eng.refine(moved(scene.obj, np.array([-0.3, 0.0, 0.0])), FrameConfig(passes=10))
+    assert fr.stats["exact"] and fr.stats["refine_calls"] == 1 and fr.stats["refine_frames"] == 0
+    assert eng._frames_started == starts + 1
+    other = moved(scene.obj, np.array([-0.6, 0.0, 0.0]))
+    assert eng.refine(other, FrameConfig(passes=10), budget_s=0.0) is None  # the finer frame begun
+    fr = eng.refine(other, FrameConfig(passes=10))
+    assert fr.stats["exact"] and fr.stats["refine_frames"] == 0
+    assert _rmse(fr.pixels, eng.render(other, FrameConfig(passes=None)).pixels) <= 0.05
 
 
 def test_refine_starts_over_when_the_pose_changes(demo):
@@ -99,3 +142,56 @@ def test_object_shape_is_built_once_per_shape_and_refit_when_dragged(demo):
                                  normals=scene.obj.normals @ R.T)
     eng.render(turned, cfg)
     assert eng.n_shape_builds == builds + 4
+
+
+def test_placement_refine_shows_intermediate_frames_at_rest(tmp_path):
+    # the GUI's path (PlacementController.refine(intermediate=True)): the frame at rest before the
+    # all-sources one comes back unconverged and is not kept; the old contract (None until the
+    # all-sources frame) holds without intermediate
+    from app.placement import PlacementController
+
+    ctl = PlacementController.open(demo_scene_dir(), params=EngineParams(passes=10, patch_size=0.35),
+                                   cache_dir=tmp_path / "cache", quiet=True)
+    ctl.start_engine()
+    ctl.set_object(ctl.scene.obj.source)
+    drag = ctl.render()
+    assert drag.stats["budget"] == 10 and not drag.stats["converged"]
+    got = []
+    while not (got and got[-1].stats["converged"]):
+        fr = ctl.refine(budget_s=0.0, intermediate=True)
+        if fr is not None:
+            got.append(fr)
+        assert len(got) < 5
+    mid, end = got
+    assert not mid.stats["converged"] and mid.stats["passes"] == 20 and end.stats["passes"] > 20
+    kept = ctl.refine()  # at rest: the all-sources frame is kept, not the intermediate one
+    assert kept.stats["cached"] and kept.stats["converged"] and np.array_equal(kept.pixels, end.pixels)
+    ctl.move_by(0.2, 0.0)
+    ctl.render()
+    calls = 0
+    while (fr := ctl.refine(budget_s=0.0)) is None:  # intermediate frames are not returned
+        calls += 1
+        assert calls < 1000
+    assert fr.stats["converged"] and fr.stats["passes"] > 20
+    # the window's refinement at rest (app/gui.py, without a display: what the method touches) shows
+    # the intermediate frame, then the all-sources frame, and stops there
+    import types
+
+    from app.gui import PlacementWindow
+
+    class Win:
+        closed, _dirty, refined_frames, error, window = False, False, 0, None, None
+
+        def __init__(self):
+            self.ctl, self.shown = ctl, []
+            self.app = types.SimpleNamespace(post_to_main_thread=lambda window, f: f())
+
+        def _show_frame(self, fr, pose):
+            self.shown.append((fr, pose))
+
+    ctl.move_by(0.2, 0.0)
+    ctl.render()
+    win = Win()
+    PlacementWindow._refine_at_rest(win, ctl.pose)
+    assert [f.stats["converged"] for f, _ in win.shown] == [False, True] and win.refined_frames == 2
+    assert win.shown[0][0].stats["passes"] == 20 and all(p == ctl.pose for _, p in win.shown)
