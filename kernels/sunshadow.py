@@ -16,6 +16,8 @@ Taps are a fixed golden-angle (Vogel) spiral. A point outside the map is unocclu
 """
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import warp as wp
 
@@ -152,13 +154,24 @@ class SunShadowMap:
         self.m.z_min = float("inf")
         self._verts = _Buffer(wp.vec3, self.device)
         self._tris = _Buffer(wp.int32, self.device, cols=3)
+        self._key: bytes | None = None  # the shape the map holds (render)
+        self.n_renders = 0  # rasterisations so far (a translation needs none)
 
     def render(self, vertices: np.ndarray, faces: np.ndarray) -> None:
-        """Rasterise the occluder (world coordinates) into the map (buffers kept between calls)."""
+        """Rasterise the occluder (world coordinates) into the map (buffers kept between calls).
+
+        The map is centred on the occluder's box and its depths are measured from that centre, so a
+        translated occluder has the same map: it is rasterised again only when its shape (the mesh
+        relative to its box centre, to 1 um, and its faces) changes; a move only moves the centre."""
         v = np.asarray(vertices, np.float64)
         c = 0.5 * (v.min(0) + v.max(0))
-        r = float(np.linalg.norm(v - c, axis=1).max()) * 1.01 + 1e-3
         self.m.centre = wp.vec3(*map(float, c))
+        key = hashlib.sha1(np.round(v - c, 6).tobytes() + np.ascontiguousarray(faces, np.int64).tobytes()).digest()
+        if key == self._key:
+            return
+        self._key = key
+        self.n_renders += 1
+        r = float(np.linalg.norm(v - c, axis=1).max()) * 1.01 + 1e-3
         self.m.half = r
         self.m.depth.fill_(float("inf"))
         fwd = np.array(self.m.fwd, np.float64)

@@ -313,6 +313,57 @@ def test_sunlit_object_light_matches_a_ray_per_piece(sun_drag):
     assert (ours_c * area).sum() == pytest.approx((ref_c * area).sum(), rel=0.04)
 
 
+def test_later_bounces_on_clusters_match_the_dense_sum(sun_drag):
+    # SunStage.later_bounces (LaterBounces: the first pass from the sunlit patches exact, the rest on
+    # clusters of patches) against G_v sum_k (rho G)^k dB1 with the dense matrices, for the frame's own
+    # first-bounce change (the object's sun shadow and its light) and for one on the sunlit patches only
+    s, e, frames, _ = sun_drag
+    pm = e.pre.patches
+    pv, pf, occ, _, _ = e._object_shape(s.obj)
+    loss, loss_c = e.sun_stage.frame(s.obj.vertices, s.obj.faces)
+    centre = 0.5 * (pv.min(0) + pv.max(0))
+    radius = float(np.linalg.norm(pv - centre, axis=1).max())
+    _, R_cen = e._object_light(pv, pf, e._object_triangle_radiance(s.obj, pv, pf, occ, e.B_obj), occ, centre, radius)
+    G, G_v = e.pre.G_c.astype(np.float64), e.pre.G_v.astype(np.float64)
+    for dB1 in (pm.albedo * (R_cen - loss_c), -pm.albedo * loss_c):
+        assert np.abs(dB1).sum() > 0
+        ours = e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4)
+        cur, more = dB1, np.zeros_like(dB1)
+        for _ in range(2):
+            cur = pm.albedo * (G @ cur)
+            more += cur
+        ref = G_v @ more
+        err = np.abs(ours - ref) / np.maximum(e.E_v, 1e-12)
+        assert np.abs(ref).max() > 0.01 * e.E_v.max()  # a change worth carrying
+        assert np.percentile(err, 99) < 0.01 and err.max() < 0.03
+    assert e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2) is None  # no later bounce
+
+
+def test_sun_map_is_kept_for_a_moved_object():
+    # the orthographic map is measured from the object's box centre: a moved object of the same shape
+    # reuses it (no rasterisation) and gives the lookups a fresh map gives; a turned one is drawn anew
+    from kernels.sunshadow import SunShadowMap
+
+    d, a = np.array([0.3, 1.0, 0.2]), np.radians(0.265)
+    v = np.array([[-0.2, 0.5, -0.2], [0.2, 0.5, -0.2], [0.2, 0.6, 0.2], [-0.2, 0.5, 0.2]])
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    pts = np.random.default_rng(1).uniform(-0.6, 0.6, (400, 3)) * [1, 0, 1]
+    fp = np.full(400, 2e-3)
+    m = SunShadowMap(d, a, res=256, device="cpu")
+    m.render(v, f)
+    t = np.array([0.13, 0.0, -0.07])
+    m.render(v + t, f)
+    fresh = SunShadowMap(d, a, res=256, device="cpu")
+    fresh.render(v + t, f)
+    assert m.n_renders == 1 and fresh.n_renders == 1
+    ours, ref = m.occlusion(pts + t, fp), fresh.occlusion(pts + t, fp)
+    assert ref.max() > 0.5 and np.abs(ours - ref).max() < 1e-6
+    R = np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]])
+    m.render(v @ R.T, f)
+    fresh.render(v @ R.T, f)
+    assert m.n_renders == 2 and np.abs(m.occlusion(pts, fp) - fresh.occlusion(pts, fp)).max() < 1e-6
+
+
 # ---------------------------------------------------------------- sun_room end to end
 @pytest.fixture(scope="module")
 def sun_composite(tmp_path_factory):
