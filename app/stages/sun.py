@@ -33,6 +33,9 @@ PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility tab
 # a ray per piece (8 cells: 1.5 %); bench/bench_sun.py prints the pieces against Monte Carlo per pixel
 
 
+PIECE_SIZE = 0.5  # the sunlit pieces' size (SunlitPieces), in bounding radii of the object
+
+
 class SunStage:
     """The sun's per-frame work for one scene (built by Engine._sun_setup_pixels)."""
 
@@ -139,7 +142,7 @@ class SunStage:
         (object_light.shape_key)."""
         key = shape_key(pv, pf)
         if self._pieces is None or self._pieces[0] != key:
-            pieces = SunlitPieces(self.light, tris, proxy_occ, size=radius / 4.0)
+            pieces = SunlitPieces(self.light, tris, proxy_occ, size=radius * PIECE_SIZE)
             table = TriangleVisibility(pieces.tris(tris.reshape(-1, 3).mean(0)), proxy_occ, res=PIECE_TABLE_RES) \
                 if len(pieces) else None
             k = PIECE_TABLE_RES // CUBE_RES
@@ -227,20 +230,17 @@ class LaterBounces:
     """The later bounces of a first-bounce change of patch radiance dB1, at the receiver vertices:
     G_v sum_{k=1}^{n} (rho G)^k dB1, on clusters of neighbouring patches (patch_clusters).
 
-    Once dB1 has gone through G it is spread over the room; it is then carried as its area-weighted
-    mean over each cluster (S, C x P) and sent on through the clusters' summed transfers (exact where
-    it is constant on a cluster). The first pass from the `exact` patches (the sunlit ones, where the
-    object's sun shadow falls: a large, sharp loss whose first bounce lights the walls beside it
-    unevenly) is kept exact, G_v diag(rho) G restricted to their columns. Per scene, per channel c
-    (float32):
-      W_c = S diag(rho_c) G (C,P), kept transposed (P,C): the first pass from the changed patches;
-      Q_c = S diag(rho_c) G_cl (C,C), G_cl (P,C) G's columns summed per cluster: a further pass;
+    A change is carried as its area-weighted mean over each cluster (S, C x P) and sent through the
+    clusters' summed transfers (exact where it is constant on a cluster). The first pass from the
+    `exact` patches (the sunlit ones, where the object's sun shadow falls: a large, sharp loss whose
+    first bounce lights the walls beside it unevenly) is kept exact at the receivers. Per scene, per
+    channel c (float32):
+      Q_c = S diag(rho_c) G_cl (C,C), G_cl (P,C) G's columns summed per cluster: one pass;
       V = G_v's columns summed per cluster (Vr,C): to the receiver vertices;
-      H_c = G_v diag(rho_c) G[:, exact] (Vr,E): the exact patches' first pass at the receivers.
-    Per frame: y_1 = W[nz] dB1[nz] (nz: the changed patches), y_{k+1} = Q y_k,
-    result H dB1[exact] + V (y_1 - y_1 of the exact patches + y_2 + ... + y_n).
-    On sun_room's drag frames (3251 changed patches) it is within 0.5 % of the dense sum's E_v at 99 %
-    of the receiver vertices (tests/lighting/test_sun.py)."""
+      H_c = G_v diag(rho_c) G[:, exact] (Vr,E): the exact patches' first pass at the receivers;
+      W_c = S diag(rho_c) G[:, exact] (C,E): their first pass on the clusters, for the later passes.
+    Per frame: y_1 = Q S dB1' + W dB1[exact] (dB1': dB1 off the exact patches), y_{k+1} = Q y_k;
+    result H dB1[exact] + V (Q S dB1' + y_2 + ... + y_n). Work per frame ~ C^2, not P^2."""
 
     def __init__(self, G: np.ndarray, G_v: np.ndarray, albedo: np.ndarray, patches, exact: np.ndarray | None = None):
         import scipy.sparse as sp
@@ -249,43 +249,41 @@ class LaterBounces:
         cl, n = patch_clusters(patches)
         P = len(cl)
         area = np.asarray(patches.area, np.float64)
-        w = area / np.bincount(cl, area, n)[cl]  # area-weighted mean over each cluster
+        self.cluster, self.n = cl, n
+        self.w = area / np.bincount(cl, area, n)[cl]  # area-weighted mean over each cluster
         sum_cols = sp.csr_matrix((np.ones(P, np.float32), (np.arange(P), cl)), shape=(P, n))  # (P,C)
-        G32 = np.asarray(G, np.float32)
         sum_rows = sum_cols.T.tocsr()  # (C,P)
+        G32, G_v32 = np.asarray(G, np.float32), np.asarray(G_v, np.float32)
         G_cl = np.ascontiguousarray((sum_rows @ G32.T).T, np.float32)  # (P,C): G's columns summed per cluster
-        W, Q = [], []
-        for c in range(3):
-            S_c = sp.csr_matrix(((w * albedo[:, c]).astype(np.float32), (cl, np.arange(P))), shape=(n, P))
-            W.append((S_c @ G32).T)  # (P,C)
-            Q.append(S_c @ G_cl)  # (C,C)
-        self.W = np.ascontiguousarray(np.stack(W), np.float32)  # (3,P,C)
-        self.Q = np.ascontiguousarray(np.stack(Q), np.float32)  # (3,C,C)
-        G_v32 = np.asarray(G_v, np.float32)
-        self.V = np.ascontiguousarray((sum_rows @ G_v32.T).T, np.float32)  # (Vr,C)
-        self.n = n
         self.exact = np.zeros(0, np.int64) if exact is None else np.unique(np.asarray(exact, np.int64))
-        self.col = np.full(P, -1, np.int64)  # patch -> its column of H (-1: not exact)
-        self.col[self.exact] = np.arange(len(self.exact))
-        self.H = np.ascontiguousarray(np.stack([G_v32 @ (albedo[:, c, None].astype(np.float32) * G32[:, self.exact])
-                                                for c in range(3)]), np.float32)  # (3,Vr,E)
+        self.is_exact = np.zeros(P, bool)
+        self.is_exact[self.exact] = True
+        G_ex = G32[:, self.exact]  # (P,E)
+        Q, W, H = [], [], []
+        for c in range(3):
+            rho = albedo[:, c].astype(np.float32)
+            S_c = sp.csr_matrix(((self.w * rho).astype(np.float32), (cl, np.arange(P))), shape=(n, P))
+            Q.append(S_c @ G_cl)  # (C,C)
+            W.append((S_c @ G_ex).T)  # (E,C)
+            H.append(G_v32 @ (rho[:, None] * G_ex))  # (Vr,E)
+        self.Q = np.ascontiguousarray(np.stack(Q), np.float32)  # (3,C,C)
+        self.W = np.ascontiguousarray(np.stack(W), np.float32)  # (3,E,C)
+        self.H = np.ascontiguousarray(np.stack(H), np.float32)  # (3,Vr,E)
+        self.V = np.ascontiguousarray((sum_rows @ G_v32.T).T, np.float32)  # (Vr,C)
 
     def __call__(self, dB1: np.ndarray, n: int) -> np.ndarray:
         """G_v sum_{k=1}^{n} (rho G)^k dB1 (Vr,3) for dB1 (P,3). The products are einsums over a
         contiguous last axis, not BLAS calls: a threaded BLAS on a loaded machine took 40-60 ms for what
         takes 1-2 ms here."""
-        nz = np.flatnonzero(np.abs(dB1).any(1))
-        if len(nz) == 0 or n <= 0:
+        if n <= 0 or not np.any(dB1):
             return np.zeros((len(self.V), 3))
-        x = np.ascontiguousarray(dB1[nz].T, np.float32)  # (3,nz)
-        y = np.einsum("cn,cnk->ck", x, self.W[:, nz])  # (3,C)
-        ex = np.flatnonzero(self.col[nz] >= 0)  # the exact patches among the changed ones
-        out = np.zeros((len(self.V), 3))
+        rest = np.where(self.is_exact[:, None], 0.0, dB1) * self.w[:, None]
+        xm = np.stack([np.bincount(self.cluster, rest[:, c], self.n) for c in range(3)]).astype(np.float32)  # (3,C)
+        y = np.einsum("cij,cj->ci", self.Q, xm)  # first pass of the rest, on the clusters
         total = y.copy()
-        if len(ex):
-            xe = np.ascontiguousarray(x[:, ex])
-            out += np.einsum("cve,ce->vc", self.H[:, :, self.col[nz[ex]]], xe)
-            total -= np.einsum("cn,cnk->ck", xe, self.W[:, nz[ex]])
+        xe = np.ascontiguousarray(dB1[self.exact].T, np.float32)  # (3,E)
+        out = np.einsum("cve,ce->vc", self.H, xe)  # first pass of the exact patches, at the receivers
+        y += np.einsum("ce,cek->ck", xe, self.W)
         for _ in range(n - 1):
             y = np.einsum("cij,cj->ci", self.Q, y)
             total += y
