@@ -417,7 +417,8 @@ def shade_object(eng: "Engine", obj: SceneObject, mesh, hits: "ObjectHits", prox
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
         own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
             Occluder(v, f, eng.device)
-        E_hit = eng.sun_light.irradiance(pos, nrm, [own])
+        lit_v = eng._obj_sun_vert.any(1)  # the shading mesh's vertices in the sun (room and own shadow)
+        E_hit = eng.sun_light.irradiance_on_mesh(pos, nrm, lit_v[corners], [own])  # rays where a shadow edge crosses
         E_interp = np.einsum("nk,nkc->nc", hits.bary[h], eng._obj_sun_vert[corners])
         sub[h] = np.maximum(sub[h] + obj.albedo * (E_hit - E_interp), 0.0)
     if eng.params.specular > 0:

@@ -33,7 +33,7 @@ PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility tab
 # a ray per piece (8 cells: 1.5 %); bench/bench_sun.py prints the pieces against Monte Carlo per pixel
 
 
-PIECE_SIZE = 0.5  # the sunlit pieces' size (SunlitPieces), in bounding radii of the object
+PIECE_SIZE = 0.25  # the sunlit pieces' size (SunlitPieces), in bounding radii of the object
 
 
 class SunStage:
@@ -161,7 +161,8 @@ class SunStage:
         clipping: the photo clips there or next to it (`clipped` (H*W,) bool, a sunlit floor) or
         the object's radiance there or next to it is 1 or more (a sunlit face; radiance 1 is the
         white level). Object radiance per ray: L_vert interpolated, with the sun per hit (its
-        self-shadow edge) as Engine._shade_object does."""
+        self-shadow edge: rays on the faces it crosses, SunLight.irradiance_on_mesh) as
+        Engine._shade_object does."""
         H, W = cov.shape
         s = s or self.edge_samples
         v, n, f = mesh
@@ -205,7 +206,7 @@ class SunStage:
             pos = np.einsum("nk,nkc->nc", b, v[corners])
             nrm = np.einsum("nk,nkc->nc", b, n[corners])
             nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-            E_hit = self.light.irradiance(pos, nrm, [own])
+            E_hit = self.light.irradiance_on_mesh(pos, nrm, sun_vert.any(1)[corners], [own])
             rad[h] = np.maximum(rad[h] + albedo * (E_hit - np.einsum("nk,nkc->nc", b, sun_vert[corners])), 0.0)
         k = s * s
         hits = hit.reshape(-1, k)
