@@ -130,6 +130,37 @@ def test_opening_blocked_by_geometry_is_no_sun(room):
     assert np.all(E == 0) and "miss every opening" in light.reason
 
 
+def test_irradiance_on_mesh_tests_only_the_faces_a_shadow_edge_crosses(room):
+    # a 0.1 m floor grid over the sunlit patch: points on faces whose corners agree take the sun from n.d
+    # (lit) or none (dark), the rest a ray each; the same light as a ray per point wherever the patch's
+    # straight edges cross the faces (only a corner of the lit polygon inside a face could differ)
+    s, pm, _ = room
+    light = _light(room, [-0.74, 0.62, 0.27])
+    E = light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)
+    floor = np.array([s.quads[q].name == "floor" for q in pm.quad]) & (E[:, 0] > 0)
+    lo, hi = pm.centre[floor].min(0) - 0.4, pm.centre[floor].max(0) + 0.4
+    xs, zs = np.arange(lo[0], hi[0], 0.1), np.arange(lo[2], hi[2], 0.1)
+    X, Z = np.meshgrid(xs, zs, indexing="ij")
+    v = np.stack([X.ravel(), np.full(X.size, 1e-3), Z.ravel()], 1)
+    nx, nz = len(xs), len(zs)
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(nz - 1), indexing="ij")
+    a, b, c, d = (i * nz + j).ravel(), ((i + 1) * nz + j).ravel(), ((i + 1) * nz + j + 1).ravel(), (i * nz + j + 1).ravel()
+    f = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    up = np.tile([0.0, 1.0, 0.0], (len(v), 1))
+    lit_v = light.visibility(v, up) > 0
+    rng = np.random.default_rng(3)
+    tri = rng.integers(0, len(f), 20000)
+    w = rng.dirichlet(np.ones(3), len(tri))
+    pts = np.einsum("nk,nkc->nc", w, v[f[tri]])
+    nrm = np.tile([0.0, 1.0, 0.0], (len(tri), 1))
+    ours = light.irradiance_on_mesh(pts, nrm, lit_v[f[tri]])
+    ref = light.irradiance(pts, nrm)
+    mixed = (lit_v[f[tri]].sum(1) % 3) > 0
+    assert ref[:, 0].max() > 0 and (ref[:, 0] == 0).any() and 0 < mixed.mean() < 0.3
+    assert (np.abs(ours - ref).max(1) > 0).mean() < 0.005
+    assert np.array_equal(ours[mixed], ref[mixed])
+
+
 # ---------------------------------------------------------------- PCSS kernel, analytic
 def test_sunlit_pieces_keep_the_power_and_the_self_shadow(room):
     # a 1 m x 1 m floor square lit whole: pieces carry its power, area x E_perp cos / pi; with a plate
