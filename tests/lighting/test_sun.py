@@ -370,6 +370,28 @@ def test_later_bounces_on_clusters_match_the_dense_sum(sun_drag):
     assert e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2) is None  # no later bounce
 
 
+def test_pcss_block_ranges_give_the_taps_answer():
+    # a lookup whose texels are all nearer than the receiver (or none) answers from the blocks' depth
+    # ranges without its taps: the same occlusion as with one block for the whole map (taps nearly
+    # always read), in the shadow, its penumbra, beside it and off the map
+    from kernels.sunshadow import SunShadowMap
+
+    d, a = np.array([0.3, 1.0, 0.2]), np.radians(0.265)
+    v = np.array([[-0.2, 0.5, -0.2], [0.2, 0.5, -0.2], [0.2, 0.6, 0.2], [-0.2, 0.5, 0.2], [0.0, 0.9, 0.0]])
+    f = np.array([[0, 1, 2], [0, 2, 3], [0, 1, 4], [1, 2, 4]])
+    rng = np.random.default_rng(2)
+    pts = rng.uniform(-0.8, 0.8, (40000, 3)) * [1, 0, 1]
+    pts[:, 1] = rng.uniform(0.0, 0.45, len(pts))
+    fp = rng.uniform(0.0, 4e-3, len(pts))
+    out = []
+    for block in (16, 256):
+        m = SunShadowMap(d, a, res=256, device="cpu", block=block)
+        m.render(v, f)
+        out.append(m.occlusion(pts, fp))
+    assert ((out[1] > 0) & (out[1] < 1)).sum() > 60 and (out[1] == 1).sum() > 1000 and (out[1] == 0).sum() > 1000
+    assert np.array_equal(out[0], out[1])
+
+
 def test_sun_map_is_kept_for_a_moved_object():
     # the orthographic map is measured from the object's box centre: a moved object of the same shape
     # reuses it (no rasterisation) and gives the lookups a fresh map gives; a turned one is drawn anew
