@@ -525,9 +525,10 @@ class Engine:
             more = None
             if sun_loss is not None:  # sun: the sunlit patch light the object blocks (the room's main
                 # source) and the sunlit object's own light are first-bounce changes: passed on for every
-                # bounce the camera sees, not once
-                more = self.sun_stage.more_bounces(pm.albedo * (R_cen - sun_loss_c), pm.albedo, pre.G_c, p.bounces)
-            dE_v = self.compose.second_order(dB_shadow + pm.albedo * R_cen, more)
+                # bounce the camera sees, not once (the later ones at the receiver vertices directly)
+                more = self.sun_stage.later_bounces(pm.albedo * (R_cen - sun_loss_c), pm.albedo, pre.G_c, pre.G_v,
+                                                    p.bounces)
+            dE_v = self.compose.second_order(dB_shadow + pm.albedo * R_cen, dE_more=more)
         t = tick("second_order", t)
 
         # ---- compose (app.stages.compose): HDR or LDR, on the pixels that changed

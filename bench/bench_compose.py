@@ -60,9 +60,10 @@ def bench_scene(name: str, scene_dir: Path, n: int, repeat: int, cache: str) -> 
         frame, second = stage.frame, stage.second_order
         so_args = {}
 
-        def keep_so(dB, more=None):
+        def keep_so(dB, more=None, dE_more=None):
             so_args["dB"], so_args["more"] = dB.copy(), None if more is None else more.copy()
-            return second(dB, more)
+            so_args["dE_more"] = None if dE_more is None else dE_more.copy()  # the sun's later bounces
+            return second(dB, more, dE_more)
 
         def keep_frame(*a):
             captured.append((dict(so_args), [x.copy() if isinstance(x, np.ndarray) else x for x in a]))
@@ -80,10 +81,10 @@ def bench_scene(name: str, scene_dir: Path, n: int, repeat: int, cache: str) -> 
         for so, a in captured:
             mode_, pix_sel, O_pix, fill_sel, fill, R, dE_v, cov, obj_rad, sun_pix, sun_loss = a
             dB = so["dB"] if so["more"] is None else so["dB"] + so["more"]
-            t_so += _median_ms(lambda: stage.second_order(so["dB"], so["more"]), repeat)
+            t_so += _median_ms(lambda: stage.second_order(so["dB"], so["more"], so["dE_more"]), repeat)
             nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
             t_so_ref += _median_ms(lambda: eng.pre.G_v[:, nz].astype(np.float64) @ dB[nz], repeat)
-            dE = stage.second_order(so["dB"], so["more"]).copy()
+            dE = stage.second_order(so["dB"], so["more"], so["dE_more"]).copy()
             t_c += _median_ms(lambda: stage.frame(*a[:6], dE, *a[7:]), repeat)
             vals = O_pix if mode == "ldr" else np.full_like(O_pix, 0.5)
             t_fill += _median_ms(lambda: fill(pix_sel, vals, fill_sel), repeat)

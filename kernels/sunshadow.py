@@ -12,9 +12,13 @@ surface; 0 for a point):
    z_min the map's smallest depth): the mean depth z_b of the taps closer than z_r - bias;
 2. the penumbra radius w = (z_r - z_b) tan(a); the occluded share is the fraction of taps, over a disk
    of radius sqrt(w^2 + r_fp^2), closer than z_r - bias.
-Taps are a fixed golden-angle (Vogel) spiral. A point outside the map is unoccluded.
+Taps are a fixed golden-angle (Vogel) spiral. A point outside the map is unoccluded. Each block of
+BLOCK x BLOCK texels keeps its depth range (per render): a lookup whose texels are all nearer than
+the receiver (1) or none (0) answers without its taps, the same answer.
 """
 from __future__ import annotations
+
+import hashlib
 
 import numpy as np
 import warp as wp
@@ -35,6 +39,9 @@ class SunMap:
     tan_a: float  # tan of the sun disk's angular radius
     bias: float
     taps: wp.array(dtype=wp.vec2)  # unit-disk tap pattern
+    block: int  # texels per side of a block of bmin/bmax
+    bmin: wp.array2d(dtype=wp.float32)  # smallest depth of each block of texels
+    bmax: wp.array2d(dtype=wp.float32)  # largest depth of each block (inf where a texel is empty)
 
 
 @wp.func
@@ -73,6 +80,44 @@ def _raster(m: SunMap, verts: wp.array(dtype=wp.vec3), tris: wp.array2d(dtype=wp
                 wp.atomic_min(m.depth, iy, ix, w0 * a[2] + w1 * b[2] + w2 * c[2])
 
 
+@wp.kernel
+def _block_range(m: SunMap):
+    """bmin/bmax of one block of texels (after _raster)."""
+    by, bx = wp.tid()
+    lo = float(wp.inf)
+    hi = float(-wp.inf)
+    for iy in range(by * m.block, wp.min((by + 1) * m.block, m.res)):
+        for ix in range(bx * m.block, wp.min((bx + 1) * m.block, m.res)):
+            z = m.depth[iy, ix]
+            lo = wp.min(lo, z)
+            hi = wp.max(hi, z)
+    m.bmin[by, bx] = lo
+    m.bmax[by, bx] = hi
+
+
+@wp.func
+def _region_range(m: SunMap, x: float, y: float, r: float) -> wp.vec2:
+    """(smallest, largest) depth of every texel a tap within r texels of (x, y) can read (nearest
+    texel: floor(. + 0.5)); largest is inf when some of them lie outside the map (empty there)."""
+    x0 = int(wp.floor(x - r + 0.5))
+    x1 = int(wp.floor(x + r + 0.5))
+    y0 = int(wp.floor(y - r + 0.5))
+    y1 = int(wp.floor(y + r + 0.5))
+    lo = float(wp.inf)
+    hi = float(-wp.inf)
+    if x0 < 0 or y0 < 0 or x1 >= m.res or y1 >= m.res:
+        hi = float(wp.inf)
+    x0 = wp.clamp(x0, 0, m.res - 1)
+    x1 = wp.clamp(x1, 0, m.res - 1)
+    y0 = wp.clamp(y0, 0, m.res - 1)
+    y1 = wp.clamp(y1, 0, m.res - 1)
+    for by in range(y0 // m.block, y1 // m.block + 1):
+        for bx in range(x0 // m.block, x1 // m.block + 1):
+            lo = wp.min(lo, m.bmin[by, bx])
+            hi = wp.max(hi, m.bmax[by, bx])
+    return wp.vec2(lo, hi)
+
+
 @wp.func
 def _tap_depth(m: SunMap, x: float, y: float) -> float:
     ix = int(wp.floor(x + 0.5))
@@ -99,6 +144,14 @@ def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.
     hi = float(m.res) - 0.5 + r_search
     if q[0] < lo or q[1] < lo or q[0] > hi or q[1] > hi:
         return
+    # every texel the taps can read (both disks lie within r_search) nearer than the receiver, or none:
+    # the taps' answer without reading them (1 or 0)
+    span = _region_range(m, q[0], q[1], r_search)
+    if span[0] >= zr - m.bias:
+        return
+    if span[1] < zr - m.bias:
+        out[i] = 1.0
+        return
     zsum = float(0.0)
     nb = float(0.0)
     for k in range(n):
@@ -119,6 +172,9 @@ def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.
     out[i] = blocked / float(n)
 
 
+BLOCK = 16  # texels per side of the blocks whose depth range lets a lookup skip its taps (_region_range)
+
+
 def vogel_disk(n: int) -> np.ndarray:
     """n points (n,2) spread evenly over the unit disk (golden-angle spiral)."""
     k = np.arange(n) + 0.5
@@ -131,7 +187,7 @@ class SunShadowMap:
     """One orthographic map of an occluder toward the sun, re-rendered per pose."""
 
     def __init__(self, direction: np.ndarray, angular_radius: float, res: int = 1024, taps: int = 48,
-                 bias: float = 2e-3, device: str | None = None):
+                 bias: float = 2e-3, device: str | None = None, block: int = BLOCK):
         self.device = runtime.device(device)
         d = np.asarray(direction, np.float64)
         d /= np.linalg.norm(d)
@@ -150,15 +206,30 @@ class SunShadowMap:
         self.m.centre = wp.vec3(0.0, 0.0, 0.0)
         self.m.half = 1.0
         self.m.z_min = float("inf")
+        self.m.block = int(min(block, res))
+        nb = (int(res) + self.m.block - 1) // self.m.block
+        self.m.bmin = wp.zeros((nb, nb), dtype=wp.float32, device=self.device)
+        self.m.bmax = wp.zeros((nb, nb), dtype=wp.float32, device=self.device)
         self._verts = _Buffer(wp.vec3, self.device)
         self._tris = _Buffer(wp.int32, self.device, cols=3)
+        self._key: bytes | None = None  # the shape the map holds (render)
+        self.n_renders = 0  # rasterisations so far (a translation needs none)
 
     def render(self, vertices: np.ndarray, faces: np.ndarray) -> None:
-        """Rasterise the occluder (world coordinates) into the map (buffers kept between calls)."""
+        """Rasterise the occluder (world coordinates) into the map (buffers kept between calls).
+
+        The map is centred on the occluder's box and its depths are measured from that centre, so a
+        translated occluder has the same map: it is rasterised again only when its shape (the mesh
+        relative to its box centre, to 1 um, and its faces) changes; a move only moves the centre."""
         v = np.asarray(vertices, np.float64)
         c = 0.5 * (v.min(0) + v.max(0))
-        r = float(np.linalg.norm(v - c, axis=1).max()) * 1.01 + 1e-3
         self.m.centre = wp.vec3(*map(float, c))
+        key = hashlib.sha1(np.round(v - c, 6).tobytes() + np.ascontiguousarray(faces, np.int64).tobytes()).digest()
+        if key == self._key:
+            return
+        self._key = key
+        self.n_renders += 1
+        r = float(np.linalg.norm(v - c, axis=1).max()) * 1.01 + 1e-3
         self.m.half = r
         self.m.depth.fill_(float("inf"))
         fwd = np.array(self.m.fwd, np.float64)
@@ -166,6 +237,7 @@ class SunShadowMap:
         verts = self._verts.put(v.astype(np.float32))
         tris = self._tris.put(np.asarray(faces, np.int32))
         wp.launch(_raster, dim=len(faces), inputs=[self.m, verts, tris], device=self.device)
+        wp.launch(_block_range, dim=self.m.bmin.shape, inputs=[self.m], device=self.device)
 
     def points(self, points: np.ndarray, footprint: np.ndarray | None = None) -> "LookupPoints":
         """A fixed set of receiver points (N,3) [footprints (N,) m] kept on the device, for

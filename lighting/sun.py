@@ -134,6 +134,21 @@ class SunLight:
         """Direct sun irradiance/pi (N,3) at points with normals."""
         return self.visibility(points, normals, extra)[:, None] * (self.sun.irradiance / np.pi)
 
+    def irradiance_on_mesh(self, points: np.ndarray, normals: np.ndarray, corner_lit: np.ndarray,
+                           extra: list[Occluder] = ()) -> np.ndarray:
+        """Direct sun irradiance/pi (N,3) at points (N,3) on a mesh's faces whose corners' sun is known:
+        corner_lit (N,3) bool, True where a corner of the point's face sees the sun. A face with all three
+        corners in the sun is taken as wholly lit and one with none as wholly dark (no ray: n.d alone);
+        the points of faces in between, where a shadow's edge crosses, are tested (irradiance). A shadow
+        narrower than the mesh's edges that crosses a face without reaching a corner is missed."""
+        n_lit = np.asarray(corner_lit).sum(1)
+        cos = np.maximum(np.asarray(normals, np.float64) @ self.d, 0.0)
+        vis = np.where(n_lit == 3, cos, 0.0)
+        mixed = np.flatnonzero((n_lit > 0) & (n_lit < 3))
+        if len(mixed):
+            vis[mixed] = self.visibility(np.asarray(points)[mixed], np.asarray(normals)[mixed], extra)
+        return vis[:, None] * (self.sun.irradiance / np.pi)
+
     def triangle_irradiance(self, tris: np.ndarray, extra: list[Occluder] = (), n: int = 6) -> np.ndarray:
         """Mean direct sun irradiance/pi (T,3) over triangles (T,3,3) (CCW seen from the lit side),
         from n(n+1)/2 barycentric points each: a face half in its own shadow gets half."""

@@ -67,11 +67,16 @@ class ComposeStage:
         self._r_dense = False  # the last frame's object light filled all of r_pix
 
     # ------------------------------------------------------------------ second order
-    def second_order(self, dB: np.ndarray, more: np.ndarray | None = None) -> np.ndarray:
+    def second_order(self, dB: np.ndarray, more: np.ndarray | None = None, dE_more: np.ndarray | None = None
+                     ) -> np.ndarray:
         """dE_v (Vr,3) float64: the change of patch radiance dB (P,3) passed on once to the receiver
-        vertices, G_v dB over the changed patches only, plus `more` (P,3) (the sun's later bounces).
+        vertices, G_v dB over the changed patches only, plus `more` (P,3) passed on the same way and
+        `dE_more` (Vr,3) added as it is (the sun's later bounces, already at the receiver vertices).
         Returns the stage's own buffer (valid until the next frame)."""
         self.k.second_order(dB if more is None else dB + more, self.split)
+        if dE_more is not None:
+            self.k.dE_v += dE_more
+            self.k.add_v += dE_more
         return self.k.dE_v
 
     # ------------------------------------------------------------------ LDR weights
@@ -126,9 +131,12 @@ class ComposeStage:
             k.shade[pix_sel] = frac
             k.shade[fill_sel] = fill(pix_sel, frac, fill_sel)
         self._written["shade"] = [pix_sel, fill_sel]
-        if sun_loss is not None:  # sun: its occluded share of the (model, where clipped) radiance
-            k.sun[sun_pix] = np.clip(sun_loss / np.maximum(E_x[sun_pix], 1e-12), 0.0, 1.0)
-            self._written["sun"] = [sun_pix]
+        if sun_loss is not None:  # sun: its occluded share of the (model, where clipped) radiance, written
+            # only where the object takes some (a zero share leaves the buffer's reset zero)
+            nz = np.flatnonzero(sun_loss.any(1))
+            idx = sun_pix[nz]
+            k.sun[idx] = np.clip(sun_loss[nz] / np.maximum(E_x[idx], 1e-12), 0.0, 1.0)
+            self._written["sun"] = [idx]
         # ---- object light and second order
         all_r = False
         add_v = k.add_v

@@ -188,7 +188,9 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
                       groups)
     sun_u = None
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
-        sun_u = eng.sun_light.irradiance(vu, nu, [own])
+        # the object's own shadow is kept per shape (the sun's rays are parallel: a move changes none
+        # of it); per frame only the room's shadow is tested
+        sun_u = eng.sun_light.irradiance(vu, nu) * ss.sun_self_lit(eng.sun_light.d, vu, nu, own)[:, None]
         eng._obj_sun_vert = sun_u[ss.inv]  # (sharpened per camera hit later)
         # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
@@ -332,6 +334,7 @@ class ShapeShading:
         lu, nu = local[self.uniq], n[self.uniq]
         self.normals = nu
         self.key = ""  # shape_shading's key
+        self._sun_self: tuple | None = None  # (sun direction, sun_self_lit of the distinct vertices)
         # spread over the mesh in its own order (faces), as distinct vertices
         self.sub = np.unique(self.inv[np.arange(0, len(local), max(1, len(local) // max(dB_samples, 1)))])
         self._knn = _knn_weights(lu, nu, self.sub)
@@ -348,6 +351,22 @@ class ShapeShading:
         sub = self.sub  # spread thinly over the mesh: neighbours by distance, not by mesh edges
         self.dB_sum = SampledPatchSum(own_u[sub], *_near_samples(lu[sub], nu[sub], np.arange(0, len(sub), vis_stride),
                                                                   hidden_u[sub]), device)
+
+    def sun_self_lit(self, d: np.ndarray, vu: np.ndarray, nu: np.ndarray, own: Occluder, eps: float = 1e-3
+                     ) -> np.ndarray:
+        """(U,) float: 1 where the distinct vertex (vu, nu: this pose's positions, normals) sees the sun
+        (direction d) past the object's own mesh `own` (at the same pose), else 0 (and 0 where it faces
+        away). Cast once per shape and sun direction: a translation changes none of it."""
+        key = tuple(np.round(d, 9))
+        if self._sun_self is None or self._sun_self[0] != key:
+            lit = np.zeros(len(vu))
+            up = np.flatnonzero(nu @ d > 0)
+            if len(up):
+                start = vu[up] + nu[up] * eps
+                _, _, depth = cast_rays(own, start, np.broadcast_to(d, start.shape))
+                lit[up] = ~np.isfinite(depth)
+            self._sun_self = (key, lit)
+        return self._sun_self[1]
 
     def interpolate(self, values: np.ndarray) -> np.ndarray:
         """Values (U,C) at the distinct vertices from values (len(sub),C) at `sub` (as
@@ -398,7 +417,8 @@ def shade_object(eng: "Engine", obj: SceneObject, mesh, hits: "ObjectHits", prox
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
         own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
             Occluder(v, f, eng.device)
-        E_hit = eng.sun_light.irradiance(pos, nrm, [own])
+        lit_v = eng._obj_sun_vert.any(1)  # the shading mesh's vertices in the sun (room and own shadow)
+        E_hit = eng.sun_light.irradiance_on_mesh(pos, nrm, lit_v[corners], [own])  # rays where a shadow edge crosses
         E_interp = np.einsum("nk,nkc->nc", hits.bary[h], eng._obj_sun_vert[corners])
         sub[h] = np.maximum(sub[h] + obj.albedo * (E_hit - E_interp), 0.0)
     if eng.params.specular > 0:

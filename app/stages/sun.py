@@ -4,7 +4,8 @@ Per frame, on listed points only (the sunlit pixels and sample points of sunlit 
 scene; the object's proxy and its silhouette):
 - `SunStage.frame`: one orthographic PCSS shadow map of the object toward the sun (the sun's one
   pass of the budget), the irradiance/pi it takes from the sunlit pixels and from every patch;
-- `SunStage.more_bounces`: a first-bounce change of patch radiance passed on for the later bounces;
+- `SunStage.later_bounces`: a first-bounce change of patch radiance passed on for the later bounces,
+  straight to the receiver vertices on clusters of patches (LaterBounces);
 - `SunStage.object_emitters`: the object's sunlit parts for the object-light stage: its sun-facing
   faces split once per shape in object space (lighting.sun.SunlitPieces, with the object's own shadow
   and each piece's visibility table), per frame only the room's shadow on them tested; wholly lit
@@ -32,6 +33,9 @@ PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility tab
 # a ray per piece (8 cells: 1.5 %); bench/bench_sun.py prints the pieces against Monte Carlo per pixel
 
 
+PIECE_SIZE = 0.25  # the sunlit pieces' size (SunlitPieces), in bounding radii of the object
+
+
 class SunStage:
     """The sun's per-frame work for one scene (built by Engine._sun_setup_pixels)."""
 
@@ -41,7 +45,7 @@ class SunStage:
         """light: the sun through the openings; pts (N,3), footprint (N,) m, E_pix (N,3): the sunlit
         pixels' lookup points, pixel footprints and direct sun; c_patch (Pc,), c_pts (Pc*K,3),
         c_vis (Pc,K): sunlit patches, their K sample points and the sun's visibility there; patches:
-        the scene's PatchMesh (the clusters of more_bounces' later passes)."""
+        the scene's PatchMesh (the clusters of later_bounces)."""
         self.light = light
         self.pts, self.footprint, self.E_pix = pts, footprint.astype(np.float32), E_pix
         self.c_patch, self.c_pts, self.c_vis = c_patch, c_pts, c_vis
@@ -53,7 +57,7 @@ class SunStage:
         self.device = device
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
         self.patches = patches
-        self._coarse: tuple[np.ndarray, CoarseTransfer] | None = None  # (G, its clusters' transfers)
+        self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
         self._ws = {k: Workspace() for k in ("edge.object", "edge.scene")}  # kept ray buffers per call site
 
@@ -67,35 +71,22 @@ class SunStage:
         loss_c[self.c_patch] = (self.c_vis * occ_c).mean(1)[:, None] * self.E_perp
         return occ_pix[:, None] * self.E_pix, loss_c
 
-    def more_bounces(self, dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, bounces: int) -> np.ndarray:
-        """sum_{k=1}^{bounces-2} (rho G)^k dB1: a first-bounce change of patch radiance dB1 (P,3)
-        (sun a patch no longer reflects, light of the sunlit object) through the patch transfers G
-        (P,P) for the later bounces the camera sees (one pass through G_v is the engine's second
-        order). The first pass is exact (dB1 is sharp: the object's shadow, its contact); the
-        later ones carry a change already spread over the room by G and gather it from clusters
-        of neighbouring patches (CoarseTransfer: their area-weighted mean through the clusters'
-        summed transfers), a tenth of the work of G."""
-        out = np.zeros_like(dB1)
-        cur = dB1
-        coarse = None
-        for k in range(max(bounces - 2, 0)):
-            if k == 0:
-                nz = np.flatnonzero(np.abs(cur).sum(1) > 0)  # float32 products: no float64 copy of G
-                cur = albedo * (G[:, nz] @ cur[nz].astype(np.float32) if len(nz) < len(cur) // 4
-                                else G @ cur.astype(np.float32))
-            else:
-                coarse = coarse or self._coarse_transfer(G)
-                cur = albedo * coarse.gather(cur)
-            out += cur
-        return out
-
-    def _coarse_transfer(self, G: np.ndarray) -> "CoarseTransfer":
-        """The CoarseTransfer of G over this scene's patches (made on first use, kept per scene)."""
-        if self._coarse is None or self._coarse[0] is not G:
+    def later_bounces(self, dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, G_v: np.ndarray,
+                      bounces: int) -> np.ndarray | None:
+        """G_v sum_{k=1}^{bounces-2} (rho G)^k dB1 (Vr,3): a first-bounce change of patch radiance dB1
+        (P,3) (sun a patch no longer reflects, light of the sunlit object) through the patch transfers
+        G (P,P) for the later bounces the camera sees, passed on to the receiver vertices (G_v (Vr,P));
+        None when there are none. One pass through G_v is the engine's second order (exact, on the
+        changed patches); what has gone through G once is spread over the room and is carried on
+        clusters of neighbouring patches (LaterBounces), a few thousandth of the dense work."""
+        if bounces <= 2:
+            return None
+        lb = self._later
+        if lb is None or lb.key != (id(G), id(G_v), id(albedo)):
             if self.patches is None:
                 raise ValueError("SunStage: later bounces need the patch mesh (patches=)")
-            self._coarse = (G, CoarseTransfer(G, self.patches))
-        return self._coarse[1]
+            lb = self._later = LaterBounces(G, G_v, albedo, self.patches, exact=self.c_patch)
+        return lb(dB1, bounces - 2)
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
                         proxy_occ: Occluder, radius: float) -> tuple[np.ndarray, ExtraEmitters | None]:
@@ -151,7 +142,7 @@ class SunStage:
         (object_light.shape_key)."""
         key = shape_key(pv, pf)
         if self._pieces is None or self._pieces[0] != key:
-            pieces = SunlitPieces(self.light, tris, proxy_occ, size=radius / 4.0)
+            pieces = SunlitPieces(self.light, tris, proxy_occ, size=radius * PIECE_SIZE)
             table = TriangleVisibility(pieces.tris(tris.reshape(-1, 3).mean(0)), proxy_occ, res=PIECE_TABLE_RES) \
                 if len(pieces) else None
             k = PIECE_TABLE_RES // CUBE_RES
@@ -170,7 +161,8 @@ class SunStage:
         clipping: the photo clips there or next to it (`clipped` (H*W,) bool, a sunlit floor) or
         the object's radiance there or next to it is 1 or more (a sunlit face; radiance 1 is the
         white level). Object radiance per ray: L_vert interpolated, with the sun per hit (its
-        self-shadow edge) as Engine._shade_object does."""
+        self-shadow edge: rays on the faces it crosses, SunLight.irradiance_on_mesh) as
+        Engine._shade_object does."""
         H, W = cov.shape
         s = s or self.edge_samples
         v, n, f = mesh
@@ -214,7 +206,7 @@ class SunStage:
             pos = np.einsum("nk,nkc->nc", b, v[corners])
             nrm = np.einsum("nk,nkc->nc", b, n[corners])
             nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-            E_hit = self.light.irradiance(pos, nrm, [own])
+            E_hit = self.light.irradiance_on_mesh(pos, nrm, sun_vert.any(1)[corners], [own])
             rad[h] = np.maximum(rad[h] + albedo * (E_hit - np.einsum("nk,nkc->nc", b, sun_vert[corners])), 0.0)
         k = s * s
         hits = hit.reshape(-1, k)
@@ -225,26 +217,75 @@ class SunStage:
         return py * W + px
 
 
-class CoarseTransfer:
-    """Patch transfers G (P,P) gathered from clusters of neighbouring patches: G_c (P,C) float32, the
-    sum of G's columns over each cluster, so that G x ~ G_c x_c with x_c the area-weighted mean of x
-    over each cluster (exact where x is constant on a cluster). Clusters: the patches of one quad
-    whose centres fall in one cube of twice the median patch side (about 2 x 2 patches)."""
+def patch_clusters(patches) -> tuple[np.ndarray, int]:
+    """(cluster (P,) int, count): the patches of one quad whose centres fall in one cube of twice
+    the median patch side (about 2 x 2 patches)."""
+    side = 2.0 * float(np.median(np.sqrt(patches.area)))
+    key = np.column_stack([patches.quad, np.floor(patches.centre / side).astype(np.int64)])
+    _, cl = np.unique(key, axis=0, return_inverse=True)
+    cl = cl.ravel()
+    return cl, int(cl.max()) + 1
 
-    def __init__(self, G: np.ndarray, patches):
-        side = 2.0 * float(np.median(np.sqrt(patches.area)))
-        key = np.column_stack([patches.quad, np.floor(patches.centre / side).astype(np.int64)])
-        _, cl = np.unique(key, axis=0, return_inverse=True)
-        self.cluster = cl.ravel()
-        self.n = int(self.cluster.max()) + 1
-        order = np.argsort(self.cluster, kind="stable")
-        starts = np.searchsorted(self.cluster[order], np.arange(self.n))
-        self.G = np.ascontiguousarray(np.add.reduceat(G[:, order], starts, axis=1), np.float32)  # (P,C)
-        self.area = np.asarray(patches.area, np.float64)
-        self.cluster_area = np.bincount(self.cluster, self.area, self.n)
 
-    def gather(self, x: np.ndarray) -> np.ndarray:
-        """~G x (P,3) for x (P,3)."""
-        xc = np.stack([np.bincount(self.cluster, self.area * x[:, c], self.n) for c in range(3)], 1)
-        xc /= np.maximum(self.cluster_area, 1e-30)[:, None]
-        return self.G @ xc.astype(np.float32)
+class LaterBounces:
+    """The later bounces of a first-bounce change of patch radiance dB1, at the receiver vertices:
+    G_v sum_{k=1}^{n} (rho G)^k dB1, on clusters of neighbouring patches (patch_clusters).
+
+    A change is carried as its area-weighted mean over each cluster (S, C x P) and sent through the
+    clusters' summed transfers (exact where it is constant on a cluster). The first pass from the
+    `exact` patches (the sunlit ones, where the object's sun shadow falls: a large, sharp loss whose
+    first bounce lights the walls beside it unevenly) is kept exact at the receivers. Per scene, per
+    channel c (float32):
+      Q_c = S diag(rho_c) G_cl (C,C), G_cl (P,C) G's columns summed per cluster: one pass;
+      V = G_v's columns summed per cluster (Vr,C): to the receiver vertices;
+      H_c = G_v diag(rho_c) G[:, exact] (Vr,E): the exact patches' first pass at the receivers;
+      W_c = S diag(rho_c) G[:, exact] (C,E): their first pass on the clusters, for the later passes.
+    Per frame: y_1 = Q S dB1' + W dB1[exact] (dB1': dB1 off the exact patches), y_{k+1} = Q y_k;
+    result H dB1[exact] + V (Q S dB1' + y_2 + ... + y_n). Work per frame ~ C^2, not P^2."""
+
+    def __init__(self, G: np.ndarray, G_v: np.ndarray, albedo: np.ndarray, patches, exact: np.ndarray | None = None):
+        import scipy.sparse as sp
+
+        self.key = (id(G), id(G_v), id(albedo))
+        cl, n = patch_clusters(patches)
+        P = len(cl)
+        area = np.asarray(patches.area, np.float64)
+        self.cluster, self.n = cl, n
+        self.w = area / np.bincount(cl, area, n)[cl]  # area-weighted mean over each cluster
+        sum_cols = sp.csr_matrix((np.ones(P, np.float32), (np.arange(P), cl)), shape=(P, n))  # (P,C)
+        sum_rows = sum_cols.T.tocsr()  # (C,P)
+        G32, G_v32 = np.asarray(G, np.float32), np.asarray(G_v, np.float32)
+        G_cl = np.ascontiguousarray((sum_rows @ G32.T).T, np.float32)  # (P,C): G's columns summed per cluster
+        self.exact = np.zeros(0, np.int64) if exact is None else np.unique(np.asarray(exact, np.int64))
+        self.is_exact = np.zeros(P, bool)
+        self.is_exact[self.exact] = True
+        G_ex = G32[:, self.exact]  # (P,E)
+        Q, W, H = [], [], []
+        for c in range(3):
+            rho = albedo[:, c].astype(np.float32)
+            S_c = sp.csr_matrix(((self.w * rho).astype(np.float32), (cl, np.arange(P))), shape=(n, P))
+            Q.append(S_c @ G_cl)  # (C,C)
+            W.append((S_c @ G_ex).T)  # (E,C)
+            H.append(G_v32 @ (rho[:, None] * G_ex))  # (Vr,E)
+        self.Q = np.ascontiguousarray(np.stack(Q), np.float32)  # (3,C,C)
+        self.W = np.ascontiguousarray(np.stack(W), np.float32)  # (3,E,C)
+        self.H = np.ascontiguousarray(np.stack(H), np.float32)  # (3,Vr,E)
+        self.V = np.ascontiguousarray((sum_rows @ G_v32.T).T, np.float32)  # (Vr,C)
+
+    def __call__(self, dB1: np.ndarray, n: int) -> np.ndarray:
+        """G_v sum_{k=1}^{n} (rho G)^k dB1 (Vr,3) for dB1 (P,3). The products are einsums over a
+        contiguous last axis, not BLAS calls: a threaded BLAS on a loaded machine took 40-60 ms for what
+        takes 1-2 ms here."""
+        if n <= 0 or not np.any(dB1):
+            return np.zeros((len(self.V), 3))
+        rest = np.where(self.is_exact[:, None], 0.0, dB1) * self.w[:, None]
+        xm = np.stack([np.bincount(self.cluster, rest[:, c], self.n) for c in range(3)]).astype(np.float32)  # (3,C)
+        y = np.einsum("cij,cj->ci", self.Q, xm)  # first pass of the rest, on the clusters
+        total = y.copy()
+        xe = np.ascontiguousarray(dB1[self.exact].T, np.float32)  # (3,E)
+        out = np.einsum("cve,ce->vc", self.H, xe)  # first pass of the exact patches, at the receivers
+        y += np.einsum("ce,cek->ck", xe, self.W)
+        for _ in range(n - 1):
+            y = np.einsum("cij,cj->ci", self.Q, y)
+            total += y
+        return out + np.einsum("vk,ck->vc", self.V, total)

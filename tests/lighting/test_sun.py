@@ -130,6 +130,37 @@ def test_opening_blocked_by_geometry_is_no_sun(room):
     assert np.all(E == 0) and "miss every opening" in light.reason
 
 
+def test_irradiance_on_mesh_tests_only_the_faces_a_shadow_edge_crosses(room):
+    # a 0.1 m floor grid over the sunlit patch: points on faces whose corners agree take the sun from n.d
+    # (lit) or none (dark), the rest a ray each; the same light as a ray per point wherever the patch's
+    # straight edges cross the faces (only a corner of the lit polygon inside a face could differ)
+    s, pm, _ = room
+    light = _light(room, [-0.74, 0.62, 0.27])
+    E = light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)
+    floor = np.array([s.quads[q].name == "floor" for q in pm.quad]) & (E[:, 0] > 0)
+    lo, hi = pm.centre[floor].min(0) - 0.4, pm.centre[floor].max(0) + 0.4
+    xs, zs = np.arange(lo[0], hi[0], 0.1), np.arange(lo[2], hi[2], 0.1)
+    X, Z = np.meshgrid(xs, zs, indexing="ij")
+    v = np.stack([X.ravel(), np.full(X.size, 1e-3), Z.ravel()], 1)
+    nx, nz = len(xs), len(zs)
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(nz - 1), indexing="ij")
+    a, b, c, d = (i * nz + j).ravel(), ((i + 1) * nz + j).ravel(), ((i + 1) * nz + j + 1).ravel(), (i * nz + j + 1).ravel()
+    f = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    up = np.tile([0.0, 1.0, 0.0], (len(v), 1))
+    lit_v = light.visibility(v, up) > 0
+    rng = np.random.default_rng(3)
+    tri = rng.integers(0, len(f), 20000)
+    w = rng.dirichlet(np.ones(3), len(tri))
+    pts = np.einsum("nk,nkc->nc", w, v[f[tri]])
+    nrm = np.tile([0.0, 1.0, 0.0], (len(tri), 1))
+    ours = light.irradiance_on_mesh(pts, nrm, lit_v[f[tri]])
+    ref = light.irradiance(pts, nrm)
+    mixed = (lit_v[f[tri]].sum(1) % 3) > 0
+    assert ref[:, 0].max() > 0 and (ref[:, 0] == 0).any() and 0 < mixed.mean() < 0.3
+    assert (np.abs(ours - ref).max(1) > 0).mean() < 0.005
+    assert np.array_equal(ours[mixed], ref[mixed])
+
+
 # ---------------------------------------------------------------- PCSS kernel, analytic
 def test_sunlit_pieces_keep_the_power_and_the_self_shadow(room):
     # a 1 m x 1 m floor square lit whole: pieces carry its power, area x E_perp cos / pi; with a plate
@@ -311,6 +342,79 @@ def test_sunlit_object_light_matches_a_ray_per_piece(sun_drag):
     assert np.abs(ours_p - ref_p).sum() < 0.05 * sun_p
     area = e.pre.patches.area[:, None]
     assert (ours_c * area).sum() == pytest.approx((ref_c * area).sum(), rel=0.04)
+
+
+def test_later_bounces_on_clusters_match_the_dense_sum(sun_drag):
+    # SunStage.later_bounces (LaterBounces: the first pass from the sunlit patches exact, the rest on
+    # clusters of patches) against G_v sum_k (rho G)^k dB1 with the dense matrices, for the frame's own
+    # first-bounce change (the object's sun shadow and its light) and for one on the sunlit patches only
+    s, e, frames, _ = sun_drag
+    pm = e.pre.patches
+    pv, pf, occ, _, _ = e._object_shape(s.obj)
+    loss, loss_c = e.sun_stage.frame(s.obj.vertices, s.obj.faces)
+    centre = 0.5 * (pv.min(0) + pv.max(0))
+    radius = float(np.linalg.norm(pv - centre, axis=1).max())
+    _, R_cen = e._object_light(pv, pf, e._object_triangle_radiance(s.obj, pv, pf, occ, e.B_obj), occ, centre, radius)
+    G, G_v = e.pre.G_c.astype(np.float64), e.pre.G_v.astype(np.float64)
+    for dB1 in (pm.albedo * (R_cen - loss_c), -pm.albedo * loss_c):
+        assert np.abs(dB1).sum() > 0
+        ours = e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4)
+        cur, more = dB1, np.zeros_like(dB1)
+        for _ in range(2):
+            cur = pm.albedo * (G @ cur)
+            more += cur
+        ref = G_v @ more
+        err = np.abs(ours - ref) / np.maximum(e.E_v, 1e-12)
+        assert np.abs(ref).max() > 0.01 * e.E_v.max()  # a change worth carrying
+        assert np.percentile(err, 99) < 0.01 and err.max() < 0.03
+    assert e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2) is None  # no later bounce
+
+
+def test_pcss_block_ranges_give_the_taps_answer():
+    # a lookup whose texels are all nearer than the receiver (or none) answers from the blocks' depth
+    # ranges without its taps: the same occlusion as with one block for the whole map (taps nearly
+    # always read), in the shadow, its penumbra, beside it and off the map
+    from kernels.sunshadow import SunShadowMap
+
+    d, a = np.array([0.3, 1.0, 0.2]), np.radians(0.265)
+    v = np.array([[-0.2, 0.5, -0.2], [0.2, 0.5, -0.2], [0.2, 0.6, 0.2], [-0.2, 0.5, 0.2], [0.0, 0.9, 0.0]])
+    f = np.array([[0, 1, 2], [0, 2, 3], [0, 1, 4], [1, 2, 4]])
+    rng = np.random.default_rng(2)
+    pts = rng.uniform(-0.8, 0.8, (40000, 3)) * [1, 0, 1]
+    pts[:, 1] = rng.uniform(0.0, 0.45, len(pts))
+    fp = rng.uniform(0.0, 4e-3, len(pts))
+    out = []
+    for block in (16, 256):
+        m = SunShadowMap(d, a, res=256, device="cpu", block=block)
+        m.render(v, f)
+        out.append(m.occlusion(pts, fp))
+    assert ((out[1] > 0) & (out[1] < 1)).sum() > 60 and (out[1] == 1).sum() > 1000 and (out[1] == 0).sum() > 1000
+    assert np.array_equal(out[0], out[1])
+
+
+def test_sun_map_is_kept_for_a_moved_object():
+    # the orthographic map is measured from the object's box centre: a moved object of the same shape
+    # reuses it (no rasterisation) and gives the lookups a fresh map gives; a turned one is drawn anew
+    from kernels.sunshadow import SunShadowMap
+
+    d, a = np.array([0.3, 1.0, 0.2]), np.radians(0.265)
+    v = np.array([[-0.2, 0.5, -0.2], [0.2, 0.5, -0.2], [0.2, 0.6, 0.2], [-0.2, 0.5, 0.2]])
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    pts = np.random.default_rng(1).uniform(-0.6, 0.6, (400, 3)) * [1, 0, 1]
+    fp = np.full(400, 2e-3)
+    m = SunShadowMap(d, a, res=256, device="cpu")
+    m.render(v, f)
+    t = np.array([0.13, 0.0, -0.07])
+    m.render(v + t, f)
+    fresh = SunShadowMap(d, a, res=256, device="cpu")
+    fresh.render(v + t, f)
+    assert m.n_renders == 1 and fresh.n_renders == 1
+    ours, ref = m.occlusion(pts + t, fp), fresh.occlusion(pts + t, fp)
+    assert ref.max() > 0.5 and np.abs(ours - ref).max() < 1e-6
+    R = np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]])
+    m.render(v @ R.T, f)
+    fresh.render(v @ R.T, f)
+    assert m.n_renders == 2 and np.abs(m.occlusion(pts, fp) - fresh.occlusion(pts, fp)).max() < 1e-6
 
 
 # ---------------------------------------------------------------- sun_room end to end
