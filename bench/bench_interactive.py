@@ -149,17 +149,24 @@ def _release(eng, scene, rmse, schedule: bool) -> tuple[float, float, list]:
     return conv, out[-1][0], out
 
 
-def bench_refine(name: str, scene_dir: Path, repeat: int) -> None:
+def _truth(name: str, scene_dir: Path):
+    """(truth.png as RGB, truth_mask.png) of a scene, or None (said) where it has no truth."""
     import cv2
 
+    if not (scene_dir / "truth.png").is_file():
+        print(f"{name}: no truth.png, skipped")
+        return None
+    return (read_image_rgb(scene_dir / "truth.png"),
+            cv2.imread(str(scene_dir / "truth_mask.png"), cv2.IMREAD_GRAYSCALE))
+
+
+def bench_refine(name: str, scene_dir: Path, repeat: int) -> None:
     from app.stages.shadow_pass import CLUSTER_MAP_RES
 
     scene = load_scene(scene_dir)
-    if not (scene_dir / "truth.png").is_file():
-        print(f"{name}: no truth.png, skipped")
+    if (truth_mask := _truth(name, scene_dir)) is None:
         return
-    truth = read_image_rgb(scene_dir / "truth.png")
-    mask = cv2.imread(str(scene_dir / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+    truth, mask = truth_mask
 
     def rmse(px):
         return metrics.score_regions(px, scene.photo, truth, mask)["rmse_affected"]
@@ -226,16 +233,12 @@ def _hybrid_select(ss, K: int, C: int):
 
 
 def bench_refine_hybrid(name: str, scene_dir: Path) -> None:
-    import cv2
-
     from app.composite import default_cache_dir
 
     scene = load_scene(scene_dir)
-    if not (scene_dir / "truth.png").is_file():
-        print(f"{name}: no truth.png, skipped")
+    if (truth_mask := _truth(name, scene_dir)) is None:
         return
-    truth = read_image_rgb(scene_dir / "truth.png")
-    mask = cv2.imread(str(scene_dir / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+    truth, mask = truth_mask
     eng = Engine(scene, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
     eng.render(scene.obj, FrameConfig(passes=50))  # warm
     ss, rows = eng.shadow_sources, []

@@ -12,7 +12,7 @@ import warp as wp
 
 from kernels import runtime
 from kernels.buffers import Buffer, Workspace
-from kernels.visibility import _point_launches, cube_cell
+from kernels.visibility import _point_launches, cube_cell, seen_table
 
 
 @wp.kernel
@@ -49,18 +49,11 @@ def point_emitter_sum(points: np.ndarray, normals: np.ndarray, centres: np.ndarr
     n = len(points)
     if n == 0 or len(centres) == 0:
         return np.zeros((n, 3))
-    if workspace is None:
-        ws, block = Workspace(), n
-    else:
-        ws, block = workspace, workspace.rows
-    seen = np.asarray(seen)
-    table = ws.buffer("seen", max(len(seen), capacity), wp.float32, device, (seen.shape[1],))
-    table.host[:len(seen), :seen.shape[1]] = seen
-    table.push(len(seen))
+    ws, block = (Workspace(), n) if workspace is None else (workspace, workspace.rows)
     shared = [ws.upload("centres", np.asarray(centres, np.float64), wp.vec3d, device, capacity),
               ws.upload("area_normals", np.asarray(area_normals, np.float64), wp.vec3d, device, capacity),
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device, capacity),
-              table.dev[:len(seen), :seen.shape[1]], int(res)]
+              seen_table(ws, seen, wp.float32, device, capacity), int(res)]
     return _point_launches(_point_emitters_kernel, points, normals, shared, ws, block, device, split)
 
 

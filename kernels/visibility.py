@@ -276,18 +276,21 @@ def emitter_sum_seen(points: np.ndarray, normals: np.ndarray, triangles: np.ndar
     n = len(points)
     if n == 0 or len(triangles) == 0:
         return np.zeros((n, 3))
-    if workspace is None:
-        ws, block = Workspace(), n
-    else:
-        ws, block = workspace, workspace.rows
-    seen = np.asarray(seen)
-    table = ws.buffer("seen", max(len(seen), capacity), wp.uint8, device, (seen.shape[1],))
-    table.host[:len(seen), :seen.shape[1]] = seen
-    table.push(len(seen))
+    ws, block = (Workspace(), n) if workspace is None else (workspace, workspace.rows)
     shared = [ws.upload("tris", np.asarray(triangles, np.float64), wp.vec3d, device, capacity),
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device, capacity),
-              table.dev[:len(seen)], int(res)]
+              seen_table(ws, seen, wp.uint8, device, capacity), int(res)]
     return _point_launches(_emitter_sum_seen_kernel, points, normals, shared, ws, block, device, split)
+
+
+def seen_table(ws: Workspace, seen: np.ndarray, dtype, device: str, capacity: int = 0) -> wp.array:
+    """A per-emitter visibility table (E, cells) pushed into ws's buffer "seen" (at least `capacity`
+    rows, kept between calls); returns the device view of its first E rows."""
+    seen = np.asarray(seen)
+    table = ws.buffer("seen", max(len(seen), capacity), dtype, device, (seen.shape[1],))
+    table.host[:len(seen), :seen.shape[1]] = seen
+    table.push(len(seen))
+    return table.dev[:len(seen), :seen.shape[1]]
 
 
 @wp.kernel
