@@ -29,7 +29,7 @@ import warp as wp
 
 from kernels import runtime
 from kernels.buffers import Buffer
-from kernels.shadowmap import MapSet, ShadowMaps, may_occlude, texel_depth
+from kernels.shadowmap import MapSet, ShadowMaps, depth_range, may_occlude, texel_depth
 from kernels.visibility import segment_blocked
 
 
@@ -81,6 +81,30 @@ def _hard(ms: MapSet, s: int, x: float, y: float, z: float) -> float:
 
 
 @wp.func
+def _box_taps(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: wp.vec2, g: float) -> int:
+    """What the n x n taps x + u a1 + v a2 (|u|, |v| <= g (1 - 1/n)) of map s can say at view
+    depth z, from the depth range pyramid over the texels they round to: 0 none is blocked, 1 all
+    are, -1 unknown (look them up). Exact: texel depths lie within the range, and a tap off the
+    map reads no blocker."""
+    e = g * (1.0 - 1.0 / float(PCSS_TAPS))
+    hx = e * (wp.abs(a1[0]) + wp.abs(a2[0])) + 1.0e-3
+    hy = e * (wp.abs(a1[1]) + wp.abs(a2[1])) + 1.0e-3
+    x0 = int(wp.floor(x - hx + 0.5))
+    x1 = int(wp.floor(x + hx + 0.5))
+    y0 = int(wp.floor(y - hy + 0.5))
+    y1 = int(wp.floor(y + hy + 0.5))
+    if x1 < 0 or y1 < 0 or x0 >= ms.res or y0 >= ms.res:
+        return 0
+    inside = x0 >= 0 and y0 >= 0 and x1 < ms.res and y1 < ms.res
+    r = depth_range(ms, s, wp.max(x0, 0), wp.min(x1, ms.res - 1), wp.max(y0, 0), wp.min(y1, ms.res - 1))
+    if z <= r[0] + ms.bias:
+        return 0
+    if inside and z > r[1] + ms.bias:
+        return 1
+    return -1
+
+
+@wp.func
 def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: wp.vec2) -> float:
     """Occluded share (0..1) of map s's cluster of sources at the point seen at texel (x, y)
     and view depth z (PCSS): a1, a2 = the cluster's half-axes (m, MapSet.axis1/2) x texels per
@@ -88,13 +112,17 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: 
     texels as the source moves by a across the cluster, so the lookup is filtered over the
     parallelogram u a1 + v a2 (|u|, |v| <= 1) so scaled, zb the mean depth of the blockers found
     in the widest such one (zb = the proxy's nearest depth). Below half a texel it is the hard
-    lookup of kernels.shadowmap.occluded."""
+    lookup of kernels.shadowmap.occluded. Where the depth range pyramid shows that no tap of a
+    box, or every one, is blocked, its taps are not looked up (_box_taps: the same result)."""
     zn = wp.max(ms.near[s], 1.0e-3)
     l1 = wp.max(wp.length(a1), wp.length(a2))
     gs = wp.max(z - zn, 0.0) / (z * zn)
     gs = wp.min(gs, float(ms.res) / wp.max(l1, 1.0e-9))
     if gs * l1 < 0.5:
         return _hard(ms, s, x, y, z)
+    known = _box_taps(ms, s, x, y, z, a1, a2, gs)
+    if known >= 0:  # no blocker found (lit), or every tap of the widest box blocked: the narrower too (umbra)
+        return float(known)
     zsum = float(0.0)
     nb = float(0.0)
     n = PCSS_TAPS
@@ -114,6 +142,9 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: 
     g = wp.min((z - zb) / (z * zb), gs)
     if g * l1 < 0.5:
         return _hard(ms, s, x, y, z)
+    known = _box_taps(ms, s, x, y, z, a1, a2, g)
+    if known >= 0:
+        return float(known)
     hit = float(0.0)
     for a in range(n):
         for b in range(n):
