@@ -18,6 +18,12 @@ the run and looking up nearby texels point after point. The work of a point is t
 cell's list, so concurrent ranges are cut by work (`balanced`), not by point count: the cells near
 the object list most maps.
 
+A cluster map (a spread) is looked up with a PCSS penumbra (`penumbra`). Its cost is held down
+by the map's depth range pyramid (kernels.shadowmap.depth_range): a run whose points' widest
+boxes are all lit, or all in umbra, is settled with no tap (exact), as is a point's blocker
+search or filter box; a run within one tap spacing of its mean shares one blocker search there
+(`_run_blockers`), each point still filtering its own box.
+
 The points are uploaded once (MaskedSum's constructor); a frame sums over a listed subset of
 them (`select`), in any number of index ranges (app.runtime.split, or `balanced`). No Warp array
 is allocated after construction.
