@@ -18,6 +18,12 @@ the run and looking up nearby texels point after point. The work of a point is t
 cell's list, so concurrent ranges are cut by work (`balanced`), not by point count: the cells near
 the object list most maps.
 
+A cluster map (a spread) is looked up with a PCSS penumbra (`penumbra`). Its cost is held down
+by the map's depth range pyramid (kernels.shadowmap.depth_range): a run whose points' widest
+boxes are all lit, or all in umbra, is settled with no tap (exact), as is a point's blocker
+search or filter box; a run within one tap spacing of its mean shares one blocker search there
+(`_run_blockers`), each point still filtering its own box.
+
 The points are uploaded once (MaskedSum's constructor); a frame sums over a listed subset of
 them (`select`), in any number of index ranges (app.runtime.split, or `balanced`). No Warp array
 is allocated after construction.
@@ -29,7 +35,7 @@ import warp as wp
 
 from kernels import runtime
 from kernels.buffers import Buffer
-from kernels.shadowmap import MapSet, ShadowMaps, may_occlude, texel_depth
+from kernels.shadowmap import MapSet, ShadowMaps, depth_range, may_occlude, texel_depth
 from kernels.visibility import segment_blocked
 
 
@@ -81,20 +87,37 @@ def _hard(ms: MapSet, s: int, x: float, y: float, z: float) -> float:
 
 
 @wp.func
-def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: wp.vec2) -> float:
-    """Occluded share (0..1) of map s's cluster of sources at the point seen at texel (x, y)
-    and view depth z (PCSS): a1, a2 = the cluster's half-axes (m, MapSet.axis1/2) x texels per
-    unit tangent, in the map's (right, up). A blocker at depth zb shifts by a (z - zb) / (z zb)
-    texels as the source moves by a across the cluster, so the lookup is filtered over the
-    parallelogram u a1 + v a2 (|u|, |v| <= 1) so scaled, zb the mean depth of the blockers found
-    in the widest such one (zb = the proxy's nearest depth). Below half a texel it is the hard
-    lookup of kernels.shadowmap.occluded."""
-    zn = wp.max(ms.near[s], 1.0e-3)
-    l1 = wp.max(wp.length(a1), wp.length(a2))
-    gs = wp.max(z - zn, 0.0) / (z * zn)
-    gs = wp.min(gs, float(ms.res) / wp.max(l1, 1.0e-9))
-    if gs * l1 < 0.5:
-        return _hard(ms, s, x, y, z)
+def _box_taps(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: wp.vec2, g: float) -> int:
+    """What the n x n taps x + u a1 + v a2 (|u|, |v| <= g (1 - 1/n)) of map s can say at view
+    depth z, from the depth range pyramid over the texels they round to: 0 none is blocked, 1 all
+    are, -1 unknown (look them up). Exact: texel depths lie within the range, and a tap off the
+    map reads no blocker."""
+    e = g * (1.0 - 1.0 / float(PCSS_TAPS))
+    hx = e * (wp.abs(a1[0]) + wp.abs(a2[0])) + 1.0e-3
+    hy = e * (wp.abs(a1[1]) + wp.abs(a2[1])) + 1.0e-3
+    x0 = int(wp.floor(x - hx + 0.5))
+    x1 = int(wp.floor(x + hx + 0.5))
+    y0 = int(wp.floor(y - hy + 0.5))
+    y1 = int(wp.floor(y + hy + 0.5))
+    if x1 < 0 or y1 < 0 or x0 >= ms.res or y0 >= ms.res:
+        return 0
+    inside = x0 >= 0 and y0 >= 0 and x1 < ms.res and y1 < ms.res
+    r = depth_range(ms, s, wp.max(x0, 0), wp.min(x1, ms.res - 1), wp.max(y0, 0), wp.min(y1, ms.res - 1))
+    if z <= r[0] + ms.bias:
+        return 0
+    if inside and z > r[1] + ms.bias:
+        return 1
+    return -1
+
+
+@wp.func
+def _blockers(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: wp.vec2, gs: float) -> wp.vec2:
+    """PCSS blocker search of penumbra's widest box (scale gs) about (x, y) at view depth z:
+    (0, 0) none blocked, (1, 0) all blocked, else (-1, the blockers' mean depth, at least the
+    proxy's nearest)."""
+    known = _box_taps(ms, s, x, y, z, a1, a2, gs)
+    if known >= 0:
+        return wp.vec2(float(known), 0.0)
     zsum = float(0.0)
     nb = float(0.0)
     n = PCSS_TAPS
@@ -107,13 +130,81 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: 
                 zsum += t
                 nb += 1.0
     if nb == 0.0:
-        return 0.0
-    if nb == float(n * n):  # every tap of the widest box blocked: the narrower filter box too (umbra)
-        return 1.0
-    zb = wp.max(zsum / nb, zn)
+        return wp.vec2(0.0, 0.0)
+    if nb == float(n * n):
+        return wp.vec2(1.0, 0.0)
+    return wp.vec2(-1.0, wp.max(zsum / nb, wp.max(ms.near[s], 1.0e-3)))
+
+
+@wp.func
+def _run_blockers(ms: MapSet, s: int, a1: wp.vec2, a2: wp.vec2, xl: float, xh: float, yl: float, yh: float,
+                  zl: float, zh: float, xm: float, ym: float, zm: float) -> wp.vec2:
+    """What a run of points (texel box xl..xh, yl..yh, view depths zl..zh, mean (xm, ym, zm))
+    shares in map s: (0, 0) every point lit and (1, 0) every point in umbra (exact: every tap
+    of every point's widest box, from the depth range pyramid); (2, zb) one blocker search at the
+    run's mean gives its points' blocker depth zb, where the run lies within one tap spacing of
+    that search's widest axis (its points' own searches would differ by less than a tap's
+    offset); (3, 0) each point searches."""
+    zn = wp.max(ms.near[s], 1.0e-3)
+    l1 = wp.max(wp.length(a1), wp.length(a2))
+    lim = float(ms.res) / wp.max(l1, 1.0e-9)
+    gh = wp.min(wp.max(zh - zn, 0.0) / (zh * zn), lim)  # the scale grows with the depth
+    e = gh * (1.0 - 1.0 / float(PCSS_TAPS))  # every point's widest box (and its own texel) lies in this one
+    hx = e * (wp.abs(a1[0]) + wp.abs(a2[0])) + 1.0e-3
+    hy = e * (wp.abs(a1[1]) + wp.abs(a2[1])) + 1.0e-3
+    x0 = int(wp.floor(xl - hx + 0.5))
+    x1 = int(wp.floor(xh + hx + 0.5))
+    y0 = int(wp.floor(yl - hy + 0.5))
+    y1 = int(wp.floor(yh + hy + 0.5))
+    if x1 < 0 or y1 < 0 or x0 >= ms.res or y0 >= ms.res:
+        return wp.vec2(0.0, 0.0)
+    inside = x0 >= 0 and y0 >= 0 and x1 < ms.res and y1 < ms.res
+    r = depth_range(ms, s, wp.max(x0, 0), wp.min(x1, ms.res - 1), wp.max(y0, 0), wp.min(y1, ms.res - 1))
+    if zh <= r[0] + ms.bias:
+        return wp.vec2(0.0, 0.0)
+    if inside and zl > r[1] + ms.bias:
+        return wp.vec2(1.0, 0.0)
+    gm = wp.min(wp.max(zm - zn, 0.0) / (zm * zn), lim)
+    gl = wp.min(wp.max(zl - zn, 0.0) / (zl * zn), lim)
+    step = 2.0 * gm * l1 / float(PCSS_TAPS)
+    if gl * l1 < 0.5 or wp.max(xh - xl, yh - yl) > step or (gh - gl) * l1 > step:
+        return wp.vec2(3.0, 0.0)
+    sb = _blockers(ms, s, xm, ym, zm, a1, a2, gm)
+    if sb[0] >= 0.0:
+        return sb
+    return wp.vec2(2.0, sb[1])
+
+
+@wp.func
+def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: wp.vec2, zb_run: float) -> float:
+    """Occluded share (0..1) of map s's cluster of sources at the point seen at texel (x, y)
+    and view depth z (PCSS): a1, a2 = the cluster's half-axes (m, MapSet.axis1/2) x texels per
+    unit tangent, in the map's (right, up). A blocker at depth zb shifts by a (z - zb) / (z zb)
+    texels as the source moves by a across the cluster, so the lookup is filtered over the
+    parallelogram u a1 + v a2 (|u|, |v| <= 1) so scaled, zb the mean depth of the blockers found
+    in the widest such one (zb = the proxy's nearest depth). Below half a texel it is the hard
+    lookup of kernels.shadowmap.occluded. Where the depth range pyramid shows that no tap of a
+    box, or every one, is blocked, its taps are not looked up (_box_taps: the same result).
+    zb_run > 0: the blocker depth of the point's run (_run_blockers), no search of its own."""
+    zn = wp.max(ms.near[s], 1.0e-3)
+    l1 = wp.max(wp.length(a1), wp.length(a2))
+    gs = wp.max(z - zn, 0.0) / (z * zn)
+    gs = wp.min(gs, float(ms.res) / wp.max(l1, 1.0e-9))
+    if gs * l1 < 0.5:
+        return _hard(ms, s, x, y, z)
+    zb = zb_run
+    if zb <= 0.0:
+        sb = _blockers(ms, s, x, y, z, a1, a2, gs)
+        if sb[0] >= 0.0:  # no blocker found (lit), or every tap of the widest box blocked: the narrower too (umbra)
+            return sb[0]
+        zb = sb[1]
+    n = PCSS_TAPS
     g = wp.min((z - zb) / (z * zb), gs)
     if g * l1 < 0.5:
         return _hard(ms, s, x, y, z)
+    known = _box_taps(ms, s, x, y, z, a1, a2, g)
+    if known >= 0:
+        return float(known)
     hit = float(0.0)
     for a in range(n):
         for b in range(n):
@@ -164,6 +255,39 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, run_s
         sp = ms.spread[s]
         a1 = wp.vec2(wp.dot(ms.axis1[s], rt), wp.dot(ms.axis1[s], up)) * (it * half)
         a2 = wp.vec2(wp.dot(ms.axis2[s], rt), wp.dot(ms.axis2[s], up)) * (it * half)
+        run = wp.vec2(3.0, 0.0)
+        if sp > 0.0:  # a cluster map: what the whole run shares (all its points, for any cut lo..hi)
+            xl = float(1.0e30)
+            xh = float(-1.0e30)
+            yl = float(1.0e30)
+            yh = float(-1.0e30)
+            zl = float(1.0e30)
+            zh = float(-1.0e30)
+            xs = float(0.0)
+            ys = float(0.0)
+            zs = float(0.0)
+            m = float(0.0)
+            for i in range(run_start[r], run_start[r + 1]):
+                d = pos[idx[i]] - o
+                z = wp.dot(d, f)
+                if z > 1.0e-6:
+                    x = wp.dot(d, rt) / z * it * half + half - 0.5
+                    y = wp.dot(d, up) / z * it * half + half - 0.5
+                    xl = wp.min(xl, x)
+                    xh = wp.max(xh, x)
+                    yl = wp.min(yl, y)
+                    yh = wp.max(yh, y)
+                    zl = wp.min(zl, z)
+                    zh = wp.max(zh, z)
+                    xs += x
+                    ys += y
+                    zs += z
+                    m += 1.0
+            if m == 0.0:
+                continue
+            run = _run_blockers(ms, s, a1, a2, xl, xh, yl, yh, zl, zh, xs / m, ys / m, zs / m)
+            if run[0] == 0.0:
+                continue
         for i in range(a, b):
             k = idx[i]
             d = pos[k] - o
@@ -173,7 +297,12 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, run_s
                 y = wp.dot(d, up) / z * it * half + half - 0.5
                 fr = float(0.0)
                 if sp > 0.0:  # a cluster map: its penumbra
-                    fr = penumbra(ms, s, x, y, z, a1, a2)
+                    if run[0] == 1.0:
+                        fr = 1.0
+                    elif run[0] == 2.0:
+                        fr = penumbra(ms, s, x, y, z, a1, a2, run[1])
+                    else:
+                        fr = penumbra(ms, s, x, y, z, a1, a2, 0.0)
                 else:  # one source: the hard lookup of kernels.shadowmap.occluded
                     fr = _hard(ms, s, x, y, z)
                 if fr > 0.0:

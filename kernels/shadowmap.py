@@ -47,6 +47,13 @@ class MapSet:
     axis2: wp.array(dtype=wp.vec3)
     depth: wp.array3d(dtype=wp.float32)
     coarse: wp.array3d(dtype=wp.int32)  # (S, ceil(res/COARSE), same): 1 where a triangle may have drawn
+    # depth range pyramid (ShadowMaps.build_mips): level l >= 1 holds the min and max depth of
+    # texel blocks of side 2^l, side mip_side[l] = ceil(mip_side[l-1] / 2), flat at mip_off[l]
+    mip_min: wp.array2d(dtype=wp.float32)  # (S, mip_off[mip_levels])
+    mip_max: wp.array2d(dtype=wp.float32)
+    mip_off: wp.array(dtype=wp.int32)  # (mip_levels + 1,): offset of level l (level 0 = depth itself)
+    mip_side: wp.array(dtype=wp.int32)
+    mip_levels: int  # the coarsest level (side 1)
     res: int
     bias: float
     proxy: wp.uint64
@@ -86,6 +93,55 @@ def texel_depth(ms: MapSet, s: int, x: float, y: float) -> float:
     if ix < 0 or iy < 0 or ix >= ms.res or iy >= ms.res:
         return float(1.0e30)
     return ms.depth[s, iy, ix]
+
+
+@wp.func
+def depth_range(ms: MapSet, s: int, x0: int, x1: int, y0: int, y1: int) -> wp.vec2:
+    """(min, max) of map s's depth over texels x0..x1, y0..y1 (inside the map) or over a block
+    of the pyramid holding them: a lower and an upper bound of every texel there. At most four
+    reads, at the finest level where the range spans at most two blocks per axis."""
+    if x0 == x1 and y0 == y1:
+        d = ms.depth[s, y0, x0]
+        return wp.vec2(d, d)
+    lv = int(1)
+    while lv < ms.mip_levels and ((x1 >> lv) - (x0 >> lv) > 1 or (y1 >> lv) - (y0 >> lv) > 1):
+        lv += 1
+    off = ms.mip_off[lv]
+    side = ms.mip_side[lv]
+    lo = float(1.0e30)
+    hi = float(-1.0e30)
+    for by in range(y0 >> lv, (y1 >> lv) + 1):
+        for bx in range(x0 >> lv, (x1 >> lv) + 1):
+            lo = wp.min(lo, ms.mip_min[s, off + by * side + bx])
+            hi = wp.max(hi, ms.mip_max[s, off + by * side + bx])
+    return wp.vec2(lo, hi)
+
+
+@wp.kernel
+def _mip_kernel(ms: MapSet, first: int, lv: int):
+    k, by, bx = wp.tid()
+    s = first + k
+    side = ms.mip_side[lv]
+    if by >= side or bx >= side:
+        return
+    cside = ms.mip_side[lv - 1]
+    coff = ms.mip_off[lv - 1]
+    lo = float(1.0e30)
+    hi = float(-1.0e30)
+    for dy in range(2):
+        for dx in range(2):
+            cy = 2 * by + dy
+            cx = 2 * bx + dx
+            if cy < cside and cx < cside:
+                if lv == 1:
+                    d = ms.depth[s, cy, cx]
+                    lo = wp.min(lo, d)
+                    hi = wp.max(hi, d)
+                else:
+                    lo = wp.min(lo, ms.mip_min[s, coff + cy * cside + cx])
+                    hi = wp.max(hi, ms.mip_max[s, coff + cy * cside + cx])
+    ms.mip_min[s, ms.mip_off[lv] + by * side + bx] = lo
+    ms.mip_max[s, ms.mip_off[lv] + by * side + bx] = hi
 
 
 @wp.func
@@ -222,11 +278,22 @@ class ShadowMaps:
         self.ms.depth = wp.full((cap, self.res, self.res), float("inf"), dtype=wp.float32, device=d)
         n_coarse = -(-self.res // COARSE)
         self.ms.coarse = wp.zeros((cap, n_coarse, n_coarse), dtype=wp.int32, device=d)
+        side, off = [self.res], [0, 0]
+        while side[-1] > 1:
+            side.append(-(-side[-1] // 2))
+            off.append(off[-1] + side[-1] ** 2)
+        self._mip_side = side
+        self.ms.mip_levels = len(side) - 1
+        self.ms.mip_side = wp.array(np.array(side, np.int32), dtype=wp.int32, device=d)
+        self.ms.mip_off = wp.array(np.array(off[:len(side)], np.int32), dtype=wp.int32, device=d)
+        self.ms.mip_min = wp.zeros((cap, max(off[-1], 1)), dtype=wp.float32, device=d)
+        self.ms.mip_max = wp.zeros_like(self.ms.mip_min)
         self.ms.res = self.res
         self.ms.bias = self.bias
         self.ms.proxy = wp.uint64(0)
         self.ms.cull = 0
         self.n = 0  # maps in the current batch
+        self._soft = False  # the batch has cluster maps (a spread): raster builds their pyramids
         self._proxy: Occluder | None = None
         self._closed: tuple[bytes, bool] | None = None  # (mesh key, closed) of the last proxy
 
@@ -280,14 +347,24 @@ class ShadowMaps:
         self.ms.depth.fill_(float("inf"))  # one fill of the whole batch (a kernel per texel costs far more)
         self.ms.coarse.zero_()
         self.n = n
+        self._soft = bool(np.any(sp > 0))
         return n
 
     def raster(self, lo: int, hi: int) -> None:
         """Draw maps lo..hi-1 of the prepared batch (one launch; disjoint ranges may run
-        concurrently)."""
+        concurrently), and their depth range pyramids where the batch has a spread."""
         if self._n_tris and hi > lo:
             wp.launch(_raster_kernel, dim=(hi - lo, self._n_tris), inputs=[self.ms, lo, self._verts, self._tris],
                       device=self.device)
+        if self._soft and hi > lo:  # the penumbra's lookups read the depth range pyramid
+            self.build_mips(lo, hi)
+
+    def build_mips(self, lo: int, hi: int) -> None:
+        """The depth range pyramid (depth_range) of drawn maps lo..hi-1, level by level (one launch
+        per level; disjoint ranges may run concurrently)."""
+        for lv in range(1, self.ms.mip_levels + 1):
+            side = self._mip_side[lv]
+            wp.launch(_mip_kernel, dim=(hi - lo, side, side), inputs=[self.ms, lo, lv], device=self.device)
 
     def render(self, eyes: np.ndarray) -> int:
         """Render maps from eye points (n<=capacity, 3) towards the proxy, in one launch; returns n."""

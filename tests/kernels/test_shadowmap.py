@@ -290,14 +290,14 @@ def test_culling_changes_no_sum(device):
 # cluster maps: the penumbra of a map that stands for a spread of sources (kernels.composite.penumbra)
 # ----------------------------------------------------------------------------------------------------------
 
-def _cluster_sums(device, pts, eyes, spread, cull=True, res=256, axes=None):
+def _cluster_sums(device, pts, eyes, spread, cull=True, res=256, axes=None, tile=None):
     S = len(eyes)
     maps = ShadowMaps(S, res, device=device)
     maps.set_proxy(PLATE_V, PLATE_F)
     n = maps.prepare(eyes, spread, axes)
     maps.raster(0, n)
     ms = MaskedSum(pts, np.zeros((len(pts), 3), np.int32), np.tile([1.0, 0.0, 0.0], (len(pts), 1)),
-                   np.zeros(len(pts), np.int32), device, cull=cull, max_maps=S)
+                   np.zeros(len(pts), np.int32), device, cull=cull, max_maps=S, tile=tile)
     ms.add(maps, n, 0, _wp2(np.ones((1, S), np.uint8), wp.uint8, device),
            _wp2(np.ones((1, S, 3), np.float32), wp.vec3, device))
     return ms.result()
@@ -328,6 +328,32 @@ def test_spread_gives_the_square_light_penumbra(device):
     assert pen.sum() > 500 and np.all((frac >= 0) & (frac <= 1))
     assert np.abs(frac - ref).mean() < 0.02 and np.abs(frac - ref)[pen].mean() < 0.08
     assert np.abs(frac[pen] - 0.5).mean() < 0.45  # soft: not the hard 0/1 of one point source
+
+
+def test_small_cells_share_a_blocker_search(device):
+    # a square light seen obliquely (the plate's depth varies across the map), cells of 3 x 3 cm (9
+    # points each): a run within one tap spacing of its mean searches the blockers once
+    # (kernels.composite._run_blockers); the penumbra stays that of the square light, within a
+    # small difference of every point searching on its own (one cell of all points)
+    h = 0.2
+    pts = _floor_grid(step=0.01, ext=1.2)
+    eye = np.array([0.9, 2.3, 0.4])
+    fwd = (np.array([0.0, PLATE_Y, 0.0]) - eye) / np.linalg.norm(np.array([0.0, PLATE_Y, 0.0]) - eye)
+    e1 = np.cross(fwd, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(fwd, e1)
+    axes = np.array([[h * e1, h * e2]])
+    tile = (np.floor(pts[:, 0] / 0.03) * 1000 + np.floor(pts[:, 2] / 0.03)).astype(np.int64)
+    _, own = _cluster_sums(device, pts, eye[None], np.array([h]), axes=axes)
+    _, shared = _cluster_sums(device, pts, eye[None], np.array([h]), axes=axes, tile=tile)
+    g = np.linspace(-1, 1, 21)
+    ref = _exact(pts, np.array([eye + u * h * e1 + v * h * e2 for u in g for v in g]))[0].mean(1)
+    pen = (ref > 0) & (ref < 1)
+    assert pen.sum() > 2000
+    for frac in (own, shared):
+        assert np.abs(frac - ref).mean() < 0.015 and np.abs(frac - ref)[pen].mean() < 0.06
+    assert (shared != own).sum() > 50  # the runs did share
+    assert np.abs(shared - own)[pen].mean() < 0.005
 
 
 def test_spread_along_one_axis_gives_the_line_light_penumbra(device):
