@@ -87,27 +87,35 @@ def _hard(ms: MapSet, s: int, x: float, y: float, z: float) -> float:
 
 
 @wp.func
+def _range_says(ms: MapSet, s: int, xl: float, xh: float, yl: float, yh: float, zl: float, zh: float, g: float,
+                a1: wp.vec2, a2: wp.vec2) -> int:
+    """What the depth range pyramid says of every tap of the widest boxes (scale g) about the texel
+    box xl..xh, yl..yh at view depths zl..zh: 0 none is blocked, 1 all are, -1 unknown."""
+    e = g * (1.0 - 1.0 / float(PCSS_TAPS))
+    hx = e * (wp.abs(a1[0]) + wp.abs(a2[0])) + 1.0e-3
+    hy = e * (wp.abs(a1[1]) + wp.abs(a2[1])) + 1.0e-3
+    x0 = int(wp.floor(xl - hx + 0.5))
+    x1 = int(wp.floor(xh + hx + 0.5))
+    y0 = int(wp.floor(yl - hy + 0.5))
+    y1 = int(wp.floor(yh + hy + 0.5))
+    if x1 < 0 or y1 < 0 or x0 >= ms.res or y0 >= ms.res:
+        return 0
+    inside = x0 >= 0 and y0 >= 0 and x1 < ms.res and y1 < ms.res
+    r = depth_range(ms, s, wp.max(x0, 0), wp.min(x1, ms.res - 1), wp.max(y0, 0), wp.min(y1, ms.res - 1))
+    if zh <= r[0] + ms.bias:
+        return 0
+    if inside and zl > r[1] + ms.bias:
+        return 1
+    return -1
+
+
+@wp.func
 def _box_taps(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: wp.vec2, g: float) -> int:
     """What the n x n taps x + u a1 + v a2 (|u|, |v| <= g (1 - 1/n)) of map s can say at view
     depth z, from the depth range pyramid over the texels they round to: 0 none is blocked, 1 all
     are, -1 unknown (look them up). Exact: texel depths lie within the range, and a tap off the
     map reads no blocker."""
-    e = g * (1.0 - 1.0 / float(PCSS_TAPS))
-    hx = e * (wp.abs(a1[0]) + wp.abs(a2[0])) + 1.0e-3
-    hy = e * (wp.abs(a1[1]) + wp.abs(a2[1])) + 1.0e-3
-    x0 = int(wp.floor(x - hx + 0.5))
-    x1 = int(wp.floor(x + hx + 0.5))
-    y0 = int(wp.floor(y - hy + 0.5))
-    y1 = int(wp.floor(y + hy + 0.5))
-    if x1 < 0 or y1 < 0 or x0 >= ms.res or y0 >= ms.res:
-        return 0
-    inside = x0 >= 0 and y0 >= 0 and x1 < ms.res and y1 < ms.res
-    r = depth_range(ms, s, wp.max(x0, 0), wp.min(x1, ms.res - 1), wp.max(y0, 0), wp.min(y1, ms.res - 1))
-    if z <= r[0] + ms.bias:
-        return 0
-    if inside and z > r[1] + ms.bias:
-        return 1
-    return -1
+    return _range_says(ms, s, x, x, y, y, z, z, g, a1, a2)
 
 
 @wp.func
@@ -149,21 +157,9 @@ def _run_blockers(ms: MapSet, s: int, a1: wp.vec2, a2: wp.vec2, xl: float, xh: f
     l1 = wp.max(wp.length(a1), wp.length(a2))
     lim = float(ms.res) / wp.max(l1, 1.0e-9)
     gh = wp.min(wp.max(zh - zn, 0.0) / (zh * zn), lim)  # the scale grows with the depth
-    e = gh * (1.0 - 1.0 / float(PCSS_TAPS))  # every point's widest box (and its own texel) lies in this one
-    hx = e * (wp.abs(a1[0]) + wp.abs(a2[0])) + 1.0e-3
-    hy = e * (wp.abs(a1[1]) + wp.abs(a2[1])) + 1.0e-3
-    x0 = int(wp.floor(xl - hx + 0.5))
-    x1 = int(wp.floor(xh + hx + 0.5))
-    y0 = int(wp.floor(yl - hy + 0.5))
-    y1 = int(wp.floor(yh + hy + 0.5))
-    if x1 < 0 or y1 < 0 or x0 >= ms.res or y0 >= ms.res:
-        return wp.vec2(0.0, 0.0)
-    inside = x0 >= 0 and y0 >= 0 and x1 < ms.res and y1 < ms.res
-    r = depth_range(ms, s, wp.max(x0, 0), wp.min(x1, ms.res - 1), wp.max(y0, 0), wp.min(y1, ms.res - 1))
-    if zh <= r[0] + ms.bias:
-        return wp.vec2(0.0, 0.0)
-    if inside and zl > r[1] + ms.bias:
-        return wp.vec2(1.0, 0.0)
+    known = _range_says(ms, s, xl, xh, yl, yh, zl, zh, gh, a1, a2)  # every point's widest box lies in this one
+    if known >= 0:
+        return wp.vec2(float(known), 0.0)
     gm = wp.min(wp.max(zm - zn, 0.0) / (zm * zn), lim)
     gl = wp.min(wp.max(zl - zn, 0.0) / (zl * zn), lim)
     step = 2.0 * gm * l1 / float(PCSS_TAPS)
