@@ -111,7 +111,7 @@ def run(a: argparse.Namespace) -> int:
     log.info("%d frames, %.2f s mean per frame (passes %s, %s)", len(times), float(np.mean(times)) if times else 0.0,
              win.last_frame.stats.get("passes") if win.last_frame else "-", ctl.config.mode)
     if a.screenshot is not None:
-        shot = win.screenshot()
+        shot = win.settled_screenshot()
         write_png(a.screenshot, shot)  # atomic
         print(a.screenshot)
     win.closed = True

@@ -40,6 +40,7 @@ LIFT_STEP = 0.02  # m
 MOVE_STEP = 0.05  # m
 SCALE_STEP = 1.1
 REFINE_SLICE_S = 0.05  # s of refinement between checks for a new edit (the drag frame stays on screen meanwhile)
+SETTLE_TICKS = 20  # redraws before a scripted screenshot is compared (settled_screenshot)
 
 
 # ---------------------------------------------------------------------------- X11 screenshot
@@ -610,6 +611,26 @@ class PlacementWindow:
         """RGB (H,W,3) uint8 of the window as it is on the X display."""
         f = self.window.os_frame
         return grab_screen(f.x, f.y, f.width, f.height)
+
+    def settled_screenshot(self, timeout_s: float = 20.0) -> np.ndarray:
+        """screenshot() once the display has caught up with the window: redraws until three grabs
+        in a row agree, after at least SETTLE_TICKS redraws (the renderer presents through a
+        swapchain of several images, so the display can lag the last drawn frame by a few draws;
+        a fixed number of redraws made the headless screenshot miss the last frame now and then)."""
+        t0, prev, same, ticks = time.perf_counter(), None, 0, 0
+        while time.perf_counter() - t0 < timeout_s:
+            self.window.post_redraw()
+            self.app.run_one_tick()
+            time.sleep(0.02)
+            ticks += 1
+            if ticks < SETTLE_TICKS:
+                continue
+            shot = self.screenshot()
+            same = same + 1 if prev is not None and np.array_equal(shot, prev) else 0
+            if same >= 2:
+                return shot
+            prev = shot
+        return self.screenshot()
 
     def run_frames(self, n: int, timeout_s: float = 600.0) -> None:
         """Headless mode: wait for the precompute, composite the current pose `n` times (each by
