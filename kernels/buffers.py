@@ -113,6 +113,13 @@ def _rows(a: wp.array, shape: tuple[int, ...]) -> wp.array:
     return a[:shape[0], :shape[1]] if a.ndim == 2 else a[tuple(slice(0, k) for k in shape)]
 
 
+def call_buffers(workspace: Workspace | None, n: int) -> tuple[Workspace, int]:
+    """A kernel wrapper's buffers and launch block for n items: the call site's workspace and
+    launches of at most its rows (kept between calls: nothing allocated after its first call), or,
+    for None, fresh buffers and one launch over all n (at least one row)."""
+    return (Workspace(), max(n, 1)) if workspace is None else (workspace, workspace.rows)
+
+
 def workspace(owner, site: str) -> Workspace:
     """The Workspace of call site `site` kept on `owner` (e.g. the engine: one per kernel call in
     a per-frame stage), made on first use."""

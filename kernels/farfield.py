@@ -11,7 +11,7 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
-from kernels.buffers import Buffer, Workspace
+from kernels.buffers import Buffer, Workspace, call_buffers
 from kernels.visibility import _point_launches, cube_cell, seen_table
 
 
@@ -49,7 +49,7 @@ def point_emitter_sum(points: np.ndarray, normals: np.ndarray, centres: np.ndarr
     n = len(points)
     if n == 0 or len(centres) == 0:
         return np.zeros((n, 3))
-    ws, block = (Workspace(), n) if workspace is None else (workspace, workspace.rows)
+    ws, block = call_buffers(workspace, n)
     shared = [ws.upload("centres", np.asarray(centres, np.float64), wp.vec3d, device, capacity),
               ws.upload("area_normals", np.asarray(area_normals, np.float64), wp.vec3d, device, capacity),
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device, capacity),

@@ -10,7 +10,7 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
-from kernels.buffers import Workspace
+from kernels.buffers import Workspace, call_buffers
 from kernels.visibility import Occluder
 
 
@@ -44,10 +44,7 @@ def cast_rays(mesh: Occluder, origin: np.ndarray, dirs: np.ndarray, max_t: float
     origins = np.asarray(origin).reshape(-1, 3)
     if len(origins) not in (1, n):
         raise ValueError(f"cast_rays: {len(origins)} origins for {n} rays")
-    if workspace is None:  # one launch over every ray, fresh buffers
-        ws, block = Workspace(), max(n, 1)
-    else:  # blocks of the workspace's capacity
-        ws, block = workspace, workspace.rows
+    ws, block = call_buffers(workspace, n)
     tri_out = np.empty(n, np.int32)
     bary_out = np.empty((n, 3), np.float32)
     depth_out = np.empty(n, np.float32)

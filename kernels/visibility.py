@@ -16,7 +16,7 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
-from kernels.buffers import Workspace
+from kernels.buffers import Workspace, call_buffers
 from kernels.formfactor import polygon_ff
 
 
@@ -191,10 +191,7 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
     tri = np.asarray(triangles, np.float64)
     tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
-    if workspace is None:  # fresh buffers, one launch per half
-        ws, block = Workspace(), n
-    else:  # launches of at most the workspace's capacity
-        ws, block = workspace, workspace.rows
+    ws, block = call_buffers(workspace, n)  # None: fresh buffers, one launch per half
     shared = [ws.upload("tris", tri, wp.vec3d, device),
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device),
               ws.upload("tri_normals", tn.astype(np.float32), wp.vec3, device),
@@ -276,7 +273,7 @@ def emitter_sum_seen(points: np.ndarray, normals: np.ndarray, triangles: np.ndar
     n = len(points)
     if n == 0 or len(triangles) == 0:
         return np.zeros((n, 3))
-    ws, block = (Workspace(), n) if workspace is None else (workspace, workspace.rows)
+    ws, block = call_buffers(workspace, n)
     shared = [ws.upload("tris", np.asarray(triangles, np.float64), wp.vec3d, device, capacity),
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device, capacity),
               seen_table(ws, seen, wp.uint8, device, capacity), int(res)]
@@ -315,10 +312,7 @@ def distance_to(occluder: Occluder, points: np.ndarray, max_dist: float = 1.0e3,
     if n == 0 or occluder.mesh is None:
         return np.full(n, max_dist, np.float32)
     device = occluder.device
-    if workspace is None:  # fresh buffers, one launch
-        ws, block = Workspace(), n
-    else:  # launches of at most the workspace's capacity
-        ws, block = workspace, workspace.rows
+    ws, block = call_buffers(workspace, n)
     points = np.asarray(points, np.float32)
     res = ws.buffer("out", block, wp.float32, device)
     out = np.empty(n, np.float32)
