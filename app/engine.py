@@ -56,6 +56,7 @@ from lighting.radiance import load_captured_probe
 from lighting.sun import SunLight, estimate_sun, openings, surface_albedo
 from app.stages.sun import SunStage
 from recon.patches import PatchMesh
+from recon.proxy import bounding_sphere
 from recon.response import luminance
 from recon.scene import Scene, SceneObject
 from app.stages.shadow_pass import ShadowPass, window_pairs as _window_pairs
@@ -466,8 +467,7 @@ class Engine:
 
         t = time.perf_counter()
         pv, pf, proxy_occ, shade_mesh, shade_occ = self._object_shape(obj)
-        centre = 0.5 * (pv.min(0) + pv.max(0))
-        radius = float(np.linalg.norm(pv - centre, axis=1).max())
+        centre, radius = bounding_sphere(pv)
         t = tick("proxy", t)
 
         # ---- object pixels: coverage and depth against the scene model
@@ -596,11 +596,6 @@ class Engine:
         """Values (len(missing),3) at pixels `missing`: mean of the known pixels in their 3x3
         window that lie on the same quad (ShadowPass.fill; a reused buffer, use it at once)."""
         return self.shadow_pass.fill(known, values, missing)
-
-    def _object_irradiance(self, pts: np.ndarray, nrm: np.ndarray, proxy_occ: Occluder, B: np.ndarray
-                           ) -> np.ndarray:
-        """object_light.object_irradiance (app/stages/object_light.py)."""
-        return object_light.object_irradiance(self, pts, nrm, proxy_occ, B)
 
     def _object_triangle_radiance(self, obj: SceneObject, pv, pf, proxy_occ, B: np.ndarray) -> np.ndarray:
         """object_light.triangle_radiance (app/stages/object_light.py)."""

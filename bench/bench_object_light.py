@@ -26,6 +26,7 @@ sys.path.insert(0, str(ROOT))
 from app.dragpath import drag_offsets, moved  # noqa: E402
 from app.engine import Engine, EngineParams, FrameConfig  # noqa: E402
 from app.stages import object_light as OL  # noqa: E402
+from recon.proxy import bounding_sphere  # noqa: E402
 from recon.response import luminance  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
@@ -52,8 +53,7 @@ def _capture(eng: Engine, scene, n: int) -> list[dict]:
 def _stage(eng: Engine, c: dict):
     """triangle_radiance + (the sun's pieces) + object_light of one captured frame: (seconds, outputs)."""
     pv, pf, occ = c["pv"], c["pf"], c["occ"]
-    centre = 0.5 * (pv.min(0) + pv.max(0))
-    radius = float(np.linalg.norm(pv - centre, axis=1).max())
+    centre, radius = bounding_sphere(pv)
     t = time.perf_counter()
     tri_rad = OL.triangle_radiance(eng, c["obj"], pv, pf, occ, c["B"])
     extra = None

@@ -30,6 +30,7 @@ from app.report import table  # noqa: E402
 from app.stages import shadow_pass  # noqa: E402
 from lighting import metrics  # noqa: E402
 from recon.io import read_image_rgb  # noqa: E402
+from recon.proxy import bounding_sphere  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
 
@@ -49,8 +50,7 @@ def bench(scene_dir: Path, res: int, n: int, cache: str) -> dict:
         # the masks stage alone, CPU time of both cores (the frame's other stages excluded)
         pv, pf, occ, _, _ = eng._object_shape(obj)
         fs = eng.shadow_sources.select(pv.min(0), pv.max(0), 50)
-        centre = 0.5 * (pv.min(0) + pv.max(0))
-        radius = float(np.linalg.norm(pv - centre, axis=1).max())
+        centre, radius = bounding_sphere(pv)
         cov = np.zeros((scene.camera.height, scene.camera.width))
         c0, t0 = time.process_time(), time.perf_counter()
         steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, False, spread=fs.spread)

@@ -23,6 +23,13 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, target: int = 300, max_fac
     return v, f, vertex_normals(v, f)
 
 
+def bounding_sphere(v: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre (3,), radius m) of vertices v (V,3): the box centre and the farthest vertex from it
+    (the object's "bounding radius" of the per-frame stages)."""
+    centre = 0.5 * (v.min(0) + v.max(0))
+    return centre, float(np.linalg.norm(v - centre, axis=1).max())
+
+
 def vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     """Area-weighted vertex normals (V,3) of a triangle mesh with outward CCW faces."""
     fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])

@@ -12,6 +12,7 @@ from kernels.buffers import Workspace, workspace
 from kernels.farfield import VertexInterpolation, point_emitter_sum
 from kernels.visibility import (Occluder, distance_to, emitter_sum, emitter_sum_seen, segments_visible,
                                 transfer_matrix)
+from recon.proxy import bounding_sphere
 from recon.response import luminance
 from recon.scene import SceneObject
 
@@ -19,27 +20,15 @@ if TYPE_CHECKING:
     from app.engine import Engine
 
 
-def object_irradiance(eng: "Engine", pts: np.ndarray, nrm: np.ndarray, proxy_occ: Occluder, B: np.ndarray
-                       ) -> np.ndarray:
-    """Irradiance/pi (N,3) at object surface points from patches of radiance B (P,3), with
-    self-occlusion."""
-    pm = eng.pre.patches
-    G = transfer_matrix(pts, nrm, pm.corners, pm.normal, [eng.scene_occ, proxy_occ], n_side=1,
-                        eps=2e-3, device=eng.device, workspace=workspace(eng, "object_irradiance"))
-    return G.astype(np.float64) @ B
-
-
 def triangle_radiance(eng: "Engine", obj: SceneObject, pv, pf, proxy_occ, B: np.ndarray) -> np.ndarray:
     """Outgoing radiance (T,3) of each proxy triangle, lit at its centroid by patches of radiance B
-    (P,3), gathered with visibility past the scene and the proxy (object_irradiance) over a coarse
+    (P,3), gathered with visibility past the scene and the proxy (self-occlusion) over a coarse
     set of patches (PatchBlocks.gather_set): the emitters and the patches near the object as they
     are, the other patches merged in blocks of a quad's patches, coarser farther away.
     (The SH9 volume x the proxy's self transfer in place of the non-emitting patches was measured and
     left out: on lamps_room it lit the proxy brighter and raised spurious from 0.0037 to 0.0050.)"""
     c = pv[pf].mean(1)
-    centre = 0.5 * (pv.min(0) + pv.max(0))
-    radius = float(np.linalg.norm(pv - centre, axis=1).max())
-    corners, normals, B_set = patch_blocks(eng).gather_set(B, centre, radius)
+    corners, normals, B_set = patch_blocks(eng).gather_set(B, *bounding_sphere(pv))
     G = transfer_matrix(c, proxy_shape(eng, pv, pf, proxy_occ).normals, corners, normals,
                         [eng.scene_occ, proxy_occ], n_side=1, eps=2e-3, device=eng.device,
                         chunk=max(16, -(-len(c) // 2)),  # two launches side by side: both cores

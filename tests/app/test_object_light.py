@@ -15,6 +15,7 @@ from app.engine import Engine, EngineParams  # noqa: E402
 from app.stages import object_light as OL  # noqa: E402
 from kernels.farfield import point_emitter_sum  # noqa: E402
 from kernels.visibility import Occluder, emitter_sum, transfer_matrix  # noqa: E402
+from recon.proxy import bounding_sphere  # noqa: E402
 from recon.response import luminance  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
@@ -73,7 +74,7 @@ def test_triangle_radiance_on_blocks_matches_every_patch(demo, monkeypatch):
     scene, eng, _, pv, pf, proxy_occ = demo
     B = eng.B_obj
     ours = luminance(OL.triangle_radiance(eng, scene.obj, pv, pf, proxy_occ, B))
-    n_set = len(OL.patch_blocks(eng).gather_set(B, *_sphere(pv))[0])
+    n_set = len(OL.patch_blocks(eng).gather_set(B, *bounding_sphere(pv))[0])
     monkeypatch.setattr(OL, "BLOCK_NEAR", np.inf)  # every block split: the exact gather
     exact = luminance(OL.triangle_radiance(eng, scene.obj, pv, pf, proxy_occ, B))
     assert n_set < 0.8 * eng.pre.patches.n_patches  # the coarse set is coarser
@@ -83,9 +84,6 @@ def test_triangle_radiance_on_blocks_matches_every_patch(demo, monkeypatch):
     assert np.percentile(err, 95) < 0.05, np.percentile(err, 95)
 
 
-def _sphere(pv):
-    centre = 0.5 * (pv.min(0) + pv.max(0))
-    return centre, float(np.linalg.norm(pv - centre, axis=1).max())
 
 
 def test_point_emitters_analytic():
@@ -116,7 +114,7 @@ def test_far_field_kernel_matches_ray_per_triangle(demo):
     # the kernel's far field against emitter_sum (a ray per triangle) beyond FAR_FIELD radii, and
     # against the same point-source sum in numpy (per-shape table of the triangles' visibility)
     _, eng, _, pv, pf, proxy_occ = demo
-    centre, radius = _sphere(pv)
+    centre, radius = bounding_sphere(pv)
     pm = eng.pre.patches
     far = np.flatnonzero((np.linalg.norm(pm.centre - centre, axis=1) > OL.FAR_FIELD * radius) & ~pm.is_emitter)
     tris = pv[pf]
@@ -136,7 +134,7 @@ def test_object_light_coarse_against_exact_on_the_frame(demo, monkeypatch):
     # the whole stage (blocks, far field, adaptive grid) against its exact evaluation (every patch
     # gathered, every near pixel exact): within a level on every pixel, 0.05 rms over the lit ones
     scene, eng, frame, pv, pf, proxy_occ = demo
-    centre, radius = _sphere(pv)
+    centre, radius = bounding_sphere(pv)
     covered = frame.coverage.reshape(-1) >= 1.0
     tri_rad = eng._object_triangle_radiance(scene.obj, pv, pf, proxy_occ, eng.B_obj)
     ours, ours_c = eng._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, covered)

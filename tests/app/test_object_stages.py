@@ -13,6 +13,7 @@ from app.engine import Engine, EngineParams  # noqa: E402
 from app.stages import object_light as OL  # noqa: E402
 from app.stages import object_shading as OS  # noqa: E402
 from kernels.visibility import Occluder, distance_to, emitter_sum  # noqa: E402
+from recon.proxy import bounding_sphere  # noqa: E402
 from recon.response import luminance  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
@@ -27,10 +28,6 @@ def demo(tmp_path_factory):
     pv, pf, proxy_occ, mesh, _ = eng._object_shape(scene.obj)
     return scene, eng, frame, pv, pf, proxy_occ, mesh
 
-
-def _sphere_stats(pv):
-    centre = 0.5 * (pv.min(0) + pv.max(0))
-    return centre, float(np.linalg.norm(pv - centre, axis=1).max())
 
 
 def test_distance_to_a_triangle():
@@ -55,7 +52,7 @@ def test_far_field_matches_the_exact_sum(demo):
     # table give what emitter_sum gives (ray per triangle): within 10 % in total, 25 % at 95 % of the
     # brighter points (the table's cells are ~11 degrees: a point may see a triangle the table hides)
     _, eng, _, pv, pf, proxy_occ, _ = demo
-    centre, radius = _sphere_stats(pv)
+    centre, radius = bounding_sphere(pv)
     pm = eng.pre.patches
     far = np.flatnonzero((np.linalg.norm(pm.centre - centre, axis=1) > OL.FAR_FIELD * radius) & ~pm.is_emitter)
     rng = np.random.default_rng(0)
@@ -74,7 +71,7 @@ def test_far_field_matches_the_exact_sum(demo):
 def test_near_pixels_on_the_grid_match_per_pixel(demo, monkeypatch):
     # the adaptive grid's blends against every pixel evaluated exactly: within a level everywhere
     scene, eng, frame, pv, pf, proxy_occ, _ = demo
-    centre, radius = _sphere_stats(pv)
+    centre, radius = bounding_sphere(pv)
     tri_rad = eng._object_triangle_radiance(scene.obj, pv, pf, proxy_occ, eng.B_obj)
     covered = frame.coverage.reshape(-1) >= 1.0
     grid, _ = eng._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, covered)

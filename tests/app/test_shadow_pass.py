@@ -11,6 +11,7 @@ from app.dragpath import drag_offsets, moved
 from app.engine import Engine, EngineParams, FrameConfig
 from app.stages.shadow_pass import window_pairs
 from kernels.maskfill import WindowFill
+from recon.proxy import bounding_sphere
 from recon.scene import load_scene
 
 
@@ -72,8 +73,7 @@ def test_listed_pixels_follow_their_definition(demo):
     for o in drag_offsets(scene, scene.obj, 3):
         obj = moved(scene.obj, o)
         pv = obj.vertices
-        centre = 0.5 * (pv.min(0) + pv.max(0))
-        radius = float(np.linalg.norm(pv - centre, axis=1).max())
+        centre, radius = bounding_sphere(pv)
         fs = eng.shadow_sources.select(pv.min(0), pv.max(0), 10)
         cand = fs.cand & (rng.uniform(size=fs.cand.shape) < 0.9)  # some patches without candidates
         cov = np.zeros((H, W))
@@ -109,8 +109,7 @@ def test_masked_sums_are_cut_by_work_and_equal_whatever_the_cut(demo):
     obj = scene.obj
     pv, pf, occ, _, _ = eng._object_shape(obj)
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
-    centre = 0.5 * (pv.min(0) + pv.max(0))
-    radius = float(np.linalg.norm(pv - centre, axis=1).max())
+    centre, radius = bounding_sphere(pv)
     cov = np.zeros((scene.camera.height, scene.camera.width))
     pix_pt, _, cen = sp._select(centre, radius, cov, fs.cand)
     pts = np.concatenate([pix_pt, sp.n_pix_points + cen])

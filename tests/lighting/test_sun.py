@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 
+from recon.proxy import bounding_sphere
 from recon.scene import SceneError, Sun, load_scene
 from tests.conftest import score, shared_scene
 
@@ -325,8 +326,7 @@ def test_sunlit_object_light_matches_a_ray_per_piece(sun_drag):
     s, e, frames, _ = sun_drag
     obj = s.obj
     pv, pf, occ, _, _ = e._object_shape(obj)
-    centre = 0.5 * (pv.min(0) + pv.max(0))
-    radius = float(np.linalg.norm(pv - centre, axis=1).max())
+    centre, radius = bounding_sphere(pv)
     tri_rad = e._object_triangle_radiance(obj, pv, pf, occ, e.B_obj)
     cov = np.zeros(len(e.L_b), bool)
     base_p, base_c = e._object_light(pv, pf, tri_rad, occ, centre, radius, cov)
@@ -352,8 +352,7 @@ def test_later_bounces_on_clusters_match_the_dense_sum(sun_drag):
     pm = e.pre.patches
     pv, pf, occ, _, _ = e._object_shape(s.obj)
     loss, loss_c = e.sun_stage.frame(s.obj.vertices, s.obj.faces)
-    centre = 0.5 * (pv.min(0) + pv.max(0))
-    radius = float(np.linalg.norm(pv - centre, axis=1).max())
+    centre, radius = bounding_sphere(pv)
     _, R_cen = e._object_light(pv, pf, e._object_triangle_radiance(s.obj, pv, pf, occ, e.B_obj), occ, centre, radius)
     G, G_v = e.pre.G_c.astype(np.float64), e.pre.G_v.astype(np.float64)
     for dB1 in (pm.albedo * (R_cen - loss_c), -pm.albedo * loss_c):
