@@ -486,7 +486,8 @@ class Engine:
         n_src = len(eyes)
         masks = yield from self.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov, cand, eyes,
                                                 S_v if p.mode == "ldr" else W_v, W_c, fs.n_listed == n_src,
-                                                spread=fs.spread, full_maps=config.full_maps)
+                                                spread=fs.spread, full_maps=config.full_maps,
+                                                scale=self.L_b_levels if p.mode == "ldr" else self.E_x)
         pix_sel, fill_sel, cen_sel, O_pix, O_cen = (masks.pix_sel, masks.fill_sel, masks.cen_sel, masks.O_pix,
                                                     masks.O_cen)
         t = tick("masks", t)

@@ -392,6 +392,14 @@ class MaskedSum:
         self.active.push()
         self.reset()
 
+    def activate(self, idx: np.ndarray) -> None:
+        """List maps (prepare) for the cells of points `idx` too, not only the selected points'
+        cells: a later select() of any of them may then be summed with the same lists (the
+        selection itself is unchanged)."""
+        h = self.active.host
+        h[self.point_cell[np.asarray(idx, np.int64).reshape(-1)]] = 1
+        self.active.push()
+
     def reset(self) -> None:
         self.acc.dev.zero_()
         self.count.dev.zero_()

@@ -2,6 +2,10 @@
 
 A missing pixel takes the mean of the known pixels in its 3x3 window whose surface id (the scene
 quad the pixel sees) equals its own; none known: 0. Pixels are flat indices y * W + x.
+A missing pixel given a lattice spacing s > 2 (`spacing`, per pixel) instead takes the bilinear
+interpolation of the corners of its s x s lattice square (x0 = s floor(x / s), x0 + s, and the
+same in y), over the corners that are known and on its surface, their weights renormalised;
+none such: the 3x3 mean above.
 
 Three launches per call, over the listed pixels only: the known pixels write their slot into
 an image-sized index map, the missing ones gather, the known ones clear their slot again (the
@@ -28,11 +32,42 @@ def _mark_kernel(known: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32)
 @wp.kernel
 def _gather_kernel(lo: int, width: int, height: int, missing: wp.array(dtype=wp.int32),
                    slot: wp.array(dtype=wp.int32), surface: wp.array(dtype=wp.int32),
-                   values: wp.array(dtype=wp.vec3d), out: wp.array(dtype=wp.vec3d)):
+                   values: wp.array(dtype=wp.vec3d), spacing: wp.array(dtype=wp.int32),
+                   out: wp.array(dtype=wp.vec3d)):
     i = lo + wp.tid()
     q = missing[i]
     y = q / width
     x = q - y * width
+    s = spacing[q]
+    if s > 2:  # bilinear over the known corners of the pixel's s x s lattice square on its surface
+        x0 = (x / s) * s
+        y0 = (y / s) * s
+        fx = wp.float64(x - x0) / wp.float64(s)
+        fy = wp.float64(y - y0) / wp.float64(s)
+        bl = wp.vec3d(0.0, 0.0, 0.0)
+        wsum = wp.float64(0.0)
+        for cy in range(2):
+            for cx in range(2):
+                w = wp.float64(1.0)
+                if cx == 0:
+                    w = w * (wp.float64(1.0) - fx)
+                else:
+                    w = w * fx
+                if cy == 0:
+                    w = w * (wp.float64(1.0) - fy)
+                else:
+                    w = w * fy
+                sx = x0 + cx * s
+                sy = y0 + cy * s
+                if w > wp.float64(0.0) and sx < width and sy < height:
+                    o = sy * width + sx
+                    k = slot[o]
+                    if k >= 0 and surface[o] == surface[q]:
+                        bl += values[k] * w
+                        wsum += w
+        if wsum > wp.float64(0.0):
+            out[i] = bl / wsum
+            return
     acc = wp.vec3d(0.0, 0.0, 0.0)
     n = int(0)
     for dy in range(-1, 2):
@@ -64,6 +99,17 @@ class WindowFill:
         self.missing = Buffer(n, wp.int32, d)
         self.values = Buffer(n, wp.vec3d, d)
         self.out = Buffer(n, wp.vec3d, d)
+        self.spacing = Buffer(n, wp.int32, d, fill=2)  # per pixel: > 2 bilinear on that lattice (set_spacing)
+        self._spaced = np.zeros(0, np.int64)  # pixels whose spacing is not 2
+
+    def set_spacing(self, pixels: np.ndarray, spacing: np.ndarray | int) -> None:
+        """Lattice spacing (px) of the fill at `pixels` from now on; every other pixel's is 2 (the 3x3 mean)."""
+        h = self.spacing.host
+        h[self._spaced] = 2
+        pixels = np.asarray(pixels, np.int64).reshape(-1)
+        h[pixels] = spacing
+        self._spaced = pixels[h[pixels] != 2]
+        self.spacing.push()
 
     def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray, split=None) -> np.ndarray:
         """(len(missing),3) float64 at pixels `missing` from `values` (len(known),3) at pixels
@@ -83,7 +129,7 @@ class WindowFill:
         def gather(lo: int, hi: int) -> None:
             wp.launch(_gather_kernel, dim=hi - lo,
                       inputs=[lo, self.width, self.height, self.missing.dev, self.slot.dev, self.surface.dev,
-                              self.values.dev], outputs=[self.out.dev], device=d)
+                              self.values.dev, self.spacing.dev], outputs=[self.out.dev], device=d)
 
         if split is None:
             gather(0, m)

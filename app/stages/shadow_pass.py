@@ -50,6 +50,10 @@ class Masks:
 # well as 256 there; a map per source (the all-sources frame at rest) keeps EngineParams.map_res,
 # whose hard lamp shadows lose at 128 (bench/bench_shadow_pass.py measures both).
 CLUSTER_MAP_RES = 128
+# Graded lattice (ShadowPass._run_graded): a lattice square is filled from its corners where their
+# shadow fractions (occluded share of the pixel's light: sum / scale) differ by at most this much;
+# about the smallest luminance contrast the eye sees (Weber's fraction, 1-2 %).
+REFINE_TOL = 0.02
 TILE = 8  # pixels: side of the image blocks whose points share a list of maps that may shadow them
 
 
@@ -104,6 +108,27 @@ class ShadowPass:
         self.rest_start = np.searchsorted(self.rest_patch, np.arange(P + 1))
         self.patch_centre, self.patch_radius = patches.centre, patches.radius
         self.emitter = patches.is_emitter
+        # graded lattice (cluster frames, _run_graded): per receiver point, the corners of its lattice
+        # square of spacing 2 (receiver points of its quad; -1 none, -2 weight zero), and
+        # the receiver points sorted by patch (the near ones are found patch by patch)
+        self.pt_patch = pix_patch[self.recv]
+        self.corners = _lattice_corners(self.recv, self.pix_quad, W, H)
+        # lattice squares of spacing 4 and 8 (one per quad they hold pixels of): each point's, and
+        # their corners (receiver points of the square's quad; -1 none)
+        self.pt_sq, self.sq_corners, self._sq_mark = {}, {}, {}
+        for s in (4, 8):
+            self.pt_sq[s], self.sq_corners[s] = _lattice_squares(self.recv, self.pix_quad, W, H, s)
+            self._sq_mark[s] = np.zeros(len(self.sq_corners[s]), bool)
+        self.pt_by_patch = np.argsort(self.pt_patch, kind="stable")
+        self.pt_start = np.searchsorted(self.pt_patch[self.pt_by_patch], np.arange(P + 1))
+        self.pt_pos = pix_pos[self.recv].astype(np.float64)
+        self._allowed = np.zeros(R, bool)  # scratch: wanted points of the frame
+        self._known = np.zeros(R, bool)  # scratch: points summed so far in the frame
+        self._vals = np.zeros((R, 3))  # their sums
+        self.refine_tol = REFINE_TOL
+        # exact within this many bounding radii (graded frames): inside the bounding sphere a receiver
+        # may touch the object (contact shadows, no penumbra to interpolate); beyond it the lattice
+        self.graded_near = 1.0
         self.maps_full = ShadowMaps(batch, map_res, device=device)
         res = min(cluster_map_res or CLUSTER_MAP_RES, map_res)
         self.maps_cluster = self.maps_full if res == map_res else ShadowMaps(batch, res, device=device)
@@ -116,7 +141,8 @@ class ShadowPass:
     # ------------------------------------------------------------------ per frame
     def run(self, proxy: tuple[np.ndarray, np.ndarray, Occluder | None], centre: np.ndarray, radius: float,
             coverage: np.ndarray, cand: np.ndarray, eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray,
-            per_source: bool = True, spread: np.ndarray | None = None, full_maps: bool = False):
+            per_source: bool = True, spread: np.ndarray | None = None, full_maps: bool = False,
+            scale: np.ndarray | None = None):
         """The frame's masks, as a generator: yields the sources done after each batch of maps
         (Engine.refine may pause there) and returns the Masks.
 
@@ -127,7 +153,13 @@ class ShadowPass:
         (maps of map_res), else maps of clusters (cluster_map_res); spread (S,2,3) m: each
         cluster's half-axes across its view (FrameSources.spread), whose penumbra a cluster map's lookup filters by
         (kernels.composite.penumbra; ignored with per_source, whose maps keep the hard lookup);
-        full_maps: cluster maps of map_res too (Engine.refine's frames at rest)."""
+        full_maps: cluster maps of map_res too (Engine.refine's frames at rest); scale (H*W,3):
+        the sums of the pixels' unshadowed light (E_x, or levels in LDR), given: a cluster frame of
+        one batch fills on the graded lattice (_run_graded)."""
+        if scale is not None and not per_source and 0 < len(eyes) <= self.batch:
+            return (yield from self._run_graded(proxy, centre, radius, coverage, cand, eyes, W_pix, W_c,
+                                                spread, full_maps, scale))
+        self._fill.set_spacing(np.zeros(0, np.int64), 2)
         pix_pt, fill_pt, cen = self._select(centre, radius, coverage, cand)
         R = self.n_pix_points
         self.sums.select(np.concatenate([pix_pt, R + cen]))
@@ -150,6 +182,119 @@ class ShadowPass:
         acc, _ = self.sums.result()
         n_pix = len(pix_pt)
         return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, acc[:n_pix], acc[n_pix:])
+
+    def _run_graded(self, proxy, centre: np.ndarray, radius: float, coverage: np.ndarray, cand: np.ndarray,
+                    eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, spread: np.ndarray | None,
+                    full_maps: bool, scale: np.ndarray):
+        """run() of a cluster frame whose maps fit one batch, on a graded lattice refined where the
+        shadow varies: exact are the pixels near the object (as in run) and the corners of lattice
+        squares of spacing 8 over the others; a pixel whose square's corners (all on its quad and
+        wanted) differ in shadow fraction by at most refine_tol is filled from them (bilinear), the
+        others go to the square of half the spacing, whose corners are summed next; at spacing 2
+        what is left is filled as in run (the 3x3 mean), or exact where no corner is wanted. The
+        maps are rendered and listed once; each spacing is one launch of the masked sums."""
+        dev, n = self.device, len(eyes)
+        R = self.n_pix_points
+        ok = cand.any(1) if cand.shape[1] else np.zeros(len(cand), bool)
+        allowed, known, vals = self._allowed, self._known, self._vals
+        allowed[:] = ok[self.pt_patch]
+        covered = np.flatnonzero(coverage.reshape(-1) >= 1.0)
+        if len(covered):  # pixels the object hides completely: no shadow to show
+            self._covered[covered] = True
+            allowed &= ~self._covered[self.recv]
+            self._covered[covered] = False
+        reach = self.graded_near * radius
+        near_patch = np.flatnonzero(ok & (np.linalg.norm(self.patch_centre - centre, axis=1)
+                                          < reach + self.patch_radius + 1e-3))
+        lo, hi = self.pt_start[near_patch], self.pt_start[near_patch + 1]
+        span = self.pt_by_patch[np.repeat(lo - np.concatenate([[0], np.cumsum(hi - lo)[:-1]]), hi - lo)
+                                + np.arange((hi - lo).sum())]
+        near = span[np.linalg.norm(self.pt_pos[span] - centre, axis=1) < reach]
+        near = near[allowed[near]]
+        cen = np.flatnonzero(ok & ~self.emitter)
+        allowed[near] = False  # from here: the wanted points farther out
+        pend = np.flatnonzero(allowed)
+        allowed[near] = True
+        pt_scale = scale[self.recv]
+
+        # the batch's maps, their transfers and each cell's list, once for every spacing
+        self.maps = self.maps_full if full_maps else self.maps_cluster
+        self.maps.set_proxy(proxy[0], proxy[1], proxy[2])
+        ax = None if spread is None else spread[:n]
+        n = self.maps.prepare(eyes, None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
+        runtime.split(self.maps.raster, n, dev, min_items=1)
+        self._upload_batch(cand, W_pix, W_c, 0, n, cen)
+
+        def square_corners(pts: np.ndarray, s: int) -> tuple[np.ndarray, np.ndarray]:
+            """(the squares of spacing s holding points pts, the wanted corners of those not summed yet)."""
+            mark = self._sq_mark[s]
+            mark[self.pt_sq[s][pts]] = True
+            sq = np.flatnonzero(mark)
+            mark[sq] = False
+            c = self.sq_corners[s][sq].reshape(-1)
+            c = c[c >= 0]
+            return sq, np.unique(c[allowed[c] & ~known[c]])
+
+        sq8, c8 = square_corners(pend, 8)
+        first_pts = np.unique(np.concatenate([near, c8]))
+        self.sums.select(np.concatenate([first_pts, R + cen]))
+        self.sums.activate(np.concatenate([pend, near]))
+        self.sums.prepare(self.maps, n, 0, self.cand.dev,
+                          split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
+        acc = self._sum()
+        O_cen = acc[len(first_pts):]
+        exact = [first_pts]
+        known[first_pts] = True
+        vals[first_pts] = acc[:len(first_pts)]
+        fill_pt, fill_s = [], []
+        sq = sq8
+        for s in (8, 4):
+            # a square is filled from its corners where all four are wanted, summed, and differ in
+            # shadow fraction by at most refine_tol
+            c = self.sq_corners[s][sq]
+            cc = np.maximum(c, 0)
+            good = np.all((c >= 0) & known[cc], axis=1)
+            frac = vals[cc] / np.maximum(pt_scale[cc], 1e-12)  # (squares, 4, 3)
+            good &= (frac.max(1) - frac.min(1)).max(1) <= self.refine_tol
+            sq_good = self._sq_mark[s]
+            sq_good[sq[good]] = True
+            pend = pend[~known[pend]]
+            done = sq_good[self.pt_sq[s][pend]]
+            sq_good[sq[good]] = False
+            fill_pt.append(pend[done])
+            fill_s.append(np.full(int(done.sum()), s))
+            pend = pend[~done]
+            if s == 8:
+                sq, new = square_corners(pend, 4)
+            else:  # the last spacing, 2: each pixel's own corners; one with none wanted is summed itself
+                c2 = self.corners[2][pend]
+                ok2 = (c2 >= 0) & allowed[np.maximum(c2, 0)]
+                new = np.unique(np.concatenate([c2[ok2], pend[~ok2.any(1)]]))
+                new = new[~known[new]]
+            if len(new):
+                self.sums.select(new)
+                vals[new] = self._sum()
+                known[new] = True
+                exact.append(new)
+        pend = pend[~known[pend]]
+        fill_pt.append(pend)
+        fill_s.append(np.full(len(pend), 2))
+        pix_pt = np.concatenate(exact)
+        fill_pt, fill_s = np.concatenate(fill_pt), np.concatenate(fill_s)
+        O_pix = vals[pix_pt].copy()
+        known[pix_pt] = False
+        self._fill.set_spacing(self.recv[fill_pt], fill_s)
+        self.last_graded = {8: int(np.sum(fill_s == 8)), 4: int(np.sum(fill_s == 4)), 2: int(np.sum(fill_s == 2)),
+                            "exact": len(pix_pt)}
+        yield n
+        return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, O_pix, O_cen)
+
+    def _sum(self) -> np.ndarray:
+        """The prepared batch's masked sums over the selected points, both cores cut by work."""
+        dev = self.device
+        runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
+                     for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
+        return self.sums.result()[0]
 
     def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray) -> np.ndarray:
         """Values (len(missing),3) at pixels `missing`: mean of the `known` pixels' values in
@@ -197,6 +342,53 @@ class ShadowPass:
         self.weights.push()
         self.cand.host[:, :n] = cand[:, first:first + n]
         self.cand.push()
+
+
+def _lattice_corners(recv: np.ndarray, quad: np.ndarray, W: int, H: int) -> dict[int, np.ndarray]:
+    """Per receiver pixel recv[i] and spacing s (2): (len(recv), 4) int32 indices into recv
+    of the corners (x0, y0), (x0 + s, y0), (x0, y0 + s), (x0 + s, y0 + s) of its lattice square
+    (x0 = s floor(x / s), ...); -2 where the corner's bilinear weight is zero, -1 where it is off
+    the image, not a receiver pixel or on another quad."""
+    index = np.full(H * W, -1, np.int64)
+    index[recv] = np.arange(len(recv))
+    y, x = np.divmod(recv, W)
+    out = {}
+    for s in (2,):
+        x0, y0 = x // s * s, y // s * s
+        c = np.empty((len(recv), 4), np.int32)
+        for k, (cx, cy) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+            sx, sy = x0 + cx * s, y0 + cy * s
+            inside = (sx < W) & (sy < H)
+            o = np.where(inside, sy * W + sx, 0)
+            i = np.where(inside, index[o], -1)
+            i = np.where((i >= 0) & (quad[o] == quad[recv]), i, -1)
+            zero = ((cx == 1) & (x == x0)) | ((cy == 1) & (y == y0))
+            c[:, k] = np.where(zero, -2, i)
+        out[s] = c
+    return out
+
+
+def _lattice_squares(recv: np.ndarray, quad: np.ndarray, W: int, H: int, s: int) -> tuple[np.ndarray, np.ndarray]:
+    """The lattice squares of spacing s of receiver pixels recv, one per (square, quad): each
+    pixel's square (len(recv),) and the squares' corners (n, 4) as indices into recv, in the
+    order of _lattice_corners (-1: off the image, not a receiver pixel, or on another quad)."""
+    index = np.full(H * W, -1, np.int64)
+    index[recv] = np.arange(len(recv))
+    y, x = np.divmod(recv, W)
+    q = quad[recv].astype(np.int64)
+    key = (q * (H // s + 1) + y // s) * (W // s + 1) + x // s
+    keys, pt_sq = np.unique(key, return_inverse=True)
+    first = np.zeros(len(keys), np.int64)
+    first[pt_sq[::-1]] = np.arange(len(recv))[::-1]  # one pixel of each square
+    x0, y0, sq_quad = x[first] // s * s, y[first] // s * s, q[first]
+    c = np.empty((len(keys), 4), np.int64)
+    for k, (cx, cy) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+        sx, sy = x0 + cx * s, y0 + cy * s
+        inside = (sx < W) & (sy < H)
+        o = np.where(inside, sy * W + sx, 0)
+        i = np.where(inside, index[o], -1)
+        c[:, k] = np.where((i >= 0) & (quad[o] == sq_quad), i, -1)
+    return pt_sq.astype(np.int64).reshape(-1), c
 
 
 def window_pairs(H: int, W: int):

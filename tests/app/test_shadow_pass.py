@@ -143,3 +143,103 @@ def test_masked_sums_are_cut_by_work_and_equal_whatever_the_cut(demo):
         np.testing.assert_array_equal(acc, out[0][0])
         np.testing.assert_array_equal(count, out[0][1])
     assert out[0][1].sum() > 0
+
+
+def _bilinear_reference(known, values, missing, surface, W, H, s):
+    """Bilinear of each missing pixel's s x s lattice square's known corners on its own surface
+    (weights renormalised), else the 3x3 mean (_window_mean)."""
+    val = {int(k): v for k, v in zip(known, values)}
+    out = _window_mean(known, values, missing, surface, W, H)
+    for i, q in enumerate(missing):
+        y, x = divmod(int(q), W)
+        x0, y0 = x // s * s, y // s * s
+        fx, fy = (x - x0) / s, (y - y0) / s
+        acc, wsum = np.zeros(3), 0.0
+        for cx, cy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+            w = (fx if cx else 1 - fx) * (fy if cy else 1 - fy)
+            sx, sy = x0 + cx * s, y0 + cy * s
+            o = sy * W + sx
+            if w > 0 and sx < W and sy < H and o in val and surface[o] == surface[q]:
+                acc += w * val[o]
+                wsum += w
+        if wsum > 0:
+            out[i] = acc / wsum
+    return out
+
+
+def test_fill_on_a_coarser_lattice_is_bilinear_on_the_same_surface(device):
+    # spacing 4 and 8: the bilinear of the known corners on the pixel's surface; a linear function
+    # sampled on the lattice comes back exactly inside a surface; spacing 2 stays the 3x3 mean
+    rng = np.random.default_rng(5)
+    W, H = 41, 29
+    surface = (np.arange(W)[None, :] // 13 + 5 * (np.arange(H)[:, None] // 11)).reshape(-1).astype(np.int32)
+    yy, xx = np.divmod(np.arange(W * H), W)
+    f = WindowFill(W, H, surface, device)
+    for s in (4, 8):
+        known = np.flatnonzero((yy % s == 0) & (xx % s == 0) & (rng.uniform(size=W * H) < 0.9))
+        missing = np.setdiff1d(np.arange(W * H), known)
+        values = np.stack([0.3 * xx[known] - 0.2 * yy[known] + 1.0, xx[known] * 0.0 + 2.0, 0.1 * yy[known]], 1)
+        f.set_spacing(missing, s)
+        got = f.fill(known, values, missing).copy()
+        np.testing.assert_allclose(got, _bilinear_reference(known, values, missing, surface, W, H, s),
+                                   rtol=1e-12, atol=1e-12)
+        # inside a surface, with all four corners known: the linear function itself
+        x0, y0 = xx[missing] // s * s, yy[missing] // s * s
+        inner = np.ones(len(missing), bool)
+        for cx, cy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+            o = np.minimum(y0 + cy * s, H - 1) * W + np.minimum(x0 + cx * s, W - 1)
+            inner &= np.isin(o, known) & (surface[o] == surface[missing]) & (x0 + cx * s < W) & (y0 + cy * s < H)
+        assert inner.sum() > 100
+        np.testing.assert_allclose(got[inner, 0], 0.3 * xx[missing[inner]] - 0.2 * yy[missing[inner]] + 1.0,
+                                   rtol=1e-9, atol=1e-9)
+    f.set_spacing(np.zeros(0, np.int64), 2)  # back to the 3x3 mean everywhere
+    known = np.flatnonzero((yy % 2 == 0) & (xx % 2 == 0))
+    missing = np.setdiff1d(np.arange(W * H), known)
+    values = rng.normal(size=(len(known), 3))
+    np.testing.assert_allclose(f.fill(known, values, missing), _window_mean(known, values, missing, surface, W, H),
+                               rtol=1e-12, atol=1e-12)
+
+
+def test_graded_lattice_matches_the_exact_sums_on_a_real_room(shared_scenes_cache):
+    # window_room at 50 passes, the object at its own pose: the graded frame's shadow fractions
+    # (exact pixels, and the ones filled from them) against every wanted pixel summed exactly
+    from tests.conftest import shared_scene
+
+    scene = load_scene(shared_scene("window_room"))
+    eng = Engine(scene, EngineParams(), cache_dir=shared_scenes_cache, quiet=True)
+    sp = eng.shadow_pass
+    obj = scene.obj
+    pv, pf, occ, shade_mesh, shade_occ = eng._object_shape(obj)
+    centre, radius = bounding_sphere(pv)
+    cov = eng._object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ).coverage()
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), 50)
+
+    def masks(scale):
+        steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, False,
+                       spread=fs.spread, scale=scale)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as stop:
+                return stop.value
+
+    E = eng.E_x
+    g = masks(E)
+    counts = dict(sp.last_graded)
+    frac_g = np.zeros(E.shape)
+    frac_g[g.pix_sel] = g.O_pix / np.maximum(E[g.pix_sel], 1e-12)
+    frac_g[g.fill_sel] = sp.fill(g.pix_sel, frac_g[g.pix_sel], g.fill_sel)
+    near, sp.near_factor = sp.near_factor, 1e9  # every wanted pixel exact
+    try:
+        x = masks(None)
+    finally:
+        sp.near_factor = near
+    assert len(x.fill_sel) == 0 and set(x.pix_sel.tolist()) == set(g.pix_sel.tolist()) | set(g.fill_sel.tolist())
+    frac_x = np.zeros(E.shape)
+    frac_x[x.pix_sel] = x.O_pix / np.maximum(E[x.pix_sel], 1e-12)
+    err = np.abs(frac_g - frac_x).max(1)[g.fill_sel]
+    print("graded:", counts, "fill error mean", err.mean(), "p99", np.percentile(err, 99), "max", err.max())
+    # most wanted pixels are filled on the coarse lattices: a frame sums far fewer points
+    assert counts[8] + counts[4] > 0.5 * len(g.fill_sel) and counts["exact"] < 0.15 * len(x.pix_sel)
+    assert err.mean() < 0.1 * sp.refine_tol and np.percentile(err, 99) < sp.refine_tol
+    np.testing.assert_allclose(g.O_cen, x.O_cen, rtol=1e-5, atol=1e-7)  # patch centres are all summed
