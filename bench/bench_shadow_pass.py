@@ -53,7 +53,8 @@ def bench(scene_dir: Path, res: int, n: int, cache: str) -> dict:
         centre, radius = bounding_sphere(pv)
         cov = np.zeros((scene.camera.height, scene.camera.width))
         c0, t0 = time.process_time(), time.perf_counter()
-        steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, False, spread=fs.spread)
+        steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, False, spread=fs.spread,
+                       scale=eng.E_x)  # as the engine runs it (graded lattice)
         for _ in steps:
             pass
         cpu.append(time.process_time() - c0)

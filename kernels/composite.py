@@ -344,7 +344,8 @@ class MaskedSum:
         self.g_centre, self.g_radius = _spheres(pos, group, G, d)
         self.c_centre, self.c_radius = _spheres(pos, self.point_cell, C, d)
         self.cell_group = Buffer(C, wp.int32, d)
-        self.cell_group.upload(cells // span if len(cells) else np.zeros(1))
+        self._cell_group_host = (cells // span).astype(np.int64) if len(cells) else np.zeros(1, np.int64)
+        self.cell_group.upload(self._cell_group_host)
         self.active = Buffer(C, wp.uint8, d)  # cells with selected points
         self.max_maps = max_maps
         self.g_lists = wp.zeros((G, max_maps), dtype=wp.int32, device=d)
@@ -369,7 +370,13 @@ class MaskedSum:
         # where selected (linear in the points; distinct indices, else a sort)
         mark = self._mark
         mark[idx] = True
-        if int(mark.sum()) == len(idx):
+        if 8 * len(idx) < self.size:  # few points: sorting them is cheaper than a pass over all
+            mark[idx] = False
+            rank = np.argsort(self.point_cell[idx], kind="stable")
+            ordered = idx[rank]
+            self.order = np.empty(len(idx), np.int64)
+            self.order[rank] = np.arange(len(idx))
+        elif int(mark.sum()) == len(idx):
             ordered = self._by_cell[mark[self._by_cell]]
             mark[idx] = False
             self._slot[ordered] = np.arange(len(ordered))
@@ -398,6 +405,12 @@ class MaskedSum:
         selection itself is unchanged)."""
         h = self.active.host
         h[self.point_cell[np.asarray(idx, np.int64).reshape(-1)]] = 1
+        self.active.push()
+
+    def activate_groups(self, groups: np.ndarray) -> None:
+        """activate() for every cell of the groups flagged in `groups` (n_groups,) bool."""
+        h = self.active.host
+        h[:self.n_cells] |= np.asarray(groups, bool)[self._cell_group_host].astype(np.uint8)
         self.active.push()
 
     def reset(self) -> None:

@@ -7,6 +7,10 @@ Per frame, of the receiver pixels on patches that some pass's shaft can shadow (
   neighbours), where shadows are soft and vary slowly: sum_j W_xj M_xj over the passes;
 - filled: the other ones, the mean of the exact values in their 3x3 window on the same quad
   (ShadowPass.fill, kernels.maskfill, given the values compose derives from the sums).
+A cluster frame whose maps fit one batch (the drag's) instead sums on a graded lattice
+(ShadowPass._run_graded): exact within the object's bounding sphere, and farther out the corners
+of 8x8 lattice squares, refined to 4x4, 2x2 and single pixels only where the corners' shadow
+fractions differ by more than REFINE_TOL; the rest is filled bilinearly from the corners.
 Pixels the object covers completely are skipped. The patch centres of those patches get their
 sums too (second order).
 
@@ -112,6 +116,8 @@ class ShadowPass:
         # square of spacing 2 (receiver points of its quad; -1 none, -2 weight zero), and
         # the receiver points sorted by patch (the near ones are found patch by patch)
         self.pt_patch = pix_patch[self.recv]
+        self.recv_index = np.full(H * W, -1, np.int64)  # pixel -> receiver point (-1 none)
+        self.recv_index[self.recv] = np.arange(R)
         self.corners = _lattice_corners(self.recv, self.pix_quad, W, H)
         # lattice squares of spacing 4 and 8 (one per quad they hold pixels of): each point's, and
         # their corners (receiver points of the square's quad; -1 none)
@@ -191,8 +197,8 @@ class ShadowPass:
         squares of spacing 8 over the others; a pixel whose square's corners (all on its quad and
         wanted) differ in shadow fraction by at most refine_tol is filled from them (bilinear), the
         others go to the square of half the spacing, whose corners are summed next; at spacing 2
-        what is left is filled as in run (the 3x3 mean), or exact where no corner is wanted. The
-        maps are rendered and listed once; each spacing is one launch of the masked sums."""
+        a pixel is filled as in run (the 3x3 mean) where its own corners agree so, else summed itself.
+        The maps are rendered and listed once; each spacing is one launch of the masked sums."""
         dev, n = self.device, len(eyes)
         R = self.n_pix_points
         ok = cand.any(1) if cand.shape[1] else np.zeros(len(cand), bool)
@@ -200,9 +206,8 @@ class ShadowPass:
         allowed[:] = ok[self.pt_patch]
         covered = np.flatnonzero(coverage.reshape(-1) >= 1.0)
         if len(covered):  # pixels the object hides completely: no shadow to show
-            self._covered[covered] = True
-            allowed &= ~self._covered[self.recv]
-            self._covered[covered] = False
+            hidden = self.recv_index[covered]
+            allowed[hidden[hidden >= 0]] = False
         reach = self.graded_near * radius
         near_patch = np.flatnonzero(ok & (np.linalg.norm(self.patch_centre - centre, axis=1)
                                           < reach + self.patch_radius + 1e-3))
@@ -215,7 +220,6 @@ class ShadowPass:
         allowed[near] = False  # from here: the wanted points farther out
         pend = np.flatnonzero(allowed)
         allowed[near] = True
-        pt_scale = scale[self.recv]
 
         # the batch's maps, their transfers and each cell's list, once for every spacing
         self.maps = self.maps_full if full_maps else self.maps_cluster
@@ -238,7 +242,7 @@ class ShadowPass:
         sq8, c8 = square_corners(pend, 8)
         first_pts = np.unique(np.concatenate([near, c8]))
         self.sums.select(np.concatenate([first_pts, R + cen]))
-        self.sums.activate(np.concatenate([pend, near]))
+        self.sums.activate_groups(ok)
         self.sums.prepare(self.maps, n, 0, self.cand.dev,
                           split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
         acc = self._sum()
@@ -254,7 +258,7 @@ class ShadowPass:
             c = self.sq_corners[s][sq]
             cc = np.maximum(c, 0)
             good = np.all((c >= 0) & known[cc], axis=1)
-            frac = vals[cc] / np.maximum(pt_scale[cc], 1e-12)  # (squares, 4, 3)
+            frac = vals[cc] / np.maximum(scale[self.recv[cc]], 1e-12)  # (squares, 4, 3)
             good &= (frac.max(1) - frac.min(1)).max(1) <= self.refine_tol
             sq_good = self._sq_mark[s]
             sq_good[sq[good]] = True
@@ -276,14 +280,30 @@ class ShadowPass:
                 vals[new] = self._sum()
                 known[new] = True
                 exact.append(new)
+        # spacing 2: a pixel is filled (the 3x3 mean) where its own corners are wanted, summed, and agree
+        # as above; the others are summed themselves
         pend = pend[~known[pend]]
-        fill_pt.append(pend)
-        fill_s.append(np.full(len(pend), 2))
+        c = self.corners[2][pend]
+        need = c != -2
+        cc = np.maximum(c, 0)
+        good = np.all(~need | ((c >= 0) & known[cc]), axis=1)
+        frac = vals[cc] / np.maximum(scale[self.recv[cc]], 1e-12)
+        spread_ = (np.where(need[..., None], frac, -np.inf).max(1) - np.where(need[..., None], frac, np.inf).min(1))
+        good &= spread_.max(1) <= self.refine_tol
+        fill_pt.append(pend[good])
+        fill_s.append(np.full(int(good.sum()), 2))
+        new = pend[~good]
+        if len(new):
+            self.sums.select(new)
+            vals[new] = self._sum()
+            known[new] = True
+            exact.append(new)
         pix_pt = np.concatenate(exact)
         fill_pt, fill_s = np.concatenate(fill_pt), np.concatenate(fill_s)
         O_pix = vals[pix_pt].copy()
         known[pix_pt] = False
-        self._fill.set_spacing(self.recv[fill_pt], fill_s)
+        coarse = fill_s > 2
+        self._fill.set_spacing(self.recv[fill_pt[coarse]], fill_s[coarse])
         self.last_graded = {8: int(np.sum(fill_s == 8)), 4: int(np.sum(fill_s == 4)), 2: int(np.sum(fill_s == 2)),
                             "exact": len(pix_pt)}
         yield n
