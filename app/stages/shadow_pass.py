@@ -112,15 +112,17 @@ class ShadowPass:
         self.rest_start = np.searchsorted(self.rest_patch, np.arange(P + 1))
         self.patch_centre, self.patch_radius = patches.centre, patches.radius
         self.emitter = patches.is_emitter
-        # graded lattice (cluster frames, _run_graded): the receiver points sorted by patch (the near
-        # ones are found patch by patch)
+        # graded lattice (cluster frames, _run_graded): per receiver point, the corners of its lattice
+        # square of spacing 2 (receiver points of its quad; -1 none, -2 weight zero), and
+        # the receiver points sorted by patch (the near ones are found patch by patch)
         self.pt_patch = pix_patch[self.recv]
         self.recv_index = np.full(H * W, -1, np.int64)  # pixel -> receiver point (-1 none)
         self.recv_index[self.recv] = np.arange(R)
-        # lattice squares of spacing 2, 4 and 8 (one per quad they hold pixels of): each point's, and
+        self.corners = _lattice_corners(self.recv, self.pix_quad, W, H)
+        # lattice squares of spacing 4 and 8 (one per quad they hold pixels of): each point's, and
         # their corners (receiver points of the square's quad; -1 none)
         self.pt_sq, self.sq_corners, self._sq_mark = {}, {}, {}
-        for s in (2, 4, 8):
+        for s in (4, 8):
             self.pt_sq[s], self.sq_corners[s] = _lattice_squares(self.recv, self.pix_quad, W, H, s)
             self._sq_mark[s] = np.zeros(len(self.sq_corners[s]), bool)
         self.pt_by_patch = np.argsort(self.pt_patch, kind="stable")
@@ -130,7 +132,6 @@ class ShadowPass:
         self._known = np.zeros(R, bool)  # scratch: points summed so far in the frame
         self._vals = np.zeros((R, 3))  # their sums
         self.refine_tol = REFINE_TOL
-        self.graded = True  # False: every frame on the spacing-2 lattice (run's other branch), for A/B
         # exact within this many bounding radii (graded frames): inside the bounding sphere a receiver
         # may touch the object (contact shadows, no penumbra to interpolate); beyond it the lattice
         self.graded_near = 1.0
@@ -161,7 +162,7 @@ class ShadowPass:
         full_maps: cluster maps of map_res too (Engine.refine's frames at rest); scale (H*W,3):
         the sums of the pixels' unshadowed light (E_x, or levels in LDR), given: a cluster frame of
         one batch fills on the graded lattice (_run_graded)."""
-        if self.graded and scale is not None and not per_source and 0 < len(eyes) <= self.batch:
+        if scale is not None and not per_source and 0 < len(eyes) <= self.batch:
             return (yield from self._run_graded(proxy, centre, radius, coverage, cand, eyes, W_pix, W_c,
                                                 spread, full_maps, scale))
         self._fill.set_spacing(np.zeros(0, np.int64), 2)
@@ -196,7 +197,7 @@ class ShadowPass:
         squares of spacing 8 over the others; a pixel whose square's corners (all on its quad and
         wanted) differ in shadow fraction by at most refine_tol is filled from them (bilinear), the
         others go to the square of half the spacing, whose corners are summed next; at spacing 2
-        a square that passes is filled as in run (the 3x3 mean), the others' pixels are summed.
+        a pixel is filled as in run (the 3x3 mean) where its own corners agree so, else summed itself.
         The maps are rendered and listed once; each spacing is one launch of the masked sums."""
         dev, n = self.device, len(eyes)
         R = self.n_pix_points
@@ -251,7 +252,7 @@ class ShadowPass:
         vals[first_pts] = acc[:len(first_pts)]
         fill_pt, fill_s = [], []
         sq = sq8
-        for s in (8, 4, 2):
+        for s in (8, 4):
             # a square is filled from its corners where all four are wanted, summed, and differ in
             # shadow fraction by at most refine_tol
             c = self.sq_corners[s][sq]
@@ -267,15 +268,36 @@ class ShadowPass:
             fill_pt.append(pend[done])
             fill_s.append(np.full(int(done.sum()), s))
             pend = pend[~done]
-            if s > 2:  # the squares of half the spacing in the others
-                sq, new = square_corners(pend, s // 2)
-            else:  # at spacing 2 the others' pixels are summed themselves
-                new = pend
+            if s == 8:
+                sq, new = square_corners(pend, 4)
+            else:  # the last spacing, 2: each pixel's own corners; one with none wanted is summed itself
+                c2 = self.corners[2][pend]
+                ok2 = (c2 >= 0) & allowed[np.maximum(c2, 0)]
+                new = np.unique(np.concatenate([c2[ok2], pend[~ok2.any(1)]]))
+                new = new[~known[new]]
             if len(new):
                 self.sums.select(new)
                 vals[new] = self._sum()
                 known[new] = True
                 exact.append(new)
+        # spacing 2: a pixel is filled (the 3x3 mean) where its own corners are wanted, summed, and agree
+        # as above; the others are summed themselves
+        pend = pend[~known[pend]]
+        c = self.corners[2][pend]
+        need = c != -2
+        cc = np.maximum(c, 0)
+        good = np.all(~need | ((c >= 0) & known[cc]), axis=1)
+        frac = vals[cc] / np.maximum(scale[self.recv[cc]], 1e-12)
+        spread_ = (np.where(need[..., None], frac, -np.inf).max(1) - np.where(need[..., None], frac, np.inf).min(1))
+        good &= spread_.max(1) <= self.refine_tol
+        fill_pt.append(pend[good])
+        fill_s.append(np.full(int(good.sum()), 2))
+        new = pend[~good]
+        if len(new):
+            self.sums.select(new)
+            vals[new] = self._sum()
+            known[new] = True
+            exact.append(new)
         pix_pt = np.concatenate(exact)
         fill_pt, fill_s = np.concatenate(fill_pt), np.concatenate(fill_s)
         O_pix = vals[pix_pt].copy()
@@ -342,10 +364,34 @@ class ShadowPass:
         self.cand.push()
 
 
+def _lattice_corners(recv: np.ndarray, quad: np.ndarray, W: int, H: int) -> dict[int, np.ndarray]:
+    """Per receiver pixel recv[i] and spacing s (2): (len(recv), 4) int32 indices into recv
+    of the corners (x0, y0), (x0 + s, y0), (x0, y0 + s), (x0 + s, y0 + s) of its lattice square
+    (x0 = s floor(x / s), ...); -2 where the corner's bilinear weight is zero, -1 where it is off
+    the image, not a receiver pixel or on another quad."""
+    index = np.full(H * W, -1, np.int64)
+    index[recv] = np.arange(len(recv))
+    y, x = np.divmod(recv, W)
+    out = {}
+    for s in (2,):
+        x0, y0 = x // s * s, y // s * s
+        c = np.empty((len(recv), 4), np.int32)
+        for k, (cx, cy) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+            sx, sy = x0 + cx * s, y0 + cy * s
+            inside = (sx < W) & (sy < H)
+            o = np.where(inside, sy * W + sx, 0)
+            i = np.where(inside, index[o], -1)
+            i = np.where((i >= 0) & (quad[o] == quad[recv]), i, -1)
+            zero = ((cx == 1) & (x == x0)) | ((cy == 1) & (y == y0))
+            c[:, k] = np.where(zero, -2, i)
+        out[s] = c
+    return out
+
+
 def _lattice_squares(recv: np.ndarray, quad: np.ndarray, W: int, H: int, s: int) -> tuple[np.ndarray, np.ndarray]:
     """The lattice squares of spacing s of receiver pixels recv, one per (square, quad): each
     pixel's square (len(recv),) and the squares' corners (n, 4) as indices into recv, in the
-    order (x0, y0), (x0 + s, y0), (x0, y0 + s), (x0 + s, y0 + s) (-1: off the image, not a receiver pixel, or on another quad)."""
+    order of _lattice_corners (-1: off the image, not a receiver pixel, or on another quad)."""
     index = np.full(H * W, -1, np.int64)
     index[recv] = np.arange(len(recv))
     y, x = np.divmod(recv, W)
