@@ -132,6 +132,7 @@ class ShadowPass:
         self._known = np.zeros(R, bool)  # scratch: points summed so far in the frame
         self._vals = np.zeros((R, 3))  # their sums
         self.refine_tol = REFINE_TOL
+        self.graded = True  # False: every frame on the spacing-2 lattice (run's other branch), for A/B
         # exact within this many bounding radii (graded frames): inside the bounding sphere a receiver
         # may touch the object (contact shadows, no penumbra to interpolate); beyond it the lattice
         self.graded_near = 1.0
@@ -162,7 +163,7 @@ class ShadowPass:
         full_maps: cluster maps of map_res too (Engine.refine's frames at rest); scale (H*W,3):
         the sums of the pixels' unshadowed light (E_x, or levels in LDR), given: a cluster frame of
         one batch fills on the graded lattice (_run_graded)."""
-        if scale is not None and not per_source and 0 < len(eyes) <= self.batch:
+        if self.graded and scale is not None and not per_source and 0 < len(eyes) <= self.batch:
             return (yield from self._run_graded(proxy, centre, radius, coverage, cand, eyes, W_pix, W_c,
                                                 spread, full_maps, scale))
         self._fill.set_spacing(np.zeros(0, np.int64), 2)
