@@ -82,7 +82,7 @@ def bench(scene_dir: Path, res: int, n: int, cache: str) -> dict:
 
 def _pairs(sp) -> str:
     """Maps per point the last batch's masked sums tested (of its 50 maps), after the candidate
-    lists and the culling."""
+    lists and the culling (a graded frame: of its last selection, the pixels summed one by one)."""
     ms = sp.sums
     idx = ms.idx.pull(ms.n).astype(np.int64)
     listed = int(ms.n_list.numpy()[ms.point_cell[idx]].sum())
