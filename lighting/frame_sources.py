@@ -120,13 +120,13 @@ class ShadowSources:
             g *= np.asarray(recv_weights, np.float64)[:, None]
         return BlockedTransfer(points, eye, g.T, device)
 
-    def blocked_key(self, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
+    def blocked_key(self, box_min: np.ndarray, box_max: np.ndarray, split=None) -> np.ndarray:
         """(S,) per KD position: the luminance transfer to the receiver vertices whose segment to the
-        source's block meets the box (BlockedTransfer), shared among the block's members by strength
-        (evenly where their strength is 0)."""
+        source's block meets the box (BlockedTransfer; split: its launches cut into ranges), shared
+        among the block's members by strength (evenly where their strength is 0)."""
         so, k = self.src_ids, self.block
         starts = np.arange(0, len(so), k)
-        b = self.blocked(box_min, box_max)
+        b = self.blocked(box_min, box_max, split)
         size = np.diff(np.append(starts, len(so)))
         wsum = np.add.reduceat(self.strength, starts)
         share = np.where(np.repeat(wsum, size) > 0, self.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
@@ -158,7 +158,7 @@ class ShadowSources:
                 run[r0:r1] = cum[:, -1]
         return out
 
-    def _single_transfers(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _single_transfers(self, ids: np.ndarray, split=None) -> tuple[np.ndarray, np.ndarray]:
         """(W_v (Vr,n,3), W_c (P,n,3)) float32 of one pass per source `ids`, read-only. The last
         list's are kept: the all-sources frames of poses whose box meets the same sources (every
         frame of Engine.refine, a room whose shafts all meet the object) reuse them."""
@@ -167,7 +167,8 @@ class ShadowSources:
             return last[1], last[2]
         self._single = None  # the old arrays go before the new ones are made
         B = self.B[ids].astype(np.float32)
-        W_v, W_c = _column_transfers(self.G_v, ids, B), _column_transfers(self.G_c, ids, B)
+        W_v = _column_transfers(self.G_v, ids, B, split=split)
+        W_c = _column_transfers(self.G_c, ids, B, split=split)
         W_v.flags.writeable = W_c.flags.writeable = False
         self._single = (ids.copy(), W_v, W_c)
         return W_v, W_c
@@ -322,8 +323,9 @@ class ShadowSources:
         axes[cnt == 1] = 0.0
         return axes
 
-    def select(self, box_min: np.ndarray, box_max: np.ndarray, passes: int | None) -> FrameSources:
-        """The frame's shadow passes for an object inside the box (module docstring)."""
+    def select(self, box_min: np.ndarray, box_max: np.ndarray, passes: int | None, split=None) -> FrameSources:
+        """The frame's shadow passes for an object inside the box (module docstring). split(launch(lo,
+        hi), n): how kernel launches are cut over the cores (app.runtime.split; default one launch)."""
         if passes is not None and passes < 1:
             raise ValueError("passes must be at least 1")
         Vr = self.G_v.shape[0]
@@ -338,7 +340,7 @@ class ShadowSources:
             marked, s_nodes, r_nodes = self.traverse(box_min, box_max)
             key = self.strength
             if self.blocked is not None and passes is not None and passes < marked.sum():
-                key = self.blocked_key(box_min, box_max)
+                key = self.blocked_key(box_min, box_max, split)
             nodes = self.representatives(marked, passes, key)
         n = len(nodes)
         if n == 0:
@@ -349,7 +351,7 @@ class ShadowSources:
         starts = np.searchsorted(pos, lo)
         ids = self.src_ids[pos]
         if n == len(pos):  # one source per pass (the all-sources frame): its own transfers
-            W_v, W_c = self._single_transfers(ids)
+            W_v, W_c = self._single_transfers(ids, split)
         else:
             W_v, W_c = self.weights(lo, hi, marked)
         eyes = self.eye_pos[ids] if n == len(pos) else self.eyes(starts, pos, key)
@@ -373,11 +375,21 @@ class ShadowSources:
         return FrameSources(eyes, W_v, W_c, cand, int(marked.sum()), int(cand.any(1).sum()), spread)
 
 
-def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int = 256) -> np.ndarray:
+def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int = 256, split=None) -> np.ndarray:
     """(R, n, 3) float32 G[:, ids] * B (B (n,3) float32): the transfers of single sources, in slabs
-    of `rows` rows (a slab's gathered columns stay in cache; the same products as one broadcast)."""
+    of `rows` rows (a slab's gathered columns stay in cache; the same products as one broadcast).
+    split(work(lo, hi), R): runs row ranges concurrently (app.runtime.split: one range per core;
+    numpy's gather and product release the GIL); default one range."""
     out = np.empty((G.shape[0], len(ids), 3), np.float32)
-    for r0 in range(0, G.shape[0], rows):
-        g = np.asarray(G[r0:r0 + rows].take(ids, axis=1), np.float32)
-        np.multiply(g[:, :, None], B[None], out=out[r0:r0 + rows])
+
+    def work(lo: int, hi: int) -> None:
+        for r0 in range(lo, hi, rows):
+            r1 = min(r0 + rows, hi)
+            g = np.asarray(G[r0:r1].take(ids, axis=1), np.float32)
+            np.multiply(g[:, :, None], B[None], out=out[r0:r1])
+
+    if split is None:
+        work(0, G.shape[0])
+    else:
+        split(work, G.shape[0])
     return out
