@@ -322,8 +322,11 @@ class _Mirror:
                 wp.copy(self.dev, self.host_arr, count=rows * per_row)
 
     def pull(self) -> None:
+        """Copy the device array to the host view, and wait for it (a copy to pinned memory may be
+        asynchronous)."""
         if self.host_arr is not self.dev:
             wp.copy(self.host_arr, self.dev)
+            wp.synchronize_device(self.dev.device)
 
 
 class Compositor:
@@ -439,6 +442,7 @@ class Compositor:
         wp.synchronize_device(self.device)
         if self._in:
             wp.copy(self._share.host_arr, self._share.dev, count=3 * k)
+            wp.synchronize_device(self.device)
         return self._share.np[:k]
 
     def scatter(self, what: str, idx: np.ndarray, vals: np.ndarray, split: Split) -> None:
