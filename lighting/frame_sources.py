@@ -204,22 +204,16 @@ class ShadowSources:
             return np.where(x == S, last, x // k)
 
         whole = A <= Bk
-        # the results in their final (receiver, node, 3) layout, written through (node, receiver, 3) views
-        W_v, W_c = np.zeros((Vr, n, 3), np.float32), np.zeros((self.P, n, 3), np.float32)
-        parts = ((W_v.transpose(1, 0, 2), slice(0, Vr)), (W_c.transpose(1, 0, 2), slice(Vr, None)))
+        W = np.zeros((n, Vr + self.P, 3), np.float32)
         tab = np.flatnonzero(A < Bk)  # segments holding whole blocks (sorted by node)
         if len(tab):
             t_node = node[tab]
             if len(np.unique(t_node)) == len(t_node):  # one block run per node (a whole marked node)
-                d = self.prefix[row(Bk[tab])] - self.prefix[row(A[tab])]
-                t_at = t_node
+                W[t_node] = self.prefix[row(Bk[tab])] - self.prefix[row(A[tab])]
             else:  # many runs: float64 sums
                 starts = np.flatnonzero(np.diff(np.concatenate([[-1], t_node])))
-                d = np.add.reduceat(self.prefix[row(Bk[tab])].astype(np.float64) - self.prefix[row(A[tab])], starts,
-                                    axis=0)
-                t_at = t_node[starts]
-            for Wt, rows in parts:
-                Wt[t_at] = d[:, rows]
+                W[t_node[starts]] = np.add.reduceat(self.prefix[row(Bk[tab])].astype(np.float64)
+                                                    - self.prefix[row(A[tab])], starts, axis=0)
         # raw columns: [a, A) and [Bk, b) of whole segments, [a, b) of the others
         r_lo = np.concatenate([a, np.where(whole, Bk, b)])
         r_hi = np.concatenate([np.where(whole, A, b), b])
@@ -236,12 +230,11 @@ class ShadowSources:
             Bc = np.asarray(self.B[ids], np.float64)
             starts = np.flatnonzero(np.diff(np.concatenate([[-1], col_node])))
             owners = col_node[starts]
-            for G, (Wt, _) in ((self.G_v, parts[0]), (self.G_c, parts[1])):  # float64 sums
-                Wt[owners] += np.add.reduceat(np.asarray(G[:, ids], np.float64).T[:, :, None] * Bc[:, None],
-                                              starts, axis=0)
-        for W in (W_v, W_c):
-            np.maximum(W, 0.0, out=W)  # a difference of rounded prefixes where the exact sum is 0
-        return W_v, W_c
+            for G, rows in ((self.G_v, slice(0, Vr)), (self.G_c, slice(Vr, None))):  # float64 sums
+                W[owners, rows] += np.add.reduceat(np.asarray(G[:, ids], np.float64).T[:, :, None] * Bc[:, None],
+                                                   starts, axis=0)
+        np.maximum(W, 0.0, out=W)  # a difference of rounded prefixes where the exact sum is 0
+        return np.ascontiguousarray(W[:, :Vr].transpose(1, 0, 2)), np.ascontiguousarray(W[:, Vr:].transpose(1, 0, 2))
 
     # ------------------------------------------------------------------ per frame
     def traverse(self, box_min: np.ndarray, box_max: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
