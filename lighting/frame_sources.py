@@ -258,8 +258,8 @@ class ShadowSources:
             return []
         if passes is None or passes >= n_marked:
             leaf_node = np.empty(len(marked), np.int64)
-            for n in np.flatnonzero(t.is_leaf):
-                leaf_node[t.lo[n]] = n
+            leaves = np.flatnonzero(t.is_leaf)
+            leaf_node[t.lo[leaves]] = leaves  # the source tree's leaves hold one source each
             return leaf_node[np.flatnonzero(marked)].tolist()
         if passes < 1:
             raise ValueError("passes must be at least 1")
