@@ -31,6 +31,7 @@ from the 8-bit photo.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import logging
 import time
@@ -41,6 +42,7 @@ from typing import Literal
 
 import numpy as np
 
+from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
 from app.stages import precompute as scene_precompute
 from app.stages.compose import ComposeStage
 from app.stages.precompute import (LIGHTING, Lighting, PrecomputeConfig,  # noqa: F401 (re-exported)
@@ -476,7 +478,8 @@ class Engine:
         t = tick("object", t)
 
         # ---- source list from the shaft hierarchy, grouped into the frame's passes (sec. 6.2.1, 6.4)
-        fs = self.shadow_sources.select(pv.min(0), pv.max(0), self._passes_for_frame(p))
+        fs = self.shadow_sources.select(pv.min(0), pv.max(0), self._passes_for_frame(p),
+                                        functools.partial(split_launches, device=self.device, min_items=64))
         eyes, W_v, W_c, cand = fs.eyes, fs.W_v, fs.W_c, fs.cand
         t = tick("sources", t)
 

@@ -32,9 +32,9 @@ def _segment_meets_box(p: wp.vec3, q: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool
 
 
 @wp.kernel
-def _blocked_kernel(pts: wp.array(dtype=wp.vec3), eyes: wp.array(dtype=wp.vec3), g: wp.array2d(dtype=wp.float32),
-                    lo: wp.vec3, hi: wp.vec3, out: wp.array(dtype=wp.float32)):
-    j = wp.tid()
+def _blocked_kernel(first: int, pts: wp.array(dtype=wp.vec3), eyes: wp.array(dtype=wp.vec3),
+                    g: wp.array2d(dtype=wp.float32), lo: wp.vec3, hi: wp.vec3, out: wp.array(dtype=wp.float32)):
+    j = first + wp.tid()
     e = eyes[j]
     c = 0.5 * (lo + hi)
     rad2 = wp.length_sq(hi - c)
@@ -66,13 +66,22 @@ class BlockedTransfer:
         # the result's host copy, allocated once (a GPU array's .numpy() would allocate every call)
         self.host = self.out if self.cpu else wp.zeros(len(eyes), dtype=wp.float32, device="cpu", pinned=True)
 
-    def __call__(self, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
-        """(S,) float64 transfer from each source to the receivers whose segment meets the box."""
+    def __call__(self, box_min: np.ndarray, box_max: np.ndarray, split=None) -> np.ndarray:
+        """(S,) float64 transfer from each source to the receivers whose segment meets the box.
+        split(launch(lo, hi), n): cuts the sources into ranges, one launch each (the caller's
+        two-core split, app.runtime.split); default one launch."""
         if len(self.out) == 0:
             return np.zeros(0)
-        wp.launch(_blocked_kernel, dim=len(self.out),
-                  inputs=[self.pts, self.eyes, self.g, wp.vec3(*map(float, box_min)), wp.vec3(*map(float, box_max))],
-                  outputs=[self.out], device=self.device)
+        lo, hi = wp.vec3(*map(float, box_min)), wp.vec3(*map(float, box_max))
+
+        def launch(a: int, b: int) -> None:
+            wp.launch(_blocked_kernel, dim=b - a, inputs=[a, self.pts, self.eyes, self.g, lo, hi],
+                      outputs=[self.out], device=self.device)
+
+        if split is None:
+            launch(0, len(self.out))
+        else:
+            split(launch, len(self.out))
         if not self.cpu:
             wp.copy(self.host, self.out)
             wp.synchronize_device(self.device)

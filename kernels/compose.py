@@ -42,9 +42,13 @@ def segment_slopes(xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
 
 def pack_response(xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The response's breakpoints (xs, ys) (C,n) packed for `lookup`: tables (2C, 3n) float64, rows
-    0..C-1 [xs | ys | slopes] (T), rows C..2C-1 [ys | xs | slopes] (T^-1); grids (2C, GRID_CELLS)."""
-    tab = np.concatenate([np.concatenate([xs, ys, segment_slopes(xs, ys)], 1),
-                          np.concatenate([ys, xs, segment_slopes(ys, xs)], 1)])
+    0..C-1 for T, rows C..2C-1 for T^-1, each holding per breakpoint j the triple (xp_j, fp_j,
+    slope_j) side by side (a lookup reads one cache line, not three; 3-4% of the compose stage's CPU
+    time on window_room and lamps_room); grids (2C, GRID_CELLS)."""
+    def triples(xp, fp):
+        return np.stack([xp, fp, segment_slopes(xp, fp)], axis=2).reshape(len(xp), -1)
+
+    tab = np.concatenate([triples(xs, ys), triples(ys, xs)])
     return tab, np.concatenate([response_grid(xs), response_grid(ys)])
 
 
@@ -52,22 +56,23 @@ def pack_response(xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarra
 def lookup(x: wp.float64, row: int, tab: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32)
            ) -> wp.float64:
     """np.interp(x, xp, fp) for sorted xp (ties allowed; the last j with xp[j] <= x) on row `row` of
-    the packed tables (pack_response: [xp | fp | slope]; rows 0-2: T per channel, 3-5: T^-1)."""
-    n = tab.shape[1] // 3
+    the packed tables (pack_response: (xp, fp, slope) per breakpoint; rows 0-2: T per channel, 3-5:
+    T^-1)."""
+    last = tab.shape[1] - 3  # the last breakpoint's triple
     if x < tab[row, 0]:
-        return tab[row, n]
-    if x >= tab[row, n - 1]:
-        return tab[row, 2 * n - 1]
+        return tab[row, 1]
+    if x >= tab[row, last]:
+        return tab[row, last + 1]
     ng = grid.shape[1]
     k = wp.clamp(int(x * wp.float64(ng)), 0, ng - 1)
-    j = grid[row, k]
-    while tab[row, j + 1] <= x:  # x < xp[n-1]: stops before the end
-        j += 1
+    j = 3 * grid[row, k]
+    while tab[row, j + 3] <= x:  # x < xp[n-1]: stops before the end
+        j += 3
     while tab[row, j] > x:  # the cell's start rounded above x
-        j -= 1
+        j -= 3
     if tab[row, j] == x:
-        return tab[row, n + j]
-    return tab[row, 2 * n + j] * (x - tab[row, j]) + tab[row, n + j]
+        return tab[row, j + 1]
+    return tab[row, j + 2] * (x - tab[row, j]) + tab[row, j + 1]
 
 
 @wp.func
@@ -86,38 +91,61 @@ def to_radiance(z: wp.float64, c: int, exposure: wp.float64, tab: wp.array2d(dty
     return lookup(y, 3 + c, tab, grid) / exposure
 
 
-# Per-pixel data packed one row per pixel (one memory stream, not twenty): columns of Compositor.px
-# (per scene) and Compositor.chg (per frame), 3 per quantity unless noted.
-PX_LB, PX_TLB, PX_STILL_HDR, PX_STILL_LDR, PX_ROOM_LDR, PX_RHO = 0, 3, 6, 9, 12, 15  # PX_WIDTH 18
-PX_WIDTH = 18
-CH_SHADE, CH_SUN, CH_R, CH_OBJ, CH_COV = 0, 3, 6, 9, 12  # CH_COV: 1 column; CH_WIDTH 13
-CH_WIDTH = 13
+# The mode's per-scene table, one row per pixel (one memory stream): HDR [L_b | rho | T(L_b)], LDR
+# [L_b | rho | photo levels | T(L_b) | the photo's radiance], 3 columns per quantity.
+PX_LB, PX_RHO, PX_STILL, PX_TLB, PX_ROOM_LDR = 0, 3, 6, 9, 12  # PX_STILL: the levels where nothing changes
+# This frame's sparse changes (the sun's share, the object), one row of `extra` per pixel that has any
+# (the pixel's `slot`; -1: none).
+EX_SUN, EX_OBJ, EX_COV = 0, 3, 6
+EX_WIDTH = 7
 
 
 @wp.kernel
 def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows: wp.array2d(dtype=wp.int32),
-                   bary: wp.array2d(dtype=wp.float32), chg: wp.array2d(dtype=wp.float64),
-                   r_flag: wp.array(dtype=wp.uint8), all_r: int, dE_v: wp.array2d(dtype=wp.float64),
-                   add_v: wp.array2d(dtype=wp.float64), tab: wp.array2d(dtype=wp.float64),
-                   grid: wp.array2d(dtype=wp.int32), exposure: wp.float64, out: wp.array2d(dtype=wp.float32),
+                   bary: wp.array2d(dtype=wp.float32), shade: wp.array2d(dtype=wp.float64),
+                   r_pix: wp.array2d(dtype=wp.float64), r_flag: wp.array(dtype=wp.uint8), all_r: int,
+                   slot: wp.array(dtype=wp.int32), extra: wp.array2d(dtype=wp.float64),
+                   dE_v: wp.array2d(dtype=wp.float64), add_v: wp.array2d(dtype=wp.float64),
+                   tab: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32), exposure: wp.float64,
+                   out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
                    out_pix: wp.array2d(dtype=wp.uint8)):
-    """px: L_b, T(L_b), the unchanged levels (HDR, LDR), the LDR unchanged radiance, rho (PX_*);
-    rows/bary: receiver-vertex rows (-1: no receiver) and weights; chg: this frame's occluded share
-    (HDR; LDR: levels taken), the sun's occluded share, object light where r_flag (or all_r), object
-    radiance and coverage (CH_*); dE_v/add_v (Vr,3) second order (plus object light) at receiver
-    vertices. out: radiance (0-2) and room radiance (3-5) float32; out_pix the 8-bit frame."""
+    """px: the mode's per-scene table (PX_*); rows/bary: receiver-vertex rows (-1: no receiver) and
+    weights; shade: this frame's occluded share (HDR; LDR: levels taken); r_pix: object light, used
+    where r_flag is set (or everywhere: all_r); slot/extra: the sun's occluded share, the object's
+    radiance and coverage (EX_*) of the pixels that have them; dE_v/add_v (Vr,3) second order (plus
+    object light) at receiver vertices. out: radiance, out_room: room radiance (float32); out_pix the
+    8-bit frame. The frame's inputs it reads are left cleared (shade, r_flag and r_pix where
+    r_flag is set (not all_r: r_pix is the caller's), slot) for the next frame."""
     i = first + wp.tid()
     zero = wp.float64(0.0)
     one = wp.float64(1.0)
     full = wp.float64(255.0)
-    use_r = all_r != 0 or r_flag[i] != wp.uint8(0)
+    use_r = all_r != 0
+    if r_flag[i] != wp.uint8(0):
+        use_r = True
+        r_flag[i] = wp.uint8(0)
+    f = wp.vec3d(shade[i, 0], shade[i, 1], shade[i, 2])
+    if f[0] != zero or f[1] != zero or f[2] != zero:
+        for c in range(3):
+            shade[i, c] = zero
+    s = slot[i]
+    u = wp.vec3d()
+    cov = zero
+    o = wp.vec3d()
+    if s >= 0:
+        slot[i] = -1
+        u = wp.vec3d(extra[s, EX_SUN], extra[s, EX_SUN + 1], extra[s, EX_SUN + 2])
+        o = wp.vec3d(extra[s, EX_OBJ], extra[s, EX_OBJ + 1], extra[s, EX_OBJ + 2])
+        cov = extra[s, EX_COV]
     r0 = rows[i, 0]
     # light added: rho x (object light + second order), irradiance/pi -> radiance
     g = wp.vec3d()
     for c in range(3):
         a = zero
         if use_r:
-            a = chg[i, CH_R + c]
+            a = r_pix[i, c]
+            if all_r == 0:
+                r_pix[i, c] = zero
         if r0 >= 0:
             b0 = wp.float64(bary[i, 0])
             b1 = wp.float64(bary[i, 1])
@@ -130,29 +158,27 @@ def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows:
                 a = b0 * add_v[r0, c] + b1 * add_v[r1, c] + b2 * add_v[r2, c]
         g[c] = px[i, PX_RHO + c] * a
     added = g[0] != zero or g[1] != zero or g[2] != zero
-    f = wp.vec3d(chg[i, CH_SHADE], chg[i, CH_SHADE + 1], chg[i, CH_SHADE + 2])
-    u = wp.vec3d(chg[i, CH_SUN], chg[i, CH_SUN + 1], chg[i, CH_SUN + 2])
     rad = wp.vec3d()  # room radiance
     lev = wp.vec3d()  # its level
     if ldr == 0:
         # the radiance the shadows take: the occluded share of L_b, then the sun's
-        s = wp.vec3d()
+        sh = wp.vec3d()
         for c in range(3):
-            s[c] = px[i, PX_LB + c] * f[c] + px[i, PX_LB + c] * u[c]
-        if added or s[0] != zero or s[1] != zero or s[2] != zero:
+            sh[c] = px[i, PX_LB + c] * f[c] + px[i, PX_LB + c] * u[c]
+        if added or sh[0] != zero or sh[1] != zero or sh[2] != zero:
             for c in range(3):
-                rad[c] = wp.max(px[i, PX_LB + c] - s[c] + g[c], zero)
+                rad[c] = wp.max(px[i, PX_LB + c] - sh[c] + g[c], zero)
                 lev[c] = to_levels(rad[c], c, exposure, tab, grid)
         else:
             for c in range(3):
                 rad[c] = px[i, PX_LB + c]
-                lev[c] = px[i, PX_STILL_HDR + c]
+                lev[c] = px[i, PX_STILL + c]
     else:
         # the photo's level less the shadows' levels, the sun's and plus the added light's change
         if added or f[0] != zero or f[1] != zero or f[2] != zero or u[0] != zero or u[1] != zero or u[2] != zero:
             for c in range(3):
                 L = px[i, PX_LB + c]
-                z = px[i, PX_STILL_LDR + c] - f[c]
+                z = px[i, PX_STILL + c] - f[c]
                 if u[c] != zero:
                     z = z + (to_levels(L * (one - u[c]), c, exposure, tab, grid) - px[i, PX_TLB + c])
                 if added:
@@ -163,17 +189,15 @@ def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows:
         else:
             for c in range(3):
                 rad[c] = px[i, PX_ROOM_LDR + c]
-                lev[c] = px[i, PX_STILL_LDR + c]
+                lev[c] = px[i, PX_STILL + c]
     pr = wp.vec3d(rad[0], rad[1], rad[2])  # the pixel's radiance
     pl = wp.vec3d(lev[0], lev[1], lev[2])  # its level
-    cov = chg[i, CH_COV]
     if cov > zero:
         # the object: mix levels, or radiance where a level is only a floor (it clips on either side)
         clips = lev[0] >= full or lev[1] >= full or lev[2] >= full
         for c in range(3):
-            o = chg[i, CH_OBJ + c]
-            pr[c] = (one - cov) * rad[c] + cov * o
-            t = to_levels(o, c, exposure, tab, grid)
+            pr[c] = (one - cov) * rad[c] + cov * o[c]
+            t = to_levels(o[c], c, exposure, tab, grid)
             pl[c] = (one - cov) * lev[c] + cov * t
             if t >= full:
                 clips = True
@@ -182,31 +206,98 @@ def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows:
                 pl[c] = to_levels(pr[c], c, exposure, tab, grid)
     for c in range(3):
         out[i, c] = wp.float32(pr[c])
-        out[i, 3 + c] = wp.float32(rad[c])
+        out_room[i, c] = wp.float32(rad[c])
         out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(pl[c]), zero, full)))
 
 
 @wp.kernel
-def second_order_kernel(first: int, G_v: wp.array2d(dtype=wp.float32), nz: wp.array(dtype=wp.int32), n_nz: int,
-                        dB: wp.array2d(dtype=wp.float64), dE_v: wp.array2d(dtype=wp.float64),
+def scatter_kernel(first: int, idx: wp.array(dtype=wp.int64), vals: wp.array2d(dtype=wp.float64),
+                   out: wp.array2d(dtype=wp.float64), flag: wp.array(dtype=wp.uint8), set_flag: int):
+    """out[idx[k]] = vals[k] (and flag[idx[k]] = 1 where set_flag) for k in the launch's range."""
+    k = first + wp.tid()
+    p = idx[k]
+    for c in range(3):
+        out[p, c] = vals[k, c]
+    if set_flag != 0:
+        flag[p] = wp.uint8(1)
+
+
+@wp.kernel
+def share_kernel(first: int, idx: wp.array(dtype=wp.int64), O: wp.array2d(dtype=wp.float64),
+                 E_x: wp.array2d(dtype=wp.float64), ratio: int, share: wp.array2d(dtype=wp.float64),
+                 out: wp.array2d(dtype=wp.float64)):
+    """share[k] = O[k] / E_x[idx[k]] clipped to [0, 1], 0 where E_x is not > 0 (ratio; else O[k] as
+    it is), and out[idx[k]] = share[k]: the HDR shadow's occluded share as numpy's
+    where(E > 0, clip(O / E, 0, 1), 0) computes it."""
+    k = first + wp.tid()
+    p = idx[k]
+    for c in range(3):
+        v = O[k, c]
+        if ratio != 0:
+            e = E_x[p, c]
+            if e > wp.float64(0.0):
+                v = wp.clamp(v / e, wp.float64(0.0), wp.float64(1.0))
+            else:
+                v = wp.float64(0.0)
+        share[k, c] = v
+        out[p, c] = v
+
+
+SO_ROWS = 4  # receiver vertices per thread of second_order_kernel
+
+
+@wp.kernel
+def second_order_kernel(first: int, last: int, G_v: wp.array2d(dtype=wp.float32), nz: wp.array(dtype=wp.int32),
+                        n_nz: int, dB: wp.array2d(dtype=wp.float64), dE_v: wp.array2d(dtype=wp.float64),
                         add_v: wp.array2d(dtype=wp.float64)):
-    """dE_v[v] = sum_k G_v[v, nz[k]] dB[nz[k]] (float64 sums of the float32 transfers); add_v = dE_v."""
-    v = first + wp.tid()
-    a0 = wp.float64(0.0)
-    a1 = wp.float64(0.0)
-    a2 = wp.float64(0.0)
+    """dE_v[v] = sum_k G_v[v, nz[k]] dB[nz[k]] (float64 sums of the float32 transfers, in k order);
+    add_v = dE_v. Each thread sums SO_ROWS consecutive vertices of [first, last) side by side: twelve
+    independent sums, not three, so the additions overlap (the same sums, bit for bit)."""
+    v0 = first + SO_ROWS * wp.tid()
+    v1 = wp.min(v0 + 1, last - 1)  # past the range: the last row again, not stored
+    v2 = wp.min(v0 + 2, last - 1)
+    v3 = wp.min(v0 + 3, last - 1)
+    z = wp.float64(0.0)
+    a00 = wp.float64(0.0)
+    a01 = wp.float64(0.0)
+    a02 = wp.float64(0.0)
+    a10 = wp.float64(0.0)
+    a11 = wp.float64(0.0)
+    a12 = wp.float64(0.0)
+    a20 = wp.float64(0.0)
+    a21 = wp.float64(0.0)
+    a22 = wp.float64(0.0)
+    a30 = wp.float64(0.0)
+    a31 = wp.float64(0.0)
+    a32 = wp.float64(0.0)
     for k in range(n_nz):
         p = nz[k]
-        g = wp.float64(G_v[v, p])
-        a0 += g * dB[p, 0]
-        a1 += g * dB[p, 1]
-        a2 += g * dB[p, 2]
-    dE_v[v, 0] = a0
-    dE_v[v, 1] = a1
-    dE_v[v, 2] = a2
-    add_v[v, 0] = a0
-    add_v[v, 1] = a1
-    add_v[v, 2] = a2
+        d0 = dB[p, 0]
+        d1 = dB[p, 1]
+        d2 = dB[p, 2]
+        g0 = wp.float64(G_v[v0, p])
+        g1 = wp.float64(G_v[v1, p])
+        g2 = wp.float64(G_v[v2, p])
+        g3 = wp.float64(G_v[v3, p])
+        a00 += g0 * d0
+        a01 += g0 * d1
+        a02 += g0 * d2
+        a10 += g1 * d0
+        a11 += g1 * d1
+        a12 += g1 * d2
+        a20 += g2 * d0
+        a21 += g2 * d1
+        a22 += g2 * d2
+        a30 += g3 * d0
+        a31 += g3 * d1
+        a32 += g3 * d2
+    sums = wp.mat44d(a00, a01, a02, z, a10, a11, a12, z, a20, a21, a22, z, a30, a31, a32, z)
+    for j in range(SO_ROWS):
+        v = v0 + j
+        if v < last:
+            for c in range(3):
+                dE_v[v, c] = sums[j, c]
+                add_v[v, c] = sums[j, c]
 
 
 class _Mirror:
@@ -226,28 +317,39 @@ class _Mirror:
         m.push()
         return m
 
-    def push(self) -> None:
+    def push(self, rows: int | None = None) -> None:
+        """Copy the host view to the device (its first `rows` rows only when given)."""
         if self.host_arr is not self.dev:
-            wp.copy(self.dev, self.host_arr)
+            if rows is None:
+                wp.copy(self.dev, self.host_arr)
+            elif rows > 0:
+                per_row = int(np.prod(self.np.shape[1:], dtype=np.int64))
+                wp.copy(self.dev, self.host_arr, count=rows * per_row)
 
     def pull(self) -> None:
+        """Copy the device array to the host view, and wait for it (a copy to pinned memory may be
+        asynchronous)."""
         if self.host_arr is not self.dev:
             wp.copy(self.host_arr, self.dev)
+            wp.synchronize_device(self.dev.device)
 
 
 class Compositor:
     """compose_kernel's inputs and outputs, allocated once per scene at full frame size.
 
-    The caller writes this frame's changes into the host views (`shade`, `sun`, `r_pix`, `obj`:
-    (N,3), `cov`, `r_flag`: (N,) numpy views; `dE_v`, `add_v`: (Vr,3)) and resets what it wrote
-    before; `run` composes the whole frame into `rad`, `room` (float32) and `pix` (uint8), (N,3)
-    numpy views owned here."""
+    Per frame the caller writes its changes: the shadows' share (`shade_from`, `scatter`), the object
+    light (`scatter` with its flag, or dense to `run`), the sparse sun share and object (`rows_for`
+    then `extra`'s columns EX_*), and `dE_v`, `add_v` (Vr,3); `run` composes the whole frame into new
+    (N,3) arrays (radiance and room radiance float32, the 8-bit frame), which the caller owns (on the
+    CPU the kernel writes them directly: no copy), and leaves the per-frame buffers cleared."""
 
     def __init__(self, L_b: np.ndarray, T_Lb: np.ndarray, rho: np.ndarray, rows: np.ndarray, bary: np.ndarray,
-                 still: dict, xs: np.ndarray, ys: np.ndarray, exposure: float, G_v: np.ndarray, device: str):
+                 still: dict, xs: np.ndarray, ys: np.ndarray, exposure: float, G_v: np.ndarray, device: str,
+                 E_x: np.ndarray | None = None):
         """still: {"hdr": (levels, room radiance), "ldr": (levels, room radiance)} where nothing changes
         (the HDR room radiance is L_b); rows: (N,3) receiver-vertex rows, -1 for pixels that are no
-        receiver; G_v (Vr,P) the receiver-vertex transfers (second_order)."""
+        receiver; G_v (Vr,P) the receiver-vertex transfers (second_order); E_x (N,3) irradiance/pi
+        (shade_from's ratio; default zeros)."""
         self.device = d = runtime.device(device)
         n = len(L_b)
         self.n = n
@@ -259,14 +361,19 @@ class Compositor:
             self._keep.append(m)
             return m.dev
 
-        px = np.empty((n, PX_WIDTH))
-        for col, a in ((PX_LB, L_b), (PX_TLB, T_Lb), (PX_STILL_HDR, still["hdr"][0]), (PX_STILL_LDR, still["ldr"][0]),
-                       (PX_ROOM_LDR, still["ldr"][1]), (PX_RHO, rho)):
-            px[:, col:col + 3] = a
-        self._px = static(px)
+        def table(cols):
+            t = np.empty((n, 3 * len(cols)))
+            for k, a in enumerate(cols):
+                t[:, 3 * k:3 * k + 3] = a
+            return static(t)
+
+        # per mode, only the columns its pixels read (PX_*)
+        self._px = {"hdr": table([L_b, rho, still["hdr"][0]]),
+                    "ldr": table([L_b, rho, still["ldr"][0], T_Lb, still["ldr"][1]])}
         self._rows = static(rows.astype(np.int32), wp.int32)
         self._bary = static(bary.astype(np.float32), wp.float32)  # the precompute's float32 weights
-        # the response packed for `lookup`: rows 0-2 T per channel, 3-5 T^-1; [xp | fp | slope]
+        self._E_x = static(np.zeros((n, 3)) if E_x is None else E_x)
+        # the response packed for `lookup`: rows 0-2 T per channel, 3-5 T^-1; (xp, fp, slope) per breakpoint
         tab, grid = pack_response(xs, ys)
         self._tab, self._grid = static(tab), static(grid, wp.int32)
         self._exposure = float(exposure)
@@ -275,15 +382,101 @@ class Compositor:
         self._G_v = static(np.asarray(G_v, np.float32), wp.float32)
         self._nz = _Mirror((max(n_patch, 1),), wp.int32, d)
         self._dB = _Mirror((max(n_patch, 1), 3), f64, d)
-        self._m = {"chg": _Mirror((n, CH_WIDTH), f64, d), "r_flag": _Mirror((n,), wp.uint8, d),
-                   "dE_v": _Mirror((max(n_vert, 1), 3), f64, d), "add_v": _Mirror((max(n_vert, 1), 3), f64, d)}
-        chg = self._m["chg"].np
-        self.shade, self.sun = chg[:, CH_SHADE:CH_SHADE + 3], chg[:, CH_SUN:CH_SUN + 3]
-        self.r_pix, self.obj, self.cov = chg[:, CH_R:CH_R + 3], chg[:, CH_OBJ:CH_OBJ + 3], chg[:, CH_COV]
-        self.r_flag, self.dE_v, self.add_v = self._m["r_flag"].np, self._m["dE_v"].np, self._m["add_v"].np
-        self._out = _Mirror((n, 6), wp.float32, d)
-        self._out_pix = _Mirror((n, 3), wp.uint8, d)
-        self.rad, self.room, self.pix = self._out.np[:, 0:3], self._out.np[:, 3:6], self._out_pix.np
+        self._m = {"dE_v": _Mirror((max(n_vert, 1), 3), f64, d), "add_v": _Mirror((max(n_vert, 1), 3), f64, d)}
+        self.dE_v, self.add_v = self._m["dE_v"].np, self._m["add_v"].np
+        N = max(n, 1)
+        # per-frame per-pixel buffers, cleared by compose_kernel as it reads them
+        self._shade, self._r_pix = _Mirror((N, 3), f64, d), _Mirror((N, 3), f64, d)
+        self._r_flag = _Mirror((N,), wp.uint8, d)
+        self._slot = _Mirror.of(np.full(N, -1, np.int32), wp.int32, d)
+        self._extra = _Mirror((N, EX_WIDTH), f64, d)
+        self.slot, self.extra = self._slot.np, self._extra.np
+        self._share = _Mirror((N, 3), f64, d)  # shade_from's shares
+        self._in = {} if self._slot.dev.device.is_cpu else {  # CUDA: the host inputs' device copies
+            "idx": _Mirror((N,), wp.int64, d), "vals": _Mirror((N, 3), f64, d)}
+        self.used = 0  # rows of extra this frame holds
+        self._count = np.arange(N, dtype=np.int32)
+        self._dirty = False  # a frame began and did not run (the buffers may hold its changes)
+        self._out = None if self._slot.dev.device.is_cpu else (
+            _Mirror((N, 3), wp.float32, d), _Mirror((N, 3), wp.float32, d), _Mirror((N, 3), wp.uint8, d))
+
+    # ------------------------------------------------------------------ per frame
+    def begin(self) -> None:
+        """Start a frame: clears what a frame that began and never ran left in the buffers."""
+        if self._dirty:
+            for m, v in ((self._shade, 0), (self._r_pix, 0), (self._r_flag, 0), (self._slot, -1)):
+                m.np.fill(v)
+                m.push()
+        self._dirty = True
+        self.used = 0
+
+    def _input(self, idx: np.ndarray, vals: np.ndarray | None = None) -> tuple:
+        """Device arrays of a host index list (int64) and its (k,3) float64 values: on the CPU the
+        host arrays themselves (wrapped, not copied), on CUDA copies in the capacity buffers."""
+        idx = np.ascontiguousarray(idx, np.int64)
+        vals = None if vals is None else np.ascontiguousarray(vals, np.float64)
+        if not self._in:
+            return (wp.array(idx, dtype=wp.int64, device=self.device, copy=False),
+                    None if vals is None else wp.array(vals, dtype=wp.float64, device=self.device, copy=False))
+        k = len(idx)
+        out = []
+        for name, a in (("idx", idx), ("vals", vals)):
+            if a is None:
+                out.append(None)
+                continue
+            m = self._in[name]
+            m.np[:k] = a
+            m.push(k)
+            out.append(m.dev[:k])
+        return tuple(out)
+
+    def shade_from(self, idx: np.ndarray, O: np.ndarray, ratio: bool, split: Split) -> np.ndarray:
+        """Write the shadows at pixels idx (no repeats): the occluded share O / E_x clipped to [0, 1]
+        (ratio, HDR; 0 where E_x is not > 0) or O as it is (LDR levels). Returns the values written
+        (len(idx),3), a buffer valid until the next call."""
+        k = len(idx)
+        if k == 0:
+            return np.zeros((0, 3))
+        i_dev, o_dev = self._input(idx, O)
+
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(share_kernel, dim=hi - lo, device=self.device,
+                      inputs=[lo, i_dev, o_dev, self._E_x, int(ratio), self._share.dev, self._shade.dev])
+
+        split(launch, k)
+        wp.synchronize_device(self.device)
+        if self._in:
+            wp.copy(self._share.host_arr, self._share.dev, count=3 * k)
+            wp.synchronize_device(self.device)
+        return self._share.np[:k]
+
+    def scatter(self, what: str, idx: np.ndarray, vals: np.ndarray, split: Split) -> None:
+        """Write vals (k,3) at pixels idx (no repeats) into the frame's `what`: "shade" (the shadows)
+        or "r" (object light; its flag set there)."""
+        if len(idx) == 0:
+            return
+        i_dev, v_dev = self._input(idx, vals)
+        out = (self._shade if what == "shade" else self._r_pix).dev
+        flag = int(what == "r")
+
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(scatter_kernel, dim=hi - lo, device=self.device,
+                      inputs=[lo, i_dev, v_dev, out, self._r_flag.dev, flag])
+
+        split(launch, len(idx))
+        wp.synchronize_device(self.device)
+
+    def rows_for(self, idx: np.ndarray) -> np.ndarray:
+        """The `extra` rows of pixels idx (int, no repeats), new zeroed rows for those without one."""
+        m = self.used
+        r = self.slot[idx]
+        new = np.flatnonzero(r < 0)
+        if len(new):
+            r[new] = self._count[m:m + len(new)]
+            self.slot[idx[new]] = r[new]
+            self.extra[m:m + len(new)] = 0.0
+            self.used = m + len(new)
+        return r
 
     def second_order(self, dB: np.ndarray, split: Split) -> None:
         """dE_v = G_v dB over the patches where dB (P,3) is non-zero, into `dE_v` (and `add_v`), the
@@ -296,28 +489,57 @@ class Compositor:
         m = self._m
 
         def launch(lo: int, hi: int) -> None:
-            wp.launch(second_order_kernel, dim=hi - lo, device=self.device,
-                      inputs=[lo, self._G_v, self._nz.dev, len(nz), self._dB.dev, m["dE_v"].dev, m["add_v"].dev])
+            wp.launch(second_order_kernel, dim=-(-(hi - lo) // SO_ROWS), device=self.device,
+                      inputs=[lo, hi, self._G_v, self._nz.dev, len(nz), self._dB.dev, m["dE_v"].dev,
+                              m["add_v"].dev])
 
         split(launch, self.n_vert)
         wp.synchronize_device(self.device)
         m["dE_v"].pull()
         m["add_v"].pull()
 
-    def run(self, ldr: bool, all_r: bool, split: Split) -> None:
-        """Compose every pixel from the host views into rad, room and pix, the pixels cut into index
-        ranges by `split` (one launch per range)."""
+    def run(self, ldr: bool, r_dense: np.ndarray | None, split: Split) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Compose every pixel, the pixels cut into index ranges by `split` (one launch per range);
+        r_dense (N,3): object light at every pixel (None: what `scatter` wrote). Returns new arrays
+        (radiance (N,3) float32, room radiance (N,3) float32, pixels (N,3) uint8)."""
         for m in self._m.values():
             m.push()
+        if self._in:  # CUDA: the slots were written on the host: push them (and the rows in use)
+            self._slot.push()
+            self._extra.push(self.used)
+        n = self.n
+        r_in = self._r_pix.dev
+        if r_dense is not None:
+            if self._in:
+                self._r_pix.np[:] = r_dense
+                self._r_pix.push()
+            else:
+                r_in = wp.array(np.ascontiguousarray(r_dense, np.float64), dtype=wp.float64, device=self.device,
+                                copy=False)
+        rad, room, pix = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8)
+        if self._out is None:  # the CPU: the kernel writes the returned arrays (wrapped, not copied)
+            outs = [wp.array(a, dtype=dt, device=self.device, copy=False)
+                    for a, dt in ((rad, wp.float32), (room, wp.float32), (pix, wp.uint8))]
+        else:
+            outs = [o.dev for o in self._out]
         m = self._m
+        px = self._px["ldr" if ldr else "hdr"]
 
         def launch(lo: int, hi: int) -> None:
             wp.launch(compose_kernel, dim=hi - lo, device=self.device,
-                      inputs=[lo, int(ldr), self._px, self._rows, self._bary, m["chg"].dev, m["r_flag"].dev,
-                              int(all_r), m["dE_v"].dev, m["add_v"].dev, self._tab, self._grid, self._exposure,
-                              self._out.dev, self._out_pix.dev])
+                      inputs=[lo, int(ldr), px, self._rows, self._bary, self._shade.dev, r_in, self._r_flag.dev,
+                              int(r_dense is not None), self._slot.dev, self._extra.dev, m["dE_v"].dev,
+                              m["add_v"].dev, self._tab, self._grid, self._exposure, *outs])
 
-        split(launch, self.n)
+        split(launch, n)
         wp.synchronize_device(self.device)
-        self._out.pull()
-        self._out_pix.pull()
+        self._dirty = False
+        if r_dense is not None and self._in:
+            self._r_pix.np.fill(0)
+            self._r_pix.push()
+        if self._out is not None:
+            for o, a in zip(self._out, (rad, room, pix)):
+                o.pull()
+                a[...] = o.np
+            self._slot.pull()  # the kernel cleared them
+        return rad, room, pix

@@ -23,6 +23,7 @@ fall on its blocks). Per frame, `select(box_min, box_max, passes)`:
 from __future__ import annotations
 
 import heapq
+import mmap
 from dataclasses import dataclass
 
 import numpy as np
@@ -120,13 +121,13 @@ class ShadowSources:
             g *= np.asarray(recv_weights, np.float64)[:, None]
         return BlockedTransfer(points, eye, g.T, device)
 
-    def blocked_key(self, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
+    def blocked_key(self, box_min: np.ndarray, box_max: np.ndarray, split=None) -> np.ndarray:
         """(S,) per KD position: the luminance transfer to the receiver vertices whose segment to the
-        source's block meets the box (BlockedTransfer), shared among the block's members by strength
-        (evenly where their strength is 0)."""
+        source's block meets the box (BlockedTransfer; split: its launches cut into ranges), shared
+        among the block's members by strength (evenly where their strength is 0)."""
         so, k = self.src_ids, self.block
         starts = np.arange(0, len(so), k)
-        b = self.blocked(box_min, box_max)
+        b = self.blocked(box_min, box_max, split)
         size = np.diff(np.append(starts, len(so)))
         wsum = np.add.reduceat(self.strength, starts)
         share = np.where(np.repeat(wsum, size) > 0, self.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
@@ -158,7 +159,7 @@ class ShadowSources:
                 run[r0:r1] = cum[:, -1]
         return out
 
-    def _single_transfers(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _single_transfers(self, ids: np.ndarray, split=None) -> tuple[np.ndarray, np.ndarray]:
         """(W_v (Vr,n,3), W_c (P,n,3)) float32 of one pass per source `ids`, read-only. The last
         list's are kept: the all-sources frames of poses whose box meets the same sources (every
         frame of Engine.refine, a room whose shafts all meet the object) reuse them."""
@@ -167,7 +168,8 @@ class ShadowSources:
             return last[1], last[2]
         self._single = None  # the old arrays go before the new ones are made
         B = self.B[ids].astype(np.float32)
-        W_v, W_c = _column_transfers(self.G_v, ids, B), _column_transfers(self.G_c, ids, B)
+        W_v = _column_transfers(self.G_v, ids, B, split=split)
+        W_c = _column_transfers(self.G_c, ids, B, split=split)
         W_v.flags.writeable = W_c.flags.writeable = False
         self._single = (ids.copy(), W_v, W_c)
         return W_v, W_c
@@ -240,9 +242,7 @@ class ShadowSources:
         S = len(self.src_ids)
         s_nodes, r_nodes = self.shafts.traverse(box_min, box_max, self.keep_weak)
         t = self.src_tree
-        diff = np.zeros(S + 1, np.int64)
-        np.add.at(diff, t.lo[s_nodes], 1)
-        np.add.at(diff, t.hi[s_nodes], -1)
+        diff = np.bincount(t.lo[s_nodes], minlength=S + 1) - np.bincount(t.hi[s_nodes], minlength=S + 1)
         marked = np.cumsum(diff[:-1]) > 0
         return marked, s_nodes, r_nodes
 
@@ -258,8 +258,8 @@ class ShadowSources:
             return []
         if passes is None or passes >= n_marked:
             leaf_node = np.empty(len(marked), np.int64)
-            for n in np.flatnonzero(t.is_leaf):
-                leaf_node[t.lo[n]] = n
+            leaves = np.flatnonzero(t.is_leaf)
+            leaf_node[t.lo[leaves]] = leaves  # the source tree's leaves hold one source each
             return leaf_node[np.flatnonzero(marked)].tolist()
         if passes < 1:
             raise ValueError("passes must be at least 1")
@@ -322,8 +322,9 @@ class ShadowSources:
         axes[cnt == 1] = 0.0
         return axes
 
-    def select(self, box_min: np.ndarray, box_max: np.ndarray, passes: int | None) -> FrameSources:
-        """The frame's shadow passes for an object inside the box (module docstring)."""
+    def select(self, box_min: np.ndarray, box_max: np.ndarray, passes: int | None, split=None) -> FrameSources:
+        """The frame's shadow passes for an object inside the box (module docstring). split(launch(lo,
+        hi), n): how kernel launches are cut over the cores (app.runtime.split; default one launch)."""
         if passes is not None and passes < 1:
             raise ValueError("passes must be at least 1")
         Vr = self.G_v.shape[0]
@@ -338,7 +339,7 @@ class ShadowSources:
             marked, s_nodes, r_nodes = self.traverse(box_min, box_max)
             key = self.strength
             if self.blocked is not None and passes is not None and passes < marked.sum():
-                key = self.blocked_key(box_min, box_max)
+                key = self.blocked_key(box_min, box_max, split)
             nodes = self.representatives(marked, passes, key)
         n = len(nodes)
         if n == 0:
@@ -349,7 +350,7 @@ class ShadowSources:
         starts = np.searchsorted(pos, lo)
         ids = self.src_ids[pos]
         if n == len(pos):  # one source per pass (the all-sources frame): its own transfers
-            W_v, W_c = self._single_transfers(ids)
+            W_v, W_c = self._single_transfers(ids, split)
         else:
             W_v, W_c = self.weights(lo, hi, marked)
         eyes = self.eye_pos[ids] if n == len(pos) else self.eyes(starts, pos, key)
@@ -359,11 +360,14 @@ class ShadowSources:
         k_lo = np.searchsorted(hi, t.lo[s_nodes], side="right")
         k_hi = np.searchsorted(lo, t.hi[s_nodes], side="left")
         r = self.recv_tree
-        D = np.zeros((self.n_recv_leaves + 1, n + 1), np.int32)
         l_lo, l_hi = r.leaf_lo[r_nodes], r.leaf_hi[r_nodes]
         ok = k_hi > k_lo
-        for a, b, sgn in ((l_lo, k_lo, 1), (l_lo, k_hi, -1), (l_hi, k_lo, -1), (l_hi, k_hi, 1)):
-            np.add.at(D, (a[ok], b[ok]), sgn)
+        l_lo, l_hi, k_lo, k_hi = l_lo[ok], l_hi[ok], k_lo[ok], k_hi[ok]
+        size = (self.n_recv_leaves + 1) * (n + 1)
+        corners = np.concatenate([l_lo * (n + 1) + k_lo, l_hi * (n + 1) + k_hi])  # +1 each (flat indices)
+        others = np.concatenate([l_lo * (n + 1) + k_hi, l_hi * (n + 1) + k_lo])  # -1 each
+        D = (np.bincount(corners, minlength=size) - np.bincount(others, minlength=size)).astype(np.int32)
+        D = D.reshape(self.n_recv_leaves + 1, n + 1)
         np.cumsum(D, axis=0, dtype=np.int32, out=D)  # in place, int32: counts of leaf shafts (no int64 temporaries)
         np.cumsum(D, axis=1, dtype=np.int32, out=D)
         leaf_pass = D[:-1, :-1] > 0
@@ -373,11 +377,41 @@ class ShadowSources:
         return FrameSources(eyes, W_v, W_c, cand, int(marked.sum()), int(cand.any(1).sum()), spread)
 
 
-def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int = 256) -> np.ndarray:
+POPULATE_BYTES = 16 * 2 ** 20  # arrays at least this large come from populated_empty's mapping
+
+
+def populated_empty(shape: tuple, dtype) -> np.ndarray:
+    """np.empty(shape, dtype) for an array that is written whole at once: a large one (POPULATE_BYTES)
+    is an anonymous mapping whose pages the OS provides in one call (MAP_POPULATE, Linux), not one
+    fault per page as they are first written, and without the transparent-huge-page request numpy
+    makes for large arrays (whose first allocation in a process waits for the OS to provide huge
+    pages). Measured on lamps_room's all-sources transfers (194 MB, fresh processes, 2-core machine
+    under load): first use 169-229 ms against 589-643 ms; a later list's, when the huge pages are
+    there to reuse, 164-249 against 124-140 ms (the same list is kept: no second allocation).
+    Elsewhere np.empty."""
+    n = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+    populate = getattr(mmap, "MAP_POPULATE", 0)
+    if n < POPULATE_BYTES or not populate:
+        return np.empty(shape, dtype)
+    buf = mmap.mmap(-1, n, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS | populate)
+    return np.frombuffer(buf, dtype).reshape(shape)  # the array keeps the mapping alive
+
+
+def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int = 256, split=None) -> np.ndarray:
     """(R, n, 3) float32 G[:, ids] * B (B (n,3) float32): the transfers of single sources, in slabs
-    of `rows` rows (a slab's gathered columns stay in cache; the same products as one broadcast)."""
-    out = np.empty((G.shape[0], len(ids), 3), np.float32)
-    for r0 in range(0, G.shape[0], rows):
-        g = np.asarray(G[r0:r0 + rows].take(ids, axis=1), np.float32)
-        np.multiply(g[:, :, None], B[None], out=out[r0:r0 + rows])
+    of `rows` rows (a slab's gathered columns stay in cache; the same products as one broadcast).
+    split(work(lo, hi), R): runs row ranges concurrently (app.runtime.split: one range per core;
+    numpy's gather and product release the GIL); default one range."""
+    out = populated_empty((G.shape[0], len(ids), 3), np.float32)
+
+    def work(lo: int, hi: int) -> None:
+        for r0 in range(lo, hi, rows):
+            r1 = min(r0 + rows, hi)
+            g = np.asarray(G[r0:r1].take(ids, axis=1), np.float32)
+            np.multiply(g[:, :, None], B[None], out=out[r0:r1])
+
+    if split is None:
+        work(0, G.shape[0])
+    else:
+        split(work, G.shape[0])
     return out

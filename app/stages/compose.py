@@ -14,11 +14,13 @@ The reference it reproduces (the engine's numpy form before issue 17), per pixel
 Per scene (ComposeStage.__init__): the pixel -> receiver-vertex rows restricted to receiver pixels,
 T(L_b), the LDR frame's unchanged radiance, G_v in the kernel's buffer (a frame sums over the
 changed patches only), the response's breakpoints and lookup grids, and every per-pixel
-buffer at full-frame size (kernels.compose.Compositor). Per frame the numpy work is on listed pixels
-only (the shadow pass's pix_sel / fill_sel, the sun's pixels, the object's coverage, the sparse object
-light): values are written into the persistent buffers and the previous frame's entries reset; one
-kernel (two launches, one per core) then composes every pixel. The returned images are copies: the
-Frame owns them (a kept frame, Engine.refine's, must not change under the next one).
+buffer at full-frame size (kernels.compose.Compositor). Per frame the host work is a few launches:
+the shadows' share computed and written at pix_sel by a kernel (share_kernel), the fill's values and
+a sparse object light scattered by a kernel (scatter_kernel), the sun's pixels and the object's
+coverage into a compact table (one row per pixel that has them); one kernel (one launch per core)
+then composes every pixel and leaves the per-frame buffers cleared as it reads them (no reset pass).
+The returned images are new arrays the kernel writes directly on the CPU (no copy): the Frame owns
+them (a kept frame, Engine.refine's, must not change under the next one).
 
 Object light R comes in one of three forms (the object-light stage's choice):
   - an (N,3) array: dense, every pixel (the engine's form today);
@@ -34,7 +36,7 @@ from typing import Callable
 import numpy as np
 
 from app import runtime
-from kernels.compose import Compositor
+from kernels.compose import EX_COV, EX_OBJ, EX_SUN, Compositor
 from lighting.transfer import intensity_transfers
 
 FillFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]  # (known, values, missing) -> values
@@ -62,9 +64,8 @@ class ComposeStage:
         xs, ys = response.breakpoints()
         still = {"hdr": (L_b_levels, L_b), "ldr": (self.photo_levels, response.to_radiance(self.photo_levels))}
         self.split = functools.partial(runtime.split, device=device)  # the two-core split (app.runtime)
-        self.k = Compositor(L_b, T_Lb, rho_x, rows, pix_bary, still, xs, ys, response.exposure_time, G_v, device)
-        self._written: dict[str, list[np.ndarray]] = {"shade": [], "sun": [], "r": [], "obj": []}  # last frame's
-        self._r_dense = False  # the last frame's object light filled all of r_pix
+        self.k = Compositor(L_b, T_Lb, rho_x, rows, pix_bary, still, xs, ys, response.exposure_time, G_v, device,
+                            E_x=E_x)
 
     # ------------------------------------------------------------------ second order
     def second_order(self, dB: np.ndarray, more: np.ndarray | None = None, dE_more: np.ndarray | None = None
@@ -117,80 +118,51 @@ class ComposeStage:
         levels); fill_sel and `fill`, which fills a value at fill_sel from known pix_sel values (HDR:
         the occluded share, LDR: O); R_pix the object light (module docstring: dense, (idx, values) or
         (R_v, idx, values)); dE_v the second order (None: off); cov (H,W) and obj_rad (H,W,3) the
-        object's coverage and radiance; sun_pix, sun_loss (len(sun_pix),3) the sun's lost irradiance/pi."""
-        k, ldr = self.k, mode == "ldr"
-        self._reset()
-        E_x = self.E_x
-        # ---- shadows on the listed pixels (HDR: the share of L_b taken; LDR: the levels taken)
-        if ldr:
-            k.shade[pix_sel] = O_pix
-            k.shade[fill_sel] = fill(pix_sel, O_pix, fill_sel)
-        else:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                frac = np.where(E_x[pix_sel] > 0, np.clip(O_pix / E_x[pix_sel], 0.0, 1.0), 0.0)
-            k.shade[pix_sel] = frac
-            k.shade[fill_sel] = fill(pix_sel, frac, fill_sel)
-        self._written["shade"] = [pix_sel, fill_sel]
+        object's coverage and radiance; sun_pix, sun_loss (len(sun_pix),3) the sun's lost irradiance/pi.
+"""
+        k, ldr, split = self.k, mode == "ldr", self.split
+        k.begin()
+        # ---- shadows on the listed pixels (HDR: the share of L_b taken; LDR: the levels taken), then
+        # the filled ones from them (disjoint)
+        vals = k.shade_from(pix_sel, O_pix, not ldr, split)
+        if len(fill_sel):
+            k.scatter("shade", fill_sel, fill(pix_sel, vals, fill_sel), split)
         if sun_loss is not None:  # sun: its occluded share of the (model, where clipped) radiance, written
-            # only where the object takes some (a zero share leaves the buffer's reset zero)
+            # only where the object takes some
             nz = np.flatnonzero(sun_loss.any(1))
             idx = sun_pix[nz]
-            k.sun[idx] = np.clip(sun_loss[nz] / np.maximum(E_x[idx], 1e-12), 0.0, 1.0)
-            self._written["sun"] = [idx]
+            k.extra[k.rows_for(idx), EX_SUN:EX_SUN + 3] = np.clip(sun_loss[nz] / np.maximum(self.E_x[idx], 1e-12),
+                                                                 0.0, 1.0)
         # ---- object light and second order
-        all_r = False
+        r_dense = None
         add_v = k.add_v
         if dE_v is None:
             k.dE_v[:] = 0.0
         elif dE_v is not k.dE_v:
             k.dE_v[:] = dE_v
         if isinstance(R_pix, np.ndarray):  # dense
-            k.r_pix[:] = R_pix
-            all_r = self._r_dense = True
+            r_dense = R_pix
             add_v[:] = k.dE_v
         else:
-            if self._r_dense:
-                k.r_pix[:] = 0.0
-                self._r_dense = False
             if len(R_pix) == 3:
                 R_v, idx, vals = R_pix
                 np.add(k.dE_v, R_v, out=add_v)
             else:
                 idx, vals = R_pix
                 add_v[:] = k.dE_v
-            k.r_pix[idx] = vals
-            k.r_flag[idx] = 1
-            self._written["r"] = [idx]
+            idx = np.asarray(idx)
+            if idx.dtype == bool:
+                idx = np.flatnonzero(idx)
+            k.scatter("r", idx, np.broadcast_to(vals, (len(idx), 3)), split)
         # ---- the object
         c = cov.reshape(-1)
         on = np.flatnonzero(c > 0)
-        k.cov[on] = c[on]
-        k.obj[on] = obj_rad.reshape(-1, 3)[on]
-        self._written["obj"] = [on]
-        k.run(ldr, all_r, self.split)
+        rows = k.rows_for(on)
+        k.extra[rows, EX_COV] = c[on]
+        k.extra[rows, EX_OBJ:EX_OBJ + 3] = obj_rad.reshape(-1, 3)[on]
+        rad, room, pix = k.run(ldr, r_dense, split)
         H, W = self.H, self.W
-        return (k.rad.reshape(H, W, 3).copy(), k.pix.reshape(H, W, 3).copy(), k.room.reshape(H, W, 3).copy())
-
-    def _reset(self) -> None:
-        """Zero what the last frame wrote into the per-pixel buffers (all of a buffer when the frame
-        wrote much of it: one memset is cheaper than a scatter then)."""
-        k = self.k
-
-        def clear(buf: np.ndarray, written: list[np.ndarray]) -> None:
-            if sum(len(i) for i in written) > len(buf) // 8:
-                buf.fill(0)
-            else:
-                for idx in written:
-                    buf[idx] = 0
-
-        clear(k.shade, self._written["shade"])
-        clear(k.sun, self._written["sun"])
-        clear(k.r_pix, self._written["r"])
-        clear(k.r_flag, self._written["r"])
-        clear(k.cov, self._written["obj"])
-        clear(k.obj, self._written["obj"])
-        for key in self._written:
-            self._written[key] = []
+        return rad.reshape(H, W, 3), pix.reshape(H, W, 3), room.reshape(H, W, 3)
 
 
 def compose_reference(mode: str, L_b, L_b_levels, E_x, rho_x, recv_pix, pix_rows, pix_bary, photo, response,

@@ -140,3 +140,32 @@ def test_response_lookup_is_np_interp_on_hard_values(inverse, device):
         wp.launch(_lookup_kernel, dim=len(pts), device=device,
                   inputs=[wp.array(pts, dtype=wp.float64, device=device), 3 * inverse + c, tab_wp, grid_wp, out])
         assert np.array_equal(out.numpy(), np.interp(pts, xp[c], fp[c]))
+
+
+@pytest.mark.parametrize("n_vert", [1, 6, 41])
+def test_second_order_sums_in_patch_order(n_vert, device):
+    """Several vertices per thread, side by side: each vertex's sum is still G_v[v, p] dB[p] added in
+    patch order in float64, bit for bit, for vertex counts that leave a partial group of rows, and
+    over two launch ranges (as the two-core split cuts them)."""
+    from kernels.compose import Compositor
+
+    rng = np.random.default_rng(n_vert)
+    G_v = (rng.random((n_vert, 30)) * 0.1).astype(np.float32)
+    dB = np.zeros((30, 3))
+    dB[rng.choice(30, 17, replace=False)] = rng.normal(size=(17, 3))
+    n = 4
+    k = Compositor(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.full((n, 3), -1), np.zeros((n, 3)),
+                   {"hdr": (np.zeros((n, 3)), np.zeros((n, 3))), "ldr": (np.zeros((n, 3)), np.zeros((n, 3)))},
+                   np.tile(np.linspace(0, 1, 5), (3, 1)), np.tile(np.linspace(0, 1, 5), (3, 1)), 1.0, G_v, device)
+    want = np.zeros((n_vert, 3))
+    for p in np.flatnonzero(np.abs(dB).sum(1) > 0):  # sequential float64 sums in patch order
+        want += G_v[:, p:p + 1].astype(np.float64) * dB[p]
+
+    def halves(launch, m):
+        launch(0, m // 2)
+        launch(m // 2, m)
+
+    for split in (lambda launch, m: launch(0, m), halves):
+        k.dE_v[:] = np.nan
+        k.second_order(dB, split)
+        assert np.array_equal(k.dE_v[:n_vert], want) and np.array_equal(k.add_v[:n_vert], want)

@@ -328,3 +328,78 @@ def test_evaluate_against_a_path_traced_reference(tmp_path):
     assert ev["against"].startswith("path-traced reference")
     (row,) = ev["rows"]
     assert 0.5 < row["energy_ratio"] < 1.5 and row["rmse_affected"] < 10, row
+
+
+def _reference_list(ss, lo, hi, n_nodes_lo, n_nodes_hi):
+    """The source list and receiver pairs as select computed them before issue 17's second round
+    (np.add.at marks and corner sums), from the same traversal's leaf shafts."""
+    S = len(ss.src_ids)
+    s_nodes, r_nodes = ss.shafts.traverse(lo, hi, ss.keep_weak)
+    t, r = ss.src_tree, ss.recv_tree
+    diff = np.zeros(S + 1, np.int64)
+    np.add.at(diff, t.lo[s_nodes], 1)
+    np.add.at(diff, t.hi[s_nodes], -1)
+    marked = np.cumsum(diff[:-1]) > 0
+    n = len(n_nodes_lo)
+    k_lo = np.searchsorted(n_nodes_hi, t.lo[s_nodes], side="right")
+    k_hi = np.searchsorted(n_nodes_lo, t.hi[s_nodes], side="left")
+    D = np.zeros((ss.n_recv_leaves + 1, n + 1), np.int64)
+    l_lo, l_hi = r.leaf_lo[r_nodes], r.leaf_hi[r_nodes]
+    ok = k_hi > k_lo
+    for a, b, sgn in ((l_lo, k_lo, 1), (l_lo, k_hi, -1), (l_hi, k_lo, -1), (l_hi, k_hi, 1)):
+        np.add.at(D, (a[ok], b[ok]), sgn)
+    leaf_pass = D.cumsum(0).cumsum(1)[:-1, :-1] > 0
+    cand = np.zeros((ss.P, n), bool)
+    inside = ss.leaf_of_recv >= 0
+    cand[inside] = leaf_pass[ss.leaf_of_recv[inside]]
+    return marked, cand
+
+
+def test_source_list_and_pairs_equal_the_reference_formulation(engine):
+    """select's source list (bincount marks) and receiver pairs (bincount corners) equal the np.add.at
+    formulation they replaced, for the all-sources frame and for budgets, at poses along a drag; and a
+    select whose kernels and transfers are cut into two ranges (the engine's two-core split) gives the
+    same frame as one range."""
+    from app.dragpath import drag_offsets, moved
+
+    scene, eng = engine
+    ss = eng.shadow_sources
+    t = ss.src_tree
+
+    def two(launch, n):
+        launch(0, n // 2)
+        launch(n // 2, n)
+
+    for o in drag_offsets(scene, scene.obj, 4):
+        v = moved(scene.obj, o).vertices
+        lo, hi = np.floor(v.min(0) / 1e-3) * 1e-3, np.ceil(v.max(0) / 1e-3) * 1e-3  # select's grid
+        for passes in (None, 1, 10):
+            ss._single = None
+            fs = ss.select(v.min(0), v.max(0), passes)
+            ss._single = None
+            fs2 = ss.select(v.min(0), v.max(0), passes, split=two)
+            for k in ("eyes", "W_v", "W_c", "cand", "spread"):
+                np.testing.assert_array_equal(getattr(fs, k), getattr(fs2, k))
+            marked = ss.traverse(lo, hi)[0]
+            key = ss.blocked_key(lo, hi) if passes is not None and passes < marked.sum() else None
+            nodes = ss.representatives(marked, passes, key)
+            want_marked, want_cand = _reference_list(ss, lo, hi, t.lo[nodes], t.hi[nodes])
+            np.testing.assert_array_equal(marked, want_marked)
+            assert fs.n_listed == int(want_marked.sum()) > 0
+            np.testing.assert_array_equal(fs.cand, want_cand)
+            assert fs.cand.any()
+
+
+def test_populated_arrays_are_plain_writable_arrays():
+    """populated_empty gives a writable C-ordered array of the shape and dtype asked, from a mapping
+    when large; its memory stays valid while only a view of it is kept."""
+    from lighting.frame_sources import POPULATE_BYTES, populated_empty
+
+    for shape in ((3, 4, 3), (POPULATE_BYTES // 12 + 5, 3)):
+        a = populated_empty(shape, np.float32)
+        assert a.shape == shape and a.dtype == np.float32 and a.flags.c_contiguous and a.flags.writeable
+        a[...] = np.arange(a.size, dtype=np.float32).reshape(shape)
+        view = a[-2:]
+        del a
+        first = (shape[0] - 2) * int(np.prod(shape[1:]))
+        np.testing.assert_array_equal(view.ravel(), np.arange(first, first + view.size, dtype=np.float32))
