@@ -205,6 +205,22 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         order = order[loss[order] > 0]
         keep = int(np.searchsorted(np.cumsum(loss[order]), 0.95 * loss.sum())) + 1 if len(order) else 0
         changed = order[:keep]
+        far = np.zeros(0, np.int64)
+        if len(changed) and getattr(eng, "dB_far_field", True):
+            # beyond DB_FAR bounding radii a patch's loss reaches the object as a far field: radiance SH9
+            # at a probe grid over the object's box, through the cached self-occlusion transfer
+            lo, hi = vu.min(0), vu.max(0)
+            centre = 0.5 * (lo + hi)
+            radius = float(np.linalg.norm(vu - centre, axis=1).max())
+            d = np.linalg.norm(pm.centre[changed] - centre, axis=1) - pm.radius[changed]
+            is_far = d >= DB_FAR * radius
+            far, changed = changed[is_far], changed[~is_far]
+            if len(far):
+                probes, weights = _probe_grid(lo, hi, vu, DB_PROBES)
+                pc, pn, pa, prad = cluster_patches(pm.centre[far], pm.normal[far], pm.area[far], pm.quad[far],
+                                                   dB[far], d[is_far] + pm.radius[far], 2.0 * float(pm.radius.min()))
+                L = far_field_sh(eng, probes, centre, pc, pn, pa, prad)
+                E += np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, L))
         if len(changed):
             # the loss varies slowly over the object (the shadowed patches are beyond it):
             # gather it at a spread subset of vertices and interpolate by position and normal
@@ -222,6 +238,82 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     if ss.bounce is not None:
         L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
     return L_vert
+
+
+DB_FAR = 3.0  # bounding radii (nearest point of the patch to the object's box centre) beyond which a
+# shadowed patch's loss is gathered as a far field (far_field_sh; trilinear over DB_PROBES per axis: the
+# relative parallax error of its 1/r^2 falls as (radius / (DB_FAR (DB_PROBES - 1)))^2, ~3 % here)
+DB_PROBES = 3  # probes per axis of the far field's grid over the object's box
+
+
+def _probe_grid(lo: np.ndarray, hi: np.ndarray, points: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(probes (n^3,3), weights (N,n^3)): an n x n x n grid spanning the box lo..hi and the trilinear
+    weights of the points (N,3) inside it (a flat axis puts all its weight on its first level)."""
+    axes = [np.linspace(lo[a], hi[a], n) for a in range(3)]
+    probes = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    span = np.maximum(hi - lo, 1e-12)
+    t = np.clip((points - lo) / span * (n - 1), 0.0, n - 1)
+    i0 = np.minimum(np.floor(t).astype(int), n - 2) if n > 1 else np.zeros_like(t, int)
+    fr = t - i0
+    weights = np.zeros((len(points), n ** 3))
+    rows = np.arange(len(points))
+    for corner in range(8):
+        bits = [(corner >> a) & 1 for a in range(3)]
+        w = np.prod([fr[:, a] if b else 1.0 - fr[:, a] for a, b in enumerate(bits)], axis=0)
+        idx = ((i0[:, 0] + bits[0]) * n + i0[:, 1] + bits[1]) * n + i0[:, 2] + bits[2]
+        np.add.at(weights, (rows, np.minimum(idx, n ** 3 - 1)), w)
+    return probes, weights
+
+
+DB_CLUSTER = 0.25  # a far patch cluster's side over its distance (angular size ~14 deg: seen as one point,
+# the SH9 irradiance of its area-weighted centroid errs by O(size^2 / distance^2), ~1.5 %)
+
+
+def cluster_patches(pc: np.ndarray, pn: np.ndarray, area: np.ndarray, quad: np.ndarray, radiance: np.ndarray,
+                    dist: np.ndarray, base: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Far patches (centres (M,3), normals (M,3), areas (M,), surface `quad` (M,), radiance (M,3), distance
+    (M,) m from the object) merged per surface into cells of side base * 2^k <= DB_CLUSTER * distance:
+    (centroids, normals, areas, area-weighted mean radiance) of the cells, for far_field_sh."""
+    level = np.floor(np.log2(np.maximum(DB_CLUSTER * dist / base, 1.0))).astype(np.int64)
+    cell = np.floor(pc / (base * 2.0 ** level)[:, None]).astype(np.int64)
+    _, inv = np.unique(np.c_[quad, level, cell], axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    k = inv.max() + 1
+    a = np.bincount(inv, area, k)
+    centroid = np.stack([np.bincount(inv, area * pc[:, c], k) for c in range(3)], 1) / a[:, None]
+    rad = np.stack([np.bincount(inv, area * radiance[:, c], k) for c in range(3)], 1) / a[:, None]
+    normal = np.zeros((k, 3))
+    normal[inv] = pn  # one surface per cell: one normal
+    return centroid, normal, a, rad
+
+
+def far_field_sh(eng: "Engine", probes: np.ndarray, centre: np.ndarray, pc: np.ndarray, pn: np.ndarray,
+                 area: np.ndarray, radiance: np.ndarray, eps: float = 2e-3) -> np.ndarray:
+    """Radiance SH9 coefficients (Q,9,3) at the probes (Q,3) of far patches (centres pc (M,3), unit
+    normals pn (M,3), areas (M,) m^2, radiance (M,3)), each a point of solid angle A cos / r^2, seen
+    past the room (eng.scene_occ; one ray per probe and patch). The probes cast from 1 mm towards
+    `centre` (a box corner may lie on the floor the object stands on)."""
+    from lighting import sh
+
+    if len(pc) == 0:
+        return np.zeros((len(probes), 9, 3))
+    to_c = centre - probes
+    o = probes + to_c / np.maximum(np.linalg.norm(to_c, axis=1, keepdims=True), 1e-12) * \
+        np.minimum(1e-3, 0.5 * np.linalg.norm(to_c, axis=1, keepdims=True))
+    b = pc + pn * eps
+    dv = b[None] - o[:, None]  # (Q,M,3)
+    dist = np.linalg.norm(dv, axis=2)
+    w = dv / dist[..., None]
+    cos_j = -np.einsum("qmc,mc->qm", w, pn)
+    omega = np.where(cos_j > 0, area * cos_j / dist ** 2, 0.0)
+    seen = np.flatnonzero(omega.reshape(-1) > 0)
+    vis = np.zeros(omega.size)
+    if len(seen):
+        q = seen // len(pc)
+        _, _, depth = cast_rays(eng.scene_occ, o[q], w.reshape(-1, 3)[seen], workspace=workspace(eng, "dB_far"))
+        vis[seen] = depth >= dist.reshape(-1)[seen]
+    omega = omega * vis.reshape(omega.shape)
+    return np.einsum("qmk,qm,mc->qkc", sh.basis(w), omega, np.asarray(radiance, np.float64))
 
 
 def emitter_groups(eng: "Engine") -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
