@@ -184,8 +184,12 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
     rl = eng.room_light  # the emitters, exact form factors, visibility cast at samples (ShapeShading)
     em, groups = emitter_groups(eng)
-    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [rl.occluder, own], 2e-3, split,
-                      groups)
+    room = rl.occluder
+    if getattr(eng, "shaft_cull", True) and len(em) and \
+            shaft_clear(room_triangles(eng, room), vu, nu, groups[1], pm.normal[em[groups[0][:-1]]], 2e-3):
+        room = Occluder(None, None, eng.device) if eng.__dict__.get("_no_room") is None else eng._no_room
+        eng._no_room = room  # no room triangle between the object and the emitters: no room rays
+    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3, split, groups)
     sun_u = None
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
         # the object's own shadow is kept per shape (the sun's rays are parallel: a move changes none
@@ -238,6 +242,51 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     if ss.bounce is not None:
         L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
     return L_vert
+
+
+def room_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
+    """The room occluder's triangles (T,3,3) float64, read back once per engine."""
+    cached = eng.__dict__.get("_room_tris")
+    if cached is None or cached[0] is not occ:
+        tris = np.zeros((0, 3, 3))
+        if occ.mesh is not None:
+            tris = occ._pts.numpy().astype(np.float64)[occ._idx.numpy().reshape(-1, 3)]
+        cached = eng._room_tris = (occ, tris)
+    return cached[1]
+
+
+def shaft_clear(tris: np.ndarray, p: np.ndarray, n: np.ndarray, polys: np.ndarray, poly_normals: np.ndarray,
+                eps: float, tol: float = 1e-7) -> bool:
+    """True when no triangle of `tris` (T,3,3) can cut a visibility segment of kernels.shade's patch sums:
+    from a point p (N,3) lifted by eps along its normal n (N,3), where it faces some polygon, to a point of
+    a polygon (G,4,3) lifted by eps along its normal (G,3). Every such segment lies in the convex hull of
+    the lifted starts' box and the lifted polygons; a triangle with all its corners on or outside one
+    face plane of that hull (within `tol` m) can meet a segment at most at an end point, which the open
+    segment excludes (the floor under an object standing on it). Exact, from geometry; conservative."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if len(tris) == 0:
+        return True
+    pn = np.cross(polys[:, 1] - polys[:, 0], polys[:, 2] - polys[:, 0])  # emitting side
+    front = np.einsum("gc,ngc->ng", pn, p[:, None] - polys[:, 0][None]) > 0
+    above = (np.einsum("nc,ngkc->ngk", n, polys[None] - p[:, None, None]) > 0).any(2)
+    facing = (front & above).any(1)
+    if not facing.any():
+        return True
+    a = p[facing] + n[facing] * eps
+    lo, hi = a.min(0), a.max(0)
+    box = np.array([[(hi if (k >> c) & 1 else lo)[c] for c in range(3)] for k in range(8)])
+    pts = np.concatenate([box, (polys + poly_normals[:, None] * eps).reshape(-1, 3)])
+    try:
+        eq = ConvexHull(pts, qhull_options="QJ" if np.ptp(pts, 0).min() < 1e-9 else "").equations
+    except QhullError:
+        return False
+    plo, phi = pts.min(0) - tol, pts.max(0) + tol
+    cand = tris[~((tris.max(1) < plo) | (tris.min(1) > phi)).any(1)]  # overlapping the hull's box
+    if len(cand) == 0:
+        return True
+    dist = cand @ eq[:, :3].T + eq[:, 3]  # (T,3,F) signed, outside > 0
+    return bool((dist >= -tol).all(1).any(1).all())
 
 
 DB_FAR = 3.0  # bounding radii (nearest point of the patch to the object's box centre) beyond which a
