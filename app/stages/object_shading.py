@@ -217,7 +217,7 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
             centre = 0.5 * (lo + hi)
             radius = float(np.linalg.norm(vu - centre, axis=1).max())
             d = np.linalg.norm(pm.centre[changed] - centre, axis=1) - pm.radius[changed]
-            is_far = d >= DB_FAR * radius
+            is_far = (d >= DB_FAR * radius) & (2.0 * pm.radius[changed] <= DB_CLUSTER * (d + pm.radius[changed]))
             far, changed = changed[is_far], changed[~is_far]
             if len(far):
                 probes, weights = _probe_grid(lo, hi, vu, DB_PROBES)
