@@ -223,7 +223,7 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
                 probes, weights = _probe_grid(lo, hi, vu, DB_PROBES)
                 pc, pn, pa, prad = cluster_patches(pm.centre[far], pm.normal[far], pm.area[far], pm.quad[far],
                                                    dB[far], d[is_far] + pm.radius[far], 2.0 * float(pm.radius.min()))
-                L = far_field_sh(eng, probes, centre, pc, pn, pa, prad)
+                L = far_field_sh(eng, probes, lo, hi, pc, pn, pa, prad)
                 E += np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, L))
         if len(changed):
             # the loss varies slowly over the object (the shadowed patches are beyond it):
@@ -289,10 +289,10 @@ def shaft_clear(tris: np.ndarray, p: np.ndarray, n: np.ndarray, polys: np.ndarra
     return bool((dist >= -tol).all(1).any(1).all())
 
 
-DB_FAR = 3.0  # bounding radii (nearest point of the patch to the object's box centre) beyond which a
+DB_FAR = 2.0  # bounding radii (nearest point of the patch to the object's box centre) beyond which a
 # shadowed patch's loss is gathered as a far field (far_field_sh; trilinear over DB_PROBES per axis: the
 # relative parallax error of its 1/r^2 falls as (radius / (DB_FAR (DB_PROBES - 1)))^2, ~3 % here)
-DB_PROBES = 3  # probes per axis of the far field's grid over the object's box
+DB_PROBES = 4  # probes per axis of the far field's grid over the object's box
 
 
 def _probe_grid(lo: np.ndarray, hi: np.ndarray, points: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -336,33 +336,41 @@ def cluster_patches(pc: np.ndarray, pn: np.ndarray, area: np.ndarray, quad: np.n
     return centroid, normal, a, rad
 
 
-def far_field_sh(eng: "Engine", probes: np.ndarray, centre: np.ndarray, pc: np.ndarray, pn: np.ndarray,
+def far_field_sh(eng: "Engine", probes: np.ndarray, lo: np.ndarray, hi: np.ndarray, pc: np.ndarray, pn: np.ndarray,
                  area: np.ndarray, radiance: np.ndarray, eps: float = 2e-3) -> np.ndarray:
-    """Radiance SH9 coefficients (Q,9,3) at the probes (Q,3) of far patches (centres pc (M,3), unit
-    normals pn (M,3), areas (M,) m^2, radiance (M,3)), each a point of solid angle A cos / r^2, seen
-    past the room (eng.scene_occ; one ray per probe and patch). The probes cast from 1 mm towards
-    `centre` (a box corner may lie on the floor the object stands on)."""
+    """Radiance SH9 coefficients (Q,9,3) at the probes (Q,3, inside the box lo..hi) of far patches (centres
+    pc (M,3), unit normals pn (M,3), areas (M,) m^2, radiance (M,3)), each a point of solid angle
+    A cos / r^2 from every probe, seen past the room (eng.scene_occ) as from the box's 8 corners (one ray
+    per corner and patch, cast from 1 mm towards the box centre: a corner may lie on the floor the object
+    stands on), interpolated trilinearly: a room shadow's edge across the box gives a partial share."""
     from lighting import sh
 
     if len(pc) == 0:
         return np.zeros((len(probes), 9, 3))
-    to_c = centre - probes
-    o = probes + to_c / np.maximum(np.linalg.norm(to_c, axis=1, keepdims=True), 1e-12) * \
-        np.minimum(1e-3, 0.5 * np.linalg.norm(to_c, axis=1, keepdims=True))
     b = pc + pn * eps
-    dv = b[None] - o[:, None]  # (Q,M,3)
+    corners, vis_w = _probe_grid(lo, hi, probes, 2)  # (8,3), (Q,8)
+    centre = 0.5 * (lo + hi)
+    to_c = centre - corners
+    lc = np.linalg.norm(to_c, axis=1, keepdims=True)
+    o = corners + to_c / np.maximum(lc, 1e-12) * np.minimum(1e-3, 0.5 * lc)
+    dv = b[None] - o[:, None]
+    dist = np.linalg.norm(dv, axis=2)
+    faces = np.einsum("qmc,mc->qm", dv, pn) < 0  # the patch's emitting side towards the corner
+    seen = np.flatnonzero(faces.reshape(-1))
+    vis = np.zeros(faces.size)
+    if len(seen):
+        q = seen // len(pc)
+        d = (dv / dist[..., None]).reshape(-1, 3)[seen]
+        _, _, depth = cast_rays(eng.scene_occ, o[q], d, workspace=workspace(eng, "dB_far"))
+        vis[seen] = depth >= dist.reshape(-1)[seen]
+    vis = vis_w @ vis.reshape(faces.shape)  # (Q,M)
+    dv = b[None] - probes[:, None]  # (Q,M,3)
     dist = np.linalg.norm(dv, axis=2)
     w = dv / dist[..., None]
     cos_j = -np.einsum("qmc,mc->qm", w, pn)
-    omega = np.where(cos_j > 0, area * cos_j / dist ** 2, 0.0)
-    seen = np.flatnonzero(omega.reshape(-1) > 0)
-    vis = np.zeros(omega.size)
-    if len(seen):
-        q = seen // len(pc)
-        _, _, depth = cast_rays(eng.scene_occ, o[q], w.reshape(-1, 3)[seen], workspace=workspace(eng, "dB_far"))
-        vis[seen] = depth >= dist.reshape(-1)[seen]
-    omega = omega * vis.reshape(omega.shape)
-    return np.einsum("qmk,qm,mc->qkc", sh.basis(w), omega, np.asarray(radiance, np.float64))
+    omega = np.where(cos_j > 0, area * cos_j / dist ** 2, 0.0) * vis
+    Yw = sh.basis(w) * omega[..., None]  # (Q,M,9)
+    return np.matmul(Yw.transpose(0, 2, 1), np.asarray(radiance, np.float64))  # (Q,9,3)
 
 
 def emitter_groups(eng: "Engine") -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:

@@ -119,7 +119,7 @@ def test_far_field_loss_matches_the_exact_gather(demo):
     cl = OS.cluster_patches(pm.centre[far], pm.normal[far], pm.area[far], pm.quad[far], dB, d[far] + pm.radius[far],
                             2.0 * float(pm.radius.min()))
     assert len(cl[0]) < len(far)
-    ours = np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, OS.far_field_sh(eng, probes, centre, *cl)))
+    ours = np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, OS.far_field_sh(eng, probes, lo, hi, *cl)))
     U = len(vu)
     exact_sum = SampledPatchSum(np.ones(U, bool), np.arange(U), np.full((U, 1), -1), "cpu", max_patches=len(far))
     exact = exact_sum(vu, nu, pm.corners[far], pm.normal[far], dB, [eng.scene_occ, Occluder(v, f, "cpu")], 2e-3)
