@@ -216,13 +216,14 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
             lo, hi = vu.min(0), vu.max(0)
             centre = 0.5 * (lo + hi)
             radius = float(np.linalg.norm(vu - centre, axis=1).max())
-            d = np.linalg.norm(pm.centre[changed] - centre, axis=1) - pm.radius[changed]
-            is_far = (d >= DB_FAR * radius) & (2.0 * pm.radius[changed] <= DB_CLUSTER * (d + pm.radius[changed]))
+            pr = _patch_radius(eng)
+            d = np.linalg.norm(pm.centre[changed] - centre, axis=1) - pr[changed]
+            is_far = (d >= DB_FAR * radius) & (2.0 * pr[changed] <= DB_CLUSTER * (d + pr[changed]))
             far, changed = changed[is_far], changed[~is_far]
             if len(far):
                 probes, weights = _probe_grid(lo, hi, vu, DB_PROBES)
                 pc, pn, pa, prad = cluster_patches(pm.centre[far], pm.normal[far], pm.area[far], pm.quad[far],
-                                                   dB[far], d[is_far] + pm.radius[far], 2.0 * float(pm.radius.min()))
+                                                   dB[far], d[is_far] + pr[far], 2.0 * float(pr.min()))
                 L = far_field_sh(eng, probes, lo, hi, pc, pn, pa, prad)
                 E += np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, L))
         if len(changed):
@@ -242,6 +243,14 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     if ss.bounce is not None:
         L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
     return L_vert
+
+
+def _patch_radius(eng: "Engine") -> np.ndarray:
+    """The room patches' bounding radii (P,) m (PatchMesh.radius), computed once per engine."""
+    cached = eng.__dict__.get("_patch_radius")
+    if cached is None or cached[0] is not eng.pre.patches:
+        cached = eng._patch_radius = (eng.pre.patches, eng.pre.patches.radius)
+    return cached[1]
 
 
 def room_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
@@ -561,15 +570,21 @@ def shade_object(eng: "Engine", obj: SceneObject, mesh, hits: "ObjectHits", prox
     corners = f[hits.tri[h]]
     sub[h] = np.einsum("nk,nkc->nc", hits.bary[h], L_vert[corners])
     if getattr(eng, "sun_pix", None) is not None:  # sun: its direct light per camera hit (a sharp edge
-        pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])  # across a face, not a vertex blend)
-        nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-        own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
-            Occluder(v, f, eng.device)
-        lit_v = eng._obj_sun_vert.any(1)  # the shading mesh's vertices in the sun (room and own shadow)
-        E_hit = eng.sun_light.irradiance_on_mesh(pos, nrm, lit_v[corners], [own])  # rays where a shadow edge crosses
-        E_interp = np.einsum("nk,nkc->nc", hits.bary[h], eng._obj_sun_vert[corners])
-        sub[h] = np.maximum(sub[h] + obj.albedo * (E_hit - E_interp), 0.0)
+        # across a face, not a vertex blend), on the faces with a sunlit corner (on the others both the
+        # per-hit sun and the vertex blend it replaces are 0)
+        lit_c = eng._obj_sun_vert.any(1)[corners]  # the shading mesh's vertices in the sun (room and own shadow)
+        k = np.flatnonzero(lit_c.any(1))
+        if len(k):
+            hk = np.flatnonzero(h)[k]
+            b, ck = hits.bary[hk], corners[k]
+            pos = np.einsum("nk,nkc->nc", b, v[ck])
+            nrm = np.einsum("nk,nkc->nc", b, n[ck])
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+            own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
+                Occluder(v, f, eng.device)
+            E_hit = eng.sun_light.irradiance_on_mesh(pos, nrm, lit_c[k], [own])  # rays where a shadow edge crosses
+            E_interp = np.einsum("nk,nkc->nc", b, eng._obj_sun_vert[ck])
+            sub[hk] = np.maximum(sub[hk] + obj.albedo * (E_hit - E_interp), 0.0)
     if eng.params.specular > 0:
         pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])
         nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
