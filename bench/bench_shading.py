@@ -8,6 +8,11 @@ Prints one table per shared scene (or the bundled demo scene without ../shared):
 the self-occlusion transfer (PRT) and of the exact emitter gather, the volume's error
 against brute-force gathering at 50 random points, and the per-frame specular cube map's build
 time and error against a 3x finer one (Phong exponent 32).
+
+--drag N (alone with --drag-only): per shared scene, the object_shading stage of an N-pose 50-pass drag
+with the shortcuts of app/stages/object_shading.py (the shadowed room's far field as SH9 through the
+self-occlusion transfer, no room rays for the emitters where shaft_clear) against the exact gathers,
+interleaved pose by pose in one engine (medians of warm frames), and the vertex radiance's change.
 """
 from __future__ import annotations
 
@@ -85,10 +90,47 @@ def bench_scene(name: str, scene_dir: Path) -> dict:
             "volume_err_max": float(np.max(hyb))}
 
 
+def bench_drag(name: str, scene_dir: Path, n: int) -> dict:
+    """object_shading ms of the drag with the shortcuts on (new) and off (exact), interleaved, and the
+    largest / mean change of the vertex radiance (luminance, relative to its mean)."""
+    from app.dragpath import drag_offsets, moved
+    from app.engine import FrameConfig
+
+    scene = load_scene(scene_dir)
+    eng = Engine(scene, EngineParams(), quiet=True)
+    offs = drag_offsets(scene, scene.obj, n)
+    cfg = FrameConfig(passes=50)
+    eng.render(moved(scene.obj, offs[0]), cfg)
+    ms: dict[bool, list[float]] = {True: [], False: []}
+    diff = []
+    for i, o in enumerate(offs[1:]):
+        L = {}
+        for on in ((True, False) if i % 2 else (False, True)):
+            eng.dB_far_field = eng.shaft_cull = on
+            fr = eng.render(moved(scene.obj, o), cfg)
+            ms[on].append(1e3 * fr.stats["timings"]["object_shading"])
+            L[on] = luminance(eng._last_L_vert)
+        diff.append(np.abs(L[True] - L[False]) / L[False].mean())
+    d = np.concatenate(diff)
+    return {"scene": name, "frames": len(ms[True]), "exact_ms": float(np.median(ms[False])),
+            "new_ms": float(np.median(ms[True])), "ratio": float(np.median(ms[False]) / np.median(ms[True])),
+            "dL_mean": float(d.mean()), "dL_p99": float(np.percentile(d, 99)), "dL_max": float(d.max())}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
+    ap.add_argument("--drag", type=int, default=0, help="poses of the object_shading A/B drag (0: none)")
+    ap.add_argument("--drag-only", action="store_true", help="only the drag A/B")
     a = ap.parse_args()
+    if a.drag:
+        drag = [bench_drag(n, a.shared / "scenes" / n, a.drag) for n in ("window_room", "lamps_room", "sun_room")
+                if (a.shared / "scenes" / n / "scene.json").is_file()]
+        if drag:
+            print(table(drag, list(drag[0])))
+            print("(object_shading ms, warm, medians; exact: DB far field and shaft culling off)")
+        if a.drag_only:
+            return
     scenes = [(n, a.shared / "scenes" / n) for n in ("window_room", "lamps_room")
               if (a.shared / "scenes" / n / "scene.json").is_file()] or [("demo", demo_scene_dir())]
     rows = [bench_scene(n, d) for n, d in scenes]

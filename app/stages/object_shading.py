@@ -184,8 +184,12 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
     rl = eng.room_light  # the emitters, exact form factors, visibility cast at samples (ShapeShading)
     em, groups = emitter_groups(eng)
-    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [rl.occluder, own], 2e-3, split,
-                      groups)
+    room = rl.occluder
+    if getattr(eng, "shaft_cull", True) and len(em) and \
+            shaft_clear(room_triangles(eng, room), vu, nu, groups[1], pm.normal[em[groups[0][:-1]]], 2e-3):
+        room = Occluder(None, None, eng.device) if eng.__dict__.get("_no_room") is None else eng._no_room
+        eng._no_room = room  # no room triangle between the object and the emitters: no room rays
+    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3, split, groups)
     sun_u = None
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
         # the object's own shadow is kept per shape (the sun's rays are parallel: a move changes none
@@ -205,6 +209,23 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         order = order[loss[order] > 0]
         keep = int(np.searchsorted(np.cumsum(loss[order]), 0.95 * loss.sum())) + 1 if len(order) else 0
         changed = order[:keep]
+        far = np.zeros(0, np.int64)
+        if len(changed) and getattr(eng, "dB_far_field", True):
+            # beyond DB_FAR bounding radii a patch's loss reaches the object as a far field: radiance SH9
+            # at a probe grid over the object's box, through the cached self-occlusion transfer
+            lo, hi = vu.min(0), vu.max(0)
+            centre = 0.5 * (lo + hi)
+            radius = float(np.linalg.norm(vu - centre, axis=1).max())
+            pr = _patch_radius(eng)
+            d = np.linalg.norm(pm.centre[changed] - centre, axis=1) - pr[changed]
+            is_far = (d >= DB_FAR * radius) & (2.0 * pr[changed] <= DB_CLUSTER * (d + pr[changed]))
+            far, changed = changed[is_far], changed[~is_far]
+            if len(far):
+                probes, weights = _probe_grid(lo, hi, vu, DB_PROBES)
+                pc, pn, pa, prad = cluster_patches(pm.centre[far], pm.normal[far], pm.area[far], pm.quad[far],
+                                                   dB[far], d[is_far] + pr[far], 2.0 * float(pr.min()))
+                L = far_field_sh(eng, probes, lo, hi, pc, pn, pa, prad)
+                E += np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, L))
         if len(changed):
             # the loss varies slowly over the object (the shadowed patches are beyond it):
             # gather it at a spread subset of vertices and interpolate by position and normal
@@ -222,6 +243,143 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     if ss.bounce is not None:
         L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
     return L_vert
+
+
+def _patch_radius(eng: "Engine") -> np.ndarray:
+    """The room patches' bounding radii (P,) m (PatchMesh.radius), computed once per engine."""
+    cached = eng.__dict__.get("_patch_radius")
+    if cached is None or cached[0] is not eng.pre.patches:
+        cached = eng._patch_radius = (eng.pre.patches, eng.pre.patches.radius)
+    return cached[1]
+
+
+def room_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
+    """The room occluder's triangles (T,3,3) float64, read back once per engine."""
+    cached = eng.__dict__.get("_room_tris")
+    if cached is None or cached[0] is not occ:
+        tris = np.zeros((0, 3, 3))
+        if occ.mesh is not None:
+            tris = occ._pts.numpy().astype(np.float64)[occ._idx.numpy().reshape(-1, 3)]
+        cached = eng._room_tris = (occ, tris)
+    return cached[1]
+
+
+def shaft_clear(tris: np.ndarray, p: np.ndarray, n: np.ndarray, polys: np.ndarray, poly_normals: np.ndarray,
+                eps: float, tol: float = 1e-7) -> bool:
+    """True when no triangle of `tris` (T,3,3) can cut a visibility segment of kernels.shade's patch sums:
+    from a point p (N,3) lifted by eps along its normal n (N,3), where it faces some polygon, to a point of
+    a polygon (G,4,3) lifted by eps along its normal (G,3). Every such segment lies in the convex hull of
+    the lifted starts' box and the lifted polygons; a triangle with all its corners on or outside one
+    face plane of that hull (within `tol` m) can meet a segment at most at an end point, which the open
+    segment excludes (the floor under an object standing on it). Exact, from geometry; conservative."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if len(tris) == 0:
+        return True
+    pn = np.cross(polys[:, 1] - polys[:, 0], polys[:, 2] - polys[:, 0])  # emitting side
+    front = np.einsum("gc,ngc->ng", pn, p[:, None] - polys[:, 0][None]) > 0
+    above = (np.einsum("nc,ngkc->ngk", n, polys[None] - p[:, None, None]) > 0).any(2)
+    facing = (front & above).any(1)
+    if not facing.any():
+        return True
+    a = p[facing] + n[facing] * eps
+    lo, hi = a.min(0), a.max(0)
+    box = np.array([[(hi if (k >> c) & 1 else lo)[c] for c in range(3)] for k in range(8)])
+    pts = np.concatenate([box, (polys + poly_normals[:, None] * eps).reshape(-1, 3)])
+    try:
+        eq = ConvexHull(pts, qhull_options="QJ" if np.ptp(pts, 0).min() < 1e-9 else "").equations
+    except QhullError:
+        return False
+    plo, phi = pts.min(0) - tol, pts.max(0) + tol
+    cand = tris[~((tris.max(1) < plo) | (tris.min(1) > phi)).any(1)]  # overlapping the hull's box
+    if len(cand) == 0:
+        return True
+    dist = cand @ eq[:, :3].T + eq[:, 3]  # (T,3,F) signed, outside > 0
+    return bool((dist >= -tol).all(1).any(1).all())
+
+
+DB_FAR = 2.0  # bounding radii (nearest point of the patch to the object's box centre) beyond which a
+# shadowed patch's loss is gathered as a far field (far_field_sh; trilinear over DB_PROBES per axis: the
+# relative parallax error of its 1/r^2 falls as (radius / (DB_FAR (DB_PROBES - 1)))^2, ~3 % here)
+DB_PROBES = 4  # probes per axis of the far field's grid over the object's box
+
+
+def _probe_grid(lo: np.ndarray, hi: np.ndarray, points: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(probes (n^3,3), weights (N,n^3)): an n x n x n grid spanning the box lo..hi and the trilinear
+    weights of the points (N,3) inside it (a flat axis puts all its weight on its first level)."""
+    axes = [np.linspace(lo[a], hi[a], n) for a in range(3)]
+    probes = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    span = np.maximum(hi - lo, 1e-12)
+    t = np.clip((points - lo) / span * (n - 1), 0.0, n - 1)
+    i0 = np.minimum(np.floor(t).astype(int), n - 2) if n > 1 else np.zeros_like(t, int)
+    fr = t - i0
+    weights = np.zeros((len(points), n ** 3))
+    rows = np.arange(len(points))
+    for corner in range(8):
+        bits = [(corner >> a) & 1 for a in range(3)]
+        w = np.prod([fr[:, a] if b else 1.0 - fr[:, a] for a, b in enumerate(bits)], axis=0)
+        idx = ((i0[:, 0] + bits[0]) * n + i0[:, 1] + bits[1]) * n + i0[:, 2] + bits[2]
+        np.add.at(weights, (rows, np.minimum(idx, n ** 3 - 1)), w)
+    return probes, weights
+
+
+DB_CLUSTER = 0.25  # a far patch cluster's side over its distance (angular size ~14 deg: seen as one point,
+# the SH9 irradiance of its area-weighted centroid errs by O(size^2 / distance^2), ~1.5 %)
+
+
+def cluster_patches(pc: np.ndarray, pn: np.ndarray, area: np.ndarray, quad: np.ndarray, radiance: np.ndarray,
+                    dist: np.ndarray, base: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Far patches (centres (M,3), normals (M,3), areas (M,), surface `quad` (M,), radiance (M,3), distance
+    (M,) m from the object) merged per surface into cells of side base * 2^k <= DB_CLUSTER * distance:
+    (centroids, normals, areas, area-weighted mean radiance) of the cells, for far_field_sh."""
+    level = np.floor(np.log2(np.maximum(DB_CLUSTER * dist / base, 1.0))).astype(np.int64)
+    cell = np.floor(pc / (base * 2.0 ** level)[:, None]).astype(np.int64)
+    _, inv = np.unique(np.c_[quad, level, cell], axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    k = inv.max() + 1
+    a = np.bincount(inv, area, k)
+    centroid = np.stack([np.bincount(inv, area * pc[:, c], k) for c in range(3)], 1) / a[:, None]
+    rad = np.stack([np.bincount(inv, area * radiance[:, c], k) for c in range(3)], 1) / a[:, None]
+    normal = np.zeros((k, 3))
+    normal[inv] = pn  # one surface per cell: one normal
+    return centroid, normal, a, rad
+
+
+def far_field_sh(eng: "Engine", probes: np.ndarray, lo: np.ndarray, hi: np.ndarray, pc: np.ndarray, pn: np.ndarray,
+                 area: np.ndarray, radiance: np.ndarray, eps: float = 2e-3) -> np.ndarray:
+    """Radiance SH9 coefficients (Q,9,3) at the probes (Q,3, inside the box lo..hi) of far patches (centres
+    pc (M,3), unit normals pn (M,3), areas (M,) m^2, radiance (M,3)), each a point of solid angle
+    A cos / r^2 from every probe, seen past the room (eng.scene_occ) as from the box's 8 corners (one ray
+    per corner and patch, cast from 1 mm towards the box centre: a corner may lie on the floor the object
+    stands on), interpolated trilinearly: a room shadow's edge across the box gives a partial share."""
+    from lighting import sh
+
+    if len(pc) == 0:
+        return np.zeros((len(probes), 9, 3))
+    b = pc + pn * eps
+    corners, vis_w = _probe_grid(lo, hi, probes, 2)  # (8,3), (Q,8)
+    centre = 0.5 * (lo + hi)
+    to_c = centre - corners
+    lc = np.linalg.norm(to_c, axis=1, keepdims=True)
+    o = corners + to_c / np.maximum(lc, 1e-12) * np.minimum(1e-3, 0.5 * lc)
+    dv = b[None] - o[:, None]
+    dist = np.linalg.norm(dv, axis=2)
+    faces = np.einsum("qmc,mc->qm", dv, pn) < 0  # the patch's emitting side towards the corner
+    seen = np.flatnonzero(faces.reshape(-1))
+    vis = np.zeros(faces.size)
+    if len(seen):
+        q = seen // len(pc)
+        d = (dv / dist[..., None]).reshape(-1, 3)[seen]
+        _, _, depth = cast_rays(eng.scene_occ, o[q], d, workspace=workspace(eng, "dB_far"))
+        vis[seen] = depth >= dist.reshape(-1)[seen]
+    vis = vis_w @ vis.reshape(faces.shape)  # (Q,M)
+    dv = b[None] - probes[:, None]  # (Q,M,3)
+    dist = np.linalg.norm(dv, axis=2)
+    w = dv / dist[..., None]
+    cos_j = -np.einsum("qmc,mc->qm", w, pn)
+    omega = np.where(cos_j > 0, area * cos_j / dist ** 2, 0.0) * vis
+    Yw = sh.basis(w) * omega[..., None]  # (Q,M,9)
+    return np.matmul(Yw.transpose(0, 2, 1), np.asarray(radiance, np.float64))  # (Q,9,3)
 
 
 def emitter_groups(eng: "Engine") -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
@@ -412,15 +570,21 @@ def shade_object(eng: "Engine", obj: SceneObject, mesh, hits: "ObjectHits", prox
     corners = f[hits.tri[h]]
     sub[h] = np.einsum("nk,nkc->nc", hits.bary[h], L_vert[corners])
     if getattr(eng, "sun_pix", None) is not None:  # sun: its direct light per camera hit (a sharp edge
-        pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])  # across a face, not a vertex blend)
-        nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-        own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
-            Occluder(v, f, eng.device)
-        lit_v = eng._obj_sun_vert.any(1)  # the shading mesh's vertices in the sun (room and own shadow)
-        E_hit = eng.sun_light.irradiance_on_mesh(pos, nrm, lit_v[corners], [own])  # rays where a shadow edge crosses
-        E_interp = np.einsum("nk,nkc->nc", hits.bary[h], eng._obj_sun_vert[corners])
-        sub[h] = np.maximum(sub[h] + obj.albedo * (E_hit - E_interp), 0.0)
+        # across a face, not a vertex blend), on the faces with a sunlit corner (on the others both the
+        # per-hit sun and the vertex blend it replaces are 0)
+        lit_c = eng._obj_sun_vert.any(1)[corners]  # the shading mesh's vertices in the sun (room and own shadow)
+        k = np.flatnonzero(lit_c.any(1))
+        if len(k):
+            hk = np.flatnonzero(h)[k]
+            b, ck = hits.bary[hk], corners[k]
+            pos = np.einsum("nk,nkc->nc", b, v[ck])
+            nrm = np.einsum("nk,nkc->nc", b, n[ck])
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+            own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
+                Occluder(v, f, eng.device)
+            E_hit = eng.sun_light.irradiance_on_mesh(pos, nrm, lit_c[k], [own])  # rays where a shadow edge crosses
+            E_interp = np.einsum("nk,nkc->nc", b, eng._obj_sun_vert[ck])
+            sub[hk] = np.maximum(sub[hk] + obj.albedo * (E_hit - E_interp), 0.0)
     if eng.params.specular > 0:
         pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])
         nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
