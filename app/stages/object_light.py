@@ -175,7 +175,6 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     triangles (ExtraEmitters), or None.
     """
     pre, pm = eng.pre, eng.pre.patches
-    resp = eng.scene.response
     table = pixel_table(eng)
     tris = pv[pf]
     tvis = proxy_shape(eng, pv, pf, proxy_occ).visibility
@@ -184,7 +183,6 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
         tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         far = (np.concatenate([tris.mean(1), extra.far_c]), np.concatenate([tn, extra.far_tn]),
                np.concatenate([tri_rad, extra.far_rad]), np.concatenate([tvis.seen, extra.far_seen]))
-    max_rad = tri_rad.max(0) if extra is None else np.maximum(tri_rad.max(0), extra.rad.max(0))
     rv = pre.recv_vert
     R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, eng.device,
                      tvis, workspace(eng, "object_light.vertices"), far, extra)
@@ -203,23 +201,70 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     rp = table.pixels_of(near_p)
     dist = np.linalg.norm(eng.pix_pos[rp] - centre, axis=1)
     rp, dist = rp[dist < eng.near_factor * radius], dist[dist < eng.near_factor * radius]
-    f_bound = np.minimum(1.0, (radius / np.maximum(dist, 1e-6)) ** 2)
-    bound = eng.rho_x[rp] * max_rad * f_bound[:, None]
-    gain = (resp.to_levels(eng.L_b[rp] + bound) - _levels_of_photo(eng)[rp]).max(1)
-    sel = rp[gain > 0.25]
+    bound = eng.rho_x[rp] * _light_bound(eng.pix_pos[rp], dist, tri_rad, radius, extra)
+    sel = rp[(bound > headroom(eng, 0.25)[rp]).any(1)]  # T(L_b + bound) - T(L_b) > 0.25 level
     if covered is not None:
         sel = sel[~covered[sel]]
     if len(sel):
         R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra)
     # patch centres, for the second-order term
     dist_c = np.linalg.norm(pm.centre - centre, axis=1)
-    reach = np.minimum(1.0, (radius / np.maximum(dist_c, 1e-6)) ** 2) * luminance(max_rad)
+    reach = luminance(_light_bound(pm.centre, dist_c, tri_rad, radius, extra))
     near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
     R_cen = np.zeros((pm.n_patches, 3))
     R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, centre, radius,
                                eng.device, tvis, workspace(eng, "object_light.centres"), far, extra)
     eng._n_object_light_pixels = len(sel)
     return R_pix, R_cen
+
+
+def _sphere_ff(r: float, d: np.ndarray) -> np.ndarray:
+    """min(1, (r/d)^2): the most form factor (projected solid angle / pi) anything inside a sphere of
+    radius r sends to a point at distance d from its centre (the whole sphere above the horizon)."""
+    return np.minimum(1.0, (r / np.maximum(d, 1e-9)) ** 2)
+
+
+def _light_bound(points: np.ndarray, dist: np.ndarray, tri_rad: np.ndarray, radius: float,
+                 extra: ExtraEmitters | None) -> np.ndarray:
+    """An upper bound (N,3) of the object's light (irradiance/pi) at points (N,3), dist (N,) from the
+    centre of its bounding sphere of `radius`: the brightest triangle over the sphere's form factor
+    (_sphere_ff). The extra emitters (the sunlit pieces: small, a few times brighter) are bounded over
+    their own sphere and added, where that is less than the brightest of both over the object's."""
+    out = tri_rad.max(0) * _sphere_ff(radius, dist)[:, None]
+    if extra is None or len(extra.tris) == 0:
+        return out
+    v = extra.tris.reshape(-1, 3)
+    c = 0.5 * (v.min(0) + v.max(0))
+    r = float(np.linalg.norm(v - c, axis=1).max())
+    rad = extra.rad.max(0)
+    return np.minimum(np.maximum(tri_rad.max(0), rad) * _sphere_ff(radius, dist)[:, None],
+                      out + rad * _sphere_ff(r, np.linalg.norm(points - c, axis=1))[:, None])
+
+
+def headroom(eng: "Engine", levels: float) -> np.ndarray:
+    """(H*W,3) float32: per pixel and channel the most radiance s >= 0 that added to the photo's L_b
+    raises it by at most `levels` (T(L_b + s) - T(L_b) <= levels; inf where T cannot rise that much),
+    from the response's breakpoints (exact: T is piecewise linear and non-decreasing). A test
+    s > headroom in place of T(L_b + s) - T(L_b) > levels, with no response evaluation per frame
+    (kept per L_b array and level)."""
+    cached = getattr(eng, "_ol_headroom", None)
+    if cached is None or cached[0] is not eng.L_b:
+        cached = eng._ol_headroom = (eng.L_b, {})
+    h = cached[1].get(levels)
+    if h is None:
+        resp = eng.scene.response
+        xs, ys = resp.breakpoints()
+        y = (_levels_of_photo(eng) + levels) / 255.0  # the response value to exceed, (H*W,3)
+        h = np.full(y.shape, np.inf, np.float32)
+        for ch in range(3):
+            k = np.searchsorted(ys[ch], y[:, ch], side="right")  # first breakpoint above it
+            ok = k < ys.shape[1]
+            k = k[ok]
+            x0, x1, y0, y1 = xs[ch, k - 1], xs[ch, k], ys[ch, k - 1], ys[ch, k]
+            x_top = x0 + (y[ok, ch] - y0) / (y1 - y0) * (x1 - x0)  # the largest X with f(X) <= y
+            h[ok, ch] = np.maximum(x_top / resp.exposure_time - eng.L_b[ok, ch], 0.0)
+        cached[1][levels] = h
+    return h
 
 
 FAR_FIELD = 3.0  # bounding radii from the object's centre beyond which its triangles act as point sources
@@ -454,15 +499,14 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
     the cell's area) takes the bilinear blend of the nodes, evaluated exactly
     (kernels.visibility.emitter_sum); the rest go on to the next, finer stride, and what is left
     after the finest is evaluated per pixel (contact, quad edges, the object's silhouette).
-    The cells' tests (quad, clearance) are made once per cell, the pixels only look them up.
+    The cells' quad test is made once per scene (StrideTable), the clearance once per cell and frame,
+    the blend's test against the response through `headroom` (no response evaluation per pixel).
     """
     pm = eng.pre.patches
-    H, W = eng.scene.camera.height, eng.scene.camera.width
-    resp = eng.scene.response
-    levels = _levels_of_photo(eng)
+    W = eng.scene.camera.width
     sv = getattr(eng, "_ol_screen", None)
-    if sv is None or len(sv.known) != H * W:
-        sv = eng._ol_screen = _ScreenValues(H * W)
+    if sv is None or len(sv.known) != len(eng.pix_pos):
+        sv = eng._ol_screen = _ScreenValues(len(eng.pix_pos))
     sv.clear()
     ws = workspace(eng, "near_pixels.exact")
 
@@ -472,56 +516,89 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
 
     out = np.zeros((len(sel), 3))
     todo = np.arange(len(sel))
-    quad_sel = pm.quad[eng.pix_patch[sel]]
     for s in GRID_STRIDES:
         if len(todo) == 0:
             break
+        st = stride_table(eng, s)
         p = sel[todo]
-        y, x = np.divmod(p, W)
-        Wc = (W - 1) // s + 1
-        cid = (y // s) * Wc + x // s
-        cells = _distinct(cid, ((H - 1) // s + 1) * Wc)  # the cells holding pixels to do
-        slot = np.zeros(((H - 1) // s + 1) * Wc, np.int64)
+        ok = st.pixel_ok[p]  # the pixel's cell lies on its own quad, on receivers
+        if not ok.any():
+            continue
+        cid = st.cell[p]
+        cells = _distinct(cid[ok], st.n_cells)  # the cells holding pixels to do
+        nodes = st.nodes(cells)  # (C,4)
+        # clearance: the cell's nodes' distance to the proxy, against its diagonal
+        cn = np.unique(nodes)
+        d = distance_to(proxy_occ, eng.pix_pos[cn], workspace=workspace(eng, "near_pixels.clearance"))
+        d_node = d[np.searchsorted(cn, nodes)].min(1)
+        diag = np.linalg.norm(eng.pix_pos[nodes[:, 0]] - eng.pix_pos[nodes[:, 3]], axis=1)
+        clear = d_node > GRID_CLEARANCE * diag
+        if not clear.any():
+            continue
+        cells, nodes = cells[clear], nodes[clear]
+        slot = np.full(st.n_cells, -1, np.int64)
         slot[cells] = np.arange(len(cells))
-        slot = slot[cid]  # each pixel's row in `cells`
-        y0, x0 = (cells // Wc) * s, (cells % Wc) * s
-        ny = np.stack([y0, y0, y0 + s, y0 + s], 1)
-        nx = np.stack([x0, x0 + s, x0, x0 + s], 1)
-        inside = (ny < H) & (nx < W)
-        nodes = np.where(inside, ny * W + nx, 0)
-        q = pm.quad[np.maximum(eng.pix_patch[nodes], 0)]
-        cell_ok = (inside & eng.recv_pix[nodes]).all(1) & (q == q[:, :1]).all(1)  # one quad, receivers
-        ok = cell_ok[slot] & (q[slot, 0] == quad_sel[todo])  # ... the pixel's own
-        has = np.zeros(len(cells), bool)
-        has[slot[ok]] = True
-        if has.any():
-            # clearance: the cell's nodes' distance to the proxy
-            cn = np.unique(nodes[has])
-            d = distance_to(proxy_occ, eng.pix_pos[cn], workspace=workspace(eng, "near_pixels.clearance"))
-            d_node = d[np.searchsorted(cn, nodes[has])].min(1)
-            diag = np.linalg.norm(eng.pix_pos[nodes[has, 0]] - eng.pix_pos[nodes[has, 3]], axis=1)
-            has[np.flatnonzero(has)] = d_node > GRID_CLEARANCE * diag
-            ok &= has[slot]
-        if ok.any():
-            sv.add(np.unique(nodes[has]), values_of)
-            cc = sv.value[nodes[has]]  # (cells, 4, 3) the cells' node values
-            h = np.cumsum(has)[slot[ok]] - 1  # each pixel's row in cc
-            corner = cc[h]  # (m,4,3)
-            fp = p[ok]
-            spread = eng.rho_x[fp] * (cc.max(1) - cc.min(1))[h]
-            gain = (resp.to_levels(eng.L_b[fp] + spread) - levels[fp]).max(1)
-            smooth = gain <= GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2
-            fy = ((y[ok] % s) / s)[:, None]
-            fx = ((x[ok] % s) / s)[:, None]
-            blend = ((1 - fy) * ((1 - fx) * corner[:, 0] + fx * corner[:, 1]) +
-                     fy * ((1 - fx) * corner[:, 2] + fx * corner[:, 3]))
-            done = np.flatnonzero(ok)[smooth]
-            out[todo[done]] = blend[smooth]
-            keep = np.ones(len(todo), bool)
-            keep[done] = False
-            todo = todo[keep]
+        h = slot[cid]
+        ok &= h >= 0
+        sv.add(np.unique(nodes), values_of)
+        cc = sv.value[nodes]  # (cells, 4, 3) the cells' node values
+        k = np.flatnonzero(ok)
+        fp, h = p[k], h[k]
+        spread = eng.rho_x[fp] * (cc.max(1) - cc.min(1))[h]
+        smooth = (spread <= headroom(eng, GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2)[fp]).all(1)
+        k, fp, h = k[smooth], fp[smooth], h[smooth]
+        y, x = np.divmod(fp, W)
+        fy = ((y % s) / s)[:, None]
+        fx = ((x % s) / s)[:, None]
+        corner = cc[h]  # (m,4,3)
+        out[todo[k]] = ((1 - fy) * ((1 - fx) * corner[:, 0] + fx * corner[:, 1]) +
+                        fy * ((1 - fx) * corner[:, 2] + fx * corner[:, 3]))
+        keep = np.ones(len(todo), bool)
+        keep[k] = False
+        todo = todo[keep]
     if len(todo):
         sv.add(sel[todo], values_of)
         out[todo] = sv.value[sel[todo]]
     eng._n_object_light_exact = sv.count
     return out
+
+
+class StrideTable:
+    """One stride s of _near_pixels' screen grid, per scene: cell ids of the pixels ((y//s) x cells a
+    row + x//s), and whether a pixel's cell has its four nodes (corners y0, y0+s x x0, x0+s) on the
+    screen and on receivers of one quad, the pixel's own (where a blend of the nodes is one plane's)."""
+
+    def __init__(self, s: int, H: int, W: int, recv_pix: np.ndarray, pix_quad: np.ndarray):
+        self.s, self.W, self.H = s, W, H
+        self.wc = (W - 1) // s + 1
+        self.n_cells = ((H - 1) // s + 1) * self.wc
+        y, x = np.divmod(np.arange(H * W), W)
+        self.cell = ((y // s) * self.wc + x // s).astype(np.int64)
+        cells = np.arange(self.n_cells)
+        ny, nx = self._corners(cells)
+        inside = (ny < H) & (nx < W)
+        nodes = np.where(inside, ny * W + nx, 0)
+        q = pix_quad[nodes]
+        cell_ok = (inside & recv_pix[nodes]).all(1) & (q == q[:, :1]).all(1)
+        self.pixel_ok = cell_ok[self.cell] & (q[self.cell, 0] == pix_quad)
+
+    def _corners(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        y0, x0 = (cells // self.wc) * self.s, (cells % self.wc) * self.s
+        return (np.stack([y0, y0, y0 + self.s, y0 + self.s], 1), np.stack([x0, x0 + self.s, x0, x0 + self.s], 1))
+
+    def nodes(self, cells: np.ndarray) -> np.ndarray:
+        """(C,4) pixel index of the cells' corners (cells with pixel_ok pixels: all on the screen)."""
+        ny, nx = self._corners(cells)
+        return ny * self.W + nx
+
+
+def stride_table(eng: "Engine", s: int) -> StrideTable:
+    """The engine's StrideTable of stride s (made on first use: it depends on the scene only)."""
+    tables = getattr(eng, "_ol_strides", None)
+    if tables is None or tables[0] is not eng.recv_pix:
+        tables = eng._ol_strides = (eng.recv_pix, {})
+    if s not in tables[1]:
+        cam = eng.scene.camera
+        pix_quad = np.where(eng.pix_patch >= 0, eng.pre.patches.quad[np.maximum(eng.pix_patch, 0)], -1)
+        tables[1][s] = StrideTable(s, cam.height, cam.width, eng.recv_pix, pix_quad)
+    return tables[1][s]
