@@ -173,7 +173,8 @@ def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtyp
 
 def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
                 occluder: Occluder | None = None, eps: float = 1e-3, device: str | None = None,
-                split: int = 2048, workspace: Workspace | None = None) -> np.ndarray:
+                split: int = 2048, workspace: Workspace | None = None, free: np.ndarray | None = None,
+                free_res: int = 0) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t): radiance-weighted form factors to emitting triangles.
 
     points/normals (N,3); triangles (T,3,3) vertices CCW seen from the emitting side; radiance (T,3);
@@ -182,7 +183,10 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
     `split` points are run as two launches, one per core (runtime.run_parallel). `workspace`: the
     call site's buffers (kernels.buffers.Workspace), kept between calls: launches of at most its
     capacity in points, nothing allocated after its first call for a given set of triangles
-    (None: fresh buffers).
+    (None: fresh buffers). free: optional (T, 6 free_res^2) bool, per triangle the cube cells
+    (cube_cell) of directions from its centroid + eps x its normal in which no ray can meet the
+    occluder (a conservative table, e.g. app.stages.object_light.free_cells): a receiver in front
+    of the triangle whose direction falls in such a cell needs no ray (the same sum, fewer rays).
     """
     device = runtime.device(device)
     n = len(points)
@@ -196,7 +200,10 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device),
               ws.upload("tri_normals", tn.astype(np.float32), wp.vec3, device),
               wp.uint64(occluder.id if occluder is not None else 0), float(eps)]
-    return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
+    if free is None:
+        return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
+    shared += [seen_table(ws, free, wp.uint8, device), int(free_res)]
+    return _point_launches(_emitter_sum_free_kernel, points, normals, shared, ws, block, device, split)
 
 
 def _point_launches(kernel, points: np.ndarray, normals: np.ndarray, shared: list, ws: Workspace, block: int,
@@ -241,6 +248,33 @@ def cube_cell(d: wp.vec3, r: int) -> int:
     iu = wp.clamp(int((u + 1.0) * 0.5 * float(r)), 0, r - 1)
     iv = wp.clamp(int((v + 1.0) * 0.5 * float(r)), 0, r - 1)
     return ((2 * a + neg) * r + iu) * r + iv
+
+
+@wp.kernel
+def _emitter_sum_free_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                             tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                             tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
+                             free: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
+    # _emitter_sum_kernel, with no ray where the table says none can be blocked
+    i = wp.tid()
+    p = points[i]
+    n = normals[i]
+    a = wp.vec3(p) + wp.vec3(n) * eps
+    total = wp.vec3(0.0, 0.0, 0.0)
+    for t in range(tris.shape[0]):
+        f = polygon_ff(p, n, tris, t, 3)
+        if f > wp.float64(0.0):
+            centroid = wp.vec3((tris[t, 0] + tris[t, 1] + tris[t, 2]) / wp.float64(3.0))
+            b = centroid + tri_normals[t] * eps
+            ba = a - b
+            clear = False
+            if wp.dot(ba, tri_normals[t]) > 0.0:  # the segment stays in front of the triangle
+                clear = free[t, cube_cell(ba, res)] != wp.uint8(0)
+            if clear:
+                total += radiance[t] * float(f)
+            elif not segment_blocked(mesh, a, b):
+                total += radiance[t] * float(f)
+    out[i] = total
 
 
 @wp.kernel

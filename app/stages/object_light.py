@@ -177,7 +177,8 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     pre, pm = eng.pre, eng.pre.patches
     table = pixel_table(eng)
     tris = pv[pf]
-    tvis = proxy_shape(eng, pv, pf, proxy_occ).visibility
+    shape = proxy_shape(eng, pv, pf, proxy_occ)
+    tvis = shape.visibility
     far = None
     if extra is not None:
         tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
@@ -185,7 +186,7 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
                np.concatenate([tri_rad, extra.far_rad]), np.concatenate([tvis.seen, extra.far_seen]))
     rv = pre.recv_vert
     R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, eng.device,
-                     tvis, workspace(eng, "object_light.vertices"), far, extra)
+                     tvis, workspace(eng, "object_light.vertices"), far, extra, shape.free)
     # the pixels of the patches with a vertex that gets a visible share of the object's light take
     # the vertices' light, interpolated
     reach_v = luminance(R_v) * float(eng.rho_x.max()) > 5e-4 * float(luminance(eng.B_src).mean())
@@ -206,14 +207,14 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     if covered is not None:
         sel = sel[~covered[sel]]
     if len(sel):
-        R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra)
+        R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra, shape.free)
     # patch centres, for the second-order term
     dist_c = np.linalg.norm(pm.centre - centre, axis=1)
     reach = luminance(_light_bound(pm.centre, dist_c, tri_rad, radius, extra))
     near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
     R_cen = np.zeros((pm.n_patches, 3))
     R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, centre, radius,
-                               eng.device, tvis, workspace(eng, "object_light.centres"), far, extra)
+                               eng.device, tvis, workspace(eng, "object_light.centres"), far, extra, shape.free)
     eng._n_object_light_pixels = len(sel)
     return R_pix, R_cen
 
@@ -325,14 +326,73 @@ def _seen_lookup(seen: np.ndarray, tri_to_point: np.ndarray, res: int = CUBE_RES
     return seen[t, _cube_bin(tri_to_point, res)].astype(np.float64)
 
 
+FREE_RES = 8  # cells per cube face side of the proxy triangles' ray-free directions (free_cells)
+EXACT_EPS = 1e-3  # m: the exact sum's ray ends pulled off the surfaces (kernels.visibility.emitter_sum's eps)
+
+
+def _cell_cones(res: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per cube-map cell (kernels.visibility.cube_cell's layout, 6 res^2): the unit direction of its
+    centre (C,3) and the largest angle (C,) from it to the cell's directions (at a corner: the
+    directions within an angle of the centre cut the face plane in a convex region)."""
+    centre = _cube_dirs(res)
+    g = np.arange(res + 1) / res * 2 - 1
+    half = np.zeros(len(centre))
+    for face in range(6):
+        a, neg = divmod(face, 2)
+        for du in (0, 1):
+            for dv in (0, 1):
+                c = np.zeros((res, res, 3))
+                c[:, :, a] = -1.0 if neg else 1.0
+                c[:, :, (a + 1) % 3] = g[du:du + res, None]
+                c[:, :, (a + 2) % 3] = g[None, dv:dv + res]
+                c = c.reshape(-1, 3) / np.linalg.norm(c.reshape(-1, 3), axis=1, keepdims=True)
+                sl = slice(face * res * res, (face + 1) * res * res)
+                half[sl] = np.maximum(half[sl], np.arccos(np.clip((c * centre[sl]).sum(1), -1.0, 1.0)))
+    return centre, half
+
+
+def free_cells(tris: np.ndarray, eps: float = EXACT_EPS, res: int = FREE_RES) -> np.ndarray:
+    """(T, 6 res^2) bool: per triangle the cube cells of directions from its centroid + eps x its unit
+    normal in which no ray meets another triangle of the shape, a conservative test: a triangle wholly
+    behind that point's plane parallel to the triangle is never met by a ray that leaves in front of it
+    (emitter_sum only uses the table for those); any other is met only within the angle its bounding
+    sphere subtends, so a cell whose cone (_cell_cones) stays outside every such angle is free. The
+    margins (1e-3 rad, 1e-4 of the shape's size) cover the float32 rays and cell assignment."""
+    T = len(tris)
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    apex = tris.mean(1) + n * eps  # (T,3) the rays' starting points
+    size = float(np.ptp(tris.reshape(-1, 3), axis=0).max())
+    s_c = 0.5 * (tris.min(1) + tris.max(1))  # (T,3) bounding spheres of the triangles
+    s_r = np.linalg.norm(tris - s_c[:, None], axis=2).max(1) + 1e-4 * size + eps
+    axis, half = _cell_cones(res)
+    free = np.ones((T, len(axis)), bool)
+    for t in range(T):
+        w = s_c - apex[t]  # (U,3)
+        d = np.linalg.norm(w, axis=1)
+        height = np.einsum("ukc,c->uk", tris - apex[t], n[t]).max(1)  # the farthest vertex in front
+        cand = (height > -1e-4 * size) & (np.arange(T) != t)
+        if not cand.any():
+            continue
+        w, d, r = w[cand], d[cand], s_r[cand]
+        if (d <= r).any():  # the ray start lies within a sphere: any direction may meet it
+            free[t] = False
+            continue
+        reach = np.arcsin(r / d)  # (U,)
+        ang = np.arccos(np.clip(axis @ (w / d[:, None]).T, -1.0, 1.0))  # (C,U)
+        free[t] = ~(ang - half[:, None] <= reach[None] + 1e-3).any(1)
+    return free
+
+
 class ProxyShape:
     """Per proxy shape (a translation changes none of it): the triangles' visibility table
-    (TriangleVisibility) and unit normals (T,3)."""
+    (TriangleVisibility), unit normals (T,3) and ray-free directions for the exact sum (free_cells)."""
 
     def __init__(self, tris: np.ndarray, proxy_occ: Occluder):
         self.visibility = TriangleVisibility(tris, proxy_occ)
         n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         self.normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        self.free = free_cells(tris)
 
 
 def shape_key(pv: np.ndarray, pf: np.ndarray) -> str:
@@ -352,7 +412,7 @@ def proxy_shape(eng: "Engine", pv: np.ndarray, pf: np.ndarray, proxy_occ: Occlud
 def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
                centre: np.ndarray, radius: float, device, tvis: TriangleVisibility | None = None,
                ws: Workspace | None = None, far_emitters: tuple | None = None,
-               extra: ExtraEmitters | None = None) -> np.ndarray:
+               extra: ExtraEmitters | None = None, free: np.ndarray | None = None) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3) at points (N,3) [normals (N,3)]: exact (emitter_sum) within
     FAR_FIELD bounding radii of the object; beyond, where each triangle subtends a small solid angle,
     the point-source form factor A_t cos_x cos_t / (pi r^2) times the triangle's own visibility
@@ -360,12 +420,13 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     ws: the call site's kernel buffers (kernels.buffers.Workspace), or None. far_emitters: the point
     emitters used beyond FAR_FIELD instead of the triangles' centroids, (positions (F,3), twice area x
     unit normal (F,3), radiance (F,3), visibility table rows (F, 6 CUBE_RES^2) bool), or None. extra:
-    more emitters summed exactly within FAR_FIELD (_exact_sum), or None."""
+    more emitters summed exactly within FAR_FIELD (_exact_sum), or None. free: the shape's free_cells
+    (fewer rays in the exact sum), or None."""
     out = np.zeros((len(points), 3))
     far = np.linalg.norm(points - centre, axis=1) > FAR_FIELD * radius
     near = np.flatnonzero(~far)
     if len(near):
-        out[near] = _exact_sum(points[near], normals[near], tris, tri_rad, proxy_occ, device, ws, extra)
+        out[near] = _exact_sum(points[near], normals[near], tris, tri_rad, proxy_occ, device, ws, extra, free)
     far = np.flatnonzero(far)
     if len(far):
         if far_emitters is None:
@@ -427,10 +488,13 @@ GRID_CLEARANCE = 2.0  # a cell is blended only this many cell diagonals away fro
 
 
 def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
-               device, ws: Workspace | None, extra: ExtraEmitters | None = None) -> np.ndarray:
-    """sum_t B_t F(x -> t) V(x, t) (N,3): the proxy's triangles with a ray each (emitter_sum), plus the
-    extra emitters with their visibility from their per-shape table (emitter_sum_seen)."""
-    out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, device=device, split=256, workspace=ws)
+               device, ws: Workspace | None, extra: ExtraEmitters | None = None,
+               free: np.ndarray | None = None) -> np.ndarray:
+    """sum_t B_t F(x -> t) V(x, t) (N,3): the proxy's triangles with a ray each (emitter_sum; none where
+    `free`, the shape's free_cells, shows no ray can be blocked), plus the extra emitters with their
+    visibility from their per-shape table (emitter_sum_seen)."""
+    out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, eps=EXACT_EPS, device=device, split=256,
+                      workspace=ws, free=free, free_res=FREE_RES)
     if extra is not None and len(extra.tris):
         out += emitter_sum_seen(points, normals, extra.tris, extra.rad, extra.seen, extra.res, device=device,
                                 split=256, workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
@@ -489,7 +553,7 @@ def _distinct(idx: np.ndarray, size: int) -> np.ndarray:
 
 
 def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
-                 extra: ExtraEmitters | None = None) -> np.ndarray:
+                 extra: ExtraEmitters | None = None, free: np.ndarray | None = None) -> np.ndarray:
     """The object's light (len(sel),3), irradiance/pi, at the listed pixels `sel` near the object.
 
     An adaptive screen grid: at each stride of GRID_STRIDES a pixel whose cell (its four nodes)
@@ -512,7 +576,7 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
 
     def values_of(idx: np.ndarray) -> np.ndarray:
         return _exact_sum(eng.pix_pos[idx], pm.normal[eng.pix_patch[idx]], tris, tri_rad, proxy_occ, eng.device,
-                          ws, extra)
+                          ws, extra, free)
 
     out = np.zeros((len(sel), 3))
     todo = np.arange(len(sel))
