@@ -353,34 +353,52 @@ def _cell_cones(res: int) -> tuple[np.ndarray, np.ndarray]:
 
 def free_cells(tris: np.ndarray, eps: float = EXACT_EPS, res: int = FREE_RES) -> np.ndarray:
     """(T, 6 res^2) bool: per triangle the cube cells of directions from its centroid + eps x its unit
-    normal in which no ray meets another triangle of the shape, a conservative test: a triangle wholly
-    behind that point's plane parallel to the triangle is never met by a ray that leaves in front of it
-    (emitter_sum only uses the table for those); any other is met only within the angle its bounding
-    sphere subtends, so a cell whose cone (_cell_cones) stays outside every such angle is free. The
-    margins (1e-3 rad, 1e-4 of the shape's size) cover the float32 rays and cell assignment."""
+    normal (the apex) in which no ray meets another triangle of the shape, a conservative test: a
+    triangle wholly behind the apex's plane parallel to the triangle is never met by a ray that leaves
+    in front of it (emitter_sum only uses the table for those); any other is met only in the
+    directions of the cone over its three vertices, so a cell whose cone (_cell_cones) lies outside
+    it (its axis outside, farther than its half-angle from each edge's arc) is free of it. The margins
+    (1e-3 rad, and 1e-4 of the shape's size + eps at the nearest vertex) cover the float32 rays and
+    cell assignment; an apex in or near a triangle's plane frees nothing."""
     T = len(tris)
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     apex = tris.mean(1) + n * eps  # (T,3) the rays' starting points
     size = float(np.ptp(tris.reshape(-1, 3), axis=0).max())
-    s_c = 0.5 * (tris.min(1) + tris.max(1))  # (T,3) bounding spheres of the triangles
-    s_r = np.linalg.norm(tris - s_c[:, None], axis=2).max(1) + 1e-4 * size + eps
     axis, half = _cell_cones(res)
     free = np.ones((T, len(axis)), bool)
     for t in range(T):
-        w = s_c - apex[t]  # (U,3)
-        d = np.linalg.norm(w, axis=1)
-        height = np.einsum("ukc,c->uk", tris - apex[t], n[t]).max(1)  # the farthest vertex in front
-        cand = (height > -1e-4 * size) & (np.arange(T) != t)
-        if not cand.any():
+        rel = tris - apex[t]  # (U,3,3) the other triangles' vertices from the apex
+        cand = (rel @ n[t]).max(1) > -1e-4 * size
+        cand[t] = False
+        rel = rel[cand]
+        if len(rel) == 0:
             continue
-        w, d, r = w[cand], d[cand], s_r[cand]
-        if (d <= r).any():  # the ray start lies within a sphere: any direction may meet it
+        dist = np.linalg.norm(rel, axis=2)  # (U,3)
+        margin = 1e-3 + (1e-4 * size + eps) / np.maximum(dist.min(1), 1e-12)  # (U,) rad
+        v = rel / np.maximum(dist, 1e-300)[..., None]  # unit directions of the vertices
+        det = np.einsum("uc,uc->u", v[:, 0], np.cross(v[:, 1], v[:, 2]))
+        if (np.abs(det) < 1e-9).any() or (margin > 0.5).any():  # the apex near a triangle's plane
             free[t] = False
             continue
-        reach = np.arcsin(r / d)  # (U,)
-        ang = np.arccos(np.clip(axis @ (w / d[:, None]).T, -1.0, 1.0))  # (C,U)
-        free[t] = ~(ang - half[:, None] <= reach[None] + 1e-3).any(1)
+        sgn = np.sign(det)[:, None]
+        inside = np.ones((len(axis), len(v)), bool)
+        near = np.zeros((len(axis), len(v)), bool)
+        for e in range(3):
+            a, b = v[:, e], v[:, (e + 1) % 3]
+            m = np.cross(a, b)
+            m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)  # (U,3) the edge's circle
+            h = axis @ m.T  # (C,U) sine of the axis' angle to the edge's great circle
+            inside &= h * sgn.T > 0  # on the triangle's side of it
+            # the angle from the axis to the arc: to its great circle where the foot lies between the
+            # ends, else to the nearer end
+            foot = axis[:, None, :] - h[..., None] * m[None]  # (C,U,3)
+            between = (np.einsum("cuk,uk->cu", foot, np.cross(m, a)) >= 0) & \
+                      (np.einsum("cuk,uk->cu", foot, np.cross(b, m)) >= 0)
+            to_ends = np.arccos(np.clip(np.maximum(axis @ a.T, axis @ b.T), -1.0, 1.0))
+            ang = np.where(between, np.arcsin(np.clip(np.abs(h), 0.0, 1.0)), to_ends)
+            near |= ang <= half[:, None] + margin[None]
+        free[t] = ~(inside | near).any(1)
     return free
 
 
