@@ -70,6 +70,52 @@ def _transfer_kernel(
 
 
 @wp.kernel
+def _transfer_free_kernel(
+    points: wp.array(dtype=wp.vec3d),
+    normals: wp.array(dtype=wp.vec3d),
+    polys: wp.array2d(dtype=wp.vec3d),
+    poly_normals: wp.array(dtype=wp.vec3),
+    mesh_a: wp.uint64,
+    mesh_b: wp.uint64,
+    n_side: int,
+    eps: float,
+    free: wp.array2d(dtype=wp.uint8),
+    res: int,
+    row0: int,
+    out: wp.array2d(dtype=wp.float32),
+):
+    # _transfer_kernel, with no ray against mesh_b where point row0 + i's table says none can meet it
+    i, j = wp.tid()
+    p = points[i]
+    n = normals[i]
+    f = polygon_ff(p, n, polys, j, 4)
+    if f <= wp.float64(0.0):
+        out[i, j] = 0.0
+        return
+    a = wp.vec3(p) + wp.vec3(n) * eps
+    c0 = wp.vec3(polys[j, 0])
+    eu = wp.vec3(polys[j, 1]) - c0
+    ev = wp.vec3(polys[j, 3]) - c0
+    ns = poly_normals[j] * eps
+    seen = int(0)
+    for su in range(n_side):
+        for sv in range(n_side):
+            fu = (float(su) + 0.5) / float(n_side)
+            fv = (float(sv) + 0.5) / float(n_side)
+            b = c0 + eu * fu + ev * fv + ns
+            if not segment_blocked(mesh_a, a, b):
+                ab = b - a
+                clear = False
+                if wp.dot(ab, wp.vec3(n)) > 0.0:  # the segment stays in front of the point's surface
+                    clear = free[row0 + i, cube_cell(ab, res)] != wp.uint8(0)
+                if clear:
+                    seen += 1
+                elif not segment_blocked(mesh_b, a, b):
+                    seen += 1
+    out[i, j] = float(f) * float(seen) / float(n_side * n_side)
+
+
+@wp.kernel
 def _visibility_kernel(mesh: wp.uint64, a: wp.array(dtype=wp.vec3), b: wp.array(dtype=wp.vec3),
                        out: wp.array(dtype=wp.int32)):
     i = wp.tid()
@@ -95,14 +141,18 @@ class Occluder:
 def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.ndarray,
                     patch_normals: np.ndarray, occluders: list[Occluder], n_side: int = 2,
                     eps: float = 1e-4, device: str | None = None, progress=None,
-                    chunk: int = 256, workspace: Workspace | None = None) -> np.ndarray:
+                    chunk: int = 256, workspace: Workspace | None = None, free: np.ndarray | None = None,
+                    free_res: int = 0) -> np.ndarray:
     """G (N,M) float32 = form factor x visibility from points (N,3) [normals (N,3)] to quads (M,4,3).
 
     `occluders`: up to two Occluder meshes; `n_side`^2 visibility samples per patch;
     `progress`: optional callable(n_done) called after each chunk of receiver points;
     `workspace`: the call site's buffers (kernels.buffers.Workspace), kept between calls: the
     patches go in blocks of its capacity and nothing is allocated after its first call (None:
-    fresh buffers, every patch in one launch).
+    fresh buffers, every patch in one launch). `free`: optional (N, 6 free_res^2) bool, per point the
+    cube cells (cube_cell) of directions from it + eps x its normal in which no ray can meet the
+    second occluder (e.g. the points are an object's triangles, the second occluder the object:
+    app.stages.object_light.free_cells): no ray against it there (the same G, fewer rays).
     """
     device = runtime.device(device)
     n, m = len(points), len(patch_corners)
@@ -116,6 +166,7 @@ def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.n
         ws, rows, cols = workspace, chunk, workspace.sources
     points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
     patch_corners, patch_normals = np.asarray(patch_corners, np.float64), np.asarray(patch_normals, np.float32)
+    table = seen_table(ws, free, wp.uint8, device) if free is not None else None
     for c0 in range(0, m, cols):
         c1 = min(m, c0 + cols)
         polys = ws.upload("polys", patch_corners[c0:c1], wp.vec3d, device, cols)
@@ -124,11 +175,15 @@ def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.n
         def run(s: int, slot: int) -> int:  # slot: which of the two concurrent launches (its own buffers)
             e = min(n, s + chunk)
             res = ws.buffer(f"out{slot}", rows, wp.float32, device, (cols,))
-            wp.launch(_transfer_kernel, dim=(e - s, c1 - c0),
-                      inputs=[ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, rows),
-                              ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, rows),
-                              polys, pn, wp.uint64(occ[0].id), wp.uint64(occ[1].id), int(n_side), float(eps)],
-                      outputs=[res.dev[:e - s, :c1 - c0]], device=device)
+            inputs = [ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, rows),
+                      ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, rows),
+                      polys, pn, wp.uint64(occ[0].id), wp.uint64(occ[1].id), int(n_side), float(eps)]
+            if table is None:
+                wp.launch(_transfer_kernel, dim=(e - s, c1 - c0), inputs=inputs,
+                          outputs=[res.dev[:e - s, :c1 - c0]], device=device)
+            else:
+                wp.launch(_transfer_free_kernel, dim=(e - s, c1 - c0), inputs=[*inputs, table, int(free_res), s],
+                          outputs=[res.dev[:e - s, :c1 - c0]], device=device)
             out[s:e, c0:c1] = res.pull(e - s)[:, :c1 - c0]
             return e - s
 

@@ -29,10 +29,11 @@ def triangle_radiance(eng: "Engine", obj: SceneObject, pv, pf, proxy_occ, B: np.
     left out: on lamps_room it lit the proxy brighter and raised spurious from 0.0037 to 0.0050.)"""
     c = pv[pf].mean(1)
     corners, normals, B_set = patch_blocks(eng).gather_set(B, *bounding_sphere(pv))
-    G = transfer_matrix(c, proxy_shape(eng, pv, pf, proxy_occ).normals, corners, normals,
-                        [eng.scene_occ, proxy_occ], n_side=1, eps=2e-3, device=eng.device,
+    shape = proxy_shape(eng, pv, pf, proxy_occ)
+    G = transfer_matrix(c, shape.normals, corners, normals,
+                        [eng.scene_occ, proxy_occ], n_side=1, eps=GATHER_EPS, device=eng.device,
                         chunk=max(16, -(-len(c) // 2)),  # two launches side by side: both cores
-                        workspace=workspace(eng, "object_irradiance"))
+                        workspace=workspace(eng, "object_irradiance"), free=shape.free, free_res=FREE_RES)
     return obj.albedo * (G.astype(np.float64) @ B_set)
 
 
@@ -328,6 +329,7 @@ def _seen_lookup(seen: np.ndarray, tri_to_point: np.ndarray, res: int = CUBE_RES
 
 FREE_RES = 8  # cells per cube face side of the proxy triangles' ray-free directions (free_cells)
 EXACT_EPS = 1e-3  # m: the exact sum's ray ends pulled off the surfaces (kernels.visibility.emitter_sum's eps)
+GATHER_EPS = 2e-3  # m: triangle_radiance's (transfer_matrix's eps)
 
 
 def _cell_cones(res: int) -> tuple[np.ndarray, np.ndarray]:
@@ -351,31 +353,35 @@ def _cell_cones(res: int) -> tuple[np.ndarray, np.ndarray]:
     return centre, half
 
 
-def free_cells(tris: np.ndarray, eps: float = EXACT_EPS, res: int = FREE_RES) -> np.ndarray:
-    """(T, 6 res^2) bool: per triangle the cube cells of directions from its centroid + eps x its unit
-    normal (the apex) in which no ray meets another triangle of the shape, a conservative test: a
+def free_cells(tris: np.ndarray, eps: tuple[float, float] = (EXACT_EPS, EXACT_EPS), res: int = FREE_RES
+               ) -> np.ndarray:
+    """(T, 6 res^2) bool: per triangle the cube cells of directions from its centroid + e x its unit
+    normal (the apex, any e in the range eps) in which no ray meets another triangle of the shape, a
+    conservative test: a
     triangle wholly behind the apex's plane parallel to the triangle is never met by a ray that leaves
     in front of it (emitter_sum only uses the table for those); any other is met only in the
     directions of the cone over its three vertices, so a cell whose cone (_cell_cones) lies outside
     it (its axis outside, farther than its half-angle from each edge's arc) is free of it. The margins
-    (1e-3 rad, and 1e-4 of the shape's size + eps at the nearest vertex) cover the float32 rays and
-    cell assignment; an apex in or near a triangle's plane frees nothing."""
+    (1e-3 rad, and 1e-4 of the shape's size + the apex's range at the nearest vertex) cover the
+    float32 rays, the cell assignment and where the apex lies; an apex in or near a triangle's plane
+    frees nothing."""
     T = len(tris)
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    apex = tris.mean(1) + n * eps  # (T,3) the rays' starting points
+    lo, hi = min(eps), max(eps)
+    apex = tris.mean(1) + n * (0.5 * (lo + hi))  # (T,3) the rays' starting points (+- (hi - lo) / 2)
     size = float(np.ptp(tris.reshape(-1, 3), axis=0).max())
     axis, half = _cell_cones(res)
     free = np.ones((T, len(axis)), bool)
     for t in range(T):
         rel = tris - apex[t]  # (U,3,3) the other triangles' vertices from the apex
-        cand = (rel @ n[t]).max(1) > -1e-4 * size
+        cand = (rel @ n[t]).max(1) > -1e-4 * size - 0.5 * (hi - lo)  # in front of the lowest apex
         cand[t] = False
         rel = rel[cand]
         if len(rel) == 0:
             continue
         dist = np.linalg.norm(rel, axis=2)  # (U,3)
-        margin = 1e-3 + (1e-4 * size + eps) / np.maximum(dist.min(1), 1e-12)  # (U,) rad
+        margin = 1e-3 + (1e-4 * size + hi) / np.maximum(dist.min(1), 1e-12)  # (U,) rad
         v = rel / np.maximum(dist, 1e-300)[..., None]  # unit directions of the vertices
         det = np.einsum("uc,uc->u", v[:, 0], np.cross(v[:, 1], v[:, 2]))
         if (np.abs(det) < 1e-9).any() or (margin > 0.5).any():  # the apex near a triangle's plane
@@ -410,7 +416,7 @@ class ProxyShape:
         self.visibility = TriangleVisibility(tris, proxy_occ)
         n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         self.normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        self.free = free_cells(tris)
+        self.free = free_cells(tris, (EXACT_EPS, GATHER_EPS))
 
 
 def shape_key(pv: np.ndarray, pf: np.ndarray) -> str:
