@@ -204,7 +204,7 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     dist = np.linalg.norm(eng.pix_pos[rp] - centre, axis=1)
     rp, dist = rp[dist < eng.near_factor * radius], dist[dist < eng.near_factor * radius]
     bound = eng.rho_x[rp] * _light_bound(eng.pix_pos[rp], dist, tri_rad, radius, extra)
-    sel = rp[(bound > headroom(eng, 0.25)[rp]).any(1)]  # T(L_b + bound) - T(L_b) > 0.25 level
+    sel = rp[(bound > headroom(eng, 0.25, rp)).any(1)]  # T(L_b + bound) - T(L_b) > 0.25 level
     if covered is not None:
         sel = sel[~covered[sel]]
     if len(sel):
@@ -243,30 +243,34 @@ def _light_bound(points: np.ndarray, dist: np.ndarray, tri_rad: np.ndarray, radi
                       out + rad * _sphere_ff(r, np.linalg.norm(points - c, axis=1))[:, None])
 
 
-def headroom(eng: "Engine", levels: float) -> np.ndarray:
-    """(H*W,3) float32: per pixel and channel the most radiance s >= 0 that added to the photo's L_b
-    raises it by at most `levels` (T(L_b + s) - T(L_b) <= levels; inf where T cannot rise that much),
-    from the response's breakpoints (exact: T is piecewise linear and non-decreasing). A test
-    s > headroom in place of T(L_b + s) - T(L_b) > levels, with no response evaluation per frame
-    (kept per L_b array and level)."""
+def headroom(eng: "Engine", levels: float, idx: np.ndarray) -> np.ndarray:
+    """(len(idx),3) float32: at pixels idx and per channel the most radiance s >= 0 that added to the
+    photo's L_b raises it by at most `levels` (T(L_b + s) - T(L_b) <= levels; inf where T cannot rise
+    that much), from the response's breakpoints (exact: T is piecewise linear and non-decreasing).
+    A test s > headroom in place of T(L_b + s) - T(L_b) > levels, with no response evaluation per
+    frame: each pixel's is worked out the first time it is asked for and kept (per L_b array and level)."""
     cached = getattr(eng, "_ol_headroom", None)
     if cached is None or cached[0] is not eng.L_b:
         cached = eng._ol_headroom = (eng.L_b, {})
-    h = cached[1].get(levels)
-    if h is None:
+    if levels not in cached[1]:
+        cached[1][levels] = (np.zeros(eng.L_b.shape, np.float32), np.zeros(len(eng.L_b), bool))
+    h, known = cached[1][levels]
+    new = idx[~known[idx]]
+    if len(new):
         resp = eng.scene.response
         xs, ys = resp.breakpoints()
-        y = (_levels_of_photo(eng) + levels) / 255.0  # the response value to exceed, (H*W,3)
-        h = np.full(y.shape, np.inf, np.float32)
+        y = (resp.to_levels(eng.L_b[new]) + levels) / 255.0  # the response value to exceed, (n,3)
+        hn = np.full(y.shape, np.inf, np.float32)
         for ch in range(3):
             k = np.searchsorted(ys[ch], y[:, ch], side="right")  # first breakpoint above it
             ok = k < ys.shape[1]
             k = k[ok]
             x0, x1, y0, y1 = xs[ch, k - 1], xs[ch, k], ys[ch, k - 1], ys[ch, k]
             x_top = x0 + (y[ok, ch] - y0) / (y1 - y0) * (x1 - x0)  # the largest X with f(X) <= y
-            h[ok, ch] = np.maximum(x_top / resp.exposure_time - eng.L_b[ok, ch], 0.0)
-        cached[1][levels] = h
-    return h
+            hn[ok, ch] = np.maximum(x_top / resp.exposure_time - eng.L_b[new[ok], ch], 0.0)
+        h[new] = hn
+        known[new] = True
+    return h[idx]
 
 
 FAR_FIELD = 3.0  # bounding radii from the object's centre beyond which its triangles act as point sources
@@ -398,9 +402,8 @@ def free_cells(tris: np.ndarray, eps: tuple[float, float] = (EXACT_EPS, EXACT_EP
             inside &= h * sgn.T > 0  # on the triangle's side of it
             # the angle from the axis to the arc: to its great circle where the foot lies between the
             # ends, else to the nearer end
-            foot = axis[:, None, :] - h[..., None] * m[None]  # (C,U,3)
-            between = (np.einsum("cuk,uk->cu", foot, np.cross(m, a)) >= 0) & \
-                      (np.einsum("cuk,uk->cu", foot, np.cross(b, m)) >= 0)
+            # (the foot, axis - h m, has the axis' products with m x a and b x m: both lie in the circle's plane)
+            between = (axis @ np.cross(m, a).T >= 0) & (axis @ np.cross(b, m).T >= 0)
             to_ends = np.arccos(np.clip(np.maximum(axis @ a.T, axis @ b.T), -1.0, 1.0))
             ang = np.where(between, np.arcsin(np.clip(np.abs(h), 0.0, 1.0)), to_ends)
             near |= ang <= half[:, None] + margin[None]
@@ -561,14 +564,6 @@ class _ScreenValues:
         self._written, self.count = [], 0
 
 
-def _levels_of_photo(eng: "Engine") -> np.ndarray:
-    """T(L_b) (H*W,3) of the engine's current L_b (kept while L_b is the same array)."""
-    cached = getattr(eng, "_ol_photo_levels", None)
-    if cached is None or cached[0] is not eng.L_b:
-        cached = eng._ol_photo_levels = (eng.L_b, eng.scene.response.to_levels(eng.L_b))
-    return cached[1]
-
-
 def _distinct(idx: np.ndarray, size: int) -> np.ndarray:
     """The sorted distinct values of idx (ints in [0, size)) through a mark array (no sort)."""
     mark = np.zeros(size, bool)
@@ -633,7 +628,7 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
         k = np.flatnonzero(ok)
         fp, h = p[k], h[k]
         spread = eng.rho_x[fp] * (cc.max(1) - cc.min(1))[h]
-        smooth = (spread <= headroom(eng, GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2)[fp]).all(1)
+        smooth = (spread <= headroom(eng, GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2, fp)).all(1)
         k, fp, h = k[smooth], fp[smooth], h[smooth]
         y, x = np.divmod(fp, W)
         fy = ((y % s) / s)[:, None]
