@@ -392,6 +392,10 @@ def free_cells(tris: np.ndarray, eps: tuple[float, float] = (EXACT_EPS, EXACT_EP
             free[t] = False
             continue
         sgn = np.sign(det)[:, None]
+        # within half + margin of the cone, as cosines and sines (no angle per cell and triangle):
+        # phi = half + margin < pi/2 (cells are narrower than 60 deg, margin <= 0.5)
+        cos_phi = np.outer(np.cos(half), np.cos(margin)) - np.outer(np.sin(half), np.sin(margin))  # (C,U)
+        sin_phi = np.outer(np.sin(half), np.cos(margin)) + np.outer(np.cos(half), np.sin(margin))
         inside = np.ones((len(axis), len(v)), bool)
         near = np.zeros((len(axis), len(v)), bool)
         for e in range(3):
@@ -404,9 +408,7 @@ def free_cells(tris: np.ndarray, eps: tuple[float, float] = (EXACT_EPS, EXACT_EP
             # ends, else to the nearer end
             # (the foot, axis - h m, has the axis' products with m x a and b x m: both lie in the circle's plane)
             between = (axis @ np.cross(m, a).T >= 0) & (axis @ np.cross(b, m).T >= 0)
-            to_ends = np.arccos(np.clip(np.maximum(axis @ a.T, axis @ b.T), -1.0, 1.0))
-            ang = np.where(between, np.arcsin(np.clip(np.abs(h), 0.0, 1.0)), to_ends)
-            near |= ang <= half[:, None] + margin[None]
+            near |= np.where(between, np.abs(h) <= sin_phi, np.maximum(axis @ a.T, axis @ b.T) >= cos_phi)
         free[t] = ~(inside | near).any(1)
     return free
 
