@@ -50,10 +50,19 @@ def _capture(eng: Engine, scene, n: int) -> list[dict]:
     return frames[1:]
 
 
+def _place(occ, pv: np.ndarray) -> None:
+    """The proxy's BVH moved to this frame's vertices: the engine translates and refits one BVH per
+    shape in place, so a captured frame's occluder is where the last frame left it."""
+    if occ.mesh is not None:
+        occ._pts.assign(np.asarray(pv, np.float32))
+        occ.mesh.refit()
+
+
 def _stage(eng: Engine, c: dict):
     """triangle_radiance + (the sun's pieces) + object_light of one captured frame: (seconds, outputs)."""
     pv, pf, occ = c["pv"], c["pf"], c["occ"]
     centre, radius = bounding_sphere(pv)
+    _place(occ, pv)
     t = time.perf_counter()
     tri_rad = OL.triangle_radiance(eng, c["obj"], pv, pf, occ, c["B"])
     extra = None

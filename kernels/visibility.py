@@ -70,6 +70,52 @@ def _transfer_kernel(
 
 
 @wp.kernel
+def _transfer_free_kernel(
+    points: wp.array(dtype=wp.vec3d),
+    normals: wp.array(dtype=wp.vec3d),
+    polys: wp.array2d(dtype=wp.vec3d),
+    poly_normals: wp.array(dtype=wp.vec3),
+    mesh_a: wp.uint64,
+    mesh_b: wp.uint64,
+    n_side: int,
+    eps: float,
+    free: wp.array2d(dtype=wp.uint8),
+    res: int,
+    row0: int,
+    out: wp.array2d(dtype=wp.float32),
+):
+    # _transfer_kernel, with no ray against mesh_b where point row0 + i's table says none can meet it
+    i, j = wp.tid()
+    p = points[i]
+    n = normals[i]
+    f = polygon_ff(p, n, polys, j, 4)
+    if f <= wp.float64(0.0):
+        out[i, j] = 0.0
+        return
+    a = wp.vec3(p) + wp.vec3(n) * eps
+    c0 = wp.vec3(polys[j, 0])
+    eu = wp.vec3(polys[j, 1]) - c0
+    ev = wp.vec3(polys[j, 3]) - c0
+    ns = poly_normals[j] * eps
+    seen = int(0)
+    for su in range(n_side):
+        for sv in range(n_side):
+            fu = (float(su) + 0.5) / float(n_side)
+            fv = (float(sv) + 0.5) / float(n_side)
+            b = c0 + eu * fu + ev * fv + ns
+            if not segment_blocked(mesh_a, a, b):
+                ab = b - a
+                clear = False
+                if wp.dot(ab, wp.vec3(n)) > 0.0:  # the segment stays in front of the point's surface
+                    clear = free[row0 + i, cube_cell(ab, res)] != wp.uint8(0)
+                if clear:
+                    seen += 1
+                elif not segment_blocked(mesh_b, a, b):
+                    seen += 1
+    out[i, j] = float(f) * float(seen) / float(n_side * n_side)
+
+
+@wp.kernel
 def _visibility_kernel(mesh: wp.uint64, a: wp.array(dtype=wp.vec3), b: wp.array(dtype=wp.vec3),
                        out: wp.array(dtype=wp.int32)):
     i = wp.tid()
@@ -95,14 +141,18 @@ class Occluder:
 def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.ndarray,
                     patch_normals: np.ndarray, occluders: list[Occluder], n_side: int = 2,
                     eps: float = 1e-4, device: str | None = None, progress=None,
-                    chunk: int = 256, workspace: Workspace | None = None) -> np.ndarray:
+                    chunk: int = 256, workspace: Workspace | None = None, free: np.ndarray | None = None,
+                    free_res: int = 0) -> np.ndarray:
     """G (N,M) float32 = form factor x visibility from points (N,3) [normals (N,3)] to quads (M,4,3).
 
     `occluders`: up to two Occluder meshes; `n_side`^2 visibility samples per patch;
     `progress`: optional callable(n_done) called after each chunk of receiver points;
     `workspace`: the call site's buffers (kernels.buffers.Workspace), kept between calls: the
     patches go in blocks of its capacity and nothing is allocated after its first call (None:
-    fresh buffers, every patch in one launch).
+    fresh buffers, every patch in one launch). `free`: optional (N, 6 free_res^2) bool, per point the
+    cube cells (cube_cell) of directions from it + eps x its normal in which no ray can meet the
+    second occluder (e.g. the points are an object's triangles, the second occluder the object:
+    app.stages.object_light.free_cells): no ray against it there (the same G, fewer rays).
     """
     device = runtime.device(device)
     n, m = len(points), len(patch_corners)
@@ -116,6 +166,7 @@ def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.n
         ws, rows, cols = workspace, chunk, workspace.sources
     points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
     patch_corners, patch_normals = np.asarray(patch_corners, np.float64), np.asarray(patch_normals, np.float32)
+    table = seen_table(ws, free, wp.uint8, device) if free is not None else None
     for c0 in range(0, m, cols):
         c1 = min(m, c0 + cols)
         polys = ws.upload("polys", patch_corners[c0:c1], wp.vec3d, device, cols)
@@ -124,11 +175,15 @@ def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.n
         def run(s: int, slot: int) -> int:  # slot: which of the two concurrent launches (its own buffers)
             e = min(n, s + chunk)
             res = ws.buffer(f"out{slot}", rows, wp.float32, device, (cols,))
-            wp.launch(_transfer_kernel, dim=(e - s, c1 - c0),
-                      inputs=[ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, rows),
-                              ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, rows),
-                              polys, pn, wp.uint64(occ[0].id), wp.uint64(occ[1].id), int(n_side), float(eps)],
-                      outputs=[res.dev[:e - s, :c1 - c0]], device=device)
+            inputs = [ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, rows),
+                      ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, rows),
+                      polys, pn, wp.uint64(occ[0].id), wp.uint64(occ[1].id), int(n_side), float(eps)]
+            if table is None:
+                wp.launch(_transfer_kernel, dim=(e - s, c1 - c0), inputs=inputs,
+                          outputs=[res.dev[:e - s, :c1 - c0]], device=device)
+            else:
+                wp.launch(_transfer_free_kernel, dim=(e - s, c1 - c0), inputs=[*inputs, table, int(free_res), s],
+                          outputs=[res.dev[:e - s, :c1 - c0]], device=device)
             out[s:e, c0:c1] = res.pull(e - s)[:, :c1 - c0]
             return e - s
 
@@ -173,7 +228,8 @@ def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtyp
 
 def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
                 occluder: Occluder | None = None, eps: float = 1e-3, device: str | None = None,
-                split: int = 2048, workspace: Workspace | None = None) -> np.ndarray:
+                split: int = 2048, workspace: Workspace | None = None, free: np.ndarray | None = None,
+                free_res: int = 0) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t): radiance-weighted form factors to emitting triangles.
 
     points/normals (N,3); triangles (T,3,3) vertices CCW seen from the emitting side; radiance (T,3);
@@ -182,7 +238,10 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
     `split` points are run as two launches, one per core (runtime.run_parallel). `workspace`: the
     call site's buffers (kernels.buffers.Workspace), kept between calls: launches of at most its
     capacity in points, nothing allocated after its first call for a given set of triangles
-    (None: fresh buffers).
+    (None: fresh buffers). free: optional (T, 6 free_res^2) bool, per triangle the cube cells
+    (cube_cell) of directions from its centroid + eps x its normal in which no ray can meet the
+    occluder (a conservative table, e.g. app.stages.object_light.free_cells): a receiver in front
+    of the triangle whose direction falls in such a cell needs no ray (the same sum, fewer rays).
     """
     device = runtime.device(device)
     n = len(points)
@@ -196,7 +255,10 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device),
               ws.upload("tri_normals", tn.astype(np.float32), wp.vec3, device),
               wp.uint64(occluder.id if occluder is not None else 0), float(eps)]
-    return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
+    if free is None:
+        return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
+    shared += [seen_table(ws, free, wp.uint8, device), int(free_res)]
+    return _point_launches(_emitter_sum_free_kernel, points, normals, shared, ws, block, device, split)
 
 
 def _point_launches(kernel, points: np.ndarray, normals: np.ndarray, shared: list, ws: Workspace, block: int,
@@ -244,6 +306,33 @@ def cube_cell(d: wp.vec3, r: int) -> int:
 
 
 @wp.kernel
+def _emitter_sum_free_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                             tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                             tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
+                             free: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
+    # _emitter_sum_kernel, with no ray where the table says none can be blocked
+    i = wp.tid()
+    p = points[i]
+    n = normals[i]
+    a = wp.vec3(p) + wp.vec3(n) * eps
+    total = wp.vec3(0.0, 0.0, 0.0)
+    for t in range(tris.shape[0]):
+        f = polygon_ff(p, n, tris, t, 3)
+        if f > wp.float64(0.0):
+            centroid = wp.vec3((tris[t, 0] + tris[t, 1] + tris[t, 2]) / wp.float64(3.0))
+            b = centroid + tri_normals[t] * eps
+            ba = a - b
+            clear = False
+            if wp.dot(ba, tri_normals[t]) > 0.0:  # the segment stays in front of the triangle
+                clear = free[t, cube_cell(ba, res)] != wp.uint8(0)
+            if clear:
+                total += radiance[t] * float(f)
+            elif not segment_blocked(mesh, a, b):
+                total += radiance[t] * float(f)
+    out[i] = total
+
+
+@wp.kernel
 def _emitter_sum_seen_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
                              tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
                              seen: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
@@ -252,10 +341,10 @@ def _emitter_sum_seen_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array
     n = normals[i]
     total = wp.vec3(0.0, 0.0, 0.0)
     for t in range(tris.shape[0]):
-        f = polygon_ff(p, n, tris, t, 3)
-        if f > wp.float64(0.0):
-            centroid = (tris[t, 0] + tris[t, 1] + tris[t, 2]) / wp.float64(3.0)
-            if seen[t, cube_cell(wp.vec3(p - centroid), res)] != wp.uint8(0):
+        centroid = (tris[t, 0] + tris[t, 1] + tris[t, 2]) / wp.float64(3.0)
+        if seen[t, cube_cell(wp.vec3(p - centroid), res)] != wp.uint8(0):  # the table first: cheaper
+            f = polygon_ff(p, n, tris, t, 3)
+            if f > wp.float64(0.0):
                 total += radiance[t] * float(f)
     out[i] = total
 

@@ -29,10 +29,11 @@ def triangle_radiance(eng: "Engine", obj: SceneObject, pv, pf, proxy_occ, B: np.
     left out: on lamps_room it lit the proxy brighter and raised spurious from 0.0037 to 0.0050.)"""
     c = pv[pf].mean(1)
     corners, normals, B_set = patch_blocks(eng).gather_set(B, *bounding_sphere(pv))
-    G = transfer_matrix(c, proxy_shape(eng, pv, pf, proxy_occ).normals, corners, normals,
-                        [eng.scene_occ, proxy_occ], n_side=1, eps=2e-3, device=eng.device,
+    shape = proxy_shape(eng, pv, pf, proxy_occ)
+    G = transfer_matrix(c, shape.normals, corners, normals,
+                        [eng.scene_occ, proxy_occ], n_side=1, eps=GATHER_EPS, device=eng.device,
                         chunk=max(16, -(-len(c) // 2)),  # two launches side by side: both cores
-                        workspace=workspace(eng, "object_irradiance"))
+                        workspace=workspace(eng, "object_irradiance"), free=shape.free, free_res=FREE_RES)
     return obj.albedo * (G.astype(np.float64) @ B_set)
 
 
@@ -175,19 +176,18 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     triangles (ExtraEmitters), or None.
     """
     pre, pm = eng.pre, eng.pre.patches
-    resp = eng.scene.response
     table = pixel_table(eng)
     tris = pv[pf]
-    tvis = proxy_shape(eng, pv, pf, proxy_occ).visibility
+    shape = proxy_shape(eng, pv, pf, proxy_occ)
+    tvis = shape.visibility
     far = None
     if extra is not None:
         tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         far = (np.concatenate([tris.mean(1), extra.far_c]), np.concatenate([tn, extra.far_tn]),
                np.concatenate([tri_rad, extra.far_rad]), np.concatenate([tvis.seen, extra.far_seen]))
-    max_rad = tri_rad.max(0) if extra is None else np.maximum(tri_rad.max(0), extra.rad.max(0))
     rv = pre.recv_vert
     R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, eng.device,
-                     tvis, workspace(eng, "object_light.vertices"), far, extra)
+                     tvis, workspace(eng, "object_light.vertices"), far, extra, shape.free)
     # the pixels of the patches with a vertex that gets a visible share of the object's light take
     # the vertices' light, interpolated
     reach_v = luminance(R_v) * float(eng.rho_x.max()) > 5e-4 * float(luminance(eng.B_src).mean())
@@ -203,23 +203,74 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     rp = table.pixels_of(near_p)
     dist = np.linalg.norm(eng.pix_pos[rp] - centre, axis=1)
     rp, dist = rp[dist < eng.near_factor * radius], dist[dist < eng.near_factor * radius]
-    f_bound = np.minimum(1.0, (radius / np.maximum(dist, 1e-6)) ** 2)
-    bound = eng.rho_x[rp] * max_rad * f_bound[:, None]
-    gain = (resp.to_levels(eng.L_b[rp] + bound) - _levels_of_photo(eng)[rp]).max(1)
-    sel = rp[gain > 0.25]
+    bound = eng.rho_x[rp] * _light_bound(eng.pix_pos[rp], dist, tri_rad, radius, extra)
+    sel = rp[(bound > headroom(eng, 0.25, rp)).any(1)]  # T(L_b + bound) - T(L_b) > 0.25 level
     if covered is not None:
         sel = sel[~covered[sel]]
     if len(sel):
-        R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra)
+        R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra, shape.free)
     # patch centres, for the second-order term
     dist_c = np.linalg.norm(pm.centre - centre, axis=1)
-    reach = np.minimum(1.0, (radius / np.maximum(dist_c, 1e-6)) ** 2) * luminance(max_rad)
+    reach = luminance(_light_bound(pm.centre, dist_c, tri_rad, radius, extra))
     near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
     R_cen = np.zeros((pm.n_patches, 3))
     R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, centre, radius,
-                               eng.device, tvis, workspace(eng, "object_light.centres"), far, extra)
+                               eng.device, tvis, workspace(eng, "object_light.centres"), far, extra, shape.free)
     eng._n_object_light_pixels = len(sel)
     return R_pix, R_cen
+
+
+def _sphere_ff(r: float, d: np.ndarray) -> np.ndarray:
+    """min(1, (r/d)^2): the most form factor (projected solid angle / pi) anything inside a sphere of
+    radius r sends to a point at distance d from its centre (the whole sphere above the horizon)."""
+    return np.minimum(1.0, (r / np.maximum(d, 1e-9)) ** 2)
+
+
+def _light_bound(points: np.ndarray, dist: np.ndarray, tri_rad: np.ndarray, radius: float,
+                 extra: ExtraEmitters | None) -> np.ndarray:
+    """An upper bound (N,3) of the object's light (irradiance/pi) at points (N,3), dist (N,) from the
+    centre of its bounding sphere of `radius`: the brightest triangle over the sphere's form factor
+    (_sphere_ff). The extra emitters (the sunlit pieces: small, a few times brighter) are bounded over
+    their own sphere and added, where that is less than the brightest of both over the object's."""
+    out = tri_rad.max(0) * _sphere_ff(radius, dist)[:, None]
+    if extra is None or len(extra.tris) == 0:
+        return out
+    v = extra.tris.reshape(-1, 3)
+    c = 0.5 * (v.min(0) + v.max(0))
+    r = float(np.linalg.norm(v - c, axis=1).max())
+    rad = extra.rad.max(0)
+    return np.minimum(np.maximum(tri_rad.max(0), rad) * _sphere_ff(radius, dist)[:, None],
+                      out + rad * _sphere_ff(r, np.linalg.norm(points - c, axis=1))[:, None])
+
+
+def headroom(eng: "Engine", levels: float, idx: np.ndarray) -> np.ndarray:
+    """(len(idx),3) float32: at pixels idx and per channel the most radiance s >= 0 that added to the
+    photo's L_b raises it by at most `levels` (T(L_b + s) - T(L_b) <= levels; inf where T cannot rise
+    that much), from the response's breakpoints (exact: T is piecewise linear and non-decreasing).
+    A test s > headroom in place of T(L_b + s) - T(L_b) > levels, with no response evaluation per
+    frame: each pixel's is worked out the first time it is asked for and kept (per L_b array and level)."""
+    cached = getattr(eng, "_ol_headroom", None)
+    if cached is None or cached[0] is not eng.L_b:
+        cached = eng._ol_headroom = (eng.L_b, {})
+    if levels not in cached[1]:
+        cached[1][levels] = (np.zeros(eng.L_b.shape, np.float32), np.zeros(len(eng.L_b), bool))
+    h, known = cached[1][levels]
+    new = idx[~known[idx]]
+    if len(new):
+        resp = eng.scene.response
+        xs, ys = resp.breakpoints()
+        y = (resp.to_levels(eng.L_b[new]) + levels) / 255.0  # the response value to exceed, (n,3)
+        hn = np.full(y.shape, np.inf, np.float32)
+        for ch in range(3):
+            k = np.searchsorted(ys[ch], y[:, ch], side="right")  # first breakpoint above it
+            ok = k < ys.shape[1]
+            k = k[ok]
+            x0, x1, y0, y1 = xs[ch, k - 1], xs[ch, k], ys[ch, k - 1], ys[ch, k]
+            x_top = x0 + (y[ok, ch] - y0) / (y1 - y0) * (x1 - x0)  # the largest X with f(X) <= y
+            hn[ok, ch] = np.maximum(x_top / resp.exposure_time - eng.L_b[new[ok], ch], 0.0)
+        h[new] = hn
+        known[new] = True
+    return h[idx]
 
 
 FAR_FIELD = 3.0  # bounding radii from the object's centre beyond which its triangles act as point sources
@@ -280,14 +331,97 @@ def _seen_lookup(seen: np.ndarray, tri_to_point: np.ndarray, res: int = CUBE_RES
     return seen[t, _cube_bin(tri_to_point, res)].astype(np.float64)
 
 
+FREE_RES = 8  # cells per cube face side of the proxy triangles' ray-free directions (free_cells)
+EXACT_EPS = 1e-3  # m: the exact sum's ray ends pulled off the surfaces (kernels.visibility.emitter_sum's eps)
+GATHER_EPS = 2e-3  # m: triangle_radiance's (transfer_matrix's eps)
+
+
+def _cell_cones(res: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per cube-map cell (kernels.visibility.cube_cell's layout, 6 res^2): the unit direction of its
+    centre (C,3) and the largest angle (C,) from it to the cell's directions (at a corner: the
+    directions within an angle of the centre cut the face plane in a convex region)."""
+    centre = _cube_dirs(res)
+    g = np.arange(res + 1) / res * 2 - 1
+    half = np.zeros(len(centre))
+    for face in range(6):
+        a, neg = divmod(face, 2)
+        for du in (0, 1):
+            for dv in (0, 1):
+                c = np.zeros((res, res, 3))
+                c[:, :, a] = -1.0 if neg else 1.0
+                c[:, :, (a + 1) % 3] = g[du:du + res, None]
+                c[:, :, (a + 2) % 3] = g[None, dv:dv + res]
+                c = c.reshape(-1, 3) / np.linalg.norm(c.reshape(-1, 3), axis=1, keepdims=True)
+                sl = slice(face * res * res, (face + 1) * res * res)
+                half[sl] = np.maximum(half[sl], np.arccos(np.clip((c * centre[sl]).sum(1), -1.0, 1.0)))
+    return centre, half
+
+
+def free_cells(tris: np.ndarray, eps: tuple[float, float] = (EXACT_EPS, EXACT_EPS), res: int = FREE_RES
+               ) -> np.ndarray:
+    """(T, 6 res^2) bool: per triangle the cube cells of directions from its centroid + e x its unit
+    normal (the apex, any e in the range eps) in which no ray meets another triangle of the shape, a
+    conservative test: a
+    triangle wholly behind the apex's plane parallel to the triangle is never met by a ray that leaves
+    in front of it (emitter_sum only uses the table for those); any other is met only in the
+    directions of the cone over its three vertices, so a cell whose cone (_cell_cones) lies outside
+    it (its axis outside, farther than its half-angle from each edge's arc) is free of it. The margins
+    (1e-3 rad, and 1e-4 of the shape's size + the apex's range at the nearest vertex) cover the
+    float32 rays, the cell assignment and where the apex lies; an apex in or near a triangle's plane
+    frees nothing."""
+    T = len(tris)
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    lo, hi = min(eps), max(eps)
+    apex = tris.mean(1) + n * (0.5 * (lo + hi))  # (T,3) the rays' starting points (+- (hi - lo) / 2)
+    size = float(np.ptp(tris.reshape(-1, 3), axis=0).max())
+    axis, half = _cell_cones(res)
+    free = np.ones((T, len(axis)), bool)
+    for t in range(T):
+        rel = tris - apex[t]  # (U,3,3) the other triangles' vertices from the apex
+        cand = (rel @ n[t]).max(1) > -1e-4 * size - 0.5 * (hi - lo)  # in front of the lowest apex
+        cand[t] = False
+        rel = rel[cand]
+        if len(rel) == 0:
+            continue
+        dist = np.linalg.norm(rel, axis=2)  # (U,3)
+        margin = 1e-3 + (1e-4 * size + hi) / np.maximum(dist.min(1), 1e-12)  # (U,) rad
+        v = rel / np.maximum(dist, 1e-300)[..., None]  # unit directions of the vertices
+        det = np.einsum("uc,uc->u", v[:, 0], np.cross(v[:, 1], v[:, 2]))
+        if (np.abs(det) < 1e-9).any() or (margin > 0.5).any():  # the apex near a triangle's plane
+            free[t] = False
+            continue
+        sgn = np.sign(det)[:, None]
+        # within half + margin of the cone, as cosines and sines (no angle per cell and triangle):
+        # phi = half + margin < pi/2 (cells are narrower than 60 deg, margin <= 0.5)
+        cos_phi = np.outer(np.cos(half), np.cos(margin)) - np.outer(np.sin(half), np.sin(margin))  # (C,U)
+        sin_phi = np.outer(np.sin(half), np.cos(margin)) + np.outer(np.cos(half), np.sin(margin))
+        inside = np.ones((len(axis), len(v)), bool)
+        near = np.zeros((len(axis), len(v)), bool)
+        for e in range(3):
+            a, b = v[:, e], v[:, (e + 1) % 3]
+            m = np.cross(a, b)
+            m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)  # (U,3) the edge's circle
+            h = axis @ m.T  # (C,U) sine of the axis' angle to the edge's great circle
+            inside &= h * sgn.T > 0  # on the triangle's side of it
+            # the angle from the axis to the arc: to its great circle where the foot lies between the
+            # ends, else to the nearer end
+            # (the foot, axis - h m, has the axis' products with m x a and b x m: both lie in the circle's plane)
+            between = (axis @ np.cross(m, a).T >= 0) & (axis @ np.cross(b, m).T >= 0)
+            near |= np.where(between, np.abs(h) <= sin_phi, np.maximum(axis @ a.T, axis @ b.T) >= cos_phi)
+        free[t] = ~(inside | near).any(1)
+    return free
+
+
 class ProxyShape:
     """Per proxy shape (a translation changes none of it): the triangles' visibility table
-    (TriangleVisibility) and unit normals (T,3)."""
+    (TriangleVisibility), unit normals (T,3) and ray-free directions for the exact sum (free_cells)."""
 
     def __init__(self, tris: np.ndarray, proxy_occ: Occluder):
         self.visibility = TriangleVisibility(tris, proxy_occ)
         n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         self.normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        self.free = free_cells(tris, (EXACT_EPS, GATHER_EPS))
 
 
 def shape_key(pv: np.ndarray, pf: np.ndarray) -> str:
@@ -307,7 +441,7 @@ def proxy_shape(eng: "Engine", pv: np.ndarray, pf: np.ndarray, proxy_occ: Occlud
 def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
                centre: np.ndarray, radius: float, device, tvis: TriangleVisibility | None = None,
                ws: Workspace | None = None, far_emitters: tuple | None = None,
-               extra: ExtraEmitters | None = None) -> np.ndarray:
+               extra: ExtraEmitters | None = None, free: np.ndarray | None = None) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3) at points (N,3) [normals (N,3)]: exact (emitter_sum) within
     FAR_FIELD bounding radii of the object; beyond, where each triangle subtends a small solid angle,
     the point-source form factor A_t cos_x cos_t / (pi r^2) times the triangle's own visibility
@@ -315,12 +449,13 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     ws: the call site's kernel buffers (kernels.buffers.Workspace), or None. far_emitters: the point
     emitters used beyond FAR_FIELD instead of the triangles' centroids, (positions (F,3), twice area x
     unit normal (F,3), radiance (F,3), visibility table rows (F, 6 CUBE_RES^2) bool), or None. extra:
-    more emitters summed exactly within FAR_FIELD (_exact_sum), or None."""
+    more emitters summed exactly within FAR_FIELD (_exact_sum), or None. free: the shape's free_cells
+    (fewer rays in the exact sum), or None."""
     out = np.zeros((len(points), 3))
     far = np.linalg.norm(points - centre, axis=1) > FAR_FIELD * radius
     near = np.flatnonzero(~far)
     if len(near):
-        out[near] = _exact_sum(points[near], normals[near], tris, tri_rad, proxy_occ, device, ws, extra)
+        out[near] = _exact_sum(points[near], normals[near], tris, tri_rad, proxy_occ, device, ws, extra, free)
     far = np.flatnonzero(far)
     if len(far):
         if far_emitters is None:
@@ -382,10 +517,13 @@ GRID_CLEARANCE = 2.0  # a cell is blended only this many cell diagonals away fro
 
 
 def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
-               device, ws: Workspace | None, extra: ExtraEmitters | None = None) -> np.ndarray:
-    """sum_t B_t F(x -> t) V(x, t) (N,3): the proxy's triangles with a ray each (emitter_sum), plus the
-    extra emitters with their visibility from their per-shape table (emitter_sum_seen)."""
-    out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, device=device, split=256, workspace=ws)
+               device, ws: Workspace | None, extra: ExtraEmitters | None = None,
+               free: np.ndarray | None = None) -> np.ndarray:
+    """sum_t B_t F(x -> t) V(x, t) (N,3): the proxy's triangles with a ray each (emitter_sum; none where
+    `free`, the shape's free_cells, shows no ray can be blocked), plus the extra emitters with their
+    visibility from their per-shape table (emitter_sum_seen)."""
+    out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, eps=EXACT_EPS, device=device, split=256,
+                      workspace=ws, free=free, free_res=FREE_RES)
     if extra is not None and len(extra.tris):
         out += emitter_sum_seen(points, normals, extra.tris, extra.rad, extra.seen, extra.res, device=device,
                                 split=256, workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
@@ -428,14 +566,6 @@ class _ScreenValues:
         self._written, self.count = [], 0
 
 
-def _levels_of_photo(eng: "Engine") -> np.ndarray:
-    """T(L_b) (H*W,3) of the engine's current L_b (kept while L_b is the same array)."""
-    cached = getattr(eng, "_ol_photo_levels", None)
-    if cached is None or cached[0] is not eng.L_b:
-        cached = eng._ol_photo_levels = (eng.L_b, eng.scene.response.to_levels(eng.L_b))
-    return cached[1]
-
-
 def _distinct(idx: np.ndarray, size: int) -> np.ndarray:
     """The sorted distinct values of idx (ints in [0, size)) through a mark array (no sort)."""
     mark = np.zeros(size, bool)
@@ -444,7 +574,7 @@ def _distinct(idx: np.ndarray, size: int) -> np.ndarray:
 
 
 def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
-                 extra: ExtraEmitters | None = None) -> np.ndarray:
+                 extra: ExtraEmitters | None = None, free: np.ndarray | None = None) -> np.ndarray:
     """The object's light (len(sel),3), irradiance/pi, at the listed pixels `sel` near the object.
 
     An adaptive screen grid: at each stride of GRID_STRIDES a pixel whose cell (its four nodes)
@@ -454,74 +584,106 @@ def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.n
     the cell's area) takes the bilinear blend of the nodes, evaluated exactly
     (kernels.visibility.emitter_sum); the rest go on to the next, finer stride, and what is left
     after the finest is evaluated per pixel (contact, quad edges, the object's silhouette).
-    The cells' tests (quad, clearance) are made once per cell, the pixels only look them up.
+    The cells' quad test is made once per scene (StrideTable), the clearance once per cell and frame,
+    the blend's test against the response through `headroom` (no response evaluation per pixel).
     """
     pm = eng.pre.patches
-    H, W = eng.scene.camera.height, eng.scene.camera.width
-    resp = eng.scene.response
-    levels = _levels_of_photo(eng)
+    W = eng.scene.camera.width
     sv = getattr(eng, "_ol_screen", None)
-    if sv is None or len(sv.known) != H * W:
-        sv = eng._ol_screen = _ScreenValues(H * W)
+    if sv is None or len(sv.known) != len(eng.pix_pos):
+        sv = eng._ol_screen = _ScreenValues(len(eng.pix_pos))
     sv.clear()
     ws = workspace(eng, "near_pixels.exact")
 
     def values_of(idx: np.ndarray) -> np.ndarray:
         return _exact_sum(eng.pix_pos[idx], pm.normal[eng.pix_patch[idx]], tris, tri_rad, proxy_occ, eng.device,
-                          ws, extra)
+                          ws, extra, free)
 
     out = np.zeros((len(sel), 3))
     todo = np.arange(len(sel))
-    quad_sel = pm.quad[eng.pix_patch[sel]]
     for s in GRID_STRIDES:
         if len(todo) == 0:
             break
+        st = stride_table(eng, s)
         p = sel[todo]
-        y, x = np.divmod(p, W)
-        Wc = (W - 1) // s + 1
-        cid = (y // s) * Wc + x // s
-        cells = _distinct(cid, ((H - 1) // s + 1) * Wc)  # the cells holding pixels to do
-        slot = np.zeros(((H - 1) // s + 1) * Wc, np.int64)
+        ok = st.pixel_ok[p]  # the pixel's cell lies on its own quad, on receivers
+        if not ok.any():
+            continue
+        cid = st.cell[p]
+        cells = _distinct(cid[ok], st.n_cells)  # the cells holding pixels to do
+        nodes = st.nodes(cells)  # (C,4)
+        # clearance: the cell's nodes' distance to the proxy, against its diagonal
+        cn = np.unique(nodes)
+        d = distance_to(proxy_occ, eng.pix_pos[cn], workspace=workspace(eng, "near_pixels.clearance"))
+        d_node = d[np.searchsorted(cn, nodes)].min(1)
+        diag = np.linalg.norm(eng.pix_pos[nodes[:, 0]] - eng.pix_pos[nodes[:, 3]], axis=1)
+        clear = d_node > GRID_CLEARANCE * diag
+        if not clear.any():
+            continue
+        cells, nodes = cells[clear], nodes[clear]
+        slot = np.full(st.n_cells, -1, np.int64)
         slot[cells] = np.arange(len(cells))
-        slot = slot[cid]  # each pixel's row in `cells`
-        y0, x0 = (cells // Wc) * s, (cells % Wc) * s
-        ny = np.stack([y0, y0, y0 + s, y0 + s], 1)
-        nx = np.stack([x0, x0 + s, x0, x0 + s], 1)
-        inside = (ny < H) & (nx < W)
-        nodes = np.where(inside, ny * W + nx, 0)
-        q = pm.quad[np.maximum(eng.pix_patch[nodes], 0)]
-        cell_ok = (inside & eng.recv_pix[nodes]).all(1) & (q == q[:, :1]).all(1)  # one quad, receivers
-        ok = cell_ok[slot] & (q[slot, 0] == quad_sel[todo])  # ... the pixel's own
-        has = np.zeros(len(cells), bool)
-        has[slot[ok]] = True
-        if has.any():
-            # clearance: the cell's nodes' distance to the proxy
-            cn = np.unique(nodes[has])
-            d = distance_to(proxy_occ, eng.pix_pos[cn], workspace=workspace(eng, "near_pixels.clearance"))
-            d_node = d[np.searchsorted(cn, nodes[has])].min(1)
-            diag = np.linalg.norm(eng.pix_pos[nodes[has, 0]] - eng.pix_pos[nodes[has, 3]], axis=1)
-            has[np.flatnonzero(has)] = d_node > GRID_CLEARANCE * diag
-            ok &= has[slot]
-        if ok.any():
-            sv.add(np.unique(nodes[has]), values_of)
-            cc = sv.value[nodes[has]]  # (cells, 4, 3) the cells' node values
-            h = np.cumsum(has)[slot[ok]] - 1  # each pixel's row in cc
-            corner = cc[h]  # (m,4,3)
-            fp = p[ok]
-            spread = eng.rho_x[fp] * (cc.max(1) - cc.min(1))[h]
-            gain = (resp.to_levels(eng.L_b[fp] + spread) - levels[fp]).max(1)
-            smooth = gain <= GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2
-            fy = ((y[ok] % s) / s)[:, None]
-            fx = ((x[ok] % s) / s)[:, None]
-            blend = ((1 - fy) * ((1 - fx) * corner[:, 0] + fx * corner[:, 1]) +
-                     fy * ((1 - fx) * corner[:, 2] + fx * corner[:, 3]))
-            done = np.flatnonzero(ok)[smooth]
-            out[todo[done]] = blend[smooth]
-            keep = np.ones(len(todo), bool)
-            keep[done] = False
-            todo = todo[keep]
+        h = slot[cid]
+        ok &= h >= 0
+        sv.add(np.unique(nodes), values_of)
+        cc = sv.value[nodes]  # (cells, 4, 3) the cells' node values
+        k = np.flatnonzero(ok)
+        fp, h = p[k], h[k]
+        spread = eng.rho_x[fp] * (cc.max(1) - cc.min(1))[h]
+        smooth = (spread <= headroom(eng, GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2, fp)).all(1)
+        k, fp, h = k[smooth], fp[smooth], h[smooth]
+        y, x = np.divmod(fp, W)
+        fy = ((y % s) / s)[:, None]
+        fx = ((x % s) / s)[:, None]
+        corner = cc[h]  # (m,4,3)
+        out[todo[k]] = ((1 - fy) * ((1 - fx) * corner[:, 0] + fx * corner[:, 1]) +
+                        fy * ((1 - fx) * corner[:, 2] + fx * corner[:, 3]))
+        keep = np.ones(len(todo), bool)
+        keep[k] = False
+        todo = todo[keep]
     if len(todo):
         sv.add(sel[todo], values_of)
         out[todo] = sv.value[sel[todo]]
     eng._n_object_light_exact = sv.count
     return out
+
+
+class StrideTable:
+    """One stride s of _near_pixels' screen grid, per scene: cell ids of the pixels ((y//s) x cells a
+    row + x//s), and whether a pixel's cell has its four nodes (corners y0, y0+s x x0, x0+s) on the
+    screen and on receivers of one quad, the pixel's own (where a blend of the nodes is one plane's)."""
+
+    def __init__(self, s: int, H: int, W: int, recv_pix: np.ndarray, pix_quad: np.ndarray):
+        self.s, self.W, self.H = s, W, H
+        self.wc = (W - 1) // s + 1
+        self.n_cells = ((H - 1) // s + 1) * self.wc
+        y, x = np.divmod(np.arange(H * W), W)
+        self.cell = ((y // s) * self.wc + x // s).astype(np.int64)
+        cells = np.arange(self.n_cells)
+        ny, nx = self._corners(cells)
+        inside = (ny < H) & (nx < W)
+        nodes = np.where(inside, ny * W + nx, 0)
+        q = pix_quad[nodes]
+        cell_ok = (inside & recv_pix[nodes]).all(1) & (q == q[:, :1]).all(1)
+        self.pixel_ok = cell_ok[self.cell] & (q[self.cell, 0] == pix_quad)
+
+    def _corners(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        y0, x0 = (cells // self.wc) * self.s, (cells % self.wc) * self.s
+        return (np.stack([y0, y0, y0 + self.s, y0 + self.s], 1), np.stack([x0, x0 + self.s, x0, x0 + self.s], 1))
+
+    def nodes(self, cells: np.ndarray) -> np.ndarray:
+        """(C,4) pixel index of the cells' corners (cells with pixel_ok pixels: all on the screen)."""
+        ny, nx = self._corners(cells)
+        return ny * self.W + nx
+
+
+def stride_table(eng: "Engine", s: int) -> StrideTable:
+    """The engine's StrideTable of stride s (made on first use: it depends on the scene only)."""
+    tables = getattr(eng, "_ol_strides", None)
+    if tables is None or tables[0] is not eng.recv_pix:
+        tables = eng._ol_strides = (eng.recv_pix, {})
+    if s not in tables[1]:
+        cam = eng.scene.camera
+        pix_quad = np.where(eng.pix_patch >= 0, eng.pre.patches.quad[np.maximum(eng.pix_patch, 0)], -1)
+        tables[1][s] = StrideTable(s, cam.height, cam.width, eng.recv_pix, pix_quad)
+    return tables[1][s]

@@ -149,3 +149,103 @@ def test_object_light_coarse_against_exact_on_the_frame(demo, monkeypatch):
     worst, rms = np.abs(d).max(), np.sqrt((d[lit] ** 2).mean())
     assert worst <= 1.0 and rms <= 0.05, (worst, rms)
     assert abs(luminance(ours_c).sum() / luminance(exact_c).sum() - 1) < 0.02
+
+
+def _box(lo, hi):
+    """A closed box's 12 triangles (CCW seen from outside), vertices (8,3)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    v = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    f = []
+    for a, b, c, d in quads:
+        f += [(a, b, c), (a, c, d)]
+    f = np.array(f)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    out = ((v[f].mean(1) - v.mean(0)) * n).sum(1) < 0
+    f[out] = f[out][:, ::-1]  # outward normals
+    return v, f
+
+
+def test_free_cells_convex_frees_every_front_direction():
+    # a convex shape: every other triangle lies behind each triangle's plane, so every cell is free
+    v, f = _box([0, 0, 0], [0.3, 0.5, 0.4])
+    assert OL.free_cells(v[f]).all()
+
+
+def test_free_cells_never_free_a_blocked_ray():
+    # an L of two boxes (concave): 48 random rays per free cell, from apexes anywhere in the table's
+    # eps range, in front of their triangle: none meets the shape; a blocked share is really cut out;
+    # the exact sum and the gather with the table equal those with a ray each
+    v1, f1 = _box([0, 0, 0], [0.4, 0.1, 0.4])
+    v2, f2 = _box([0, 0.1, 0], [0.1, 0.5, 0.4])
+    v, f = np.concatenate([v1, v2]), np.concatenate([f1, f2 + 8])
+    tris = v[f]
+    eps = (OL.EXACT_EPS, OL.GATHER_EPS)
+    free = OL.free_cells(tris, eps)
+    assert 0.3 < free.mean() < 0.99  # the table frees most, not all (the inner corner blocks)
+    occ = Occluder(v, f, "cpu")
+    rng = np.random.default_rng(3)
+    r = OL.FREE_RES
+    t, c = np.nonzero(free)
+    t, c = np.repeat(t, 48), np.repeat(c, 48)
+    face, rem = np.divmod(c, r * r)
+    iu, iv = np.divmod(rem, r)
+    ax, neg = np.divmod(face, 2)
+    d = np.zeros((len(t), 3))
+    rows = np.arange(len(t))
+    d[rows, ax] = np.where(neg == 1, -1.0, 1.0)
+    d[rows, (ax + 1) % 3] = (iu + rng.random(len(t))) / r * 2 - 1
+    d[rows, (ax + 2) % 3] = (iv + rng.random(len(t))) / r * 2 - 1
+    assert (OL._cube_bin(d, r) == c).all()
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    apex = tris.mean(1)[t] + n[t] * rng.uniform(*eps, (len(t), 1))
+    front = (d * n[t]).sum(1) > 0
+    from kernels.visibility import segments_visible
+    assert segments_visible(occ, apex[front], apex[front] + 10.0 * d[front]).all()
+    # the cells left out do hold blocked rays (the same check fails on them): the table is not all-free
+    tb, cb = np.nonzero(~free)
+    fb, remb = np.divmod(cb, r * r)
+    ub, vb = np.divmod(remb, r)
+    axb, negb = np.divmod(fb, 2)
+    db = np.zeros((len(tb), 3))
+    rows = np.arange(len(tb))
+    db[rows, axb] = np.where(negb == 1, -1.0, 1.0)
+    db[rows, (axb + 1) % 3] = (ub + 0.5) / r * 2 - 1
+    db[rows, (axb + 2) % 3] = (vb + 0.5) / r * 2 - 1
+    ab = tris.mean(1)[tb] + n[tb] * OL.EXACT_EPS
+    fr = (db * n[tb]).sum(1) > 0
+    assert (segments_visible(occ, ab[fr], ab[fr] + 10.0 * db[fr]) == 0).sum() > 10
+    pts = rng.uniform([-0.3, -0.3, -0.3], [0.8, 0.9, 0.8], (3000, 3))
+    nrm = rng.normal(size=(3000, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    rad = rng.uniform(0.2, 1.0, (len(f), 3))
+    plain = emitter_sum(pts, nrm, tris, rad, occ, eps=OL.EXACT_EPS, device="cpu")
+    fast = emitter_sum(pts, nrm, tris, rad, occ, eps=OL.EXACT_EPS, device="cpu", free=free, free_res=r)
+    assert np.abs(plain).max() > 0
+    np.testing.assert_array_equal(plain, fast)
+    quads = np.array([[[-1, -1, -0.2], [2, -1, -0.2], [2, 2, -0.2], [-1, 2, -0.2]],
+                      [[-1, 2, -0.2], [2, 2, -0.2], [2, 2, 2], [-1, 2, 2]]], float)
+    qn = np.array([[0, 0, 1.0], [0, -1.0, 0]])
+    args = (tris.mean(1), n, quads, qn, [Occluder(None, None, "cpu"), occ])
+    G0 = transfer_matrix(*args, n_side=2, eps=OL.GATHER_EPS, device="cpu")
+    G1 = transfer_matrix(*args, n_side=2, eps=OL.GATHER_EPS, device="cpu", free=free, free_res=r)
+    assert (G0 > 0).sum() > 10
+    np.testing.assert_array_equal(G0, G1)
+
+
+def test_headroom_matches_the_response(demo):
+    # s > headroom(levels) exactly where T(L_b + s) - T(L_b) > levels (away from the boundary itself)
+    scene, eng, *_ = demo
+    resp = scene.response
+    rng = np.random.default_rng(5)
+    idx = rng.choice(len(eng.L_b), 20000)
+    for levels in (0.25, 2.0):
+        h = OL.headroom(eng, levels, np.unique(idx))[np.searchsorted(np.unique(idx), idx)].astype(np.float64)
+        assert np.isfinite(h).any()
+        s = np.where(np.isfinite(h), h, 1.0) * rng.uniform(0.5, 1.5, (len(idx), 3)) + rng.uniform(0, 1e-3, (len(idx), 3))
+        gain = resp.to_levels(eng.L_b[idx] + s) - resp.to_levels(eng.L_b[idx])
+        clear = np.abs(s - h) > 1e-5 * np.maximum(h, 1e-9)  # not at the boundary (float32 headroom)
+        clear &= np.abs(gain - levels) > 1e-6
+        assert clear.mean() > 0.9
+        np.testing.assert_array_equal((s > h)[clear], (gain > levels)[clear])
