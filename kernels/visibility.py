@@ -43,48 +43,12 @@ def _transfer_kernel(
     mesh_b: wp.uint64,
     n_side: int,
     eps: float,
-    out: wp.array2d(dtype=wp.float32),
-):
-    i, j = wp.tid()
-    p = points[i]
-    n = normals[i]
-    f = polygon_ff(p, n, polys, j, 4)
-    if f <= wp.float64(0.0):
-        out[i, j] = 0.0
-        return
-    a = wp.vec3(p) + wp.vec3(n) * eps
-    c0 = wp.vec3(polys[j, 0])
-    eu = wp.vec3(polys[j, 1]) - c0
-    ev = wp.vec3(polys[j, 3]) - c0
-    ns = poly_normals[j] * eps
-    seen = int(0)
-    for su in range(n_side):
-        for sv in range(n_side):
-            fu = (float(su) + 0.5) / float(n_side)
-            fv = (float(sv) + 0.5) / float(n_side)
-            b = c0 + eu * fu + ev * fv + ns
-            if not segment_blocked(mesh_a, a, b):
-                if not segment_blocked(mesh_b, a, b):
-                    seen += 1
-    out[i, j] = float(f) * float(seen) / float(n_side * n_side)
-
-
-@wp.kernel
-def _transfer_free_kernel(
-    points: wp.array(dtype=wp.vec3d),
-    normals: wp.array(dtype=wp.vec3d),
-    polys: wp.array2d(dtype=wp.vec3d),
-    poly_normals: wp.array(dtype=wp.vec3),
-    mesh_a: wp.uint64,
-    mesh_b: wp.uint64,
-    n_side: int,
-    eps: float,
     free: wp.array2d(dtype=wp.uint8),
     res: int,
     row0: int,
     out: wp.array2d(dtype=wp.float32),
 ):
-    # _transfer_kernel, with no ray against mesh_b where point row0 + i's table says none can meet it
+    # free (res > 0): per point row0 + i the cube cells where no ray can meet mesh_b (no ray there)
     i, j = wp.tid()
     p = points[i]
     n = normals[i]
@@ -106,7 +70,7 @@ def _transfer_free_kernel(
             if not segment_blocked(mesh_a, a, b):
                 ab = b - a
                 clear = False
-                if wp.dot(ab, wp.vec3(n)) > 0.0:  # the segment stays in front of the point's surface
+                if res > 0 and wp.dot(ab, wp.vec3(n)) > 0.0:  # the segment stays in front of the point's surface
                     clear = free[row0 + i, cube_cell(ab, res)] != wp.uint8(0)
                 if clear:
                     seen += 1
@@ -166,7 +130,8 @@ def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.n
         ws, rows, cols = workspace, chunk, workspace.sources
     points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
     patch_corners, patch_normals = np.asarray(patch_corners, np.float64), np.asarray(patch_normals, np.float32)
-    table = seen_table(ws, free, wp.uint8, device) if free is not None else None
+    table = seen_table(ws, free, wp.uint8, device) if free is not None else _no_table(device)
+    free_res = free_res if free is not None else 0
     for c0 in range(0, m, cols):
         c1 = min(m, c0 + cols)
         polys = ws.upload("polys", patch_corners[c0:c1], wp.vec3d, device, cols)
@@ -178,12 +143,8 @@ def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.n
             inputs = [ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, rows),
                       ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, rows),
                       polys, pn, wp.uint64(occ[0].id), wp.uint64(occ[1].id), int(n_side), float(eps)]
-            if table is None:
-                wp.launch(_transfer_kernel, dim=(e - s, c1 - c0), inputs=inputs,
-                          outputs=[res.dev[:e - s, :c1 - c0]], device=device)
-            else:
-                wp.launch(_transfer_free_kernel, dim=(e - s, c1 - c0), inputs=[*inputs, table, int(free_res), s],
-                          outputs=[res.dev[:e - s, :c1 - c0]], device=device)
+            wp.launch(_transfer_kernel, dim=(e - s, c1 - c0), inputs=[*inputs, table, int(free_res), s],
+                      outputs=[res.dev[:e - s, :c1 - c0]], device=device)
             out[s:e, c0:c1] = res.pull(e - s)[:, :c1 - c0]
             return e - s
 
@@ -205,25 +166,6 @@ def segments_visible(occluder: Occluder, a: np.ndarray, b: np.ndarray) -> np.nda
                       wp.array(np.asarray(b, np.float32), dtype=wp.vec3, device=device)],
               outputs=[out], device=device)
     return out.numpy()
-
-
-@wp.kernel
-def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
-                        tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
-                        tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
-                        out: wp.array(dtype=wp.vec3)):
-    i = wp.tid()
-    p = points[i]
-    n = normals[i]
-    a = wp.vec3(p) + wp.vec3(n) * eps
-    total = wp.vec3(0.0, 0.0, 0.0)
-    for t in range(tris.shape[0]):
-        f = polygon_ff(p, n, tris, t, 3)
-        if f > wp.float64(0.0):
-            centroid = wp.vec3((tris[t, 0] + tris[t, 1] + tris[t, 2]) / wp.float64(3.0))
-            if not segment_blocked(mesh, a, centroid + tri_normals[t] * eps):
-                total += radiance[t] * float(f)
-    out[i] = total
 
 
 def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
@@ -256,9 +198,20 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
               ws.upload("tri_normals", tn.astype(np.float32), wp.vec3, device),
               wp.uint64(occluder.id if occluder is not None else 0), float(eps)]
     if free is None:
-        return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
-    shared += [seen_table(ws, free, wp.uint8, device), int(free_res)]
-    return _point_launches(_emitter_sum_free_kernel, points, normals, shared, ws, block, device, split)
+        shared += [_no_table(device), 0]
+    else:
+        shared += [seen_table(ws, free, wp.uint8, device), int(free_res)]
+    return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
+
+
+_NO_TABLE: dict[str, wp.array] = {}
+
+
+def _no_table(device: str) -> wp.array:
+    """A 1x1 stand-in for a kernel's `free` table when there is none (res 0), one per device."""
+    if device not in _NO_TABLE:
+        _NO_TABLE[device] = wp.zeros((1, 1), dtype=wp.uint8, device=device)
+    return _NO_TABLE[device]
 
 
 def _point_launches(kernel, points: np.ndarray, normals: np.ndarray, shared: list, ws: Workspace, block: int,
@@ -306,11 +259,11 @@ def cube_cell(d: wp.vec3, r: int) -> int:
 
 
 @wp.kernel
-def _emitter_sum_free_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
-                             tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
-                             tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
-                             free: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
-    # _emitter_sum_kernel, with no ray where the table says none can be blocked
+def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                        tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                        tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
+                        free: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
+    # free (res > 0): per triangle the cube cells where no ray can be blocked (no ray there)
     i = wp.tid()
     p = points[i]
     n = normals[i]
@@ -323,7 +276,7 @@ def _emitter_sum_free_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array
             b = centroid + tri_normals[t] * eps
             ba = a - b
             clear = False
-            if wp.dot(ba, tri_normals[t]) > 0.0:  # the segment stays in front of the triangle
+            if res > 0 and wp.dot(ba, tri_normals[t]) > 0.0:  # the segment stays in front of the triangle
                 clear = free[t, cube_cell(ba, res)] != wp.uint8(0)
             if clear:
                 total += radiance[t] * float(f)
