@@ -20,6 +20,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from app import runtime
 from kernels.buffers import Workspace
 from kernels.raycast import cast_rays
 from kernels.sunshadow import SunShadowMap
@@ -31,6 +32,10 @@ from lighting.sun import SunLight, SunlitPieces
 PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility table (~6 degrees): at floor
 # points beside sun_room's chair their light was within 1.1 % of a Monte Carlo reference on average, as with
 # a ray per piece (8 cells: 1.5 %); bench/bench_sun.py prints the pieces against Monte Carlo per pixel
+
+
+EDGE_MIN_RAYS = 256  # rays per concurrent part of refine_clipped_edges's casts at least (a thread's
+# hand-off costs about what a few hundred ray casts do)
 
 
 PIECE_SIZE = 0.25  # the sunlit pieces' size (SunlitPieces), in bounding radii of the object
@@ -59,7 +64,9 @@ class SunStage:
         self.patches = patches
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
-        self._ws = {k: Workspace() for k in ("edge.object", "edge.scene")}  # kept ray buffers per call site
+        # kept ray buffers per call site and per concurrent part (runtime.MAX_PARTS at most)
+        self._ws = {f"{k}{i}": Workspace() for k in ("edge.object", "edge.scene") for i in range(runtime.MAX_PARTS)}
+        self._warm: set[str] = set()  # call sites whose parts' buffers exist
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
@@ -190,12 +197,11 @@ class SunStage:
         V = (py[:, None] + ov[None]).ravel()
         d = np.stack([U, V, np.ones_like(U)], -1) @ np.linalg.inv(camera.K).T @ camera.R
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        tri, bary, depth = cast_rays(own, camera.centre, d, workspace=self._ws["edge.object"])
+        tri, bary, depth = self._cast(own, camera.centre, d, 1e6, "edge.object")
         hit = tri >= 0
         on_obj = np.flatnonzero(hit)  # only the rays that reach the object: is the room nearer?
         if len(on_obj):
-            _, _, scene_depth = cast_rays(cam_occ, camera.centre, d[on_obj], max_t=float(depth[on_obj].max()),
-                                          workspace=self._ws["edge.scene"])
+            _, _, scene_depth = self._cast(cam_occ, camera.centre, d[on_obj], float(depth[on_obj].max()), "edge.scene")
             hit[on_obj] = depth[on_obj] < scene_depth
         rad = np.zeros((len(d), 3))
         h = np.flatnonzero(hit)
@@ -215,6 +221,22 @@ class SunStage:
         cov[py, px] = c
         obj_rad[py, px] = np.where(c[:, None] > 0, mean, obj_rad[py, px])
         return py * W + px
+
+    def _cast(self, occ: Occluder, origin: np.ndarray, d: np.ndarray, max_t: float, site: str):
+        """cast_rays(occ, origin, d, max_t) with the rays cut into one part per core on the CPU
+        (app.runtime: concurrent launches, each with its call site's own buffers); the same
+        (tri, bary, depth) as one launch, ray by ray."""
+        if site not in self._warm:  # every part's buffers on the first call: none allocated in later frames
+            self._warm.add(site)
+            for i in range(1, runtime.parts(self.device, 1 << 30)):
+                cast_rays(occ, origin, d[:1], max_t=max_t, workspace=self._ws[f"{site}{i}"])
+        cuts = runtime.ranges(len(d), runtime.parts(self.device, len(d), EDGE_MIN_RAYS))
+        if len(cuts) == 1:
+            return cast_rays(occ, origin, d, max_t=max_t, workspace=self._ws[f"{site}0"])
+        res = runtime.run([lambda a=a, b=b, i=i: cast_rays(occ, origin, d[a:b], max_t=max_t,
+                                                           workspace=self._ws[f"{site}{i}"])
+                           for i, (a, b) in enumerate(cuts)])
+        return tuple(np.concatenate(x) for x in zip(*res))
 
 
 def patch_clusters(patches) -> tuple[np.ndarray, int]:
