@@ -168,9 +168,9 @@ def main(argv=None) -> int:
                  {"frame": f"{a.passes} passes, no sun", "frame_s": without},
                  {"frame": "sun's own pass (timings['sun'])", "frame_s": float(np.median(ms_sun))},
                  {"frame": "ratio sun / no sun (medians)", "frame_s": with_sun / without},
-                 {"frame": "overhead of the medians", "frame_s": with_sun / without - 1.0},
-                 {"frame": "overhead of the fastest", "frame_s": best},
-                 {"frame": "overhead, median of pairs", "frame_s": paired}], ["frame", "frame_s"]))
+                 {"frame": "overhead of the medians (fraction)", "frame_s": with_sun / without - 1.0},
+                 {"frame": "overhead of the fastest (fraction)", "frame_s": best},
+                 {"frame": "overhead, median of pairs (fraction)", "frame_s": paired}], ["frame", "frame_s"]))
 
     if a.ab_only:
         return 0
