@@ -23,7 +23,6 @@ fall on its blocks). Per frame, `select(box_min, box_max, passes)`:
 from __future__ import annotations
 
 import heapq
-import mmap
 from dataclasses import dataclass
 
 import numpy as np
@@ -377,32 +376,12 @@ class ShadowSources:
         return FrameSources(eyes, W_v, W_c, cand, int(marked.sum()), int(cand.any(1).sum()), spread)
 
 
-POPULATE_BYTES = 16 * 2 ** 20  # arrays at least this large come from populated_empty's mapping
-
-
-def populated_empty(shape: tuple, dtype) -> np.ndarray:
-    """np.empty(shape, dtype) for an array that is written whole at once: a large one (POPULATE_BYTES)
-    is an anonymous mapping whose pages the OS provides in one call (MAP_POPULATE, Linux), not one
-    fault per page as they are first written, and without the transparent-huge-page request numpy
-    makes for large arrays (whose first allocation in a process waits for the OS to provide huge
-    pages). Measured on lamps_room's all-sources transfers (194 MB, fresh processes, 2-core machine
-    under load): first use 169-229 ms against 589-643 ms; a later list's, when the huge pages are
-    there to reuse, 164-249 against 124-140 ms (the same list is kept: no second allocation).
-    Elsewhere np.empty."""
-    n = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
-    populate = getattr(mmap, "MAP_POPULATE", 0)
-    if n < POPULATE_BYTES or not populate:
-        return np.empty(shape, dtype)
-    buf = mmap.mmap(-1, n, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS | populate)
-    return np.frombuffer(buf, dtype).reshape(shape)  # the array keeps the mapping alive
-
-
 def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int = 256, split=None) -> np.ndarray:
     """(R, n, 3) float32 G[:, ids] * B (B (n,3) float32): the transfers of single sources, in slabs
     of `rows` rows (a slab's gathered columns stay in cache; the same products as one broadcast).
     split(work(lo, hi), R): runs row ranges concurrently (app.runtime.split: one range per core;
     numpy's gather and product release the GIL); default one range."""
-    out = populated_empty((G.shape[0], len(ids), 3), np.float32)
+    out = np.empty((G.shape[0], len(ids), 3), np.float32)
 
     def work(lo: int, hi: int) -> None:
         for r0 in range(lo, hi, rows):

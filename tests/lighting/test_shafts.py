@@ -388,18 +388,3 @@ def test_source_list_and_pairs_equal_the_reference_formulation(engine):
             assert fs.n_listed == int(want_marked.sum()) > 0
             np.testing.assert_array_equal(fs.cand, want_cand)
             assert fs.cand.any()
-
-
-def test_populated_arrays_are_plain_writable_arrays():
-    """populated_empty gives a writable C-ordered array of the shape and dtype asked, from a mapping
-    when large; its memory stays valid while only a view of it is kept."""
-    from lighting.frame_sources import POPULATE_BYTES, populated_empty
-
-    for shape in ((3, 4, 3), (POPULATE_BYTES // 12 + 5, 3)):
-        a = populated_empty(shape, np.float32)
-        assert a.shape == shape and a.dtype == np.float32 and a.flags.c_contiguous and a.flags.writeable
-        a[...] = np.arange(a.size, dtype=np.float32).reshape(shape)
-        view = a[-2:]
-        del a
-        first = (shape[0] - 2) * int(np.prod(shape[1:]))
-        np.testing.assert_array_equal(view.ravel(), np.arange(first, first + view.size, dtype=np.float32))
