@@ -103,7 +103,8 @@ class Workspace:
 
 
 def _is_vector(dtype) -> bool:
-    return getattr(dtype, "_length_", 0) > 0
+    """A Warp vector type (Warp's scalar types have _length_ 1 too)."""
+    return getattr(dtype, "_length_", 0) > 1
 
 
 def _rows(a: wp.array, shape: tuple[int, ...]) -> wp.array:

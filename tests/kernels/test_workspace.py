@@ -91,3 +91,21 @@ def test_workspace_allocates_nothing_after_its_first_call():
     with _Allocations() as count:
         _calls(rng, occ, 10, 4)[2](None)
     assert count.n > 0
+
+
+def test_workspace_uploads_scalar_and_vector_rows():
+    # a scalar dtype's rows are the array's own (Warp's scalars have _length_ 1, as a 1-vector would)
+    ws = Workspace()
+    dev = runtime.device(None)
+    x = np.array([0.5, 1.5, 2.5])
+    a = ws.upload("x", x, wp.float64, dev, capacity=8)
+    assert a.shape == (3,)
+    np.testing.assert_array_equal(a.numpy(), x)
+    v = np.arange(12.0).reshape(4, 3)
+    b = ws.upload("v", v, wp.vec3d, dev, capacity=8)
+    assert b.shape == (4,)
+    np.testing.assert_array_equal(b.numpy(), v)
+    t = np.arange(6, dtype=np.int32).reshape(2, 3)
+    c = ws.upload("t", t, wp.int32, dev, capacity=8)
+    assert c.shape == (2, 3)
+    np.testing.assert_array_equal(c.numpy(), t)
