@@ -272,7 +272,7 @@ class ShadowPass:
             if s == 8:
                 sq, new = square_corners(pend, 4)
             else:  # the last spacing, 2: each pixel's own corners; one with none wanted is summed itself
-                c2 = self.corners[2][pend]
+                c2 = self.corners[pend]
                 ok2 = (c2 >= 0) & allowed[np.maximum(c2, 0)]
                 new = np.unique(np.concatenate([c2[ok2], pend[~ok2.any(1)]]))
                 new = new[~known[new]]
@@ -284,7 +284,7 @@ class ShadowPass:
         # spacing 2: a pixel is filled (the 3x3 mean) where its own corners are wanted, summed, and agree
         # as above; the others are summed themselves
         pend = pend[~known[pend]]
-        c = self.corners[2][pend]
+        c = self.corners[pend]
         need = c != -2
         cc = np.maximum(c, 0)
         good = np.all(~need | ((c >= 0) & known[cc]), axis=1)
@@ -365,34 +365,40 @@ class ShadowPass:
         self.cand.push()
 
 
-def _lattice_corners(recv: np.ndarray, quad: np.ndarray, W: int, H: int) -> dict[int, np.ndarray]:
-    """Per receiver pixel recv[i] and spacing s (2): (len(recv), 4) int32 indices into recv
-    of the corners (x0, y0), (x0 + s, y0), (x0, y0 + s), (x0 + s, y0 + s) of its lattice square
-    (x0 = s floor(x / s), ...); -2 where the corner's bilinear weight is zero, -1 where it is off
-    the image, not a receiver pixel or on another quad."""
+def _square_corners(index: np.ndarray, quad: np.ndarray, x0: np.ndarray, y0: np.ndarray, q: np.ndarray, s: int,
+                    W: int, H: int) -> np.ndarray:
+    """(n, 4) int64: the receiver-point index (`index`: per image pixel, -1 none) of the corners
+    (x0, y0), (x0 + s, y0), (x0, y0 + s), (x0 + s, y0 + s) of n lattice squares of spacing s on
+    quads q; -1 where a corner is off the image, not a receiver pixel or on another quad."""
+    c = np.empty((len(x0), 4), np.int64)
+    for k, (cx, cy) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+        sx, sy = x0 + cx * s, y0 + cy * s
+        inside = (sx < W) & (sy < H)
+        o = np.where(inside, sy * W + sx, 0)
+        i = np.where(inside, index[o], -1)
+        c[:, k] = np.where((i >= 0) & (quad[o] == q), i, -1)
+    return c
+
+
+def _lattice_corners(recv: np.ndarray, quad: np.ndarray, W: int, H: int, s: int = 2) -> np.ndarray:
+    """Per receiver pixel recv[i]: (len(recv), 4) int32 indices into recv of the corners of its
+    lattice square of spacing s (x0 = s floor(x / s), ...; order of _square_corners); -2 where the
+    corner's bilinear weight is zero, -1 where it is off the image, not a receiver pixel or on
+    another quad."""
     index = np.full(H * W, -1, np.int64)
     index[recv] = np.arange(len(recv))
     y, x = np.divmod(recv, W)
-    out = {}
-    for s in (2,):
-        x0, y0 = x // s * s, y // s * s
-        c = np.empty((len(recv), 4), np.int32)
-        for k, (cx, cy) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
-            sx, sy = x0 + cx * s, y0 + cy * s
-            inside = (sx < W) & (sy < H)
-            o = np.where(inside, sy * W + sx, 0)
-            i = np.where(inside, index[o], -1)
-            i = np.where((i >= 0) & (quad[o] == quad[recv]), i, -1)
-            zero = ((cx == 1) & (x == x0)) | ((cy == 1) & (y == y0))
-            c[:, k] = np.where(zero, -2, i)
-        out[s] = c
-    return out
+    x0, y0 = x // s * s, y // s * s
+    c = _square_corners(index, quad, x0, y0, quad[recv], s, W, H)
+    for k, (cx, cy) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+        c[((cx == 1) & (x == x0)) | ((cy == 1) & (y == y0)), k] = -2
+    return c.astype(np.int32)
 
 
 def _lattice_squares(recv: np.ndarray, quad: np.ndarray, W: int, H: int, s: int) -> tuple[np.ndarray, np.ndarray]:
     """The lattice squares of spacing s of receiver pixels recv, one per (square, quad): each
-    pixel's square (len(recv),) and the squares' corners (n, 4) as indices into recv, in the
-    order of _lattice_corners (-1: off the image, not a receiver pixel, or on another quad)."""
+    pixel's square (len(recv),) and the squares' corners (n, 4) as indices into recv
+    (_square_corners)."""
     index = np.full(H * W, -1, np.int64)
     index[recv] = np.arange(len(recv))
     y, x = np.divmod(recv, W)
@@ -401,14 +407,7 @@ def _lattice_squares(recv: np.ndarray, quad: np.ndarray, W: int, H: int, s: int)
     keys, pt_sq = np.unique(key, return_inverse=True)
     first = np.zeros(len(keys), np.int64)
     first[pt_sq[::-1]] = np.arange(len(recv))[::-1]  # one pixel of each square
-    x0, y0, sq_quad = x[first] // s * s, y[first] // s * s, q[first]
-    c = np.empty((len(keys), 4), np.int64)
-    for k, (cx, cy) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
-        sx, sy = x0 + cx * s, y0 + cy * s
-        inside = (sx < W) & (sy < H)
-        o = np.where(inside, sy * W + sx, 0)
-        i = np.where(inside, index[o], -1)
-        c[:, k] = np.where((i >= 0) & (quad[o] == sq_quad), i, -1)
+    c = _square_corners(index, quad, x[first] // s * s, y[first] // s * s, q[first], s, W, H)
     return pt_sq.astype(np.int64).reshape(-1), c
 
 
