@@ -172,6 +172,20 @@ def test_free_cells_convex_frees_every_front_direction():
     assert OL.free_cells(v[f]).all()
 
 
+def _cell_directions(cells: np.ndarray, r: int, fu, fv) -> np.ndarray:
+    """Directions (n,3) inside cube cells `cells` (OL._cube_bin's layout, r x r a face) at the
+    fractions fu, fv (in [0, 1)) of each cell's two in-face coordinates."""
+    face, rem = np.divmod(cells, r * r)
+    iu, iv = np.divmod(rem, r)
+    ax, neg = np.divmod(face, 2)
+    d = np.zeros((len(cells), 3))
+    rows = np.arange(len(cells))
+    d[rows, ax] = np.where(neg == 1, -1.0, 1.0)
+    d[rows, (ax + 1) % 3] = (iu + fu) / r * 2 - 1
+    d[rows, (ax + 2) % 3] = (iv + fv) / r * 2 - 1
+    return d
+
+
 def test_free_cells_never_free_a_blocked_ray():
     # an L of two boxes (concave): 48 random rays per free cell, from apexes anywhere in the table's
     # eps range, in front of their triangle: none meets the shape; a blocked share is really cut out;
@@ -188,14 +202,8 @@ def test_free_cells_never_free_a_blocked_ray():
     r = OL.FREE_RES
     t, c = np.nonzero(free)
     t, c = np.repeat(t, 48), np.repeat(c, 48)
-    face, rem = np.divmod(c, r * r)
-    iu, iv = np.divmod(rem, r)
-    ax, neg = np.divmod(face, 2)
-    d = np.zeros((len(t), 3))
-    rows = np.arange(len(t))
-    d[rows, ax] = np.where(neg == 1, -1.0, 1.0)
-    d[rows, (ax + 1) % 3] = (iu + rng.random(len(t))) / r * 2 - 1
-    d[rows, (ax + 2) % 3] = (iv + rng.random(len(t))) / r * 2 - 1
+    fu, fv = rng.random(len(t)), rng.random(len(t))
+    d = _cell_directions(c, r, fu, fv)
     assert (OL._cube_bin(d, r) == c).all()
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -205,14 +213,7 @@ def test_free_cells_never_free_a_blocked_ray():
     assert segments_visible(occ, apex[front], apex[front] + 10.0 * d[front]).all()
     # the cells left out do hold blocked rays (the same check fails on them): the table is not all-free
     tb, cb = np.nonzero(~free)
-    fb, remb = np.divmod(cb, r * r)
-    ub, vb = np.divmod(remb, r)
-    axb, negb = np.divmod(fb, 2)
-    db = np.zeros((len(tb), 3))
-    rows = np.arange(len(tb))
-    db[rows, axb] = np.where(negb == 1, -1.0, 1.0)
-    db[rows, (axb + 1) % 3] = (ub + 0.5) / r * 2 - 1
-    db[rows, (axb + 2) % 3] = (vb + 0.5) / r * 2 - 1
+    db = _cell_directions(cb, r, 0.5, 0.5)
     ab = tris.mean(1)[tb] + n[tb] * OL.EXACT_EPS
     fr = (db * n[tb]).sum(1) > 0
     assert (segments_visible(occ, ab[fr], ab[fr] + 10.0 * db[fr]) == 0).sum() > 10
