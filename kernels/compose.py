@@ -246,6 +246,16 @@ def share_kernel(first: int, idx: wp.array(dtype=wp.int64), O: wp.array2d(dtype=
 SO_ROWS = 4  # receiver vertices per thread of second_order_kernel
 
 
+@wp.func
+def _store_row(dE_v: wp.array2d(dtype=wp.float64), add_v: wp.array2d(dtype=wp.float64), v: int, last: int,
+               a: wp.vec3d):
+    """dE_v[v] = add_v[v] = a for a vertex v of the range (v < last)."""
+    if v < last:
+        for c in range(3):
+            dE_v[v, c] = a[c]
+            add_v[v, c] = a[c]
+
+
 @wp.kernel
 def second_order_kernel(first: int, last: int, G_v: wp.array2d(dtype=wp.float32), nz: wp.array(dtype=wp.int32),
                         n_nz: int, dB: wp.array2d(dtype=wp.float64), dE_v: wp.array2d(dtype=wp.float64),
@@ -257,47 +267,21 @@ def second_order_kernel(first: int, last: int, G_v: wp.array2d(dtype=wp.float32)
     v1 = wp.min(v0 + 1, last - 1)  # past the range: the last row again, not stored
     v2 = wp.min(v0 + 2, last - 1)
     v3 = wp.min(v0 + 3, last - 1)
-    z = wp.float64(0.0)
-    a00 = wp.float64(0.0)
-    a01 = wp.float64(0.0)
-    a02 = wp.float64(0.0)
-    a10 = wp.float64(0.0)
-    a11 = wp.float64(0.0)
-    a12 = wp.float64(0.0)
-    a20 = wp.float64(0.0)
-    a21 = wp.float64(0.0)
-    a22 = wp.float64(0.0)
-    a30 = wp.float64(0.0)
-    a31 = wp.float64(0.0)
-    a32 = wp.float64(0.0)
+    a0 = wp.vec3d(0.0, 0.0, 0.0)
+    a1 = wp.vec3d(0.0, 0.0, 0.0)
+    a2 = wp.vec3d(0.0, 0.0, 0.0)
+    a3 = wp.vec3d(0.0, 0.0, 0.0)
     for k in range(n_nz):
         p = nz[k]
-        d0 = dB[p, 0]
-        d1 = dB[p, 1]
-        d2 = dB[p, 2]
-        g0 = wp.float64(G_v[v0, p])
-        g1 = wp.float64(G_v[v1, p])
-        g2 = wp.float64(G_v[v2, p])
-        g3 = wp.float64(G_v[v3, p])
-        a00 += g0 * d0
-        a01 += g0 * d1
-        a02 += g0 * d2
-        a10 += g1 * d0
-        a11 += g1 * d1
-        a12 += g1 * d2
-        a20 += g2 * d0
-        a21 += g2 * d1
-        a22 += g2 * d2
-        a30 += g3 * d0
-        a31 += g3 * d1
-        a32 += g3 * d2
-    sums = wp.mat44d(a00, a01, a02, z, a10, a11, a12, z, a20, a21, a22, z, a30, a31, a32, z)
-    for j in range(SO_ROWS):
-        v = v0 + j
-        if v < last:
-            for c in range(3):
-                dE_v[v, c] = sums[j, c]
-                add_v[v, c] = sums[j, c]
+        d = wp.vec3d(dB[p, 0], dB[p, 1], dB[p, 2])
+        a0 += wp.float64(G_v[v0, p]) * d
+        a1 += wp.float64(G_v[v1, p]) * d
+        a2 += wp.float64(G_v[v2, p]) * d
+        a3 += wp.float64(G_v[v3, p]) * d
+    _store_row(dE_v, add_v, v0, last, a0)
+    _store_row(dE_v, add_v, v0 + 1, last, a1)
+    _store_row(dE_v, add_v, v0 + 2, last, a2)
+    _store_row(dE_v, add_v, v0 + 3, last, a3)
 
 
 class _Mirror:
