@@ -16,6 +16,7 @@ Arrays (P patches, V vertices, T = 2P triangles):
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,9 +47,10 @@ class PatchMesh:
     def is_emitter(self) -> np.ndarray:
         return np.any(self.emission > 0, axis=1)
 
-    @property
+    @functools.cached_property
     def radius(self) -> np.ndarray:
-        """Bounding radius of each patch about its centre, (P,) m."""
+        """Bounding radius of each patch about its centre, (P,) m (computed once: the stages read it
+        every frame)."""
         return np.linalg.norm(self.corners - self.centre[:, None, :], axis=2).max(1)
 
 
