@@ -101,6 +101,12 @@ class Occluder:
     def id(self) -> int:
         return int(self.mesh.id) if self.mesh is not None else 0
 
+    def triangles(self) -> np.ndarray:
+        """The mesh's triangles (T,3,3) float64 m, read back from its buffers ((0,3,3) when empty)."""
+        if self.mesh is None:
+            return np.zeros((0, 3, 3))
+        return self._pts.numpy().astype(np.float64)[self._idx.numpy().reshape(-1, 3)]
+
 
 def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.ndarray,
                     patch_normals: np.ndarray, occluders: list[Occluder], n_side: int = 2,

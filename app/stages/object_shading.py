@@ -216,7 +216,7 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
             lo, hi = vu.min(0), vu.max(0)
             centre = 0.5 * (lo + hi)
             radius = float(np.linalg.norm(vu - centre, axis=1).max())
-            pr = _patch_radius(eng)
+            pr = pm.radius
             d = np.linalg.norm(pm.centre[changed] - centre, axis=1) - pr[changed]
             is_far = (d >= DB_FAR * radius) & (2.0 * pr[changed] <= DB_CLUSTER * (d + pr[changed]))
             far, changed = changed[is_far], changed[~is_far]
@@ -245,22 +245,11 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     return L_vert
 
 
-def _patch_radius(eng: "Engine") -> np.ndarray:
-    """The room patches' bounding radii (P,) m (PatchMesh.radius), computed once per engine."""
-    cached = eng.__dict__.get("_patch_radius")
-    if cached is None or cached[0] is not eng.pre.patches:
-        cached = eng._patch_radius = (eng.pre.patches, eng.pre.patches.radius)
-    return cached[1]
-
-
 def room_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
     """The room occluder's triangles (T,3,3) float64, read back once per engine."""
     cached = eng.__dict__.get("_room_tris")
     if cached is None or cached[0] is not occ:
-        tris = np.zeros((0, 3, 3))
-        if occ.mesh is not None:
-            tris = occ._pts.numpy().astype(np.float64)[occ._idx.numpy().reshape(-1, 3)]
-        cached = eng._room_tris = (occ, tris)
+        cached = eng._room_tris = (occ, occ.triangles())
     return cached[1]
 
 
