@@ -323,6 +323,9 @@ class Engine:
                                   len(pre.recv_vert))
         self.shadow_sources.use_receivers(pm.vert_pos[pre.recv_vert], dev, vert_pixels)
         self.shaft_build_s = time.perf_counter() - t0  # built, or read from the cache (hit)
+        # the single-source transfer table the all-sources frame reads (made here: cheaper than reading it)
+        self.shadow_sources.keep_single_transfers(functools.partial(split_launches, device=dev, min_items=64))
+        self.single_table_s = time.perf_counter() - t0 - self.shaft_build_s
         log.debug("shaft hierarchy: %s, %.1f s", self.shadow_sources.stats(), self.shaft_build_s)
         self._cost: dict | None = None  # measured fixed and per-pass frame cost (--fps), refined every frame
         self._passes_override: int | None = None  # pass count of the calibration frame

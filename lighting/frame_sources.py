@@ -33,6 +33,9 @@ from lighting.shafts import ShaftHierarchy
 from recon.response import luminance
 
 BOX_GRID_M = 1e-3  # the object's box is grown outward to this grid before selection (select)
+# memory allowed to the per-scene table of single-source transfers (ShadowSources.keep_single_transfers);
+# a room whose table is larger makes each list's transfers per frame instead (kept for the next one)
+SINGLE_TABLE_MAX_BYTES = 1 << 30
 
 
 @dataclass
@@ -158,10 +161,45 @@ class ShadowSources:
                 run[r0:r1] = cum[:, -1]
         return out
 
-    def _single_transfers(self, ids: np.ndarray, split=None) -> tuple[np.ndarray, np.ndarray]:
-        """(W_v (Vr,n,3), W_c (P,n,3)) float32 of one pass per source `ids`, read-only. The last
-        list's are kept: the all-sources frames of poses whose box meets the same sources (every
-        frame of Engine.refine, a room whose shafts all meet the object) reuse them."""
+    def keep_single_transfers(self, split=None, max_bytes: int = SINGLE_TABLE_MAX_BYTES) -> bool:
+        """Make the per-scene table of single-source transfers: (Vr + P, S, 3) float32, column j
+        G[:, src_ids[j]] * B[src_ids[j]] (receiver-vertex rows, then patch-centre rows), in KD order,
+        read-only. An all-sources frame then reads its transfers from it: the table itself when its
+        list holds every source, else a ColumnView of the listed columns (no per-frame copy). Not
+        made (False) when it would take more than max_bytes: then each list's transfers are made
+        per frame (_single_transfers, the last list's kept). split: as _column_transfers's."""
+        self.single = None
+        if self.empty:
+            return False
+        S, rows = len(self.src_ids), self.G_v.shape[0] + self.P
+        if rows * S * 3 * 4 > max_bytes:
+            return False
+        B = self.B[self.src_ids].astype(np.float32)
+        table = np.empty((rows, S, 3), np.float32)
+        Vr = self.G_v.shape[0]
+        _column_transfers(self.G_v, self.src_ids, B, split=split, out=table[:Vr])
+        _column_transfers(self.G_c, self.src_ids, B, split=split, out=table[Vr:])
+        table.flags.writeable = False
+        self.single = table
+        self._single = None
+        return True
+
+    def _single_transfers(self, ids: np.ndarray, split=None, pos: np.ndarray | None = None):
+        """(W_v (Vr,n,3), W_c (P,n,3)) float32 of one pass per source `ids` (at KD positions `pos`),
+        read-only: from the per-scene table when there is one (keep_single_transfers: the table's
+        rows when every source is listed, else ColumnViews of its listed columns). Without the
+        table they are made here and the last list's are kept: the all-sources frames of poses
+        whose box meets the same sources (every frame of Engine.refine, a room whose shafts all meet
+        the object) reuse them."""
+        table = getattr(self, "single", None)
+        if table is not None:
+            Vr = self.G_v.shape[0]
+            if pos is None:  # the KD positions of the ids
+                order = np.argsort(self.src_ids)
+                pos = order[np.searchsorted(self.src_ids, ids, sorter=order)]
+            if len(pos) == table.shape[1]:
+                return table[:Vr], table[Vr:]
+            return ColumnView(table, 0, Vr, pos), ColumnView(table, Vr, table.shape[0], pos)
         last = getattr(self, "_single", None)
         if last is not None and np.array_equal(last[0], ids):
             return last[1], last[2]
@@ -176,10 +214,12 @@ class ShadowSources:
     def stats(self) -> dict:
         if self.empty:
             return {"shafts": 0, "leaf_shafts": 0, "shaft_mb": 0.0, "source_nodes": 0, "receiver_nodes": 0,
-                    "weight_table_mb": 0.0}
+                    "weight_table_mb": 0.0, "single_table_mb": 0.0}
+        single = getattr(self, "single", None)
         return {"shafts": self.shafts.n_shafts, "leaf_shafts": self.shafts.n_leaf_shafts,
                 "shaft_mb": self.shafts.nbytes / 2 ** 20, "source_nodes": self.src_tree.n_nodes,
-                "receiver_nodes": self.recv_tree.n_nodes, "weight_table_mb": self.prefix.nbytes / 2 ** 20}
+                "receiver_nodes": self.recv_tree.n_nodes, "weight_table_mb": self.prefix.nbytes / 2 ** 20,
+                "single_table_mb": 0.0 if single is None else single.nbytes / 2 ** 20}
 
     def weights(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(W_v (Vr,n,3), W_c (P,n,3)) float32: per node [lo, hi) of KD positions (sorted, disjoint,
@@ -234,6 +274,32 @@ class ShadowSources:
                                                    starts, axis=0)
         np.maximum(W, 0.0, out=W)  # a difference of rounded prefixes where the exact sum is 0
         return np.ascontiguousarray(W[:, :Vr].transpose(1, 0, 2)), np.ascontiguousarray(W[:, Vr:].transpose(1, 0, 2))
+
+    def _pairs(self, l_lo: np.ndarray, l_hi: np.ndarray, k_lo: np.ndarray, k_hi: np.ndarray, n: int) -> np.ndarray:
+        """cand (P, n) bool: patch p x pass k is True when some rectangle [l_lo, l_hi) x [k_lo, k_hi)
+        of (receiver leaves, passes) holds (p's leaf, k). The rectangles' edges cut both axes into
+        cells that are wholly in or out: their corners are counted (+1 / -1) on that coarse grid
+        and summed up both axes (2-D prefix sums, int32), then each cell is spread back over its
+        leaves and passes (a column gather, then one row gather per patch)."""
+        L = self.n_recv_leaves
+        rb = np.unique(np.concatenate([[0, L], l_lo, l_hi]))  # row cuts (leaves)
+        cb = np.unique(np.concatenate([[0, n], k_lo, k_hi]))  # column cuts (passes)
+        a0, a1 = np.searchsorted(rb, l_lo), np.searchsorted(rb, l_hi)
+        b0, b1 = np.searchsorted(cb, k_lo), np.searchsorted(cb, k_hi)
+        m = len(cb)
+        size = len(rb) * m
+        D = (np.bincount(np.concatenate([a0 * m + b0, a1 * m + b1]), minlength=size)
+             - np.bincount(np.concatenate([a0 * m + b1, a1 * m + b0]), minlength=size)).astype(np.int32)
+        D = D.reshape(len(rb), m)
+        np.cumsum(D, axis=0, dtype=np.int32, out=D)
+        np.cumsum(D, axis=1, dtype=np.int32, out=D)
+        cells = D[:-1, :-1] > 0  # (row cells, column cells)
+        per_pass = cells[:, np.searchsorted(cb, np.arange(n), side="right") - 1]  # (row cells, n)
+        per_pass = np.concatenate([per_pass, np.zeros((1, n), bool)])  # last: patches in no leaf
+        cell_of_leaf = np.searchsorted(rb, np.arange(L), side="right") - 1
+        row = np.where(self.leaf_of_recv >= 0, cell_of_leaf[np.maximum(self.leaf_of_recv, 0)] if L else 0,
+                       len(per_pass) - 1)
+        return per_pass[row]
 
     # ------------------------------------------------------------------ per frame
     def traverse(self, box_min: np.ndarray, box_max: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -349,7 +415,7 @@ class ShadowSources:
         starts = np.searchsorted(pos, lo)
         ids = self.src_ids[pos]
         if n == len(pos):  # one source per pass (the all-sources frame): its own transfers
-            W_v, W_c = self._single_transfers(ids, split)
+            W_v, W_c = self._single_transfers(ids, split, pos)
         else:
             W_v, W_c = self.weights(lo, hi, marked)
         eyes = self.eye_pos[ids] if n == len(pos) else self.eyes(starts, pos, key)
@@ -361,27 +427,60 @@ class ShadowSources:
         r = self.recv_tree
         l_lo, l_hi = r.leaf_lo[r_nodes], r.leaf_hi[r_nodes]
         ok = k_hi > k_lo
-        l_lo, l_hi, k_lo, k_hi = l_lo[ok], l_hi[ok], k_lo[ok], k_hi[ok]
-        size = (self.n_recv_leaves + 1) * (n + 1)
-        corners = np.concatenate([l_lo * (n + 1) + k_lo, l_hi * (n + 1) + k_hi])  # +1 each (flat indices)
-        others = np.concatenate([l_lo * (n + 1) + k_hi, l_hi * (n + 1) + k_lo])  # -1 each
-        D = (np.bincount(corners, minlength=size) - np.bincount(others, minlength=size)).astype(np.int32)
-        D = D.reshape(self.n_recv_leaves + 1, n + 1)
-        np.cumsum(D, axis=0, dtype=np.int32, out=D)  # in place, int32: counts of leaf shafts (no int64 temporaries)
-        np.cumsum(D, axis=1, dtype=np.int32, out=D)
-        leaf_pass = D[:-1, :-1] > 0
-        cand = np.zeros((self.P, n), bool)
-        inside = self.leaf_of_recv >= 0
-        cand[inside] = leaf_pass[self.leaf_of_recv[inside]]
+        cand = self._pairs(l_lo[ok], l_hi[ok], k_lo[ok], k_hi[ok], n)
         return FrameSources(eyes, W_v, W_c, cand, int(marked.sum()), int(cand.any(1).sum()), spread)
 
 
-def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int = 256, split=None) -> np.ndarray:
+class ColumnView:
+    """Read-only (rows, n, 3) view of the rows [r0, r1) and the columns `pos` of a (R, S, 3)
+    table, without copying it: indexing it as an array (rows, then a slice or index of its columns)
+    gathers only what is asked for; any other use (np.asarray, arithmetic) makes the full array."""
+
+    def __init__(self, table: np.ndarray, r0: int, r1: int, pos: np.ndarray):
+        self.table, self.r0, self.r1, self.pos = table, int(r0), int(r1), np.asarray(pos, np.int64)
+        self.shape = (self.r1 - self.r0, len(self.pos)) + table.shape[2:]
+        self.dtype = table.dtype
+        self.ndim = len(self.shape)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __array__(self, dtype=None, copy=None):
+        a = self.table[self.r0:self.r1, self.pos]
+        return a if dtype is None else a.astype(dtype, copy=False)
+
+    def __getitem__(self, key):
+        key = key if isinstance(key, tuple) else (key,)
+        if len(key) > 2 or any(k is Ellipsis or k is None for k in key):
+            return np.asarray(self)[key]
+        rows, cols = key + (slice(None),) * (2 - len(key))
+        outer = isinstance(rows, slice) or isinstance(cols, slice)  # numpy: the index arrays are not paired
+        cols = self.pos[cols]
+        if isinstance(rows, slice):
+            a, b, step = rows.indices(self.shape[0])
+            if step > 0:
+                return self.table[self.r0 + a:self.r0 + max(a, b):step, cols]
+            rows = np.arange(self.r0, self.r1)[rows]
+        else:
+            rows = np.asarray(rows)
+            if rows.dtype == bool:
+                rows = np.flatnonzero(rows)
+            if rows.ndim > 1:
+                return np.asarray(self)[key]
+            rows = self.r0 + np.where(rows < 0, rows + self.shape[0], rows)
+        if outer and np.ndim(rows) == 1 and np.ndim(cols) == 1:
+            return self.table[rows[:, None], cols[None, :]]
+        return self.table[rows, cols]
+
+
+def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int = 256, split=None,
+                      out: np.ndarray | None = None) -> np.ndarray:
     """(R, n, 3) float32 G[:, ids] * B (B (n,3) float32): the transfers of single sources, in slabs
-    of `rows` rows (a slab's gathered columns stay in cache; the same products as one broadcast).
-    split(work(lo, hi), R): runs row ranges concurrently (app.runtime.split: one range per core;
-    numpy's gather and product release the GIL); default one range."""
-    out = np.empty((G.shape[0], len(ids), 3), np.float32)
+    of `rows` rows (a slab's gathered columns stay in cache; the same products as one broadcast),
+    into `out` when given. split(work(lo, hi), R): runs row ranges concurrently (app.runtime.split:
+    one range per core; numpy's gather and product release the GIL); default one range."""
+    if out is None:
+        out = np.empty((G.shape[0], len(ids), 3), np.float32)
 
     def work(lo: int, hi: int) -> None:
         for r0 in range(lo, hi, rows):
