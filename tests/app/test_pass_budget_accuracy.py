@@ -11,7 +11,7 @@ With the depth range pyramid's early outs and a blocker search shared by a cell'
 sun_room (a sunlit floor patch beside the object lights the room): 50 passes 0.927 / 2.211 against all
 sources 0.886 / 1.793 (1.081 / 3.232 before the representatives' priority counted the light a cluster's
 map darkens of members the object cannot block: the sunlit patch shared one map with the rest of the
-floor, seen from beside the chair); window_room 0.964 / 0.875, lamps_room 0.973 / 1.553 with it."""
+floor, seen from beside the chair); window_room 0.964 / 0.875, lamps_room 0.979 / 1.426 with it."""
 import pytest
 
 from recon.io import write_png
