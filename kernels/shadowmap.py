@@ -31,6 +31,7 @@ from kernels.visibility import Occluder, segment_blocked
 
 
 COARSE = 8  # texels per side of the blocks of `MapSet.coarse`
+BOX_MARGIN = 1e-3  # m: the proxy's bounding box in MapSet is widened by this (float32 points and rays)
 
 
 @wp.struct
@@ -57,6 +58,8 @@ class MapSet:
     res: int
     bias: float
     proxy: wp.uint64
+    box_lo: wp.vec3  # the proxy's bounding box, widened by BOX_MARGIN: what a ray-mode map's segments must meet
+    box_hi: wp.vec3
     cull: int  # 1: skip triangles facing away from the eye (closed proxies cast the same shadow)
 
 
@@ -145,13 +148,35 @@ def _mip_kernel(ms: MapSet, first: int, lv: int):
 
 
 @wp.func
+def segment_meets_box(p: wp.vec3, q: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
+    """True when the segment p-q meets the box lo..hi (slab test; a segment from p to any point within
+    r of q lies within r of p-q, so a box widened by r bounds the segments from p to a sphere (q, r))."""
+    t0 = float(0.0)
+    t1 = float(1.0)
+    d = q - p
+    meets = bool(True)
+    for k in range(3):
+        if wp.abs(d[k]) < 1.0e-12:
+            if p[k] < lo[k] or p[k] > hi[k]:
+                meets = False
+        else:
+            ta = (lo[k] - p[k]) / d[k]
+            tb = (hi[k] - p[k]) / d[k]
+            t0 = wp.max(t0, wp.min(ta, tb))
+            t1 = wp.min(t1, wp.max(ta, tb))
+    return meets and t0 <= t1
+
+
+@wp.func
 def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     """False when no point of the sphere (c, r) can be occluded in map s (conservative; a
     ray-mode map always answers True): the sphere lies outside the cone from the eye that
     holds the proxy's bounding sphere (widened by a texel for the nearest-texel lookup), or
-    wholly in front of the proxy's nearest depth."""
+    wholly in front of the proxy's nearest depth. A ray-mode map: False when no segment from the
+    sphere to the eye can meet the proxy's bounding box (then no ray of the lookup hits the proxy)."""
     if ms.ray[s] == 1:
-        return True
+        e = wp.vec3(r, r, r)
+        return segment_meets_box(ms.origin[s], c, ms.box_lo - e, ms.box_hi + e)
     d = c - ms.origin[s]
     z = wp.dot(d, ms.fwd[s])
     if z + r <= ms.near[s]:
@@ -291,8 +316,11 @@ class ShadowMaps:
         self.ms.res = self.res
         self.ms.bias = self.bias
         self.ms.proxy = wp.uint64(0)
+        self.ms.box_lo = wp.vec3(0.0, 0.0, 0.0)
+        self.ms.box_hi = wp.vec3(0.0, 0.0, 0.0)
         self.ms.cull = 0
         self.n = 0  # maps in the current batch
+        self.n_ray = 0  # of them in ray mode (the masked sums launch their kernel only if any)
         self._soft = False  # the batch has cluster maps (a spread): raster builds their pyramids
         self._proxy: Occluder | None = None
         self._closed: tuple[bytes, bool] | None = None  # (mesh key, closed) of the last proxy
@@ -313,6 +341,9 @@ class ShadowMaps:
         if self._closed is None or self._closed[0] != key:
             self._closed = (key, _is_closed(vertices, triangles) if self._n_tris else False)
         self.ms.cull = int(self._closed[1])
+        lo, hi = (vertices.min(0), vertices.max(0)) if len(vertices) else (np.zeros(3), np.zeros(3))
+        self.ms.box_lo = wp.vec3(*(lo - BOX_MARGIN))
+        self.ms.box_hi = wp.vec3(*(hi + BOX_MARGIN))
         self._centre = 0.5 * (vertices.min(0) + vertices.max(0)) if len(vertices) else np.zeros(3)
         self._radius = float(np.linalg.norm(vertices - self._centre, axis=1).max()) if len(vertices) else 0.0
 
@@ -347,6 +378,7 @@ class ShadowMaps:
         self.ms.depth.fill_(float("inf"))  # one fill of the whole batch (a kernel per texel costs far more)
         self.ms.coarse.zero_()
         self.n = n
+        self.n_ray = int(use_ray.sum())
         self._soft = bool(np.any(sp > 0))
         return n
 
