@@ -244,6 +244,23 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, run_s
         up = ms.up[s]
         it = ms.inv_tan[s]
         sp = ms.spread[s]
+        if sp <= 0.0:  # one source: the hard lookup of kernels.shadowmap.occluded, the map's frame scaled to
+            # texels once (x + 0.5 = right.d / z * inv_tan * res/2 + res/2) and one reciprocal per point
+            rx = rt * (it * half)
+            uy = up * (it * half)
+            for i in range(a, b):
+                k = idx[i]
+                d = pos[k] - o
+                z = wp.dot(d, f)
+                if z > 1.0e-6:
+                    iz = 1.0 / z
+                    ix = int(wp.floor(wp.dot(d, rx) * iz + half))
+                    iy = int(wp.floor(wp.dot(d, uy) * iz + half))
+                    if ix >= 0 and iy >= 0 and ix < ms.res and iy < ms.res:
+                        if z > ms.depth[s, iy, ix] + ms.bias:
+                            acc[i] = acc[i] + _weight(weights, rows, bary, k, j)
+                            count[i] = count[i] + 1.0
+            continue
         a1 = wp.vec2(wp.dot(ms.axis1[s], rt), wp.dot(ms.axis1[s], up)) * (it * half)
         a2 = wp.vec2(wp.dot(ms.axis2[s], rt), wp.dot(ms.axis2[s], up)) * (it * half)
         run = wp.vec2(3.0, 0.0)
