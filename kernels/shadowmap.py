@@ -258,28 +258,38 @@ def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris:
     y1 = wp.min(int(wp.floor(wp.max(wp.max(a[1], b[1]), c[1]))), ms.res - 1)
     if x0 > x1 or y0 > y1:
         return
+    ia = 1.0 / area
+    za = 1.0 / a[2]
+    zb = 1.0 / b[2]
+    zc = 1.0 / c[2]
     for iy in range(y0, y1 + 1):
         py = float(iy)
         # the row's texels that can pass the test below: between the edges' crossings of the row,
-        # widened by 2 texels for the float32 rounding (the test decides, as over the whole box)
+        # widened by half a texel for the float32 rounding (the test decides, as over the whole box)
         lo = float(ms.res)
         hi = -1.0
         lo, hi = _row_span(a, b, py, lo, hi)
         lo, hi = _row_span(b, c, py, lo, hi)
         lo, hi = _row_span(c, a, py, lo, hi)
-        xs = wp.max(int(wp.floor(lo - 2.0)), x0)
-        xe = wp.min(int(wp.ceil(hi + 2.0)), x1)
+        xs = wp.max(int(wp.floor(lo - 0.5)), x0)
+        xe = wp.min(int(wp.ceil(hi + 0.5)), x1)
         if xs <= xe:  # the blocks this row of the triangle may draw in
             for cx in range(xs / COARSE, xe / COARSE + 1):
                 ms.coarse[s, iy / COARSE, cx] = 1
-        for ix in range(xs, xe + 1):
+        # the barycentrics along the row, w0 = _edge(b, c, x, py) / area = (e0 - k0 x) / area, w1 likewise
+        k0 = c[1] - b[1]
+        e0 = (c[0] - b[0]) * (py - b[1]) + k0 * b[0]
+        k1 = a[1] - c[1]
+        e1 = (a[0] - c[0]) * (py - c[1]) + k1 * c[0]
+        ix = xs
+        while ix <= xe:
             px = float(ix)
-            w0 = _edge(b, c, px, py) / area
-            w1 = _edge(c, a, px, py) / area
+            w0 = (e0 - k0 * px) * ia
+            w1 = (e1 - k1 * px) * ia
             w2 = 1.0 - w0 - w1
             if w0 >= -1.0e-6 and w1 >= -1.0e-6 and w2 >= -1.0e-6:
-                inv_z = w0 / a[2] + w1 / b[2] + w2 / c[2]
-                wp.atomic_min(ms.depth, s, iy, ix, 1.0 / inv_z)
+                wp.atomic_min(ms.depth, s, iy, ix, 1.0 / (w0 * za + w1 * zb + w2 * zc))
+            ix += 1
 
 
 @dataclass
