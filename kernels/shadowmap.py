@@ -31,6 +31,7 @@ from kernels.visibility import Occluder, segment_blocked
 
 
 COARSE = 8  # texels per side of the blocks of `MapSet.coarse`
+RASTER_EPS = 1e-3  # texels: a texel centre this close outside a triangle's edge is drawn (no gap between triangles)
 BOX_MARGIN = 1e-3  # m: the proxy's bounding box in MapSet is widened by this (float32 points and rays)
 
 
@@ -219,15 +220,15 @@ def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
 
 
 @wp.func
-def _row_span(p: wp.vec3, q: wp.vec3, y: float, lo: float, hi: float):
-    """(lo, hi) widened to hold where the edge p-q crosses the row y (both ends of an edge
-    within a texel of the row and too flat to intersect reliably)."""
-    if y < wp.min(p[1], q[1]) - 1.0 or y > wp.max(p[1], q[1]) + 1.0:
+def _row_cross(p: wp.vec3, q: wp.vec3, y: float, lo: float, hi: float):
+    """(lo, hi) widened to hold where the edge p-q meets the row y, if it does (a horizontal edge on
+    the row: both ends)."""
+    if y < wp.min(p[1], q[1]) or y > wp.max(p[1], q[1]):
         return lo, hi
     dy = q[1] - p[1]
-    if wp.abs(dy) > 1.0e-3:
-        t = wp.clamp((y - p[1]) / dy, 0.0, 1.0)
-        x = p[0] + t * (q[0] - p[0])
+    if dy != 0.0:
+        x = p[0] + (y - p[1]) / dy * (q[0] - p[0])
+        x = wp.clamp(x, wp.min(p[0], q[0]), wp.max(p[0], q[0]))
         return wp.min(lo, x), wp.max(hi, x)
     return wp.min(lo, wp.min(p[0], q[0])), wp.max(hi, wp.max(p[0], q[0]))
 
@@ -264,31 +265,29 @@ def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris:
     zc = 1.0 / c[2]
     for iy in range(y0, y1 + 1):
         py = float(iy)
-        # the row's texels that can pass the test below: between the edges' crossings of the row,
-        # widened by half a texel for the float32 rounding (the test decides, as over the whole box)
+        # the texels of the row whose centres lie in the triangle: between the edges' crossings of the
+        # row, those within RASTER_EPS texels of an edge included (the triangles of a mesh leave no gap)
         lo = float(ms.res)
         hi = -1.0
-        lo, hi = _row_span(a, b, py, lo, hi)
-        lo, hi = _row_span(b, c, py, lo, hi)
-        lo, hi = _row_span(c, a, py, lo, hi)
-        xs = wp.max(int(wp.floor(lo - 0.5)), x0)
-        xe = wp.min(int(wp.ceil(hi + 0.5)), x1)
-        if xs <= xe:  # the blocks this row of the triangle may draw in
+        lo, hi = _row_cross(a, b, py, lo, hi)
+        lo, hi = _row_cross(b, c, py, lo, hi)
+        lo, hi = _row_cross(c, a, py, lo, hi)
+        xs = wp.max(int(wp.ceil(lo - RASTER_EPS)), x0)
+        xe = wp.min(int(wp.floor(hi + RASTER_EPS)), x1)
+        if xs <= xe:  # the blocks this row of the triangle draws in
             for cx in range(xs / COARSE, xe / COARSE + 1):
                 ms.coarse[s, iy / COARSE, cx] = 1
-        # the barycentrics along the row, w0 = _edge(b, c, x, py) / area = (e0 - k0 x) / area, w1 likewise
+        # 1/z along the row: linear in x (perspective-correct), from the barycentrics
+        # w0 = _edge(b, c, x, py) / area = (e0 - k0 x) / area, w1 likewise, w2 = 1 - w0 - w1
         k0 = c[1] - b[1]
         e0 = (c[0] - b[0]) * (py - b[1]) + k0 * b[0]
         k1 = a[1] - c[1]
         e1 = (a[0] - c[0]) * (py - c[1]) + k1 * c[0]
+        iz0 = zc + (e0 * (za - zc) + e1 * (zb - zc)) * ia
+        diz = -(k0 * (za - zc) + k1 * (zb - zc)) * ia
         ix = xs
         while ix <= xe:
-            px = float(ix)
-            w0 = (e0 - k0 * px) * ia
-            w1 = (e1 - k1 * px) * ia
-            w2 = 1.0 - w0 - w1
-            if w0 >= -1.0e-6 and w1 >= -1.0e-6 and w2 >= -1.0e-6:
-                wp.atomic_min(ms.depth, s, iy, ix, 1.0 / (w0 * za + w1 * zb + w2 * zc))
+            wp.atomic_min(ms.depth, s, iy, ix, 1.0 / (iz0 + diz * float(ix)))
             ix += 1
 
 
