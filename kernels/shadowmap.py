@@ -47,6 +47,8 @@ class MapSet:
     spread: wp.array(dtype=wp.float32)  # half-width of the cluster of sources the map stands for (m; 0: a point)
     axis1: wp.array(dtype=wp.vec3)  # the cluster's half-axes across the view (m; |axis1| = spread)
     axis2: wp.array(dtype=wp.vec3)
+    cone_tan: wp.array(dtype=wp.float32)  # may_occlude's cone around the proxy: tan of its half-angle
+    cone_sec: wp.array(dtype=wp.float32)  # and 1 / cos of it (ShadowMaps.prepare)
     depth: wp.array3d(dtype=wp.float32)
     coarse: wp.array3d(dtype=wp.int32)  # (S, ceil(res/COARSE), same): 1 where a triangle may have drawn
     # depth range pyramid (ShadowMaps.build_mips): level l >= 1 holds the min and max depth of
@@ -170,8 +172,7 @@ def segment_meets_box(p: wp.vec3, q: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
 
 @wp.func
 def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
-    """False when no point of the sphere (c, r) can be occluded in map s (conservative; a
-    ray-mode map always answers True): the sphere lies outside the cone from the eye that
+    """False when no point of the sphere (c, r) can be occluded in map s (conservative): the sphere lies outside the cone from the eye that
     holds the proxy's bounding sphere (widened by a texel for the nearest-texel lookup), or
     wholly in front of the proxy's nearest depth. A ray-mode map: False when no segment from the
     sphere to the eye can meet the proxy's bounding box (then no ray of the lookup hits the proxy)."""
@@ -182,13 +183,11 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     z = wp.dot(d, ms.fwd[s])
     if z + r <= ms.near[s]:
         return False
-    # a cluster map's penumbra (kernels.composite.penumbra) reaches spread / near farther out
-    pen = ms.spread[s] / wp.max(ms.near[s], 1.0e-3)
-    tan_h = (1.0 + 2.0 / float(ms.res)) / ms.inv_tan[s] + 1.0e-5 + pen
-    cos_h = 1.0 / wp.sqrt(1.0 + tan_h * tan_h)
+    # the cone (cone_tan: the proxy's bounding sphere widened by a texel, and a cluster map's
+    # penumbra, which kernels.composite.penumbra reaches spread / near farther out): the signed
+    # distance of c from the cone's surface (a lower bound behind the apex) times sec
     lateral = wp.length(d - ms.fwd[s] * z)
-    # signed distance of c from the cone's surface (a lower bound behind the apex)
-    if lateral * cos_h - z * tan_h * cos_h > r:
+    if lateral - z * ms.cone_tan[s] > r * ms.cone_sec[s]:
         return False
     if z - r <= 1.0e-6:
         return True
@@ -198,9 +197,11 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     b = wp.dot(d, ms.up[s])
     k = ms.inv_tan[s] * float(ms.res) * 0.5
     half = float(ms.res) * 0.5 - 0.5
-    ext = r * (z + wp.max(wp.abs(a), wp.abs(b))) / (z * (z - r)) * k + 1.0 + pen * k
-    xc = a / z * k + half
-    yc = b / z * k + half
+    pen = ms.spread[s] / wp.max(ms.near[s], 1.0e-3)
+    iz = 1.0 / z
+    ext = r * (z + wp.max(wp.abs(a), wp.abs(b))) * iz / (z - r) * k + 1.0 + pen * k
+    xc = a * iz * k + half
+    yc = b * iz * k + half
     x0 = wp.max(int(wp.floor(xc - ext)), 0)
     x1 = wp.min(int(wp.floor(xc + ext)), ms.res - 1)
     y0 = wp.max(int(wp.floor(yc - ext)), 0)
@@ -305,6 +306,7 @@ class ShadowMaps:
         cap = self.capacity
         self._frame = {k: Buffer(cap, wp.vec3, d) for k in ("origin", "right", "up", "fwd", "axis1", "axis2")}
         self._frame.update(inv_tan=Buffer(cap, wp.float32, d), near=Buffer(cap, wp.float32, d),
+                           cone_tan=Buffer(cap, wp.float32, d), cone_sec=Buffer(cap, wp.float32, d),
                            ray=Buffer(cap, wp.int32, d), spread=Buffer(cap, wp.float32, d))
         self.ms = MapSet()
         for k, b in self._frame.items():
@@ -380,9 +382,15 @@ class ShadowMaps:
         sp = np.zeros(n) if spread is None else np.asarray(spread, np.float64)[:n]
         ax = (np.stack([sp[:, None] * right, sp[:, None] * up], 1) if axes is None
               else np.asarray(axes, np.float64)[:n])
+        # may_occlude's cone: the field of view widened by a texel each side (the nearest-texel lookup) and
+        # by the penumbra's reach spread / near; float32-safe (a hair wider)
+        tan_c = (1.0 + 2.0 / self.res) / inv_tan + 1e-5 + sp / np.maximum(dist - r, 1e-3)
+        tan_c = np.where(use_ray, 0.0, tan_c * (1 + 1e-6))
+        sec_c = np.sqrt(1.0 + tan_c ** 2)
         for k, v in (("origin", eyes), ("right", right), ("up", up), ("fwd", fwd), ("inv_tan", inv_tan),
                      ("near", dist - r), ("ray", use_ray),
-                     ("spread", sp), ("axis1", ax[:, 0]), ("axis2", ax[:, 1])):
+                     ("spread", sp), ("axis1", ax[:, 0]), ("axis2", ax[:, 1]), ("cone_tan", tan_c),
+                     ("cone_sec", sec_c)):
             self._frame[k].upload(v)
         self.ms.depth.fill_(float("inf"))  # one fill of the whole batch (a kernel per texel costs far more)
         self.ms.coarse.zero_()
