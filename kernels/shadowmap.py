@@ -31,6 +31,8 @@ from kernels.visibility import Occluder, segment_blocked
 
 
 COARSE = 8  # texels per side of the blocks of `MapSet.coarse`
+RASTER_EPS = 1e-3  # texels: a texel centre this close outside a triangle's edge is drawn (no gap between triangles)
+BOX_MARGIN = 1e-3  # m: the proxy's bounding box in MapSet is widened by this (float32 points and rays)
 
 
 @wp.struct
@@ -45,6 +47,8 @@ class MapSet:
     spread: wp.array(dtype=wp.float32)  # half-width of the cluster of sources the map stands for (m; 0: a point)
     axis1: wp.array(dtype=wp.vec3)  # the cluster's half-axes across the view (m; |axis1| = spread)
     axis2: wp.array(dtype=wp.vec3)
+    cone_tan: wp.array(dtype=wp.float32)  # may_occlude's cone around the proxy: tan of its half-angle
+    cone_sec: wp.array(dtype=wp.float32)  # and 1 / cos of it (ShadowMaps.prepare)
     depth: wp.array3d(dtype=wp.float32)
     coarse: wp.array3d(dtype=wp.int32)  # (S, ceil(res/COARSE), same): 1 where a triangle may have drawn
     # depth range pyramid (ShadowMaps.build_mips): level l >= 1 holds the min and max depth of
@@ -57,6 +61,8 @@ class MapSet:
     res: int
     bias: float
     proxy: wp.uint64
+    box_lo: wp.vec3  # the proxy's bounding box, widened by BOX_MARGIN: what a ray-mode map's segments must meet
+    box_hi: wp.vec3
     cull: int  # 1: skip triangles facing away from the eye (closed proxies cast the same shadow)
 
 
@@ -145,24 +151,43 @@ def _mip_kernel(ms: MapSet, first: int, lv: int):
 
 
 @wp.func
+def segment_meets_box(p: wp.vec3, q: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
+    """True when the segment p-q meets the box lo..hi (slab test; a segment from p to any point within
+    r of q lies within r of p-q, so a box widened by r bounds the segments from p to a sphere (q, r))."""
+    t0 = float(0.0)
+    t1 = float(1.0)
+    d = q - p
+    meets = bool(True)
+    for k in range(3):
+        if wp.abs(d[k]) < 1.0e-12:
+            if p[k] < lo[k] or p[k] > hi[k]:
+                meets = False
+        else:
+            ta = (lo[k] - p[k]) / d[k]
+            tb = (hi[k] - p[k]) / d[k]
+            t0 = wp.max(t0, wp.min(ta, tb))
+            t1 = wp.min(t1, wp.max(ta, tb))
+    return meets and t0 <= t1
+
+
+@wp.func
 def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
-    """False when no point of the sphere (c, r) can be occluded in map s (conservative; a
-    ray-mode map always answers True): the sphere lies outside the cone from the eye that
+    """False when no point of the sphere (c, r) can be occluded in map s (conservative): the sphere lies outside the cone from the eye that
     holds the proxy's bounding sphere (widened by a texel for the nearest-texel lookup), or
-    wholly in front of the proxy's nearest depth."""
+    wholly in front of the proxy's nearest depth. A ray-mode map: False when no segment from the
+    sphere to the eye can meet the proxy's bounding box (then no ray of the lookup hits the proxy)."""
     if ms.ray[s] == 1:
-        return True
+        e = wp.vec3(r, r, r)
+        return segment_meets_box(ms.origin[s], c, ms.box_lo - e, ms.box_hi + e)
     d = c - ms.origin[s]
     z = wp.dot(d, ms.fwd[s])
     if z + r <= ms.near[s]:
         return False
-    # a cluster map's penumbra (kernels.composite.penumbra) reaches spread / near farther out
-    pen = ms.spread[s] / wp.max(ms.near[s], 1.0e-3)
-    tan_h = (1.0 + 2.0 / float(ms.res)) / ms.inv_tan[s] + 1.0e-5 + pen
-    cos_h = 1.0 / wp.sqrt(1.0 + tan_h * tan_h)
+    # the cone (cone_tan: the proxy's bounding sphere widened by a texel, and a cluster map's
+    # penumbra, which kernels.composite.penumbra reaches spread / near farther out): the signed
+    # distance of c from the cone's surface (a lower bound behind the apex) times sec
     lateral = wp.length(d - ms.fwd[s] * z)
-    # signed distance of c from the cone's surface (a lower bound behind the apex)
-    if lateral * cos_h - z * tan_h * cos_h > r:
+    if lateral - z * ms.cone_tan[s] > r * ms.cone_sec[s]:
         return False
     if z - r <= 1.0e-6:
         return True
@@ -172,9 +197,11 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     b = wp.dot(d, ms.up[s])
     k = ms.inv_tan[s] * float(ms.res) * 0.5
     half = float(ms.res) * 0.5 - 0.5
-    ext = r * (z + wp.max(wp.abs(a), wp.abs(b))) / (z * (z - r)) * k + 1.0 + pen * k
-    xc = a / z * k + half
-    yc = b / z * k + half
+    pen = ms.spread[s] / wp.max(ms.near[s], 1.0e-3)
+    iz = 1.0 / z
+    ext = r * (z + wp.max(wp.abs(a), wp.abs(b))) * iz / (z - r) * k + 1.0 + pen * k
+    xc = a * iz * k + half
+    yc = b * iz * k + half
     x0 = wp.max(int(wp.floor(xc - ext)), 0)
     x1 = wp.min(int(wp.floor(xc + ext)), ms.res - 1)
     y0 = wp.max(int(wp.floor(yc - ext)), 0)
@@ -194,15 +221,15 @@ def _edge(a: wp.vec3, b: wp.vec3, x: float, y: float) -> float:
 
 
 @wp.func
-def _row_span(p: wp.vec3, q: wp.vec3, y: float, lo: float, hi: float):
-    """(lo, hi) widened to hold where the edge p-q crosses the row y (both ends of an edge
-    within a texel of the row and too flat to intersect reliably)."""
-    if y < wp.min(p[1], q[1]) - 1.0 or y > wp.max(p[1], q[1]) + 1.0:
+def _row_cross(p: wp.vec3, q: wp.vec3, y: float, lo: float, hi: float):
+    """(lo, hi) widened to hold where the edge p-q meets the row y, if it does (a horizontal edge on
+    the row: both ends)."""
+    if y < wp.min(p[1], q[1]) or y > wp.max(p[1], q[1]):
         return lo, hi
     dy = q[1] - p[1]
-    if wp.abs(dy) > 1.0e-3:
-        t = wp.clamp((y - p[1]) / dy, 0.0, 1.0)
-        x = p[0] + t * (q[0] - p[0])
+    if dy != 0.0:
+        x = p[0] + (y - p[1]) / dy * (q[0] - p[0])
+        x = wp.clamp(x, wp.min(p[0], q[0]), wp.max(p[0], q[0]))
         return wp.min(lo, x), wp.max(hi, x)
     return wp.min(lo, wp.min(p[0], q[0])), wp.max(hi, wp.max(p[0], q[0]))
 
@@ -233,28 +260,36 @@ def _raster_kernel(ms: MapSet, first: int, verts: wp.array(dtype=wp.vec3), tris:
     y1 = wp.min(int(wp.floor(wp.max(wp.max(a[1], b[1]), c[1]))), ms.res - 1)
     if x0 > x1 or y0 > y1:
         return
+    ia = 1.0 / area
+    za = 1.0 / a[2]
+    zb = 1.0 / b[2]
+    zc = 1.0 / c[2]
     for iy in range(y0, y1 + 1):
         py = float(iy)
-        # the row's texels that can pass the test below: between the edges' crossings of the row,
-        # widened by 2 texels for the float32 rounding (the test decides, as over the whole box)
+        # the texels of the row whose centres lie in the triangle: between the edges' crossings of the
+        # row, those within RASTER_EPS texels of an edge included (the triangles of a mesh leave no gap)
         lo = float(ms.res)
         hi = -1.0
-        lo, hi = _row_span(a, b, py, lo, hi)
-        lo, hi = _row_span(b, c, py, lo, hi)
-        lo, hi = _row_span(c, a, py, lo, hi)
-        xs = wp.max(int(wp.floor(lo - 2.0)), x0)
-        xe = wp.min(int(wp.ceil(hi + 2.0)), x1)
-        if xs <= xe:  # the blocks this row of the triangle may draw in
+        lo, hi = _row_cross(a, b, py, lo, hi)
+        lo, hi = _row_cross(b, c, py, lo, hi)
+        lo, hi = _row_cross(c, a, py, lo, hi)
+        xs = wp.max(int(wp.ceil(lo - RASTER_EPS)), x0)
+        xe = wp.min(int(wp.floor(hi + RASTER_EPS)), x1)
+        if xs <= xe:  # the blocks this row of the triangle draws in
             for cx in range(xs / COARSE, xe / COARSE + 1):
                 ms.coarse[s, iy / COARSE, cx] = 1
-        for ix in range(xs, xe + 1):
-            px = float(ix)
-            w0 = _edge(b, c, px, py) / area
-            w1 = _edge(c, a, px, py) / area
-            w2 = 1.0 - w0 - w1
-            if w0 >= -1.0e-6 and w1 >= -1.0e-6 and w2 >= -1.0e-6:
-                inv_z = w0 / a[2] + w1 / b[2] + w2 / c[2]
-                wp.atomic_min(ms.depth, s, iy, ix, 1.0 / inv_z)
+        # 1/z along the row: linear in x (perspective-correct), from the barycentrics
+        # w0 = _edge(b, c, x, py) / area = (e0 - k0 x) / area, w1 likewise, w2 = 1 - w0 - w1
+        k0 = c[1] - b[1]
+        e0 = (c[0] - b[0]) * (py - b[1]) + k0 * b[0]
+        k1 = a[1] - c[1]
+        e1 = (a[0] - c[0]) * (py - c[1]) + k1 * c[0]
+        iz0 = zc + (e0 * (za - zc) + e1 * (zb - zc)) * ia
+        diz = -(k0 * (za - zc) + k1 * (zb - zc)) * ia
+        ix = xs
+        while ix <= xe:
+            wp.atomic_min(ms.depth, s, iy, ix, 1.0 / (iz0 + diz * float(ix)))
+            ix += 1
 
 
 @dataclass
@@ -271,6 +306,7 @@ class ShadowMaps:
         cap = self.capacity
         self._frame = {k: Buffer(cap, wp.vec3, d) for k in ("origin", "right", "up", "fwd", "axis1", "axis2")}
         self._frame.update(inv_tan=Buffer(cap, wp.float32, d), near=Buffer(cap, wp.float32, d),
+                           cone_tan=Buffer(cap, wp.float32, d), cone_sec=Buffer(cap, wp.float32, d),
                            ray=Buffer(cap, wp.int32, d), spread=Buffer(cap, wp.float32, d))
         self.ms = MapSet()
         for k, b in self._frame.items():
@@ -291,8 +327,11 @@ class ShadowMaps:
         self.ms.res = self.res
         self.ms.bias = self.bias
         self.ms.proxy = wp.uint64(0)
+        self.ms.box_lo = wp.vec3(0.0, 0.0, 0.0)
+        self.ms.box_hi = wp.vec3(0.0, 0.0, 0.0)
         self.ms.cull = 0
         self.n = 0  # maps in the current batch
+        self.n_ray = 0  # of them in ray mode (the masked sums launch their kernel only if any)
         self._soft = False  # the batch has cluster maps (a spread): raster builds their pyramids
         self._proxy: Occluder | None = None
         self._closed: tuple[bytes, bool] | None = None  # (mesh key, closed) of the last proxy
@@ -313,6 +352,9 @@ class ShadowMaps:
         if self._closed is None or self._closed[0] != key:
             self._closed = (key, _is_closed(vertices, triangles) if self._n_tris else False)
         self.ms.cull = int(self._closed[1])
+        lo, hi = (vertices.min(0), vertices.max(0)) if len(vertices) else (np.zeros(3), np.zeros(3))
+        self.ms.box_lo = wp.vec3(*(lo - BOX_MARGIN))
+        self.ms.box_hi = wp.vec3(*(hi + BOX_MARGIN))
         self._centre = 0.5 * (vertices.min(0) + vertices.max(0)) if len(vertices) else np.zeros(3)
         self._radius = float(np.linalg.norm(vertices - self._centre, axis=1).max()) if len(vertices) else 0.0
 
@@ -340,13 +382,20 @@ class ShadowMaps:
         sp = np.zeros(n) if spread is None else np.asarray(spread, np.float64)[:n]
         ax = (np.stack([sp[:, None] * right, sp[:, None] * up], 1) if axes is None
               else np.asarray(axes, np.float64)[:n])
+        # may_occlude's cone: the field of view widened by a texel each side (the nearest-texel lookup) and
+        # by the penumbra's reach spread / near; float32-safe (a hair wider)
+        tan_c = (1.0 + 2.0 / self.res) / inv_tan + 1e-5 + sp / np.maximum(dist - r, 1e-3)
+        tan_c = np.where(use_ray, 0.0, tan_c * (1 + 1e-6))
+        sec_c = np.sqrt(1.0 + tan_c ** 2)
         for k, v in (("origin", eyes), ("right", right), ("up", up), ("fwd", fwd), ("inv_tan", inv_tan),
                      ("near", dist - r), ("ray", use_ray),
-                     ("spread", sp), ("axis1", ax[:, 0]), ("axis2", ax[:, 1])):
+                     ("spread", sp), ("axis1", ax[:, 0]), ("axis2", ax[:, 1]), ("cone_tan", tan_c),
+                     ("cone_sec", sec_c)):
             self._frame[k].upload(v)
         self.ms.depth.fill_(float("inf"))  # one fill of the whole batch (a kernel per texel costs far more)
         self.ms.coarse.zero_()
         self.n = n
+        self.n_ray = int(use_ray.sum())
         self._soft = bool(np.any(sp > 0))
         return n
 

@@ -286,6 +286,35 @@ def test_culling_changes_no_sum(device):
     np.testing.assert_array_equal(c1[clear], ref[clear])
 
 
+
+def test_ray_mode_culling_by_the_proxy_box(device):
+    # an eye inside the cube's bounding sphere (ray mode): cells whose segments to the eye miss the
+    # cube's box are not listed, and the sums are those of testing every point
+    rng = np.random.default_rng(7)
+    v, t = _cube()
+    eye = np.array([[0.45, 0.75, 0.0]])  # beside the cube, as a floor or wall source beside an object
+    pts = np.vstack([_floor_grid(step=0.04), rng.uniform([-3, 0, -3], [3, 2.5, 3], (4000, 3))])
+    pts = pts[np.all((pts < CUBE_LO - 0.01) | (pts > CUBE_HI + 0.01), axis=1)]
+    n = len(pts)
+    rows = np.repeat(np.arange(n, dtype=np.int32)[:, None], 3, 1)
+    bary = np.tile([1.0, 0.0, 0.0], (n, 1))
+    W = rng.uniform(0.5, 2.0, (n, 1, 3)).astype(np.float32)
+    group = (np.floor(pts[:, 0]) + 4).astype(np.int32)
+    tile = (np.floor(pts / 0.1) @ [10000, 1, 100]).astype(np.int64)  # 10 cm cells
+    maps = ShadowMaps(1, 128, device=device)
+    maps.set_proxy(v, t)
+    assert maps.render(eye) == 1 and maps.n_ray == 1
+    out = []
+    for cull in (True, False):
+        ms = MaskedSum(pts, rows, bary, group, device, cull=cull, tile=tile, max_maps=1)
+        ms.add(maps, 1, 0, _wp2(np.ones((group.max() + 1, 1), np.uint8), wp.uint8, device), _wp2(W, wp.vec3, device))
+        out.append(ms.result() + (ms.n_list.numpy()[ms.point_cell].sum(),))
+    (a1, c1, pairs1), (a0, c0, pairs0) = out
+    np.testing.assert_array_equal(c1, c0)
+    np.testing.assert_array_equal(a1, a0)
+    print("ray-mode pairs listed", pairs1, "of", n, "occluded", (c0 > 0).sum())
+    assert pairs0 == n and pairs1 < 0.7 * n and c0.sum() > 200
+
 # ----------------------------------------------------------------------------------------------------------
 # cluster maps: the penumbra of a map that stands for a spread of sources (kernels.composite.penumbra)
 # ----------------------------------------------------------------------------------------------------------
