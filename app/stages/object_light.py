@@ -10,8 +10,8 @@ import numpy as np
 
 from kernels.buffers import Workspace, workspace
 from kernels.farfield import VertexInterpolation, point_emitter_sum
-from kernels.visibility import (Occluder, distance_to, emitter_sum, emitter_sum_seen, segments_visible,
-                                transfer_matrix)
+from kernels.visibility import (Occluder, distance_to, emitter_sum, emitter_sum_seen_bounded,
+                                segments_visible, transfer_matrix)
 from recon.proxy import bounding_sphere
 from recon.response import luminance
 from recon.scene import SceneObject
@@ -158,6 +158,8 @@ class ExtraEmitters:
     far_tn: np.ndarray  # (F,3) twice their area x unit normal
     far_rad: np.ndarray  # (F,3) radiance
     far_seen: np.ndarray  # (F, 6 CUBE_RES^2) bool: the directions each one sees out of the object
+    tolerance: float = 0.0  # a triangle is a point emitter at a receiver where that is within this share
+    # of its unoccluded light (kernels.visibility.emitter_sum_seen_bounded); 0: exact form factors
 
 
 def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, covered: np.ndarray | None = None,
@@ -521,12 +523,13 @@ def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
                free: np.ndarray | None = None) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3): the proxy's triangles with a ray each (emitter_sum; none where
     `free`, the shape's free_cells, shows no ray can be blocked), plus the extra emitters with their
-    visibility from their per-shape table (emitter_sum_seen)."""
+    visibility from their per-shape table (emitter_sum_seen_bounded, within extra.tolerance)."""
     out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, eps=EXACT_EPS, device=device, split=256,
                       workspace=ws, free=free, free_res=FREE_RES)
     if extra is not None and len(extra.tris):
-        out += emitter_sum_seen(points, normals, extra.tris, extra.rad, extra.seen, extra.res, device=device,
-                                split=256, workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
+        out += emitter_sum_seen_bounded(points, normals, extra.tris, extra.rad, extra.seen, extra.res,
+                                        extra.tolerance, device=device, split=256,
+                                        workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
     return out
 
 

@@ -41,6 +41,10 @@ EDGE_MIN_RAYS = 256  # rays per concurrent part of refine_clipped_edges's casts 
 PIECE_SIZE = 0.25  # the sunlit pieces' size (SunlitPieces), in bounding radii of the object
 
 
+PIECE_POINT_TOLERANCE = 0.02  # a lit piece is a point emitter at a receiver where the bound of that error is
+# at most this share of its unoccluded light there (kernels.visibility.emitter_sum_seen_bounded)
+
+
 class SunStage:
     """The sun's per-frame work for one scene (built by Engine._sun_setup_pixels)."""
 
@@ -138,7 +142,7 @@ class SunStage:
         np.add.at(far_seen, inv, w[:, None] * coarse[part])
         far_seen /= np.bincount(inv, w, len(par))[:, None]
         extra = ExtraEmitters(sub, rad, table.seen[part], table.res, len(pieces), c, 2.0 * A[:, None] * nrm,
-                              power / A[:, None], far_seen)
+                              power / A[:, None], far_seen, PIECE_POINT_TOLERANCE)
         return tri_rad, extra
 
     def _pieces_of(self, pv: np.ndarray, pf: np.ndarray, tris: np.ndarray, proxy_occ: Occluder,
