@@ -17,13 +17,13 @@ Units: irradiance/pi (the radiance a white Lambertian surface reflects), as in a
 """
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
 from app import runtime
-from kernels.buffers import Workspace
-from kernels.raycast import cast_rays
-from kernels.sunshadow import SunShadowMap
+from kernels.sunshadow import OutlineHits, SunShadowMap
 from kernels.visibility import Occluder
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
 from lighting.sun import SunLight, SunlitPieces
@@ -34,7 +34,7 @@ PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility tab
 # a ray per piece (8 cells: 1.5 %); bench/bench_sun.py prints the pieces against Monte Carlo per pixel
 
 
-EDGE_MIN_RAYS = 256  # rays per concurrent part of refine_clipped_edges's casts at least (a thread's
+EDGE_MIN_RAYS = 256  # rays per concurrent part of refine_clipped_edges's launch at least (a thread's
 # hand-off costs about what a few hundred ray casts do)
 
 
@@ -68,9 +68,7 @@ class SunStage:
         self.patches = patches
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
-        # kept ray buffers per call site and per concurrent part (runtime.MAX_PARTS at most)
-        self._ws = {f"{k}{i}": Workspace() for k in ("edge.object", "edge.scene") for i in range(runtime.MAX_PARTS)}
-        self._warm: set[str] = set()  # call sites whose parts' buffers exist
+        self._outline = OutlineHits(device)  # refine_clipped_edges's rays (buffers kept)
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
@@ -195,19 +193,10 @@ class SunStage:
         if len(py) == 0:
             return np.zeros(0, np.int64)
         py, px = py + y0, px + x0
-        offs = (np.arange(s) + 0.5) / s - 0.5
-        ou, ov = [a.ravel() for a in np.meshgrid(offs, offs)]
-        U = (px[:, None] + ou[None]).ravel()
-        V = (py[:, None] + ov[None]).ravel()
-        d = np.stack([U, V, np.ones_like(U)], -1) @ np.linalg.inv(camera.K).T @ camera.R
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        tri, bary, depth = self._cast(own, camera.centre, d, 1e6, "edge.object")
-        hit = tri >= 0
-        on_obj = np.flatnonzero(hit)  # only the rays that reach the object: is the room nearer?
-        if len(on_obj):
-            _, _, scene_depth = self._cast(cam_occ, camera.centre, d[on_obj], float(depth[on_obj].max()), "edge.scene")
-            hit[on_obj] = depth[on_obj] < scene_depth
-        rad = np.zeros((len(d), 3))
+        # s x s rays a pixel against the object, each that reaches it depth-tested against the room (one launch)
+        tri, bary, hit = self._outline(own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s,
+                                       functools.partial(runtime.split, device=self.device, min_items=EDGE_MIN_RAYS))
+        rad = np.zeros((len(tri), 3))
         h = np.flatnonzero(hit)
         corners = f[tri[h]]
         b = bary[h].astype(np.float64)
@@ -225,22 +214,6 @@ class SunStage:
         cov[py, px] = c
         obj_rad[py, px] = np.where(c[:, None] > 0, mean, obj_rad[py, px])
         return py * W + px
-
-    def _cast(self, occ: Occluder, origin: np.ndarray, d: np.ndarray, max_t: float, site: str):
-        """cast_rays(occ, origin, d, max_t) with the rays cut into one part per core on the CPU
-        (app.runtime: concurrent launches, each with its call site's own buffers); the same
-        (tri, bary, depth) as one launch, ray by ray."""
-        if site not in self._warm:  # every part's buffers on the first call: none allocated in later frames
-            self._warm.add(site)
-            for i in range(1, runtime.parts(self.device, 1 << 30)):
-                cast_rays(occ, origin, d[:1], max_t=max_t, workspace=self._ws[f"{site}{i}"])
-        cuts = runtime.ranges(len(d), runtime.parts(self.device, len(d), EDGE_MIN_RAYS))
-        if len(cuts) == 1:
-            return cast_rays(occ, origin, d, max_t=max_t, workspace=self._ws[f"{site}0"])
-        res = runtime.run([lambda a=a, b=b, i=i: cast_rays(occ, origin, d[a:b], max_t=max_t,
-                                                           workspace=self._ws[f"{site}{i}"])
-                           for i, (a, b) in enumerate(cuts)])
-        return tuple(np.concatenate(x) for x in zip(*res))
 
 
 def patch_clusters(patches) -> tuple[np.ndarray, int]:
