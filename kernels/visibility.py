@@ -379,24 +379,55 @@ def emitter_sum_seen_bounded(points: np.ndarray, normals: np.ndarray, triangles:
     centroid). A triangle is a point where that is at most `tolerance` x A h / (pi r^3) (its light at a
     receiver facing it, unoccluded), i.e. (sum of squared edges / 6) r^3 <= tolerance (r - rho)^5, and
     wholly above the receiver's horizon (r cos_x > rho); else its exact polygon form factor (the
-    same as emitter_sum_seen). tolerance 0: exact everywhere. Returns (N,3) float64."""
-    device = runtime.device(device)
-    n = len(points)
-    if n == 0 or len(triangles) == 0:
-        return np.zeros((n, 3))
-    tri = np.asarray(triangles, np.float64)
-    cen = tri.mean(1)
-    tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    rho = np.sqrt(((tri - cen[:, None]) ** 2).sum(-1).max(1))
-    edges2 = ((tri - np.roll(tri, 1, axis=1)) ** 2).sum((1, 2)) / 6.0
-    ws, block = call_buffers(workspace, n)
-    shared = [ws.upload("tris", tri, wp.vec3d, device, capacity),
-              ws.upload("centroids", cen, wp.vec3d, device, capacity),
-              ws.upload("area_normals", tn, wp.vec3d, device, capacity),
-              ws.upload("geometry", np.stack([rho, edges2], 1), wp.vec2d, device, capacity),
-              ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device, capacity),
-              seen_table(ws, seen, wp.uint8, device, capacity), int(res), float(tolerance)]
-    return _point_launches(_emitter_sum_seen_bounded_kernel, points, normals, shared, ws, block, device, split)
+    same as emitter_sum_seen). tolerance 0: exact everywhere. Returns (N,3) float64. (SeenEmitters
+    keeps the emitters uploaded for many such sums.)"""
+    em = SeenEmitters(device, workspace)
+    em.set(triangles, radiance, seen, res, tolerance, capacity)
+    return em.sum(points, normals, split=split, workspace=workspace)
+
+
+class SeenEmitters:
+    """Emitting triangles with their per-direction visibility tables (emitter_sum_seen_bounded),
+    uploaded once (`set`) for any number of receiver sums (`sum`): a frame's sums at pixels, vertices
+    and patch centres share one upload. Buffers kept between calls (at least `capacity` triangles)."""
+
+    def __init__(self, device: str | None = None, workspace: Workspace | None = None):
+        self.device = runtime.device(device)
+        self._ws = workspace if workspace is not None else Workspace()
+        self._shared: list | None = None
+        self.n = 0
+
+    def set(self, triangles: np.ndarray, radiance: np.ndarray, seen: np.ndarray, res: int, tolerance: float,
+            capacity: int = 0) -> "SeenEmitters":
+        """The emitters: triangles (T,3,3) CCW seen from the emitting side, radiance (T,3), seen
+        (T, 6 res^2) bool (emitter_sum_seen), tolerance (emitter_sum_seen_bounded)."""
+        tri = np.asarray(triangles, np.float64)
+        self.n = len(tri)
+        if self.n == 0:
+            return self
+        cen = tri.mean(1)
+        tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        rho = np.sqrt(((tri - cen[:, None]) ** 2).sum(-1).max(1))
+        edges2 = ((tri - tri[:, [2, 0, 1]]) ** 2).sum((1, 2)) / 6.0
+        ws, dev = self._ws, self.device
+        self._shared = [ws.upload("tris", tri, wp.vec3d, dev, capacity),
+                        ws.upload("centroids", cen, wp.vec3d, dev, capacity),
+                        ws.upload("area_normals", tn, wp.vec3d, dev, capacity),
+                        ws.upload("geometry", np.stack([rho, edges2], 1), wp.vec2d, dev, capacity),
+                        ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, dev, capacity),
+                        seen_table(ws, seen, wp.uint8, dev, capacity), int(res), float(tolerance)]
+        return self
+
+    def sum(self, points: np.ndarray, normals: np.ndarray, split: int = 2048,
+            workspace: Workspace | None = None) -> np.ndarray:
+        """sum_t B_t F(x -> t) seen_t(x) (N,3) float64 (= irradiance / pi) at points (N,3) [unit normals
+        (N,3)]; workspace: the call site's buffers for the points (None: fresh)."""
+        n = len(points)
+        if n == 0 or self.n == 0:
+            return np.zeros((n, 3))
+        ws, block = call_buffers(workspace, n)
+        return _point_launches(_emitter_sum_seen_bounded_kernel, points, normals, self._shared, ws, block,
+                               self.device, split)
 
 
 def seen_table(ws: Workspace, seen: np.ndarray, dtype, device: str, capacity: int = 0) -> wp.array:

@@ -10,7 +10,7 @@ import numpy as np
 
 from kernels.buffers import Workspace, workspace
 from kernels.farfield import VertexInterpolation, point_emitter_sum
-from kernels.visibility import (Occluder, distance_to, emitter_sum, emitter_sum_seen_bounded,
+from kernels.visibility import (Occluder, SeenEmitters, distance_to, emitter_sum, emitter_sum_seen_bounded,
                                 segments_visible, transfer_matrix)
 from recon.proxy import bounding_sphere
 from recon.response import luminance
@@ -160,6 +160,8 @@ class ExtraEmitters:
     far_seen: np.ndarray  # (F, 6 CUBE_RES^2) bool: the directions each one sees out of the object
     tolerance: float = 0.0  # a triangle is a point emitter at a receiver where that is within this share
     # of its unoccluded light (kernels.visibility.emitter_sum_seen_bounded); 0: exact form factors
+    uploaded: SeenEmitters | None = None  # tris, rad, seen and tolerance already on the device (one upload
+    # for the frame's sums), or None
 
 
 def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, covered: np.ndarray | None = None,
@@ -527,9 +529,12 @@ def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, eps=EXACT_EPS, device=device, split=256,
                       workspace=ws, free=free, free_res=FREE_RES)
     if extra is not None and len(extra.tris):
-        out += emitter_sum_seen_bounded(points, normals, extra.tris, extra.rad, extra.seen, extra.res,
-                                        extra.tolerance, device=device, split=256,
-                                        workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
+        if extra.uploaded is not None:
+            out += extra.uploaded.sum(points, normals, split=256, workspace=_sub_workspace(ws, "extra"))
+        else:
+            out += emitter_sum_seen_bounded(points, normals, extra.tris, extra.rad, extra.seen, extra.res,
+                                            extra.tolerance, device=device, split=256,
+                                            workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
     return out
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from app import runtime
 from kernels.sunshadow import OutlineHits, SunShadowMap
-from kernels.visibility import Occluder
+from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
 from lighting.sun import SunLight, SunlitPieces
 
@@ -69,6 +69,7 @@ class SunStage:
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
         self._outline = OutlineHits(device)  # refine_clipped_edges's rays (buffers kept)
+        self._emitters = SeenEmitters(device)  # object_emitters's lit pieces on the device (buffers kept)
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
@@ -139,8 +140,10 @@ class SunStage:
         far_seen = np.zeros((len(par), coarse.shape[1]))
         np.add.at(far_seen, inv, w[:, None] * coarse[part])
         far_seen /= np.bincount(inv, w, len(par))[:, None]
-        extra = ExtraEmitters(sub, rad, table.seen[part], table.res, len(pieces), c, 2.0 * A[:, None] * nrm,
-                              power / A[:, None], far_seen, PIECE_POINT_TOLERANCE)
+        seen = table.seen[part]
+        uploaded = self._emitters.set(sub, rad, seen, table.res, PIECE_POINT_TOLERANCE, capacity=len(pieces))
+        extra = ExtraEmitters(sub, rad, seen, table.res, len(pieces), c, 2.0 * A[:, None] * nrm,
+                              power / A[:, None], far_seen, PIECE_POINT_TOLERANCE, uploaded)
         return tri_rad, extra
 
     def _pieces_of(self, pv: np.ndarray, pf: np.ndarray, tris: np.ndarray, proxy_occ: Occluder,
