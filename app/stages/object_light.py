@@ -243,8 +243,9 @@ def _light_bound(points: np.ndarray, dist: np.ndarray, tri_rad: np.ndarray, radi
     c = 0.5 * (v.min(0) + v.max(0))
     r = float(np.linalg.norm(v - c, axis=1).max())
     rad = extra.rad.max(0)
-    return np.minimum(np.maximum(tri_rad.max(0), rad) * _sphere_ff(radius, dist)[:, None],
-                      out + rad * _sphere_ff(r, np.linalg.norm(points - c, axis=1))[:, None])
+    d = points - c.astype(points.dtype)
+    ff = _sphere_ff(r, np.sqrt(np.einsum("ij,ij->i", d, d)))  # (np.linalg.norm: 5x the time on ~1e5 points)
+    return np.minimum(np.maximum(tri_rad.max(0), rad) * _sphere_ff(radius, dist)[:, None], out + rad * ff[:, None])
 
 
 def headroom(eng: "Engine", levels: float, idx: np.ndarray) -> np.ndarray:
