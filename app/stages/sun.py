@@ -137,8 +137,8 @@ class SunStage:
         c /= np.bincount(inv, w, len(par))[:, None]
         power = np.stack([np.bincount(inv, a * rad[:, k], len(par)) for k in range(3)], 1)
         nrm = pieces.normal[part][np.unique(inv, return_index=True)[1]]
-        far_seen = np.zeros((len(par), coarse.shape[1]))
-        np.add.at(far_seen, inv, w[:, None] * coarse[part])
+        order = np.argsort(inv, kind="stable")  # the pieces face by face: one sum per face (np.add.at: 5x slower)
+        far_seen = np.add.reduceat(w[order, None] * coarse[part[order]], np.searchsorted(inv[order], np.arange(len(par))))
         far_seen /= np.bincount(inv, w, len(par))[:, None]
         seen = table.seen[part]
         uploaded = self._emitters.set(sub, rad, seen, table.res, PIECE_POINT_TOLERANCE, capacity=len(pieces))
