@@ -41,7 +41,7 @@ EDGE_MIN_RAYS = 256  # rays per concurrent part of refine_clipped_edges's launch
 PIECE_SIZE = 0.25  # the sunlit pieces' size (SunlitPieces), in bounding radii of the object
 
 
-PIECE_POINT_TOLERANCE = 0.02  # a lit piece is a point emitter at a receiver where the bound of that error is
+PIECE_POINT_TOLERANCE = 0.05  # a lit piece is a point emitter at a receiver where the bound of that error is
 # at most this share of its unoccluded light there (kernels.visibility.emitter_sum_seen_bounded)
 
 
