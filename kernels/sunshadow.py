@@ -128,9 +128,9 @@ def _tap_depth(m: SunMap, x: float, y: float) -> float:
 
 
 @wp.kernel
-def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.float32),
+def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.float32), first: int,
           out: wp.array(dtype=wp.float32)):
-    i = wp.tid()
+    i = wp.tid() + first
     q = _project(m, pos[i])
     zr = q[2]
     out[i] = 0.0
@@ -170,6 +170,9 @@ def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.
         if _tap_depth(m, q[0] + t[0] * r, q[1] + t[1] * r) < zr - m.bias:
             blocked += 1.0
     out[i] = blocked / float(n)
+
+
+PCSS_SPLIT = 4096  # lookups from which occlusion_at runs two launches side by side on the CPU
 
 
 BLOCK = 16  # texels per side of the blocks whose depth range lets a lookup skip its taps (_region_range)
@@ -246,10 +249,14 @@ class SunShadowMap:
 
     def occlusion_at(self, pts: "LookupPoints") -> np.ndarray:
         """occlusion() of a kept point set (N,) (a view of the kept output buffer: copy to keep)."""
-        if pts.n == 0:
+        n = pts.n
+        if n == 0:
             return np.zeros(0)
-        wp.launch(_pcss, dim=pts.n, inputs=[self.m, pts.pos, pts.fp], outputs=[pts.out], device=self.device)
-        return pts.out.numpy()[:pts.n]
+        # on the CPU two halves side by side (one per core) when there are enough points to pay a thread
+        cuts = [(0, n // 2), (n // 2, n)] if n >= PCSS_SPLIT and wp.get_device(self.device).is_cpu else [(0, n)]
+        runtime.run_parallel([lambda a=a, b=b: wp.launch(_pcss, dim=b - a, inputs=[self.m, pts.pos, pts.fp, a],
+                                                         outputs=[pts.out], device=self.device) for a, b in cuts])
+        return pts.out.numpy()[:n]
 
     def occlusion(self, points: np.ndarray, footprint: np.ndarray | None = None) -> np.ndarray:
         """Share (N,) in [0,1] of the sun's disk the occluder hides from each point, averaged over a
