@@ -204,12 +204,15 @@ class SunStage:
         corners = f[tri[h]]
         b = bary[h].astype(np.float64)
         rad[h] = np.einsum("nk,nkc->nc", b, L_vert[corners])
-        if sun_vert is not None and len(h):
-            pos = np.einsum("nk,nkc->nc", b, v[corners])
-            nrm = np.einsum("nk,nkc->nc", b, n[corners])
+        lit_v = sun_vert.any(1) if sun_vert is not None and len(h) else None
+        k = np.flatnonzero(lit_v[f].any(1)[tri[h]]) if lit_v is not None else []  # on faces with a sunlit corner
+        if len(k):  # (on the others both the per-hit sun and the vertex blend it replaces are 0)
+            hk, bk, ck = h[k], b[k], corners[k]
+            pos = np.einsum("nk,nkc->nc", bk, v[ck])
+            nrm = np.einsum("nk,nkc->nc", bk, n[ck])
             nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-            E_hit = self.light.irradiance_on_mesh(pos, nrm, sun_vert.any(1)[corners], [own])
-            rad[h] = np.maximum(rad[h] + albedo * (E_hit - np.einsum("nk,nkc->nc", b, sun_vert[corners])), 0.0)
+            E_hit = self.light.irradiance_on_mesh(pos, nrm, lit_v[ck], [own])
+            rad[hk] = np.maximum(rad[hk] + albedo * (E_hit - np.einsum("nk,nkc->nc", bk, sun_vert[ck])), 0.0)
         k = s * s
         hits = hit.reshape(-1, k)
         c = hits.mean(1)
