@@ -58,9 +58,9 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
     """The sunlit object's light (irradiance/pi, luminance) at floor and wall pixels around it: whole
     faces (mean sun, one visibility test each), every lit piece with a ray each, the engine's emitters
     (app.stages.sun.SunStage.object_emitters: wholly lit faces whole, partly lit faces' lit pieces with
-    their per-shape visibility table), and a dense Monte Carlo reference (n_mc area samples on the
+    their per-shape visibility table, far ones as points within their bound), and a dense Monte Carlo reference (n_mc area samples on the
     object, sun and receiver visibility per sample)."""
-    from kernels.visibility import Occluder, emitter_sum, emitter_sum_seen
+    from kernels.visibility import Occluder, emitter_sum, emitter_sum_seen_bounded
     from lighting.sources import luminance
 
     V, F = obj.vertices, obj.faces
@@ -105,9 +105,9 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
         f = luminance(emitter_sum(p[None], pn[None], T, faces, occ, device=engine.device)[0])
         pc = luminance(emitter_sum(p[None], pn[None], sub, obj.albedo * E, occ, device=engine.device)[0])
         en = emitter_sum(p[None], pn[None], T, sun_rad, occ, device=engine.device)[0]
-        if extra is not None:
-            en = en + emitter_sum_seen(p[None], pn[None], extra.tris, extra.rad, extra.seen, extra.res,
-                                       device=engine.device)[0]
+        if extra is not None:  # as the engine sums them: far pieces as points within extra.tolerance
+            en = en + emitter_sum_seen_bounded(p[None], pn[None], extra.tris, extra.rad, extra.seen, extra.res,
+                                               extra.tolerance, device=engine.device)[0]
         en = luminance(en)
         rows.append({"pixel (du, dv)": f"({du}, {dv})", "monte_carlo": mc, "faces": f, "pieces": pc, "engine": en,
                      "faces/mc": f / max(mc, 1e-12), "pieces/mc": pc / max(mc, 1e-12),
