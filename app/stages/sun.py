@@ -195,7 +195,8 @@ class SunStage:
         py, px = np.nonzero(outline)
         if len(py) == 0:
             return np.zeros(0, np.int64)
-        py, px = py + y0, px + x0
+        order = np.r_[0:len(py):2, 1:len(py):2]  # every other pixel first: the two halves of the launch
+        py, px = py[order] + y0, px[order] + x0  # both spread over the outline (as much work each)
         # s x s rays a pixel against the object, each that reaches it depth-tested against the room (one launch)
         tri, bary, hit = self._outline(own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s,
                                        functools.partial(runtime.split, device=self.device, min_items=EDGE_MIN_RAYS))
