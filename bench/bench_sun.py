@@ -5,7 +5,9 @@ usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 8]
 On sun_room, one engine: the drag frame with --passes shadow passes, the sun being one of them (the
 sun's map, its PCSS lookups, its pieces of object light, the outline where it clips, what it adds to
 the second order and the object), against the same frame with the sun switched off (all --passes for
-the room's patches), interleaved pose by pose; prints the ratio. Then the sunlit object's light at
+the room's patches), interleaved pose by pose; prints the ratio, and what the sun adds in CPU time
+(each kernel's by its launching thread's clock, and the process's), steadier than wall time when other
+jobs load the machine. Then the sunlit object's light at
 pixels around it from whole faces and from the lit pieces against a dense Monte Carlo reference, and
 rmse_object with the clipped outline re-sampled 4 x 4 and 8 x 8. Then the sun shadow alone: one
 PCSS map against N jittered binary maps (directions spread over the 0.53 deg disk), time and the
@@ -58,9 +60,9 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
     """The sunlit object's light (irradiance/pi, luminance) at floor and wall pixels around it: whole
     faces (mean sun, one visibility test each), every lit piece with a ray each, the engine's emitters
     (app.stages.sun.SunStage.object_emitters: wholly lit faces whole, partly lit faces' lit pieces with
-    their per-shape visibility table), and a dense Monte Carlo reference (n_mc area samples on the
+    their per-shape visibility table, far ones as points within their bound), and a dense Monte Carlo reference (n_mc area samples on the
     object, sun and receiver visibility per sample)."""
-    from kernels.visibility import Occluder, emitter_sum, emitter_sum_seen
+    from kernels.visibility import Occluder, emitter_sum, emitter_sum_seen_bounded
     from lighting.sources import luminance
 
     V, F = obj.vertices, obj.faces
@@ -105,14 +107,47 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
         f = luminance(emitter_sum(p[None], pn[None], T, faces, occ, device=engine.device)[0])
         pc = luminance(emitter_sum(p[None], pn[None], sub, obj.albedo * E, occ, device=engine.device)[0])
         en = emitter_sum(p[None], pn[None], T, sun_rad, occ, device=engine.device)[0]
-        if extra is not None:
-            en = en + emitter_sum_seen(p[None], pn[None], extra.tris, extra.rad, extra.seen, extra.res,
-                                       device=engine.device)[0]
+        if extra is not None:  # as the engine sums them: far pieces as points within extra.tolerance
+            en = en + emitter_sum_seen_bounded(p[None], pn[None], extra.tris, extra.rad, extra.seen, extra.res,
+                                               extra.tolerance, device=engine.device)[0]
         en = luminance(en)
         rows.append({"pixel (du, dv)": f"({du}, {dv})", "monte_carlo": mc, "faces": f, "pieces": pc, "engine": en,
                      "faces/mc": f / max(mc, 1e-12), "pieces/mc": pc / max(mc, 1e-12),
                      "engine/mc": en / max(mc, 1e-12)})
     return rows
+
+
+_LAUNCH = None
+
+
+def kernel_clock(stop: bool = False) -> dict:
+    """Time every Warp launch from now on by the launching thread's CPU clock (a CPU launch runs in
+    that thread): {kernel name: seconds}, cleared by the caller; stop=True puts warp.launch back."""
+    import threading
+
+    import warp as wp
+
+    global _LAUNCH
+    if stop:
+        if _LAUNCH is not None:
+            wp.launch = _LAUNCH
+            _LAUNCH = None
+        return {}
+    acc: dict[str, float] = {}
+    lock = threading.Lock()
+    _LAUNCH = orig = wp.launch
+
+    def launch(kernel, *args, **kwargs):
+        t = time.thread_time()
+        out = orig(kernel, *args, **kwargs)
+        dt = time.thread_time() - t
+        with lock:
+            key = getattr(kernel, "key", str(kernel))
+            acc[key] = acc.get(key, 0.0) + dt
+        return out
+
+    wp.launch = launch
+    return acc
 
 
 def shared_score(shared: Path, pixels: np.ndarray) -> dict:
@@ -149,15 +184,36 @@ def main(argv=None) -> int:
     engine.render(moved(obj, offs[0]))
     t_sun, t_no, ms_sun = [], [], []
     stages: dict[bool, list[dict]] = {True: [], False: []}
+    cpu: dict[bool, list[float]] = {True: [], False: []}  # the process's CPU seconds a frame (all threads)
+    kern: dict[bool, dict[str, float]] = {True: {}, False: {}}  # kernel thread-CPU seconds, summed over frames
+    launched = kernel_clock()
     for i, o in enumerate(offs[1:]):
         for on in ((True, False) if i % 2 == 0 else (False, True)):
             sun(on)
+            launched.clear()
+            c0 = time.process_time()
             st = engine.render(moved(obj, o)).stats
+            cpu[on].append(time.process_time() - c0)
+            for k, v in launched.items():
+                kern[on][k] = kern[on].get(k, 0.0) + v
             (t_sun if on else t_no).append(st["frame_s"])
             stages[on].append(st["timings"])
             if on:
                 ms_sun.append(st["timings"]["sun"])
+    kernel_clock(stop=True)
     sun(True)
+    # CPU time is far steadier than wall time on a shared machine (other jobs' load stretches wall time)
+    n_frames = len(t_sun)
+    diff = sorted(((kern[True].get(k, 0.0) - kern[False].get(k, 0.0)) / n_frames, k) for k in set(kern[True]) | set(kern[False]))
+    rows = [{"kernel": k, "sun_ms": 1e3 * kern[True].get(k, 0.0) / n_frames,
+             "no_sun_ms": 1e3 * kern[False].get(k, 0.0) / n_frames, "added_ms": 1e3 * d} for d, k in diff[::-1][:8]]
+    rows.append({"kernel": "all kernels", "sun_ms": 1e3 * sum(kern[True].values()) / n_frames,
+                 "no_sun_ms": 1e3 * sum(kern[False].values()) / n_frames,
+                 "added_ms": 1e3 * (sum(kern[True].values()) - sum(kern[False].values())) / n_frames})
+    rows.append({"kernel": "process CPU a frame (median)", "sun_ms": 1e3 * float(np.median(cpu[True])),
+                 "no_sun_ms": 1e3 * float(np.median(cpu[False])),
+                 "added_ms": 1e3 * float(np.median(cpu[True]) - np.median(cpu[False]))})
+    print(table(rows, ["kernel", "sun_ms", "no_sun_ms", "added_ms"]))
     print(table([{"stage": k, "sun_ms": 1e3 * float(np.median([t.get(k, 0.0) for t in stages[True]])),
                   "no_sun_ms": 1e3 * float(np.median([t.get(k, 0.0) for t in stages[False]]))}
                  for k in stages[True][-1]], ["stage", "sun_ms", "no_sun_ms"]))

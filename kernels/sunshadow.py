@@ -128,9 +128,9 @@ def _tap_depth(m: SunMap, x: float, y: float) -> float:
 
 
 @wp.kernel
-def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.float32),
+def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.float32), first: int,
           out: wp.array(dtype=wp.float32)):
-    i = wp.tid()
+    i = wp.tid() + first
     q = _project(m, pos[i])
     zr = q[2]
     out[i] = 0.0
@@ -170,6 +170,9 @@ def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.
         if _tap_depth(m, q[0] + t[0] * r, q[1] + t[1] * r) < zr - m.bias:
             blocked += 1.0
     out[i] = blocked / float(n)
+
+
+PCSS_SPLIT = 4096  # lookups from which occlusion_at runs two launches side by side on the CPU
 
 
 BLOCK = 16  # texels per side of the blocks whose depth range lets a lookup skip its taps (_region_range)
@@ -246,10 +249,14 @@ class SunShadowMap:
 
     def occlusion_at(self, pts: "LookupPoints") -> np.ndarray:
         """occlusion() of a kept point set (N,) (a view of the kept output buffer: copy to keep)."""
-        if pts.n == 0:
+        n = pts.n
+        if n == 0:
             return np.zeros(0)
-        wp.launch(_pcss, dim=pts.n, inputs=[self.m, pts.pos, pts.fp], outputs=[pts.out], device=self.device)
-        return pts.out.numpy()[:pts.n]
+        # on the CPU two halves side by side (one per core) when there are enough points to pay a thread
+        cuts = [(0, n // 2), (n // 2, n)] if n >= PCSS_SPLIT and wp.get_device(self.device).is_cpu else [(0, n)]
+        runtime.run_parallel([lambda a=a, b=b: wp.launch(_pcss, dim=b - a, inputs=[self.m, pts.pos, pts.fp, a],
+                                                         outputs=[pts.out], device=self.device) for a, b in cuts])
+        return pts.out.numpy()[:n]
 
     def occlusion(self, points: np.ndarray, footprint: np.ndarray | None = None) -> np.ndarray:
         """Share (N,) in [0,1] of the sun's disk the occluder hides from each point, averaged over a
@@ -290,3 +297,79 @@ class _Buffer:
             self.host.numpy()[:n] = data
             wp.copy(self.dev, self.host, count=n * int(np.prod(self.dev.shape[1:])))
         return self.dev
+
+
+# ----------------------------------------------------------------------------- outline rays
+@wp.kernel
+def _outline_hits_kernel(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, pix_to_dir: wp.mat33,
+                         px: wp.array(dtype=wp.int32), py: wp.array(dtype=wp.int32), s: int, lo: int,
+                         tri: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec3), hit: wp.array(dtype=wp.uint8)):
+    k = wp.tid() + lo  # ray within the block; pixel-major, s x s sub-samples a pixel, row by row
+    j = k // (s * s)  # pixel within the block
+    q = k - j * s * s
+    u = float(px[j]) + (float(q % s) + 0.5) / float(s) - 0.5
+    v = float(py[j]) + (float(q // s) + 0.5) / float(s) - 0.5
+    d = wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0))
+    h = wp.mesh_query_ray(obj, centre, d, 1.0e6)
+    if h.result:
+        tri[k] = h.face
+        bary[k] = wp.vec3(h.u, h.v, 1.0 - h.u - h.v)  # Warp: p = u p0 + v p1 + (1-u-v) p2
+        hit[k] = wp.uint8(1)
+        if scene != wp.uint64(0):  # seen unless the scene model lies in front
+            hs = wp.mesh_query_ray(scene, centre, d, h.t)
+            if hs.result and hs.t <= h.t:
+                hit[k] = wp.uint8(0)
+    else:
+        tri[k] = -1
+        bary[k] = wp.vec3(0.0, 0.0, 0.0)
+        hit[k] = wp.uint8(0)
+
+
+class OutlineHits:
+    """s x s sub-pixel camera rays through a list of pixels against the object's mesh, each
+    depth-tested against the scene model only where it hits the object (one launch for both, as
+    kernels.shade.CameraHits over a rectangle). Buffers of `block` rays are made once; more rays go
+    in blocks of whole pixels."""
+
+    def __init__(self, device: str, block: int = 32768):
+        from kernels.buffers import Buffer
+
+        self.device, self.block = device, block
+        self._px = Buffer(block, wp.int32, device)
+        self._py = Buffer(block, wp.int32, device)
+        self._tri = Buffer(block, wp.int32, device)
+        self._bary = Buffer(block, wp.vec3, device)
+        self._hit = Buffer(block, wp.uint8, device)
+
+    def __call__(self, obj, scene, centre: np.ndarray, pix_to_dir: np.ndarray, px: np.ndarray, py: np.ndarray,
+                 s: int, split=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(tri (n,) int32 (-1: none), bary (n,3) float32, hit (n,) bool) of the n = len(px) s^2 rays
+        of pixels (px, py) (columns, rows), pixel by pixel, sub-sample (a, b) at
+        (px + (a + 0.5)/s - 0.5, py + (b + 0.5)/s - 0.5) as entry b s + a, the ray of pixel position
+        (u, v) being pix_to_dir @ (u, v, 1) normalised (pix_to_dir = R^T K^-1). obj, scene:
+        kernels.visibility.Occluder. `split(launch, n)` runs launch(lo, hi) over ranges covering [0, n)
+        (None: one launch)."""
+        k = s * s
+        per = max(1, self.block // k)  # whole pixels a block
+        n = len(px) * k
+        tri, bary, hit = np.empty(n, np.int32), np.empty((n, 3), np.float32), np.empty(n, bool)
+        run = split or (lambda launch, m: launch(0, m))
+        M = wp.mat33(*np.asarray(pix_to_dir, np.float32).reshape(-1))
+        c = wp.vec3(*np.asarray(centre, np.float32))
+        for p0 in range(0, len(px), per):
+            p1 = min(len(px), p0 + per)
+            self._px.upload(np.asarray(px[p0:p1], np.int32))
+            self._py.upload(np.asarray(py[p0:p1], np.int32))
+            first, m = p0 * k, (p1 - p0) * k
+
+            def launch(lo: int, hi: int) -> None:
+                wp.launch(_outline_hits_kernel, dim=hi - lo,
+                          inputs=[wp.uint64(obj.id), wp.uint64(scene.id), c, M, self._px.dev, self._py.dev, int(s),
+                                  int(lo)],
+                          outputs=[self._tri.dev, self._bary.dev, self._hit.dev], device=self.device)
+
+            run(launch, m)
+            tri[first:first + m] = self._tri.pull(m)
+            bary[first:first + m] = self._bary.pull(m)
+            hit[first:first + m] = self._hit.pull(m) != 0
+        return tri, bary, hit

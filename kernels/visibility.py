@@ -328,6 +328,113 @@ def emitter_sum_seen(points: np.ndarray, normals: np.ndarray, triangles: np.ndar
     return _point_launches(_emitter_sum_seen_kernel, points, normals, shared, ws, block, device, split)
 
 
+POINT_HESSIAN = 12.0  # sup of |d^T H d| |r|^5 / h for the point form factor's kernel (r.n_e)(-r.n_x)/|r|^4 along
+# unit directions d in the emitter's plane (h: the receiver's height over that plane); reached at grazing
+
+
+@wp.kernel
+def _emitter_sum_seen_bounded_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                                     tris: wp.array2d(dtype=wp.vec3d), centroids: wp.array(dtype=wp.vec3d),
+                                     area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec2d),
+                                     radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.uint8), res: int,
+                                     tolerance: wp.float64, out: wp.array(dtype=wp.vec3)):
+    # geometry[t] = (rho_t: the farthest corner from the centroid, (sum of squared edges) / 6)
+    i = wp.tid()
+    p = points[i]
+    n = normals[i]
+    total = wp.vec3(0.0, 0.0, 0.0)
+    for t in range(tris.shape[0]):
+        r = p - centroids[t]
+        ct = wp.dot(r, area_normals[t])  # 2 A h: the receiver in front of the emitter (one-sided)
+        if ct > wp.float64(0.0):
+            if seen[t, cube_cell(wp.vec3(r), res)] != wp.uint8(0):
+                d2 = wp.dot(r, r)
+                d = wp.sqrt(d2)
+                g = geometry[t]
+                cr = -wp.dot(r, n)  # |r| cos at the receiver
+                far = False
+                if d > g[0] and cr > g[0]:  # the whole triangle above the receiver's horizon
+                    m = d - g[0]
+                    far = g[1] * d2 * d <= tolerance * m * m * m * m * m
+                f = wp.float64(0.0)
+                if far:
+                    f = ct * cr / (wp.float64(6.283185307179586) * d2 * d2)
+                else:
+                    f = polygon_ff(p, n, tris, t, 3)
+                if f > wp.float64(0.0):
+                    total += radiance[t] * float(f)
+    out[i] = total
+
+
+def emitter_sum_seen_bounded(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
+                             seen: np.ndarray, res: int, tolerance: float, device: str | None = None,
+                             split: int = 2048, workspace: Workspace | None = None, capacity: int = 0) -> np.ndarray:
+    """emitter_sum_seen with a triangle far enough from a receiver taken as a point emitter at its
+    centroid (A cos_x cos_t / (pi r^2)), where that is within `tolerance` of its unoccluded light.
+
+    The point form factor is the mid-point rule of the triangle's integral: its first-order error
+    vanishes at the centroid, and the second order is at most POINT_HESSIAN h J / (2 pi (r - rho)^5)
+    (h: the receiver's height over the triangle's plane, J = A (sum of squared edges) / 36 the polar
+    moment about the centroid, rho the centroid's farthest corner, r the receiver's distance to the
+    centroid). A triangle is a point where that is at most `tolerance` x A h / (pi r^3) (its light at a
+    receiver facing it, unoccluded), i.e. (sum of squared edges / 6) r^3 <= tolerance (r - rho)^5, and
+    wholly above the receiver's horizon (r cos_x > rho); else its exact polygon form factor (the
+    same as emitter_sum_seen). tolerance 0: exact everywhere. Returns (N,3) float64. (SeenEmitters
+    keeps the emitters uploaded for many such sums.)"""
+    em = SeenEmitters(device, workspace)
+    em.set(triangles, radiance, seen, res, tolerance, capacity)
+    return em.sum(points, normals, split=split, workspace=workspace)
+
+
+class SeenEmitters:
+    """Emitting triangles with their per-direction visibility tables (emitter_sum_seen_bounded),
+    uploaded once (`set`) for any number of receiver sums (`sum`): a frame's sums at pixels, vertices
+    and patch centres share one upload. Buffers kept between calls (at least `capacity` triangles)."""
+
+    def __init__(self, device: str | None = None, workspace: Workspace | None = None):
+        self.device = runtime.device(device)
+        self._ws = workspace if workspace is not None else Workspace()
+        self._shared: list | None = None
+        self.n = 0
+
+    def set(self, triangles: np.ndarray, radiance: np.ndarray, seen: np.ndarray, res: int, tolerance: float,
+            capacity: int = 0) -> "SeenEmitters":
+        """The emitters: triangles (T,3,3) CCW seen from the emitting side, radiance (T,3), seen
+        (T, 6 res^2) bool (emitter_sum_seen), tolerance (emitter_sum_seen_bounded)."""
+        tri = np.asarray(triangles, np.float64)
+        self.n = len(tri)
+        if self.n == 0:
+            return self
+        cen = tri.mean(1)
+        tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        rho = np.sqrt(((tri - cen[:, None]) ** 2).sum(-1).max(1))
+        edges2 = ((tri - tri[:, [2, 0, 1]]) ** 2).sum((1, 2)) / 6.0
+        ws, dev = self._ws, self.device
+        self._shared = [ws.upload("tris", tri, wp.vec3d, dev, capacity),
+                        ws.upload("centroids", cen, wp.vec3d, dev, capacity),
+                        ws.upload("area_normals", tn, wp.vec3d, dev, capacity),
+                        ws.upload("geometry", np.stack([rho, edges2], 1), wp.vec2d, dev, capacity),
+                        ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, dev, capacity),
+                        seen_table(ws, seen, wp.uint8, dev, capacity), int(res), float(tolerance)]
+        return self
+
+    def sum(self, points: np.ndarray, normals: np.ndarray, split: int = 2048,
+            workspace: Workspace | None = None) -> np.ndarray:
+        """sum_t B_t F(x -> t) seen_t(x) (N,3) float64 (= irradiance / pi) at points (N,3) [unit normals
+        (N,3)]; workspace: the call site's buffers for the points (None: fresh)."""
+        n = len(points)
+        if n == 0 or self.n == 0:
+            return np.zeros((n, 3))
+        ws, block = call_buffers(workspace, n)
+        # every other point first: the two halves of _point_launches (one per core) get near and far
+        # receivers alike (a near one costs exact form factors, a far one points)
+        order = np.r_[0:n:2, 1:n:2]
+        out = np.empty((n, 3))
+        out[order] = _point_launches(_emitter_sum_seen_bounded_kernel, np.asarray(points)[order],
+                                     np.asarray(normals)[order], self._shared, ws, block, self.device, split)
+        return out
+
+
 def seen_table(ws: Workspace, seen: np.ndarray, dtype, device: str, capacity: int = 0) -> wp.array:
     """A per-emitter visibility table (E, cells) pushed into ws's buffer "seen" (at least `capacity`
     rows, kept between calls); returns the device view of its first E rows."""

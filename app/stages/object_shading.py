@@ -194,7 +194,10 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
         # the object's own shadow is kept per shape (the sun's rays are parallel: a move changes none
         # of it); per frame only the room's shadow is tested
-        sun_u = eng.sun_light.irradiance(vu, nu) * ss.sun_self_lit(eng.sun_light.d, vu, nu, own)[:, None]
+        self_lit = ss.sun_self_lit(eng.sun_light.d, vu, nu, own)
+        on = np.flatnonzero(self_lit > 0)  # the room's shadow tested only where the object's own leaves the sun
+        sun_u = np.zeros((len(vu), 3))
+        sun_u[on] = eng.sun_light.irradiance(vu[on], nu[on]) * self_lit[on, None]
         eng._obj_sun_vert = sun_u[ss.inv]  # (sharpened per camera hit later)
         # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
@@ -561,17 +564,18 @@ def shade_object(eng: "Engine", obj: SceneObject, mesh, hits: "ObjectHits", prox
     if getattr(eng, "sun_pix", None) is not None:  # sun: its direct light per camera hit (a sharp edge
         # across a face, not a vertex blend), on the faces with a sunlit corner (on the others both the
         # per-hit sun and the vertex blend it replaces are 0)
-        lit_c = eng._obj_sun_vert.any(1)[corners]  # the shading mesh's vertices in the sun (room and own shadow)
-        k = np.flatnonzero(lit_c.any(1))
+        lit_v = eng._obj_sun_vert.any(1)  # the shading mesh's vertices in the sun (room and own shadow)
+        k = np.flatnonzero(lit_v[f].any(1)[hits.tri[h]])  # hits on a face with a sunlit corner
         if len(k):
             hk = np.flatnonzero(h)[k]
             b, ck = hits.bary[hk], corners[k]
+            lit_c = lit_v[ck]
             pos = np.einsum("nk,nkc->nc", b, v[ck])
             nrm = np.einsum("nk,nkc->nc", b, n[ck])
             nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
             own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
                 Occluder(v, f, eng.device)
-            E_hit = eng.sun_light.irradiance_on_mesh(pos, nrm, lit_c[k], [own])  # rays where a shadow edge crosses
+            E_hit = eng.sun_light.irradiance_on_mesh(pos, nrm, lit_c, [own])  # rays where a shadow edge crosses
             E_interp = np.einsum("nk,nkc->nc", b, eng._obj_sun_vert[ck])
             sub[hk] = np.maximum(sub[hk] + obj.albedo * (E_hit - E_interp), 0.0)
     if eng.params.specular > 0:

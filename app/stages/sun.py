@@ -17,14 +17,14 @@ Units: irradiance/pi (the radiance a white Lambertian surface reflects), as in a
 """
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
 from app import runtime
-from kernels.buffers import Workspace
-from kernels.raycast import cast_rays
-from kernels.sunshadow import SunShadowMap
-from kernels.visibility import Occluder
+from kernels.sunshadow import OutlineHits, SunShadowMap
+from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
 from lighting.sun import SunLight, SunlitPieces
 
@@ -34,11 +34,15 @@ PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility tab
 # a ray per piece (8 cells: 1.5 %); bench/bench_sun.py prints the pieces against Monte Carlo per pixel
 
 
-EDGE_MIN_RAYS = 256  # rays per concurrent part of refine_clipped_edges's casts at least (a thread's
+EDGE_MIN_RAYS = 256  # rays per concurrent part of refine_clipped_edges's launch at least (a thread's
 # hand-off costs about what a few hundred ray casts do)
 
 
 PIECE_SIZE = 0.25  # the sunlit pieces' size (SunlitPieces), in bounding radii of the object
+
+
+PIECE_POINT_TOLERANCE = 0.05  # a lit piece is a point emitter at a receiver where the bound of that error is
+# at most this share of its unoccluded light there (kernels.visibility.emitter_sum_seen_bounded)
 
 
 class SunStage:
@@ -64,9 +68,8 @@ class SunStage:
         self.patches = patches
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
-        # kept ray buffers per call site and per concurrent part (runtime.MAX_PARTS at most)
-        self._ws = {f"{k}{i}": Workspace() for k in ("edge.object", "edge.scene") for i in range(runtime.MAX_PARTS)}
-        self._warm: set[str] = set()  # call sites whose parts' buffers exist
+        self._outline = OutlineHits(device)  # refine_clipped_edges's rays (buffers kept)
+        self._emitters = SeenEmitters(device)  # object_emitters's lit pieces on the device (buffers kept)
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
@@ -134,11 +137,13 @@ class SunStage:
         c /= np.bincount(inv, w, len(par))[:, None]
         power = np.stack([np.bincount(inv, a * rad[:, k], len(par)) for k in range(3)], 1)
         nrm = pieces.normal[part][np.unique(inv, return_index=True)[1]]
-        far_seen = np.zeros((len(par), coarse.shape[1]))
-        np.add.at(far_seen, inv, w[:, None] * coarse[part])
+        order = np.argsort(inv, kind="stable")  # the pieces face by face: one sum per face (np.add.at: 5x slower)
+        far_seen = np.add.reduceat(w[order, None] * coarse[part[order]], np.searchsorted(inv[order], np.arange(len(par))))
         far_seen /= np.bincount(inv, w, len(par))[:, None]
-        extra = ExtraEmitters(sub, rad, table.seen[part], table.res, len(pieces), c, 2.0 * A[:, None] * nrm,
-                              power / A[:, None], far_seen)
+        seen = table.seen[part]
+        uploaded = self._emitters.set(sub, rad, seen, table.res, PIECE_POINT_TOLERANCE, capacity=len(pieces))
+        extra = ExtraEmitters(sub, rad, seen, table.res, len(pieces), c, 2.0 * A[:, None] * nrm,
+                              power / A[:, None], far_seen, PIECE_POINT_TOLERANCE, uploaded)
         return tri_rad, extra
 
     def _pieces_of(self, pv: np.ndarray, pf: np.ndarray, tris: np.ndarray, proxy_occ: Occluder,
@@ -190,30 +195,25 @@ class SunStage:
         py, px = np.nonzero(outline)
         if len(py) == 0:
             return np.zeros(0, np.int64)
-        py, px = py + y0, px + x0
-        offs = (np.arange(s) + 0.5) / s - 0.5
-        ou, ov = [a.ravel() for a in np.meshgrid(offs, offs)]
-        U = (px[:, None] + ou[None]).ravel()
-        V = (py[:, None] + ov[None]).ravel()
-        d = np.stack([U, V, np.ones_like(U)], -1) @ np.linalg.inv(camera.K).T @ camera.R
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        tri, bary, depth = self._cast(own, camera.centre, d, 1e6, "edge.object")
-        hit = tri >= 0
-        on_obj = np.flatnonzero(hit)  # only the rays that reach the object: is the room nearer?
-        if len(on_obj):
-            _, _, scene_depth = self._cast(cam_occ, camera.centre, d[on_obj], float(depth[on_obj].max()), "edge.scene")
-            hit[on_obj] = depth[on_obj] < scene_depth
-        rad = np.zeros((len(d), 3))
+        order = np.r_[0:len(py):2, 1:len(py):2]  # every other pixel first: the two halves of the launch
+        py, px = py[order] + y0, px[order] + x0  # both spread over the outline (as much work each)
+        # s x s rays a pixel against the object, each that reaches it depth-tested against the room (one launch)
+        tri, bary, hit = self._outline(own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s,
+                                       functools.partial(runtime.split, device=self.device, min_items=EDGE_MIN_RAYS))
+        rad = np.zeros((len(tri), 3))
         h = np.flatnonzero(hit)
         corners = f[tri[h]]
         b = bary[h].astype(np.float64)
         rad[h] = np.einsum("nk,nkc->nc", b, L_vert[corners])
-        if sun_vert is not None and len(h):
-            pos = np.einsum("nk,nkc->nc", b, v[corners])
-            nrm = np.einsum("nk,nkc->nc", b, n[corners])
+        lit_v = sun_vert.any(1) if sun_vert is not None and len(h) else None
+        k = np.flatnonzero(lit_v[f].any(1)[tri[h]]) if lit_v is not None else []  # on faces with a sunlit corner
+        if len(k):  # (on the others both the per-hit sun and the vertex blend it replaces are 0)
+            hk, bk, ck = h[k], b[k], corners[k]
+            pos = np.einsum("nk,nkc->nc", bk, v[ck])
+            nrm = np.einsum("nk,nkc->nc", bk, n[ck])
             nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-            E_hit = self.light.irradiance_on_mesh(pos, nrm, sun_vert.any(1)[corners], [own])
-            rad[h] = np.maximum(rad[h] + albedo * (E_hit - np.einsum("nk,nkc->nc", b, sun_vert[corners])), 0.0)
+            E_hit = self.light.irradiance_on_mesh(pos, nrm, lit_v[ck], [own])
+            rad[hk] = np.maximum(rad[hk] + albedo * (E_hit - np.einsum("nk,nkc->nc", bk, sun_vert[ck])), 0.0)
         k = s * s
         hits = hit.reshape(-1, k)
         c = hits.mean(1)
@@ -221,22 +221,6 @@ class SunStage:
         cov[py, px] = c
         obj_rad[py, px] = np.where(c[:, None] > 0, mean, obj_rad[py, px])
         return py * W + px
-
-    def _cast(self, occ: Occluder, origin: np.ndarray, d: np.ndarray, max_t: float, site: str):
-        """cast_rays(occ, origin, d, max_t) with the rays cut into one part per core on the CPU
-        (app.runtime: concurrent launches, each with its call site's own buffers); the same
-        (tri, bary, depth) as one launch, ray by ray."""
-        if site not in self._warm:  # every part's buffers on the first call: none allocated in later frames
-            self._warm.add(site)
-            for i in range(1, runtime.parts(self.device, 1 << 30)):
-                cast_rays(occ, origin, d[:1], max_t=max_t, workspace=self._ws[f"{site}{i}"])
-        cuts = runtime.ranges(len(d), runtime.parts(self.device, len(d), EDGE_MIN_RAYS))
-        if len(cuts) == 1:
-            return cast_rays(occ, origin, d, max_t=max_t, workspace=self._ws[f"{site}0"])
-        res = runtime.run([lambda a=a, b=b, i=i: cast_rays(occ, origin, d[a:b], max_t=max_t,
-                                                           workspace=self._ws[f"{site}{i}"])
-                           for i, (a, b) in enumerate(cuts)])
-        return tuple(np.concatenate(x) for x in zip(*res))
 
 
 def patch_clusters(patches) -> tuple[np.ndarray, int]:

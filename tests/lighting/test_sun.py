@@ -242,6 +242,39 @@ def test_emitter_sum_with_a_visibility_table_matches_rays():
     assert total[1] < 0.9 * total[0]  # the plate matters
 
 
+def test_point_emitters_within_their_bound_of_the_exact_form_factors():
+    # emitter_sum_seen_bounded: triangles far enough from a receiver are point emitters at their
+    # centroid; each one's error stays within tolerance x its unoccluded light A h / (pi r^3), at
+    # receivers near and far, facing, grazing and straddling the triangles' horizon; 0 is exact
+    from kernels.visibility import emitter_sum_seen, emitter_sum_seen_bounded
+    from lighting.sun import _split_triangles
+
+    rng = np.random.default_rng(1)
+    sq = np.array([[[-0.5, 0, -0.5], [-0.5, 0, 0.5], [0.5, 0, 0.5]], [[-0.5, 0, -0.5], [0.5, 0, 0.5], [0.5, 0, -0.5]]])
+    tris = _split_triangles(sq, 4)  # 32 pieces facing +y, edges 0.25-0.35 m
+    rad = rng.uniform(0.5, 2.0, (len(tris), 3))
+    seen = np.ones((len(tris), 6 * 4 * 4), bool)
+    pts = np.concatenate([rng.uniform([-6, 0.01, -6], [6, 4, 6], (400, 3)),  # near and far
+                          rng.uniform([-2, 0.001, -2], [2, 0.05, 2], (100, 3))])  # grazing, over the pieces
+    nrm = rng.normal(size=(len(pts), 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    exact = emitter_sum_seen(pts, nrm, tris, rad, seen, 4, device="cpu")
+    np.testing.assert_allclose(emitter_sum_seen_bounded(pts, nrm, tris, rad, seen, 4, 0.0, device="cpu"), exact,
+                               rtol=1e-6, atol=1e-12)
+    c = tris.mean(1)
+    A = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+    r = np.linalg.norm(pts[:, None] - c[None], axis=-1)
+    h = pts[:, 1][:, None]
+    scale = (h * A[None] / (np.pi * r ** 3))[..., None] * rad[None]  # (N,S,3) unoccluded light at a facing receiver
+    n_far = 0
+    for tol in (0.02, 0.2):
+        approx = emitter_sum_seen_bounded(pts, nrm, tris, rad, seen, 4, tol, device="cpu")
+        err = np.abs(approx - exact)
+        assert np.all(err <= tol * scale.sum(1) + 1e-12)
+        n_far = max(n_far, int((err > 1e-9).any(1).sum()))
+    assert n_far > 100  # the point emitters are used
+
+
 def test_pcss_edge_and_penumbra_of_a_plate(device):
     from kernels.sunshadow import SunShadowMap
 
