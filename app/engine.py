@@ -520,10 +520,15 @@ class Engine:
         if p.object_light:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
             extra = None
+            room_tri_rad = tri_rad
             if self.sun_pix is not None:  # sun: the object's sunlit parts light the room too (small pieces)
                 tri_rad, extra = self.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, proxy_occ, radius)
             R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, cov.reshape(-1) >= 1.0,
                                               extra)
+            if self.sun_pix is not None and p.second_order:  # sun: the object's light at the patches from
+                # the sun alone (its later bounces: SunStage.later_bounces)
+                R_cen_sun = R_cen - object_light.centre_light(self, pv, pf, room_tri_rad, proxy_occ, centre, radius,
+                                                              site="object_light.centres.room")
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)
@@ -533,8 +538,11 @@ class Engine:
             if sun_loss is not None:  # sun: the sunlit patch light the object blocks (the room's main
                 # source) and the sunlit object's own light are first-bounce changes: passed on for every
                 # bounce the camera sees, not once (the later ones at the receiver vertices directly)
-                more = self.sun_stage.later_bounces(pm.albedo * (R_cen - sun_loss_c), pm.albedo, pre.G_c, pre.G_v,
-                                                    p.bounces)
+                more = self.sun_stage.later_bounces(
+                    self._sun_dB, pm.albedo, pre.G_c, pre.G_v, p.bounces,
+                    dB2=pm.albedo * R_cen_sun if p.object_light else None, occluder=proxy_occ,
+                    recv_points=pm.vert_inset[pre.recv_vert],
+                    split=functools.partial(split_launches, device=self.device, min_items=256))
             dE_v = self.compose.second_order(dB_shadow + pm.albedo * R_cen, dE_more=more)
         t = tick("second_order", t)
 

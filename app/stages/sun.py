@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from app import runtime
+from kernels.blocked_transfer import BlockedTransfer
 from kernels.buffers import Workspace
 from kernels.raycast import cast_rays
 from kernels.sunshadow import SunShadowMap
@@ -63,6 +64,8 @@ class SunStage:
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
         self.patches = patches
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
+        self._blocked: tuple | None = None  # (key, BlockedTransfer at the receiver vertices, at the patch centres)
+        self._lost: np.ndarray | None = None  # (Pc,K) the last frame's lost share of the sun per sample point
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
         # kept ray buffers per call site and per concurrent part (runtime.MAX_PARTS at most)
         self._ws = {f"{k}{i}": Workspace() for k in ("edge.object", "edge.scene") for i in range(runtime.MAX_PARTS)}
@@ -74,26 +77,76 @@ class SunStage:
         self.map.render(vertices, faces)
         occ_pix = self.map.occlusion_at(self._pix)
         occ_c = self.map.occlusion_at(self._cen).reshape(self.c_vis.shape)
+        self._lost = self.c_vis * occ_c  # share of the sun lost at each sample point (first_pass_blocked)
         loss_c = np.zeros((self.n_patches, 3))
         loss_c[self.c_patch] = (self.c_vis * occ_c).mean(1)[:, None] * self.E_perp
         return occ_pix[:, None] * self.E_pix, loss_c
 
     def later_bounces(self, dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, G_v: np.ndarray,
-                      bounces: int) -> np.ndarray | None:
-        """G_v sum_{k=1}^{bounces-2} (rho G)^k dB1 (Vr,3): a first-bounce change of patch radiance dB1
-        (P,3) (sun a patch no longer reflects, light of the sunlit object) through the patch transfers
-        G (P,P) for the later bounces the camera sees, passed on to the receiver vertices (G_v (Vr,P));
-        None when there are none. One pass through G_v is the engine's second order (exact, on the
-        changed patches); what has gone through G once is spread over the room and is carried on
-        clusters of neighbouring patches (LaterBounces), a few thousandth of the dense work."""
+                      bounces: int, dB2: np.ndarray | None = None, occluder: Occluder | None = None,
+                      recv_points: np.ndarray | None = None, split=None) -> np.ndarray | None:
+        """What the engine's one pass through G_v (its second order) leaves out of the sun's changes, at
+        the receiver vertices (Vr,3); None when nothing.
+
+        A change of patch radiance reaches the camera through as many more bounces as the truth's
+        `bounces` leave it (paths of at most `bounces` reflections, the camera's hit included):
+        - dB1 (P,3), the sun a patch no longer reflects (the object's sun shadow): one reflection
+          made, so G_v (rho G)^k dB1 for k = 1 .. bounces-2;
+        - dB2 (P,3), the sunlit object's light reflected by the patches (rho R, R from the object's
+          sunlit parts only): two made (sun -> object -> patch), so k = 1 .. bounces-3. (The object's
+          light from the room, gathered from B^(bounces-2), has none left: not passed on here.)
+        The later passes run through G on clusters of patches (LaterBounces).
+
+        With `occluder` (the object's proxy) and `recv_points` (Vr,3), the sun's loss is not counted
+        twice where the object also hides the shadowed floor: the shadow pass already takes from a
+        receiver the light of every source (the sunlit patches among them, at their full radiance) that
+        the object hides from it, so the loss's first pass through G_v and G must skip the pairs the
+        object blocks. They are found with one ray per (receiver, sunlit patch that lost sun) to the
+        loss-weighted centre of the patch's lost sample points (first_pass_blocked); the first pass
+        at the patches that this gives back is a change of two reflections, passed on like dB2."""
+        extra_v = None
+        if occluder is not None and self._lost is not None and self.c_patch.size and np.any(dB1[self.c_patch]):
+            if recv_points is None:
+                raise ValueError("SunStage.later_bounces: the occluder needs recv_points")
+            blk_v, blk_c = self.first_pass_blocked(occluder, dB1, G, G_v, recv_points, split)
+            back = -albedo * blk_c  # light the patches keep: their first pass of dB1 counted it lost
+            nz = np.flatnonzero(back.any(1))
+            extra_v = -blk_v + G_v[:, nz].astype(np.float64) @ back[nz]  # and its own first pass
+            dB2 = back if dB2 is None else dB2 + back
         if bounces <= 2:
-            return None
+            return extra_v
         lb = self._later
         if lb is None or lb.key != (id(G), id(G_v), id(albedo)):
             if self.patches is None:
                 raise ValueError("SunStage: later bounces need the patch mesh (patches=)")
             lb = self._later = LaterBounces(G, G_v, albedo, self.patches, exact=self.c_patch)
-        return lb(dB1, bounces - 2)
+        out = lb(dB1, bounces - 2)
+        if dB2 is not None:
+            out = out + lb(dB2, bounces - 3)
+        return out if extra_v is None else out + extra_v
+
+    def first_pass_blocked(self, occluder: Occluder, dB1: np.ndarray, G: np.ndarray, G_v: np.ndarray,
+                           recv_points: np.ndarray, split=None) -> tuple[np.ndarray, np.ndarray]:
+        """(G_v's, G's) first pass of the sun's loss dB1 (P,3) over the (receiver, sunlit patch) pairs that
+        `occluder` blocks: (Vr,3) at the receiver vertices, (P,3) at the patch centres. A patch's loss
+        is placed at the loss-weighted centre of its lost sample points (this frame's, from frame())."""
+        key = (id(G), id(G_v), len(recv_points))
+        if self._blocked is None or self._blocked[0] != key:
+            pm = self.patches
+            if pm is None:
+                raise ValueError("SunStage: first_pass_blocked needs the patch mesh (patches=)")
+            cols = self.c_patch
+            self._blocked = (key, BlockedTransfer(recv_points, np.asarray(G_v)[:, cols], self.device),
+                             BlockedTransfer(pm.centre + pm.normal * 1e-3, np.asarray(G)[:, cols], self.device))
+        _, at_v, at_c = self._blocked
+        K = self.c_vis.shape[1]
+        w = self._lost
+        pts = self.c_pts.reshape(len(self.c_patch), K, 3)
+        tot = w.sum(1)
+        centres = np.where(tot[:, None] > 0, np.einsum("pk,pkc->pc", w, pts) / np.maximum(tot, 1e-30)[:, None],
+                           pts.mean(1))
+        change = dB1[self.c_patch]
+        return at_v(occluder, centres, change, split), at_c(occluder, centres, change, split)
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
                         proxy_occ: Occluder, radius: float) -> tuple[np.ndarray, ExtraEmitters | None]:
