@@ -541,7 +541,7 @@ class Engine:
                 more = self.sun_stage.later_bounces(
                     self._sun_dB, pm.albedo, pre.G_c, pre.G_v, p.bounces,
                     dB2=pm.albedo * R_cen_sun if p.object_light else None, occluder=proxy_occ,
-                    recv_points=pm.vert_inset[pre.recv_vert],
+                    recv_points=pm.vert_inset[pre.recv_vert], sphere=(centre, 1.01 * radius),
                     split=functools.partial(split_launches, device=self.device, min_items=256))
             dE_v = self.compose.second_order(dB_shadow + pm.albedo * R_cen, dE_more=more)
         t = tick("second_order", t)
