@@ -535,15 +535,17 @@ class Engine:
         dE_v = None
         if p.second_order:
             more = None
+            dB = dB_shadow + pm.albedo * R_cen
             if sun_loss is not None:  # sun: the sunlit patch light the object blocks (the room's main
-                # source) and the sunlit object's own light are first-bounce changes: passed on for every
-                # bounce the camera sees, not once (the later ones at the receiver vertices directly)
+                # source) and the sunlit object's own light are passed on for the bounces each has left,
+                # not once (the later ones at the receiver vertices directly), the loss not counted twice
+                # where the object also hides the shadowed floor (SunStage.later_bounces)
                 more = self.sun_stage.later_bounces(
                     self._sun_dB, pm.albedo, pre.G_c, pre.G_v, p.bounces,
                     dB2=pm.albedo * R_cen_sun if p.object_light else None, occluder=proxy_occ,
-                    recv_points=pm.vert_inset[pre.recv_vert], sphere=(centre, 1.01 * radius),
-                    split=functools.partial(split_launches, device=self.device, min_items=256))
-            dE_v = self.compose.second_order(dB_shadow + pm.albedo * R_cen, dE_more=more)
+                    recv_points=pm.vert_inset[pre.recv_vert], box=(pv.min(0) - 1e-3, pv.max(0) + 1e-3),
+                    split=functools.partial(split_launches, device=self.device, min_items=256), first=dB)
+            dE_v = self.compose.second_order(dB, dE_more=more)
         t = tick("second_order", t)
 
         # ---- compose (app.stages.compose): HDR or LDR, on the pixels that changed

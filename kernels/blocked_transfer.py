@@ -18,21 +18,27 @@ from kernels.visibility import Occluder, segment_blocked
 
 
 @wp.func
-def _near_segment(a: wp.vec3, b: wp.vec3, centre: wp.vec3, radius: float) -> bool:
-    """True when segment a->b passes within `radius` of `centre` (else nothing on it can block)."""
+def _segment_meets_box(a: wp.vec3, b: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
+    """True when segment a->b meets the box [lo, hi] (slab test; else nothing inside it can block)."""
+    t0 = float(0.0)
+    t1 = float(1.0)
     d = b - a
-    l2 = wp.dot(d, d)
-    s = float(0.0)
-    if l2 > 0.0:
-        s = wp.clamp(wp.dot(centre - a, d) / l2, 0.0, 1.0)
-    q = a + d * s - centre
-    return wp.dot(q, q) <= radius * radius
+    for k in range(3):
+        if wp.abs(d[k]) < 1.0e-12:
+            if a[k] < lo[k] or a[k] > hi[k]:
+                return False
+        else:
+            u = (lo[k] - a[k]) / d[k]
+            v = (hi[k] - a[k]) / d[k]
+            t0 = wp.max(t0, wp.min(u, v))
+            t1 = wp.min(t1, wp.max(u, v))
+    return t0 <= t1
 
 
 @wp.kernel
 def _blocked_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3), T: wp.array2d(dtype=wp.float32),
-                    targets: wp.array(dtype=wp.vec3), change: wp.array(dtype=wp.vec3), centre: wp.vec3,
-                    radius: float, out: wp.array(dtype=wp.vec3)):
+                    targets: wp.array(dtype=wp.vec3), change: wp.array(dtype=wp.vec3), lo: wp.vec3,
+                    hi: wp.vec3, out: wp.array(dtype=wp.vec3)):
     i = start + wp.tid()
     p = points[i]
     acc = wp.vec3(0.0, 0.0, 0.0)
@@ -40,7 +46,7 @@ def _blocked_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3)
         t = T[i, j]
         c = change[j]
         if t > 0.0 and (c[0] != 0.0 or c[1] != 0.0 or c[2] != 0.0):
-            if _near_segment(p, targets[j], centre, radius):
+            if _segment_meets_box(p, targets[j], lo, hi):
                 if segment_blocked(mesh, p, targets[j]):
                     acc += c * t
     out[i] = acc
@@ -61,10 +67,10 @@ class BlockedTransfer:
         self._change = Buffer(max(self.j, 1), wp.vec3, device)
         self._out = Buffer(max(self.n, 1), wp.vec3, device)
 
-    def __call__(self, occluder: Occluder, targets: np.ndarray, change: np.ndarray, sphere: tuple[np.ndarray, float],
+    def __call__(self, occluder: Occluder, targets: np.ndarray, change: np.ndarray, box: tuple[np.ndarray, np.ndarray],
                  split: Callable[[Callable[[int, int], None], int], None] | None = None) -> np.ndarray:
-        """(N,3) float64: the blocked part of T c for targets (J,3) and changes c (J,3); sphere: (centre (3,),
-        radius) m bounding the occluder (a ray only for segments that pass through it). split(launch, n):
+        """(N,3) float64: the blocked part of T c for targets (J,3) and changes c (J,3); box: (lo (3,), hi (3,))
+        m bounding the occluder (a ray only for segments that meet it). split(launch, n):
         runs launch(lo, hi) over ranges covering [0, n) (e.g. app.runtime.split: one per core), or
         None: one launch."""
         if self.n == 0 or self.j == 0 or not np.any(change):
@@ -75,8 +81,8 @@ class BlockedTransfer:
 
         def launch(a: int, b: int) -> None:
             wp.launch(_blocked_kernel, dim=b - a, inputs=[mesh, a, self.points, self.T, self._targets.dev,
-                                                        self._change.dev, wp.vec3(*map(float, sphere[0])),
-                                                        float(sphere[1])], outputs=[self._out.dev],
+                                                        self._change.dev, wp.vec3(*map(float, box[0])),
+                                                        wp.vec3(*map(float, box[1]))], outputs=[self._out.dev],
                       device=self.device)
 
         if split is None:

@@ -84,8 +84,8 @@ class SunStage:
 
     def later_bounces(self, dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, G_v: np.ndarray,
                       bounces: int, dB2: np.ndarray | None = None, occluder: Occluder | None = None,
-                      recv_points: np.ndarray | None = None, sphere: tuple | None = None, split=None
-                      ) -> np.ndarray | None:
+                      recv_points: np.ndarray | None = None, box: tuple | None = None, split=None,
+                      first: np.ndarray | None = None) -> np.ndarray | None:
         """What the engine's one pass through G_v (its second order) leaves out of the sun's changes, at
         the receiver vertices (Vr,3); None when nothing.
 
@@ -98,21 +98,27 @@ class SunStage:
           light from the room, gathered from B^(bounces-2), has none left: not passed on here.)
         The later passes run through G on clusters of patches (LaterBounces).
 
-        With `occluder` (the object's proxy, bounded by `sphere` (centre, radius)) and `recv_points` (Vr,3), the sun's loss is not counted
+        With `occluder` (the object's proxy, bounded by `box` (lo, hi)) and `recv_points` (Vr,3), the sun's loss is not counted
         twice where the object also hides the shadowed floor: the shadow pass already takes from a
         receiver the light of every source (the sunlit patches among them, at their full radiance) that
         the object hides from it, so the loss's first pass through G_v and G must skip the pairs the
         object blocks. They are found with one ray per (receiver, sunlit patch that lost sun) to the
         loss-weighted centre of the patch's lost sample points (first_pass_blocked); the first pass
-        at the patches that this gives back is a change of two reflections, passed on like dB2."""
+        at the patches that this gives back is a change of two reflections, passed on like dB2; its own
+        first pass through G_v is added to `first` (P,3) when given (the caller's one pass over the
+        changed patches: the engine's second order), else made here."""
         extra_v = None
         if occluder is not None and self._lost is not None and self.c_patch.size and np.any(dB1[self.c_patch]):
-            if recv_points is None or sphere is None:
-                raise ValueError("SunStage.later_bounces: the occluder needs recv_points and its sphere")
-            blk_v, blk_c, full_c = self.first_pass_blocked(occluder, sphere, dB1, G, G_v, recv_points, split, albedo)
+            if recv_points is None or box is None:
+                raise ValueError("SunStage.later_bounces: the occluder needs recv_points and its box")
+            blk_v, blk_c, full_c = self.first_pass_blocked(occluder, box, dB1, G, G_v, recv_points, split, albedo)
             back = -albedo * blk_c  # light the patches keep: their first pass of dB1 counted it lost
-            nz = np.flatnonzero(back.any(1))
-            extra_v = -blk_v + G_v[:, nz].astype(np.float64) @ back[nz]  # and its own first pass
+            extra_v = -blk_v
+            if first is not None:
+                first += back
+            else:  # its own first pass
+                nz = np.flatnonzero(back.any(1))
+                extra_v = extra_v + np.asarray(G_v)[:, nz] @ back[nz].astype(np.float32)
             # the sunlit patches' light the object hides from other patches (the shadow pass's loss there,
             # passed on once by the engine) has two reflections made too: its later passes
             dB2 = back - albedo * full_c if dB2 is None else dB2 + back - albedo * full_c
@@ -128,11 +134,11 @@ class SunStage:
             out = out + lb(dB2, bounces - 3)
         return out if extra_v is None else out + extra_v
 
-    def first_pass_blocked(self, occluder: Occluder, sphere: tuple, dB1: np.ndarray, G: np.ndarray, G_v: np.ndarray,
+    def first_pass_blocked(self, occluder: Occluder, box: tuple, dB1: np.ndarray, G: np.ndarray, G_v: np.ndarray,
                            recv_points: np.ndarray, split=None, albedo: np.ndarray | None = None
                            ) -> tuple[np.ndarray, ...]:
         """(G_v's, G's) first pass of the sun's loss dB1 (P,3) over the (receiver, sunlit patch) pairs that
-        `occluder` (within `sphere`, (centre, radius)) blocks: (Vr,3) at the receiver vertices, (P,3) at the patch centres. A patch's loss
+        `occluder` (within `box`, (lo, hi)) blocks: (Vr,3) at the receiver vertices, (P,3) at the patch centres. A patch's loss
         is placed at the loss-weighted centre of its lost sample points (this frame's, from frame()).
         With `albedo` (P,3), also G's pass of the sunlit patches' whole sun reflection rho E_sun over the
         blocked pairs (P,3), each patch's at the centre of its sunlit sample points."""
@@ -152,14 +158,14 @@ class SunStage:
         centres = np.where(tot[:, None] > 0, np.einsum("pk,pkc->pc", w, pts) / np.maximum(tot, 1e-30)[:, None],
                            pts.mean(1))
         change = dB1[self.c_patch]
-        out = (at_v(occluder, centres, change, sphere, split), at_c(occluder, centres, change, sphere, split))
+        out = (at_v(occluder, centres, change, box, split), at_c(occluder, centres, change, box, split))
         if albedo is None:
             return out
         vis = self.c_vis
         lit = vis.sum(1)
         lit_centres = np.einsum("pk,pkc->pc", vis, pts) / np.maximum(lit, 1e-30)[:, None]
         sun = albedo[self.c_patch] * (vis.mean(1)[:, None] * self.E_perp)  # rho E_sun/pi of each sunlit patch
-        return (*out, at_c(occluder, lit_centres, sun, sphere, split))
+        return (*out, at_c(occluder, lit_centres, sun, box, split))
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
                         proxy_occ: Occluder, radius: float) -> tuple[np.ndarray, ExtraEmitters | None]:

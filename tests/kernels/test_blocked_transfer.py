@@ -43,10 +43,10 @@ def test_blocked_part_matches_ray_casts(split):
     blocked = _reference(v, f, points, targets)
     ref = (T * blocked) @ change
     bt = BlockedTransfer(points, T, "cpu")
-    sphere = (np.array([0.5, 0.45, 0.5]), float(np.linalg.norm([0.1, 0.25, 0.1])))
-    ours = bt(Occluder(v, f, "cpu"), targets, change, sphere,
+    box = (np.array([0.4, 0.2, 0.4]) - 1e-3, np.array([0.6, 0.7, 0.6]) + 1e-3)
+    ours = bt(Occluder(v, f, "cpu"), targets, change, box,
               split=(lambda launch, n: split_launches(launch, n, "cpu", 64)) if split else None)
     assert blocked.mean() > 0.05 and np.abs(ref).max() > 1.0  # a blocked share worth testing
     assert np.allclose(ours, ref, atol=1e-4 * np.abs(ref).max())
-    # a sphere that misses every segment: nothing blocked (no ray cast)
-    assert not bt(Occluder(v, f, "cpu"), targets, change, (np.array([9.0, 9.0, 9.0]), 0.1)).any()
+    # a box that no segment meets: nothing blocked (no ray cast)
+    assert not bt(Occluder(v, f, "cpu"), targets, change, (np.array([9.0, 9.0, 9.0]), np.array([9.1, 9.1, 9.1]))).any()

@@ -4,7 +4,6 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from recon.proxy import bounding_sphere
 from recon.scene import load_scene
 from tests.conftest import shared_scene
 
@@ -60,9 +59,8 @@ def test_blocked_first_pass_matches_rays_to_every_lost_sample(coarse):
     loss, loss_c = st.frame(s.obj.vertices, s.obj.faces)
     dB1 = -pm.albedo * loss_c
     pv, pf, occ, _, _ = e._object_shape(s.obj)
-    centre, radius = bounding_sphere(pv)
     recv = pm.vert_inset[e.pre.recv_vert]
-    blk_v, blk_c = st.first_pass_blocked(occ, (centre, 1.01 * radius), dB1, e.pre.G_c, e.pre.G_v, recv)
+    blk_v, blk_c = st.first_pass_blocked(occ, (pv.min(0) - 1e-3, pv.max(0) + 1e-3), dB1, e.pre.G_c, e.pre.G_v, recv)
     # reference: every lost sample point as its own target, with its patch's transfer
     K = st.c_vis.shape[1]
     lost = st._lost
