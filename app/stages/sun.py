@@ -111,17 +111,20 @@ class SunStage:
         if occluder is not None and self._lost is not None and self.c_patch.size and np.any(dB1[self.c_patch]):
             if recv_points is None or box is None:
                 raise ValueError("SunStage.later_bounces: the occluder needs recv_points and its box")
-            blk_v, blk_c, full_c = self.first_pass_blocked(occluder, box, dB1, G, G_v, recv_points, split, albedo)
-            back = -albedo * blk_c  # light the patches keep: their first pass of dB1 counted it lost
-            extra_v = -blk_v
-            if first is not None:
-                first += back
-            else:  # its own first pass
-                nz = np.flatnonzero(back.any(1))
-                extra_v = extra_v + np.asarray(G_v)[:, nz] @ back[nz].astype(np.float32)
-            # the sunlit patches' light the object hides from other patches (the shadow pass's loss there,
-            # passed on once by the engine) has two reflections made too: its later passes
-            dB2 = back - albedo * full_c if dB2 is None else dB2 + back - albedo * full_c
+            later = bounces > 2  # the loss's pass through G (at the patches) is a later bounce
+            blk = self.first_pass_blocked(occluder, box, dB1, G, G_v, recv_points, split,
+                                          albedo if later else None, at_patches=later)
+            extra_v = -blk[0]
+            if later:
+                back = -albedo * blk[1]  # light the patches keep: their first pass of dB1 counted it lost
+                if first is not None:
+                    first += back
+                else:  # its own first pass
+                    nz = np.flatnonzero(back.any(1))
+                    extra_v = extra_v + np.asarray(G_v)[:, nz] @ back[nz].astype(np.float32)
+                # the sunlit patches' light the object hides from other patches (the shadow pass's loss
+                # there, passed on once by the engine) has two reflections made too: its later passes
+                dB2 = back - albedo * blk[2] if dB2 is None else dB2 + back - albedo * blk[2]
         if bounces <= 2:
             return extra_v
         lb = self._later
@@ -135,13 +138,14 @@ class SunStage:
         return out if extra_v is None else out + extra_v
 
     def first_pass_blocked(self, occluder: Occluder, box: tuple, dB1: np.ndarray, G: np.ndarray, G_v: np.ndarray,
-                           recv_points: np.ndarray, split=None, albedo: np.ndarray | None = None
-                           ) -> tuple[np.ndarray, ...]:
+                           recv_points: np.ndarray, split=None, albedo: np.ndarray | None = None,
+                           at_patches: bool = True) -> tuple[np.ndarray, ...]:
         """(G_v's, G's) first pass of the sun's loss dB1 (P,3) over the (receiver, sunlit patch) pairs that
         `occluder` (within `box`, (lo, hi)) blocks: (Vr,3) at the receiver vertices, (P,3) at the patch centres. A patch's loss
         is placed at the loss-weighted centre of its lost sample points (this frame's, from frame()).
         With `albedo` (P,3), also G's pass of the sunlit patches' whole sun reflection rho E_sun over the
-        blocked pairs (P,3), each patch's at the centre of its sunlit sample points."""
+        blocked pairs (P,3), each patch's at the centre of its sunlit sample points. at_patches=False: the
+        receiver vertices' only."""
         key = (id(G), id(G_v), len(recv_points))
         if self._blocked is None or self._blocked[0] != key:
             pm = self.patches
@@ -158,6 +162,8 @@ class SunStage:
         centres = np.where(tot[:, None] > 0, np.einsum("pk,pkc->pc", w, pts) / np.maximum(tot, 1e-30)[:, None],
                            pts.mean(1))
         change = dB1[self.c_patch]
+        if not at_patches:
+            return (at_v(occluder, centres, change, box, split),)
         out = (at_v(occluder, centres, change, box, split), at_c(occluder, centres, change, box, split))
         if albedo is None:
             return out

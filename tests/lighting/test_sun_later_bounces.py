@@ -89,3 +89,23 @@ def test_blocked_first_pass_matches_rays_to_every_lost_sample(coarse):
     assert m.sum() > 20 and np.corrcoef(blk_v[m, 1], ref[m, 1])[0, 1] > 0.7
     # the patch centres: the same pairs seen from G's rows
     assert np.abs(blk_c).sum() > 0 and np.all(blk_c <= 1e-12)
+
+
+def test_two_bounces_correct_only_the_first_pass(coarse):
+    # with 2 bounces there is no later pass: only the receivers' first pass of the loss loses the pairs
+    # the object blocks, nothing is given back at the patches
+    s, e = coarse
+    pm, st = e.pre.patches, e.sun_stage
+    st.frame(s.obj.vertices, s.obj.faces)
+    dB1 = e._sun_dB
+    pv, pf, occ, _, _ = e._object_shape(s.obj)
+    box = (pv.min(0) - 1e-3, pv.max(0) + 1e-3)
+    recv = pm.vert_inset[e.pre.recv_vert]
+    first = np.zeros_like(dB1)
+    out = st.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2, occluder=occ, recv_points=recv, box=box,
+                           first=first)
+    blk_v, = st.first_pass_blocked(occ, box, dB1, e.pre.G_c, e.pre.G_v, recv, at_patches=False)
+    assert not first.any() and np.abs(blk_v).sum() > 0 and np.allclose(out, -blk_v)
+    out4 = st.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4, occluder=occ, recv_points=recv, box=box,
+                            first=first)
+    assert first.sum() > 0 and np.all(first >= 0) and not np.allclose(out4, -blk_v)  # light given back
