@@ -122,9 +122,10 @@ class SunStage:
                 else:  # its own first pass
                     nz = np.flatnonzero(back.any(1))
                     extra_v = extra_v + np.asarray(G_v)[:, nz] @ back[nz].astype(np.float32)
-                # the sunlit patches' light the object hides from other patches (the shadow pass's loss
-                # there, passed on once by the engine) has two reflections made too: its later passes
-                dB2 = back - albedo * blk[2] if dB2 is None else dB2 + back - albedo * blk[2]
+                # the sun the sunlit patches still reflect that the object hides from other patches (the
+                # shadow pass's loss there, passed on once by the engine) has two reflections made too:
+                # its later passes (with the loss's, whose blocked pairs the given-back light cancels)
+                dB2 = -albedo * blk[2] if dB2 is None else dB2 - albedo * blk[2]
         if bounces <= 2:
             return extra_v
         lb = self._later
@@ -143,18 +144,32 @@ class SunStage:
         """(G_v's, G's) first pass of the sun's loss dB1 (P,3) over the (receiver, sunlit patch) pairs that
         `occluder` (within `box`, (lo, hi)) blocks: (Vr,3) at the receiver vertices, (P,3) at the patch centres. A patch's loss
         is placed at the loss-weighted centre of its lost sample points (this frame's, from frame()).
-        With `albedo` (P,3), also G's pass of the sunlit patches' whole sun reflection rho E_sun over the
-        blocked pairs (P,3), each patch's at the centre of its sunlit sample points. at_patches=False: the
-        receiver vertices' only."""
+        With `albedo` (P,3), also G's pass over the blocked pairs of the sun the sunlit patches still reflect,
+        rho E_sun x the share not lost (P,3), each patch's at the centre of its still sunlit sample points,
+        received on the clusters of patches (patch_clusters: centre and mean transfer; each patch gets its
+        cluster's: it is a later pass's change, which LaterBounces carries on the clusters).
+        at_patches=False: the receiver vertices' only. Patches of zero albedo (emitters) get nothing at
+        the centres (what they would get is reflected by nothing)."""
         key = (id(G), id(G_v), len(recv_points))
         if self._blocked is None or self._blocked[0] != key:
             pm = self.patches
             if pm is None:
                 raise ValueError("SunStage: first_pass_blocked needs the patch mesh (patches=)")
             cols = self.c_patch
+            import scipy.sparse as sp
+
+            G_s = np.asarray(G)[:, cols] * pm.albedo.any(1)[:, None]  # (P,J), rows of emitters zero
+            cl, n = patch_clusters(pm)
+            area = np.asarray(pm.area, np.float64)
+            w = area / np.bincount(cl, area, n)[cl]
+            mean_rows = sp.csr_matrix((w, (cl, np.arange(len(cl)))), shape=(n, len(cl)))  # (C,P) area-weighted
+            member = np.zeros(n, np.int64)  # one patch of each cluster (its quad's normal)
+            member[cl] = np.arange(len(cl))
+            cl_pts = mean_rows @ pm.centre + pm.normal[member] * 1e-3
             self._blocked = (key, BlockedTransfer(recv_points, np.asarray(G_v)[:, cols], self.device),
-                             BlockedTransfer(pm.centre + pm.normal * 1e-3, np.asarray(G)[:, cols], self.device))
-        _, at_v, at_c = self._blocked
+                             BlockedTransfer(pm.centre + pm.normal * 1e-3, G_s, self.device),
+                             BlockedTransfer(cl_pts, np.asarray(mean_rows @ G_s), self.device), cl)
+        _, at_v, at_c, at_cl, cl = self._blocked
         K = self.c_vis.shape[1]
         w = self._lost
         pts = self.c_pts.reshape(len(self.c_patch), K, 3)
@@ -167,11 +182,13 @@ class SunStage:
         out = (at_v(occluder, centres, change, box, split), at_c(occluder, centres, change, box, split))
         if albedo is None:
             return out
-        vis = self.c_vis
-        lit = vis.sum(1)
-        lit_centres = np.einsum("pk,pkc->pc", vis, pts) / np.maximum(lit, 1e-30)[:, None]
-        sun = albedo[self.c_patch] * (vis.mean(1)[:, None] * self.E_perp)  # rho E_sun/pi of each sunlit patch
-        return (*out, at_c(occluder, lit_centres, sun, box, split))
+        kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
+        k_tot = kept.sum(1)
+        kept_centres = np.where(k_tot[:, None] > 0, np.einsum("pk,pkc->pc", kept, pts)
+                                / np.maximum(k_tot, 1e-30)[:, None], pts.mean(1))
+        sun = albedo[self.c_patch] * ((k_tot / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
+        # a later pass's change: on the clusters of patches that carry it (LaterBounces), each patch its cluster's
+        return (*out, at_cl(occluder, kept_centres, sun, box, split)[cl])
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
                         proxy_occ: Occluder, radius: float) -> tuple[np.ndarray, ExtraEmitters | None]:
