@@ -450,7 +450,7 @@ def sun_composite_all(tmp_path_factory, shared_scenes_cache):
 def test_sun_room_known_energy(sun_composite_all, sun_composite):
     # issue 20's band on the all-sources frame (0.886 before the sun's changes were passed on by the
     # bounces each has left and its loss was no longer counted twice where the object also hides the
-    # shadowed floor; 1.032 after), and on the 64-pass frame the other tests score
+    # shadowed floor; 1.033 after), and on the 64-pass frame the other tests score
     for scene, out in (sun_composite_all, sun_composite):
         s = score(scene, out / "composite.png")
         assert 0.9 <= s["energy_ratio"] <= 1.1, (out, s)
