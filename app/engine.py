@@ -520,22 +520,32 @@ class Engine:
         if p.object_light:
             tri_rad = self._object_triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
             extra = None
+            room_tri_rad = tri_rad
             if self.sun_pix is not None:  # sun: the object's sunlit parts light the room too (small pieces)
                 tri_rad, extra = self.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, proxy_occ, radius)
             R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, cov.reshape(-1) >= 1.0,
                                               extra)
+            if self.sun_pix is not None and p.second_order:  # sun: the object's light at the patches from
+                # the sun alone (its later bounces: SunStage.later_bounces)
+                R_cen_sun = R_cen - object_light.centre_light(self, pv, pf, room_tri_rad, proxy_occ, centre, radius,
+                                                              site="object_light.centres.room")
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)
         dE_v = None
         if p.second_order:
             more = None
+            dB = dB_shadow + pm.albedo * R_cen
             if sun_loss is not None:  # sun: the sunlit patch light the object blocks (the room's main
-                # source) and the sunlit object's own light are first-bounce changes: passed on for every
-                # bounce the camera sees, not once (the later ones at the receiver vertices directly)
-                more = self.sun_stage.later_bounces(pm.albedo * (R_cen - sun_loss_c), pm.albedo, pre.G_c, pre.G_v,
-                                                    p.bounces)
-            dE_v = self.compose.second_order(dB_shadow + pm.albedo * R_cen, dE_more=more)
+                # source) and the sunlit object's own light are passed on for the bounces each has left,
+                # not once (the later ones at the receiver vertices directly), the loss not counted twice
+                # where the object also hides the shadowed floor (SunStage.later_bounces)
+                more = self.sun_stage.later_bounces(
+                    self._sun_dB, pm.albedo, pre.G_c, pre.G_v, p.bounces,
+                    dB2=pm.albedo * R_cen_sun if p.object_light else None, occluder=proxy_occ,
+                    recv_points=pm.vert_inset[pre.recv_vert], box=(pv.min(0) - 1e-3, pv.max(0) + 1e-3),
+                    split=functools.partial(split_launches, device=self.device, min_items=256), first=dB)
+            dE_v = self.compose.second_order(dB, dE_more=more)
         t = tick("second_order", t)
 
         # ---- compose (app.stages.compose): HDR or LDR, on the pixels that changed

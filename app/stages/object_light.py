@@ -213,15 +213,25 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
         sel = sel[~covered[sel]]
     if len(sel):
         R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra, shape.free)
-    # patch centres, for the second-order term
+    R_cen = centre_light(eng, pv, pf, tri_rad, proxy_occ, centre, radius, extra, far)  # for the second order
+    eng._n_object_light_pixels = len(sel)
+    return R_pix, R_cen
+
+
+def centre_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, extra: ExtraEmitters | None = None,
+                 far: tuple | None = None, site: str = "object_light.centres") -> np.ndarray:
+    """The light (P,3) the object reflects onto the patch centres, as irradiance/pi (object_light's
+    R_cen; far: its far-field emitters when there are extra ones; site: the call site's kernel buffers)."""
+    pm = eng.pre.patches
+    tris = pv[pf]
+    shape = proxy_shape(eng, pv, pf, proxy_occ)
     dist_c = np.linalg.norm(pm.centre - centre, axis=1)
     reach = luminance(_light_bound(pm.centre, dist_c, tri_rad, radius, extra))
     near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
     R_cen = np.zeros((pm.n_patches, 3))
     R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, centre, radius,
-                               eng.device, tvis, workspace(eng, "object_light.centres"), far, extra, shape.free)
-    eng._n_object_light_pixels = len(sel)
-    return R_pix, R_cen
+                               eng.device, shape.visibility, workspace(eng, site), far, extra, shape.free)
+    return R_cen
 
 
 def _sphere_ff(r: float, d: np.ndarray) -> np.ndarray:

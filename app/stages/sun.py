@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from app import runtime
+from kernels.blocked_transfer import BlockedTransfer
 from kernels.sunshadow import OutlineHits, SunShadowMap
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
@@ -67,6 +68,8 @@ class SunStage:
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
         self.patches = patches
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
+        self._blocked: tuple | None = None  # (key, BlockedTransfer at the receiver vertices, at the patch centres)
+        self._lost: np.ndarray | None = None  # (Pc,K) the last frame's lost share of the sun per sample point
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
         self._outline = OutlineHits(device)  # refine_clipped_edges's rays (buffers kept)
         self._emitters = SeenEmitters(device)  # object_emitters's lit pieces on the device (buffers kept)
@@ -77,26 +80,118 @@ class SunStage:
         self.map.render(vertices, faces)
         occ_pix = self.map.occlusion_at(self._pix)
         occ_c = self.map.occlusion_at(self._cen).reshape(self.c_vis.shape)
+        self._lost = self.c_vis * occ_c  # share of the sun lost at each sample point (first_pass_blocked)
         loss_c = np.zeros((self.n_patches, 3))
         loss_c[self.c_patch] = (self.c_vis * occ_c).mean(1)[:, None] * self.E_perp
         return occ_pix[:, None] * self.E_pix, loss_c
 
     def later_bounces(self, dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, G_v: np.ndarray,
-                      bounces: int) -> np.ndarray | None:
-        """G_v sum_{k=1}^{bounces-2} (rho G)^k dB1 (Vr,3): a first-bounce change of patch radiance dB1
-        (P,3) (sun a patch no longer reflects, light of the sunlit object) through the patch transfers
-        G (P,P) for the later bounces the camera sees, passed on to the receiver vertices (G_v (Vr,P));
-        None when there are none. One pass through G_v is the engine's second order (exact, on the
-        changed patches); what has gone through G once is spread over the room and is carried on
-        clusters of neighbouring patches (LaterBounces), a few thousandth of the dense work."""
+                      bounces: int, dB2: np.ndarray | None = None, occluder: Occluder | None = None,
+                      recv_points: np.ndarray | None = None, box: tuple | None = None, split=None,
+                      first: np.ndarray | None = None) -> np.ndarray | None:
+        """What the engine's one pass through G_v (its second order) leaves out of the sun's changes, at
+        the receiver vertices (Vr,3); None when nothing.
+
+        A change of patch radiance reaches the camera through as many more bounces as the truth's
+        `bounces` leave it (paths of at most `bounces` reflections, the camera's hit included):
+        - dB1 (P,3), the sun a patch no longer reflects (the object's sun shadow): one reflection
+          made, so G_v (rho G)^k dB1 for k = 1 .. bounces-2;
+        - dB2 (P,3), the sunlit object's light reflected by the patches (rho R, R from the object's
+          sunlit parts only): two made (sun -> object -> patch), so k = 1 .. bounces-3. (The object's
+          light from the room, gathered from B^(bounces-2), has none left: not passed on here.)
+        The later passes run through G on clusters of patches (LaterBounces).
+
+        With `occluder` (the object's proxy, bounded by `box` (lo, hi)) and `recv_points` (Vr,3), the sun's loss is not counted
+        twice where the object also hides the shadowed floor: the shadow pass already takes from a
+        receiver the light of every source (the sunlit patches among them, at their full radiance) that
+        the object hides from it, so the loss's first pass through G_v and G must skip the pairs the
+        object blocks. They are found with one ray per (receiver, sunlit patch that lost sun) to the
+        loss-weighted centre of the patch's lost sample points (first_pass_blocked); the first pass
+        at the patches that this gives back is a change of two reflections, passed on like dB2; its own
+        first pass through G_v is added to `first` (P,3) when given (the caller's one pass over the
+        changed patches: the engine's second order), else made here."""
+        extra_v = None
+        if occluder is not None and self._lost is not None and self.c_patch.size and np.any(dB1[self.c_patch]):
+            if recv_points is None or box is None:
+                raise ValueError("SunStage.later_bounces: the occluder needs recv_points and its box")
+            later = bounces > 2  # the loss's pass through G (at the patches) is a later bounce
+            blk = self.first_pass_blocked(occluder, box, dB1, G, G_v, recv_points, split,
+                                          albedo if later else None, at_patches=later)
+            extra_v = -blk[0]
+            if later:
+                back = -albedo * blk[1]  # light the patches keep: their first pass of dB1 counted it lost
+                if first is not None:
+                    first += back
+                else:  # its own first pass
+                    nz = np.flatnonzero(back.any(1))
+                    extra_v = extra_v + np.asarray(G_v)[:, nz] @ back[nz].astype(np.float32)
+                # the sun the sunlit patches still reflect that the object hides from other patches (the
+                # shadow pass's loss there, passed on once by the engine) has two reflections made too:
+                # its later passes (with the loss's, whose blocked pairs the given-back light cancels)
+                dB2 = -albedo * blk[2] if dB2 is None else dB2 - albedo * blk[2]
         if bounces <= 2:
-            return None
+            return extra_v
         lb = self._later
         if lb is None or lb.key != (id(G), id(G_v), id(albedo)):
             if self.patches is None:
                 raise ValueError("SunStage: later bounces need the patch mesh (patches=)")
             lb = self._later = LaterBounces(G, G_v, albedo, self.patches, exact=self.c_patch)
-        return lb(dB1, bounces - 2)
+        out = lb(dB1, bounces - 2)
+        if dB2 is not None:
+            out = out + lb(dB2, bounces - 3)
+        return out if extra_v is None else out + extra_v
+
+    def first_pass_blocked(self, occluder: Occluder, box: tuple, dB1: np.ndarray, G: np.ndarray, G_v: np.ndarray,
+                           recv_points: np.ndarray, split=None, albedo: np.ndarray | None = None,
+                           at_patches: bool = True) -> tuple[np.ndarray, ...]:
+        """(G_v's, G's) first pass of the sun's loss dB1 (P,3) over the (receiver, sunlit patch) pairs that
+        `occluder` (within `box`, (lo, hi)) blocks: (Vr,3) at the receiver vertices, (P,3) at the patch centres. A patch's loss
+        is placed at the loss-weighted centre of its lost sample points (this frame's, from frame()).
+        With `albedo` (P,3), also G's pass over the blocked pairs of the sun the sunlit patches still reflect,
+        rho E_sun x the share not lost (P,3), each patch's at the centre of its still sunlit sample points,
+        received on the clusters of patches (patch_clusters: centre and mean transfer; each patch gets its
+        cluster's: it is a later pass's change, which LaterBounces carries on the clusters).
+        at_patches=False: the receiver vertices' only. Patches of zero albedo (emitters) get nothing at
+        the centres (what they would get is reflected by nothing)."""
+        key = (id(G), id(G_v), len(recv_points))
+        if self._blocked is None or self._blocked[0] != key:
+            pm = self.patches
+            if pm is None:
+                raise ValueError("SunStage: first_pass_blocked needs the patch mesh (patches=)")
+            cols = self.c_patch
+            import scipy.sparse as sp
+
+            G_s = np.asarray(G)[:, cols] * pm.albedo.any(1)[:, None]  # (P,J), rows of emitters zero
+            cl, n = patch_clusters(pm)
+            area = np.asarray(pm.area, np.float64)
+            w = area / np.bincount(cl, area, n)[cl]
+            mean_rows = sp.csr_matrix((w, (cl, np.arange(len(cl)))), shape=(n, len(cl)))  # (C,P) area-weighted
+            member = np.zeros(n, np.int64)  # one patch of each cluster (its quad's normal)
+            member[cl] = np.arange(len(cl))
+            cl_pts = mean_rows @ pm.centre + pm.normal[member] * 1e-3
+            self._blocked = (key, BlockedTransfer(recv_points, np.asarray(G_v)[:, cols], self.device),
+                             BlockedTransfer(pm.centre + pm.normal * 1e-3, G_s, self.device),
+                             BlockedTransfer(cl_pts, np.asarray(mean_rows @ G_s), self.device), cl)
+        _, at_v, at_c, at_cl, cl = self._blocked
+        K = self.c_vis.shape[1]
+        w = self._lost
+        pts = self.c_pts.reshape(len(self.c_patch), K, 3)
+        tot = w.sum(1)
+        centres = np.where(tot[:, None] > 0, np.einsum("pk,pkc->pc", w, pts) / np.maximum(tot, 1e-30)[:, None],
+                           pts.mean(1))
+        change = dB1[self.c_patch]
+        if not at_patches:
+            return (at_v(occluder, centres, change, box, split),)
+        out = (at_v(occluder, centres, change, box, split), at_c(occluder, centres, change, box, split))
+        if albedo is None:
+            return out
+        kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
+        k_tot = kept.sum(1)
+        kept_centres = np.where(k_tot[:, None] > 0, np.einsum("pk,pkc->pc", kept, pts)
+                                / np.maximum(k_tot, 1e-30)[:, None], pts.mean(1))
+        sun = albedo[self.c_patch] * ((k_tot / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
+        # a later pass's change: on the clusters of patches that carry it (LaterBounces), each patch its cluster's
+        return (*out, at_cl(occluder, kept_centres, sun, box, split)[cl])
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
                         proxy_occ: Occluder, radius: float) -> tuple[np.ndarray, ExtraEmitters | None]:

@@ -1,0 +1,92 @@
+"""The part of a fixed transfer that an occluder blocks (Warp kernel).
+
+sum_j T_ij c_j over the pairs whose segment p_i -> q_j meets the occluder: a change c_j (P,3) at
+targets q_j passed on by a transfer T (N,J) that was made without the occluder (form factor x the
+room's visibility, kernels.visibility.transfer_matrix). One ray per pair with T_ij > 0 and c_j != 0.
+The points and the transfer are fixed per scene (uploaded once); the targets and changes per call
+(kept buffers: nothing is allocated after the first call).
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import warp as wp
+
+from kernels.buffers import Buffer
+from kernels.visibility import Occluder, segment_blocked
+
+
+@wp.func
+def _segment_meets_box(a: wp.vec3, b: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
+    """True when segment a->b meets the box [lo, hi] (slab test; else nothing inside it can block)."""
+    t0 = float(0.0)
+    t1 = float(1.0)
+    d = b - a
+    for k in range(3):
+        if wp.abs(d[k]) < 1.0e-12:
+            if a[k] < lo[k] or a[k] > hi[k]:
+                return False
+        else:
+            u = (lo[k] - a[k]) / d[k]
+            v = (hi[k] - a[k]) / d[k]
+            t0 = wp.max(t0, wp.min(u, v))
+            t1 = wp.min(t1, wp.max(u, v))
+    return t0 <= t1
+
+
+@wp.kernel
+def _blocked_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3), T: wp.array2d(dtype=wp.float32),
+                    targets: wp.array(dtype=wp.vec3), change: wp.array(dtype=wp.vec3), lo: wp.vec3,
+                    hi: wp.vec3, out: wp.array(dtype=wp.vec3)):
+    i = start + wp.tid()
+    p = points[i]
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    for j in range(targets.shape[0]):
+        t = T[i, j]
+        c = change[j]
+        if t > 0.0 and (c[0] != 0.0 or c[1] != 0.0 or c[2] != 0.0):
+            if _segment_meets_box(p, targets[j], lo, hi):
+                if segment_blocked(mesh, p, targets[j]):
+                    acc += c * t
+    out[i] = acc
+
+
+class BlockedTransfer:
+    """sum_j T_ij c_j [p_i -> q_j blocked] (N,3) for N fixed points and J targets (T (N,J) fixed)."""
+
+    def __init__(self, points: np.ndarray, T: np.ndarray, device: str):
+        """points (N,3) m; T (N,J) the transfer (any units: the result is in T x c's units)."""
+        self.n, self.j = T.shape
+        if len(points) != self.n:
+            raise ValueError(f"BlockedTransfer: {len(points)} points for a transfer of {self.n} rows")
+        self.device = device
+        self.points = wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device)
+        self.T = wp.array(np.ascontiguousarray(T, np.float32), dtype=wp.float32, device=device)
+        self._targets = Buffer(max(self.j, 1), wp.vec3, device)
+        self._change = Buffer(max(self.j, 1), wp.vec3, device)
+        self._out = Buffer(max(self.n, 1), wp.vec3, device)
+
+    def __call__(self, occluder: Occluder, targets: np.ndarray, change: np.ndarray, box: tuple[np.ndarray, np.ndarray],
+                 split: Callable[[Callable[[int, int], None], int], None] | None = None) -> np.ndarray:
+        """(N,3) float64: the blocked part of T c for targets (J,3) and changes c (J,3); box: (lo (3,), hi (3,))
+        m bounding the occluder (a ray only for segments that meet it). split(launch, n):
+        runs launch(lo, hi) over ranges covering [0, n) (e.g. app.runtime.split: one per core), or
+        None: one launch."""
+        if self.n == 0 or self.j == 0 or not np.any(change):
+            return np.zeros((self.n, 3))
+        self._targets.upload(np.asarray(targets, np.float32))
+        self._change.upload(np.asarray(change, np.float32))
+        mesh = wp.uint64(occluder.id)
+
+        def launch(a: int, b: int) -> None:
+            wp.launch(_blocked_kernel, dim=b - a, inputs=[mesh, a, self.points, self.T, self._targets.dev,
+                                                        self._change.dev, wp.vec3(*map(float, box[0])),
+                                                        wp.vec3(*map(float, box[1]))], outputs=[self._out.dev],
+                      device=self.device)
+
+        if split is None:
+            launch(0, self.n)
+        else:
+            split(launch, self.n)
+        return self._out.pull(self.n).astype(np.float64)
