@@ -191,7 +191,7 @@ def test_representative_eyes_are_blocked_light_centroids(engine):
     marked = ss.traverse(lo, hi)[0]
     key = ss.blocked_key(lo, hi)
     assert key.sum() > 0 and (key == 0).any()  # the box blocks some sources' light, not all
-    nodes = ss.representatives(marked, 50, key, ss.unblocked)  # select's split order
+    nodes = ss.representatives(marked, 50, key)
     pos = np.flatnonzero(marked)
     starts = np.searchsorted(pos, t.lo[nodes])
     fs = ss.select(lo, hi, 50)
@@ -384,7 +384,7 @@ def test_source_list_and_pairs_equal_the_reference_formulation(engine):
                 np.testing.assert_array_equal(getattr(fs, k), getattr(fs2, k))
             marked = ss.traverse(lo, hi)[0]
             key = ss.blocked_key(lo, hi) if passes is not None and passes < marked.sum() else None
-            nodes = ss.representatives(marked, passes, key, None if key is None else ss.unblocked)
+            nodes = ss.representatives(marked, passes, key)
             want_marked, want_cand = _reference_list(ss, lo, hi, t.lo[nodes], t.hi[nodes])
             np.testing.assert_array_equal(marked, want_marked)
             assert fs.n_listed == int(want_marked.sum()) > 0
