@@ -11,8 +11,8 @@ fall on its blocks). Per frame, `select(box_min, box_max, passes)`:
    The seed's key is the mean transfer to the receivers; here, given the receiver vertices, it is
    the transfer to the receiver vertices whose segment to the source meets the object's box (the
    light the object can block this frame, kernels/blocked.py), each vertex weighted by its pixel
-   footprint (the light the camera sees blocked), raised by the light the node's one map darkens
-   wrongly: that of its members the box cannot block at all (representatives). Without a budget
+   footprint (the light the camera sees blocked), plus the light the node's one map would wrongly
+   darken: that of its members the box cannot block at all (representatives). Without a budget
    every marked source is its own pass;
 3. gives each chosen node a shadow-map eye at the key-weighted centroid of its marked members
    (the seed: the centre of the most contributing member; the centroid cuts the 50-pass rmse by
@@ -329,24 +329,26 @@ class ShadowSources:
         its marked members; key (S,) per KD position, default the mean transfer `strength`).
 
         With `unblocked` (S,), each position's whole transfer in the key's terms (key: the part of it
-        the box can block), a node's priority is the light its one map takes away rather than its key
-        sum K: the map darkens the light of all its members, U (their unblocked sum), also of those
-        whose light the box cannot block at all (key 0), at about the blocked share of the others,
-        K / U+ (U+: the unblocked sum of the members of key > 0): K U / U+ >= K, equal when every
-        member can be blocked (then the order is the key's). A node that joins members the object
-        blocks to many it cannot (sunlit floor patches beside the object with the rest of the floor)
-        is split before its one map darkens the light of all of them."""
+        the box can block), a node's priority adds to its key sum K the light its one map darkens
+        wrongly: the map is seen from the key-weighted centroid (eyes), so it blocks about the
+        key-weighted mean fbar = sum(key f) / K of the members' blocked shares f = key / unblocked,
+        and it blocks that share of the members whose light the box cannot block at all (key 0) too:
+        fbar x their unblocked sum. A node that joins members the object blocks to many it cannot
+        (sunlit floor patches beside the object with the rest of the floor) is split before its one
+        map darkens the light of all of them; where every member can be blocked the order is the key's."""
         t = self.src_tree
         cm = np.concatenate([[0], np.cumsum(marked)])
         cs = np.concatenate([[0.0], np.cumsum(np.where(marked, self.strength if key is None else key, 0.0))])
         if key is not None and unblocked is not None:
-            cu = np.concatenate([[0.0], np.cumsum(np.where(marked, unblocked, 0.0))])
-            cup = np.concatenate([[0.0], np.cumsum(np.where(marked & (key > 0), unblocked, 0.0))])
+            f = np.where(unblocked > 0, key / np.where(unblocked > 0, unblocked, 1.0), 0.0)
+            ckf = np.concatenate([[0.0], np.cumsum(np.where(marked, key * f, 0.0))])
+            cu0 = np.concatenate([[0.0], np.cumsum(np.where(marked & (key <= 0), unblocked, 0.0))])
 
             def priority(n: int) -> float:
                 k = cs[t.hi[n]] - cs[t.lo[n]]
-                up = cup[t.hi[n]] - cup[t.lo[n]]
-                return k * ((cu[t.hi[n]] - cu[t.lo[n]]) / up) if k > 0 and up > 0 else k
+                if k <= 0:
+                    return k
+                return k + (ckf[t.hi[n]] - ckf[t.lo[n]]) / k * (cu0[t.hi[n]] - cu0[t.lo[n]])
         else:
             def priority(n: int) -> float:
                 return cs[t.hi[n]] - cs[t.lo[n]]
