@@ -11,9 +11,8 @@ fall on its blocks). Per frame, `select(box_min, box_max, passes)`:
    The seed's key is the mean transfer to the receivers; here, given the receiver vertices, it is
    the transfer to the receiver vertices whose segment to the source meets the object's box (the
    light the object can block this frame, kernels/blocked.py), each vertex weighted by its pixel
-   footprint (the light the camera sees blocked), plus the light the node's one map would wrongly
-   darken: that of its members the box cannot block at all (representatives). Without a budget
-   every marked source is its own pass;
+   footprint (the light the camera sees blocked). Without a budget every marked
+   source is its own pass;
 3. gives each chosen node a shadow-map eye at the key-weighted centroid of its marked members
    (the seed: the centre of the most contributing member; the centroid cuts the 50-pass rmse by
    a third or more on the benchmark rooms), and weights that sum the transfers of its marked members (the cluster
@@ -122,20 +121,7 @@ class ShadowSources:
         g = np.add.reduceat(np.asarray(self.G_v[:, so], np.float64) * lum_B[None, :], starts, axis=1)
         if recv_weights is not None:
             g *= np.asarray(recv_weights, np.float64)[:, None]
-        # each KD position's whole transfer in the key's terms (what a box around everything would
-        # block): its block's row sum, shared as blocked_key shares the blocked part
-        self.unblocked = np.repeat(g.sum(0), np.diff(np.append(starts, len(so)))) * self._block_share()
         return BlockedTransfer(points, eye, g.T, device)
-
-    def _block_share(self) -> np.ndarray:
-        """(S,) each KD position's share of its block (of `block` positions): by strength, evenly
-        where the block's strength is 0."""
-        so, k = self.src_ids, self.block
-        starts = np.arange(0, len(so), k)
-        size = np.diff(np.append(starts, len(so)))
-        wsum = np.add.reduceat(self.strength, starts)
-        return np.where(np.repeat(wsum, size) > 0, self.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
-                        1.0 / np.repeat(size, size))
 
     def blocked_key(self, box_min: np.ndarray, box_max: np.ndarray, split=None) -> np.ndarray:
         """(S,) per KD position: the luminance transfer to the receiver vertices whose segment to the
@@ -145,7 +131,10 @@ class ShadowSources:
         starts = np.arange(0, len(so), k)
         b = self.blocked(box_min, box_max, split)
         size = np.diff(np.append(starts, len(so)))
-        return np.repeat(b, size) * self._block_share()
+        wsum = np.add.reduceat(self.strength, starts)
+        share = np.where(np.repeat(wsum, size) > 0, self.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
+                         1.0 / np.repeat(size, size))
+        return np.repeat(b, size) * share
 
     def _weight_prefix(self) -> np.ndarray:
         """(S // block + 1 (+1), Vr + P, 3) float32: row b holds, for every receiver vertex (G_v
@@ -322,36 +311,13 @@ class ShadowSources:
         marked = np.cumsum(diff[:-1]) > 0
         return marked, s_nodes, r_nodes
 
-    def representatives(self, marked: np.ndarray, passes: int | None, key: np.ndarray | None = None,
-                        unblocked: np.ndarray | None = None) -> list[int]:
+    def representatives(self, marked: np.ndarray, passes: int | None, key: np.ndarray | None = None) -> list[int]:
         """KD nodes (sorted by position) covering every marked source, at most `passes` of them
         when the marked sources allow (sec. 6.4: split the node with the largest key summed over
-        its marked members; key (S,) per KD position, default the mean transfer `strength`).
-
-        With `unblocked` (S,), each position's whole transfer in the key's terms (key: the part of it
-        the box can block), a node's priority adds to its key sum K the light its one map darkens
-        wrongly: the map is seen from the key-weighted centroid (eyes), so it blocks about the
-        key-weighted mean fbar = sum(key f) / K of the members' blocked shares f = key / unblocked,
-        and it blocks that share of the members whose light the box cannot block at all (key 0) too:
-        fbar x their unblocked sum. A node that joins members the object blocks to many it cannot
-        (sunlit floor patches beside the object with the rest of the floor) is split before its one
-        map darkens the light of all of them; where every member can be blocked the order is the key's."""
+        its marked members; key (S,) per KD position, default the mean transfer `strength`)."""
         t = self.src_tree
         cm = np.concatenate([[0], np.cumsum(marked)])
         cs = np.concatenate([[0.0], np.cumsum(np.where(marked, self.strength if key is None else key, 0.0))])
-        if key is not None and unblocked is not None:
-            f = np.where(unblocked > 0, key / np.where(unblocked > 0, unblocked, 1.0), 0.0)
-            ckf = np.concatenate([[0.0], np.cumsum(np.where(marked, key * f, 0.0))])
-            cu0 = np.concatenate([[0.0], np.cumsum(np.where(marked & (key <= 0), unblocked, 0.0))])
-
-            def priority(n: int) -> float:
-                k = cs[t.hi[n]] - cs[t.lo[n]]
-                if k <= 0:
-                    return k
-                return k + (ckf[t.hi[n]] - ckf[t.lo[n]]) / k * (cu0[t.hi[n]] - cu0[t.lo[n]])
-        else:
-            def priority(n: int) -> float:
-                return cs[t.hi[n]] - cs[t.lo[n]]
         n_marked = int(cm[-1])
         if n_marked == 0:
             return []
@@ -366,7 +332,7 @@ class ShadowSources:
         def count(n):
             return cm[t.hi[n]] - cm[t.lo[n]]
 
-        heap = [(-priority(0), 0)]
+        heap = [(-(cs[t.hi[0]] - cs[t.lo[0]]), 0)]
         done: list[int] = []
         while heap and len(heap) + len(done) < passes:
             _, n = heapq.heappop(heap)
@@ -375,7 +341,7 @@ class ShadowSources:
                 done.append(n)
                 continue
             for c in kids:
-                heapq.heappush(heap, (-priority(c), c))
+                heapq.heappush(heap, (-(cs[t.hi[c]] - cs[t.lo[c]]), c))
         nodes = done + [n for _, n in heap]
         return sorted(nodes, key=lambda n: t.lo[n])
 
@@ -439,7 +405,7 @@ class ShadowSources:
             key = self.strength
             if self.blocked is not None and passes is not None and passes < marked.sum():
                 key = self.blocked_key(box_min, box_max, split)
-            nodes = self.representatives(marked, passes, key, None if key is self.strength else self.unblocked)
+            nodes = self.representatives(marked, passes, key)
         n = len(nodes)
         if n == 0:
             return FrameSources(np.zeros((0, 3)), np.zeros((Vr, 0, 3)), np.zeros((self.P, 0, 3)),

@@ -122,34 +122,3 @@ def test_the_all_sources_frame_is_the_same_with_and_without_the_table(engine):
     assert with_table.stats["passes"] == without.stats["passes"] > 1
     np.testing.assert_array_equal(with_table.radiance, without.radiance)
     np.testing.assert_array_equal(with_table.pixels, without.pixels)
-
-
-def test_a_node_is_split_before_its_map_darkens_light_the_box_cannot_block(engine):
-    """representatives' priority with the unblocked transfers: the key's order where every member can
-    be blocked; a node holding one blocked block among members the box cannot block is split down
-    toward that block before nodes of a larger key whose members are all blocked."""
-    scene, eng = engine
-    ss = eng.shadow_sources
-    t = ss.src_tree
-    v = scene.obj.vertices
-    lo, hi = np.floor(v.min(0) / 1e-3) * 1e-3, np.ceil(v.max(0) / 1e-3) * 1e-3
-    marked = ss.traverse(lo, hi)[0]
-    S = len(marked)
-    assert marked.all()  # a room: the box meets every source
-    rng = np.random.default_rng(1)
-    key = rng.uniform(0.5, 1.0, S)  # every member can be blocked: the key's order
-    unblocked = key / rng.uniform(0.05, 0.5, S)
-    for p in (2, 5, 12):
-        assert ss.representatives(marked, p, key, unblocked) == ss.representatives(marked, p, key)
-    # the root's first child: one block holds all its blocked light, its other members none
-    kid = t.children[0][0]
-    k = ss.block
-    key = np.where(np.arange(S) // k == t.lo[kid] // k, 1.0, 0.0)
-    key[t.hi[kid]:] = rng.uniform(0.9, 1.1, S - t.hi[kid]) * key[t.lo[kid]:t.lo[kid] + k].sum() * 2 / (S - t.hi[kid])
-    unblocked = np.where(key > 0, key / 0.3, 1.0)  # blocked share 0.3 where it can be blocked
-    plain = ss.representatives(marked, 3, key)
-    ours = ss.representatives(marked, 3, key, unblocked)
-    other = t.children[0][1]
-    assert kid in plain and other not in plain  # by the key alone the other side of the tree is split
-    inside = [n for n in ours if t.lo[kid] <= t.lo[n] < t.hi[kid]]
-    assert kid not in ours and len(inside) == 2 and other in ours  # ours: the mixed node first
