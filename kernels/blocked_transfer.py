@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from kernels.buffers import Buffer
-from kernels.visibility import Occluder, segment_blocked
+from kernels.visibility import Occluder
 
 
 @wp.func
@@ -36,6 +36,19 @@ def _segment_meets_box(a: wp.vec3, b: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool
     return t0 <= t1
 
 
+@wp.func
+def _segment_blocked_any(mesh: wp.uint64, a: wp.vec3, b: wp.vec3) -> bool:
+    """kernels.visibility.segment_blocked's answer by an any-hit query (it stops at the first triangle
+    met, not the nearest: the same yes/no)."""
+    if mesh == wp.uint64(0):
+        return False
+    d = b - a
+    dist = wp.length(d)
+    if dist <= 1.0e-9:
+        return False
+    return wp.mesh_query_ray_anyhit(mesh, a, d / dist, dist * 0.9999)
+
+
 @wp.kernel
 def _blocked_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3), T: wp.array2d(dtype=wp.float32),
                     column: wp.array(dtype=wp.int32), m: int, targets: wp.array(dtype=wp.vec3),
@@ -48,7 +61,7 @@ def _blocked_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3)
         t = T[i, column[k]]
         if t > 0.0:
             if _segment_meets_box(p, targets[k], lo, hi):
-                if segment_blocked(mesh, p, targets[k]):
+                if _segment_blocked_any(mesh, p, targets[k]):
                     acc += change[k] * t
     out[i] = acc
 
