@@ -523,11 +523,16 @@ class Engine:
             room_tri_rad = tri_rad
             if self.sun_pix is not None:  # sun: the object's sunlit parts light the room too (small pieces)
                 tri_rad, extra = self.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, proxy_occ, radius)
-            R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, cov.reshape(-1) >= 1.0,
-                                              extra)
-            if self.sun_pix is not None and p.second_order:  # sun: the object's light at the patches from
-                # the sun alone (its later bounces: SunStage.later_bounces)
-                R_cen_sun = R_cen - object_light.centre_light(self, pv, pf, room_tri_rad, proxy_occ, centre, radius,
+            if self.sun_pix is None:
+                R_pix, R_cen = self._object_light(pv, pf, tri_rad, proxy_occ, centre, radius,
+                                                  cov.reshape(-1) >= 1.0, extra)
+            else:  # sun: the object's light at the patches in two parts, the room's and the sun's alone (the
+                # latter's later bounces: SunStage.later_bounces), summed: one pass over the proxy's faces
+                R_pix, _ = object_light.object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius,
+                                                     cov.reshape(-1) >= 1.0, extra, centres=False)
+                R_cen_sun = object_light.sun_centre_light(self, pv, pf, tri_rad - room_tri_rad, proxy_occ, centre,
+                                                          radius, extra)
+                R_cen = R_cen_sun + object_light.centre_light(self, pv, pf, room_tri_rad, proxy_occ, centre, radius,
                                                               site="object_light.centres.room")
         t = tick("object_light", t)
 

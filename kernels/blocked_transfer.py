@@ -2,7 +2,8 @@
 
 sum_j T_ij c_j over the pairs whose segment p_i -> q_j meets the occluder: a change c_j (P,3) at
 targets q_j passed on by a transfer T (N,J) that was made without the occluder (form factor x the
-room's visibility, kernels.visibility.transfer_matrix). One ray per pair with T_ij > 0 and c_j != 0.
+room's visibility, kernels.visibility.transfer_matrix). One ray per pair with T_ij > 0 and c_j != 0 whose segment meets the
+occluder's box; the loop runs over the targets with a change only (compacted per call).
 The points and the transfer are fixed per scene (uploaded once); the targets and changes per call
 (kept buffers: nothing is allocated after the first call).
 """
@@ -14,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from kernels.buffers import Buffer
-from kernels.visibility import Occluder, segment_blocked
+from kernels.visibility import Occluder
 
 
 @wp.func
@@ -35,20 +36,33 @@ def _segment_meets_box(a: wp.vec3, b: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool
     return t0 <= t1
 
 
+@wp.func
+def _segment_blocked_any(mesh: wp.uint64, a: wp.vec3, b: wp.vec3) -> bool:
+    """kernels.visibility.segment_blocked's answer by an any-hit query (it stops at the first triangle
+    met, not the nearest: the same yes/no)."""
+    if mesh == wp.uint64(0):
+        return False
+    d = b - a
+    dist = wp.length(d)
+    if dist <= 1.0e-9:
+        return False
+    return wp.mesh_query_ray_anyhit(mesh, a, d / dist, dist * 0.9999)
+
+
 @wp.kernel
 def _blocked_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3), T: wp.array2d(dtype=wp.float32),
-                    targets: wp.array(dtype=wp.vec3), change: wp.array(dtype=wp.vec3), lo: wp.vec3,
-                    hi: wp.vec3, out: wp.array(dtype=wp.vec3)):
+                    column: wp.array(dtype=wp.int32), m: int, targets: wp.array(dtype=wp.vec3),
+                    change: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3, out: wp.array(dtype=wp.vec3)):
+    # the m targets with a change (k < m) and their columns of T
     i = start + wp.tid()
     p = points[i]
     acc = wp.vec3(0.0, 0.0, 0.0)
-    for j in range(targets.shape[0]):
-        t = T[i, j]
-        c = change[j]
-        if t > 0.0 and (c[0] != 0.0 or c[1] != 0.0 or c[2] != 0.0):
-            if _segment_meets_box(p, targets[j], lo, hi):
-                if segment_blocked(mesh, p, targets[j]):
-                    acc += c * t
+    for k in range(m):
+        t = T[i, column[k]]
+        if t > 0.0:
+            if _segment_meets_box(p, targets[k], lo, hi):
+                if _segment_blocked_any(mesh, p, targets[k]):
+                    acc += change[k] * t
     out[i] = acc
 
 
@@ -65,6 +79,7 @@ class BlockedTransfer:
         self.T = wp.array(np.ascontiguousarray(T, np.float32), dtype=wp.float32, device=device)
         self._targets = Buffer(max(self.j, 1), wp.vec3, device)
         self._change = Buffer(max(self.j, 1), wp.vec3, device)
+        self._column = Buffer(max(self.j, 1), wp.int32, device)
         self._out = Buffer(max(self.n, 1), wp.vec3, device)
 
     def __call__(self, occluder: Occluder, targets: np.ndarray, change: np.ndarray, box: tuple[np.ndarray, np.ndarray],
@@ -75,13 +90,15 @@ class BlockedTransfer:
         None: one launch."""
         if self.n == 0 or self.j == 0 or not np.any(change):
             return np.zeros((self.n, 3))
-        self._targets.upload(np.asarray(targets, np.float32))
-        self._change.upload(np.asarray(change, np.float32))
+        cols = np.flatnonzero(np.asarray(change).any(1))  # only the targets with a change: the loop over them
+        m = self._column.upload(cols.astype(np.int32))
+        self._targets.upload(np.asarray(targets, np.float32)[cols])
+        self._change.upload(np.asarray(change, np.float32)[cols])
         mesh = wp.uint64(occluder.id)
 
         def launch(a: int, b: int) -> None:
-            wp.launch(_blocked_kernel, dim=b - a, inputs=[mesh, a, self.points, self.T, self._targets.dev,
-                                                        self._change.dev, wp.vec3(*map(float, box[0])),
+            wp.launch(_blocked_kernel, dim=b - a, inputs=[mesh, a, self.points, self.T, self._column.dev, m,
+                                                        self._targets.dev, self._change.dev, wp.vec3(*map(float, box[0])),
                                                         wp.vec3(*map(float, box[1]))], outputs=[self._out.dev],
                       device=self.device)
 

@@ -165,7 +165,7 @@ class ExtraEmitters:
 
 
 def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, covered: np.ndarray | None = None,
-                 extra: ExtraEmitters | None = None):
+                 extra: ExtraEmitters | None = None, centres: bool = True):
     """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi.
 
     Far from the object the reflected light varies slowly: it is evaluated at receiver vertices
@@ -177,7 +177,8 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     level: exactly on an adaptive screen grid, blended between the grid's nodes where the light
     varies slowly (_near_pixels). covered: optional (H*W,) bool, pixels the object hides entirely
     (their room is not seen: left at the interpolated value). extra: emitters besides the proxy's
-    triangles (ExtraEmitters), or None.
+    triangles (ExtraEmitters), or None. centres=False: R_cen is None (the caller sums it in parts, as
+    the sun's branch does: sun_centre_light).
     """
     pre, pm = eng.pre, eng.pre.patches
     table = pixel_table(eng)
@@ -213,7 +214,7 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
         sel = sel[~covered[sel]]
     if len(sel):
         R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra, shape.free)
-    R_cen = centre_light(eng, pv, pf, tri_rad, proxy_occ, centre, radius, extra, far)  # for the second order
+    R_cen = centre_light(eng, pv, pf, tri_rad, proxy_occ, centre, radius, extra, far) if centres else None
     eng._n_object_light_pixels = len(sel)
     return R_pix, R_cen
 
@@ -231,6 +232,43 @@ def centre_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, extr
     R_cen = np.zeros((pm.n_patches, 3))
     R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, centre, radius,
                                eng.device, shape.visibility, workspace(eng, site), far, extra, shape.free)
+    return R_cen
+
+
+def sun_centre_light(eng: "Engine", pv, pf, sun_rad, proxy_occ, centre, radius, extra: ExtraEmitters | None,
+                     site: str = "object_light.centres.sun") -> np.ndarray:
+    """centre_light (P,3) of the object's light from the sun alone: the faces with sun radiance
+    sun_rad (T,3) (the wholly sunlit ones; the others zero) and the lit pieces `extra`. Only those
+    faces are summed (their rows of the shape's tables), so with centre_light of the room's light it
+    makes the whole light at the patch centres for about the cost of one call (the sum is linear in
+    the radiance; each part skips the centres its own bound puts below centre_light's threshold)."""
+    pm = eng.pre.patches
+    R_cen = np.zeros((pm.n_patches, 3))
+    key = shape_key(pv, pf)
+    if getattr(eng, "_sun_centre_shape", None) != key:  # a shape's first frame: every face that faces the
+        # sun (zero radiance where unlit), so that its kernel buffers are made at their capacity once
+        eng._sun_centre_shape = key
+        T = pv[pf]
+        faces = np.flatnonzero((np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]) @ eng.sun_light.d > 0)
+                               | sun_rad.any(1))
+    else:
+        faces = np.flatnonzero(sun_rad.any(1))
+    if len(faces) == 0 and (extra is None or len(extra.tris) == 0):
+        return R_cen
+    tris = pv[pf][faces]
+    rad = sun_rad[faces]
+    shape = proxy_shape(eng, pv, pf, proxy_occ)
+    tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    far = (tris.mean(1), tn, rad, shape.visibility.seen[faces])
+    if extra is not None:
+        far = (np.concatenate([far[0], extra.far_c]), np.concatenate([tn, extra.far_tn]),
+               np.concatenate([rad, extra.far_rad]), np.concatenate([far[3], extra.far_seen]))
+    dist_c = np.linalg.norm(pm.centre - centre, axis=1)
+    reach = luminance(_light_bound(pm.centre, dist_c, sun_rad, radius, extra))
+    near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
+    free = shape.free[faces] if shape.free is not None else None
+    R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, rad, proxy_occ, centre, radius,
+                               eng.device, None, workspace(eng, site), far, extra, free)
     return R_cen
 
 

@@ -136,9 +136,7 @@ class SunStage:
             if self.patches is None:
                 raise ValueError("SunStage: later bounces need the patch mesh (patches=)")
             lb = self._later = LaterBounces(G, G_v, albedo, self.patches, exact=self.c_patch)
-        out = lb(dB1, bounces - 2)
-        if dB2 is not None:
-            out = out + lb(dB2, bounces - 3)
+        out = lb(dB1, bounces - 2, later=dB2)  # dB2 with one pass fewer (bounces - 3)
         return out if extra_v is None else out + extra_v
 
     def first_pass_blocked(self, occluder: Occluder, box: tuple, dB1: np.ndarray, G: np.ndarray, G_v: np.ndarray,
@@ -373,20 +371,29 @@ class LaterBounces:
         self.H = np.ascontiguousarray(np.stack(H), np.float32)  # (3,Vr,E)
         self.V = np.ascontiguousarray((sum_rows @ G_v32.T).T, np.float32)  # (Vr,C)
 
-    def __call__(self, dB1: np.ndarray, n: int) -> np.ndarray:
-        """G_v sum_{k=1}^{n} (rho G)^k dB1 (Vr,3) for dB1 (P,3). The products are einsums over a
-        contiguous last axis, not BLAS calls: a threaded BLAS on a loaded machine took 40-60 ms for what
-        takes 1-2 ms here."""
-        if n <= 0 or not np.any(dB1):
+    def __call__(self, dB1: np.ndarray, n: int, later: np.ndarray | None = None) -> np.ndarray:
+        """G_v sum_{k=1}^{n} (rho G)^k dB1 (Vr,3) for dB1 (P,3), plus the same of `later` (P,3) with one
+        pass fewer (k = 1 .. n-1: a change with one more reflection made), both in one run: their
+        first passes side by side, then one chain of passes in which `later` joins a pass late (the
+        passes through Q are linear). The products are einsums over a contiguous last axis, not BLAS
+        calls: a threaded BLAS on a loaded machine took 40-60 ms for what takes 1-2 ms here."""
+        if later is not None and (n <= 1 or not np.any(later)):
+            later = None
+        if n <= 0 or (not np.any(dB1) and later is None):
             return np.zeros((len(self.V), 3))
-        rest = np.where(self.is_exact[:, None], 0.0, dB1) * self.w[:, None]
-        xm = np.stack([np.bincount(self.cluster, rest[:, c], self.n) for c in range(3)]).astype(np.float32)  # (3,C)
-        y = np.einsum("cij,cj->ci", self.Q, xm)  # first pass of the rest, on the clusters
-        total = y.copy()
-        xe = np.ascontiguousarray(dB1[self.exact].T, np.float32)  # (3,E)
-        out = np.einsum("cve,ce->vc", self.H, xe)  # first pass of the exact patches, at the receivers
-        y += np.einsum("ce,cek->ck", xe, self.W)
-        for _ in range(n - 1):
-            y = np.einsum("cij,cj->ci", self.Q, y)
-            total += y
+        x = np.stack([dB1, later]) if later is not None else dB1[None]  # (S,P,3)
+        rest = np.where(self.is_exact[None, :, None], 0.0, x) * self.w[None, :, None]
+        xm = np.stack([[np.bincount(self.cluster, r[:, c], self.n) for c in range(3)] for r in rest], 1)  # (3,S,C)
+        xm = xm.astype(np.float32)
+        y = np.einsum("cij,csj->csi", self.Q, xm)  # first pass of the rest, on the clusters (S of them)
+        total = y.sum(1)
+        xe = np.ascontiguousarray(np.transpose(x[:, self.exact], (2, 0, 1)), np.float32)  # (3,S,E)
+        out = np.einsum("cve,ce->vc", self.H, xe.sum(1))  # first pass of the exact patches, at the receivers
+        y += np.einsum("cse,cek->csk", xe, self.W)
+        z = y[:, 0]  # dB1's chain; later's joins it one pass late
+        for k in range(n - 1):
+            if k == 1:
+                z = z + y[:, 1]
+            z = np.einsum("cij,cj->ci", self.Q, z)
+            total += z
         return out + np.einsum("vk,ck->vc", self.V, total)
