@@ -11,24 +11,7 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
-
-
-@wp.func
-def _segment_meets_box(p: wp.vec3, q: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
-    """Slab test of the segment p -> q against the box [lo, hi]."""
-    t0 = float(0.0)
-    t1 = float(1.0)
-    for a in range(3):
-        d = q[a] - p[a]
-        if wp.abs(d) < 1.0e-12:
-            if p[a] < lo[a] or p[a] > hi[a]:
-                return False
-        else:
-            ta = (lo[a] - p[a]) / d
-            tb = (hi[a] - p[a]) / d
-            t0 = wp.max(t0, wp.min(ta, tb))
-            t1 = wp.min(t1, wp.max(ta, tb))
-    return t0 <= t1
+from kernels.visibility import segment_meets_box
 
 
 @wp.kernel
@@ -46,7 +29,7 @@ def _blocked_kernel(first: int, pts: wp.array(dtype=wp.vec3), eyes: wp.array(dty
             v = e - p
             t = wp.clamp(wp.dot(c - p, v) / wp.max(wp.dot(v, v), 1.0e-20), 0.0, 1.0)
             if wp.length_sq(p + t * v - c) <= rad2:  # the segment passes the box's bounding sphere
-                if _segment_meets_box(p, e, lo, hi):
+                if segment_meets_box(p, e, lo, hi):
                     acc += w
     out[j] = acc
 

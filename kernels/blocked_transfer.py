@@ -15,38 +15,7 @@ import numpy as np
 import warp as wp
 
 from kernels.buffers import Buffer
-from kernels.visibility import Occluder
-
-
-@wp.func
-def _segment_meets_box(a: wp.vec3, b: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
-    """True when segment a->b meets the box [lo, hi] (slab test; else nothing inside it can block)."""
-    t0 = float(0.0)
-    t1 = float(1.0)
-    d = b - a
-    for k in range(3):
-        if wp.abs(d[k]) < 1.0e-12:
-            if a[k] < lo[k] or a[k] > hi[k]:
-                return False
-        else:
-            u = (lo[k] - a[k]) / d[k]
-            v = (hi[k] - a[k]) / d[k]
-            t0 = wp.max(t0, wp.min(u, v))
-            t1 = wp.min(t1, wp.max(u, v))
-    return t0 <= t1
-
-
-@wp.func
-def _segment_blocked_any(mesh: wp.uint64, a: wp.vec3, b: wp.vec3) -> bool:
-    """kernels.visibility.segment_blocked's answer by an any-hit query (it stops at the first triangle
-    met, not the nearest: the same yes/no)."""
-    if mesh == wp.uint64(0):
-        return False
-    d = b - a
-    dist = wp.length(d)
-    if dist <= 1.0e-9:
-        return False
-    return wp.mesh_query_ray_anyhit(mesh, a, d / dist, dist * 0.9999)
+from kernels.visibility import Occluder, segment_blocked, segment_meets_box
 
 
 @wp.kernel
@@ -60,8 +29,8 @@ def _blocked_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3)
     for k in range(m):
         t = T[i, column[k]]
         if t > 0.0:
-            if _segment_meets_box(p, targets[k], lo, hi):
-                if _segment_blocked_any(mesh, p, targets[k]):
+            if segment_meets_box(p, targets[k], lo, hi):
+                if segment_blocked(mesh, p, targets[k]):
                     acc += change[k] * t
     out[i] = acc
 

@@ -27,7 +27,7 @@ import warp as wp
 
 from kernels import runtime
 from kernels.buffers import Buffer
-from kernels.visibility import Occluder, segment_blocked
+from kernels.visibility import Occluder, segment_blocked, segment_meets_box
 
 
 COARSE = 8  # texels per side of the blocks of `MapSet.coarse`
@@ -148,26 +148,6 @@ def _mip_kernel(ms: MapSet, first: int, lv: int):
                     hi = wp.max(hi, ms.mip_max[s, coff + cy * cside + cx])
     ms.mip_min[s, ms.mip_off[lv] + by * side + bx] = lo
     ms.mip_max[s, ms.mip_off[lv] + by * side + bx] = hi
-
-
-@wp.func
-def segment_meets_box(p: wp.vec3, q: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
-    """True when the segment p-q meets the box lo..hi (slab test; a segment from p to any point within
-    r of q lies within r of p-q, so a box widened by r bounds the segments from p to a sphere (q, r))."""
-    t0 = float(0.0)
-    t1 = float(1.0)
-    d = q - p
-    meets = bool(True)
-    for k in range(3):
-        if wp.abs(d[k]) < 1.0e-12:
-            if p[k] < lo[k] or p[k] > hi[k]:
-                meets = False
-        else:
-            ta = (lo[k] - p[k]) / d[k]
-            tb = (hi[k] - p[k]) / d[k]
-            t0 = wp.max(t0, wp.min(ta, tb))
-            t1 = wp.min(t1, wp.max(ta, tb))
-    return meets and t0 <= t1
 
 
 @wp.func

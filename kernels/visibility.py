@@ -22,15 +22,36 @@ from kernels.formfactor import polygon_ff
 
 @wp.func
 def segment_blocked(mesh: wp.uint64, a: wp.vec3, b: wp.vec3) -> bool:
-    """True when the open segment a->b hits a triangle of `mesh` (mesh 0 = no occluder)."""
+    """True when the open segment a->b hits a triangle of `mesh` (mesh 0 = no occluder). An any-hit
+    query: it stops at the first triangle met, not the nearest (the same yes/no)."""
     if mesh == wp.uint64(0):
         return False
     d = b - a
     dist = wp.length(d)
     if dist <= 1.0e-9:
         return False
-    q = wp.mesh_query_ray(mesh, a, d / dist, dist * 0.9999)
-    return q.result
+    return wp.mesh_query_ray_anyhit(mesh, a, d / dist, dist * 0.9999)
+
+
+@wp.func
+def segment_meets_box(p: wp.vec3, q: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
+    """True when the segment p-q meets the box lo..hi (slab test: else nothing inside the box can block
+    it; a segment from p to any point within r of q lies within r of p-q, so a box widened by r bounds
+    the segments from p to a sphere (q, r))."""
+    t0 = float(0.0)
+    t1 = float(1.0)
+    d = q - p
+    meets = bool(True)
+    for k in range(3):
+        if wp.abs(d[k]) < 1.0e-12:
+            if p[k] < lo[k] or p[k] > hi[k]:
+                meets = False
+        else:
+            ta = (lo[k] - p[k]) / d[k]
+            tb = (hi[k] - p[k]) / d[k]
+            t0 = wp.max(t0, wp.min(ta, tb))
+            t1 = wp.min(t1, wp.max(ta, tb))
+    return meets and t0 <= t1
 
 
 @wp.kernel
