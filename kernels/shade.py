@@ -356,6 +356,27 @@ class SampledPatchSum:
 
 
 # ---------------------------------------------------------------- the object's camera hits
+@wp.func
+def camera_hit(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, d: wp.vec3, k: int, tri: wp.array(dtype=wp.int32),
+               bary: wp.array(dtype=wp.vec3), hit: wp.array(dtype=wp.uint8)):
+    """Camera ray k (from centre along unit d) against the object's mesh: its triangle (-1 none) and
+    barycentrics, and hit 1 where it meets the object and the scene model does not lie in front (the
+    scene is only asked where the object is hit)."""
+    q = wp.mesh_query_ray(obj, centre, d, 1.0e6)
+    if q.result:
+        tri[k] = q.face
+        bary[k] = wp.vec3(q.u, q.v, 1.0 - q.u - q.v)  # Warp: p = u p0 + v p1 + (1-u-v) p2
+        hit[k] = wp.uint8(1)
+        if scene != wp.uint64(0):
+            qs = wp.mesh_query_ray(scene, centre, d, q.t)
+            if qs.result and qs.t <= q.t:
+                hit[k] = wp.uint8(0)
+    else:
+        tri[k] = -1
+        bary[k] = wp.vec3(0.0, 0.0, 0.0)
+        hit[k] = wp.uint8(0)
+
+
 @wp.kernel
 def _object_hits_kernel(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, pix_to_dir: wp.mat33, u0: int, v0: int,
                         cols: int, s: int, first: int, lo: int, tri: wp.array(dtype=wp.int32),
@@ -366,21 +387,7 @@ def _object_hits_kernel(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, pix_t
     c = i - r * (cols * s)
     u = float(u0 + c // s) + (float(c % s) + 0.5) / float(s) - 0.5
     v = float(v0 + r // s) + (float(r % s) + 0.5) / float(s) - 0.5
-    d = wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0))
-    q = wp.mesh_query_ray(obj, centre, d, 1.0e6)
-    if q.result:
-        tri[k] = q.face
-        bary[k] = wp.vec3(q.u, q.v, 1.0 - q.u - q.v)  # Warp: p = u p0 + v p1 + (1-u-v) p2
-        # seen unless the scene model lies in front (only asked where the object is hit)
-        hit[k] = wp.uint8(1)
-        if scene != wp.uint64(0):
-            qs = wp.mesh_query_ray(scene, centre, d, q.t)
-            if qs.result and qs.t <= q.t:
-                hit[k] = wp.uint8(0)
-    else:
-        tri[k] = -1
-        bary[k] = wp.vec3(0.0, 0.0, 0.0)
-        hit[k] = wp.uint8(0)
+    camera_hit(obj, scene, centre, wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0)), k, tri, bary, hit)
 
 
 class CameraHits:

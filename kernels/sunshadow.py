@@ -24,6 +24,7 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
+from kernels.shade import camera_hit
 
 
 @wp.struct
@@ -309,20 +310,7 @@ def _outline_hits_kernel(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, pix_
     q = k - j * s * s
     u = float(px[j]) + (float(q % s) + 0.5) / float(s) - 0.5
     v = float(py[j]) + (float(q // s) + 0.5) / float(s) - 0.5
-    d = wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0))
-    h = wp.mesh_query_ray(obj, centre, d, 1.0e6)
-    if h.result:
-        tri[k] = h.face
-        bary[k] = wp.vec3(h.u, h.v, 1.0 - h.u - h.v)  # Warp: p = u p0 + v p1 + (1-u-v) p2
-        hit[k] = wp.uint8(1)
-        if scene != wp.uint64(0):  # seen unless the scene model lies in front
-            hs = wp.mesh_query_ray(scene, centre, d, h.t)
-            if hs.result and hs.t <= h.t:
-                hit[k] = wp.uint8(0)
-    else:
-        tri[k] = -1
-        bary[k] = wp.vec3(0.0, 0.0, 0.0)
-        hit[k] = wp.uint8(0)
+    camera_hit(obj, scene, centre, wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0)), k, tri, bary, hit)
 
 
 class OutlineHits:
