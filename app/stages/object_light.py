@@ -185,11 +185,7 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
     tris = pv[pf]
     shape = proxy_shape(eng, pv, pf, proxy_occ)
     tvis = shape.visibility
-    far = None
-    if extra is not None:
-        tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-        far = (np.concatenate([tris.mean(1), extra.far_c]), np.concatenate([tn, extra.far_tn]),
-               np.concatenate([tri_rad, extra.far_rad]), np.concatenate([tvis.seen, extra.far_seen]))
+    far = _far_emitters(tris, tri_rad, tvis.seen, extra) if extra is not None else None
     rv = pre.recv_vert
     R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, eng.device,
                      tvis, workspace(eng, "object_light.vertices"), far, extra, shape.free)
@@ -220,18 +216,26 @@ def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, cove
 
 
 def centre_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, extra: ExtraEmitters | None = None,
-                 far: tuple | None = None, site: str = "object_light.centres") -> np.ndarray:
+                 far: tuple | None = None, site: str = "object_light.centres",
+                 faces: np.ndarray | None = None) -> np.ndarray:
     """The light (P,3) the object reflects onto the patch centres, as irradiance/pi (object_light's
-    R_cen; far: its far-field emitters when there are extra ones; site: the call site's kernel buffers)."""
+    R_cen; far: its far-field emitters when there are extra ones; site: the call site's kernel buffers).
+    faces: only these faces emit (their rows of the shape's tables; tri_rad (T,3) zero elsewhere), with
+    the extra emitters."""
     pm = eng.pre.patches
-    tris = pv[pf]
+    tris, rad = pv[pf], tri_rad
     shape = proxy_shape(eng, pv, pf, proxy_occ)
+    free = shape.free
+    if faces is not None:
+        tris, rad = tris[faces], tri_rad[faces]
+        free = free[faces] if free is not None else None
+        far = _far_emitters(tris, rad, shape.visibility.seen[faces], extra)
     dist_c = np.linalg.norm(pm.centre - centre, axis=1)
     reach = luminance(_light_bound(pm.centre, dist_c, tri_rad, radius, extra))
     near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
     R_cen = np.zeros((pm.n_patches, 3))
-    R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, tri_rad, proxy_occ, centre, radius,
-                               eng.device, shape.visibility, workspace(eng, site), far, extra, shape.free)
+    R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, rad, proxy_occ, centre, radius,
+                               eng.device, shape.visibility, workspace(eng, site), far, extra, free)
     return R_cen
 
 
@@ -242,8 +246,6 @@ def sun_centre_light(eng: "Engine", pv, pf, sun_rad, proxy_occ, centre, radius, 
     faces are summed (their rows of the shape's tables), so with centre_light of the room's light it
     makes the whole light at the patch centres for about the cost of one call (the sum is linear in
     the radiance; each part skips the centres its own bound puts below centre_light's threshold)."""
-    pm = eng.pre.patches
-    R_cen = np.zeros((pm.n_patches, 3))
     key = shape_key(pv, pf)
     if getattr(eng, "_sun_centre_shape", None) != key:  # a shape's first frame: every face that faces the
         # sun (zero radiance where unlit), so that its kernel buffers are made at their capacity once
@@ -254,22 +256,19 @@ def sun_centre_light(eng: "Engine", pv, pf, sun_rad, proxy_occ, centre, radius, 
     else:
         faces = np.flatnonzero(sun_rad.any(1))
     if len(faces) == 0 and (extra is None or len(extra.tris) == 0):
-        return R_cen
-    tris = pv[pf][faces]
-    rad = sun_rad[faces]
-    shape = proxy_shape(eng, pv, pf, proxy_occ)
+        return np.zeros((eng.pre.patches.n_patches, 3))
+    return centre_light(eng, pv, pf, sun_rad, proxy_occ, centre, radius, extra, site=site, faces=faces)
+
+
+def _far_emitters(tris: np.ndarray, rad: np.ndarray, seen: np.ndarray, extra: ExtraEmitters | None) -> tuple:
+    """_reflected's far_emitters of triangles (T,3,3) with radiance rad (T,3) and visibility rows seen,
+    then the extra emitters' far-field stand-ins (when given)."""
     tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-    far = (tris.mean(1), tn, rad, shape.visibility.seen[faces])
-    if extra is not None:
-        far = (np.concatenate([far[0], extra.far_c]), np.concatenate([tn, extra.far_tn]),
-               np.concatenate([rad, extra.far_rad]), np.concatenate([far[3], extra.far_seen]))
-    dist_c = np.linalg.norm(pm.centre - centre, axis=1)
-    reach = luminance(_light_bound(pm.centre, dist_c, sun_rad, radius, extra))
-    near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
-    free = shape.free[faces] if shape.free is not None else None
-    R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, rad, proxy_occ, centre, radius,
-                               eng.device, None, workspace(eng, site), far, extra, free)
-    return R_cen
+    far = (tris.mean(1), tn, rad, seen)
+    if extra is None:
+        return far
+    return tuple(np.concatenate([a, b]) for a, b in zip(far, (extra.far_c, extra.far_tn, extra.far_rad,
+                                                             extra.far_seen)))
 
 
 def _sphere_ff(r: float, d: np.ndarray) -> np.ndarray:
