@@ -160,9 +160,7 @@ class SunStage:
             import scipy.sparse as sp
 
             G_s = np.asarray(G)[:, cols] * pm.albedo.any(1)[:, None]  # (P,J), rows of emitters zero
-            cl, n = patch_clusters(pm)
-            area = np.asarray(pm.area, np.float64)
-            w = area / np.bincount(cl, area, n)[cl]
+            cl, n, w = cluster_weights(pm)
             mean_rows = sp.csr_matrix((w, (cl, np.arange(len(cl)))), shape=(n, len(cl)))  # (C,P) area-weighted
             member = np.zeros(n, np.int64)  # one patch of each cluster (its quad's normal)
             member[cl] = np.arange(len(cl))
@@ -174,9 +172,7 @@ class SunStage:
         K = self.c_vis.shape[1]
         w = self._lost
         pts = self.c_pts.reshape(len(self.c_patch), K, 3)
-        tot = w.sum(1)
-        centres = np.where(tot[:, None] > 0, np.einsum("pk,pkc->pc", w, pts) / np.maximum(tot, 1e-30)[:, None],
-                           pts.mean(1))
+        centres = _weighted_centres(w, pts)
         change = dB1[self.c_patch]
         if not at_patches:
             return (at_v(occluder, centres, change, box, split),)
@@ -184,10 +180,8 @@ class SunStage:
         if albedo is None:
             return out
         kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
-        k_tot = kept.sum(1)
-        kept_centres = np.where(k_tot[:, None] > 0, np.einsum("pk,pkc->pc", kept, pts)
-                                / np.maximum(k_tot, 1e-30)[:, None], pts.mean(1))
-        sun = albedo[self.c_patch] * ((k_tot / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
+        kept_centres = _weighted_centres(kept, pts)
+        sun = albedo[self.c_patch] * ((kept.sum(1) / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
         # a later pass's change: on the clusters of patches that carry it (LaterBounces), each patch its cluster's
         return (*out, at_cl(occluder, kept_centres, sun, box, split)[cl])
 
@@ -326,6 +320,22 @@ def patch_clusters(patches) -> tuple[np.ndarray, int]:
     return cl, int(cl.max()) + 1
 
 
+def cluster_weights(patches) -> tuple[np.ndarray, int, np.ndarray]:
+    """(cluster (P,), count, w (P,)): patch_clusters and each patch's weight in its cluster's
+    area-weighted mean (its area over the cluster's)."""
+    cl, n = patch_clusters(patches)
+    area = np.asarray(patches.area, np.float64)
+    return cl, n, area / np.bincount(cl, area, n)[cl]
+
+
+def _weighted_centres(w: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """(J,3) each patch's centre of its sample points pts (J,K,3) weighted by w (J,K); the plain
+    mean where the weights are all 0."""
+    tot = w.sum(1)
+    return np.where(tot[:, None] > 0, np.einsum("pk,pkc->pc", w, pts) / np.maximum(tot, 1e-30)[:, None],
+                    pts.mean(1))
+
+
 class LaterBounces:
     """The later bounces of a first-bounce change of patch radiance dB1, at the receiver vertices:
     G_v sum_{k=1}^{n} (rho G)^k dB1, on clusters of neighbouring patches (patch_clusters).
@@ -346,11 +356,9 @@ class LaterBounces:
         import scipy.sparse as sp
 
         self.key = (id(G), id(G_v), id(albedo))
-        cl, n = patch_clusters(patches)
+        cl, n, self.w = cluster_weights(patches)  # w: area-weighted mean over each cluster
         P = len(cl)
-        area = np.asarray(patches.area, np.float64)
         self.cluster, self.n = cl, n
-        self.w = area / np.bincount(cl, area, n)[cl]  # area-weighted mean over each cluster
         sum_cols = sp.csr_matrix((np.ones(P, np.float32), (np.arange(P), cl)), shape=(P, n))  # (P,C)
         sum_rows = sum_cols.T.tocsr()  # (C,P)
         G32, G_v32 = np.asarray(G, np.float32), np.asarray(G_v, np.float32)
