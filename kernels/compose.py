@@ -12,6 +12,12 @@ T is the camera response as recon.response.CameraResponse evaluates it: np.inter
 breakpoints, here found through a uniform grid of start indices (`response_grid`) so that a lookup
 is one load and a short scan instead of a bisection, with the segment slopes precomputed as np.interp
 computes them (`segment_slopes`). Its result is the same segment and the same formula as np.interp's.
+
+An HDR pixel the object does not cover needs only the 8-bit level of its room radiance, rint(T(L)):
+`rounding_table` gives it per cell of a uniform grid over the exposure-scaled radiance wherever
+every value T takes in the cell rounds to the same level (an exact bound: T is piecewise linear, so
+its extremes over a cell are at the cell's ends and the breakpoints inside it); in the other cells
+(those holding a half level) `to_pixel` evaluates T as above. The 8-bit frame is bit-equal either way.
 """
 from __future__ import annotations
 
@@ -23,6 +29,9 @@ import warp as wp
 from kernels import runtime
 
 GRID_CELLS = 4096  # uniform cells per channel over [0, 1] in the lookup grid
+ROUND_CELLS = 1 << 15  # uniform cells per channel over [0, 1] in the rounding table (a power of two:
+# x * ROUND_CELLS is exact, so a cell holds exactly the x in [k, k + 1) / ROUND_CELLS)
+ROUND_TOL = 1e-6  # levels: the margin kept from a half level, far above T's float64 rounding error
 Split = Callable[[Callable[[int, int], None], int], None]  # split(launch(lo, hi), n): runs [0, n) in ranges
 
 
@@ -50,6 +59,29 @@ def pack_response(xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
     tab = np.concatenate([triples(xs, ys), triples(ys, xs)])
     return tab, np.concatenate([response_grid(xs), response_grid(ys)])
+
+
+def rounding_table(xs: np.ndarray, ys: np.ndarray, cells: int = ROUND_CELLS, tol: float = ROUND_TOL
+                   ) -> np.ndarray:
+    """(C, cells) int16: per channel and cell k of x in [k, k + 1] / cells, the level rint(255 f(x))
+    (f: np.interp over the breakpoints (xs, ys) (C, n)) where it is the same for every x of the cell,
+    else -1. The extremes of the piecewise-linear f over a cell are at its ends and the breakpoints
+    inside (ties: both values); the cell holds one level where no half level lies within `tol` of
+    255 x their range."""
+    edges = np.arange(cells + 1, dtype=np.float64) / cells
+    out = np.empty((len(xs), cells), np.int16)
+    for c, (xp, fp) in enumerate(zip(xs, ys)):
+        f = np.interp(edges, xp, fp)
+        lo, hi = np.minimum(f[:-1], f[1:]), np.maximum(f[:-1], f[1:])
+        inside = (xp >= 0.0) & (xp <= 1.0)
+        t, v = xp[inside] * cells, fp[inside]
+        for cell in (np.minimum(np.floor(t), cells - 1), np.ceil(t) - 1):  # the cells whose closed range holds it
+            ok = cell >= 0
+            np.minimum.at(lo, cell[ok].astype(np.int64), v[ok])
+            np.maximum.at(hi, cell[ok].astype(np.int64), v[ok])
+        a, b = np.floor(255.0 * lo - tol + 0.5), np.floor(255.0 * hi + tol + 0.5)
+        out[c] = np.where(a == b, np.clip(a, 0, 255), -1)
+    return out
 
 
 @wp.func
@@ -91,6 +123,20 @@ def to_radiance(z: wp.float64, c: int, exposure: wp.float64, tab: wp.array2d(dty
     return lookup(y, 3 + c, tab, grid) / exposure
 
 
+@wp.func
+def to_pixel(L: wp.float64, c: int, exposure: wp.float64, rtab: wp.array2d(dtype=wp.int16),
+             tab: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32)) -> int:
+    """clamp(rint(T(L)), 0, 255), the 8-bit level of radiance L: from the rounding table where its
+    cell holds one level, else T(L) (to_levels) rounded."""
+    x = wp.clamp(L * exposure, wp.float64(0.0), wp.float64(1.0))
+    nc = rtab.shape[1]
+    q = int(rtab[c, wp.min(int(x * wp.float64(nc)), nc - 1)])
+    if q >= 0:
+        return q
+    return int(wp.clamp(wp.rint(wp.float64(255.0) * lookup(x, c, tab, grid)), wp.float64(0.0),
+                        wp.float64(255.0)))
+
+
 # The mode's per-scene table, one row per pixel (one memory stream): HDR [L_b | rho | T(L_b)], LDR
 # [L_b | rho | photo levels | T(L_b) | the photo's radiance], 3 columns per quantity.
 PX_LB, PX_RHO, PX_STILL, PX_TLB, PX_ROOM_LDR = 0, 3, 6, 9, 12  # PX_STILL: the levels where nothing changes
@@ -106,15 +152,16 @@ def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows:
                    r_pix: wp.array2d(dtype=wp.float64), r_flag: wp.array(dtype=wp.uint8), all_r: int,
                    slot: wp.array(dtype=wp.int32), extra: wp.array2d(dtype=wp.float64),
                    dE_v: wp.array2d(dtype=wp.float64), add_v: wp.array2d(dtype=wp.float64),
-                   tab: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32), exposure: wp.float64,
+                   tab: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32),
+                   rtab: wp.array2d(dtype=wp.int16), exposure: wp.float64,
                    out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
                    out_pix: wp.array2d(dtype=wp.uint8)):
     """px: the mode's per-scene table (PX_*); rows/bary: receiver-vertex rows (-1: no receiver) and
     weights; shade: this frame's occluded share (HDR; LDR: levels taken); r_pix: object light, used
     where r_flag is set (or everywhere: all_r); slot/extra: the sun's occluded share, the object's
     radiance and coverage (EX_*) of the pixels that have them; dE_v/add_v (Vr,3) second order (plus
-    object light) at receiver vertices. out: radiance, out_room: room radiance (float32); out_pix the
-    8-bit frame. The frame's inputs it reads are left cleared (shade, r_flag and r_pix where
+    object light) at receiver vertices; rtab the rounding table (rounding_table). out: radiance,
+    out_room: room radiance (float32); out_pix the 8-bit frame. The frame's inputs it reads are left cleared (shade, r_flag and r_pix where
     r_flag is set (not all_r: r_pix is the caller's), slot) for the next frame."""
     i = first + wp.tid()
     zero = wp.float64(0.0)
@@ -160,15 +207,21 @@ def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows:
     added = g[0] != zero or g[1] != zero or g[2] != zero
     rad = wp.vec3d()  # room radiance
     lev = wp.vec3d()  # its level
+    rounded = False  # the 8-bit levels are in q (the room's, HDR, where the object is not)
+    q = wp.vec3i()
     if ldr == 0:
         # the radiance the shadows take: the occluded share of L_b, then the sun's
         sh = wp.vec3d()
         for c in range(3):
             sh[c] = px[i, PX_LB + c] * f[c] + px[i, PX_LB + c] * u[c]
         if added or sh[0] != zero or sh[1] != zero or sh[2] != zero:
+            rounded = cov == zero
             for c in range(3):
                 rad[c] = wp.max(px[i, PX_LB + c] - sh[c] + g[c], zero)
-                lev[c] = to_levels(rad[c], c, exposure, tab, grid)
+                if rounded:
+                    q[c] = to_pixel(rad[c], c, exposure, rtab, tab, grid)
+                else:
+                    lev[c] = to_levels(rad[c], c, exposure, tab, grid)
         else:
             for c in range(3):
                 rad[c] = px[i, PX_LB + c]
@@ -207,7 +260,10 @@ def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows:
     for c in range(3):
         out[i, c] = wp.float32(pr[c])
         out_room[i, c] = wp.float32(rad[c])
-        out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(pl[c]), zero, full)))
+        if rounded:
+            out_pix[i, c] = wp.uint8(q[c])
+        else:
+            out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(pl[c]), zero, full)))
 
 
 @wp.kernel
@@ -360,6 +416,7 @@ class Compositor:
         # the response packed for `lookup`: rows 0-2 T per channel, 3-5 T^-1; (xp, fp, slope) per breakpoint
         tab, grid = pack_response(xs, ys)
         self._tab, self._grid = static(tab), static(grid, wp.int32)
+        self._rtab = static(rounding_table(xs, ys), wp.int16)
         self._exposure = float(exposure)
         n_vert, n_patch = G_v.shape
         self.n_vert = n_vert
@@ -513,7 +570,7 @@ class Compositor:
             wp.launch(compose_kernel, dim=hi - lo, device=self.device,
                       inputs=[lo, int(ldr), px, self._rows, self._bary, self._shade.dev, r_in, self._r_flag.dev,
                               int(r_dense is not None), self._slot.dev, self._extra.dev, m["dE_v"].dev,
-                              m["add_v"].dev, self._tab, self._grid, self._exposure, *outs])
+                              m["add_v"].dev, self._tab, self._grid, self._rtab, self._exposure, *outs])
 
         split(launch, n)
         wp.synchronize_device(self.device)

@@ -6,7 +6,7 @@ import pytest
 import warp as wp
 
 from app.stages.compose import ComposeStage, compose_reference
-from kernels.compose import GRID_CELLS, lookup, pack_response
+from kernels.compose import GRID_CELLS, lookup, pack_response, rounding_table, to_pixel
 from lighting.photolight import srgb_response
 
 H, W, VR, P = 24, 32, 40, 12
@@ -140,6 +140,51 @@ def test_response_lookup_is_np_interp_on_hard_values(inverse, device):
         wp.launch(_lookup_kernel, dim=len(pts), device=device,
                   inputs=[wp.array(pts, dtype=wp.float64, device=device), 3 * inverse + c, tab_wp, grid_wp, out])
         assert np.array_equal(out.numpy(), np.interp(pts, xp[c], fp[c]))
+
+
+@wp.kernel
+def _pixel_kernel(L: wp.array(dtype=wp.float64), c: int, exposure: wp.float64, rtab: wp.array2d(dtype=wp.int16),
+                  tab: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32), out: wp.array(dtype=wp.int32)):
+    i = wp.tid()
+    out[i] = to_pixel(L[i], c, exposure, rtab, tab, grid)
+
+
+@pytest.mark.parametrize("cells", [64, 1 << 15])
+def test_to_pixel_is_the_rounded_level_on_hard_values(cells, device):
+    """to_pixel (the rounding table, T where a cell holds a half level) equals clip(rint(T(L)), 0, 255)
+    exactly: at radiances whose level is a half level (and one ulp either side), at the breakpoints
+    (a jump: tied xs; a dip), the cells' ends, 0, 1 and beyond; with a coarse table (most cells ambiguous)
+    and the stage's own."""
+    from recon.response import CameraResponse
+
+    g = np.linspace(0, 1, 256)
+    fwd = np.tile(np.minimum(g ** (1 / 2.6) * 1.05, 1.0), (3, 1))
+    inv = np.tile(np.minimum(g, 0.95) ** 2.6, (3, 1))
+    xs, ys = CameraResponse(fwd, inv).breakpoints()
+    xs, ys = xs.copy(), ys.copy()
+    xs[:, 300] = xs[:, 299]  # a jump: tied xs, two levels at one x
+    for c in range(3):  # a dip in the flat top (not monotone): the bound must take the breakpoint's value
+        ys[c, np.searchsorted(xs[c], 0.96)] -= 0.03  # its neighbours in the same cell of 64
+    exposure = 0.37
+    rtab = rounding_table(xs, ys, cells)
+    assert (rtab >= 0).any() and (rtab < 0).any()
+    tab, grid = pack_response(xs, ys)
+    args = [wp.array(rtab, dtype=wp.int16, device=device), wp.array(tab, dtype=wp.float64, device=device),
+            wp.array(grid, dtype=wp.int32, device=device)]
+    edges = np.arange(cells + 1) / cells
+    for c in range(3):
+        half = (np.arange(255) + 0.5) / 255.0  # f(x) = a half level, on the segment that holds it
+        j = np.clip(np.searchsorted(ys[c], half) - 1, 0, len(xs[c]) - 2)
+        t = (half - ys[c, j]) / np.maximum(ys[c, j + 1] - ys[c, j], 1e-300)
+        x_half = xs[c, j] + t * (xs[c, j + 1] - xs[c, j])
+        x = np.concatenate([x_half, xs[c], edges, [0.0, 1.0, -0.2, 3.0], np.random.default_rng(c).random(3000) ** 3])
+        x = np.concatenate([x, np.nextafter(x, 2), np.nextafter(x, -1)])
+        L = x / exposure
+        out = wp.zeros(len(L), dtype=wp.int32, device=device)
+        wp.launch(_pixel_kernel, dim=len(L), device=device,
+                  inputs=[wp.array(L, dtype=wp.float64, device=device), c, exposure, *args, out])
+        want = np.clip(np.rint(255.0 * np.interp(np.clip(L * exposure, 0, 1), xs[c], ys[c])), 0, 255)
+        assert np.array_equal(out.numpy(), want), np.flatnonzero(out.numpy() != want)[:5]
 
 
 @pytest.mark.parametrize("n_vert", [1, 6, 41])
