@@ -21,6 +21,7 @@ its extremes over a cell are at the cell's ends and the breakpoints inside it); 
 """
 from __future__ import annotations
 
+import sys
 from typing import Callable
 
 import numpy as np
@@ -299,6 +300,7 @@ def share_kernel(first: int, idx: wp.array(dtype=wp.int64), O: wp.array2d(dtype=
         out[p, c] = v
 
 
+OUTPUT_SETS = 3  # output sets (radiance, room, pixels) the Compositor keeps for reuse (_outputs)
 SO_ROWS = 4  # receiver vertices per thread of second_order_kernel
 
 
@@ -381,7 +383,8 @@ class Compositor:
     light (`scatter` with its flag, or dense to `run`), the sparse sun share and object (`rows_for`
     then `extra`'s columns EX_*), and `dE_v`, `add_v` (Vr,3); `run` composes the whole frame into new
     (N,3) arrays (radiance and room radiance float32, the 8-bit frame), which the caller owns (on the
-    CPU the kernel writes them directly: no copy), and leaves the per-frame buffers cleared."""
+    CPU the kernel writes them directly: no copy; a set is written again only once nothing outside
+    the Compositor references it: `_outputs`), and leaves the per-frame buffers cleared."""
 
     def __init__(self, L_b: np.ndarray, T_Lb: np.ndarray, rho: np.ndarray, rows: np.ndarray, bary: np.ndarray,
                  still: dict, xs: np.ndarray, ys: np.ndarray, exposure: float, G_v: np.ndarray, device: str,
@@ -438,6 +441,7 @@ class Compositor:
         self.used = 0  # rows of extra this frame holds
         self._count = np.arange(N, dtype=np.int32)
         self._dirty = False  # a frame began and did not run (the buffers may hold its changes)
+        self._pool: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # output sets (_outputs)
         self._out = None if self._slot.dev.device.is_cpu else (
             _Mirror((N, 3), wp.float32, d), _Mirror((N, 3), wp.float32, d), _Mirror((N, 3), wp.uint8, d))
 
@@ -539,10 +543,24 @@ class Compositor:
         m["dE_v"].pull()
         m["add_v"].pull()
 
+    def _outputs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(radiance, room, pixels) arrays for a frame: a set of the pool that nothing else references any
+        more (the frames that were given it are gone: it is never written while someone holds it), else a
+        new set, kept in the pool while it has fewer than OUTPUT_SETS (a drag holds one frame while the
+        next is made). A reused set costs no allocation and no page faults (~3 ms a frame at 640x480)."""
+        for outs in self._pool:
+            if all(sys.getrefcount(a) <= 3 for a in outs):  # the pool's tuple, `a` and the call's argument
+                return outs
+        n = self.n
+        outs = (np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8))
+        if len(self._pool) < OUTPUT_SETS:
+            self._pool.append(outs)
+        return outs
+
     def run(self, ldr: bool, r_dense: np.ndarray | None, split: Split) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Compose every pixel, the pixels cut into index ranges by `split` (one launch per range);
-        r_dense (N,3): object light at every pixel (None: what `scatter` wrote). Returns new arrays
-        (radiance (N,3) float32, room radiance (N,3) float32, pixels (N,3) uint8)."""
+        r_dense (N,3): object light at every pixel (None: what `scatter` wrote). Returns arrays no one
+        else holds (_outputs): radiance (N,3) float32, room radiance (N,3) float32, pixels (N,3) uint8."""
         for m in self._m.values():
             m.push()
         if self._in:  # CUDA: the slots were written on the host: push them (and the rows in use)
@@ -557,7 +575,7 @@ class Compositor:
             else:
                 r_in = wp.array(np.ascontiguousarray(r_dense, np.float64), dtype=wp.float64, device=self.device,
                                 copy=False)
-        rad, room, pix = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8)
+        rad, room, pix = self._outputs()
         if self._out is None:  # the CPU: the kernel writes the returned arrays (wrapped, not copied)
             outs = [wp.array(a, dtype=dt, device=self.device, copy=False)
                     for a, dt in ((rad, wp.float32), (room, wp.float32), (pix, wp.uint8))]

@@ -19,8 +19,9 @@ the shadows' share computed and written at pix_sel by a kernel (share_kernel), t
 a sparse object light scattered by a kernel (scatter_kernel), the sun's pixels and the object's
 coverage into a compact table (one row per pixel that has them); one kernel (one launch per core)
 then composes every pixel and leaves the per-frame buffers cleared as it reads them (no reset pass).
-The returned images are new arrays the kernel writes directly on the CPU (no copy): the Frame owns
-them (a kept frame, Engine.refine's, must not change under the next one).
+The returned images are arrays the kernel writes directly on the CPU (no copy), from a small pool
+reused only once nothing outside the stage references them: the Frame owns them while it lives (a
+kept frame, Engine.refine's, never changes under the next one), and a drag allocates no new ones.
 
 Object light R comes in one of three forms (the object-light stage's choice):
   - an (N,3) array: dense, every pixel (the engine's form today);

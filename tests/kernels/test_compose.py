@@ -214,3 +214,34 @@ def test_second_order_sums_in_patch_order(n_vert, device):
         k.dE_v[:] = np.nan
         k.second_order(dB, split)
         assert np.array_equal(k.dE_v[:n_vert], want) and np.array_equal(k.add_v[:n_vert], want)
+
+
+def test_kept_frames_never_change_and_dropped_ones_are_reused(scene, device):
+    """The output arrays come from a pool: a frame someone holds (its radiance, pixels or room, or a
+    view of one) is never written by the frames after it, and the arrays of a frame no one holds any
+    more are written again (no new allocation), each frame still equal to the reference."""
+    stage = ComposeStage(**scene, patches=None, shape=(H, W), device=device)
+    rng = np.random.default_rng(5)
+
+    def frame():
+        pix_sel, O_pix, fill_sel, R, dB, cov, obj, sun_pix, sun_loss = _frame_inputs(rng, scene, "hdr")
+        dE_v = stage.second_order(dB)
+        got = stage.frame("hdr", pix_sel, O_pix, fill_sel, _fill, R, dE_v, cov, obj)
+        want = _reference("hdr", scene, pix_sel, O_pix, fill_sel, _dense(scene, R), dE_v, cov, obj, None, None)
+        assert np.array_equal(got[1], want[1])
+        return got
+
+    kept = frame()
+    held_view = frame()[1][3:7, 2]  # only a view of one of the frame's arrays is held
+    held_copy = [a.copy() for a in kept], held_view.copy()
+    seen = set()
+    for _ in range(6):
+        out = frame()
+        seen.add(out[0].__array_interface__["data"][0])
+        for a in out:
+            assert not np.shares_memory(a, kept[0]) and not np.shares_memory(a, kept[1])
+            assert not np.shares_memory(a, kept[2]) and not np.shares_memory(a, held_view)
+        del out, a
+    assert all(np.array_equal(a, b) for a, b in zip(kept, held_copy[0]))
+    assert np.array_equal(held_view, held_copy[1])
+    assert len(seen) == 1  # frames dropped at once: one set, written again and again
