@@ -614,10 +614,11 @@ class Engine:
         """object_shading.specular_map (app/stages/object_shading.py)."""
         return object_shading.specular_map(self, centre)
 
-    def _fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray) -> np.ndarray:
+    def _fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray, out=None) -> np.ndarray | None:
         """Values (len(missing),3) at pixels `missing`: mean of the known pixels in their 3x3
-        window that lie on the same quad (ShadowPass.fill; a reused buffer, use it at once)."""
-        return self.shadow_pass.fill(known, values, missing)
+        window that lie on the same quad (ShadowPass.fill; a reused buffer, use it at once; or
+        written into `out` at their pixels: the compose stage's buffer)."""
+        return self.shadow_pass.fill(known, values, missing, out=out)
 
     def _object_triangle_radiance(self, obj: SceneObject, pv, pf, proxy_occ, B: np.ndarray) -> np.ndarray:
         """object_light.triangle_radiance (app/stages/object_light.py)."""

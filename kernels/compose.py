@@ -431,6 +431,8 @@ class Compositor:
         N = max(n, 1)
         # per-frame per-pixel buffers, cleared by compose_kernel as it reads them
         self._shade, self._r_pix = _Mirror((N, 3), f64, d), _Mirror((N, 3), f64, d)
+        # the shadows as one vec3d per pixel (the same memory): a fill writes its pixels there
+        self.shade_px = wp.array(ptr=self._shade.dev.ptr, dtype=wp.vec3d, shape=(N,), device=self._shade.dev.device)
         self._r_flag = _Mirror((N,), wp.uint8, d)
         self._slot = _Mirror.of(np.full(N, -1, np.int32), wp.int32, d)
         self._extra = _Mirror((N, EX_WIDTH), f64, d)

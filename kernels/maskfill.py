@@ -32,12 +32,17 @@ def _mark_kernel(known: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32)
 @wp.kernel
 def _gather_kernel(lo: int, width: int, height: int, missing: wp.array(dtype=wp.int32),
                    slot: wp.array(dtype=wp.int32), surface: wp.array(dtype=wp.int32),
-                   values: wp.array(dtype=wp.vec3d), spacing: wp.array(dtype=wp.int32),
+                   values: wp.array(dtype=wp.vec3d), spacing: wp.array(dtype=wp.int32), by_pixel: int,
                    out: wp.array(dtype=wp.vec3d)):
+    """out[i] (by_pixel: out[missing[i]], an image-sized array) = the fill's value at missing[i]."""
     i = lo + wp.tid()
     q = missing[i]
+    at = i
+    if by_pixel != 0:
+        at = q
     y = q / width
     x = q - y * width
+    own = surface[q]
     s = spacing[q]
     if s > 2:  # bilinear over the known corners of the pixel's s x s lattice square on its surface
         x0 = (x / s) * s
@@ -62,11 +67,11 @@ def _gather_kernel(lo: int, width: int, height: int, missing: wp.array(dtype=wp.
                 if w > wp.float64(0.0) and sx < width and sy < height:
                     o = sy * width + sx
                     k = slot[o]
-                    if k >= 0 and surface[o] == surface[q]:
+                    if k >= 0 and surface[o] == own:
                         bl += values[k] * w
                         wsum += w
         if wsum > wp.float64(0.0):
-            out[i] = bl / wsum
+            out[at] = bl / wsum
             return
     acc = wp.vec3d(0.0, 0.0, 0.0)
     n = int(0)
@@ -77,12 +82,12 @@ def _gather_kernel(lo: int, width: int, height: int, missing: wp.array(dtype=wp.
             if sy >= 0 and sy < height and sx >= 0 and sx < width:
                 o = sy * width + sx
                 k = slot[o]
-                if k >= 0 and surface[o] == surface[q]:
+                if k >= 0 and surface[o] == own:
                     acc += values[k]
                     n += 1
     if n > 0:
         acc = acc / wp.float64(n)
-    out[i] = acc
+    out[at] = acc
 
 
 class WindowFill:
@@ -111,14 +116,17 @@ class WindowFill:
         self._spaced = pixels[h[pixels] != 2]
         self.spacing.push()
 
-    def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray, split=None) -> np.ndarray:
+    def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray, split=None,
+             out: wp.array | None = None) -> np.ndarray | None:
         """(len(missing),3) float64 at pixels `missing` from `values` (len(known),3) at pixels
-        `known` (distinct); a view of a reused buffer, valid until the next call.
+        `known` (distinct); a view of a reused buffer, valid until the next call. With `out`, an
+        image-sized wp.array of vec3d on the device, the values are written there at their pixels
+        instead (no copy, no scatter) and None is returned.
         split: optional callable(launch(lo, hi), n) that runs the gather over index ranges
         (app.runtime.split); default one launch."""
         m = len(missing)
         if m == 0:
-            return self.out.host[:0]
+            return None if out is not None else self.out.host[:0]
         nk = self.known.upload(np.asarray(known).reshape(-1))
         self.values.upload(np.asarray(values).reshape(-1, 3))
         self.missing.upload(np.asarray(missing).reshape(-1))
@@ -129,7 +137,8 @@ class WindowFill:
         def gather(lo: int, hi: int) -> None:
             wp.launch(_gather_kernel, dim=hi - lo,
                       inputs=[lo, self.width, self.height, self.missing.dev, self.slot.dev, self.surface.dev,
-                              self.values.dev, self.spacing.dev], outputs=[self.out.dev], device=d)
+                              self.values.dev, self.spacing.dev, int(out is not None)],
+                      outputs=[self.out.dev if out is None else out], device=d)
 
         if split is None:
             gather(0, m)
@@ -138,4 +147,4 @@ class WindowFill:
         if nk:
             wp.launch(_mark_kernel, dim=nk, inputs=[self.known.dev, self.slot.dev, -1], device=d)
         wp.synchronize_device(d)
-        return self.out.pull(m)
+        return None if out is not None else self.out.pull(m)

@@ -15,8 +15,9 @@ Per scene (ComposeStage.__init__): the pixel -> receiver-vertex rows restricted 
 T(L_b), the LDR frame's unchanged radiance, G_v in the kernel's buffer (a frame sums over the
 changed patches only), the response's breakpoints and lookup grids, and every per-pixel
 buffer at full-frame size (kernels.compose.Compositor). Per frame the host work is a few launches:
-the shadows' share computed and written at pix_sel by a kernel (share_kernel), the fill's values and
-a sparse object light scattered by a kernel (scatter_kernel), the sun's pixels and the object's
+the shadows' share computed and written at pix_sel by a kernel (share_kernel), the fill's values
+written by the fill's own kernel straight into the frame's shadow buffer, a sparse object light
+scattered by a kernel (scatter_kernel), the sun's pixels and the object's
 coverage into a compact table (one row per pixel that has them); one kernel (one launch per core)
 then composes every pixel and leaves the per-frame buffers cleared as it reads them (no reset pass).
 The returned images are arrays the kernel writes directly on the CPU (no copy), from a small pool
@@ -40,7 +41,8 @@ from app import runtime
 from kernels.compose import EX_COV, EX_OBJ, EX_SUN, Compositor
 from lighting.transfer import intensity_transfers
 
-FillFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]  # (known, values, missing) -> values
+FillFn = Callable[..., "np.ndarray | None"]  # fill(known, values, missing, out=None): the values at missing,
+# or, given out (an image-sized wp.array of vec3d), written there at their pixels (returns None)
 
 
 class ComposeStage:
@@ -117,7 +119,8 @@ class ComposeStage:
 
         pix_sel, O_pix: the shadow pass's pixels and their occluded sums (HDR: irradiance/pi, LDR:
         levels); fill_sel and `fill`, which fills a value at fill_sel from known pix_sel values (HDR:
-        the occluded share, LDR: O); R_pix the object light (module docstring: dense, (idx, values) or
+        the occluded share, LDR: O), called as fill(known, values, missing, out=buffer) (FillFn: it
+        writes into the stage's image-sized buffer at the pixels); R_pix the object light (module docstring: dense, (idx, values) or
         (R_v, idx, values)); dE_v the second order (None: off); cov (H,W) and obj_rad (H,W,3) the
         object's coverage and radiance; sun_pix, sun_loss (len(sun_pix),3) the sun's lost irradiance/pi.
 """
@@ -127,7 +130,7 @@ class ComposeStage:
         # the filled ones from them (disjoint)
         vals = k.shade_from(pix_sel, O_pix, not ldr, split)
         if len(fill_sel):
-            k.scatter("shade", fill_sel, fill(pix_sel, vals, fill_sel), split)
+            fill(pix_sel, vals, fill_sel, out=k.shade_px)  # straight into the frame's shadows
         if sun_loss is not None:  # sun: its occluded share of the (model, where clipped) radiance, written
             # only where the object takes some
             nz = np.flatnonzero(sun_loss.any(1))

@@ -317,12 +317,13 @@ class ShadowPass:
                      for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
         return self.sums.result()[0]
 
-    def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray) -> np.ndarray:
+    def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray, out=None) -> np.ndarray | None:
         """Values (len(missing),3) at pixels `missing`: mean of the `known` pixels' values in
         their 3x3 window that lie on the same quad (every pixel a frame fills has one, see
-        lattice_cover). A view of a reused buffer, valid until the next call."""
+        lattice_cover). A view of a reused buffer, valid until the next call; or, given `out` (an
+        image-sized wp.array of vec3d), written there at their pixels (WindowFill.fill)."""
         return self._fill.fill(known, values, missing,
-                               split=lambda launch, n: runtime.split(launch, n, self.device, min_items=8192))
+                               split=lambda launch, n: runtime.split(launch, n, self.device, min_items=8192), out=out)
 
     def _select(self, centre: np.ndarray, radius: float, coverage: np.ndarray, cand: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -12,9 +12,16 @@ from lighting.photolight import srgb_response
 H, W, VR, P = 24, 32, 40, 12
 
 
-def _fill(known, values, missing):
-    """Any fill works for the comparison: the mean of the known values, scaled per pixel."""
-    return np.outer(1.0 + 0.01 * (missing % 7), values.mean(0)) if len(missing) else np.zeros((0, 3))
+def _fill(known, values, missing, out=None):
+    """Any fill works for the comparison: the mean of the known values, scaled per pixel (given `out`,
+    the compose stage's image-sized vec3d buffer: written there at the pixels, as WindowFill.fill)."""
+    v = np.outer(1.0 + 0.01 * (missing % 7), values.mean(0)) if len(missing) else np.zeros((0, 3))
+    if out is None:
+        return v
+    h = out.numpy()
+    h[missing] = v
+    out.assign(h)
+    return None
 
 
 def _reference(mode, scene, pix_sel, O_pix, fill_sel, R_pix, dE_v, cov, obj_rad, sun_pix, sun_loss):
