@@ -186,6 +186,11 @@ def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows:
         o = wp.vec3d(extra[s, EX_OBJ], extra[s, EX_OBJ + 1], extra[s, EX_OBJ + 2])
         cov = extra[s, EX_COV]
     r0 = rows[i, 0]
+    r1 = rows[i, 1]
+    r2 = rows[i, 2]
+    b0 = wp.float64(bary[i, 0])
+    b1 = wp.float64(bary[i, 1])
+    b2 = wp.float64(bary[i, 2])
     # light added: rho x (object light + second order), irradiance/pi -> radiance
     g = wp.vec3d()
     for c in range(3):
@@ -195,11 +200,6 @@ def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows:
             if all_r == 0:
                 r_pix[i, c] = zero
         if r0 >= 0:
-            b0 = wp.float64(bary[i, 0])
-            b1 = wp.float64(bary[i, 1])
-            b2 = wp.float64(bary[i, 2])
-            r1 = rows[i, 1]
-            r2 = rows[i, 2]
             if use_r:
                 a = a + (b0 * dE_v[r0, c] + b1 * dE_v[r1, c] + b2 * dE_v[r2, c])
             else:
