@@ -162,8 +162,9 @@ def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows:
     where r_flag is set (or everywhere: all_r); slot/extra: the sun's occluded share, the object's
     radiance and coverage (EX_*) of the pixels that have them; dE_v/add_v (Vr,3) second order (plus
     object light) at receiver vertices; rtab the rounding table (rounding_table). out: radiance,
-    out_room: room radiance (float32); out_pix the 8-bit frame. The frame's inputs it reads are left cleared (shade, r_flag and r_pix where
-    r_flag is set (not all_r: r_pix is the caller's), slot) for the next frame."""
+    out_room: room radiance (float32); out_pix the 8-bit frame. The frame's inputs it reads are left
+    cleared (shade, r_flag and r_pix where r_flag is set (not all_r: r_pix is the caller's), slot)
+    for the next frame."""
     i = first + wp.tid()
     zero = wp.float64(0.0)
     one = wp.float64(1.0)
