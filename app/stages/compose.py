@@ -122,7 +122,8 @@ class ComposeStage:
         the occluded share, LDR: O), called as fill(known, values, missing, out=buffer) (FillFn: it
         writes into the stage's image-sized buffer at the pixels); R_pix the object light (module
         docstring: dense, (idx, values) or (R_v, idx, values)); dE_v the second order (None: off); cov
-        (H,W) and obj_rad (H,W,3) the object's coverage and radiance; sun_pix, sun_loss (len(sun_pix),3) the sun's lost irradiance/pi.
+        (H,W) and obj_rad (H,W,3) the object's coverage and radiance; sun_pix, sun_loss (len(sun_pix),3)
+        the sun's lost irradiance/pi.
 """
         k, ldr, split = self.k, mode == "ldr", self.split
         k.begin()
