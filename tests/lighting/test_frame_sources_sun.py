@@ -1,0 +1,31 @@
+"""Issue 17's accuracy point for the drag frame (50 passes) on the sunny room, scored against the
+path-traced truth with the shared scorer: rmse_affected <= 1.25 x the all-sources frame's + 0.25
+levels and energy_ratio within 0.95-1.05, at the object's own pose.
+
+Not met today (strict xfail: the test fails once the bound holds, so the mark comes off then).
+Measured (evaluate --passes 50,all): 50 passes 1.226 / 2.957 against all sources 1.033 / 1.501
+(bound 2.13). The 50-pass clusters are too dark near the object: a cluster's one map, seen from
+an eye beside (or inside) the object's box, darkens the light of all its members, most of which
+the object cannot block (the sunlit floor patches beside the chair joined with the rest of the
+floor). Vertex-level model (receiver vertices, exact rays to the chair): the clusters block 1.11 x
+the light the sources block one by one (window_room 0.995)."""
+import pytest
+
+from recon.io import write_png
+from tests.conftest import score, shared_scene
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason="sun_room's 50-pass frame is 1.226 / 2.957 against the bound 2.13 "
+                                       "(energy 0.95-1.05): the clusters near the object darken too much")
+def test_fifty_passes_close_to_all_sources_in_the_sun(shared_scenes_cache, tmp_path):
+    from app.engine import Engine, EngineParams, FrameConfig
+    from recon.scene import load_scene
+
+    scene_dir = shared_scene("sun_room")
+    eng = Engine(load_scene(scene_dir), EngineParams(), cache_dir=shared_scenes_cache, quiet=True)
+    s = {}
+    for passes in (50, None):
+        write_png(tmp_path / f"{passes}.png", eng.render(eng.scene.obj, FrameConfig(passes=passes)).pixels)
+        s[passes] = score(scene_dir, tmp_path / f"{passes}.png")
+    assert s[50]["rmse_affected"] <= 1.25 * s[None]["rmse_affected"] + 0.25, s
+    assert 0.95 <= s[50]["energy_ratio"] <= 1.05, s
