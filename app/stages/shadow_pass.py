@@ -301,6 +301,10 @@ class ShadowPass:
             exact.append(new)
         pix_pt = np.concatenate(exact)
         fill_pt, fill_s = np.concatenate(fill_pt), np.concatenate(fill_s)
+        # a pixel filled at spacing 8 or 4 may be a corner of a finer square, summed after it was filled:
+        # it keeps its exact sum (compose writes the filled values after the summed ones)
+        summed = ~known[fill_pt]
+        fill_pt, fill_s = fill_pt[summed], fill_s[summed]
         O_pix = vals[pix_pt].copy()
         known[pix_pt] = False
         coarse = fill_s > 2

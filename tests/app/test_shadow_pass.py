@@ -226,6 +226,8 @@ def test_graded_lattice_matches_the_exact_sums_on_a_real_room(shared_scenes_cach
     E = eng.E_x
     g = masks(E)
     counts = dict(sp.last_graded)
+    # a pixel is summed or filled, never both (compose would overwrite the exact sum with the fill)
+    assert len(np.intersect1d(g.pix_sel, g.fill_sel)) == 0
     frac_g = np.zeros(E.shape)
     frac_g[g.pix_sel] = g.O_pix / np.maximum(E[g.pix_sel], 1e-12)
     frac_g[g.fill_sel] = sp.fill(g.pix_sel, frac_g[g.pix_sel], g.fill_sel)
