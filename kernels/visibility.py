@@ -216,10 +216,18 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
     n = len(points)
     if n == 0 or len(triangles) == 0:
         return np.zeros((n, 3))
+    ws, block = call_buffers(workspace, n)  # None: fresh buffers, one launch per half
+    shared = _ray_inputs(ws, triangles, radiance, occluder, eps, device, free, free_res)
+    return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
+
+
+def _ray_inputs(ws: Workspace, triangles: np.ndarray, radiance: np.ndarray, occluder: Occluder | None, eps: float,
+                device: str, free: np.ndarray | None, free_res: int) -> list:
+    """_ray_emitters's inputs (emitter_sum's triangles, radiance, normals, occluder, eps and free table)
+    pushed into ws's buffers."""
     tri = np.asarray(triangles, np.float64)
     tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
-    ws, block = call_buffers(workspace, n)  # None: fresh buffers, one launch per half
     shared = [ws.upload("tris", tri, wp.vec3d, device),
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device),
               ws.upload("tri_normals", tn.astype(np.float32), wp.vec3, device),
@@ -228,7 +236,7 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
         shared += [_no_table(device), 0]
     else:
         shared += [seen_table(ws, free, wp.uint8, device), int(free_res)]
-    return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
+    return shared
 
 
 _NO_TABLE: dict[str, wp.array] = {}
@@ -285,15 +293,12 @@ def cube_cell(d: wp.vec3, r: int) -> int:
     return ((2 * a + neg) * r + iu) * r + iv
 
 
-@wp.kernel
-def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
-                        tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
-                        tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
-                        free: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
+@wp.func
+def _ray_emitters(p: wp.vec3d, n: wp.vec3d, tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                  tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
+                  free: wp.array2d(dtype=wp.uint8), res: int) -> wp.vec3:
+    """emitter_sum at one receiver p (unit normal n): the triangles' form factors, each with a ray."""
     # free (res > 0): per triangle the cube cells where no ray can be blocked (no ray there)
-    i = wp.tid()
-    p = points[i]
-    n = normals[i]
     a = wp.vec3(p) + wp.vec3(n) * eps
     total = wp.vec3(0.0, 0.0, 0.0)
     for t in range(tris.shape[0]):
@@ -309,7 +314,16 @@ def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtyp
                 total += radiance[t] * float(f)
             elif not segment_blocked(mesh, a, b):
                 total += radiance[t] * float(f)
-    out[i] = total
+    return total
+
+
+@wp.kernel
+def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                        tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                        tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
+                        free: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = _ray_emitters(points[i], normals[i], tris, radiance, tri_normals, mesh, eps, free, res)
 
 
 @wp.kernel
@@ -353,16 +367,13 @@ POINT_HESSIAN = 12.0  # sup of |d^T H d| |r|^5 / h for the point form factor's k
 # unit directions d in the emitter's plane (h: the receiver's height over that plane); reached at grazing
 
 
-@wp.kernel
-def _emitter_sum_seen_bounded_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
-                                     tris: wp.array2d(dtype=wp.vec3d), centroids: wp.array(dtype=wp.vec3d),
-                                     area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec2d),
-                                     radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.uint8), res: int,
-                                     tolerance: wp.float64, out: wp.array(dtype=wp.vec3)):
+@wp.func
+def _seen_emitters(p: wp.vec3d, n: wp.vec3d, tris: wp.array2d(dtype=wp.vec3d), centroids: wp.array(dtype=wp.vec3d),
+                   area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec2d),
+                   radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.uint8), res: int,
+                   tolerance: wp.float64) -> wp.vec3:
+    """emitter_sum_seen_bounded at one receiver p (unit normal n)."""
     # geometry[t] = (rho_t: the farthest corner from the centroid, (sum of squared edges) / 6)
-    i = wp.tid()
-    p = points[i]
-    n = normals[i]
     total = wp.vec3(0.0, 0.0, 0.0)
     for t in range(tris.shape[0]):
         r = p - centroids[t]
@@ -384,7 +395,36 @@ def _emitter_sum_seen_bounded_kernel(points: wp.array(dtype=wp.vec3d), normals: 
                     f = polygon_ff(p, n, tris, t, 3)
                 if f > wp.float64(0.0):
                     total += radiance[t] * float(f)
-    out[i] = total
+    return total
+
+
+@wp.kernel
+def _emitter_sum_seen_bounded_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                                     tris: wp.array2d(dtype=wp.vec3d), centroids: wp.array(dtype=wp.vec3d),
+                                     area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec2d),
+                                     radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.uint8), res: int,
+                                     tolerance: wp.float64, out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = _seen_emitters(points[i], normals[i], tris, centroids, area_normals, geometry, radiance, seen, res,
+                            tolerance)
+
+
+@wp.kernel
+def _ray_and_seen_emitters_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                                  tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                                  tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
+                                  free: wp.array2d(dtype=wp.uint8), free_res: int,
+                                  s_tris: wp.array2d(dtype=wp.vec3d), s_centroids: wp.array(dtype=wp.vec3d),
+                                  s_area_normals: wp.array(dtype=wp.vec3d), s_geometry: wp.array(dtype=wp.vec2d),
+                                  s_radiance: wp.array(dtype=wp.vec3), s_seen: wp.array2d(dtype=wp.uint8),
+                                  s_res: int, tolerance: wp.float64, out: wp.array(dtype=wp.vec3)):
+    # emitter_sum's triangles (rays) and SeenEmitters' (tables) at once: SeenEmitters.sum_with_rays
+    i = wp.tid()
+    p = points[i]
+    n = normals[i]
+    out[i] = (_ray_emitters(p, n, tris, radiance, tri_normals, mesh, eps, free, free_res) +
+              _seen_emitters(p, n, s_tris, s_centroids, s_area_normals, s_geometry, s_radiance, s_seen, s_res,
+                             tolerance))
 
 
 def emitter_sum_seen_bounded(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
@@ -454,6 +494,25 @@ class SeenEmitters:
         out[order] = _point_launches(_emitter_sum_seen_bounded_kernel, np.asarray(points)[order],
                                      np.asarray(normals)[order], self._shared, ws, block, self.device, split)
         return out
+
+    def sum_with_rays(self, points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
+                      occluder: Occluder | None = None, eps: float = 1e-3, split: int = 2048,
+                      workspace: Workspace | None = None, free: np.ndarray | None = None,
+                      free_res: int = 0) -> np.ndarray:
+        """emitter_sum(points, normals, triangles, radiance, occluder, eps, free=, free_res=) + sum(points,
+        normals) (N,3) float64 in one launch (a frame's exact sums near the object pay one hand-off to
+        the cores, not two); workspace: the call site's buffers, as emitter_sum's."""
+        n = len(points)
+        if n == 0:
+            return np.zeros((n, 3))
+        if self.n == 0:
+            return emitter_sum(points, normals, triangles, radiance, occluder, eps, self.device, split, workspace,
+                               free, free_res)
+        if len(triangles) == 0:
+            return self.sum(points, normals, split, workspace)
+        ws, block = call_buffers(workspace, n)
+        shared = _ray_inputs(ws, triangles, radiance, occluder, eps, self.device, free, free_res) + self._shared
+        return _point_launches(_ray_and_seen_emitters_kernel, points, normals, shared, ws, block, self.device, split)
 
 
 def seen_table(ws: Workspace, seen: np.ndarray, dtype, device: str, capacity: int = 0) -> wp.array:

@@ -573,16 +573,17 @@ def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
                free: np.ndarray | None = None) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3): the proxy's triangles with a ray each (emitter_sum; none where
     `free`, the shape's free_cells, shows no ray can be blocked), plus the extra emitters with their
-    visibility from their per-shape table (emitter_sum_seen_bounded, within extra.tolerance)."""
+    visibility from their per-shape table (emitter_sum_seen_bounded, within extra.tolerance); with the
+    extra emitters uploaded (extra.uploaded), both sums in one launch (SeenEmitters.sum_with_rays)."""
+    if extra is not None and len(extra.tris) and extra.uploaded is not None:  # both in one launch
+        return extra.uploaded.sum_with_rays(points, normals, tris, tri_rad, proxy_occ, eps=EXACT_EPS, split=256,
+                                            workspace=ws, free=free, free_res=FREE_RES)
     out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, eps=EXACT_EPS, device=device, split=256,
                       workspace=ws, free=free, free_res=FREE_RES)
     if extra is not None and len(extra.tris):
-        if extra.uploaded is not None:
-            out += extra.uploaded.sum(points, normals, split=256, workspace=_sub_workspace(ws, "extra"))
-        else:
-            out += emitter_sum_seen_bounded(points, normals, extra.tris, extra.rad, extra.seen, extra.res,
-                                            extra.tolerance, device=device, split=256,
-                                            workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
+        out += emitter_sum_seen_bounded(points, normals, extra.tris, extra.rad, extra.seen, extra.res,
+                                        extra.tolerance, device=device, split=256,
+                                        workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
     return out
 
 
