@@ -368,33 +368,53 @@ POINT_HESSIAN = 12.0  # sup of |d^T H d| |r|^5 / h for the point form factor's k
 
 
 @wp.func
+def _bounded_ff(p: wp.vec3d, n: wp.vec3d, r: wp.vec3d, ct: wp.float64, g: wp.vec2d, poly: wp.array2d(dtype=wp.vec3d),
+                j: int, k: int, tolerance: wp.float64) -> wp.float64:
+    """Form factor from p (unit normal n) to polygon j of `poly` (k vertices) seen from r = p - its
+    centroid, ct = r . (2 x its area x unit normal) > 0: the point form factor where the mid-point
+    bound allows (emitter_sum_seen_bounded; g = (rho, 6 J / A)), else the exact one."""
+    d2 = wp.dot(r, r)
+    d = wp.sqrt(d2)
+    cr = -wp.dot(r, n)  # |r| cos at the receiver
+    if d > g[0] and cr > g[0]:  # the whole polygon above the receiver's horizon
+        m = d - g[0]
+        if g[1] * d2 * d <= tolerance * m * m * m * m * m:
+            return ct * cr / (wp.float64(6.283185307179586) * d2 * d2)
+    return polygon_ff(p, n, poly, j, k)
+
+
+@wp.func
 def _seen_emitters(p: wp.vec3d, n: wp.vec3d, tris: wp.array2d(dtype=wp.vec3d), centroids: wp.array(dtype=wp.vec3d),
                    area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec2d),
                    radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.uint8), res: int,
-                   tolerance: wp.float64) -> wp.vec3:
-    """emitter_sum_seen_bounded at one receiver p (unit normal n)."""
-    # geometry[t] = (rho_t: the farthest corner from the centroid, (sum of squared edges) / 6)
+                   tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d), group: wp.array(dtype=wp.vec3i),
+                   g_centroids: wp.array(dtype=wp.vec3d), g_area_normals: wp.array(dtype=wp.vec3d),
+                   g_geometry: wp.array(dtype=wp.vec2d)) -> wp.vec3:
+    """emitter_sum_seen_bounded at one receiver p (unit normal n), group by group (SeenEmitters.set)."""
+    # geometry[t] = (rho_t: the farthest corner from the centroid, 6 J_t / A_t = (sum of squared edges) / 6);
+    # group[g] = (vertices of its polygon, first member, members), g_*: its polygon's (members' radiance)
     total = wp.vec3(0.0, 0.0, 0.0)
-    for t in range(tris.shape[0]):
-        r = p - centroids[t]
-        ct = wp.dot(r, area_normals[t])  # 2 A h: the receiver in front of the emitter (one-sided)
+    for g in range(group.shape[0]):
+        r = p - g_centroids[g]
+        ct = wp.dot(r, g_area_normals[g])  # 2 A h: the receiver in front of the plane (one-sided)
         if ct > wp.float64(0.0):
-            if seen[t, cube_cell(wp.vec3(r), res)] != wp.uint8(0):
-                d2 = wp.dot(r, r)
-                d = wp.sqrt(d2)
-                g = geometry[t]
-                cr = -wp.dot(r, n)  # |r| cos at the receiver
-                far = False
-                if d > g[0] and cr > g[0]:  # the whole triangle above the receiver's horizon
-                    m = d - g[0]
-                    far = g[1] * d2 * d <= tolerance * m * m * m * m * m
-                f = wp.float64(0.0)
-                if far:
-                    f = ct * cr / (wp.float64(6.283185307179586) * d2 * d2)
-                else:
-                    f = polygon_ff(p, n, tris, t, 3)
+            info = group[g]
+            s = info[1]
+            n_seen = int(0)
+            for t in range(s, s + info[2]):
+                if seen[t, cube_cell(wp.vec3(p - centroids[t]), res)] != wp.uint8(0):
+                    n_seen += 1
+            if n_seen == info[2]:  # the polygon whole: its form factor is its members' sum
+                f = _bounded_ff(p, n, r, ct, g_geometry[g], polys, g, info[0], tolerance)
                 if f > wp.float64(0.0):
-                    total += radiance[t] * float(f)
+                    total += radiance[s] * float(f)
+            elif n_seen > 0:  # member by member, each as far as its table sees
+                for t in range(s, s + info[2]):
+                    rt = p - centroids[t]
+                    if seen[t, cube_cell(wp.vec3(rt), res)] != wp.uint8(0):
+                        f = _bounded_ff(p, n, rt, wp.dot(rt, area_normals[t]), geometry[t], tris, t, 3, tolerance)
+                        if f > wp.float64(0.0):
+                            total += radiance[t] * float(f)
     return total
 
 
@@ -403,10 +423,13 @@ def _emitter_sum_seen_bounded_kernel(points: wp.array(dtype=wp.vec3d), normals: 
                                      tris: wp.array2d(dtype=wp.vec3d), centroids: wp.array(dtype=wp.vec3d),
                                      area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec2d),
                                      radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.uint8), res: int,
-                                     tolerance: wp.float64, out: wp.array(dtype=wp.vec3)):
+                                     tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d),
+                                     group: wp.array(dtype=wp.vec3i), g_centroids: wp.array(dtype=wp.vec3d),
+                                     g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec2d),
+                                     out: wp.array(dtype=wp.vec3)):
     i = wp.tid()
     out[i] = _seen_emitters(points[i], normals[i], tris, centroids, area_normals, geometry, radiance, seen, res,
-                            tolerance)
+                            tolerance, polys, group, g_centroids, g_area_normals, g_geometry)
 
 
 @wp.kernel
@@ -417,19 +440,23 @@ def _ray_and_seen_emitters_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.
                                   s_tris: wp.array2d(dtype=wp.vec3d), s_centroids: wp.array(dtype=wp.vec3d),
                                   s_area_normals: wp.array(dtype=wp.vec3d), s_geometry: wp.array(dtype=wp.vec2d),
                                   s_radiance: wp.array(dtype=wp.vec3), s_seen: wp.array2d(dtype=wp.uint8),
-                                  s_res: int, tolerance: wp.float64, out: wp.array(dtype=wp.vec3)):
+                                  s_res: int, tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d),
+                                  group: wp.array(dtype=wp.vec3i), g_centroids: wp.array(dtype=wp.vec3d),
+                                  g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec2d),
+                                  out: wp.array(dtype=wp.vec3)):
     # emitter_sum's triangles (rays) and SeenEmitters' (tables) at once: SeenEmitters.sum_with_rays
     i = wp.tid()
     p = points[i]
     n = normals[i]
     out[i] = (_ray_emitters(p, n, tris, radiance, tri_normals, mesh, eps, free, free_res) +
               _seen_emitters(p, n, s_tris, s_centroids, s_area_normals, s_geometry, s_radiance, s_seen, s_res,
-                             tolerance))
+                             tolerance, polys, group, g_centroids, g_area_normals, g_geometry))
 
 
 def emitter_sum_seen_bounded(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
                              seen: np.ndarray, res: int, tolerance: float, device: str | None = None,
-                             split: int = 2048, workspace: Workspace | None = None, capacity: int = 0) -> np.ndarray:
+                             split: int = 2048, workspace: Workspace | None = None, capacity: int = 0,
+                             groups: tuple | None = None) -> np.ndarray:
     """emitter_sum_seen with a triangle far enough from a receiver taken as a point emitter at its
     centroid (A cos_x cos_t / (pi r^2)), where that is within `tolerance` of its unoccluded light.
 
@@ -441,9 +468,10 @@ def emitter_sum_seen_bounded(points: np.ndarray, normals: np.ndarray, triangles:
     receiver facing it, unoccluded), i.e. (sum of squared edges / 6) r^3 <= tolerance (r - rho)^5, and
     wholly above the receiver's horizon (r cos_x > rho); else its exact polygon form factor (the
     same as emitter_sum_seen). tolerance 0: exact everywhere. Returns (N,3) float64. (SeenEmitters
-    keeps the emitters uploaded for many such sums.)"""
+    keeps the emitters uploaded for many such sums; groups: runs of triangles summed as one polygon,
+    SeenEmitters.set.)"""
     em = SeenEmitters(device, workspace)
-    em.set(triangles, radiance, seen, res, tolerance, capacity)
+    em.set(triangles, radiance, seen, res, tolerance, capacity, groups)
     return em.sum(points, normals, split=split, workspace=workspace)
 
 
@@ -459,9 +487,17 @@ class SeenEmitters:
         self.n = 0
 
     def set(self, triangles: np.ndarray, radiance: np.ndarray, seen: np.ndarray, res: int, tolerance: float,
-            capacity: int = 0) -> "SeenEmitters":
+            capacity: int = 0, groups: tuple | None = None) -> "SeenEmitters":
         """The emitters: triangles (T,3,3) CCW seen from the emitting side, radiance (T,3), seen
-        (T, 6 res^2) bool (emitter_sum_seen), tolerance (emitter_sum_seen_bounded)."""
+        (T, 6 res^2) bool (emitter_sum_seen), tolerance (emitter_sum_seen_bounded).
+
+        groups: optional (start (G,), count (G,), polygons (G,4,3), vertices (G,)): runs of consecutive
+        triangles, each run coplanar, of one radiance and tiling a convex polygon (its first `vertices`
+        corners, CCW like its triangles). At a receiver in front of their plane that every member's
+        table sees, a run is one polygon: its exact form factor is its members' sum (form factors add
+        over a partition, the horizon's clipping too), and its mid-point bound (with its polar moment
+        J = sum of the members' own and A_t |c_t - C|^2 about the run's centroid C) decides when it is a
+        point; elsewhere its members are summed one by one as without groups. None: every triangle alone."""
         tri = np.asarray(triangles, np.float64)
         self.n = len(tri)
         if self.n == 0:
@@ -469,14 +505,36 @@ class SeenEmitters:
         cen = tri.mean(1)
         tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         rho = np.sqrt(((tri - cen[:, None]) ** 2).sum(-1).max(1))
-        edges2 = ((tri - tri[:, [2, 0, 1]]) ** 2).sum((1, 2)) / 6.0
+        edges2 = ((tri - tri[:, [2, 0, 1]]) ** 2).sum((1, 2)) / 6.0  # 6 J_t / A_t
+        if groups is None:
+            start, count = np.arange(self.n), np.ones(self.n, np.int64)
+            polys, verts = np.concatenate([tri, tri[:, :1]], 1), np.full(self.n, 3)
+            g_cen, g_tn, g_geom = cen, tn, np.stack([rho, edges2], 1)
+        else:
+            start, count, polys, verts = (np.asarray(g) for g in groups)
+            area = 0.5 * np.linalg.norm(tn, axis=1)
+            g_area = np.add.reduceat(area, start)
+            g_cen = np.add.reduceat(area[:, None] * cen, start) / g_area[:, None]
+            g_tn = np.add.reduceat(tn, start)
+            of = np.repeat(np.arange(len(start)), count)
+            J = np.add.reduceat(area * (edges2 / 6.0 + ((cen - g_cen[of]) ** 2).sum(1)), start)
+            corner = np.arange(4)[None, :] < verts[:, None]
+            g_rho = np.sqrt(np.where(corner, ((polys - g_cen[:, None]) ** 2).sum(-1), 0.0).max(1))
+            g_geom = np.stack([g_rho, 6.0 * J / g_area], 1)
+        info = np.stack([verts, start, count], 1).astype(np.int32)
         ws, dev = self._ws, self.device
         self._shared = [ws.upload("tris", tri, wp.vec3d, dev, capacity),
                         ws.upload("centroids", cen, wp.vec3d, dev, capacity),
                         ws.upload("area_normals", tn, wp.vec3d, dev, capacity),
                         ws.upload("geometry", np.stack([rho, edges2], 1), wp.vec2d, dev, capacity),
                         ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, dev, capacity),
-                        seen_table(ws, seen, wp.uint8, dev, capacity), int(res), float(tolerance)]
+                        seen_table(ws, seen, wp.uint8, dev, capacity), int(res), float(tolerance),
+                        ws.upload("polys", np.asarray(polys, np.float64), wp.vec3d, dev, capacity),
+                        ws.upload("group", info, wp.vec3i, dev, capacity),
+                        ws.upload("g_centroids", g_cen, wp.vec3d, dev, capacity),
+                        ws.upload("g_area_normals", g_tn, wp.vec3d, dev, capacity),
+                        ws.upload("g_geometry", g_geom, wp.vec2d, dev, capacity)]
+        self.n_groups = len(start)
         return self
 
     def sum(self, points: np.ndarray, normals: np.ndarray, split: int = 2048,
