@@ -250,26 +250,29 @@ def _no_table(device: str) -> wp.array:
 
 
 def _point_launches(kernel, points: np.ndarray, normals: np.ndarray, shared: list, ws: Workspace, block: int,
-                    device: str, split: int) -> np.ndarray:
+                    device: str, split: int, outputs: int = 1):
     """kernel(points, normals, *shared, out) over N points in launches of at most `block` points,
-    the two halves side by side (one per core) on the CPU when N > split: (N,3) float64."""
+    the two halves side by side (one per core) on the CPU when N > split: (N,3) float64 (outputs > 1:
+    kernel(..., out, out2, ...), a tuple of that many)."""
     n = len(points)
     points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
-    out = np.empty((n, 3))
+    outs = [np.empty((n, 3)) for _ in range(outputs)]
+    out = outs[0]
 
     def run(s: int, e: int, slot: int) -> None:  # slot: which concurrent launch (its own buffers)
-        res = ws.buffer(f"out{slot}", block, wp.vec3, device)
+        res = [ws.buffer(f"out{slot}" + (f"_{k}" if k else ""), block, wp.vec3, device) for k in range(outputs)]
         wp.launch(kernel, dim=e - s,
                   inputs=[ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, block),
                           ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, block), *shared],
-                  outputs=[res.dev[:e - s]], device=device)
-        out[s:e] = res.pull(e - s)
+                  outputs=[r.dev[:e - s] for r in res], device=device)
+        for o, r in zip(outs, res):
+            o[s:e] = r.pull(e - s)
 
     halves = [(0, n)] if n <= split or not wp.get_device(device).is_cpu else [(0, n // 2), (n // 2, n)]
     parts = [[(s, min(e, s + block)) for s in range(a, e, block)] for a, e in halves]
     for k in range(max(len(p) for p in parts)):  # the halves side by side, one per core on the CPU
         runtime.run_parallel([lambda r=p[k], i=i: run(*r, i) for i, p in enumerate(parts) if k < len(p)])
-    return out
+    return out if outputs == 1 else tuple(outs)
 
 
 @wp.func
@@ -295,12 +298,14 @@ def cube_cell(d: wp.vec3, r: int) -> int:
 
 @wp.func
 def _ray_emitters(p: wp.vec3d, n: wp.vec3d, tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
-                  tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
-                  free: wp.array2d(dtype=wp.uint8), res: int) -> wp.vec3:
-    """emitter_sum at one receiver p (unit normal n): the triangles' form factors, each with a ray."""
+                  radiance2: wp.array(dtype=wp.vec3), two: int, tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64,
+                  eps: float, free: wp.array2d(dtype=wp.uint8), res: int) -> tuple[wp.vec3, wp.vec3]:
+    """emitter_sum at one receiver p (unit normal n): the triangles' form factors, each with a ray, for
+    `radiance` and (two != 0) for `radiance2` with the same rays (else its sum is zero)."""
     # free (res > 0): per triangle the cube cells where no ray can be blocked (no ray there)
     a = wp.vec3(p) + wp.vec3(n) * eps
     total = wp.vec3(0.0, 0.0, 0.0)
+    total2 = wp.vec3(0.0, 0.0, 0.0)
     for t in range(tris.shape[0]):
         f = polygon_ff(p, n, tris, t, 3)
         if f > wp.float64(0.0):
@@ -310,11 +315,13 @@ def _ray_emitters(p: wp.vec3d, n: wp.vec3d, tris: wp.array2d(dtype=wp.vec3d), ra
             clear = False
             if res > 0 and wp.dot(ba, tri_normals[t]) > 0.0:  # the segment stays in front of the triangle
                 clear = free[t, cube_cell(ba, res)] != wp.uint8(0)
+            if not clear:
+                clear = not segment_blocked(mesh, a, b)
             if clear:
                 total += radiance[t] * float(f)
-            elif not segment_blocked(mesh, a, b):
-                total += radiance[t] * float(f)
-    return total
+                if two != 0:
+                    total2 += radiance2[t] * float(f)
+    return total, total2
 
 
 @wp.kernel
@@ -323,7 +330,8 @@ def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtyp
                         tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
                         free: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
     i = wp.tid()
-    out[i] = _ray_emitters(points[i], normals[i], tris, radiance, tri_normals, mesh, eps, free, res)
+    total, unused = _ray_emitters(points[i], normals[i], tris, radiance, radiance, 0, tri_normals, mesh, eps, free, res)
+    out[i] = total
 
 
 @wp.kernel
@@ -448,9 +456,32 @@ def _ray_and_seen_emitters_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.
     i = wp.tid()
     p = points[i]
     n = normals[i]
-    out[i] = (_ray_emitters(p, n, tris, radiance, tri_normals, mesh, eps, free, free_res) +
-              _seen_emitters(p, n, s_tris, s_centroids, s_area_normals, s_geometry, s_radiance, s_seen, s_res,
-                             tolerance, polys, group, g_centroids, g_area_normals, g_geometry))
+    total, unused = _ray_emitters(p, n, tris, radiance, radiance, 0, tri_normals, mesh, eps, free, free_res)
+    out[i] = total + _seen_emitters(p, n, s_tris, s_centroids, s_area_normals, s_geometry, s_radiance, s_seen,
+                                    s_res, tolerance, polys, group, g_centroids, g_area_normals, g_geometry)
+
+
+@wp.kernel
+def _ray_and_seen_emitters2_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                                   tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                                   radiance2: wp.array(dtype=wp.vec3), tri_normals: wp.array(dtype=wp.vec3),
+                                   mesh: wp.uint64, eps: float, free: wp.array2d(dtype=wp.uint8), free_res: int,
+                                   s_tris: wp.array2d(dtype=wp.vec3d), s_centroids: wp.array(dtype=wp.vec3d),
+                                   s_area_normals: wp.array(dtype=wp.vec3d), s_geometry: wp.array(dtype=wp.vec2d),
+                                   s_radiance: wp.array(dtype=wp.vec3), s_seen: wp.array2d(dtype=wp.uint8),
+                                   s_res: int, tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d),
+                                   group: wp.array(dtype=wp.vec3i), g_centroids: wp.array(dtype=wp.vec3d),
+                                   g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec2d),
+                                   out: wp.array(dtype=wp.vec3), out2: wp.array(dtype=wp.vec3)):
+    # SeenEmitters.sum_with_rays2: the triangles' sums for two radiances with one ray each (out, out2),
+    # the seen emitters' added to the second
+    i = wp.tid()
+    p = points[i]
+    n = normals[i]
+    total, total2 = _ray_emitters(p, n, tris, radiance, radiance2, 1, tri_normals, mesh, eps, free, free_res)
+    out[i] = total
+    out2[i] = total2 + _seen_emitters(p, n, s_tris, s_centroids, s_area_normals, s_geometry, s_radiance, s_seen,
+                                      s_res, tolerance, polys, group, g_centroids, g_area_normals, g_geometry)
 
 
 def emitter_sum_seen_bounded(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
@@ -571,6 +602,25 @@ class SeenEmitters:
         ws, block = call_buffers(workspace, n)
         shared = _ray_inputs(ws, triangles, radiance, occluder, eps, self.device, free, free_res) + self._shared
         return _point_launches(_ray_and_seen_emitters_kernel, points, normals, shared, ws, block, self.device, split)
+
+    def sum_with_rays2(self, points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
+                       radiance2: np.ndarray, occluder: Occluder | None = None, eps: float = 1e-3, split: int = 2048,
+                       workspace: Workspace | None = None, free: np.ndarray | None = None,
+                       free_res: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(emitter_sum of `radiance`, emitter_sum of `radiance2` (T,3) + sum) at points (N,3), both (N,3)
+        float64, in one launch with one ray per triangle and receiver: a light split in two parts (the
+        room's and the sun's) summed for the cost of one."""
+        n = len(points)
+        ws, block = call_buffers(workspace, n)
+        if n == 0 or self.n == 0 or len(triangles) == 0:
+            return (emitter_sum(points, normals, triangles, radiance, occluder, eps, self.device, split, workspace,
+                                free, free_res),
+                    self.sum_with_rays(points, normals, triangles, radiance2, occluder, eps, split, workspace, free,
+                                       free_res))
+        shared = _ray_inputs(ws, triangles, radiance, occluder, eps, self.device, free, free_res)
+        shared.insert(2, ws.upload("radiance2", np.asarray(radiance2, np.float32), wp.vec3, self.device))
+        return _point_launches(_ray_and_seen_emitters2_kernel, points, normals, shared + self._shared, ws, block,
+                               self.device, split, outputs=2)
 
 
 def seen_table(ws: Workspace, seen: np.ndarray, dtype, device: str, capacity: int = 0) -> wp.array:
