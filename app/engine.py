@@ -530,10 +530,10 @@ class Engine:
                 # latter's later bounces: SunStage.later_bounces), summed: one pass over the proxy's faces
                 R_pix, _ = object_light.object_light(self, pv, pf, tri_rad, proxy_occ, centre, radius,
                                                      cov.reshape(-1) >= 1.0, extra, centres=False)
-                R_cen_sun = object_light.sun_centre_light(self, pv, pf, tri_rad - room_tri_rad, proxy_occ, centre,
-                                                          radius, extra)
-                R_cen = R_cen_sun + object_light.centre_light(self, pv, pf, room_tri_rad, proxy_occ, centre, radius,
-                                                              site="object_light.centres.room")
+                R_cen_room, R_cen_sun = object_light.centre_light_parts(self, pv, pf, room_tri_rad,
+                                                                        tri_rad - room_tri_rad, proxy_occ, centre,
+                                                                        radius, extra)
+                R_cen = R_cen_sun + R_cen_room
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)

@@ -216,10 +216,18 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
     n = len(points)
     if n == 0 or len(triangles) == 0:
         return np.zeros((n, 3))
+    ws, block = call_buffers(workspace, n)  # None: fresh buffers, one launch per half
+    shared = _ray_inputs(ws, triangles, radiance, occluder, eps, device, free, free_res)
+    return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
+
+
+def _ray_inputs(ws: Workspace, triangles: np.ndarray, radiance: np.ndarray, occluder: Occluder | None, eps: float,
+                device: str, free: np.ndarray | None, free_res: int) -> list:
+    """_ray_emitters's inputs (emitter_sum's triangles, radiance, normals, occluder, eps and free table)
+    pushed into ws's buffers."""
     tri = np.asarray(triangles, np.float64)
     tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
-    ws, block = call_buffers(workspace, n)  # None: fresh buffers, one launch per half
     shared = [ws.upload("tris", tri, wp.vec3d, device),
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device),
               ws.upload("tri_normals", tn.astype(np.float32), wp.vec3, device),
@@ -228,7 +236,7 @@ def emitter_sum(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, 
         shared += [_no_table(device), 0]
     else:
         shared += [seen_table(ws, free, wp.uint8, device), int(free_res)]
-    return _point_launches(_emitter_sum_kernel, points, normals, shared, ws, block, device, split)
+    return shared
 
 
 _NO_TABLE: dict[str, wp.array] = {}
@@ -242,26 +250,29 @@ def _no_table(device: str) -> wp.array:
 
 
 def _point_launches(kernel, points: np.ndarray, normals: np.ndarray, shared: list, ws: Workspace, block: int,
-                    device: str, split: int) -> np.ndarray:
+                    device: str, split: int, outputs: int = 1):
     """kernel(points, normals, *shared, out) over N points in launches of at most `block` points,
-    the two halves side by side (one per core) on the CPU when N > split: (N,3) float64."""
+    the two halves side by side (one per core) on the CPU when N > split: (N,3) float64 (outputs > 1:
+    kernel(..., out, out2, ...), a tuple of that many)."""
     n = len(points)
     points, normals = np.asarray(points, np.float64), np.asarray(normals, np.float64)
-    out = np.empty((n, 3))
+    outs = [np.empty((n, 3)) for _ in range(outputs)]
+    out = outs[0]
 
     def run(s: int, e: int, slot: int) -> None:  # slot: which concurrent launch (its own buffers)
-        res = ws.buffer(f"out{slot}", block, wp.vec3, device)
+        res = [ws.buffer(f"out{slot}" + (f"_{k}" if k else ""), block, wp.vec3, device) for k in range(outputs)]
         wp.launch(kernel, dim=e - s,
                   inputs=[ws.upload(f"points{slot}", points[s:e], wp.vec3d, device, block),
                           ws.upload(f"normals{slot}", normals[s:e], wp.vec3d, device, block), *shared],
-                  outputs=[res.dev[:e - s]], device=device)
-        out[s:e] = res.pull(e - s)
+                  outputs=[r.dev[:e - s] for r in res], device=device)
+        for o, r in zip(outs, res):
+            o[s:e] = r.pull(e - s)
 
     halves = [(0, n)] if n <= split or not wp.get_device(device).is_cpu else [(0, n // 2), (n // 2, n)]
     parts = [[(s, min(e, s + block)) for s in range(a, e, block)] for a, e in halves]
     for k in range(max(len(p) for p in parts)):  # the halves side by side, one per core on the CPU
         runtime.run_parallel([lambda r=p[k], i=i: run(*r, i) for i, p in enumerate(parts) if k < len(p)])
-    return out
+    return out if outputs == 1 else tuple(outs)
 
 
 @wp.func
@@ -285,17 +296,16 @@ def cube_cell(d: wp.vec3, r: int) -> int:
     return ((2 * a + neg) * r + iu) * r + iv
 
 
-@wp.kernel
-def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
-                        tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
-                        tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
-                        free: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
+@wp.func
+def _ray_emitters(p: wp.vec3d, n: wp.vec3d, tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                  radiance2: wp.array(dtype=wp.vec3), two: int, tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64,
+                  eps: float, free: wp.array2d(dtype=wp.uint8), res: int) -> tuple[wp.vec3, wp.vec3]:
+    """emitter_sum at one receiver p (unit normal n): the triangles' form factors, each with a ray, for
+    `radiance` and (two != 0) for `radiance2` with the same rays (else its sum is zero)."""
     # free (res > 0): per triangle the cube cells where no ray can be blocked (no ray there)
-    i = wp.tid()
-    p = points[i]
-    n = normals[i]
     a = wp.vec3(p) + wp.vec3(n) * eps
     total = wp.vec3(0.0, 0.0, 0.0)
+    total2 = wp.vec3(0.0, 0.0, 0.0)
     for t in range(tris.shape[0]):
         f = polygon_ff(p, n, tris, t, 3)
         if f > wp.float64(0.0):
@@ -305,10 +315,22 @@ def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtyp
             clear = False
             if res > 0 and wp.dot(ba, tri_normals[t]) > 0.0:  # the segment stays in front of the triangle
                 clear = free[t, cube_cell(ba, res)] != wp.uint8(0)
+            if not clear:
+                clear = not segment_blocked(mesh, a, b)
             if clear:
                 total += radiance[t] * float(f)
-            elif not segment_blocked(mesh, a, b):
-                total += radiance[t] * float(f)
+                if two != 0:
+                    total2 += radiance2[t] * float(f)
+    return total, total2
+
+
+@wp.kernel
+def _emitter_sum_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                        tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                        tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
+                        free: wp.array2d(dtype=wp.uint8), res: int, out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    total, unused = _ray_emitters(points[i], normals[i], tris, radiance, radiance, 0, tri_normals, mesh, eps, free, res)
     out[i] = total
 
 
@@ -353,43 +375,119 @@ POINT_HESSIAN = 12.0  # sup of |d^T H d| |r|^5 / h for the point form factor's k
 # unit directions d in the emitter's plane (h: the receiver's height over that plane); reached at grazing
 
 
+@wp.func
+def _bounded_ff(p: wp.vec3d, n: wp.vec3d, r: wp.vec3d, ct: wp.float64, g: wp.vec2d, poly: wp.array2d(dtype=wp.vec3d),
+                j: int, k: int, tolerance: wp.float64) -> wp.float64:
+    """Form factor from p (unit normal n) to polygon j of `poly` (k vertices) seen from r = p - its
+    centroid, ct = r . (2 x its area x unit normal) > 0: the point form factor where the mid-point
+    bound allows (emitter_sum_seen_bounded; g = (rho, 6 J / A)), else the exact one."""
+    d2 = wp.dot(r, r)
+    d = wp.sqrt(d2)
+    cr = -wp.dot(r, n)  # |r| cos at the receiver
+    if d > g[0] and cr > g[0]:  # the whole polygon above the receiver's horizon
+        m = d - g[0]
+        if g[1] * d2 * d <= tolerance * m * m * m * m * m:
+            return ct * cr / (wp.float64(6.283185307179586) * d2 * d2)
+    return polygon_ff(p, n, poly, j, k)
+
+
+@wp.func
+def _seen_emitters(p: wp.vec3d, n: wp.vec3d, tris: wp.array2d(dtype=wp.vec3d), centroids: wp.array(dtype=wp.vec3d),
+                   area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec2d),
+                   radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.uint8), res: int,
+                   tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d), group: wp.array(dtype=wp.vec3i),
+                   g_centroids: wp.array(dtype=wp.vec3d), g_area_normals: wp.array(dtype=wp.vec3d),
+                   g_geometry: wp.array(dtype=wp.vec2d)) -> wp.vec3:
+    """emitter_sum_seen_bounded at one receiver p (unit normal n), group by group (SeenEmitters.set)."""
+    # geometry[t] = (rho_t: the farthest corner from the centroid, 6 J_t / A_t = (sum of squared edges) / 6);
+    # group[g] = (vertices of its polygon, first member, members), g_*: its polygon's (members' radiance)
+    total = wp.vec3(0.0, 0.0, 0.0)
+    for g in range(group.shape[0]):
+        r = p - g_centroids[g]
+        ct = wp.dot(r, g_area_normals[g])  # 2 A h: the receiver in front of the plane (one-sided)
+        if ct > wp.float64(0.0):
+            info = group[g]
+            s = info[1]
+            n_seen = int(0)
+            for t in range(s, s + info[2]):
+                if seen[t, cube_cell(wp.vec3(p - centroids[t]), res)] != wp.uint8(0):
+                    n_seen += 1
+            if n_seen == info[2]:  # the polygon whole: its form factor is its members' sum
+                f = _bounded_ff(p, n, r, ct, g_geometry[g], polys, g, info[0], tolerance)
+                if f > wp.float64(0.0):
+                    total += radiance[s] * float(f)
+            elif n_seen > 0:  # member by member, each as far as its table sees
+                for t in range(s, s + info[2]):
+                    rt = p - centroids[t]
+                    if seen[t, cube_cell(wp.vec3(rt), res)] != wp.uint8(0):
+                        f = _bounded_ff(p, n, rt, wp.dot(rt, area_normals[t]), geometry[t], tris, t, 3, tolerance)
+                        if f > wp.float64(0.0):
+                            total += radiance[t] * float(f)
+    return total
+
+
 @wp.kernel
 def _emitter_sum_seen_bounded_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
                                      tris: wp.array2d(dtype=wp.vec3d), centroids: wp.array(dtype=wp.vec3d),
                                      area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec2d),
                                      radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.uint8), res: int,
-                                     tolerance: wp.float64, out: wp.array(dtype=wp.vec3)):
-    # geometry[t] = (rho_t: the farthest corner from the centroid, (sum of squared edges) / 6)
+                                     tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d),
+                                     group: wp.array(dtype=wp.vec3i), g_centroids: wp.array(dtype=wp.vec3d),
+                                     g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec2d),
+                                     out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = _seen_emitters(points[i], normals[i], tris, centroids, area_normals, geometry, radiance, seen, res,
+                            tolerance, polys, group, g_centroids, g_area_normals, g_geometry)
+
+
+@wp.kernel
+def _ray_and_seen_emitters_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                                  tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                                  tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
+                                  free: wp.array2d(dtype=wp.uint8), free_res: int,
+                                  s_tris: wp.array2d(dtype=wp.vec3d), s_centroids: wp.array(dtype=wp.vec3d),
+                                  s_area_normals: wp.array(dtype=wp.vec3d), s_geometry: wp.array(dtype=wp.vec2d),
+                                  s_radiance: wp.array(dtype=wp.vec3), s_seen: wp.array2d(dtype=wp.uint8),
+                                  s_res: int, tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d),
+                                  group: wp.array(dtype=wp.vec3i), g_centroids: wp.array(dtype=wp.vec3d),
+                                  g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec2d),
+                                  out: wp.array(dtype=wp.vec3)):
+    # emitter_sum's triangles (rays) and SeenEmitters' (tables) at once: SeenEmitters.sum_with_rays
     i = wp.tid()
     p = points[i]
     n = normals[i]
-    total = wp.vec3(0.0, 0.0, 0.0)
-    for t in range(tris.shape[0]):
-        r = p - centroids[t]
-        ct = wp.dot(r, area_normals[t])  # 2 A h: the receiver in front of the emitter (one-sided)
-        if ct > wp.float64(0.0):
-            if seen[t, cube_cell(wp.vec3(r), res)] != wp.uint8(0):
-                d2 = wp.dot(r, r)
-                d = wp.sqrt(d2)
-                g = geometry[t]
-                cr = -wp.dot(r, n)  # |r| cos at the receiver
-                far = False
-                if d > g[0] and cr > g[0]:  # the whole triangle above the receiver's horizon
-                    m = d - g[0]
-                    far = g[1] * d2 * d <= tolerance * m * m * m * m * m
-                f = wp.float64(0.0)
-                if far:
-                    f = ct * cr / (wp.float64(6.283185307179586) * d2 * d2)
-                else:
-                    f = polygon_ff(p, n, tris, t, 3)
-                if f > wp.float64(0.0):
-                    total += radiance[t] * float(f)
+    total, unused = _ray_emitters(p, n, tris, radiance, radiance, 0, tri_normals, mesh, eps, free, free_res)
+    out[i] = total + _seen_emitters(p, n, s_tris, s_centroids, s_area_normals, s_geometry, s_radiance, s_seen,
+                                    s_res, tolerance, polys, group, g_centroids, g_area_normals, g_geometry)
+
+
+@wp.kernel
+def _ray_and_seen_emitters2_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                                   tris: wp.array2d(dtype=wp.vec3d), radiance: wp.array(dtype=wp.vec3),
+                                   radiance2: wp.array(dtype=wp.vec3), tri_normals: wp.array(dtype=wp.vec3),
+                                   mesh: wp.uint64, eps: float, free: wp.array2d(dtype=wp.uint8), free_res: int,
+                                   s_tris: wp.array2d(dtype=wp.vec3d), s_centroids: wp.array(dtype=wp.vec3d),
+                                   s_area_normals: wp.array(dtype=wp.vec3d), s_geometry: wp.array(dtype=wp.vec2d),
+                                   s_radiance: wp.array(dtype=wp.vec3), s_seen: wp.array2d(dtype=wp.uint8),
+                                   s_res: int, tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d),
+                                   group: wp.array(dtype=wp.vec3i), g_centroids: wp.array(dtype=wp.vec3d),
+                                   g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec2d),
+                                   out: wp.array(dtype=wp.vec3), out2: wp.array(dtype=wp.vec3)):
+    # SeenEmitters.sum_with_rays2: the triangles' sums for two radiances with one ray each (out, out2),
+    # the seen emitters' added to the second
+    i = wp.tid()
+    p = points[i]
+    n = normals[i]
+    total, total2 = _ray_emitters(p, n, tris, radiance, radiance2, 1, tri_normals, mesh, eps, free, free_res)
     out[i] = total
+    out2[i] = total2 + _seen_emitters(p, n, s_tris, s_centroids, s_area_normals, s_geometry, s_radiance, s_seen,
+                                      s_res, tolerance, polys, group, g_centroids, g_area_normals, g_geometry)
 
 
 def emitter_sum_seen_bounded(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
                              seen: np.ndarray, res: int, tolerance: float, device: str | None = None,
-                             split: int = 2048, workspace: Workspace | None = None, capacity: int = 0) -> np.ndarray:
+                             split: int = 2048, workspace: Workspace | None = None, capacity: int = 0,
+                             groups: tuple | None = None) -> np.ndarray:
     """emitter_sum_seen with a triangle far enough from a receiver taken as a point emitter at its
     centroid (A cos_x cos_t / (pi r^2)), where that is within `tolerance` of its unoccluded light.
 
@@ -401,9 +499,10 @@ def emitter_sum_seen_bounded(points: np.ndarray, normals: np.ndarray, triangles:
     receiver facing it, unoccluded), i.e. (sum of squared edges / 6) r^3 <= tolerance (r - rho)^5, and
     wholly above the receiver's horizon (r cos_x > rho); else its exact polygon form factor (the
     same as emitter_sum_seen). tolerance 0: exact everywhere. Returns (N,3) float64. (SeenEmitters
-    keeps the emitters uploaded for many such sums.)"""
+    keeps the emitters uploaded for many such sums; groups: runs of triangles summed as one polygon,
+    SeenEmitters.set.)"""
     em = SeenEmitters(device, workspace)
-    em.set(triangles, radiance, seen, res, tolerance, capacity)
+    em.set(triangles, radiance, seen, res, tolerance, capacity, groups)
     return em.sum(points, normals, split=split, workspace=workspace)
 
 
@@ -419,9 +518,17 @@ class SeenEmitters:
         self.n = 0
 
     def set(self, triangles: np.ndarray, radiance: np.ndarray, seen: np.ndarray, res: int, tolerance: float,
-            capacity: int = 0) -> "SeenEmitters":
+            capacity: int = 0, groups: tuple | None = None) -> "SeenEmitters":
         """The emitters: triangles (T,3,3) CCW seen from the emitting side, radiance (T,3), seen
-        (T, 6 res^2) bool (emitter_sum_seen), tolerance (emitter_sum_seen_bounded)."""
+        (T, 6 res^2) bool (emitter_sum_seen), tolerance (emitter_sum_seen_bounded).
+
+        groups: optional (start (G,), count (G,), polygons (G,4,3), vertices (G,)): runs of consecutive
+        triangles, each run coplanar, of one radiance and tiling a convex polygon (its first `vertices`
+        corners, CCW like its triangles). At a receiver in front of their plane that every member's
+        table sees, a run is one polygon: its exact form factor is its members' sum (form factors add
+        over a partition, the horizon's clipping too), and its mid-point bound (with its polar moment
+        J = sum of the members' own and A_t |c_t - C|^2 about the run's centroid C) decides when it is a
+        point; elsewhere its members are summed one by one as without groups. None: every triangle alone."""
         tri = np.asarray(triangles, np.float64)
         self.n = len(tri)
         if self.n == 0:
@@ -429,14 +536,36 @@ class SeenEmitters:
         cen = tri.mean(1)
         tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         rho = np.sqrt(((tri - cen[:, None]) ** 2).sum(-1).max(1))
-        edges2 = ((tri - tri[:, [2, 0, 1]]) ** 2).sum((1, 2)) / 6.0
+        edges2 = ((tri - tri[:, [2, 0, 1]]) ** 2).sum((1, 2)) / 6.0  # 6 J_t / A_t
+        if groups is None:
+            start, count = np.arange(self.n), np.ones(self.n, np.int64)
+            polys, verts = np.concatenate([tri, tri[:, :1]], 1), np.full(self.n, 3)
+            g_cen, g_tn, g_geom = cen, tn, np.stack([rho, edges2], 1)
+        else:
+            start, count, polys, verts = (np.asarray(g) for g in groups)
+            area = 0.5 * np.linalg.norm(tn, axis=1)
+            g_area = np.add.reduceat(area, start)
+            g_cen = np.add.reduceat(area[:, None] * cen, start) / g_area[:, None]
+            g_tn = np.add.reduceat(tn, start)
+            of = np.repeat(np.arange(len(start)), count)
+            J = np.add.reduceat(area * (edges2 / 6.0 + ((cen - g_cen[of]) ** 2).sum(1)), start)
+            corner = np.arange(4)[None, :] < verts[:, None]
+            g_rho = np.sqrt(np.where(corner, ((polys - g_cen[:, None]) ** 2).sum(-1), 0.0).max(1))
+            g_geom = np.stack([g_rho, 6.0 * J / g_area], 1)
+        info = np.stack([verts, start, count], 1).astype(np.int32)
         ws, dev = self._ws, self.device
         self._shared = [ws.upload("tris", tri, wp.vec3d, dev, capacity),
                         ws.upload("centroids", cen, wp.vec3d, dev, capacity),
                         ws.upload("area_normals", tn, wp.vec3d, dev, capacity),
                         ws.upload("geometry", np.stack([rho, edges2], 1), wp.vec2d, dev, capacity),
                         ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, dev, capacity),
-                        seen_table(ws, seen, wp.uint8, dev, capacity), int(res), float(tolerance)]
+                        seen_table(ws, seen, wp.uint8, dev, capacity), int(res), float(tolerance),
+                        ws.upload("polys", np.asarray(polys, np.float64), wp.vec3d, dev, capacity),
+                        ws.upload("group", info, wp.vec3i, dev, capacity),
+                        ws.upload("g_centroids", g_cen, wp.vec3d, dev, capacity),
+                        ws.upload("g_area_normals", g_tn, wp.vec3d, dev, capacity),
+                        ws.upload("g_geometry", g_geom, wp.vec2d, dev, capacity)]
+        self.n_groups = len(start)
         return self
 
     def sum(self, points: np.ndarray, normals: np.ndarray, split: int = 2048,
@@ -454,6 +583,44 @@ class SeenEmitters:
         out[order] = _point_launches(_emitter_sum_seen_bounded_kernel, np.asarray(points)[order],
                                      np.asarray(normals)[order], self._shared, ws, block, self.device, split)
         return out
+
+    def sum_with_rays(self, points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
+                      occluder: Occluder | None = None, eps: float = 1e-3, split: int = 2048,
+                      workspace: Workspace | None = None, free: np.ndarray | None = None,
+                      free_res: int = 0) -> np.ndarray:
+        """emitter_sum(points, normals, triangles, radiance, occluder, eps, free=, free_res=) + sum(points,
+        normals) (N,3) float64 in one launch (a frame's exact sums near the object pay one hand-off to
+        the cores, not two); workspace: the call site's buffers, as emitter_sum's."""
+        n = len(points)
+        if n == 0:
+            return np.zeros((n, 3))
+        if self.n == 0:
+            return emitter_sum(points, normals, triangles, radiance, occluder, eps, self.device, split, workspace,
+                               free, free_res)
+        if len(triangles) == 0:
+            return self.sum(points, normals, split, workspace)
+        ws, block = call_buffers(workspace, n)
+        shared = _ray_inputs(ws, triangles, radiance, occluder, eps, self.device, free, free_res) + self._shared
+        return _point_launches(_ray_and_seen_emitters_kernel, points, normals, shared, ws, block, self.device, split)
+
+    def sum_with_rays2(self, points: np.ndarray, normals: np.ndarray, triangles: np.ndarray, radiance: np.ndarray,
+                       radiance2: np.ndarray, occluder: Occluder | None = None, eps: float = 1e-3, split: int = 2048,
+                       workspace: Workspace | None = None, free: np.ndarray | None = None,
+                       free_res: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(emitter_sum of `radiance`, emitter_sum of `radiance2` (T,3) + sum) at points (N,3), both (N,3)
+        float64, in one launch with one ray per triangle and receiver: a light split in two parts (the
+        room's and the sun's) summed for the cost of one."""
+        n = len(points)
+        ws, block = call_buffers(workspace, n)
+        if n == 0 or self.n == 0 or len(triangles) == 0:
+            return (emitter_sum(points, normals, triangles, radiance, occluder, eps, self.device, split, workspace,
+                                free, free_res),
+                    self.sum_with_rays(points, normals, triangles, radiance2, occluder, eps, split, workspace, free,
+                                       free_res))
+        shared = _ray_inputs(ws, triangles, radiance, occluder, eps, self.device, free, free_res)
+        shared.insert(2, ws.upload("radiance2", np.asarray(radiance2, np.float32), wp.vec3, self.device))
+        return _point_launches(_ray_and_seen_emitters2_kernel, points, normals, shared + self._shared, ws, block,
+                               self.device, split, outputs=2)
 
 
 def seen_table(ws: Workspace, seen: np.ndarray, dtype, device: str, capacity: int = 0) -> wp.array:

@@ -260,6 +260,43 @@ def sun_centre_light(eng: "Engine", pv, pf, sun_rad, proxy_occ, centre, radius, 
     return centre_light(eng, pv, pf, sun_rad, proxy_occ, centre, radius, extra, site=site, faces=faces)
 
 
+def centre_light_parts(eng: "Engine", pv, pf, room_rad, sun_rad, proxy_occ, centre, radius,
+                       extra: ExtraEmitters | None, site: str = "object_light.centres.parts"
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """centre_light (P,3) of the room's light room_rad (T,3) and, apart, of the sun's: sun_rad (T,3) (the
+    wholly sunlit faces; zero elsewhere) with the lit pieces `extra`, as centre_light(room_rad) and
+    sun_centre_light give them (their sum: the whole light at the patch centres). One pass: near the
+    object one launch sums both with one ray per face and centre (SeenEmitters.sum_with_rays2), at the
+    centres the whole light's bound reaches (those of either part); beyond FAR_FIELD each part's point
+    emitters (the sun's: its lit faces and the pieces' stand-ins)."""
+    pm = eng.pre.patches
+    tris = pv[pf]
+    shape = proxy_shape(eng, pv, pf, proxy_occ)
+    if extra is None or extra.uploaded is None or len(extra.tris) == 0:  # no pieces: two plain calls
+        return (centre_light(eng, pv, pf, room_rad, proxy_occ, centre, radius, site=site + ".room"),
+                sun_centre_light(eng, pv, pf, sun_rad, proxy_occ, centre, radius, extra, site=site + ".sun"))
+    dist_c = np.linalg.norm(pm.centre - centre, axis=1)
+    reach = luminance(_light_bound(pm.centre, dist_c, room_rad + sun_rad, radius, extra))
+    near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
+    room, sun = np.zeros((pm.n_patches, 3)), np.zeros((pm.n_patches, 3))
+    ws = workspace(eng, site)
+    far = dist_c[near_c] > FAR_FIELD * radius
+    c_near, c_far = near_c[~far], near_c[far]
+    if len(c_near):
+        room[c_near], sun[c_near] = extra.uploaded.sum_with_rays2(
+            pm.centre[c_near], pm.normal[c_near], tris, room_rad, sun_rad, proxy_occ, eps=EXACT_EPS, split=256,
+            workspace=ws, free=shape.free, free_res=FREE_RES)
+    if len(c_far):
+        faces = np.flatnonzero(sun_rad.any(1))
+        for out, far_em, name in ((room, _far_emitters(tris, room_rad, shape.visibility.seen, None), "far.room"),
+                                  (sun, _far_emitters(tris[faces], sun_rad[faces], shape.visibility.seen[faces],
+                                                      extra), "far.sun")):
+            out[c_far] = point_emitter_sum(pm.centre[c_far], pm.normal[c_far], *far_em, CUBE_RES, device=eng.device,
+                                           split=256, workspace=_sub_workspace(ws, name),
+                                           capacity=2 * len(tris) + extra.capacity)
+    return room, sun
+
+
 def _far_emitters(tris: np.ndarray, rad: np.ndarray, seen: np.ndarray, extra: ExtraEmitters | None) -> tuple:
     """_reflected's far_emitters of triangles (T,3,3) with radiance rad (T,3) and visibility rows seen,
     then the extra emitters' far-field stand-ins (when given)."""
@@ -573,16 +610,17 @@ def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
                free: np.ndarray | None = None) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3): the proxy's triangles with a ray each (emitter_sum; none where
     `free`, the shape's free_cells, shows no ray can be blocked), plus the extra emitters with their
-    visibility from their per-shape table (emitter_sum_seen_bounded, within extra.tolerance)."""
+    visibility from their per-shape table (emitter_sum_seen_bounded, within extra.tolerance); with the
+    extra emitters uploaded (extra.uploaded), both sums in one launch (SeenEmitters.sum_with_rays)."""
+    if extra is not None and len(extra.tris) and extra.uploaded is not None:  # both in one launch
+        return extra.uploaded.sum_with_rays(points, normals, tris, tri_rad, proxy_occ, eps=EXACT_EPS, split=256,
+                                            workspace=ws, free=free, free_res=FREE_RES)
     out = emitter_sum(points, normals, tris, tri_rad, proxy_occ, eps=EXACT_EPS, device=device, split=256,
                       workspace=ws, free=free, free_res=FREE_RES)
     if extra is not None and len(extra.tris):
-        if extra.uploaded is not None:
-            out += extra.uploaded.sum(points, normals, split=256, workspace=_sub_workspace(ws, "extra"))
-        else:
-            out += emitter_sum_seen_bounded(points, normals, extra.tris, extra.rad, extra.seen, extra.res,
-                                            extra.tolerance, device=device, split=256,
-                                            workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
+        out += emitter_sum_seen_bounded(points, normals, extra.tris, extra.rad, extra.seen, extra.res,
+                                        extra.tolerance, device=device, split=256,
+                                        workspace=_sub_workspace(ws, "extra"), capacity=extra.capacity)
     return out
 
 

@@ -46,6 +46,53 @@ PIECE_POINT_TOLERANCE = 0.05  # a lit piece is a point emitter at a receiver whe
 # at most this share of its unoccluded light there (kernels.visibility.emitter_sum_seen_bounded)
 
 
+def _piece_rows(pieces: np.ndarray, parent: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Where each piece (S,3,3) of a regular m^2 split of its face tris[parent] (lighting.sun: corners
+    at barycentric (b1, b2) multiples of 1/m, 'up' pieces (i,j),(i+1,j),(i,j+1) and 'down' ones
+    (i+1,j),(i+1,j+1),(i,j+1)) lies: (m (S,), row i (S,), place in its row (S,): 2j up, 2j + 1 down),
+    from its centroid (b1 = (i + 1/3 or 2/3) / m, b2 = (j + 1/3 or 2/3) / m)."""
+    m = np.rint(np.sqrt(np.bincount(parent)[parent])).astype(np.int64)
+    v = tris[parent]
+    e1, e2, d = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], pieces.mean(1) - v[:, 0]
+    a11, a12, a22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    r1, r2 = (d * e1).sum(1), (d * e2).sum(1)
+    det = a11 * a22 - a12 * a12
+    b1, b2 = (a22 * r1 - a12 * r2) / det * m, (a11 * r2 - a12 * r1) / det * m
+    return m, np.floor(b1).astype(np.int64), np.rint(2.0 * b2 - 2.0 / 3.0).astype(np.int64)
+
+
+def piece_runs(part: np.ndarray, share: np.ndarray, parent: np.ndarray, rows: tuple[np.ndarray, ...],
+               tris: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """The lit pieces `part` (indices into a shape's pieces: their faces `parent` (S,), their places
+    `rows` (_piece_rows), lit shares `share` (S,)) ordered run by run, and the runs as SeenEmitters
+    groups (start, count, polygons (G,4,3) with the faces `tris` (T,3,3) where they are this frame,
+    vertices): a run is a row of one face's regular split (lighting.sun's m^2 pieces lie in m rows
+    between lines parallel to an edge) whose consecutive pieces have the same lit share (hence
+    radiance); its polygon is the trapezoid (or triangle) they tile."""
+    m, row, elem = rows
+    order = part[np.lexsort((elem[part], row[part], parent[part]))]
+    pa, ro, el, sh = parent[order], row[order], elem[order], share[order]
+    brk = np.ones(len(order), bool)
+    brk[1:] = (pa[1:] != pa[:-1]) | (ro[1:] != ro[:-1]) | (el[1:] != el[:-1] + 1) | (sh[1:] != sh[:-1])
+    start = np.flatnonzero(brk)
+    count = np.diff(np.append(start, len(order)))
+    last = start + count - 1
+    i, mm, f = ro[start].astype(np.float64), m[order[start]].astype(np.float64), pa[start]
+    ea, eb = el[start], el[last]
+    lo_min, lo_max = (ea + 1) // 2, eb // 2 + 1  # the run's ends on its row's lower line, in 1/m steps
+    up_min, up_max = ea // 2, (eb + 1) // 2  # on its upper line
+    # CCW as the face: (i, lo_max), (i, lo_min), (i+1, up_min), (i+1, up_max), a repeated corner dropped
+    b1 = np.stack([i, i, i + 1, i + 1], 1)
+    b2 = np.stack([lo_max, lo_min, up_min, up_max], 1).astype(np.float64)
+    tri_top = lo_min == lo_max  # the lower line is one point: a triangle
+    b1[tri_top, 1:3], b2[tri_top, 1:3] = b1[tri_top, 2:4], b2[tri_top, 2:4]
+    verts = 4 - tri_top - (up_min == up_max)
+    v = tris[f]
+    polys = v[:, None, 0] + (b1 / mm[:, None])[..., None] * (v[:, None, 1] - v[:, None, 0]) \
+        + (b2 / mm[:, None])[..., None] * (v[:, None, 2] - v[:, None, 0])
+    return order, (start, count, polys, verts)
+
+
 class SunStage:
     """The sun's per-frame work for one scene (built by Engine._sun_setup_pixels)."""
 
@@ -227,8 +274,13 @@ class SunStage:
         order = np.argsort(inv, kind="stable")  # the pieces face by face: one sum per face (np.add.at: 5x slower)
         far_seen = np.add.reduceat(w[order, None] * coarse[part[order]], np.searchsorted(inv[order], np.arange(len(par))))
         far_seen /= np.bincount(inv, w, len(par))[:, None]
-        seen = table.seen[part]
-        uploaded = self._emitters.set(sub, rad, seen, table.res, PIECE_POINT_TOLERANCE, capacity=len(pieces))
+        # the pieces run by run (rows of a face alike lit: one polygon where every piece is seen, SeenEmitters)
+        order, groups = piece_runs(part, share, pieces.parent, self._pieces[4], tris)
+        at = np.empty(len(pieces), np.int64)
+        at[part] = np.arange(len(part))
+        sub, rad, seen = sub[at[order]], rad[at[order]], table.seen[order]
+        uploaded = self._emitters.set(sub, rad, seen, table.res, PIECE_POINT_TOLERANCE, capacity=len(pieces),
+                                      groups=groups)
         extra = ExtraEmitters(sub, rad, seen, table.res, len(pieces), c, 2.0 * A[:, None] * nrm,
                               power / A[:, None], far_seen, PIECE_POINT_TOLERANCE, uploaded)
         return tri_rad, extra
@@ -247,8 +299,8 @@ class SunStage:
             k = PIECE_TABLE_RES // CUBE_RES
             coarse = table.seen.reshape(-1, 6, CUBE_RES, k, CUBE_RES, k).mean((3, 5)).reshape(len(pieces), -1) \
                 if table is not None else None
-            self._pieces = (key, pieces, table, coarse)
-        return self._pieces[1:]
+            self._pieces = (key, pieces, table, coarse, _piece_rows(pieces.tris0, pieces.parent, tris - pieces.origin))
+        return self._pieces[1:4]
 
     def refine_clipped_edges(self, camera, cam_occ: Occluder, mesh, own: Occluder, L_vert: np.ndarray,
                              sun_vert: np.ndarray, albedo: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray,
