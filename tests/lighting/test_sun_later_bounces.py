@@ -44,6 +44,10 @@ def test_each_change_gets_the_bounces_it_has_left(coarse):
     ref = _dense(e, dB1, 2) + _dense(e, dB2, 1)
     err = np.abs(ours - ref).sum() / np.abs(ref).sum()
     assert err < 0.02, err
+    # the same passes left at the patches (onto: the caller's one pass through G_v carries them)
+    onto = np.zeros_like(dB1)
+    assert e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4, dB2=dB2, onto=onto) is None
+    assert np.allclose(e.pre.G_v.astype(np.float64) @ onto, ours, rtol=1e-4, atol=1e-5 * np.abs(ours).max())
     # the object's light alone: one later pass, not two (the count before: a fifth bounce)
     ours2 = e.sun_stage.later_bounces(0 * dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4, dB2=dB2)
     one, two = _dense(e, dB2, 1), _dense(e, dB2, 2)
