@@ -76,3 +76,62 @@ class BlockedTransfer:
         else:
             split(launch, self.n)
         return self._out.pull(self.n).astype(np.float64)
+
+
+@wp.kernel
+def _blocked_pairs_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3),
+                          T: wp.array2d(dtype=wp.float32), column: wp.array(dtype=wp.int32), m: int,
+                          targets: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3,
+                          out: wp.array2d(dtype=wp.uint8)):
+    # 1 where T[i, column[k]] > 0 and the segment points[i] -> targets[k] meets the occluder
+    i = start + wp.tid()
+    p = points[i]
+    for k in range(m):
+        b = wp.uint8(0)
+        if T[i, column[k]] > 0.0:
+            if segment_meets_box(p, targets[k], lo, hi):
+                if segment_blocked(mesh, p, targets[k]):
+                    b = wp.uint8(1)
+        out[i, k] = b
+
+
+class BlockedPairs:
+    """[p_i -> q_k blocked] (N,m) for N fixed points and per-call targets q_k, each with a column of
+    a fixed transfer T (N,J) that must be > 0 for its ray to be cast (else 0): the pairs themselves,
+    for callers that weigh one ray's answer by several transfers (e.g. every patch of a cluster)."""
+
+    def __init__(self, points: np.ndarray, T: np.ndarray, device: str, capacity: int):
+        """points (N,3) m; T (N,J); capacity: the most targets of a call."""
+        self.n, self.j = T.shape
+        if len(points) != self.n:
+            raise ValueError(f"BlockedPairs: {len(points)} points for a transfer of {self.n} rows")
+        self.device = device
+        self.points = wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device)
+        self.T = wp.array(np.ascontiguousarray(T, np.float32), dtype=wp.float32, device=device)
+        cap = max(int(capacity), 1)
+        self._targets = Buffer(cap, wp.vec3, device)
+        self._column = Buffer(cap, wp.int32, device)
+        self._out = Buffer((max(self.n, 1), cap), wp.uint8, device)
+
+    def __call__(self, occluder: Occluder, targets: np.ndarray, columns: np.ndarray,
+                 box: tuple[np.ndarray, np.ndarray],
+                 split: Callable[[Callable[[int, int], None], int], None] | None = None) -> np.ndarray:
+        """(N,m) bool for targets (m,3) m and their columns (m,) of T; box, split: as BlockedTransfer."""
+        m = len(columns)
+        if self.n == 0 or m == 0:
+            return np.zeros((self.n, m), bool)
+        self._column.upload(np.asarray(columns, np.int32))
+        self._targets.upload(np.asarray(targets, np.float32))
+        mesh = wp.uint64(occluder.id)
+
+        def launch(a: int, b: int) -> None:
+            wp.launch(_blocked_pairs_kernel, dim=b - a, inputs=[mesh, a, self.points, self.T, self._column.dev, m,
+                                                              self._targets.dev, wp.vec3(*map(float, box[0])),
+                                                              wp.vec3(*map(float, box[1]))], outputs=[self._out.dev],
+                      device=self.device)
+
+        if split is None:
+            launch(0, self.n)
+        else:
+            split(launch, self.n)
+        return self._out.pull(self.n)[:, :m] > 0

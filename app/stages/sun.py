@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from app import runtime
-from kernels.blocked_transfer import BlockedTransfer
+from kernels.blocked_transfer import BlockedPairs, BlockedTransfer
 from kernels.sunshadow import OutlineHits, SunShadowMap
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
@@ -150,9 +150,13 @@ class SunStage:
         `occluder` (within `box`, (lo, hi)) blocks: (Vr,3) at the receiver vertices, (P,3) at the patch centres. A patch's loss
         is placed at the loss-weighted centre of its lost sample points (this frame's, from frame()).
         With `albedo` (P,3), also G's pass over the blocked pairs of the sun the sunlit patches still reflect,
-        rho E_sun x the share not lost (P,3), each patch's at the centre of its still sunlit sample points,
-        received on the clusters of patches (patch_clusters: centre and mean transfer; each patch gets its
-        cluster's: it is a later pass's change, which LaterBounces carries on the clusters).
+        rho E_sun x the share not lost (P,3), received on the clusters of patches (patch_clusters: centre and
+        mean transfer; each patch gets its cluster's: it is a later pass's change, which LaterBounces carries
+        on the clusters), each patch's at the centre of its still sunlit sample points.
+        The patches' pairs are tested from their cluster's centre (one ray per cluster and target, each
+        member patch weighing it by its own transfer): G's pass at the patches is a later bounce's change
+        (passed on once more, through G_v), as LaterBounces carries on the clusters; the receiver vertices'
+        are tested each (their first pass is seen directly).
         at_patches=False: the receiver vertices' only. Patches of zero albedo (emitters) get nothing at
         the centres (what they would get is reflected by nothing)."""
         key = (id(G), id(G_v), len(recv_points))
@@ -163,31 +167,42 @@ class SunStage:
             cols = self.c_patch
             import scipy.sparse as sp
 
-            G_s = np.asarray(G)[:, cols] * pm.albedo.any(1)[:, None]  # (P,J), rows of emitters zero
+            G_s = np.ascontiguousarray(np.asarray(G, np.float32)[:, cols] * pm.albedo.any(1)[:, None])  # (P,J)
             cl, n, w = cluster_weights(pm)
             mean_rows = sp.csr_matrix((w, (cl, np.arange(len(cl)))), shape=(n, len(cl)))  # (C,P) area-weighted
             member = np.zeros(n, np.int64)  # one patch of each cluster (its quad's normal)
             member[cl] = np.arange(len(cl))
             cl_pts = mean_rows @ pm.centre + pm.normal[member] * 1e-3
-            self._blocked = (key, BlockedTransfer(recv_points, np.asarray(G_v)[:, cols], self.device),
-                             BlockedTransfer(pm.centre + pm.normal * 1e-3, G_s, self.device),
-                             BlockedTransfer(cl_pts, np.asarray(mean_rows @ G_s), self.device), cl)
-        _, at_v, at_c, at_cl, cl = self._blocked
-        K = self.c_vis.shape[1]
+            T_cl = np.asarray(mean_rows @ G_s, np.float32)  # (C,J) > 0 where some member's transfer is
+            pairs = BlockedPairs(cl_pts, T_cl, self.device, capacity=2 * len(cols))
+            self._blocked = (key, BlockedTransfer(recv_points, np.asarray(G_v)[:, cols], self.device), pairs,
+                             cl, G_s, T_cl)
+        _, at_v, pairs, cl, G_s, T_cl = self._blocked
+        J, K = self.c_vis.shape
         w = self._lost
-        pts = self.c_pts.reshape(len(self.c_patch), K, 3)
+        pts = self.c_pts.reshape(J, K, 3)
         centres = _weighted_centres(w, pts)
         change = dB1[self.c_patch]
+        blk_v = at_v(occluder, centres, change, box, split)
         if not at_patches:
-            return (at_v(occluder, centres, change, box, split),)
-        out = (at_v(occluder, centres, change, box, split), at_c(occluder, centres, change, box, split))
+            return (blk_v,)
+        lost = np.flatnonzero(change.any(1))
+        targets, columns = [centres[lost]], [lost]
+        if albedo is not None:
+            kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
+            sun = albedo[self.c_patch] * ((kept.sum(1) / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
+            lit = np.flatnonzero(sun.any(1))
+            targets.append(_weighted_centres(kept[lit], pts[lit]))  # each patch's still sunlit sample points
+            columns.append(lit)
+        bits = pairs(occluder, np.concatenate(targets), np.concatenate(columns), box, split)  # (C, m)
+        b_lost = bits[:, :len(lost)]
+        blk_c = np.einsum("pk,kx->px", G_s[:, lost] * b_lost[cl], change[lost].astype(np.float32)).astype(np.float64)
         if albedo is None:
-            return out
-        kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
-        kept_centres = _weighted_centres(kept, pts)
-        sun = albedo[self.c_patch] * ((kept.sum(1) / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
+            return blk_v, blk_c
+        b_kept = bits[:, len(lost):]  # (C, lit)
+        blk_cl = np.einsum("cj,jx->cx", T_cl[:, lit] * b_kept, sun[lit].astype(np.float32)).astype(np.float64)
         # a later pass's change: on the clusters of patches that carry it (LaterBounces), each patch its cluster's
-        return (*out, at_cl(occluder, kept_centres, sun, box, split)[cl])
+        return blk_v, blk_c, blk_cl[cl]
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
                         proxy_occ: Occluder, radius: float) -> tuple[np.ndarray, ExtraEmitters | None]:
