@@ -80,13 +80,17 @@ class BlockedTransfer:
 
 @wp.kernel
 def _blocked_pairs_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3),
-                          T: wp.array2d(dtype=wp.float32), column: wp.array(dtype=wp.int32), m: int,
-                          targets: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3,
+                          T: wp.array2d(dtype=wp.float32), is_short: wp.array(dtype=wp.uint8), column: wp.array(dtype=wp.int32),
+                          m: int, m_short: int, targets: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3,
                           out: wp.array2d(dtype=wp.uint8)):
-    # 1 where T[i, column[k]] > 0 and the segment points[i] -> targets[k] meets the occluder
+    # 1 where T[i, column[k]] > 0 and the segment points[i] -> targets[k] meets the occluder; the
+    # short points only with the first m_short targets
     i = start + wp.tid()
     p = points[i]
-    for k in range(m):
+    mi = m
+    if is_short[i] != wp.uint8(0):
+        mi = m_short
+    for k in range(mi):
         b = wp.uint8(0)
         if T[i, column[k]] > 0.0:
             if segment_meets_box(p, targets[k], lo, hi):
@@ -98,26 +102,43 @@ def _blocked_pairs_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp
 class BlockedPairs:
     """[p_i -> q_k blocked] (N,m) for N fixed points and per-call targets q_k, each with a column of
     a fixed transfer T (N,J) that must be > 0 for its ray to be cast (else 0): the pairs themselves,
-    for callers that weigh one ray's answer by several transfers (e.g. every patch of a cluster)."""
+    for callers that weigh one ray's answer by several transfers (e.g. every patch of a cluster).
+    Points flagged `short` take only a call's first targets (two sets of points in one launch); the
+    points are kept interleaved so that the ranges of a split launch get as many of each."""
 
-    def __init__(self, points: np.ndarray, T: np.ndarray, device: str, capacity: int):
-        """points (N,3) m; T (N,J); capacity: the most targets of a call."""
+    def __init__(self, points: np.ndarray, T: np.ndarray, device: str, capacity: int,
+                 short: np.ndarray | None = None):
+        """points (N,3) m; T (N,J); capacity: the most targets of a call; short (N,) bool."""
         self.n, self.j = T.shape
         if len(points) != self.n:
             raise ValueError(f"BlockedPairs: {len(points)} points for a transfer of {self.n} rows")
+        short = np.zeros(self.n, bool) if short is None else np.asarray(short, bool)
+        # each set's rows spread evenly over [0, N): rank within its set / the set's size
+        rank = np.empty(self.n)
+        for flag in (False, True):
+            idx = np.flatnonzero(short == flag)
+            rank[idx] = (np.arange(len(idx)) + 0.5) / max(len(idx), 1)
+        self.order = np.argsort(rank, kind="stable")  # launch row r holds point order[r]
         self.device = device
-        self.points = wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device)
-        self.T = wp.array(np.ascontiguousarray(T, np.float32), dtype=wp.float32, device=device)
+        self.points = wp.array(np.asarray(points, np.float32)[self.order], dtype=wp.vec3, device=device)
+        self.T = wp.array(np.ascontiguousarray(np.asarray(T, np.float32)[self.order]), dtype=wp.float32, device=device)
+        self.short = wp.array(short[self.order].astype(np.uint8), dtype=wp.uint8, device=device)
         cap = max(int(capacity), 1)
         self._targets = Buffer(cap, wp.vec3, device)
         self._column = Buffer(cap, wp.int32, device)
         self._out = Buffer((max(self.n, 1), cap), wp.uint8, device)
+        self._result = np.zeros((self.n, cap), bool)
+        self._short = short
 
     def __call__(self, occluder: Occluder, targets: np.ndarray, columns: np.ndarray,
                  box: tuple[np.ndarray, np.ndarray],
-                 split: Callable[[Callable[[int, int], None], int], None] | None = None) -> np.ndarray:
-        """(N,m) bool for targets (m,3) m and their columns (m,) of T; box, split: as BlockedTransfer."""
+                 split: Callable[[Callable[[int, int], None], int], None] | None = None,
+                 m_short: int | None = None) -> np.ndarray:
+        """(N,m) bool for targets (m,3) m and their columns (m,) of T, in the points' order; box, split: as
+        BlockedTransfer; m_short: how many of the first targets the short points take (default all; the
+        rest of their rows False). The array is the object's own (valid until the next call)."""
         m = len(columns)
+        m_short = m if m_short is None else min(int(m_short), m)
         if self.n == 0 or m == 0:
             return np.zeros((self.n, m), bool)
         self._column.upload(np.asarray(columns, np.int32))
@@ -125,8 +146,9 @@ class BlockedPairs:
         mesh = wp.uint64(occluder.id)
 
         def launch(a: int, b: int) -> None:
-            wp.launch(_blocked_pairs_kernel, dim=b - a, inputs=[mesh, a, self.points, self.T, self._column.dev, m,
-                                                              self._targets.dev, wp.vec3(*map(float, box[0])),
+            wp.launch(_blocked_pairs_kernel, dim=b - a, inputs=[mesh, a, self.points, self.T, self.short,
+                                                              self._column.dev, m, m_short, self._targets.dev,
+                                                              wp.vec3(*map(float, box[0])),
                                                               wp.vec3(*map(float, box[1]))], outputs=[self._out.dev],
                       device=self.device)
 
@@ -134,4 +156,7 @@ class BlockedPairs:
             launch(0, self.n)
         else:
             split(launch, self.n)
-        return self._out.pull(self.n)[:, :m] > 0
+        out = self._result[:, :m]
+        out[self.order] = self._out.pull(self.n)[:, :m] > 0
+        out[self._short, m_short:] = False
+        return out

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from app import runtime
-from kernels.blocked_transfer import BlockedPairs, BlockedTransfer
+from kernels.blocked_transfer import BlockedPairs
 from kernels.sunshadow import OutlineHits, SunShadowMap
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
@@ -174,29 +174,35 @@ class SunStage:
             member[cl] = np.arange(len(cl))
             cl_pts = mean_rows @ pm.centre + pm.normal[member] * 1e-3
             T_cl = np.asarray(mean_rows @ G_s, np.float32)  # (C,J) > 0 where some member's transfer is
-            pairs = BlockedPairs(cl_pts, T_cl, self.device, capacity=2 * len(cols))
-            self._blocked = (key, BlockedTransfer(recv_points, np.asarray(G_v)[:, cols], self.device), pairs,
-                             cl, G_s, T_cl)
-        _, at_v, pairs, cl, G_s, T_cl = self._blocked
+            T_v = np.ascontiguousarray(np.asarray(G_v, np.float32)[:, cols])  # (Vr,J)
+            # the receiver vertices and the clusters' centres in one launch (the vertices: the lost sun's targets)
+            pairs = BlockedPairs(np.concatenate([recv_points, cl_pts]), np.concatenate([T_v, T_cl]), self.device,
+                                 capacity=2 * len(cols), short=np.arange(len(T_v) + n) < len(T_v))
+            self._blocked = (key, pairs, cl, G_s, T_cl, T_v)
+        _, pairs, cl, G_s, T_cl, T_v = self._blocked
+        Vr = len(T_v)
         J, K = self.c_vis.shape
         w = self._lost
         pts = self.c_pts.reshape(J, K, 3)
         centres = _weighted_centres(w, pts)
         change = dB1[self.c_patch]
-        blk_v = at_v(occluder, centres, change, box, split)
-        if not at_patches:
-            return (blk_v,)
         lost = np.flatnonzero(change.any(1))
         targets, columns = [centres[lost]], [lost]
-        if albedo is not None:
+        if at_patches and albedo is not None:
             kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
             sun = albedo[self.c_patch] * ((kept.sum(1) / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
             lit = np.flatnonzero(sun.any(1))
             targets.append(_weighted_centres(kept[lit], pts[lit]))  # each patch's still sunlit sample points
             columns.append(lit)
-        bits = pairs(occluder, np.concatenate(targets), np.concatenate(columns), box, split)  # (C, m)
+        lost_f = change[lost].astype(np.float32)
+        if not at_patches:  # the vertices' rows only
+            bits = pairs(occluder, centres[lost], lost, box, split)[:Vr]
+            return (np.einsum("vk,kx->vx", T_v[:, lost] * bits, lost_f).astype(np.float64),)
+        bits = pairs(occluder, np.concatenate(targets), np.concatenate(columns), box, split, m_short=len(lost))
+        blk_v = np.einsum("vk,kx->vx", T_v[:, lost] * bits[:Vr, :len(lost)], lost_f).astype(np.float64)
+        bits = bits[Vr:]  # (C, m)
         b_lost = bits[:, :len(lost)]
-        blk_c = np.einsum("pk,kx->px", G_s[:, lost] * b_lost[cl], change[lost].astype(np.float32)).astype(np.float64)
+        blk_c = np.einsum("pk,kx->px", G_s[:, lost] * b_lost[cl], lost_f).astype(np.float64)
         if albedo is None:
             return blk_v, blk_c
         b_kept = bits[:, len(lost):]  # (C, lit)

@@ -73,3 +73,11 @@ def test_blocked_pairs_match_ray_casts():
     assert (ours != ref).mean() < 1e-3  # float32 rays grazing an edge may differ
     assert not bp(Occluder(v, f, "cpu"), targets[:10], columns[:10],
                   (np.array([9.0, 9.0, 9.0]), np.array([9.1, 9.1, 9.1]))).any()
+    # two sets of points in one launch: the short ones take only the first 12 targets
+    short = rng.uniform(size=len(points)) < 0.4
+    bp2 = BlockedPairs(points, T, "cpu", capacity=60, short=short)
+    ours2 = bp2(Occluder(v, f, "cpu"), targets, columns, box,
+                split=lambda launch, n: split_launches(launch, n, "cpu", 64), m_short=12)
+    ref2 = ref.copy()
+    ref2[short, 12:] = False
+    assert (ours2 != ref2).mean() < 1e-3 and ours2[short, :12].any() and ours2[~short, 12:].any()
