@@ -199,14 +199,23 @@ class SunStage:
             bits = pairs(occluder, centres[lost], lost, box, split)[:Vr]
             return (np.einsum("vk,kx->vx", T_v[:, lost] * bits, lost_f).astype(np.float64),)
         bits = pairs(occluder, np.concatenate(targets), np.concatenate(columns), box, split, m_short=len(lost))
-        blk_v = np.einsum("vk,kx->vx", T_v[:, lost] * bits[:Vr, :len(lost)], lost_f).astype(np.float64)
+        m1 = len(lost)
+
+        def blocked_sum(T: np.ndarray, b: np.ndarray, c: np.ndarray, rows_of=None) -> np.ndarray:
+            # sum_k T[r, k] b[r, k] c_k (float64) over the rows with a blocked pair (rows_of: the rows of b per row of T)
+            hit = b.any(1) if rows_of is None else b.any(1)[rows_of]
+            r = np.flatnonzero(hit)
+            out = np.zeros((len(T), 3))
+            bb = b[r] if rows_of is None else b[rows_of[r]]
+            out[r] = np.einsum("rk,kx->rx", T[r] * bb, c)
+            return out
+
+        blk_v = blocked_sum(T_v[:, lost], bits[:Vr, :m1], lost_f)
         bits = bits[Vr:]  # (C, m)
-        b_lost = bits[:, :len(lost)]
-        blk_c = np.einsum("pk,kx->px", G_s[:, lost] * b_lost[cl], lost_f).astype(np.float64)
+        blk_c = blocked_sum(G_s[:, lost], bits[:, :m1], lost_f, rows_of=cl)
         if albedo is None:
             return blk_v, blk_c
-        b_kept = bits[:, len(lost):]  # (C, lit)
-        blk_cl = np.einsum("cj,jx->cx", T_cl[:, lit] * b_kept, sun[lit].astype(np.float32)).astype(np.float64)
+        blk_cl = blocked_sum(T_cl[:, lit], bits[:, m1:], sun[lit].astype(np.float32))
         # a later pass's change: on the clusters of patches that carry it (LaterBounces), each patch its cluster's
         return blk_v, blk_c, blk_cl[cl]
 
