@@ -127,7 +127,7 @@ class BlockedPairs:
         self._targets = Buffer(cap, wp.vec3, device)
         self._column = Buffer(cap, wp.int32, device)
         self._out = Buffer((max(self.n, 1), cap), wp.uint8, device)
-        self._result = np.zeros((self.n, cap), bool)
+        self._row_of = np.argsort(self.order)  # point i's launch row
         self._short = short
 
     def __call__(self, occluder: Occluder, targets: np.ndarray, columns: np.ndarray,
@@ -136,7 +136,7 @@ class BlockedPairs:
                  m_short: int | None = None) -> np.ndarray:
         """(N,m) bool for targets (m,3) m and their columns (m,) of T, in the points' order; box, split: as
         BlockedTransfer; m_short: how many of the first targets the short points take (default all; the
-        rest of their rows False). The array is the object's own (valid until the next call)."""
+        rest of their rows False)."""
         m = len(columns)
         m_short = m if m_short is None else min(int(m_short), m)
         if self.n == 0 or m == 0:
@@ -156,7 +156,6 @@ class BlockedPairs:
             launch(0, self.n)
         else:
             split(launch, self.n)
-        out = self._result[:, :m]
-        out[self.order] = self._out.pull(self.n)[:, :m] > 0
+        out = self._out.pull(self.n)[:, :m].take(self._row_of, axis=0) > 0
         out[self._short, m_short:] = False
         return out
