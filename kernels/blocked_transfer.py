@@ -6,6 +6,8 @@ room's visibility, kernels.visibility.transfer_matrix). One ray per pair with T_
 occluder's box; the loop runs over the targets with a change only (compacted per call).
 The points and the transfer are fixed per scene (uploaded once); the targets and changes per call
 (kept buffers: nothing is allocated after the first call).
+BlockedPairs returns the blocked pairs themselves (N,m) instead of the sum, for callers that weigh one
+ray's answer by several transfers (app.stages.sun: a cluster of patches' one ray per target).
 """
 from __future__ import annotations
 
