@@ -549,7 +549,8 @@ class Engine:
                     self._sun_dB, pm.albedo, pre.G_c, pre.G_v, p.bounces,
                     dB2=pm.albedo * R_cen_sun if p.object_light else None, occluder=proxy_occ,
                     recv_points=pm.vert_inset[pre.recv_vert], box=(pv.min(0) - 1e-3, pv.max(0) + 1e-3),
-                    split=functools.partial(split_launches, device=self.device, min_items=256), first=dB)
+                    split=functools.partial(split_launches, device=self.device, min_items=256), first=dB,
+                    onto=dB)  # its later bounces too: compose's one pass through G_v carries them
             dE_v = self.compose.second_order(dB, dE_more=more)
         t = tick("second_order", t)
 

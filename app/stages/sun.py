@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from app import runtime
-from kernels.blocked_transfer import BlockedTransfer
+from kernels.blocked_transfer import BlockedPairs
 from kernels.sunshadow import OutlineHits, SunShadowMap
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
@@ -135,7 +135,7 @@ class SunStage:
     def later_bounces(self, dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, G_v: np.ndarray,
                       bounces: int, dB2: np.ndarray | None = None, occluder: Occluder | None = None,
                       recv_points: np.ndarray | None = None, box: tuple | None = None, split=None,
-                      first: np.ndarray | None = None) -> np.ndarray | None:
+                      first: np.ndarray | None = None, onto: np.ndarray | None = None) -> np.ndarray | None:
         """What the engine's one pass through G_v (its second order) leaves out of the sun's changes, at
         the receiver vertices (Vr,3); None when nothing.
 
@@ -156,7 +156,9 @@ class SunStage:
         loss-weighted centre of the patch's lost sample points (first_pass_blocked); the first pass
         at the patches that this gives back is a change of two reflections, passed on like dB2; its own
         first pass through G_v is added to `first` (P,3) when given (the caller's one pass over the
-        changed patches: the engine's second order), else made here."""
+        changed patches: the engine's second order), else made here. With `onto` (P,3) (the same one
+        pass, e.g. the array given as `first`) the later bounces are added to it at the patches instead of
+        returned at the receiver vertices (LaterBounces: G_v's pass is linear, the same sums)."""
         extra_v = None
         if occluder is not None and self._lost is not None and self.c_patch.size and np.any(dB1[self.c_patch]):
             if recv_points is None or box is None:
@@ -183,7 +185,9 @@ class SunStage:
             if self.patches is None:
                 raise ValueError("SunStage: later bounces need the patch mesh (patches=)")
             lb = self._later = LaterBounces(G, G_v, albedo, self.patches, exact=self.c_patch)
-        out = lb(dB1, bounces - 2, later=dB2)  # dB2 with one pass fewer (bounces - 3)
+        out = lb(dB1, bounces - 2, later=dB2, onto=onto)  # dB2 with one pass fewer (bounces - 3)
+        if out is None:
+            return extra_v
         return out if extra_v is None else out + extra_v
 
     def first_pass_blocked(self, occluder: Occluder, box: tuple, dB1: np.ndarray, G: np.ndarray, G_v: np.ndarray,
@@ -193,9 +197,13 @@ class SunStage:
         `occluder` (within `box`, (lo, hi)) blocks: (Vr,3) at the receiver vertices, (P,3) at the patch centres. A patch's loss
         is placed at the loss-weighted centre of its lost sample points (this frame's, from frame()).
         With `albedo` (P,3), also G's pass over the blocked pairs of the sun the sunlit patches still reflect,
-        rho E_sun x the share not lost (P,3), each patch's at the centre of its still sunlit sample points,
-        received on the clusters of patches (patch_clusters: centre and mean transfer; each patch gets its
-        cluster's: it is a later pass's change, which LaterBounces carries on the clusters).
+        rho E_sun x the share not lost (P,3), received on the clusters of patches (patch_clusters: centre and
+        mean transfer; each patch gets its cluster's: it is a later pass's change, which LaterBounces carries
+        on the clusters), each patch's at the centre of its still sunlit sample points.
+        The patches' pairs are tested from their cluster's centre (one ray per cluster and target, each
+        member patch weighing it by its own transfer): G's pass at the patches is a later bounce's change
+        (passed on once more, through G_v), as LaterBounces carries on the clusters; the receiver vertices'
+        are tested each (their first pass is seen directly).
         at_patches=False: the receiver vertices' only. Patches of zero albedo (emitters) get nothing at
         the centres (what they would get is reflected by nothing)."""
         key = (id(G), id(G_v), len(recv_points))
@@ -206,31 +214,57 @@ class SunStage:
             cols = self.c_patch
             import scipy.sparse as sp
 
-            G_s = np.asarray(G)[:, cols] * pm.albedo.any(1)[:, None]  # (P,J), rows of emitters zero
+            G_s = np.ascontiguousarray(np.asarray(G, np.float32)[:, cols] * pm.albedo.any(1)[:, None])  # (P,J)
             cl, n, w = cluster_weights(pm)
             mean_rows = sp.csr_matrix((w, (cl, np.arange(len(cl)))), shape=(n, len(cl)))  # (C,P) area-weighted
             member = np.zeros(n, np.int64)  # one patch of each cluster (its quad's normal)
             member[cl] = np.arange(len(cl))
             cl_pts = mean_rows @ pm.centre + pm.normal[member] * 1e-3
-            self._blocked = (key, BlockedTransfer(recv_points, np.asarray(G_v)[:, cols], self.device),
-                             BlockedTransfer(pm.centre + pm.normal * 1e-3, G_s, self.device),
-                             BlockedTransfer(cl_pts, np.asarray(mean_rows @ G_s), self.device), cl)
-        _, at_v, at_c, at_cl, cl = self._blocked
-        K = self.c_vis.shape[1]
+            T_cl = np.asarray(mean_rows @ G_s, np.float32)  # (C,J) > 0 where some member's transfer is
+            T_v = np.ascontiguousarray(np.asarray(G_v, np.float32)[:, cols])  # (Vr,J)
+            # the receiver vertices and the clusters' centres in one launch (the vertices: the lost sun's targets)
+            pairs = BlockedPairs(np.concatenate([recv_points, cl_pts]), np.concatenate([T_v, T_cl]), self.device,
+                                 capacity=2 * len(cols), short=np.arange(len(T_v) + n) < len(T_v))
+            self._blocked = (key, pairs, cl, G_s, T_cl, T_v)
+        _, pairs, cl, G_s, T_cl, T_v = self._blocked
+        Vr = len(T_v)
+        J, K = self.c_vis.shape
         w = self._lost
-        pts = self.c_pts.reshape(len(self.c_patch), K, 3)
+        pts = self.c_pts.reshape(J, K, 3)
         centres = _weighted_centres(w, pts)
         change = dB1[self.c_patch]
-        if not at_patches:
-            return (at_v(occluder, centres, change, box, split),)
-        out = (at_v(occluder, centres, change, box, split), at_c(occluder, centres, change, box, split))
-        if albedo is None:
+        lost = np.flatnonzero(change.any(1))
+        targets, columns = [centres[lost]], [lost]
+        if at_patches and albedo is not None:
+            kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
+            sun = albedo[self.c_patch] * ((kept.sum(1) / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
+            lit = np.flatnonzero(sun.any(1))
+            targets.append(_weighted_centres(kept[lit], pts[lit]))  # each patch's still sunlit sample points
+            columns.append(lit)
+        lost_f = change[lost].astype(np.float32)
+        if not at_patches:  # the vertices' rows only
+            bits = pairs(occluder, centres[lost], lost, box, split)[:Vr]
+            return (np.einsum("vk,kx->vx", T_v[:, lost] * bits, lost_f).astype(np.float64),)
+        bits = pairs(occluder, np.concatenate(targets), np.concatenate(columns), box, split, m_short=len(lost))
+        m1 = len(lost)
+
+        def blocked_sum(T: np.ndarray, b: np.ndarray, c: np.ndarray, rows_of=None) -> np.ndarray:
+            # sum_k T[r, k] b[r, k] c_k (float64) over the rows with a blocked pair (rows_of: the rows of b per row of T)
+            hit = b.any(1) if rows_of is None else b.any(1)[rows_of]
+            r = np.flatnonzero(hit)
+            out = np.zeros((len(T), 3))
+            bb = b[r] if rows_of is None else b[rows_of[r]]
+            out[r] = np.einsum("xk,rk->rx", np.ascontiguousarray(c.T), T[r] * bb)  # (3,k) first: ~7x faster
             return out
-        kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
-        kept_centres = _weighted_centres(kept, pts)
-        sun = albedo[self.c_patch] * ((kept.sum(1) / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
+
+        blk_v = blocked_sum(T_v[:, lost], bits[:Vr, :m1], lost_f)
+        bits = bits[Vr:]  # (C, m)
+        blk_c = blocked_sum(G_s[:, lost], bits[:, :m1], lost_f, rows_of=cl)
+        if albedo is None:
+            return blk_v, blk_c
+        blk_cl = blocked_sum(T_cl[:, lit], bits[:, m1:], sun[lit].astype(np.float32))
         # a later pass's change: on the clusters of patches that carry it (LaterBounces), each patch its cluster's
-        return (*out, at_cl(occluder, kept_centres, sun, box, split)[cl])
+        return blk_v, blk_c, blk_cl[cl]
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
                         proxy_occ: Occluder, radius: float) -> tuple[np.ndarray, ExtraEmitters | None]:
@@ -400,9 +434,13 @@ class LaterBounces:
       Q_c = S diag(rho_c) G_cl (C,C), G_cl (P,C) G's columns summed per cluster: one pass;
       V = G_v's columns summed per cluster (Vr,C): to the receiver vertices;
       H_c = G_v diag(rho_c) G[:, exact] (Vr,E): the exact patches' first pass at the receivers;
-      W_c = S diag(rho_c) G[:, exact] (C,E): their first pass on the clusters, for the later passes.
+      W_c = S diag(rho_c) G[:, exact] (C,E): their first pass on the clusters, for the later passes;
+      QW_c = Q_c W_c (C,E): and the pass after it.
     Per frame: y_1 = Q S dB1' + W dB1[exact] (dB1': dB1 off the exact patches), y_{k+1} = Q y_k;
-    result H dB1[exact] + V (Q S dB1' + y_2 + ... + y_n). Work per frame ~ C^2, not P^2."""
+    result H dB1[exact] + V (Q S dB1' + y_2 + ... + y_n). Work per frame ~ C^2, not P^2, and none for
+    a part that is zero (the sun's loss lies on the exact patches only: its y_2 is QW dB1[exact]).
+    With `onto` (__call__) the two passes to the receivers are left to the caller's one pass through
+    G_v at the patches: V t = G_v t[cluster] and H e = G_v (rho G[:, exact] e), the same sums."""
 
     def __init__(self, G: np.ndarray, G_v: np.ndarray, albedo: np.ndarray, patches, exact: np.ndarray | None = None):
         import scipy.sparse as sp
@@ -429,31 +467,58 @@ class LaterBounces:
         self.Q = np.ascontiguousarray(np.stack(Q), np.float32)  # (3,C,C)
         self.W = np.ascontiguousarray(np.stack(W), np.float32)  # (3,E,C)
         self.H = np.ascontiguousarray(np.stack(H), np.float32)  # (3,Vr,E)
+        self.QW = np.ascontiguousarray(np.matmul(self.W, self.Q.transpose(0, 2, 1)), np.float32)  # (3,E,C): W then Q
         self.V = np.ascontiguousarray((sum_rows @ G_v32.T).T, np.float32)  # (Vr,C)
+        self.G_ex = np.ascontiguousarray(G_ex.T)  # (E,P): the exact patches' rows of G's pass (onto)
+        self.rho = np.asarray(albedo, np.float64)
 
-    def __call__(self, dB1: np.ndarray, n: int, later: np.ndarray | None = None) -> np.ndarray:
+    def __call__(self, dB1: np.ndarray, n: int, later: np.ndarray | None = None,
+                 onto: np.ndarray | None = None) -> np.ndarray | None:
         """G_v sum_{k=1}^{n} (rho G)^k dB1 (Vr,3) for dB1 (P,3), plus the same of `later` (P,3) with one
         pass fewer (k = 1 .. n-1: a change with one more reflection made), both in one run: their
         first passes side by side, then one chain of passes in which `later` joins a pass late (the
-        passes through Q are linear). The products are einsums over a contiguous last axis, not BLAS
-        calls: a threaded BLAS on a loaded machine took 40-60 ms for what takes 1-2 ms here."""
+        passes through Q are linear). With `onto` (P,3): sum_{k=1}^{n} (rho G)^k dB1 (and later's) added
+        to it at the patches instead (the caller passes it through G_v once); returns None. The
+        products are einsums over a contiguous last axis, not BLAS calls: a threaded BLAS on a loaded
+        machine took 40-60 ms for what takes 1-2 ms here."""
         if later is not None and (n <= 1 or not np.any(later)):
             later = None
         if n <= 0 or (not np.any(dB1) and later is None):
-            return np.zeros((len(self.V), 3))
-        x = np.stack([dB1, later]) if later is not None else dB1[None]  # (S,P,3)
-        rest = np.where(self.is_exact[None, :, None], 0.0, x) * self.w[None, :, None]
-        xm = np.stack([[np.bincount(self.cluster, r[:, c], self.n) for c in range(3)] for r in rest], 1)  # (3,S,C)
-        xm = xm.astype(np.float32)
-        y = np.einsum("cij,csj->csi", self.Q, xm)  # first pass of the rest, on the clusters (S of them)
-        total = y.sum(1)
-        xe = np.ascontiguousarray(np.transpose(x[:, self.exact], (2, 0, 1)), np.float32)  # (3,S,E)
-        out = np.einsum("cve,ce->vc", self.H, xe.sum(1))  # first pass of the exact patches, at the receivers
-        y += np.einsum("cse,cek->csk", xe, self.W)
-        z = y[:, 0]  # dB1's chain; later's joins it one pass late
+            return None if onto is not None else np.zeros((len(self.V), 3))
+        parts = []  # per change: (its first pass on the clusters of the rest (3,C) or None, exact part (E,3))
+        for x in ((dB1, later) if later is not None else (dB1,)):
+            rest = np.where(self.is_exact[:, None], 0.0, x) * self.w[:, None]
+            a = None
+            if rest.any():
+                xm = np.stack([np.bincount(self.cluster, rest[:, c], self.n) for c in range(3)]).astype(np.float32)
+                a = np.einsum("cij,cj->ci", self.Q, xm)
+            parts.append((a, x[self.exact]))
+        total = np.zeros((3, self.n), np.float32)  # the passes on the clusters, summed
+        for a, _ in parts:
+            if a is not None:
+                total += a
+        xe = sum(e for _, e in parts)  # (E,3): the exact patches' first pass at the receivers
+        z = None
         for k in range(n - 1):
-            if k == 1:
-                z = z + y[:, 1]
-            z = np.einsum("cij,cj->ci", self.Q, z)
+            if k == 0:  # the second pass of dB1: Q y_1 = Q (Q S dB1') + QW dB1[exact]
+                a, e = parts[0]
+                nz = np.flatnonzero(e.any(1))
+                z = np.einsum("cek,ec->ck", self.QW[:, nz], e[nz].astype(np.float32))
+                if a is not None:
+                    z += np.einsum("cij,cj->ci", self.Q, a)
+            else:
+                if k == 1 and len(parts) > 1:  # later's chain joins: its y_1 = Q S later' + W later[exact]
+                    a, e = parts[1]
+                    nz = np.flatnonzero(e.any(1))
+                    z = z + np.einsum("cek,ec->ck", self.W[:, nz], e[nz].astype(np.float32))
+                    if a is not None:
+                        z = z + a
+                z = np.einsum("cij,cj->ci", self.Q, z)
             total += z
+        nz = np.flatnonzero(xe.any(1))
+        if onto is not None:
+            onto += self.rho * np.einsum("ce,ep->cp", xe[nz].T.astype(np.float32), self.G_ex[nz]).T  # G_v's: H e
+            onto += total.T[self.cluster]  # G_v's pass of each patch its cluster's is V total
+            return None
+        out = np.einsum("cve,ec->vc", self.H[:, :, nz], xe[nz].astype(np.float32))
         return out + np.einsum("vk,ck->vc", self.V, total)
