@@ -128,27 +128,31 @@ def _tap_depth(m: SunMap, x: float, y: float) -> float:
     return m.depth[iy, ix]
 
 
-@wp.func
-def _pcss_at(m: SunMap, p: wp.vec3, r_fp: float) -> float:
-    """The occluded share of the sun's disk at receiver point p with footprint radius r_fp (m)."""
-    q = _project(m, p)
+@wp.kernel
+def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.float32), first: int,
+          out: wp.array(dtype=wp.float32)):
+    i = wp.tid() + first
+    q = _project(m, pos[i])
     zr = q[2]
+    out[i] = 0.0
     if zr - m.bias <= m.z_min:
-        return 0.0
+        return
     s = float(m.res) / (2.0 * m.half)  # texels per metre
     n = m.taps.shape[0]
+    r_fp = footprint[i]
     r_search = ((zr - m.z_min) * m.tan_a + r_fp) * s
     lo = -0.5 - r_search  # every tap of a point this far outside the map falls outside it: unoccluded
     hi = float(m.res) - 0.5 + r_search
     if q[0] < lo or q[1] < lo or q[0] > hi or q[1] > hi:
-        return 0.0
+        return
     # every texel the taps can read (both disks lie within r_search) nearer than the receiver, or none:
     # the taps' answer without reading them (1 or 0)
     span = _region_range(m, q[0], q[1], r_search)
     if span[0] >= zr - m.bias:
-        return 0.0
+        return
     if span[1] < zr - m.bias:
-        return 1.0
+        out[i] = 1.0
+        return
     zsum = float(0.0)
     nb = float(0.0)
     for k in range(n):
@@ -158,7 +162,7 @@ def _pcss_at(m: SunMap, p: wp.vec3, r_fp: float) -> float:
             zsum += z
             nb += 1.0
     if nb == 0.0:
-        return 0.0
+        return
     w = (zr - zsum / nb) * m.tan_a
     r = wp.sqrt(w * w + r_fp * r_fp) * s
     blocked = float(0.0)
@@ -166,15 +170,7 @@ def _pcss_at(m: SunMap, p: wp.vec3, r_fp: float) -> float:
         t = m.taps[k]
         if _tap_depth(m, q[0] + t[0] * r, q[1] + t[1] * r) < zr - m.bias:
             blocked += 1.0
-    return blocked / float(n)
-
-
-@wp.kernel
-def _pcss(m: SunMap, pos: wp.array(dtype=wp.vec3), footprint: wp.array(dtype=wp.float32),
-          idx: wp.array(dtype=wp.int32), first: int, out: wp.array(dtype=wp.float32)):
-    j = wp.tid() + first  # the j-th listed point, idx[j]
-    i = idx[j]
-    out[j] = _pcss_at(m, pos[i], footprint[i])
+    out[i] = blocked / float(n)
 
 
 PCSS_SPLIT = 4096  # lookups from which occlusion_at runs two launches side by side on the CPU
@@ -206,8 +202,6 @@ class SunShadowMap:
         up = np.cross(fwd, right)
         self.m = SunMap()
         self.m.right, self.m.up, self.m.fwd = (wp.vec3(*map(float, a)) for a in (right, up, fwd))
-        self._axes = np.stack([right, up, fwd])  # (3,3) rows: the map's axes, world
-        self._centre = np.zeros(3)
         self.m.res = int(res)
         self.m.tan_a = float(np.tan(angular_radius))
         self.m.bias = float(bias)
@@ -234,7 +228,6 @@ class SunShadowMap:
         v = np.asarray(vertices, np.float64)
         c = 0.5 * (v.min(0) + v.max(0))
         self.m.centre = wp.vec3(*map(float, c))
-        self._centre = c
         key = hashlib.sha1(np.round(v - c, 6).tobytes() + np.ascontiguousarray(faces, np.int64).tobytes()).digest()
         if key == self._key:
             return
@@ -253,35 +246,18 @@ class SunShadowMap:
     def points(self, points: np.ndarray, footprint: np.ndarray | None = None) -> "LookupPoints":
         """A fixed set of receiver points (N,3) [footprints (N,) m] kept on the device, for
         `occlusion_at` every frame without new buffers."""
-        return LookupPoints(points, footprint, self.device, self._axes)
+        return LookupPoints(points, footprint, self.device)
 
     def occlusion_at(self, pts: "LookupPoints") -> np.ndarray:
-        """occlusion() of a kept point set (N,) float32.
-
-        Only the points the map can reach are looked up: a point whose projection lies farther from
-        the map's square than its search radius ((z - z_min) tan(a) + footprint), or that lies nearer
-        the sun than the occluder, is unoccluded (the kernel's own first tests, here on the host in
-        float64 with a texel of slack for the kernel's float32: the same answer, without a launch)."""
+        """occlusion() of a kept point set (N,) (a view of the kept output buffer: copy to keep)."""
         n = pts.n
-        out = np.zeros(n, np.float32)
-        if n == 0 or not np.isfinite(self.m.z_min):
-            return out
-        m = self.m
-        rel = pts.proj - self._axes @ self._centre  # (N,3) along right, up, fwd from the map's centre
-        tol = 2.0 * m.half / m.res  # a texel
-        z = rel[:, 2]
-        reach = m.half + (z - m.z_min) * m.tan_a + pts.fp64 + tol
-        idx = np.flatnonzero((z - m.bias > m.z_min - tol) & (np.abs(rel[:, 0]) <= reach) & (np.abs(rel[:, 1]) <= reach))
-        k = len(idx)
-        if k == 0:
-            return out
-        pts.idx.upload(idx.astype(np.int32))
+        if n == 0:
+            return np.zeros(0)
         # on the CPU two halves side by side (one per core) when there are enough points to pay a thread
-        cuts = [(0, k // 2), (k // 2, k)] if k >= PCSS_SPLIT and wp.get_device(self.device).is_cpu else [(0, k)]
-        runtime.run_parallel([lambda a=a, b=b: wp.launch(_pcss, dim=b - a, inputs=[self.m, pts.pos, pts.fp, pts.idx.dev, a],
-                                                         outputs=[pts.out.dev], device=self.device) for a, b in cuts])
-        out[idx] = pts.out.pull(k)
-        return out
+        cuts = [(0, n // 2), (n // 2, n)] if n >= PCSS_SPLIT and wp.get_device(self.device).is_cpu else [(0, n)]
+        runtime.run_parallel([lambda a=a, b=b: wp.launch(_pcss, dim=b - a, inputs=[self.m, pts.pos, pts.fp, a],
+                                                         outputs=[pts.out], device=self.device) for a, b in cuts])
+        return pts.out.numpy()[:n]
 
     def occlusion(self, points: np.ndarray, footprint: np.ndarray | None = None) -> np.ndarray:
         """Share (N,) in [0,1] of the sun's disk the occluder hides from each point, averaged over a
@@ -290,21 +266,14 @@ class SunShadowMap:
 
 
 class LookupPoints:
-    """Receiver points, their footprints, their coordinates along a map's axes (right, up, fwd) and
-    the index and output buffers of the looked-up ones on the device (SunShadowMap.points)."""
+    """Receiver points, their footprints and an output buffer on the device (SunShadowMap.points)."""
 
-    def __init__(self, points: np.ndarray, footprint: np.ndarray | None, device: str, axes: np.ndarray):
-        from kernels.buffers import Buffer
-
+    def __init__(self, points: np.ndarray, footprint: np.ndarray | None, device: str):
         self.n = len(points)
         fp = np.zeros(self.n, np.float32) if footprint is None else np.asarray(footprint, np.float32)
-        p = np.asarray(points, np.float64).reshape(-1, 3)
-        self.pos = wp.array(p.astype(np.float32), dtype=wp.vec3, device=device)
+        self.pos = wp.array(np.asarray(points, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
         self.fp = wp.array(fp, dtype=wp.float32, device=device)
-        self.fp64 = fp.astype(np.float64)
-        self.proj = p @ np.asarray(axes, np.float64).T  # (N,3)
-        self.idx = Buffer(max(self.n, 1), wp.int32, device)
-        self.out = Buffer(max(self.n, 1), wp.float32, device)
+        self.out = wp.zeros(max(self.n, 1), dtype=wp.float32, device=device)
 
 
 class _Buffer:

@@ -4,8 +4,7 @@ the frame's cost with the sun).
 - SunLight.visibility casts the room and the object in one launch (kernels.sunshadow.SunRays): the
   same lit points as a ray cast per mesh with its depth against the exit distance;
 - SunLight.hit_correction (the sun per camera hit) equals irradiance_on_mesh minus the vertex blend;
-- SunShadowMap.occlusion_at looks up only the points the map can reach: the same shares as the
-  kernel run over every point.
+- refine_clipped_edges casts no ray for an uncovered pixel that no triangle's box in the image reaches.
 """
 import numpy as np
 import pytest
@@ -95,35 +94,6 @@ def test_hit_correction_is_the_per_hit_sun_minus_the_vertex_blend(room):
     E = light.sun.irradiance / np.pi
     ref = light.irradiance_on_mesh(pos, nrm, lit_c[k], [own]) - np.einsum("nk,nkc->nc", b, vis_v[ck][:, :, None] * E)
     assert np.abs(delta[:, None] * E - ref).max() < 1e-12
-
-
-def test_pcss_lookups_only_where_the_map_reaches_give_every_answer():
-    # a plate and receivers all around it, near and far, behind and in front: the culled lookups
-    # equal the kernel run over every point, at several poses of the plate
-    import warp as wp
-
-    from kernels import runtime
-    from kernels.sunshadow import SunShadowMap, _pcss
-
-    runtime.init()
-    d = np.array([0.3, 1.0, 0.2])
-    m = SunShadowMap(d, np.radians(0.265), res=128, device="cpu")
-    rng = np.random.default_rng(1)
-    pts = rng.uniform(-3, 3, (20000, 3)) * [1, 0.5, 1] + [0, 1.0, 0]
-    fp = rng.uniform(0, 0.02, len(pts))
-    kept = m.points(pts, fp)
-    v = np.array([[-0.3, 1.2, -0.2], [0.3, 1.2, -0.2], [0.3, 1.25, 0.2], [-0.3, 1.2, 0.2]])
-    f = np.array([[0, 1, 2], [0, 2, 3]])
-    assert not m.occlusion_at(kept).any()  # nothing rendered yet: nothing occluded
-    for move in ([0, 0, 0], [0.7, -0.3, 0.4], [-1.5, 0.5, -2.0]):
-        m.render(v + move, f)
-        ours = m.occlusion_at(kept)
-        every = wp.array(np.arange(len(pts), dtype=np.int32), dtype=wp.int32, device="cpu")
-        out = wp.zeros(len(pts), dtype=wp.float32, device="cpu")
-        wp.launch(_pcss, dim=len(pts), inputs=[m.m, kept.pos, kept.fp, every, 0], outputs=[out], device="cpu")
-        ref = out.numpy()
-        assert 20 < (ref > 0).sum() < 0.3 * len(ref) and ((ref > 0) & (ref < 1)).any()  # shadow and penumbra
-        assert np.array_equal(ours, ref)
 
 
 def test_outline_pixels_no_triangle_box_reaches_have_no_sub_sample_hit():
