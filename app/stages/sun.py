@@ -325,7 +325,8 @@ def _reached(camera, v: np.ndarray, f: np.ndarray, s: int, window: tuple[int, in
     y0, y1, x0, x1 = window
     t = uv[f]  # (F,3,2)
     half = 0.5 - 0.5 / s + 0.01
-    lo, hi = t.min(1) - half, t.max(1) + half
+    lo = np.minimum(np.minimum(t[:, 0], t[:, 1]), t[:, 2]) - half  # (elementwise: a reduction over an axis of 3
+    hi = np.maximum(np.maximum(t[:, 0], t[:, 1]), t[:, 2]) + half  # costs several times more)
     bx0 = np.clip(np.ceil(lo[:, 0]).astype(np.int64) - x0, 0, x1 - x0)
     bx1 = np.clip(np.floor(hi[:, 0]).astype(np.int64) + 1 - x0, 0, x1 - x0)
     by0 = np.clip(np.ceil(lo[:, 1]).astype(np.int64) - y0, 0, y1 - y0)
