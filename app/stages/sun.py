@@ -282,13 +282,6 @@ class SunStage:
         py, px = np.nonzero(outline)
         if len(py) == 0:
             return np.zeros(0, np.int64)
-        out = (py + y0) * W + px + x0  # the outline pixels (returned), the ones no triangle reaches included
-        reach = _reached(camera, v, f, s, (y0, y1, x0, x1))
-        if reach is not None:  # an uncovered pixel whose sub-samples no triangle's box reaches stays uncovered
-            keep = reach[py, px] | (cov[py + y0, px + x0] > 0)
-            py, px = py[keep], px[keep]
-            if len(py) == 0:
-                return out
         order = np.r_[0:len(py):2, 1:len(py):2]  # every other pixel first: the two halves of the launch
         py, px = py[order] + y0, px[order] + x0  # both spread over the outline (as much work each)
         # s x s rays a pixel against the object, each that reaches it depth-tested against the room (one launch)
@@ -310,34 +303,7 @@ class SunStage:
         mean = rad.reshape(-1, k, 3).sum(1) / np.maximum(hits.sum(1), 1)[:, None]
         cov[py, px] = c
         obj_rad[py, px] = np.where(c[:, None] > 0, mean, obj_rad[py, px])
-        return out
-
-
-def _reached(camera, v: np.ndarray, f: np.ndarray, s: int, window: tuple[int, int, int, int]) -> np.ndarray | None:
-    """(y1-y0, x1-x0) bool over the image window (y0, y1, x0, x1): pixels whose s x s sub-samples (the
-    square of half-side 1/2 - 1/(2s) around the pixel centre) some triangle of the mesh (v, f) may
-    cover, from the triangles' boxes in the image (a sub-sample ray meets a triangle only inside its
-    projection, hence inside its box; 0.01 px of slack for float32 rays). None when a vertex lies
-    behind the camera (no projection)."""
-    uv, z = camera.project(v)
-    if not np.all(z > 1e-6):
-        return None
-    y0, y1, x0, x1 = window
-    t = uv[f]  # (F,3,2)
-    half = 0.5 - 0.5 / s + 0.01
-    lo = np.minimum(np.minimum(t[:, 0], t[:, 1]), t[:, 2]) - half  # (elementwise: a reduction over an axis of 3
-    hi = np.maximum(np.maximum(t[:, 0], t[:, 1]), t[:, 2]) + half  # costs several times more)
-    bx0 = np.clip(np.ceil(lo[:, 0]).astype(np.int64) - x0, 0, x1 - x0)
-    bx1 = np.clip(np.floor(hi[:, 0]).astype(np.int64) + 1 - x0, 0, x1 - x0)
-    by0 = np.clip(np.ceil(lo[:, 1]).astype(np.int64) - y0, 0, y1 - y0)
-    by1 = np.clip(np.floor(hi[:, 1]).astype(np.int64) + 1 - y0, 0, y1 - y0)
-    ok = (bx1 > bx0) & (by1 > by0)
-    bx0, bx1, by0, by1 = bx0[ok], bx1[ok], by0[ok], by1[ok]
-    h, w = y1 - y0, x1 - x0
-    # +1 -1 / -1 +1 at every box's corners; their 2-D running sum (cv2.integral) counts the boxes over a pixel
-    idx = np.concatenate([by0 * (w + 1) + bx0, by0 * (w + 1) + bx1, by1 * (w + 1) + bx0, by1 * (w + 1) + bx1])
-    marks = np.bincount(idx, np.repeat(np.array([1.0, -1.0, -1.0, 1.0]), len(bx0)), (h + 1) * (w + 1))
-    return cv2.integral(marks.astype(np.float32).reshape(h + 1, w + 1), sdepth=cv2.CV_32F)[1:h + 1, 1:w + 1] > 0.5
+        return py * W + px
 
 
 def patch_clusters(patches) -> tuple[np.ndarray, int]:

@@ -3,8 +3,7 @@ the frame's cost with the sun).
 
 - SunLight.visibility casts the room and the object in one launch (kernels.sunshadow.SunRays): the
   same lit points as a ray cast per mesh with its depth against the exit distance;
-- SunLight.hit_correction (the sun per camera hit) equals irradiance_on_mesh minus the vertex blend;
-- refine_clipped_edges casts no ray for an uncovered pixel that no triangle's box in the image reaches.
+- SunLight.hit_correction (the sun per camera hit) equals irradiance_on_mesh minus the vertex blend.
 """
 import numpy as np
 import pytest
@@ -95,28 +94,3 @@ def test_hit_correction_is_the_per_hit_sun_minus_the_vertex_blend(room):
     ref = light.irradiance_on_mesh(pos, nrm, lit_c[k], [own]) - np.einsum("nk,nkc->nc", b, vis_v[ck][:, :, None] * E)
     assert np.abs(delta[:, None] * E - ref).max() < 1e-12
 
-
-def test_outline_pixels_no_triangle_box_reaches_have_no_sub_sample_hit():
-    # sun_room's chair seen by its camera: every pixel with a sub-sample ray on the chair (4 x 4 and
-    # 8 x 8 a pixel) lies where _reached says a triangle's box reaches; it leaves out a good share of
-    # the pixels around the chair (those refine_clipped_edges casts no ray for)
-    from app.stages.sun import _reached
-    from kernels import runtime
-    from kernels.sunshadow import OutlineHits
-    from kernels.visibility import Occluder
-
-    runtime.init()
-    s = load_scene(shared_scene("sun_room"), load_textures=False)
-    cam, obj = s.camera, s.obj
-    uv, _ = cam.project(obj.vertices)
-    x0, y0 = np.floor(uv.min(0)).astype(int) - 3
-    x1, y1 = np.ceil(uv.max(0)).astype(int) + 4
-    py, px = [a.ravel() for a in np.mgrid[y0:y1, x0:x1]]
-    own = Occluder(obj.vertices, obj.faces, "cpu")
-    for n in (4, 8):
-        reach = _reached(cam, obj.vertices, obj.faces, n, (y0, y1, x0, x1)).ravel()
-        tri, _, _ = OutlineHits("cpu")(own, Occluder(None, None, "cpu"), cam.centre, cam.R.T @ np.linalg.inv(cam.K),
-                                       px, py, n)
-        seen = (tri.reshape(-1, n * n) >= 0).any(1)
-        assert seen.sum() > 100 and not (seen & ~reach).any()
-        assert (~reach).sum() > 0.1 * (~seen).sum()
