@@ -511,7 +511,7 @@ class Engine:
             dB_shadow = dB_shadow + self._sun_dB
             if self._last_L_vert is not None:  # sun: the outline where sunlight clips, sampled finely
                 self.sun_stage.refine_clipped_edges(cam, self.cam_occ, shade_mesh, shade_occ, self._last_L_vert,
-                                                    self._obj_sun_vert, obj.albedo, cov, obj_rad, self.sun_photo_clip)
+                                                    self._obj_sun_vis, obj.albedo, cov, obj_rad, self.sun_photo_clip)
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres

@@ -361,3 +361,68 @@ class OutlineHits:
             bary[first:first + m] = self._bary.pull(m)
             hit[first:first + m] = self._hit.pull(m) != 0
         return tri, bary, hit
+
+
+# ----------------------------------------------------------------------------- rays toward the sun
+@wp.kernel
+def _sun_free_kernel(meshes: wp.array(dtype=wp.uint64), n_meshes: int, start: wp.array(dtype=wp.vec3), d: wp.vec3,
+                     t_exit: wp.array(dtype=wp.float32), lo: int, free: wp.array(dtype=wp.uint8)):
+    i = wp.tid() + lo
+    t = t_exit[i]
+    f = wp.uint8(1)
+    for k in range(n_meshes):
+        if f != wp.uint8(0):
+            q = wp.mesh_query_ray(meshes[k], start[i], d, t)
+            if q.result and q.t < t:
+                f = wp.uint8(0)
+    free[i] = f
+
+
+SUN_RAYS_SPLIT = 4096  # rays from which SunRays runs two launches side by side on the CPU
+
+
+class SunRays:
+    """Rays from points along the sun direction up to each one's exit distance, against several
+    meshes in one launch: free (N,) where none of them is hit before the exit (what lighting.sun
+    .SunLight.visibility asks; one launch and one read-back for the room and the object together,
+    instead of a ray cast per mesh with its triangles, barycentrics and depths read back). Buffers
+    of `rows` rays are made on the first call; more rays go in blocks."""
+
+    MAX_MESHES = 8
+
+    def __init__(self, device: str, rows: int = 16384):
+        self.device, self.rows = device, rows
+        self._buf = None
+
+    def __call__(self, mesh_ids: list[int], start: np.ndarray, d: np.ndarray, t_exit: np.ndarray,
+                 parallel: bool = True) -> np.ndarray:
+        """(N,) bool: the ray start[i] + t d (unit d, 0 < t < t_exit[i]) meets none of the meshes
+        (Warp mesh ids, 0s skipped). parallel: two launches side by side on the CPU for many rays
+        (False from inside a pooled thread)."""
+        from kernels.buffers import Buffer
+
+        n = len(start)
+        ids = [int(i) for i in mesh_ids if int(i) != 0]
+        out = np.ones(n, bool)
+        if n == 0 or not ids:
+            return out
+        if len(ids) > self.MAX_MESHES:
+            raise ValueError(f"SunRays: {len(ids)} meshes, at most {self.MAX_MESHES}")
+        if self._buf is None:
+            self._buf = (Buffer(self.MAX_MESHES, wp.uint64, self.device), Buffer(self.rows, wp.vec3, self.device),
+                         Buffer(self.rows, wp.float32, self.device), Buffer(self.rows, wp.uint8, self.device))
+        meshes, pts, tex, free = self._buf
+        meshes.upload(np.asarray(ids, np.uint64))
+        dv = wp.vec3(*map(float, d))
+        cpu = wp.get_device(self.device).is_cpu
+        for s in range(0, n, self.rows):
+            e = min(n, s + self.rows)
+            m = e - s
+            pts.upload(np.asarray(start[s:e], np.float32))
+            tex.upload(np.asarray(t_exit[s:e], np.float32))
+            cuts = [(0, m // 2), (m // 2, m)] if parallel and cpu and m >= SUN_RAYS_SPLIT else [(0, m)]
+            runtime.run_parallel([lambda a=a, b=b: wp.launch(
+                _sun_free_kernel, dim=b - a, inputs=[meshes.dev, len(ids), pts.dev, dv, tex.dev, a],
+                outputs=[free.dev], device=self.device) for a, b in cuts])
+            out[s:e] = free.pull(m) != 0
+        return out

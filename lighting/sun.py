@@ -21,9 +21,8 @@ import threading
 
 import numpy as np
 
-from kernels import runtime
-from kernels.buffers import Workspace
 from kernels.raycast import cast_rays
+from kernels.sunshadow import SunRays
 from kernels.visibility import Occluder
 from recon.scene import Quad, Scene, Sun
 
@@ -62,8 +61,8 @@ class SunLight:
         self.openings = list(holes)
         self.occluder = occluder
         self.device = occluder.device
-        self._ws: list[Workspace] = []  # visibility's ray buffers per occluder, kept from call to call (not
-        # shared between threads: one caller at a time)
+        self._rays = SunRays(self.device)  # visibility's rays and buffers, kept from call to call (not shared
+        # between threads: one caller at a time)
         self.reason = ""
         if self.d[1] <= 0.0:
             self.reason = f"{where}: the sun is below the horizon (direction_to_sun y = {self.d[1]:.3g}): no direct sun"
@@ -115,18 +114,11 @@ class SunLight:
         t_exit = self.exit_distance(start)
         go = np.isfinite(t_exit)
         idx, start, t_exit = cand[go], start[go], t_exit[go]
-        dirs = np.broadcast_to(self.d, start.shape)
-        free = np.ones(len(idx), bool)
         occs = [o for o in (self.occluder, *extra) if o is not None and o.id != 0] if len(idx) else []
-        while len(self._ws) < len(occs):
-            self._ws.append(Workspace())
-        max_t = float(t_exit.max()) + 1.0 if len(idx) else 0.0
-        jobs = [lambda o=o, w=w: cast_rays(o, start, dirs, max_t=max_t, workspace=w)[2]
-                for o, w in zip(occs, self._ws)]
-        # the room and the object side by side, one per core on the CPU (not from inside a pooled launch)
+        # the room and the object in one launch (kernels.sunshadow.SunRays); split over the cores for many
+        # rays, not from inside a pooled launch
         pooled = threading.current_thread().name.startswith("photoar")
-        for depth in (runtime.run_parallel(jobs) if not pooled else [j() for j in jobs]):
-            free &= ~(depth < t_exit)
+        free = self._rays([o.id for o in occs], start, self.d, t_exit, parallel=not pooled)
         out[idx[free]] = cos[idx[free]]
         return out
 
@@ -148,6 +140,32 @@ class SunLight:
         if len(mixed):
             vis[mixed] = self.visibility(np.asarray(points)[mixed], np.asarray(normals)[mixed], extra)
         return vis[:, None] * (self.sun.irradiance / np.pi)
+
+    def hit_correction(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, tri: np.ndarray,
+                       bary: np.ndarray, extra: list[Occluder] = ()) -> tuple[np.ndarray, np.ndarray]:
+        """The sun per camera hit on a mesh (v (V,3), unit vertex normals n (V,3), faces f (F,3)) against the
+        blend of its vertices' sun that the hit's radiance holds: (k (K,), the hits (tri (M,), bary (M,3))
+        on faces with a sunlit corner; delta (K,), their sun minus that blend, as a share of
+        irradiance/pi (x sun.irradiance / pi: the irradiance/pi to add)). vis_v (V,): each vertex's sun
+        share (cos x visibility, 0 in shadow). The hit's sun is irradiance_on_mesh's: cos of the
+        interpolated normal on a face with all corners sunlit, a ray (visibility, past the room and
+        `extra`) on a face that a shadow's edge crosses; faces with no sunlit corner have both 0."""
+        lit_f = (vis_v > 0)[f].sum(1)  # sunlit corners per face
+        nl = lit_f[tri]
+        k = np.flatnonzero(nl > 0)
+        if len(k) == 0:
+            return k, np.zeros(0)
+        ck = f[tri[k]]
+        b = np.asarray(bary[k], np.float64)
+        nrm = np.einsum("nk,nkc->nc", b, n[ck])
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+        whole = nl[k] == 3
+        vis = np.where(whole, np.maximum(nrm @ self.d, 0.0), 0.0)
+        mixed = np.flatnonzero(~whole)
+        if len(mixed):
+            pos = np.einsum("nk,nkc->nc", b[mixed], v[ck[mixed]])
+            vis[mixed] = self.visibility(pos, nrm[mixed], extra)
+        return k, vis - np.einsum("nk,nk->n", b, vis_v[ck])
 
     def triangle_irradiance(self, tris: np.ndarray, extra: list[Occluder] = (), n: int = 6) -> np.ndarray:
         """Mean direct sun irradiance/pi (T,3) over triangles (T,3,3) (CCW seen from the lit side),

@@ -196,9 +196,10 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         # of it); per frame only the room's shadow is tested
         self_lit = ss.sun_self_lit(eng.sun_light.d, vu, nu, own)
         on = np.flatnonzero(self_lit > 0)  # the room's shadow tested only where the object's own leaves the sun
-        sun_u = np.zeros((len(vu), 3))
-        sun_u[on] = eng.sun_light.irradiance(vu[on], nu[on]) * self_lit[on, None]
-        eng._obj_sun_vert = sun_u[ss.inv]  # (sharpened per camera hit later)
+        vis_u = np.zeros(len(vu))
+        vis_u[on] = eng.sun_light.visibility(vu[on], nu[on]) * self_lit[on]
+        sun_u = vis_u[:, None] * (eng.sun_light.sun.irradiance / np.pi)
+        eng._obj_sun_vis = vis_u[ss.inv]  # each vertex's sun share, cos x visibility (sharpened per camera hit later)
         # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
@@ -563,21 +564,15 @@ def shade_object(eng: "Engine", obj: SceneObject, mesh, hits: "ObjectHits", prox
     sub[h] = np.einsum("nk,nkc->nc", hits.bary[h], L_vert[corners])
     if getattr(eng, "sun_pix", None) is not None:  # sun: its direct light per camera hit (a sharp edge
         # across a face, not a vertex blend), on the faces with a sunlit corner (on the others both the
-        # per-hit sun and the vertex blend it replaces are 0)
-        lit_v = eng._obj_sun_vert.any(1)  # the shading mesh's vertices in the sun (room and own shadow)
-        k = np.flatnonzero(lit_v[f].any(1)[hits.tri[h]])  # hits on a face with a sunlit corner
+        # per-hit sun and the vertex blend it replaces are 0); rays where a shadow edge crosses a face
+        own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
+            Occluder(v, f, eng.device)
+        hh = np.flatnonzero(h)
+        k, delta = eng.sun_light.hit_correction(v, n, f, eng._obj_sun_vis, hits.tri[hh], hits.bary[hh], [own])
         if len(k):
-            hk = np.flatnonzero(h)[k]
-            b, ck = hits.bary[hk], corners[k]
-            lit_c = lit_v[ck]
-            pos = np.einsum("nk,nkc->nc", b, v[ck])
-            nrm = np.einsum("nk,nkc->nc", b, n[ck])
-            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-            own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
-                Occluder(v, f, eng.device)
-            E_hit = eng.sun_light.irradiance_on_mesh(pos, nrm, lit_c, [own])  # rays where a shadow edge crosses
-            E_interp = np.einsum("nk,nkc->nc", b, eng._obj_sun_vert[ck])
-            sub[hk] = np.maximum(sub[hk] + obj.albedo * (E_hit - E_interp), 0.0)
+            hk = hh[k]
+            sub[hk] = np.maximum(sub[hk] + obj.albedo * (delta[:, None] * (eng.sun_light.sun.irradiance / np.pi)),
+                                 0.0)
     if eng.params.specular > 0:
         pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])
         nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])

@@ -337,7 +337,7 @@ class SunStage:
         return self._pieces[1:4]
 
     def refine_clipped_edges(self, camera, cam_occ: Occluder, mesh, own: Occluder, L_vert: np.ndarray,
-                             sun_vert: np.ndarray, albedo: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray,
+                             sun_vis: np.ndarray | None, albedo: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray,
                              clipped: np.ndarray, s: int | None = None) -> np.ndarray:
         """Coverage and object radiance re-sampled with s x s rays (default edge_samples) on the object's outline pixels
         that touch clipping light (in place on cov (H,W) and obj_rad (H,W,3)); returns those pixels.
@@ -346,8 +346,8 @@ class SunStage:
         clipping: the photo clips there or next to it (`clipped` (H*W,) bool, a sunlit floor) or
         the object's radiance there or next to it is 1 or more (a sunlit face; radiance 1 is the
         white level). Object radiance per ray: L_vert interpolated, with the sun per hit (its
-        self-shadow edge: rays on the faces it crosses, SunLight.irradiance_on_mesh) as
-        Engine._shade_object does."""
+        self-shadow edge: rays on the faces it crosses, SunLight.hit_correction; sun_vis (V,) the
+        vertices' sun share) as Engine._shade_object does."""
         H, W = cov.shape
         s = s or self.edge_samples
         v, n, f = mesh
@@ -376,17 +376,13 @@ class SunStage:
         rad = np.zeros((len(tri), 3))
         h = np.flatnonzero(hit)
         corners = f[tri[h]]
-        b = bary[h].astype(np.float64)
-        rad[h] = np.einsum("nk,nkc->nc", b, L_vert[corners])
-        lit_v = sun_vert.any(1) if sun_vert is not None and len(h) else None
-        k = np.flatnonzero(lit_v[f].any(1)[tri[h]]) if lit_v is not None else []  # on faces with a sunlit corner
-        if len(k):  # (on the others both the per-hit sun and the vertex blend it replaces are 0)
-            hk, bk, ck = h[k], b[k], corners[k]
-            pos = np.einsum("nk,nkc->nc", bk, v[ck])
-            nrm = np.einsum("nk,nkc->nc", bk, n[ck])
-            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-            E_hit = self.light.irradiance_on_mesh(pos, nrm, lit_v[ck], [own])
-            rad[hk] = np.maximum(rad[hk] + albedo * (E_hit - np.einsum("nk,nkc->nc", bk, sun_vert[ck])), 0.0)
+        rad[h] = np.einsum("nk,nkc->nc", bary[h], L_vert[corners])
+        if sun_vis is not None and len(h):  # the sun per hit on the faces with a sunlit corner (on the others
+            # both the per-hit sun and the vertex blend it replaces are 0)
+            k, delta = self.light.hit_correction(v, n, f, sun_vis, tri[h], bary[h], [own])
+            if len(k):
+                hk = h[k]
+                rad[hk] = np.maximum(rad[hk] + albedo * (delta[:, None] * self.E_perp), 0.0)
         k = s * s
         hits = hit.reshape(-1, k)
         c = hits.mean(1)

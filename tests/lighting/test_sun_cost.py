@@ -1,0 +1,96 @@
+"""The sun's per-frame shortcuts give the answers of the plain computations they replace (issue 20:
+the frame's cost with the sun).
+
+- SunLight.visibility casts the room and the object in one launch (kernels.sunshadow.SunRays): the
+  same lit points as a ray cast per mesh with its depth against the exit distance;
+- SunLight.hit_correction (the sun per camera hit) equals irradiance_on_mesh minus the vertex blend.
+"""
+import numpy as np
+import pytest
+
+from recon.scene import Sun, load_scene
+from tests.conftest import shared_scene
+
+
+@pytest.fixture(scope="module")
+def room():
+    from app.stages.precompute import scene_meshes
+    from kernels import runtime
+    from lighting.sun import SunLight, openings
+    from recon.patches import build_patches
+
+    runtime.init()
+    s = load_scene(shared_scene("sun_room"), load_textures=False)
+    pm = build_patches(s, 0.18, 0.1)
+    occ, _ = scene_meshes(pm, "cpu")
+    d = np.array([-0.74, 0.62, 0.27])
+    light = SunLight(Sun(d / np.linalg.norm(d), 0.53, np.array([50.0, 40.0, 30.0]), np.zeros(3)), openings(s), occ)
+    return s, light
+
+
+def _chair(s):
+    from kernels.visibility import Occluder
+
+    obj = s.obj
+    return obj.vertices, obj.normals, obj.faces, Occluder(obj.vertices, obj.faces, "cpu")
+
+
+def _old_visibility(light, p, n, occluders, eps=1e-3):
+    """SunLight.visibility as a cast per mesh (kernels.raycast), depth < exit distance."""
+    from kernels.raycast import cast_rays
+
+    cos = n @ light.d
+    out = np.zeros(len(p))
+    cand = np.flatnonzero(cos > 0)
+    start = p[cand] + n[cand] * eps
+    t = light.exit_distance(start)
+    go = np.isfinite(t)
+    idx, start, t = cand[go], start[go], t[go]
+    free = np.ones(len(idx), bool)
+    for o in occluders:
+        free &= ~(cast_rays(o, start, np.broadcast_to(light.d, start.shape), max_t=float(t.max()) + 1.0)[2] < t)
+    out[idx[free]] = cos[idx[free]]
+    return out
+
+
+def test_sun_rays_equal_a_cast_per_mesh(room):
+    # points over the sunlit floor and on the chair standing in it: the room's shadow (window frame,
+    # walls) and the chair's own both matter; every answer the same as a ray cast per mesh
+    s, light = room
+    v, n, f, own = _chair(s)
+    rng = np.random.default_rng(5)
+    floor = np.column_stack([rng.uniform(-3, 3, 6000), np.full(6000, 1e-3), rng.uniform(-3, 3, 6000)])
+    p = np.concatenate([floor, v])
+    nrm = np.concatenate([np.tile([0.0, 1.0, 0.0], (len(floor), 1)), n])
+    ours = light.visibility(p, nrm, [own])
+    ref = _old_visibility(light, p, nrm, [light.occluder, own])
+    lit = ref > 0
+    assert lit[:len(floor)].sum() > 100 and (~lit[:len(floor)] & (floor @ [0, 1, 0] >= 0)).sum() > 100
+    assert lit[len(floor):].any() and (~lit[len(floor):] & (n @ light.d > 0)).any()  # chair: lit and self-shadowed
+    assert np.array_equal(ours, ref)
+    # many rays (two launches side by side on the CPU) and none at all
+    big = np.repeat(p, 3, axis=0)
+    assert np.array_equal(light.visibility(big, np.repeat(nrm, 3, axis=0), [own]), np.repeat(ref, 3))
+    assert light.visibility(p[:0], nrm[:0], [own]).shape == (0,)
+
+
+def test_hit_correction_is_the_per_hit_sun_minus_the_vertex_blend(room):
+    s, light = room
+    v, n, f, own = _chair(s)
+    vis_v = light.visibility(v, n, [own])
+    rng = np.random.default_rng(2)
+    tri = rng.integers(0, len(f), 5000).astype(np.int32)
+    bary = rng.dirichlet(np.ones(3), len(tri)).astype(np.float32)
+    k, delta = light.hit_correction(v, n, f, vis_v, tri, bary, [own])
+    lit_c = vis_v[f[tri]] > 0
+    want = np.flatnonzero(lit_c.any(1))
+    assert np.array_equal(k, want) and 0 < len(k) < len(tri) and ((lit_c.sum(1) % 3) > 0).any()
+    b = bary[k].astype(np.float64)
+    ck = f[tri[k]]
+    pos = np.einsum("nk,nkc->nc", b, v[ck])
+    nrm = np.einsum("nk,nkc->nc", b, n[ck])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    E = light.sun.irradiance / np.pi
+    ref = light.irradiance_on_mesh(pos, nrm, lit_c[k], [own]) - np.einsum("nk,nkc->nc", b, vis_v[ck][:, :, None] * E)
+    assert np.abs(delta[:, None] * E - ref).max() < 1e-12
+
