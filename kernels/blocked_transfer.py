@@ -1,13 +1,12 @@
-"""The part of a fixed transfer that an occluder blocks (Warp kernel).
+"""The pairs of points and targets whose segment an occluder blocks (Warp kernel).
 
-sum_j T_ij c_j over the pairs whose segment p_i -> q_j meets the occluder: a change c_j (P,3) at
-targets q_j passed on by a transfer T (N,J) that was made without the occluder (form factor x the
-room's visibility, kernels.visibility.transfer_matrix). One ray per pair with T_ij > 0 and c_j != 0 whose segment meets the
-occluder's box; the loop runs over the targets with a change only (compacted per call).
-The points and the transfer are fixed per scene (uploaded once); the targets and changes per call
-(kept buffers: nothing is allocated after the first call).
-BlockedPairs returns the blocked pairs themselves (N,m) instead of the sum, for callers that weigh one
-ray's answer by several transfers (app.stages.sun: a cluster of patches' one ray per target).
+[p_i -> q_k blocked] for N fixed points p_i and per-call targets q_k, each target with a column of a
+fixed transfer T (N,J) that was made without the occluder (form factor x the room's visibility,
+kernels.visibility.transfer_matrix): one ray per pair with T > 0 whose segment meets the occluder's
+box. Callers weigh one ray's answer by several transfers (app.stages.sun: the blocked part of the
+sun's loss passed on by T, a cluster of patches' one ray per target).
+The points and the transfer are fixed per scene (uploaded once); the targets per call (kept
+buffers: nothing is allocated after the first call).
 """
 from __future__ import annotations
 
@@ -18,66 +17,6 @@ import warp as wp
 
 from kernels.buffers import Buffer
 from kernels.visibility import Occluder, segment_blocked, segment_meets_box
-
-
-@wp.kernel
-def _blocked_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3), T: wp.array2d(dtype=wp.float32),
-                    column: wp.array(dtype=wp.int32), m: int, targets: wp.array(dtype=wp.vec3),
-                    change: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3, out: wp.array(dtype=wp.vec3)):
-    # the m targets with a change (k < m) and their columns of T
-    i = start + wp.tid()
-    p = points[i]
-    acc = wp.vec3(0.0, 0.0, 0.0)
-    for k in range(m):
-        t = T[i, column[k]]
-        if t > 0.0:
-            if segment_meets_box(p, targets[k], lo, hi):
-                if segment_blocked(mesh, p, targets[k]):
-                    acc += change[k] * t
-    out[i] = acc
-
-
-class BlockedTransfer:
-    """sum_j T_ij c_j [p_i -> q_j blocked] (N,3) for N fixed points and J targets (T (N,J) fixed)."""
-
-    def __init__(self, points: np.ndarray, T: np.ndarray, device: str):
-        """points (N,3) m; T (N,J) the transfer (any units: the result is in T x c's units)."""
-        self.n, self.j = T.shape
-        if len(points) != self.n:
-            raise ValueError(f"BlockedTransfer: {len(points)} points for a transfer of {self.n} rows")
-        self.device = device
-        self.points = wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device)
-        self.T = wp.array(np.ascontiguousarray(T, np.float32), dtype=wp.float32, device=device)
-        self._targets = Buffer(max(self.j, 1), wp.vec3, device)
-        self._change = Buffer(max(self.j, 1), wp.vec3, device)
-        self._column = Buffer(max(self.j, 1), wp.int32, device)
-        self._out = Buffer(max(self.n, 1), wp.vec3, device)
-
-    def __call__(self, occluder: Occluder, targets: np.ndarray, change: np.ndarray, box: tuple[np.ndarray, np.ndarray],
-                 split: Callable[[Callable[[int, int], None], int], None] | None = None) -> np.ndarray:
-        """(N,3) float64: the blocked part of T c for targets (J,3) and changes c (J,3); box: (lo (3,), hi (3,))
-        m bounding the occluder (a ray only for segments that meet it). split(launch, n):
-        runs launch(lo, hi) over ranges covering [0, n) (e.g. app.runtime.split: one per core), or
-        None: one launch."""
-        if self.n == 0 or self.j == 0 or not np.any(change):
-            return np.zeros((self.n, 3))
-        cols = np.flatnonzero(np.asarray(change).any(1))  # only the targets with a change: the loop over them
-        m = self._column.upload(cols.astype(np.int32))
-        self._targets.upload(np.asarray(targets, np.float32)[cols])
-        self._change.upload(np.asarray(change, np.float32)[cols])
-        mesh = wp.uint64(occluder.id)
-
-        def launch(a: int, b: int) -> None:
-            wp.launch(_blocked_kernel, dim=b - a, inputs=[mesh, a, self.points, self.T, self._column.dev, m,
-                                                        self._targets.dev, self._change.dev, wp.vec3(*map(float, box[0])),
-                                                        wp.vec3(*map(float, box[1]))], outputs=[self._out.dev],
-                      device=self.device)
-
-        if split is None:
-            launch(0, self.n)
-        else:
-            split(launch, self.n)
-        return self._out.pull(self.n).astype(np.float64)
 
 
 @wp.kernel
@@ -136,9 +75,11 @@ class BlockedPairs:
                  box: tuple[np.ndarray, np.ndarray],
                  split: Callable[[Callable[[int, int], None], int], None] | None = None,
                  m_short: int | None = None) -> np.ndarray:
-        """(N,m) bool for targets (m,3) m and their columns (m,) of T, in the points' order; box, split: as
-        BlockedTransfer; m_short: how many of the first targets the short points take (default all; the
-        rest of their rows False)."""
+        """(N,m) bool for targets (m,3) m and their columns (m,) of T, in the points' order. box: (lo (3,),
+        hi (3,)) about the occluder (a segment that misses it casts no ray); split: optional
+        callable(launch(lo, hi), n) that runs the launch over index ranges (e.g. app.runtime.split),
+        None: one launch; m_short: how many of the first targets the short points take (default all;
+        the rest of their rows False)."""
         m = len(columns)
         m_short = m if m_short is None else min(int(m_short), m)
         if self.n == 0 or m == 0:

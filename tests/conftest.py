@@ -44,6 +44,24 @@ def score(scene_dir: Path, composite_png: Path) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def segments_blocked(vertices, faces, points, targets):
+    """(N,J) bool: the segment points_i -> targets_j meets the mesh (Open3D's ray casts: the reference
+    the blocked-pair kernels are tested against)."""
+    import numpy as np
+    import open3d as o3d
+
+    mesh = o3d.t.geometry.TriangleMesh()
+    mesh.vertex.positions = o3d.core.Tensor(np.asarray(vertices, np.float32))
+    mesh.triangle.indices = o3d.core.Tensor(np.asarray(faces, np.int32))
+    sc = o3d.t.geometry.RaycastingScene()
+    sc.add_triangles(mesh)
+    d = np.asarray(targets)[None] - np.asarray(points)[:, None]
+    r = np.linalg.norm(d, axis=-1)
+    rays = np.concatenate([np.broadcast_to(np.asarray(points)[:, None], d.shape), d / r[..., None]], -1)
+    hit = sc.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6).astype(np.float32)))["t_hit"].numpy().reshape(r.shape)
+    return hit < r
+
+
 @pytest.fixture(scope="session")
 def own_room_cache(tmp_path_factory) -> Path:
     """One precompute cache for the own-room tests: the same user files give the same room

@@ -115,7 +115,7 @@ class SunStage:
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
         self.patches = patches
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
-        self._blocked: tuple | None = None  # (key, BlockedTransfer at the receiver vertices, at the patch centres)
+        self._blocked: tuple | None = None  # (key, BlockedPairs of the receiver vertices and clusters, clusters, G_s, T_cl, T_v)
         self._lost: np.ndarray | None = None  # (Pc,K) the last frame's lost share of the sun per sample point
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
         self._outline = OutlineHits(device)  # refine_clipped_edges's rays (buffers kept)

@@ -1,10 +1,9 @@
-"""kernels.blocked_transfer: the part of a transfer an occluder blocks, against Open3D's ray casts."""
+"""kernels.blocked_transfer: the pairs an occluder blocks, against Open3D's ray casts."""
 import numpy as np
-import open3d as o3d
-import pytest
 
-from kernels.blocked_transfer import BlockedPairs, BlockedTransfer
+from kernels.blocked_transfer import BlockedPairs
 from kernels.visibility import Occluder
+from tests.conftest import segments_blocked
 
 
 def _box(lo, hi):
@@ -12,44 +11,6 @@ def _box(lo, hi):
     f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
                   [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
     return v, f
-
-
-def _reference(v, f, points, targets):
-    """(N,J) bool: segment points_i -> targets_j meets the mesh (Open3D)."""
-    mesh = o3d.t.geometry.TriangleMesh()
-    mesh.vertex.positions = o3d.core.Tensor(v.astype(np.float32))
-    mesh.triangle.indices = o3d.core.Tensor(f.astype(np.int32))
-    sc = o3d.t.geometry.RaycastingScene()
-    sc.add_triangles(mesh)
-    d = targets[None] - points[:, None]
-    r = np.linalg.norm(d, axis=-1)
-    rays = np.concatenate([np.broadcast_to(points[:, None], d.shape), d / r[..., None]], -1)
-    hit = sc.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6).astype(np.float32)))["t_hit"].numpy().reshape(r.shape)
-    return hit < r
-
-
-@pytest.mark.parametrize("split", [False, True])
-def test_blocked_part_matches_ray_casts(split):
-    from app.runtime import split as split_launches
-
-    rng = np.random.default_rng(3)
-    v, f = _box([0.4, 0.2, 0.4], [0.6, 0.7, 0.6])
-    points = np.column_stack([rng.uniform(-1, 2, 3000), rng.uniform(0, 1.5, 3000), rng.uniform(-1, 2, 3000)])
-    points = points[np.any((points < [0.35, 0.15, 0.35]) | (points > [0.65, 0.75, 0.65]), axis=1)]  # outside
-    targets = np.column_stack([rng.uniform(0, 1, 40), np.zeros(40), rng.uniform(0, 1, 40)])
-    T = rng.uniform(0, 1, (len(points), 40)) * (rng.uniform(size=(len(points), 40)) > 0.3)
-    change = rng.normal(size=(40, 3))
-    change[::5] = 0.0  # no change: no ray
-    blocked = _reference(v, f, points, targets)
-    ref = (T * blocked) @ change
-    bt = BlockedTransfer(points, T, "cpu")
-    box = (np.array([0.4, 0.2, 0.4]) - 1e-3, np.array([0.6, 0.7, 0.6]) + 1e-3)
-    ours = bt(Occluder(v, f, "cpu"), targets, change, box,
-              split=(lambda launch, n: split_launches(launch, n, "cpu", 64)) if split else None)
-    assert blocked.mean() > 0.05 and np.abs(ref).max() > 1.0  # a blocked share worth testing
-    assert np.allclose(ours, ref, atol=1e-4 * np.abs(ref).max())
-    # a box that no segment meets: nothing blocked (no ray cast)
-    assert not bt(Occluder(v, f, "cpu"), targets, change, (np.array([9.0, 9.0, 9.0]), np.array([9.1, 9.1, 9.1]))).any()
 
 
 def test_blocked_pairs_match_ray_casts():
@@ -64,7 +25,7 @@ def test_blocked_pairs_match_ray_casts():
     T = rng.uniform(0, 1, (len(points), 30)) * (rng.uniform(size=(len(points), 30)) > 0.3)
     targets = np.column_stack([rng.uniform(0, 1, 45), np.zeros(45), rng.uniform(0, 1, 45)])
     columns = rng.integers(0, 30, 45)
-    ref = _reference(v, f, points, targets) & (T[:, columns] > 0)
+    ref = segments_blocked(v, f, points, targets) & (T[:, columns] > 0)
     bp = BlockedPairs(points, T, "cpu", capacity=60)
     box = (np.array([0.4, 0.2, 0.4]) - 1e-3, np.array([0.6, 0.7, 0.6]) + 1e-3)
     ours = bp(Occluder(v, f, "cpu"), targets, columns, box,

@@ -1,11 +1,10 @@
 """The sun's changes passed on by the bounces each has left, and its loss not counted twice where the
 object also hides the shadowed floor (app.stages.sun.SunStage.later_bounces / first_pass_blocked)."""
 import numpy as np
-import open3d as o3d
 import pytest
 
 from recon.scene import load_scene
-from tests.conftest import shared_scene
+from tests.conftest import segments_blocked, shared_scene
 
 
 @pytest.fixture(scope="module")
@@ -71,15 +70,7 @@ def test_blocked_first_pass_matches_rays_to_every_lost_sample(coarse):
     i, k = np.nonzero(lost > 0)
     pts = st.c_pts.reshape(len(st.c_patch), K, 3)[i, k]
     w = (lost[i, k] / K)[:, None] * pm.albedo[st.c_patch[i]] * st.E_perp  # (M,3): minus each point's dB1 share
-    mesh = o3d.t.geometry.TriangleMesh()
-    mesh.vertex.positions = o3d.core.Tensor(pv.astype(np.float32))
-    mesh.triangle.indices = o3d.core.Tensor(pf.astype(np.int32))
-    sc = o3d.t.geometry.RaycastingScene()
-    sc.add_triangles(mesh)
-    d = pts[None] - recv[:, None]
-    r = np.linalg.norm(d, axis=-1)
-    rays = np.concatenate([np.broadcast_to(recv[:, None], d.shape), d / r[..., None]], -1)
-    hit = sc.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6).astype(np.float32)))["t_hit"].numpy().reshape(r.shape) < r
+    hit = segments_blocked(pv, pf, recv, pts)
     Gs = e.pre.G_v[:, st.c_patch[i]].astype(np.float64)
     ref = -(Gs * hit) @ w
     total = -Gs @ w  # the whole first pass of the loss
@@ -119,8 +110,7 @@ def test_patches_blocked_pairs_from_cluster_centres_match_rays_to_every_lost_sam
     # first_pass_blocked tests the patches' pairs (G's pass of the loss over the pairs the object blocks, given
     # back at the patches and passed once through G_v) from their cluster's centre: at the receiver
     # vertices, against one ray per (patch centre, lost sample point), about as close as one ray per
-    # (patch centre, loss-weighted centre) (kernels.blocked_transfer.BlockedTransfer on the patch centres)
-    from kernels.blocked_transfer import BlockedTransfer
+    # (patch centre, loss-weighted centre)
     from app.stages.sun import _weighted_centres
 
     s, e = coarse
@@ -138,18 +128,11 @@ def test_patches_blocked_pairs_from_cluster_centres_match_rays_to_every_lost_sam
     G_s = e.pre.G_c[:, st.c_patch].astype(np.float64) * alive
     rows = pm.centre + pm.normal * 1e-3
     i, k = np.nonzero(lost > 0)
-    mesh = o3d.t.geometry.TriangleMesh()
-    mesh.vertex.positions = o3d.core.Tensor(pv.astype(np.float32))
-    mesh.triangle.indices = o3d.core.Tensor(pf.astype(np.int32))
-    sc = o3d.t.geometry.RaycastingScene()
-    sc.add_triangles(mesh)
-    d = pts[i, k][None] - rows[:, None]
-    r = np.linalg.norm(d, axis=-1)
-    rays = np.concatenate([np.broadcast_to(rows[:, None], d.shape), d / r[..., None]], -1)
-    hit = sc.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6).astype(np.float32)))["t_hit"].numpy().reshape(r.shape) < r
+    hit = segments_blocked(pv, pf, rows, pts[i, k])
     w = -(lost[i, k] / K)[:, None] * pm.albedo[st.c_patch[i]] * st.E_perp
     ref = (G_s[:, i] * hit) @ w
-    per_patch = BlockedTransfer(rows, G_s, "cpu")(occ, _weighted_centres(lost, pts), dB1[st.c_patch], box)
+    # the rows it replaced: one ray per (patch centre, its patch's loss-weighted centre)
+    per_patch = (G_s * segments_blocked(pv, pf, rows, _weighted_centres(lost, pts))) @ dB1[st.c_patch]
     G_v = e.pre.G_v.astype(np.float64)
     at_v = [G_v @ (pm.albedo * x) for x in (ref, blk_c, per_patch)]
     err = [np.abs(x[:, 1] - at_v[0][:, 1]).sum() / np.abs(at_v[0][:, 1]).sum() for x in at_v[1:]]
