@@ -50,19 +50,6 @@ def test_malformed_sun_names_file_and_field(tmp_path, edit, words):
 
 
 # ---------------------------------------------------------------- sunlit region and hard cases
-@pytest.fixture(scope="module")
-def room():
-    from kernels import runtime
-    from recon.patches import build_patches
-    from app.stages.precompute import scene_meshes as _scene_meshes
-
-    runtime.init()
-    s = load_scene(shared_scene("sun_room"), load_textures=False)
-    pm = build_patches(s, 0.18, 0.1)
-    occ, _ = _scene_meshes(pm, "cpu")
-    return s, pm, occ
-
-
 def _light(room, direction):
     from lighting.sun import SunLight, openings
 

@@ -8,21 +8,15 @@ the frame's cost with the sun).
 import numpy as np
 import pytest
 
-from recon.scene import Sun, load_scene
-from tests.conftest import shared_scene
+from recon.scene import Sun
 
 
 @pytest.fixture(scope="module")
-def room():
-    from app.stages.precompute import scene_meshes
-    from kernels import runtime
+def lit_room(room):
+    """sun_room (conftest's `room`) and a sun through its opening."""
     from lighting.sun import SunLight, openings
-    from recon.patches import build_patches
 
-    runtime.init()
-    s = load_scene(shared_scene("sun_room"), load_textures=False)
-    pm = build_patches(s, 0.18, 0.1)
-    occ, _ = scene_meshes(pm, "cpu")
+    s, _, occ = room
     d = np.array([-0.74, 0.62, 0.27])
     light = SunLight(Sun(d / np.linalg.norm(d), 0.53, np.array([50.0, 40.0, 30.0]), np.zeros(3)), openings(s), occ)
     return s, light
@@ -53,10 +47,10 @@ def _old_visibility(light, p, n, occluders, eps=1e-3):
     return out
 
 
-def test_sun_rays_equal_a_cast_per_mesh(room):
+def test_sun_rays_equal_a_cast_per_mesh(lit_room):
     # points over the sunlit floor and on the chair standing in it: the room's shadow (window frame,
     # walls) and the chair's own both matter; every answer the same as a ray cast per mesh
-    s, light = room
+    s, light = lit_room
     v, n, f, own = _chair(s)
     rng = np.random.default_rng(5)
     floor = np.column_stack([rng.uniform(-3, 3, 6000), np.full(6000, 1e-3), rng.uniform(-3, 3, 6000)])
@@ -74,8 +68,8 @@ def test_sun_rays_equal_a_cast_per_mesh(room):
     assert light.visibility(p[:0], nrm[:0], [own]).shape == (0,)
 
 
-def test_hit_correction_is_the_per_hit_sun_minus_the_vertex_blend(room):
-    s, light = room
+def test_hit_correction_is_the_per_hit_sun_minus_the_vertex_blend(lit_room):
+    s, light = lit_room
     v, n, f, own = _chair(s)
     vis_v = light.visibility(v, n, [own])
     rng = np.random.default_rng(2)
