@@ -9,6 +9,7 @@ buffers it was given; `split` cuts [0, n) and runs the parts.
 from __future__ import annotations
 
 import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable
 
 import warp as wp
@@ -49,3 +50,20 @@ def split(launch: Callable[[int, int], object], n: int, device: str, min_items: 
 def run(jobs: list[Callable[[], object]]) -> list[object]:
     """Run independent launches concurrently (kernels.runtime's thread pool); their results in order."""
     return _kernels_runtime.run_parallel(jobs)
+
+
+_background: ThreadPoolExecutor | None = None
+
+
+def background(work: Callable[[], object]) -> Future:
+    """Start `work` on the frame's background thread and return its Future (`.result()` joins it).
+
+    For a frame's work that does not depend on the shadow pass (what only the object's pose decides),
+    run while the pass's launches leave a core idle. One thread, apart from the launch pool that
+    `split` and `run` use, so that the launches `work` splits over the cores never queue behind it;
+    its tasks run one at a time in the order given. The caller joins it before the frame returns
+    (also when the frame is abandoned), so no two frames' work shares a buffer."""
+    global _background
+    if _background is None:
+        _background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="photoar-frame")
+    return _background.submit(work)
