@@ -22,6 +22,7 @@ buffers of the batch's capacity. Launches are split over the cores by app.runtim
 from __future__ import annotations
 
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -139,6 +140,12 @@ class ShadowPass:
         self.maps_full = ShadowMaps(batch, map_res, device=device)
         res = min(cluster_map_res or CLUSTER_MAP_RES, map_res)
         self.maps_cluster = self.maps_full if res == map_res else ShadowMaps(batch, res, device=device)
+        # a second set of each map size: a batch's maps are drawn into one while the masked sums of the
+        # batch before read the other (run: the raster overlaps the sums; the same maps, the same sums)
+        self._twin = {id(self.maps_full): ShadowMaps(batch, map_res, device=device)}
+        if self.maps_cluster is not self.maps_full:
+            self._twin[id(self.maps_cluster)] = ShadowMaps(batch, self.maps_cluster.res, device=device)
+        self.pipelined = wp.get_device(device).is_cpu  # False: each batch drawn, then summed (A/B; CUDA: async anyway)
         self.maps = self.maps_full  # the last frame's
         self.weights = Buffer((n_recv_vert + P, batch), wp.vec3, device)  # pixel rows, then centre rows
         self.cand = Buffer((P, batch), wp.uint8, device)
@@ -170,22 +177,47 @@ class ShadowPass:
         pix_pt, fill_pt, cen = self._select(centre, radius, coverage, cand)
         R = self.n_pix_points
         self.sums.select(np.concatenate([pix_pt, R + cen]))
-        self.maps = self.maps_full if per_source or full_maps else self.maps_cluster
-        self.maps.set_proxy(proxy[0], proxy[1], proxy[2])
+        primary = self.maps_full if per_source or full_maps else self.maps_cluster
+        pair = (primary, self._twin[id(primary)])
         n_src, dev = len(eyes), self.device
-        for first in tqdm(range(0, n_src, self.batch), desc="shadow passes", unit="batch", leave=False,
-                          disable=self.quiet or n_src <= 4 * self.batch or not sys.stderr.isatty()):
+        firsts = list(range(0, n_src, self.batch))
+        for m in pair[:1 + (self.pipelined and len(firsts) > 1)]:
+            m.set_proxy(proxy[0], proxy[1], proxy[2])
+
+        def aim(k: int) -> tuple[ShadowMaps, int]:
+            """Batch k's maps (set k % 2 when pipelined), aimed; (maps, n)."""
+            maps = pair[k % 2] if self.pipelined else primary
+            first = firsts[k]
             ax = None if per_source or spread is None else spread[first:first + self.batch]
-            n = self.maps.prepare(eyes[first:first + self.batch],
-                                  None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
-            runtime.split(self.maps.raster, n, dev, min_items=1)
-            self._upload_batch(cand, W_pix, W_c, first, n, cen)
-            self.sums.prepare(self.maps, n, 0, self.cand.dev,
-                              split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
-            # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
-            runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
-                         for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
+            return maps, maps.prepare(eyes[first:first + self.batch],
+                                      None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
+
+        nxt = aim(0) if firsts else None
+        if nxt:
+            runtime.split(nxt[0].raster, nxt[1], dev, min_items=1)
+        for k in tqdm(range(len(firsts)), desc="shadow passes", unit="batch", leave=False,
+                      disable=self.quiet or n_src <= 4 * self.batch or not sys.stderr.isatty()):
+            self.maps, n = nxt
+            first = firsts[k]
+            drawing = None
+            if k + 1 < len(firsts) and self.pipelined:  # the next batch's maps: drawn on a side thread
+                nxt = aim(k + 1)  # while this batch is summed
+                drawing = _side().submit(nxt[0].raster, 0, nxt[1])
+            try:
+                self._upload_batch(cand, W_pix, W_c, first, n, cen)
+                self.sums.prepare(self.maps, n, 0, self.cand.dev,
+                                  split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
+                # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
+                runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
+                             for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
+            finally:  # joined before the pause: nothing runs while refine() holds the frame
+                if drawing is not None:
+                    drawing.result()
+            if k + 1 < len(firsts) and not self.pipelined:
+                nxt = aim(k + 1)
+                runtime.split(nxt[0].raster, nxt[1], dev, min_items=1)
             yield first + n  # sources done: refine() may stop here and resume on its next call
+        self.maps = primary
         acc, _ = self.sums.result()
         n_pix = len(pix_pt)
         return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, acc[:n_pix], acc[n_pix:])
@@ -368,6 +400,19 @@ class ShadowPass:
         self.weights.push()
         self.cand.host[:, :n] = cand[:, first:first + n]
         self.cand.push()
+
+
+_SIDE: ThreadPoolExecutor | None = None
+
+
+def _side() -> ThreadPoolExecutor:
+    """The shadow pass's side thread: the next batch's raster (one launch) while the masked sums of
+    the batch before split over the cores (app.runtime's pool); its own thread so that neither
+    queues behind the other."""
+    global _SIDE
+    if _SIDE is None:
+        _SIDE = ThreadPoolExecutor(max_workers=1, thread_name_prefix="photoar-raster")
+    return _SIDE
 
 
 def _square_corners(index: np.ndarray, quad: np.ndarray, x0: np.ndarray, y0: np.ndarray, q: np.ndarray, s: int,

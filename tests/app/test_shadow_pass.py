@@ -245,3 +245,35 @@ def test_graded_lattice_matches_the_exact_sums_on_a_real_room(shared_scenes_cach
     assert counts[8] + counts[4] > 0.5 * len(g.fill_sel) and counts["exact"] < 0.15 * len(x.pix_sel)
     assert err.mean() < 0.1 * sp.refine_tol and np.percentile(err, 99) < sp.refine_tol
     np.testing.assert_allclose(g.O_cen, x.O_cen, rtol=1e-5, atol=1e-7)  # patch centres are all summed
+
+
+def test_pipelined_batches_give_the_same_masks(demo):
+    # the all-sources frame draws batch k+1's maps (into the twin set) while batch k is summed: the
+    # masks are bitwise those of drawing, then summing, each batch in turn; likewise a cluster frame
+    # of several batches (the non-graded path)
+    scene, eng = demo
+    sp = eng.shadow_pass
+    pv, pf, occ, _, _ = eng._object_shape(scene.obj)
+    centre, radius = bounding_sphere(pv)
+    cov = np.zeros((scene.camera.height, scene.camera.width))
+    for passes in (None, 2 * sp.batch + 5):
+        fs = eng.shadow_sources.select(pv.min(0), pv.max(0), passes)
+        assert len(fs.eyes) > sp.batch  # several batches: the twin maps are used
+        out = []
+        for pipelined in (False, True, False):
+            sp.pipelined = pipelined
+            steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, passes is None,
+                           spread=fs.spread)
+            done = []
+            try:
+                while True:
+                    done.append(next(steps))
+            except StopIteration as stop:
+                out.append(stop.value)
+            assert done[-1] == len(fs.eyes)
+        sp.pipelined = True
+        assert np.abs(out[0].O_pix).sum() > 0
+        for m in out[1:]:
+            np.testing.assert_array_equal(m.O_pix, out[0].O_pix)
+            np.testing.assert_array_equal(m.O_cen, out[0].O_cen)
+            np.testing.assert_array_equal(m.pix_sel, out[0].pix_sel)
