@@ -1,6 +1,7 @@
 """The shadow pass at two map sizes (issue 17: "masks only on listed pixels, at the map size the error allows").
 
 usage: python bench/bench_shadow_pass.py [--scenes window_room,lamps_room] [--res 128,256] [--n 10] [--shared ../shared]
+       python bench/bench_shadow_pass.py --ab [--scenes window_room,lamps_room,sun_room] [--repeat 4]
 
 Per shared scene and map size (every map of the frame at that size: clusters of sources and one map
 per source alike): the masks stage of a drag of N positions at 50 passes (app.dragpath; the first
@@ -9,6 +10,11 @@ all-sources frame's masks (in the frame, and alone: wall and CPU ms, median of 3
 those the candidate lists allow, and the scores against the truth at the object's own pose
 (50 passes and all sources). Warm (kernels compiled, buffers sized). The machine's load enters
 the wall times; the CPU times are steadier.
+
+--ab: the all-sources frame at map_res, its batches pipelined (ShadowPass.pipelined: batch k+1's maps
+drawn while batch k is summed) against drawn-then-summed, alternating on one engine (ABBA, `--repeat`
+rounds after a warm one): the masks alone and the whole frame (Engine.render), wall and process CPU ms,
+medians; and whether the two give bitwise the same masks and frame.
 """
 from __future__ import annotations
 
@@ -94,6 +100,45 @@ def bench(scene_dir: Path, res: int, n: int, cache: str) -> dict:
     return row
 
 
+def bench_ab(scene_dir: Path, repeat: int, cache: str) -> list[dict]:
+    """The all-sources frame, pipelined against not (see --ab): one row per mode."""
+    scene = load_scene(scene_dir)
+    eng = Engine(scene, EngineParams(), cache_dir=cache, quiet=True)
+    sp = eng.shadow_pass
+    pv, pf, occ, _, _ = eng._object_shape(scene.obj)
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    centre, radius = bounding_sphere(pv)
+    cov = np.zeros((scene.camera.height, scene.camera.width))
+    got = {False: [], True: []}
+    last = {}
+    for r in range(repeat + 1):
+        for mode in ((False, True) if r % 2 == 0 else (True, False)):
+            sp.pipelined = mode
+            c0, t0 = time.process_time(), time.perf_counter()
+            steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, True, scale=eng.E_x)
+            try:
+                while True:
+                    next(steps)
+            except StopIteration as stop:
+                masks = stop.value
+            mw, mc = time.perf_counter() - t0, time.process_time() - c0
+            c0, t0 = time.process_time(), time.perf_counter()
+            fr = eng.render(scene.obj, FrameConfig(passes=None))
+            fw, fc = time.perf_counter() - t0, time.process_time() - c0
+            if r:  # the first round warms both
+                got[mode].append((mw, mc, fw, fc, fr.stats["timings"]["masks"]))
+            last[mode] = (masks.O_pix, masks.O_cen, fr.pixels)
+    sp.pipelined = True
+    same = all(np.array_equal(a, b) for a, b in zip(last[False], last[True]))
+    rows = []
+    for mode in (False, True):
+        a = 1e3 * np.median(np.array(got[mode]), axis=0)
+        rows.append({"scene": scene.name, "pipelined": mode, "maps": len(fs.eyes), "masks_wall_ms": a[0],
+                     "masks_cpu_ms": a[1], "frame_wall_ms": a[2], "frame_cpu_ms": a[3], "frame_masks_ms": a[4],
+                     "bitwise_equal": same})
+    return rows
+
+
 def _pairs(sp) -> str:
     """Maps per point the last batch's masked sums tested (of its 50 maps), after the candidate
     lists and the culling (a graded frame: of its last selection, the pixels summed one by one)."""
@@ -109,6 +154,8 @@ def main() -> None:
     ap.add_argument("--scenes", default="window_room,lamps_room")
     ap.add_argument("--res", default="128,256")
     ap.add_argument("--n", type=int, default=10)
+    ap.add_argument("--ab", action="store_true", help="the all-sources frame pipelined against not (module docstring)")
+    ap.add_argument("--repeat", type=int, default=4, help="--ab: rounds of the two modes after a warm one")
     a = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as cache:
@@ -116,6 +163,10 @@ def main() -> None:
             d = Path(a.shared) / "scenes" / name
             if not (d / "scene.json").is_file():
                 print(f"skipping {name}: {d} not found")
+                continue
+            if a.ab:
+                rows += bench_ab(d, a.repeat, cache)
+                print(rows[-2], rows[-1], sep="\n", flush=True)
                 continue
             for r in (int(x) for x in a.res.split(",")):
                 rows.append(bench(d, r, a.n, cache))
