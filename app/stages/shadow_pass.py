@@ -192,6 +192,12 @@ class ShadowPass:
             return maps, maps.prepare(eyes[first:first + self.batch],
                                       None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
 
+        def draw(k: int) -> tuple[ShadowMaps, int]:
+            """aim(k), then its maps drawn in one launch (the side thread's work)."""
+            maps, n = aim(k)
+            maps.raster(0, n)
+            return maps, n
+
         nxt = aim(0) if firsts else None
         if nxt:
             runtime.split(nxt[0].raster, nxt[1], dev, min_items=1)
@@ -200,9 +206,8 @@ class ShadowPass:
             self.maps, n = nxt
             first = firsts[k]
             drawing = None
-            if k + 1 < len(firsts) and self.pipelined:  # the next batch's maps: drawn on a side thread
-                nxt = aim(k + 1)  # while this batch is summed
-                drawing = _side().submit(nxt[0].raster, 0, nxt[1])
+            if k + 1 < len(firsts) and self.pipelined:  # the next batch's maps: aimed and drawn on a side
+                drawing = _side().submit(draw, k + 1)  # thread while this batch is summed
             try:
                 self._upload_batch(cand, W_pix, W_c, first, n, cen)
                 self.sums.prepare(self.maps, n, 0, self.cand.dev,
@@ -212,7 +217,7 @@ class ShadowPass:
                              for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
             finally:  # joined before the pause: nothing runs while refine() holds the frame
                 if drawing is not None:
-                    drawing.result()
+                    nxt = drawing.result()
             if k + 1 < len(firsts) and not self.pipelined:
                 nxt = aim(k + 1)
                 runtime.split(nxt[0].raster, nxt[1], dev, min_items=1)
