@@ -2,6 +2,7 @@
 
 usage: python bench/bench_shadow_pass.py [--scenes window_room,lamps_room] [--res 128,256] [--n 10] [--shared ../shared]
        python bench/bench_shadow_pass.py --ab [--scenes window_room,lamps_room,sun_room] [--repeat 4]
+       python bench/bench_shadow_pass.py --texel [--scenes window_room,lamps_room,sun_room]
 
 Per shared scene and map size (every map of the frame at that size: clusters of sources and one map
 per source alike): the masks stage of a drag of N positions at 50 passes (app.dragpath; the first
@@ -15,6 +16,14 @@ the wall times; the CPU times are steadier.
 drawn while batch k is summed) against drawn-then-summed, alternating on one engine (ABBA, `--repeat`
 rounds after a warm one): the masks alone and the whole frame (Engine.render), wall and process CPU ms,
 medians; and whether the two give bitwise the same masks and frame.
+
+--texel: whether a source's map of the all-sources frame could be drawn at half map_res with its
+shadow's edge moved by at most half a camera pixel: per source, a half-size texel's width
+(ShadowMaps' field of view: 2 tan(half angle) / res per metre of distance from the eye) at the
+farthest point of each receiver patch it may shadow (cand; |centre - eye| + radius) over the
+narrowest camera pixel's footprint on that patch (the distance between neighbouring pixels' surface
+points on one quad); the worst patch per source: min / p10 / median over the sources and how many
+are at most 1.
 """
 from __future__ import annotations
 
@@ -139,6 +148,44 @@ def bench_ab(scene_dir: Path, repeat: int, cache: str) -> list[dict]:
     return rows
 
 
+def texel_ratio(scene_dir: Path, cache: str) -> dict:
+    """--texel (module docstring) for one scene, the object at its own pose."""
+    scene = load_scene(scene_dir)
+    eng = Engine(scene, EngineParams(), cache_dir=cache, quiet=True)
+    sp = eng.shadow_pass
+    W, H = scene.camera.width, scene.camera.height
+    pv, pf, occ, _, _ = eng._object_shape(scene.obj)
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    # the narrowest camera-pixel footprint per patch
+    pos = np.asarray(eng.pix_pos, np.float64).reshape(H, W, 3)
+    ok = (eng.recv_pix & (eng.pix_patch >= 0)).reshape(H, W)
+    q = sp.pix_quad.reshape(H, W)
+    fp = np.full((H, W), np.inf)
+    for a, b in (((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
+                 ((slice(0, -1), slice(None)), (slice(1, None), slice(None)))):
+        good = ok[a] & ok[b] & (q[a] == q[b])
+        with np.errstate(invalid="ignore"):
+            d = np.where(good, np.linalg.norm(pos[a] - pos[b], axis=-1), np.inf)
+        fp[a], fp[b] = np.minimum(fp[a], d), np.minimum(fp[b], d)
+    foot = np.full(len(sp.patch_centre), np.inf)
+    m = ok & np.isfinite(fp) & (fp > 0)
+    np.minimum.at(foot, eng.pix_patch.reshape(H, W)[m], fp[m])
+    maps = sp.maps_full
+    maps.set_proxy(pv, pf, occ)
+    c, r = maps._centre, maps._radius * 1.02 + 1e-3  # ShadowMaps.prepare's field of view
+    sin_h = np.clip(r / np.linalg.norm(fs.eyes - c, axis=1), 0.0, 0.999)
+    tex = 2.0 * sin_h / np.sqrt(1 - sin_h ** 2) / (maps.res // 2)
+    seen = np.isfinite(foot)  # patches with pixels in view
+    worst = np.zeros(len(fs.eyes))
+    for a in range(0, len(fs.eyes), 256):
+        e = fs.eyes[a:a + 256]
+        d = np.linalg.norm(sp.patch_centre[seen, None, :] - e[None], axis=2) + sp.patch_radius[seen, None]
+        worst[a:a + 256] = np.where(fs.cand[seen, a:a + 256], d / foot[seen, None], 0.0).max(0) * tex[a:a + 256]
+    worst = worst[worst > 0]
+    return {"scene": scene.name, "maps": len(fs.eyes), "half_texel_per_pixel_min": worst.min(),
+            "p10": np.percentile(worst, 10), "median": np.median(worst), "maps_at_most_1": int((worst <= 1).sum())}
+
+
 def _pairs(sp) -> str:
     """Maps per point the last batch's masked sums tested (of its 50 maps), after the candidate
     lists and the culling (a graded frame: of its last selection, the pixels summed one by one)."""
@@ -156,6 +203,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=10)
     ap.add_argument("--ab", action="store_true", help="the all-sources frame pipelined against not (module docstring)")
     ap.add_argument("--repeat", type=int, default=4, help="--ab: rounds of the two modes after a warm one")
+    ap.add_argument("--texel", action="store_true", help="half-size texels against camera pixels (module docstring)")
     a = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as cache:
@@ -163,6 +211,10 @@ def main() -> None:
             d = Path(a.shared) / "scenes" / name
             if not (d / "scene.json").is_file():
                 print(f"skipping {name}: {d} not found")
+                continue
+            if a.texel:
+                rows.append(texel_ratio(d, cache))
+                print(rows[-1], flush=True)
                 continue
             if a.ab:
                 rows += bench_ab(d, a.repeat, cache)
