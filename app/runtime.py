@@ -56,13 +56,13 @@ _background: ThreadPoolExecutor | None = None
 
 
 def background(work: Callable[[], object]) -> Future:
-    """Start `work` on the frame's background thread and return its Future (`.result()` joins it).
+    """Start `work` on the frame's side thread and return its Future (`.result()` joins it).
 
-    For a frame's work that does not depend on the shadow pass (what only the object's pose decides),
-    run while the pass's launches leave a core idle. One thread, apart from the launch pool that
-    `split` and `run` use, so that the launches `work` splits over the cores never queue behind it;
-    its tasks run one at a time in the order given. The caller joins it before the frame returns
-    (also when the frame is abandoned), so no two frames' work shares a buffer."""
+    For work that can run while a frame's split launches leave a core idle (the shadow pass draws the
+    next batch's maps here while the batch before is summed: app.stages.shadow_pass). One thread, apart
+    from the launch pool that `split` and `run` use, so that neither queues behind the other; its tasks
+    run one at a time in the order given. The caller joins it before it yields or returns (also on an
+    error), so no two frames' work shares a buffer."""
     global _background
     if _background is None:
         _background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="photoar-frame")

@@ -21,8 +21,8 @@ buffers of the batch's capacity. Launches are split over the cores by app.runtim
 """
 from __future__ import annotations
 
+import functools
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -207,7 +207,7 @@ class ShadowPass:
             first = firsts[k]
             drawing = None
             if k + 1 < len(firsts) and self.pipelined:  # the next batch's maps: aimed and drawn on a side
-                drawing = _side().submit(draw, k + 1)  # thread while this batch is summed
+                drawing = runtime.background(functools.partial(draw, k + 1))  # thread (app.runtime) while this batch is summed
             try:
                 self._upload_batch(cand, W_pix, W_c, first, n, cen)
                 self.sums.prepare(self.maps, n, 0, self.cand.dev,
@@ -405,19 +405,6 @@ class ShadowPass:
         self.weights.push()
         self.cand.host[:, :n] = cand[:, first:first + n]
         self.cand.push()
-
-
-_SIDE: ThreadPoolExecutor | None = None
-
-
-def _side() -> ThreadPoolExecutor:
-    """The shadow pass's side thread: the next batch's raster (one launch) while the masked sums of
-    the batch before split over the cores (app.runtime's pool); its own thread so that neither
-    queues behind the other."""
-    global _SIDE
-    if _SIDE is None:
-        _SIDE = ThreadPoolExecutor(max_workers=1, thread_name_prefix="photoar-raster")
-    return _SIDE
 
 
 def _square_corners(index: np.ndarray, quad: np.ndarray, x0: np.ndarray, y0: np.ndarray, q: np.ndarray, s: int,
