@@ -61,10 +61,7 @@ class BlockedTransfer:
             wp.launch(_blocked_kernel, dim=b - a, inputs=[a, self.pts, self.eyes, self.g, lo, hi],
                       outputs=[self.out], device=self.device)
 
-        if split is None:
-            launch(0, len(self.out))
-        else:
-            split(launch, len(self.out))
+        runtime.launch_split(launch, len(self.out), split)
         if not self.cpu:
             wp.copy(self.host, self.out)
             wp.synchronize_device(self.device)

@@ -16,6 +16,7 @@ import numpy as np
 import warp as wp
 
 from kernels.buffers import Buffer
+from kernels.runtime import launch_split
 from kernels.visibility import Occluder, segment_blocked, segment_meets_box
 
 
@@ -95,10 +96,7 @@ class BlockedPairs:
                                                               wp.vec3(*map(float, box[1]))], outputs=[self._out.dev],
                       device=self.device)
 
-        if split is None:
-            launch(0, self.n)
-        else:
-            split(launch, self.n)
+        launch_split(launch, self.n, split)
         out = self._out.pull(self.n)[:, :m].take(self._row_of, axis=0) > 0
         out[self._short, m_short:] = False
         return out

@@ -140,10 +140,7 @@ class WindowFill:
                               self.values.dev, self.spacing.dev, int(out is not None)],
                       outputs=[self.out.dev if out is None else out], device=d)
 
-        if split is None:
-            gather(0, m)
-        else:
-            split(gather, m)
+        runtime.launch_split(gather, m, split)
         if nk:
             wp.launch(_mark_kernel, dim=nk, inputs=[self.known.dev, self.slot.dev, -1], device=d)
         wp.synchronize_device(d)

@@ -68,6 +68,16 @@ def device(name: str | None = None) -> str:
     return name
 
 
+def launch_split(launch: Callable[[int, int], object], n: int,
+                 split: Callable[[Callable[[int, int], object], int], object] | None = None) -> None:
+    """Run launch(lo, hi) over [0, n): as one launch, or cut by `split` (app.runtime.split, which
+    decides how a frame's launches use the cores) where the caller was given one."""
+    if split is None:
+        launch(0, n)
+    else:
+        split(launch, n)
+
+
 _pool: ThreadPoolExecutor | None = None
 
 

@@ -312,7 +312,6 @@ class SampledPatchSum:
             return out
         if groups is not None and len(corners) > self.m:
             raise ValueError(f"{len(corners)} grouped patches exceed the capacity {self.m}")
-        run = split or (lambda launch, k: launch(0, k))
         dev = self.device
         mesh_a = wp.uint64(occluders[0].id)
         mesh_b = wp.uint64(occluders[1].id if len(occluders) > 1 else 0)
@@ -348,8 +347,8 @@ class SampledPatchSum:
                           outputs=[self._out.dev, self._cast.dev], device=dev)
 
             if self.n_samples:
-                run(sample, self.n_samples)
-            run(gather, n)
+                runtime.launch_split(sample, self.n_samples, split)
+            runtime.launch_split(gather, n, split)
             out += self._out.pull(n)
             self.rays_cast += int(self._cast.pull(n).sum())
         return out
@@ -413,7 +412,6 @@ class CameraHits:
         cols, rows = u1 - u0 + 1, v1 - v0 + 1
         n = rows * s * cols * s
         tri, bary, hit = np.empty(n, np.int32), np.empty((n, 3), np.float32), np.empty(n, bool)
-        run = split or (lambda launch, k: launch(0, k))
         M = wp.mat33(*np.asarray(pix_to_dir, np.float32).reshape(-1))
         c = wp.vec3(*np.asarray(centre, np.float32))
         for first in range(0, n, self.block):
@@ -425,7 +423,7 @@ class CameraHits:
                                   int(first), int(lo)],
                           outputs=[self._tri.dev, self._bary.dev, self._hit.dev], device=self.device)
 
-            run(launch, m)
+            runtime.launch_split(launch, m, split)
             tri[first:first + m] = self._tri.pull(m)
             bary[first:first + m] = self._bary.pull(m)
             hit[first:first + m] = self._hit.pull(m) != 0

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kernels.blocked import BlockedTransfer
+from kernels.runtime import launch_split
 from lighting.hierarchy import receiver_octree, source_kdtree
 from lighting.shafts import ShaftHierarchy
 from recon.response import luminance
@@ -488,8 +489,5 @@ def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int =
             g = np.asarray(G[r0:r1].take(ids, axis=1), np.float32)
             np.multiply(g[:, :, None], B[None], out=out[r0:r1])
 
-    if split is None:
-        work(0, G.shape[0])
-    else:
-        split(work, G.shape[0])
+    launch_split(work, G.shape[0], split)
     return out
