@@ -5,9 +5,9 @@ usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 8]
 On sun_room, one engine: the drag frame with --passes shadow passes, the sun being one of them (the
 sun's map, its PCSS lookups, its pieces of object light, the outline where it clips, what it adds to
 the second order and the object), against the same frame with the sun switched off (all --passes for
-the room's patches), interleaved pose by pose; prints the ratio, and what the sun adds in CPU time
-(each kernel's by its launching thread's clock, and the process's), steadier than wall time when other
-jobs load the machine. Then the sunlit object's light at
+the room's patches), interleaved pose by pose; prints the ratio (the median of the pose pairs with its
+bootstrap interval), and what the sun adds in CPU time (each kernel's by its launching thread's clock,
+and the process's), steadier than wall time when other jobs load the machine. Then the sunlit object's light at
 pixels around it from whole faces and from the lit pieces against a dense Monte Carlo reference, and
 rmse_object with the clipped outline re-sampled 4 x 4 and 8 x 8. Then the sun shadow alone: one
 PCSS map against N jittered binary maps (directions spread over the 0.53 deg disk), time and the
@@ -120,6 +120,14 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
 _LAUNCH = None
 
 
+def bootstrap_median(x: np.ndarray, n: int = 2000, level: float = 0.9, seed: int = 0) -> np.ndarray:
+    """(low, high): the `level` interval of the median of x by resampling x with replacement n times
+    (how far the median of a dozen noisy frame pairs can be trusted)."""
+    rng = np.random.default_rng(seed)
+    med = np.median(rng.choice(np.asarray(x, np.float64), (n, len(x))), axis=1)
+    return np.quantile(med, [(1 - level) / 2, (1 + level) / 2])
+
+
 def kernel_clock(stop: bool = False) -> dict:
     """Time every Warp launch from now on by the launching thread's CPU clock (a CPU launch runs in
     that thread): {kernel name: seconds}, cleared by the caller; stop=True puts warp.launch back."""
@@ -219,14 +227,20 @@ def main(argv=None) -> int:
                  for k in stages[True][-1]], ["stage", "sun_ms", "no_sun_ms"]))
     with_sun, without = float(np.median(t_sun)), float(np.median(t_no))
     best = float(min(t_sun) / min(t_no) - 1.0)  # least disturbed frames of each
-    paired = float(np.median(np.array(t_sun) / np.array(t_no)) - 1.0)  # neighbouring frames
+    pairs = np.array(t_sun) / np.array(t_no)  # neighbouring frames (the same pose, ABBA)
+    paired = float(np.median(pairs) - 1.0)
+    lo, hi = bootstrap_median(pairs) - 1.0
+    cpu_paired = float(np.median(np.array(cpu[True]) / np.array(cpu[False])) - 1.0)
     print(table([{"frame": f"{a.passes} passes, sun one of them", "frame_s": with_sun},
                  {"frame": f"{a.passes} passes, no sun", "frame_s": without},
                  {"frame": "sun's own pass (timings['sun'])", "frame_s": float(np.median(ms_sun))},
                  {"frame": "ratio sun / no sun (medians)", "frame_s": with_sun / without},
                  {"frame": "overhead of the medians (fraction)", "frame_s": with_sun / without - 1.0},
                  {"frame": "overhead of the fastest (fraction)", "frame_s": best},
-                 {"frame": "overhead, median of pairs (fraction)", "frame_s": paired}], ["frame", "frame_s"]))
+                 {"frame": "overhead, median of pairs (fraction)", "frame_s": paired},
+                 {"frame": "  its 90 % interval, low (bootstrap)", "frame_s": float(lo)},
+                 {"frame": "  its 90 % interval, high (bootstrap)", "frame_s": float(hi)},
+                 {"frame": "process CPU overhead, median of pairs", "frame_s": cpu_paired}], ["frame", "frame_s"]))
 
     if a.ab_only:
         return 0
