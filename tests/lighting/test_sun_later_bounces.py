@@ -18,6 +18,17 @@ def coarse(tmp_path_factory):
     return s, e
 
 
+def _sun_loss(coarse):
+    """The sun's loss at the object's pose as first_pass_blocked takes it: (engine, patches, sun stage,
+    dB1 (P,3) the patches' change, the proxy (pv, pf, its occluder), its box grown 1 mm, receiver points)."""
+    s, e = coarse
+    pm, st = e.pre.patches, e.sun_stage
+    _, loss_c = st.frame(s.obj.vertices, s.obj.faces)
+    pv, pf, occ, _, _ = e._object_shape(s.obj)
+    box = (pv.min(0) - 1e-3, pv.max(0) + 1e-3)
+    return e, pm, st, -pm.albedo * loss_c, (pv, pf, occ), box, pm.vert_inset[e.pre.recv_vert]
+
+
 def _dense(e, dB, passes):
     """G_v sum_{k=1}^{passes} (rho G)^k dB with the dense matrices."""
     pm = e.pre.patches
@@ -57,13 +68,8 @@ def test_each_change_gets_the_bounces_it_has_left(coarse):
 def test_blocked_first_pass_matches_rays_to_every_lost_sample(coarse):
     # first_pass_blocked puts a sunlit patch's loss at the loss-weighted centre of its lost sample
     # points: against one ray per (receiver vertex, lost sample point) through the object's mesh
-    s, e = coarse
-    pm, st = e.pre.patches, e.sun_stage
-    loss, loss_c = st.frame(s.obj.vertices, s.obj.faces)
-    dB1 = -pm.albedo * loss_c
-    pv, pf, occ, _, _ = e._object_shape(s.obj)
-    recv = pm.vert_inset[e.pre.recv_vert]
-    blk_v, blk_c = st.first_pass_blocked(occ, (pv.min(0) - 1e-3, pv.max(0) + 1e-3), dB1, e.pre.G_c, e.pre.G_v, recv)
+    e, pm, st, dB1, (pv, pf, occ), box, recv = _sun_loss(coarse)
+    blk_v, blk_c = st.first_pass_blocked(occ, box, dB1, e.pre.G_c, e.pre.G_v, recv)
     # reference: every lost sample point as its own target, with its patch's transfer
     K = st.c_vis.shape[1]
     lost = st._lost
@@ -89,13 +95,7 @@ def test_blocked_first_pass_matches_rays_to_every_lost_sample(coarse):
 def test_two_bounces_correct_only_the_first_pass(coarse):
     # with 2 bounces there is no later pass: only the receivers' first pass of the loss loses the pairs
     # the object blocks, nothing is given back at the patches
-    s, e = coarse
-    pm, st = e.pre.patches, e.sun_stage
-    st.frame(s.obj.vertices, s.obj.faces)
-    dB1 = e._sun_dB
-    pv, pf, occ, _, _ = e._object_shape(s.obj)
-    box = (pv.min(0) - 1e-3, pv.max(0) + 1e-3)
-    recv = pm.vert_inset[e.pre.recv_vert]
+    e, pm, st, dB1, (pv, pf, occ), box, recv = _sun_loss(coarse)
     first = np.zeros_like(dB1)
     out = st.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2, occluder=occ, recv_points=recv, box=box,
                            first=first)
@@ -113,13 +113,7 @@ def test_patches_blocked_pairs_from_cluster_centres_match_rays_to_every_lost_sam
     # (patch centre, loss-weighted centre)
     from app.stages.sun import _weighted_centres
 
-    s, e = coarse
-    pm, st = e.pre.patches, e.sun_stage
-    st.frame(s.obj.vertices, s.obj.faces)
-    dB1 = e._sun_dB
-    pv, pf, occ, _, _ = e._object_shape(s.obj)
-    box = (pv.min(0) - 1e-3, pv.max(0) + 1e-3)
-    recv = pm.vert_inset[e.pre.recv_vert]
+    e, pm, st, dB1, (pv, pf, occ), box, recv = _sun_loss(coarse)
     _, blk_c = st.first_pass_blocked(occ, box, dB1, e.pre.G_c, e.pre.G_v, recv)
     K = st.c_vis.shape[1]
     lost = st._lost
