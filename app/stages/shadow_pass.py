@@ -192,22 +192,23 @@ class ShadowPass:
             return maps, maps.prepare(eyes[first:first + self.batch],
                                       None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
 
-        def draw(k: int) -> tuple[ShadowMaps, int]:
-            """aim(k), then its maps drawn in one launch (the side thread's work)."""
+        def draw(k: int, split: bool) -> tuple[ShadowMaps, int]:
+            """aim(k), then its maps drawn: split over the cores, or in one launch (the side thread's work)."""
             maps, n = aim(k)
-            maps.raster(0, n)
+            if split:
+                runtime.split(maps.raster, n, dev, min_items=1)
+            else:
+                maps.raster(0, n)
             return maps, n
 
-        nxt = aim(0) if firsts else None
-        if nxt:
-            runtime.split(nxt[0].raster, nxt[1], dev, min_items=1)
+        nxt = draw(0, True) if firsts else None
         for k in tqdm(range(len(firsts)), desc="shadow passes", unit="batch", leave=False,
                       disable=self.quiet or n_src <= 4 * self.batch or not sys.stderr.isatty()):
             self.maps, n = nxt
             first = firsts[k]
             drawing = None
-            if k + 1 < len(firsts) and self.pipelined:  # the next batch's maps: aimed and drawn on a side
-                drawing = runtime.background(functools.partial(draw, k + 1))  # thread (app.runtime) while this batch is summed
+            if k + 1 < len(firsts) and self.pipelined:  # the next batch's maps: aimed and drawn on the side
+                drawing = runtime.background(functools.partial(draw, k + 1, False))  # thread while this is summed
             try:
                 self._upload_batch(cand, W_pix, W_c, first, n, cen)
                 self.sums.prepare(self.maps, n, 0, self.cand.dev,
@@ -219,8 +220,7 @@ class ShadowPass:
                 if drawing is not None:
                     nxt = drawing.result()
             if k + 1 < len(firsts) and not self.pipelined:
-                nxt = aim(k + 1)
-                runtime.split(nxt[0].raster, nxt[1], dev, min_items=1)
+                nxt = draw(k + 1, True)
             yield first + n  # sources done: refine() may stop here and resume on its next call
         self.maps = primary
         acc, _ = self.sums.result()
