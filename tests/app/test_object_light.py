@@ -250,3 +250,29 @@ def test_headroom_matches_the_response(demo):
         clear &= np.abs(gain - levels) > 1e-6
         assert clear.mean() > 0.9
         np.testing.assert_array_equal((s > h)[clear], (gain > levels)[clear])
+
+
+def test_light_bound_holds_with_pieces():
+    # _light_bound with extra emitters (small bright pieces on the object) is at least the light the
+    # triangles and pieces send, unoccluded, to points around them (any receiver normal), and its
+    # distances from the sphere's centre (one product per point) give the (N,3)-difference form's bound
+    rng = np.random.default_rng(3)
+    tris = rng.normal(size=(40, 3, 3)) * 0.2
+    pieces = 0.3 + rng.normal(size=(25, 3, 3)) * 0.03
+    tri_rad, piece_rad = rng.random((40, 3)), 4.0 * rng.random((25, 3))
+    centre, radius = bounding_sphere(np.concatenate([tris, pieces]).reshape(-1, 3))
+    pts = centre + rng.normal(size=(3000, 3)) * 0.8
+    nrm = rng.normal(size=pts.shape)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    dist = np.linalg.norm(pts - centre, axis=1)
+    extra = OL.ExtraEmitters(pieces, piece_rad, np.ones((25, 6), bool), 1, 25, np.zeros((0, 3)), np.zeros((0, 3)),
+                             np.zeros((0, 3)), np.zeros((0, 6), bool))
+    out = dist > radius  # outside the object's sphere (inside it the bound is the brightest radiance)
+    light = (emitter_sum(pts, nrm, tris, tri_rad, device="cpu")
+             + emitter_sum(pts, nrm, pieces, piece_rad, device="cpu"))
+    bound = OL._light_bound(pts, dist, tri_rad, radius, extra, centre)
+    assert (bound[out] >= light[out] - 1e-12).all()
+    plain = OL._light_bound(pts, dist, tri_rad, radius, extra)
+    np.testing.assert_allclose(bound, plain, rtol=1e-8)
+    pieces_only = (bound < np.maximum(tri_rad.max(0), piece_rad.max(0)) * OL._sphere_ff(radius, dist)[:, None])
+    assert pieces_only.any()  # the pieces' own sphere tightened the bound somewhere
