@@ -296,18 +296,22 @@ class SunStage:
             return tri_rad, None
         rad = albedo * ((share[part] * pieces.cos[part])[:, None] * self.E_perp)
         sub = pieces.tris(origin)[part]
-        # far field: one point emitter per partly lit face at its lit pieces' power centroid
-        par, inv = np.unique(pieces.parent[part], return_inverse=True)
+        # far field: one point emitter per partly lit face at its lit pieces' power centroid (the sums over
+        # each face's pieces as products with a (faces x pieces) weight matrix: a few small products in
+        # place of per-column bincounts and a reduceat over the table's columns)
+        par, first, inv = np.unique(pieces.parent[part], return_index=True, return_inverse=True)
         a = pieces.area[part]
         w = a * share[part]
+        to_face = np.zeros((len(par), len(part)))
+        to_face[inv, np.arange(len(part))] = w
+        w_face = to_face.sum(1)
         A = np.bincount(inv, a, len(par))
-        c = np.stack([np.bincount(inv, w * sub[:, :, k].mean(1), len(par)) for k in range(3)], 1)
-        c /= np.bincount(inv, w, len(par))[:, None]
-        power = np.stack([np.bincount(inv, a * rad[:, k], len(par)) for k in range(3)], 1)
-        nrm = pieces.normal[part][np.unique(inv, return_index=True)[1]]
-        order = np.argsort(inv, kind="stable")  # the pieces face by face: one sum per face (np.add.at: 5x slower)
-        far_seen = np.add.reduceat(w[order, None] * coarse[part[order]], np.searchsorted(inv[order], np.arange(len(par))))
-        far_seen /= np.bincount(inv, w, len(par))[:, None]
+        c = (to_face @ sub.mean(1)) / w_face[:, None]
+        to_face[inv, np.arange(len(part))] = a
+        power = to_face @ rad
+        nrm = pieces.normal[part[first]]
+        to_face[inv, np.arange(len(part))] = w / w_face[inv]
+        far_seen = to_face @ coarse[part]
         # the pieces run by run (rows of a face alike lit: one polygon where every piece is seen, SeenEmitters)
         order, groups = piece_runs(part, share, pieces.parent, self._pieces[4], tris)
         at = np.empty(len(pieces), np.int64)
