@@ -276,3 +276,15 @@ def test_light_bound_holds_with_pieces():
     np.testing.assert_allclose(bound, plain, rtol=1e-8)
     pieces_only = (bound < np.maximum(tri_rad.max(0), piece_rad.max(0)) * OL._sphere_ff(radius, dist)[:, None])
     assert pieces_only.any()  # the pieces' own sphere tightened the bound somewhere
+
+
+def test_bilinear_blend_reproduces_a_bilinear_function():
+    # _near_pixels' blend of a cell's four nodes: exact for f = a + b x + c y + d x y at every pixel of the
+    # cell (its first node included)
+    W, s = 37, 4
+    f = lambda y, x: np.stack([1.0 + 0.5 * x - 0.25 * y + 0.125 * x * y, 2.0 - x, 3.0 + y * x], -1)
+    y0, x0 = 8, 12
+    yy, xx = (a.ravel() for a in np.meshgrid(np.arange(y0, y0 + s), np.arange(x0, x0 + s), indexing="ij"))
+    corner = np.stack([f(y0, x0), f(y0, x0 + s), f(y0 + s, x0), f(y0 + s, x0 + s)])  # (4,3)
+    got = OL._bilinear(np.broadcast_to(corner, (len(yy), 4, 3)), yy * W + xx, W, s)
+    np.testing.assert_allclose(got, f(yy, xx), rtol=1e-12, atol=1e-12)
