@@ -222,9 +222,11 @@ class SunStage:
             cl_pts = mean_rows @ pm.centre + pm.normal[member] * 1e-3
             T_cl = np.asarray(mean_rows @ G_s, np.float32)  # (C,J) > 0 where some member's transfer is
             T_v = np.ascontiguousarray(np.asarray(G_v, np.float32)[:, cols])  # (Vr,J)
-            # the receiver vertices and the clusters' centres in one launch (the vertices: the lost sun's targets)
+            # the receiver vertices and the clusters' centres in one launch (the vertices: the lost sun's targets),
+            # each cluster's member patches weighing its rays by their own transfers (G_s)
             pairs = BlockedPairs(np.concatenate([recv_points, cl_pts]), np.concatenate([T_v, T_cl]), self.device,
-                                 capacity=2 * len(cols), short=np.arange(len(T_v) + n) < len(T_v))
+                                 capacity=2 * len(cols), short=np.arange(len(T_v) + n) < len(T_v),
+                                 members=(len(T_v) + cl, G_s))
             self._blocked = (key, pairs, cl, G_s, T_cl, T_v)
         _, pairs, cl, G_s, T_cl, T_v = self._blocked
         Vr = len(T_v)
@@ -234,37 +236,25 @@ class SunStage:
         centres = _weighted_centres(w, pts)
         change = dB1[self.c_patch]
         lost = np.flatnonzero(change.any(1))
-        targets, columns = [centres[lost]], [lost]
+        targets, columns, weights = [centres[lost]], [lost], [change[lost]]
         if at_patches and albedo is not None:
             kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
             sun = albedo[self.c_patch] * ((kept.sum(1) / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
             lit = np.flatnonzero(sun.any(1))
             targets.append(_weighted_centres(kept[lit], pts[lit]))  # each patch's still sunlit sample points
             columns.append(lit)
-        lost_f = change[lost].astype(np.float32)
+            weights.append(sun[lit])
+        # the pairs' sums in the launch (BlockedPairs.sums): the receivers' over the lost centres (G_v's pass),
+        # the clusters' member patches' over them (G's), the clusters' over the still sunlit centres
+        near, far, blk_c = pairs.sums(occluder, np.concatenate(targets), np.concatenate(columns),
+                                      np.concatenate(weights), box, split, m_short=len(lost))
+        blk_v = near[:Vr]
         if not at_patches:  # the vertices' rows only
-            bits = pairs(occluder, centres[lost], lost, box, split)[:Vr]
-            return (np.einsum("vk,kx->vx", T_v[:, lost] * bits, lost_f).astype(np.float64),)
-        bits = pairs(occluder, np.concatenate(targets), np.concatenate(columns), box, split, m_short=len(lost))
-        m1 = len(lost)
-
-        def blocked_sum(T: np.ndarray, b: np.ndarray, c: np.ndarray, rows_of=None) -> np.ndarray:
-            # sum_k T[r, k] b[r, k] c_k (float64) over the rows with a blocked pair (rows_of: the rows of b per row of T)
-            hit = b.any(1) if rows_of is None else b.any(1)[rows_of]
-            r = np.flatnonzero(hit)
-            out = np.zeros((len(T), 3))
-            bb = b[r] if rows_of is None else b[rows_of[r]]
-            out[r] = np.einsum("xk,rk->rx", np.ascontiguousarray(c.T), T[r] * bb)  # (3,k) first: ~7x faster
-            return out
-
-        blk_v = blocked_sum(T_v[:, lost], bits[:Vr, :m1], lost_f)
-        bits = bits[Vr:]  # (C, m)
-        blk_c = blocked_sum(G_s[:, lost], bits[:, :m1], lost_f, rows_of=cl)
+            return (blk_v,)
         if albedo is None:
             return blk_v, blk_c
-        blk_cl = blocked_sum(T_cl[:, lit], bits[:, m1:], sun[lit].astype(np.float32))
         # a later pass's change: on the clusters of patches that carry it (LaterBounces), each patch its cluster's
-        return blk_v, blk_c, blk_cl[cl]
+        return blk_v, blk_c, far[Vr:][cl]
 
     def object_emitters(self, pv: np.ndarray, pf: np.ndarray, tri_rad: np.ndarray, albedo: np.ndarray,
                         proxy_occ: Occluder, radius: float) -> tuple[np.ndarray, ExtraEmitters | None]:

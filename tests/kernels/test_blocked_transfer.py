@@ -42,3 +42,43 @@ def test_blocked_pairs_match_ray_casts():
     ref2 = ref.copy()
     ref2[short, 12:] = False
     assert (ours2 != ref2).mean() < 1e-3 and ours2[short, :12].any() and ours2[~short, 12:].any()
+
+
+def test_blocked_sums_weigh_the_pairs_by_the_rows_and_members_transfers():
+    # BlockedPairs.sums: the blocked pairs weighed in the launch, against Open3D's pairs weighed by numpy:
+    # near/far over a row's first m_short targets / the rest (short rows: none), each member over its
+    # owner's first m_short pairs with its own transfer (the owner's T > 0 decides which rays are cast)
+    from app.runtime import split as split_launches
+
+    rng = np.random.default_rng(7)
+    v, f = _box([0.4, 0.2, 0.4], [0.6, 0.7, 0.6])
+    points = np.column_stack([rng.uniform(-1, 2, 1500), rng.uniform(0, 1.5, 1500), rng.uniform(-1, 2, 1500)])
+    points = points[np.any((points < [0.35, 0.15, 0.35]) | (points > [0.65, 0.75, 0.65]), axis=1)]
+    N, J, m, ms = len(points), 30, 45, 12
+    owner = rng.integers(0, N, 3 * N)  # ~3 members a point, some none
+    U = rng.uniform(0, 1, (len(owner), J)) * (rng.uniform(size=(len(owner), J)) > 0.4)
+    T = np.zeros((N, J))
+    np.add.at(T, owner, U)  # > 0 where a member's is
+    T[rng.uniform(size=N) < 0.2] = rng.uniform(0, 1, J)  # rows of their own
+    short = rng.uniform(size=N) < 0.4
+    targets = np.column_stack([rng.uniform(0, 1, m), np.zeros(m), rng.uniform(0, 1, m)])
+    columns = rng.integers(0, J, m)
+    weights = rng.uniform(-1, 1, (m, 3))
+    hit = segments_blocked(v, f, points, targets) & (T[:, columns] > 0)
+    hit[short, ms:] = False
+    bp = BlockedPairs(points, T, "cpu", capacity=60, short=short, members=(owner, U))
+    box = (np.array([0.4, 0.2, 0.4]) - 1e-3, np.array([0.6, 0.7, 0.6]) + 1e-3)
+    near, far, mem = bp.sums(Occluder(v, f, "cpu"), targets, columns, weights, box,
+                             split=lambda launch, n: split_launches(launch, n, "cpu", 64), m_short=ms)
+    Tc, Uc = T[:, columns], U[:, columns]
+    ref_near = (Tc[:, :ms] * hit[:, :ms]) @ weights[:ms]
+    ref_far = (Tc[:, ms:] * hit[:, ms:]) @ weights[ms:]
+    ref_mem = (Uc[:, :ms] * hit[owner, :ms]) @ weights[:ms]
+    assert hit[:, :ms].mean() > 0.05 and np.abs(ref_mem).sum() > 0 and not far[short].any()
+    for ours, ref in ((near, ref_near), (far, ref_far), (mem, ref_mem)):  # float32 rays grazing an edge may differ
+        assert np.mean(np.abs(ours - ref).max(1) > 1e-5) < 5e-3
+        assert np.abs(ours - ref).sum() < 5e-3 * np.abs(ref).sum()
+    # the same pairs as __call__'s
+    bits = bp(Occluder(v, f, "cpu"), targets, columns, box, m_short=ms)
+    np.testing.assert_allclose(near, (Tc[:, :ms] * bits[:, :ms]) @ weights[:ms], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(mem, (Uc[:, :ms] * bits[owner, :ms]) @ weights[:ms], rtol=1e-5, atol=1e-5)
