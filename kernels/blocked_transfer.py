@@ -47,15 +47,18 @@ def _blocked_sums_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.
                          column: wp.array(dtype=wp.int32), weight: wp.array(dtype=wp.vec3), m: int, m_short: int,
                          targets: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3,
                          member_start: wp.array(dtype=wp.int32), U: wp.array2d(dtype=wp.float32),
+                         has_obb: int, obb_c: wp.vec3, obb_axes: wp.mat33, obb_half: wp.vec3,
                          near: wp.array(dtype=wp.vec3), far: wp.array(dtype=wp.vec3),
                          member_sum: wp.array(dtype=wp.vec3)):
     # per launch row i, over its blocked pairs (T[i, column[k]] > 0, the segment points[i] -> targets[k]
     # meets the occluder): near[i] = sum_{k < m_short} T[i, column[k]] weight[k], far[i] the same over
     # k >= m_short (the short points take only the first m_short targets); its members j (member_start[i] ..
     # member_start[i+1]) get member_sum[j] = sum_{k < m_short} U[j, column[k]] weight[k] (one thread a row:
-    # a member's sum is written by its row's thread only)
+    # a member's sum is written by its row's thread only). With has_obb, a segment must also meet the oriented
+    # box (centre obb_c, axes the rows of obb_axes, half sides obb_half) for its ray to be cast.
     i = start + wp.tid()
     p = points[i]
+    p_obb = obb_axes * (p - obb_c)
     mi = m
     if is_short[i] != wp.uint8(0):
         mi = m_short
@@ -69,7 +72,10 @@ def _blocked_sums_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.
         c = column[k]
         t = T[i, c]
         if t > 0.0:
-            if segment_meets_box(p, targets[k], lo, hi):
+            meets = segment_meets_box(p, targets[k], lo, hi)
+            if meets and has_obb != 0:
+                meets = segment_meets_box(p_obb, obb_axes * (targets[k] - obb_c), -obb_half, obb_half)
+            if meets:
                 if segment_blocked(mesh, p, targets[k]):
                     w = weight[k]
                     if k < m_short:
@@ -170,14 +176,18 @@ class BlockedPairs:
     def sums(self, occluder: Occluder, targets: np.ndarray, columns: np.ndarray, weights: np.ndarray,
              box: tuple[np.ndarray, np.ndarray],
              split: Callable[[Callable[[int, int], None], int], None] | None = None,
-             m_short: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             m_short: int | None = None, obb: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The blocked pairs (as __call__: targets (m,3) m, their columns (m,) of T, box, split, m_short)
         weighed, without the pairs themselves: (near (N,3), far (N,3), members (M,3)) float64, in the
         points' and members' order, with b_ik the pair's answer:
           near_i = sum_{k < m_short} T[i, columns_k] b_ik weights_k, far_i the same over k >= m_short (0 for
           the short points), members_j = sum_{k < m_short} U[j, columns_k] b_{owner_j k} weights_k
         (weights (m,3): each target's, e.g. the change it carries). One launch writes them (float32 sums);
-        the pairs' work is that of __call__, the weighing only on the blocked pairs."""
+        the pairs' work is that of __call__, the weighing only on the blocked pairs. obb: (centre (3,), axes
+        (3,3) orthonormal rows, half sides (3,)) m, an oriented box about the occluder too (a segment must meet
+        both boxes for its ray to be cast: the same answer, fewer rays where the object is turned against the
+        world's axes)."""
         m = len(columns)
         m_short = m if m_short is None else min(int(m_short), m)
         if self.n == 0 or m == 0:
@@ -187,11 +197,16 @@ class BlockedPairs:
         self._weight.upload(np.asarray(weights, np.float32))
         mesh = wp.uint64(occluder.id)
         lo, hi = wp.vec3(*map(float, box[0])), wp.vec3(*map(float, box[1]))
+        if obb is None:
+            ob = (0, wp.vec3(0.0, 0.0, 0.0), wp.mat33(*np.eye(3).ravel()), wp.vec3(0.0, 0.0, 0.0))
+        else:
+            ob = (1, wp.vec3(*map(float, obb[0])), wp.mat33(*map(float, np.asarray(obb[1], np.float64).ravel())),
+                  wp.vec3(*map(float, obb[2])))
 
         def launch(a: int, b: int) -> None:
             wp.launch(_blocked_sums_kernel, dim=b - a,
                       inputs=[mesh, a, self.points, self.T, self.short, self._column.dev, self._weight.dev, m,
-                              m_short, self._targets.dev, lo, hi, self.member_start, self.U],
+                              m_short, self._targets.dev, lo, hi, self.member_start, self.U, *ob],
                       outputs=[self._near.dev, self._far.dev, self._member_sum.dev], device=self.device)
 
         launch_split(launch, self.n, split)
