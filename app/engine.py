@@ -56,7 +56,7 @@ from lighting.envmap import CubeMap
 from lighting.irradiance import RoomLight
 from lighting.radiance import load_captured_probe
 from lighting.sun import SunLight, estimate_sun, openings, surface_albedo
-from app.stages.sun import SunStage
+from app.stages.sun import SunStage, upright_box
 from recon.patches import PatchMesh
 from recon.proxy import bounding_sphere
 from recon.response import luminance
@@ -550,7 +550,8 @@ class Engine:
                     dB2=pm.albedo * R_cen_sun if p.object_light else None, occluder=proxy_occ,
                     recv_points=pm.vert_inset[pre.recv_vert], box=(pv.min(0) - 1e-3, pv.max(0) + 1e-3),
                     split=functools.partial(split_launches, device=self.device, min_items=256), first=dB,
-                    onto=dB)  # its later bounces too: compose's one pass through G_v carries them
+                    onto=dB,  # its later bounces too: compose's one pass through G_v carries them
+                    obb=upright_box(pv))  # the object turned on the floor: fewer rays, the same answer
             dE_v = self.compose.second_order(dB, dE_more=more)
         t = tick("second_order", t)
 

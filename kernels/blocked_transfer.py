@@ -41,25 +41,77 @@ def _blocked_pairs_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp
         out[i, k] = b
 
 
+@wp.kernel
+def _blocked_sums_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3),
+                         T: wp.array2d(dtype=wp.float32), is_short: wp.array(dtype=wp.uint8),
+                         column: wp.array(dtype=wp.int32), weight: wp.array(dtype=wp.vec3), m: int, m_short: int,
+                         targets: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3,
+                         member_start: wp.array(dtype=wp.int32), U: wp.array2d(dtype=wp.float32),
+                         has_obb: int, obb_c: wp.vec3, obb_axes: wp.mat33, obb_half: wp.vec3,
+                         near: wp.array(dtype=wp.vec3), far: wp.array(dtype=wp.vec3),
+                         member_sum: wp.array(dtype=wp.vec3)):
+    # per launch row i, over its blocked pairs (T[i, column[k]] > 0, the segment points[i] -> targets[k]
+    # meets the occluder): near[i] = sum_{k < m_short} T[i, column[k]] weight[k], far[i] the same over
+    # k >= m_short (the short points take only the first m_short targets); its members j (member_start[i] ..
+    # member_start[i+1]) get member_sum[j] = sum_{k < m_short} U[j, column[k]] weight[k] (one thread a row:
+    # a member's sum is written by its row's thread only). With has_obb, a segment must also meet the oriented
+    # box (centre obb_c, axes the rows of obb_axes, half sides obb_half) for its ray to be cast.
+    i = start + wp.tid()
+    p = points[i]
+    p_obb = obb_axes * (p - obb_c)
+    mi = m
+    if is_short[i] != wp.uint8(0):
+        mi = m_short
+    j0 = member_start[i]
+    j1 = member_start[i + 1]
+    for j in range(j0, j1):
+        member_sum[j] = wp.vec3(0.0, 0.0, 0.0)
+    a = wp.vec3(0.0, 0.0, 0.0)
+    b = wp.vec3(0.0, 0.0, 0.0)
+    for k in range(mi):
+        c = column[k]
+        t = T[i, c]
+        if t > 0.0:
+            meets = segment_meets_box(p, targets[k], lo, hi)
+            if meets and has_obb != 0:
+                meets = segment_meets_box(p_obb, obb_axes * (targets[k] - obb_c), -obb_half, obb_half)
+            if meets:
+                if segment_blocked(mesh, p, targets[k]):
+                    w = weight[k]
+                    if k < m_short:
+                        a += t * w
+                        for j in range(j0, j1):
+                            member_sum[j] = member_sum[j] + U[j, c] * w
+                    else:
+                        b += t * w
+    near[i] = a
+    far[i] = b
+
+
 class BlockedPairs:
     """[p_i -> q_k blocked] (N,m) for N fixed points and per-call targets q_k, each with a column of
-    a fixed transfer T (N,J) that must be > 0 for its ray to be cast (else 0): the pairs themselves,
-    for callers that weigh one ray's answer by several transfers (e.g. every patch of a cluster).
+    a fixed transfer T (N,J) that must be > 0 for its ray to be cast (else 0): the pairs themselves
+    (__call__), or their sums weighed by the transfers (sums: one ray's answer weighed by its row's
+    transfer and by those of the row's members, e.g. every patch of a cluster).
     Points flagged `short` take only a call's first targets (two sets of points in one launch); the
-    points are kept interleaved so that the ranges of a split launch get as many of each."""
+    points are kept interleaved so that the ranges of a split launch get as many of each, and spread
+    (a golden-ratio sequence over each set) so that they get as many from every part of the room (the
+    rays near the occluder, most of a launch's work, fall on every range alike)."""
 
     def __init__(self, points: np.ndarray, T: np.ndarray, device: str, capacity: int,
-                 short: np.ndarray | None = None):
-        """points (N,3) m; T (N,J); capacity: the most targets of a call; short (N,) bool."""
+                 short: np.ndarray | None = None, members: tuple[np.ndarray, np.ndarray] | None = None):
+        """points (N,3) m; T (N,J); capacity: the most targets of a call; short (N,) bool; members:
+        (owner (M,) int: the point each member belongs to, U (M,J): its transfer) for sums."""
         self.n, self.j = T.shape
         if len(points) != self.n:
             raise ValueError(f"BlockedPairs: {len(points)} points for a transfer of {self.n} rows")
         short = np.zeros(self.n, bool) if short is None else np.asarray(short, bool)
-        # each set's rows spread evenly over [0, N): rank within its set / the set's size
+        # each set's rows spread evenly over [0, 1): its k-th row at frac((k + 1/2) phi), a low-discrepancy
+        # sequence (any range of the launch rows takes about the same share of every part of each set)
         rank = np.empty(self.n)
         for flag in (False, True):
             idx = np.flatnonzero(short == flag)
-            rank[idx] = (np.arange(len(idx)) + 0.5) / max(len(idx), 1)
+            rank[idx] = np.modf((np.arange(len(idx)) + 0.5) * 0.6180339887498949)[0]
         self.order = np.argsort(rank, kind="stable")  # launch row r holds point order[r]
         self.device = device
         self.points = wp.array(np.asarray(points, np.float32)[self.order], dtype=wp.vec3, device=device)
@@ -68,9 +120,27 @@ class BlockedPairs:
         cap = max(int(capacity), 1)
         self._targets = Buffer(cap, wp.vec3, device)
         self._column = Buffer(cap, wp.int32, device)
-        self._out = Buffer((max(self.n, 1), cap), wp.uint8, device)
+        self._weight = Buffer(cap, wp.vec3, device)
+        self._out = None  # (N, capacity) uint8 pairs (__call__), made on its first call
+        self._cap = cap
         self._row_of = np.argsort(self.order)  # point i's launch row
         self._short = short
+        # the members grouped by their point's launch row (CSR): member_start (N+1,), U in that order
+        owner = np.zeros(0, np.int64) if members is None else np.asarray(members[0], np.int64)
+        U = np.zeros((0, self.j), np.float32) if members is None else np.asarray(members[1], np.float32)
+        if len(owner) != len(U) or (len(owner) and (owner.min() < 0 or owner.max() >= self.n)):
+            raise ValueError("BlockedPairs: members need one owner in [0, N) per row of their transfer")
+        rows = self._row_of[owner]
+        self._member_order = np.argsort(rows, kind="stable")  # CSR slot s holds member _member_order[s]
+        start = np.zeros(self.n + 1, np.int32)
+        start[1:] = np.cumsum(np.bincount(rows, minlength=self.n))
+        self.member_start = wp.array(start, dtype=wp.int32, device=device)
+        self.U = wp.array(np.ascontiguousarray(U[self._member_order]) if len(U) else np.zeros((1, max(self.j, 1)), np.float32),
+                          dtype=wp.float32, device=device)
+        self._near = Buffer(max(self.n, 1), wp.vec3, device)
+        self._far = Buffer(max(self.n, 1), wp.vec3, device)
+        self._member_sum = Buffer(max(len(owner), 1), wp.vec3, device)
+        self._members = len(owner)
 
     def __call__(self, occluder: Occluder, targets: np.ndarray, columns: np.ndarray,
                  box: tuple[np.ndarray, np.ndarray],
@@ -85,6 +155,8 @@ class BlockedPairs:
         m_short = m if m_short is None else min(int(m_short), m)
         if self.n == 0 or m == 0:
             return np.zeros((self.n, m), bool)
+        if self._out is None:
+            self._out = Buffer((max(self.n, 1), self._cap), wp.uint8, self.device)
         self._column.upload(np.asarray(columns, np.int32))
         self._targets.upload(np.asarray(targets, np.float32))
         mesh = wp.uint64(occluder.id)
@@ -100,3 +172,46 @@ class BlockedPairs:
         out = self._out.pull(self.n)[:, :m].take(self._row_of, axis=0) > 0
         out[self._short, m_short:] = False
         return out
+
+    def sums(self, occluder: Occluder, targets: np.ndarray, columns: np.ndarray, weights: np.ndarray,
+             box: tuple[np.ndarray, np.ndarray],
+             split: Callable[[Callable[[int, int], None], int], None] | None = None,
+             m_short: int | None = None, obb: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The blocked pairs (as __call__: targets (m,3) m, their columns (m,) of T, box, split, m_short)
+        weighed, without the pairs themselves: (near (N,3), far (N,3), members (M,3)) float64, in the
+        points' and members' order, with b_ik the pair's answer:
+          near_i = sum_{k < m_short} T[i, columns_k] b_ik weights_k, far_i the same over k >= m_short (0 for
+          the short points), members_j = sum_{k < m_short} U[j, columns_k] b_{owner_j k} weights_k
+        (weights (m,3): each target's, e.g. the change it carries). One launch writes them (float32 sums);
+        the pairs' work is that of __call__, the weighing only on the blocked pairs. obb: (centre (3,), axes
+        (3,3) orthonormal rows, half sides (3,)) m, an oriented box about the occluder too (a segment must meet
+        both boxes for its ray to be cast: the same answer, fewer rays where the object is turned against the
+        world's axes)."""
+        m = len(columns)
+        m_short = m if m_short is None else min(int(m_short), m)
+        if self.n == 0 or m == 0:
+            return np.zeros((self.n, 3)), np.zeros((self.n, 3)), np.zeros((self._members, 3))
+        self._column.upload(np.asarray(columns, np.int32))
+        self._targets.upload(np.asarray(targets, np.float32))
+        self._weight.upload(np.asarray(weights, np.float32))
+        mesh = wp.uint64(occluder.id)
+        lo, hi = wp.vec3(*map(float, box[0])), wp.vec3(*map(float, box[1]))
+        if obb is None:
+            ob = (0, wp.vec3(0.0, 0.0, 0.0), wp.mat33(*np.eye(3).ravel()), wp.vec3(0.0, 0.0, 0.0))
+        else:
+            ob = (1, wp.vec3(*map(float, obb[0])), wp.mat33(*map(float, np.asarray(obb[1], np.float64).ravel())),
+                  wp.vec3(*map(float, obb[2])))
+
+        def launch(a: int, b: int) -> None:
+            wp.launch(_blocked_sums_kernel, dim=b - a,
+                      inputs=[mesh, a, self.points, self.T, self.short, self._column.dev, self._weight.dev, m,
+                              m_short, self._targets.dev, lo, hi, self.member_start, self.U, *ob],
+                      outputs=[self._near.dev, self._far.dev, self._member_sum.dev], device=self.device)
+
+        launch_split(launch, self.n, split)
+        near = self._near.pull(self.n).take(self._row_of, axis=0).astype(np.float64)
+        far = self._far.pull(self.n).take(self._row_of, axis=0).astype(np.float64)
+        members = np.empty((self._members, 3))
+        members[self._member_order] = self._member_sum.pull(self._members)
+        return near, far, members

@@ -42,3 +42,72 @@ def test_blocked_pairs_match_ray_casts():
     ref2 = ref.copy()
     ref2[short, 12:] = False
     assert (ours2 != ref2).mean() < 1e-3 and ours2[short, :12].any() and ours2[~short, 12:].any()
+
+
+def test_blocked_sums_weigh_the_pairs_by_the_rows_and_members_transfers():
+    # BlockedPairs.sums: the blocked pairs weighed in the launch, against Open3D's pairs weighed by numpy:
+    # near/far over a row's first m_short targets / the rest (short rows: none), each member over its
+    # owner's first m_short pairs with its own transfer (the owner's T > 0 decides which rays are cast)
+    from app.runtime import split as split_launches
+
+    rng = np.random.default_rng(7)
+    v, f = _box([0.4, 0.2, 0.4], [0.6, 0.7, 0.6])
+    points = np.column_stack([rng.uniform(-1, 2, 1500), rng.uniform(0, 1.5, 1500), rng.uniform(-1, 2, 1500)])
+    points = points[np.any((points < [0.35, 0.15, 0.35]) | (points > [0.65, 0.75, 0.65]), axis=1)]
+    N, J, m, ms = len(points), 30, 45, 12
+    owner = rng.integers(0, N, 3 * N)  # ~3 members a point, some none
+    U = rng.uniform(0, 1, (len(owner), J)) * (rng.uniform(size=(len(owner), J)) > 0.4)
+    T = np.zeros((N, J))
+    np.add.at(T, owner, U)  # > 0 where a member's is
+    T[rng.uniform(size=N) < 0.2] = rng.uniform(0, 1, J)  # rows of their own
+    short = rng.uniform(size=N) < 0.4
+    targets = np.column_stack([rng.uniform(0, 1, m), np.zeros(m), rng.uniform(0, 1, m)])
+    columns = rng.integers(0, J, m)
+    weights = rng.uniform(-1, 1, (m, 3))
+    hit = segments_blocked(v, f, points, targets) & (T[:, columns] > 0)
+    hit[short, ms:] = False
+    bp = BlockedPairs(points, T, "cpu", capacity=60, short=short, members=(owner, U))
+    box = (np.array([0.4, 0.2, 0.4]) - 1e-3, np.array([0.6, 0.7, 0.6]) + 1e-3)
+    near, far, mem = bp.sums(Occluder(v, f, "cpu"), targets, columns, weights, box,
+                             split=lambda launch, n: split_launches(launch, n, "cpu", 64), m_short=ms)
+    Tc, Uc = T[:, columns], U[:, columns]
+    ref_near = (Tc[:, :ms] * hit[:, :ms]) @ weights[:ms]
+    ref_far = (Tc[:, ms:] * hit[:, ms:]) @ weights[ms:]
+    ref_mem = (Uc[:, :ms] * hit[owner, :ms]) @ weights[:ms]
+    assert hit[:, :ms].mean() > 0.05 and np.abs(ref_mem).sum() > 0 and not far[short].any()
+    for ours, ref in ((near, ref_near), (far, ref_far), (mem, ref_mem)):  # float32 rays grazing an edge may differ
+        assert np.mean(np.abs(ours - ref).max(1) > 1e-5) < 5e-3
+        assert np.abs(ours - ref).sum() < 5e-3 * np.abs(ref).sum()
+    # the same pairs as __call__'s
+    bits = bp(Occluder(v, f, "cpu"), targets, columns, box, m_short=ms)
+    np.testing.assert_allclose(near, (Tc[:, :ms] * bits[:, :ms]) @ weights[:ms], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(mem, (Uc[:, :ms] * bits[owner, :ms]) @ weights[:ms], rtol=1e-5, atol=1e-5)
+
+
+def test_blocked_sums_with_an_oriented_box_give_the_same_answer():
+    # a box turned 30 degrees about +Y: the oriented box about it (a second pre-test) casts fewer rays, the
+    # sums stay those of the axis-aligned box alone (a segment that misses a box about the mesh misses it)
+    from app.stages.sun import upright_box
+
+    rng = np.random.default_rng(11)
+    v, f = _box([-0.3, 0.0, -0.1], [0.3, 0.5, 0.1])
+    th = np.radians(30.0)
+    Ry = np.array([[np.cos(th), 0, np.sin(th)], [0, 1, 0], [-np.sin(th), 0, np.cos(th)]])
+    v = v @ Ry.T + [1.0, 0.0, 2.0]
+    points = np.column_stack([rng.uniform(-1, 3, 1500), rng.uniform(0, 2.5, 1500), rng.uniform(0, 4, 1500)])
+    T = rng.uniform(0, 1, (len(points), 20)) * (rng.uniform(size=(len(points), 20)) > 0.3)
+    targets = np.column_stack([rng.uniform(0, 2, 40), np.zeros(40), rng.uniform(1, 3, 40)])
+    columns = rng.integers(0, 20, 40)
+    weights = rng.uniform(0, 1, (40, 3))
+    bp = BlockedPairs(points, T, "cpu", capacity=40)
+    box = (v.min(0) - 1e-3, v.max(0) + 1e-3)
+    obb = upright_box(v)
+    c, axes, half = obb
+    assert np.allclose(axes @ axes.T, np.eye(3)) and np.all(np.abs((v - c) @ axes.T) <= half)
+    assert np.prod(2 * half) < 0.7 * np.prod(box[1] - box[0])  # tighter than the axis-aligned box
+    occ = Occluder(v, f, "cpu")
+    near, _, _ = bp.sums(occ, targets, columns, weights, box)
+    near_o, _, _ = bp.sums(occ, targets, columns, weights, box, obb=obb)
+    ref = (T[:, columns] * (segments_blocked(v, f, points, targets) & (T[:, columns] > 0))) @ weights
+    assert np.abs(ref).sum() > 0 and np.array_equal(near, near_o)
+    assert np.abs(near - ref).sum() < 5e-3 * np.abs(ref).sum()
