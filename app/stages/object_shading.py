@@ -204,8 +204,11 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
         if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
-            E += ss.sun_dB_sum(vu, nu, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [eng.scene_occ, own], 2e-3,
-                               split)
+            room_s = eng.scene_occ  # no room triangle between the object and the lost patches: no room rays
+            if getattr(eng, "shaft_cull", True) and \
+                    shaft_clear(_occluder_triangles(eng, room_s), vu, nu, pm.corners[ch], pm.normal[ch], 2e-3):
+                room_s = _no_room(eng)
+            E += ss.sun_dB_sum(vu, nu, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [room_s, own], 2e-3, split)
     if dB is not None:
         # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
         loss = np.abs(luminance(dB)) * pm.area
@@ -255,6 +258,24 @@ def room_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
     if cached is None or cached[0] is not occ:
         cached = eng._room_tris = (occ, occ.triangles())
     return cached[1]
+
+
+def _occluder_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
+    """room_triangles of an occluder that may not be the room light's (the sun's loss gather tests the
+    scene model, eng.scene_occ): kept per occluder, so two occluders do not read each other's back."""
+    if occ is eng.room_light.occluder:
+        return room_triangles(eng, occ)
+    cached = eng.__dict__.get("_sun_room_tris")
+    if cached is None or cached[0] is not occ:
+        cached = eng._sun_room_tris = (occ, occ.triangles())
+    return cached[1]
+
+
+def _no_room(eng: "Engine") -> Occluder:
+    """An empty occluder (id 0: no rays), made once per engine."""
+    if eng.__dict__.get("_no_room") is None:
+        eng._no_room = Occluder(None, None, eng.device)
+    return eng._no_room
 
 
 def shaft_clear(tris: np.ndarray, p: np.ndarray, n: np.ndarray, polys: np.ndarray, poly_normals: np.ndarray,
