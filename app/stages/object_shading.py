@@ -204,12 +204,8 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
         if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
-            room_s = eng.scene_occ  # no room triangle between the object and the lost patches: no room rays
-            if getattr(eng, "shaft_cull", True) and \
-                    shaft_clear(_occluder_triangles(eng, room_s), vu, nu, pm.corners[ch], pm.normal[ch], 2e-3,
-                                horizon=False):
-                room_s = _no_room(eng)
-            E += ss.sun_dB_sum(vu, nu, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [room_s, own], 2e-3, split)
+            E += ss.sun_dB_sum(vu, nu, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [eng.scene_occ, own], 2e-3,
+                               split)
     if dB is not None:
         # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
         loss = np.abs(luminance(dB)) * pm.area
@@ -261,47 +257,23 @@ def room_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
     return cached[1]
 
 
-def _occluder_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
-    """room_triangles of an occluder that may not be the room light's (the sun's loss gather tests the
-    scene model, eng.scene_occ): kept per occluder, so two occluders do not read each other's back."""
-    if occ is eng.room_light.occluder:
-        return room_triangles(eng, occ)
-    cached = eng.__dict__.get("_sun_room_tris")
-    if cached is None or cached[0] is not occ:
-        cached = eng._sun_room_tris = (occ, occ.triangles())
-    return cached[1]
-
-
-def _no_room(eng: "Engine") -> Occluder:
-    """An empty occluder (id 0: no rays), made once per engine."""
-    if eng.__dict__.get("_no_room") is None:
-        eng._no_room = Occluder(None, None, eng.device)
-    return eng._no_room
-
-
-def _facing(p: np.ndarray, n: np.ndarray, polys: np.ndarray, pn: np.ndarray, horizon: bool = True) -> np.ndarray:
+def _facing(p: np.ndarray, n: np.ndarray, polys: np.ndarray, pn: np.ndarray) -> np.ndarray:
     """(N,) bool: the point p (N,3) with normal n lies in front of some polygon (G,4,3) (pn (G,3): its
     emitting side, pn . (p - v0) > 0) with a corner above p's horizon (n . (corner - p) > 0), as
-    kernels.shade's _faces (horizon False: in front of some polygon, a superset). Both as products of
-    small matrices (no (N,G,4,3) differences); a point whose answer a value within rounding of 0 could
-    change is decided by the differences themselves."""
+    kernels.shade's _faces. Both as products of small matrices (no (N,G,4,3) differences); a point
+    whose answer a value within rounding of 0 could change is decided by the differences themselves."""
     N, G = len(p), len(polys)
     reach = np.abs(p).max() + np.abs(polys).max()
     tf, ta = 1e-12 * reach * np.abs(pn).max(), 1e-12 * reach  # far above these products' rounding
     front = p @ pn.T - np.einsum("gc,gc->g", pn, polys[:, 0])[None]  # (N,G)
-    if horizon:
-        above = (n @ polys.reshape(-1, 3).T).reshape(N, G, 4) - np.einsum("nc,nc->n", n, p)[:, None, None]
-        facing = ((front > tf) & (above > ta).any(2)).any(1)
-        unsure = np.flatnonzero(~facing & ((front > -tf) & (above > -ta).any(2)).any(1))
-    else:
-        facing = (front > tf).any(1)
-        unsure = np.flatnonzero(~facing & (front > -tf).any(1))
+    above = (n @ polys.reshape(-1, 3).T).reshape(N, G, 4) - np.einsum("nc,nc->n", n, p)[:, None, None]
+    facing = ((front > tf) & (above > ta).any(2)).any(1)
+    unsure = np.flatnonzero(~facing & ((front > -tf) & (above > -ta).any(2)).any(1))
     if len(unsure):
         q, m = p[unsure], n[unsure]
         f_ = np.einsum("gc,ngc->ng", pn, q[:, None] - polys[:, 0][None]) > 0
-        if horizon:
-            f_ &= (np.einsum("nc,ngkc->ngk", m, polys[None] - q[:, None, None]) > 0).any(2)
-        facing[unsure] = f_.any(1)
+        a_ = (np.einsum("nc,ngkc->ngk", m, polys[None] - q[:, None, None]) > 0).any(2)
+        facing[unsure] = (f_ & a_).any(1)
     return facing
 
 
@@ -344,21 +316,19 @@ def _triangle_boxes(tris: np.ndarray) -> _TriangleBoxes:
 
 
 def shaft_clear(tris: np.ndarray, p: np.ndarray, n: np.ndarray, polys: np.ndarray, poly_normals: np.ndarray,
-                eps: float, tol: float = 1e-7, horizon: bool = True) -> bool:
+                eps: float, tol: float = 1e-7) -> bool:
     """True when no triangle of `tris` (T,3,3) can cut a visibility segment of kernels.shade's patch sums:
     from a point p (N,3) lifted by eps along its normal n (N,3), where it faces some polygon, to a point of
     a polygon (G,4,3) lifted by eps along its normal (G,3). Every such segment lies in the convex hull of
     the lifted starts' box and the lifted polygons; a triangle with all its corners on or outside one
     face plane of that hull (within `tol` m) can meet a segment at most at an end point, which the open
-    segment excludes (the floor under an object standing on it). Exact, from geometry; conservative.
-    horizon False: every point in front of a polygon counts, whatever its horizon (a larger hull, still
-    conservative; cheaper for many polygons)."""
+    segment excludes (the floor under an object standing on it). Exact, from geometry; conservative."""
     from scipy.spatial import ConvexHull, QhullError
 
     if len(tris) == 0:
         return True
     pn = np.cross(polys[:, 1] - polys[:, 0], polys[:, 2] - polys[:, 0])  # emitting side
-    facing = _facing(p, n, polys, pn, horizon)
+    facing = _facing(p, n, polys, pn)
     if not facing.any():
         return True
     a = p[facing] + n[facing] * eps

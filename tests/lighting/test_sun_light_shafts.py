@@ -1,19 +1,18 @@
 """The shaft test that lets the object's patch sums skip the room's rays (app.stages.object_shading
-.shaft_clear), in the cheaper form the sun's lost patches use: the same facing points as the plain
-differences (also on points lying exactly in a patch's plane, which decide whether the floor under
-an object is inside the hull), the same triangles overlapping a box as a test of every triangle, and a
-clear shaft only where no room triangle can cut a visibility segment."""
+.shaft_clear) in its cheaper form: the same facing points as the plain differences (also on points
+lying exactly in a patch's plane, which decide whether the floor under an object is inside the hull),
+the same triangles overlapping a box as a test of every triangle, and a clear shaft only where no
+room triangle can cut a visibility segment."""
 import numpy as np
 
 from app.stages import object_shading as os_
 
 
-def _plain_facing(p, n, polys, horizon=True):
+def _plain_facing(p, n, polys):
     pn = np.cross(polys[:, 1] - polys[:, 0], polys[:, 2] - polys[:, 0])
     front = np.einsum("gc,ngc->ng", pn, p[:, None] - polys[:, 0][None]) > 0
-    if horizon:
-        front &= (np.einsum("nc,ngkc->ngk", n, polys[None] - p[:, None, None]) > 0).any(2)
-    return front.any(1)
+    above = (np.einsum("nc,ngkc->ngk", n, polys[None] - p[:, None, None]) > 0).any(2)
+    return (front & above).any(1)
 
 
 def _floor_patches(rng, m):
@@ -38,13 +37,11 @@ def test_facing_equals_the_plain_differences_on_hard_cases():
             R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
             polys = polys @ R.T
         pn = np.cross(polys[:, 1] - polys[:, 0], polys[:, 2] - polys[:, 0])
-        for horizon in (True, False):
-            got = os_._facing(p, n, polys, pn, horizon)
-            assert np.array_equal(got, _plain_facing(p, n, polys, horizon))
+        assert np.array_equal(os_._facing(p, n, polys, pn), _plain_facing(p, n, polys))
     # a point on the floor with its normal down faces nothing (both values exactly 0)
     polys = _floor_patches(np.random.default_rng(1), 4)
     pn = np.cross(polys[:, 1] - polys[:, 0], polys[:, 2] - polys[:, 0])
-    assert not os_._facing(np.array([[0.3, 0.0, 0.2]]), np.array([[0.0, -1.0, 0.0]]), polys, pn, False).any()
+    assert not os_._facing(np.array([[0.3, 0.0, 0.2]]), np.array([[0.0, -1.0, 0.0]]), polys, pn).any()
 
 
 def test_triangle_buckets_find_every_overlapping_triangle():
@@ -63,7 +60,7 @@ def test_triangle_buckets_find_every_overlapping_triangle():
     assert len(os_._TriangleBoxes(tris[:0]).overlapping(np.zeros(3), np.ones(3))) == 0
 
 
-def test_shaft_without_horizon_is_clear_only_where_no_triangle_can_cut():
+def test_shaft_is_clear_only_where_no_triangle_can_cut():
     # an object standing on a floor, lost patches on the floor beside it: the floor (its triangles in the
     # patches' plane) and a far wall leave the shaft clear; a post between them does not
     rng = np.random.default_rng(3)
@@ -79,6 +76,5 @@ def test_shaft_without_horizon_is_clear_only_where_no_triangle_can_cut():
     floor = np.array([[[-5, 0, -5], [5, 0, -5], [5, 0, 5]], [[-5, 0, -5], [5, 0, 5], [-5, 0, 5]]], float)
     wall = np.array([[[3, 0, -5], [3, 3, -5], [3, 3, 5]]], float)
     post = np.array([[[0.3, 0.0, 0.0], [0.3, 0.5, 0.0], [0.3, 0.5, 0.05]]])
-    for horizon in (True, False):
-        assert os_.shaft_clear(np.concatenate([floor, wall]), box, n, polys, pnorm, 2e-3, horizon=horizon)
-        assert not os_.shaft_clear(np.concatenate([floor, wall, post]), box, n, polys, pnorm, 2e-3, horizon=horizon)
+    assert os_.shaft_clear(np.concatenate([floor, wall]), box, n, polys, pnorm, 2e-3)
+    assert not os_.shaft_clear(np.concatenate([floor, wall, post]), box, n, polys, pnorm, 2e-3)
