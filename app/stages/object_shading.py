@@ -30,6 +30,10 @@ if TYPE_CHECKING:
     from app.engine import Engine
 
 
+SPLIT_PAIRS = 1024  # (point, patch) pairs a concurrent part of the sun's lost-patch gather gets at least (the
+# item count from which app.runtime.parts splits a launch of one-patch items)
+
+
 VIS_STRIDE = 4  # distinct vertices per visibility sample (kernels.shade.SampledPatchSum; 1: a ray per pair)
 
 
@@ -204,8 +208,12 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
         if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
+            # split by work, not by points: each point sums every lost patch (an exact form factor each), so a
+            # few hundred points already outweigh a thread's hand-off (app.runtime.parts' default counts items
+            # of one patch: these ~900 points ran on one core)
+            split_sun = functools.partial(_split, device=eng.device, min_items=max(1, SPLIT_PAIRS // len(ch)))
             E += ss.sun_dB_sum(vu, nu, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [eng.scene_occ, own], 2e-3,
-                               split)
+                               split_sun)
     if dB is not None:
         # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
         loss = np.abs(luminance(dB)) * pm.area
