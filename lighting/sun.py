@@ -52,6 +52,11 @@ def gather_with_sun(G: np.ndarray, albedo: np.ndarray, emission: np.ndarray, sun
     return B
 
 
+FLAT_COS = 1.0 - 1e-7  # corner normals of a face this close (cosine; ~0.03 deg apart) make it flat for
+# SunLight.hit_correction: on a wholly sunlit flat face the per-hit sun and the corners' blend differ by less
+# than 1 / FLAT_COS - 1 ~ 1e-7 of irradiance/pi (the blend's own float32 barycentric rounding)
+
+
 class SunLight:
     """The scene's sun seen through its openings, against the scene model's solid surfaces."""
 
@@ -149,17 +154,28 @@ class SunLight:
         irradiance/pi (x sun.irradiance / pi: the irradiance/pi to add)). vis_v (V,): each vertex's sun
         share (cos x visibility, 0 in shadow). The hit's sun is irradiance_on_mesh's: cos of the
         interpolated normal on a face with all corners sunlit, a ray (visibility, past the room and
-        `extra`) on a face that a shadow's edge crosses; faces with no sunlit corner have both 0."""
+        `extra`) on a face that a shadow's edge crosses; faces with no sunlit corner have both 0, and
+        so, to within 1 / FLAT_COS - 1, have wholly sunlit flat faces (corner normals equal): neither
+        is in k."""
         lit_f = (vis_v > 0)[f].sum(1)  # sunlit corners per face
-        nl = lit_f[tri]
-        k = np.flatnonzero(nl > 0)
+        # a wholly lit face whose corner normals agree within FLAT_COS: the hit's interpolated normal is
+        # theirs, so its sun (cos) equals its corners' blend to within 1 / FLAT_COS - 1: no delta
+        need = lit_f > 0
+        whole_f = np.flatnonzero(lit_f == 3)
+        if len(whole_f):
+            nf = n[f[whole_f]]  # (W,3,3)
+            agree = np.minimum(np.minimum(np.einsum("wc,wc->w", nf[:, 0], nf[:, 1]),
+                                          np.einsum("wc,wc->w", nf[:, 1], nf[:, 2])),
+                               np.einsum("wc,wc->w", nf[:, 0], nf[:, 2]))
+            need[whole_f[agree >= FLAT_COS]] = False
+        k = np.flatnonzero(need[tri])
         if len(k) == 0:
             return k, np.zeros(0)
         ck = f[tri[k]]
         b = np.asarray(bary[k], np.float64)
         nrm = np.einsum("nk,nkc->nc", b, n[ck])
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-        whole = nl[k] == 3
+        whole = lit_f[tri[k]] == 3
         vis = np.where(whole, np.maximum(nrm @ self.d, 0.0), 0.0)
         mixed = np.flatnonzero(~whole)
         if len(mixed):

@@ -30,6 +30,10 @@ if TYPE_CHECKING:
     from app.engine import Engine
 
 
+SPLIT_PAIRS = 1024  # (point, patch) pairs a concurrent part of the sun's lost-patch gather gets at least (the
+# item count from which app.runtime.parts splits a launch of one-patch items)
+
+
 VIS_STRIDE = 4  # distinct vertices per visibility sample (kernels.shade.SampledPatchSum; 1: a ray per pair)
 
 
@@ -204,8 +208,12 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
         if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
+            # split by work, not by points: each point sums every lost patch (an exact form factor each), so a
+            # few hundred points already outweigh a thread's hand-off (app.runtime.parts' default counts items
+            # of one patch: these ~900 points ran on one core)
+            split_sun = functools.partial(_split, device=eng.device, min_items=max(1, SPLIT_PAIRS // len(ch)))
             E += ss.sun_dB_sum(vu, nu, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [eng.scene_occ, own], 2e-3,
-                               split)
+                               split_sun)
     if dB is not None:
         # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
         loss = np.abs(luminance(dB)) * pm.area
@@ -257,6 +265,64 @@ def room_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
     return cached[1]
 
 
+def _facing(p: np.ndarray, n: np.ndarray, polys: np.ndarray, pn: np.ndarray) -> np.ndarray:
+    """(N,) bool: the point p (N,3) with normal n lies in front of some polygon (G,4,3) (pn (G,3): its
+    emitting side, pn . (p - v0) > 0) with a corner above p's horizon (n . (corner - p) > 0), as
+    kernels.shade's _faces. Both as products of small matrices (no (N,G,4,3) differences); a point
+    whose answer a value within rounding of 0 could change is decided by the differences themselves."""
+    N, G = len(p), len(polys)
+    reach = np.abs(p).max() + np.abs(polys).max()
+    tf, ta = 1e-12 * reach * np.abs(pn).max(), 1e-12 * reach  # far above these products' rounding
+    front = p @ pn.T - np.einsum("gc,gc->g", pn, polys[:, 0])[None]  # (N,G)
+    above = (n @ polys.reshape(-1, 3).T).reshape(N, G, 4) - np.einsum("nc,nc->n", n, p)[:, None, None]
+    facing = ((front > tf) & (above > ta).any(2)).any(1)
+    unsure = np.flatnonzero(~facing & ((front > -tf) & (above > -ta).any(2)).any(1))
+    if len(unsure):
+        q, m = p[unsure], n[unsure]
+        f_ = np.einsum("gc,ngc->ng", pn, q[:, None] - polys[:, 0][None]) > 0
+        a_ = (np.einsum("nc,ngkc->ngk", m, polys[None] - q[:, None, None]) > 0).any(2)
+        facing[unsure] = (f_ & a_).any(1)
+    return facing
+
+
+_TRI_BOXES: list = [None, None]  # (triangles, their _TriangleBoxes) of the last triangles asked
+
+
+class _TriangleBoxes:
+    """Each triangle's box, the triangles sorted into buckets (a 4 x 4 x 4 grid over their centres) with
+    each bucket's box: `overlapping` tests the buckets first, then only the triangles of those a box meets."""
+
+    def __init__(self, tris: np.ndarray, k: int = 4):
+        lo, hi = tris.min(1), tris.max(1)
+        c = 0.5 * (lo + hi)
+        c0, span = (c.min(0), np.ptp(c, 0)) if len(c) else (np.zeros(3), np.zeros(3))
+        cell = np.clip(((c - c0) / np.maximum(span, 1e-12) * k).astype(np.int64), 0, k - 1)
+        key = (cell[:, 0] * k + cell[:, 1]) * k + cell[:, 2]
+        self.order = np.argsort(key, kind="stable")
+        key = key[self.order]
+        self.lo, self.hi = lo[self.order], hi[self.order]
+        self.start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.zeros(0, np.int64)
+        self.end = np.r_[self.start[1:], len(key)].astype(np.int64)
+        self.blo = np.minimum.reduceat(self.lo, self.start) if len(key) else np.zeros((0, 3))
+        self.bhi = np.maximum.reduceat(self.hi, self.start) if len(key) else np.zeros((0, 3))
+
+    def overlapping(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Indices of the triangles whose box meets the box lo..hi (3,), in the triangles' own order."""
+        buckets = np.flatnonzero(((self.bhi >= lo) & (self.blo <= hi)).all(1))
+        if len(buckets) == 0:
+            return np.zeros(0, np.int64)
+        rows = np.concatenate([np.arange(self.start[b], self.end[b]) for b in buckets])
+        rows = rows[((self.hi[rows] >= lo) & (self.lo[rows] <= hi)).all(1)]
+        return np.sort(self.order[rows])
+
+
+def _triangle_boxes(tris: np.ndarray) -> _TriangleBoxes:
+    """_TriangleBoxes of `tris`, kept for the last array (a room's, read once per engine)."""
+    if _TRI_BOXES[0] is not tris:
+        _TRI_BOXES[:] = [tris, _TriangleBoxes(tris)]
+    return _TRI_BOXES[1]
+
+
 def shaft_clear(tris: np.ndarray, p: np.ndarray, n: np.ndarray, polys: np.ndarray, poly_normals: np.ndarray,
                 eps: float, tol: float = 1e-7) -> bool:
     """True when no triangle of `tris` (T,3,3) can cut a visibility segment of kernels.shade's patch sums:
@@ -270,9 +336,7 @@ def shaft_clear(tris: np.ndarray, p: np.ndarray, n: np.ndarray, polys: np.ndarra
     if len(tris) == 0:
         return True
     pn = np.cross(polys[:, 1] - polys[:, 0], polys[:, 2] - polys[:, 0])  # emitting side
-    front = np.einsum("gc,ngc->ng", pn, p[:, None] - polys[:, 0][None]) > 0
-    above = (np.einsum("nc,ngkc->ngk", n, polys[None] - p[:, None, None]) > 0).any(2)
-    facing = (front & above).any(1)
+    facing = _facing(p, n, polys, pn)
     if not facing.any():
         return True
     a = p[facing] + n[facing] * eps
@@ -284,7 +348,7 @@ def shaft_clear(tris: np.ndarray, p: np.ndarray, n: np.ndarray, polys: np.ndarra
     except QhullError:
         return False
     plo, phi = pts.min(0) - tol, pts.max(0) + tol
-    cand = tris[~((tris.max(1) < plo) | (tris.min(1) > phi)).any(1)]  # overlapping the hull's box
+    cand = tris[_triangle_boxes(tris).overlapping(plo, phi)]  # overlapping the hull's box
     if len(cand) == 0:
         return True
     dist = cand @ eq[:, :3].T + eq[:, 3]  # (T,3,F) signed, outside > 0
