@@ -346,33 +346,51 @@ def _light_bound(points: np.ndarray, dist: np.ndarray, tri_rad: np.ndarray, radi
 
 
 def headroom(eng: "Engine", levels: float, idx: np.ndarray) -> np.ndarray:
-    """(len(idx),3) float32: at pixels idx and per channel the most radiance s >= 0 that added to the
-    photo's L_b raises it by at most `levels` (T(L_b + s) - T(L_b) <= levels; inf where T cannot rise
-    that much), from the response's breakpoints (exact: T is piecewise linear and non-decreasing).
-    A test s > headroom in place of T(L_b + s) - T(L_b) > levels, with no response evaluation per
-    frame: each pixel's is worked out the first time it is asked for and kept (per L_b array and level)."""
+    """(len(idx),3) float32: at pixels idx and per channel the most radiance s >= 0 (L_b's units) that
+    added to the photo's L_b raises it by at most `levels` (8-bit levels: T(L_b + s) - T(L_b) <= levels;
+    inf where T cannot rise that much), from the response's breakpoints (exact: T is piecewise linear
+    and non-decreasing). A test s > headroom in place of T(L_b + s) - T(L_b) > levels, with no response
+    evaluation per frame. It depends on the scene only, so a level's first call works it out at every
+    receiver pixel at once and keeps it (per L_b array and level): a drag frame, whose near region moves
+    onto new pixels, only looks it up. Per channel it is a function of the pixel's L_b alone, so it is
+    evaluated once per distinct L_b value (a photo's pixels share few: its 8-bit levels) and gathered;
+    a pixel outside the receivers is worked out when first asked for and kept."""
     cached = getattr(eng, "_ol_headroom", None)
     if cached is None or cached[0] is not eng.L_b:
-        cached = eng._ol_headroom = (eng.L_b, {})
-    if levels not in cached[1]:
-        cached[1][levels] = (np.zeros(eng.L_b.shape, np.float32), np.zeros(len(eng.L_b), bool))
-    h, known = cached[1][levels]
+        rp = np.flatnonzero(eng.recv_pix)
+        vals = [np.unique(eng.L_b[rp, c], return_inverse=True) for c in range(3)]  # (distinct values, rows)
+        n = max(len(u) for u, _ in vals)
+        table = np.stack([np.pad(u, (0, n - len(u)), mode="edge") for u, _ in vals], 1)  # (n,3) L_b values
+        inv = np.stack([i.reshape(-1) for _, i in vals], 1)  # (len(rp),3) each receiver's row of table
+        cached = eng._ol_headroom = (eng.L_b, rp, table, inv, {})
+    _, rp, table, inv, per_level = cached
+    if levels not in per_level:
+        h, known = np.zeros(eng.L_b.shape, np.float32), np.zeros(len(eng.L_b), bool)
+        hv = _headroom_at(eng.scene.response, table, levels)
+        h[rp] = np.take_along_axis(hv, inv, 0)
+        known[rp] = True
+        per_level[levels] = (h, known)
+    h, known = per_level[levels]
     new = idx[~known[idx]]
     if len(new):
-        resp = eng.scene.response
-        xs, ys = resp.breakpoints()
-        y = (resp.to_levels(eng.L_b[new]) + levels) / 255.0  # the response value to exceed, (n,3)
-        hn = np.full(y.shape, np.inf, np.float32)
-        for ch in range(3):
-            k = np.searchsorted(ys[ch], y[:, ch], side="right")  # first breakpoint above it
-            ok = k < ys.shape[1]
-            k = k[ok]
-            x0, x1, y0, y1 = xs[ch, k - 1], xs[ch, k], ys[ch, k - 1], ys[ch, k]
-            x_top = x0 + (y[ok, ch] - y0) / (y1 - y0) * (x1 - x0)  # the largest X with f(X) <= y
-            hn[ok, ch] = np.maximum(x_top / resp.exposure_time - eng.L_b[new[ok], ch], 0.0)
-        h[new] = hn
+        h[new] = _headroom_at(eng.scene.response, eng.L_b[new], levels)
         known[new] = True
     return h[idx]
+
+
+def _headroom_at(resp, L: np.ndarray, levels: float) -> np.ndarray:
+    """headroom (n,3) float32 of the radiance L (n,3) under the response resp (no cache)."""
+    xs, ys = resp.breakpoints()
+    y = (resp.to_levels(L) + levels) / 255.0  # the response value to exceed, (n,3)
+    out = np.full(y.shape, np.inf, np.float32)
+    for ch in range(3):
+        k = np.searchsorted(ys[ch], y[:, ch], side="right")  # first breakpoint above it
+        ok = k < ys.shape[1]
+        k = k[ok]
+        x0, x1, y0, y1 = xs[ch, k - 1], xs[ch, k], ys[ch, k - 1], ys[ch, k]
+        x_top = x0 + (y[ok, ch] - y0) / (y1 - y0) * (x1 - x0)  # the largest X with f(X) <= y
+        out[ok, ch] = np.maximum(x_top / resp.exposure_time - L[ok, ch], 0.0)
+    return out
 
 
 FAR_FIELD = 3.0  # bounding radii from the object's centre beyond which its triangles act as point sources

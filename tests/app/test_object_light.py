@@ -252,6 +252,30 @@ def test_headroom_matches_the_response(demo):
         np.testing.assert_array_equal((s > h)[clear], (gain > levels)[clear])
 
 
+def test_headroom_is_worked_out_once_for_every_receiver(demo, monkeypatch):
+    # a level's first call works out every receiver pixel (a drag frame's new pixels are only looked up),
+    # with the values of a pixel at a time; a pixel outside the receivers is worked out when asked
+    scene, eng, *_ = demo
+    rp = np.flatnonzero(eng.recv_pix)
+    other = np.flatnonzero(~eng.recv_pix)
+    assert len(other)
+    rng = np.random.default_rng(8)
+    calls = []
+    work = OL._headroom_at
+    monkeypatch.setattr(OL, "_headroom_at", lambda resp, L, levels: calls.append(len(L)) or work(resp, L, levels))
+    monkeypatch.setattr(eng, "L_b", eng.L_b.copy())  # a new L_b array: nothing kept
+    OL.headroom(eng, 0.5, rp[:3])
+    assert len(calls) == 1
+    later = np.sort(rng.choice(rp, 5000))
+    got = OL.headroom(eng, 0.5, later)
+    assert len(calls) == 1  # a lookup
+    one = np.concatenate([work(scene.response, eng.L_b[[p]], 0.5) for p in later[:300]])
+    np.testing.assert_array_equal(got[:300], one)
+    out = OL.headroom(eng, 0.5, other[:4])
+    assert calls[1:] == [4]
+    np.testing.assert_array_equal(out, work(scene.response, eng.L_b[other[:4]], 0.5))
+
+
 def test_light_bound_holds_with_pieces():
     # _light_bound with extra emitters (small bright pieces on the object) is at least the light the
     # triangles and pieces send, unoccluded, to points around them (any receiver normal), and its
