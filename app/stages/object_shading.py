@@ -30,8 +30,8 @@ if TYPE_CHECKING:
     from app.engine import Engine
 
 
-SPLIT_PAIRS = 1024  # (point, patch) pairs a concurrent part of the sun's lost-patch gather gets at least (the
-# item count from which app.runtime.parts splits a launch of one-patch items)
+SPLIT_PAIRS = 1024  # (point, patch) pairs a concurrent part of a gather over patches gets at least (the
+# item count from which app.runtime.parts splits a launch of one-patch items): pair_split
 
 
 VIS_STRIDE = 4  # distinct vertices per visibility sample (kernels.shade.SampledPatchSum; 1: a ray per pair)
@@ -183,7 +183,6 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     cached = eng._shade_occ
     own = cached[1] if cached is not None and cached[0] is v else Occluder(v, f, eng.device)
     ss = shape_shading(eng, v, n, f)
-    split = functools.partial(_split, device=eng.device)
     vu, nu = v[ss.uniq], n[ss.uniq]
     E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
     rl = eng.room_light  # the emitters, exact form factors, visibility cast at samples (ShapeShading)
@@ -193,7 +192,8 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
             shaft_clear(room_triangles(eng, room), vu, nu, groups[1], pm.normal[em[groups[0][:-1]]], 2e-3):
         room = Occluder(None, None, eng.device) if eng.__dict__.get("_no_room") is None else eng._no_room
         eng._no_room = room  # no room triangle between the object and the emitters: no room rays
-    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3, split, groups)
+    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3,
+                      pair_split(eng, len(em)), groups)
     sun_u = None
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
         # the object's own shadow is kept per shape (the sun's rays are parallel: a move changes none
@@ -208,12 +208,8 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
         if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
-            # split by work, not by points: each point sums every lost patch (an exact form factor each), so a
-            # few hundred points already outweigh a thread's hand-off (app.runtime.parts' default counts items
-            # of one patch: these ~900 points ran on one core)
-            split_sun = functools.partial(_split, device=eng.device, min_items=max(1, SPLIT_PAIRS // len(ch)))
             E += ss.sun_dB_sum(vu, nu, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [eng.scene_occ, own], 2e-3,
-                               split_sun)
+                               pair_split(eng, len(ch)))
     if dB is not None:
         # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
         loss = np.abs(luminance(dB)) * pm.area
@@ -243,7 +239,7 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
             # gather it at a spread subset of vertices and interpolate by position and normal
             sub = ss.sub
             E += ss.interpolate(ss.dB_sum(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed], dB[changed],
-                                          [eng.scene_occ, own], 2e-3, split))
+                                          [eng.scene_occ, own], 2e-3, pair_split(eng, len(changed))))
     E += E_ind
     if sun_u is not None:
         E += sun_u
@@ -255,6 +251,15 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     if ss.bounce is not None:
         L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
     return L_vert
+
+
+def pair_split(eng: "Engine", n_patches: int):
+    """app.runtime.split for a gather of every one of n_patches patches at each point (the emitters', the
+    sun's lost patches', dB's), sized by work, not by points: a part gets at least SPLIT_PAIRS (point,
+    patch) pairs, an exact form factor each, so a few hundred points of tens of patches already outweigh
+    a thread's hand-off (app.runtime.parts' default counts items of one patch: ~900 such points ran on
+    one core)."""
+    return functools.partial(_split, device=eng.device, min_items=max(1, SPLIT_PAIRS // max(n_patches, 1)))
 
 
 def room_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:

@@ -182,3 +182,39 @@ def test_shaft_clear_room_gives_the_exact_emitter_light(demo):
     assert with_room.max() > 0
     lifted_on_floor = vu[:, 1] + nu[:, 1] * 2e-3 <= vu[:, 1].min() + 1e-9  # a segment starting on the floor
     np.testing.assert_allclose(with_room[~lifted_on_floor], without[~lifted_on_floor], rtol=1e-6, atol=1e-9)
+
+
+def test_gathers_over_patches_split_by_point_patch_pairs(demo, monkeypatch):
+    # the emitters' and dB's gathers (an exact form factor per point and patch) are cut by (point, patch)
+    # pairs (pair_split), not by points: on two cores a few hundred points of tens of patches run in two
+    # parts, and the answer is the one of a single part, bit for bit
+    import functools
+
+    from app import runtime
+
+    scene, eng, _, _, _, proxy_occ, mesh = demo
+    pm = eng.pre.patches
+    dB = np.where(pm.is_emitter[:, None], 0.0, -0.3 * eng.B_obj)  # every patch loses light: dB's gather runs
+    monkeypatch.setattr(runtime, "cores", lambda: 2)
+    seen = []
+    real = OS.pair_split
+
+    def recording(eng_, n_patches):
+        split = real(eng_, n_patches)
+
+        def run(launch, n):
+            seen.append((n, n_patches, runtime.parts(eng_.device, n, split.keywords["min_items"])))
+            split(launch, n)
+        return run
+
+    monkeypatch.setattr(OS, "pair_split", recording)
+    ours = OS.vertex_radiance(eng, scene.obj, mesh, proxy_occ, dB)
+    assert {m for _, m, _ in seen} >= {len(OS.emitter_groups(eng)[0])} and len({m for _, m, _ in seen}) >= 2
+    for n, m, k in seen:  # two parts exactly where each gets SPLIT_PAIRS pairs
+        assert k == (2 if n // max(1, OS.SPLIT_PAIRS // m) >= 2 else 1), (n, m, k)
+    assert any(k == 2 and n < 1024 for n, _, k in seen)  # under the points' threshold, split by its work
+    monkeypatch.setattr(OS, "pair_split", lambda e, m: functools.partial(runtime.split, device=e.device,
+                                                                         min_items=10 ** 9))
+    one = OS.vertex_radiance(eng, scene.obj, mesh, proxy_occ, dB)
+    assert ours.max() > 0
+    np.testing.assert_array_equal(ours, one)
