@@ -189,7 +189,8 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
     em, groups = emitter_groups(eng)
     room = rl.occluder
     if getattr(eng, "shaft_cull", True) and len(em) and \
-            shaft_clear(room_triangles(eng, room), vu, nu, groups[1], pm.normal[em[groups[0][:-1]]], 2e-3):
+            shaft_clear(room_triangles(eng, room), vu, nu, groups[1], pm.normal[em[groups[0][:-1]]], 2e-3,
+                        boxes=room_triangle_boxes(eng, room)):
         room = Occluder(None, None, eng.device) if eng.__dict__.get("_no_room") is None else eng._no_room
         eng._no_room = room  # no room triangle between the object and the emitters: no room rays
     E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3,
@@ -266,8 +267,17 @@ def room_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
     """The room occluder's triangles (T,3,3) float64, read back once per engine."""
     cached = eng.__dict__.get("_room_tris")
     if cached is None or cached[0] is not occ:
-        cached = eng._room_tris = (occ, occ.triangles())
+        cached = eng._room_tris = [occ, occ.triangles(), None]
     return cached[1]
+
+
+def room_triangle_boxes(eng: "Engine", occ: Occluder) -> "_TriangleBoxes":
+    """The room occluder's triangles in buckets (_TriangleBoxes), made once per engine beside room_triangles."""
+    tris = room_triangles(eng, occ)
+    cached = eng._room_tris
+    if cached[2] is None:
+        cached[2] = _TriangleBoxes(tris)
+    return cached[2]
 
 
 def _facing(p: np.ndarray, n: np.ndarray, polys: np.ndarray, pn: np.ndarray) -> np.ndarray:
@@ -288,9 +298,6 @@ def _facing(p: np.ndarray, n: np.ndarray, polys: np.ndarray, pn: np.ndarray) -> 
         a_ = (np.einsum("nc,ngkc->ngk", m, polys[None] - q[:, None, None]) > 0).any(2)
         facing[unsure] = (f_ & a_).any(1)
     return facing
-
-
-_TRI_BOXES: list = [None, None]  # (triangles, their _TriangleBoxes) of the last triangles asked
 
 
 class _TriangleBoxes:
@@ -321,21 +328,15 @@ class _TriangleBoxes:
         return np.sort(self.order[rows])
 
 
-def _triangle_boxes(tris: np.ndarray) -> _TriangleBoxes:
-    """_TriangleBoxes of `tris`, kept for the last array (a room's, read once per engine)."""
-    if _TRI_BOXES[0] is not tris:
-        _TRI_BOXES[:] = [tris, _TriangleBoxes(tris)]
-    return _TRI_BOXES[1]
-
-
 def shaft_clear(tris: np.ndarray, p: np.ndarray, n: np.ndarray, polys: np.ndarray, poly_normals: np.ndarray,
-                eps: float, tol: float = 1e-7) -> bool:
+                eps: float, tol: float = 1e-7, boxes: _TriangleBoxes | None = None) -> bool:
     """True when no triangle of `tris` (T,3,3) can cut a visibility segment of kernels.shade's patch sums:
     from a point p (N,3) lifted by eps along its normal n (N,3), where it faces some polygon, to a point of
     a polygon (G,4,3) lifted by eps along its normal (G,3). Every such segment lies in the convex hull of
     the lifted starts' box and the lifted polygons; a triangle with all its corners on or outside one
     face plane of that hull (within `tol` m) can meet a segment at most at an end point, which the open
-    segment excludes (the floor under an object standing on it). Exact, from geometry; conservative."""
+    segment excludes (the floor under an object standing on it). Exact, from geometry; conservative.
+    boxes: `tris` in buckets (_TriangleBoxes, e.g. room_triangle_boxes: kept per engine), None: made here."""
     from scipy.spatial import ConvexHull, QhullError
 
     if len(tris) == 0:
@@ -353,7 +354,8 @@ def shaft_clear(tris: np.ndarray, p: np.ndarray, n: np.ndarray, polys: np.ndarra
     except QhullError:
         return False
     plo, phi = pts.min(0) - tol, pts.max(0) + tol
-    cand = tris[_triangle_boxes(tris).overlapping(plo, phi)]  # overlapping the hull's box
+    boxes = _TriangleBoxes(tris) if boxes is None else boxes
+    cand = tris[boxes.overlapping(plo, phi)]  # overlapping the hull's box
     if len(cand) == 0:
         return True
     dist = cand @ eq[:, :3].T + eq[:, 3]  # (T,3,F) signed, outside > 0
