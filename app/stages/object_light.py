@@ -316,13 +316,13 @@ def _sphere_ff(r: float, d: np.ndarray) -> np.ndarray:
 
 
 def _light_bound(points: np.ndarray, dist: np.ndarray, tri_rad: np.ndarray, radius: float,
-                 extra: ExtraEmitters | None, centre: np.ndarray | None = None) -> np.ndarray:
+                 extra: ExtraEmitters | None, centre: np.ndarray) -> np.ndarray:
     """An upper bound (N,3) of the object's light (irradiance/pi) at points (N,3), dist (N,) from the
     centre of its bounding sphere of `radius`: the brightest triangle over the sphere's form factor
     (_sphere_ff). The extra emitters (the sunlit pieces: small, a few times brighter) are bounded over
     their own sphere and added, where that is less than the brightest of both over the object's.
-    centre: the bounding sphere's centre (3,) that `dist` is measured from, or None; given, the
-    distances to the pieces' sphere come from dist and one product per point,
+    centre: the bounding sphere's centre (3,) that `dist` is measured from; the distances to the
+    pieces' sphere come from dist and one product per point,
     |p - c|^2 = dist^2 + 2 (p - centre).(centre - c) + |centre - c|^2, not from (N,3) differences.
     With the pieces the sums run per channel over (3,N) rows (numpy's (N,1) x (3,) broadcasts loop 3
     values at a time: several times slower on ~1e4-1e5 points); the result is their transpose."""
@@ -332,13 +332,9 @@ def _light_bound(points: np.ndarray, dist: np.ndarray, tri_rad: np.ndarray, radi
     v = extra.tris.reshape(-1, 3)
     c = 0.5 * (v.min(0) + v.max(0))
     r = float(np.linalg.norm(v - c, axis=1).max())
-    if centre is None:
-        d = points - c.astype(points.dtype)
-        d2 = np.einsum("ij,ij->i", d, d)  # (np.linalg.norm: 5x the time on ~1e5 points)
-    else:
-        w = np.asarray(centre, np.float64) - c
-        d2 = dist * dist + 2.0 * (points @ w - float(np.asarray(centre, np.float64) @ w)) + float(w @ w)
-    # 1e-9: the rounding of either way of computing d^2 kept on the bound's side
+    w = np.asarray(centre, np.float64) - c
+    d2 = dist * dist + 2.0 * (points @ w - float(np.asarray(centre, np.float64) @ w)) + float(w @ w)
+    # 1e-9: this d^2's rounding (against |p - c|^2 from the differences) kept on the bound's side
     f_pc = _sphere_ff(r, np.sqrt(np.maximum(d2, 0.0)) * (1.0 - 1e-9))
     t, rad = tri_rad.max(0), extra.rad.max(0)
     out = np.minimum(np.maximum(t, rad)[:, None] * f_obj, t[:, None] * f_obj + rad[:, None] * f_pc)

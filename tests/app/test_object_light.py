@@ -296,7 +296,13 @@ def test_light_bound_holds_with_pieces():
              + emitter_sum(pts, nrm, pieces, piece_rad, device="cpu"))
     bound = OL._light_bound(pts, dist, tri_rad, radius, extra, centre)
     assert (bound[out] >= light[out] - 1e-12).all()
-    plain = OL._light_bound(pts, dist, tri_rad, radius, extra)
+    # the same bound with the distances to the pieces' sphere from the (N,3) differences
+    v = pieces.reshape(-1, 3)
+    c = 0.5 * (v.min(0) + v.max(0))
+    f_pc = OL._sphere_ff(float(np.linalg.norm(v - c, axis=1).max()), np.linalg.norm(pts - c, axis=1))
+    t, pr = tri_rad.max(0), piece_rad.max(0)
+    f_obj = OL._sphere_ff(radius, dist)[:, None]
+    plain = np.minimum(np.maximum(t, pr) * f_obj, t * f_obj + pr * f_pc[:, None])
     np.testing.assert_allclose(bound, plain, rtol=1e-8)
     pieces_only = (bound < np.maximum(tri_rad.max(0), piece_rad.max(0)) * OL._sphere_ff(radius, dist)[:, None])
     assert pieces_only.any()  # the pieces' own sphere tightened the bound somewhere
