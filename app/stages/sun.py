@@ -115,7 +115,7 @@ class SunStage:
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
         self.patches = patches
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
-        self._blocked: tuple | None = None  # (key, BlockedPairs of the receiver vertices and clusters, clusters, G_s, T_cl, T_v)
+        self._blocked: tuple | None = None  # (key, BlockedPairs of the receiver vertices and clusters, clusters, Vr)
         self._lost: np.ndarray | None = None  # (Pc,K) the last frame's lost share of the sun per sample point
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
         self._outline = OutlineHits(device)  # refine_clipped_edges's rays (buffers kept)
@@ -230,9 +230,8 @@ class SunStage:
             pairs = BlockedPairs(np.concatenate([recv_points, cl_pts]), np.concatenate([T_v, T_cl]), self.device,
                                  capacity=2 * len(cols), short=np.arange(len(T_v) + n) < len(T_v),
                                  members=(len(T_v) + cl, G_s))
-            self._blocked = (key, pairs, cl, G_s, T_cl, T_v)
-        _, pairs, cl, G_s, T_cl, T_v = self._blocked
-        Vr = len(T_v)
+            self._blocked = (key, pairs, cl, len(T_v))  # the transfers live in the pairs (uploaded once)
+        _, pairs, cl, Vr = self._blocked
         J, K = self.c_vis.shape
         w = self._lost
         pts = self.c_pts.reshape(J, K, 3)
