@@ -111,3 +111,13 @@ def test_blocked_sums_with_an_oriented_box_give_the_same_answer():
     ref = (T[:, columns] * (segments_blocked(v, f, points, targets) & (T[:, columns] > 0))) @ weights
     assert np.abs(ref).sum() > 0 and np.array_equal(near, near_o)
     assert np.abs(near - ref).sum() < 5e-3 * np.abs(ref).sum()
+
+
+def test_members_with_an_owner_out_of_range_are_refused():
+    import pytest
+
+    points, T = np.zeros((4, 3)), np.ones((4, 2))
+    with pytest.raises(ValueError, match="members need one owner in \\[0, N\\)"):
+        BlockedPairs(points, T, "cpu", capacity=2, members=(np.array([0, 4]), np.ones((2, 2))))
+    with pytest.raises(ValueError, match="members need one owner"):
+        BlockedPairs(points, T, "cpu", capacity=2, members=(np.array([0, 1, 2]), np.ones((2, 2))))
