@@ -303,21 +303,67 @@ class _Buffer:
 # ----------------------------------------------------------------------------- outline rays
 @wp.kernel
 def _outline_hits_kernel(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, pix_to_dir: wp.mat33,
-                         px: wp.array(dtype=wp.int32), py: wp.array(dtype=wp.int32), s: int, lo: int,
-                         tri: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec3), hit: wp.array(dtype=wp.uint8)):
-    k = wp.tid() + lo  # ray within the block; pixel-major, s x s sub-samples a pixel, row by row
-    j = k // (s * s)  # pixel within the block
-    q = k - j * s * s
-    u = float(px[j]) + (float(q % s) + 0.5) / float(s) - 0.5
-    v = float(py[j]) + (float(q // s) + 0.5) / float(s) - 0.5
-    camera_hit(obj, scene, centre, wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0)), k, tri, bary, hit)
+                         px: wp.array(dtype=wp.int32), py: wp.array(dtype=wp.int32), s: int,
+                         order: wp.array(dtype=wp.int32), n_first: int, lo: int, tri: wp.array(dtype=wp.int32),
+                         bary: wp.array(dtype=wp.vec3), hit: wp.array(dtype=wp.uint8), full: wp.array(dtype=wp.uint8)):
+    """One pixel a thread: its sub-samples order[0:n_first] first, then order[n_first:] only where those
+    disagree (some reach the object, some do not: the pixel is crossed by the outline); the rest are
+    written as misses (tri -1) and full[j] = 0. Entry j s^2 + q holds sub-sample q = b s + a."""
+    j = wp.tid() + lo  # pixel within the block
+    k0 = j * s * s
+    n_hit = int(0)
+    for i in range(n_first):
+        k = k0 + order[i]
+        q = order[i]
+        u = float(px[j]) + (float(q % s) + 0.5) / float(s) - 0.5
+        v = float(py[j]) + (float(q // s) + 0.5) / float(s) - 0.5
+        camera_hit(obj, scene, centre, wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0)), k, tri, bary, hit)
+        n_hit += int(hit[k])
+    rest = n_hit > 0 and n_hit < n_first
+    for i in range(n_first, s * s):
+        q = order[i]
+        k = k0 + q
+        if rest:
+            u = float(px[j]) + (float(q % s) + 0.5) / float(s) - 0.5
+            v = float(py[j]) + (float(q // s) + 0.5) / float(s) - 0.5
+            camera_hit(obj, scene, centre, wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0)), k, tri, bary, hit)
+        else:
+            tri[k] = -1
+            bary[k] = wp.vec3(0.0, 0.0, 0.0)
+            hit[k] = wp.uint8(0)
+    full[j] = wp.uint8(0)
+    if rest or n_first == s * s:
+        full[j] = wp.uint8(1)
+
+
+def first_samples(s: int, n: int = 4) -> np.ndarray:
+    """The order (s*s,) int32 in which OutlineHits casts a pixel's s x s sub-samples (q = b s + a for
+    column a, row b): its first min(n, s*s) entries are the sub-samples it casts on every pixel, the rest
+    follow only where those disagree. n = 4 (default): a rotated grid (the 4 x 4 grid's (1,0), (3,1), (0,2),
+    (2,3), scaled to s: one per row and per column where s >= 4, centred on the pixel), which tells an
+    edge of any direction through the pixel's middle from a uniform pixel with 4 rays (4 distinct
+    sub-samples for every s >= 3); other n: the
+    first n in row order. Nested in the full s x s grid, so no ray is cast twice."""
+    if s < 1:
+        raise ValueError(f"first_samples: s = {s}, at least 1")
+    if n >= s * s:
+        return np.arange(s * s, dtype=np.int32)
+    if n == 4:
+        first = [int((b + 0.5) * s / 4) * s + int((a + 0.5) * s / 4) for a, b in ((1, 0), (3, 1), (0, 2), (2, 3))]
+    else:
+        first = list(range(max(n, 1)))
+    rest = [q for q in range(s * s) if q not in set(first)]
+    return np.asarray(first + rest, np.int32)
 
 
 class OutlineHits:
     """s x s sub-pixel camera rays through a list of pixels against the object's mesh, each
     depth-tested against the scene model only where it hits the object (one launch for both, as
-    kernels.shade.CameraHits over a rectangle). Buffers of `block` rays are made once; more rays go
-    in blocks of whole pixels."""
+    kernels.shade.CameraHits over a rectangle), adaptively: a few first rays a pixel, all s x s only on
+    the pixels whose first rays disagree (first_samples). Buffers of `block` rays are made once; more
+    rays go in blocks of whole pixels."""
+
+    MAX_SAMPLES = 1024  # s*s at most (s <= 32)
 
     def __init__(self, device: str, block: int = 32768):
         from kernels.buffers import Buffer
@@ -328,19 +374,33 @@ class OutlineHits:
         self._tri = Buffer(block, wp.int32, device)
         self._bary = Buffer(block, wp.vec3, device)
         self._hit = Buffer(block, wp.uint8, device)
+        self._full = Buffer(block, wp.uint8, device)
+        self._order = Buffer(self.MAX_SAMPLES, wp.int32, device)
+        self._order_key: tuple[int, int] | None = None
+        self.rays = 0  # rays cast by the last call
 
     def __call__(self, obj, scene, centre: np.ndarray, pix_to_dir: np.ndarray, px: np.ndarray, py: np.ndarray,
-                 s: int, split=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(tri (n,) int32 (-1: none), bary (n,3) float32, hit (n,) bool) of the n = len(px) s^2 rays
-        of pixels (px, py) (columns, rows), pixel by pixel, sub-sample (a, b) at
+                 s: int, split=None, first: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(tri (n,) int32 (-1: none), bary (n,3) float32, hit (n,) bool, full (len(px),) bool) of the
+        n = len(px) s^2 sub-samples of pixels (px, py) (columns, rows), pixel by pixel, sub-sample (a, b) at
         (px + (a + 0.5)/s - 0.5, py + (b + 0.5)/s - 0.5) as entry b s + a, the ray of pixel position
-        (u, v) being pix_to_dir @ (u, v, 1) normalised (pix_to_dir = R^T K^-1). obj, scene:
-        kernels.visibility.Occluder. `split(launch, n)` runs launch(lo, hi) over ranges covering [0, n)
-        (None: one launch)."""
+        (u, v) being pix_to_dir @ (u, v, 1) normalised (pix_to_dir = R^T K^-1). `first`: rays cast on
+        every pixel (first_samples(s, first)); the others only on pixels where some of those reach the
+        object and some do not (full True there); a pixel not full has its other entries as misses, so
+        its coverage is its hits over len(first) rays (None or >= s^2: every ray on every pixel, full
+        all True). obj, scene: kernels.visibility.Occluder. `split(launch, n)` runs launch(lo, hi) over
+        ranges of pixels covering [0, n) (None: one launch)."""
         k = s * s
+        if k > self.MAX_SAMPLES:
+            raise ValueError(f"OutlineHits: {s} x {s} rays a pixel, at most {self.MAX_SAMPLES}")
+        n_first = k if first is None else max(1, min(int(first), k))
+        if self._order_key != (s, n_first):
+            self._order.upload(first_samples(s, n_first))
+            self._order_key = (s, n_first)
         per = max(1, self.block // k)  # whole pixels a block
         n = len(px) * k
         tri, bary, hit = np.empty(n, np.int32), np.empty((n, 3), np.float32), np.empty(n, bool)
+        full = np.empty(len(px), bool)
         run = split or (lambda launch, m: launch(0, m))
         M = wp.mat33(*np.asarray(pix_to_dir, np.float32).reshape(-1))
         c = wp.vec3(*np.asarray(centre, np.float32))
@@ -348,19 +408,21 @@ class OutlineHits:
             p1 = min(len(px), p0 + per)
             self._px.upload(np.asarray(px[p0:p1], np.int32))
             self._py.upload(np.asarray(py[p0:p1], np.int32))
-            first, m = p0 * k, (p1 - p0) * k
+            first_ray, m = p0 * k, (p1 - p0) * k
 
             def launch(lo: int, hi: int) -> None:
                 wp.launch(_outline_hits_kernel, dim=hi - lo,
                           inputs=[wp.uint64(obj.id), wp.uint64(scene.id), c, M, self._px.dev, self._py.dev, int(s),
-                                  int(lo)],
-                          outputs=[self._tri.dev, self._bary.dev, self._hit.dev], device=self.device)
+                                  self._order.dev, int(n_first), int(lo)],
+                          outputs=[self._tri.dev, self._bary.dev, self._hit.dev, self._full.dev], device=self.device)
 
-            run(launch, m)
-            tri[first:first + m] = self._tri.pull(m)
-            bary[first:first + m] = self._bary.pull(m)
-            hit[first:first + m] = self._hit.pull(m) != 0
-        return tri, bary, hit
+            run(launch, p1 - p0)
+            tri[first_ray:first_ray + m] = self._tri.pull(m)
+            bary[first_ray:first_ray + m] = self._bary.pull(m)
+            hit[first_ray:first_ray + m] = self._hit.pull(m) != 0
+            full[p0:p1] = self._full.pull(p1 - p0) != 0
+        self.rays = int(len(px) * n_first + full.sum() * (k - n_first)) if n_first < k else n
+        return tri, bary, hit, full
 
 
 # ----------------------------------------------------------------------------- rays toward the sun

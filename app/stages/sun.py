@@ -39,6 +39,10 @@ EDGE_MIN_RAYS = 256  # rays per concurrent part of refine_clipped_edges's launch
 # hand-off costs about what a few hundred ray casts do)
 
 
+EDGE_FIRST_RAYS = 4  # rays cast first on every outline pixel (kernels.sunshadow.first_samples' rotated grid);
+# the other s*s - 4 only on pixels where those disagree (some reach the object, some do not)
+
+
 PIECE_SIZE = 0.25  # the sunlit pieces' size (SunlitPieces), in bounding radii of the object
 
 
@@ -113,6 +117,8 @@ class SunStage:
         self._cen = self.map.points(c_pts)
         self.device = device
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
+        self.edge_first = EDGE_FIRST_RAYS  # of those, the rays cast on every outline pixel (the rest only where
+        # they disagree; None: all on every pixel)
         self.patches = patches
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
         self._blocked: tuple | None = None  # (key, BlockedPairs of the receiver vertices and clusters, clusters, Vr)
@@ -343,7 +349,14 @@ class SunStage:
         the object's radiance there or next to it is 1 or more (a sunlit face; radiance 1 is the
         white level). Object radiance per ray: L_vert interpolated, with the sun per hit (its
         self-shadow edge: rays on the faces it crosses, SunLight.hit_correction; sun_vis (V,) the
-        vertices' sun share) as Engine._shade_object does."""
+        vertices' sun share) as Engine._shade_object does.
+
+        Adaptive: `edge_first` rays (a rotated grid nested in the s x s one) are cast on every outline pixel
+        and the other s*s - edge_first only where some of those reach the object and some do not; of the
+        ~3 px wide outline band the edge crosses ~1 px, so most pixels are wholly on or off the object and
+        keep their first rays' coverage (0 or 1) and mean radiance. What this misses: an edge or a thin
+        part that passes between all first rays of a pixel (coverage off by less than the area between
+        them), and radiance averaged over 4 points instead of s*s on wholly covered pixels."""
         H, W = cov.shape
         s = s or self.edge_samples
         v, n, f = mesh
@@ -366,9 +379,13 @@ class SunStage:
             return np.zeros(0, np.int64)
         order = np.r_[0:len(py):2, 1:len(py):2]  # every other pixel first: the two halves of the launch
         py, px = py[order] + y0, px[order] + x0  # both spread over the outline (as much work each)
-        # s x s rays a pixel against the object, each that reaches it depth-tested against the room (one launch)
-        tri, bary, hit = self._outline(own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s,
-                                       functools.partial(runtime.split, device=self.device, min_items=EDGE_MIN_RAYS))
+        # s x s rays a pixel against the object, each that reaches it depth-tested against the room (one launch):
+        # edge_first of them on every pixel, the rest only where those disagree (the outline crosses the pixel)
+        n_sub = s * s
+        first = n_sub if self.edge_first is None else min(self.edge_first, n_sub)
+        tri, bary, hit, full = self._outline(
+            own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s,
+            functools.partial(runtime.split, device=self.device, min_items=max(1, EDGE_MIN_RAYS // first)), first)
         rad = np.zeros((len(tri), 3))
         h = np.flatnonzero(hit)
         corners = f[tri[h]]
@@ -381,10 +398,9 @@ class SunStage:
             if len(k):
                 hk = h[k]
                 rad[hk] = np.maximum(rad[hk] + albedo * (delta[:, None] * self.E_perp), 0.0)
-        k = s * s
-        hits = hit.reshape(-1, k)
-        c = hits.mean(1)
-        mean = rad.reshape(-1, k, 3).sum(1) / np.maximum(hits.sum(1), 1)[:, None]
+        hits = hit.reshape(-1, n_sub)
+        c = hits.sum(1) / np.where(full, n_sub, first)  # a pixel not full: its `first` rays cast, the rest misses
+        mean = rad.reshape(-1, n_sub, 3).sum(1) / np.maximum(hits.sum(1), 1)[:, None]
         cov[py, px] = c
         obj_rad[py, px] = np.where(c[:, None] > 0, mean, obj_rad[py, px])
         return py * W + px
