@@ -1,6 +1,6 @@
 """Sun benchmark: the cost of the sun's pass in a frame, and PCSS against jittered sun maps.
 
-usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 8] [--ab-only]
+usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 8] [--ab-only | --outline-only]
 
 On sun_room, one engine: the drag frame with --passes shadow passes, the sun being one of them (the
 sun's map, its PCSS lookups, its pieces of object light, the outline where it clips, what it adds to
@@ -9,7 +9,8 @@ the room's patches), interleaved pose by pose; prints the ratio (the median of t
 bootstrap interval), and what the sun adds in CPU time (each kernel's by its launching thread's clock,
 and the process's), steadier than wall time when other jobs load the machine. Then the sunlit object's light at
 pixels around it from whole faces and from the lit pieces against a dense Monte Carlo reference, and
-rmse_object with the clipped outline re-sampled 4 x 4 and 8 x 8. Then the sun shadow alone: one
+rmse_object with the clipped outline re-sampled 1 x 1 to 8 x 8, every ray on every pixel or
+adaptively (SunStage.edge_first), with the rays cast and _outline_hits_kernel's thread-CPU ms. Then the sun shadow alone: one
 PCSS map against N jittered binary maps (directions spread over the 0.53 deg disk), time and the
 mean absolute difference of the occluded share on the sunlit pixels from a 64-map reference.
 Last, the scorer's figures for the --passes frame with known and with captured light, and the
@@ -169,6 +170,32 @@ def shared_score(shared: Path, pixels: np.ndarray) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def outline_table(engine: Engine, obj, shared: Path, repeat: int = 5) -> str:
+    """rmse_object/bias_object of the drag frame with the outline where sunlight clips re-sampled s x s,
+    every ray on every pixel or adaptively (SunStage.edge_first first rays, all s x s where they
+    disagree; the frame's own: 4 x 4 adaptively), with the rays cast and _outline_hits_kernel's
+    thread-CPU ms (the median of `repeat` frames)."""
+    rows = []
+    stage = engine.sun_stage
+    first0 = stage.edge_first
+    # the outline where sunlight clips, re-sampled s x s: every ray on every pixel, or adaptively (the
+    # frame's own: edge_first rays a pixel, all s x s where they disagree)
+    for s, first in ((1, None), (2, None), (3, None), (4, None), (4, first0), (8, None), (8, first0)):
+        stage.edge_samples, stage.edge_first = s, first
+        ms = []
+        for _ in range(repeat):
+            launched = kernel_clock()
+            frame = engine.render(obj)
+            kernel_clock(stop=True)
+            ms.append(1e3 * launched.get("_outline_hits_kernel", 0.0))
+        sc = shared_score(shared, frame.pixels)
+        rows.append({"outline rays": f"{s} x {s}" + ("" if first is None or first >= s * s else f", {first} first"),
+                     "rays": stage._outline.rays, "kernel_ms": float(np.median(ms)),
+                     "rmse_object": sc["rmse_object"], "bias_object": sc["bias_object"]})
+    stage.edge_samples, stage.edge_first = 4, first0
+    return table(rows, ["outline rays", "rays", "kernel_ms", "rmse_object", "bias_object"])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
@@ -176,6 +203,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=8, help="drag poses of the A/B")
     ap.add_argument("--cache", type=Path, default=None)
     ap.add_argument("--ab-only", action="store_true", help="only the sun on/off A/B")
+    ap.add_argument("--outline-only", action="store_true", help="only the clipped outline's table")
     a = ap.parse_args(argv)
     scene = load_scene(a.shared / "scenes" / "sun_room")
     engine = Engine(scene, EngineParams(passes=a.passes), cache_dir=a.cache, quiet=True)
@@ -188,9 +216,13 @@ def main(argv=None) -> int:
     def sun(on: bool) -> None:
         engine.sun_pix, type(engine).sun_on = (saved, sun_on) if on else (None, property(lambda self: False))
 
+    if a.outline_only:
+        engine.render(obj)
+        print(outline_table(engine, obj, a.shared))
+        return 0
     offs = drag_offsets(scene, obj, a.repeat + 1)
     engine.render(moved(obj, offs[0]))
-    t_sun, t_no, ms_sun = [], [], []
+    t_sun, t_no, ms_sun, rays = [], [], [], []  # rays: the clipped outline's camera rays a sun frame
     stages: dict[bool, list[dict]] = {True: [], False: []}
     cpu: dict[bool, list[float]] = {True: [], False: []}  # the process's CPU seconds a frame (all threads)
     kern: dict[bool, dict[str, float]] = {True: {}, False: {}}  # kernel thread-CPU seconds, summed over frames
@@ -208,6 +240,7 @@ def main(argv=None) -> int:
             stages[on].append(st["timings"])
             if on:
                 ms_sun.append(st["timings"]["sun"])
+                rays.append(engine.sun_stage._outline.rays)
     kernel_clock(stop=True)
     sun(True)
     # CPU time is far steadier than wall time on a shared machine (other jobs' load stretches wall time)
@@ -221,6 +254,8 @@ def main(argv=None) -> int:
     rows.append({"kernel": "process CPU a frame (median)", "sun_ms": 1e3 * float(np.median(cpu[True])),
                  "no_sun_ms": 1e3 * float(np.median(cpu[False])),
                  "added_ms": 1e3 * float(np.median(cpu[True]) - np.median(cpu[False]))})
+    rows.append({"kernel": "outline rays a frame (mean, count)", "sun_ms": float(np.mean(rays)), "no_sun_ms": 0.0,
+                 "added_ms": float(np.mean(rays))})
     print(table(rows, ["kernel", "sun_ms", "no_sun_ms", "added_ms"]))
     print(table([{"stage": k, "sun_ms": 1e3 * float(np.median([t.get(k, 0.0) for t in stages[True]])),
                   "no_sun_ms": 1e3 * float(np.median([t.get(k, 0.0) for t in stages[False]]))}
@@ -246,15 +281,7 @@ def main(argv=None) -> int:
         return 0
     print(table(pieces_against_monte_carlo(engine, obj), ["pixel (du, dv)", "monte_carlo", "faces", "pieces",
                                                           "engine", "faces/mc", "pieces/mc", "engine/mc"]))
-    rows = []
-    for s in (4, 8):  # the outline where sunlight clips, re-sampled s x s (the frame's own: 2 x 2)
-        engine.sun_stage.edge_samples = s
-        frame = engine.render(obj)
-        sc = shared_score(a.shared, frame.pixels)
-        rows.append({"outline rays": f"{s} x {s}", "object_shading_ms": 1e3 * frame.stats["timings"]["object_shading"],
-                     "rmse_object": sc["rmse_object"], "bias_object": sc["bias_object"]})
-    engine.sun_stage.edge_samples = 4
-    print(table(rows, ["outline rays", "object_shading_ms", "rmse_object", "bias_object"]))
+    print(outline_table(engine, obj, a.shared))
     ref = jittered(engine, obj, 64)
     rows = []
     t0 = time.perf_counter()
