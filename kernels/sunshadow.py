@@ -340,10 +340,11 @@ def first_samples(s: int, n: int = 4) -> np.ndarray:
     """The order (s*s,) int32 in which OutlineHits casts a pixel's s x s sub-samples (q = b s + a for
     column a, row b): its first min(n, s*s) entries are the sub-samples it casts on every pixel, the rest
     follow only where those disagree. n = 4 (default): a rotated grid (the 4 x 4 grid's (1,0), (3,1), (0,2),
-    (2,3), scaled to s: one per row and per column where s >= 4, centred on the pixel), which tells an
-    edge of any direction through the pixel's middle from a uniform pixel with 4 rays (4 distinct
-    sub-samples for every s >= 3); other n: the
-    first n in row order. Nested in the full s x s grid, so no ray is cast twice."""
+    (2,3), scaled to s: one per row and per column where s >= 4, centred on the pixel; 4 distinct
+    sub-samples for every s >= 3), which tells an edge of any direction through the pixel's middle from a
+    uniform pixel with 4 rays (a straight edge that leaves all 4 on one side leaves at most 2 of the
+    4 x 4's 16 on the other); other n: the first n in row order. Nested in the full s x s grid, so no ray
+    is cast twice."""
     if s < 1:
         raise ValueError(f"first_samples: s = {s}, at least 1")
     if n >= s * s:
@@ -421,7 +422,7 @@ class OutlineHits:
             bary[first_ray:first_ray + m] = self._bary.pull(m)
             hit[first_ray:first_ray + m] = self._hit.pull(m) != 0
             full[p0:p1] = self._full.pull(p1 - p0) != 0
-        self.rays = int(len(px) * n_first + full.sum() * (k - n_first)) if n_first < k else n
+        self.rays = int(len(px) * n_first + full.sum() * (k - n_first))
         return tri, bary, hit, full
 
 
