@@ -339,20 +339,18 @@ def _outline_hits_kernel(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, pix_
 def first_samples(s: int, n: int = 4) -> np.ndarray:
     """The order (s*s,) int32 in which OutlineHits casts a pixel's s x s sub-samples (q = b s + a for
     column a, row b): its first min(n, s*s) entries are the sub-samples it casts on every pixel, the rest
-    follow only where those disagree. n = 4 (default): a rotated grid (the 4 x 4 grid's (1,0), (3,1), (0,2),
-    (2,3), scaled to s: one per row and per column where s >= 4, centred on the pixel; 4 distinct
-    sub-samples for every s >= 3), which tells an edge of any direction through the pixel's middle from a
-    uniform pixel with 4 rays (a straight edge that leaves all 4 on one side leaves at most 2 of the
-    4 x 4's 16 on the other); other n: the first n in row order. Nested in the full s x s grid, so no ray
-    is cast twice."""
+    follow only where those disagree. Nested in the full s x s grid, so no ray is cast twice.
+
+    n = 4 (default): the grid's 4 corner sub-samples. They span the convex hull of all s x s, so a straight
+    edge that leaves the 4 on one side leaves every one of the s x s there too (a half-plane holding the
+    hull's corners holds the hull): on a pixel that one straight edge crosses, or none, the adaptive
+    coverage is the full grid's exactly; it can differ only where a corner of the outline or a part
+    thinner than the pixel lies between them. Other n: the first n in row order."""
     if s < 1:
         raise ValueError(f"first_samples: s = {s}, at least 1")
     if n >= s * s:
         return np.arange(s * s, dtype=np.int32)
-    if n == 4:
-        first = [int((b + 0.5) * s / 4) * s + int((a + 0.5) * s / 4) for a, b in ((1, 0), (3, 1), (0, 2), (2, 3))]
-    else:
-        first = list(range(max(n, 1)))
+    first = [0, s - 1, (s - 1) * s, s * s - 1] if n == 4 else list(range(max(n, 1)))
     rest = [q for q in range(s * s) if q not in set(first)]
     return np.asarray(first + rest, np.int32)
 

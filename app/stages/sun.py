@@ -39,8 +39,8 @@ EDGE_MIN_RAYS = 256  # rays per concurrent part of refine_clipped_edges's launch
 # hand-off costs about what a few hundred ray casts do)
 
 
-EDGE_FIRST_RAYS = 4  # rays cast first on every outline pixel (kernels.sunshadow.first_samples' rotated grid);
-# the other s*s - 4 only on pixels where those disagree (some reach the object, some do not)
+EDGE_FIRST_RAYS = 4  # rays cast first on every outline pixel (kernels.sunshadow.first_samples: the s x s grid's
+# corners); the other s*s - 4 only on pixels where those disagree (some reach the object, some do not)
 
 
 PIECE_SIZE = 0.25  # the sunlit pieces' size (SunlitPieces), in bounding radii of the object
@@ -351,12 +351,13 @@ class SunStage:
         self-shadow edge: rays on the faces it crosses, SunLight.hit_correction; sun_vis (V,) the
         vertices' sun share) as Engine._shade_object does.
 
-        Adaptive: `edge_first` rays (a rotated grid nested in the s x s one) are cast on every outline pixel
-        and the other s*s - edge_first only where some of those reach the object and some do not; of the
-        ~3 px wide outline band the edge crosses ~1 px, so most pixels are wholly on or off the object and
-        keep their first rays' coverage (0 or 1) and mean radiance. What this misses: an edge or a thin
-        part that passes between all first rays of a pixel (coverage off by less than the area between
-        them), and radiance averaged over 4 points instead of s*s on wholly covered pixels."""
+        Adaptive: `edge_first` rays (the s x s grid's corners, first_samples) are cast on every outline
+        pixel and the other s*s - edge_first only where some of those reach the object and some do not; of
+        the ~3 px wide outline band the edge crosses ~1 px, so most pixels are wholly on or off the object
+        and keep their corner rays' coverage (0 or 1) and mean radiance. The corners span the hull of all
+        s x s sub-samples, so a pixel crossed by one straight edge is never missed; what is: a corner of
+        the outline or a part thinner than a pixel that passes between all 4, and radiance averaged over 4
+        points instead of s*s on wholly covered pixels."""
         H, W = cov.shape
         s = s or self.edge_samples
         v, n, f = mesh

@@ -337,12 +337,12 @@ def test_sun_frame_allocates_nothing_after_the_first_frame(sun_drag):
 
 
 def test_adaptive_outline_matches_every_ray(sun_drag):
-    # SunStage.refine_clipped_edges with 4 first rays a pixel (the other 12 where they disagree) against
-    # all 16 everywhere and against 8 x 8 everywhere (the reference), on the chair's whole outline (its
-    # radiance set bright: every outline pixel is refined): the same pixels, coverage within 2/16 of the
-    # 4 x 4's on nearly every pixel (more only where a part thinner than the first rays' spacing or a
-    # corner passes between them), as close to 8 x 8 as 4 x 4 to within 0.01 on average (0.024 against
-    # 0.021 here) and closer than 3 x 3 (0.033) with fewer rays than it, about half the 4 x 4's
+    # SunStage.refine_clipped_edges with 4 corner rays a pixel (the other 12 where they disagree) against
+    # all 16 everywhere, 3 x 3 and 8 x 8 (the reference) everywhere, on the chair's whole outline (its
+    # radiance set bright: every outline pixel is refined): the same pixels; coverage equal to the 4 x 4's
+    # on nearly every pixel (all 1629 here: it can differ only where a corner of the outline or a part
+    # thinner than a pixel passes between the 4), so as close to 8 x 8; with fewer rays than 3 x 3
+    # (13860 against 14661 here; 4 x 4: 26064)
     from app.dragpath import drag_offsets, moved
 
     s, e, frames, _ = sun_drag
@@ -369,11 +369,11 @@ def test_adaptive_outline_matches_every_ray(sun_drag):
     assert len(pix) > 100 and np.array_equal(pix, pix4) and np.array_equal(pix, pix3) and np.array_equal(pix, pix8)
     assert rays < 0.6 * rays4 and rays < rays3
     d = np.abs(c - c4)
-    assert np.mean(d > 2 / 16 + 1e-9) < 0.01 and d.mean() < 0.01
+    assert np.mean(d > 0) < 0.01 and d.max() <= 4 / 16
     err, err4, err3 = (np.abs(x - c8).mean() for x in (c, c4, c3))
-    assert err <= err4 + 0.01 and err < err3
-    # radiance: the same where all 16 were cast; a wholly covered pixel's is its 4 first hits' mean (the
-    # sun's self-shadow edge or a crease within it moves that: 0.13 % of the mean on average here)
+    assert err <= err4 + 1e-3 and err < err3
+    # radiance: the same where all 16 were cast; a wholly covered pixel's is its 4 corner hits' mean (the
+    # sun's self-shadow edge or a crease within it moves that: 0.14 % of the mean on average here)
     both = (d == 0) & (c > 0)
     assert both.sum() > 100 and np.abs(r[both] - r4[both]).mean() < 0.01 * np.abs(r4[both]).mean()
 
