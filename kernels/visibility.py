@@ -376,30 +376,69 @@ POINT_HESSIAN = 12.0  # sup of |d^T H d| |r|^5 / h for the point form factor's k
 
 
 @wp.func
-def _bounded_ff(p: wp.vec3d, n: wp.vec3d, r: wp.vec3d, ct: wp.float64, g: wp.vec2d, poly: wp.array2d(dtype=wp.vec3d),
+def _point_ff(p: wp.vec3d, n: wp.vec3d, q: wp.vec3d, an: wp.vec3d) -> wp.float64:
+    """Point form factor A cos_x cos_t / (pi r^2) from p (unit normal n) to an emitter at q of twice its
+    area x unit normal `an` (no horizon or side test: the caller's)."""
+    r = p - q
+    d2 = wp.dot(r, r)
+    return wp.dot(r, an) * (-wp.dot(r, n)) / (wp.float64(6.283185307179586) * d2 * d2)
+
+
+@wp.func
+def _split_ff(p: wp.vec3d, n: wp.vec3d, poly: wp.array2d(dtype=wp.vec3d), j: int, k: int) -> wp.float64:
+    """The mid-point rule of polygon j of `poly` (k vertices, convex) on its fan triangles (0, e, e+1) each
+    split in 4 at its edges' mid-points: 4 (k - 2) point form factors (_point_ff) at the quarters' centroids."""
+    a = poly[j, 0]
+    total = wp.float64(0.0)
+    sixth = wp.float64(1.0) / wp.float64(6.0)
+    for e in range(1, k - 1):
+        b = poly[j, e]
+        c = poly[j, e + 1]
+        an = wp.cross(b - a, c - a) * wp.float64(0.25)  # each quarter's 2 x area x unit normal
+        total += _point_ff(p, n, (a * wp.float64(4.0) + b + c) * sixth, an)
+        total += _point_ff(p, n, (a + b * wp.float64(4.0) + c) * sixth, an)
+        total += _point_ff(p, n, (a + b + c * wp.float64(4.0)) * sixth, an)
+        total += _point_ff(p, n, (a + b + c) / wp.float64(3.0), an)
+    return total
+
+
+@wp.func
+def _bounded_ff(p: wp.vec3d, n: wp.vec3d, r: wp.vec3d, ct: wp.float64, g: wp.vec3d, poly: wp.array2d(dtype=wp.vec3d),
                 j: int, k: int, tolerance: wp.float64) -> wp.float64:
     """Form factor from p (unit normal n) to polygon j of `poly` (k vertices) seen from r = p - its
-    centroid, ct = r . (2 x its area x unit normal) > 0: the point form factor where the mid-point
-    bound allows (emitter_sum_seen_bounded; g = (rho, 6 J / A)), else the exact one."""
+    centroid, ct = r . (2 x its area x unit normal) > 0: where the polygon lies wholly above the
+    receiver's horizon, the point form factor or else the mid-point rule on its quarters (_split_ff) where
+    its bound allows (emitter_sum_seen_bounded; g = (rho, 6 J / A, 6 J_4 / A), J_4 = J of the quarters
+    about their own centroids), else the exact one."""
     d2 = wp.dot(r, r)
     d = wp.sqrt(d2)
     cr = -wp.dot(r, n)  # |r| cos at the receiver
-    if d > g[0] and cr > g[0]:  # the whole polygon above the receiver's horizon
-        m = d - g[0]
-        if g[1] * d2 * d <= tolerance * m * m * m * m * m:
-            return ct * cr / (wp.float64(6.283185307179586) * d2 * d2)
+    if d > g[0] and cr > -g[0]:  # the polygon may lie above the receiver's horizon
+        above = int(1)  # its bounding sphere is; else the corners decide (convex: all above, all of it)
+        if cr <= g[0]:
+            for e in range(k):
+                if wp.dot(poly[j, e] - p, n) <= wp.float64(0.0):
+                    above = 0
+        if above != 0:
+            m = d - g[0]
+            allow = tolerance * m * m * m * m * m
+            if g[1] * d2 * d <= allow:
+                return ct * cr / (wp.float64(6.283185307179586) * d2 * d2)
+            if g[2] * d2 * d <= allow:
+                return _split_ff(p, n, poly, j, k)
     return polygon_ff(p, n, poly, j, k)
 
 
 @wp.func
 def _seen_emitters(p: wp.vec3d, n: wp.vec3d, tris: wp.array2d(dtype=wp.vec3d), centroids: wp.array(dtype=wp.vec3d),
-                   area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec2d),
+                   area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec3d),
                    radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.uint8), res: int,
                    tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d), group: wp.array(dtype=wp.vec3i),
                    g_centroids: wp.array(dtype=wp.vec3d), g_area_normals: wp.array(dtype=wp.vec3d),
-                   g_geometry: wp.array(dtype=wp.vec2d)) -> wp.vec3:
+                   g_geometry: wp.array(dtype=wp.vec3d)) -> wp.vec3:
     """emitter_sum_seen_bounded at one receiver p (unit normal n), group by group (SeenEmitters.set)."""
-    # geometry[t] = (rho_t: the farthest corner from the centroid, 6 J_t / A_t = (sum of squared edges) / 6);
+    # geometry[t] = (rho_t: the farthest corner from the centroid, 6 J_t / A_t = (sum of squared edges) / 6,
+    # the same of its quarters (_split_ff): a quarter of it);
     # group[g] = (vertices of its polygon, first member, members), g_*: its polygon's (members' radiance)
     total = wp.vec3(0.0, 0.0, 0.0)
     for g in range(group.shape[0]):
@@ -429,11 +468,11 @@ def _seen_emitters(p: wp.vec3d, n: wp.vec3d, tris: wp.array2d(dtype=wp.vec3d), c
 @wp.kernel
 def _emitter_sum_seen_bounded_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
                                      tris: wp.array2d(dtype=wp.vec3d), centroids: wp.array(dtype=wp.vec3d),
-                                     area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec2d),
+                                     area_normals: wp.array(dtype=wp.vec3d), geometry: wp.array(dtype=wp.vec3d),
                                      radiance: wp.array(dtype=wp.vec3), seen: wp.array2d(dtype=wp.uint8), res: int,
                                      tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d),
                                      group: wp.array(dtype=wp.vec3i), g_centroids: wp.array(dtype=wp.vec3d),
-                                     g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec2d),
+                                     g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec3d),
                                      out: wp.array(dtype=wp.vec3)):
     i = wp.tid()
     out[i] = _seen_emitters(points[i], normals[i], tris, centroids, area_normals, geometry, radiance, seen, res,
@@ -446,11 +485,11 @@ def _ray_and_seen_emitters_kernel(points: wp.array(dtype=wp.vec3d), normals: wp.
                                   tri_normals: wp.array(dtype=wp.vec3), mesh: wp.uint64, eps: float,
                                   free: wp.array2d(dtype=wp.uint8), free_res: int,
                                   s_tris: wp.array2d(dtype=wp.vec3d), s_centroids: wp.array(dtype=wp.vec3d),
-                                  s_area_normals: wp.array(dtype=wp.vec3d), s_geometry: wp.array(dtype=wp.vec2d),
+                                  s_area_normals: wp.array(dtype=wp.vec3d), s_geometry: wp.array(dtype=wp.vec3d),
                                   s_radiance: wp.array(dtype=wp.vec3), s_seen: wp.array2d(dtype=wp.uint8),
                                   s_res: int, tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d),
                                   group: wp.array(dtype=wp.vec3i), g_centroids: wp.array(dtype=wp.vec3d),
-                                  g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec2d),
+                                  g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec3d),
                                   out: wp.array(dtype=wp.vec3)):
     # emitter_sum's triangles (rays) and SeenEmitters' (tables) at once: SeenEmitters.sum_with_rays
     i = wp.tid()
@@ -467,11 +506,11 @@ def _ray_and_seen_emitters2_kernel(points: wp.array(dtype=wp.vec3d), normals: wp
                                    radiance2: wp.array(dtype=wp.vec3), tri_normals: wp.array(dtype=wp.vec3),
                                    mesh: wp.uint64, eps: float, free: wp.array2d(dtype=wp.uint8), free_res: int,
                                    s_tris: wp.array2d(dtype=wp.vec3d), s_centroids: wp.array(dtype=wp.vec3d),
-                                   s_area_normals: wp.array(dtype=wp.vec3d), s_geometry: wp.array(dtype=wp.vec2d),
+                                   s_area_normals: wp.array(dtype=wp.vec3d), s_geometry: wp.array(dtype=wp.vec3d),
                                    s_radiance: wp.array(dtype=wp.vec3), s_seen: wp.array2d(dtype=wp.uint8),
                                    s_res: int, tolerance: wp.float64, polys: wp.array2d(dtype=wp.vec3d),
                                    group: wp.array(dtype=wp.vec3i), g_centroids: wp.array(dtype=wp.vec3d),
-                                   g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec2d),
+                                   g_area_normals: wp.array(dtype=wp.vec3d), g_geometry: wp.array(dtype=wp.vec3d),
                                    out: wp.array(dtype=wp.vec3), out2: wp.array(dtype=wp.vec3)):
     # SeenEmitters.sum_with_rays2: the triangles' sums for two radiances with one ray each (out, out2),
     # the seen emitters' added to the second
@@ -497,13 +536,35 @@ def emitter_sum_seen_bounded(points: np.ndarray, normals: np.ndarray, triangles:
     moment about the centroid, rho the centroid's farthest corner, r the receiver's distance to the
     centroid). A triangle is a point where that is at most `tolerance` x A h / (pi r^3) (its light at a
     receiver facing it, unoccluded), i.e. (sum of squared edges / 6) r^3 <= tolerance (r - rho)^5, and
-    wholly above the receiver's horizon (r cos_x > rho); else its exact polygon form factor (the
-    same as emitter_sum_seen). tolerance 0: exact everywhere. Returns (N,3) float64. (SeenEmitters
+    wholly above the receiver's horizon (r cos_x > rho, or else each corner above it: convex, the whole
+    triangle). Where the point is not within that bound, the same rule on the triangle's four quarters
+    (split at its edges' mid-points, _split_ff: four point form factors, each quarter's error bounded as
+    above with the triangle's own r - rho, which no point of a quarter is nearer than; their J sum to
+    J / 4) is used where (sum of squared edges / 24) r^3 <= tolerance (r - rho)^5: a receiver about
+    half as far (the same share of its light; four point form factors, a division each, in place of the
+    exact one's three arc tangents: on sun_room's drag frames a quarter to a half of the pieces' exact form
+    factors beside the object). Else its exact polygon form factor (the same as
+    emitter_sum_seen). tolerance 0: exact everywhere. Returns (N,3) float64. (SeenEmitters
     keeps the emitters uploaded for many such sums; groups: runs of triangles summed as one polygon,
     SeenEmitters.set.)"""
     em = SeenEmitters(device, workspace)
     em.set(triangles, radiance, seen, res, tolerance, capacity, groups)
     return em.sum(points, normals, split=split, workspace=workspace)
+
+
+def _quarters_moment(polys: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """6 x the polar moment (m^4) of the quarters _split_ff evaluates, each about its own centroid, summed
+    per polygon: polys (G,4,3) convex with its first verts (G,) corners; its fan triangles (0, e, e+1),
+    each in 4 at its edges' mid-points (a quarter's J = (A/4)(E/4)/36 of its triangle's area A and sum of
+    squared edges E), i.e. 6 x sum over the fan triangles of A E / 144."""
+    polys = np.asarray(polys, np.float64)
+    out = np.zeros(len(polys))
+    for e in range(1, polys.shape[1] - 1):
+        a, b, c = polys[:, 0], polys[:, e], polys[:, e + 1]
+        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+        edges = ((b - a) ** 2).sum(1) + ((c - b) ** 2).sum(1) + ((a - c) ** 2).sum(1)
+        out += np.where(e + 1 < np.asarray(verts), 6.0 * area * edges / 144.0, 0.0)
+    return out
 
 
 class SeenEmitters:
@@ -528,7 +589,8 @@ class SeenEmitters:
         table sees, a run is one polygon: its exact form factor is its members' sum (form factors add
         over a partition, the horizon's clipping too), and its mid-point bound (with its polar moment
         J = sum of the members' own and A_t |c_t - C|^2 about the run's centroid C) decides when it is a
-        point; elsewhere its members are summed one by one as without groups. None: every triangle alone."""
+        point, and that of its fan triangles' quarters (_quarters_moment) when it is their mid-point rule;
+        elsewhere its members are summed one by one as without groups. None: every triangle alone."""
         tri = np.asarray(triangles, np.float64)
         self.n = len(tri)
         if self.n == 0:
@@ -540,7 +602,7 @@ class SeenEmitters:
         if groups is None:
             start, count = np.arange(self.n), np.ones(self.n, np.int64)
             polys, verts = np.concatenate([tri, tri[:, :1]], 1), np.full(self.n, 3)
-            g_cen, g_tn, g_geom = cen, tn, np.stack([rho, edges2], 1)
+            g_cen, g_tn, g_geom = cen, tn, np.stack([rho, edges2, edges2 / 4.0], 1)
         else:
             start, count, polys, verts = (np.asarray(g) for g in groups)
             area = 0.5 * np.linalg.norm(tn, axis=1)
@@ -551,20 +613,20 @@ class SeenEmitters:
             J = np.add.reduceat(area * (edges2 / 6.0 + ((cen - g_cen[of]) ** 2).sum(1)), start)
             corner = np.arange(4)[None, :] < verts[:, None]
             g_rho = np.sqrt(np.where(corner, ((polys - g_cen[:, None]) ** 2).sum(-1), 0.0).max(1))
-            g_geom = np.stack([g_rho, 6.0 * J / g_area], 1)
+            g_geom = np.stack([g_rho, 6.0 * J / g_area, _quarters_moment(polys, verts) / g_area], 1)
         info = np.stack([verts, start, count], 1).astype(np.int32)
         ws, dev = self._ws, self.device
         self._shared = [ws.upload("tris", tri, wp.vec3d, dev, capacity),
                         ws.upload("centroids", cen, wp.vec3d, dev, capacity),
                         ws.upload("area_normals", tn, wp.vec3d, dev, capacity),
-                        ws.upload("geometry", np.stack([rho, edges2], 1), wp.vec2d, dev, capacity),
+                        ws.upload("geometry", np.stack([rho, edges2, edges2 / 4.0], 1), wp.vec3d, dev, capacity),
                         ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, dev, capacity),
                         seen_table(ws, seen, wp.uint8, dev, capacity), int(res), float(tolerance),
                         ws.upload("polys", np.asarray(polys, np.float64), wp.vec3d, dev, capacity),
                         ws.upload("group", info, wp.vec3i, dev, capacity),
                         ws.upload("g_centroids", g_cen, wp.vec3d, dev, capacity),
                         ws.upload("g_area_normals", g_tn, wp.vec3d, dev, capacity),
-                        ws.upload("g_geometry", g_geom, wp.vec2d, dev, capacity)]
+                        ws.upload("g_geometry", g_geom, wp.vec3d, dev, capacity)]
         self.n_groups = len(start)
         return self
 

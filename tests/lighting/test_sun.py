@@ -740,3 +740,58 @@ def test_captured_estimate_finds_no_sun_in_a_sunless_photo(tmp_path):
     sun, info = estimate_sun(s, pm, e.pix_patch, e.pix_pos.astype(float), e.dirs, L, sat, e.recv_pix, e.pre.B[-1],
                              e.pre.G_c, e.scene_occ)
     assert sun is None and info["reason"], info
+
+
+def test_quarter_rule_within_its_bound_of_the_exact_form_factor():
+    # emitter_sum_seen_bounded between the point emitter and the exact form factor: a polygon (a triangle, a
+    # quad run of two) wholly above the receiver's horizon whose point bound fails but whose quarters' holds
+    # is summed as the point form factors of its fan triangles' quarters (split at the edges' mid-points):
+    # that is what it gives there, and its error is within the quarters' mid-point bound
+    # 6 h J_4 / (pi (r - rho)^5), itself within tolerance x A h / (pi r^3)
+    from kernels.visibility import emitter_sum_seen, emitter_sum_seen_bounded
+
+    rng = np.random.default_rng(3)
+    quad = np.array([[-0.3, 0, -0.2], [0.4, 0, -0.2], [0.25, 0, 0.3], [-0.15, 0, 0.3]])  # a trapezoid facing +y
+    cases = [(quad[[0, 2, 1]][None], None),  # one triangle, CCW seen from +y
+             (np.stack([quad[[0, 2, 1]], quad[[0, 3, 2]]]), ([0], [2], quad[None, [0, 3, 2, 1]], [4]))]
+    tol = 0.05
+    for tris, groups in cases:
+        poly = tris[0] if groups is None else groups[2][0]
+        fan = [poly[[0, e, e + 1]] for e in range(1, len(poly) - 1)]
+        area = sum(0.5 * np.linalg.norm(np.cross(t[1] - t[0], t[2] - t[0])) for t in fan)
+        cen = sum(0.5 * np.linalg.norm(np.cross(t[1] - t[0], t[2] - t[0])) * t.mean(0) for t in fan) / area
+        rho = np.linalg.norm(poly - cen, axis=1).max()
+        J = sum(0.5 * np.linalg.norm(np.cross(t[1] - t[0], t[2] - t[0])) * ((t - t[[2, 0, 1]]) ** 2).sum() / 36.0
+                for t in fan)  # the polar moment of the fan triangles about their own centroids (the group's is more)
+        J_4 = J / 4.0
+        J_point = J + sum(0.5 * np.linalg.norm(np.cross(t[1] - t[0], t[2] - t[0])) * ((t.mean(0) - cen) ** 2).sum()
+                          for t in fan)  # the polygon's about its centroid (the point emitter's)
+        pts = cen + rng.uniform([-3, 0.02, -3], [3, 2.5, 3], (4000, 3))
+        nrm = rng.normal(size=(len(pts), 3))
+        nrm[:, 1] = np.abs(nrm[:, 1])
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        r = np.linalg.norm(pts - cen, axis=1)
+        h = pts[:, 1]
+        above = (((poly[None] - pts[:, None]) * nrm[:, None]).sum(-1) > 0).all(1)
+        m = np.maximum(r - rho, 1e-9)
+        quarters = above & (r > rho) & (6 * J_4 / area * r ** 3 <= tol * m ** 5) \
+            & (6 * J_point / area * r ** 3 > tol * m ** 5)  # and not a point
+        assert quarters.sum() > 200
+        p, n = pts[quarters], nrm[quarters]
+        seen = np.ones((len(tris), 6 * 4 * 4), bool)
+        rad = np.ones((len(tris), 3))
+        exact = emitter_sum_seen(p, n, tris, rad, seen, 4, device="cpu")[:, 0]
+        got = emitter_sum_seen_bounded(p, n, tris, rad, seen, 4, tol, device="cpu", groups=groups)[:, 0]
+        want = np.zeros(len(p))
+        for t in fan:
+            a, b, c = t
+            an = np.cross(b - a, c - a) / 4.0
+            for q in ((4 * a + b + c) / 6, (a + 4 * b + c) / 6, (a + b + 4 * c) / 6, (a + b + c) / 3):
+                d = p - q
+                want += (d @ an) * -(d * n).sum(1) / (2 * np.pi * (d * d).sum(1) ** 2)
+        np.testing.assert_allclose(got, want, rtol=1e-5)  # the quarters' point form factors (float32 out)
+        err = np.abs(got - exact)
+        bound = 6 * h[quarters] * J_4 / (np.pi * (r[quarters] - rho) ** 5)
+        assert np.all(err <= bound + 1e-7 * exact.max())
+        assert np.all(bound <= tol * area * h[quarters] / (np.pi * r[quarters] ** 3) * (1 + 1e-9))
+        assert err.max() > 1e-4 * exact.max()  # not the exact form factor
