@@ -418,8 +418,8 @@ class SunRays:
         for s in range(0, n, self.rows):
             e = min(n, s + self.rows)
             m = e - s
-            pts.upload(np.asarray(start[s:e], np.float32))
-            tex.upload(np.asarray(t_exit[s:e], np.float32))
+            pts.upload(start[s:e])  # cast to float32 in the copy
+            tex.upload(t_exit[s:e])
             cuts = [(0, m // 2), (m // 2, m)] if parallel and cpu and m >= SUN_RAYS_SPLIT else [(0, m)]
             runtime.run_parallel([lambda a=a, b=b: wp.launch(
                 _sun_free_kernel, dim=b - a, inputs=[meshes.dev, len(ids), pts.dev, dv, tex.dev, a],

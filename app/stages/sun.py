@@ -439,6 +439,12 @@ def _weighted_centres(w: np.ndarray, pts: np.ndarray) -> np.ndarray:
                     pts.mean(1))
 
 
+def _pass(Q: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Q_c x_c per channel (3,C) for Q (3,C,C), x (3,C) float32: each row's dot product with its channel's x
+    (np.vecdot's BLAS sdot, single-threaded below 10^4 terms), not a matrix-vector BLAS call (threaded)."""
+    return np.vecdot(Q, x[:, None, :])
+
+
 class LaterBounces:
     """The later bounces of a first-bounce change of patch radiance dB1, at the receiver vertices:
     G_v sum_{k=1}^{n} (rho G)^k dB1, on clusters of neighbouring patches (patch_clusters).
@@ -496,8 +502,9 @@ class LaterBounces:
         first passes side by side, then one chain of passes in which `later` joins a pass late (the
         passes through Q are linear). With `onto` (P,3): sum_{k=1}^{n} (rho G)^k dB1 (and later's) added
         to it at the patches instead (the caller passes it through G_v once); returns None. The
-        products are einsums over a contiguous last axis, not BLAS calls: a threaded BLAS on a loaded
-        machine took 40-60 ms for what takes 1-2 ms here."""
+        products are not threaded BLAS calls (a threaded BLAS on a loaded machine took 40-60 ms for what
+        takes 1-2 ms here): the passes through Q are row-by-vector dot products (np.vecdot: one BLAS dot of
+        C terms per row, single-threaded at this length; ~3x an einsum's speed), the rest einsums."""
         if later is not None and (n <= 1 or not np.any(later)):
             later = None
         if n <= 0 or (not np.any(dB1) and later is None):
@@ -508,7 +515,7 @@ class LaterBounces:
             a = None
             if rest.any():
                 xm = np.stack([np.bincount(self.cluster, rest[:, c], self.n) for c in range(3)]).astype(np.float32)
-                a = np.einsum("cij,cj->ci", self.Q, xm)
+                a = _pass(self.Q, xm)
             parts.append((a, x[self.exact]))
         total = np.zeros((3, self.n), np.float32)  # the passes on the clusters, summed
         for a, _ in parts:
@@ -522,7 +529,7 @@ class LaterBounces:
                 nz = np.flatnonzero(e.any(1))
                 z = np.einsum("cek,ec->ck", self.QW[:, nz], e[nz].astype(np.float32))
                 if a is not None:
-                    z += np.einsum("cij,cj->ci", self.Q, a)
+                    z += _pass(self.Q, a)
             else:
                 if k == 1 and len(parts) > 1:  # later's chain joins: its y_1 = Q S later' + W later[exact]
                     a, e = parts[1]
@@ -530,7 +537,7 @@ class LaterBounces:
                     z = z + np.einsum("cek,ec->ck", self.W[:, nz], e[nz].astype(np.float32))
                     if a is not None:
                         z = z + a
-                z = np.einsum("cij,cj->ci", self.Q, z)
+                z = _pass(self.Q, z)
             total += z
         nz = np.flatnonzero(xe.any(1))
         if onto is not None:
