@@ -372,8 +372,9 @@ def _sun_free_kernel(meshes: wp.array(dtype=wp.uint64), n_meshes: int, start: wp
     f = wp.uint8(1)
     for k in range(n_meshes):
         if f != wp.uint8(0):
-            q = wp.mesh_query_ray(meshes[k], start[i], d, t)
-            if q.result and q.t < t:
+            # any hit with 0 <= t' < t, the first one met (not the nearest: the same yes/no, fewer nodes visited
+            # where the ray is blocked)
+            if wp.mesh_query_ray_anyhit(meshes[k], start[i], d, t):
                 f = wp.uint8(0)
     free[i] = f
 
