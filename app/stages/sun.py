@@ -129,7 +129,7 @@ class SunStage:
         occ_c = self.map.occlusion_at(self._cen).reshape(self.c_vis.shape)
         self._lost = self.c_vis * occ_c  # share of the sun lost at each sample point (first_pass_blocked)
         loss_c = np.zeros((self.n_patches, 3))
-        loss_c[self.c_patch] = (self.c_vis * occ_c).mean(1)[:, None] * self.E_perp
+        loss_c[self.c_patch] = self._lost.mean(1)[:, None] * self.E_perp
         return occ_pix[:, None] * self.E_pix, loss_c
 
     def later_bounces(self, dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, G_v: np.ndarray,
@@ -235,10 +235,9 @@ class SunStage:
         J, K = self.c_vis.shape
         w = self._lost
         pts = self.c_pts.reshape(J, K, 3)
-        centres = _weighted_centres(w, pts)
         change = dB1[self.c_patch]
         lost = np.flatnonzero(change.any(1))
-        targets, columns, weights = [centres[lost]], [lost], [change[lost]]
+        targets, columns, weights = [_weighted_centres(w[lost], pts[lost])], [lost], [change[lost]]
         if at_patches and albedo is not None:
             kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
             sun = albedo[self.c_patch] * ((kept.sum(1) / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
@@ -278,10 +277,8 @@ class SunStage:
         share = pieces.lit_share(origin)
         T = len(pf)
         lit = share > 0
-        whole = np.bincount(pieces.parent, (share >= 1.0).astype(float), T) == np.bincount(pieces.parent, minlength=T)
-        whole &= np.bincount(pieces.parent, minlength=T) > 0
-        E_face = np.zeros(T)  # cos of the wholly sunlit faces
-        E_face[pieces.parent] = pieces.cos
+        count, E_face = self._pieces[5]  # pieces per face, each face's cos (of the shape)
+        whole = (np.bincount(pieces.parent, (share >= 1.0).astype(float), T) == count) & (count > 0)
         tri_rad = tri_rad + albedo * (np.where(whole, E_face, 0.0)[:, None] * self.E_perp)
         part = np.flatnonzero(lit & ~whole[pieces.parent])
         if len(part) == 0:
@@ -329,7 +326,11 @@ class SunStage:
             k = PIECE_TABLE_RES // CUBE_RES
             coarse = table.seen.reshape(-1, 6, CUBE_RES, k, CUBE_RES, k).mean((3, 5)).reshape(len(pieces), -1) \
                 if table is not None else None
-            self._pieces = (key, pieces, table, coarse, _piece_rows(pieces.tris0, pieces.parent, tris - pieces.origin))
+            count = np.bincount(pieces.parent, minlength=len(tris))  # pieces per face (object_emitters)
+            E_face = np.zeros(len(tris))  # the faces' cos toward the sun (object_emitters: of the wholly lit ones)
+            E_face[pieces.parent] = pieces.cos
+            self._pieces = (key, pieces, table, coarse, _piece_rows(pieces.tris0, pieces.parent, tris - pieces.origin),
+                            (count, E_face))
         return self._pieces[1:4]
 
     def refine_clipped_edges(self, camera, cam_occ: Occluder, mesh, own: Occluder, L_vert: np.ndarray,
