@@ -433,8 +433,9 @@ def _sun_free_kernel(meshes: wp.array(dtype=wp.uint64), n_meshes: int, start: wp
     f = wp.uint8(1)
     for k in range(n_meshes):
         if f != wp.uint8(0):
-            q = wp.mesh_query_ray(meshes[k], start[i], d, t)
-            if q.result and q.t < t:
+            # any hit with 0 <= t' < t, the first one met (not the nearest: the same yes/no, fewer nodes visited
+            # where the ray is blocked)
+            if wp.mesh_query_ray_anyhit(meshes[k], start[i], d, t):
                 f = wp.uint8(0)
     free[i] = f
 
@@ -479,8 +480,8 @@ class SunRays:
         for s in range(0, n, self.rows):
             e = min(n, s + self.rows)
             m = e - s
-            pts.upload(np.asarray(start[s:e], np.float32))
-            tex.upload(np.asarray(t_exit[s:e], np.float32))
+            pts.upload(start[s:e])  # cast to float32 in the copy
+            tex.upload(t_exit[s:e])
             cuts = [(0, m // 2), (m // 2, m)] if parallel and cpu and m >= SUN_RAYS_SPLIT else [(0, m)]
             runtime.run_parallel([lambda a=a, b=b: wp.launch(
                 _sun_free_kernel, dim=b - a, inputs=[meshes.dev, len(ids), pts.dev, dv, tex.dev, a],

@@ -69,6 +69,17 @@ class SunLight:
         self._rays = SunRays(self.device)  # visibility's rays and buffers, kept from call to call (not shared
         # between threads: one caller at a time)
         self.reason = ""
+        self._flat: tuple | None = None  # (n, f, flat faces) of hit_correction's last mesh (_flat_faces)
+        # exit_distance's openings that the sun enters through: (corner c0, normal, 1 / -(d . normal) 1/m,
+        # (3,2) the edges U, V from c0 over their squared lengths 1/m); parallel ones or backs: no passage
+        self._exits = []
+        for q in self.openings:
+            denom = float(np.dot(self.d, q.normal))
+            if denom < -1e-9:
+                c0 = np.asarray(q.corners[0], np.float64)
+                U, V = q.corners[1] - c0, q.corners[3] - c0
+                self._exits.append((c0, np.asarray(q.normal, np.float64), 1.0 / -denom,
+                                    np.stack([U / (U @ U), V / (V @ V)], 1)))
         if self.d[1] <= 0.0:
             self.reason = f"{where}: the sun is below the horizon (direction_to_sun y = {self.d[1]:.3g}): no direct sun"
         elif not self.openings:
@@ -89,18 +100,14 @@ class SunLight:
         """Distance (N,) m along d from each point to the first opening it leaves through (inf: none)."""
         p = np.asarray(points, np.float64)
         best = np.full(len(p), np.inf)
-        for q in self.openings:
-            denom = float(np.dot(self.d, q.normal))
-            if denom >= -1e-9:  # parallel to the opening or entering through its back: no passage
-                continue
-            c0 = q.corners[0]
-            t = (p - c0) @ q.normal / -denom
-            hit = p + t[:, None] * self.d
-            U, V = q.corners[1] - c0, q.corners[3] - c0
-            u = (hit - c0) @ U / (U @ U)
-            v = (hit - c0) @ V / (V @ V)
-            ok = (t > 0) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
-            best = np.where(ok & (t < best), t, best)
+        for c0, nrm, inv_denom, UV in self._exits:
+            pc = p - c0
+            t = pc @ nrm
+            t *= inv_denom
+            pc += t[:, None] * self.d  # the hit point, from c0
+            uv = pc @ UV  # (N,2): its place along the edges U and V, in their lengths
+            ok = (t > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= 1) & (t < best)
+            best[ok] = t[ok]
         return best
 
     def visibility(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = (),
@@ -123,8 +130,8 @@ class SunLight:
         # the room and the object in one launch (kernels.sunshadow.SunRays); split over the cores for many
         # rays, not from inside a pooled launch
         pooled = threading.current_thread().name.startswith("photoar")
-        free = self._rays([o.id for o in occs], start, self.d, t_exit, parallel=not pooled)
-        out[idx[free]] = cos[idx[free]]
+        free = idx[self._rays([o.id for o in occs], start, self.d, t_exit, parallel=not pooled)]
+        out[free] = cos[free]
         return out
 
     def irradiance(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = ()) -> np.ndarray:
@@ -160,28 +167,41 @@ class SunLight:
         lit_f = (vis_v > 0)[f].sum(1)  # sunlit corners per face
         # a wholly lit face whose corner normals agree within FLAT_COS: the hit's interpolated normal is
         # theirs, so its sun (cos) equals its corners' blend to within 1 / FLAT_COS - 1: no delta
-        need = lit_f > 0
-        whole_f = np.flatnonzero(lit_f == 3)
-        if len(whole_f):
-            nf = n[f[whole_f]]  # (W,3,3)
-            agree = np.minimum(np.minimum(np.einsum("wc,wc->w", nf[:, 0], nf[:, 1]),
-                                          np.einsum("wc,wc->w", nf[:, 1], nf[:, 2])),
-                               np.einsum("wc,wc->w", nf[:, 0], nf[:, 2]))
-            need[whole_f[agree >= FLAT_COS]] = False
+        need = (lit_f > 0) & ~((lit_f == 3) & self._flat_faces(n, f))
         k = np.flatnonzero(need[tri])
         if len(k) == 0:
             return k, np.zeros(0)
-        ck = f[tri[k]]
+        tk = tri[k]
+        ck = f[tk]
+        c0, c1, c2 = ck[:, 0], ck[:, 1], ck[:, 2]
         b = np.asarray(bary[k], np.float64)
-        nrm = np.einsum("nk,nkc->nc", b, n[ck])
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-        whole = lit_f[tri[k]] == 3
-        vis = np.where(whole, np.maximum(nrm @ self.d, 0.0), 0.0)
+        b0, b1, b2 = b[:, 0:1], b[:, 1:2], b[:, 2:3]
+        # the blends written out (einsums over (K,3,3) gathers cost ~3x as much)
+        nrm = b0 * n[c0] + b1 * n[c1] + b2 * n[c2]
+        nrm /= np.maximum(np.sqrt(np.einsum("nc,nc->n", nrm, nrm))[:, None], 1e-12)
+        whole = lit_f[tk] == 3
         mixed = np.flatnonzero(~whole)
-        if len(mixed):
-            pos = np.einsum("nk,nkc->nc", b[mixed], v[ck[mixed]])
-            vis[mixed] = self.visibility(pos, nrm[mixed], extra)
-        return k, vis - np.einsum("nk,nk->n", b, vis_v[ck])
+        if len(mixed) == len(k):  # every hit on a face that a shadow's edge crosses (the usual case)
+            vis = self.visibility(b0 * v[c0] + b1 * v[c1] + b2 * v[c2], nrm, extra)
+        else:
+            vis = np.where(whole, np.maximum(nrm @ self.d, 0.0), 0.0)
+            if len(mixed):
+                bm = b[mixed]
+                pos = bm[:, 0:1] * v[c0[mixed]] + bm[:, 1:2] * v[c1[mixed]] + bm[:, 2:3] * v[c2[mixed]]
+                vis[mixed] = self.visibility(pos, nrm[mixed], extra)
+        return k, vis - (b[:, 0] * vis_v[c0] + b[:, 1] * vis_v[c1] + b[:, 2] * vis_v[c2])
+
+    def _flat_faces(self, n: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """(F,) bool: the faces f (F,3) whose corner normals (n (V,3), unit) agree within FLAT_COS, kept for
+        the last (n, f) pair given (a shape's shading mesh: the same arrays every frame of that shape)."""
+        c = self._flat
+        if c is None or c[0] is not n or c[1] is not f:
+            nf = n[f]  # (F,3,3)
+            agree = np.minimum(np.minimum(np.einsum("fc,fc->f", nf[:, 0], nf[:, 1]),
+                                          np.einsum("fc,fc->f", nf[:, 1], nf[:, 2])),
+                               np.einsum("fc,fc->f", nf[:, 0], nf[:, 2]))
+            c = self._flat = (n, f, agree >= FLAT_COS)
+        return c[2]
 
     def triangle_irradiance(self, tris: np.ndarray, extra: list[Occluder] = (), n: int = 6) -> np.ndarray:
         """Mean direct sun irradiance/pi (T,3) over triangles (T,3,3) (CCW seen from the lit side),

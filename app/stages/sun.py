@@ -135,7 +135,7 @@ class SunStage:
         occ_c = self.map.occlusion_at(self._cen).reshape(self.c_vis.shape)
         self._lost = self.c_vis * occ_c  # share of the sun lost at each sample point (first_pass_blocked)
         loss_c = np.zeros((self.n_patches, 3))
-        loss_c[self.c_patch] = (self.c_vis * occ_c).mean(1)[:, None] * self.E_perp
+        loss_c[self.c_patch] = self._lost.mean(1)[:, None] * self.E_perp
         return occ_pix[:, None] * self.E_pix, loss_c
 
     def later_bounces(self, dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, G_v: np.ndarray,
@@ -241,10 +241,9 @@ class SunStage:
         J, K = self.c_vis.shape
         w = self._lost
         pts = self.c_pts.reshape(J, K, 3)
-        centres = _weighted_centres(w, pts)
         change = dB1[self.c_patch]
         lost = np.flatnonzero(change.any(1))
-        targets, columns, weights = [centres[lost]], [lost], [change[lost]]
+        targets, columns, weights = [_weighted_centres(w[lost], pts[lost])], [lost], [change[lost]]
         if at_patches and albedo is not None:
             kept = np.maximum(self.c_vis - w, 0.0)  # the sun each sample point still gets
             sun = albedo[self.c_patch] * ((kept.sum(1) / K)[:, None] * self.E_perp)  # rho E_sun/pi still reflected
@@ -284,10 +283,8 @@ class SunStage:
         share = pieces.lit_share(origin)
         T = len(pf)
         lit = share > 0
-        whole = np.bincount(pieces.parent, (share >= 1.0).astype(float), T) == np.bincount(pieces.parent, minlength=T)
-        whole &= np.bincount(pieces.parent, minlength=T) > 0
-        E_face = np.zeros(T)  # cos of the wholly sunlit faces
-        E_face[pieces.parent] = pieces.cos
+        count, E_face = self._pieces[5]  # pieces per face, each face's cos (of the shape)
+        whole = (np.bincount(pieces.parent, (share >= 1.0).astype(float), T) == count) & (count > 0)
         tri_rad = tri_rad + albedo * (np.where(whole, E_face, 0.0)[:, None] * self.E_perp)
         part = np.flatnonzero(lit & ~whole[pieces.parent])
         if len(part) == 0:
@@ -335,7 +332,11 @@ class SunStage:
             k = PIECE_TABLE_RES // CUBE_RES
             coarse = table.seen.reshape(-1, 6, CUBE_RES, k, CUBE_RES, k).mean((3, 5)).reshape(len(pieces), -1) \
                 if table is not None else None
-            self._pieces = (key, pieces, table, coarse, _piece_rows(pieces.tris0, pieces.parent, tris - pieces.origin))
+            count = np.bincount(pieces.parent, minlength=len(tris))  # pieces per face (object_emitters)
+            E_face = np.zeros(len(tris))  # the faces' cos toward the sun (object_emitters: of the wholly lit ones)
+            E_face[pieces.parent] = pieces.cos
+            self._pieces = (key, pieces, table, coarse, _piece_rows(pieces.tris0, pieces.parent, tris - pieces.origin),
+                            (count, E_face))
         return self._pieces[1:4]
 
     def refine_clipped_edges(self, camera, cam_occ: Occluder, mesh, own: Occluder, L_vert: np.ndarray,
@@ -456,6 +457,12 @@ def _weighted_centres(w: np.ndarray, pts: np.ndarray) -> np.ndarray:
                     pts.mean(1))
 
 
+def _pass(Q: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Q_c x_c per channel (3,C) for Q (3,C,C), x (3,C) float32: each row's dot product with its channel's x
+    (np.vecdot: a BLAS dot per row, not threaded at these lengths), not a matrix-vector BLAS call (threaded)."""
+    return np.vecdot(Q, x[:, None, :])
+
+
 class LaterBounces:
     """The later bounces of a first-bounce change of patch radiance dB1, at the receiver vertices:
     G_v sum_{k=1}^{n} (rho G)^k dB1, on clusters of neighbouring patches (patch_clusters).
@@ -513,8 +520,10 @@ class LaterBounces:
         first passes side by side, then one chain of passes in which `later` joins a pass late (the
         passes through Q are linear). With `onto` (P,3): sum_{k=1}^{n} (rho G)^k dB1 (and later's) added
         to it at the patches instead (the caller passes it through G_v once); returns None. The
-        products are einsums over a contiguous last axis, not BLAS calls: a threaded BLAS on a loaded
-        machine took 40-60 ms for what takes 1-2 ms here."""
+        products are not threaded BLAS calls (a threaded BLAS on a loaded machine took 40-60 ms for what
+        takes 1-2 ms here): the passes through Q are row-by-vector dot products (np.vecdot: one BLAS dot of
+        C terms per row, as fast with OpenBLAS on one thread as on two; for sun_room's C = 953, 0.2 ms against
+        the einsum's 0.52 with Q in cache, 0.39 against 0.55 with Q read from memory), the rest einsums."""
         if later is not None and (n <= 1 or not np.any(later)):
             later = None
         if n <= 0 or (not np.any(dB1) and later is None):
@@ -525,7 +534,7 @@ class LaterBounces:
             a = None
             if rest.any():
                 xm = np.stack([np.bincount(self.cluster, rest[:, c], self.n) for c in range(3)]).astype(np.float32)
-                a = np.einsum("cij,cj->ci", self.Q, xm)
+                a = _pass(self.Q, xm)
             parts.append((a, x[self.exact]))
         total = np.zeros((3, self.n), np.float32)  # the passes on the clusters, summed
         for a, _ in parts:
@@ -539,7 +548,7 @@ class LaterBounces:
                 nz = np.flatnonzero(e.any(1))
                 z = np.einsum("cek,ec->ck", self.QW[:, nz], e[nz].astype(np.float32))
                 if a is not None:
-                    z += np.einsum("cij,cj->ci", self.Q, a)
+                    z += _pass(self.Q, a)
             else:
                 if k == 1 and len(parts) > 1:  # later's chain joins: its y_1 = Q S later' + W later[exact]
                     a, e = parts[1]
@@ -547,7 +556,7 @@ class LaterBounces:
                     z = z + np.einsum("cek,ec->ck", self.W[:, nz], e[nz].astype(np.float32))
                     if a is not None:
                         z = z + a
-                z = np.einsum("cij,cj->ci", self.Q, z)
+                z = _pass(self.Q, z)
             total += z
         nz = np.flatnonzero(xe.any(1))
         if onto is not None:

@@ -117,3 +117,49 @@ def test_hit_correction_keeps_the_hits_of_curved_faces(lit_room):
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     ref = np.maximum(nrm @ light.d, 0.0) - np.einsum("nk,nk->n", b, vis_v[f[tri[k]]])
     assert np.abs(delta[whole] - ref[whole]).max() < 1e-12 and np.abs(ref[whole]).max() > 1e-5
+
+
+def test_exit_distance_is_the_plain_formula(lit_room):
+    # the openings prepared once (SunLight._exits) give the distances of the plain per-opening formula: the
+    # hit point p + t d, its place along the quad's edges, the nearest opening passed through
+    s, light = lit_room
+    rng = np.random.default_rng(7)
+    p = np.column_stack([rng.uniform(-3, 3, 20000), rng.uniform(0, 2.5, 20000), rng.uniform(-3, 3, 20000)])
+    ref = np.full(len(p), np.inf)
+    for q in light.openings:
+        denom = float(np.dot(light.d, q.normal))
+        if denom >= -1e-9:
+            continue
+        c0 = q.corners[0]
+        t = (p - c0) @ q.normal / -denom
+        hit = p + t[:, None] * light.d
+        U, V = q.corners[1] - c0, q.corners[3] - c0
+        u, v = (hit - c0) @ U / (U @ U), (hit - c0) @ V / (V @ V)
+        ok = (t > 0) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+        ref = np.where(ok & (t < ref), t, ref)
+    got = light.exit_distance(p)
+    fin = np.isfinite(ref)
+    assert 500 < fin.sum() < len(p) - 500
+    assert np.array_equal(np.isfinite(got), fin) and np.allclose(got[fin], ref[fin], rtol=1e-12, atol=0)
+
+
+def test_hit_correction_flat_faces_follow_the_mesh_given(lit_room):
+    # the flat faces are kept for the last (normals, faces) arrays: a call with other normals (the chair's
+    # tilted: no face flat) gets that mesh's answer, as a fresh SunLight's, and the first mesh's again after
+    from lighting.sun import SunLight
+
+    s, light = lit_room
+    v, n, f, own = _chair(s)
+    rng = np.random.default_rng(3)
+    n2 = n + rng.normal(0.0, 0.03, n.shape)
+    n2 /= np.linalg.norm(n2, axis=1, keepdims=True)
+    tri = rng.integers(0, len(f), 3000).astype(np.int32)
+    bary = rng.dirichlet(np.ones(3), len(tri)).astype(np.float32)
+    fresh = SunLight(light.sun, light.openings, light.occluder)
+    for nn in (n, n2, n):
+        vis_v = light.visibility(v, nn, [own])
+        k, delta = light.hit_correction(v, nn, f, vis_v, tri, bary, [own])
+        fresh._flat = None
+        k_ref, delta_ref = fresh.hit_correction(v, nn, f, vis_v, tri, bary, [own])
+        assert np.array_equal(k, k_ref) and np.array_equal(delta, delta_ref)
+    assert len(light.hit_correction(v, n2, f, light.visibility(v, n2, [own]), tri, bary, [own])[0]) > len(k)

@@ -135,3 +135,16 @@ def test_patches_blocked_pairs_from_cluster_centres_match_rays_to_every_lost_sam
     # measured: 0.17 from the cluster centres, 0.24 from the patch centres (sun_room, the full engine's drag:
     # 0.07-0.18 against 0.06-0.17)
     assert err[0] < 0.25 and err[0] < 1.2 * err[1], err
+
+
+def test_passes_through_q_are_the_matrix_products():
+    # LaterBounces' pass Q_c x_c per channel (row-by-vector dot products) equals the matrix product, to float32
+    from app.stages.sun import _pass
+
+    rng = np.random.default_rng(0)
+    Q = rng.random((3, 300, 300)).astype(np.float32)
+    x = rng.normal(size=(3, 300)).astype(np.float32)
+    got = _pass(Q, x)
+    ref = np.stack([Q[c].astype(np.float64) @ x[c].astype(np.float64) for c in range(3)])
+    assert got.shape == (3, 300) and got.dtype == np.float32
+    assert np.abs(got - ref).max() <= 1e-5 * np.abs(Q).sum(2).max() * np.abs(x).max()
