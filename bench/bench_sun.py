@@ -1,6 +1,7 @@
 """Sun benchmark: the cost of the sun's pass in a frame, and PCSS against jittered sun maps.
 
 usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 8] [--ab-only | --outline-only]
+                                 [--scene-ab]
 
 On sun_room, one engine: the drag frame with --passes shadow passes, the sun being one of them (the
 sun's map, its PCSS lookups, its pieces of object light, the outline where it clips, what it adds to
@@ -196,14 +197,53 @@ def outline_table(engine: Engine, obj, shared: Path, repeat: int = 5) -> str:
     return table(rows, ["outline rays", "rays", "kernel_ms", "rmse_object", "bias_object"])
 
 
+def scene_ab(scene, engine: Engine, obj, offsets: list, cache: Path | None) -> str:
+    """The sun frame against the same frame in the scene without its sun entry: a second engine on
+    `scene` with `sun=None` (its own precompute: the room lit by the sky through the opening alone),
+    the same poses, interleaved ABBA. The on/off A/B above keeps the sunlit room's precompute and only
+    drops the sun's pass; this one is the room a user would have on a sunless day (its source list and
+    light differ, and so does the cost of its masks). Returns the printed tables."""
+    import dataclasses
+
+    sunless = Engine(dataclasses.replace(scene, sun=None), engine.params, cache_dir=cache, quiet=True)
+    sunless.render(moved(obj, offsets[0]))
+    t: dict[bool, list[float]] = {True: [], False: []}
+    cpu: dict[bool, list[float]] = {True: [], False: []}
+    stages: dict[bool, list[dict]] = {True: [], False: []}
+    for i, o in enumerate(offsets):
+        for on in ((True, False) if i % 2 == 0 else (False, True)):
+            c0 = time.process_time()
+            st = (engine if on else sunless).render(moved(obj, o)).stats
+            cpu[on].append(time.process_time() - c0)
+            t[on].append(st["frame_s"])
+            stages[on].append(st["timings"])
+    pairs = np.array(t[True]) / np.array(t[False])
+    lo, hi = bootstrap_median(pairs) - 1.0
+    names = list(stages[True][-1])
+    out = table([{"stage": k, "sun_ms": 1e3 * float(np.median([s.get(k, 0.0) for s in stages[True]])),
+                  "sunless_scene_ms": 1e3 * float(np.median([s.get(k, 0.0) for s in stages[False]]))}
+                 for k in names], ["stage", "sun_ms", "sunless_scene_ms"])
+    out += "\n" + table([
+        {"frame": f"{engine.params.passes} passes, sun one of them", "frame_s": float(np.median(t[True]))},
+        {"frame": f"{engine.params.passes} passes, the scene without its sun", "frame_s": float(np.median(t[False]))},
+        {"frame": "overhead, median of pairs (fraction)", "frame_s": float(np.median(pairs) - 1.0)},
+        {"frame": "  its 90 % interval, low (bootstrap)", "frame_s": float(lo)},
+        {"frame": "  its 90 % interval, high (bootstrap)", "frame_s": float(hi)},
+        {"frame": "process CPU overhead, median of pairs",
+         "frame_s": float(np.median(np.array(cpu[True]) / np.array(cpu[False])) - 1.0)}], ["frame", "frame_s"])
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
     ap.add_argument("--passes", type=int, default=50)
     ap.add_argument("--repeat", type=int, default=8, help="drag poses of the A/B")
     ap.add_argument("--cache", type=Path, default=None)
-    ap.add_argument("--ab-only", action="store_true", help="only the sun on/off A/B")
+    ap.add_argument("--ab-only", action="store_true", help="only the sun on/off A/B (and --scene-ab's)")
     ap.add_argument("--outline-only", action="store_true", help="only the clipped outline's table")
+    ap.add_argument("--scene-ab", action="store_true",
+                    help="also the frame against the same frame in the scene without its sun entry (a second engine)")
     a = ap.parse_args(argv)
     scene = load_scene(a.shared / "scenes" / "sun_room")
     engine = Engine(scene, EngineParams(passes=a.passes), cache_dir=a.cache, quiet=True)
@@ -277,6 +317,8 @@ def main(argv=None) -> int:
                  {"frame": "  its 90 % interval, high (bootstrap)", "frame_s": float(hi)},
                  {"frame": "process CPU overhead, median of pairs", "frame_s": cpu_paired}], ["frame", "frame_s"]))
 
+    if a.scene_ab:
+        print(scene_ab(scene, engine, obj, offs[1:], a.cache))
     if a.ab_only:
         return 0
     print(table(pieces_against_monte_carlo(engine, obj), ["pixel (du, dv)", "monte_carlo", "faces", "pieces",
