@@ -193,8 +193,11 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
                         boxes=room_triangle_boxes(eng, room)):
         room = Occluder(None, None, eng.device) if eng.__dict__.get("_no_room") is None else eng._no_room
         eng._no_room = room  # no room triangle between the object and the emitters: no room rays
-    E = ss.direct_sum(vu, nu, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3,
-                      pair_split(eng, len(em)), groups)
+    g = ss.gathered  # the distinct vertices whose radiance is read (the buried ones get their neighbours')
+    vg, ng = vu[g], nu[g]
+    E = np.zeros((len(vu), 3))
+    E[g] = ss.direct_sum(vg, ng, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3,
+                         pair_split(eng, len(em)), groups)
     sun_u = None
     if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
         # the object's own shadow is kept per shape (the sun's rays are parallel: a move changes none
@@ -209,8 +212,8 @@ def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
         # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
         ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
         if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
-            E += ss.sun_dB_sum(vu, nu, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [eng.scene_occ, own], 2e-3,
-                               pair_split(eng, len(ch)))
+            E[g] += ss.sun_dB_sum(vg, ng, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [eng.scene_occ, own],
+                                  2e-3, pair_split(eng, len(ch)))
     if dB is not None:
         # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
         loss = np.abs(luminance(dB)) * pm.area
@@ -528,14 +531,29 @@ def _knn_weights(lu: np.ndarray, nu: np.ndarray, sub: np.ndarray, k: int = 6) ->
     return j, w / w.sum(1, keepdims=True)
 
 
+def gathered_rows(buried: np.ndarray, inv: np.ndarray, samples: np.ndarray) -> np.ndarray | slice:
+    """The distinct vertices whose radiance is read (sorted indices into the distinct vertices; slice(None):
+    all of them): those with a copy that is not buried (buried (V,) per vertex, inv (V,) each vertex's
+    distinct one), and the visibility `samples` (S,). A distinct vertex whose every copy is buried gets its
+    neighbours' values (_fill_from_neighbours) unless every vertex is buried: then all are kept."""
+    all_buried = np.ones(int(inv.max()) + 1 if len(inv) else 0, bool)
+    np.logical_and.at(all_buried, inv, buried)
+    if all_buried.all() or not all_buried.any():
+        return slice(None)
+    keep = ~all_buried
+    keep[samples] = True
+    return np.flatnonzero(keep)
+
+
 class ShapeShading:
     """What the shading needs of one object shape, made once in its own frame (centred: a
     translation changes none of it): the distinct (position, normal) vertices, their self-occlusion
     transfer (kernels.shade.self_transfer), which of them are buried, the self-bounce operator, and
-    the sample vertices of the dB gather with their interpolation weights."""
+    the sample vertices of the dB gather with their interpolation weights (skip_buried False: the
+    emitters' and the sun's gathers run at every distinct vertex, the buried ones too; the answer is the same)."""
 
     def __init__(self, local: np.ndarray, n: np.ndarray, f: np.ndarray, prt_dirs: int, dB_samples: int, device,
-                 vis_stride: int = 4, n_emitters: int = 512):
+                 vis_stride: int = 4, n_emitters: int = 512, skip_buried: bool = True):
         import scipy.sparse as sp
 
         key = np.round(np.concatenate([local, n], 1), 6)
@@ -567,9 +585,18 @@ class ShapeShading:
         hidden_u = hit.mean(axis=1)[self.uniq]
         in_order = np.argsort(self.uniq)  # distinct vertices in the mesh's own order (spread)
         fu = self.inv[f]  # faces over the distinct vertices
-        samples = _visibility_samples(lu, fu, in_order[::vis_stride], hidden_u)
-        self.direct_sum = SampledPatchSum(own_u, *samples, device, max_patches=max(n_emitters, 1))
-        self.sun_dB_sum = SampledPatchSum(own_u, *samples, device)  # the sun the object blocks from the room
+        samples, nbr = _visibility_samples(lu, fu, in_order[::vis_stride], hidden_u)
+        # the per-vertex gathers (emitters, the sun's lost patches) skip the distinct vertices whose every
+        # copy is buried: vertex_radiance replaces those vertices' values by their neighbours'
+        # (_fill_from_neighbours) before anything reads them; the samples stay (their neighbours vote)
+        self.gathered = gathered_rows(self.buried, self.inv, samples) if skip_buried else slice(None)
+        g = self.gathered
+        rows = np.arange(len(lu)) if isinstance(g, slice) else g
+        at = np.full(len(lu), -1, np.int32)
+        at[rows] = np.arange(len(rows), dtype=np.int32)
+        g_samples = (at[samples], nbr[rows])
+        self.direct_sum = SampledPatchSum(own_u[rows], *g_samples, device, max_patches=max(n_emitters, 1))
+        self.sun_dB_sum = SampledPatchSum(own_u[rows], *g_samples, device)  # the sun the object blocks from the room
         sub = self.sub  # spread thinly over the mesh: neighbours by distance, not by mesh edges
         self.dB_sum = SampledPatchSum(own_u[sub], *_near_samples(lu[sub], nu[sub], np.arange(0, len(sub), vis_stride),
                                                                   hidden_u[sub]), device)

@@ -218,3 +218,38 @@ def test_gathers_over_patches_split_by_point_patch_pairs(demo, monkeypatch):
     one = OS.vertex_radiance(eng, scene.obj, mesh, proxy_occ, dB)
     assert ours.max() > 0
     np.testing.assert_array_equal(ours, one)
+
+
+def test_gathered_rows_keep_every_vertex_read():
+    # distinct vertex 0 has a buried copy and one that is not: kept; 1 is wholly buried: skipped unless a
+    # sample; 2 is never buried: kept; all buried (or none): every vertex
+    inv = np.array([0, 0, 1, 1, 2])
+    buried = np.array([True, False, True, True, False])
+    np.testing.assert_array_equal(OS.gathered_rows(buried, inv, np.array([2])), [0, 2])
+    np.testing.assert_array_equal(OS.gathered_rows(buried, inv, np.array([1])), [0, 1, 2])
+    assert OS.gathered_rows(np.ones(5, bool), inv, np.array([0])) == slice(None)
+    assert OS.gathered_rows(np.zeros(5, bool), inv, np.array([0])) == slice(None)
+
+
+def test_skipping_buried_vertices_keeps_the_vertex_radiance(demo):
+    # the emitters' gather skips the distinct vertices whose every copy is buried (their values are
+    # replaced by their neighbours'): the radiance at every vertex equals the one gathered everywhere, bit
+    # for bit, and the emitters' light at the kept vertices equals the full gather's there
+    scene, eng, _, _, _, proxy_occ, mesh = demo
+    v, n, f = mesh
+    ss = OS.shape_shading(eng, v, n, f)
+    assert isinstance(ss.gathered, np.ndarray) and len(ss.gathered) < len(ss.uniq)  # some are skipped
+    dB = np.where(eng.pre.patches.is_emitter[:, None], 0.0, -0.3 * eng.B_obj)
+    skipped = OS.vertex_radiance(eng, scene.obj, mesh, proxy_occ, dB)
+    full = OS.ShapeShading(v - v.mean(0), n, f, eng.params.prt_dirs, eng.dB_samples, eng.device,
+                           getattr(eng, "vis_stride", OS.VIS_STRIDE), len(eng.room_light.emitters), skip_buried=False)
+    assert full.gathered == slice(None)
+    key, saved = eng._prt_cache
+    full.key = key
+    eng._prt_cache = (key, full)
+    try:
+        every = OS.vertex_radiance(eng, scene.obj, mesh, proxy_occ, dB)
+    finally:
+        eng._prt_cache = (key, saved)
+    assert skipped.max() > 0
+    np.testing.assert_array_equal(skipped, every)
