@@ -1,10 +1,11 @@
-"""The pairs of points and targets whose segment an occluder blocks (Warp kernel).
+"""The pairs of points and targets whose segment an occluder blocks, weighed by transfers (Warp kernel).
 
 [p_i -> q_k blocked] for N fixed points p_i and per-call targets q_k, each target with a column of a
 fixed transfer T (N,J) that was made without the occluder (form factor x the room's visibility,
 kernels.visibility.transfer_matrix): one ray per pair with T > 0 whose segment meets the occluder's
-box. Callers weigh one ray's answer by several transfers (app.stages.sun: the blocked part of the
-sun's loss passed on by T, a cluster of patches' one ray per target).
+box, its answer weighed in the launch by its row's transfer and by those of the row's members
+(app.stages.sun: the blocked part of the sun's loss passed on by T, a cluster of patches' one ray per
+target).
 The points and the transfer are fixed per scene (uploaded once); the targets per call (kept
 buffers: nothing is allocated after the first call).
 """
@@ -18,27 +19,6 @@ import warp as wp
 from kernels.buffers import Buffer
 from kernels.runtime import launch_split
 from kernels.visibility import Occluder, segment_blocked, segment_meets_box
-
-
-@wp.kernel
-def _blocked_pairs_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3),
-                          T: wp.array2d(dtype=wp.float32), is_short: wp.array(dtype=wp.uint8), column: wp.array(dtype=wp.int32),
-                          m: int, m_short: int, targets: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3,
-                          out: wp.array2d(dtype=wp.uint8)):
-    # 1 where T[i, column[k]] > 0 and the segment points[i] -> targets[k] meets the occluder; the
-    # short points only with the first m_short targets
-    i = start + wp.tid()
-    p = points[i]
-    mi = m
-    if is_short[i] != wp.uint8(0):
-        mi = m_short
-    for k in range(mi):
-        b = wp.uint8(0)
-        if T[i, column[k]] > 0.0:
-            if segment_meets_box(p, targets[k], lo, hi):
-                if segment_blocked(mesh, p, targets[k]):
-                    b = wp.uint8(1)
-        out[i, k] = b
 
 
 @wp.kernel
@@ -89,10 +69,10 @@ def _blocked_sums_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.
 
 
 class BlockedPairs:
-    """[p_i -> q_k blocked] (N,m) for N fixed points and per-call targets q_k, each with a column of
-    a fixed transfer T (N,J) that must be > 0 for its ray to be cast (else 0): the pairs themselves
-    (__call__), or their sums weighed by the transfers (sums: one ray's answer weighed by its row's
-    transfer and by those of the row's members, e.g. every patch of a cluster).
+    """[p_i -> q_k blocked] for N fixed points and per-call targets q_k, each with a column of a fixed
+    transfer T (N,J) that must be > 0 for its ray to be cast (else 0), weighed by the transfers (sums:
+    one ray's answer weighed by its row's transfer and by those of the row's members, e.g. every patch
+    of a cluster).
     Points flagged `short` take only a call's first targets (two sets of points in one launch); the
     points are kept interleaved so that the ranges of a split launch get as many of each, and spread
     (a golden-ratio sequence over each set) so that they get as many from every part of the room (the
@@ -121,10 +101,7 @@ class BlockedPairs:
         self._targets = Buffer(cap, wp.vec3, device)
         self._column = Buffer(cap, wp.int32, device)
         self._weight = Buffer(cap, wp.vec3, device)
-        self._out = None  # (N, capacity) uint8 pairs (__call__), made on its first call
-        self._cap = cap
         self._row_of = np.argsort(self.order)  # point i's launch row
-        self._short = short
         # the members grouped by their point's launch row (CSR): member_start (N+1,), U in that order
         owner = np.zeros(0, np.int64) if members is None else np.asarray(members[0], np.int64)
         U = np.zeros((0, self.j), np.float32) if members is None else np.asarray(members[1], np.float32)
@@ -142,49 +119,20 @@ class BlockedPairs:
         self._member_sum = Buffer(max(len(owner), 1), wp.vec3, device)
         self._members = len(owner)
 
-    def __call__(self, occluder: Occluder, targets: np.ndarray, columns: np.ndarray,
-                 box: tuple[np.ndarray, np.ndarray],
-                 split: Callable[[Callable[[int, int], None], int], None] | None = None,
-                 m_short: int | None = None) -> np.ndarray:
-        """(N,m) bool for targets (m,3) m and their columns (m,) of T, in the points' order. box: (lo (3,),
-        hi (3,)) about the occluder (a segment that misses it casts no ray); split: optional
-        callable(launch(lo, hi), n) that runs the launch over index ranges (e.g. app.runtime.split),
-        None: one launch; m_short: how many of the first targets the short points take (default all;
-        the rest of their rows False)."""
-        m = len(columns)
-        m_short = m if m_short is None else min(int(m_short), m)
-        if self.n == 0 or m == 0:
-            return np.zeros((self.n, m), bool)
-        if self._out is None:
-            self._out = Buffer((max(self.n, 1), self._cap), wp.uint8, self.device)
-        self._column.upload(np.asarray(columns, np.int32))
-        self._targets.upload(np.asarray(targets, np.float32))
-        mesh = wp.uint64(occluder.id)
-
-        def launch(a: int, b: int) -> None:
-            wp.launch(_blocked_pairs_kernel, dim=b - a, inputs=[mesh, a, self.points, self.T, self.short,
-                                                              self._column.dev, m, m_short, self._targets.dev,
-                                                              wp.vec3(*map(float, box[0])),
-                                                              wp.vec3(*map(float, box[1]))], outputs=[self._out.dev],
-                      device=self.device)
-
-        launch_split(launch, self.n, split)
-        out = self._out.pull(self.n)[:, :m].take(self._row_of, axis=0) > 0
-        out[self._short, m_short:] = False
-        return out
-
     def sums(self, occluder: Occluder, targets: np.ndarray, columns: np.ndarray, weights: np.ndarray,
              box: tuple[np.ndarray, np.ndarray],
              split: Callable[[Callable[[int, int], None], int], None] | None = None,
              m_short: int | None = None, obb: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The blocked pairs (as __call__: targets (m,3) m, their columns (m,) of T, box, split, m_short)
-        weighed, without the pairs themselves: (near (N,3), far (N,3), members (M,3)) float64, in the
-        points' and members' order, with b_ik the pair's answer:
+        """The blocked pairs of targets (m,3) m with their columns (m,) of T, weighed: (near (N,3), far (N,3),
+        members (M,3)) float64, in the points' and members' order, with b_ik the pair's answer:
           near_i = sum_{k < m_short} T[i, columns_k] b_ik weights_k, far_i the same over k >= m_short (0 for
           the short points), members_j = sum_{k < m_short} U[j, columns_k] b_{owner_j k} weights_k
-        (weights (m,3): each target's, e.g. the change it carries). One launch writes them (float32 sums);
-        the pairs' work is that of __call__, the weighing only on the blocked pairs. obb: (centre (3,), axes
+        (weights (m,3): each target's, e.g. the change it carries). One launch writes them (float32 sums),
+        the weighing only on the blocked pairs. box: (lo (3,), hi (3,)) about the occluder (a segment that
+        misses it casts no ray); split: optional callable(launch(lo, hi), n) that runs the launch over
+        index ranges (e.g. app.runtime.split), None: one launch; m_short: how many of the first targets
+        the short points take (default all). obb: (centre (3,), axes
         (3,3) orthonormal rows, half sides (3,)) m, an oriented box about the occluder too (a segment must meet
         both boxes for its ray to be cast: the same answer, fewer rays where the object is turned against the
         world's axes)."""

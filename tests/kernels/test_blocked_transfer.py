@@ -13,9 +13,22 @@ def _box(lo, hi):
     return v, f
 
 
+def _pairs(bp: BlockedPairs, occ: Occluder, targets: np.ndarray, columns: np.ndarray, box, split=None,
+           m_short: int | None = None) -> np.ndarray:
+    """The pairs (N,m) bool that BlockedPairs.sums weighs, one target a call with weight 1: a row's near
+    (its first m_short targets) or far (the rest) sum is T[i, column] > 0 where the pair is blocked, else 0."""
+    ms = len(columns) if m_short is None else m_short
+    out = np.zeros((bp.n, len(columns)), bool)
+    for k in range(len(columns)):
+        near, far, _ = bp.sums(occ, targets[k:k + 1], columns[k:k + 1], np.ones((1, 3)), box, split,
+                               m_short=1 if k < ms else 0)
+        out[:, k] = (near if k < ms else far)[:, 0] > 0
+    return out
+
+
 def test_blocked_pairs_match_ray_casts():
-    # the pairs themselves: blocked where the transfer's column is > 0, against Open3D; a target's
-    # column picks any column of T (two targets may share one)
+    # the pairs themselves (each target alone through sums): blocked where the transfer's column is > 0,
+    # against Open3D; a target's column picks any column of T (two targets may share one)
     from app.runtime import split as split_launches
 
     rng = np.random.default_rng(5)
@@ -28,17 +41,17 @@ def test_blocked_pairs_match_ray_casts():
     ref = segments_blocked(v, f, points, targets) & (T[:, columns] > 0)
     bp = BlockedPairs(points, T, "cpu", capacity=60)
     box = (np.array([0.4, 0.2, 0.4]) - 1e-3, np.array([0.6, 0.7, 0.6]) + 1e-3)
-    ours = bp(Occluder(v, f, "cpu"), targets, columns, box,
-              split=lambda launch, n: split_launches(launch, n, "cpu", 64))
+    ours = _pairs(bp, Occluder(v, f, "cpu"), targets, columns, box,
+                  split=lambda launch, n: split_launches(launch, n, "cpu", 64))
     assert ref.mean() > 0.05 and ours.shape == ref.shape
     assert (ours != ref).mean() < 1e-3  # float32 rays grazing an edge may differ
-    assert not bp(Occluder(v, f, "cpu"), targets[:10], columns[:10],
-                  (np.array([9.0, 9.0, 9.0]), np.array([9.1, 9.1, 9.1]))).any()
+    assert not _pairs(bp, Occluder(v, f, "cpu"), targets[:10], columns[:10],
+                      (np.array([9.0, 9.0, 9.0]), np.array([9.1, 9.1, 9.1]))).any()
     # two sets of points in one launch: the short ones take only the first 12 targets
     short = rng.uniform(size=len(points)) < 0.4
     bp2 = BlockedPairs(points, T, "cpu", capacity=60, short=short)
-    ours2 = bp2(Occluder(v, f, "cpu"), targets, columns, box,
-                split=lambda launch, n: split_launches(launch, n, "cpu", 64), m_short=12)
+    ours2 = _pairs(bp2, Occluder(v, f, "cpu"), targets, columns, box,
+                   split=lambda launch, n: split_launches(launch, n, "cpu", 64), m_short=12)
     ref2 = ref.copy()
     ref2[short, 12:] = False
     assert (ours2 != ref2).mean() < 1e-3 and ours2[short, :12].any() and ours2[~short, 12:].any()
@@ -78,8 +91,8 @@ def test_blocked_sums_weigh_the_pairs_by_the_rows_and_members_transfers():
     for ours, ref in ((near, ref_near), (far, ref_far), (mem, ref_mem)):  # float32 rays grazing an edge may differ
         assert np.mean(np.abs(ours - ref).max(1) > 1e-5) < 5e-3
         assert np.abs(ours - ref).sum() < 5e-3 * np.abs(ref).sum()
-    # the same pairs as __call__'s
-    bits = bp(Occluder(v, f, "cpu"), targets, columns, box, m_short=ms)
+    # the same pairs as each target's alone (_pairs)
+    bits = _pairs(bp, Occluder(v, f, "cpu"), targets, columns, box, m_short=ms)
     np.testing.assert_allclose(near, (Tc[:, :ms] * bits[:, :ms]) @ weights[:ms], rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(mem, (Uc[:, :ms] * bits[owner, :ms]) @ weights[:ms], rtol=1e-5, atol=1e-5)
 
