@@ -97,17 +97,23 @@ def test_hit_correction_is_the_per_hit_sun_minus_the_vertex_blend(lit_room):
     assert np.abs(got - ref)[~left].max() < 1e-12
 
 
+def _tilted_hits(n: np.ndarray, f: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The chair's normals n (V,3) tilted apart by ~3 degrees (no face flat), and 3000 random camera hits on
+    its faces f: (tilted unit normals, tri (3000,) int32, bary (3000,3) float32)."""
+    rng = np.random.default_rng(seed)
+    nt = n + rng.normal(0.0, 0.03, n.shape)
+    nt /= np.linalg.norm(nt, axis=1, keepdims=True)
+    tri = rng.integers(0, len(f), 3000).astype(np.int32)
+    return nt, tri, rng.dirichlet(np.ones(3), len(tri)).astype(np.float32)
+
+
 def test_hit_correction_keeps_the_hits_of_curved_faces(lit_room):
     # a wholly sunlit face whose corner normals differ (a smooth mesh) keeps its per-hit cos: the chair's
     # faces with their normals tilted apart by ~3 degrees are all in k and give the plain answer
     s, light = lit_room
     v, n, f, own = _chair(s)
-    rng = np.random.default_rng(4)
-    n = n + rng.normal(0.0, 0.03, n.shape)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n, tri, bary = _tilted_hits(n, f, seed=4)
     vis_v = light.visibility(v, n, [own])
-    tri = rng.integers(0, len(f), 3000).astype(np.int32)
-    bary = rng.dirichlet(np.ones(3), len(tri)).astype(np.float32)
     k, delta = light.hit_correction(v, n, f, vis_v, tri, bary, [own])
     lit_c = vis_v[f[tri]] > 0
     assert np.array_equal(k, np.flatnonzero(lit_c.any(1))) and (lit_c[k].all(1)).any()
@@ -150,11 +156,7 @@ def test_hit_correction_flat_faces_follow_the_mesh_given(lit_room):
 
     s, light = lit_room
     v, n, f, own = _chair(s)
-    rng = np.random.default_rng(3)
-    n2 = n + rng.normal(0.0, 0.03, n.shape)
-    n2 /= np.linalg.norm(n2, axis=1, keepdims=True)
-    tri = rng.integers(0, len(f), 3000).astype(np.int32)
-    bary = rng.dirichlet(np.ones(3), len(tri)).astype(np.float32)
+    n2, tri, bary = _tilted_hits(n, f, seed=3)
     fresh = SunLight(light.sun, light.openings, light.occluder)
     for nn in (n, n2, n):
         vis_v = light.visibility(v, nn, [own])
