@@ -140,3 +140,8 @@ def test_a_pixel_whose_first_rays_disagree_gets_all_its_rays():
 def test_more_rays_than_the_largest_grid_are_refused():
     with pytest.raises(ValueError, match="at most"):
         _cast(_polygon(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])), np.array([0]), np.array([0]), s=33)
+
+
+def test_a_grid_of_no_samples_is_refused():
+    with pytest.raises(ValueError, match="first_samples: s = 0, at least 1"):
+        first_samples(0)
