@@ -61,6 +61,7 @@ class ComposeStage:
         self.E_v, self.recv_vert, self.patches = E_v, recv_vert, patches
         self.recv_pix, self.pix_rows, self.pix_bary = recv_pix, pix_rows, pix_bary
         self._rho_v = None  # LDR: reflectance at receiver vertices (ldr_weights), made on first use
+        self._sun_den = None  # (sun_pix, max(E_x[sun_pix], 1e-12)): _sun_denominator's, per scene
         self.photo_levels = photo.reshape(-1, 3).astype(np.float64)
         rows = np.where(recv_pix[:, None], pix_rows, -1)
         T_Lb = response.to_levels(L_b)
@@ -110,6 +111,13 @@ class ComposeStage:
             self._rho_v = np.where(den[:, None] > 0, num / np.maximum(den, 1e-12)[:, None], albedo_v)
         return self._rho_v
 
+    def _sun_denominator(self, sun_pix: np.ndarray) -> np.ndarray:
+        """max(E_x, 1e-12) (irradiance/pi) at the sun's pixels sun_pix, (len(sun_pix),3): per scene, made
+        on the first frame with these pixels (a frame's sun share divides its loss by it)."""
+        if self._sun_den is None or self._sun_den[0] is not sun_pix:
+            self._sun_den = (sun_pix, np.maximum(self.E_x[sun_pix], 1e-12))
+        return self._sun_den[1]
+
     # ------------------------------------------------------------------ compose
     def frame(self, mode: str, pix_sel: np.ndarray, O_pix: np.ndarray, fill_sel: np.ndarray, fill: FillFn,
               R_pix, dE_v: np.ndarray | None, cov: np.ndarray, obj_rad: np.ndarray,
@@ -134,10 +142,9 @@ class ComposeStage:
             fill(pix_sel, vals, fill_sel, out=k.shade_px)  # straight into the frame's shadows
         if sun_loss is not None:  # sun: its occluded share of the (model, where clipped) radiance, written
             # only where the object takes some
-            nz = np.flatnonzero(sun_loss.any(1))
-            idx = sun_pix[nz]
-            k.extra[k.rows_for(idx), EX_SUN:EX_SUN + 3] = np.clip(sun_loss[nz] / np.maximum(self.E_x[idx], 1e-12),
-                                                                 0.0, 1.0)
+            nz = np.flatnonzero(nonzero_rows(sun_loss))
+            share = sun_loss[nz] / self._sun_denominator(sun_pix)[nz]
+            k.extra[k.rows_for(sun_pix[nz]), EX_SUN:EX_SUN + 3] = np.clip(share, 0.0, 1.0, out=share)
         # ---- object light and second order
         r_dense = None
         add_v = k.add_v
@@ -168,6 +175,13 @@ class ComposeStage:
         rad, room, pix = k.run(ldr, r_dense, split)
         H, W = self.H, self.W
         return rad.reshape(H, W, 3), pix.reshape(H, W, 3), room.reshape(H, W, 3)
+
+
+def nonzero_rows(a: np.ndarray) -> np.ndarray:
+    """(n,) bool: the rows of a (n,3) that hold a non-zero (a.any(1), NaN counting as non-zero): three
+    column compares, ~7x faster than numpy's reduction over an axis of three (0.03 against 0.23 ms for
+    the sun's 15k pixels a frame)."""
+    return (a[:, 0] != 0) | (a[:, 1] != 0) | (a[:, 2] != 0)
 
 
 def compose_reference(mode: str, L_b, L_b_levels, E_x, rho_x, recv_pix, pix_rows, pix_bary, photo, response,

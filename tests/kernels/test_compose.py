@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from app.stages.compose import ComposeStage, compose_reference
+from app.stages.compose import ComposeStage, compose_reference, nonzero_rows
 from kernels.compose import GRID_CELLS, lookup, pack_response, rounding_table, to_pixel
 from lighting.photolight import srgb_response
 
@@ -72,6 +72,8 @@ def _frame_inputs(rng, scene, mode):
     obj[5:15, 8:20] = rng.uniform(0, 1.6, (10, 12, 3))  # some clip
     sun_pix = np.sort(rng.choice(n, 100, replace=False))
     sun_loss = rng.uniform(0, 0.5, (100, 3))
+    sun_loss[::4] = 0.0  # sun pixels the object takes no sun from: no row of their own
+    sun_loss[1::9, 1] = 0.0  # a loss in some channels only
     return pix_sel, O_pix, fill_sel, (R_v, R_idx, R_vals), dB, cov, obj, sun_pix, sun_loss
 
 
@@ -114,6 +116,15 @@ def test_compose_matches_the_numpy_reference(scene, mode, device):
             for g, w in ((got[0], want[0]), (got[2], want[2])):
                 np.testing.assert_allclose(g, w, rtol=2e-7, atol=1e-12)
             assert (got[1] != scene["photo"]).any()  # the frame did change something
+
+
+def test_nonzero_rows_is_any_over_the_channels():
+    """nonzero_rows(a) equals a.any(1) on zeros, signed zeros, negatives, NaN and infinities, alone and mixed."""
+    vals = np.array([0.0, -0.0, 1e-300, -2.5, np.nan, np.inf, -np.inf])
+    a = np.array(np.meshgrid(vals, vals, vals, indexing="ij")).reshape(3, -1).T.copy()  # every combination
+    assert len(a) == len(vals) ** 3
+    np.testing.assert_array_equal(nonzero_rows(a), a.any(1))
+    assert not nonzero_rows(np.zeros((4, 3))).any() and nonzero_rows(np.zeros((0, 3))).shape == (0,)
 
 
 @wp.kernel
