@@ -277,3 +277,39 @@ def test_pipelined_batches_give_the_same_masks(demo):
             np.testing.assert_array_equal(m.O_pix, out[0].O_pix)
             np.testing.assert_array_equal(m.O_cen, out[0].O_cen)
             np.testing.assert_array_equal(m.pix_sel, out[0].pix_sel)
+
+
+def test_the_sun_takes_a_pass_of_the_budget_and_leaves_the_masks_alone(shared_scenes_cache, monkeypatch):
+    # sun_room: the sun takes one pass of a frame's budget and adds no cluster map, and nothing of the
+    # masks depends on it: switched off as bench/bench_sun.py's A/B switches it (sun_pix None, sun_on
+    # False), the frame of one pass less lists the same maps and gives the same masks, bit for bit
+    # (so the A/B's masks differ only by its one cluster map more without the sun)
+    from tests.conftest import shared_scene
+
+    scene = load_scene(shared_scene("sun_room"))
+    eng = Engine(scene, EngineParams(passes=50), cache_dir=shared_scenes_cache, quiet=True)
+    assert eng.sun_pix is not None and eng.sun_on
+    got = {}
+    run = eng.shadow_pass.run
+
+    def spy(*args, **kwargs):
+        got["eyes"], got["cand"] = args[5].copy(), args[4].copy()
+        got["masks"] = yield from run(*args, **kwargs)
+        return got["masks"]
+
+    monkeypatch.setattr(eng.shadow_pass, "run", spy)
+    obj = moved(scene.obj, drag_offsets(scene, scene.obj, 2)[1])
+    frames = {}
+    for on, passes in ((True, 50), (False, 49), (False, 50)):
+        if not on:
+            monkeypatch.setattr(eng, "sun_pix", None)
+            monkeypatch.setattr(type(eng), "sun_on", property(lambda self: False))
+        st = eng.render(obj, FrameConfig(passes, eng.params.mode)).stats
+        frames[on, passes] = dict(got, passes=st["passes"])
+    sun, off, off50 = frames[True, 50], frames[False, 49], frames[False, 50]
+    assert sun["passes"] == 50 and len(sun["eyes"]) == 49  # 49 cluster maps and the sun's pass
+    assert off["passes"] == len(off["eyes"]) == 49 and off50["passes"] == len(off50["eyes"]) == 50
+    np.testing.assert_array_equal(sun["eyes"], off["eyes"])
+    np.testing.assert_array_equal(sun["cand"], off["cand"])
+    for f in ("pix_sel", "fill_sel", "cen_sel", "O_pix", "O_cen"):
+        np.testing.assert_array_equal(getattr(sun["masks"], f), getattr(off["masks"], f), err_msg=f)
