@@ -112,8 +112,10 @@ class ComposeStage:
         return self._rho_v
 
     def _sun_denominator(self, sun_pix: np.ndarray) -> np.ndarray:
-        """max(E_x, 1e-12) (irradiance/pi) at the sun's pixels sun_pix, (len(sun_pix),3): per scene, made
-        on the first frame with these pixels (a frame's sun share divides its loss by it)."""
+        """max(E_x, 1e-12) (irradiance/pi) at the sun's pixels sun_pix, (len(sun_pix),3), which a frame's
+        sun share divides its loss by: made on the first frame with this sun_pix array (the same object;
+        another array makes it anew), as E_x is fixed once the stage is made (the Compositor keeps its
+        own copy of it too)."""
         if self._sun_den is None or self._sun_den[0] is not sun_pix:
             self._sun_den = (sun_pix, np.maximum(self.E_x[sun_pix], 1e-12))
         return self._sun_den[1]
