@@ -58,8 +58,8 @@ def _blocked_sums_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.
     # k >= m_short (the short points take only the first m_short targets); its members j (member_start[i] ..
     # member_start[i+1]) get member_sum[j] = sum_{k < m_short} U[j, column[k]] weight[k] (one thread a row:
     # a member's sum is written by its row's thread only). A segment's ray is cast only where it meets the
-    # box (centre box_c, half sides box_h) and, with has_obb, the oriented box (centre obb_c, axes the rows of
-    # obb_axes, half sides obb_half; targets_obb: the targets in its frame), tested first (the tighter one).
+    # box about the occluder: with has_obb the oriented one (centre obb_c, axes the rows of obb_axes, half
+    # sides obb_half; targets_obb: the targets in its frame), else the upright one (centre box_c, half sides box_h).
     i = start + wp.tid()
     p = points[i]
     p_box = p - box_c
@@ -78,10 +78,10 @@ def _blocked_sums_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.
         t = T[i, c]
         if t > 0.0:
             q = targets[k]
-            meets = True
+            meets = bool(False)
             if has_obb != 0:
                 meets = _segment_meets_centred_box(p_obb, targets_obb[k], obb_half)
-            if meets:
+            else:
                 meets = _segment_meets_centred_box(p_box, q - box_c, box_h)
             if meets:
                 if segment_blocked(mesh, p, q):
@@ -162,9 +162,9 @@ class BlockedPairs:
         misses it casts no ray); split: optional callable(launch(lo, hi), n) that runs the launch over
         index ranges (e.g. app.runtime.split), None: one launch; m_short: how many of the first targets
         the short points take (default all). obb: (centre (3,), axes
-        (3,3) orthonormal rows, half sides (3,)) m, an oriented box about the occluder too (a segment must meet
-        both boxes for its ray to be cast: the same answer, fewer rays where the object is turned against the
-        world's axes)."""
+        (3,3) orthonormal rows, half sides (3,)) m, an oriented box about the occluder, tested instead of `box`
+        (the same answer, fewer rays where the object is turned against the world's axes; on sun_room's drag
+        every segment that met it met `box` too, so testing both only cost a test per pair)."""
         m = len(columns)
         m_short = m if m_short is None else min(int(m_short), m)
         if self.n == 0 or m == 0:

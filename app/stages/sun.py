@@ -166,7 +166,8 @@ class SunStage:
         changed patches: the engine's second order), else made here. With `onto` (P,3) (the same one
         pass, e.g. the array given as `first`) the later bounces are added to it at the patches instead of
         returned at the receiver vertices (LaterBounces: G_v's pass is linear, the same sums). `obb`: an
-        oriented box about the occluder too (upright_box; first_pass_blocked casts fewer rays, the same answer)."""
+        oriented box about the occluder, tested instead of `box` (upright_box; first_pass_blocked casts fewer
+        rays, the same answer)."""
         extra_v = None
         if occluder is not None and self._lost is not None and self.c_patch.size and np.any(dB1[self.c_patch]):
             if recv_points is None or box is None:
@@ -214,7 +215,8 @@ class SunStage:
         are tested each (their first pass is seen directly).
         at_patches=False: the receiver vertices' only. Patches of zero albedo (emitters) get nothing at
         the centres (what they would get is reflected by nothing). obb: (centre, axes rows, half sides) an
-        oriented box about the occluder (upright_box) that a segment must meet too for its ray to be cast."""
+        oriented box about the occluder (upright_box) that a segment must meet for its ray to be cast
+        (instead of `box`)."""
         key = (id(G), id(G_v), len(recv_points))
         if self._blocked is None or self._blocked[0] != key:
             pm = self.patches
