@@ -27,8 +27,9 @@ def _segment_meets_centred_box(a: wp.vec3, b: wp.vec3, h: wp.vec3) -> bool:
     axes). The separating-axis test of a segment against a box: it misses the box exactly when its
     projections and the box's are apart on one of the box's 3 axes or on one of the 3 crosses of the
     segment with them (m, e: the segment's midpoint and half vector). No divisions, unlike the slab test
-    (kernels.visibility.segment_meets_box: the same yes/no but on a segment that grazes the box's surface;
-    here the box bounds the occluder with a margin, so no segment that meets the occluder grazes it)."""
+    (kernels.visibility.segment_meets_box: the same yes/no except, by rounding, on a segment that grazes the
+    box's surface; the callers' boxes bound the occluder with a margin, so no segment that meets the occluder
+    grazes them)."""
     m = 0.5 * (a + b)
     e = 0.5 * (b - a)
     ex = wp.abs(e[0])
@@ -158,8 +159,8 @@ class BlockedPairs:
           near_i = sum_{k < m_short} T[i, columns_k] b_ik weights_k, far_i the same over k >= m_short (0 for
           the short points), members_j = sum_{k < m_short} U[j, columns_k] b_{owner_j k} weights_k
         (weights (m,3): each target's, e.g. the change it carries). One launch writes them (float32 sums),
-        the weighing only on the blocked pairs. box: (lo (3,), hi (3,)) about the occluder (a segment that
-        misses it casts no ray); split: optional callable(launch(lo, hi), n) that runs the launch over
+        the weighing only on the blocked pairs. box: (lo (3,), hi (3,)) about the occluder (without `obb`, a
+        segment that misses it casts no ray); split: optional callable(launch(lo, hi), n) that runs the launch over
         index ranges (e.g. app.runtime.split), None: one launch; m_short: how many of the first targets
         the short points take (default all). obb: (centre (3,), axes
         (3,3) orthonormal rows, half sides (3,)) m, an oriented box about the occluder, tested instead of `box`
