@@ -18,26 +18,52 @@ import warp as wp
 
 from kernels.buffers import Buffer
 from kernels.runtime import launch_split
-from kernels.visibility import Occluder, segment_blocked, segment_meets_box
+from kernels.visibility import Occluder, segment_blocked
+
+
+@wp.func
+def _segment_meets_centred_box(a: wp.vec3, b: wp.vec3, h: wp.vec3) -> bool:
+    """True when the segment a-b meets the box |x_k| <= h_k (coordinates about the box's centre, along its
+    axes). The separating-axis test of a segment against a box: it misses the box exactly when its
+    projections and the box's are apart on one of the box's 3 axes or on one of the 3 crosses of the
+    segment with them (m, e: the segment's midpoint and half vector). No divisions, unlike the slab test
+    (kernels.visibility.segment_meets_box: the same yes/no except, by rounding, on a segment that grazes the
+    box's surface; the callers' boxes bound the occluder with a margin, so no segment that meets the occluder
+    grazes them)."""
+    m = 0.5 * (a + b)
+    e = 0.5 * (b - a)
+    ex = wp.abs(e[0])
+    ey = wp.abs(e[1])
+    ez = wp.abs(e[2])
+    if wp.abs(m[0]) > h[0] + ex or wp.abs(m[1]) > h[1] + ey or wp.abs(m[2]) > h[2] + ez:
+        return False
+    if wp.abs(m[1] * e[2] - m[2] * e[1]) > h[1] * ez + h[2] * ey:
+        return False
+    if wp.abs(m[2] * e[0] - m[0] * e[2]) > h[0] * ez + h[2] * ex:
+        return False
+    return wp.abs(m[0] * e[1] - m[1] * e[0]) <= h[0] * ey + h[1] * ex
 
 
 @wp.kernel
 def _blocked_sums_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.vec3),
                          T: wp.array2d(dtype=wp.float32), is_short: wp.array(dtype=wp.uint8),
                          column: wp.array(dtype=wp.int32), weight: wp.array(dtype=wp.vec3), m: int, m_short: int,
-                         targets: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3,
+                         targets: wp.array(dtype=wp.vec3), box_c: wp.vec3, box_h: wp.vec3,
                          member_start: wp.array(dtype=wp.int32), U: wp.array2d(dtype=wp.float32),
                          has_obb: int, obb_c: wp.vec3, obb_axes: wp.mat33, obb_half: wp.vec3,
+                         targets_obb: wp.array(dtype=wp.vec3),
                          near: wp.array(dtype=wp.vec3), far: wp.array(dtype=wp.vec3),
                          member_sum: wp.array(dtype=wp.vec3)):
     # per launch row i, over its blocked pairs (T[i, column[k]] > 0, the segment points[i] -> targets[k]
     # meets the occluder): near[i] = sum_{k < m_short} T[i, column[k]] weight[k], far[i] the same over
     # k >= m_short (the short points take only the first m_short targets); its members j (member_start[i] ..
     # member_start[i+1]) get member_sum[j] = sum_{k < m_short} U[j, column[k]] weight[k] (one thread a row:
-    # a member's sum is written by its row's thread only). With has_obb, a segment must also meet the oriented
-    # box (centre obb_c, axes the rows of obb_axes, half sides obb_half) for its ray to be cast.
+    # a member's sum is written by its row's thread only). A segment's ray is cast only where it meets the
+    # box about the occluder: with has_obb the oriented one (centre obb_c, axes the rows of obb_axes, half
+    # sides obb_half; targets_obb: the targets in its frame), else the upright one (centre box_c, half sides box_h).
     i = start + wp.tid()
     p = points[i]
+    p_box = p - box_c
     p_obb = obb_axes * (p - obb_c)
     mi = m
     if is_short[i] != wp.uint8(0):
@@ -52,11 +78,14 @@ def _blocked_sums_kernel(mesh: wp.uint64, start: int, points: wp.array(dtype=wp.
         c = column[k]
         t = T[i, c]
         if t > 0.0:
-            meets = segment_meets_box(p, targets[k], lo, hi)
-            if meets and has_obb != 0:
-                meets = segment_meets_box(p_obb, obb_axes * (targets[k] - obb_c), -obb_half, obb_half)
+            q = targets[k]
+            meets = bool(False)
+            if has_obb != 0:
+                meets = _segment_meets_centred_box(p_obb, targets_obb[k], obb_half)
+            else:
+                meets = _segment_meets_centred_box(p_box, q - box_c, box_h)
             if meets:
-                if segment_blocked(mesh, p, targets[k]):
+                if segment_blocked(mesh, p, q):
                     w = weight[k]
                     if k < m_short:
                         a += t * w
@@ -101,6 +130,7 @@ class BlockedPairs:
         self._targets = Buffer(cap, wp.vec3, device)
         self._column = Buffer(cap, wp.int32, device)
         self._weight = Buffer(cap, wp.vec3, device)
+        self._targets_obb = Buffer(cap, wp.vec3, device)  # the targets in the oriented box's frame (sums)
         self._row_of = np.argsort(self.order)  # point i's launch row
         # the members grouped by their point's launch row (CSR): member_start (N+1,), U in that order
         owner = np.zeros(0, np.int64) if members is None else np.asarray(members[0], np.int64)
@@ -129,13 +159,13 @@ class BlockedPairs:
           near_i = sum_{k < m_short} T[i, columns_k] b_ik weights_k, far_i the same over k >= m_short (0 for
           the short points), members_j = sum_{k < m_short} U[j, columns_k] b_{owner_j k} weights_k
         (weights (m,3): each target's, e.g. the change it carries). One launch writes them (float32 sums),
-        the weighing only on the blocked pairs. box: (lo (3,), hi (3,)) about the occluder (a segment that
-        misses it casts no ray); split: optional callable(launch(lo, hi), n) that runs the launch over
+        the weighing only on the blocked pairs. box: (lo (3,), hi (3,)) about the occluder (without `obb`, a
+        segment that misses it casts no ray); split: optional callable(launch(lo, hi), n) that runs the launch over
         index ranges (e.g. app.runtime.split), None: one launch; m_short: how many of the first targets
         the short points take (default all). obb: (centre (3,), axes
-        (3,3) orthonormal rows, half sides (3,)) m, an oriented box about the occluder too (a segment must meet
-        both boxes for its ray to be cast: the same answer, fewer rays where the object is turned against the
-        world's axes)."""
+        (3,3) orthonormal rows, half sides (3,)) m, an oriented box about the occluder, tested instead of `box`
+        (the same answer, fewer rays where the object is turned against the world's axes; on sun_room's drag
+        every segment that met it met `box` too, so testing both only cost a test per pair)."""
         m = len(columns)
         m_short = m if m_short is None else min(int(m_short), m)
         if self.n == 0 or m == 0:
@@ -144,17 +174,20 @@ class BlockedPairs:
         self._targets.upload(np.asarray(targets, np.float32))
         self._weight.upload(np.asarray(weights, np.float32))
         mesh = wp.uint64(occluder.id)
-        lo, hi = wp.vec3(*map(float, box[0])), wp.vec3(*map(float, box[1]))
+        lo, hi = np.asarray(box[0], np.float64), np.asarray(box[1], np.float64)
+        box_c, box_h = wp.vec3(*map(float, 0.5 * (lo + hi))), wp.vec3(*map(float, 0.5 * (hi - lo)))
         if obb is None:
             ob = (0, wp.vec3(0.0, 0.0, 0.0), wp.mat33(*np.eye(3).ravel()), wp.vec3(0.0, 0.0, 0.0))
         else:
-            ob = (1, wp.vec3(*map(float, obb[0])), wp.mat33(*map(float, np.asarray(obb[1], np.float64).ravel())),
-                  wp.vec3(*map(float, obb[2])))
+            axes = np.asarray(obb[1], np.float64)
+            ob = (1, wp.vec3(*map(float, obb[0])), wp.mat33(*map(float, axes.ravel())), wp.vec3(*map(float, obb[2])))
+            self._targets_obb.upload((np.asarray(targets, np.float64) - np.asarray(obb[0], np.float64)) @ axes.T)
 
         def launch(a: int, b: int) -> None:
             wp.launch(_blocked_sums_kernel, dim=b - a,
                       inputs=[mesh, a, self.points, self.T, self.short, self._column.dev, self._weight.dev, m,
-                              m_short, self._targets.dev, lo, hi, self.member_start, self.U, *ob],
+                              m_short, self._targets.dev, box_c, box_h, self.member_start, self.U, *ob,
+                              self._targets_obb.dev],
                       outputs=[self._near.dev, self._far.dev, self._member_sum.dev], device=self.device)
 
         launch_split(launch, self.n, split)

@@ -166,7 +166,8 @@ class SunStage:
         changed patches: the engine's second order), else made here. With `onto` (P,3) (the same one
         pass, e.g. the array given as `first`) the later bounces are added to it at the patches instead of
         returned at the receiver vertices (LaterBounces: G_v's pass is linear, the same sums). `obb`: an
-        oriented box about the occluder too (upright_box; first_pass_blocked casts fewer rays, the same answer)."""
+        oriented box about the occluder, tested instead of `box` (upright_box; first_pass_blocked casts fewer
+        rays, the same answer)."""
         extra_v = None
         if occluder is not None and self._lost is not None and self.c_patch.size and np.any(dB1[self.c_patch]):
             if recv_points is None or box is None:
@@ -214,7 +215,8 @@ class SunStage:
         are tested each (their first pass is seen directly).
         at_patches=False: the receiver vertices' only. Patches of zero albedo (emitters) get nothing at
         the centres (what they would get is reflected by nothing). obb: (centre, axes rows, half sides) an
-        oriented box about the occluder (upright_box) that a segment must meet too for its ray to be cast."""
+        oriented box about the occluder (upright_box) that a segment must meet for its ray to be cast
+        (instead of `box`)."""
         key = (id(G), id(G_v), len(recv_points))
         if self._blocked is None or self._blocked[0] != key:
             pm = self.patches
@@ -510,6 +512,10 @@ class LaterBounces:
         self.H = np.ascontiguousarray(np.stack(H), np.float32)  # (3,Vr,E)
         self.QW = np.ascontiguousarray(np.matmul(self.W, self.Q.transpose(0, 2, 1)), np.float32)  # (3,E,C): W then Q
         self.V = np.ascontiguousarray((sum_rows @ G_v32.T).T, np.float32)  # (Vr,C)
+        rest = np.flatnonzero(~self.is_exact)
+        # (C,P) float64: a change's area-weighted mean over each cluster off the exact patches (theirs: 0), one
+        # sparse product (each cluster's terms summed in patch order, as np.bincount would)
+        self.mean_rest = sp.csr_matrix((self.w[rest], (cl[rest], rest)), shape=(n, P))
         self.G_ex = np.ascontiguousarray(G_ex.T)  # (E,P): the exact patches' rows of G's pass (onto)
         self.rho = np.asarray(albedo, np.float64)
 
@@ -530,11 +536,10 @@ class LaterBounces:
             return None if onto is not None else np.zeros((len(self.V), 3))
         parts = []  # per change: (its first pass on the clusters of the rest (3,C) or None, exact part (E,3))
         for x in ((dB1, later) if later is not None else (dB1,)):
-            rest = np.where(self.is_exact[:, None], 0.0, x) * self.w[:, None]
+            xm = self.mean_rest @ x  # (C,3): S x' on the clusters
             a = None
-            if rest.any():
-                xm = np.stack([np.bincount(self.cluster, rest[:, c], self.n) for c in range(3)]).astype(np.float32)
-                a = _pass(self.Q, xm)
+            if xm.any():
+                a = _pass(self.Q, np.ascontiguousarray(xm.T, np.float32))
             parts.append((a, x[self.exact]))
         total = np.zeros((3, self.n), np.float32)  # the passes on the clusters, summed
         for a, _ in parts:
@@ -560,7 +565,10 @@ class LaterBounces:
             total += z
         nz = np.flatnonzero(xe.any(1))
         if onto is not None:
-            onto += self.rho * np.einsum("ce,ep->cp", xe[nz].T.astype(np.float32), self.G_ex[nz]).T  # G_v's: H e
+            # G_v's: H e; the exact patches' rows gathered only where few are non-zero (a zero row adds nothing)
+            xz, Gz = (xe.T.astype(np.float32), self.G_ex) if 2 * len(nz) >= len(xe) else \
+                (xe[nz].T.astype(np.float32), self.G_ex[nz])
+            onto += self.rho * np.einsum("ce,ep->cp", xz, Gz).T
             onto += total.T[self.cluster]  # G_v's pass of each patch its cluster's is V total
             return None
         out = np.einsum("cve,ec->vc", self.H[:, :, nz], xe[nz].astype(np.float32))

@@ -98,8 +98,9 @@ def test_blocked_sums_weigh_the_pairs_by_the_rows_and_members_transfers():
 
 
 def test_blocked_sums_with_an_oriented_box_give_the_same_answer():
-    # a box turned 30 degrees about +Y: the oriented box about it (a second pre-test) casts fewer rays, the
-    # sums stay those of the axis-aligned box alone (a segment that misses a box about the mesh misses it)
+    # a box turned 30 degrees about +Y: the oriented box about it (tested instead of the axis-aligned one)
+    # casts fewer rays, the sums stay those of the axis-aligned box (a segment that misses a box about the
+    # mesh misses it)
     from app.stages.sun import upright_box
 
     rng = np.random.default_rng(11)
@@ -134,3 +135,41 @@ def test_members_with_an_owner_out_of_range_are_refused():
         BlockedPairs(points, T, "cpu", capacity=2, members=(np.array([0, 4]), np.ones((2, 2))))
     with pytest.raises(ValueError, match="members need one owner"):
         BlockedPairs(points, T, "cpu", capacity=2, members=(np.array([0, 1, 2]), np.ones((2, 2))))
+
+
+def test_separating_axis_test_is_the_slab_test():
+    # the kernel's segment-box test (separating axes, no divisions) against kernels.visibility's slab test on
+    # random segments about a box: the same yes/no but where a segment passes within float32 rounding of
+    # the box's surface; segments along an axis (a zero component) included
+    import warp as wp
+
+    from kernels.blocked_transfer import _segment_meets_centred_box
+    from kernels.visibility import segment_meets_box
+
+    @wp.kernel
+    def both(a: wp.array(dtype=wp.vec3), b: wp.array(dtype=wp.vec3), h: wp.vec3,
+             sat: wp.array(dtype=wp.int32), slab: wp.array(dtype=wp.int32)):
+        i = wp.tid()
+        sat[i] = wp.where(_segment_meets_centred_box(a[i], b[i], h), 1, 0)
+        slab[i] = wp.where(segment_meets_box(a[i], b[i], -h, h), 1, 0)
+
+    rng = np.random.default_rng(7)
+    n = 200000
+    h = np.array([0.3, 0.8, 0.15])
+    a = rng.uniform(-2, 2, (n, 3))
+    b = rng.uniform(-2, 2, (n, 3))
+    b[:1000, 0] = a[:1000, 0]  # parallel to a face pair
+    b[1000:2000, 1:] = a[1000:2000, 1:]  # along the x axis
+    a[2000:3000] = b[2000:3000] = rng.uniform(-0.5, 0.5, (1000, 3))  # a point, inside or not
+    sat, slab = wp.zeros(n, dtype=wp.int32), wp.zeros(n, dtype=wp.int32)
+    wp.launch(both, dim=n, inputs=[wp.array(a, dtype=wp.vec3), wp.array(b, dtype=wp.vec3), wp.vec3(*h), sat, slab])
+    sat, slab = sat.numpy().astype(bool), slab.numpy().astype(bool)
+    assert 0.05 < slab.mean() < 0.9 and slab[1000:2000].any() and not slab[1000:2000].all()
+    # the segment's distance to the box (sampled finely): the tests may differ only on grazing segments
+    t = np.linspace(0.0, 1.0, 4001)
+    differ = np.flatnonzero(sat != slab)
+    for i in differ:
+        pts = a[i] + t[:, None] * (b[i] - a[i])
+        gap = np.linalg.norm(np.maximum(np.abs(pts) - h, 0.0), axis=1).min()
+        assert gap < 1e-3 * np.linalg.norm(b[i] - a[i]) + 1e-5, (a[i], b[i], sat[i], slab[i])
+    assert len(differ) < 1e-4 * n, len(differ)
