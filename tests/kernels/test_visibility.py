@@ -274,3 +274,24 @@ def test_ray_hit_barycentrics_rebuild_the_hit_point(device):
     assert np.all(tri >= 0)
     np.testing.assert_allclose(np.einsum("nk,nkc->nc", bary, v[f[tri]]), targets, atol=1e-5)
     np.testing.assert_allclose(depth, 1.0, atol=1e-5)
+
+
+def test_cube_cell_matches_cube_bin():
+    """kernels.visibility.cube_cell (branches) against app.stages.object_light._cube_bin (numpy) on random
+    directions and on ties between axes (the first largest axis wins in both), at 4 and 16 cells a side."""
+    import warp as wp
+    from app.stages.object_light import _cube_bin
+    from kernels.visibility import cube_cell
+
+    @wp.kernel
+    def _cells(d: wp.array(dtype=wp.vec3), r: int, out: wp.array(dtype=wp.int32)):
+        i = wp.tid()
+        out[i] = cube_cell(d[i], r)
+
+    rng = np.random.default_rng(2)
+    d = np.concatenate([rng.normal(size=(5000, 3)), np.round(rng.normal(size=(2000, 3))),
+                        [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [-1.0, 1.0, -1.0]]]).astype(np.float32)
+    for r in (4, 16):
+        out = wp.zeros(len(d), dtype=wp.int32, device="cpu")
+        wp.launch(_cells, dim=len(d), inputs=[wp.array(d, dtype=wp.vec3, device="cpu"), r, out], device="cpu")
+        np.testing.assert_array_equal(out.numpy(), _cube_bin(d, r))
