@@ -488,3 +488,131 @@ class SunRays:
                 outputs=[free.dev], device=self.device) for a, b in cuts])
             out[s:e] = free.pull(m) != 0
         return out
+
+
+# ----------------------------------------------------------------------------- the sun per camera hit
+@wp.func
+def _exit_t(p: wp.vec3d, d: wp.vec3d, ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d),
+            ex_inv: wp.array(dtype=wp.float64), ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d)) -> wp.float64:
+    """Distance (m) along d from p to the first opening the ray leaves through, -1 when none (lighting.sun
+    .SunLight.exit_distance's arithmetic, in float64: opening e's corner ex_c0, normal ex_n, 1 / -(d . n) ex_inv,
+    edges over their squared lengths ex_u, ex_v)."""
+    best = wp.float64(-1.0)
+    for e in range(ex_c0.shape[0]):
+        pc = p - ex_c0[e]
+        t = wp.dot(pc, ex_n[e]) * ex_inv[e]
+        h = pc + t * d
+        u = wp.dot(h, ex_u[e])
+        v = wp.dot(h, ex_v[e])
+        if t > wp.float64(0.0) and u >= wp.float64(0.0) and u <= wp.float64(1.0) and v >= wp.float64(0.0) \
+                and v <= wp.float64(1.0) and (best < wp.float64(0.0) or t < best):
+            best = t
+    return best
+
+
+@wp.kernel
+def _hit_sun_kernel(v: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), f: wp.array2d(dtype=wp.int32),
+                    vis_v: wp.array(dtype=wp.float64), code: wp.array(dtype=wp.uint8), tri: wp.array(dtype=wp.int32),
+                    bary: wp.array(dtype=wp.vec3), d: wp.vec3d, d32: wp.vec3, eps: wp.float64,
+                    ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d), ex_inv: wp.array(dtype=wp.float64),
+                    ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d), meshes: wp.array(dtype=wp.uint64),
+                    n_meshes: int, lo: int, delta: wp.array(dtype=wp.float64)):
+    """One camera hit a thread (HitSun): its sun share minus its corners' blend of vis_v."""
+    i = wp.tid() + lo
+    t = tri[i]
+    c0 = f[t, 0]
+    c1 = f[t, 1]
+    c2 = f[t, 2]
+    bf = bary[i]
+    b0 = wp.float64(bf[0])
+    b1 = wp.float64(bf[1])
+    b2 = wp.float64(bf[2])
+    nrm = b0 * n[c0] + b1 * n[c1] + b2 * n[c2]
+    nrm = nrm / wp.max(wp.sqrt(wp.dot(nrm, nrm)), wp.float64(1.0e-12))
+    cos = wp.dot(nrm, d)
+    vis = wp.float64(0.0)
+    if code[t] == wp.uint8(1):  # every corner sunlit: the interpolated normal's cos
+        vis = wp.max(cos, wp.float64(0.0))
+    elif cos > wp.float64(0.0):  # a shadow's edge crosses the face: a ray toward the sun
+        p = b0 * v[c0] + b1 * v[c1] + b2 * v[c2] + nrm * eps
+        te = _exit_t(p, d, ex_c0, ex_n, ex_inv, ex_u, ex_v)
+        if te > wp.float64(0.0):
+            start = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+            free = int(1)
+            for k in range(n_meshes):
+                if free != 0:
+                    if wp.mesh_query_ray_anyhit(meshes[k], start, d32, wp.float32(te)):
+                        free = 0
+            if free != 0:
+                vis = cos
+    delta[i] = vis - (b0 * vis_v[c0] + b1 * vis_v[c1] + b2 * vis_v[c2])
+
+
+class HitSun:
+    """The sun per camera hit on a mesh against its corners' blend, one thread a hit and its ray toward the
+    sun in the same launch (lighting.sun.SunLight.hit_correction: what its numpy passes, exit_distance and
+    SunRays did, in the same float64 arithmetic up to the order of a dot product's terms). The mesh's
+    arrays are uploaded when they change (by identity: a frame's two calls share them); the openings once."""
+
+    def __init__(self, device: str, exits: list, d: np.ndarray):
+        from kernels.buffers import Workspace
+
+        self.device = device
+        self.ws = Workspace()
+        self.d = np.asarray(d, np.float64)
+        c0 = np.array([e[0] for e in exits], np.float64).reshape(-1, 3)
+        nrm = np.array([e[1] for e in exits], np.float64).reshape(-1, 3)
+        inv = np.array([e[2] for e in exits], np.float64)
+        uv = np.array([e[3] for e in exits], np.float64).reshape(-1, 3, 2)
+        self.exits = [wp.array(a, dtype=t, device=device) for a, t in
+                      ((c0, wp.vec3d), (nrm, wp.vec3d), (inv, wp.float64),
+                       (np.ascontiguousarray(uv[:, :, 0]), wp.vec3d), (np.ascontiguousarray(uv[:, :, 1]), wp.vec3d))]
+        self._mesh: tuple | None = None  # (v, n, f, vis_v) of the arrays uploaded, by identity
+        self._dev: tuple | None = None
+
+    def _upload(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray) -> tuple:
+        m = self._mesh
+        if m is None or m[0] is not v or m[1] is not n or m[2] is not f or m[3] is not vis_v:
+            ws, dev = self.ws, self.device
+            self._dev = (ws.upload("v", np.asarray(v, np.float64), wp.vec3d, dev),
+                         ws.upload("n", np.asarray(n, np.float64), wp.vec3d, dev),
+                         ws.upload("f", np.asarray(f, np.int32), wp.int32, dev),
+                         ws.upload("vis", np.asarray(vis_v, np.float64), wp.float64, dev))
+            self._mesh = (v, n, f, vis_v)
+        return self._dev
+
+    def __call__(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, code: np.ndarray,
+                 tri: np.ndarray, bary: np.ndarray, mesh_ids: list[int], eps: float, rays: int = 0,
+                 parallel: bool = True) -> np.ndarray:
+        """delta (M,) float64 of the hits (tri (M,) into f (F,3), bary (M,3)) on a mesh (v (V,3) m, unit
+        vertex normals n (V,3)) whose vertices' sun shares are vis_v (V,): the hit's sun share (code[tri] 1:
+        cos of its interpolated normal; 2: that cos where a ray from the hit (moved eps m along it) toward the
+        sun leaves through an opening past every mesh of mesh_ids (Warp ids, 0s skipped), else 0) minus
+        the blend of its corners' vis_v. code (F,) uint8, nonzero on every face of a hit. rays: how many
+        hits are code 2 (two launches side by side on the CPU from SUN_RAYS_SPLIT of them, when parallel)."""
+        m = len(tri)
+        if m == 0:
+            return np.zeros(0)
+        ids = [int(i) for i in mesh_ids if int(i) != 0]
+        if len(ids) > SunRays.MAX_MESHES:
+            raise ValueError(f"HitSun: {len(ids)} meshes, at most {SunRays.MAX_MESHES}")
+        ws, dev = self.ws, self.device
+        vd, nd, fd, visd = self._upload(v, n, f, vis_v)
+        cd = ws.upload("code", np.asarray(code, np.uint8), wp.uint8, dev)
+        md = ws.upload("meshes", np.asarray(ids or [0], np.uint64), wp.uint64, dev, capacity=SunRays.MAX_MESHES)
+        d, d32 = wp.vec3d(*self.d), wp.vec3(*map(float, self.d))
+        rows = ws.rows  # hits a launch: fixed buffers, more hits in blocks
+        out = np.empty(m)
+        split = parallel and rays >= SUN_RAYS_SPLIT and wp.get_device(dev).is_cpu
+        for s in range(0, m, rows):
+            e = min(m, s + rows)
+            b = e - s
+            td = ws.upload("tri", np.asarray(tri[s:e], np.int32), wp.int32, dev, capacity=rows)
+            bd = ws.upload("bary", np.asarray(bary[s:e], np.float32), wp.vec3, dev, capacity=rows)
+            dd = ws.buffer("delta", rows, wp.float64, dev)
+            cuts = [(0, b // 2), (b // 2, b)] if split else [(0, b)]
+            runtime.run_parallel([lambda a=a, z=z: wp.launch(
+                _hit_sun_kernel, dim=z - a, inputs=[vd, nd, fd, visd, cd, td, bd, d, d32, wp.float64(eps), *self.exits,
+                                                    md, len(ids), a], outputs=[dd.dev], device=dev) for a, z in cuts])
+            out[s:e] = dd.pull(b)
+        return out

@@ -22,7 +22,7 @@ import threading
 import numpy as np
 
 from kernels.raycast import cast_rays
-from kernels.sunshadow import SunRays
+from kernels.sunshadow import HitSun, SunRays
 from kernels.visibility import Occluder
 from recon.scene import Quad, Scene, Sun
 
@@ -70,6 +70,7 @@ class SunLight:
         # between threads: one caller at a time)
         self.reason = ""
         self._flat: tuple | None = None  # (n, f, flat faces) of hit_correction's last mesh (_flat_faces)
+        self._hit_sun: HitSun | None = None  # hit_correction's launch (made on its first call)
         # exit_distance's openings that the sun enters through: (corner c0, normal, 1 / -(d . normal) 1/m,
         # (3,2) the edges U, V from c0 over their squared lengths 1/m); parallel ones or backs: no passage
         self._exits = []
@@ -167,29 +168,20 @@ class SunLight:
         lit_f = (vis_v > 0)[f].sum(1)  # sunlit corners per face
         # a wholly lit face whose corner normals agree within FLAT_COS: the hit's interpolated normal is
         # theirs, so its sun (cos) equals its corners' blend to within 1 / FLAT_COS - 1: no delta
-        need = (lit_f > 0) & ~((lit_f == 3) & self._flat_faces(n, f))
-        k = np.flatnonzero(need[tri])
+        code = np.where(lit_f == 3, np.where(self._flat_faces(n, f), 0, 1), np.where(lit_f > 0, 2, 0)).astype(np.uint8)
+        ch = code[tri]
+        k = np.flatnonzero(ch)
         if len(k) == 0:
             return k, np.zeros(0)
-        tk = tri[k]
-        ck = f[tk]
-        c0, c1, c2 = ck[:, 0], ck[:, 1], ck[:, 2]
-        b = np.asarray(bary[k], np.float64)
-        b0, b1, b2 = b[:, 0:1], b[:, 1:2], b[:, 2:3]
-        # the blends written out (einsums over (K,3,3) gathers cost ~3x as much)
-        nrm = b0 * n[c0] + b1 * n[c1] + b2 * n[c2]
-        nrm /= np.maximum(np.sqrt(np.einsum("nc,nc->n", nrm, nrm))[:, None], 1e-12)
-        whole = lit_f[tk] == 3
-        mixed = np.flatnonzero(~whole)
-        if len(mixed) == len(k):  # every hit on a face that a shadow's edge crosses (the usual case)
-            vis = self.visibility(b0 * v[c0] + b1 * v[c1] + b2 * v[c2], nrm, extra)
-        else:
-            vis = np.where(whole, np.maximum(nrm @ self.d, 0.0), 0.0)
-            if len(mixed):
-                bm = b[mixed]
-                pos = bm[:, 0:1] * v[c0[mixed]] + bm[:, 1:2] * v[c1[mixed]] + bm[:, 2:3] * v[c2[mixed]]
-                vis[mixed] = self.visibility(pos, nrm[mixed], extra)
-        return k, vis - (b[:, 0] * vis_v[c0] + b[:, 1] * vis_v[c1] + b[:, 2] * vis_v[c2])
+        # per hit, one launch (kernels.sunshadow.HitSun): the interpolated normal's cos on a wholly lit face,
+        # a ray toward the sun (past the room and `extra`) on a face that a shadow's edge crosses
+        if self._hit_sun is None:
+            self._hit_sun = HitSun(self.device, self._exits if self.active else [], self.d)
+        occs = [o for o in (self.occluder, *extra) if o is not None and o.id != 0]
+        pooled = threading.current_thread().name.startswith("photoar")
+        delta = self._hit_sun(v, n, f, vis_v, code, tri[k], bary[k], [o.id for o in occs], 1e-3,
+                              rays=int(np.count_nonzero(ch[k] == 2)), parallel=not pooled)
+        return k, delta
 
     def _flat_faces(self, n: np.ndarray, f: np.ndarray) -> np.ndarray:
         """(F,) bool: the faces f (F,3) whose corner normals (n (V,3), unit) agree within FLAT_COS, kept for

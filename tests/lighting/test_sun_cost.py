@@ -97,6 +97,28 @@ def test_hit_correction_is_the_per_hit_sun_minus_the_vertex_blend(lit_room):
     assert np.abs(got - ref)[~left].max() < 1e-12
 
 
+def test_hit_correction_in_blocks_and_halves_equals_it_hit_by_hit(lit_room):
+    # more hits than one launch's buffers hold (blocks), with enough rays for two launches side by side:
+    # the same deltas, bit for bit, as small calls of one launch each
+    from kernels.sunshadow import SUN_RAYS_SPLIT
+
+    s, light = lit_room
+    v, n, f, own = _chair(s)
+    vis_v = light.visibility(v, n, [own])
+    lit_c = (vis_v[f] > 0).sum(1)
+    mixed = np.flatnonzero((lit_c > 0) & (lit_c < 3))
+    rng = np.random.default_rng(5)
+    tri = np.concatenate([rng.choice(mixed, 12000), rng.integers(0, len(f), 30000)]).astype(np.int32)
+    bary = rng.dirichlet(np.ones(3), len(tri)).astype(np.float32)
+    k, delta = light.hit_correction(v, n, f, vis_v, tri, bary, [own])
+    assert len(tri) > light._hit_sun.ws.rows and np.isin(tri[k], mixed).sum() >= 2 * SUN_RAYS_SPLIT
+    parts = [light.hit_correction(v, n, f, vis_v, tri[a:a + 1000], bary[a:a + 1000], [own])
+             for a in range(0, len(tri), 1000)]
+    assert np.array_equal(k, np.concatenate([kk + a for (kk, _), a in zip(parts, range(0, len(tri), 1000))]))
+    assert np.array_equal(delta, np.concatenate([d for _, d in parts]))
+    assert (delta != 0).sum() > 1000
+
+
 def _tilted_hits(n: np.ndarray, f: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The chair's normals n (V,3) tilted apart by ~3 degrees (no face flat), and 3000 random camera hits on
     its faces f: (tilted unit normals, tri (3000,) int32, bary (3000,3) float32)."""
