@@ -572,7 +572,8 @@ class HitSun:
     """The sun per camera hit on a mesh against its corners' blend, one thread a hit and its ray toward the
     sun in the same launch (lighting.sun.SunLight.hit_correction: what its numpy passes, exit_distance and
     the rays' launch did, in the same float64 arithmetic up to the order of a dot product's terms). The mesh's
-    arrays are uploaded when they change (by identity: a frame's two calls share them); the openings once."""
+    positions and sun shares are uploaded every call, its normals and faces when they are other arrays than the
+    last call's (as SunLight._flat_faces keeps them); the openings once."""
 
     def __init__(self, device: str, exits: list, d: np.ndarray):
         from kernels.buffers import Workspace
@@ -581,19 +582,17 @@ class HitSun:
         self.ws = Workspace()
         self.d = np.asarray(d, np.float64)
         self.exits = exit_arrays(exits, device)
-        self._mesh: tuple | None = None  # (v, n, f, vis_v) of the arrays uploaded, by identity
-        self._dev: tuple | None = None
+        self._shape: tuple | None = None  # (n, f) of the normals and faces uploaded, by identity
 
     def _upload(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray) -> tuple:
-        m = self._mesh
-        if m is None or m[0] is not v or m[1] is not n or m[2] is not f or m[3] is not vis_v:
-            ws, dev = self.ws, self.device
-            self._dev = (ws.upload("v", np.asarray(v, np.float64), wp.vec3d, dev),
-                         ws.upload("n", np.asarray(n, np.float64), wp.vec3d, dev),
-                         ws.upload("f", np.asarray(f, np.int32), wp.int32, dev),
-                         ws.upload("vis", np.asarray(vis_v, np.float64), wp.float64, dev))
-            self._mesh = (v, n, f, vis_v)
-        return self._dev
+        """The mesh's device arrays: positions and sun shares every call, normals and faces when they are
+        other arrays than the last call's (a shape's shading mesh keeps them from frame to frame)."""
+        ws, dev = self.ws, self.device
+        if self._shape is None or self._shape[0] is not n or self._shape[1] is not f:
+            self._shape = (n, f, ws.upload("n", np.asarray(n, np.float64), wp.vec3d, dev),
+                           ws.upload("f", np.asarray(f, np.int32), wp.int32, dev))
+        return (ws.upload("v", np.asarray(v, np.float64), wp.vec3d, dev), self._shape[2], self._shape[3],
+                ws.upload("vis", np.asarray(vis_v, np.float64), wp.float64, dev))
 
     def __call__(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, code: np.ndarray,
                  tri: np.ndarray, bary: np.ndarray, mesh_ids: list[int], eps: float, rays: int = 0,

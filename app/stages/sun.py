@@ -113,8 +113,13 @@ class SunStage:
         self.n_patches = n_patches
         self.E_perp = light.sun.irradiance / np.pi
         self.map = SunShadowMap(light.sun.direction, light.sun.half_angle, device=device)
-        self._pix = self.map.points(pts, footprint)  # kept on the device: no buffers per frame
-        self._cen = self.map.points(c_pts)
+        # the sunlit pixels' and the patches' sample points (footprint 0) in one set, kept on the device (no
+        # buffers per frame): frame() looks both up in one launch
+        self._n_pix = len(pts)
+        self._lookups = self.map.points(np.concatenate([np.asarray(pts, np.float64).reshape(-1, 3),
+                                                        np.asarray(c_pts, np.float64).reshape(-1, 3)]),
+                                        np.concatenate([np.asarray(footprint, np.float32).reshape(-1),
+                                                        np.zeros(len(np.asarray(c_pts).reshape(-1, 3)), np.float32)]))
         self.device = device
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
         self.edge_first = EDGE_FIRST_RAYS  # of those, the rays cast on every outline pixel (the rest only where
@@ -132,8 +137,8 @@ class SunStage:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
         patch (P,3), mean over its sample points)."""
         self.map.render(vertices, faces)
-        occ_pix = self.map.occlusion_at(self._pix)
-        occ_c = self.map.occlusion_at(self._cen).reshape(self.c_vis.shape)
+        occ = self.map.occlusion_at(self._lookups)
+        occ_pix, occ_c = occ[:self._n_pix], occ[self._n_pix:].reshape(self.c_vis.shape)
         self._lost = self.c_vis * occ_c  # share of the sun lost at each sample point (first_pass_blocked)
         loss_c = np.zeros((self.n_patches, 3))
         loss_c[self.c_patch] = self._lost.mean(1)[:, None] * self.E_perp
