@@ -637,9 +637,6 @@ class HitSun:
 
 
 # ----------------------------------------------------------------------------- the outline, shaded
-NEAR_MARGIN = 0.01  # px the sub-samples' hull is grown by in OutlineShade.near (a ray's float32 rounding is ~1e-4 px)
-
-
 @wp.struct
 class HitShading:
     """What a camera hit's radiance is made of (OutlineShade): the shading mesh (positions v m, unit normals
@@ -769,40 +766,7 @@ class OutlineShade:
         self._order = Buffer(OutlineHits.MAX_SAMPLES, wp.int32, device)
         self._order_key: tuple[int, int] | None = None
         self._faces = None  # the faces array uploaded (by identity)
-        self._mark, self._stamp = None, 0  # near()'s image-sized buffer and its last stamp
         self.rays = 0  # camera rays cast by the last call
-
-    def near(self, v: np.ndarray, f: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray, shape: tuple[int, int],
-             px: np.ndarray, py: np.ndarray, s: int) -> np.ndarray:
-        """(n,) bool: the pixels (px, py) (columns, rows) of an image of `shape` (H, W) whose s x s sub-samples'
-        hull (a square of half side (s - 1) / 2s px about the centre, grown by NEAR_MARGIN px) meets the
-        projection (pinhole K, R, t) of some triangle of the mesh (v (V,3) m, f (F,3)). A ray through a
-        sub-sample of another pixel misses every triangle of the mesh, so such a pixel's s x s rays all miss
-        (its coverage is 0) and need not be cast: an exact test, not a bound (the margin covers the rays'
-        float32 rounding, ~1e-4 px at the scenes' distances). Per call a fresh stamp marks the pixels, so
-        the image-sized buffer is never cleared."""
-        n = len(px)
-        if n == 0:
-            return np.zeros(0, bool)
-        H, W = shape
-        ws, dev = self.ws, self.device
-        mark = ws.buffer("near", H * W, wp.int32, dev)
-        if self._mark is not mark or self._stamp >= 2 ** 31 - 2:
-            mark.host[:] = 0
-            mark.push()
-            self._mark, self._stamp = mark, 0
-        self._stamp += 1
-        KR = np.asarray(K, np.float64) @ np.asarray(R, np.float64)
-        Kt = np.asarray(K, np.float64) @ np.asarray(t, np.float64).reshape(3)
-        x0, x1 = int(px.min()), int(px.max()) + 1
-        y0, y1 = int(py.min()), int(py.max()) + 1
-        vd = ws.upload("near_v", np.asarray(v, np.float64), wp.vec3d, dev)
-        fd = ws.upload("near_f", np.asarray(f, np.int32), wp.int32, dev)
-        reach = (s - 1) / (2.0 * s) + NEAR_MARGIN
-        wp.launch(_near_outline_kernel, dim=len(f), inputs=[vd, fd, wp.mat33d(*KR.reshape(-1)), wp.vec3d(*Kt), int(W),
-                                                            x0, y0, x1, y1, wp.float64(reach), self._stamp],
-                  outputs=[mark.dev], device=dev)
-        return mark.pull()[np.asarray(py, np.int64) * W + px] == self._stamp
 
     def __call__(self, obj, scene, centre: np.ndarray, pix_to_dir: np.ndarray, px: np.ndarray, py: np.ndarray,
                  s: int, mesh: tuple, L: np.ndarray, sun: tuple | None = None, split=None,
@@ -878,75 +842,3 @@ class OutlineShade:
             full[p0:p1] = fb.pull(b) != 0
         self.rays = int(n * n_first + full.sum() * (k - n_first))
         return cov, rad, full
-
-
-@wp.kernel
-def _near_outline_kernel(v: wp.array(dtype=wp.vec3d), f: wp.array2d(dtype=wp.int32), KR: wp.mat33d, Kt: wp.vec3d,
-                         width: int, x0: int, y0: int, x1: int, y1: int, reach: wp.float64, stamp: int,
-                         mark: wp.array(dtype=wp.int32)):
-    """One triangle a thread (OutlineShade.near): mark[y width + x] = stamp on every pixel (x, y) of the window
-    [x0, x1) x [y0, y1) whose square of half side `reach` px about its centre meets the triangle's projection
-    (K (R p + t), pixel centres at integers); a triangle that reaches the camera's plane marks the whole window."""
-    t = wp.tid()
-    a = KR * v[f[t, 0]] + Kt
-    b = KR * v[f[t, 1]] + Kt
-    c = KR * v[f[t, 2]] + Kt
-    lo_x = x0
-    hi_x = x1 - 1
-    lo_y = y0
-    hi_y = y1 - 1
-    front = a[2] > wp.float64(1.0e-9) and b[2] > wp.float64(1.0e-9) and c[2] > wp.float64(1.0e-9)
-    au = wp.float64(0.0)
-    av = wp.float64(0.0)
-    bu = wp.float64(0.0)
-    bv = wp.float64(0.0)
-    cu = wp.float64(0.0)
-    cv = wp.float64(0.0)
-    sgn = wp.float64(0.0)
-    if front:
-        au = a[0] / a[2]
-        av = a[1] / a[2]
-        bu = b[0] / b[2]
-        bv = b[1] / b[2]
-        cu = c[0] / c[2]
-        cv = c[1] / c[2]
-        area = (bu - au) * (cv - av) - (bv - av) * (cu - au)
-        if area > wp.float64(0.0):
-            sgn = wp.float64(1.0)
-        elif area < wp.float64(0.0):
-            sgn = wp.float64(-1.0)
-        lo_x = wp.max(lo_x, int(wp.ceil(wp.min(wp.min(au, bu), cu) - reach)))
-        hi_x = wp.min(hi_x, int(wp.floor(wp.max(wp.max(au, bu), cu) + reach)))
-        lo_y = wp.max(lo_y, int(wp.ceil(wp.min(wp.min(av, bv), cv) - reach)))
-        hi_y = wp.min(hi_y, int(wp.floor(wp.max(wp.max(av, bv), cv) + reach)))
-    for y in range(lo_y, hi_y + 1):
-        for x in range(lo_x, hi_x + 1):
-            meet = True
-            if front and sgn != wp.float64(0.0):
-                # separating axes: the square lies wholly outside one of the triangle's edges (its corner
-                # farthest inside that edge is outside); the box axes are the bounds above
-                px = wp.float64(x)
-                py = wp.float64(y)
-                for e in range(3):
-                    pu = au
-                    pv = av
-                    qu = bu
-                    qv = bv
-                    if e == 1:
-                        pu = bu
-                        pv = bv
-                        qu = cu
-                        qv = cv
-                    elif e == 2:
-                        pu = cu
-                        pv = cv
-                        qu = au
-                        qv = av
-                    eu = (qu - pu) * sgn
-                    ev = (qv - pv) * sgn
-                    # inside: eu (y' - pv) - ev (x' - pu) >= 0; its largest value over the square
-                    best = eu * (py - pv) - ev * (px - pu) + reach * (wp.abs(eu) + wp.abs(ev))
-                    if best < wp.float64(0.0):
-                        meet = False
-            if meet:
-                mark[y * width + x] = stamp

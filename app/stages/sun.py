@@ -124,8 +124,6 @@ class SunStage:
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
         self.edge_first = EDGE_FIRST_RAYS  # of those, the rays cast on every outline pixel (the rest only where
         # they disagree; None: all on every pixel)
-        self.edge_near = True  # no rays on the outline pixels whose sub-samples' hull misses the shading mesh's
-        # projection (OutlineShade.near: all their rays miss; False: rays on every outline pixel, the same answer)
         self.patches = patches
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
         self._blocked: tuple | None = None  # (key, BlockedPairs of the receiver vertices and clusters, clusters, Vr)
@@ -399,18 +397,11 @@ class SunStage:
         if sun_vis is not None:
             sun = (sun_vis, self.light.hit_codes(n, f, sun_vis), albedo, self.E_perp,
                    [o.id for o in (self.light.occluder, own) if o is not None and o.id != 0], 1e-3)
-        # rays only on the pixels whose sub-samples' hull meets the mesh's projection: on the others every ray
-        # misses (coverage 0, radiance kept), as the rays would find (OutlineShade.near: an exact test)
-        near = np.flatnonzero(self._outline.near(v, f, camera.K, camera.R, camera.t, (H, W), px, py, s)) \
-            if self.edge_near else np.arange(len(px))
-        c = np.zeros(len(px))
-        c_near, mean, _ = self._outline(
-            own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px[near], py[near], s, mesh, L_vert,
-            sun, functools.partial(runtime.split, device=self.device, min_items=max(1, EDGE_MIN_RAYS // first)), first)
-        c[near] = c_near
+        c, mean, _ = self._outline(
+            own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s, mesh, L_vert, sun,
+            functools.partial(runtime.split, device=self.device, min_items=max(1, EDGE_MIN_RAYS // first)), first)
         cov[py, px] = c
-        pn, xn = py[near], px[near]
-        obj_rad[pn, xn] = np.where(c_near[:, None] > 0, mean, obj_rad[pn, xn])
+        obj_rad[py, px] = np.where(c[:, None] > 0, mean, obj_rad[py, px])
         return py * W + px
 
 
