@@ -11,7 +11,7 @@ bootstrap interval), and what the sun adds in CPU time (each kernel's by its lau
 and the process's), steadier than wall time when other jobs load the machine. Then the sunlit object's light at
 pixels around it from whole faces and from the lit pieces against a dense Monte Carlo reference, and
 rmse_object with the clipped outline re-sampled 1 x 1 to 8 x 8, every ray on every pixel or
-adaptively (SunStage.edge_first), with the rays cast and _outline_hits_kernel's thread-CPU ms. Then the sun shadow alone: one
+adaptively (SunStage.edge_first), with the rays cast and _outline_shade_kernel's thread-CPU ms. Then the sun shadow alone: one
 PCSS map against N jittered binary maps (directions spread over the 0.53 deg disk), time and the
 mean absolute difference of the occluded share on the sunlit pixels from a 64-map reference.
 Last, the scorer's figures for the --passes frame with known and with captured light, and the
@@ -174,7 +174,7 @@ def shared_score(shared: Path, pixels: np.ndarray) -> dict:
 def outline_table(engine: Engine, obj, shared: Path, repeat: int = 5) -> str:
     """rmse_object/bias_object of the drag frame with the outline where sunlight clips re-sampled s x s,
     every ray on every pixel or adaptively (SunStage.edge_first first rays, all s x s where they
-    disagree; the frame's own: 4 x 4 adaptively), with the rays cast and _outline_hits_kernel's
+    disagree; the frame's own: 4 x 4 adaptively), with the rays cast and _outline_shade_kernel's
     thread-CPU ms (the median of `repeat` frames)."""
     rows = []
     stage = engine.sun_stage
@@ -188,7 +188,7 @@ def outline_table(engine: Engine, obj, shared: Path, repeat: int = 5) -> str:
             launched = kernel_clock()
             frame = engine.render(obj)
             kernel_clock(stop=True)
-            ms.append(1e3 * launched.get("_outline_hits_kernel", 0.0))
+            ms.append(1e3 * launched.get("_outline_shade_kernel", 0.0))
         sc = shared_score(shared, frame.pixels)
         rows.append({"outline rays": f"{s} x {s}" + ("" if first is None or first >= s * s else f", {first} first"),
                      "rays": stage._outline.rays, "kernel_ms": float(np.median(ms)),

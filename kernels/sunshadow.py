@@ -15,6 +15,11 @@ surface; 0 for a point):
 Taps are a fixed golden-angle (Vogel) spiral. A point outside the map is unoccluded. Each block of
 BLOCK x BLOCK texels keeps its depth range (per render): a lookup whose texels are all nearer than
 the receiver (1) or none (0) answers without its taps, the same answer.
+
+Also the sun's rays (lighting.sun.SunLight's per-frame questions, each in one launch with its host-side
+arithmetic moved in, in float64 as numpy did it): SunVisibility (a point's cos toward the sun, its exit
+through an opening and its ray past the room and the object), HitSun (the sun per camera hit against its
+corners' blend) and OutlineShade (the clipped outline's adaptive sub-pixel rays, each hit shaded with it).
 """
 from __future__ import annotations
 
@@ -425,66 +430,415 @@ class OutlineHits:
 
 
 # ----------------------------------------------------------------------------- rays toward the sun
+SUN_RAYS_SPLIT = 4096  # points (rays) from which SunVisibility and HitSun run two launches side by side on the CPU
+
+
+MAX_SUN_MESHES = 8  # meshes a ray toward the sun is tested against at most (SunVisibility, HitSun)
+
+
+# ----------------------------------------------------------------------------- the sun per camera hit
+@wp.func
+def _exit_t(p: wp.vec3d, d: wp.vec3d, ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d),
+            ex_inv: wp.array(dtype=wp.float64), ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d)) -> wp.float64:
+    """Distance (m) along d from p to the first opening the ray leaves through, -1 when none (lighting.sun
+    .SunLight.exit_distance's arithmetic, in float64: opening e's corner ex_c0, normal ex_n, 1 / -(d . n) ex_inv,
+    edges over their squared lengths ex_u, ex_v)."""
+    best = wp.float64(-1.0)
+    for e in range(ex_c0.shape[0]):
+        pc = p - ex_c0[e]
+        t = wp.dot(pc, ex_n[e]) * ex_inv[e]
+        h = pc + t * d
+        u = wp.dot(h, ex_u[e])
+        v = wp.dot(h, ex_v[e])
+        if t > wp.float64(0.0) and u >= wp.float64(0.0) and u <= wp.float64(1.0) and v >= wp.float64(0.0) \
+                and v <= wp.float64(1.0) and (best < wp.float64(0.0) or t < best):
+            best = t
+    return best
+
+
 @wp.kernel
-def _sun_free_kernel(meshes: wp.array(dtype=wp.uint64), n_meshes: int, start: wp.array(dtype=wp.vec3), d: wp.vec3,
-                     t_exit: wp.array(dtype=wp.float32), lo: int, free: wp.array(dtype=wp.uint8)):
+def _hit_sun_kernel(v: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), f: wp.array2d(dtype=wp.int32),
+                    vis_v: wp.array(dtype=wp.float64), code: wp.array(dtype=wp.uint8), tri: wp.array(dtype=wp.int32),
+                    bary: wp.array(dtype=wp.vec3), d: wp.vec3d, d32: wp.vec3, eps: wp.float64,
+                    ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d), ex_inv: wp.array(dtype=wp.float64),
+                    ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d), meshes: wp.array(dtype=wp.uint64),
+                    n_meshes: int, lo: int, delta: wp.array(dtype=wp.float64)):
+    """One camera hit a thread (HitSun): its sun share minus its corners' blend of vis_v."""
     i = wp.tid() + lo
-    t = t_exit[i]
-    f = wp.uint8(1)
+    t = tri[i]
+    c0 = f[t, 0]
+    c1 = f[t, 1]
+    c2 = f[t, 2]
+    bf = bary[i]
+    b0 = wp.float64(bf[0])
+    b1 = wp.float64(bf[1])
+    b2 = wp.float64(bf[2])
+    nrm = b0 * n[c0] + b1 * n[c1] + b2 * n[c2]
+    nrm = nrm / wp.max(wp.sqrt(wp.dot(nrm, nrm)), wp.float64(1.0e-12))
+    cos = wp.dot(nrm, d)
+    vis = wp.float64(0.0)
+    if code[t] == wp.uint8(1):  # every corner sunlit: the interpolated normal's cos
+        vis = wp.max(cos, wp.float64(0.0))
+    elif cos > wp.float64(0.0):  # a shadow's edge crosses the face: a ray toward the sun
+        p = b0 * v[c0] + b1 * v[c1] + b2 * v[c2] + nrm * eps
+        if _sun_free(p, d, d32, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes) != 0:
+            vis = cos
+    delta[i] = vis - (b0 * vis_v[c0] + b1 * vis_v[c1] + b2 * vis_v[c2])
+
+
+def exit_arrays(exits: list, device: str) -> list[wp.array]:
+    """lighting.sun.SunLight's openings that the sun enters through ((corner c0, normal, 1 / -(d . normal),
+    (3,2) edges over their squared lengths) each) as _exit_t's device arrays."""
+    c0 = np.array([e[0] for e in exits], np.float64).reshape(-1, 3)
+    nrm = np.array([e[1] for e in exits], np.float64).reshape(-1, 3)
+    inv = np.array([e[2] for e in exits], np.float64)
+    uv = np.array([e[3] for e in exits], np.float64).reshape(-1, 3, 2)
+    return [wp.array(a, dtype=t, device=device) for a, t in
+            ((c0, wp.vec3d), (nrm, wp.vec3d), (inv, wp.float64),
+             (np.ascontiguousarray(uv[:, :, 0]), wp.vec3d), (np.ascontiguousarray(uv[:, :, 1]), wp.vec3d))]
+
+
+@wp.func
+def _sun_free(p: wp.vec3d, d: wp.vec3d, d32: wp.vec3, ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d),
+              ex_inv: wp.array(dtype=wp.float64), ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d),
+              meshes: wp.array(dtype=wp.uint64), n_meshes: int) -> int:
+    """1 where the ray from p toward the sun leaves through an opening (_exit_t) before meeting any of the
+    meshes (the start and the exit distance rounded to float32 for Warp's ray query), else 0."""
+    te = _exit_t(p, d, ex_c0, ex_n, ex_inv, ex_u, ex_v)
+    if te <= wp.float64(0.0):
+        return 0
+    start = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
     for k in range(n_meshes):
-        if f != wp.uint8(0):
-            # any hit with 0 <= t' < t, the first one met (not the nearest: the same yes/no, fewer nodes visited
-            # where the ray is blocked)
-            if wp.mesh_query_ray_anyhit(meshes[k], start[i], d, t):
-                f = wp.uint8(0)
-    free[i] = f
+        if wp.mesh_query_ray_anyhit(meshes[k], start, d32, wp.float32(te)):
+            return 0
+    return 1
 
 
-SUN_RAYS_SPLIT = 4096  # rays from which SunRays runs two launches side by side on the CPU
+@wp.kernel
+def _sun_vis_kernel(p: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), d: wp.vec3d, d32: wp.vec3,
+                    eps: wp.float64, ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d),
+                    ex_inv: wp.array(dtype=wp.float64), ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d),
+                    meshes: wp.array(dtype=wp.uint64), n_meshes: int, lo: int, vis: wp.array(dtype=wp.float64)):
+    """One point a thread (SunVisibility): max(n.d, 0) x its ray toward the sun free (from p + eps n)."""
+    i = wp.tid() + lo
+    cos = wp.dot(n[i], d)
+    vis[i] = wp.float64(0.0)
+    if cos > wp.float64(0.0):
+        if _sun_free(p[i] + n[i] * eps, d, d32, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes) != 0:
+            vis[i] = cos
 
 
-class SunRays:
-    """Rays from points along the sun direction up to each one's exit distance, against several
-    meshes in one launch: free (N,) where none of them is hit before the exit (what lighting.sun
-    .SunLight.visibility asks; one launch and one read-back for the room and the object together,
-    instead of a ray cast per mesh with its triangles, barycentrics and depths read back). Buffers
-    of `rows` rays are made on the first call; more rays go in blocks."""
+class SunVisibility:
+    """lighting.sun.SunLight.visibility in one launch: per point its cos toward the sun, the exit through an
+    opening and the ray past the meshes (what its numpy passes, exit_distance and a launch of rays did, in the same
+    float64 arithmetic up to the order of a dot product's terms). Buffers of a Workspace's rows; more points
+    go in blocks."""
 
-    MAX_MESHES = 8
+    def __init__(self, device: str, exits: list, d: np.ndarray):
+        from kernels.buffers import Workspace
 
-    def __init__(self, device: str, rows: int = 16384):
-        self.device, self.rows = device, rows
-        self._buf = None
+        self.device = device
+        self.ws = Workspace()
+        self.d = np.asarray(d, np.float64)
+        self.exits = exit_arrays(exits, device)
 
-    def __call__(self, mesh_ids: list[int], start: np.ndarray, d: np.ndarray, t_exit: np.ndarray,
+    def __call__(self, points: np.ndarray, normals: np.ndarray, mesh_ids: list[int], eps: float,
                  parallel: bool = True) -> np.ndarray:
-        """(N,) bool: the ray start[i] + t d (unit d, 0 < t < t_exit[i]) meets none of the meshes
-        (Warp mesh ids, 0s skipped). parallel: two launches side by side on the CPU for many rays
-        (False from inside a pooled thread)."""
-        from kernels.buffers import Buffer
-
-        n = len(start)
-        ids = [int(i) for i in mesh_ids if int(i) != 0]
-        out = np.ones(n, bool)
-        if n == 0 or not ids:
+        """(N,) float64: max(n.d, 0) where the ray from points + eps normals (N,3) m toward the sun leaves
+        through an opening past every mesh of mesh_ids (Warp ids, 0s skipped), else 0. parallel: two
+        launches side by side on the CPU from SUN_RAYS_SPLIT points on (False from inside a pooled thread)."""
+        m = len(points)
+        out = np.zeros(m)
+        if m == 0:
             return out
-        if len(ids) > self.MAX_MESHES:
-            raise ValueError(f"SunRays: {len(ids)} meshes, at most {self.MAX_MESHES}")
-        if self._buf is None:
-            self._buf = (Buffer(self.MAX_MESHES, wp.uint64, self.device), Buffer(self.rows, wp.vec3, self.device),
-                         Buffer(self.rows, wp.float32, self.device), Buffer(self.rows, wp.uint8, self.device))
-        meshes, pts, tex, free = self._buf
-        meshes.upload(np.asarray(ids, np.uint64))
-        dv = wp.vec3(*map(float, d))
-        cpu = wp.get_device(self.device).is_cpu
-        for s in range(0, n, self.rows):
-            e = min(n, s + self.rows)
-            m = e - s
-            pts.upload(start[s:e])  # cast to float32 in the copy
-            tex.upload(t_exit[s:e])
-            cuts = [(0, m // 2), (m // 2, m)] if parallel and cpu and m >= SUN_RAYS_SPLIT else [(0, m)]
-            runtime.run_parallel([lambda a=a, b=b: wp.launch(
-                _sun_free_kernel, dim=b - a, inputs=[meshes.dev, len(ids), pts.dev, dv, tex.dev, a],
-                outputs=[free.dev], device=self.device) for a, b in cuts])
-            out[s:e] = free.pull(m) != 0
+        ids = [int(i) for i in mesh_ids if int(i) != 0]
+        if len(ids) > MAX_SUN_MESHES:
+            raise ValueError(f"SunVisibility: {len(ids)} meshes, at most {MAX_SUN_MESHES}")
+        ws, dev = self.ws, self.device
+        md = ws.upload("meshes", np.asarray(ids or [0], np.uint64), wp.uint64, dev, capacity=MAX_SUN_MESHES)
+        d, d32 = wp.vec3d(*self.d), wp.vec3(*map(float, self.d))
+        rows = ws.rows
+        cpu = wp.get_device(dev).is_cpu
+        for s in range(0, m, rows):
+            e = min(m, s + rows)
+            b = e - s
+            pd = ws.upload("p", points[s:e], wp.vec3d, dev, capacity=rows)
+            nd = ws.upload("n", normals[s:e], wp.vec3d, dev, capacity=rows)
+            vd = ws.buffer("vis", rows, wp.float64, dev)
+            cuts = [(0, b // 2), (b // 2, b)] if parallel and cpu and b >= SUN_RAYS_SPLIT else [(0, b)]
+            runtime.run_parallel([lambda a=a, z=z: wp.launch(
+                _sun_vis_kernel, dim=z - a, inputs=[pd, nd, d, d32, wp.float64(eps), *self.exits, md, len(ids), a],
+                outputs=[vd.dev], device=dev) for a, z in cuts])
+            out[s:e] = vd.pull(b)
         return out
+
+
+class HitSun:
+    """The sun per camera hit on a mesh against its corners' blend, one thread a hit and its ray toward the
+    sun in the same launch (lighting.sun.SunLight.hit_correction: what its numpy passes, exit_distance and
+    the rays' launch did, in the same float64 arithmetic up to the order of a dot product's terms). The mesh's
+    positions and sun shares are uploaded every call, its normals and faces when they are other arrays than the
+    last call's (as SunLight._flat_faces keeps them); the openings once."""
+
+    def __init__(self, device: str, exits: list, d: np.ndarray):
+        from kernels.buffers import Workspace
+
+        self.device = device
+        self.ws = Workspace()
+        self.d = np.asarray(d, np.float64)
+        self.exits = exit_arrays(exits, device)
+        self._shape: tuple | None = None  # (n, f) of the normals and faces uploaded, by identity
+
+    def _upload(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray) -> tuple:
+        """The mesh's device arrays: positions and sun shares every call, normals and faces when they are
+        other arrays than the last call's (a shape's shading mesh keeps them from frame to frame)."""
+        ws, dev = self.ws, self.device
+        if self._shape is None or self._shape[0] is not n or self._shape[1] is not f:
+            self._shape = (n, f, ws.upload("n", np.asarray(n, np.float64), wp.vec3d, dev),
+                           ws.upload("f", np.asarray(f, np.int32), wp.int32, dev))
+        return (ws.upload("v", np.asarray(v, np.float64), wp.vec3d, dev), self._shape[2], self._shape[3],
+                ws.upload("vis", np.asarray(vis_v, np.float64), wp.float64, dev))
+
+    def __call__(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, code: np.ndarray,
+                 tri: np.ndarray, bary: np.ndarray, mesh_ids: list[int], eps: float, rays: int = 0,
+                 parallel: bool = True) -> np.ndarray:
+        """delta (M,) float64 of the hits (tri (M,) into f (F,3), bary (M,3)) on a mesh (v (V,3) m, unit
+        vertex normals n (V,3)) whose vertices' sun shares are vis_v (V,): the hit's sun share (code[tri] 1:
+        cos of its interpolated normal; 2: that cos where a ray from the hit (moved eps m along it) toward the
+        sun leaves through an opening past every mesh of mesh_ids (Warp ids, 0s skipped), else 0) minus
+        the blend of its corners' vis_v. code (F,) uint8, nonzero on every face of a hit. rays: how many
+        hits are code 2 (two launches side by side on the CPU from SUN_RAYS_SPLIT of them, when parallel)."""
+        m = len(tri)
+        if m == 0:
+            return np.zeros(0)
+        ids = [int(i) for i in mesh_ids if int(i) != 0]
+        if len(ids) > MAX_SUN_MESHES:
+            raise ValueError(f"HitSun: {len(ids)} meshes, at most {MAX_SUN_MESHES}")
+        ws, dev = self.ws, self.device
+        vd, nd, fd, visd = self._upload(v, n, f, vis_v)
+        cd = ws.upload("code", np.asarray(code, np.uint8), wp.uint8, dev)
+        md = ws.upload("meshes", np.asarray(ids or [0], np.uint64), wp.uint64, dev, capacity=MAX_SUN_MESHES)
+        d, d32 = wp.vec3d(*self.d), wp.vec3(*map(float, self.d))
+        rows = ws.rows  # hits a launch: fixed buffers, more hits in blocks
+        out = np.empty(m)
+        split = parallel and rays >= SUN_RAYS_SPLIT and wp.get_device(dev).is_cpu
+        for s in range(0, m, rows):
+            e = min(m, s + rows)
+            b = e - s
+            td = ws.upload("tri", np.asarray(tri[s:e], np.int32), wp.int32, dev, capacity=rows)
+            bd = ws.upload("bary", np.asarray(bary[s:e], np.float32), wp.vec3, dev, capacity=rows)
+            dd = ws.buffer("delta", rows, wp.float64, dev)
+            cuts = [(0, b // 2), (b // 2, b)] if split else [(0, b)]
+            runtime.run_parallel([lambda a=a, z=z: wp.launch(
+                _hit_sun_kernel, dim=z - a, inputs=[vd, nd, fd, visd, cd, td, bd, d, d32, wp.float64(eps), *self.exits,
+                                                    md, len(ids), a], outputs=[dd.dev], device=dev) for a, z in cuts])
+            out[s:e] = dd.pull(b)
+        return out
+
+
+# ----------------------------------------------------------------------------- the outline, shaded
+@wp.struct
+class HitShading:
+    """What a camera hit's radiance is made of (OutlineShade): the shading mesh (positions v m, unit normals
+    n, faces f), its vertices' radiance L, and the sun per hit (sun 1: its vertices' sun shares vis_v, each
+    face's code (HitSun: 0 none, 1 wholly lit curved, 2 a shadow's edge crosses it), the sun direction d,
+    albedo x irradiance/pi `sun_rgb`, the openings and the meshes a ray toward the sun must pass)."""
+    v: wp.array(dtype=wp.vec3d)
+    n: wp.array(dtype=wp.vec3d)
+    f: wp.array2d(dtype=wp.int32)
+    L: wp.array(dtype=wp.vec3d)
+    sun: int
+    vis_v: wp.array(dtype=wp.float64)
+    code: wp.array(dtype=wp.uint8)
+    d: wp.vec3d
+    d32: wp.vec3
+    eps: wp.float64
+    albedo: wp.vec3d
+    E: wp.vec3d
+    ex_c0: wp.array(dtype=wp.vec3d)
+    ex_n: wp.array(dtype=wp.vec3d)
+    ex_inv: wp.array(dtype=wp.float64)
+    ex_u: wp.array(dtype=wp.vec3d)
+    ex_v: wp.array(dtype=wp.vec3d)
+    meshes: wp.array(dtype=wp.uint64)
+    n_meshes: int
+
+
+@wp.func
+def _hit_radiance(h: HitShading, t: int, bf: wp.vec3) -> wp.vec3d:
+    """A camera hit's radiance (face t, barycentrics bf): its corners' L blended, plus the sun per hit on a
+    face of code 1 or 2 (its sun share minus the corners' blend of vis_v, x albedo irradiance/pi; at least 0),
+    as refine_clipped_edges's numpy and SunLight.hit_correction (HitSun) compute it."""
+    c0 = h.f[t, 0]
+    c1 = h.f[t, 1]
+    c2 = h.f[t, 2]
+    b0 = wp.float64(bf[0])
+    b1 = wp.float64(bf[1])
+    b2 = wp.float64(bf[2])
+    rad = b0 * h.L[c0] + b1 * h.L[c1] + b2 * h.L[c2]
+    if h.sun != 0:
+        code = h.code[t]
+        if code != wp.uint8(0):
+            nrm = b0 * h.n[c0] + b1 * h.n[c1] + b2 * h.n[c2]
+            nrm = nrm / wp.max(wp.sqrt(wp.dot(nrm, nrm)), wp.float64(1.0e-12))
+            cos = wp.dot(nrm, h.d)
+            vis = wp.float64(0.0)
+            if code == wp.uint8(1):
+                vis = wp.max(cos, wp.float64(0.0))
+            elif cos > wp.float64(0.0):
+                p = b0 * h.v[c0] + b1 * h.v[c1] + b2 * h.v[c2] + nrm * h.eps
+                if _sun_free(p, h.d, h.d32, h.ex_c0, h.ex_n, h.ex_inv, h.ex_u, h.ex_v, h.meshes, h.n_meshes) != 0:
+                    vis = cos
+            delta = vis - (b0 * h.vis_v[c0] + b1 * h.vis_v[c1] + b2 * h.vis_v[c2])
+            rad = wp.vec3d(wp.max(rad[0] + h.albedo[0] * (delta * h.E[0]), wp.float64(0.0)),
+                           wp.max(rad[1] + h.albedo[1] * (delta * h.E[1]), wp.float64(0.0)),
+                           wp.max(rad[2] + h.albedo[2] * (delta * h.E[2]), wp.float64(0.0)))
+    return rad
+
+
+@wp.func
+def _outline_ray(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, pix_to_dir: wp.mat33, x: float, y: float,
+                 s: int, q: int, h: HitShading, acc: wp.vec3d) -> wp.vec4d:
+    """Sub-sample q of the pixel (x, y)'s s x s grid (kernels.shade.camera_hit's test): (its radiance added
+    to acc, 1) where it reaches the object unhidden by the scene, else (acc, 0)."""
+    u = x + (float(q % s) + 0.5) / float(s) - 0.5
+    v = y + (float(q // s) + 0.5) / float(s) - 0.5
+    d = wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0))
+    r = wp.mesh_query_ray(obj, centre, d, 1.0e6)
+    if r.result:
+        seen = True
+        if scene != wp.uint64(0):
+            rs = wp.mesh_query_ray(scene, centre, d, r.t)
+            if rs.result and rs.t <= r.t:
+                seen = False
+        if seen:
+            c = acc + _hit_radiance(h, r.face, wp.vec3(r.u, r.v, 1.0 - r.u - r.v))
+            return wp.vec4d(c[0], c[1], c[2], wp.float64(1.0))
+    return wp.vec4d(acc[0], acc[1], acc[2], wp.float64(0.0))
+
+
+@wp.kernel
+def _outline_shade_kernel(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, pix_to_dir: wp.mat33,
+                          px: wp.array(dtype=wp.int32), py: wp.array(dtype=wp.int32), s: int,
+                          order: wp.array(dtype=wp.int32), n_first: int, h: HitShading, lo: int,
+                          cov: wp.array(dtype=wp.float64), rad: wp.array(dtype=wp.vec3d), full: wp.array(dtype=wp.uint8)):
+    """One pixel a thread (OutlineShade): _outline_hits_kernel's rays (order[0:n_first] first, the rest only
+    where those disagree), each hit shaded (_hit_radiance); the pixel's coverage (hits over the rays cast:
+    all s^2 where full, else n_first) and its hits' mean radiance."""
+    j = wp.tid() + lo
+    x = float(px[j])
+    y = float(py[j])
+    acc = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    n_hit = int(0)
+    for i in range(n_first):
+        r = _outline_ray(obj, scene, centre, pix_to_dir, x, y, s, order[i], h, acc)
+        acc = wp.vec3d(r[0], r[1], r[2])
+        n_hit += int(r[3])
+    rest = n_hit > 0 and n_hit < n_first
+    if rest:
+        for i in range(n_first, s * s):
+            r = _outline_ray(obj, scene, centre, pix_to_dir, x, y, s, order[i], h, acc)
+            acc = wp.vec3d(r[0], r[1], r[2])
+            n_hit += int(r[3])
+    cast = n_first
+    full[j] = wp.uint8(0)
+    if rest or n_first == s * s:
+        full[j] = wp.uint8(1)
+        cast = s * s
+    cov[j] = wp.float64(n_hit) / wp.float64(cast)
+    rad[j] = acc / wp.float64(wp.max(n_hit, 1))
+
+
+class OutlineShade:
+    """OutlineHits's adaptive s x s rays a pixel with each hit shaded in the same launch (the shading mesh's
+    vertex radiance blended, the sun per hit as SunLight.hit_correction: a ray toward the sun where a shadow's
+    edge crosses the face), summed per pixel: what SunStage.refine_clipped_edges read back per ray and
+    shaded in numpy, read back per pixel (its coverage and mean radiance). The mesh's arrays are uploaded per
+    call (its faces when they change); pixels go in blocks of a Workspace's rows."""
+
+    def __init__(self, device: str, exits: list, d: np.ndarray):
+        from kernels.buffers import Buffer, Workspace
+
+        self.device = device
+        self.ws = Workspace()
+        self.d = np.asarray(d, np.float64)
+        self.exits = exit_arrays(exits, device)
+        self._order = Buffer(OutlineHits.MAX_SAMPLES, wp.int32, device)
+        self._order_key: tuple[int, int] | None = None
+        self._faces = None  # the faces array uploaded (by identity)
+        self.rays = 0  # camera rays cast by the last call
+
+    def __call__(self, obj, scene, centre: np.ndarray, pix_to_dir: np.ndarray, px: np.ndarray, py: np.ndarray,
+                 s: int, mesh: tuple, L: np.ndarray, sun: tuple | None = None, split=None,
+                 first: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(coverage (n,) float64, mean radiance of the hits (n,3) float64 (0 where none), full (n,) bool) of
+        the n pixels (px, py) (columns, rows): their s x s sub-samples cast as OutlineHits casts them (`first`
+        on every pixel, the rest where those disagree: full), each hit's radiance its face's corners' L (V,3)
+        blended (mesh = (v (V,3) m, unit normals n (V,3), faces f (F,3))), and with sun = (vis_v (V,), code
+        (F,) uint8 (SunLight.hit_codes), albedo (3,), irradiance/pi (3,), Warp mesh ids, eps m) the sun per hit
+        added as SunLight.hit_correction's delta x albedo x irradiance/pi, at least 0. obj, scene:
+        kernels.visibility.Occluder. `split(launch, n)` runs launch(lo, hi) over ranges of pixels covering
+        [0, n) (None: one launch)."""
+        k = s * s
+        if k > OutlineHits.MAX_SAMPLES:
+            raise ValueError(f"OutlineShade: {s} x {s} rays a pixel, at most {OutlineHits.MAX_SAMPLES}")
+        n_first = k if first is None else max(1, min(int(first), k))
+        if self._order_key != (s, n_first):
+            self._order.upload(first_samples(s, n_first))
+            self._order_key = (s, n_first)
+        ws, dev = self.ws, self.device
+        v, nrm, f = mesh
+        h = HitShading()
+        h.v = ws.upload("v", np.asarray(v, np.float64), wp.vec3d, dev)
+        h.n = ws.upload("n", np.asarray(nrm, np.float64), wp.vec3d, dev)
+        if self._faces is not f:
+            self._fd = ws.upload("f", np.asarray(f, np.int32), wp.int32, dev)
+            self._faces = f
+        h.f = self._fd
+        h.L = ws.upload("L", np.asarray(L, np.float64), wp.vec3d, dev)
+        h.d, h.d32 = wp.vec3d(*self.d), wp.vec3(*map(float, self.d))
+        h.ex_c0, h.ex_n, h.ex_inv, h.ex_u, h.ex_v = self.exits
+        if sun is None:
+            h.sun = 0
+            h.vis_v = ws.upload("vis", np.zeros(1), wp.float64, dev)
+            h.code = ws.upload("code", np.zeros(1, np.uint8), wp.uint8, dev)
+            h.albedo = h.E = wp.vec3d(0.0, 0.0, 0.0)
+            ids, h.eps = [], wp.float64(0.0)
+        else:
+            vis_v, code, albedo, E, ids, eps = sun
+            ids = [int(i) for i in ids if int(i) != 0]
+            if len(ids) > MAX_SUN_MESHES:
+                raise ValueError(f"OutlineShade: {len(ids)} meshes, at most {MAX_SUN_MESHES}")
+            h.sun = 1
+            h.vis_v = ws.upload("vis", np.asarray(vis_v, np.float64), wp.float64, dev)
+            h.code = ws.upload("code", np.asarray(code, np.uint8), wp.uint8, dev)
+            h.albedo = wp.vec3d(*np.asarray(albedo, np.float64).reshape(3))
+            h.E = wp.vec3d(*np.asarray(E, np.float64).reshape(3))
+            h.eps = wp.float64(eps)
+        h.meshes = ws.upload("meshes", np.asarray(ids or [0], np.uint64), wp.uint64, dev, capacity=MAX_SUN_MESHES)
+        h.n_meshes = len(ids)
+        M = wp.mat33(*np.asarray(pix_to_dir, np.float32).reshape(-1))
+        c = wp.vec3(*np.asarray(centre, np.float32))
+        run = split or (lambda launch, m: launch(0, m))
+        n = len(px)
+        cov, rad, full = np.empty(n), np.empty((n, 3)), np.empty(n, bool)
+        rows = ws.rows
+        for p0 in range(0, n, rows):
+            p1 = min(n, p0 + rows)
+            b = p1 - p0
+            pxd = ws.upload("px", np.asarray(px[p0:p1], np.int32), wp.int32, dev, capacity=rows)
+            pyd = ws.upload("py", np.asarray(py[p0:p1], np.int32), wp.int32, dev, capacity=rows)
+            cb, rb, fb = (ws.buffer("cov", rows, wp.float64, dev), ws.buffer("rad", rows, wp.vec3d, dev),
+                          ws.buffer("full", rows, wp.uint8, dev))
+
+            def launch(lo: int, hi: int) -> None:
+                wp.launch(_outline_shade_kernel, dim=hi - lo,
+                          inputs=[wp.uint64(obj.id), wp.uint64(scene.id), c, M, pxd, pyd, int(s), self._order.dev,
+                                  int(n_first), h, int(lo)], outputs=[cb.dev, rb.dev, fb.dev], device=dev)
+
+            run(launch, b)
+            cov[p0:p1] = cb.pull(b)
+            rad[p0:p1] = rb.pull(b)
+            full[p0:p1] = fb.pull(b) != 0
+        self.rays = int(n * n_first + full.sum() * (k - n_first))
+        return cov, rad, full

@@ -22,7 +22,7 @@ import threading
 import numpy as np
 
 from kernels.raycast import cast_rays
-from kernels.sunshadow import SunRays
+from kernels.sunshadow import HitSun, SunVisibility
 from kernels.visibility import Occluder
 from recon.scene import Quad, Scene, Sun
 
@@ -66,10 +66,9 @@ class SunLight:
         self.openings = list(holes)
         self.occluder = occluder
         self.device = occluder.device
-        self._rays = SunRays(self.device)  # visibility's rays and buffers, kept from call to call (not shared
-        # between threads: one caller at a time)
         self.reason = ""
         self._flat: tuple | None = None  # (n, f, flat faces) of hit_correction's last mesh (_flat_faces)
+        self._hit_sun: HitSun | None = None  # hit_correction's launch (made on its first call)
         # exit_distance's openings that the sun enters through: (corner c0, normal, 1 / -(d . normal) 1/m,
         # (3,2) the edges U, V from c0 over their squared lengths 1/m); parallel ones or backs: no passage
         self._exits = []
@@ -80,6 +79,8 @@ class SunLight:
                 U, V = q.corners[1] - c0, q.corners[3] - c0
                 self._exits.append((c0, np.asarray(q.normal, np.float64), 1.0 / -denom,
                                     np.stack([U / (U @ U), V / (V @ V)], 1)))
+        self._vis = SunVisibility(self.device, self._exits, self.d)  # visibility's launch and buffers, kept from
+        # call to call (not shared between threads: one caller at a time)
         if self.d[1] <= 0.0:
             self.reason = f"{where}: the sun is below the horizon (direction_to_sun y = {self.d[1]:.3g}): no direct sun"
         elif not self.openings:
@@ -90,6 +91,13 @@ class SunLight:
             self.reason = f"{where}: the sun is parallel to or behind every opening: no direct sun"
         if self.reason:
             log.warning("%s", self.reason)
+
+    @property
+    def entries(self) -> list:
+        """The openings the sun enters through, as the launches toward the sun take them (kernels.sunshadow
+        .exit_arrays): [(corner (3,), normal (3,), 1 / -(d . normal), (3,2) edges over their squared
+        lengths)]; none when the sun is not active (no ray then leaves the room)."""
+        return self._exits if self.active else []
 
     @property
     def active(self) -> bool:
@@ -115,24 +123,13 @@ class SunLight:
         """(N,) float: max(n.d, 0) x [sun's centre seen through an opening, unblocked]."""
         p = np.asarray(points, np.float64)
         n = np.asarray(normals, np.float64)
-        out = np.zeros(len(p))
         if not self.active or len(p) == 0:
-            return out
-        cos = n @ self.d
-        cand = np.flatnonzero(cos > 0)
-        if len(cand) == 0:
-            return out
-        start = p[cand] + n[cand] * eps
-        t_exit = self.exit_distance(start)
-        go = np.isfinite(t_exit)
-        idx, start, t_exit = cand[go], start[go], t_exit[go]
-        occs = [o for o in (self.occluder, *extra) if o is not None and o.id != 0] if len(idx) else []
-        # the room and the object in one launch (kernels.sunshadow.SunRays); split over the cores for many
-        # rays, not from inside a pooled launch
+            return np.zeros(len(p))
+        occs = [o for o in (self.occluder, *extra) if o is not None and o.id != 0]
+        # the cos, the exit through an opening and the ray past the room and the object in one launch
+        # (kernels.sunshadow.SunVisibility); split over the cores for many points, not from inside a pooled launch
         pooled = threading.current_thread().name.startswith("photoar")
-        free = idx[self._rays([o.id for o in occs], start, self.d, t_exit, parallel=not pooled)]
-        out[free] = cos[free]
-        return out
+        return self._vis(p, n, [o.id for o in occs], eps, parallel=not pooled)
 
     def irradiance(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = ()) -> np.ndarray:
         """Direct sun irradiance/pi (N,3) at points with normals."""
@@ -164,32 +161,28 @@ class SunLight:
         `extra`) on a face that a shadow's edge crosses; faces with no sunlit corner have both 0, and
         so, to within 1 / FLAT_COS - 1, have wholly sunlit flat faces (corner normals equal): neither
         is in k."""
-        lit_f = (vis_v > 0)[f].sum(1)  # sunlit corners per face
-        # a wholly lit face whose corner normals agree within FLAT_COS: the hit's interpolated normal is
-        # theirs, so its sun (cos) equals its corners' blend to within 1 / FLAT_COS - 1: no delta
-        need = (lit_f > 0) & ~((lit_f == 3) & self._flat_faces(n, f))
-        k = np.flatnonzero(need[tri])
+        code = self.hit_codes(n, f, vis_v)
+        ch = code[tri]
+        k = np.flatnonzero(ch)
         if len(k) == 0:
             return k, np.zeros(0)
-        tk = tri[k]
-        ck = f[tk]
-        c0, c1, c2 = ck[:, 0], ck[:, 1], ck[:, 2]
-        b = np.asarray(bary[k], np.float64)
-        b0, b1, b2 = b[:, 0:1], b[:, 1:2], b[:, 2:3]
-        # the blends written out (einsums over (K,3,3) gathers cost ~3x as much)
-        nrm = b0 * n[c0] + b1 * n[c1] + b2 * n[c2]
-        nrm /= np.maximum(np.sqrt(np.einsum("nc,nc->n", nrm, nrm))[:, None], 1e-12)
-        whole = lit_f[tk] == 3
-        mixed = np.flatnonzero(~whole)
-        if len(mixed) == len(k):  # every hit on a face that a shadow's edge crosses (the usual case)
-            vis = self.visibility(b0 * v[c0] + b1 * v[c1] + b2 * v[c2], nrm, extra)
-        else:
-            vis = np.where(whole, np.maximum(nrm @ self.d, 0.0), 0.0)
-            if len(mixed):
-                bm = b[mixed]
-                pos = bm[:, 0:1] * v[c0[mixed]] + bm[:, 1:2] * v[c1[mixed]] + bm[:, 2:3] * v[c2[mixed]]
-                vis[mixed] = self.visibility(pos, nrm[mixed], extra)
-        return k, vis - (b[:, 0] * vis_v[c0] + b[:, 1] * vis_v[c1] + b[:, 2] * vis_v[c2])
+        # per hit, one launch (kernels.sunshadow.HitSun): the interpolated normal's cos on a wholly lit face,
+        # a ray toward the sun (past the room and `extra`) on a face that a shadow's edge crosses
+        if self._hit_sun is None:
+            self._hit_sun = HitSun(self.device, self.entries, self.d)
+        occs = [o for o in (self.occluder, *extra) if o is not None and o.id != 0]
+        pooled = threading.current_thread().name.startswith("photoar")
+        delta = self._hit_sun(v, n, f, vis_v, code, tri[k], bary[k], [o.id for o in occs], 1e-3,
+                              rays=int(np.count_nonzero(ch[k] == 2)), parallel=not pooled)
+        return k, delta
+
+    def hit_codes(self, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray) -> np.ndarray:
+        """(F,) uint8: what hit_correction does on each face f (F,3) of a mesh (unit vertex normals n (V,3),
+        the vertices' sun shares vis_v (V,)): 0 nothing (no sunlit corner, or all sunlit and flat: a hit's
+        sun is its corners' blend to within 1 / FLAT_COS - 1), 1 the interpolated normal's cos (all
+        corners sunlit, not flat), 2 a ray toward the sun (a shadow's edge crosses the face)."""
+        lit_f = (vis_v > 0)[f].sum(1)  # sunlit corners per face
+        return np.where(lit_f == 3, np.where(self._flat_faces(n, f), 0, 1), np.where(lit_f > 0, 2, 0)).astype(np.uint8)
 
     def _flat_faces(self, n: np.ndarray, f: np.ndarray) -> np.ndarray:
         """(F,) bool: the faces f (F,3) whose corner normals (n (V,3), unit) agree within FLAT_COS, kept for

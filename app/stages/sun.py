@@ -24,7 +24,7 @@ import numpy as np
 
 from app import runtime
 from kernels.blocked_transfer import BlockedPairs
-from kernels.sunshadow import OutlineHits, SunShadowMap
+from kernels.sunshadow import OutlineShade, SunShadowMap
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
 from lighting.sun import SunLight, SunlitPieces
@@ -113,8 +113,13 @@ class SunStage:
         self.n_patches = n_patches
         self.E_perp = light.sun.irradiance / np.pi
         self.map = SunShadowMap(light.sun.direction, light.sun.half_angle, device=device)
-        self._pix = self.map.points(pts, footprint)  # kept on the device: no buffers per frame
-        self._cen = self.map.points(c_pts)
+        # the sunlit pixels' and the patches' sample points (footprint 0) in one set, kept on the device (no
+        # buffers per frame): frame() looks both up in one launch
+        self._n_pix = len(pts)
+        self._lookups = self.map.points(np.concatenate([np.asarray(pts, np.float64).reshape(-1, 3),
+                                                        np.asarray(c_pts, np.float64).reshape(-1, 3)]),
+                                        np.concatenate([np.asarray(footprint, np.float32).reshape(-1),
+                                                        np.zeros(len(np.asarray(c_pts).reshape(-1, 3)), np.float32)]))
         self.device = device
         self.edge_samples = 4  # rays per side of an outline pixel (refine_clipped_edges)
         self.edge_first = EDGE_FIRST_RAYS  # of those, the rays cast on every outline pixel (the rest only where
@@ -124,15 +129,16 @@ class SunStage:
         self._blocked: tuple | None = None  # (key, BlockedPairs of the receiver vertices and clusters, clusters, Vr)
         self._lost: np.ndarray | None = None  # (Pc,K) the last frame's lost share of the sun per sample point
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
-        self._outline = OutlineHits(device)  # refine_clipped_edges's rays (buffers kept)
+        self._outline = OutlineShade(device, light.entries, light.d)  # refine_clipped_edges's
+        # rays and their shading (buffers kept)
         self._emitters = SeenEmitters(device)  # object_emitters's lit pieces on the device (buffers kept)
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
         patch (P,3), mean over its sample points)."""
         self.map.render(vertices, faces)
-        occ_pix = self.map.occlusion_at(self._pix)
-        occ_c = self.map.occlusion_at(self._cen).reshape(self.c_vis.shape)
+        occ = self.map.occlusion_at(self._lookups)
+        occ_pix, occ_c = occ[:self._n_pix], occ[self._n_pix:].reshape(self.c_vis.shape)
         self._lost = self.c_vis * occ_c  # share of the sun lost at each sample point (first_pass_blocked)
         loss_c = np.zeros((self.n_patches, 3))
         loss_c[self.c_patch] = self._lost.mean(1)[:, None] * self.E_perp
@@ -387,24 +393,15 @@ class SunStage:
         # edge_first of them on every pixel, the rest only where those disagree (the outline crosses the pixel)
         n_sub = s * s
         first = n_sub if self.edge_first is None else min(self.edge_first, n_sub)
-        tri, bary, hit, full = self._outline(
-            own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s,
+        # each hit shaded in the same launch (the vertex blend of L_vert; the sun per hit on the faces with a
+        # sunlit corner, as SunLight.hit_correction: on the others both it and the blend it replaces are 0)
+        sun = None
+        if sun_vis is not None:
+            sun = (sun_vis, self.light.hit_codes(n, f, sun_vis), albedo, self.E_perp,
+                   [o.id for o in (self.light.occluder, own) if o is not None and o.id != 0], 1e-3)
+        c, mean, _ = self._outline(
+            own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s, mesh, L_vert, sun,
             functools.partial(runtime.split, device=self.device, min_items=max(1, EDGE_MIN_RAYS // first)), first)
-        rad = np.zeros((len(tri), 3))
-        h = np.flatnonzero(hit)
-        corners = f[tri[h]]
-        bc = bary[h]  # the blend written out (an einsum over float32 weights costs ~3x as much)
-        rad[h] = (bc[:, :1] * L_vert[corners[:, 0]] + bc[:, 1:2] * L_vert[corners[:, 1]]
-                  + bc[:, 2:] * L_vert[corners[:, 2]])
-        if sun_vis is not None and len(h):  # the sun per hit on the faces with a sunlit corner (on the others
-            # both the per-hit sun and the vertex blend it replaces are 0)
-            k, delta = self.light.hit_correction(v, n, f, sun_vis, tri[h], bary[h], [own])
-            if len(k):
-                hk = h[k]
-                rad[hk] = np.maximum(rad[hk] + albedo * (delta[:, None] * self.E_perp), 0.0)
-        hits = hit.reshape(-1, n_sub)
-        c = hits.sum(1) / np.where(full, n_sub, first)  # a pixel not full: its `first` rays cast, the rest misses
-        mean = rad.reshape(-1, n_sub, 3).sum(1) / np.maximum(hits.sum(1), 1)[:, None]
         cov[py, px] = c
         obj_rad[py, px] = np.where(c[:, None] > 0, mean, obj_rad[py, px])
         return py * W + px

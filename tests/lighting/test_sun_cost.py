@@ -1,7 +1,7 @@
 """The sun's per-frame shortcuts give the answers of the plain computations they replace (issue 20:
 the frame's cost with the sun).
 
-- SunLight.visibility casts the room and the object in one launch (kernels.sunshadow.SunRays): the
+- SunLight.visibility casts the room and the object in one launch (kernels.sunshadow.SunVisibility): the
   same lit points as a ray cast per mesh with its depth against the exit distance;
 - SunLight.hit_correction (the sun per camera hit) equals irradiance_on_mesh minus the vertex blend.
 """
@@ -97,6 +97,28 @@ def test_hit_correction_is_the_per_hit_sun_minus_the_vertex_blend(lit_room):
     assert np.abs(got - ref)[~left].max() < 1e-12
 
 
+def test_hit_correction_in_blocks_and_halves_equals_it_hit_by_hit(lit_room):
+    # more hits than one launch's buffers hold (blocks), with enough rays for two launches side by side:
+    # the same deltas, bit for bit, as small calls of one launch each
+    from kernels.sunshadow import SUN_RAYS_SPLIT
+
+    s, light = lit_room
+    v, n, f, own = _chair(s)
+    vis_v = light.visibility(v, n, [own])
+    lit_c = (vis_v[f] > 0).sum(1)
+    mixed = np.flatnonzero((lit_c > 0) & (lit_c < 3))
+    rng = np.random.default_rng(5)
+    tri = np.concatenate([rng.choice(mixed, 12000), rng.integers(0, len(f), 30000)]).astype(np.int32)
+    bary = rng.dirichlet(np.ones(3), len(tri)).astype(np.float32)
+    k, delta = light.hit_correction(v, n, f, vis_v, tri, bary, [own])
+    assert len(tri) > light._hit_sun.ws.rows and np.isin(tri[k], mixed).sum() >= 2 * SUN_RAYS_SPLIT
+    parts = [light.hit_correction(v, n, f, vis_v, tri[a:a + 1000], bary[a:a + 1000], [own])
+             for a in range(0, len(tri), 1000)]
+    assert np.array_equal(k, np.concatenate([kk + a for (kk, _), a in zip(parts, range(0, len(tri), 1000))]))
+    assert np.array_equal(delta, np.concatenate([d for _, d in parts]))
+    assert (delta != 0).sum() > 1000
+
+
 def _tilted_hits(n: np.ndarray, f: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The chair's normals n (V,3) tilted apart by ~3 degrees (no face flat), and 3000 random camera hits on
     its faces f: (tilted unit normals, tri (3000,) int32, bary (3000,3) float32)."""
@@ -165,3 +187,44 @@ def test_hit_correction_flat_faces_follow_the_mesh_given(lit_room):
         k_ref, delta_ref = fresh.hit_correction(v, nn, f, vis_v, tri, bary, [own])
         assert np.array_equal(k, k_ref) and np.array_equal(delta, delta_ref)
     assert len(light.hit_correction(v, n2, f, light.visibility(v, n2, [own]), tri, bary, [own])[0]) > len(k)
+
+
+@pytest.mark.parametrize("with_sun", [True, False])
+def test_outline_shade_equals_the_rays_shaded_one_by_one(lit_room, with_sun):
+    # kernels.sunshadow.OutlineShade (refine_clipped_edges's launch) against OutlineHits's rays read back and
+    # shaded in numpy as refine_clipped_edges did: the vertex blend, the sun per hit from hit_correction (at
+    # least 0), each pixel's coverage and its hits' mean radiance
+    from kernels.sunshadow import OutlineHits, OutlineShade
+
+    s, light = lit_room
+    v, n, f, own = _chair(s)
+    vis_v = light.visibility(v, n, [own])
+    cam = s.camera
+    uv, _ = cam.project(v)
+    u0, v0 = np.floor(uv.min(0)).astype(int) - 2
+    u1, v1 = np.ceil(uv.max(0)).astype(int) + 2
+    gy, gx = np.mgrid[v0:v1, u0:u1]
+    px, py = gx.ravel().astype(np.int32), gy.ravel().astype(np.int32)
+    rng = np.random.default_rng(7)
+    L = rng.uniform(0.0, 2.0, (len(v), 3))
+    albedo, E = np.array([0.6, 0.5, 0.4]), light.sun.irradiance / np.pi
+    M = cam.R.T @ np.linalg.inv(cam.K)
+    tri, bary, hit, full = OutlineHits("cpu")(own, light.occluder, cam.centre, M, px, py, 4, None, 4)
+    rad = np.zeros((len(tri), 3))
+    h = np.flatnonzero(hit)
+    b = bary[h].astype(np.float64)
+    rad[h] = np.einsum("nk,nkc->nc", b, L[f[tri[h]]])
+    if with_sun:
+        k, delta = light.hit_correction(v, n, f, vis_v, tri[h], bary[h], [own])
+        rad[h[k]] = np.maximum(rad[h[k]] + albedo * (delta[:, None] * E), 0.0)
+        assert len(k) > 100 and (delta < 0).any() and (delta > 0).any()
+    hits = hit.reshape(-1, 16)
+    cov_ref = hits.sum(1) / np.where(full, 16, 4)
+    mean_ref = rad.reshape(-1, 16, 3).sum(1) / np.maximum(hits.sum(1), 1)[:, None]
+    shade = OutlineShade("cpu", light.entries, light.d)
+    sun = (vis_v, light.hit_codes(n, f, vis_v), albedo, E, [light.occluder.id, own.id], 1e-3) if with_sun else None
+    cov, mean, full2 = shade(own, light.occluder, cam.centre, M, px, py, 4, (v, n, f), L, sun, None, 4)
+    assert ((cov > 0) & (cov < 1)).sum() > 100 and (cov == 1).sum() > 1000
+    assert np.array_equal(full2, full) and np.array_equal(cov, cov_ref)
+    assert np.abs(mean - mean_ref).max() < 1e-12
+    assert shade.rays == len(px) * 4 + full.sum() * 12
