@@ -360,6 +360,30 @@ def first_samples(s: int, n: int = 4) -> np.ndarray:
     return np.asarray(first + rest, np.int32)
 
 
+class _SampleOrder:
+    """first_samples' order on the device for OutlineHits and OutlineShade, uploaded when (s, first) changes."""
+
+    MAX = 1024  # s*s at most (s <= 32)
+
+    def __init__(self, device: str):
+        from kernels.buffers import Buffer
+
+        self.buf = Buffer(self.MAX, wp.int32, device)
+        self._key: tuple[int, int] | None = None
+
+    def set(self, who: str, s: int, first: int | None) -> int:
+        """The rays cast on every pixel (first_samples(s, first); None: all s*s), with the order uploaded;
+        ValueError naming `who` above MAX rays a pixel."""
+        k = s * s
+        if k > self.MAX:
+            raise ValueError(f"{who}: {s} x {s} rays a pixel, at most {self.MAX}")
+        n_first = k if first is None else max(1, min(int(first), k))
+        if self._key != (s, n_first):
+            self.buf.upload(first_samples(s, n_first))
+            self._key = (s, n_first)
+        return n_first
+
+
 class OutlineHits:
     """s x s sub-pixel camera rays through a list of pixels against the object's mesh, each
     depth-tested against the scene model only where it hits the object (one launch for both, as
@@ -367,7 +391,7 @@ class OutlineHits:
     the pixels whose first rays disagree (first_samples). Buffers of `block` rays are made once; more
     rays go in blocks of whole pixels."""
 
-    MAX_SAMPLES = 1024  # s*s at most (s <= 32)
+    MAX_SAMPLES = _SampleOrder.MAX
 
     def __init__(self, device: str, block: int = 32768):
         from kernels.buffers import Buffer
@@ -379,8 +403,7 @@ class OutlineHits:
         self._bary = Buffer(block, wp.vec3, device)
         self._hit = Buffer(block, wp.uint8, device)
         self._full = Buffer(block, wp.uint8, device)
-        self._order = Buffer(self.MAX_SAMPLES, wp.int32, device)
-        self._order_key: tuple[int, int] | None = None
+        self._order = _SampleOrder(device)
         self.rays = 0  # rays cast by the last call
 
     def __call__(self, obj, scene, centre: np.ndarray, pix_to_dir: np.ndarray, px: np.ndarray, py: np.ndarray,
@@ -395,12 +418,7 @@ class OutlineHits:
         all True). obj, scene: kernels.visibility.Occluder. `split(launch, n)` runs launch(lo, hi) over
         ranges of pixels covering [0, n) (None: one launch)."""
         k = s * s
-        if k > self.MAX_SAMPLES:
-            raise ValueError(f"OutlineHits: {s} x {s} rays a pixel, at most {self.MAX_SAMPLES}")
-        n_first = k if first is None else max(1, min(int(first), k))
-        if self._order_key != (s, n_first):
-            self._order.upload(first_samples(s, n_first))
-            self._order_key = (s, n_first)
+        n_first = self._order.set("OutlineHits", s, first)
         per = max(1, self.block // k)  # whole pixels a block
         n = len(px) * k
         tri, bary, hit = np.empty(n, np.int32), np.empty((n, 3), np.float32), np.empty(n, bool)
@@ -417,7 +435,7 @@ class OutlineHits:
             def launch(lo: int, hi: int) -> None:
                 wp.launch(_outline_hits_kernel, dim=hi - lo,
                           inputs=[wp.uint64(obj.id), wp.uint64(scene.id), c, M, self._px.dev, self._py.dev, int(s),
-                                  self._order.dev, int(n_first), int(lo)],
+                                  self._order.buf.dev, int(n_first), int(lo)],
                           outputs=[self._tri.dev, self._bary.dev, self._hit.dev, self._full.dev], device=self.device)
 
             run(launch, p1 - p0)
@@ -433,7 +451,16 @@ class OutlineHits:
 SUN_RAYS_SPLIT = 4096  # points (rays) from which SunVisibility and HitSun run two launches side by side on the CPU
 
 
-MAX_SUN_MESHES = 8  # meshes a ray toward the sun is tested against at most (SunVisibility, HitSun)
+MAX_SUN_MESHES = 8  # meshes a ray toward the sun is tested against at most (SunVisibility, HitSun, OutlineShade)
+
+
+def _sun_meshes(ws, device: str, mesh_ids: list[int], who: str) -> tuple[wp.array, int]:
+    """The meshes a ray toward the sun must pass (Warp ids, 0s skipped) in the workspace's "meshes" buffer,
+    and how many; ValueError naming `who` above MAX_SUN_MESHES."""
+    ids = [int(i) for i in mesh_ids if int(i) != 0]
+    if len(ids) > MAX_SUN_MESHES:
+        raise ValueError(f"{who}: {len(ids)} meshes, at most {MAX_SUN_MESHES}")
+    return ws.upload("meshes", np.asarray(ids or [0], np.uint64), wp.uint64, device, capacity=MAX_SUN_MESHES), len(ids)
 
 
 # ----------------------------------------------------------------------------- the sun per camera hit
@@ -456,23 +483,19 @@ def _exit_t(p: wp.vec3d, d: wp.vec3d, ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.
     return best
 
 
-@wp.kernel
-def _hit_sun_kernel(v: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), f: wp.array2d(dtype=wp.int32),
-                    vis_v: wp.array(dtype=wp.float64), code: wp.array(dtype=wp.uint8), tri: wp.array(dtype=wp.int32),
-                    bary: wp.array(dtype=wp.vec3), d: wp.vec3d, d32: wp.vec3, eps: wp.float64,
-                    ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d), ex_inv: wp.array(dtype=wp.float64),
-                    ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d), meshes: wp.array(dtype=wp.uint64),
-                    n_meshes: int, lo: int, delta: wp.array(dtype=wp.float64)):
-    """One camera hit a thread (HitSun): its sun share minus its corners' blend of vis_v."""
-    i = wp.tid() + lo
-    t = tri[i]
+@wp.func
+def _sun_delta(v: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), f: wp.array2d(dtype=wp.int32),
+               vis_v: wp.array(dtype=wp.float64), code: wp.array(dtype=wp.uint8), t: int, b0: wp.float64,
+               b1: wp.float64, b2: wp.float64, d: wp.vec3d, d32: wp.vec3, eps: wp.float64,
+               ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d), ex_inv: wp.array(dtype=wp.float64),
+               ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d), meshes: wp.array(dtype=wp.uint64),
+               n_meshes: int) -> wp.float64:
+    """A camera hit's sun share (face t of code 1: the cos of its interpolated normal; code 2: that cos where
+    the ray from the hit, moved eps m along that normal, toward the sun is free (_sun_free), else 0) minus its
+    corners' blend of vis_v (barycentrics b0, b1, b2): what HitSun returns and OutlineShade adds per hit."""
     c0 = f[t, 0]
     c1 = f[t, 1]
     c2 = f[t, 2]
-    bf = bary[i]
-    b0 = wp.float64(bf[0])
-    b1 = wp.float64(bf[1])
-    b2 = wp.float64(bf[2])
     nrm = b0 * n[c0] + b1 * n[c1] + b2 * n[c2]
     nrm = nrm / wp.max(wp.sqrt(wp.dot(nrm, nrm)), wp.float64(1.0e-12))
     cos = wp.dot(nrm, d)
@@ -483,7 +506,21 @@ def _hit_sun_kernel(v: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), f:
         p = b0 * v[c0] + b1 * v[c1] + b2 * v[c2] + nrm * eps
         if _sun_free(p, d, d32, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes) != 0:
             vis = cos
-    delta[i] = vis - (b0 * vis_v[c0] + b1 * vis_v[c1] + b2 * vis_v[c2])
+    return vis - (b0 * vis_v[c0] + b1 * vis_v[c1] + b2 * vis_v[c2])
+
+
+@wp.kernel
+def _hit_sun_kernel(v: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), f: wp.array2d(dtype=wp.int32),
+                    vis_v: wp.array(dtype=wp.float64), code: wp.array(dtype=wp.uint8), tri: wp.array(dtype=wp.int32),
+                    bary: wp.array(dtype=wp.vec3), d: wp.vec3d, d32: wp.vec3, eps: wp.float64,
+                    ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d), ex_inv: wp.array(dtype=wp.float64),
+                    ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d), meshes: wp.array(dtype=wp.uint64),
+                    n_meshes: int, lo: int, delta: wp.array(dtype=wp.float64)):
+    """One camera hit a thread (HitSun): _sun_delta."""
+    i = wp.tid() + lo
+    bf = bary[i]
+    delta[i] = _sun_delta(v, n, f, vis_v, code, tri[i], wp.float64(bf[0]), wp.float64(bf[1]), wp.float64(bf[2]),
+                          d, d32, eps, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes)
 
 
 def exit_arrays(exits: list, device: str) -> list[wp.array]:
@@ -551,11 +588,8 @@ class SunVisibility:
         out = np.zeros(m)
         if m == 0:
             return out
-        ids = [int(i) for i in mesh_ids if int(i) != 0]
-        if len(ids) > MAX_SUN_MESHES:
-            raise ValueError(f"SunVisibility: {len(ids)} meshes, at most {MAX_SUN_MESHES}")
         ws, dev = self.ws, self.device
-        md = ws.upload("meshes", np.asarray(ids or [0], np.uint64), wp.uint64, dev, capacity=MAX_SUN_MESHES)
+        md, n_ids = _sun_meshes(ws, dev, mesh_ids, "SunVisibility")
         d, d32 = wp.vec3d(*self.d), wp.vec3(*map(float, self.d))
         rows = ws.rows
         cpu = wp.get_device(dev).is_cpu
@@ -567,7 +601,7 @@ class SunVisibility:
             vd = ws.buffer("vis", rows, wp.float64, dev)
             cuts = [(0, b // 2), (b // 2, b)] if parallel and cpu and b >= SUN_RAYS_SPLIT else [(0, b)]
             runtime.run_parallel([lambda a=a, z=z: wp.launch(
-                _sun_vis_kernel, dim=z - a, inputs=[pd, nd, d, d32, wp.float64(eps), *self.exits, md, len(ids), a],
+                _sun_vis_kernel, dim=z - a, inputs=[pd, nd, d, d32, wp.float64(eps), *self.exits, md, n_ids, a],
                 outputs=[vd.dev], device=dev) for a, z in cuts])
             out[s:e] = vd.pull(b)
         return out
@@ -611,13 +645,10 @@ class HitSun:
         m = len(tri)
         if m == 0:
             return np.zeros(0)
-        ids = [int(i) for i in mesh_ids if int(i) != 0]
-        if len(ids) > MAX_SUN_MESHES:
-            raise ValueError(f"HitSun: {len(ids)} meshes, at most {MAX_SUN_MESHES}")
         ws, dev = self.ws, self.device
         vd, nd, fd, visd = self._upload(v, n, f, vis_v)
         cd = ws.upload("code", np.asarray(code, np.uint8), wp.uint8, dev)
-        md = ws.upload("meshes", np.asarray(ids or [0], np.uint64), wp.uint64, dev, capacity=MAX_SUN_MESHES)
+        md, n_ids = _sun_meshes(ws, dev, mesh_ids, "HitSun")
         d, d32 = wp.vec3d(*self.d), wp.vec3(*map(float, self.d))
         rows = ws.rows  # hits a launch: fixed buffers, more hits in blocks
         out = np.empty(m)
@@ -631,7 +662,7 @@ class HitSun:
             cuts = [(0, b // 2), (b // 2, b)] if split else [(0, b)]
             runtime.run_parallel([lambda a=a, z=z: wp.launch(
                 _hit_sun_kernel, dim=z - a, inputs=[vd, nd, fd, visd, cd, td, bd, d, d32, wp.float64(eps), *self.exits,
-                                                    md, len(ids), a], outputs=[dd.dev], device=dev) for a, z in cuts])
+                                                    md, n_ids, a], outputs=[dd.dev], device=dev) for a, z in cuts])
             out[s:e] = dd.pull(b)
         return out
 
@@ -677,19 +708,9 @@ def _hit_radiance(h: HitShading, t: int, bf: wp.vec3) -> wp.vec3d:
     b2 = wp.float64(bf[2])
     rad = b0 * h.L[c0] + b1 * h.L[c1] + b2 * h.L[c2]
     if h.sun != 0:
-        code = h.code[t]
-        if code != wp.uint8(0):
-            nrm = b0 * h.n[c0] + b1 * h.n[c1] + b2 * h.n[c2]
-            nrm = nrm / wp.max(wp.sqrt(wp.dot(nrm, nrm)), wp.float64(1.0e-12))
-            cos = wp.dot(nrm, h.d)
-            vis = wp.float64(0.0)
-            if code == wp.uint8(1):
-                vis = wp.max(cos, wp.float64(0.0))
-            elif cos > wp.float64(0.0):
-                p = b0 * h.v[c0] + b1 * h.v[c1] + b2 * h.v[c2] + nrm * h.eps
-                if _sun_free(p, h.d, h.d32, h.ex_c0, h.ex_n, h.ex_inv, h.ex_u, h.ex_v, h.meshes, h.n_meshes) != 0:
-                    vis = cos
-            delta = vis - (b0 * h.vis_v[c0] + b1 * h.vis_v[c1] + b2 * h.vis_v[c2])
+        if h.code[t] != wp.uint8(0):
+            delta = _sun_delta(h.v, h.n, h.f, h.vis_v, h.code, t, b0, b1, b2, h.d, h.d32, h.eps, h.ex_c0, h.ex_n,
+                               h.ex_inv, h.ex_u, h.ex_v, h.meshes, h.n_meshes)
             rad = wp.vec3d(wp.max(rad[0] + h.albedo[0] * (delta * h.E[0]), wp.float64(0.0)),
                            wp.max(rad[1] + h.albedo[1] * (delta * h.E[1]), wp.float64(0.0)),
                            wp.max(rad[2] + h.albedo[2] * (delta * h.E[2]), wp.float64(0.0)))
@@ -757,14 +778,13 @@ class OutlineShade:
     call (its faces when they change); pixels go in blocks of a Workspace's rows."""
 
     def __init__(self, device: str, exits: list, d: np.ndarray):
-        from kernels.buffers import Buffer, Workspace
+        from kernels.buffers import Workspace
 
         self.device = device
         self.ws = Workspace()
         self.d = np.asarray(d, np.float64)
         self.exits = exit_arrays(exits, device)
-        self._order = Buffer(OutlineHits.MAX_SAMPLES, wp.int32, device)
-        self._order_key: tuple[int, int] | None = None
+        self._order = _SampleOrder(device)
         self._faces = None  # the faces array uploaded (by identity)
         self.rays = 0  # camera rays cast by the last call
 
@@ -780,12 +800,7 @@ class OutlineShade:
         kernels.visibility.Occluder. `split(launch, n)` runs launch(lo, hi) over ranges of pixels covering
         [0, n) (None: one launch)."""
         k = s * s
-        if k > OutlineHits.MAX_SAMPLES:
-            raise ValueError(f"OutlineShade: {s} x {s} rays a pixel, at most {OutlineHits.MAX_SAMPLES}")
-        n_first = k if first is None else max(1, min(int(first), k))
-        if self._order_key != (s, n_first):
-            self._order.upload(first_samples(s, n_first))
-            self._order_key = (s, n_first)
+        n_first = self._order.set("OutlineShade", s, first)
         ws, dev = self.ws, self.device
         v, nrm, f = mesh
         h = HitShading()
@@ -806,17 +821,13 @@ class OutlineShade:
             ids, h.eps = [], wp.float64(0.0)
         else:
             vis_v, code, albedo, E, ids, eps = sun
-            ids = [int(i) for i in ids if int(i) != 0]
-            if len(ids) > MAX_SUN_MESHES:
-                raise ValueError(f"OutlineShade: {len(ids)} meshes, at most {MAX_SUN_MESHES}")
             h.sun = 1
             h.vis_v = ws.upload("vis", np.asarray(vis_v, np.float64), wp.float64, dev)
             h.code = ws.upload("code", np.asarray(code, np.uint8), wp.uint8, dev)
             h.albedo = wp.vec3d(*np.asarray(albedo, np.float64).reshape(3))
             h.E = wp.vec3d(*np.asarray(E, np.float64).reshape(3))
             h.eps = wp.float64(eps)
-        h.meshes = ws.upload("meshes", np.asarray(ids or [0], np.uint64), wp.uint64, dev, capacity=MAX_SUN_MESHES)
-        h.n_meshes = len(ids)
+        h.meshes, h.n_meshes = _sun_meshes(ws, dev, ids, "OutlineShade")
         M = wp.mat33(*np.asarray(pix_to_dir, np.float32).reshape(-1))
         c = wp.vec3(*np.asarray(centre, np.float32))
         run = split or (lambda launch, m: launch(0, m))
@@ -833,7 +844,7 @@ class OutlineShade:
 
             def launch(lo: int, hi: int) -> None:
                 wp.launch(_outline_shade_kernel, dim=hi - lo,
-                          inputs=[wp.uint64(obj.id), wp.uint64(scene.id), c, M, pxd, pyd, int(s), self._order.dev,
+                          inputs=[wp.uint64(obj.id), wp.uint64(scene.id), c, M, pxd, pyd, int(s), self._order.buf.dev,
                                   int(n_first), h, int(lo)], outputs=[cb.dev, rb.dev, fb.dev], device=dev)
 
             run(launch, b)

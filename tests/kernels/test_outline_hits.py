@@ -145,3 +145,26 @@ def test_more_rays_than_the_largest_grid_are_refused():
 def test_a_grid_of_no_samples_is_refused():
     with pytest.raises(ValueError, match="first_samples: s = 0, at least 1"):
         first_samples(0)
+
+
+def test_outline_rays_and_sun_meshes_refuse_too_many_with_their_names():
+    # the sample-order and sun-mesh limits OutlineHits shares with OutlineShade, SunVisibility and HitSun
+    from kernels.sunshadow import HitSun, MAX_SUN_MESHES, OutlineShade, SunVisibility
+
+    uv = np.array([[10.0, 10.0], [50.0, 10.0], [30.0, 50.0]])
+    occ = _polygon(uv)
+    px, py = np.array([30], np.int32), np.array([30], np.int32)
+    d = np.array([0.0, 0.0, -1.0])
+    shade = OutlineShade("cpu", [], d)
+    mesh = (_lift(uv), np.tile(d, (3, 1)), np.array([[0, 1, 2]], np.int32))
+    with pytest.raises(ValueError, match=r"OutlineShade: 33 x 33 rays a pixel, at most 1024"):
+        shade(occ, NO_SCENE, np.zeros(3), np.linalg.inv(K), px, py, 33, mesh, np.zeros((3, 3)))
+    too_many = [occ.id] * (MAX_SUN_MESHES + 1)
+    with pytest.raises(ValueError, match=rf"OutlineShade: {MAX_SUN_MESHES + 1} meshes, at most {MAX_SUN_MESHES}"):
+        shade(occ, NO_SCENE, np.zeros(3), np.linalg.inv(K), px, py, 4, mesh, np.zeros((3, 3)),
+              sun=(np.zeros(3), np.ones(1, np.uint8), np.ones(3), np.ones(3), too_many, 1e-4))
+    with pytest.raises(ValueError, match=rf"SunVisibility: {MAX_SUN_MESHES + 1} meshes"):
+        SunVisibility("cpu", [], d)(np.zeros((1, 3)), np.tile(-d, (1, 1)), too_many, 1e-4)
+    with pytest.raises(ValueError, match=rf"HitSun: {MAX_SUN_MESHES + 1} meshes"):
+        HitSun("cpu", [], d)(mesh[0], mesh[1], mesh[2], np.zeros(3), np.ones(1, np.uint8), np.zeros(1, np.int32),
+                             np.full((1, 3), 1 / 3), too_many, 1e-4)
