@@ -356,24 +356,29 @@ class SampledPatchSum:
 
 # ---------------------------------------------------------------- the object's camera hits
 @wp.func
-def camera_hit(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, d: wp.vec3, k: int, tri: wp.array(dtype=wp.int32),
-               bary: wp.array(dtype=wp.vec3), hit: wp.array(dtype=wp.uint8)):
-    """Camera ray k (from centre along unit d) against the object's mesh: its triangle (-1 none) and
-    barycentrics, and hit 1 where it meets the object and the scene model does not lie in front (the
-    scene is only asked where the object is hit)."""
+def camera_ray(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, d: wp.vec3) -> tuple[int, wp.vec3, int]:
+    """The camera ray from centre along unit d against the object's mesh: (its triangle (-1 none),
+    barycentrics, 1 where it meets the object and the scene model does not lie in front, else 0); the
+    scene is only asked where the object is hit."""
     q = wp.mesh_query_ray(obj, centre, d, 1.0e6)
     if q.result:
-        tri[k] = q.face
-        bary[k] = wp.vec3(q.u, q.v, 1.0 - q.u - q.v)  # Warp: p = u p0 + v p1 + (1-u-v) p2
-        hit[k] = wp.uint8(1)
+        seen = int(1)
         if scene != wp.uint64(0):
             qs = wp.mesh_query_ray(scene, centre, d, q.t)
             if qs.result and qs.t <= q.t:
-                hit[k] = wp.uint8(0)
-    else:
-        tri[k] = -1
-        bary[k] = wp.vec3(0.0, 0.0, 0.0)
-        hit[k] = wp.uint8(0)
+                seen = 0
+        return q.face, wp.vec3(q.u, q.v, 1.0 - q.u - q.v), seen  # Warp: p = u p0 + v p1 + (1-u-v) p2
+    return -1, wp.vec3(0.0, 0.0, 0.0), 0
+
+
+@wp.func
+def camera_hit(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, d: wp.vec3, k: int, tri: wp.array(dtype=wp.int32),
+               bary: wp.array(dtype=wp.vec3), hit: wp.array(dtype=wp.uint8)):
+    """camera_ray written to entry k of tri, bary and hit."""
+    t, b, seen = camera_ray(obj, scene, centre, d)
+    tri[k] = t
+    bary[k] = b
+    hit[k] = wp.uint8(seen)
 
 
 @wp.kernel

@@ -29,7 +29,7 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
-from kernels.shade import camera_hit
+from kernels.shade import camera_hit, camera_ray
 
 
 @wp.struct
@@ -720,21 +720,14 @@ def _hit_radiance(h: HitShading, t: int, bf: wp.vec3) -> wp.vec3d:
 @wp.func
 def _outline_ray(obj: wp.uint64, scene: wp.uint64, centre: wp.vec3, pix_to_dir: wp.mat33, x: float, y: float,
                  s: int, q: int, h: HitShading, acc: wp.vec3d) -> wp.vec4d:
-    """Sub-sample q of the pixel (x, y)'s s x s grid (kernels.shade.camera_hit's test): (its radiance added
+    """Sub-sample q of the pixel (x, y)'s s x s grid (kernels.shade.camera_ray): (its radiance added
     to acc, 1) where it reaches the object unhidden by the scene, else (acc, 0)."""
     u = x + (float(q % s) + 0.5) / float(s) - 0.5
     v = y + (float(q // s) + 0.5) / float(s) - 0.5
-    d = wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0))
-    r = wp.mesh_query_ray(obj, centre, d, 1.0e6)
-    if r.result:
-        seen = True
-        if scene != wp.uint64(0):
-            rs = wp.mesh_query_ray(scene, centre, d, r.t)
-            if rs.result and rs.t <= r.t:
-                seen = False
-        if seen:
-            c = acc + _hit_radiance(h, r.face, wp.vec3(r.u, r.v, 1.0 - r.u - r.v))
-            return wp.vec4d(c[0], c[1], c[2], wp.float64(1.0))
+    t, b, seen = camera_ray(obj, scene, centre, wp.normalize(pix_to_dir * wp.vec3(u, v, 1.0)))
+    if seen != 0:
+        c = acc + _hit_radiance(h, t, b)
+        return wp.vec4d(c[0], c[1], c[2], wp.float64(1.0))
     return wp.vec4d(acc[0], acc[1], acc[2], wp.float64(0.0))
 
 
