@@ -125,11 +125,14 @@ class SunLight:
         n = np.asarray(normals, np.float64)
         if not self.active or len(p) == 0:
             return np.zeros(len(p))
-        occs = [o for o in (self.occluder, *extra) if o is not None and o.id != 0]
         # the cos, the exit through an opening and the ray past the room and the object in one launch
         # (kernels.sunshadow.SunVisibility); split over the cores for many points, not from inside a pooled launch
         pooled = threading.current_thread().name.startswith("photoar")
-        return self._vis(p, n, [o.id for o in occs], eps, parallel=not pooled)
+        return self._vis(p, n, self.mesh_ids(extra), eps, parallel=not pooled)
+
+    def mesh_ids(self, extra: list[Occluder] = ()) -> list[int]:
+        """The Warp mesh ids a ray toward the sun must pass: the room's and those of `extra` (e.g. the object)."""
+        return [o.id for o in (self.occluder, *extra) if o is not None and o.id != 0]
 
     def irradiance(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = ()) -> np.ndarray:
         """Direct sun irradiance/pi (N,3) at points with normals."""
@@ -170,9 +173,8 @@ class SunLight:
         # a ray toward the sun (past the room and `extra`) on a face that a shadow's edge crosses
         if self._hit_sun is None:
             self._hit_sun = HitSun(self.device, self.entries, self.d)
-        occs = [o for o in (self.occluder, *extra) if o is not None and o.id != 0]
         pooled = threading.current_thread().name.startswith("photoar")
-        delta = self._hit_sun(v, n, f, vis_v, code, tri[k], bary[k], [o.id for o in occs], 1e-3,
+        delta = self._hit_sun(v, n, f, vis_v, code, tri[k], bary[k], self.mesh_ids(extra), 1e-3,
                               rays=int(np.count_nonzero(ch[k] == 2)), parallel=not pooled)
         return k, delta
 
