@@ -1,7 +1,7 @@
 """Sun benchmark: the cost of the sun's pass in a frame, and PCSS against jittered sun maps.
 
 usage: python bench/bench_sun.py [--shared ../shared] [--passes 50] [--repeat 8] [--ab-only | --outline-only]
-                                 [--scene-ab]
+                                 [--scene-ab] [--runs K] [--summary-json PATH]
 
 On sun_room, one engine: the drag frame with --passes shadow passes, the sun being one of them (the
 sun's map, its PCSS lookups, its pieces of object light, the outline where it clips, what it adds to
@@ -16,7 +16,9 @@ PCSS map against N jittered binary maps (directions spread over the 0.53 deg dis
 mean absolute difference of the occluded share on the sunlit pixels from a 64-map reference.
 Last, the scorer's figures for the --passes frame with known and with captured light, and the
 captured sun estimate against the declared sun. Prints tables; timings are warm (second and later
-frames).
+frames). --runs K repeats the A/B in K fresh processes and prints each one's overheads and their median,
+lowest and highest over the processes (one process's figure moves by a few per cent from process to
+process, more than its own interval says).
 """
 from __future__ import annotations
 
@@ -35,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.dragpath import drag_offsets, moved  # noqa: E402
 from app.engine import Engine, EngineParams  # noqa: E402
-from recon.io import write_png  # noqa: E402
+from recon.io import write_json, write_png  # noqa: E402
 from app.report import table  # noqa: E402
 from kernels.raycast import cast_rays  # noqa: E402
 from kernels.sunshadow import SunShadowMap, vogel_disk  # noqa: E402
@@ -197,12 +199,13 @@ def outline_table(engine: Engine, obj, shared: Path, repeat: int = 5) -> str:
     return table(rows, ["outline rays", "rays", "kernel_ms", "rmse_object", "bias_object"])
 
 
-def scene_ab(scene, engine: Engine, obj, offsets: list, cache: Path | None) -> str:
+def scene_ab(scene, engine: Engine, obj, offsets: list, cache: Path | None) -> tuple[str, dict]:
     """The sun frame against the same frame in the scene without its sun entry: a second engine on
     `scene` with `sun=None` (its own precompute: the room lit by the sky through the opening alone),
     the same poses, interleaved ABBA. The on/off A/B above keeps the sunlit room's precompute and only
     drops the sun's pass; this one is the room a user would have on a sunless day (its source list and
-    light differ, and so does the cost of its masks). Returns the printed tables."""
+    light differ, and so does the cost of its masks). Returns the printed tables and their overheads
+    ({"overhead", "low", "high", "cpu"}: fractions)."""
     import dataclasses
 
     sunless = Engine(dataclasses.replace(scene, sun=None), engine.params, cache_dir=cache, quiet=True)
@@ -219,6 +222,8 @@ def scene_ab(scene, engine: Engine, obj, offsets: list, cache: Path | None) -> s
             stages[on].append(st["timings"])
     pairs = np.array(t[True]) / np.array(t[False])
     lo, hi = bootstrap_median(pairs) - 1.0
+    summary = {"overhead": float(np.median(pairs) - 1.0), "low": float(lo), "high": float(hi),
+               "cpu": float(np.median(np.array(cpu[True]) / np.array(cpu[False])) - 1.0)}
     names = list(stages[True][-1])
     out = table([{"stage": k, "sun_ms": 1e3 * float(np.median([s.get(k, 0.0) for s in stages[True]])),
                   "sunless_scene_ms": 1e3 * float(np.median([s.get(k, 0.0) for s in stages[False]]))}
@@ -226,12 +231,48 @@ def scene_ab(scene, engine: Engine, obj, offsets: list, cache: Path | None) -> s
     out += "\n" + table([
         {"frame": f"{engine.params.passes} passes, sun one of them", "frame_s": float(np.median(t[True]))},
         {"frame": f"{engine.params.passes} passes, the scene without its sun", "frame_s": float(np.median(t[False]))},
-        {"frame": "overhead, median of pairs (fraction)", "frame_s": float(np.median(pairs) - 1.0)},
-        {"frame": "  its 90 % interval, low (bootstrap)", "frame_s": float(lo)},
-        {"frame": "  its 90 % interval, high (bootstrap)", "frame_s": float(hi)},
-        {"frame": "process CPU overhead, median of pairs",
-         "frame_s": float(np.median(np.array(cpu[True]) / np.array(cpu[False])) - 1.0)}], ["frame", "frame_s"])
-    return out
+        {"frame": "overhead, median of pairs (fraction)", "frame_s": summary["overhead"]},
+        {"frame": "  its 90 % interval, low (bootstrap)", "frame_s": summary["low"]},
+        {"frame": "  its 90 % interval, high (bootstrap)", "frame_s": summary["high"]},
+        {"frame": "process CPU overhead, median of pairs", "frame_s": summary["cpu"]}], ["frame", "frame_s"])
+    return out, summary
+
+
+def many_runs(a: argparse.Namespace) -> int:
+    """The sun's A/B in a.runs fresh processes one after another (each: a new engine, warm caches, its own
+    interleaved --repeat poses). One process's median of pairs moves by a few per cent from process to
+    process on this machine, more than its own bootstrap interval says (the processes differ in where
+    their threads and buffers land), so a claim about the overhead rests on the spread over processes.
+    Prints a row per run and the median over runs; a failed run stops with its output."""
+    rows, kinds = [], ["on_off"] + (["scene"] if a.scene_ab else [])
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(a.runs):
+            out = Path(tmp) / f"run{i}.json"
+            cmd = [sys.executable, __file__, "--shared", str(a.shared), "--passes", str(a.passes), "--repeat",
+                   str(a.repeat), "--ab-only", "--summary-json", str(out)] + (["--scene-ab"] if a.scene_ab else [])
+            if a.cache is not None:
+                cmd += ["--cache", str(a.cache)]
+            done = subprocess.run(cmd, capture_output=True, text=True)
+            if done.returncode != 0:
+                sys.stderr.write(done.stdout + done.stderr)
+                return done.returncode
+            res = json.loads(out.read_text())
+            row = {"run": i + 1}
+            for k in kinds:
+                row.update({f"{k}": res[k]["overhead"], f"{k}_low": res[k]["low"], f"{k}_high": res[k]["high"],
+                            f"{k}_cpu": res[k]["cpu"]})
+            rows.append(row)
+            print(f"run {i + 1}/{a.runs}: " + ", ".join(f"{k} {100 * row[k]:+.1f} %" for k in kinds), flush=True)
+    cols = ["run"] + [c for k in kinds for c in (k, f"{k}_low", f"{k}_high", f"{k}_cpu")]
+    print(table(rows, cols))
+    summary = []
+    for k in kinds:
+        for c in (k, f"{k}_cpu"):
+            v = np.array([r[c] for r in rows])
+            summary.append({"overhead": c, "median over runs": float(np.median(v)), "lowest": float(v.min()),
+                            "highest": float(v.max()), "runs at most 0.10": f"{int((v <= 0.10).sum())} of {len(v)}"})
+    print(table(summary, ["overhead", "median over runs", "lowest", "highest", "runs at most 0.10"]))
+    return 0
 
 
 def main(argv=None) -> int:
@@ -244,7 +285,13 @@ def main(argv=None) -> int:
     ap.add_argument("--outline-only", action="store_true", help="only the clipped outline's table")
     ap.add_argument("--scene-ab", action="store_true",
                     help="also the frame against the same frame in the scene without its sun entry (a second engine)")
+    ap.add_argument("--runs", type=int, default=1,
+                    help="the A/B (--ab-only, with --scene-ab's if given) in this many fresh processes, one after "
+                         "another: the overheads' spread from process to process")
+    ap.add_argument("--summary-json", type=Path, default=None, help="write the A/B's overheads (fractions) here")
     a = ap.parse_args(argv)
+    if a.runs > 1:
+        return many_runs(a)
     scene = load_scene(a.shared / "scenes" / "sun_room")
     engine = Engine(scene, EngineParams(passes=a.passes), cache_dir=a.cache, quiet=True)
     obj = scene.obj
@@ -317,8 +364,13 @@ def main(argv=None) -> int:
                  {"frame": "  its 90 % interval, high (bootstrap)", "frame_s": float(hi)},
                  {"frame": "process CPU overhead, median of pairs", "frame_s": cpu_paired}], ["frame", "frame_s"]))
 
+    summary = {"on_off": {"overhead": paired, "low": float(lo), "high": float(hi), "cpu": cpu_paired,
+                          "kernel_ms": 1e3 * (sum(kern[True].values()) - sum(kern[False].values())) / n_frames}}
     if a.scene_ab:
-        print(scene_ab(scene, engine, obj, offs[1:], a.cache))
+        text, summary["scene"] = scene_ab(scene, engine, obj, offs[1:], a.cache)
+        print(text)
+    if a.summary_json is not None:
+        write_json(a.summary_json, summary)
     if a.ab_only:
         return 0
     print(table(pieces_against_monte_carlo(engine, obj), ["pixel (du, dv)", "monte_carlo", "faces", "pieces",
