@@ -290,7 +290,7 @@ class Engine:
         """Radiance mesh from the photo alone into `pre` (B, albedo, origin), report in photo_light."""
         report = scene_precompute.fit_photo_light(pre, self.scene, self.params.bounces, self.photo_priors)
         self.photo_light = {**report, **{k: v for k, v in self.photo_light.items() if k.startswith("declared")}}
-        log.info("photo light: %s", {k: v for k, v in self.photo_light.items() if k != "warnings"})
+        log.debug("photo light: %s", {k: v for k, v in self.photo_light.items() if k != "warnings"})
 
     def _setup(self) -> None:
         """Per-scene arrays derived from the precompute, shared by every frame."""

@@ -127,8 +127,6 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
         if None in frames:  # the refined frame against the all-sources row (levels)
             extra["path"]["converge_rmse_vs_all"] = float(np.sqrt(np.mean(
                 (converged.pixels.astype(np.float64) - frames[None].pixels) ** 2)))
-        log.info("path of %d positions at %s passes: mean %.3f s, p95 %.3f s", path, extra["path"]["passes"],
-                 extra["path"]["frame_s_mean"], extra["path"]["frame_s_p95"])
     with AtomicOutput(out) as stage:
         write_json(stage / "evaluation.json", {"scene": str(scene_dir), "against": against,
                                                "precompute_s": engine.precompute_s, "rows": rows,
@@ -239,9 +237,10 @@ def _run(a) -> int:
     params = dataclasses.replace(_params(a), passes=None)
     rows = main(a.scene, a.out, a.passes, params, cache_dir=a.cache, quiet=a.quiet, reference_spp=a.reference_spp,
                 device=a.device, path=a.path)
-    for r in rows:
-        print(f"passes {r['passes']}: frame {r['frame_s']:.2f} s, energy {r['energy_ratio']:.3f}, "
-              f"rmse {r['rmse_affected']:.2f}, spurious {r['spurious']:.4f}")
+    if a.quiet:  # the rows' table is a log line; -q keeps one line a row
+        for r in rows:
+            print(f"passes {r['passes']}: frame {r['frame_s']:.2f} s, energy {r['energy_ratio']:.3f}, "
+                  f"rmse {r['rmse_affected']:.2f}, spurious {r['spurious']:.4f}")
     if a.path is not None:
         import json
 

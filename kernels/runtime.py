@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
 import tempfile
@@ -11,6 +12,7 @@ from typing import Callable, Iterator
 import warp as wp
 
 _initialised = False
+log = logging.getLogger("photoar")
 # What Warp's native library prints (C stdio, not Python logging) when a machine has no NVIDIA
 # driver: expected on CPU-only machines, so a normal run does not show it. Asking for a CUDA device
 # there is still an error (device()).
@@ -57,6 +59,21 @@ def init() -> None:
         if rest:
             print("\n".join(rest), file=sys.stderr)
         _initialised = True
+        if kernel_cache_cold():
+            log.info("first run: Warp compiles photoar's kernels into %s (once; a minute or two on a CPU)",
+                     wp.config.kernel_cache_dir)
+
+
+def kernel_cache_cold() -> bool:
+    """True when Warp's kernel cache holds no compiled module of this package (a first run after
+    installing, or an emptied cache): the first precompute and frame then spend most of their time
+    compiling. A cache with older builds after a code change is not detected (each changed module
+    recompiles in a few seconds)."""
+    folder = wp.config.kernel_cache_dir
+    try:
+        return not any(e.name.startswith(f"wp_{__package__}.") for e in os.scandir(folder))
+    except OSError:  # no folder yet
+        return True
 
 
 def device(name: str | None = None) -> str:

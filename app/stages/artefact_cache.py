@@ -145,7 +145,7 @@ def cached(path: Path | None, build: Callable[[], object], shared: dict[str, np.
     if path is not None and path.is_file():
         try:
             obj = load(path, shared)
-            log.info("%s: cache hit %s", what, path)
+            log.debug("%s: cache hit %s", what, path)
             return obj, True
         except (OSError, KeyError, ValueError, TypeError, AttributeError, ImportError, EOFError,
                 zipfile.BadZipFile) as e:

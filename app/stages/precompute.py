@@ -200,10 +200,12 @@ def precompute(scene: Scene, config: PrecomputeConfig, patches: PatchMesh, scene
     if cache is not None and cache.is_file():
         try:
             pre = _load(cache, patches, key)
-            log.info("precompute: cache hit %s", cache)
+            log.debug("precompute: cache hit %s", cache)
             return pre, True, 1
         except (OSError, KeyError, ValueError, EOFError) as e:
             log.warning("precompute: ignoring unreadable cache %s (%s)", cache, e)
+    log.info("precompute: the room's light transport (once for this scene and settings%s)",
+             f", cached in {cache.parent}" if cache is not None else "")
     t0 = time.perf_counter()
     solid = ~patches.is_emitter
     cam = scene.camera
@@ -231,7 +233,7 @@ def precompute(scene: Scene, config: PrecomputeConfig, patches: PatchMesh, scene
     if p.lighting == "captured":
         pix_patch = np.where(pix_tri >= 0, patches.tri_patch[np.maximum(pix_tri, 0)], -1)
         rm = captured_radiance_mesh(patches, G_c, cam_occ, probe, scene, pix_patch)
-        log.info("radiance mesh from captured light: %s", rm.summary())
+        log.debug("radiance mesh from captured light: %s", rm.summary())
         B = np.stack([rm.radiance] * (p.bounces + 1))
         albedo, origin, emitter = rm.reflectivity, rm.origin, rm.emitter
     elif p.lighting == "photo":  # filled in by use_lighting (cheap; redone on a cache hit)

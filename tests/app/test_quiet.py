@@ -47,6 +47,30 @@ def test_quiet_demo_run_prints_only_its_result(tmp_path):
     r = run("-m", "app.cli", "demo", "--out", str(tmp_path / "demo2"), *coarse)  # warm cache: short
     assert r.returncode == 0, r.stderr
     assert not [ln for ln in r.stderr.splitlines() if any(n in ln for n in NOISE)], r.stderr
+    # a warm run says what it wrote, not which caches it read
+    assert len(r.stderr.splitlines()) == 1 and r.stderr.startswith("wrote "), r.stderr
+
+
+def test_first_run_says_the_kernels_compile(tmp_path):
+    """An empty Warp kernel cache (a first run after installing) is announced, since the first
+    precompute and frame then take minutes of compiling; a filled one is not."""
+    code = "from kernels import runtime; runtime.device(); print(runtime.kernel_cache_cold())"
+    env = dict(os.environ, WARP_CACHE_PATH=str(tmp_path / "empty"))
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=dict(env, PYTHONPATH=str(ROOT)),
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "True", r.stderr
+    r = subprocess.run([sys.executable, "-c", "import logging; logging.basicConfig(level=logging.INFO, "
+                        "format='%(message)s'); " + code], cwd=ROOT, env=dict(env, PYTHONPATH=str(ROOT)),
+                       capture_output=True, text=True, timeout=120)
+    assert r.stderr.startswith("first run: Warp compiles photoar's kernels"), r.stderr
+    built = tmp_path / "built"
+    import warp as wp  # Warp keeps each version's builds in a folder named for it
+
+    (built / wp.config.version / "wp_kernels.raycast_0123abc").mkdir(parents=True)  # a compiled module's folder
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT,
+                       env=dict(os.environ, WARP_CACHE_PATH=str(built), PYTHONPATH=str(ROOT)),
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "False", r.stderr
 
 
 @pytest.mark.parametrize("content", [
