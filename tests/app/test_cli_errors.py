@@ -301,7 +301,8 @@ def test_log_lines_are_prefixed_by_level():
         return LogFormatter().format(logging.LogRecord("photoar", level, __file__, 1, msg, (), exc))
 
     assert line(logging.INFO, "wrote x") == "wrote x"
-    assert line(logging.WARNING, "s/scene.json: sun: no direct sun") == "photoar: warning: s/scene.json: sun: no direct sun"
+    msg = "s/scene.json: sun: no direct sun"
+    assert line(logging.WARNING, msg) == f"photoar: warning: {msg}"
     try:
         raise RuntimeError("bad\nthing")
     except RuntimeError:
