@@ -4,14 +4,18 @@
   photoar demo [--out DIR]
 
 Bad input ends with one line `photoar: error: <file>: <problem>` and exit status 2, and
-nothing is written to --out.
+nothing is written to --out; a bad option gives one line `photoar <subcommand>: error: <problem>
+(photoar <subcommand> --help)`, exit status 2 (PhotoarParser). Warnings are one line
+`photoar: warning: <message>` (LogFormatter).
 """
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import logging
 import math
+import re
 import sys
 import typing
 from importlib import resources
@@ -39,36 +43,95 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 
+def _number(s: str, kind: type = float) -> float:
+    """`s` as a finite int or float; ArgumentTypeError naming the value otherwise."""
+    try:
+        v = kind(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, got {s!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {s!r}")
+    return v
+
+
+def _finite_float(s: str) -> float:
+    """argparse type: a finite number (no nan, inf)."""
+    return _number(s)
+
+
 def _positive_int(s: str) -> int:
-    v = int(s)
+    v = _number(s, int)
     if v < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
     return v
 
 
 def _fraction(s: str) -> float:
-    v = float(s)
+    v = _number(s)
     if not 0.0 < v <= 1.0:
         raise argparse.ArgumentTypeError(f"must be in (0, 1], got {v}")
     return v
 
 
 def _positive_float(s: str) -> float:
-    v = float(s)
+    v = _number(s)
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be positive, got {v}")
     return v
 
 
 def xyz_arg(s: str) -> tuple[float, float, float]:
-    """argparse type of a point or vector given as "X,Y,Z": three finite numbers."""
+    """argparse type of a point, vector or colour given as "X,Y,Z" (or "R,G,B"): three finite
+    numbers. The option's name is added by argparse, so the message names no axis letters."""
     try:
         v = tuple(float(x) for x in s.split(","))
     except ValueError:
-        v = ()
-    if len(v) != 3 or not all(math.isfinite(x) for x in v):
-        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z, got {s!r}")
+        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, got {s!r}") from None
+    if len(v) != 3:
+        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, got {len(v)} in {s!r}")
+    if not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers, got {s!r}")
     return v  # type: ignore[return-value]
+
+
+QUIET_HELP = "no progress bars or log lines"
+
+
+class PhotoarParser(argparse.ArgumentParser):
+    """photoar's argument parser, for the top level and (as their parser class) every subcommand.
+
+    * An argparse error is one line `<prog>: error: <problem> (<prog> --help)` on stderr and exit
+      status 2, with <prog> the subcommand that failed (`photoar composite`), not the usage block.
+    * A token that starts with '-' and a digit ("-0.74,0.62,0.27", "-1e-3") is an option's value,
+      not an unknown option: `--sun-direction -0.74,0.62,0.27` works as with '='.
+    * `-q/--quiet` is accepted after the subcommand too (`photoar composite ... -q`).
+    """
+
+    def __init__(self, *args, top: "PhotoarParser | None" = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-\.?\d")  # as Python 3.13's argparse
+        self._top = top if top is not None else self
+        self._last = self  # top level: the deepest parser of the current parse (its errors are reported there)
+        if top is not None:  # a subcommand: -q after it sets the top level's flag (absent: left as it is)
+            self.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help=QUIET_HELP)
+
+    def add_subparsers(self, **kwargs):
+        kwargs.setdefault("parser_class", functools.partial(PhotoarParser, top=self._top))
+        return super().add_subparsers(**kwargs)
+
+    def parse_known_args(self, args=None, namespace=None):
+        self._top._last = self
+        return super().parse_known_args(args, namespace)
+
+    def parse_args(self, args=None, namespace=None):
+        ns, extra = self.parse_known_args(args, namespace)
+        if extra:  # reported by the subcommand they follow
+            self._last.error(f"unrecognized arguments: {' '.join(extra)}")
+        return ns
+
+    def error(self, message: str) -> typing.NoReturn:
+        line = " ".join(str(message).split())
+        self.exit(2, f"{self.prog}: error: {line} ({self.prog} --help)\n")
 
 
 def _engine_arg(g, flag: str, name: str, **kw) -> None:
@@ -89,8 +152,8 @@ def _add_engine_args(p: argparse.ArgumentParser, passes: bool = True) -> None:
     _engine_arg(g, "--patch-size", "patch_size", type=_positive_float)
     _engine_arg(g, "--map-res", "map_res", type=_positive_int)
     add_lighting_arg(g, EngineParams().lighting)
-    _engine_arg(g, "--specular", "specular", type=float)
-    _engine_arg(g, "--shininess", "shininess", type=float)
+    _engine_arg(g, "--specular", "specular", type=_finite_float)
+    _engine_arg(g, "--shininess", "shininess", type=_finite_float)
     g.add_argument("--no-object-light", action="store_true", help="turn off: " + EngineParams.doc("object_light"))
     g.add_argument("--no-second-order", action="store_true", help="turn off: " + EngineParams.doc("second_order"))
     g.add_argument("--cache", type=Path, default=None,
@@ -118,9 +181,9 @@ def add_object_args(p) -> None:
                    help="object mesh (PLY/OBJ/GLB): at --place/--yaw, else at the scene's object pose")
     p.add_argument("--place", type=xyz_arg, default=None, metavar="X,Y,Z",
                    help="world point (m) for the bottom centre of the mesh's bounding box")
-    p.add_argument("--yaw", type=float, default=0.0,
+    p.add_argument("--yaw", type=_finite_float, default=0.0,
                    help="right-handed turn about +Y through the --place point, degrees (default %(default)s)")
-    p.add_argument("--object-size", type=float, default=None,
+    p.add_argument("--object-size", type=_positive_float, default=None,
                    help="largest extent of the object in metres (default: the file's units when they look like "
                         "metres, else 0.6 m)")
     p.add_argument("--object-albedo", type=xyz_arg, default=None, metavar="R,G,B",
@@ -129,9 +192,9 @@ def add_object_args(p) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="photoar", description="Insert synthetic objects into photographs of rooms, "
-                                 "lit by the room's light and casting soft shadows.")
-    ap.add_argument("-q", "--quiet", action="store_true", help="no progress bars or log lines")
+    ap = PhotoarParser(prog="photoar", description="Insert synthetic objects into photographs of rooms, "
+                       "lit by the room's light and casting soft shadows.")
+    ap.add_argument("-q", "--quiet", action="store_true", help=QUIET_HELP)
     sub = ap.add_subparsers(dest="command", required=True)
 
     c = sub.add_parser("composite", help="composite a scene's synthetic object into its photo")
@@ -154,6 +217,29 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+class LogFormatter(logging.Formatter):
+    """photoar's log lines: info as the bare message; a warning as one line `photoar: warning:
+    <message>`; an error as one line `photoar: error: <message>` (log.exception's exception as
+    `: <its message>`, no traceback)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        msg = record.getMessage()
+        if record.levelno >= logging.ERROR:
+            msg = f"photoar: error: {msg}"
+            if record.exc_info and record.exc_info[1] is not None:
+                msg += f": {' '.join(str(record.exc_info[1]).split())}"
+        elif record.levelno >= logging.WARNING:
+            msg = f"photoar: warning: {msg}"
+        return msg
+
+
+def log_handler() -> logging.Handler:
+    """The stderr handler of the command line's log (LogFormatter)."""
+    h = logging.StreamHandler(sys.stderr)
+    h.setFormatter(LogFormatter())
+    return h
+
+
 def demo_scene_dir() -> Path:
     return Path(str(resources.files("app") / "demo"))
 
@@ -161,7 +247,7 @@ def demo_scene_dir() -> Path:
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     a = ap.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING if a.quiet else logging.INFO, format="%(message)s")
+    logging.basicConfig(level=logging.WARNING if a.quiet else logging.INFO, handlers=[log_handler()])
     from kernels import runtime
     from recon.scene import SceneError
 

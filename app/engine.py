@@ -55,7 +55,7 @@ from kernels.visibility import Occluder
 from lighting.envmap import CubeMap
 from lighting.irradiance import RoomLight
 from lighting.radiance import load_captured_probe
-from lighting.sun import SunLight, estimate_sun, openings, surface_albedo
+from lighting.sun import NO_OPENING, SunLight, estimate_sun, openings, surface_albedo
 from app.stages.sun import SunStage, upright_box
 from recon.patches import PatchMesh
 from recon.proxy import bounding_sphere
@@ -745,6 +745,8 @@ class Engine:
         pre, pm, scene = self.pre, self.pre.patches, self.scene
         if not openings(scene):
             self.sun_light = None
+            if scene.sun is not None:  # as under known light: the declared sun cannot come in
+                log.warning("%s: sun: %s", scene.meta.get("json_path", scene.name), NO_OPENING)
             return
         sat = np.any(scene.photo.reshape(-1, 3) >= 255, axis=1)
         # the captured radiance flags the sunlit patch as an emitter (brighter than the mesh, which
@@ -757,7 +759,8 @@ class Engine:
         sun, info = estimate_sun(scene, pm, self.pix_patch, self.pix_pos.astype(np.float64), self.dirs, self.L_b,
                                  sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ)
         self._sun_patch = None
-        self.sun_light = SunLight(sun, openings(scene), self.scene_occ, where="sun estimate") if sun else None
+        self.sun_light = SunLight(sun, openings(scene), self.scene_occ,
+                                  where=f"{scene.meta.get('json_path', scene.name)}: sun estimate") if sun else None
         if sun is not None and scene.sun is not None:
             d0 = scene.sun.direction / np.linalg.norm(scene.sun.direction)
             info["declared_direction"] = d0.tolist()

@@ -29,6 +29,10 @@ from recon.scene import Quad, Scene, Sun
 log = logging.getLogger("photoar")
 
 
+NO_OPENING = 'the scene has no opening (window with "opening": true): no direct sun'  # the warning's words,
+# under known light (SunLight) and captured light (app.engine) alike
+
+
 def openings(scene: Scene) -> list[Quad]:
     """The scene's opening quads (windows that are holes in their wall)."""
     return [q for q in scene.quads if q.opening]
@@ -61,7 +65,10 @@ class SunLight:
     """The scene's sun seen through its openings, against the scene model's solid surfaces."""
 
     def __init__(self, sun: Sun, holes: list[Quad], occluder: Occluder, where: str = "sun"):
+        """`where` starts the warning when the sun lights nothing: "<scene.json>: sun" (the CLI's log
+        prefixes "photoar: warning: ")."""
         self.sun = sun
+        self.where = where
         self.d = np.asarray(sun.direction, np.float64) / np.linalg.norm(sun.direction)
         self.openings = list(holes)
         self.occluder = occluder
@@ -84,7 +91,7 @@ class SunLight:
         if self.d[1] <= 0.0:
             self.reason = f"{where}: the sun is below the horizon (direction_to_sun y = {self.d[1]:.3g}): no direct sun"
         elif not self.openings:
-            self.reason = f"{where}: the scene has no opening (window with \"opening\": true): no direct sun"
+            self.reason = f"{where}: {NO_OPENING}"
         elif not np.any(sun.irradiance > 0):
             self.reason = f"{where}: irradiance_perpendicular is zero: no direct sun"
         elif not any(np.dot(q.normal, self.d) < -1e-9 for q in self.openings):
@@ -249,7 +256,7 @@ class SunLight:
         vis = self.visibility(pts.reshape(-1, 3), nrm).reshape(len(idx), len(fu)).mean(1)
         out[idx] = vis[:, None] * (self.sun.irradiance / np.pi)
         if not out.any():
-            self.reason = "sun: its rays miss every opening or reach no surface: no direct sun"
+            self.reason = f"{self.where}: its rays miss every opening or reach no surface: no direct sun"
             log.warning("%s", self.reason)
         return out
 

@@ -6,7 +6,8 @@ Conventions:
   * every writer here writes atomically: a hidden temporary file beside the target, renamed over
     it (os.replace) only once it is complete, so a crash or an error never leaves a half-written
     file; AtomicOutput does the same for the files of an output folder, AtomicFolder replaces
-    a whole folder (keeping the user's own files in it);
+    a whole folder (keeping the user's own files in it); files and folders get the ordinary mode
+    the umask gives (0644 and 0755 under umask 022), set in atomic_path, not mkstemp's 0600;
   * JSON is written as valid JSON (RFC 8259): non-finite floats (NaN, +-Infinity), which JSON
     cannot hold, are written as null. The conversion is deterministic (always null, wherever the
     value sits); a field that can be undetermined documents that null means "undetermined".
@@ -49,17 +50,34 @@ def open3d():
 # ---------------------------------------------------------------------------------------------
 # Atomic writes
 
+def current_umask() -> int:
+    """The process's file-creation mask (e.g. 0o022), read without changing it where the system
+    tells it (/proc/self/status on Linux); elsewhere set and restored at once."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside `path` (same suffix, so writers that pick the format from
-    the name still work); on success it is renamed over `path`, on an exception it is removed and
-    `path` is left as it was. The parent folder is created if needed."""
+    the name still work); on success it is given the umask's mode (0o666 & ~umask) and renamed
+    over `path`, on an exception it is removed and `path` is left as it was. The parent folder is
+    created if needed."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".partial{path.suffix}")
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~current_umask())  # mkstemp makes it private (0600); the file gets the umask's mode
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -116,9 +134,7 @@ class AtomicFolder(AtomicOutput):
 
     def __enter__(self) -> Path:
         stage = super().__enter__()
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(stage, 0o777 & ~umask)  # mkdtemp makes it private; it becomes `out`
+        os.chmod(stage, 0o777 & ~current_umask())  # mkdtemp makes it private; it becomes `out`
         return stage
 
     def __exit__(self, exc_type, exc, tb) -> bool:
@@ -258,16 +274,91 @@ def json_field(d, key: str, where: str, path: str | os.PathLike):
     return d[key]
 
 
+def _show(value, limit: int = 60) -> str:
+    """`value` as short JSON-like text for a message: nan/inf as such, strings quoted, cut at `limit`."""
+    def text(v) -> str:
+        if isinstance(v, (list, tuple, np.ndarray)):
+            return "[" + ", ".join(text(x) for x in v) + "]"
+        if v is None:
+            return "null"
+        if isinstance(v, (bool, np.bool_)):
+            return "true" if v else "false"
+        if isinstance(v, (float, np.floating)):
+            return f"{float(v):.6g}"
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, dict):
+            return "{...}"
+        return str(v)
+
+    t = text(value)
+    return t if len(t) <= limit else t[:limit - 3] + "..."
+
+
+def _describe(shape: tuple) -> str:
+    """'a number', '3 numbers', '4x4 numbers' for an expected array shape."""
+    if not shape:
+        return "a number"
+    if len(shape) == 1:
+        return f"{shape[0]} numbers"
+    return "x".join(str(n) for n in shape) + " numbers"
+
+
+def _numbers_only(value) -> bool:
+    """True when `value` is a number or a (nested) list of numbers: JSON numbers, not strings,
+    booleans or null (np.asarray would turn "0.5" and true into 0.5 and 1.0)."""
+    if isinstance(value, (list, tuple)):
+        return all(_numbers_only(v) for v in value)
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "iuf"
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def _not_a_number(value) -> str:
+    """What the first entry of `value` that is no JSON number is: 'a string', 'null', ..."""
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            if not _numbers_only(v):
+                return _not_a_number(v)
+    if value is None:
+        return "null"
+    if isinstance(value, (bool, np.bool_)):
+        return "a boolean"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, dict):
+        return "an object"
+    return f"a {type(value).__name__}"
+
+
 def json_array(value, shape: tuple, where: str, path: str | os.PathLike) -> np.ndarray:
     """`value` as a float64 array of exactly `shape` with finite entries; SceneError naming the
-    file and the field `where` otherwise."""
+    file, the field `where` and the value otherwise (a string, boolean or null where a number
+    belongs is refused, never converted)."""
+    shape = tuple(shape)
+    if not _numbers_only(value):
+        raise SceneError(f"{path}: field '{where}' must be {_describe(shape)}, got {_show(value)} "
+                         f"({_not_a_number(value)} is not a number)")
     try:
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise SceneError(f"{path}: field '{where}' is not numeric") from None
-    if arr.shape != tuple(shape) or not np.all(np.isfinite(arr)):
-        raise SceneError(f"{path}: field '{where}' must be {tuple(shape)} finite numbers, got shape {arr.shape}")
+    except (TypeError, ValueError):  # ragged lists
+        raise SceneError(f"{path}: field '{where}' must be {_describe(shape)}, got {_show(value)}") from None
+    if arr.shape != shape:
+        raise SceneError(f"{path}: field '{where}' must be {_describe(shape)}, got {_show(value)}")
+    if not np.all(np.isfinite(arr)):
+        raise SceneError(f"{path}: field '{where}' must be finite, got {_show(value)}")
     return arr
+
+
+def json_bool(d: dict, key: str, where: str, path: str | os.PathLike, default: bool = False) -> bool:
+    """d[key] as a JSON boolean (`default` when absent or null); SceneError naming the file and the
+    field '<where><key>' for anything else (the string "false" is not false)."""
+    v = d.get(key) if isinstance(d, dict) else None
+    if v is None:
+        return default
+    if not isinstance(v, bool):
+        raise SceneError(f"{path}: field '{where}{key}' must be true or false, got {_show(v)}")
+    return v
 
 
 def json_safe(o):

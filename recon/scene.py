@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.camera import Camera
-from recon.io import SceneError, json_array, json_field, open3d, read_image_rgb, read_json
+from recon.io import SceneError, json_array, json_bool, json_field, open3d, read_image_rgb, read_json
 from recon.response import CameraResponse
 
 LIGHT_ROLES = ("window", "lamp", "ceiling_lamp", "point_lamp")  # quads that may emit
@@ -224,6 +224,7 @@ class PrimitiveSpec:
     corners: np.ndarray | None = None  # quad: (4,3) c0..c3
     normal: np.ndarray | None = None  # quad: (3,) unit lit side; None = as (c1-c0)x(c3-c0)
     texture: str | None = None  # quad: 'albedo_texture', relative to the file's folder
+    opening: bool = False  # quad: "opening": true, a hole in its wall (sky and sun come through)
     raw: dict = field(default_factory=dict)  # the JSON object it was parsed from (which keys were given)
 
     @property
@@ -243,7 +244,7 @@ def parse_primitive(p, where: str, path: str | os.PathLike) -> PrimitiveSpec:
         raise SceneError(f"{path}: field '{where}.type' must be 'box' or 'quad', got {kind!r}")
     spec = PrimitiveSpec(str(p.get("name", where)), kind, str(p.get("role", "furniture" if kind == "box" else "room")),
                          json_array(p.get("albedo", [0.5] * 3), (3,), f"{where}.albedo", path),
-                         bool(p.get("emitter", False)),
+                         json_bool(p, "emitter", where + ".", path),
                          json_array(p.get("emitted_radiance", [0.0] * 3), (3,), f"{where}.emitted_radiance", path),
                          raw=p)
     if kind == "box":
@@ -263,6 +264,7 @@ def parse_primitive(p, where: str, path: str | os.PathLike) -> PrimitiveSpec:
             spec.normal = n / np.linalg.norm(n)
         if p.get("albedo_texture"):
             spec.texture = str(p["albedo_texture"])
+        spec.opening = json_bool(p, "opening", where + ".", path)
     return spec
 
 
@@ -312,7 +314,9 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         if isinstance(p, dict) and p.get("type") == "sun":
             if sun is not None:
                 raise SceneError(f"{path}: field 'primitives[{i}]': a second sun (only one 'sun' primitive is allowed)")
-            sun = parse_sun(p, f"primitives[{i}]", path)
+            name = p.get("name")
+            sun = parse_sun(p, f"primitives[{i}]" + (f" ({name!r})" if isinstance(name, str) and name else ""),
+                            path)
     unknown_emitters: list[str] = []  # windows or lamps of unknown strength (photo light finds them)
     for p in parse_primitives(d, path):
         if p.emitter and "emitted_radiance" not in p.raw:
@@ -325,7 +329,7 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
                 texture = read_image_rgb(root / p.texture).astype(np.float32) / 255.0
             emission = p.emitted_radiance if p.emitter else np.zeros(3)
             quads.append(quad_primitive(p.name, p.corners, p.quad_normal, p.albedo, emission, p.role, texture,
-                                        p.emitter, bool(p.raw.get("opening", False))))
+                                        p.emitter, p.opening))
 
     obj = None
     if "synthetic_object" in d:
@@ -346,11 +350,13 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
 
 
 def parse_sun(p: dict, where: str, path: Path) -> Sun:
-    """The `sun` primitive (FORMAT.md), validated: SceneError naming the file and field."""
+    """The `sun` primitive (FORMAT.md), validated: SceneError naming the file and field (`where`,
+    e.g. "primitives[16] ('sun')"). `direction_to_sun` may be any finite non-zero vector: it is
+    normalised (a hand-typed direction need not have length 1)."""
     d = json_array(json_field(p, "direction_to_sun", where + ".", path), (3,), f"{where}.direction_to_sun", path)
     norm = float(np.linalg.norm(d))
-    if norm < 1e-9 or abs(norm - 1.0) > 1e-3:
-        raise SceneError(f"{path}: field '{where}.direction_to_sun' must be a unit vector, has length {norm:.6g}")
+    if not norm > 1e-9:
+        raise SceneError(f"{path}: field '{where}.direction_to_sun' must not be the zero vector, got {d.tolist()}")
     diam = float(json_array(p.get("angular_diameter_deg", 0.53), (), f"{where}.angular_diameter_deg", path))
     if not 0.0 <= diam < 90.0:
         raise SceneError(f"{path}: field '{where}.angular_diameter_deg' must be in [0, 90) degrees, got {diam}")

@@ -166,3 +166,170 @@ def test_no_synthetic_object_needs_a_placement(capsys, scene, tmp_path):
     (scene / "scene.json").write_text(json.dumps(d))
     code, err = _run(capsys, scene, tmp_path / "out")
     _assert_clean_failure(code, err, tmp_path / "out", "scene.json", "synthetic_object", "--place")
+
+
+# ---------------------------------------------------------------------------------------------
+# scene.json's types: a string, boolean or null where a number or a flag belongs is one error line
+
+SUN = {"name": "sun", "type": "sun", "direction_to_sun": [-0.74, 0.62, 0.27], "angular_diameter_deg": 0.53,
+       "irradiance_perpendicular": [51.8, 48.7, 43.5]}
+
+
+def _with_sun(scene, **changes):
+    """The demo scene with a sun entry (changed by `changes`; None removes a key) after its primitives;
+    returns the sun's index."""
+    d = json.loads((scene / "scene.json").read_text())
+    sun = dict(SUN)
+    for k, v in changes.items():
+        sun.pop(k) if v is None else sun.update({k: v})
+    d["primitives"].append(sun)
+    (scene / "scene.json").write_text(json.dumps(d, allow_nan=True))
+    return len(d["primitives"]) - 1
+
+
+@pytest.mark.parametrize("change, needles", [
+    ({"angular_diameter_deg": "0.53"}, ["angular_diameter_deg", "a number", '"0.53"', "a string"]),
+    ({"direction_to_sun": [-0.74, "0.62", 0.27]}, ["direction_to_sun", "3 numbers", "a string"]),
+    ({"direction_to_sun": "west"}, ["direction_to_sun", '"west"']),
+    ({"direction_to_sun": [-0.74, 0.62]}, ["direction_to_sun", "3 numbers", "[-0.74, 0.62]"]),
+    ({"direction_to_sun": [float("nan"), 0.6, 0.2]}, ["direction_to_sun", "must be finite", "[nan, 0.6, 0.2]"]),
+    ({"angular_diameter_deg": float("nan")}, ["angular_diameter_deg", "must be finite", "got nan"]),
+    ({"irradiance_perpendicular": [float("inf"), 1, 1]}, ["irradiance_perpendicular", "must be finite", "inf"]),
+    ({"direction_to_sun": [0, 0, 0]}, ["direction_to_sun", "zero vector"]),
+    ({"angular_diameter_deg": True}, ["angular_diameter_deg", "a boolean"]),
+])
+def test_sun_field_of_the_wrong_type_is_one_error(capsys, scene, tmp_path, change, needles):
+    i = _with_sun(scene, **change)
+    code, err = _run(capsys, scene, tmp_path / "out")
+    _assert_clean_failure(code, err, tmp_path / "out", "scene.json", f"primitives[{i}] ('sun')", *needles)
+    assert "shape" not in err  # the value itself, not numpy's shape, is shown
+
+
+def test_null_sun_direction_says_null(capsys, scene, tmp_path):
+    d = json.loads((scene / "scene.json").read_text())
+    d["primitives"].append(dict(SUN, direction_to_sun=None))
+    (scene / "scene.json").write_text(json.dumps(d))
+    code, err = _run(capsys, scene, tmp_path / "out")
+    _assert_clean_failure(code, err, tmp_path / "out", "direction_to_sun", "got null", "null is not a number")
+
+
+@pytest.mark.parametrize("key, value", [("opening", "false"), ("opening", "yes"), ("opening", 1),
+                                        ("emitter", "false")])
+def test_flag_that_is_not_a_boolean_is_one_error(capsys, scene, tmp_path, key, value):
+    # "opening": "false" was taken for an opening (a non-empty string is true in Python)
+    d = json.loads((scene / "scene.json").read_text())
+    i = next(k for k, p in enumerate(d["primitives"]) if p["type"] == "quad")
+    d["primitives"][i][key] = value
+    (scene / "scene.json").write_text(json.dumps(d))
+    code, err = _run(capsys, scene, tmp_path / "out")
+    _assert_clean_failure(code, err, tmp_path / "out", "scene.json", f"primitives[{i}].{key}", "true or false",
+                          json.dumps(value))
+
+
+def test_numeric_string_in_another_field_is_one_error(capsys, scene, tmp_path):
+    # the same validator reads every numeric field: a box's size, the camera's exposure time
+    d = json.loads((scene / "scene.json").read_text())
+    d["main_camera"]["exposure_time"] = "0.01"
+    (scene / "scene.json").write_text(json.dumps(d))
+    code, err = _run(capsys, scene, tmp_path / "out")
+    _assert_clean_failure(code, err, tmp_path / "out", "main_camera.exposure_time", "a string")
+
+
+# ---------------------------------------------------------------------------------------------
+# argparse errors: one line `photoar <subcommand>: error: <problem> (photoar <subcommand> --help)`
+
+SCENE_ARGS = ["scene", "room", "--photo", "p.png", "--camera", "c.json", "--primitives", "q.json"]
+
+
+@pytest.mark.parametrize("argv, prog, needles", [
+    (SCENE_ARGS + ["--sun-direction=-0.74,0.62"], "photoar scene", ["--sun-direction", "three", "got 2"]),
+    (SCENE_ARGS + ["--sun-direction", "west"], "photoar scene", ["--sun-direction", "'west'"]),
+    (SCENE_ARGS + ["--sun-direction", "nan,1,0"], "photoar scene", ["--sun-direction", "finite", "'nan,1,0'"]),
+    (SCENE_ARGS + ["--sun-irradiance", "50"], "photoar scene", ["--sun-irradiance", "three", "'50'"]),
+    (["composite", "x", "--out", "o", "-q", "--bogus"], "photoar composite", ["unrecognized arguments: --bogus"]),
+    (["composite", "x", "--out", "o", "--passes", "abc"], "photoar composite", ["--passes", "an integer", "'abc'"]),
+    (["composite", "x", "--out", "o", "--yaw", "nan"], "photoar composite", ["--yaw", "finite"]),
+    (["composite", "x"], "photoar composite", ["required", "--out"]),
+    (["probe", "sh", "x.exr", "--mapping", "cube"], "photoar probe sh", ["--mapping", "invalid choice"]),
+    (["compost", "x"], "photoar", ["invalid choice", "'compost'"]),
+])
+def test_argparse_error_is_one_line(capsys, argv, prog, needles):
+    with pytest.raises(SystemExit) as e:
+        cli(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith(f"{prog}: error: ") and err.rstrip().endswith(f"({prog} --help)"), err
+    assert "usage" not in err and "Traceback" not in err
+    for n in needles:
+        assert n in err, (n, err)
+    assert "X,Y,Z" not in err  # --sun-irradiance is R,G,B: the message names no axes
+
+
+def test_vector_starting_with_minus_needs_no_equals_sign():
+    from app.cli import build_parser
+
+    a = build_parser().parse_args(SCENE_ARGS + ["--sun-direction", "-0.74,0.62,0.27", "--sun-irradiance", "5,5,5"])
+    assert a.sun_direction == (-0.74, 0.62, 0.27) and a.sun_irradiance == (5.0, 5.0, 5.0)
+    a = build_parser().parse_args(["composite", "s", "--out", "o", "--place", "-1,0,-2.5", "--yaw", "-30"])
+    assert a.place == (-1.0, 0.0, -2.5) and a.yaw == -30.0
+
+
+@pytest.mark.parametrize("argv, quiet", [
+    (["composite", "s", "--out", "o"], False),
+    (["-q", "composite", "s", "--out", "o"], True),
+    (["composite", "s", "--out", "o", "-q"], True),
+    (["composite", "s", "-q", "--out", "o"], True),
+    (["probe", "sh", "x.exr", "--mapping", "latlong", "--quiet"], True),
+    (["probe", "sh", "x.exr", "--mapping", "latlong"], False),
+])
+def test_quiet_before_or_after_the_subcommand(argv, quiet):
+    from app.cli import build_parser
+
+    assert build_parser().parse_args(argv).quiet is quiet
+
+
+# ---------------------------------------------------------------------------------------------
+# warnings: one line `photoar: warning: <file>: <problem>`
+
+def test_log_lines_are_prefixed_by_level():
+    import logging
+
+    from app.cli import LogFormatter
+
+    def line(level, msg, exc=None):
+        return LogFormatter().format(logging.LogRecord("photoar", level, __file__, 1, msg, (), exc))
+
+    assert line(logging.INFO, "wrote x") == "wrote x"
+    msg = "s/scene.json: sun: no direct sun"
+    assert line(logging.WARNING, msg) == f"photoar: warning: {msg}"
+    try:
+        raise RuntimeError("bad\nthing")
+    except RuntimeError:
+        import sys
+
+        exc = sys.exc_info()
+    assert line(logging.ERROR, "frame failed", exc) == "photoar: error: frame failed: bad thing"  # no traceback
+
+
+def test_cli_warning_is_one_prefixed_line(tmp_path):
+    # end to end in a fresh process (the CLI's own log setup): an HDR image with a negative value
+    # warns, with -q after the subcommand (warnings still show)
+    import os
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from recon.io import write_exr
+
+    img = np.ones((8, 16, 3), np.float32)
+    img[0, 0, 0] = -1.0
+    write_exr(tmp_path / "neg.exr", img)
+    from tests.conftest import ROOT
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    r = subprocess.run([sys.executable, "-m", "app.cli", "probe", "sh", str(tmp_path / "neg.exr"), "--mapping",
+                        "latlong", "-q"], cwd=ROOT, capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.splitlines() == [f"photoar: warning: {tmp_path / 'neg.exr'}: 1 negative values clamped to 0"]

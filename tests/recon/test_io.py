@@ -241,3 +241,87 @@ def test_scene_and_model_give_the_same_quads():
         assert np.allclose(a.corners, b.corners, atol=1e-9) and np.allclose(a.normal, b.normal, atol=1e-9)
         assert a.role == b.role and np.array_equal(a.emission, b.emission) and np.array_equal(a.albedo, b.albedo)
         assert (a.texture is None) == (b.texture is None)
+
+
+# ---------------------------------------------------------------------------------------------
+# File modes: every written file honours the umask (mkstemp alone would leave it 0600)
+
+@pytest.fixture(params=[0o022, 0o027, 0o002])
+def umask(request):
+    import os
+
+    old = os.umask(request.param)
+    yield request.param
+    os.umask(old)
+
+
+def test_written_files_honour_the_umask(tmp_path, umask):
+    import os
+    import stat
+
+    from recon.io import current_umask
+
+    assert current_umask() == umask
+    write_png(tmp_path / "a.png", np.zeros((4, 4, 3), np.uint8))
+    write_exr(tmp_path / "a.exr", np.zeros((4, 4, 3), np.float32))
+    write_json(tmp_path / "a.json", {"a": 1})
+    write_npz(tmp_path / "a.npz", a=np.zeros(3))
+    with AtomicOutput(tmp_path / "out") as stage:
+        write_json(stage / "report.json", {})
+        write_png(stage / "composite.png", np.zeros((4, 4, 3), np.uint8))
+    with AtomicFolder(tmp_path / "room", lambda name: True) as stage:
+        write_json(stage / "scene.json", {})
+    files = [tmp_path / n for n in ("a.png", "a.exr", "a.json", "a.npz")] + \
+        [tmp_path / "out" / "report.json", tmp_path / "out" / "composite.png", tmp_path / "room" / "scene.json"]
+    want = 0o666 & ~umask
+    assert {f.name: oct(stat.S_IMODE(os.stat(f).st_mode)) for f in files} == {f.name: oct(want) for f in files}
+    assert stat.S_IMODE(os.stat(tmp_path / "room").st_mode) == 0o777 & ~umask
+    assert not leftovers(tmp_path)
+
+
+# ---------------------------------------------------------------------------------------------
+# json_array / json_bool: a JSON number is a number, not a string, boolean or null
+
+@pytest.mark.parametrize("value, shape, words", [
+    ("0.53", (), ['a number, got "0.53"', "a string is not a number"]),
+    ([-0.74, "0.62", 0.27], (3,), ["3 numbers", "a string is not a number"]),
+    ([1, True, 0], (3,), ["a boolean is not a number"]),
+    (None, (3,), ["got null"]),
+    ([[1, 2], [3]], (2, 2), ["2x2 numbers", "[[1, 2], [3]]"]),
+    ([1.0, 2.0], (3,), ["3 numbers, got [1, 2]"]),
+    ([float("nan"), 0.6, 0.2], (3,), ["must be finite, got [nan, 0.6, 0.2]"]),
+    (float("-inf"), (), ["must be finite, got -inf"]),
+])
+def test_json_array_refuses_and_shows_the_value(value, shape, words):
+    from recon.io import json_array
+
+    with pytest.raises(SceneError) as e:
+        json_array(value, shape, "f.g", "x.json")
+    msg = str(e.value)
+    assert msg.startswith("x.json: field 'f.g' must be") and "\n" not in msg
+    for w in words:
+        assert w in msg, (w, msg)
+
+
+def test_json_array_takes_numbers_and_arrays():
+    from recon.io import json_array
+
+    assert json_array([1, 2.5, -3], (3,), "f", "x").tolist() == [1.0, 2.5, -3.0]
+    assert json_array(np.eye(3), (3, 3), "f", "x").tolist() == np.eye(3).tolist()
+    assert float(json_array(7, (), "f", "x")) == 7.0
+
+
+@pytest.mark.parametrize("value, expected", [(True, True), (False, False), (None, False), ("absent", False)])
+def test_json_bool_takes_json_booleans(value, expected):
+    from recon.io import json_bool
+
+    d = {} if value == "absent" else {"opening": value}
+    assert json_bool(d, "opening", "p[1].", "x.json") is expected
+
+
+@pytest.mark.parametrize("value", ["false", "true", 0, 1, [True]])
+def test_json_bool_refuses_anything_else(value):
+    from recon.io import json_bool
+
+    with pytest.raises(SceneError, match=r"x\.json: field 'p\[1\]\.opening' must be true or false, got "):
+        json_bool({"opening": value}, "opening", "p[1].", "x.json")
