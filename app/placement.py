@@ -239,7 +239,10 @@ class PlacementController:
             old = self.params.lighting if self.params is not None else EngineParams().lighting
             if lighting == old:
                 return False
-            self.params = replace(self.params or EngineParams(passes=self.config.passes), lighting=lighting)
+            p = self.params or EngineParams(passes=self.config.passes)
+            # --sun estimate is captured light's: known light falls back to the declared sun (auto)
+            self.params = replace(p, lighting=lighting, sun="auto" if p.sun == "estimate" and lighting == "known"
+                                  else p.sun)
             self.engine = None
             self._frames.clear()
         return True
