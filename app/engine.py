@@ -135,7 +135,7 @@ class EngineParams:
     envmap_res: int = _knob(16, "face size of the pre-filtered cube map looked up per pixel")
     lighting: Lighting = _knob("known", "; ".join(f"{k}: {v}" for k, v in LIGHTING.items()) + ". A room with a sun "
                                "entry: known uses the declared sun, captured estimates it from the photo unless "
-                               "--sun says otherwise")
+                               "it is the user's (--sun chooses, where offered)")
     sun: SunSource = _knob("auto", "which sun lights a room with openings (scene.json's sun entry or the photo's): "
                            + "; ".join(f"{k}: {v}" for k, v in SUN_SOURCES.items()))
     fps: float | None = _knob(None, "target frame rate: the pass count is chosen from the measured cost per pass "
