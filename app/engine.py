@@ -797,7 +797,8 @@ class Engine:
         if not openings(scene):
             self.sun_light = None
             if scene.sun is not None:  # a sun with no way in (lighting.sun.no_sun_reason)
-                log.warning("%s", no_sun_reason(scene.sun.direction, scene.sun.irradiance, [], f"{self._sun_where}: sun"))
+                log.warning("%s", no_sun_reason(scene.sun.direction, scene.sun.irradiance, [],
+                                                f"{self._sun_where}: sun"))
             return
         sat = np.any(scene.photo.reshape(-1, 3) >= 255, axis=1)
         # the captured radiance flags the sunlit patch as an emitter (brighter than the mesh, which

@@ -314,7 +314,7 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
             if sun is not None:
                 raise SceneError(f"{path}: field 'primitives[{i}]': a second sun (only one 'sun' primitive is allowed)")
             sun = parse_sun(p, f"primitives[{i}]", path)
-            sun_declared_by = p.get("declared_by")  # "user": `photoar scene` wrote the user's sun (app.engine --sun auto)
+            sun_declared_by = p.get("declared_by")  # "user": from `photoar scene` (app.engine --sun auto)
     unknown_emitters: list[str] = []  # windows or lamps of unknown strength (photo light finds them)
     for p in parse_primitives(d, path):
         if p.emitter and "emitted_radiance" not in p.raw:

@@ -126,7 +126,8 @@ def test_sun_entry_of_the_primitives_input(sun_inputs, capsys):
     assert main(["-q", *argv, "--skip-probe-check"]) == 0, capsys.readouterr().err
     d = json.loads((out / "scene.json").read_text())
     sun = next(p for p in d["primitives"] if p["type"] == "sun")
-    assert sun["declared_by"] == "user" and sun["irradiance_perpendicular"] == sun_inputs["sun"]["irradiance_perpendicular"]
+    assert sun["declared_by"] == "user"
+    assert sun["irradiance_perpendicular"] == sun_inputs["sun"]["irradiance_perpendicular"]
     assert next(p for p in d["primitives"] if p["name"] == "window")["opening"] is True
     twice = sun_inputs["tmp"] / "room_twice"
     rc = main(["-q", *_replace(scene_argv(sun_inputs, twice, sun_inputs["camera"]), "--primitives", str(src)),
@@ -186,3 +187,17 @@ def test_captured_light_uses_the_users_sun(sun_room_folder, sun_inputs, tmp_path
     rep = json.loads((tmp_path / "est" / "report.json").read_text())
     assert rep["sun"]["from"] == "estimate" and rep["sun"]["direction"] == rep["sun_estimate"]["direction"]
     assert 0.0 < rep["sun_estimate"]["direction_error_deg"] <= 2.0
+
+
+def test_sun_option_on_composite_evaluate_and_gui():
+    """--sun is EngineParams.sun on every command that composites (help and choices from the field)."""
+    from app.cli import build_parser
+    from app.engine import EngineParams
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices
+    for cmd in ("composite", "evaluate", "gui"):
+        opt = next(a for a in sub[cmd]._actions if "--sun" in a.option_strings)
+        assert opt.choices == ["auto", "estimate", "declared"] and opt.default == "auto", cmd
+        assert opt.help.startswith(EngineParams.doc("sun")), cmd
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["composite", "s", "--out", "o", "--sun", "guess"])

@@ -9,7 +9,8 @@ from recon.io import SceneError
 ROOM = {"name": "room", "type": "box", "role": "room", "center": [2.5, 1.375, 2.25], "size": [5.0, 2.75, 4.5]}
 WINDOW = {"name": "window", "type": "quad", "role": "window", "normal": [1, 0, 0],
           "corners": [[0.0, 2.25, 3.0], [0.0, 2.25, 1.5], [0.0, 0.875, 1.5], [0.0, 0.875, 3.0]]}
-SUN = {"name": "sun", "type": "sun", "direction_to_sun": [-0.7405, 0.6157, 0.2695], "irradiance_perpendicular": [51.8, 48.7, 43.5]}
+SUN = {"name": "sun", "type": "sun", "direction_to_sun": [-0.7405, 0.6157, 0.2695],
+       "irradiance_perpendicular": [51.8, 48.7, 43.5]}
 
 
 def test_opening_flag_is_kept_on_a_window():
@@ -44,7 +45,8 @@ def test_input_sun_is_validated_normalised_and_marked_as_the_users():
     sun = input_sun(d, "m.json")
     assert sun["declared_by"] == "user" and sun["irradiance_perpendicular"] == SUN["irradiance_perpendicular"]
     assert np.linalg.norm(sun["direction_to_sun"]) == pytest.approx(1.0, abs=1e-12)
-    np.testing.assert_allclose(sun["direction_to_sun"], np.array(SUN["direction_to_sun"]) / np.linalg.norm(SUN["direction_to_sun"]))
+    d = np.array(SUN["direction_to_sun"])
+    np.testing.assert_allclose(sun["direction_to_sun"], d / np.linalg.norm(d))
     assert input_sun({"primitives": [ROOM, WINDOW]}, "m.json") is None
     with pytest.raises(SceneError, match=r"m.json: field 'primitives\[2\].irradiance_perpendicular'"):
         input_sun({"primitives": [ROOM, WINDOW, {**SUN, "irradiance_perpendicular": [1, -1, 1]}]}, "m.json")
