@@ -201,3 +201,23 @@ def test_sun_option_on_composite_evaluate_and_gui():
         assert opt.help.startswith(EngineParams.doc("sun")), cmd
     with pytest.raises(SystemExit):
         build_parser().parse_args(["composite", "s", "--out", "o", "--sun", "guess"])
+
+
+def test_users_sun_that_cannot_enter_under_captured_light(sun_room_folder, tmp_path, caplog):
+    """A user's sun below the horizon under captured light: used as declared (not replaced by the
+    estimate), a warning naming the cause, no sun on any surface; report's sun says it lights nothing."""
+    import dataclasses
+
+    from app.engine import Engine, EngineParams
+    from recon.scene import load_scene
+
+    s = load_scene(sun_room_folder, load_textures=False)
+    s.sun = dataclasses.replace(s.sun, direction=s.sun.direction * [1, -1, 1])
+    with caplog.at_level(logging.WARNING, logger="photoar"):
+        e = Engine(s, EngineParams(patch_size=0.4, emitter_patch_size=0.3, passes=8, lighting="captured"),
+                   cache_dir=tmp_path, quiet=True)
+    assert e.sun_from == "declared" and e.sun_estimate is None and not e.sun_on
+    assert [w for w in _warnings(caplog) if "below the horizon" in w and str(sun_room_folder) in w]
+    rep = e.sun_report
+    assert rep["from"] == "declared" and rep["lights_room"] is False and "below the horizon" in rep["no_direct_sun"]
+    np.testing.assert_allclose(rep["direction"], s.sun.direction)
