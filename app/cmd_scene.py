@@ -52,9 +52,10 @@ def register(sub) -> None:
     s = p.add_argument_group(
         "sun (a room lit through an opening: a window quad with \"opening\": true in --primitives)",
         "Give both, or a sun entry in --primitives (not both). Written as the scene's sun with \"declared_by\": "
-        "\"user\": composite/evaluate/gui use it under --lighting known and, with --sun auto (their default), "
-        "under --lighting captured too, in place of the sun estimated from the photo (--sun estimate). "
-        "The sun must be above the horizon (Y > 0) and shine into the room through an opening, else a warning.")
+        "\"user\": composite/evaluate/gui with --lighting captured and --sun auto (their default) use it in place "
+        "of the sun estimated from the photo (--sun estimate); --lighting known (a folder with a camera_response) "
+        "uses it too. The sun must be above the horizon (Y > 0) and shine into the room through an opening, else "
+        "a warning.")
     s.add_argument("--sun-direction", type=xyz_arg, default=None, metavar="X,Y,Z",
                    help="the direction from the room towards the sun, any length (normalised), in the world frame "
                         "of --camera and --primitives: metres' axes, +Y up, origin at the floor corner marked in "
