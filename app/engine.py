@@ -148,6 +148,9 @@ class EngineParams:
         if self.sun == "estimate" and self.lighting == "known":
             raise ValueError("--sun estimate: the sun is estimated from the probe's captured light: use it with "
                              "--lighting captured (known light uses scene.json's sun)")
+        if self.sun != "auto" and self.lighting == "photo":
+            raise ValueError(f"--sun {self.sun}: --lighting photo does not model the sun; --sun applies to "
+                             "--lighting known and captured")
         if not 0.0 <= self.specular <= 1.0 or self.shininess < 0:
             raise ValueError(f"specular must be in [0, 1] and shininess >= 0, got {self.specular}, "
                              f"{self.shininess}")

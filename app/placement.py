@@ -240,9 +240,8 @@ class PlacementController:
             if lighting == old:
                 return False
             p = self.params or EngineParams(passes=self.config.passes)
-            # --sun estimate is captured light's: known light falls back to the declared sun (auto)
-            self.params = replace(p, lighting=lighting, sun="auto" if p.sun == "estimate" and lighting == "known"
-                                  else p.sun)
+            # --sun estimate / declared choose between captured light's two suns; other lightings take auto
+            self.params = replace(p, lighting=lighting, sun=p.sun if lighting == "captured" else "auto")
             self.engine = None
             self._frames.clear()
         return True

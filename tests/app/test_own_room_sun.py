@@ -221,3 +221,18 @@ def test_users_sun_that_cannot_enter_under_captured_light(sun_room_folder, tmp_p
     rep = e.sun_report
     assert rep["from"] == "declared" and rep["lights_room"] is False and "below the horizon" in rep["no_direct_sun"]
     np.testing.assert_allclose(rep["direction"], s.sun.direction)
+
+
+def test_gui_lighting_picker_keeps_a_valid_sun_choice(tmp_path):
+    """The gui's lighting picker (PlacementController.set_lighting) from captured light with --sun
+    estimate to known or photo light: --sun falls back to auto (the others refuse estimate), and
+    back to captured it stays auto."""
+    from app.cli import demo_scene_dir
+    from app.engine import EngineParams
+    from app.placement import PlacementController as PC
+
+    ctl = PC.open(demo_scene_dir(), params=EngineParams(lighting="captured", sun="estimate"),
+                  cache_dir=tmp_path / "cache")
+    assert ctl.set_lighting("known") and ctl.params.sun == "auto" and ctl.params.lighting == "known"
+    assert ctl.set_lighting("photo") and ctl.params.sun == "auto"
+    assert ctl.set_lighting("captured") and ctl.params.sun == "auto"
