@@ -21,7 +21,7 @@ import typing
 from importlib import resources
 from pathlib import Path
 
-from app.engine import LIGHTING, EngineParams, Mode
+from app.engine import LIGHTING, EngineParams, Mode, SunSource
 
 log = logging.getLogger("photoar")
 
@@ -152,6 +152,7 @@ def _add_engine_args(p: argparse.ArgumentParser, passes: bool = True) -> None:
     _engine_arg(g, "--patch-size", "patch_size", type=_positive_float)
     _engine_arg(g, "--map-res", "map_res", type=_positive_int)
     add_lighting_arg(g, EngineParams().lighting)
+    add_sun_arg(g)
     _engine_arg(g, "--specular", "specular", type=_finite_float)
     _engine_arg(g, "--shininess", "shininess", type=_finite_float)
     g.add_argument("--no-object-light", action="store_true", help="turn off: " + EngineParams.doc("object_light"))
@@ -168,10 +169,15 @@ def add_lighting_arg(g, default: str = "known") -> None:
                    help=EngineParams.doc("lighting") + " (default %(default)s)")
 
 
+def add_sun_arg(g) -> None:
+    """--sun (EngineParams.sun): which sun lights a room with openings, the declared one or the estimate."""
+    _engine_arg(g, "--sun", "sun", choices=list(typing.get_args(SunSource)))
+
+
 def _params(a: argparse.Namespace) -> EngineParams:
     return EngineParams(mode=a.mode, passes=getattr(a, "passes", None), fps=a.fps, source_fraction=a.source_fraction, patch_size=a.patch_size,
                         map_res=a.map_res, specular=a.specular, shininess=a.shininess,
-                        lighting=a.lighting,
+                        lighting=a.lighting, sun=a.sun,
                         object_light=not a.no_object_light, second_order=not a.no_second_order)
 
 

@@ -56,9 +56,10 @@ def register(sub) -> None:
     g.add_argument("--window", type=_size, default=(1280, 720), metavar="WxH", help="window size (default 1280x720)")
     g.add_argument("--cache", type=Path, default=None,
                    help="folder for per-scene precompute (default $PHOTOAR_CACHE or ~/.cache/photoar)")
-    from app.cli import add_lighting_arg
+    from app.cli import add_lighting_arg, add_sun_arg
 
     add_lighting_arg(g)
+    add_sun_arg(g)
     g.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default cpu)")
     g.add_argument("--work-res", type=int, default=1024, metavar="PX",
                    help="preview and drag at most PX pixels on the photo's long side (default %(default)s; 0: the "
@@ -76,7 +77,8 @@ def run(a: argparse.Namespace) -> int:
                            "e.g. `xvfb-run -a photoar gui SCENE_DIR --screenshot shot.png`")
     if a.object_size is not None and not a.object_size > 0:
         raise ValueError(f"{a.object}: --object-size must be positive, got {a.object_size}")
-    params = EngineParams(passes=None if a.all_sources else a.passes, mode=a.mode, lighting=a.lighting)
+    params = EngineParams(passes=None if a.all_sources else a.passes, mode=a.mode, lighting=a.lighting,
+                          sun=a.sun)
     ctl = PlacementController.open(a.scene, params=params, cache_dir=a.cache or default_cache_dir(),
                                    quiet=a.quiet, work_res=a.work_res)
     ctl.device = a.device

@@ -49,11 +49,22 @@ def register(sub) -> None:
                         "the ball in wider photos and crop it (default %(default)s)")
     g.add_argument("--skip-probe-check", action="store_true",
                    help="do not compare the probe pose with the images (see docs/scene-format.md)")
-    s = p.add_argument_group("sun (a room lit through an opening)")
-    s.add_argument("--sun-direction", type=xyz_arg, default=None, metavar="X,Y,Z", help="towards the sun (world); a value starting with '-' needs '=': "
-                        "--sun-direction=-0.74,0.62,0.27")
+    s = p.add_argument_group(
+        "sun (a room lit through an opening: a window quad with \"opening\": true in --primitives)",
+        "Give both, or a sun entry in --primitives (not both). Written as the scene's sun with \"declared_by\": "
+        "\"user\": composite/evaluate/gui with --lighting captured and --sun auto (their default) use it in place "
+        "of the sun estimated from the photo (--sun estimate); --lighting known (a folder with a camera_response) "
+        "uses it too. The sun must be above the horizon (Y > 0) and shine into the room through an opening, else "
+        "a warning.")
+    s.add_argument("--sun-direction", type=xyz_arg, default=None, metavar="X,Y,Z",
+                   help="the direction from the room towards the sun, any length (normalised), in the world frame "
+                        "of --camera and --primitives: metres' axes, +Y up, origin at the floor corner marked in "
+                        "`photoar calibrate`. A value starting with '-' needs '=': --sun-direction=-0.74,0.62,0.27")
     s.add_argument("--sun-irradiance", type=xyz_arg, default=None, metavar="R,G,B",
-                   help="the sun's irradiance on a surface facing it (scene radiance units x sr)")
+                   help="the sun's irradiance on a surface facing it, linear RGB in the scene's radiance units x "
+                        "sr (a white card facing the sun has radiance E/pi). Without a camera_response (the "
+                        "own-room flow), captured light recovers the response from the probe bracket normalised "
+                        "so that radiance 1 just reaches pixel level 255 in a 1 s exposure: E is in those units")
     p.set_defaults(run=run)
 
 
@@ -73,7 +84,9 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
     from recon.io import SceneError, read_json
 
     cam = Camera.load(a.camera)
-    prims, lo, hi = asm.parse_primitives(read_json(a.primitives, SceneError), str(a.primitives))
+    model = read_json(a.primitives, SceneError)
+    prims, lo, hi = asm.parse_primitives(model, str(a.primitives))
+    given_sun = asm.input_sun(model, str(a.primitives))
     photo, exif_t = read_photo(a.photo)
     if photo.shape[:2] != (cam.height, cam.width):
         raise ValueError(f"{a.photo}: image is {photo.shape[1]}x{photo.shape[0]} (upright), {a.camera} says "
@@ -99,10 +112,30 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
     if (a.sun_direction is None) != (a.sun_irradiance is None):
         raise ValueError("--sun-direction/--sun-irradiance: give both or neither")
     if a.sun_direction is not None:
+        if given_sun is not None:
+            raise ValueError(f"--sun-direction: {a.primitives} has a sun entry too: give the sun once (drop "
+                             "--sun-direction/--sun-irradiance, or the file's sun)")
         sun = asm.sun_primitive(a.sun_direction, a.sun_irradiance, lo, hi)
+    else:
+        sun = given_sun
+    if sun is not None:
+        _warn_no_sun(sun, prims, "--sun-direction" if a.sun_direction is not None else f"{a.primitives}: sun")
     scene = asm.scene_dict(a.room.name, cam, t, prims, lo, hi, light_probe, sun)
     copies = {"camera.json": a.camera.read_bytes(), "primitives.json": a.primitives.read_bytes()}
     return scene, images, copies
+
+
+def _warn_no_sun(sun: dict, prims: list[dict], where: str) -> None:
+    """Warn when the sun cannot light the room: the engine's test (lighting.sun.no_sun_reason: below
+    the horizon, no opening, zero irradiance, every opening facing away)."""
+    from lighting.sun import no_sun_reason
+
+    d = np.asarray(sun["direction_to_sun"], float)
+    normals = [np.asarray(p["normal"], float) for p in prims if p.get("opening") is True]
+    reason = no_sun_reason(d / np.linalg.norm(d), np.asarray(sun["irradiance_perpendicular"], float), normals,
+                           where)
+    if reason:
+        log.warning("%s", reason)
 
 
 def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:

@@ -55,8 +55,9 @@ from kernels.visibility import Occluder
 from lighting.envmap import CubeMap
 from lighting.irradiance import RoomLight
 from lighting.radiance import load_captured_probe
-from lighting.sun import NO_OPENING, SunLight, estimate_sun, openings, surface_albedo
+from lighting.sun import SunLight, estimate_sun, no_sun_reason, openings, surface_albedo
 from app.stages.sun import SunStage, upright_box
+from recon.assemble import SUN_DECLARED_BY_USER
 from recon.patches import PatchMesh
 from recon.proxy import bounding_sphere
 from recon.response import luminance
@@ -67,6 +68,13 @@ log = logging.getLogger("photoar")
 
 
 Mode = Literal["hdr", "ldr"]
+SunSource = Literal["auto", "estimate", "declared"]
+SUN_SOURCES = {
+    "auto": "declared under --lighting known; under captured the declared sun when the user gave it "
+            "(`photoar scene --sun-*`: its entry says \"declared_by\": \"user\"), else the estimate",
+    "estimate": "estimated from the photo's sunlit patches (--lighting captured only)",
+    "declared": "scene.json's sun entry as given, also under captured light",
+}
 
 
 def _knob(default, doc: str):
@@ -125,7 +133,11 @@ class EngineParams:
                                  "the benchmarks)")
     shininess: float = _knob(32.0, "Phong exponent")
     envmap_res: int = _knob(16, "face size of the pre-filtered cube map looked up per pixel")
-    lighting: Lighting = _knob("known", "; ".join(f"{k}: {v}" for k, v in LIGHTING.items()))
+    lighting: Lighting = _knob("known", "; ".join(f"{k}: {v}" for k, v in LIGHTING.items()) + ". A room with a sun "
+                               "entry: known uses the declared sun, captured estimates it from the photo unless "
+                               "it is the user's (--sun chooses, where offered)")
+    sun: SunSource = _knob("auto", "which sun lights a room with openings (scene.json's sun entry or the photo's): "
+                           + "; ".join(f"{k}: {v}" for k, v in SUN_SOURCES.items()))
     fps: float | None = _knob(None, "target frame rate: the pass count is chosen from the measured cost per pass "
                                     "(at most --passes)")
     leaf_size: int = _knob(8, "receiver octree leaf size (sec. 6.2)")
@@ -133,6 +145,12 @@ class EngineParams:
 
     def __post_init__(self):
         _check_literals(self)
+        if self.sun == "estimate" and self.lighting == "known":
+            raise ValueError("--sun estimate: the sun is estimated from the probe's captured light: use it with "
+                             "--lighting captured (known light uses scene.json's sun)")
+        if self.sun != "auto" and self.lighting == "photo":
+            raise ValueError(f"--sun {self.sun}: --lighting photo does not model the sun; --sun applies to "
+                             "--lighting known and captured")
         if not 0.0 <= self.specular <= 1.0 or self.shininess < 0:
             raise ValueError(f"specular must be in [0, 1] and shininess >= 0, got {self.specular}, "
                              f"{self.shininess}")
@@ -571,6 +589,8 @@ class Engine:
                  "shaft_build_s": self.shaft_build_s, **self.shadow_sources.stats()}
         if self.sun_estimate is not None:  # sun: the captured estimate against the declared sun
             stats["sun_estimate"] = self.sun_estimate
+        if self.sun_light is not None:  # sun: the one used (EngineParams.sun)
+            stats["sun"] = self.sun_report
         if calibration_s:
             stats["fps_calibration_s"] = calibration_s
         self._last_shading = (shade_mesh, self._last_L_vert, obj.albedo) if hits.hit.any() else None
@@ -645,14 +665,48 @@ class Engine:
 
     # ------------------------------------------------------------------ sun (lighting.sun, kernels.sunshadow)
     def _sun_init(self, patches: PatchMesh) -> None:
-        """The scene's sun seen through its openings (None without a sun)."""
+        """The scene's sun seen through its openings (None without a sun), and which sun is used
+        (sun_from, EngineParams.sun): known light lights the precompute with the declared sun;
+        captured light takes the declared one or the estimate in _sun_captured, after it."""
         sun = self.scene.sun
         self.sun_light = None
         self._sun_patch = None
         self._sun_pm = patches
-        if sun is not None and self.params.lighting == "known":  # captured: estimated in _sun_captured
-            where = self.scene.meta.get("json_path", self.scene.name)
-            self.sun_light = SunLight(sun, openings(self.scene), self.scene_occ, where=f"{where}: sun")
+        self.sun_from = self._sun_source()
+        if self.sun_from == "declared" and self.params.lighting == "known":
+            self.sun_light = SunLight(sun, openings(self.scene), self.scene_occ, where=f"{self._sun_where}: sun")
+
+    @property
+    def _sun_where(self) -> str:
+        return str(self.scene.meta.get("json_path", self.scene.name))
+
+    def _sun_source(self) -> str | None:
+        """"declared" (scene.json's sun), "estimate" (captured: from the photo) or None (no sun model)
+        for EngineParams.sun under this lighting; ValueError when --sun declared has no sun entry."""
+        sun, choice, lighting = self.scene.sun, self.params.sun, self.params.lighting
+        if choice == "declared" and sun is None:
+            raise ValueError(f"{self._sun_where}: --sun declared: the scene has no sun entry (`photoar scene "
+                             "--sun-direction/--sun-irradiance` writes one)")
+        if lighting == "known":
+            return "declared" if sun is not None else None
+        if lighting == "captured":
+            if choice == "auto":
+                user = sun is not None and self.scene.meta.get("sun_declared_by") == SUN_DECLARED_BY_USER
+                return "declared" if user else "estimate"
+            return choice
+        return None
+
+    @property
+    def sun_report(self) -> dict:
+        """The sun used (report.json "sun"): from "declared" or "estimate", its unit direction towards
+        the sun (world, +Y up), irradiance_perpendicular (RGB, scene radiance units x sr), and whether
+        it lights some surface (lights_room; else no_direct_sun says why)."""
+        sun = self.sun_light.sun
+        d = {"from": self.sun_from, "direction": (sun.direction / np.linalg.norm(sun.direction)).tolist(),
+             "irradiance_perpendicular": np.asarray(sun.irradiance, float).tolist(), "lights_room": bool(self.sun_on)}
+        if self.sun_light.reason:
+            d["no_direct_sun"] = self.sun_light.reason
+        return d
 
     @property
     def sun_on(self) -> bool:
@@ -745,8 +799,9 @@ class Engine:
         pre, pm, scene = self.pre, self.pre.patches, self.scene
         if not openings(scene):
             self.sun_light = None
-            if scene.sun is not None:  # as under known light: the declared sun cannot come in
-                log.warning("%s: sun: %s", scene.meta.get("json_path", scene.name), NO_OPENING)
+            if scene.sun is not None:  # a sun with no way in (lighting.sun.no_sun_reason)
+                log.warning("%s", no_sun_reason(scene.sun.direction, scene.sun.irradiance, [],
+                                                f"{self._sun_where}: sun"))
             return
         sat = np.any(scene.photo.reshape(-1, 3) >= 255, axis=1)
         # the captured radiance flags the sunlit patch as an emitter (brighter than the mesh, which
@@ -756,19 +811,23 @@ class Engine:
         flagged = pm.is_emitter & ~shaped  # plain surfaces the radiance test flagged: tried as sunlit
         kept = pm.emission[flagged].copy()
         pm.emission[flagged] = 0.0
-        sun, info = estimate_sun(scene, pm, self.pix_patch, self.pix_pos.astype(np.float64), self.dirs, self.L_b,
-                                 sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ)
+        if self.sun_from == "declared":  # the user's sun as given (--sun); no estimate
+            sun, info, where = scene.sun, None, f"{self._sun_where}: sun"
+        else:
+            sun, info = estimate_sun(scene, pm, self.pix_patch, self.pix_pos.astype(np.float64), self.dirs, self.L_b,
+                                     sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ)
+            where = f"{self._sun_where}: sun estimate"
         self._sun_patch = None
-        self.sun_light = SunLight(sun, openings(scene), self.scene_occ,
-                                  where=f"{scene.meta.get('json_path', scene.name)}: sun estimate") if sun else None
-        if sun is not None and scene.sun is not None:
+        self.sun_light = SunLight(sun, openings(scene), self.scene_occ, where=where) if sun else None
+        if info is not None and sun is not None and scene.sun is not None:
             d0 = scene.sun.direction / np.linalg.norm(scene.sun.direction)
             info["declared_direction"] = d0.tolist()
             info["direction_error_deg"] = float(np.degrees(np.arccos(np.clip(sun.direction @ d0, -1, 1))))
             info["declared_irradiance_perpendicular"] = scene.sun.irradiance.tolist()
             info["strength_ratio"] = float(luminance(sun.irradiance) / max(luminance(scene.sun.irradiance), 1e-12))
-        self.sun_estimate = info
-        log.info("sun estimate: %s", info)
+        if info is not None:
+            self.sun_estimate = info
+            log.info("sun estimate: %s", info)
         if self.sun_light is not None and self.sun_light.active:
             # patches the sun lights are reflectors, not emitters: receivers of the object's shadows;
             # the other flagged ones emit again

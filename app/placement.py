@@ -239,7 +239,9 @@ class PlacementController:
             old = self.params.lighting if self.params is not None else EngineParams().lighting
             if lighting == old:
                 return False
-            self.params = replace(self.params or EngineParams(passes=self.config.passes), lighting=lighting)
+            p = self.params or EngineParams(passes=self.config.passes)
+            # --sun estimate / declared choose between captured light's two suns; other lightings take auto
+            self.params = replace(p, lighting=lighting, sun=p.sun if lighting == "captured" else "auto")
             self.engine = None
             self._frames.clear()
         return True

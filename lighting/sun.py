@@ -56,6 +56,24 @@ def gather_with_sun(G: np.ndarray, albedo: np.ndarray, emission: np.ndarray, sun
     return B
 
 
+def no_sun_reason(direction: np.ndarray, irradiance: np.ndarray, opening_normals: list[np.ndarray],
+                  where: str = "sun") -> str:
+    """Why a sun (unit `direction` towards it, world +Y up; RGB `irradiance` on a surface facing it) can
+    light nothing through openings whose room-side normals are `opening_normals`: below the horizon,
+    no opening, no light, or every opening faces away (its rays cannot enter); "" when it may light
+    the room. SunLight's test, shared with `photoar scene`'s warnings."""
+    d = np.asarray(direction, np.float64)
+    if d[1] <= 0.0:
+        return f"{where}: the sun is below the horizon (direction_to_sun y = {d[1]:.3g}): no direct sun"
+    if not len(opening_normals):
+        return f"{where}: {NO_OPENING}"
+    if not np.any(np.asarray(irradiance) > 0):
+        return f"{where}: irradiance_perpendicular is zero: no direct sun"
+    if not any(np.dot(n, d) < -1e-9 for n in opening_normals):
+        return f"{where}: the sun is parallel to or behind every opening: no direct sun"
+    return ""
+
+
 FLAT_COS = 1.0 - 1e-7  # corner normals of a face this close (cosine; ~0.03 deg apart) make it flat for
 # SunLight.hit_correction: on a wholly sunlit flat face the per-hit sun and the corners' blend differ by less
 # than 1 / FLAT_COS - 1 ~ 1e-7 of irradiance/pi (the blend's own float32 barycentric rounding)
@@ -88,14 +106,7 @@ class SunLight:
                                     np.stack([U / (U @ U), V / (V @ V)], 1)))
         self._vis = SunVisibility(self.device, self._exits, self.d)  # visibility's launch and buffers, kept from
         # call to call (not shared between threads: one caller at a time)
-        if self.d[1] <= 0.0:
-            self.reason = f"{where}: the sun is below the horizon (direction_to_sun y = {self.d[1]:.3g}): no direct sun"
-        elif not self.openings:
-            self.reason = f"{where}: {NO_OPENING}"
-        elif not np.any(sun.irradiance > 0):
-            self.reason = f"{where}: irradiance_perpendicular is zero: no direct sun"
-        elif not any(np.dot(q.normal, self.d) < -1e-9 for q in self.openings):
-            self.reason = f"{where}: the sun is parallel to or behind every opening: no direct sun"
+        self.reason = no_sun_reason(self.d, sun.irradiance, [q.normal for q in self.openings], where)
         if self.reason:
             log.warning("%s", self.reason)
 

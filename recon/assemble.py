@@ -13,6 +13,7 @@ from the point it was shot from at the ball centre and is upright (image x horiz
 """
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -21,6 +22,7 @@ from recon.camera import Camera
 from recon.io import SceneError
 from recon.scene import PrimitiveSpec, aligned_size, box_faces, box_quads, is_axis_aligned
 from recon.scene import parse_primitives as scene_primitives
+from recon.scene import parse_sun
 
 SCENE_FORMAT_VERSION = 1
 ROLES_EMITTING = ("window", "lamp", "ceiling_lamp", "point_lamp")
@@ -29,6 +31,8 @@ ROOM_FACE_NAMES = {(0, 0): "left", (0, 1): "right", (1, 0): "floor", (1, 1): "ce
                    (2, 1): "front"}
 SUN_ANGULAR_DIAMETER_DEG = 0.53
 SUN_DISTANCE_M = 2000.0
+SUN_DECLARED_BY_USER = "user"  # the sun entry's "declared_by" when the user gave it (--sun-* or a sun in
+# --primitives): `--sun auto` then uses it under captured light (app.engine); benchmark suns have no such key
 
 
 def _quad_entry(name: str, corners: np.ndarray, normal: np.ndarray, extra: dict) -> dict:
@@ -51,6 +55,8 @@ def _entries(spec: PrimitiveSpec, lo: np.ndarray, hi: np.ndarray) -> list[dict]:
     extra["emitter"] = spec.role in ROLES_EMITTING
     if extra["emitter"] and "emitted_radiance" in spec.raw:
         extra["emitted_radiance"] = spec.emitted_radiance.tolist()
+    if spec.raw.get("opening") is True:  # a hole in its wall: sky and sun come through (checked in parse_primitives)
+        extra["opening"] = True
     if spec.kind == "quad":
         return [_quad_entry(spec.name, spec.corners, spec.quad_normal, extra)]
     yaw = math.radians(spec.yaw_deg)
@@ -59,6 +65,16 @@ def _entries(spec: PrimitiveSpec, lo: np.ndarray, hi: np.ndarray) -> list[dict]:
                  "size": aligned_size(spec.size, yaw).tolist(), **extra}]
     return [_quad_entry(q.name, q.corners, q.normal, extra)
             for q in box_quads(spec.name, spec.center, spec.size, yaw, spec.albedo, spec.role, lo, hi)]
+
+
+def _check_opening(p: PrimitiveSpec, where: str, src: str) -> None:
+    """`"opening"` (a window that is a hole in its wall, FORMAT.md): a JSON boolean, on a window quad."""
+    v = p.raw["opening"]
+    if not isinstance(v, bool):
+        raise SceneError(f"{src}: field '{where}.opening' must be true or false, got {json.dumps(v)}")
+    if v and not (p.kind == "quad" and p.role == "window"):
+        raise SceneError(f"{src}: field '{where}.opening': only a quad with role 'window' can be an opening "
+                         f"(this is a {p.kind} with role {p.role!r})")
 
 
 def parse_primitives(d, src: str) -> tuple[list[dict], np.ndarray, np.ndarray]:
@@ -75,6 +91,8 @@ def parse_primitives(d, src: str) -> tuple[list[dict], np.ndarray, np.ndarray]:
         if p.name in names:
             raise SceneError(f"{src}: field '{where[id(p.raw)]}.name': duplicate name {p.name!r}")
         names.add(p.name)
+        if "opening" in p.raw:
+            _check_opening(p, where[id(p.raw)], src)
     shells = [p for p in specs if p.role == "room" and p.kind == "box"]
     if len(shells) > 1:
         raise SceneError(f"{src}: field '{where[id(shells[1].raw)]}': a second box with role 'room' (one room "
@@ -179,7 +197,22 @@ def sun_primitive(direction, irradiance, lo, hi) -> dict:
     return {"name": "sun", "type": "sun", "role": "sun", "emitter": True, "direction_to_sun": d.tolist(),
             "angular_diameter_deg": SUN_ANGULAR_DIAMETER_DEG, "emitted_radiance": (E / projected_solid_angle).tolist(),
             "irradiance_perpendicular": E.tolist(), "distance_m": SUN_DISTANCE_M, "centre": centre.tolist(),
-            "radius_m": SUN_DISTANCE_M * math.tan(half), "normal": (-d).tolist(), "albedo": [0.0, 0.0, 0.0]}
+            "radius_m": SUN_DISTANCE_M * math.tan(half), "normal": (-d).tolist(), "albedo": [0.0, 0.0, 0.0],
+            "declared_by": SUN_DECLARED_BY_USER}
+
+
+def input_sun(d, src: str) -> dict | None:
+    """The `sun` entry of a primitives input (e.g. a benchmark scene.json), validated by recon.scene
+    .parse_sun and returned as given (its direction normalised) with `"declared_by": "user"` (None: the
+    input has none)."""
+    found = [(i, p) for i, p in enumerate(d.get("primitives") or []) if isinstance(p, dict) and p.get("type") == "sun"]
+    if len(found) > 1:
+        raise SceneError(f"{src}: field 'primitives[{found[1][0]}]': a second sun (only one 'sun' entry is allowed)")
+    if not found:
+        return None
+    i, p = found[0]
+    sun = parse_sun(p, f"primitives[{i}]", src)
+    return {**p, "direction_to_sun": sun.direction.tolist(), "declared_by": SUN_DECLARED_BY_USER}
 
 
 # ----------------------------------------------------------------------------------------------

@@ -310,6 +310,7 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
 
     quads: list[Quad] = []
     sun: Sun | None = None  # the sun entry (parse_primitives leaves it out: it is no room primitive)
+    sun_declared_by = None
     for i, p in enumerate(d.get("primitives") or []):
         if isinstance(p, dict) and p.get("type") == "sun":
             if sun is not None:
@@ -317,6 +318,7 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
             name = p.get("name")
             sun = parse_sun(p, f"primitives[{i}]" + (f" ({name!r})" if isinstance(name, str) and name else ""),
                             path)
+            sun_declared_by = p.get("declared_by")  # "user": from `photoar scene` (app.engine --sun auto)
     unknown_emitters: list[str] = []  # windows or lamps of unknown strength (photo light finds them)
     for p in parse_primitives(d, path):
         if p.emitter and "emitted_radiance" not in p.raw:
@@ -346,7 +348,8 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
         raise SceneError(f"{root / files.get('background_png', 'background.png')}: image is "
                          f"{photo.shape[1]}x{photo.shape[0]}, camera says {width}x{height}")
     return Scene(str(d.get("name", root.name)), root, camera, quads, obj, response, photo, room_min, room_max,
-                 meta={"json_path": str(path), "emitters_without_radiance": unknown_emitters}, sun=sun)
+                 meta={"json_path": str(path), "emitters_without_radiance": unknown_emitters,
+                       "sun_declared_by": sun_declared_by}, sun=sun)
 
 
 def parse_sun(p: dict, where: str, path: Path) -> Sun:

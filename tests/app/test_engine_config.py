@@ -20,6 +20,11 @@ def test_params_are_frozen_and_literals_validated_once():
             EngineParams(**bad)
     with pytest.raises(ValueError, match="mode must be one of 'hdr', 'ldr', got 'sdr'"):
         FrameConfig(mode="sdr")
+    with pytest.raises(ValueError, match="--sun estimate: .*--lighting captured"):
+        EngineParams(sun="estimate")  # known light: the declared sun; the estimate is captured light's
+    assert EngineParams(sun="estimate", lighting="captured").sun == "estimate"
+    with pytest.raises(ValueError, match="--sun declared: --lighting photo does not model the sun"):
+        EngineParams(sun="declared", lighting="photo")
     for ok in ("known", "captured", "photo"):
         assert EngineParams(lighting=ok).lighting == ok
     assert set(typing.get_args(Lighting)) == set(LIGHTING)  # the Literal and the documented list agree
@@ -42,7 +47,7 @@ def test_precompute_config_is_exactly_the_cache_key(tmp_path):
                "source_fraction": 0.7, "passes": 5, "map_res": 128, "batch": 16, "mode": "ldr", "object_light": False,
                "second_order": False, "proxy_faces": 100, "supersample": 1, "volume_spacing": 0.5, "prt_dirs": 64,
                "specular": 0.5, "shininess": 8.0, "envmap_res": 8, "fps": 10.0, "leaf_size": 4,
-               "shaft_threshold": 0.05}
+               "shaft_threshold": 0.05, "sun": "declared"}
     assert set(changed) == {f.name for f in dataclasses.fields(EngineParams)}  # a new knob is listed here
     for name, value in changed.items():
         other = _hash_scene(scene, dataclasses.replace(base, **{name: value}))

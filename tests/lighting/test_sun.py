@@ -637,7 +637,10 @@ def test_sun_room_captured_estimate_and_scores(tmp_path):
     scene = shared_scene("sun_room")
     assert cli(["-q", "composite", str(scene), "--out", str(tmp_path / "o"), "--cache", str(tmp_path / "c"),
                 "--passes", "64", "--lighting", "captured"]) == 0
-    est = json.loads((tmp_path / "o" / "report.json").read_text())["sun_estimate"]
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    est = rep["sun_estimate"]
+    assert rep["sun"]["from"] == "estimate" and rep["sun"]["direction"] == est["direction"]  # --sun auto: a
+    # benchmark sun (no "declared_by") is the truth the estimate is compared against, not used
     assert est["direction_error_deg"] <= 2.0, est
     assert abs(est["strength_ratio"] - 1.0) <= 0.25, est
     s = score(scene, tmp_path / "o" / "composite.png")
