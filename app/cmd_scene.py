@@ -42,8 +42,7 @@ def register(sub) -> None:
     g.add_argument("--probe-centre", type=xyz_arg, default=None, metavar="X,Y,Z", help="ball centre (m, world)")
     g.add_argument("--probe-radius", type=float, default=None, metavar="R", help="ball radius (m)")
     g.add_argument("--probe-shot-from", type=xyz_arg, default=None, metavar="X,Y,Z",
-                   help="where the ball was photographed from (m, world; the camera held upright). A value "
-                        "starting with '-' needs '=': --probe-shot-from=-0.5,1.2,2")
+                   help="where the ball was photographed from (m, world; the camera held upright)")
     g.add_argument("--probe-circle", choices=["inscribed", "auto"], default="inscribed",
                    help="inscribed: the images are square crops with the ball as their inscribed circle; auto: find "
                         "the ball in wider photos and crop it (default %(default)s)")
@@ -59,7 +58,7 @@ def register(sub) -> None:
     s.add_argument("--sun-direction", type=xyz_arg, default=None, metavar="X,Y,Z",
                    help="the direction from the room towards the sun, any length (normalised), in the world frame "
                         "of --camera and --primitives: metres' axes, +Y up, origin at the floor corner marked in "
-                        "`photoar calibrate`. A value starting with '-' needs '=': --sun-direction=-0.74,0.62,0.27")
+                        "`photoar calibrate`; e.g. --sun-direction -0.74,0.62,0.27")
     s.add_argument("--sun-irradiance", type=xyz_arg, default=None, metavar="R,G,B",
                    help="the sun's irradiance on a surface facing it, linear RGB in the scene's radiance units x "
                         "sr (a white card facing the sun has radiance E/pi). Without a camera_response (the "
