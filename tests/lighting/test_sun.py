@@ -129,7 +129,8 @@ def test_captured_light_warns_when_the_declared_sun_has_no_opening(caplog, decla
         q.opening = False
     if not declared:
         s.sun = None
-    stub = SimpleNamespace(pre=SimpleNamespace(patches=None), scene=s, sun_light="unset")
+    stub = SimpleNamespace(pre=SimpleNamespace(patches=None), scene=s, sun_light="unset",
+                           _sun_where=s.meta["json_path"])
     with caplog.at_level(logging.WARNING, logger="photoar"):
         Engine._sun_captured(stub)  # returns before any use of the precompute
     assert stub.sun_light is None
