@@ -228,6 +228,18 @@ class Frame:
     coverage: np.ndarray | None = None  # (H,W) float32 share of each pixel the object covers
 
 
+
+def _sun_estimate_line(info: dict) -> str:
+    """One short line of a sun estimate (lighting.sun.estimate_sun's info; report.json holds it whole)."""
+    if "irradiance_perpendicular" not in info:
+        return f"sun estimate: no sun ({info.get('reason', 'none found')})"
+    line = "sun estimate: direction ({:.3f}, {:.3f}, {:.3f}), irradiance ({:.3g}, {:.3g}, {:.3g})".format(
+        *info["direction"], *info["irradiance_perpendicular"])
+    if "direction_error_deg" in info:
+        line += f"; {info['direction_error_deg']:.2f} deg and {info['strength_ratio']:.2f}x against the declared sun"
+    return line
+
+
 class Engine:
     """Owns one scene's precomputed data and composites object poses into its photo."""
 
@@ -827,7 +839,8 @@ class Engine:
             info["strength_ratio"] = float(luminance(sun.irradiance) / max(luminance(scene.sun.irradiance), 1e-12))
         if info is not None:
             self.sun_estimate = info
-            log.info("sun estimate: %s", info)
+            log.info("%s", _sun_estimate_line(info))
+            log.debug("sun estimate: %s", info)
         if self.sun_light is not None and self.sun_light.active:
             # patches the sun lights are reflectors, not emitters: receivers of the object's shadows;
             # the other flagged ones emit again

@@ -92,3 +92,15 @@ def test_garbage_mesh_gives_one_clean_line(tmp_path, capfd, content):
     assert len(lines) == 1 and lines[0].startswith(f"photoar: error: {mesh}: "), r.err
     assert lines[0].isprintable() and lines[0].isascii()
     assert r.out == "" and not out.exists()
+
+
+def test_sun_estimate_is_one_short_line():
+    """The captured sun estimate is logged as one short line (report.json holds the whole dict)."""
+    from app.engine import _sun_estimate_line
+
+    info = {"direction": [-0.7431366189590701, 0.6135873509593606, 0.2669429308012415],
+            "irradiance_perpendicular": [48.93954818444531, 45.40802324294877, 39.974155939910275],
+            "direction_error_deg": 0.24265392746991737, "strength_ratio": 0.9342805673771398}
+    assert _sun_estimate_line(info) == ("sun estimate: direction (-0.743, 0.614, 0.267), irradiance (48.9, 45.4, 40); "
+                                        "0.24 deg and 0.93x against the declared sun")
+    assert _sun_estimate_line({"reason": "no opening"}) == "sun estimate: no sun (no opening)"
