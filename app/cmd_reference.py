@@ -7,7 +7,9 @@ rendering by Monte-Carlo path tracing (kernels.pathtrace) over the same scene mo
   reference = T(L_b - (I_noobj - I_obj))   where the camera sees the room,
               T(I_obj)                      where it sees the object,
 
-with L_b the photo through the inverse camera response. Samples are taken in batches of equal
+with L_b the photo through the inverse camera response; where the photo clips (a channel at 255,
+e.g. the sunlit floor) L_b is only a floor of the radiance and max(L_b, I_noobj) takes its place
+(I_noobj of the same batch of samples). Samples are taken in batches of equal
 size; each batch is an unbiased estimate on its own, so the spread of the batch means gives the
 standard error of every pixel (the noise estimate). Rendering stops at --spp or as soon as the
 noise in the pixels the object changes falls below --noise-target (8-bit levels).
@@ -131,6 +133,9 @@ def render_reference(scene, spp: int, seed: int = 0, batch_spp: int | None = Non
     batch = batch_spp or max(1, spp // 8)
     n_batches = math.ceil(spp / batch)
     L_b = L_b_all[pix]
+    # pixels the photo clips: L_b there is a floor, not the radiance (the sunlit floor); a shadow taken
+    # from it would be too dark, so they start from the model's radiance where that is brighter
+    clipped = (np.asarray(scene.photo).reshape(-1, 3)[pix] >= 255).any(1)
     n = len(pix)
     tot = {k: np.zeros((n, 3)) for k in ("noobj", "obj", "diff", "obj_hit")}
     count = np.zeros(n)
@@ -146,7 +151,9 @@ def render_reference(scene, spp: int, seed: int = 0, batch_spp: int | None = Non
             for name in tot:
                 tot[name] += getattr(r, name)
             count += r.obj_count
-            comp = (r.obj_hit + (batch - r.obj_count)[:, None] * L_b - r.diff) / batch
+            L_start = L_b.copy()
+            L_start[clipped] = np.maximum(L_b[clipped], r.noobj[clipped] / batch)
+            comp = (r.obj_hit + (batch - r.obj_count)[:, None] * L_start - r.diff) / batch
             dm = (r.noobj - r.obj) / batch
             m1 += comp
             m2 += comp ** 2
