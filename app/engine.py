@@ -750,6 +750,11 @@ class Engine:
         lit = self._sun_patch_light().any(1)
         self.photo_light["sun"] = {"modelled": bool(self.sun_on), "sunlit_patches": int(lit.sum()),
                                    "estimate": "sun_estimate"}
+        lit_quads = {self.scene.quads[q].name for q in np.unique(self._sun_pm.quad[lit])}
+        for em in self.photo_light.get("emitters", []):  # clipped regions the sun explains
+            name, clip = em["name"].removesuffix(" (clipped region)"), em["name"].endswith(" (clipped region)")
+            if clip and name in lit_quads:
+                em["sunlit_reflector"] = True  # its sunlit patches reflect the sun, they do not emit
         if not self.sun_on and self.scene.sun is not None:
             where = self.scene.meta.get("json_path", Path(self.scene.root) / "scene.json")
             reason = (self.sun_estimate or {}).get("reason", "its estimate lights no surface")
