@@ -7,7 +7,9 @@ rendering by Monte-Carlo path tracing (kernels.pathtrace) over the same scene mo
   reference = T(L_b - (I_noobj - I_obj))   where the camera sees the room,
               T(I_obj)                      where it sees the object,
 
-with L_b the photo through the inverse camera response. Samples are taken in batches of equal
+with L_b the photo through the inverse camera response; where the photo clips (a channel at 255,
+e.g. the sunlit floor) L_b is only a floor of the radiance and max(L_b, I_noobj) takes its place
+(I_noobj of the same batch of samples). Samples are taken in batches of equal
 size; each batch is an unbiased estimate on its own, so the spread of the batch means gives the
 standard error of every pixel (the noise estimate). Rendering stops at --spp or as soon as the
 noise in the pixels the object changes falls below --noise-target (8-bit levels).
@@ -15,6 +17,10 @@ noise in the pixels the object changes falls below --noise-target (8-bit levels)
 Outputs (atomically, in --out): reference.png (8-bit through the scene's response),
 reference.exr (radiance), I_obj.exr, I_noobj.exr (the two HDR renders of the model),
 noise.exr (standard error of reference.exr per pixel and channel), report.json.
+
+A scene with a sun and openings has the sun traced through them (kernels.pathtrace): with --lighting
+known the declared sun, with captured / photo the sun the engine estimates from the photo (report.json
+`sun`: null when none is traced).
 """
 from __future__ import annotations
 
@@ -51,10 +57,11 @@ class Reference:
 
 
 def build_tracer(scene, patch_size: float = 0.18, emitter_patch_size: float = 0.1, textures: bool = True,
-                 patches=None, device: str | None = None):
+                 patches=None, device: str | None = None, sun="scene"):
     """kernels.pathtrace.PathTracer over the scene model's patches (or the given PatchMesh, e.g.
     an Engine's captured radiance mesh) with the scene's object; `textures` uses each quad's albedo
-    texture where the model has one instead of the per-patch mean."""
+    texture where the model has one instead of the per-patch mean. sun: the recon.scene.Sun traced
+    through the scene's openings ("scene": the scene's declared sun; None: no sun)."""
     from kernels.pathtrace import PathTracer
     from recon.patches import build_patches
 
@@ -65,7 +72,9 @@ def build_tracer(scene, patch_size: float = 0.18, emitter_patch_size: float = 0.
     tex = [q.texture for q in scene.quads] if textures else None
     corners = np.stack([q.corners for q in scene.quads]) if textures else None
     o = scene.obj
-    return PathTracer(pm, scene.camera, o.vertices, o.normals, o.faces, o.albedo, tex, corners, device=device)
+    sun = scene.sun if isinstance(sun, str) and sun == "scene" else sun
+    return PathTracer(pm, scene.camera, o.vertices, o.normals, o.faces, o.albedo, tex, corners, device=device,
+                      sun=sun, quad_opening=np.array([q.opening for q in scene.quads], bool))
 
 
 def noise_summary(ref_radiance: np.ndarray, se: np.ndarray, se_diff: np.ndarray, photo_radiance: np.ndarray,
@@ -124,6 +133,9 @@ def render_reference(scene, spp: int, seed: int = 0, batch_spp: int | None = Non
     batch = batch_spp or max(1, spp // 8)
     n_batches = math.ceil(spp / batch)
     L_b = L_b_all[pix]
+    # pixels the photo clips: L_b there is a floor, not the radiance (the sunlit floor); a shadow taken
+    # from it would be too dark, so they start from the model's radiance where that is brighter
+    clipped = (np.asarray(scene.photo).reshape(-1, 3)[pix] >= 255).any(1)
     n = len(pix)
     tot = {k: np.zeros((n, 3)) for k in ("noobj", "obj", "diff", "obj_hit")}
     count = np.zeros(n)
@@ -139,7 +151,9 @@ def render_reference(scene, spp: int, seed: int = 0, batch_spp: int | None = Non
             for name in tot:
                 tot[name] += getattr(r, name)
             count += r.obj_count
-            comp = (r.obj_hit + (batch - r.obj_count)[:, None] * L_b - r.diff) / batch
+            L_start = L_b.copy()
+            L_start[clipped] = np.maximum(L_b[clipped], r.noobj[clipped] / batch)
+            comp = (r.obj_hit + (batch - r.obj_count)[:, None] * L_start - r.diff) / batch
             dm = (r.noobj - r.obj) / batch
             m1 += comp
             m2 += comp ** 2
@@ -172,11 +186,22 @@ def render_reference(scene, spp: int, seed: int = 0, batch_spp: int | None = Non
     stats = {"spp": N, "batches": done, "batch_spp": batch, "seed": seed, "bounces": bounces,
              "stopped_by": stopped_by, "noise_target_levels": noise_target, "rendered_px": n,
              "setup_s": setup_s, "render_s": render_s, "paths_per_s": n * N / max(render_s, 1e-9),
-             "textured_albedo": bool(getattr(tracer, "textured", False)), **summary}
+             "textured_albedo": bool(getattr(tracer, "textured", False)), "sun": _sun_stats(tracer), **summary}
     return Reference(composite=composite, pixels=response.to_pixels(composite), I_obj=image(tot["obj"] / N, zeros),
                      I_noobj=image(tot["noobj"] / N, zeros), coverage=image(count / N, np.zeros(H * W)),
                      noise=image(se, zeros), noise_diff=image(se_d, zeros), rendered=rendered.reshape(H, W),
                      spp=N, stats=stats)
+
+
+def _sun_stats(tracer) -> dict | None:
+    """The sun the tracer traces through the openings (None: none): direction to it (unit) and its
+    irradiance on a surface facing it (scene radiance units x sr)."""
+    sun = getattr(tracer, "sun", None)
+    if sun is None:
+        return None
+    d = np.asarray(sun.direction, np.float64)
+    return {"direction_to_sun": (d / np.linalg.norm(d)).tolist(), "angular_diameter_deg": float(sun.angular_diameter_deg),
+            "irradiance_perpendicular": np.asarray(sun.irradiance, np.float64).tolist()}
 
 
 def _se(s1: np.ndarray, s2: np.ndarray, k: int) -> np.ndarray:
@@ -243,7 +268,11 @@ def run(a: argparse.Namespace) -> int:
         eng = Engine(scene, EngineParams(lighting=a.lighting), cache_dir=a.cache or default_cache_dir(),
                      device=a.device, quiet=a.quiet)
         scene = eng.scene  # carries the response recovered from the bracket
-        kw = dict(tracer=build_tracer(scene, textures=False, patches=eng.pre.patches, device=a.device),
+        sun = eng.sun_light.sun if eng.sun_on else None  # the sun estimated from the photo (never the declared one)
+        if sun is None and scene.sun is not None and a.lighting == "captured":  # photo warns in the engine
+            log.warning("photoar: warning: %s: sun: no sun estimated from the photo (%s); the reference traces "
+                        "none", a.scene / "scene.json", (eng.sun_estimate or {}).get("reason", "it lights nothing"))
+        kw = dict(tracer=build_tracer(scene, textures=False, patches=eng.pre.patches, device=a.device, sun=sun),
                   photo_radiance=eng.L_b, response=scene.response)
     else:
         if scene.response is None:
@@ -253,6 +282,9 @@ def run(a: argparse.Namespace) -> int:
             raise ValueError(f"{a.scene / 'scene.json'}: no emitters (no primitive declares emitted_radiance); "
                              f"use --lighting captured")
         kw = dict(patch_size=a.patch_size, textures=not a.no_textures, device=a.device)
+        if scene.sun is not None and not any(q.opening for q in scene.quads):
+            log.warning("photoar: warning: %s: sun: the scene has no opening (window with \"opening\": true); the "
+                        "sun is not traced", a.scene / "scene.json")
     ref = render_reference(scene, a.spp, seed=a.seed, batch_spp=a.batch_spp, noise_target=a.noise_target,
                            bounces=a.bounces, quiet=a.quiet, **kw)
     report = {"scene": str(a.scene), "lighting": a.lighting, "patch_size": a.patch_size, **ref.stats}

@@ -746,8 +746,10 @@ class Engine:
         self.sun_stage: SunStage | None = None  # the sun's per-frame work (app.stages.sun)
         self._sun_dB = None  # the sun the object blocks from each patch, this frame (P,3)
         self.sun_estimate = None
-        if self.params.lighting == "captured":
+        if self.params.lighting in ("captured", "photo"):  # the sun estimated from the photo (no probe: photo)
             self._sun_captured()
+            if self.params.lighting == "photo":
+                self._photo_sun_report()
         if not self.sun_on:
             return
         pre, pm, cam = self.pre, self.pre.patches, self.scene.camera
@@ -803,6 +805,27 @@ class Engine:
         self.sun_photo_clip = (self.scene.photo.reshape(-1, 3) >= 254).any(1)
         self.sun_stage = SunStage(self.sun_light, self.sun_pts, self.sun_fp, self.sun_E, self.sun_c_patch,
                                   self.sun_c_pts, self.sun_c_vis, pm.n_patches, self.device, patches=pm)
+
+    def _photo_sun_report(self) -> None:
+        """Photo light with openings: photo_light["sun"] says whether the sun estimated from the photo
+        (sun_estimate, as with captured light) lights the room and how many patches it lights (the
+        fit's clipped-region emitters among them are sunlit reflectors instead); a declared sun that
+        the photo does not show is warned about (it is never used)."""
+        if not openings(self.scene):
+            return
+        lit = self._sun_patch_light().any(1)
+        self.photo_light["sun"] = {"modelled": bool(self.sun_on), "sunlit_patches": int(lit.sum()),
+                                   "estimate": "sun_estimate"}
+        lit_quads = {self.scene.quads[q].name for q in np.unique(self._sun_pm.quad[lit])}
+        for em in self.photo_light.get("emitters", []):  # clipped regions the sun explains
+            name, clip = em["name"].removesuffix(" (clipped region)"), em["name"].endswith(" (clipped region)")
+            if clip and name in lit_quads:
+                em["sunlit_reflector"] = True  # its sunlit patches reflect the sun, they do not emit
+        if not self.sun_on and self.scene.sun is not None:
+            where = self.scene.meta.get("json_path", Path(self.scene.root) / "scene.json")
+            reason = (self.sun_estimate or {}).get("reason", "its estimate lights no surface")
+            log.warning("photoar: warning: %s: sun: --lighting photo found no sun in the photo (%s); the "
+                        "declared sun is not used", where, reason)
 
     def _sun_captured(self) -> None:
         """Captured light: the sun estimated from the photo and the radiance mesh (lighting.sun
