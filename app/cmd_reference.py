@@ -270,7 +270,7 @@ def run(a: argparse.Namespace) -> int:
         scene = eng.scene  # carries the response recovered from the bracket
         sun = eng.sun_light.sun if eng.sun_on else None  # the sun estimated from the photo (never the declared one)
         if sun is None and scene.sun is not None and a.lighting == "captured":  # photo warns in the engine
-            log.warning("photoar: warning: %s: sun: no sun estimated from the photo (%s); the reference traces "
+            log.warning("%s: sun: no sun estimated from the photo (%s); the reference traces "
                         "none", a.scene / "scene.json", (eng.sun_estimate or {}).get("reason", "it lights nothing"))
         kw = dict(tracer=build_tracer(scene, textures=False, patches=eng.pre.patches, device=a.device, sun=sun),
                   photo_radiance=eng.L_b, response=scene.response)
@@ -283,7 +283,7 @@ def run(a: argparse.Namespace) -> int:
                              f"use --lighting captured")
         kw = dict(patch_size=a.patch_size, textures=not a.no_textures, device=a.device)
         if scene.sun is not None and not any(q.opening for q in scene.quads):
-            log.warning("photoar: warning: %s: sun: the scene has no opening (window with \"opening\": true); the "
+            log.warning("%s: sun: the scene has no opening (window with \"opening\": true); the "
                         "sun is not traced", a.scene / "scene.json")
     ref = render_reference(scene, a.spp, seed=a.seed, batch_spp=a.batch_spp, noise_target=a.noise_target,
                            bounces=a.bounces, quiet=a.quiet, **kw)

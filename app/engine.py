@@ -824,7 +824,7 @@ class Engine:
         if not self.sun_on and self.scene.sun is not None:
             where = self.scene.meta.get("json_path", Path(self.scene.root) / "scene.json")
             reason = (self.sun_estimate or {}).get("reason", "its estimate lights no surface")
-            log.warning("photoar: warning: %s: sun: --lighting photo found no sun in the photo (%s); the "
+            log.warning("%s: sun: --lighting photo found no sun in the photo (%s); the "
                         "declared sun is not used", where, reason)
 
     def _sun_captured(self) -> None:
