@@ -95,6 +95,8 @@ def xyz_arg(s: str) -> tuple[float, float, float]:
 
 
 QUIET_HELP = "no progress bars or log lines"
+VERBOSE_HELP = ("also photoar's debug lines: cache hits, the captured radiance mesh's, photo light's and the "
+                "sun estimate's whole records")
 
 
 class PhotoarParser(argparse.ArgumentParser):
@@ -104,7 +106,7 @@ class PhotoarParser(argparse.ArgumentParser):
       status 2, with <prog> the subcommand that failed (`photoar composite`), not the usage block.
     * A token that starts with '-' and a digit ("-0.74,0.62,0.27", "-1e-3") is an option's value,
       not an unknown option: `--sun-direction -0.74,0.62,0.27` works as with '='.
-    * `-q/--quiet` is accepted after the subcommand too (`photoar composite ... -q`).
+    * `-q/--quiet` and `-v/--verbose` are accepted after the subcommand too (`photoar composite ... -q`).
     """
 
     def __init__(self, *args, top: "PhotoarParser | None" = None, **kwargs):
@@ -114,6 +116,7 @@ class PhotoarParser(argparse.ArgumentParser):
         self._last = self  # top level: the deepest parser of the current parse (its errors are reported there)
         if top is not None:  # a subcommand: -q after it sets the top level's flag (absent: left as it is)
             self.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help=QUIET_HELP)
+            self.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help=VERBOSE_HELP)
 
     def add_subparsers(self, **kwargs):
         kwargs.setdefault("parser_class", functools.partial(PhotoarParser, top=self._top))
@@ -201,6 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap = PhotoarParser(prog="photoar", description="Insert synthetic objects into photographs of rooms, "
                        "lit by the room's light and casting soft shadows.")
     ap.add_argument("-q", "--quiet", action="store_true", help=QUIET_HELP)
+    ap.add_argument("-v", "--verbose", action="store_true", help=VERBOSE_HELP)
     sub = ap.add_subparsers(dest="command", required=True)
 
     c = sub.add_parser("composite", help="composite a scene's synthetic object into its photo")
@@ -254,6 +258,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING if a.quiet else logging.INFO, handlers=[log_handler()])
+    if a.verbose and not a.quiet:  # photoar's own debug lines only, not every library's
+        logging.getLogger("photoar").setLevel(logging.DEBUG)
     from kernels import runtime
     from recon.scene import SceneError
 

@@ -49,6 +49,10 @@ def test_quiet_demo_run_prints_only_its_result(tmp_path):
     assert not [ln for ln in r.stderr.splitlines() if any(n in ln for n in NOISE)], r.stderr
     # a warm run says what it wrote, not which caches it read
     assert len(r.stderr.splitlines()) == 1 and r.stderr.startswith("wrote "), r.stderr
+    r = run("-m", "app.cli", "demo", "-v", "--out", str(tmp_path / "demo3"), *coarse)  # -v: the debug lines too
+    assert r.returncode == 0, r.stderr
+    assert any(ln.startswith("precompute: cache hit ") for ln in r.stderr.splitlines()), r.stderr
+    assert not [ln for ln in r.stderr.splitlines() if any(n in ln for n in NOISE)], r.stderr
 
 
 def test_first_run_says_the_kernels_compile(tmp_path):
