@@ -50,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.io import json_array, read_image_rgb, read_json, write_json
+from recon.io import SceneError, json_array, read_image_rgb, read_json, write_json
 from recon.scene import box_quads, parse_primitive, quad_primitive, rot_y
 
 log = logging.getLogger(__name__)
@@ -170,7 +170,8 @@ def primitive_from_json(p: dict, where: str = "primitives[?]", src: str = "<mode
     """One primitive from its JSON dict (schema in the module docstring; validated by
     recon.scene.parse_primitive, the one parser of primitives); ValueError naming `src`."""
     spec = parse_primitive(p, where, src)
-    common = dict(parent=p.get("parent"), gap=float(p.get("gap", 0.0)), locked=tuple(p.get("locked", ())),
+    gap = float(json_array(p.get("gap", 0.0), (), f"{where}.gap", src))
+    common = dict(parent=p.get("parent"), gap=gap, locked=tuple(p.get("locked", ())),
                   role=spec.role, albedo=spec.albedo, emitter=spec.emitter, emitted_radiance=spec.emitted_radiance,
                   extra={k: v for k, v in p.items() if k not in _KNOWN_KEYS})
     if "attach" in p:
@@ -204,8 +205,11 @@ def model_from_dict(d: dict, src: str = "<model>", infer_graph: bool | None = No
         where = f"image_constraints[{i}]"
         if not isinstance(c, dict) or "primitive" not in c or "vertex" not in c:
             raise ValueError(f"{src}: field '{where}' needs 'primitive', 'vertex' and 'px'")
-        cons.append(ImageConstraint(str(c["primitive"]), int(c["vertex"]), json_array(c.get("px"), (2,), f"{where}.px", src),
-                                    float(c.get("weight", 1.0))))
+        vertex = float(json_array(c["vertex"], (), f"{where}.vertex", src))
+        if vertex != int(vertex):
+            raise SceneError(f"{src}: field '{where}.vertex' must be a whole number, got {c['vertex']!r}")
+        cons.append(ImageConstraint(str(c["primitive"]), int(vertex), json_array(c.get("px"), (2,), f"{where}.px", src),
+                                    float(json_array(c.get("weight", 1.0), (), f"{where}.weight", src))))
     model = PrimitiveModel(prims, cons, src=src, infer_graph=infer_graph)
     return model
 

@@ -136,6 +136,14 @@ def test_bad_model_input(tmp_path):
         ({"primitives": [dict(base, size=[1, 0, 1])]}, "size"),
         ({"primitives": [base], "image_constraints": [{"primitive": "a", "vertex": 9, "px": [0, 0]}]}, "vertex 9"),
         ({"primitives": []}, "non-empty"),
+        # numbers must be JSON numbers (a string is never converted)
+        ({"primitives": [dict(base, gap="0.1")]}, r"primitives\[0\]\.gap' must be a number, got \"0.1\""),
+        ({"primitives": [base], "image_constraints": [{"primitive": "a", "vertex": "3", "px": [0, 0]}]},
+         r"vertex' must be a number"),
+        ({"primitives": [base], "image_constraints": [{"primitive": "a", "vertex": 2.5, "px": [0, 0]}]},
+         "must be a whole number, got 2.5"),
+        ({"primitives": [base], "image_constraints": [{"primitive": "a", "vertex": 1, "px": [0, 0],
+                                                        "weight": float("nan")}]}, "weight' must be finite"),
     ]
     for k, (d, msg) in enumerate(cases):
         path = tmp_path / f"m{k}.json"
