@@ -71,9 +71,10 @@ Mode = Literal["hdr", "ldr"]
 SunSource = Literal["auto", "estimate", "declared"]
 SUN_SOURCES = {
     "auto": "declared under --lighting known; under captured the declared sun when the user gave it "
-            "(`photoar scene --sun-*`: its entry says \"declared_by\": \"user\"), else the estimate",
-    "estimate": "estimated from the photo's sunlit patches (--lighting captured only)",
-    "declared": "scene.json's sun entry as given, also under captured light",
+            "(`photoar scene --sun-*`: its entry says \"declared_by\": \"user\"), else the estimate; under "
+            "photo the estimate",
+    "estimate": "estimated from the photo's sunlit patches (--lighting captured or photo)",
+    "declared": "scene.json's sun entry as given, also under captured light (not photo: light from the photo alone)",
 }
 
 
@@ -146,11 +147,11 @@ class EngineParams:
     def __post_init__(self):
         _check_literals(self)
         if self.sun == "estimate" and self.lighting == "known":
-            raise ValueError("--sun estimate: the sun is estimated from the probe's captured light: use it with "
-                             "--lighting captured (known light uses scene.json's sun)")
-        if self.sun != "auto" and self.lighting == "photo":
-            raise ValueError(f"--sun {self.sun}: --lighting photo does not model the sun; --sun applies to "
-                             "--lighting known and captured")
+            raise ValueError("--sun estimate: the sun is estimated from the photo with captured or photo light: use "
+                             "it with --lighting captured or photo (known light uses scene.json's sun)")
+        if self.sun == "declared" and self.lighting == "photo":
+            raise ValueError("--sun declared: --lighting photo takes its light, the sun's too, from the photo alone; "
+                             "use --lighting captured or known for a declared sun")
         if not 0.0 <= self.specular <= 1.0 or self.shininess < 0:
             raise ValueError(f"specular must be in [0, 1] and shininess >= 0, got {self.specular}, "
                              f"{self.shininess}")
@@ -693,8 +694,8 @@ class Engine:
         return str(self.scene.meta.get("json_path", self.scene.name))
 
     def _sun_source(self) -> str | None:
-        """"declared" (scene.json's sun), "estimate" (captured: from the photo) or None (no sun model)
-        for EngineParams.sun under this lighting; ValueError when --sun declared has no sun entry."""
+        """"declared" (scene.json's sun), "estimate" (captured or photo light: from the photo) or None (no
+        sun) for EngineParams.sun under this lighting; ValueError when --sun declared has no sun entry."""
         sun, choice, lighting = self.scene.sun, self.params.sun, self.params.lighting
         if choice == "declared" and sun is None:
             raise ValueError(f"{self._sun_where}: --sun declared: the scene has no sun entry (`photoar scene "
@@ -706,7 +707,7 @@ class Engine:
                 user = sun is not None and self.scene.meta.get("sun_declared_by") == SUN_DECLARED_BY_USER
                 return "declared" if user else "estimate"
             return choice
-        return None
+        return "estimate"  # photo: from the photo alone (_sun_captured, as captured light's estimate)
 
     @property
     def sun_report(self) -> dict:

@@ -23,8 +23,9 @@ def test_params_are_frozen_and_literals_validated_once():
     with pytest.raises(ValueError, match="--sun estimate: .*--lighting captured"):
         EngineParams(sun="estimate")  # known light: the declared sun; the estimate is captured light's
     assert EngineParams(sun="estimate", lighting="captured").sun == "estimate"
-    with pytest.raises(ValueError, match="--sun declared: --lighting photo does not model the sun"):
+    with pytest.raises(ValueError, match="--sun declared: --lighting photo takes its light, the sun's too, from the photo"):
         EngineParams(sun="declared", lighting="photo")
+    assert EngineParams(sun="estimate", lighting="photo").sun == "estimate"  # what photo light does
     for ok in ("known", "captured", "photo"):
         assert EngineParams(lighting=ok).lighting == ok
     assert set(typing.get_args(Lighting)) == set(LIGHTING)  # the Literal and the documented list agree
