@@ -823,10 +823,9 @@ class Engine:
             if clip and name in lit_quads:
                 em["sunlit_reflector"] = True  # its sunlit patches reflect the sun, they do not emit
         if not self.sun_on and self.scene.sun is not None:
-            where = self.scene.meta.get("json_path", Path(self.scene.root) / "scene.json")
             reason = (self.sun_estimate or {}).get("reason", "its estimate lights no surface")
             log.warning("%s: sun: --lighting photo found no sun in the photo (%s); the "
-                        "declared sun is not used", where, reason)
+                        "declared sun is not used", self._sun_where, reason)
 
     def _sun_captured(self) -> None:
         """Captured light: the sun estimated from the photo and the radiance mesh (lighting.sun

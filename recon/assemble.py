@@ -22,7 +22,7 @@ from recon.camera import Camera
 from recon.io import SceneError
 from recon.scene import PrimitiveSpec, aligned_size, box_faces, box_quads, is_axis_aligned
 from recon.scene import parse_primitives as scene_primitives
-from recon.scene import parse_sun
+from recon.scene import parse_sun, sun_entry
 
 SCENE_FORMAT_VERSION = 1
 ROLES_EMITTING = ("window", "lamp", "ceiling_lamp", "point_lamp")
@@ -55,7 +55,7 @@ def _entries(spec: PrimitiveSpec, lo: np.ndarray, hi: np.ndarray) -> list[dict]:
     extra["emitter"] = spec.role in ROLES_EMITTING
     if extra["emitter"] and "emitted_radiance" in spec.raw:
         extra["emitted_radiance"] = spec.emitted_radiance.tolist()
-    if spec.raw.get("opening") is True:  # a hole in its wall: sky and sun come through (checked in parse_primitives)
+    if spec.opening:  # a hole in its wall: sky and sun come through (checked in parse_primitives)
         extra["opening"] = True
     if spec.kind == "quad":
         return [_quad_entry(spec.name, spec.corners, spec.quad_normal, extra)]
@@ -205,12 +205,10 @@ def input_sun(d, src: str) -> dict | None:
     """The `sun` entry of a primitives input (e.g. a benchmark scene.json), validated by recon.scene
     .parse_sun and returned as given (its direction normalised) with `"declared_by": "user"` (None: the
     input has none)."""
-    found = [(i, p) for i, p in enumerate(d.get("primitives") or []) if isinstance(p, dict) and p.get("type") == "sun"]
-    if len(found) > 1:
-        raise SceneError(f"{src}: field 'primitives[{found[1][0]}]': a second sun (only one 'sun' entry is allowed)")
-    if not found:
+    found = sun_entry(d, src)
+    if found is None:
         return None
-    i, p = found[0]
+    i, p = found
     sun = parse_sun(p, f"primitives[{i}]", src)
     return {**p, "direction_to_sun": sun.direction.tolist(), "declared_by": SUN_DECLARED_BY_USER}
 

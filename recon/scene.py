@@ -311,14 +311,12 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
     quads: list[Quad] = []
     sun: Sun | None = None  # the sun entry (parse_primitives leaves it out: it is no room primitive)
     sun_declared_by = None
-    for i, p in enumerate(d.get("primitives") or []):
-        if isinstance(p, dict) and p.get("type") == "sun":
-            if sun is not None:
-                raise SceneError(f"{path}: field 'primitives[{i}]': a second sun (only one 'sun' primitive is allowed)")
-            name = p.get("name")
-            sun = parse_sun(p, f"primitives[{i}]" + (f" ({name!r})" if isinstance(name, str) and name else ""),
-                            path)
-            sun_declared_by = p.get("declared_by")  # "user": from `photoar scene` (app.engine --sun auto)
+    found = sun_entry(d, path)
+    if found is not None:
+        i, p = found
+        name = p.get("name")
+        sun = parse_sun(p, f"primitives[{i}]" + (f" ({name!r})" if isinstance(name, str) and name else ""), path)
+        sun_declared_by = p.get("declared_by")  # "user": from `photoar scene` (app.engine --sun auto)
     unknown_emitters: list[str] = []  # windows or lamps of unknown strength (photo light finds them)
     for p in parse_primitives(d, path):
         if p.emitter and "emitted_radiance" not in p.raw:
@@ -350,6 +348,16 @@ def load_scene(scene_dir: str | os.PathLike, load_textures: bool = True) -> Scen
     return Scene(str(d.get("name", root.name)), root, camera, quads, obj, response, photo, room_min, room_max,
                  meta={"json_path": str(path), "emitters_without_radiance": unknown_emitters,
                        "sun_declared_by": sun_declared_by}, sun=sun)
+
+
+def sun_entry(d: dict, path) -> tuple[int, dict] | None:
+    """(index, entry) of the one `"type": "sun"` entry of d["primitives"] (a scene.json or primitives
+    input), None without one; SceneError naming the file at a second one."""
+    found = [(i, p) for i, p in enumerate(d.get("primitives") or []) if isinstance(p, dict) and p.get("type") == "sun"]
+    if len(found) > 1:
+        raise SceneError(f"{path}: field 'primitives[{found[1][0]}]': a second sun (only one 'sun' primitive is "
+                         "allowed)")
+    return found[0] if found else None
 
 
 def parse_sun(p: dict, where: str, path: Path) -> Sun:
