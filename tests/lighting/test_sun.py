@@ -640,8 +640,10 @@ def test_sun_room_captured_estimate_and_scores(tmp_path):
                 "--passes", "64", "--lighting", "captured"]) == 0
     rep = json.loads((tmp_path / "o" / "report.json").read_text())
     est = rep["sun_estimate"]
-    assert rep["sun"]["from"] == "estimate" and rep["sun"]["direction"] == est["direction"]  # --sun auto: a
-    # benchmark sun (no "declared_by") is the truth the estimate is compared against, not used
+    assert rep["sun"]["from"] == "estimate"  # --sun auto: a
+    # benchmark sun (no "declared_by") is the truth the estimate is compared against, not used; the two
+    # directions are one vector written by two code paths: equal to float64 rounding, not bit for bit
+    np.testing.assert_allclose(rep["sun"]["direction"], est["direction"], rtol=0, atol=1e-12)
     assert est["direction_error_deg"] <= 2.0, est
     assert abs(est["strength_ratio"] - 1.0) <= 0.25, est
     s = score(scene, tmp_path / "o" / "composite.png")
