@@ -2,6 +2,11 @@
 image constraints (seed sec. 3, recon/primitives.py) and write the fitted model (model.json, the
 schema of recon/primitives.py) and overlay.png (its wireframe over the photo), all or nothing.
 
+`photoar model --clicks clicks.json --camera camera.json --out DIR [--image PHOTO]`: the room
+modelled from clicks on the calibrated photo (recon/clickmodel.py; the clicks file is documented in
+docs/scene-format.md): DIR/primitives.json (the `photoar scene --primitives` format), a copy of the
+clicks as DIR/clicks.json and, with --image, DIR/overlay.png (the model drawn over the photo).
+
 SCENE.json is a model file or a scene.json (its "primitives"; the scene graph is then inferred).
 Without image constraints in it, nothing moves and the overlay shows the model as it is.
 """
@@ -18,8 +23,16 @@ log = logging.getLogger("photoar")
 
 def register(sub) -> None:
     p = sub.add_parser("model", help="fit a box/quad model to its image constraints in a calibrated photo")
-    p.add_argument("scene", type=Path, help="model JSON or scene.json (primitives, image_constraints)")
-    p.add_argument("--image", type=Path, required=True, help="the photo")
+    p.add_argument("scene", type=Path, nargs="?", default=None,
+                   help="model JSON or scene.json (primitives, image_constraints); not with --clicks")
+    p.add_argument("--clicks", type=Path, default=None,
+                   help="clicks.json: model the room from clicks on the photo (walls' floor lines, a wall-ceiling "
+                        "edge, furniture corners, window/lamp corners; docs/scene-format.md) into DIR/primitives.json")
+    p.add_argument("--ceiling-height", type=float, default=None,
+                   help="with --clicks: the ceiling's height above the floor (m) when no click gives it (default "
+                        "2.5 m, with a warning)")
+    p.add_argument("--image", type=Path, default=None,
+                   help="the photo (required without --clicks; with it, overlay.png draws the model over it)")
     p.add_argument("--camera", type=Path, required=True, help="camera.json from `photoar calibrate` (or a "
                    "scene.json, whose main_camera is used)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
@@ -51,7 +64,70 @@ def draw_wireframe(photo: np.ndarray, model, camera) -> np.ndarray:
     return img
 
 
+def draw_primitives(photo: np.ndarray, prims: list[dict], camera, clicks: dict | None = None) -> np.ndarray:
+    """RGB uint8 copy of `photo` with the edges of every box and quad of `prims` (user primitives
+    format; segments clipped to the front of the camera) and the clicked pixels as small circles."""
+    import cv2
+
+    from recon.clickmodel import primitive_edges
+
+    img = photo.copy()
+    colours = {"room": (255, 200, 0), "furniture": (0, 220, 255), "window": (255, 80, 255), "lamp": (255, 255, 80)}
+    for p in prims:
+        for a, b in primitive_edges(p, camera):
+            cv2.line(img, tuple(int(round(x)) for x in a), tuple(int(round(x)) for x in b),
+                     colours.get(p.get("role", "room"), (255, 255, 255)), 1, cv2.LINE_AA)
+    for c in (clicks or {}).get("clicks", []):
+        for key in ("floor_line", "edge", "floor", "top", "corners"):
+            pts = c.get(key) if isinstance(c, dict) else None
+            if pts is None:
+                continue
+            for q in ([pts] if key in ("edge", "top") else pts):
+                if q is not None:
+                    cv2.circle(img, (int(round(q[0])), int(round(q[1]))), 3, (255, 0, 0), 1, cv2.LINE_AA)
+    return img
+
+
+def run_clicks(a: argparse.Namespace) -> int:
+    """The --clicks mode: clicks.json + camera.json -> DIR/primitives.json (+ clicks.json, overlay.png)."""
+    from recon.camera import Camera
+    from recon.clickmodel import load_clicks, model_from_clicks
+    from recon.io import AtomicOutput, read_image_rgb, write_json, write_png
+
+    if a.scene is not None:
+        raise ValueError(f"{a.scene}: give either a model file to fit or --clicks, not both")
+    if a.ceiling_height is not None and not a.ceiling_height > 0:
+        raise ValueError(f"--ceiling-height must be positive, got {a.ceiling_height}")
+    camera = Camera.load(a.camera)
+    clicks = load_clicks(a.clicks)
+    photo = None
+    if a.image is not None:
+        photo = read_image_rgb(a.image)
+        if photo.shape[:2] != (camera.height, camera.width):
+            raise ValueError(f"{a.image}: image is {photo.shape[1]}x{photo.shape[0]}, camera {a.camera} says "
+                             f"{camera.width}x{camera.height}")
+    model = model_from_clicks(clicks, camera, str(a.clicks), a.ceiling_height)
+    log.info("%d primitives from %d clicks; room %s m (walls guessed: %s; ceiling from %s)", len(model.primitives),
+             len(clicks["clicks"]), np.round(model.hi - model.lo, 2).tolist(), ", ".join(model.guessed) or "none",
+             model.ceiling_from)
+    with AtomicOutput(a.out) as stage:
+        write_json(stage / "primitives.json", model.to_json())
+        write_json(stage / "clicks.json", clicks)
+        if photo is not None:
+            write_png(stage / "overlay.png", draw_primitives(photo, model.primitives, camera, clicks))
+    print(a.out / "primitives.json")
+    return 0
+
+
 def run(a: argparse.Namespace) -> int:
+    if a.clicks is not None:
+        return run_clicks(a)
+    if a.scene is None:
+        raise ValueError("photoar model: give a model file to fit (SCENE.json) or --clicks clicks.json")
+    if a.image is None:
+        raise ValueError(f"{a.scene}: fitting a model needs the photo (--image)")
+    if a.ceiling_height is not None:
+        raise ValueError("--ceiling-height: only with --clicks")
     from recon.camera import Camera
     from recon.io import AtomicOutput, read_image_rgb, write_json, write_png
     from recon.primitives import load_model, model_to_dict

@@ -1,0 +1,664 @@
+"""A room model from clicks on one calibrated photo: walls, ceiling, furniture, window and lamp quads.
+
+Once the camera and the floor plane are known, a click on the floor is a 3-D point exactly (the
+pixel's ray meets the floor), and a click on a known plane (a wall, the ceiling) likewise. The
+clicks file (docs/scene-format.md, "Clicks file"):
+
+    {"clicks": [
+      {"label": "wall", "name": "back", "floor_line": [[u, v], [u, v]]},
+      {"label": "ceiling", "wall": "back", "edge": [u, v]},
+      {"label": "furniture", "name": "desk", "kind": "desk" | "box",
+       "floor": [[u, v], [u, v], [u, v]], "top": [u, v]},
+      {"label": "window" | "lamp", "name": "w1", "on": "back" | "ceiling",
+       "corners": [[u, v], [u, v], [u, v], [u, v]], "opening": false}]}
+
+Conventions: the camera's world frame (recon/camera.py; `photoar calibrate` puts the floor at
+y = 0, +Y up, X and Z along the room's vanishing directions), metres; pixel (u, v) with (0, 0) the
+centre of the top-left pixel, inside the photo.
+
+Method:
+  * a wall: its two floor points give a vertical plane, snapped to the nearer horizontal axis of the
+    frame (the room is a box in the calibrated axes), offset = the mean of the two points along
+    that axis; its inside is the camera's side, which tells which of the box's faces it is (back =
+    z min, front = z max, left = x min, right = x max). Two walls on the same face are one wall;
+  * the ceiling: a click on a wall-ceiling edge is a point on that wall's plane; its height is the
+    ceiling's (the mean over clicks). Else the height given, else DEFAULT_CEILING_M with a warning;
+  * a furniture piece: three floor corners (floor[1] between floor[0] and floor[2]) give an upright
+    rectangle (yaw from the two edges, snapped to the room axes within SNAP_DEG; each side the mean
+    of the two corners on it); its height is where the vertical line over floor[0] passes closest to
+    the top click's ray (least squares). A desk is a top slab DESK_TOP_M thick on four legs
+    DESK_LEG_M square, set DESK_LEG_INSET_M in from the footprint's edges; a box is solid;
+  * a window or lamp: four corners on a wall or the ceiling plane, fitted by the axis-aligned
+    rectangle on that plane (each side the mean of the two corners nearer it); set QUAD_OFFSET_M in
+    front of its surface (an emitter drawn on it), an opening (a hole in the wall) in it;
+  * walls that no click shows are placed WALL_MARGIN_M beyond the camera (recon/roomfit.py's rule:
+    the photographer stands between the camera and the wall behind), and beyond every clicked
+    primitive, and flagged guessed.
+
+Errors (ClickError, one line naming the file and the click): a floor point on or above the horizon,
+a pixel outside the photo, a footprint crossing a wall by more than WALL_TOL_M, a quad corner off its
+wall or ceiling, a wall more than AXIS_DEG off the frame's axes, unknown or duplicate names.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from recon.camera import Camera
+from recon.io import SceneError, json_array, json_bool, json_field, read_json
+from recon.roomfit import WALL_MARGIN_M
+
+log = logging.getLogger("photoar")
+
+LABELS = ("wall", "ceiling", "furniture", "window", "lamp")
+FURNITURE_KINDS = ("desk", "box")
+DEFAULT_CEILING_M = 2.5  # m, a common ceiling height, used (with a warning) when nothing gives it
+AXIS_DEG = 15.0  # a wall's floor line must run within this angle of a horizontal axis of the frame
+SNAP_DEG = 10.0  # a footprint turned less than this from the room axes is axis-aligned
+RIGHT_ANGLE_DEG = 20.0  # the two footprint edges must be perpendicular within this
+WALL_TOL_M = 0.05  # m a footprint or quad may cross a clicked wall (click noise) before it is refused
+WALL_SNAP_M = 0.03  # m: a footprint side this close to a clicked wall is put against it
+TOP_MISS_PX = 25.0  # px: the top click must lie within this of the vertical line over floor[0]
+DESK_TOP_M = 0.04  # m, a desk's top slab
+DESK_LEG_M = 0.05  # m, a desk leg's square section
+DESK_LEG_INSET_M = 0.04  # m from the footprint's edge to a leg's outer face
+QUAD_OFFSET_M = 0.002  # m in front of its surface: a window or lamp drawn on a wall or the ceiling
+FACES = {(0, -1): "left", (0, 1): "right", (2, -1): "back", (2, 1): "front"}
+
+
+class ClickError(SceneError):
+    """A click that cannot be modelled; the message names the file and the click."""
+
+
+@dataclass
+class Wall:
+    face: str  # back / front / left / right
+    axis: int  # 0 (x) or 2 (z): the axis its normal runs along
+    side: int  # -1: the room's min side along axis, +1 its max side
+    offset: float  # coordinate along axis, m
+    labels: list[str] = field(default_factory=list)
+    points: list[np.ndarray] = field(default_factory=list)  # floor points (3,) behind it
+    uv: np.ndarray | None = None  # (m,2) their clicks
+
+
+@dataclass
+class ClickModel:
+    """The model of a clicks file: the user primitives (`photoar scene --primitives` format) and
+    what was guessed."""
+
+    primitives: list[dict]
+    lo: np.ndarray  # (3,) room box min, m
+    hi: np.ndarray  # (3,) room box max, m
+    ceiling_from: str
+    guessed: list[str]  # room faces no click showed
+
+    def to_json(self) -> dict:
+        return {"primitives": self.primitives,
+                "model": {"from": "clicks", "ceiling_from": self.ceiling_from, "guessed_walls": self.guessed}}
+
+
+# ----------------------------------------------------------------------------------------------
+# Rays
+
+def ray(camera: Camera, uv) -> tuple[np.ndarray, np.ndarray]:
+    """Camera centre (3,) and unit world direction (3,) of the ray through pixel uv (2,)."""
+    d = camera.R.T @ np.linalg.solve(camera.K, np.array([uv[0], uv[1], 1.0]))
+    return camera.centre, d / np.linalg.norm(d)
+
+
+def hit_plane(camera: Camera, uv, normal, offset: float) -> np.ndarray | None:
+    """World point (3,) where pixel uv's ray meets the plane normal . x = offset; None when it
+    runs parallel to it or meets it behind the camera."""
+    c, d = ray(camera, uv)
+    n = np.asarray(normal, np.float64)
+    den = float(n @ d)
+    if abs(den) < 1e-9:
+        return None
+    s = (offset - float(n @ c)) / den
+    return c + s * d if s > 1e-6 else None
+
+
+def axis_vector(axis: int) -> np.ndarray:
+    e = np.zeros(3)
+    e[axis] = 1.0
+    return e
+
+
+# ----------------------------------------------------------------------------------------------
+# Parsing
+
+class _Clicks:
+    """Validation helpers bound to one clicks file and camera."""
+
+    def __init__(self, camera: Camera, src: str):
+        self.camera, self.src = camera, src
+
+    def err(self, where: str, msg: str) -> ClickError:
+        return ClickError(f"{self.src}: {where}: {msg}")
+
+    def pixels(self, c: dict, key: str, n: int | None, where: str, nulls: bool = False) -> np.ndarray:
+        """c[key] as pixels (n,2) (or (2,) with n None), each inside the photo; with `nulls`, an entry
+        may be null (a corner out of the photo): a row of nan."""
+        value = json_field(c, key, where + ".", self.src)
+        if nulls and isinstance(value, list) and len(value) == n:
+            rows = [np.full(2, np.nan) if v is None else json_array(v, (2,), f"{where}.{key}[{k}]", self.src)
+                    for k, v in enumerate(value)]
+            arr = np.array(rows)
+        else:
+            shape = (2,) if n is None else (n, 2)
+            arr = json_array(value, shape, f"{where}.{key}", self.src)
+        w, h = self.camera.width, self.camera.height
+        for k, (u, v) in enumerate(arr.reshape(-1, 2)):
+            if np.isfinite(u) and not (-0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5):
+                at = key if n is None else f"{key}[{k}]"
+                raise self.err(where, f"{at} = [{u:g}, {v:g}] is outside the photo ({w}x{h} px; pixel (0, 0) is "
+                                      "the centre of the top-left pixel)" + (": give null for a corner out of the "
+                                                                             "photo" if nulls else ""))
+        return arr
+
+    def outside(self, X: np.ndarray) -> bool:
+        """World point X (3,) is not seen in the photo (behind the camera or out of the frame)."""
+        uv, z = self.camera.project(X[None])
+        u, v = uv[0]
+        return bool(z[0] <= 0 or not (-0.5 <= u <= self.camera.width - 0.5 and -0.5 <= v <= self.camera.height - 0.5))
+
+    def sizes(self, c: dict, where: str) -> np.ndarray | None:
+        """The optional "size_m" [a, b] (m, positive) of a primitive with corners out of the photo."""
+        if c.get("size_m") is None:
+            return None
+        v = json_array(c["size_m"], (2,), f"{where}.size_m", self.src)
+        if not np.all(v > 0):
+            raise self.err(where, f"size_m must be positive, got {v.tolist()}")
+        return v
+
+    def missing_end(self, where: str, known: float, size: np.ndarray | None, k: int, corners) -> float:
+        """The end of a side no clicked corner pins: `known` -/+ size[k], whichever puts the unclicked
+        corners (callable end -> list of world points) out of the photo."""
+        if size is None:
+            raise self.err(where, "a side has no clicked corner (corners out of the photo are null): give its "
+                                  "length in size_m")
+        ok = [e for e in (known - size[k], known + size[k]) if all(self.outside(X) for X in corners(e))]
+        if len(ok) != 1:
+            raise self.err(where, "cannot tell on which side the corners out of the photo lie (size_m puts them "
+                                  f"{'in the photo both ways' if not ok else 'out of it both ways'}): click them")
+        return float(ok[0])
+
+
+def _name(c: dict, where: str, src: str) -> str:
+    v = json_field(c, "name", where + ".", src)
+    if not isinstance(v, str) or not v.strip():
+        raise ClickError(f"{src}: field '{where}.name' must be a non-empty string, got {v!r}")
+    return v
+
+
+def load_clicks(path: str | os.PathLike) -> dict:
+    """The parsed clicks file (a JSON object with a non-empty "clicks" list); ClickError otherwise."""
+    d = read_json(path, ClickError)
+    clicks = d.get("clicks") if isinstance(d, dict) else None
+    if not isinstance(clicks, list) or not clicks:
+        raise ClickError(f"{path}: field 'clicks' must be a non-empty list")
+    return d
+
+
+# ----------------------------------------------------------------------------------------------
+# The model
+
+def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_height: float | None = None
+                      ) -> ClickModel:
+    """The room model of a clicks dict (load_clicks) in `camera`'s world (floor y = 0, +Y up).
+
+    ceiling_height (m) is used when no click gives the ceiling; without either it is
+    DEFAULT_CEILING_M with a warning. Raises ClickError naming `src` and the click."""
+    P = _Clicks(camera, src)
+    cam_c = camera.centre
+    if not cam_c[1] > 0:
+        raise ClickError(f"{src}: the camera centre {np.round(cam_c, 3).tolist()} is not above the floor y = 0 of "
+                         "its frame: calibrate it with the camera height (photoar calibrate --height)")
+    clicks = json_field(d, "clicks", "", src)
+    if not isinstance(clicks, list) or not clicks:
+        raise ClickError(f"{src}: field 'clicks' must be a non-empty list")
+    items: list[tuple[str, str, dict]] = []
+    for i, c in enumerate(clicks):
+        where = f"clicks[{i}]"
+        if not isinstance(c, dict):
+            raise ClickError(f"{src}: field '{where}' must be an object")
+        label = c.get("label")
+        if label not in LABELS:
+            raise ClickError(f"{src}: field '{where}.label' must be one of {', '.join(LABELS)}, got {label!r}")
+        if "name" in c or label != "ceiling":
+            where = f"{where} ({label} {_name(c, where, src)!r})"
+        items.append((label, where, c))
+
+    # walls
+    walls: dict[str, Wall] = {}  # face -> wall
+    wall_of: dict[str, Wall] = {}  # label name -> wall
+    for label, where, c in items:
+        if label != "wall":
+            continue
+        name = c["name"]
+        if name in wall_of:
+            raise ClickError(f"{src}: {where}: a second wall named {name!r}")
+        uv = P.pixels(c, "floor_line", 2, where)
+        a, b = (_floor(P, uv[k], where, f"floor_line[{k}]") for k in range(2))
+        e = b - a
+        length = math.hypot(e[0], e[2])
+        if length < 0.05:
+            raise ClickError(f"{src}: {where}: the two floor_line points are {length * 100:.1f} cm apart on the "
+                             "floor: click two points far apart along the wall's foot")
+        along = 0 if abs(e[0]) >= abs(e[2]) else 2  # the axis the wall runs along
+        off_deg = math.degrees(math.atan2(min(abs(e[0]), abs(e[2])), max(abs(e[0]), abs(e[2]))))
+        if off_deg > AXIS_DEG:
+            raise ClickError(f"{src}: {where}: the floor line runs {off_deg:.0f} deg off the room's axes (more than "
+                             f"{AXIS_DEG:g}): the room is a box in the calibrated frame's axes; check the clicks "
+                             "and the calibration")
+        axis = 2 - along
+        offset = _wall_offset(camera, [a, b], uv, axis)
+        side = -1 if cam_c[axis] > offset else 1
+        face = FACES[(axis, side)]
+        if face in walls:
+            w = walls[face]
+            if abs(w.offset - offset) > 2 * WALL_TOL_M:
+                raise ClickError(f"{src}: {where}: it is the {face} wall as {w.labels[0]!r} is, but "
+                                 f"{abs(w.offset - offset):.2f} m from it: one face of the room box each")
+            w.points += [a, b]
+            w.uv = np.vstack([w.uv, uv])
+            w.offset = _wall_offset(camera, w.points, w.uv, axis)
+            w.labels.append(name)
+        else:
+            walls[face] = Wall(face, axis, side, offset, [name], [a, b], uv)
+        wall_of[name] = walls[face]
+    if not walls:
+        raise ClickError(f"{src}: no wall: click at least one wall's floor line ({{\"label\": \"wall\", ...}})")
+
+    # the room's extent along x and z where a wall was clicked (nan: not yet known)
+    lo = np.array([np.nan, 0.0, np.nan])
+    hi = np.array([np.nan, np.nan, np.nan])
+    for w in walls.values():
+        (lo if w.side < 0 else hi)[w.axis] = w.offset
+
+    # ceiling
+    heights = []
+    for label, where, c in items:
+        if label != "ceiling":
+            continue
+        wname = json_field(c, "wall", where + ".", src)
+        if wname not in wall_of:
+            raise ClickError(f"{src}: {where}: 'wall' {wname!r} names no clicked wall (walls: "
+                             f"{', '.join(sorted(wall_of)) or 'none'})")
+        w = wall_of[wname]
+        uv = P.pixels(c, "edge", None, where)
+        p = hit_plane(camera, uv, axis_vector(w.axis), w.offset)
+        if p is None or not p[1] > cam_c[1]:
+            raise ClickError(f"{src}: {where}: edge [{uv[0]:g}, {uv[1]:g}] does not meet wall {wname!r} above the "
+                             "camera: click where that wall meets the ceiling")
+        heights.append(float(p[1]))
+    if heights:
+        hi[1], ceiling_from = float(np.mean(heights)), f"{len(heights)} ceiling click(s)"
+    elif ceiling_height is not None:
+        if not ceiling_height > cam_c[1]:
+            raise ClickError(f"--ceiling-height: {ceiling_height:g} m is not above the camera "
+                             f"({cam_c[1]:.2f} m above the floor)")
+        hi[1], ceiling_from = float(ceiling_height), "--ceiling-height"
+    else:
+        hi[1], ceiling_from = max(DEFAULT_CEILING_M, float(cam_c[1]) + WALL_MARGIN_M), "default"
+        log.warning("%s: no ceiling click (a point where a wall meets the ceiling) and no --ceiling-height: the "
+                    "ceiling is put at %.2f m", src, hi[1])
+    if not hi[1] > cam_c[1]:
+        raise ClickError(f"{src}: the ceiling ({hi[1]:.2f} m, from {ceiling_from}) is below the camera "
+                         f"({cam_c[1]:.2f} m)")
+
+    names = {"room"} | set(wall_of)
+    prims: list[dict] = []
+    extents: list[np.ndarray] = []  # points every wall must contain (guessed walls are moved beyond them)
+    for label, where, c in items:
+        if label in ("wall", "ceiling"):
+            continue
+        name = c["name"]
+        if name in names:
+            raise ClickError(f"{src}: {where}: duplicate name {name!r}")
+        names.add(name)
+        if label == "furniture":
+            new = _furniture(P, c, where, name, lo, hi)
+        else:
+            new = [_quad(P, c, where, name, label, lo, hi, wall_of)]
+        for p in new:
+            if p["name"] in names - {name}:
+                raise ClickError(f"{src}: {where}: its part {p['name']!r} has the name of another primitive")
+            names.add(p["name"])
+            extents.append(_corners(p))
+        prims += new
+
+    # walls no click showed: beyond the camera and every primitive
+    pts = np.concatenate([cam_c[None]] + extents)
+    guessed = []
+    for (axis, side), face in FACES.items():
+        if face in walls:
+            continue
+        guessed.append(face)
+        if side < 0:
+            lo[axis] = min(cam_c[axis] - WALL_MARGIN_M, float(pts[:, axis].min()))
+        else:
+            hi[axis] = max(cam_c[axis] + WALL_MARGIN_M, float(pts[:, axis].max()))
+    if np.any(hi - lo <= 0):
+        raise ClickError(f"{src}: the walls clicked leave an empty room ({np.round(lo, 2).tolist()} .. "
+                         f"{np.round(hi, 2).tolist()}): check which side of each wall the camera is on")
+    if guessed:
+        log.info("%s: walls not clicked, placed %.1f m beyond the camera (guessed): %s", src, WALL_MARGIN_M,
+                 ", ".join(guessed))
+    wall_list = []
+    for face in ("floor", "ceiling", "back", "front", "left", "right"):
+        w = walls.get(face)
+        how = ("floor" if face == "floor" else ceiling_from if face == "ceiling"
+               else "clicked" if w is not None else "beyond the cameras")
+        wall_list.append({"name": face, "observed": face == "floor" or w is not None or
+                          (face == "ceiling" and bool(heights)),
+                          "guessed": face in guessed or (face == "ceiling" and not heights and ceiling_height is None),
+                          "how": how, "labels": [] if w is None else list(w.labels)})
+    room = {"name": "room", "type": "box", "role": "room", "center": ((lo + hi) / 2).tolist(),
+            "size": (hi - lo).tolist(), "walls": wall_list}
+    return ClickModel([room] + prims, lo, hi, ceiling_from, guessed)
+
+
+def _wall_offset(camera: Camera, points: list[np.ndarray], uv: np.ndarray, axis: int) -> float:
+    """The wall's coordinate along `axis` (m) whose foot line (y = 0) passes nearest the clicks uv
+    (m,2) in pixels; each click's position along the wall is a free parameter. Starts from the
+    mean of the clicks' floor points `points`."""
+    along = 2 - axis
+    x0 = np.r_[np.mean([p[axis] for p in points]), [p[along] for p in points]]
+
+    def pts(x):
+        out = np.zeros((len(points), 3))
+        out[:, axis], out[:, along] = x[0], x[1:]
+        return out
+
+    return float(_reproject_fit(x0, pts, np.asarray(uv, np.float64), camera)[0])
+
+
+def _floor(P: _Clicks, uv, where: str, at: str) -> np.ndarray:
+    p = hit_plane(P.camera, uv, [0.0, 1.0, 0.0], 0.0)
+    if p is None:
+        raise P.err(where, f"{at} = [{uv[0]:g}, {uv[1]:g}] is on or above the horizon: a floor point must be "
+                           "clicked below it, where the floor is seen")
+    return p
+
+
+def _reproject_fit(x0: np.ndarray, points, uv: np.ndarray, camera: Camera) -> np.ndarray:
+    """Parameters x (n,) minimising the pixel distance between the clicks uv (m,2) and the
+    projections of points(x) (m,3): the clicks' noise is in pixels, so that far clicks (a pixel spans
+    centimetres there) weigh less than near ones (Levenberg-Marquardt from x0)."""
+    from scipy.optimize import least_squares
+
+    def fun(x):
+        p, z = camera.project(points(x))
+        if np.any(z <= 1e-6):
+            return np.full(uv.size, 1e6)
+        return (p - uv).ravel()
+
+    if uv.size < len(x0):
+        return x0
+    r = least_squares(fun, np.asarray(x0, np.float64), method="lm" if uv.size >= len(x0) else "trf")
+    return r.x if r.success and np.all(np.isfinite(r.x)) else x0
+
+
+def _pixel_metres(P: _Clicks, uv) -> float:
+    """Metres on the floor that one pixel spans at the floor click uv (the larger of u and v)."""
+    p = hit_plane(P.camera, uv, [0.0, 1.0, 0.0], 0.0)
+    steps = [hit_plane(P.camera, np.asarray(uv) + d, [0.0, 1.0, 0.0], 0.0) for d in ((1.0, 0.0), (0.0, 1.0))]
+    return max((float(np.linalg.norm(q - p)) for q in steps if q is not None), default=1.0)
+
+
+def _corners(p: dict) -> np.ndarray:
+    """(N,3) points spanning a primitive entry (a box's eight corners, a quad's four)."""
+    if p["type"] == "quad":
+        return np.asarray(p["corners"], np.float64)
+    c, s = np.asarray(p["center"]), np.asarray(p["size"]) / 2
+    yaw = math.radians(p.get("yaw_deg", 0.0))
+    e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
+    return np.array([c + a * s[0] * e1 + b * s[1] * np.array([0, 1.0, 0]) + g * s[2] * e2
+                     for a in (-1, 1) for b in (-1, 1) for g in (-1, 1)])
+
+
+def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None) -> tuple[float, np.ndarray, np.ndarray]:
+    """Upright rectangle through floor corners f (3,3) (f[1] the corner between the others; a row of
+    nan: a corner out of the photo): yaw (rad, about +Y as recon/scene.rot_y: local x = (cos, 0,
+    -sin)), and its sorted ranges (2,) along local x and local z (m). Each side is the mean of the
+    clicked corners on it; a side with none is size_m away from the opposite one."""
+    known = [k for k in range(3) if np.isfinite(f[k, 0])]
+    if len(known) < 2:
+        raise P.err(where, "at least two of the three floor corners must be clicked")
+    a, b = f[0] - f[1], f[2] - f[1]
+    edges = [(e, math.hypot(e[0], e[2])) for e, ks in ((a, (0, 1)), (b, (1, 2))) if all(k in known for k in ks)]
+    if any(le < 0.02 for _, le in edges):
+        raise P.err(where, "two floor corners are less than 2 cm apart: click three corners of the footprint in "
+                           "order around it")
+    if len(edges) == 2:
+        cos_ab = abs(a[0] * b[0] + a[2] * b[2]) / (edges[0][1] * edges[1][1])
+        if math.degrees(math.asin(min(cos_ab, 1.0))) > RIGHT_ANGLE_DEG:
+            raise P.err(where, f"the floor corners make a {math.degrees(math.acos(cos_ab)):.0f} deg corner at "
+                               "floor[1]: click three corners of the footprint in order around it (floor[1] between "
+                               "the others)")
+    # each edge's yaw (mod 90 deg), averaged by length on the 4x angle circle
+    z = sum(le * complex(math.cos(4 * math.atan2(-e[2], e[0])), math.sin(4 * math.atan2(-e[2], e[0])))
+            for e, le in edges)
+    yaw = math.atan2(z.imag, z.real) / 4 if edges else 0.0
+    if abs(math.degrees(yaw)) < SNAP_DEG:
+        yaw = 0.0
+    elif len(known) < 3:
+        raise P.err(where, f"the footprint is turned {math.degrees(yaw):.0f} deg from the room's axes: click all three "
+                           "floor corners")
+    e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
+    if 1 in known and 0 in known:
+        a_on_e1 = abs(a @ e1) >= abs(a @ e2)
+    elif 1 in known:
+        a_on_e1 = abs(b @ e1) < abs(b @ e2)
+    else:
+        a_on_e1 = True  # f0 and f2 diagonal: they pin every side either way
+    ea, eb = (e1, e2) if a_on_e1 else (e2, e1)
+    # along the a edge (f1 -> f0): f0 on one side, f1 and f2 on the other; along b: f2, and f0 and f1
+    ends = []
+    for axis_vec, lone, pair, k in ((ea, 0, (1, 2), 0), (eb, 2, (0, 1), 1)):
+        far = f[lone] @ axis_vec if lone in known else None
+        near = [f[j] @ axis_vec for j in pair if j in known]
+        near = float(np.mean(near)) if near else None
+        if far is None:  # f[lone] out of the photo; then f1 is clicked, and shares its other side
+            def corners(end, axis_vec=axis_vec):
+                return [f[1] + (end - f[1] @ axis_vec) * axis_vec]
+
+            far = P.missing_end(where, near, size, k, corners)
+        ends.append(np.sort(np.array([far, near])))
+    xr, zr = (ends[0], ends[1]) if a_on_e1 else (ends[1], ends[0])
+    return yaw, xr, zr
+
+
+def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.ndarray, lo, hi, px_m: float) -> None:
+    """Refuse a footprint crossing a clicked wall by more than WALL_TOL_M + 3 px; put a side within
+    WALL_SNAP_M + 2 px of one (or across it) against it (axis-aligned footprints). px_m: metres on
+    the floor per pixel at the footprint's clicks (far from the camera a pixel spans centimetres)."""
+    tol, snap = WALL_TOL_M + 3 * px_m, WALL_SNAP_M + 2 * px_m
+    yaw_c, yaw_s = math.cos(yaw), math.sin(yaw)
+    e1, e2 = np.array([yaw_c, -yaw_s]), np.array([yaw_s, yaw_c])  # world (x, z) of local x, z
+    corners = np.array([x * e1 + z * e2 for x in xr for z in zr])
+    for k, axis in ((0, 0), (1, 2)):
+        for side, bound in ((-1, lo[axis]), (1, hi[axis])):
+            if not np.isfinite(bound):
+                continue
+            beyond = float(np.max(side * (corners[:, k] - bound)))
+            if beyond > tol:
+                face = FACES[(axis, side)]
+                raise P.err(where, f"the footprint crosses the {face} wall by {beyond:.2f} m: furniture stands "
+                                   "inside the room (check the floor corners and the walls' floor lines)")
+    if yaw != 0.0:
+        return
+    for rng, axis in ((xr, 0), (zr, 2)):
+        if np.isfinite(lo[axis]) and rng[0] - lo[axis] < snap:
+            rng[0] = lo[axis]
+        if np.isfinite(hi[axis]) and hi[axis] - rng[1] < snap:
+            rng[1] = hi[axis]
+
+
+def _box(name: str, yaw: float, xr, yr, zr) -> dict:
+    """A box entry from its local ranges (m) turned by yaw (rad)."""
+    e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
+    c = (sum(xr) / 2) * e1 + (sum(zr) / 2) * e2 + np.array([0, sum(yr) / 2, 0])
+    d = {"name": name, "type": "box", "role": "furniture", "center": c.tolist(),
+         "size": [float(xr[1] - xr[0]), float(yr[1] - yr[0]), float(zr[1] - zr[0])]}
+    if yaw != 0.0:
+        d["yaw_deg"] = math.degrees(yaw)
+    return d
+
+
+def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi) -> list[dict]:
+    """A furniture click -> its boxes (a desk's top slab and legs, or one box)."""
+    kind = json_field(c, "kind", where + ".", P.src)
+    if kind not in FURNITURE_KINDS:
+        raise P.err(where, f"field 'kind' must be one of {', '.join(FURNITURE_KINDS)}, got {kind!r}")
+    uv = P.pixels(c, "floor", 3, where, nulls=True)
+    top_uv = P.pixels(c, "top", None, where)
+    if not np.isfinite(uv[0, 0]):
+        raise P.err(where, "floor[0] must be clicked: the top corner is the one straight above it")
+    f = np.array([_floor(P, uv[k], where, f"floor[{k}]") if np.isfinite(uv[k, 0]) else np.full(3, np.nan)
+                  for k in range(3)])
+    yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where))
+    px_m = max(_pixel_metres(P, uv[k]) for k in range(3) if np.isfinite(uv[k, 0]))
+    _against_walls(P, where, yaw, xr, zr, lo, hi, px_m)
+    # height: the vertical line over floor[0] nearest the top click's ray (least squares in h, s)
+    C, d = ray(P.camera, top_uv)
+    A = np.stack([np.array([0.0, 1.0, 0.0]), -d], axis=1)
+    (h, s), *_ = np.linalg.lstsq(A, C - f[0], rcond=None)
+    uv_line, z = P.camera.project((f[0] + [0.0, h, 0.0])[None])
+    miss = float(np.linalg.norm(uv_line[0] - top_uv)) if z[0] > 0 else math.inf
+    if not (h > 0 and s > 0 and miss <= TOP_MISS_PX):
+        raise P.err(where, f"top [{top_uv[0]:g}, {top_uv[1]:g}] is not straight above floor[0] (the vertical line "
+                           f"over it passes {miss:.0f} px away): click the top corner above floor[0]")
+    if h > hi[1] + WALL_TOL_M:
+        raise P.err(where, f"its top ({h:.2f} m) is above the ceiling ({hi[1]:.2f} m)")
+    h = float(min(h, hi[1]))
+    if kind == "box":
+        return [_box(name, yaw, xr, (0.0, h), zr)]
+    if h <= DESK_TOP_M + 0.01 or min(xr[1] - xr[0], zr[1] - zr[0]) < 2 * (DESK_LEG_M + DESK_LEG_INSET_M):
+        raise P.err(where, f"a desk {xr[1] - xr[0]:.2f} x {zr[1] - zr[0]:.2f} m and {h:.2f} m high is too small for "
+                           f"a {DESK_TOP_M * 100:g} cm top on legs: use kind 'box'")
+    out = [_box(f"{name}_top", yaw, xr, (h - DESK_TOP_M, h), zr)]
+    i0, i1 = DESK_LEG_INSET_M, DESK_LEG_INSET_M + DESK_LEG_M
+    k = 0
+    for lx in ((xr[0] + i0, xr[0] + i1), (xr[1] - i1, xr[1] - i0)):
+        for lz in ((zr[0] + i0, zr[0] + i1), (zr[1] - i1, zr[1] - i0)):
+            out.append(_box(f"{name}_leg{k}", yaw, lx, (0.0, h - DESK_TOP_M), lz))
+            k += 1
+    return out
+
+
+def _quad(P: _Clicks, c: dict, where: str, name: str, role: str, lo, hi, wall_of: dict[str, Wall]) -> dict:
+    """A window / lamp click -> its quad entry on a clicked wall or the ceiling."""
+    on = json_field(c, "on", where + ".", P.src)
+    opening = json_bool(c, "opening", where + ".", P.src)
+    if opening and role != "window":
+        raise P.err(where, "only a window can be an opening (a hole in its wall)")
+    uv = P.pixels(c, "corners", 4, where, nulls=True)
+    if on == "ceiling":
+        if opening:
+            raise P.err(where, "an opening must be on a wall")
+        axis, offset, inward = 1, float(hi[1]), -1.0
+    elif on in wall_of:
+        w = wall_of[on]
+        axis, offset, inward = w.axis, w.offset, -float(w.side)
+    else:
+        raise P.err(where, f"'on' must be 'ceiling' or a clicked wall's name ({', '.join(sorted(wall_of))}), got {on!r}")
+    n = axis_vector(axis)
+    pts = np.full((4, 3), np.nan)
+    for k in range(4):
+        if not np.isfinite(uv[k, 0]):
+            continue
+        p = hit_plane(P.camera, uv[k], n, offset)
+        if p is None:
+            raise P.err(where, f"corners[{k}] = [{uv[k][0]:g}, {uv[k][1]:g}] is off its {on} (its ray does not meet "
+                               f"that plane in front of the camera)")
+        for ax in range(3):
+            if ax == axis:
+                continue
+            for side, bound in ((-1, lo[ax]), (1, hi[ax])):
+                if np.isfinite(bound) and side * (p[ax] - bound) > WALL_TOL_M:
+                    what = "floor" if (ax, side) == (1, -1) else "ceiling" if ax == 1 else FACES[(ax, side)] + " wall"
+                    raise P.err(where, f"corners[{k}] = [{uv[k][0]:g}, {uv[k][1]:g}] is off its {on}: it meets that "
+                                       f"plane {side * (p[ax] - bound):.2f} m beyond the {what}")
+        pts[k] = p
+    known = [k for k in range(4) if np.isfinite(pts[k, 0])]
+    if len(known) < 2:
+        raise P.err(where, "at least two of the four corners must be clicked")
+    u_ax, v_ax = [a for a in range(3) if a != axis]
+    # which corners share a side: c0-c1 an edge along u (c0, c3 at one u end) or along v (c0, c1 at one)
+    best = None
+    for groups_u in (((0, 3), (1, 2)), ((0, 1), (2, 3))):
+        groups_v = ((0, 1), (2, 3)) if groups_u == ((0, 3), (1, 2)) else ((0, 3), (1, 2))
+        spread = 0.0
+        for ax, groups in ((u_ax, groups_u), (v_ax, groups_v)):
+            for g in groups:
+                vals = [pts[k, ax] for k in g if k in known]
+                spread += float(np.ptp(vals)) if len(vals) > 1 else 0.0
+        if best is None or spread < best[0]:
+            best = (spread, groups_u, groups_v)
+    _, groups_u, groups_v = best
+    size = P.sizes(c, where)
+    rect = []
+    for ax, groups in ((u_ax, groups_u), (v_ax, groups_v)):
+        k_size = (1 if ax == 1 else 0) if axis != 1 else (0 if ax == 0 else 1)  # size_m: [across, up] / [x, z]
+        ends = [[pts[k, ax] for k in g if k in known] for g in groups]
+        ends = [float(np.mean(e)) if e else None for e in ends]
+        for i in (0, 1):
+            if ends[i] is None:
+                # the unclicked corners: the clicked ones of the opposite side moved to this end
+                anchors = [pts[k] for k in groups[1 - i] if k in known]
+
+                def corners(end, anchors=anchors, ax=ax):
+                    return [q + (end - q[ax]) * axis_vector(ax) for q in anchors]
+
+                ends[i] = P.missing_end(where, ends[1 - i], size, k_size, corners)
+        a, b = sorted(ends)
+        if b - a < 0.02:
+            raise P.err(where, f"its corners span {(b - a) * 100:.1f} cm along {'xyz'[ax]}: click the four corners "
+                               "in order around it")
+        lo_ax = lo[ax] if np.isfinite(lo[ax]) else -np.inf
+        hi_ax = hi[ax] if np.isfinite(hi[ax]) else np.inf
+        rect.append((max(a, lo_ax), min(b, hi_ax)))
+    plane = offset + (0.0 if opening else inward * QUAD_OFFSET_M)
+    corners = np.zeros((4, 3))
+    for k, (i, j) in enumerate([(0, 1), (1, 1), (1, 0), (0, 0)]):  # (u, v) index: top row first
+        corners[k, axis] = plane
+        corners[k, u_ax] = rect[0][i]
+        corners[k, v_ax] = rect[1][j]
+    normal = inward * n
+    if np.dot(np.cross(corners[1] - corners[0], corners[3] - corners[0]), normal) > 0:
+        corners = corners[[1, 0, 3, 2]]  # the benchmark's winding: (c1-c0) x (c3-c0) against the normal
+    q = {"name": name, "type": "quad", "role": role, "corners": corners.tolist(), "normal": normal.tolist(),
+         "on": on}
+    if opening:
+        q["opening"] = True
+    return q
+
+
+def primitive_edges(p: dict, camera: Camera, near: float = 0.05) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The image segments (pixel (2,), pixel (2,)) of a box's twelve or a quad's four edges (user
+    primitives format), each clipped to z_cam >= near (m) so that edges running behind the camera
+    are drawn up to where they leave the view."""
+    V = _corners(p)
+    if p["type"] == "quad":
+        pairs = [(0, 1), (1, 2), (2, 3), (3, 0)]
+    else:
+        pairs = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
+    Xc = V @ camera.R.T + camera.t
+    out = []
+    for i, j in pairs:
+        a, b = Xc[i], Xc[j]
+        if a[2] < near and b[2] < near:
+            continue
+        if a[2] < near:
+            a = a + (b - a) * (near - a[2]) / (b[2] - a[2])
+        elif b[2] < near:
+            b = b + (a - b) * (near - b[2]) / (a[2] - b[2])
+        pa, pb = camera.K @ a, camera.K @ b
+        out.append((pa[:2] / pa[2], pb[:2] / pb[2]))
+    return out

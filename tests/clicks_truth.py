@@ -1,0 +1,130 @@
+"""Clicks a user would make on a benchmark room's photo, made by projecting the room's TRUE corners
+with the TRUE camera and adding Gaussian pixel noise (seeded): wall floor lines, one wall-ceiling
+edge, three footprint corners and a top corner per furniture piece, four corners per window/lamp.
+Only what the photo shows is clicked (points in front of the camera and inside the frame).
+Shared by tests/recon/test_clickmodel.py and tests/app/test_model_clicks.py."""
+from __future__ import annotations
+
+import numpy as np
+
+from recon.camera import Camera
+
+FACES = {"left": (0, 0), "right": (0, 1), "back": (2, 0), "front": (2, 1)}  # face -> (axis, side)
+MARGIN_PX = 4.0  # a click is kept this far inside the frame (so that noise keeps it inside)
+MIN_LINE_PX = 80.0  # a wall's visible foot shorter than this is not clicked
+
+
+def _visible(cam: Camera, P: np.ndarray) -> np.ndarray:
+    uv, z = cam.project(P)
+    w, h = cam.width, cam.height
+    return (z > 0.05) & (uv[:, 0] >= MARGIN_PX) & (uv[:, 0] <= w - 1 - MARGIN_PX) & \
+        (uv[:, 1] >= MARGIN_PX) & (uv[:, 1] <= h - 1 - MARGIN_PX)
+
+
+def _edge_samples(lo, hi, axis: int, side: int, y: float, n: int = 400) -> np.ndarray:
+    """n points along the horizontal line at height y on face (axis, side) of the room box [lo, hi]."""
+    along = 2 - axis
+    P = np.zeros((n, 3))
+    P[:, axis] = (lo, hi)[side][axis]
+    P[:, along] = np.linspace(lo[along], hi[along], n)
+    P[:, 1] = y
+    return P
+
+
+def furniture_groups(scene: dict) -> list[dict]:
+    """The scene's furniture as the user would model it: {"name", "kind" desk|box, "x", "z" (ranges),
+    "top" (m)}; a desk is a "<name>_top" box with "<name>_leg*" boxes."""
+    boxes = [p for p in scene["primitives"] if p.get("role") == "furniture" and p["type"] == "box"]
+    out = []
+    for p in boxes:
+        if "_leg" in p["name"]:
+            continue
+        c, s = np.array(p["center"]), np.array(p["size"])
+        lo, hi = c - s / 2, c + s / 2
+        desk = p["name"].endswith("_top") and any(q["name"].startswith(p["name"][:-4] + "_leg") for q in boxes)
+        out.append({"name": p["name"][:-4] if desk else p["name"], "kind": "desk" if desk else "box",
+                    "x": (lo[0], hi[0]), "z": (lo[2], hi[2]), "top": hi[1], "bottom": lo[1]})
+    return out
+
+
+def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0) -> tuple[dict, dict]:
+    """(clicks dict, what was clicked: {"walls": [faces], "ceiling": bool, "furniture": [names],
+    "quads": [names], "skipped": [names]}) for a benchmark scene.json dict."""
+    rng = np.random.default_rng(seed)
+    mc = scene["main_camera"]
+    cam = Camera.from_json(mc, "scene.json", "main_camera.")
+    lo, hi = np.array(scene["world"]["room_min"], float), np.array(scene["world"]["room_max"], float)
+
+    def px(P: np.ndarray) -> list:
+        uv, _ = cam.project(np.atleast_2d(P))
+        uv = uv + rng.normal(0.0, sigma_px, uv.shape)
+        uv = np.clip(uv, [-0.5, -0.5], [cam.width - 0.5, cam.height - 0.5])
+        return uv.tolist() if np.ndim(P) == 2 else uv[0].tolist()
+
+    clicks, done = [], {"walls": [], "ceiling": False, "furniture": [], "quads": [], "skipped": []}
+    for face, (axis, side) in FACES.items():
+        P = _edge_samples(lo, hi, axis, side, lo[1])
+        P = P[_visible(cam, P)]
+        if len(P) < 2:
+            continue
+        uv, _ = cam.project(P[[0, -1]])
+        if np.linalg.norm(uv[1] - uv[0]) < MIN_LINE_PX:
+            continue
+        a, b = P[0] + 0.1 * (P[-1] - P[0]), P[-1] - 0.1 * (P[-1] - P[0])
+        clicks.append({"label": "wall", "name": face, "floor_line": px(np.stack([a, b]))})
+        done["walls"].append(face)
+        if not done["ceiling"]:
+            E = _edge_samples(lo, hi, axis, side, hi[1])
+            E = E[_visible(cam, E)]
+            if len(E):
+                clicks.append({"label": "ceiling", "wall": face, "edge": px(E[len(E) // 2])})
+                done["ceiling"] = True
+    for g in furniture_groups(scene):
+        (x0, x1), (z0, z1) = g["x"], g["z"]
+        ring = np.array([[x0, 0, z0], [x1, 0, z0], [x1, 0, z1], [x0, 0, z1]])
+        best = None
+        for k in range(4):
+            for step in (1, -1):
+                idx = [k, (k + step) % 4, (k + 2 * step) % 4]
+                top = ring[k] + [0, g["top"], 0]
+                vis = _visible(cam, ring[idx])
+                if not (vis[0] and vis.sum() >= 2 and _visible(cam, top[None])[0]):
+                    continue
+                uv, _ = cam.project(ring[idx])
+                score = (int(vis.sum()), float(np.linalg.norm(uv[1] - uv[0]) + np.linalg.norm(uv[2] - uv[1])))
+                if best is None or score > best[0]:
+                    best = (score, idx, top, vis)
+        if best is None:
+            done["skipped"].append(g["name"])
+            continue
+        _, idx, top, vis = best
+        floor = [px(ring[i]) if v else None for i, v in zip(idx, vis)]
+        c = {"label": "furniture", "name": g["name"], "kind": g["kind"], "floor": floor, "top": px(top)}
+        if not vis.all():  # the user measures the footprint's sides
+            c["size_m"] = [float(np.linalg.norm(ring[idx[0]] - ring[idx[1]])),
+                           float(np.linalg.norm(ring[idx[2]] - ring[idx[1]]))]
+        clicks.append(c)
+        done["furniture"].append(g["name"])
+    for p in scene["primitives"]:
+        if p.get("role") not in ("window", "lamp", "ceiling_lamp", "point_lamp") or p["type"] != "quad":
+            continue
+        C = np.array(p["corners"], float)
+        n = np.array(p["normal"], float)
+        k = int(np.argmax(np.abs(n)))
+        if k == 1:
+            on = "ceiling"
+        else:
+            on = next(f for f, (axis, side) in FACES.items() if axis == k and (side == 0) == (n[k] > 0))
+        vis = _visible(cam, C)
+        if vis.sum() < 2 or (on != "ceiling" and on not in done["walls"]):
+            done["skipped"].append(p["name"])
+            continue
+        role = "window" if p["role"] == "window" else "lamp"
+        c = {"label": role, "name": p["name"], "on": on, "corners": [px(X) if v else None for X, v in zip(C, vis)],
+             "opening": bool(p.get("opening", False))}
+        if not vis.all():
+            ext = C.max(0) - C.min(0)
+            c["size_m"] = [float(ext[0]), float(ext[2])] if on == "ceiling" else [float(ext[2 - k]), float(ext[1])]
+        clicks.append(c)
+        done["quads"].append(p["name"])
+    return {"clicks": clicks}, done
