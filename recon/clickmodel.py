@@ -476,9 +476,9 @@ def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None) -
 
 def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.ndarray, lo, hi, px_m: float) -> None:
     """Refuse a footprint crossing a clicked wall by more than WALL_TOL_M + 3 px; put a side within
-    WALL_SNAP_M + 2 px of one (or across it) against it (axis-aligned footprints). px_m: metres on
-    the floor per pixel at the footprint's clicks (far from the camera a pixel spans centimetres)."""
-    tol, snap = WALL_TOL_M + 3 * px_m, WALL_SNAP_M + 2 * px_m
+    WALL_SNAP_M of one (or across it) against it (axis-aligned footprints). px_m: metres on the
+    floor per pixel at the footprint's clicks (far from the camera a pixel spans centimetres)."""
+    tol, snap = WALL_TOL_M + 3 * px_m, WALL_SNAP_M
     yaw_c, yaw_s = math.cos(yaw), math.sin(yaw)
     e1, e2 = np.array([yaw_c, -yaw_s]), np.array([yaw_s, yaw_c])  # world (x, z) of local x, z
     corners = np.array([x * e1 + z * e2 for x in xr for z in zr])
