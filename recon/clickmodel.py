@@ -474,6 +474,23 @@ def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None) -
     return yaw, xr, zr
 
 
+def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: float, f: np.ndarray,
+                uv: np.ndarray, top_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The footprint's ranges and height (yaw kept) whose corners project nearest the three floor
+    clicks and the top click, in pixels (_reproject_fit): the top click also pins floor[0]'s
+    position, and a click's weight follows the metres its pixel spans."""
+    e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
+    ix = [int(abs(q @ e1 - xr[1]) < abs(q @ e1 - xr[0])) for q in f]  # each click's end of each range
+    iz = [int(abs(q @ e2 - zr[1]) < abs(q @ e2 - zr[0])) for q in f]
+
+    def pts(x):
+        out = [x[ix[k]] * e1 + x[2 + iz[k]] * e2 for k in range(3)]
+        return np.array(out + [out[0] + [0.0, x[4], 0.0]])
+
+    x = _reproject_fit(np.r_[xr, zr, h], pts, np.vstack([uv, top_uv[None]]), camera)
+    return np.sort(x[:2]), np.sort(x[2:4]), float(x[4])
+
+
 def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.ndarray, lo, hi, px_m: float) -> None:
     """Refuse a footprint crossing a clicked wall by more than WALL_TOL_M + 3 px; put a side within
     WALL_SNAP_M of one (or across it) against it (axis-aligned footprints). px_m: metres on the
@@ -523,8 +540,6 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi) -> list[dict]
     f = np.array([_floor(P, uv[k], where, f"floor[{k}]") if np.isfinite(uv[k, 0]) else np.full(3, np.nan)
                   for k in range(3)])
     yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where))
-    px_m = max(_pixel_metres(P, uv[k]) for k in range(3) if np.isfinite(uv[k, 0]))
-    _against_walls(P, where, yaw, xr, zr, lo, hi, px_m)
     # height: the vertical line over floor[0] nearest the top click's ray (least squares in h, s)
     C, d = ray(P.camera, top_uv)
     A = np.stack([np.array([0.0, 1.0, 0.0]), -d], axis=1)
@@ -534,6 +549,10 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi) -> list[dict]
     if not (h > 0 and s > 0 and miss <= TOP_MISS_PX):
         raise P.err(where, f"top [{top_uv[0]:g}, {top_uv[1]:g}] is not straight above floor[0] (the vertical line "
                            f"over it passes {miss:.0f} px away): click the top corner above floor[0]")
+    if np.all(np.isfinite(uv[:, 0])):
+        xr, zr, h = _refine_box(P.camera, yaw, xr, zr, float(h), f, uv, top_uv)
+    px_m = max(_pixel_metres(P, uv[k]) for k in range(3) if np.isfinite(uv[k, 0]))
+    _against_walls(P, where, yaw, xr, zr, lo, hi, px_m)
     if h > hi[1] + WALL_TOL_M:
         raise P.err(where, f"its top ({h:.2f} m) is above the ceiling ({hi[1]:.2f} m)")
     h = float(min(h, hi[1]))
