@@ -1,11 +1,19 @@
 """`photoar gui`: the interactive placement window (app/gui.py over app/placement.py).
 
   photoar gui SCENE_DIR [--object MESH] [--place X,Y,Z --screenshot PNG --frames N]
+  photoar gui ROOM --model [--photo PHOTO --camera camera.json] [--clicks clicks.json] [--out DIR]
 
 SCENE_DIR is a benchmark scene folder (../shared/scenes/FORMAT.md) or a placement JSON saved
 from the window. With --screenshot (or --frames) the window opens, applies the placement,
 composites N frames, saves a screenshot of itself and exits: the headless-testable mode (run it
 under Xvfb: `xvfb-run -a photoar gui ...`).
+
+With --model the window models the room instead (app/gui.py ModelWindow over
+app/clickmodeller.py): click walls, the ceiling, furniture, windows and lamps on the photo, and Save
+writes DIR/clicks.json and DIR/primitives.json exactly as `photoar model --clicks` does (DIR
+defaults to ROOM/model). The photo and camera are ROOM's scene.json and background.png, or
+--photo/--camera (a calibrated photo before any room folder exists). --script EVENTS.json plays
+mouse events through the window and exits (the headless mode; ModelWindow.run_script).
 """
 from __future__ import annotations
 
@@ -64,7 +72,66 @@ def register(sub) -> None:
     g.add_argument("--work-res", type=int, default=1024, metavar="PX",
                    help="preview and drag at most PX pixels on the photo's long side (default %(default)s; 0: the "
                         "photo's own); `photoar composite --placement` writes the full resolution")
+    m = g.add_argument_group("model mode (--model)")
+    m.add_argument("--model", action="store_true", help="model the room by clicking on the photo")
+    m.add_argument("--photo", type=Path, default=None, help="the photo (default ROOM/background.png)")
+    m.add_argument("--camera", type=Path, default=None,
+                   help="camera.json from `photoar calibrate` (default ROOM/scene.json's main_camera)")
+    m.add_argument("--clicks", type=Path, default=None, help="start from these clicks (a saved clicks.json)")
+    m.add_argument("--ceiling-height", type=float, default=None,
+                   help="the ceiling's height (m) when no click gives it (as `photoar model`)")
+    m.add_argument("--out", type=Path, default=None, help="where Save writes clicks.json and primitives.json "
+                   "(default ROOM/model)")
+    m.add_argument("--script", type=Path, default=None,
+                   help="EVENTS.json: play these mouse events through the window, then exit (headless tests)")
     g.set_defaults(run=run)
+
+
+def run_model(a: argparse.Namespace) -> int:
+    """`photoar gui ROOM --model`: the model window (app/gui.py ModelWindow)."""
+    from app.clickmodeller import ModelController
+    from recon.camera import Camera
+    from recon.clickmodel import load_clicks
+    from recon.io import read_image_rgb, read_json
+
+    room = Path(a.scene)
+    photo_path = a.photo or room / "background.png"
+    camera = Camera.load(a.camera or room / "scene.json")
+    photo = read_image_rgb(photo_path)
+    if photo.shape[:2] != (camera.height, camera.width):
+        raise ValueError(f"{photo_path}: image is {photo.shape[1]}x{photo.shape[0]}, the camera says "
+                         f"{camera.width}x{camera.height}")
+    clicks = load_clicks(a.clicks) if a.clicks is not None else None
+    events = None
+    if a.script is not None:
+        d = read_json(a.script)
+        events = d.get("events") if isinstance(d, dict) else None
+        if not isinstance(events, list):
+            raise ValueError(f"{a.script}: expected {{\"events\": [...]}}")
+    out = a.out or room / "model"
+    ctl = ModelController(camera, photo, clicks, str(out / "clicks.json"), a.ceiling_height)
+
+    import open3d.visualization.gui as gui
+
+    from app.gui import ModelWindow
+
+    app = gui.Application.instance
+    app.initialize()
+    win = ModelWindow(ctl, out, title=f"photoar - model {room.name}", width=a.window[0], height=a.window[1])
+    if events is None:
+        app.run()
+        return 0
+    win.run_script(events)
+    if a.screenshot is not None:
+        from recon.io import write_png
+
+        write_png(a.screenshot, win.screenshot())
+    win.closed = True
+    win.window.close()
+    app.run_one_tick()
+    if any(ev.get("save") for ev in events) and win.saved is None:
+        raise ValueError(f"{a.script}: the model was not saved: {ctl.message or win.status.text}")
+    return 0
 
 
 def run(a: argparse.Namespace) -> int:
@@ -75,6 +142,11 @@ def run(a: argparse.Namespace) -> int:
     if not os.environ.get("DISPLAY"):
         raise RuntimeError("photoar gui: no X display (DISPLAY is not set); run it under Xvfb, "
                            "e.g. `xvfb-run -a photoar gui SCENE_DIR --screenshot shot.png`")
+    if a.model:
+        return run_model(a)
+    for opt in ("photo", "camera", "clicks", "ceiling_height", "out", "script"):
+        if getattr(a, opt) is not None:
+            raise ValueError(f"--{opt.replace('_', '-')}: only with --model")
     if a.object_size is not None and not a.object_size > 0:
         raise ValueError(f"{a.object}: --object-size must be positive, got {a.object_size}")
     params = EngineParams(passes=None if a.all_sources else a.passes, mode=a.mode, lighting=a.lighting,

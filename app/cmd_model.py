@@ -91,8 +91,8 @@ def draw_primitives(photo: np.ndarray, prims: list[dict], camera, clicks: dict |
 def run_clicks(a: argparse.Namespace) -> int:
     """The --clicks mode: clicks.json + camera.json -> DIR/primitives.json (+ clicks.json, overlay.png)."""
     from recon.camera import Camera
-    from recon.clickmodel import load_clicks, model_from_clicks
-    from recon.io import AtomicOutput, read_image_rgb, write_json, write_png
+    from recon.clickmodel import load_clicks
+    from recon.io import read_image_rgb
 
     if a.scene is not None:
         raise ValueError(f"{a.scene}: give either a model file to fit or --clicks, not both")
@@ -106,17 +106,29 @@ def run_clicks(a: argparse.Namespace) -> int:
         if photo.shape[:2] != (camera.height, camera.width):
             raise ValueError(f"{a.image}: image is {photo.shape[1]}x{photo.shape[0]}, camera {a.camera} says "
                              f"{camera.width}x{camera.height}")
-    model = model_from_clicks(clicks, camera, str(a.clicks), a.ceiling_height)
+    write_model(a.out, clicks, camera, photo, str(a.clicks), a.ceiling_height)
+    print(a.out / "primitives.json")
+    return 0
+
+
+def write_model(out: Path, clicks: dict, camera, photo: np.ndarray | None, src: str,
+                ceiling_height: float | None = None):
+    """Model `clicks` (recon.clickmodel) and write out/primitives.json, out/clicks.json and, with
+    the photo, out/overlay.png, all or nothing (the one code path of `model --clicks` and the gui's
+    model mode). Returns the ClickModel; ClickError (nothing written) for a click it refuses."""
+    from recon.clickmodel import model_from_clicks
+    from recon.io import AtomicOutput, write_json, write_png
+
+    model = model_from_clicks(clicks, camera, src, ceiling_height)
     log.info("%d primitives from %d clicks; room %s m (walls guessed: %s; ceiling from %s)", len(model.primitives),
              len(clicks["clicks"]), np.round(model.hi - model.lo, 2).tolist(), ", ".join(model.guessed) or "none",
              model.ceiling_from)
-    with AtomicOutput(a.out) as stage:
+    with AtomicOutput(out) as stage:
         write_json(stage / "primitives.json", model.to_json())
         write_json(stage / "clicks.json", clicks)
         if photo is not None:
             write_png(stage / "overlay.png", draw_primitives(photo, model.primitives, camera, clicks))
-    print(a.out / "primitives.json")
-    return 0
+    return model
 
 
 def run(a: argparse.Namespace) -> int:

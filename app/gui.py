@@ -663,3 +663,238 @@ class PlacementWindow:
             self.window.post_redraw()
             self.app.run_one_tick()
             time.sleep(0.02)
+
+
+# ---------------------------------------------------------------------------- model mode
+class _ScriptMouse:
+    """A mouse event of a script (`photoar gui --model --script`), shaped like gui.MouseEvent for
+    ModelWindow._on_image_mouse: type, x, y (window coordinates), is_button_down."""
+
+    def __init__(self, type_, x: float, y: float):
+        self.type, self.x, self.y = type_, x, y
+
+    def is_button_down(self, button) -> bool:
+        import open3d.visualization.gui as gui
+
+        return button == gui.MouseButton.LEFT
+
+
+class ModelWindow:
+    """`photoar gui ROOM --model`: click the room's model on the photo. A thin view over
+    app.clickmodeller.ModelController: the photo with the model drawn over it (left), the tools,
+    the wall a window/lamp lies on, the opening toggle, undo/redo and save (right).
+
+    Mouse on the photo: a press adds the tool's next point, or, near a clicked point, grabs it
+    (drag to move it, release to drop). Keys: Z undo, Y redo, S save."""
+
+    def __init__(self, ctl, out: Path, title: str = "photoar - model", width: int = 1280, height: int = 720):
+        import open3d.visualization.gui as gui
+
+        from app.clickmodeller import TOOLS
+        from recon.io import open3d
+
+        self.o3d, self.gui, self.ctl, self.out = open3d(), gui, ctl, Path(out)
+        self.app = gui.Application.instance
+        self.closed = False
+        self.saved: Path | None = None
+        w = self.window = self.app.create_window(title, width, height)
+        em = w.theme.font_size
+        self.image = gui.ImageWidget(self.o3d.geometry.Image(np.ascontiguousarray(ctl.photo)))
+        self.image.set_on_mouse(self._on_image_mouse)
+        w.add_child(self.image)
+        p = self.panel = gui.Vert(0.4 * em, gui.Margins(0.6 * em, 0.6 * em, 0.6 * em, 0.6 * em))
+        p.add_child(gui.Label("Tool"))
+        self.tools = gui.RadioButton(gui.RadioButton.VERT)
+        self.tools.set_items(list(TOOLS))
+        self.tools.set_on_selection_changed(self._on_tool)
+        p.add_child(self.tools)
+        p.add_child(gui.Label("Window / lamp on"))
+        self.on = gui.Combobox()
+        self.on.set_on_selection_changed(self._on_quad_on)
+        p.add_child(self.on)
+        self.opening = gui.Checkbox("opening (a hole in the wall)")
+        self.opening.set_on_checked(self._on_opening)
+        p.add_child(self.opening)
+        row = gui.Horiz(0.4 * em)
+        for text, fn in (("Undo", self._on_undo), ("Redo", self._on_redo), ("Save", self._on_save)):
+            b = gui.Button(text)
+            b.set_on_clicked(fn)
+            row.add_child(b)
+        p.add_child(row)
+        self.status = gui.Label("")
+        p.add_child(self.status)
+        p.add_child(gui.Label("press: next point / grab one\ndrag: move it  Z undo  Y redo  S save"))
+        w.add_child(p)
+        w.set_on_layout(self._on_layout)
+        w.set_on_key(self._on_key)
+        w.set_on_close(self._on_close)
+        self.refresh()
+
+    # ------------------------------------------------------------------ view
+    def _on_layout(self, ctx) -> None:
+        r = self.window.content_rect
+        pw = int(PANEL_W * self.window.scaling)
+        self.image.frame = self.gui.Rect(r.x, r.y, r.width - pw, r.height)
+        self.panel.frame = self.gui.Rect(r.get_right() - pw, r.y, pw, r.height)
+
+    def image_to_pixel(self, x: float, y: float) -> tuple[float, float] | None:
+        """Window coordinates -> photo pixel (u, v) (None outside the photo)."""
+        f, cam = self.image.frame, self.ctl.camera
+        s, ox, oy = image_fit(f.width, f.height, cam.width, cam.height)
+        u, v = (x - f.x - ox) / s - 0.5, (y - f.y - oy) / s - 0.5
+        return (u, v) if self.ctl.inside(u, v) else None
+
+    def pixel_to_window(self, u: float, v: float) -> tuple[float, float]:
+        """Photo pixel (u, v) -> window coordinates (the inverse of image_to_pixel)."""
+        f, cam = self.image.frame, self.ctl.camera
+        s, ox, oy = image_fit(f.width, f.height, cam.width, cam.height)
+        return f.x + ox + (u + 0.5) * s, f.y + oy + (v + 0.5) * s
+
+    def refresh(self) -> None:
+        """Redraw the photo with the model and update the panel from the controller."""
+        self.image.update_image(self.o3d.geometry.Image(np.ascontiguousarray(self.ctl.overlay())))
+        names = ["last wall"] + self.ctl.walls() + ["ceiling"]
+        self.on.clear_items()
+        for n in names:
+            self.on.add_item(n)
+        self.on.selected_text = self.ctl.quad_on or "last wall"
+        from app.clickmodeller import NEEDS, TOOLS
+
+        self.tools.selected_index = TOOLS.index(self.ctl.tool)
+        self.status.text = (f"{self.ctl.tool}: point {len(self.ctl.pending) + 1} of {NEEDS[self.ctl.tool]}\n"
+                            f"{len(self.ctl.clicks)} clicked\n{self.ctl.message}")
+        self.window.post_redraw()
+
+    # ------------------------------------------------------------------ input
+    def _guard(self, fn, *args):
+        try:
+            return fn(*args)
+        except ValueError as e:
+            self.status.text = str(e)
+            return None
+
+    def _on_image_mouse(self, e):
+        gui = self.gui
+        t = e.type
+        if t == gui.MouseEvent.Type.BUTTON_DOWN and e.is_button_down(gui.MouseButton.LEFT):
+            uv = self.image_to_pixel(e.x, e.y)
+            if uv is not None and not self.ctl.grab(*uv):
+                self._guard(self.ctl.click, *uv)
+            self.refresh()
+            return gui.Widget.EventCallbackResult.CONSUMED
+        if t == gui.MouseEvent.Type.DRAG and self.ctl.dragging:
+            uv = self.image_to_pixel(e.x, e.y)
+            if uv is not None:
+                self.ctl.drag_to(*uv)
+                self.refresh()
+            return gui.Widget.EventCallbackResult.CONSUMED
+        if t == gui.MouseEvent.Type.BUTTON_UP and self.ctl.dragging:
+            self.ctl.release()
+            self.refresh()
+            return gui.Widget.EventCallbackResult.CONSUMED
+        return gui.Widget.EventCallbackResult.IGNORED
+
+    def _on_key(self, e) -> bool:
+        gui = self.gui
+        if e.type != gui.KeyEvent.Type.DOWN:
+            return False
+        actions = {gui.KeyName.Z: self._on_undo, gui.KeyName.Y: self._on_redo, gui.KeyName.S: self._on_save}
+        if e.key in actions:
+            actions[e.key]()
+            return True
+        return False
+
+    def _on_tool(self, index: int) -> None:
+        from app.clickmodeller import TOOLS
+
+        self.ctl.set_tool(TOOLS[index])
+        self.refresh()
+
+    def _on_quad_on(self, text: str, index: int) -> None:
+        self.ctl.quad_on = None if text == "last wall" else text
+
+    def _on_opening(self, checked: bool) -> None:
+        self.ctl.opening = bool(checked)
+
+    def _on_undo(self) -> None:
+        self.ctl.undo()
+        self.refresh()
+
+    def _on_redo(self) -> None:
+        self.ctl.redo()
+        self.refresh()
+
+    def _on_save(self) -> None:
+        from recon.io import SceneError
+
+        try:
+            self.ctl.save(self.out)
+        except SceneError as e:
+            self.status.text = f"not saved: {e}"
+            return
+        self.saved = self.out
+        self.status.text = f"saved {self.out / 'primitives.json'}"
+        log.info("saved %s and %s", self.out / "clicks.json", self.out / "primitives.json")
+
+    def _on_close(self) -> bool:
+        self.closed = True
+        return True
+
+    # ------------------------------------------------------------------ scripted runs
+    def screenshot(self) -> np.ndarray:
+        """RGB (H,W,3) uint8 of the window as it is on the X display."""
+        f = self.window.os_frame
+        return grab_screen(f.x, f.y, f.width, f.height)
+
+    def run_script(self, events: list[dict], ticks: int = 3) -> None:
+        """Headless mode: play `events` through the window's own handlers, each after a few turns of
+        the event loop (so layout and redraws happen as they would for a user). Events:
+        {"tool": name}, {"on": wall name | "ceiling" | "last wall"}, {"opening": bool},
+        {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
+        (press on a clicked point, move, release), {"undo": n}, {"redo": n}, {"save": true}."""
+        gui = self.gui
+        from app.clickmodeller import TOOLS
+
+        def spin() -> None:
+            for _ in range(ticks):
+                self.window.post_redraw()
+                self.app.run_one_tick()
+                time.sleep(0.01)
+
+        def mouse(kind, u, v) -> None:
+            x, y = self.pixel_to_window(u, v)
+            self._on_image_mouse(_ScriptMouse(kind, x, y))
+            spin()
+
+        spin()
+        T = gui.MouseEvent.Type
+        for ev in events:
+            if "tool" in ev:
+                self.tools.selected_index = TOOLS.index(ev["tool"])
+                self._on_tool(TOOLS.index(ev["tool"]))
+            elif "on" in ev:
+                self.on.selected_text = ev["on"]
+                self._on_quad_on(ev["on"], 0)
+            elif "opening" in ev:
+                self.opening.checked = bool(ev["opening"])
+                self._on_opening(bool(ev["opening"]))
+            elif "click" in ev:
+                mouse(T.BUTTON_DOWN, *ev["click"])
+                mouse(T.BUTTON_UP, *ev["click"])
+            elif "drag" in ev:
+                (u0, v0), (u1, v1) = ev["drag"]
+                mouse(T.BUTTON_DOWN, u0, v0)
+                for s in (0.5, 1.0):
+                    mouse(T.DRAG, u0 + s * (u1 - u0), v0 + s * (v1 - v0))
+                mouse(T.BUTTON_UP, u1, v1)
+            elif "undo" in ev:
+                for _ in range(int(ev["undo"])):
+                    self._on_undo()
+            elif "redo" in ev:
+                for _ in range(int(ev["redo"])):
+                    self._on_redo()
+            elif ev.get("save"):
+                self._on_save()
+            else:
+                raise ValueError(f"script event {ev!r}: expected tool, on, opening, click, drag, undo, redo or save")
+            spin()
