@@ -111,6 +111,9 @@ def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0) -> tuple[dict
         C = np.array(p["corners"], float)
         n = np.array(p["normal"], float)
         k = int(np.argmax(np.abs(n)))
+        if not any(np.all(np.abs(C[:, k] - b[k]) < 0.01) for b in (lo, hi)):
+            done["skipped"].append(p["name"])  # not on a wall or the ceiling (a lamp hanging in the room)
+            continue
         if k == 1:
             on = "ceiling"
         else:

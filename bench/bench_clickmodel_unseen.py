@@ -1,0 +1,97 @@
+"""Click modelling (recon/clickmodel.py) on rooms not seen: random rooms of ../shared/tools/roomgen.py.
+
+usage: python bench/bench_clickmodel_unseen.py [--shared ../shared] [--seeds 1-20] [--noise 1.0]
+
+Only roomgen's config drawer and geometry helpers are used (room box, furniture boxes, window and
+lamp quads, the main camera), so nothing is rendered and Mitsuba is not needed (a stub stands in
+for its import). For each room the true corners are projected with the true camera plus `--noise`
+px of Gaussian noise (tests/clicks_truth.py: what the photo shows is clicked), modelled, and each
+item's error is printed against the 3 cm of issue 38, with the metres one pixel spans there
+(test_clickmodel's bound is 3 cm + 3 px). The same figures for the shared rooms are in
+tests/recon/test_clickmodel.py.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def roomgen(shared: Path):
+    if "mitsuba" not in sys.modules:
+        m = types.ModuleType("mitsuba")
+        m.set_variant = lambda *a: None
+        m.ScalarTransform4f = object
+        sys.modules["mitsuba"] = m
+    sys.path.insert(0, str(shared / "tools"))
+    import roomgen as rg
+
+    return rg
+
+
+def scene_of(rg, cfg: dict) -> dict:
+    """A scene.json-like dict (world, main_camera, primitives) of a roomgen config."""
+    W, H, D = cfg["room"]
+    K = rg.intrinsics(640, 480, cfg["cam"]["fov_x"])
+    R, t = rg.look_at_cv(cfg["cam"]["C"], cfg["cam"]["target"])
+    prims = [{**b, "role": "furniture"} for b in cfg["boxes"]]
+    for em in cfg["emitters"]:
+        c = np.array(rg.emitter_quad(em, W, H, D))
+        role = "window" if em.get("wall") else "point_lamp" if em.get("point") else "ceiling_lamp"
+        prims.append({"name": em["name"], "type": "quad", "role": role, "corners": c.tolist(),
+                      "normal": rg.quad_normal(c).tolist(),
+                      "opening": bool(em.get("opening", False))})
+    return {"world": {"room_min": [0.0, 0.0, 0.0], "room_max": [W, H, D]},
+            "main_camera": {"K": K, "R": R.tolist(), "t": t.tolist()}, "primitives": prims}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
+    ap.add_argument("--seeds", default="1-12")
+    ap.add_argument("--noise", type=float, default=1.0)
+    a = ap.parse_args()
+    lo_s, _, hi_s = a.seeds.partition("-")
+    seeds = range(int(lo_s), int(hi_s or lo_s) + 1)
+    rg = roomgen(a.shared)
+    from recon.camera import Camera
+    from recon.clickmodel import ClickError, model_from_clicks
+    from tests.clicks_truth import true_clicks
+    from tests.recon.test_clickmodel import _errors
+
+    logging.disable(logging.WARNING)
+    print(f"{'seed':>4} {'kind':>6}  {'item':<14} {'error cm':>8} {'1 px cm':>8}  {'<= 3 cm':>7}")
+    all_err, within = [], 0
+    for seed in seeds:
+        for kind in ("window", "lamps", "sun"):
+            sc = scene_of(rg, rg.draw_random_config(seed, kind))
+            cam = Camera.from_json(sc["main_camera"], "roomgen", "main_camera.")
+            clicks, done = true_clicks(sc, sigma_px=a.noise, seed=seed)
+            if not done["walls"]:
+                print(f"{seed:>4} {kind:>6}  no wall's foot in the photo")
+                continue
+            try:
+                model = model_from_clicks(clicks, cam, f"roomgen {seed} {kind}",
+                                          None if done["ceiling"] else sc["world"]["room_max"][1])
+            except ClickError as e:
+                print(f"{seed:>4} {kind:>6}  refused: {e}")
+                continue
+            for item, (err, px) in _errors(sc, cam, clicks, done, model).items():
+                all_err.append(err)
+                within += err <= 0.03
+                print(f"{seed:>4} {kind:>6}  {item:<14} {err * 100:8.1f} {px * 100:8.1f}  {'yes' if err <= 0.03 else 'NO':>7}")
+    e = np.array(all_err)
+    print(f"\n{len(e)} items: median {np.median(e) * 100:.1f} cm, 90th percentile {np.percentile(e, 90) * 100:.1f} cm, "
+          f"max {e.max() * 100:.1f} cm; {within} of {len(e)} within 3 cm")
+
+
+if __name__ == "__main__":
+    main()
