@@ -708,6 +708,7 @@ class ModelWindow:
         self.tools.set_items(list(TOOLS))
         self.tools.set_on_selection_changed(self._on_tool)
         p.add_child(self.tools)
+        p.add_fixed(1.5 * em)  # the vertical radio list is taller than its layout height
         p.add_child(gui.Label("Window / lamp on"))
         self.on = gui.Combobox()
         self.on.set_on_selection_changed(self._on_quad_on)
@@ -842,7 +843,12 @@ class ModelWindow:
 
     # ------------------------------------------------------------------ scripted runs
     def screenshot(self) -> np.ndarray:
-        """RGB (H,W,3) uint8 of the window as it is on the X display."""
+        """RGB (H,W,3) uint8 of the window as it is on the X display, after SETTLE_TICKS redraws (the
+        display lags the last drawn frame by a few)."""
+        for _ in range(SETTLE_TICKS):
+            self.window.post_redraw()
+            self.app.run_one_tick()
+            time.sleep(0.02)
         f = self.window.os_frame
         return grab_screen(f.x, f.y, f.width, f.height)
 
