@@ -450,9 +450,16 @@ def test_room_fit_on_a_synthetic_box():
         assert abs(n @ tilt.apply(np.full((1, 3), 1.0))[0] + dd - 1.0) < 0.01, name
     assert not fit.surfaces["ceiling"].observed and fit.surfaces["floor"].observed
     assert len(fit.boxes) == 1
-    c, size, _ = fit.boxes[0]
+    c, size, n = fit.boxes[0]
     np.testing.assert_allclose(fit.axes.T @ c, tilt.apply(np.array([[2.5, 0.375, 1.8]]))[0], atol=0.05)
     np.testing.assert_allclose(size, [1.0, 0.75, 0.6], atol=0.06)
+    # the box's support (its points: most of the 420 drawn on its three faces) is reported in the
+    # primitives (written in the room's own frame, +Y up), and its yaw is the room's
+    from dataclasses import replace
+
+    prims = replace(fit, axes=np.eye(3)).primitives()
+    assert prims[1]["role"] == "furniture" and prims[1]["support"]["points"] == n and 300 <= n <= 420, n
+    assert prims[1]["yaw_deg"] == prims[0]["yaw_deg"]
 
 
 def test_view_rendering_paths(tmp_path):
