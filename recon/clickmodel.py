@@ -180,7 +180,7 @@ class _Clicks:
         corners (callable end -> list of world points) out of the photo."""
         if size is None:
             raise self.err(where, "a side has no clicked corner (corners out of the photo are null): give its "
-                                  "length in size_m")
+                                  "length in size_m, or the wall it stands against in 'against'")
         ok = [e for e in (known - size[k], known + size[k]) if all(self.outside(X) for X in corners(e))]
         if len(ok) != 1:
             raise self.err(where, "cannot tell on which side the corners out of the photo lie (size_m puts them "
@@ -322,7 +322,7 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
             raise ClickError(f"{src}: {where}: duplicate name {name!r}")
         names.add(name)
         if label == "furniture":
-            new = _furniture(P, c, where, name, lo, hi)
+            new = _furniture(P, c, where, name, lo, hi, wall_of)
         else:
             new = [_quad(P, c, where, name, label, lo, hi, wall_of)]
         for p in new:
@@ -422,11 +422,13 @@ def _corners(p: dict) -> np.ndarray:
                      for a in (-1, 1) for b in (-1, 1) for g in (-1, 1)])
 
 
-def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None) -> tuple[float, np.ndarray, np.ndarray]:
+def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, against: Wall | None = None
+               ) -> tuple[float, np.ndarray, np.ndarray]:
     """Upright rectangle through floor corners f (3,3) (f[1] the corner between the others; a row of
     nan: a corner out of the photo): yaw (rad, about +Y as recon/scene.rot_y: local x = (cos, 0,
     -sin)), and its sorted ranges (2,) along local x and local z (m). Each side is the mean of the
-    clicked corners on it; a side with none is size_m away from the opposite one."""
+    clicked corners on it; a side with none is size_m away from the opposite one, or on the wall
+    `against` (the wall the piece stands against)."""
     known = [k for k in range(3) if np.isfinite(f[k, 0])]
     if len(known) < 2:
         raise P.err(where, "at least two of the three floor corners must be clicked")
@@ -468,7 +470,10 @@ def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None) -
             def corners(end, axis_vec=axis_vec):
                 return [f[1] + (end - f[1] @ axis_vec) * axis_vec]
 
-            far = P.missing_end(where, near, size, k, corners)
+            if size is None and against is not None and abs(axis_vec[against.axis]) > 1 - 1e-9:
+                far = against.offset * float(axis_vec[against.axis])
+            else:
+                far = P.missing_end(where, near, size, k, corners)
         ends.append(np.sort(np.array([far, near])))
     xr, zr = (ends[0], ends[1]) if a_on_e1 else (ends[1], ends[0])
     return yaw, xr, zr
@@ -528,7 +533,7 @@ def _box(name: str, yaw: float, xr, yr, zr) -> dict:
     return d
 
 
-def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi) -> list[dict]:
+def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict[str, Wall]) -> list[dict]:
     """A furniture click -> its boxes (a desk's top slab and legs, or one box)."""
     kind = json_field(c, "kind", where + ".", P.src)
     if kind not in FURNITURE_KINDS:
@@ -539,7 +544,10 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi) -> list[dict]
         raise P.err(where, "floor[0] must be clicked: the top corner is the one straight above it")
     f = np.array([_floor(P, uv[k], where, f"floor[{k}]") if np.isfinite(uv[k, 0]) else np.full(3, np.nan)
                   for k in range(3)])
-    yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where))
+    against = c.get("against")
+    if against is not None and against not in wall_of:
+        raise P.err(where, f"'against' must name a clicked wall ({', '.join(sorted(wall_of))}), got {against!r}")
+    yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where), wall_of.get(against))
     # height: the vertical line over floor[0] nearest the top click's ray (least squares in h, s)
     C, d = ray(P.camera, top_uv)
     A = np.stack([np.array([0.0, 1.0, 0.0]), -d], axis=1)

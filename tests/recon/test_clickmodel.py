@@ -131,6 +131,24 @@ def test_window_room_model_is_a_valid_primitives_input(tmp_path):
     np.testing.assert_allclose(np.array(win["corners"])[:, 0], lo[0] + 0.002, atol=1e-9)
 
 
+def test_two_floor_corners_and_the_wall_it_stands_against():
+    """window_room's desk from its two front corners and "against": the back wall (its back corner
+    unclicked); without the wall or a size the missing side is refused."""
+    sc, cam = _scene("window_room")
+    clicks, _ = true_clicks(sc, sigma_px=0.0)
+    g = next(g for g in furniture_groups(sc) if g["name"] == "desk")
+    (x0, x1), (z0, z1) = g["x"], g["z"]
+    f = np.array([[x1, 0, z1], [x0, 0, z1], [x0, 0, z0]])
+    uv, _ = cam.project(np.vstack([f, f[:1] + [0, g["top"], 0]]))
+    d = _edited(clicks, "desk", floor=[uv[0].tolist(), uv[1].tolist(), None], top=uv[3].tolist(), against="back")
+    by = {p["name"]: p for p in model_from_clicks(d, cam, "clicks.json", 2.6).primitives}
+    c, s = np.array(by["desk_top"]["center"]), np.array(by["desk_top"]["size"])
+    np.testing.assert_allclose([c[0] - s[0] / 2, c[0] + s[0] / 2, c[2] - s[2] / 2, c[2] + s[2] / 2, c[1] + s[1] / 2],
+                               [x0, x1, z0, z1, g["top"]], atol=0.002)
+    del d["clicks"][[c.get("name") for c in d["clicks"]].index("desk")]["against"]
+    _refused(cam, d, "furniture 'desk'", "size_m", "against")
+
+
 # ----------------------------------------------------------------------------------------------
 # Errors: one line naming the click
 
