@@ -224,3 +224,16 @@ def test_unknown_wall_and_bad_fields(window_room):
     d = json.loads(json.dumps(clicks))
     d["clicks"] = [c for c in d["clicks"] if c["label"] != "wall"]
     _refused(cam, d, "no wall")
+
+
+def test_wall_off_the_axes_and_top_not_above(window_room):
+    sc, cam, clicks = window_room
+    # a floor line running 30 deg off the room's x axis
+    P = np.array([[1.0, 0.0, 0.5], [1.0 + np.cos(np.radians(30)), 0.0, 0.5 + np.sin(np.radians(30))]])
+    uv, _ = cam.project(P)
+    wall = next(c for c in clicks["clicks"] if c.get("label") == "wall")
+    _refused(cam, _edited(clicks, wall["name"], floor_line=uv.tolist()), f"wall '{wall['name']}'", "30 deg off")
+    # the top click 60 px beside the vertical line over floor[0]
+    desk = next(c for c in clicks["clicks"] if c.get("name") == "desk")
+    _refused(cam, _edited(clicks, "desk", top=[desk["top"][0] - 60.0, desk["top"][1]]), "furniture 'desk'",
+             "not straight above floor[0]")
