@@ -17,9 +17,9 @@ y = 0, +Y up, X and Z along the room's vanishing directions), metres; pixel (u, 
 centre of the top-left pixel, inside the photo.
 
 Method:
-  * a wall: its two floor points give a vertical plane, snapped to the nearer horizontal axis of the
-    frame (the room is a box in the calibrated axes), offset = the mean of the two points along
-    that axis; its inside is the camera's side, which tells which of the box's faces it is (back =
+  * a wall: its two (or more) floor points give a vertical plane, snapped to the nearer horizontal
+    axis of the frame (the room is a box in the calibrated axes), its offset the one whose foot line
+    passes nearest the clicks in pixels; its inside is the camera's side, which tells which of the box's faces it is (back =
     z min, front = z max, left = x min, right = x max). Two walls on the same face are one wall;
   * the ceiling: a click on a wall-ceiling edge is a point on that wall's plane; its height is the
     ceiling's (the mean over clicks). Else the height given, else DEFAULT_CEILING_M with a warning;
@@ -242,8 +242,11 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
         name = c["name"]
         if name in wall_of:
             raise ClickError(f"{src}: {where}: a second wall named {name!r}")
-        uv = P.pixels(c, "floor_line", 2, where)
-        a, b = (_floor(P, uv[k], where, f"floor_line[{k}]") for k in range(2))
+        line = json_field(c, "floor_line", where + ".", src)
+        n_pts = len(line) if isinstance(line, list) and len(line) >= 2 else 2  # two points, or more along it
+        uv = P.pixels(c, "floor_line", n_pts, where)
+        pts = [_floor(P, uv[k], where, f"floor_line[{k}]") for k in range(n_pts)]
+        a, b = pts[0], pts[-1]
         e = b - a
         length = math.hypot(e[0], e[2])
         if length < 0.05:
@@ -256,7 +259,7 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
                              f"{AXIS_DEG:g}): the room is a box in the calibrated frame's axes; check the clicks "
                              "and the calibration")
         axis = 2 - along
-        offset = _wall_offset(camera, [a, b], uv, axis)
+        offset = _wall_offset(camera, pts, uv, axis)
         side = -1 if cam_c[axis] > offset else 1
         face = FACES[(axis, side)]
         if face in walls:
@@ -264,12 +267,12 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
             if abs(w.offset - offset) > 2 * WALL_TOL_M:
                 raise ClickError(f"{src}: {where}: it is the {face} wall as {w.labels[0]!r} is, but "
                                  f"{abs(w.offset - offset):.2f} m from it: one face of the room box each")
-            w.points += [a, b]
+            w.points += pts
             w.uv = np.vstack([w.uv, uv])
             w.offset = _wall_offset(camera, w.points, w.uv, axis)
             w.labels.append(name)
         else:
-            walls[face] = Wall(face, axis, side, offset, [name], [a, b], uv)
+            walls[face] = Wall(face, axis, side, offset, [name], pts, uv)
         wall_of[name] = walls[face]
     if not walls:
         raise ClickError(f"{src}: no wall: click at least one wall's floor line ({{\"label\": \"wall\", ...}})")

@@ -47,8 +47,8 @@ def furniture_groups(scene: dict) -> list[dict]:
     return out
 
 
-def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0) -> tuple[dict, dict]:
-    """(clicks dict, what was clicked: {"walls": [faces], "ceiling": bool, "furniture": [names],
+def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: int = 2) -> tuple[dict, dict]:
+    """(clicks dict with `wall_points` points on each wall's foot, what was clicked: {"walls": [faces], "ceiling": bool, "furniture": [names],
     "quads": [names], "skipped": [names]}) for a benchmark scene.json dict."""
     rng = np.random.default_rng(seed)
     mc = scene["main_camera"]
@@ -70,8 +70,8 @@ def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0) -> tuple[dict
         uv, _ = cam.project(P[[0, -1]])
         if np.linalg.norm(uv[1] - uv[0]) < MIN_LINE_PX:
             continue
-        a, b = P[0] + 0.1 * (P[-1] - P[0]), P[-1] - 0.1 * (P[-1] - P[0])
-        clicks.append({"label": "wall", "name": face, "floor_line": px(np.stack([a, b]))})
+        s = np.linspace(0.1, 0.9, wall_points)[:, None]
+        clicks.append({"label": "wall", "name": face, "floor_line": px(P[0] + s * (P[-1] - P[0]))})
         done["walls"].append(face)
         if not done["ceiling"]:
             E = _edge_samples(lo, hi, axis, side, hi[1])
