@@ -10,6 +10,9 @@ Tools and the clicks each needs, in photo pixels (u, v), (0, 0) the centre of th
   desk, box: 3 floor corners in order around the footprint, then the top corner above the first;
   window, lamp: 4 corners in order around it, on the wall `quad_on` (default: the last wall
   clicked) or "ceiling"; `opening` marks a window that is a hole in its wall.
+A corner out of the photo is skipped (skip_corner: a null in the clicks file; furniture floor[1] or
+floor[2], up to two quad corners); the side it alone would fix comes from `size_m` (metres, tape) or,
+for furniture, the wall it stands `against`.
 """
 from __future__ import annotations
 
@@ -45,7 +48,9 @@ class ModelController:
         self.tool = "wall"
         self.quad_on: str | None = None  # None: the last wall clicked
         self.opening = False
-        self.pending: list[list[float]] = []
+        self.size_m: list[float] | None = None  # [a, b] m for sides no clicked corner fixes
+        self.against: str | None = None  # the wall a furniture piece stands against
+        self.pending: list[list[float] | None] = []
         self._undo: list[tuple] = []
         self._redo: list[tuple] = []
         self._drag: Handle | None = None
@@ -104,8 +109,22 @@ class ModelController:
             raise ValueError(f"click a wall's foot first: a {self.tool} lies on a clicked wall")
         self._push()
         self.pending.append([float(u), float(v)])
+        return self._complete()
+
+    def skip_corner(self) -> dict | None:
+        """The next corner is out of the photo (null); returns the click entry it completes."""
+        k = len(self.pending)
+        if not ((self.tool in ("desk", "box") and k in (1, 2)) or (self.tool in ("window", "lamp") and k < 4)):
+            raise ValueError(f"{self.tool}: point {k + 1} cannot be out of the photo (furniture: the second or third "
+                             "floor corner; windows and lamps: any corner)")
+        self._push()
+        self.pending.append(None)
+        return self._complete()
+
+    def _complete(self) -> dict | None:
         if len(self.pending) < NEEDS[self.tool]:
             return None
+        walls = self.walls()
         p, self.pending = self.pending, []
         t = self.tool
         if t == "wall":
@@ -115,10 +134,14 @@ class ModelController:
             c = {"label": "ceiling", "wall": on, "edge": p[0]}
         elif t in ("desk", "box"):
             c = {"label": "furniture", "name": self._name(t), "kind": t, "floor": p[:3], "top": p[3]}
+            if self.against and None in p:
+                c["against"] = self.against
         else:
             on = self.quad_on or (walls[-1] if walls else "ceiling")
             c = {"label": t, "name": self._name(t), "on": on, "corners": p,
                  "opening": bool(self.opening and t == "window")}
+        if None in p and self.size_m is not None:
+            c["size_m"] = [float(x) for x in self.size_m]
         self.clicks.append(c)
         return c
 
@@ -202,7 +225,7 @@ class ModelController:
 
         model, self.message = self.model()
         img = draw_primitives(self.photo, model.primitives if model else [], self.camera, self.clicks_json())
-        for q in self.pending:
+        for q in (q for q in self.pending if q is not None):
             cv2.circle(img, (int(round(q[0])), int(round(q[1]))), 3, (255, 60, 60), -1, cv2.LINE_AA)
         return img
 

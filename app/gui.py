@@ -685,7 +685,8 @@ class ModelWindow:
     the wall a window/lamp lies on, the opening toggle, undo/redo and save (right).
 
     Mouse on the photo: a press adds the tool's next point, or, near a clicked point, grabs it
-    (drag to move it, release to drop). Keys: Z undo, Y redo, S save."""
+    (drag to move it, release to drop). A corner out of the photo is skipped (button, or N) with
+    the sizes typed or the wall the piece stands against chosen. Keys: Z undo, Y redo, S save."""
 
     def __init__(self, ctl, out: Path, title: str = "photoar - model", width: int = 1280, height: int = 720):
         import open3d.visualization.gui as gui
@@ -716,6 +717,19 @@ class ModelWindow:
         self.opening = gui.Checkbox("opening (a hole in the wall)")
         self.opening.set_on_checked(self._on_opening)
         p.add_child(self.opening)
+        p.add_child(gui.Label("Corners out of the photo: sizes (m), against"))
+        row = gui.Horiz(0.4 * em)
+        self.size = gui.TextEdit()
+        self.size.placeholder_text = "a, b"
+        self.size.set_on_value_changed(self._on_size)
+        row.add_child(self.size)
+        self.against = gui.Combobox()
+        self.against.set_on_selection_changed(self._on_against)
+        row.add_child(self.against)
+        p.add_child(row)
+        b_skip = gui.Button("Corner out of photo (N)")
+        b_skip.set_on_clicked(self._on_skip)
+        p.add_child(b_skip)
         row = gui.Horiz(0.4 * em)
         for text, fn in (("Undo", self._on_undo), ("Redo", self._on_redo), ("Save", self._on_save)):
             b = gui.Button(text)
@@ -724,7 +738,8 @@ class ModelWindow:
         p.add_child(row)
         self.status = gui.Label("")
         p.add_child(self.status)
-        p.add_child(gui.Label("press: next point / grab one\ndrag: move it  Z undo  Y redo  S save"))
+        p.add_child(gui.Label("press: next point / grab one\ndrag: move it  N corner out of photo\n"
+                              "Z undo  Y redo  S save"))
         w.add_child(p)
         w.set_on_layout(self._on_layout)
         w.set_on_key(self._on_key)
@@ -759,6 +774,10 @@ class ModelWindow:
         for n in names:
             self.on.add_item(n)
         self.on.selected_text = self.ctl.quad_on or "last wall"
+        self.against.clear_items()
+        for n in ["no wall"] + self.ctl.walls():
+            self.against.add_item(n)
+        self.against.selected_text = self.ctl.against or "no wall"
         from app.clickmodeller import NEEDS, TOOLS
 
         self.tools.selected_index = TOOLS.index(self.ctl.tool)
@@ -799,7 +818,8 @@ class ModelWindow:
         gui = self.gui
         if e.type != gui.KeyEvent.Type.DOWN:
             return False
-        actions = {gui.KeyName.Z: self._on_undo, gui.KeyName.Y: self._on_redo, gui.KeyName.S: self._on_save}
+        actions = {gui.KeyName.Z: self._on_undo, gui.KeyName.Y: self._on_redo, gui.KeyName.S: self._on_save,
+                   gui.KeyName.N: self._on_skip}
         if e.key in actions:
             actions[e.key]()
             return True
@@ -816,6 +836,23 @@ class ModelWindow:
 
     def _on_opening(self, checked: bool) -> None:
         self.ctl.opening = bool(checked)
+
+    def _on_size(self, text: str) -> None:
+        try:
+            v = [float(x) for x in text.replace("x", ",").split(",") if x.strip()]
+        except ValueError:
+            v = []
+        ok = len(v) == 2 and all(math.isfinite(x) and x > 0 for x in v)
+        self.ctl.size_m = v if ok else None
+        if text.strip() and not ok:
+            self.status.text = f"sizes: expected two positive numbers in metres, got {text!r}"
+
+    def _on_against(self, text: str, index: int) -> None:
+        self.ctl.against = None if text == "no wall" else text
+
+    def _on_skip(self) -> None:
+        self._guard(self.ctl.skip_corner)
+        self.refresh()
 
     def _on_undo(self) -> None:
         self.ctl.undo()
@@ -856,7 +893,8 @@ class ModelWindow:
         """Headless mode: play `events` through the window's own handlers, each after a few turns of
         the event loop (so layout and redraws happen as they would for a user). Events:
         {"tool": name}, {"on": wall name | "ceiling" | "last wall"}, {"opening": bool},
-        {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
+        {"size_m": "a, b"}, {"against": wall name | "no wall"}, {"skip": true} (a corner out of the
+        photo), {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
         (press on a clicked point, move, release), {"undo": n}, {"redo": n}, {"save": true}."""
         gui = self.gui
         from app.clickmodeller import TOOLS
@@ -884,6 +922,14 @@ class ModelWindow:
             elif "opening" in ev:
                 self.opening.checked = bool(ev["opening"])
                 self._on_opening(bool(ev["opening"]))
+            elif "size_m" in ev:
+                self.size.text_value = str(ev["size_m"])
+                self._on_size(str(ev["size_m"]))
+            elif "against" in ev:
+                self.against.selected_text = ev["against"]
+                self._on_against(ev["against"], 0)
+            elif ev.get("skip"):
+                self._on_skip()
             elif "click" in ev:
                 mouse(T.BUTTON_DOWN, *ev["click"])
                 mouse(T.BUTTON_UP, *ev["click"])
@@ -902,5 +948,6 @@ class ModelWindow:
             elif ev.get("save"):
                 self._on_save()
             else:
-                raise ValueError(f"script event {ev!r}: expected tool, on, opening, click, drag, undo, redo or save")
+                raise ValueError(f"script event {ev!r}: expected tool, on, opening, size_m, against, skip, click, drag, "
+                                 "undo, redo or save")
             spin()

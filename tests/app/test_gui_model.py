@@ -1,6 +1,7 @@
 """`photoar gui ROOM --model` under Xvfb: a script of mouse events played through the window's event
 loop clicks two walls, the ceiling, a desk (one point clicked off and dragged into place, a stray
-point undone) and a window on window_room's photo, and saves; the saved clicks and primitives are
+point undone), a window on the back wall and the room's own window (two corners out of the photo,
+its size typed) on window_room's photo, and saves; the saved clicks and primitives are
 those of `photoar model --clicks` on the same clicks. The controller's undo/redo/drag logic is also
 tested without a window."""
 import json
@@ -37,7 +38,10 @@ def _reference(tmp_path):
         {"label": "ceiling", "wall": "wall1", "edge": by["ceiling"]["edge"]},
         {"label": "furniture", "name": "desk1", "kind": "desk", "floor": by["desk"]["floor"], "top": by["desk"]["top"]},
         {"label": "window", "name": "window1", "on": "wall2", "corners": cam.project(win)[0].tolist(),
-         "opening": False}]}
+         "opening": False},
+        {"label": "window", "name": "window2", "on": "wall1", "corners": by["window"]["corners"],
+         "opening": False, "size_m": by["window"]["size_m"]}]}
+    assert [q is None for q in by["window"]["corners"]] == [True, False, False, True]
     (tmp_path / "camera.json").write_text(json.dumps(benchmark_camera_json(sc)))
     (tmp_path / "ref_clicks.json").write_text(json.dumps(ref))
     return root, ref
@@ -52,7 +56,9 @@ def _events(ref):
           {"tool": "desk"}, *({"click": q} for q in desk["floor"]), {"click": off},
           {"drag": [off, desk["top"]]},
           {"tool": "window"}, {"click": [600.0, 400.0]}, {"undo": 1},
-          *({"click": q} for q in c[4]["corners"]), {"save": True}]
+          *({"click": q} for q in c[4]["corners"]),
+          {"on": "wall1"}, {"size_m": ", ".join(map(repr, c[5]["size_m"]))},
+          *({"skip": True} if q is None else {"click": q} for q in c[5]["corners"]), {"save": True}]
     return {"events": ev}
 
 
@@ -75,11 +81,15 @@ def test_gui_model_mode_saves_what_model_clicks_writes(xvfb, tmp_path):  # noqa:
     for g, c in zip(gui_clicks, ref["clicks"]):
         for key in ("floor_line", "edge", "floor", "top", "corners"):
             if key in c:  # window -> pixel round trip of the script: exact to float rounding
-                np.testing.assert_allclose(g[key], c[key], atol=1e-6, err_msg=key)
+                assert [q is None for q in g[key]] == [q is None for q in c[key]] if key == "corners" else True
+                got = [q for q in g[key] if q is not None] if key == "corners" else g[key]
+                want = [q for q in c[key] if q is not None] if key == "corners" else c[key]
+                np.testing.assert_allclose(got, want, atol=1e-6, err_msg=key)
+        assert g.get("size_m") == c.get("size_m")
     ours = json.loads((out / "primitives.json").read_text())["primitives"]
     cli = json.loads((tmp_path / "cli_model" / "primitives.json").read_text())["primitives"]
     assert [p["name"] for p in ours] == [p["name"] for p in cli]
-    assert {"room", "desk1_top", "desk1_leg3", "window1"} <= {p["name"] for p in ours}
+    assert {"room", "desk1_top", "desk1_leg3", "window1", "window2"} <= {p["name"] for p in ours}
     for a, b in zip(ours, cli):
         for key in ("center", "size", "corners", "normal"):
             if key in b:
@@ -110,3 +120,13 @@ def test_controller_undo_redo_and_drag():
     assert not ctl.grab(500, 100)
     with pytest.raises(ValueError, match="outside the photo"):
         ctl.click(-3, 10)
+    # a desk's third floor corner out of the photo, the desk standing against wall1
+    ctl.set_tool("desk")
+    ctl.against = "wall1"
+    with pytest.raises(ValueError, match="cannot be out of the photo"):
+        ctl.skip_corner()
+    ctl.click(400, 400)
+    ctl.click(350, 380)
+    assert ctl.skip_corner() is None and ctl.pending[-1] is None
+    d = ctl.click(400, 300)
+    assert d["floor"][2] is None and d["against"] == "wall1" and "size_m" not in d
