@@ -483,19 +483,33 @@ def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, a
 
 
 def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: float, f: np.ndarray,
-                uv: np.ndarray, top_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """The footprint's ranges and height (yaw kept) whose corners project nearest the three floor
-    clicks and the top click, in pixels (_reproject_fit): the top click also pins floor[0]'s
-    position, and a click's weight follows the metres its pixel spans."""
+                uv: np.ndarray, top_uv: np.ndarray, wall_end: bool) -> tuple[np.ndarray, np.ndarray, float]:
+    """The footprint's ranges and height (yaw kept) whose clicked corners project nearest their
+    clicks and the top corner nearest the top click, in pixels (_reproject_fit): the top click also
+    pins floor[0]'s position, and a click's weight follows the metres its pixel spans. A side no
+    clicked corner lies on keeps its distance to the opposite side (size_m), or its place with
+    `wall_end` (the wall the piece stands against)."""
     e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
-    ix = [int(abs(q @ e1 - xr[1]) < abs(q @ e1 - xr[0])) for q in f]  # each click's end of each range
-    iz = [int(abs(q @ e2 - zr[1]) < abs(q @ e2 - zr[0])) for q in f]
+    known = [k for k in range(3) if np.isfinite(f[k, 0])]
+    ix = {k: int(abs(f[k] @ e1 - xr[1]) < abs(f[k] @ e1 - xr[0])) for k in known}  # each click's end of
+    iz = {k: 2 + int(abs(f[k] @ e2 - zr[1]) < abs(f[k] @ e2 - zr[0])) for k in known}  # each range
+    x0 = np.r_[xr, zr, h]
+    active = sorted(set(ix.values()) | set(iz.values())) + [4]
 
-    def pts(x):
-        out = [x[ix[k]] * e1 + x[2 + iz[k]] * e2 for k in range(3)]
+    def full(y):
+        x = x0.copy()
+        x[active] = y
+        for j in range(4):
+            if j not in active and not wall_end:
+                x[j] = x[j ^ 1] + (x0[j] - x0[j ^ 1])
+        return x
+
+    def pts(y):
+        x = full(y)
+        out = [x[ix[k]] * e1 + x[iz[k]] * e2 for k in known]
         return np.array(out + [out[0] + [0.0, x[4], 0.0]])
 
-    x = _reproject_fit(np.r_[xr, zr, h], pts, np.vstack([uv, top_uv[None]]), camera)
+    x = full(_reproject_fit(x0[active], pts, np.vstack([uv[known], top_uv[None]]), camera))
     return np.sort(x[:2]), np.sort(x[2:4]), float(x[4])
 
 
@@ -560,8 +574,8 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
     if not (h > 0 and s > 0 and miss <= TOP_MISS_PX):
         raise P.err(where, f"top [{top_uv[0]:g}, {top_uv[1]:g}] is not straight above floor[0] (the vertical line "
                            f"over it passes {miss:.0f} px away): click the top corner above floor[0]")
-    if np.all(np.isfinite(uv[:, 0])):
-        xr, zr, h = _refine_box(P.camera, yaw, xr, zr, float(h), f, uv, top_uv)
+    xr, zr, h = _refine_box(P.camera, yaw, xr, zr, float(h), f, uv, top_uv,
+                            against is not None and P.sizes(c, where) is None)
     px_m = max(_pixel_metres(P, uv[k]) for k in range(3) if np.isfinite(uv[k, 0]))
     _against_walls(P, where, yaw, xr, zr, lo, hi, px_m)
     if h > hi[1] + WALL_TOL_M:
