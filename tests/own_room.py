@@ -51,13 +51,17 @@ def object_pose(scene: dict, mesh: Path) -> tuple[list[float], float]:
 
 def write_inputs(scene_dir: Path, out: Path) -> dict:
     """Write the user's files for benchmark `scene_dir` into `out`: photo.png, lines.json, room.json,
-    ball_N.png, the object's mesh as object.ply. Returns the numbers a user would type (the
+    clicks.json (the room clicked on the photo, as `photoar gui --model` saves it: tests/clicks_truth.py,
+    1 px noise), ball_N.png, the object's mesh as object.ply. Returns the numbers a user would type (the
     object's albedo is the product's colour, which the user knows)."""
     scene = json.loads((scene_dir / "scene.json").read_text())
     out.mkdir(parents=True, exist_ok=True)
     shutil.copy(scene_dir / "background.png", out / "photo.png")
     (out / "lines.json").write_text(json.dumps(lines_from_scene(scene)))
     (out / "room.json").write_text(json.dumps(tape_room(scene), indent=1))
+    from tests.clicks_truth import true_clicks
+
+    (out / "clicks.json").write_text(json.dumps(true_clicks(scene, sigma_px=1.0, seed=0)[0], indent=1))
     pa = probe_args(scene)
     probes = []
     for i, f in enumerate(pa["files"]):
@@ -67,6 +71,7 @@ def write_inputs(scene_dir: Path, out: Path) -> dict:
     shutil.copy(mesh, out / "object.ply")
     place, yaw = object_pose(scene, mesh)
     return {"scene": scene, "photo": out / "photo.png", "lines": out / "lines.json", "room": out / "room.json",
+            "clicks": out / "clicks.json",
             "probes": probes, "mesh": out / "object.ply", "exposure": scene["main_camera"]["exposure_time"],
             "height": scene["main_camera"]["centre"][1], "place": place, "yaw": yaw,
             "albedo": scene["synthetic_object"]["albedo"], **pa}
