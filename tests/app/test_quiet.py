@@ -98,6 +98,36 @@ def test_garbage_mesh_gives_one_clean_line(tmp_path, capfd, content):
     assert r.out == "" and not out.exists()
 
 
+@pytest.mark.parametrize("name, said", [("background.png", "libpng error: Read Error"),
+                                        ("photo.jpg", "Premature end of JPEG file")])
+def test_truncated_image_gives_one_clean_line(tmp_path, capfd, name, said):
+    """A photo cut short: photoar's one error line, which carries the decoder's complaint; nothing
+    else on either descriptor (libpng and libjpeg print theirs from C). A truncated JPEG decodes
+    with grey rows in place of the missing ones: refused too, not composited."""
+    import shutil
+
+    import cv2
+
+    from app.cli import main
+
+    scene = tmp_path / "scene"
+    shutil.copytree(ROOT / "app" / "demo", scene)
+    photo = scene / "background.png"
+    if name.endswith(".jpg"):
+        assert cv2.imwrite(str(tmp_path / "full.jpg"), cv2.imread(str(photo)))
+        data = (tmp_path / "full.jpg").read_bytes()
+    else:
+        data = photo.read_bytes()
+    photo.write_bytes(data[:len(data) // 2])  # the demo reads background.png whatever its format
+    out = tmp_path / "out"
+    code = main(["composite", str(scene), "--out", str(out), "--cache", str(tmp_path / "cache")])
+    r = capfd.readouterr()
+    assert code == 2
+    assert r.err.splitlines() == [f"photoar: error: {photo}: " + ("not a readable image" if name.endswith(".png") else
+                                  "the image file is truncated") + f" (decoder: {said})"], r.err
+    assert r.out == "" and not out.exists()
+
+
 def test_sun_estimate_is_one_short_line():
     """The captured sun estimate is logged as one short line (report.json holds the whole dict)."""
     from app.engine import _sun_estimate_line
