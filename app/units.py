@@ -11,8 +11,10 @@ import math
 import re
 from fractions import Fraction
 
-# Seconds per unit suffix of an exposure time ("us" and "µs" both microseconds).
-_TIME_UNITS = {"": 1.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6}
+# Seconds per unit suffix of an exposure time ("us" and "µs" both microseconds), as exact
+# fractions: the value is rounded to a float once, so "4ms" is the same double as "0.004".
+_TIME_UNITS = {"": Fraction(1), "s": Fraction(1), "ms": Fraction(1, 1000), "us": Fraction(1, 10**6),
+               "µs": Fraction(1, 10**6), "μs": Fraction(1, 10**6)}
 _TIME_RE = re.compile(r"^\s*([0-9.eE+\-/ ]+?)\s*(s|ms|us|µs|μs)?\s*$")
 
 # A camera held in a room: between a low tripod and a raised arm (metres).
@@ -27,7 +29,7 @@ def seconds(s: str) -> float:
     if m is None:
         raise argparse.ArgumentTypeError(f"not an exposure time: {s!r} (write e.g. 1/250, 0.004 or 4ms)")
     try:
-        v = float(Fraction(m.group(1).replace(" ", ""))) * _TIME_UNITS[m.group(2) or ""]
+        v = float(Fraction(m.group(1).replace(" ", "")) * _TIME_UNITS[m.group(2) or ""])
     except (ValueError, ZeroDivisionError):
         raise argparse.ArgumentTypeError(f"not an exposure time: {s!r} (write e.g. 1/250, 0.004 or 4ms)") from None
     if not (math.isfinite(v) and v > 0):
