@@ -138,3 +138,27 @@ def test_sun_estimate_is_one_short_line():
     assert _sun_estimate_line(info) == ("sun estimate: direction (-0.743, 0.614, 0.267), irradiance (48.9, 45.4, 40); "
                                         "0.24 deg and 0.93x against the declared sun")
     assert _sun_estimate_line({"reason": "no opening"}) == "sun estimate: no sun (no opening)"
+
+
+def test_reconstruct_folder_with_truncated_photos_is_quiet(tmp_path, capfd, caplog):
+    """A photo folder with a truncated PNG and JPEG: each left out with photoar's warning (the JPEG,
+    which libjpeg would decode with grey rows, as truncated), then photoar's one error (too few
+    photos); the decoders' own lines reach neither descriptor."""
+    import cv2
+    import numpy as np
+
+    from app.cli import main
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    img = np.random.default_rng(0).integers(0, 255, (240, 320, 3), dtype=np.uint8)
+    for ext in (".png", ".jpg"):
+        assert cv2.imwrite(str(tmp_path / f"full{ext}"), img)
+        data = (tmp_path / f"full{ext}").read_bytes()
+        (folder / f"cut{ext}").write_bytes(data[:len(data) // 2])
+    with caplog.at_level("WARNING"):
+        assert main(["-q", "reconstruct", str(folder), "--out", str(tmp_path / "out")]) == 2
+    r = capfd.readouterr()
+    assert r.out == "" and len(r.err.splitlines()) == 1, r.err
+    assert r.err.startswith(f"photoar: error: {folder}: need at least 2 readable images, found 0"), r.err
+    assert any("cut.jpg: the image file is truncated; left out" in m for m in caplog.messages), caplog.messages
