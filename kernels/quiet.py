@@ -64,12 +64,13 @@ def captured_stderr() -> contextlib.AbstractContextManager[CapturedText]:
 
 
 @contextlib.contextmanager
-def native_output_held(show: bool = False) -> Iterator[None]:
+def native_output_held(show: bool = False, on_failure: bool = True) -> Iterator[None]:
     """Run a block with native code's stdout and stderr held back while Python's own output
     (print, the "photoar" log) still reaches the terminal: descriptors 1 and 2 are captured, and
     sys.stdout / sys.stderr and the log handlers that wrote to them write to copies of the
     original descriptors meanwhile. The held text is written to stderr after the block when it
-    raised or with `show` (the -v flag); otherwise it is dropped."""
+    raised (unless `on_failure` is False: the caller handles the failure itself) or with `show`
+    (the -v flag); otherwise it is dropped."""
     sys.stdout.flush()
     sys.stderr.flush()
     old_out, old_err = sys.stdout, sys.stderr
@@ -101,7 +102,7 @@ def native_output_held(show: bool = False) -> Iterator[None]:
     finally:
         new_out.close()
         new_err.close()
-        if failed or show:
+        if (failed and on_failure) or show:
             held = "".join(t.text for t in (out, err) if t is not None and t.text)
             if held:
                 sys.stderr.write(held if held.endswith("\n") else held + "\n")

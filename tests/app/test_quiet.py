@@ -162,3 +162,19 @@ def test_reconstruct_folder_with_truncated_photos_is_quiet(tmp_path, capfd, capl
     assert r.out == "" and len(r.err.splitlines()) == 1, r.err
     assert r.err.startswith(f"photoar: error: {folder}: need at least 2 readable images, found 0"), r.err
     assert any("cut.jpg: the image file is truncated; left out" in m for m in caplog.messages), caplog.messages
+
+
+def test_reconstruct_view_png_is_quiet(tmp_path):
+    """`reconstruct`'s view.png through Open3D's window on a private Xvfb: GLFW/Mesa's own lines
+    (e.g. "XDG_RUNTIME_DIR is invalid") are held back; a subprocess, since they come from C."""
+    code = ("import numpy as np; from recon.view import render_png; from recon.camera import Camera; "
+            "cam = Camera(np.array([[500, 0, 320], [0, 500, 240], [0, 0, 1.0]]), np.eye(3), "
+            "np.array([0, -1.5, 4.0]), 640, 480); "
+            f"print(render_png({str(tmp_path / 'view.png')!r}, np.random.default_rng(0).uniform(-1, 1, (200, 3)), "
+            "None, {'a': cam}, [], size=(320, 240)))")
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "XDG_RUNTIME_DIR")}
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=dict(env, PYTHONPATH=str(ROOT)),
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == "", r.stderr
+    assert r.stdout.strip() in ("open3d-xvfb", "cv2-projection") and (tmp_path / "view.png").is_file(), r.stdout
