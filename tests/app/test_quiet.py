@@ -178,3 +178,17 @@ def test_reconstruct_view_png_is_quiet(tmp_path):
     assert r.returncode == 0, r.stderr
     assert r.stderr == "", r.stderr
     assert r.stdout.strip() in ("open3d-xvfb", "cv2-projection") and (tmp_path / "view.png").is_file(), r.stdout
+
+
+@pytest.mark.parametrize("op", ["reinhard", "drago", "mantiuk"])
+def test_tonemap_prints_only_its_result(tmp_path, op):
+    """OpenCV's tone mappers log an internal "multi-channel arrays" warning from C++ (once per
+    process, hence a subprocess): not shown."""
+    import numpy as np
+
+    from recon.io import write_exr
+
+    write_exr(tmp_path / "x.exr", np.random.default_rng(0).uniform(0.01, 20.0, (48, 64, 3)).astype(np.float32))
+    r = run("-m", "app.cli", "tonemap", str(tmp_path / "x.exr"), "--op", op, "--out", str(tmp_path / "x.png"))
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == "" and r.stdout.strip() == str(tmp_path / "x.png"), (r.stdout, r.stderr)
