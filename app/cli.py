@@ -22,6 +22,7 @@ from importlib import resources
 from pathlib import Path
 
 from app.engine import LIGHTING, EngineParams, Mode, SunSource
+from app.units import srgb_hex
 
 log = logging.getLogger("photoar")
 
@@ -195,9 +196,12 @@ def add_object_args(p) -> None:
     p.add_argument("--object-size", type=_positive_float, default=None,
                    help="largest extent of the object in metres (default: the file's units when they look like "
                         "metres, else 0.6 m)")
-    p.add_argument("--object-albedo", type=xyz_arg, default=None, metavar="R,G,B",
-                   help="linear diffuse reflectance of --object in [0, 1] (default: the scene's synthetic_object "
-                        "albedo for its own mesh, else 0.6 grey)")
+    colour = p.add_mutually_exclusive_group()
+    colour.add_argument("--object-albedo", type=xyz_arg, default=None, metavar="R,G,B",
+                        help="linear diffuse reflectance of --object in [0, 1] (default: the scene's "
+                             "synthetic_object albedo for its own mesh, else 0.6 grey)")
+    colour.add_argument("--object-colour", "--object-color", dest="object_albedo", type=srgb_hex, metavar="#RRGGBB",
+                        help="the same as an sRGB hex colour, e.g. '#b4966a' (converted to linear reflectance)")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -13,6 +13,8 @@ import argparse
 import logging
 from pathlib import Path
 
+from app.units import camera_height
+
 log = logging.getLogger("photoar")
 
 
@@ -22,8 +24,8 @@ def register(sub) -> None:
     p.add_argument("--lines", type=Path, required=True,
                    help='LINES.json: {"x": [[u1,v1,u2,v2],...], "y": [...], "z": [...], "origin": [u,v]} '
                         "(at least two of x/y/z; y = world vertical; origin optional)")
-    p.add_argument("--scale-height", "--height", type=float, default=None,
-                   help="camera height above the floor (m) through the origin pixel on the floor")
+    p.add_argument("--scale-height", "--height", type=camera_height, default=None,
+                   help="camera height above the floor in metres (0.3-3) through the origin pixel on the floor")
     p.add_argument("--known-length", nargs=4, default=None, metavar=("AXIS", "U", "V", "METRES"),
                    help="scale from a known length instead: the point at pixel (U, V) lies METRES from the origin "
                         "along world axis AXIS (x, y or z), e.g. the far end of a wall edge of known length "

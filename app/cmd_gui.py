@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from app.cli import add_object_args
+from kernels.quiet import native_output_held
 
 log = logging.getLogger("photoar")
 
@@ -167,6 +168,14 @@ def run(a: argparse.Namespace) -> int:
             ctl.rotate(a.yaw)
     choices = ctl.object_choices([Path(ctl.pose.mesh).parent] if ctl.pose.mesh else [])
 
+    # Filament and Vulkan print their start-up lines from C++ (8 on a Mesa machine): held back,
+    # shown after a failure or with -v.
+    with native_output_held(show=bool(getattr(a, "verbose", False))):
+        return _show(a, ctl, choices)
+
+
+def _show(a: argparse.Namespace, ctl, choices) -> int:
+    """Open the window; run it (interactive) or render --frames and take the --screenshot."""
     import open3d.visualization.gui as gui
 
     from app.gui import PlacementWindow

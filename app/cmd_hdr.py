@@ -13,26 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
+from app.units import seconds
+
 log = logging.getLogger("photoar")
-
-
-def _time(s: str) -> float:
-    from fractions import Fraction
-
-    try:
-        v = float(Fraction(s.strip()))  # accepts 0.004, 1/250
-    except (ValueError, ZeroDivisionError):
-        raise argparse.ArgumentTypeError(f"not an exposure time: {s!r}") from None
-    if not np.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"exposure time must be finite and positive, got {s!r}")
-    return v
 
 
 def register(sub) -> None:
     p = sub.add_parser("hdr", help="recover the camera response from an exposure bracket and merge it to HDR")
     p.add_argument("images", type=Path, nargs="+", help="8-bit images of one view at different exposures")
-    p.add_argument("--times", type=_time, nargs="+", required=True,
-                   help="exposure time of each image in seconds, same order (1/250 allowed)")
+    p.add_argument("--times", type=seconds, nargs="+", required=True,
+                   help="exposure time of each image, same order: seconds, 1/250 or 4ms")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--merge", choices=["debevec", "robertson"], default="debevec", help="OpenCV merge (default %(default)s)")
     p.add_argument("--calibration", choices=["mitsunaga", "debevec", "robertson"], default="mitsunaga",

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app.units import camera_height
 from recon.camera import Camera
 
 log = logging.getLogger("photoar.reconstruct")
@@ -55,7 +56,7 @@ def register(sub) -> None:
     p.add_argument("--single-camera", action="store_true",
                    help="all photos share one camera (default: shared when sizes and EXIF camera agree; when the "
                         "sizes agree and no photo has EXIF, shared unless that leaves photos out)")
-    p.add_argument("--camera-height", type=float, default=None,
+    p.add_argument("--camera-height", type=camera_height, default=None,
                    help="without --camera: height (m) above the floor of the reference photo (--camera-image, "
                         "default the first registered photo in name order), for scale")
     p.add_argument("--known-distance", default=None, metavar="A,B,M",

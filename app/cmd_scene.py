@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from app.cli import xyz_arg
+from app.units import seconds
 
 log = logging.getLogger("photoar")
 
@@ -29,16 +30,17 @@ def register(sub) -> None:
                                      "and a mirror-ball bracket")
     p.add_argument("room", type=Path, help="the room folder to write (created or updated)")
     p.add_argument("--photo", type=Path, required=True, help="the photo of the empty room (JPEG/PNG)")
-    p.add_argument("--exposure-time", type=float, default=None, metavar="S",
-                   help="the photo's exposure time in seconds (default: its EXIF ExposureTime)")
+    p.add_argument("--exposure-time", type=seconds, default=None, metavar="S",
+                   help="the photo's exposure time: seconds, 1/250 or 4ms (default: its EXIF ExposureTime)")
     p.add_argument("--camera", type=Path, required=True, help="camera.json of `photoar calibrate`")
     p.add_argument("--primitives", type=Path, required=True,
                    help="the room model: model.json of `photoar model`, primitives.json of `photoar reconstruct`, "
                         'or {"primitives": [...]} with a box of role "room" (docs/scene-format.md)')
     g = p.add_argument_group("light probe (a mirror-ball exposure bracket, for --lighting captured)")
     g.add_argument("--probe", type=Path, nargs="+", default=None, metavar="IMG", help="the bracket's images")
-    g.add_argument("--probe-times", type=float, nargs="+", default=None, metavar="T",
-                   help="their exposure times in seconds, in the same order (default: EXIF ExposureTime)")
+    g.add_argument("--probe-times", type=seconds, nargs="+", default=None, metavar="T",
+                   help="their exposure times (seconds, 1/250 or 4ms), in the same order (default: EXIF "
+                        "ExposureTime)")
     g.add_argument("--probe-centre", type=xyz_arg, default=None, metavar="X,Y,Z", help="ball centre (m, world)")
     g.add_argument("--probe-radius", type=float, default=None, metavar="R", help="ball radius (m)")
     g.add_argument("--probe-shot-from", type=xyz_arg, default=None, metavar="X,Y,Z",

@@ -13,9 +13,14 @@ from app.engine import Engine, EngineParams
 from app.report import stages_ms
 from app.workres import DEFAULT_WORK_RES, full_resolution, working_scene
 from recon.io import AtomicOutput, write_exr, write_json, write_png
-from recon.scene import SceneError, SceneObject, check_object_inside, inside_furniture, load_scene, make_object
+from recon.overlap import furniture_overlaps, push_words
+from recon.scene import SceneError, SceneObject, check_object_inside, load_scene, make_object
 
 log = logging.getLogger("photoar")
+
+# An object may sink this far (m) into furniture without a warning: the room model's boxes are
+# fitted to a photo, and an object resting on one may touch it within that.
+FURNITURE_TOLERANCE_M = 0.01
 
 
 def default_cache_dir() -> Path:
@@ -27,7 +32,8 @@ def default_cache_dir() -> Path:
 def place_object(scene, object_mesh=None, place=None, yaw: float = 0.0, object_size: float | None = None,
                  placement=None, albedo=None) -> SceneObject:
     """The object to composite, posed (see `main`); SceneError naming the file when there is none
-    or it lies outside the room, one warning line when it sinks into furniture."""
+    or it lies outside the room, one warning line for each piece of furniture its triangles cut into
+    by more than FURNITURE_TOLERANCE_M (naming it and the depth)."""
     from app.placement import PlacementController, Pose
 
     json_path = Path(scene.root) / "scene.json"
@@ -61,10 +67,9 @@ def place_object(scene, object_mesh=None, place=None, yaw: float = 0.0, object_s
     else:
         return scene.obj
     check_object_inside(obj, scene.room_min, scene.room_max, where)
-    sunk = inside_furniture(scene, obj.vertices, margin=-0.01)
-    if sunk.any():
-        log.warning("%s: %d of %d object vertices lie more than 1 cm inside furniture", where, int(sunk.sum()),
-                    len(sunk))
+    for o in furniture_overlaps(obj.vertices, obj.faces, scene.quads, min_depth=FURNITURE_TOLERANCE_M):
+        log.warning("%s: the object cuts %.1f cm into furniture '%s' (moving it %.1f cm %s clears it)", where,
+                    100 * o.depth, o.name, 100 * o.depth, push_words(o.push))
     return obj
 
 

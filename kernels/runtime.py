@@ -1,15 +1,15 @@
 """Warp initialisation and device choice shared by every kernel wrapper."""
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import sys
-import tempfile
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable, Iterator
+from typing import Callable
 
 import warp as wp
+
+from kernels.quiet import CapturedText, captured_stderr  # noqa: F401 (captured_stderr: used here and re-exported)
 
 _initialised = False
 log = logging.getLogger("photoar")
@@ -17,35 +17,6 @@ log = logging.getLogger("photoar")
 # driver: expected on CPU-only machines, so a normal run does not show it. Asking for a CUDA device
 # there is still an error (device()).
 _NO_DRIVER = "Could not find or load the NVIDIA CUDA driver"
-
-
-class CapturedText:
-    """Text written to the process's stderr (file descriptor 2) inside `captured_stderr`."""
-    text: str = ""
-
-    def lines(self) -> list[str]:
-        return [ln for ln in self.text.splitlines() if ln.strip()]
-
-
-@contextlib.contextmanager
-def captured_stderr() -> Iterator[CapturedText]:
-    """Capture everything written to file descriptor 2 inside the block, by native libraries
-    (C's fprintf(stderr), which Python cannot redirect) as well as by Python; the text is in
-    the yielded object's `.text` after the block. Used around Warp's initialisation and Open3D's
-    file readers, which print to the C-level stderr."""
-    out = CapturedText()
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as tmp:
-        os.dup2(tmp.fileno(), 2)
-        try:
-            yield out
-        finally:
-            sys.stderr.flush()
-            os.dup2(saved, 2)
-            os.close(saved)
-            tmp.seek(0)
-            out.text = tmp.read().decode("utf-8", "replace")
 
 
 def init() -> None:

@@ -35,18 +35,33 @@ def tonemap_reinhard(hdr: np.ndarray, gamma: float = 2.2, intensity: float = 0.0
                      color_adapt: float = 0.0) -> np.ndarray:
     """Reinhard et al. 2002 (photographic zone system, seed sec. 9.1.2), OpenCV's global form
     with its light/colour adaptation controls."""
-    return _finish(cv2_tonemap("Reinhard", gamma, intensity, light_adapt, color_adapt).process(_hdr_bgr(hdr)))
+    return _finish(_process(cv2_tonemap("Reinhard", gamma, intensity, light_adapt, color_adapt), hdr))
 
 
 def tonemap_drago(hdr: np.ndarray, gamma: float = 2.2, saturation: float = 1.0, bias: float = 0.85) -> np.ndarray:
     """Drago et al. 2003 adaptive logarithmic mapping (OpenCV), `bias` in [0.7, 0.9]."""
-    return _finish(cv2_tonemap("Drago", gamma, saturation, bias).process(_hdr_bgr(hdr)))
+    return _finish(_process(cv2_tonemap("Drago", gamma, saturation, bias), hdr))
 
 
 def tonemap_mantiuk(hdr: np.ndarray, gamma: float = 2.2, scale: float = 0.7, saturation: float = 1.0) -> np.ndarray:
     """Mantiuk et al. 2006 contrast-domain operator (OpenCV): compresses contrast in a
     multi-scale gradient pyramid, `scale` the contrast factor."""
-    return _finish(cv2_tonemap("Mantiuk", gamma, scale, saturation).process(_hdr_bgr(hdr)))
+    return _finish(_process(cv2_tonemap("Mantiuk", gamma, scale, saturation), hdr))
+
+
+def _process(op, hdr: np.ndarray) -> np.ndarray:
+    """op.process on the BGR image with OpenCV's own log at errors only: its tone mappers trip an
+    internal "processing of multi-channel arrays might be changed" warning that is no concern of
+    the user's (the level is restored afterwards)."""
+    import cv2
+
+    bgr = _hdr_bgr(hdr)
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        return op.process(bgr)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
 
 
 def cv2_tonemap(name: str, *args):

@@ -179,19 +179,37 @@ def write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> None:
 # ---------------------------------------------------------------------------------------------
 # 8-bit images
 
+# What an image decoder says when the file ends early.
+_TRUNCATED = ("Premature end", "Read Error", "truncated")
+
+
+def _decoder_said(lines: list[str]) -> str:
+    """The decoder's first complaint, as printable ASCII for one error line ('' if none)."""
+    first = (lines or [""])[0]
+    return "".join(c if c.isprintable() and c.isascii() else "?" for c in first).strip()[:100]
+
+
 def read_image_rgb(path: str | os.PathLike) -> np.ndarray:
     """8-bit image file (PNG, JPEG, ...) -> (H,W,3) uint8 RGB, turned upright by its EXIF
     Orientation (a phone's JPEG; OpenCV's decoder applies it); grey images are expanded to three
     channels and alpha dropped. SceneError naming the file if it is missing, unreadable or not
-    8-bit (a 16-bit image is refused rather than silently cut to 8 bits)."""
+    8-bit (a 16-bit image is refused rather than silently cut to 8 bits) or truncated (libjpeg
+    would fill the missing rows with grey); the decoder's own stderr lines are held back and its
+    first complaint becomes part of that one message."""
     import cv2
+
+    from kernels.quiet import captured_stderr
 
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"{path}: file not found")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    with captured_stderr() as decoder:  # libpng/libjpeg print their complaints to the C-level stderr
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    said = _decoder_said(decoder.lines())
     if img is None:
-        raise SceneError(f"{path}: not a readable image")
+        raise SceneError(f"{path}: not a readable image{f' (decoder: {said})' if said else ''}")
+    if any(t in said for t in _TRUNCATED):  # libjpeg fills the missing rows with grey and goes on
+        raise SceneError(f"{path}: the image file is truncated (decoder: {said})")
     if img.dtype != np.uint8:
         raise SceneError(f"{path}: expected an 8-bit image, got {img.dtype}")
     return img[..., ::-1].copy()

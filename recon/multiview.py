@@ -138,6 +138,8 @@ def list_images(folder: Path) -> tuple[list[str], dict[str, str]]:
     """
     import cv2
 
+    from kernels.quiet import captured_stderr
+
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such folder")
@@ -146,9 +148,12 @@ def list_images(folder: Path) -> tuple[list[str], dict[str, str]]:
         raise ValueError(f"{folder}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)})")
     good, bad = [], {}
     for n in names:
-        img = cv2.imread(str(folder / n), cv2.IMREAD_REDUCED_GRAYSCALE_4)
+        with captured_stderr() as decoder:  # libpng/libjpeg's own lines: the warning below says it once
+            img = cv2.imread(str(folder / n), cv2.IMREAD_REDUCED_GRAYSCALE_4)
         if img is None or img.size == 0:
             bad[n] = "cannot be decoded as an image"
+        elif any("Premature end" in ln for ln in decoder.lines()):
+            bad[n] = "the image file is truncated"
         else:
             good.append(n)
     for n, r in bad.items():

@@ -103,7 +103,7 @@ def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     Open3D's reader prints to the C-level stderr (RPly's messages, sometimes bytes of the file);
     that is captured and its first line, cleaned, becomes part of the one error message."""
-    from kernels.runtime import captured_stderr
+    from kernels.quiet import captured_stderr
 
     o3d = open3d()
     if not path.is_file():

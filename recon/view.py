@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kernels.quiet import native_output_held
 from recon.camera import Camera
 
 log = logging.getLogger("photoar.view")
@@ -258,7 +259,10 @@ def render_png(path: Path, points: np.ndarray, colors: np.ndarray | None, camera
         img = None
         if how:
             try:
-                img = _render_open3d(geoms, eye, look, up, size)
+                # GLFW and Mesa print to the C-level stdout/stderr (e.g. "XDG_RUNTIME_DIR is invalid"):
+                # held back, shown with -v; a failure falls back to the drawing with a warning
+                with native_output_held(show=log.isEnabledFor(logging.DEBUG), on_failure=False):
+                    img = _render_open3d(geoms, eye, look, up, size)
             except Exception as e:  # noqa: BLE001 - any failure of the GL path falls back to the drawing
                 log.warning("Open3D rendering failed (%s); drawing view.png with OpenCV instead", e)
         if img is None:
@@ -283,4 +287,5 @@ def show(points, colors, cameras, primitives) -> None:
 
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
         raise RuntimeError("no display: $DISPLAY is not set (view.png in the folder shows the same scene)")
-    o3d.visualization.draw_geometries(geometries(points, colors, cameras, primitives), window_name="photoar view")
+    with native_output_held(show=log.isEnabledFor(logging.DEBUG)):
+        o3d.visualization.draw_geometries(geometries(points, colors, cameras, primitives), window_name="photoar view")

@@ -121,6 +121,11 @@ def test_gui_screenshot_shows_photo_and_object(xvfb, tmp_path):
         pytest.skip(f"Open3D GUI cannot open a window here: {r.stderr.strip().splitlines()[-1]}")
     assert r.returncode == 0, r.stderr[-2000:]
     assert shot.is_file()
+    # quiet: stdout is the screenshot's path alone, stderr photoar's own log lines; Filament's and
+    # Vulkan's start-up lines (printed from C++ to file descriptor 1) are held back
+    assert r.stdout.splitlines() == [str(shot)], r.stdout
+    chatter = ("Filament", "FEngine", "Vulkan", "vkCreate", "CircularBuffer", "feature level", "[Open3D")
+    assert not [ln for ln in (r.stdout + r.stderr).splitlines() if any(c in ln for c in chatter)], r.stdout + r.stderr
     img = cv2.imread(str(shot))[..., ::-1]
     assert img.shape == (720, 1280, 3)
     photo = cv2.imread(str(demo_scene_dir() / "background.png"))[..., ::-1]

@@ -245,7 +245,7 @@ def test_composite_warns_when_the_object_sinks_into_furniture(caplog):
     with caplog.at_level("WARNING", logger="photoar"):
         place_object(scene, scene.root / "object_chair.ply", [4.6, 0.0, 2.7], 0.0)
     lines = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
-    assert len(lines) == 1 and "object_chair.ply" in lines[0] and "inside furniture" in lines[0], lines
+    assert len(lines) == 1 and "object_chair.ply" in lines[0] and "into furniture 'shelf'" in lines[0], lines
 
 
 def test_budget_is_a_new_frame_config_and_refine_converges_at_rest(demo):

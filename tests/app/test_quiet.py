@@ -98,6 +98,36 @@ def test_garbage_mesh_gives_one_clean_line(tmp_path, capfd, content):
     assert r.out == "" and not out.exists()
 
 
+@pytest.mark.parametrize("name, said", [("background.png", "libpng error: Read Error"),
+                                        ("photo.jpg", "Premature end of JPEG file")])
+def test_truncated_image_gives_one_clean_line(tmp_path, capfd, name, said):
+    """A photo cut short: photoar's one error line, which carries the decoder's complaint; nothing
+    else on either descriptor (libpng and libjpeg print theirs from C). A truncated JPEG decodes
+    with grey rows in place of the missing ones: refused too, not composited."""
+    import shutil
+
+    import cv2
+
+    from app.cli import main
+
+    scene = tmp_path / "scene"
+    shutil.copytree(ROOT / "app" / "demo", scene)
+    photo = scene / "background.png"
+    if name.endswith(".jpg"):
+        assert cv2.imwrite(str(tmp_path / "full.jpg"), cv2.imread(str(photo)))
+        data = (tmp_path / "full.jpg").read_bytes()
+    else:
+        data = photo.read_bytes()
+    photo.write_bytes(data[:len(data) // 2])  # the demo reads background.png whatever its format
+    out = tmp_path / "out"
+    code = main(["composite", str(scene), "--out", str(out), "--cache", str(tmp_path / "cache")])
+    r = capfd.readouterr()
+    assert code == 2
+    assert r.err.splitlines() == [f"photoar: error: {photo}: " + ("not a readable image" if name.endswith(".png") else
+                                  "the image file is truncated") + f" (decoder: {said})"], r.err
+    assert r.out == "" and not out.exists()
+
+
 def test_sun_estimate_is_one_short_line():
     """The captured sun estimate is logged as one short line (report.json holds the whole dict)."""
     from app.engine import _sun_estimate_line
@@ -108,3 +138,57 @@ def test_sun_estimate_is_one_short_line():
     assert _sun_estimate_line(info) == ("sun estimate: direction (-0.743, 0.614, 0.267), irradiance (48.9, 45.4, 40); "
                                         "0.24 deg and 0.93x against the declared sun")
     assert _sun_estimate_line({"reason": "no opening"}) == "sun estimate: no sun (no opening)"
+
+
+def test_reconstruct_folder_with_truncated_photos_is_quiet(tmp_path, capfd, caplog):
+    """A photo folder with a truncated PNG and JPEG: each left out with photoar's warning (the JPEG,
+    which libjpeg would decode with grey rows, as truncated), then photoar's one error (too few
+    photos); the decoders' own lines reach neither descriptor."""
+    import cv2
+    import numpy as np
+
+    from app.cli import main
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    img = np.random.default_rng(0).integers(0, 255, (240, 320, 3), dtype=np.uint8)
+    for ext in (".png", ".jpg"):
+        assert cv2.imwrite(str(tmp_path / f"full{ext}"), img)
+        data = (tmp_path / f"full{ext}").read_bytes()
+        (folder / f"cut{ext}").write_bytes(data[:len(data) // 2])
+    with caplog.at_level("WARNING"):
+        assert main(["-q", "reconstruct", str(folder), "--out", str(tmp_path / "out")]) == 2
+    r = capfd.readouterr()
+    assert r.out == "" and len(r.err.splitlines()) == 1, r.err
+    assert r.err.startswith(f"photoar: error: {folder}: need at least 2 readable images, found 0"), r.err
+    assert any("cut.jpg: the image file is truncated; left out" in m for m in caplog.messages), caplog.messages
+
+
+def test_reconstruct_view_png_is_quiet(tmp_path):
+    """`reconstruct`'s view.png through Open3D's window on a private Xvfb: GLFW/Mesa's own lines
+    (e.g. "XDG_RUNTIME_DIR is invalid") are held back; a subprocess, since they come from C."""
+    code = ("import numpy as np; from recon.view import render_png; from recon.camera import Camera; "
+            "cam = Camera(np.array([[500, 0, 320], [0, 500, 240], [0, 0, 1.0]]), np.eye(3), "
+            "np.array([0, -1.5, 4.0]), 640, 480); "
+            f"print(render_png({str(tmp_path / 'view.png')!r}, np.random.default_rng(0).uniform(-1, 1, (200, 3)), "
+            "None, {'a': cam}, [], size=(320, 240)))")
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "XDG_RUNTIME_DIR")}
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=dict(env, PYTHONPATH=str(ROOT)),
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == "", r.stderr
+    assert r.stdout.strip() in ("open3d-xvfb", "cv2-projection") and (tmp_path / "view.png").is_file(), r.stdout
+
+
+@pytest.mark.parametrize("op", ["reinhard", "drago", "mantiuk"])
+def test_tonemap_prints_only_its_result(tmp_path, op):
+    """OpenCV's tone mappers log an internal "multi-channel arrays" warning from C++ (once per
+    process, hence a subprocess): not shown."""
+    import numpy as np
+
+    from recon.io import write_exr
+
+    write_exr(tmp_path / "x.exr", np.random.default_rng(0).uniform(0.01, 20.0, (48, 64, 3)).astype(np.float32))
+    r = run("-m", "app.cli", "tonemap", str(tmp_path / "x.exr"), "--op", op, "--out", str(tmp_path / "x.png"))
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == "" and r.stdout.strip() == str(tmp_path / "x.png"), (r.stdout, r.stderr)

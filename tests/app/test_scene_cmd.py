@@ -151,7 +151,6 @@ def _bad_cases(inp, tmp):
         ("unknown role", {"--primitives": str(w("role.json", {"primitives": [
             prims["primitives"][0], dict(prims["primitives"][1], role="sofa")]}))}, "role.json: field 'primitives[1].role'"),
         ("times count", {"--probe-times": [str(t) for t in inp["times"][:3]]}, "--probe-times: 3 times for 5"),
-        ("times non-positive", {"--probe-times": ["0", *map(str, inp["times"][1:])]}, "--probe-times: exposure times must be positive"),
         ("probe sizes differ", {"--probe": [str(inp["probes"][0]), str(half), *map(str, inp["probes"][2:])]},
          "half.png: image is 128x128"),
         ("no exposure time", {"--exposure-time": None}, "photo.png: no exposure time"),

@@ -86,6 +86,15 @@ def _dense(scene, R):
     return out
 
 
+def _assert_same_levels(got: np.ndarray, want: np.ndarray, what) -> None:
+    """8-bit frames from the kernels and from the numpy reference: equal (on this project's machine
+    bit for bit), except that a value whose radiance lies within float32 rounding of a half level
+    may round the other way on another CPU (the two sum in different orders, with or without
+    fused multiply-adds): at most 1e-4 of the values, by one level."""
+    d = np.abs(got.astype(np.int32) - want.astype(np.int32))
+    assert d.max(initial=0) <= 1 and (d > 0).sum() <= max(1, 1e-4 * d.size), (what, d.max(), (d > 0).sum())
+
+
 @pytest.mark.parametrize("mode", ["hdr", "ldr"])
 def test_compose_matches_the_numpy_reference(scene, mode, device):
     stage = ComposeStage(**scene, patches=None, shape=(H, W), device=device)
@@ -111,8 +120,8 @@ def test_compose_matches_the_numpy_reference(scene, mode, device):
                               sun_loss if sun else None)
             want = _reference(mode, scene, *args, ref_R, dE_v, cov, obj, sun_pix if sun else None,
                               sun_loss if sun else None)
-            # identical 8-bit frames; radiance to float32 rounding (sums may associate differently)
-            assert np.array_equal(got[1], want[1]), (mode, frame, name, np.abs(got[1].astype(int) - want[1]).max())
+            # the same 8-bit frames; radiance to float32 rounding (sums may associate differently)
+            _assert_same_levels(got[1], want[1], (mode, frame, name))
             for g, w in ((got[0], want[0]), (got[2], want[2])):
                 np.testing.assert_allclose(g, w, rtol=2e-7, atol=1e-12)
             assert (got[1] != scene["photo"]).any()  # the frame did change something
@@ -246,7 +255,7 @@ def test_kept_frames_never_change_and_dropped_ones_are_reused(scene, device):
         dE_v = stage.second_order(dB)
         got = stage.frame("hdr", pix_sel, O_pix, fill_sel, _fill, R, dE_v, cov, obj)
         want = _reference("hdr", scene, pix_sel, O_pix, fill_sel, _dense(scene, R), dE_v, cov, obj, None, None)
-        assert np.array_equal(got[1], want[1])
+        _assert_same_levels(got[1], want[1], "reused buffers")
         return got
 
     kept = frame()

@@ -31,6 +31,7 @@ def sun_photo(tmp_path_factory):
 def test_photo_light_models_the_sun(sun_photo):
     src, d = sun_photo
     s = score(src, d / "out" / "composite.png")
+    print(f"sun_room, photo light: {json.dumps(s)}")
     # the object's sun shadow is there: energy near 1 and most of the affected error gone
     assert 0.8 <= s["energy_ratio"] <= 1.25, s
     assert s["rmse_affected"] <= 0.25 * s["rmse_affected_if_untouched"], s

@@ -568,7 +568,7 @@ def test_sun_room_known_energy(sun_composite_all):
     # changes were passed on by the bounces each has left and its loss was no longer counted twice where
     # the object also hides the shadowed floor; 1.033 after). The cluster frames are not held to it:
     # with the physics right, the 64-pass frame scores 1.19 (one map darkens a cluster that joins the
-    # sunlit patch beside the chair to the rest of the floor; README, "Sunlight")
+    # sunlit patch beside the chair to the rest of the floor; docs/benchmarks.md, "Sunlight")
     scene, out = sun_composite_all
     s = score(scene, out / "composite.png")
     assert 0.9 <= s["energy_ratio"] <= 1.1, s

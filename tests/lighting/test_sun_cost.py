@@ -61,10 +61,14 @@ def test_sun_rays_equal_a_cast_per_mesh(lit_room):
     lit = ref > 0
     assert lit[:len(floor)].sum() > 100 and (~lit[:len(floor)] & (floor @ [0, 1, 0] >= 0)).sum() > 100
     assert lit[len(floor):].any() and (~lit[len(floor):] & (n @ light.d > 0)).any()  # chair: lit and self-shadowed
-    assert np.array_equal(ours, ref)
-    # many rays (two launches side by side on the CPU) and none at all
+    # the same points lit (ray hits: exact); the cosines come from a Warp kernel and from numpy's
+    # matrix product, whose last bits may differ with the CPU's FMA and BLAS: 1e-12 relative
+    assert np.array_equal(ours > 0, lit)
+    np.testing.assert_allclose(ours, ref, rtol=1e-12, atol=0)
+    # many rays (two launches side by side on the CPU) and none at all: each point's answer is its
+    # own kernel thread's, so the split launches give the one launch's values exactly
     big = np.repeat(p, 3, axis=0)
-    assert np.array_equal(light.visibility(big, np.repeat(nrm, 3, axis=0), [own]), np.repeat(ref, 3))
+    assert np.array_equal(light.visibility(big, np.repeat(nrm, 3, axis=0), [own]), np.repeat(ours, 3))
     assert light.visibility(p[:0], nrm[:0], [own]).shape == (0,)
 
 
