@@ -29,17 +29,20 @@ import io
 import json
 import logging
 import os
-import shutil
 import threading
 import time
-import uuid
 from pathlib import Path
 
 log = logging.getLogger("photoar")
 
 JOB_FILE = "batch_job.json"  # the job and its input key, in DIR/<id>/
 OUTPUTS = ("composite.png", "composite.exr", "report.json", JOB_FILE)
-PARTIAL = ".partial"  # DIR/.partial/: jobs being written (moved to DIR/<id> whole, when complete)
+
+
+def is_partial(name: str) -> bool:
+    """A folder of DIR that a job being written uses (recon.io.AtomicFolder / AtomicOutput's
+    hidden `.<id>.partial-*`, `.<id>.old-*`): what a killed job leaves behind."""
+    return name.startswith(".") and (".partial-" in name or ".old-" in name)
 ENGINES_KEPT = 2  # engines a worker keeps in memory (each holds a room's precompute: ~100s of MB)
 _RESERVED = {"out": "the output folder is DIR/<id>, set by photoar batch",
              "help": "not a composite option", "quiet": "set by photoar batch", "verbose": "set by photoar batch"}
@@ -338,34 +341,28 @@ def warm(scene: str, argv: list[str], engine_key: str) -> dict:
 
 def run_job(job: Job, out: str, room: dict) -> dict:
     """Dask task: composite `job` as `photoar composite` does (its parser, app.cli.run_composite)
-    with this worker's engine of the room, into DIR/.partial/, then moved whole to DIR/<id>.
+    with this worker's engine of the room, into a folder beside DIR/<id> renamed to it when complete.
     Returns {"status": "done", ...} or {"status": "failed", "error": line}."""
     from app.cli import run_composite
     from kernels import runtime
-    from recon.io import write_json
+    from recon.io import AtomicFolder, write_json
 
     t0 = time.perf_counter()
     base = {"worker": _worker_name()}
     if "error" in room:
         return {**base, "status": "failed", "error": room["error"]}
-    out = Path(out)
-    stage = out / PARTIAL / f"{job.id}-{uuid.uuid4().hex[:8]}"
+    final = Path(out) / job.id
     with _LOCK, _captured_warnings() as warnings:
         try:
-            stage.mkdir(parents=True)
-            a = parse_composite(job.scene, stage / "job", list(job.argv))
-            runtime.device(a.device)
-            report = run_composite(a, make_engine=lambda work, params, **kw: _engine_for(job.engine_key, work,
-                                                                                          params, **kw))
-            write_json(stage / "job" / JOB_FILE, {"id": job.id, "scene": str(job.scene), "options": job.options,
-                                                  "argv": list(job.argv), "input_key": job.input_key})
-            final = out / job.id
-            if final.exists():  # an older version (another input key): replaced whole
-                os.replace(final, stage / "old")
-            os.replace(stage / "job", final)
+            # staged beside DIR/<id> and renamed to it whole (an older version replaced whole)
+            with AtomicFolder(final, ours=lambda name: True) as stage:
+                a = parse_composite(job.scene, stage, list(job.argv))
+                runtime.device(a.device)
+                report = run_composite(a, make_engine=lambda work, params, **kw: _engine_for(job.engine_key, work,
+                                                                                              params, **kw))
+                write_json(stage / JOB_FILE, {"id": job.id, "scene": str(job.scene), "options": job.options,
+                                              "argv": list(job.argv), "input_key": job.input_key})
         except Exception as e:  # one line in batch_report.json; the batch goes on
             return {**base, "status": "failed", "error": one_line(e), "warnings": warnings}
-        finally:
-            shutil.rmtree(stage, ignore_errors=True)
     return {**base, "status": "done", "seconds": time.perf_counter() - t0, "frame_s": report.get("frame_s"),
             "full_resolution_s": report.get("full_resolution_s"), "warnings": warnings}

@@ -26,10 +26,11 @@ import uuid
 from pathlib import Path
 
 from app import batchjob
-from app.batchjob import PARTIAL, BadJob, Job, one_line, read_jobs, up_to_date
+from app.batchjob import BadJob, Job, is_partial, one_line, read_jobs, up_to_date
 
 log = logging.getLogger("photoar")
 REPORT = "batch_report.json"
+WAIT_FOR_WORKERS_S = 120  # an existing cluster: how long to wait for its first worker
 
 
 def _workers(s: str) -> int:
@@ -44,12 +45,13 @@ def register(sub) -> None:
                    help='JSON Lines, one composite a line: {"id": ..., "scene": ..., "options": {...}} with '
                         "composite's long option names (no dashes) and values (true for a flag); relative paths "
                         "from the file's folder")
-    p.add_argument("--out", type=Path, required=True, help="output folder: DIR/<id>/ per job, DIR/" + REPORT)
+    p.add_argument("--out", type=Path, required=True, metavar="DIR",
+                   help="output folder: DIR/<id>/ per job, DIR/" + REPORT)
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="an existing Dask scheduler, e.g. tcp://HOST:8786 (default: a local cluster)")
     p.add_argument("--workers", type=_workers, default=None, metavar="N",
                    help="worker processes of the local cluster (default: one per core)")
-    p.add_argument("--cache", type=Path, default=None,
+    p.add_argument("--cache", type=Path, default=None, metavar="DIR",
                    help="precompute folder for the jobs that give none; on a cluster a folder every worker sees "
                         "(default: each worker's $PHOTOAR_CACHE or ~/.cache/photoar)")
     p.set_defaults(run=run)
@@ -75,14 +77,20 @@ def _client(client=None, scheduler: str | None = None, workers: int | None = Non
 
     if scheduler is not None:
         try:
-            c = Client(scheduler, timeout="20s")
+            c = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError) as e:
             raise RuntimeError(f"{scheduler}: no Dask scheduler answers ({' '.join(str(e).split())})") from None
         with c:
+            try:  # workers started with the scheduler may still be connecting
+                c.wait_for_workers(1, timeout=WAIT_FOR_WORKERS_S)
+            except TimeoutError:
+                raise RuntimeError(f"{scheduler}: the Dask scheduler has no workers (waited "
+                                   f"{WAIT_FOR_WORKERS_S} s)") from None
             yield c
         return
     # a free port: another batch (or a notebook's cluster) may hold 8787
-    with LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+    # n_workers None: Dask's count of the cores this process may use (affinity, cgroup quota)
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                       dashboard_address=":0", silence_logs=logging.ERROR) as cluster, Client(cluster) as c:
         yield c
 
@@ -114,8 +122,10 @@ def _dashboard(client, local: bool) -> str | None:
 
 
 def _clean_partial(out: Path) -> None:
-    """Remove what killed or interrupted jobs left in DIR/.partial (one batch per DIR at a time)."""
-    shutil.rmtree(out / PARTIAL, ignore_errors=True)
+    """Remove what killed or interrupted jobs left in DIR (one batch per DIR at a time)."""
+    for p in out.iterdir():
+        if p.is_dir() and is_partial(p.name):
+            shutil.rmtree(p, ignore_errors=True)
 
 
 def run_batch(jobs_path: str | os.PathLike, out: str | os.PathLike, client=None, scheduler: str | None = None,

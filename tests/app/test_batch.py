@@ -113,7 +113,7 @@ def test_batch_equals_composite(batch_run, refs):
     # one warm per room and engine parameters: window_room once, lamps_room twice (l-ldr's params)
     rooms = json.loads((out / "batch_report.json").read_text())["rooms"]
     assert sorted(Path(r["scene"]).name for r in rooms) == ["lamps_room", "lamps_room", "window_room"]
-    assert not (out / ".partial").exists()
+    assert not [p.name for p in out.iterdir() if ".partial-" in p.name or ".old-" in p.name]
 
 
 def _executing(dask_worker) -> list[str]:
@@ -135,8 +135,8 @@ def test_worker_killed_mid_job(batch_run, refs, client, shared_scenes_cache, tmp
     while killed is None and t.is_alive() and time.monotonic() < deadline:
         for addr, keys in client.run(_executing).items():
             jobs = [k.split("-", 1)[1].rsplit("-", 1)[0] for k in keys if k.startswith("job-")]
-            started = [j for j in jobs if (out / ".partial").is_dir()
-                       and any(p.name.startswith(j + "-") for p in (out / ".partial").iterdir())]
+            started = [j for j in jobs if out.is_dir() and any(p.name.startswith(f".{j}.partial-")
+                                                               for p in out.iterdir())]
             if started:  # the job is writing its outputs: kill its worker process now
                 os.kill(client.run(os.getpid)[addr], signal.SIGKILL)
                 killed = (addr, started[0])
@@ -150,7 +150,7 @@ def test_worker_killed_mid_job(batch_run, refs, client, shared_scenes_cache, tmp
     assert entries[killed[1]]["worker"] != killed[0]  # retried on another worker (or its restarted process)
     for jid in ids:
         _same_outputs(out, refs, jid)
-    assert not (out / ".partial").exists()
+    assert not [p.name for p in out.iterdir() if ".partial-" in p.name or ".old-" in p.name]
 
 
 def test_bad_jobs_reported(batch_run, refs, client, scenes, shared_scenes_cache, tmp_path):
@@ -202,8 +202,8 @@ def test_resume_computes_only_what_is_missing(batch_run, refs, client, shared_sc
         shutil.copytree(done_out / jid, out / jid)
     shutil.rmtree(out / "w-place")  # never finished
     (out / "l-own" / "composite.exr").unlink()  # incomplete
-    (out / ".partial" / "l-chair-dead").mkdir(parents=True)  # what a killed job leaves
-    (out / ".partial" / "l-chair-dead" / "composite.png").write_bytes(b"half")
+    (out / ".l-chair.partial-dead").mkdir()  # what a killed job leaves
+    (out / ".l-chair.partial-dead" / "composite.png").write_bytes(b"half")
     kept = {jid: (out / jid / "composite.png").stat().st_mtime_ns for jid in ("w-own", "l-chair")}
     rep = run_batch(path, out, client=client, cache=shared_scenes_cache, quiet=True)
     status = {e["id"]: e["status"] for e in rep["jobs"]}
@@ -211,7 +211,7 @@ def test_resume_computes_only_what_is_missing(batch_run, refs, client, shared_sc
     for jid in ids:
         _same_outputs(out, refs, jid)
     assert {jid: (out / jid / "composite.png").stat().st_mtime_ns for jid in kept} == kept
-    assert not (out / ".partial").exists()
+    assert not [p.name for p in out.iterdir() if ".partial-" in p.name or ".old-" in p.name]
     # another option is another input key: that job runs again, the rest stay
     _write_jobs(path, {**{i: jobs[i] for i in ids}, "w-own": (jobs["w-own"][0], {"passes": 4, "yaw": 0}, [])})
     rep = run_batch(path, out, client=client, cache=shared_scenes_cache, quiet=True)
