@@ -93,7 +93,7 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
     load_s = time.perf_counter() - t0
     work = working_scene(scene, DEFAULT_WORK_RES if work_res is None else work_res)
     engine = make_engine(work, params, cache_dir=cache_dir if cache_dir is not None else default_cache_dir(),
-                    device=device, quiet=quiet)
+                         device=device, quiet=quiet)
     frame = engine.render(scene.obj)
     pixels, radiance = frame.pixels, frame.radiance
     full_s = 0.0
