@@ -264,3 +264,39 @@ def test_no_scheduler_answers(tmp_path, scenes, capsys):
     assert cli(["-q", "batch", str(path), "--out", str(tmp_path / "out"), "--scheduler", addr]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.startswith(f"photoar: error: {addr}: no Dask scheduler answers"), err
+
+
+def test_jobs_file_to_composite_command_lines(tmp_path):
+    # options -> composite's command line: flags, lists, relative paths from the jobs file's folder;
+    # the keys: another pose is another input key on the same engine, a touched scene file both
+    from app.batchjob import BadJob, read_jobs
+    from app.cli import demo_scene_dir
+
+    shutil.copytree(demo_scene_dir(), tmp_path / "rooms" / "demo")
+    (tmp_path / "chair.ply").write_bytes((tmp_path / "rooms" / "demo" / "object_chair.ply").read_bytes())
+    lines = [{"id": "a", "scene": "rooms/demo", "options": {"object": "chair.ply", "place": [1, 0, 1.5], "yaw": 30,
+                                                           "no-object-light": True, "no-second-order": False}},
+             {"id": "b", "scene": "rooms/demo", "options": {"object": "chair.ply", "place": "1,0,2",
+                                                           "no-object-light": True}},
+             {"id": "c", "scene": "rooms/demo", "options": {"out": "x"}},
+             {"id": "d", "scene": "rooms/demo", "options": {"place": True}},
+             {"id": "e", "scene": "rooms/demo", "options": {"no-object-light": "yes"}},
+             {"id": "../f", "scene": "rooms/demo"}]
+    path = tmp_path / "jobs.jsonl"
+    path.write_text("\n".join(json.dumps(d) for d in lines) + "\n\n")
+    jobs = read_jobs(path)
+    a, b = jobs[0], jobs[1]
+    assert a.scene == (tmp_path / "rooms" / "demo").resolve()
+    assert list(a.argv) == ["--object", str((tmp_path / "chair.ply").resolve()), "--place", "1,0,1.5", "--yaw", "30",
+                            "--no-object-light"]
+    assert a.engine_key == b.engine_key and a.input_key != b.input_key
+    errors = {j.id: j.error for j in jobs[2:]}
+    assert all(isinstance(j, BadJob) for j in jobs[2:])
+    assert errors["c"] == f"{path}:3: option 'out': the output folder is DIR/<id>, set by photoar batch"
+    assert errors["d"] == f"{path}:4: option 'place' takes a value, got true"
+    assert errors["e"] == f"{path}:5: option 'no-object-light' is a flag: give true or false, got \"yes\""
+    assert errors["line 6"].startswith(f"{path}:6: 'id' must be a non-empty folder name")
+    photo = tmp_path / "rooms" / "demo" / "background.png"
+    os.utime(photo, ns=(photo.stat().st_atime_ns, photo.stat().st_mtime_ns + 10**9))
+    a2 = read_jobs(path)[0]
+    assert a2.input_key != a.input_key and a2.engine_key != a.engine_key
