@@ -41,6 +41,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "app.cmd_tonemap",
     "app.cmd_gui",
     "app.cmd_scene",
+    "app.cmd_batch",
 )
 
 
@@ -204,6 +205,16 @@ def add_object_args(p) -> None:
                         help="the same as an sRGB hex colour, e.g. '#b4966a' (converted to linear reflectance)")
 
 
+def run_composite(a: argparse.Namespace, **kw) -> dict:
+    """`photoar composite` on its parsed arguments `a` (also each job of `photoar batch`); `kw`
+    goes to app.composite.main (make_engine). Returns the report."""
+    from app import composite
+
+    return composite.main(a.scene, a.out, _params(a), cache_dir=a.cache, object_mesh=a.object, quiet=a.quiet,
+                          device=a.device, place=a.place, yaw=a.yaw, object_size=a.object_size,
+                          placement=a.placement, work_res=a.work_res, object_albedo=a.object_albedo, **kw)
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = PhotoarParser(prog="photoar", description="Insert synthetic objects into photographs of rooms, "
                        "lit by the room's light and casting soft shadows.")
@@ -275,9 +286,7 @@ def main(argv: list[str] | None = None) -> int:
         from app import composite
 
         if a.command == "composite":
-            composite.main(a.scene, a.out, params, cache_dir=a.cache, object_mesh=a.object, quiet=a.quiet,
-                           device=a.device, place=a.place, yaw=a.yaw, object_size=a.object_size,
-                           placement=a.placement, work_res=a.work_res, object_albedo=a.object_albedo)
+            run_composite(a)
             print(a.out / "composite.png")
         elif a.command == "demo":
             composite.main(demo_scene_dir(), a.out, params, cache_dir=a.cache or a.out.parent / ".cache",

@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
+from typing import Callable
 
 from app.engine import Engine, EngineParams
 from app.report import stages_ms
@@ -77,7 +78,7 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
          cache_dir: str | Path | None = None, object_mesh: str | Path | None = None,
          quiet: bool = False, device: str | None = None, place=None, yaw: float = 0.0,
          object_size: float | None = None, placement: str | Path | None = None,
-         work_res: int | None = None, object_albedo=None) -> dict:
+         work_res: int | None = None, object_albedo=None, make_engine: Callable[..., Engine] = Engine) -> dict:
     """Composite the scene's object (or `object_mesh`) into its photo.
 
     The object stands at, in order of preference: the saved GUI placement `placement`; `place`
@@ -86,7 +87,9 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
     `object_size` its largest extent in metres); the scene's synthetic_object pose.
     `object_albedo` (3,) overrides the mesh's albedo. `work_res`: the long side (pixels) the engine
     works at, the composite is written at the photo's resolution (app.workres; default 1024, 0:
-    the photo's own). Returns the report (also written as out/report.json).
+    the photo's own). `make_engine` builds the engine from (working scene, params, cache_dir=,
+    device=, quiet=) as Engine does (`photoar batch` passes one that keeps engines in memory).
+    Returns the report (also written as out/report.json).
     """
     params = params or EngineParams()
     t0 = time.perf_counter()
@@ -94,8 +97,8 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
     scene.obj = place_object(scene, object_mesh, place, yaw, object_size, placement, object_albedo)
     load_s = time.perf_counter() - t0
     work = working_scene(scene, DEFAULT_WORK_RES if work_res is None else work_res)
-    engine = Engine(work, params, cache_dir=cache_dir if cache_dir is not None else default_cache_dir(),
-                    device=device, quiet=quiet)
+    engine = make_engine(work, params, cache_dir=cache_dir if cache_dir is not None else default_cache_dir(),
+                         device=device, quiet=quiet)
     frame = engine.render(scene.obj)
     pixels, radiance = frame.pixels, frame.radiance
     full_s = 0.0
