@@ -70,10 +70,10 @@ def register(sub) -> None:
 def read_photo(path: Path) -> tuple[np.ndarray, float | None]:
     """Upright 8-bit RGB image (recon.io.read_image_rgb honours the EXIF orientation) and its EXIF
     exposure time (None if absent); errors name the file."""
-    from recon.exif import read_exif
     from recon.io import read_image_rgb
+    from recon.phototags import read_tags
 
-    return read_image_rgb(path), read_exif(path).exposure_time
+    return read_image_rgb(path), read_tags(path).exposure_time
 
 
 def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[str, bytes]]:
