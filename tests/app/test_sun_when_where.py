@@ -254,3 +254,27 @@ def test_strength_estimated_for_the_given_direction(inputs, tmp_path, capsys):
         Engine._sun_source(stub)
     stub.params = EngineParams(lighting="captured")
     assert Engine._sun_source(stub) == "declared"
+
+
+def test_known_light_reference_refuses_a_sun_to_estimate(tmp_path, capsys):
+    """sun_room (a folder with its camera_response and emitters) whose sun entry gives only the
+    direction ("strength": "estimate"): `photoar reference --lighting known` has no photo estimate to
+    take the strength from: one error line naming the file; a malformed strength is refused too."""
+    root = shared_scene("sun_room")
+    for f in root.iterdir():
+        if f.name != "scene.json":
+            (tmp_path / f.name).symlink_to(f)
+    d = json.loads((root / "scene.json").read_text())
+    sun = next(p for p in d["primitives"] if p["type"] == "sun")
+    for k in ("irradiance_perpendicular", "emitted_radiance"):
+        sun.pop(k)
+    sun["strength"] = "estimate"
+    (tmp_path / "scene.json").write_text(json.dumps(d))
+    rc, err = _run(["reference", str(tmp_path), "--out", str(tmp_path / "o"), "--lighting", "known"], capsys)
+    assert rc == 2 and len(err) == 1 and err[0].startswith(f"photoar: error: {tmp_path / 'scene.json'}: sun: its "
+                                                           "strength is to be estimated"), err
+    assert not (tmp_path / "o").exists()
+    sun["strength"] = "guess"
+    (tmp_path / "scene.json").write_text(json.dumps(d))
+    rc, err = _run(["reference", str(tmp_path), "--out", str(tmp_path / "o"), "--lighting", "known"], capsys)
+    assert rc == 2 and len(err) == 1 and ".strength' must be \"declared\" or \"estimate\"" in err[0], err
