@@ -94,8 +94,6 @@ def register(sub) -> None:
 
 def _wall_bearing(s: str) -> tuple[str, float]:
     """argparse type of --wall-bearing WALL=DEG."""
-    import argparse as _ap
-
     from recon.sunpos import WALL_OFFSET_DEG
 
     wall, _, deg = s.partition("=")
@@ -104,7 +102,7 @@ def _wall_bearing(s: str) -> tuple[str, float]:
     except ValueError:
         bearing = float("nan")
     if wall.strip() not in WALL_OFFSET_DEG or not np.isfinite(bearing):
-        raise _ap.ArgumentTypeError(f"expected WALL=DEG with WALL one of {', '.join(WALL_OFFSET_DEG)}, got {s!r}")
+        raise argparse.ArgumentTypeError(f"expected WALL=DEG with WALL one of {', '.join(WALL_OFFSET_DEG)}, got {s!r}")
     return wall.strip(), bearing
 
 
