@@ -282,6 +282,9 @@ def run(a: argparse.Namespace) -> int:
             raise ValueError(f"{a.scene / 'scene.json'}: no emitters (no primitive declares emitted_radiance); "
                              f"use --lighting captured")
         kw = dict(patch_size=a.patch_size, textures=not a.no_textures, device=a.device)
+        if scene.sun is not None and scene.sun.strength_estimated:
+            raise ValueError(f"{a.scene / 'scene.json'}: sun: its strength is to be estimated from the photo "
+                             "(\"strength\": \"estimate\"): use --lighting captured")
         if scene.sun is not None and not any(q.opening for q in scene.quads):
             log.warning("%s: sun: the scene has no opening (window with \"opening\": true); the "
                         "sun is not traced", a.scene / "scene.json")

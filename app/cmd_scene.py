@@ -1,6 +1,7 @@
 """`photoar scene ROOM --photo PHOTO --exposure-time S --camera CAMERA.json --primitives MODEL.json
 [--probe IMG... --probe-times T... --probe-centre X,Y,Z --probe-radius R --probe-shot-from X,Y,Z
-[--probe-circle auto]] [--sun-direction X,Y,Z --sun-irradiance R,G,B]`
+[--probe-circle auto]] [--sun-direction X,Y,Z --sun-irradiance R,G,B | [--sun-from-photo] [--when DATE_TIME]
+[--where LAT,LON] (--north DEG | --wall-bearing WALL=DEG) [--sun-irradiance R,G,B]]`
 
 Assembles and validates a room folder (docs/scene-format.md, scene format 1): ROOM/scene.json,
 background.png (the photo, turned upright by its EXIF orientation), probe_XX.png (the bracket,
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from datetime import timezone
 from pathlib import Path
 
 import numpy as np
@@ -66,16 +68,53 @@ def register(sub) -> None:
                         "sr (a white card facing the sun has radiance E/pi). Without a camera_response (the "
                         "own-room flow), captured light recovers the response from the probe bracket normalised "
                         "so that radiance 1 just reaches pixel level 255 in a 1 s exposure: E is in those units")
+    w = p.add_argument_group(
+        "sun from when and where (in place of --sun-direction)",
+        "The sun's direction from the date, time and place of the photo (NREL's solar position algorithm, "
+        "pvlib) and a compass bearing of the room. Its strength is --sun-irradiance when given, else estimated "
+        "from the photo's sunlit patches by composite/evaluate/gui (--lighting captured). A sun below the "
+        "horizon at that time and place is an error. scene.json's sun records these inputs (\"from\").")
+    w.add_argument("--sun-from-photo", action="store_true",
+                   help="take the date, time and UTC offset (EXIF DateTimeOriginal, OffsetTimeOriginal) and the "
+                        "place (EXIF GPS) from --photo; --when/--where replace them")
+    w.add_argument("--when", default=None, metavar="DATE_TIME",
+                   help="when the photo was taken, ISO 8601 with its UTC offset, e.g. 2026-06-21T15:30+02:00 "
+                        "(Z for UTC); without an offset only with --sun-from-photo, whose EXIF offset is taken")
+    w.add_argument("--where", default=None, metavar="LAT,LON[,ALT]",
+                   help="where: latitude and longitude in degrees (north and east positive), optionally the "
+                        "altitude in metres, e.g. 48.8584,2.2945")
+    nb = w.add_mutually_exclusive_group()
+    nb.add_argument("--north", type=float, default=None, metavar="DEG",
+                    help="the compass bearing (degrees clockwise from true north) of the room's -z axis: the "
+                         "way you face looking at the back wall (z min) from inside the room")
+    nb.add_argument("--wall-bearing", type=_wall_bearing, default=None, metavar="WALL=DEG",
+                    help="the same, given for one wall: back, front, left or right (z min, z max, x min, x max), "
+                         "DEG being the bearing you face when you stand in the room looking at that wall, e.g. "
+                         "back=212 (a phone compass set to true north)")
     p.set_defaults(run=run)
+
+
+def _wall_bearing(s: str) -> tuple[str, float]:
+    """argparse type of --wall-bearing WALL=DEG."""
+    from recon.sunpos import WALL_OFFSET_DEG
+
+    wall, _, deg = s.partition("=")
+    try:
+        bearing = float(deg)
+    except ValueError:
+        bearing = float("nan")
+    if wall.strip() not in WALL_OFFSET_DEG or not np.isfinite(bearing):
+        raise argparse.ArgumentTypeError(f"expected WALL=DEG with WALL one of {', '.join(WALL_OFFSET_DEG)}, got {s!r}")
+    return wall.strip(), bearing
 
 
 def read_photo(path: Path) -> tuple[np.ndarray, float | None]:
     """Upright 8-bit RGB image (recon.io.read_image_rgb honours the EXIF orientation) and its EXIF
     exposure time (None if absent); errors name the file."""
-    from recon.exif import read_exif
     from recon.io import read_image_rgb
+    from recon.phototags import read_tags
 
-    return read_image_rgb(path), read_exif(path).exposure_time
+    return read_image_rgb(path), read_tags(path).exposure_time
 
 
 def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[str, bytes]]:
@@ -110,9 +149,18 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
     elif any(x is not None for x in (a.probe_times, a.probe_centre, a.probe_radius, a.probe_shot_from)):
         raise ValueError("--probe: probe options given without the --probe images")
     sun = None
-    if (a.sun_direction is None) != (a.sun_irradiance is None):
+    by_time = _sun_by_time(a)
+    if by_time and a.sun_direction is not None:
+        raise ValueError("--sun-direction: the sun's direction is given twice: drop --sun-direction or "
+                         "--sun-from-photo/--when/--where/--north")
+    if by_time:
+        if given_sun is not None:
+            raise ValueError(f"--when/--where: {a.primitives} has a sun entry too: give the sun once (drop "
+                             "the sun options, or the file's sun)")
+        sun = _sun_from_when_where(a, lo, hi)
+    elif (a.sun_direction is None) != (a.sun_irradiance is None):
         raise ValueError("--sun-direction/--sun-irradiance: give both or neither")
-    if a.sun_direction is not None:
+    elif a.sun_direction is not None:
         if given_sun is not None:
             raise ValueError(f"--sun-direction: {a.primitives} has a sun entry too: give the sun once (drop "
                              "--sun-direction/--sun-irradiance, or the file's sun)")
@@ -120,10 +168,98 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
     else:
         sun = given_sun
     if sun is not None:
-        _warn_no_sun(sun, prims, "--sun-direction" if a.sun_direction is not None else f"{a.primitives}: sun")
+        _warn_no_sun(sun, prims, "--sun-direction" if a.sun_direction is not None else
+                     "--when/--where" if by_time else f"{a.primitives}: sun")
     scene = asm.scene_dict(a.room.name, cam, t, prims, lo, hi, light_probe, sun)
     copies = {"camera.json": a.camera.read_bytes(), "primitives.json": a.primitives.read_bytes()}
     return scene, images, copies
+
+
+def _sun_by_time(a: argparse.Namespace) -> bool:
+    """True when the sun is given by date, time and place (any of its options)."""
+    return bool(a.sun_from_photo or a.when is not None or a.where is not None or a.north is not None
+                or a.wall_bearing is not None)
+
+
+def _sun_from_when_where(a: argparse.Namespace, lo, hi) -> dict:
+    """The sun entry from --sun-from-photo/--when/--where and --north/--wall-bearing (recon.sunpos):
+    direction from NREL SPA, strength --sun-irradiance or left to the engine's estimate ("strength":
+    "estimate"), and "from" recording the inputs. ValueError naming the option, or the file and the
+    EXIF tag, for what is missing or wrong."""
+    from recon import assemble as asm
+    from recon import sunpos
+    from recon.phototags import read_tags
+
+    tags = read_tags(a.photo) if a.sun_from_photo else None
+    if a.when is not None:
+        try:
+            when = sunpos.parse_when(a.when)
+        except ValueError as e:
+            raise ValueError(f"--when: {e}") from None
+        time_from = "--when"
+        if when.tzinfo is None:
+            if tags is None or tags.offset_time_original is None:
+                raise ValueError(f"--when: {a.when!r} has no UTC offset: add it, e.g. {when.isoformat()}+02:00 "
+                                 "(Z for UTC)" + ("" if tags is None else f"; {a.photo} has no EXIF OffsetTimeOriginal"))
+            when = when.replace(tzinfo=sunpos.parse_offset(tags.offset_time_original))
+            time_from = "--when, UTC offset from EXIF OffsetTimeOriginal"
+    elif tags is not None:
+        for tag, v in (("DateTimeOriginal", tags.datetime_original), ("OffsetTimeOriginal", tags.offset_time_original)):
+            if v is None:
+                raise ValueError(f"{a.photo}: no EXIF {tag} (--sun-from-photo): give --when with its UTC offset, "
+                                 "e.g. 2026-06-21T15:30+02:00")
+        try:
+            when = sunpos.parse_exif_time(tags.datetime_original, tags.offset_time_original)
+        except ValueError as e:
+            raise ValueError(f"{a.photo}: EXIF {e}") from None
+        time_from = "EXIF DateTimeOriginal, OffsetTimeOriginal"
+    else:
+        raise ValueError("--when: the date and time are needed for the sun (or --sun-from-photo)")
+    if a.where is not None:
+        try:
+            lat, lon, alt = sunpos.parse_where(a.where)
+        except ValueError as e:
+            raise ValueError(f"--where: {e}") from None
+        place_from = "--where"
+    elif tags is not None:
+        for tag, v in (("GPSLatitude", tags.latitude), ("GPSLongitude", tags.longitude)):
+            if v is None:
+                raise ValueError(f"{a.photo}: no EXIF {tag} (--sun-from-photo): give --where LAT,LON")
+        lat, lon, alt = tags.latitude, tags.longitude, tags.altitude_m
+        place_from = "EXIF GPS"
+    else:
+        raise ValueError("--where: the place is needed for the sun (or --sun-from-photo)")
+    if a.north is not None:
+        if not np.isfinite(a.north):
+            raise ValueError(f"--north: must be a finite bearing in degrees, got {a.north}")
+        north, bearing = a.north % 360.0, {"north_deg": a.north}
+    elif a.wall_bearing is not None:
+        wall, deg = a.wall_bearing
+        north, bearing = sunpos.north_from_wall(wall, deg), {"wall_bearing": {wall: deg}}
+    else:
+        raise ValueError("--north: the room's compass bearing is needed for the sun: --north DEG (of the room's "
+                         "-z axis) or --wall-bearing WALL=DEG")
+    pos = sunpos.solar_position(when, lat, lon, alt or 0.0)
+    where_txt = f"{lat:.5f},{lon:.5f}"
+    if pos.elevation_deg <= 0.0:
+        raise ValueError(f"the sun is below the horizon at {when.isoformat()} at {where_txt} (elevation "
+                         f"{pos.elevation_deg:.1f} deg, from {time_from} and {place_from}): check the date, time, "
+                         "UTC offset and place")
+    d = sunpos.room_direction(pos.azimuth_deg, pos.elevation_deg, north)
+    log.info("sun at %s, %s: azimuth %.2f deg, elevation %.2f deg -> direction %.4f,%.4f,%.4f in room axes",
+             when.isoformat(), where_txt, pos.azimuth_deg, pos.elevation_deg, *d)
+    E = a.sun_irradiance if a.sun_irradiance is not None else (1.0, 1.0, 1.0)
+    sun = asm.sun_primitive(d, E, lo, hi)
+    if a.sun_irradiance is None:  # the engine estimates the strength from the photo
+        for k in ("irradiance_perpendicular", "emitted_radiance"):
+            del sun[k]
+        sun["strength"] = "estimate"
+    sun["from"] = {"when": when.isoformat(), "when_utc": when.astimezone(timezone.utc).isoformat(),
+                   "time_from": time_from, "where": [lat, lon] + ([alt] if alt is not None else []),
+                   "place_from": place_from, **bearing, "room_north_deg": north,
+                   "azimuth_deg": pos.azimuth_deg, "elevation_deg": pos.elevation_deg,
+                   "algorithm": "NREL SPA (pvlib.solarposition.spa_python)"}
+    return sun
 
 
 def _warn_no_sun(sun: dict, prims: list[dict], where: str) -> None:
@@ -133,7 +269,8 @@ def _warn_no_sun(sun: dict, prims: list[dict], where: str) -> None:
 
     d = np.asarray(sun["direction_to_sun"], float)
     normals = [np.asarray(p["normal"], float) for p in prims if p.get("opening") is True]
-    reason = no_sun_reason(d / np.linalg.norm(d), np.asarray(sun["irradiance_perpendicular"], float), normals,
+    E = sun.get("irradiance_perpendicular", [1.0, 1.0, 1.0])  # a strength still to estimate: not zero
+    reason = no_sun_reason(d / np.linalg.norm(d), np.asarray(E, float), normals,
                            where)
     if reason:
         log.warning("%s", reason)

@@ -74,7 +74,8 @@ SUN_SOURCES = {
             "(`photoar scene --sun-*`: its entry says \"declared_by\": \"user\"), else the estimate; under "
             "photo the estimate",
     "estimate": "estimated from the photo's sunlit patches (--lighting captured or photo)",
-    "declared": "scene.json's sun entry as given, also under captured light (not photo: light from the photo alone)",
+    "declared": "scene.json's sun entry as given, also under captured light (not photo: light from the photo alone); "
+                "an entry with \"strength\": \"estimate\" gives the direction, its strength is estimated from the photo",
 }
 
 
@@ -701,6 +702,10 @@ class Engine:
             raise ValueError(f"{self._sun_where}: --sun declared: the scene has no sun entry (`photoar scene "
                              "--sun-direction/--sun-irradiance` writes one)")
         if lighting == "known":
+            if sun is not None and sun.strength_estimated:
+                raise ValueError(f"{self._sun_where}: sun: its strength is to be estimated from the photo "
+                                 "(\"strength\": \"estimate\"): use --lighting captured, or give `photoar scene "
+                                 "--sun-irradiance`")
             return "declared" if sun is not None else None
         if lighting == "captured":
             if choice == "auto":
@@ -717,6 +722,8 @@ class Engine:
         sun = self.sun_light.sun
         d = {"from": self.sun_from, "direction": (sun.direction / np.linalg.norm(sun.direction)).tolist(),
              "irradiance_perpendicular": np.asarray(sun.irradiance, float).tolist(), "lights_room": bool(self.sun_on)}
+        if self.sun_from == "declared" and self.scene.sun.strength_estimated:
+            d["strength_from"] = "estimate"  # the declared direction, the strength estimated from the photo
         if self.sun_light.reason:
             d["no_direct_sun"] = self.sun_light.reason
         return d
@@ -846,7 +853,11 @@ class Engine:
         flagged = pm.is_emitter & ~shaped  # plain surfaces the radiance test flagged: tried as sunlit
         kept = pm.emission[flagged].copy()
         pm.emission[flagged] = 0.0
-        if self.sun_from == "declared":  # the user's sun as given (--sun); no estimate
+        if self.sun_from == "declared" and scene.sun.strength_estimated:  # its direction; strength from the photo
+            sun, info = estimate_sun(scene, pm, self.pix_patch, self.pix_pos.astype(np.float64), self.dirs, self.L_b,
+                                     sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ, direction=scene.sun.direction)
+            where = f"{self._sun_where}: sun (strength estimated)"
+        elif self.sun_from == "declared":  # the user's sun as given (--sun); no estimate
             sun, info, where = scene.sun, None, f"{self._sun_where}: sun"
         else:
             sun, info = estimate_sun(scene, pm, self.pix_patch, self.pix_pos.astype(np.float64), self.dirs, self.L_b,
@@ -854,7 +865,10 @@ class Engine:
             where = f"{self._sun_where}: sun estimate"
         self._sun_patch = None
         self.sun_light = SunLight(sun, openings(scene), self.scene_occ, where=where) if sun else None
-        if info is not None and sun is not None and scene.sun is not None:
+        if sun is None and self.sun_from == "declared":
+            log.warning("%s: its strength could not be estimated from the photo (%s): no direct sun; give "
+                        "`photoar scene --sun-irradiance`", where, info.get("reason"))
+        if info is not None and sun is not None and scene.sun is not None and not scene.sun.strength_estimated:
             d0 = scene.sun.direction / np.linalg.norm(scene.sun.direction)
             info["declared_direction"] = d0.tolist()
             info["direction_error_deg"] = float(np.degrees(np.arccos(np.clip(sun.direction @ d0, -1, 1))))

@@ -540,13 +540,15 @@ def _sun_free(p: wp.vec3d, d: wp.vec3d, d32: wp.vec3, ex_c0: wp.array(dtype=wp.v
               ex_inv: wp.array(dtype=wp.float64), ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d),
               meshes: wp.array(dtype=wp.uint64), n_meshes: int) -> int:
     """1 where the ray from p toward the sun leaves through an opening (_exit_t) before meeting any of the
-    meshes (the start and the exit distance rounded to float32 for Warp's ray query), else 0."""
+    meshes (the start and the exit distance rounded to float32 for Warp's ray query), else 0. The query
+    stops 1e-4 of the way short of the opening: the wall the opening is cut from lies in its plane, and
+    in float32 its hit there falls before or after the exit by rounding alone (a speckled sunlit patch)."""
     te = _exit_t(p, d, ex_c0, ex_n, ex_inv, ex_u, ex_v)
     if te <= wp.float64(0.0):
         return 0
     start = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
     for k in range(n_meshes):
-        if wp.mesh_query_ray_anyhit(meshes[k], start, d32, wp.float32(te)):
+        if wp.mesh_query_ray_anyhit(meshes[k], start, d32, wp.float32(te * wp.float64(0.9999))):
             return 0
     return 1
 

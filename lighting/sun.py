@@ -420,8 +420,10 @@ def sunlit_pixels(L_b: np.ndarray, saturated: np.ndarray, pix_quad: np.ndarray, 
 
 def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, dirs: np.ndarray,
                  L_b: np.ndarray, saturated: np.ndarray, recv: np.ndarray, B: np.ndarray, G_c: np.ndarray,
-                 occluder: Occluder, min_overlap: float = 0.5) -> tuple[Sun | None, dict]:
-    """The sun from the photo and the captured radiance mesh (no declared sun used).
+                 occluder: Occluder, min_overlap: float = 0.5, direction: np.ndarray | None = None
+                 ) -> tuple[Sun | None, dict]:
+    """The sun from the photo and the captured radiance mesh (no declared sun used); with `direction`
+    (a known unit vector towards the sun, e.g. from date, time and place) only its strength.
 
     Direction: the sunlit patch on a plane is the opening projected along d, so the area-weighted
     centroid of the sunlit pixels of the largest lit plane is the opening's centroid moved along
@@ -441,6 +443,10 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     info: dict = {}
     if not holes:
         return None, {"reason": "no opening"}
+    if direction is not None:
+        d = np.asarray(direction, np.float64) / np.linalg.norm(direction)
+        info.update(direction=d.tolist(), direction_from="declared")
+        return _sun_strength(d, holes, occluder, pm, B, G_c, info)
     pix_quad = np.where(pix_patch >= 0, pm.quad[np.maximum(pix_patch, 0)], -1)
     lit = sunlit_pixels(L_b, saturated, pix_quad, recv)
     if lit.sum() < 50:
@@ -490,6 +496,15 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     if info["overlap"] < min_overlap:  # bright surfaces that no sun through the openings explains
         return None, {**info, "reason": f"no sun direction explains the bright region (overlap "
                                         f"{info['overlap']:.2f} < {min_overlap})"}
+    return _sun_strength(d, holes, occluder, pm, B, G_c, info)
+
+
+def _sun_strength(d: np.ndarray, holes: list[Quad], occluder: Occluder, pm, B: np.ndarray, G_c: np.ndarray,
+                  info: dict) -> tuple[Sun | None, dict]:
+    """estimate_sun's strength for the unit direction d (its docstring): the median over fully sunlit
+    patches of pi (L / rho - E_ind) / cos; (None, info with a reason) without such patches."""
+    from lighting.sources import luminance
+
     # strength from fully sunlit patches
     light = SunLight(Sun(d, SUN_DIAMETER_DEG, np.full(3, np.pi), np.zeros(3)), holes, occluder, where="sun estimate")
     e = light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)[:, 0]  # = cos x sunlit share

@@ -76,6 +76,8 @@ class Sun:
     irradiance: np.ndarray  # (3,) irradiance on a surface facing the sun (irradiance_perpendicular)
     radiance: np.ndarray  # (3,) radiance of the disk (emitted_radiance); 0 if not given
     distance_m: float = float("inf")  # distance of the disk from the room centre (inf: parallel rays)
+    strength_estimated: bool = False  # "strength": "estimate": only the direction is given; irradiance is
+    # zero here and the engine estimates it from the photo (captured light)
 
     @property
     def half_angle(self) -> float:
@@ -363,7 +365,8 @@ def sun_entry(d: dict, path) -> tuple[int, dict] | None:
 def parse_sun(p: dict, where: str, path: Path) -> Sun:
     """The `sun` primitive (FORMAT.md), validated: SceneError naming the file and field (`where`,
     e.g. "primitives[16] ('sun')"). `direction_to_sun` may be any finite non-zero vector: it is
-    normalised (a hand-typed direction need not have length 1)."""
+    normalised (a hand-typed direction need not have length 1). With `"strength": "estimate"` (no
+    irradiance_perpendicular) only the direction is given: Sun.strength_estimated, irradiance zero."""
     d = json_array(json_field(p, "direction_to_sun", where + ".", path), (3,), f"{where}.direction_to_sun", path)
     norm = float(np.linalg.norm(d))
     if not norm > 1e-9:
@@ -371,16 +374,24 @@ def parse_sun(p: dict, where: str, path: Path) -> Sun:
     diam = float(json_array(p.get("angular_diameter_deg", 0.53), (), f"{where}.angular_diameter_deg", path))
     if not 0.0 <= diam < 90.0:
         raise SceneError(f"{path}: field '{where}.angular_diameter_deg' must be in [0, 90) degrees, got {diam}")
+    dist = float(json_array(p["distance_m"], (), f"{where}.distance_m", path)) \
+        if p.get("distance_m") is not None else float("inf")
+    if not dist > 0:
+        raise SceneError(f"{path}: field '{where}.distance_m' must be positive, got {dist}")
+    strength = p.get("strength", "declared")
+    if strength not in ("declared", "estimate"):
+        raise SceneError(f"{path}: field '{where}.strength' must be \"declared\" or \"estimate\", got {strength!r}")
+    if strength == "estimate":  # the direction alone (e.g. from date, time and place): E from the photo
+        if "irradiance_perpendicular" in p:
+            raise SceneError(f"{path}: field '{where}.irradiance_perpendicular' is given but 'strength' is "
+                             "\"estimate\": drop one")
+        return Sun(d / norm, diam, np.zeros(3), np.zeros(3), dist, strength_estimated=True)
     E = json_array(json_field(p, "irradiance_perpendicular", where + ".", path), (3,),
                    f"{where}.irradiance_perpendicular", path)
     L = json_array(p.get("emitted_radiance", [0.0, 0.0, 0.0]), (3,), f"{where}.emitted_radiance", path)
     for key, v in (("irradiance_perpendicular", E), ("emitted_radiance", L)):
         if np.any(v < 0):
             raise SceneError(f"{path}: field '{where}.{key}' must be non-negative, got {v.tolist()}")
-    dist = float(json_array(p["distance_m"], (), f"{where}.distance_m", path)) \
-        if p.get("distance_m") is not None else float("inf")
-    if not dist > 0:
-        raise SceneError(f"{path}: field '{where}.distance_m' must be positive, got {dist}")
     return Sun(d / norm, diam, E, L, dist)
 
 

@@ -224,14 +224,43 @@ def _exif_jpeg(img_bgr, exposure: tuple[int, int] | None, orientation: int | Non
 
 
 @pytest.mark.parametrize("endian", ["<", ">"])
-def test_exif_parse(endian):
-    from recon.exif import parse_exif
+def test_exif_tags_of_a_hand_built_jpeg(tmp_path, endian):
+    """recon.phototags (Pillow) reads ExposureTime and Orientation of a JPEG whose EXIF block is
+    built byte by byte here, in either byte order; no EXIF or no image: None, not an error."""
+    from recon.phototags import read_tags
 
     img = np.zeros((8, 8, 3), np.uint8)
-    ex = parse_exif(_exif_jpeg(img, (1, 125), 6, endian))
-    assert ex.exposure_time == pytest.approx(1 / 125) and ex.orientation == 6
-    assert parse_exif(_exif_jpeg(img, None, None, endian)).exposure_time is None
-    assert parse_exif(b"\x89PNG....").orientation is None
+    f = tmp_path / "t.jpg"
+    f.write_bytes(_exif_jpeg(img, (1, 125), 6, endian))
+    ex = read_tags(f)
+    assert ex.exposure_time == pytest.approx(1 / 125, rel=1e-12) and ex.orientation == 6
+    f.write_bytes(_exif_jpeg(img, None, None, endian))
+    assert read_tags(f).exposure_time is None and read_tags(f).orientation is None
+    f.write_bytes(b"\x89PNG....")
+    assert read_tags(f) == type(read_tags(f))()
+
+
+def test_exif_gps_and_time_tags(tmp_path):
+    """Date, UTC offset and GPS position written by Pillow as a phone writes them (degrees, minutes,
+    seconds rationals with N/S, E/W references) come back as signed decimal degrees."""
+    from PIL import Image
+
+    from recon.phototags import read_tags
+
+    im = Image.new("RGB", (8, 8))
+    ex = im.getexif()
+    sub = ex.get_ifd(0x8769)
+    sub[0x9003], sub[0x9011], sub[0x829A] = "2026:06:21 15:30:00", "+02:00", 0.004
+    gps = ex.get_ifd(0x8825)
+    # 33 deg 51' 35.9" S, 151 deg 12' 40" E (Sydney), 58.5 m
+    gps.update({1: "S", 2: (33.0, 51.0, 35.9), 3: "E", 4: (151.0, 12.0, 40.0), 5: b"\x00", 6: 58.5})
+    f = tmp_path / "gps.jpg"
+    im.save(f, exif=ex)
+    t = read_tags(f)
+    assert t.datetime_original == "2026:06:21 15:30:00" and t.offset_time_original == "+02:00"
+    assert t.latitude == pytest.approx(-(33 + 51 / 60 + 35.9 / 3600), abs=1e-9)
+    assert t.longitude == pytest.approx(151 + 12 / 60 + 40 / 3600, abs=1e-9)
+    assert t.altitude_m == pytest.approx(58.5, abs=1e-9) and t.exposure_time == pytest.approx(0.004, rel=1e-9)
 
 
 # the stored pixels -> the upright image, for EXIF Orientation 1..8 (the TIFF/EXIF specification)
@@ -246,15 +275,15 @@ def test_read_image_rgb_turns_by_exif_orientation(tmp_path, orientation):
     Orientation says, and the EXIF reader finds the tag."""
     import cv2
 
-    from recon.exif import read_exif
     from recon.io import read_image_rgb
+    from recon.phototags import read_tags
 
     rng = np.random.default_rng(orientation)
     img = cv2.resize(rng.integers(0, 255, (6, 10, 3), dtype=np.uint8), (80, 48), interpolation=cv2.INTER_NEAREST)
     f = tmp_path / "o.jpg"
     f.write_bytes(_exif_jpeg(img, (1, 60), orientation))
     raw = cv2.imread(str(f), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)[..., ::-1]
-    assert read_exif(f).orientation == orientation
+    assert read_tags(f).orientation == orientation
     assert np.array_equal(read_image_rgb(f), UPRIGHT[orientation](raw))
 
 
