@@ -1,6 +1,6 @@
 """README "Your own room": its commands, taken verbatim from the block after the
 `own-room-walkthrough` marker, run on files made from a shared scene (the walkthrough's
-placeholder names: photo.png, lines.json, room.json, ball_N.png, object.ply; the measurements as
+placeholder names: photo.png, lines.json, clicks.json, ball_N.png, object.ply; the measurements as
 the shell variables the README sets)."""
 import json
 import os
@@ -24,7 +24,7 @@ def walkthrough_commands() -> list[str]:
 
 def test_walkthrough_is_generic():
     cmds = walkthrough_commands()
-    assert [c.split()[1] for c in cmds] == ["calibrate", "hdr", "scene", "composite"]
+    assert [c.split()[1] for c in cmds] == ["calibrate", "model", "hdr", "scene", "composite"]
     for c in cmds:  # measurements come from the shell variables, never from a constant of one room
         assert not re.search(r"(?<![\w_])\d", c), c
 
