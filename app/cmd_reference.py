@@ -35,9 +35,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from recon.response import LUMA
+
 
 log = logging.getLogger("photoar")
-LUM = np.array([0.2126, 0.7152, 0.0722])  # Rec.709 luminance weights (RGB)
 
 
 @dataclass
@@ -89,20 +90,21 @@ def noise_summary(ref_radiance: np.ndarray, se: np.ndarray, se_diff: np.ndarray,
       benchmark scenes' `shadow_difference_noise_final`; shadow_signal: mean of that difference.
     """
     se = np.nan_to_num(se, nan=0.0)
-    se_lv = 0.5 * (response.to_levels(ref_radiance + se) - response.to_levels(np.maximum(ref_radiance - se, 0.0))) @ LUM
-    lv_ref = response.to_levels(ref_radiance) @ LUM
-    lv_photo = response.to_levels(photo_radiance) @ LUM
+    se_lv = 0.5 * (response.to_levels(ref_radiance + se)
+                   - response.to_levels(np.maximum(ref_radiance - se, 0.0))) @ LUMA
+    lv_ref = response.to_levels(ref_radiance) @ LUMA
+    lv_photo = response.to_levels(photo_radiance) @ LUMA
     dlv = np.abs(lv_ref - lv_photo)
     changed = (coverage > 0) | ((dlv > 2.0) & (dlv > 2.0 * se_lv))
-    shadow = (coverage == 0) & (I_obj @ LUM < 0.85 * (I_noobj @ LUM))
-    se_d = se_diff @ LUM
+    shadow = (coverage == 0) & (I_obj @ LUMA < 0.85 * (I_noobj @ LUMA))
+    se_d = se_diff @ LUMA
     out = {
         "changed_px": int(changed.sum()),
         "noise_levels_rms": float(np.sqrt(np.mean(se_lv[changed] ** 2))) if changed.any() else 0.0,
         "noise_levels_p95": float(np.percentile(se_lv[changed], 95)) if changed.any() else 0.0,
         "shadow_px": int(shadow.sum()),
         "shadow_noise": float(np.sqrt(np.mean(se_d[shadow] ** 2))) if shadow.any() else 0.0,
-        "shadow_signal": float(np.mean(((I_noobj - I_obj) @ LUM)[shadow])) if shadow.any() else 0.0,
+        "shadow_signal": float(np.mean(((I_noobj - I_obj) @ LUMA)[shadow])) if shadow.any() else 0.0,
     }
     return out
 

@@ -28,6 +28,7 @@ import dataclasses
 import cv2
 import numpy as np
 
+from recon.response import LUMA
 from recon.scene import Scene
 
 DEFAULT_WORK_RES = 1024
@@ -102,7 +103,7 @@ def full_resolution(engine, frame, full: Scene) -> tuple[np.ndarray, np.ndarray]
         box = (max(int(np.floor((y0 + 0.5) * H / h - 0.5)), 0), min(int(np.ceil((y1 + 0.5) * H / h - 0.5)), H - 1),
                max(int(np.floor((x0 + 0.5) * W / w - 0.5)), 0), min(int(np.ceil((x1 + 0.5) * W / w - 0.5)), W - 1))
         up = _upsampler((h, w), (H, W), box)
-        lum_b = L_b @ np.array([0.2126, 0.7152, 0.0722])
+        lum_b = L_b @ LUMA
         dark = (lum_b <= 1e-6 * max(float(lum_b.max()), 1e-30))[..., None]
         ratio = np.where(dark, 1.0, room / np.where(dark, 1.0, L_b))
         delta = np.where(dark, room - L_b, 0.0)

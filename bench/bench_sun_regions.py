@@ -28,7 +28,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-W_LUM = np.array([0.2126, 0.7152, 0.0722])
+from recon.response import LUMA  # noqa: E402
+
+W_LUM = LUMA
 
 
 def regions(e, scene_dir: Path) -> dict[str, np.ndarray]:

@@ -14,7 +14,7 @@ The reference it reproduces (the engine's numpy form before issue 17), per pixel
 Per scene (ComposeStage.__init__): the pixel -> receiver-vertex rows restricted to receiver pixels,
 T(L_b), the LDR frame's unchanged radiance, G_v in the kernel's buffer (a frame sums over the
 changed patches only), the response's breakpoints and lookup grids, and every per-pixel
-buffer at full-frame size (kernels.compose.Compositor). Per frame the host work is a few launches:
+buffer at full-frame size (kernels.pixel_compose.Compositor). Per frame the host work is a few launches:
 the shadows' share computed and written at pix_sel by a kernel (share_kernel), the fill's values
 written by the fill's own kernel straight into the frame's shadow buffer, a sparse object light
 scattered by a kernel (scatter_kernel), the sun's pixels and the object's
@@ -38,7 +38,7 @@ from typing import Callable
 import numpy as np
 
 from app import runtime
-from kernels.compose import EX_COV, EX_OBJ, EX_SUN, Compositor
+from kernels.pixel_compose import EX_COV, EX_OBJ, EX_SUN, Compositor
 from lighting.transfer import intensity_transfers
 
 FillFn = Callable[..., "np.ndarray | None"]  # fill(known, values, missing, out=None): the values at missing,

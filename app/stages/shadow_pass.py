@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from app import runtime
 from kernels.buffers import Buffer
-from kernels.composite import MaskedSum
+from kernels.masked_sums import MaskedSum
 from kernels.maskfill import WindowFill
 from kernels.shadowmap import ShadowMaps
 from kernels.visibility import Occluder
@@ -166,7 +166,7 @@ class ShadowPass:
         or LDR intensity), W_c (P,S,3) patch-centre transfers; per_source: one map per source
         (maps of map_res), else maps of clusters (cluster_map_res); spread (S,2,3) m: each
         cluster's half-axes across its view (FrameSources.spread), whose penumbra a cluster map's lookup filters by
-        (kernels.composite.penumbra; ignored with per_source, whose maps keep the hard lookup);
+        (kernels.masked_sums.penumbra; ignored with per_source, whose maps keep the hard lookup);
         full_maps: cluster maps of map_res too (Engine.refine's frames at rest); scale (H*W,3):
         the sums of the pixels' unshadowed light (E_x, or levels in LDR), given: a cluster frame of
         one batch fills on the graded lattice (_run_graded)."""

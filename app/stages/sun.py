@@ -28,6 +28,7 @@ from kernels.sunshadow import OutlineShade, SunShadowMap
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
 from lighting.sun import SunLight, SunlitPieces
+from recon.response import LUMA
 
 
 PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility table (~6 degrees): at floor
@@ -376,7 +377,7 @@ class SunStage:
         # the object's box and 2 pixels around it: every outline pixel and its 3x3 window lie inside
         y0, y1 = max(by - 2, 0), min(by + bh + 2, H)
         x0, x1 = max(bx - 2, 0), min(bx + bw + 2, W)
-        lum = obj_rad[y0:y1, x0:x1] @ np.array([0.2126, 0.7152, 0.0722])
+        lum = obj_rad[y0:y1, x0:x1] @ LUMA
         bright = (lum >= 1.0) | clipped.reshape(H, W)[y0:y1, x0:x1]
         on = (cov[y0:y1, x0:x1] > 0).astype(np.uint8)
         box = np.ones((3, 3), np.uint8)
