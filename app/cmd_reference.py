@@ -270,12 +270,12 @@ def run(a: argparse.Namespace) -> int:
         eng = Engine(scene, EngineParams(lighting=a.lighting), cache_dir=a.cache or default_cache_dir(),
                      device=a.device, quiet=a.quiet)
         scene = eng.scene  # carries the response recovered from the bracket
-        sun = eng.sun_light.sun if eng.sun_on else None  # the sun estimated from the photo (never the declared one)
+        sun = eng.sun.light.sun if eng.sun.on else None  # the sun estimated from the photo (never the declared one)
         if sun is None and scene.sun is not None and a.lighting == "captured":  # photo warns in the engine
             log.warning("%s: sun: no sun estimated from the photo (%s); the reference traces "
-                        "none", a.scene / "scene.json", (eng.sun_estimate or {}).get("reason", "it lights nothing"))
+                        "none", a.scene / "scene.json", (eng.sun.estimate or {}).get("reason", "it lights nothing"))
         kw = dict(tracer=build_tracer(scene, textures=False, patches=eng.pre.patches, device=a.device, sun=sun),
-                  photo_radiance=eng.L_b, response=scene.response)
+                  photo_radiance=eng.receivers.L_b, response=scene.response)
     else:
         if scene.response is None:
             raise ValueError(f"{a.scene / 'scene.json'}: missing field 'camera_response'; --lighting known needs "

@@ -1,6 +1,6 @@
 """Compose stage: the second order and the compositing of a frame (HDR or LDR), on what changed.
 
-The reference it reproduces (the engine's numpy form before issue 17), per pixel x of the frame:
+The reference it reproduces (compose_reference, the numpy form), per pixel x of the frame:
 
   dE_v   = G_v dB                              second order at receiver vertices, dB = the change of
                                                patch radiance (shadowed patches, object light) (P,3)
@@ -189,9 +189,9 @@ def nonzero_rows(a: np.ndarray) -> np.ndarray:
 def compose_reference(mode: str, L_b, L_b_levels, E_x, rho_x, recv_pix, pix_rows, pix_bary, photo, response,
                       pix_sel, O_pix, fill_sel, fill: FillFn, R_pix, dE_v, cov, obj_rad, sun_pix=None,
                       sun_loss=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The engine's numpy form of the second order's interpolation and the compose step (before
-    issue 17), over full-frame arrays: the specification ComposeStage.frame reproduces (tests/kernels/
-    test_compose.py, bench/bench_compose.py). R_pix dense (N,3); returns (radiance, pixels, room) (N,3)."""
+    """The numpy form of the second order's interpolation and the compose step, over full-frame
+    arrays: the specification ComposeStage.frame reproduces (tests/kernels/test_compose.py,
+    bench/bench_compose.py). R_pix dense (N,3); returns (radiance, pixels, room) (N,3)."""
     resp = response
     dE_x = np.zeros_like(L_b)
     if dE_v is not None:
