@@ -439,7 +439,6 @@ def test_sunlit_object_light_matches_a_ray_per_piece(sun_drag):
     # faces' pieces with their per-shape visibility table, one point per face in the far field)
     # against every lit piece as its own triangle with a ray per receiver (the form before issue
     # 20's cost work): the same light on the pixels and patch centres within a few per cent
-    from app.stages import object_light as OL
 
     s, e, frames, _ = sun_drag
     obj = s.obj
@@ -451,7 +450,7 @@ def test_sunlit_object_light_matches_a_ray_per_piece(sun_drag):
     sub, E, _ = e.sun.light.sunlit_elements(pv[pf], [occ], size=radius / 4.0)
     v = np.concatenate([pv, sub.reshape(-1, 3)])
     f = np.concatenate([pf, len(pv) + np.arange(3 * len(sub)).reshape(-1, 3)])
-    ref_p, ref_c = OL.object_light(e, v, f, np.concatenate([tri_rad, obj.albedo * E]), occ, centre, radius, cov)
+    ref_p, ref_c = e.object_light.light(v, f, np.concatenate([tri_rad, obj.albedo * E]), occ, centre, radius, cov)
     rad2, extra = e.sun_pixels.stage.object_emitters(pv, pf, tri_rad, obj.albedo, occ, radius)
     ours_p, ours_c = e.object_light.light(pv, pf, rad2, occ, centre, radius, cov, extra)
     assert extra is not None and len(extra.tris) < len(sub)
