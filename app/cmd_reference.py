@@ -35,9 +35,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from recon.response import LUMA
+
 
 log = logging.getLogger("photoar")
-LUM = np.array([0.2126, 0.7152, 0.0722])  # Rec.709 luminance weights (RGB)
 
 
 @dataclass
@@ -89,20 +90,21 @@ def noise_summary(ref_radiance: np.ndarray, se: np.ndarray, se_diff: np.ndarray,
       benchmark scenes' `shadow_difference_noise_final`; shadow_signal: mean of that difference.
     """
     se = np.nan_to_num(se, nan=0.0)
-    se_lv = 0.5 * (response.to_levels(ref_radiance + se) - response.to_levels(np.maximum(ref_radiance - se, 0.0))) @ LUM
-    lv_ref = response.to_levels(ref_radiance) @ LUM
-    lv_photo = response.to_levels(photo_radiance) @ LUM
+    se_lv = 0.5 * (response.to_levels(ref_radiance + se)
+                   - response.to_levels(np.maximum(ref_radiance - se, 0.0))) @ LUMA
+    lv_ref = response.to_levels(ref_radiance) @ LUMA
+    lv_photo = response.to_levels(photo_radiance) @ LUMA
     dlv = np.abs(lv_ref - lv_photo)
     changed = (coverage > 0) | ((dlv > 2.0) & (dlv > 2.0 * se_lv))
-    shadow = (coverage == 0) & (I_obj @ LUM < 0.85 * (I_noobj @ LUM))
-    se_d = se_diff @ LUM
+    shadow = (coverage == 0) & (I_obj @ LUMA < 0.85 * (I_noobj @ LUMA))
+    se_d = se_diff @ LUMA
     out = {
         "changed_px": int(changed.sum()),
         "noise_levels_rms": float(np.sqrt(np.mean(se_lv[changed] ** 2))) if changed.any() else 0.0,
         "noise_levels_p95": float(np.percentile(se_lv[changed], 95)) if changed.any() else 0.0,
         "shadow_px": int(shadow.sum()),
         "shadow_noise": float(np.sqrt(np.mean(se_d[shadow] ** 2))) if shadow.any() else 0.0,
-        "shadow_signal": float(np.mean(((I_noobj - I_obj) @ LUM)[shadow])) if shadow.any() else 0.0,
+        "shadow_signal": float(np.mean(((I_noobj - I_obj) @ LUMA)[shadow])) if shadow.any() else 0.0,
     }
     return out
 
@@ -268,12 +270,12 @@ def run(a: argparse.Namespace) -> int:
         eng = Engine(scene, EngineParams(lighting=a.lighting), cache_dir=a.cache or default_cache_dir(),
                      device=a.device, quiet=a.quiet)
         scene = eng.scene  # carries the response recovered from the bracket
-        sun = eng.sun_light.sun if eng.sun_on else None  # the sun estimated from the photo (never the declared one)
+        sun = eng.sun.light.sun if eng.sun.on else None  # the sun estimated from the photo (never the declared one)
         if sun is None and scene.sun is not None and a.lighting == "captured":  # photo warns in the engine
             log.warning("%s: sun: no sun estimated from the photo (%s); the reference traces "
-                        "none", a.scene / "scene.json", (eng.sun_estimate or {}).get("reason", "it lights nothing"))
+                        "none", a.scene / "scene.json", (eng.sun.estimate or {}).get("reason", "it lights nothing"))
         kw = dict(tracer=build_tracer(scene, textures=False, patches=eng.pre.patches, device=a.device, sun=sun),
-                  photo_radiance=eng.L_b, response=scene.response)
+                  photo_radiance=eng.receivers.L_b, response=scene.response)
     else:
         if scene.response is None:
             raise ValueError(f"{a.scene / 'scene.json'}: missing field 'camera_response'; --lighting known needs "

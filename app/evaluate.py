@@ -90,14 +90,14 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
         kw = {"device": device}
         if params.lighting != "known":  # the model lit as the engine lights it (its radiance mesh)
             kw = {"tracer": build_tracer(engine.scene, textures=False, patches=engine.pre.patches, device=device)}
-        ref = render_reference(engine.scene, reference_spp, quiet=quiet, photo_radiance=engine.L_b,
+        ref = render_reference(engine.scene, reference_spp, quiet=quiet, photo_radiance=engine.receivers.L_b,
                                response=engine.scene.response, **kw)
         truth = ref.pixels
         mask = np.rint(ref.coverage * 255).astype(np.uint8)
         against = f"path-traced reference ({ref.spp} spp)"
     else:
         truth = frames[None].pixels
-        cov = engine._object_hits(scene.obj.vertices, scene.obj.faces).coverage()
+        cov = engine.object_shading.object_hits(scene.obj.vertices, scene.obj.faces).coverage()
         mask = np.rint(cov * 255).astype(np.uint8)
         against = "all-sources composite"
     rows = []

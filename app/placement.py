@@ -517,7 +517,7 @@ class PlacementController:
         obj = self.scene_object(pose)
         if obj is None:
             H, W = self.scene.camera.height, self.scene.camera.width
-            rad = eng.L_b.reshape(H, W, 3).astype(np.float32)
+            rad = eng.receivers.L_b.reshape(H, W, 3).astype(np.float32)
             fr = FrameResult(self.scene.photo.copy(), rad, {"passes": 0, "engine_s": 0.0})
         else:
             f = eng.render(obj, cfg)

@@ -28,6 +28,7 @@ import dataclasses
 import cv2
 import numpy as np
 
+from recon.response import LUMA
 from recon.scene import Scene
 
 DEFAULT_WORK_RES = 1024
@@ -90,11 +91,11 @@ def full_resolution(engine, frame, full: Scene) -> tuple[np.ndarray, np.ndarray]
     levels = photo.astype(np.float32)
 
     # the room: the working frame's change, as a ratio where the photo is not black
-    L_b = engine.L_b.reshape(h, w, 3)
+    L_b = engine.receivers.L_b.reshape(h, w, 3)
     room = frame.room.astype(np.float64)
     # pixels the working frame changes by a quarter level or more (fainter change would round
     # away at full resolution too; leaving it out keeps the untouched photo bit for bit)
-    lv_b = engine.L_b_levels.reshape(h, w, 3)
+    lv_b = engine.receivers.L_b_levels.reshape(h, w, 3)
     changed_small = np.any(np.abs(resp.to_levels(room) - lv_b) >= 0.25, axis=2)
     if changed_small.any():
         ys, xs = np.nonzero(changed_small)
@@ -102,7 +103,7 @@ def full_resolution(engine, frame, full: Scene) -> tuple[np.ndarray, np.ndarray]
         box = (max(int(np.floor((y0 + 0.5) * H / h - 0.5)), 0), min(int(np.ceil((y1 + 0.5) * H / h - 0.5)), H - 1),
                max(int(np.floor((x0 + 0.5) * W / w - 0.5)), 0), min(int(np.ceil((x1 + 0.5) * W / w - 0.5)), W - 1))
         up = _upsampler((h, w), (H, W), box)
-        lum_b = L_b @ np.array([0.2126, 0.7152, 0.0722])
+        lum_b = L_b @ LUMA
         dark = (lum_b <= 1e-6 * max(float(lum_b.max()), 1e-30))[..., None]
         ratio = np.where(dark, 1.0, room / np.where(dark, 1.0, L_b))
         delta = np.where(dark, room - L_b, 0.0)
@@ -117,10 +118,10 @@ def full_resolution(engine, frame, full: Scene) -> tuple[np.ndarray, np.ndarray]
     radiance = radiance.reshape(-1, 3)
     levels = levels.reshape(-1, 3)
     # the object: vertex radiance of the working frame at the full camera's hits
-    shading = getattr(engine, "_last_shading", None)
+    shading = engine.last_shading
     if shading is not None and engine.params.specular == 0:
-        (v, _, f), L_vert, _ = shading
-        hits = engine._object_hits(v, f, camera=cam, supersample=2)
+        (v, _, f), L_vert, _, _ = shading
+        hits = engine.object_shading.object_hits(v, f, camera=cam, supersample=2)
         cov = hits.coverage().reshape(-1)
         hh = hits.hit
         sub = np.zeros((len(hh), 3))

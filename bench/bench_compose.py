@@ -89,7 +89,7 @@ def bench_scene(name: str, scene_dir: Path, n: int, repeat: int, cache: str) -> 
             vals = O_pix if mode == "ldr" else np.full_like(O_pix, 0.5)
             t_fill += _median_ms(lambda: fill(pix_sel, vals, fill_sel), repeat)
             Rd = _dense(stage, R)
-            ref_args = (mode, stage.L_b, eng.L_b_levels, stage.E_x, stage.rho_x, stage.recv_pix, stage.pix_rows,
+            ref_args = (mode, stage.L_b, eng.receivers.L_b_levels, stage.E_x, stage.rho_x, stage.recv_pix, stage.pix_rows,
                         stage.pix_bary, scene.photo, scene.response, pix_sel, O_pix, fill_sel, fill, Rd, dE, cov,
                         obj_rad, sun_pix, sun_loss)
             t_ref += _median_ms(lambda: compose_reference(*ref_args), repeat)

@@ -11,7 +11,7 @@ dropping the shafts below the 2 % threshold (photoar keeps them coarse); then a 
 33 ms per frame at 50 passes. Writes a table (stdout) and speed_vs_error.png per scene.
 
 --shape-cache-ab: only a drag at 50 passes (app.dragpath), each position rendered with the object's
-shape kept (proxy, shading mesh, BVHs translated and refit: Engine.shape_cache) and made afresh,
+shape kept (proxy, shading mesh, BVHs translated and refit: ObjectConfig.shape_cache) and made afresh,
 interleaved so that both see the same machine load; prints the mean frame and shape-phase times.
 --refine: progressive refinement at rest (Engine.refine, issue 17): per scene, the rmse_affected
 against the truth and the frame time of cluster frames at 50/100/200/400 passes on the drag
@@ -29,6 +29,7 @@ with a map each and the rest in C clusters (full-size maps), against C' clusters
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import copy
 import sys
 import tempfile
@@ -54,7 +55,7 @@ def bench_scene(name: str, scene_dir: Path, out: Path) -> list[dict]:
     with tempfile.TemporaryDirectory() as cache:
         eng = Engine(scene, EngineParams(), cache_dir=cache, quiet=True)
     st = eng.shadow_sources.stats()
-    print(f"{name}: {eng.pre.patches.n_patches} patches; hierarchy {eng.shaft_build_s:.2f} s, "
+    print(f"{name}: {eng.pre.patches.n_patches} patches; hierarchy {eng.seconds['shafts']:.2f} s, "
           f"{st['shafts']} shafts ({st['leaf_shafts']} leaves), {st['shaft_mb']:.1f} MB")
     truth = mask = None
     if (scene_dir / "truth.png").is_file():
@@ -108,10 +109,10 @@ def bench_shape_cache(name: str, scene_dir: Path, n: int = 12) -> None:
     t = {True: [], False: []}
     for k, o in enumerate(drag_offsets(scene, scene.obj, n)):
         for on in ((True, False) if k % 2 else (False, True)):
-            eng.shape_cache = on
+            eng.object_shading.config = dataclasses.replace(eng.object_shading.config, shape_cache=on)
             st = eng.render(moved(scene.obj, o), cfg).stats
             t[on].append((st["frame_s"], st["timings"]["proxy"] + st["timings"]["object"]))
-    eng.shape_cache = True
+    eng.object_shading.config = dataclasses.replace(eng.object_shading.config, shape_cache=True)
     for on in (False, True):
         a = np.array(t[on])
         print(f"{name}: drag of {n} positions at 50 passes, shape {'kept, refit' if on else 'made every frame'}: "
@@ -128,10 +129,10 @@ def _release(eng, scene, rmse, schedule: bool) -> tuple[float, float, list]:
 
     cfg = FrameConfig(passes=50)
     eng.render(moved(scene.obj, np.array([0.1, 0.0, 0.0])), cfg)  # the drag's last frame elsewhere
-    saved = eng.refine_schedule
-    eng._refining = None  # a finished refinement of this pose would be returned at once
+    saved = eng.refiner.schedule
+    eng.refiner.forget()  # a finished refinement of this pose would be returned at once
     if not schedule:
-        eng.refine_schedule = lambda obj, config=None: [FrameConfig(None, cfg.mode)]
+        eng.refiner.schedule = lambda obj, config=None: [FrameConfig(None, cfg.mode)]
     try:
         t0 = time.perf_counter()
         release = eng.render(scene.obj, cfg)
@@ -143,7 +144,7 @@ def _release(eng, scene, rmse, schedule: bool) -> tuple[float, float, list]:
                 if fr.stats["exact"]:
                     break
     finally:
-        eng.refine_schedule = saved
+        eng.refiner.schedule = saved
     out = [(t, f.stats["passes"], rmse(f.pixels)) for t, f in shown]
     conv = next(t for t, _, r in out if r <= out[-1][2] + 0.05)
     return conv, out[-1][0], out

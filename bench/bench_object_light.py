@@ -34,28 +34,26 @@ from recon.scene import load_scene  # noqa: E402
 def _capture(eng: Engine, scene, n: int) -> list[dict]:
     """The object-light inputs of each frame of an n-position drag (frames 2..n)."""
     frames = []
-    tri_fn = eng._object_triangle_radiance
+    tri_fn = eng.object_light.triangle_radiance
 
     def keep(obj, pv, pf, occ, B):
         frames.append(dict(obj=obj, pv=pv, pf=pf, occ=occ, B=B.copy(), cov=None))
         return tri_fn(obj, pv, pf, occ, B)
 
-    eng._object_triangle_radiance = keep
+    eng.object_light.triangle_radiance = keep
     try:
         for o in drag_offsets(scene, scene.obj, n):
             f = eng.render(moved(scene.obj, o), FrameConfig(passes=50))
             frames[-1]["cov"] = f.coverage.reshape(-1) >= 1.0
     finally:
-        del eng._object_triangle_radiance
+        del eng.object_light.triangle_radiance
     return frames[1:]
 
 
 def _place(occ, pv: np.ndarray) -> None:
     """The proxy's BVH moved to this frame's vertices: the engine translates and refits one BVH per
     shape in place, so a captured frame's occluder is where the last frame left it."""
-    if occ.mesh is not None:
-        occ._pts.assign(np.asarray(pv, np.float32))
-        occ.mesh.refit()
+    occ.move(pv)
 
 
 def _stage(eng: Engine, c: dict):
@@ -64,11 +62,11 @@ def _stage(eng: Engine, c: dict):
     centre, radius = bounding_sphere(pv)
     _place(occ, pv)
     t = time.perf_counter()
-    tri_rad = OL.triangle_radiance(eng, c["obj"], pv, pf, occ, c["B"])
+    tri_rad = eng.object_light.triangle_radiance(c["obj"], pv, pf, occ, c["B"])
     extra = None
-    if eng.sun_pix is not None:
-        tri_rad, extra = eng.sun_stage.object_emitters(pv, pf, tri_rad, c["obj"].albedo, occ, radius)
-    R_pix, R_cen = OL.object_light(eng, pv, pf, tri_rad, occ, centre, radius, c["cov"], extra)
+    if eng.sun_pixels.pix is not None:
+        tri_rad, extra = eng.sun_pixels.stage.object_emitters(pv, pf, tri_rad, c["obj"].albedo, occ, radius)
+    R_pix, R_cen = eng.object_light.light(pv, pf, tri_rad, occ, centre, radius, c["cov"], extra)
     return time.perf_counter() - t, (tri_rad, R_pix, R_cen)
 
 
@@ -95,7 +93,7 @@ def bench(scene_dir: Path, n: int, repeat: int) -> None:
     for i in range(len(frames)):
         (tc, pc, cc), (te, pe, ce) = out["coarse", i], out["exact", i]
         lit = np.abs(pe).sum(1) > 0
-        d = resp.to_levels(eng.L_b + eng.rho_x * pc) - resp.to_levels(eng.L_b + eng.rho_x * pe)
+        d = resp.to_levels(eng.receivers.L_b + eng.receivers.rho_x * pc) - resp.to_levels(eng.receivers.L_b + eng.receivers.rho_x * pe)
         area = eng.pre.patches.area
         rows.append((luminance(tc).sum() / luminance(te).sum() - 1, np.abs(d).max(), np.sqrt((d[lit] ** 2).mean()),
                      (luminance(cc) * area).sum() / max((luminance(ce) * area).sum(), 1e-30) - 1))

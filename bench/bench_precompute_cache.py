@@ -43,7 +43,7 @@ def main() -> int:
                 eng = Engine(scene, EngineParams(), cache_dir=cache, quiet=True)
                 rows.append({"scene": name, "run": "cold" if k == 0 else f"warm {k}",
                              "engine_s": time.perf_counter() - t0, "built": eng.n_precompute,
-                             "read": eng.n_cache_loads, "shafts_s": eng.shaft_build_s})
+                             "read": eng.n_cache_loads, "shafts_s": eng.seconds["shafts"]})
                 print(table(rows[-1:], list(rows[-1])), flush=True)
     print(table(rows, list(rows[0])) if rows else "no scenes")
     return 0

@@ -17,6 +17,7 @@ interleaved pose by pose in one engine (medians of warm frames), and the vertex 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import tempfile
 import time
@@ -75,13 +76,12 @@ def bench_scene(name: str, scene_dir: Path) -> dict:
     # specular: the per-frame pre-filtered cube map (default 16^2 faces) against a fine one
     c = scene.obj.centre
     t = time.perf_counter()
-    cm = eng.specular_map(c)
+    cm = eng.object_shading.specular_map(c)
     t_spec = time.perf_counter() - t
-    fine = Engine.__new__(Engine)
-    fine.__dict__.update(eng.__dict__)
-    fine.params = EngineParams(envmap_res=48)
+    shading = eng.object_shading
+    shading.config = dataclasses.replace(shading.config, envmap_res=48)  # a fine one
     dirs = rng.normal(size=(2000, 3))
-    ref_s = luminance(fine.specular_map(c).lookup(dirs))
+    ref_s = luminance(shading.specular_map(c).lookup(dirs))
     spec_err = np.abs(luminance(cm.lookup(dirs)) - ref_s) / ref_s
     return {"scene": name, "patches": pm.n_patches, "volume_20x10x20_s": t_vol,
             "specular_map_s": t_spec, "specular_err_mean": float(np.mean(spec_err)),
@@ -106,10 +106,11 @@ def bench_drag(name: str, scene_dir: Path, n: int) -> dict:
     for i, o in enumerate(offs[1:]):
         L = {}
         for on in ((True, False) if i % 2 else (False, True)):
-            eng.dB_far_field = eng.shaft_cull = on
+            eng.object_shading.config = dataclasses.replace(eng.object_shading.config, dB_far_field=on,
+                                                            shaft_cull=on)
             fr = eng.render(moved(scene.obj, o), cfg)
             ms[on].append(1e3 * fr.stats["timings"]["object_shading"])
-            L[on] = luminance(eng._last_L_vert)
+            L[on] = luminance(eng.last_shading[1])
         diff.append(np.abs(L[True] - L[False]) / L[False].mean())
     d = np.concatenate(diff)
     return {"scene": name, "frames": len(ms[True]), "exact_ms": float(np.median(ms[False])),

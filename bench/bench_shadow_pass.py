@@ -63,13 +63,13 @@ def bench(scene_dir: Path, res: int, n: int, cache: str) -> dict:
     for o in offs[1:]:
         obj = moved(scene.obj, o)
         # the masks stage alone, CPU time of both cores (the frame's other stages excluded)
-        pv, pf, occ, _, _ = eng._object_shape(obj)
+        pv, pf, occ, _, _ = eng.object_shading.object_shape(obj)
         fs = eng.shadow_sources.select(pv.min(0), pv.max(0), 50)
         centre, radius = bounding_sphere(pv)
         cov = np.zeros((scene.camera.height, scene.camera.width))
         c0, t0 = time.process_time(), time.perf_counter()
         steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, False, spread=fs.spread,
-                       scale=eng.E_x)  # as the engine runs it (graded lattice)
+                       scale=eng.receivers.E_x)  # as the engine runs it (graded lattice)
         for _ in steps:
             pass
         cpu.append(time.process_time() - c0)
@@ -78,14 +78,14 @@ def bench(scene_dir: Path, res: int, n: int, cache: str) -> dict:
            "masks_cpu_ms": 1e3 * np.mean(cpu), "pairs_50": _pairs(sp)}
     # the all-sources frame's masks alone (one map per source, the object at its own pose, no pixel taken as
     # hidden by it): median of 3
-    pv, pf, occ, _, _ = eng._object_shape(scene.obj)
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
     centre, radius = bounding_sphere(pv)
     cov = np.zeros((scene.camera.height, scene.camera.width))
     wall_all, cpu_all = [], []
     for _ in range(3):
         c0, t0 = time.process_time(), time.perf_counter()
-        for _ in sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, True, scale=eng.E_x):
+        for _ in sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, True, scale=eng.receivers.E_x):
             pass
         cpu_all.append(time.process_time() - c0)
         wall_all.append(time.perf_counter() - t0)
@@ -114,7 +114,7 @@ def bench_ab(scene_dir: Path, repeat: int, cache: str) -> list[dict]:
     scene = load_scene(scene_dir)
     eng = Engine(scene, EngineParams(), cache_dir=cache, quiet=True)
     sp = eng.shadow_pass
-    pv, pf, occ, _, _ = eng._object_shape(scene.obj)
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
     centre, radius = bounding_sphere(pv)
     cov = np.zeros((scene.camera.height, scene.camera.width))
@@ -124,7 +124,7 @@ def bench_ab(scene_dir: Path, repeat: int, cache: str) -> list[dict]:
         for mode in ((False, True) if r % 2 == 0 else (True, False)):
             sp.pipelined = mode
             c0, t0 = time.process_time(), time.perf_counter()
-            steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, True, scale=eng.E_x)
+            steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, True, scale=eng.receivers.E_x)
             try:
                 while True:
                     next(steps)
@@ -154,11 +154,11 @@ def texel_ratio(scene_dir: Path, cache: str) -> dict:
     eng = Engine(scene, EngineParams(), cache_dir=cache, quiet=True)
     sp = eng.shadow_pass
     W, H = scene.camera.width, scene.camera.height
-    pv, pf, occ, _, _ = eng._object_shape(scene.obj)
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
     # the narrowest camera-pixel footprint per patch
-    pos = np.asarray(eng.pix_pos, np.float64).reshape(H, W, 3)
-    ok = (eng.recv_pix & (eng.pix_patch >= 0)).reshape(H, W)
+    pos = np.asarray(eng.receivers.pix_pos, np.float64).reshape(H, W, 3)
+    ok = (eng.receivers.recv_pix & (eng.receivers.pix_patch >= 0)).reshape(H, W)
     q = sp.pix_quad.reshape(H, W)
     fp = np.full((H, W), np.inf)
     for a, b in (((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
@@ -169,7 +169,7 @@ def texel_ratio(scene_dir: Path, cache: str) -> dict:
         fp[a], fp[b] = np.minimum(fp[a], d), np.minimum(fp[b], d)
     foot = np.full(len(sp.patch_centre), np.inf)
     m = ok & np.isfinite(fp) & (fp > 0)
-    np.minimum.at(foot, eng.pix_patch.reshape(H, W)[m], fp[m])
+    np.minimum.at(foot, eng.receivers.pix_patch.reshape(H, W)[m], fp[m])
     maps = sp.maps_full
     maps.set_proxy(pv, pf, occ)
     c, r = maps._centre, maps._radius * 1.02 + 1e-3  # ShadowMaps.prepare's field of view

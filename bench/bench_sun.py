@@ -23,6 +23,7 @@ process, more than its own interval says).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import subprocess
 import sys
@@ -52,11 +53,11 @@ def jittered(engine: Engine, obj, n: int) -> np.ndarray:
     a = np.cross(helper, d)
     a /= np.linalg.norm(a)
     b = np.cross(d, a)
-    acc = np.zeros(len(engine.sun_stage.pts))
+    acc = np.zeros(len(engine.sun_pixels.stage.pts))
     for u, v in vogel_disk(n) * np.tan(sun.half_angle):
         m = SunShadowMap(d + u * a + v * b, 0.0, device=engine.device)
         m.render(obj.vertices, obj.faces)
-        acc += m.occlusion(engine.sun_stage.pts, engine.sun_stage.footprint)
+        acc += m.occlusion(engine.sun_pixels.stage.pts, engine.sun_pixels.stage.footprint)
     return acc / n
 
 
@@ -80,21 +81,21 @@ def pieces_against_monte_carlo(engine: Engine, obj, n_mc: int = 400000, seed: in
     r1, r2 = np.sqrt(rng.random(n_mc)), rng.random(n_mc)
     P = (1 - r1)[:, None] * T[ti, 0] + (r1 * (1 - r2))[:, None] * T[ti, 1] + (r1 * r2)[:, None] * T[ti, 2]
     Nn = nt[ti]
-    L = obj.albedo * engine.sun_light.irradiance(P, Nn, [occ])  # radiance of each sample
-    faces = obj.albedo * engine.sun_light.triangle_irradiance(T, [occ])
+    L = obj.albedo * engine.sun.light.irradiance(P, Nn, [occ])  # radiance of each sample
+    faces = obj.albedo * engine.sun.light.triangle_irradiance(T, [occ])
     radius = float(np.linalg.norm(V - 0.5 * (V.min(0) + V.max(0)), axis=1).max())
-    sub, E, _ = engine.sun_light.sunlit_elements(T, [occ], size=radius / 4.0)
-    sun_rad, extra = engine.sun_stage.object_emitters(V, F, np.zeros((len(F), 3)), obj.albedo, occ, radius)
+    sub, E, _ = engine.sun.light.sunlit_elements(T, [occ], size=radius / 4.0)
+    sun_rad, extra = engine.sun_pixels.stage.object_emitters(V, F, np.zeros((len(F), 3)), obj.albedo, occ, radius)
     uv, _ = engine.scene.camera.project(0.5 * (V.min(0) + V.max(0))[None])
     cu, cv = uv[0]
     W = engine.scene.camera.width
     rows = []
     for du, dv in ((-150, 130), (-60, 60), (-20, 35), (-180, -120), (80, -40)):
         i = int(round(cv + dv)) * W + int(round(cu + du))
-        if not engine.recv_pix[i]:
+        if not engine.receivers.recv_pix[i]:
             continue
-        p = engine.pix_pos[i].astype(np.float64)
-        pn = engine.pre.patches.normal[engine.pix_patch[i]]
+        p = engine.receivers.pix_pos[i].astype(np.float64)
+        pn = engine.pre.patches.normal[engine.receivers.pix_patch[i]]
         d = P - p
         r = np.linalg.norm(d, axis=1)
         d /= r[:, None]
@@ -179,7 +180,7 @@ def outline_table(engine: Engine, obj, shared: Path, repeat: int = 5) -> str:
     disagree; the frame's own: 4 x 4 adaptively), with the rays cast and _outline_shade_kernel's
     thread-CPU ms (the median of `repeat` frames)."""
     rows = []
-    stage = engine.sun_stage
+    stage = engine.sun_pixels.stage
     first0 = stage.edge_first
     # the outline where sunlight clips, re-sampled s x s: every ray on every pixel, or adaptively (the
     # frame's own: edge_first rays a pixel, all s x s where they disagree)
@@ -298,10 +299,11 @@ def main(argv=None) -> int:
     # A/B on one engine: the same drag frame with the sun and with the sun switched off (all --passes
     # for the room's patches), interleaved pose by pose in ABBA order so that a shared machine's load
     # and the engine's per-shape caches fall on both alike
-    saved, sun_on = engine.sun_pix, type(engine).sun_on
+    with_sun = engine.sun_pixels
+    without = dataclasses.replace(with_sun, pix=None, stage=None)
 
     def sun(on: bool) -> None:
-        engine.sun_pix, type(engine).sun_on = (saved, sun_on) if on else (None, property(lambda self: False))
+        engine.sun_pixels = with_sun if on else without
 
     if a.outline_only:
         engine.render(obj)
@@ -327,7 +329,7 @@ def main(argv=None) -> int:
             stages[on].append(st["timings"])
             if on:
                 ms_sun.append(st["timings"]["sun"])
-                rays.append(engine.sun_stage._outline.rays)
+                rays.append(engine.sun_pixels.stage.edge_rays)
     kernel_clock(stop=True)
     sun(True)
     # CPU time is far steadier than wall time on a shared machine (other jobs' load stretches wall time)
@@ -379,9 +381,9 @@ def main(argv=None) -> int:
     ref = jittered(engine, obj, 64)
     rows = []
     t0 = time.perf_counter()
-    engine.sun_stage.map._key = None  # drawn anew: the time of a first frame of a shape
-    engine.sun_stage.map.render(obj.vertices, obj.faces)
-    pcss = engine.sun_stage.map.occlusion(engine.sun_stage.pts, engine.sun_stage.footprint)
+    engine.sun_pixels.stage.map._key = None  # drawn anew: the time of a first frame of a shape
+    engine.sun_pixels.stage.map.render(obj.vertices, obj.faces)
+    pcss = engine.sun_pixels.stage.map.occlusion(engine.sun_pixels.stage.pts, engine.sun_pixels.stage.footprint)
     rows.append({"method": "PCSS, 1 map, 48 taps", "s": time.perf_counter() - t0,
                  "mean_abs_err": float(np.abs(pcss - ref).mean()), "max_abs_err": float(np.abs(pcss - ref).max())})
     for n in (4, 8, 16):
@@ -397,7 +399,7 @@ def main(argv=None) -> int:
         rows.append({"lighting": name, **shared_score(a.shared, eng.render(obj).pixels)})
     print(table(rows, ["lighting", "energy_ratio", "rmse_affected", "rmse_affected_if_untouched", "spurious",
                        "rmse_object", "bias_object"]))
-    est = cap.sun_estimate or {}
+    est = cap.sun.estimate or {}
     print(table([{k: (f"{v:.4g}" if isinstance(v, float) else str(np.round(v, 4).tolist()))
                   for k, v in est.items()}], list(est)))
     return 0

@@ -129,7 +129,7 @@ def main(argv=None) -> int:
                 write_png(out, fr.pixels)
                 s = score(str(folder), str(out))
                 rows.append({"sun (az, el)": f"{az:.0f}, {el:.0f}" + (" (own)" if k == 0 and a.suns is None else ""),
-                             "passes": passes or "all", "sun lights room": bool(eng.sun_on),
+                             "passes": passes or "all", "sun lights room": bool(eng.sun.on),
                              "clipped px": info["clipped_px"], "energy_ratio": s["energy_ratio"],
                              "rmse_affected": s["rmse_affected"], "untouched": s["rmse_affected_if_untouched"],
                              "spurious": s["spurious"], "rmse_object": s["rmse_object"]})

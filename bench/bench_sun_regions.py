@@ -28,7 +28,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-W_LUM = np.array([0.2126, 0.7152, 0.0722])
+from recon.response import LUMA  # noqa: E402
+
+W_LUM = LUMA
 
 
 def regions(e, scene_dir: Path) -> dict[str, np.ndarray]:
@@ -38,15 +40,15 @@ def regions(e, scene_dir: Path) -> dict[str, np.ndarray]:
     H, W = e.scene.camera.height, e.scene.camera.width
     mk = cv2.imread(str(scene_dir / "truth_mask.png"), 0)
     mask = (cv2.dilate((mk > 127).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0).ravel()
-    pos = e.pix_pos
+    pos = e.receivers.pix_pos
     lo, hi = e.scene.obj.vertices.min(0), e.scene.obj.vertices.max(0)
     c = 0.5 * (lo + hi)
     dist = np.linalg.norm((pos - c)[:, [0, 2]], axis=1)
     rmin, rmax = np.asarray(e.scene.room_min, float), np.asarray(e.scene.room_max, float)
     sun = np.zeros(H * W, bool)
-    if e.sun_pix is not None:
-        sun[e.sun_pix] = True
-    ok = e.recv_pix & ~mask
+    if e.sun_pixels.pix is not None:
+        sun[e.sun_pixels.pix] = True
+    ok = e.receivers.recv_pix & ~mask
     floor = np.abs(pos[:, 1] - rmin[1]) < 1e-3
     out = {"sunlit floor": ok & sun & floor,
            "floor < 0.6 m from the object": ok & floor & ~sun & (dist < 0.6),
@@ -79,7 +81,7 @@ def main() -> None:
     f = e.render(s.obj, FrameConfig(passes=None if a.passes == "all" else int(a.passes)))
     bg = read_exr(scene_dir / "background.exr").reshape(-1, 3) @ W_LUM
     tr = read_exr(scene_dir / "truth.exr").reshape(-1, 3) @ W_LUM
-    Lb = e.L_b @ W_LUM
+    Lb = e.receivers.L_b @ W_LUM
     room = f.room.reshape(-1, 3) @ W_LUM
     ours = np.where(Lb > 0, (Lb - room) / np.maximum(Lb, 1e-12), 0.0) * bg
     print(f"{a.scene}, {a.passes} passes: darkening per region (linear luminance summed; < 0: brighter)")
@@ -92,7 +94,7 @@ def main() -> None:
         sc = json.loads(subprocess.check_output([sys.executable, str(a.shared / "tools" / "score.py"), str(scene_dir),
                                                  str(Path(tmp) / "c.png")]))
     print("score:", {k: round(v, 4) for k, v in sc.items()})
-    if e.sun_stage is not None:
+    if e.sun_pixels.stage is not None:
         blocked_share(e, s)
 
 
@@ -101,17 +103,17 @@ def blocked_share(e, s) -> None:
     against a ray per lost sample point."""
     import open3d as o3d
 
-    pm, st = e.pre.patches, e.sun_stage
-    pv, pf, occ, _, _ = e._object_shape(s.obj)
+    pm, st = e.pre.patches, e.sun_pixels.stage
+    pv, pf, occ, _, _ = e.object_shading.object_shape(s.obj)
     st.frame(s.obj.vertices, s.obj.faces)
     dB1 = -pm.albedo * 0
-    dB1[st.c_patch] = -pm.albedo[st.c_patch] * (st._lost.mean(1)[:, None] * st.E_perp)
+    dB1[st.c_patch] = -pm.albedo[st.c_patch] * (st.lost.mean(1)[:, None] * st.E_perp)
     recv = pm.vert_inset[e.pre.recv_vert]
     blk_v, _ = st.first_pass_blocked(occ, (pv.min(0) - 1e-3, pv.max(0) + 1e-3), dB1, e.pre.G_c, e.pre.G_v, recv)
     K = st.c_vis.shape[1]
-    i, k = np.nonzero(st._lost > 0)
+    i, k = np.nonzero(st.lost > 0)
     pts = st.c_pts.reshape(len(st.c_patch), K, 3)[i, k]
-    w = (st._lost[i, k] / K) * (pm.albedo[st.c_patch[i]] @ W_LUM) * float(st.E_perp @ W_LUM)
+    w = (st.lost[i, k] / K) * (pm.albedo[st.c_patch[i]] @ W_LUM) * float(st.E_perp @ W_LUM)
     mesh = o3d.t.geometry.TriangleMesh()
     mesh.vertex.positions = o3d.core.Tensor(pv.astype(np.float32))
     mesh.triangle.indices = o3d.core.Tensor(pf.astype(np.int32))

@@ -74,6 +74,14 @@ class Workspace:
         self.rows = rows
         self.sources = sources
         self._buffers: dict[str, Buffer] = {}
+        self._subs: dict[str, Workspace] = {}
+
+    def sub(self, name: str) -> Workspace:
+        """The buffers of a second kernel at the same call site (e.g. a far-field sum beside the exact
+        one), of the same block sizes, kept beside this one's."""
+        if name not in self._subs:
+            self._subs[name] = Workspace(self.rows, self.sources)
+        return self._subs[name]
 
     def buffer(self, name: str, rows: int, dtype, device: str, cols: tuple[int, ...] = ()) -> Buffer:
         """The Buffer `name` holding at least `rows` rows of shape `cols` (and at least the
@@ -121,10 +129,14 @@ def call_buffers(workspace: Workspace | None, n: int) -> tuple[Workspace, int]:
     return (Workspace(), max(n, 1)) if workspace is None else (workspace, workspace.rows)
 
 
-def workspace(owner, site: str) -> Workspace:
-    """The Workspace of call site `site` kept on `owner` (e.g. the engine: one per kernel call in
-    a per-frame stage), made on first use."""
-    sites = owner.__dict__.setdefault("_workspaces", {})
-    if site not in sites:
-        sites[site] = Workspace()
-    return sites[site]
+class Workspaces:
+    """The Workspaces of a per-frame stage, one per kernel call site (`site`, e.g. "object_light.centres"),
+    made on first use and kept for the stage's life."""
+
+    def __init__(self) -> None:
+        self._sites: dict[str, Workspace] = {}
+
+    def get(self, site: str) -> Workspace:
+        if site not in self._sites:
+            self._sites[site] = Workspace()
+        return self._sites[site]

@@ -17,6 +17,7 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
+from kernels.sh9 import sh9
 from kernels.visibility import Occluder, segment_blocked
 
 
@@ -36,18 +37,8 @@ def _tri_solid_angle(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> float:
 @wp.func
 def _accumulate(out: wp.array2d(dtype=wp.vec3), g: int, d: wp.vec3, w: wp.vec3):
     """Add radiance w (already times solid angle) from direction d to point g's 9 coefficients."""
-    x = d[0]
-    y = d[1]
-    z = d[2]
-    out[g, 0] += w * 0.282094791773878
-    out[g, 1] += w * (0.488602511902920 * y)
-    out[g, 2] += w * (0.488602511902920 * z)
-    out[g, 3] += w * (0.488602511902920 * x)
-    out[g, 4] += w * (1.092548430592079 * x * y)
-    out[g, 5] += w * (1.092548430592079 * y * z)
-    out[g, 6] += w * (0.315391565252520 * (3.0 * z * z - 1.0))
-    out[g, 7] += w * (1.092548430592079 * x * z)
-    out[g, 8] += w * (0.546274215296040 * (x * x - y * y))
+    for k in range(9):
+        out[g, k] += w * sh9(d, k)
 
 
 @wp.kernel

@@ -47,14 +47,10 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
+from kernels.luma import LUMA
 
 EMITTER_LIFT = 1.0e-3  # m: emitter patches are lifted off the wall they sit on (as the engine's camera mesh)
 RAY_EPS = 1.0e-4  # m: ray origins pushed off their surface along the geometric normal
-
-
-@wp.func
-def _luminance(c: wp.vec3) -> float:
-    return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 
 
 @wp.func
@@ -170,6 +166,19 @@ class Model:
 
 
 @wp.func
+def _past_object(m: Model, use_obj: int, a: wp.vec3, d: wp.vec3, t_max: float) -> wp.vec2i:
+    """(visible, touched) of a ray from a along d that the scene lets through up to t_max: the object
+    blocks it there (touched), which hides what lies beyond when use_obj is set."""
+    if m.obj != wp.uint64(0):
+        qo = wp.mesh_query_ray(m.obj, a, d, t_max)
+        if qo.result:
+            if use_obj != 0:
+                return wp.vec2i(0, 1)
+            return wp.vec2i(1, 1)
+    return wp.vec2i(1, 0)
+
+
+@wp.func
 def _shadow(m: Model, use_obj: int, a: wp.vec3, b: wp.vec3) -> wp.vec2i:
     """(visible, touched) for the segment a->b: touched = only the object blocks it."""
     d = b - a
@@ -180,13 +189,7 @@ def _shadow(m: Model, use_obj: int, a: wp.vec3, b: wp.vec3) -> wp.vec2i:
     qs = wp.mesh_query_ray(m.scene, a, d, dist * 0.9999)
     if qs.result:
         return wp.vec2i(0, 0)
-    if m.obj != wp.uint64(0):
-        qo = wp.mesh_query_ray(m.obj, a, d, dist * 0.9999)
-        if qo.result:
-            if use_obj != 0:
-                return wp.vec2i(0, 1)
-            return wp.vec2i(1, 1)
-    return wp.vec2i(1, 0)
+    return _past_object(m, use_obj, a, d, dist * 0.9999)
 
 
 @wp.func
@@ -200,13 +203,7 @@ def _sun_shadow(m: Model, use_obj: int, a: wp.vec3, d: wp.vec3) -> wp.vec2i:
     patch = m.tri_patch[qs.face]
     if m.patch_open[patch] == 0 or wp.dot(d, m.patch_normal[patch]) >= 0.0:
         return wp.vec2i(0, 0)
-    if m.obj != wp.uint64(0):
-        qo = wp.mesh_query_ray(m.obj, a, d, qs.t)
-        if qo.result:
-            if use_obj != 0:
-                return wp.vec2i(0, 1)
-            return wp.vec2i(1, 1)
-    return wp.vec2i(1, 0)
+    return _past_object(m, use_obj, a, d, qs.t)
 
 
 @wp.func
@@ -447,7 +444,7 @@ class PathTracer:
         self.textured = bool((info[:, 0] >= 0).any())
         # emitter patches, chosen in proportion to power (area x luminance of emitted radiance)
         ei = np.flatnonzero(emit)
-        lum = pm.emission[ei] @ np.array([0.2126, 0.7152, 0.0722])
+        lum = pm.emission[ei] @ LUMA
         power = pm.area[ei] * np.maximum(lum, 1e-12)
         prob = power / power.sum()
         cdf = np.cumsum(prob)

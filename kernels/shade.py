@@ -15,31 +15,8 @@ import warp as wp
 
 from kernels import runtime
 from kernels.formfactor import polygon_ff
+from kernels.sh9 import sh9
 from kernels.visibility import Occluder, segment_blocked
-
-
-@wp.func
-def _sh9(d: wp.vec3, k: int) -> float:
-    x = d[0]
-    y = d[1]
-    z = d[2]
-    if k == 0:
-        return 0.282094791773878
-    if k == 1:
-        return 0.488602511902920 * y
-    if k == 2:
-        return 0.488602511902920 * z
-    if k == 3:
-        return 0.488602511902920 * x
-    if k == 4:
-        return 1.092548430592079 * x * y
-    if k == 5:
-        return 1.092548430592079 * y * z
-    if k == 6:
-        return 0.315391565252520 * (3.0 * z * z - 1.0)
-    if k == 7:
-        return 1.092548430592079 * x * z
-    return 0.546274215296040 * (x * x - y * y)
 
 
 @wp.kernel
@@ -63,7 +40,7 @@ def _transfer_kernel(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp
         q = wp.mesh_query_ray(mesh, p, d, max_dist)
         if not q.result:
             for c in range(9):
-                acc[c] += _sh9(d, c)
+                acc[c] += sh9(d, c)
             hit_face[i, k] = -1
         else:
             hit_face[i, k] = q.face

@@ -16,7 +16,7 @@ object's BVH kept per shape (set_proxy takes it), so rendering a batch allocates
 `may_occlude` bounds a map's shadow: only points inside the cone from the eye around the
 proxy's bounding sphere, behind its nearest depth, and whose texels lie in a COARSE x COARSE
 block of the map that some triangle's row span touched (`coarse`, marked while rasterising)
-can be occluded; the masked sums skip the rest (kernels.composite).
+can be occluded; the masked sums skip the rest (kernels.masked_sums).
 """
 from __future__ import annotations
 
@@ -164,7 +164,7 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     if z + r <= ms.near[s]:
         return False
     # the cone (cone_tan: the proxy's bounding sphere widened by a texel, and a cluster map's
-    # penumbra, which kernels.composite.penumbra reaches spread / near farther out): the signed
+    # penumbra, which kernels.masked_sums.penumbra reaches spread / near farther out): the signed
     # distance of c from the cone's surface (a lower bound behind the apex) times sec
     lateral = wp.length(d - ms.fwd[s] * z)
     if lateral - z * ms.cone_tan[s] > r * ms.cone_sec[s]:
@@ -342,7 +342,7 @@ class ShadowMaps:
         """Aim maps 0..n-1 from eye points (n<=capacity, 3) at the proxy; returns n. The maps are
         drawn by raster (over index ranges, app.runtime.split) or render. spread (n,) m: the
         half-width of the cluster of sources each map stands for (default 0: point sources, a
-        hard lookup); the masked sums filter a map's lookup by it (kernels.composite.penumbra);
+        hard lookup); the masked sums filter a map's lookup by it (kernels.masked_sums.penumbra);
         axes (n,2,3) m: the cluster's half-axes across the view, of lengths <= spread (default
         spread along the map's right and up: a square)."""
         n = len(eyes)

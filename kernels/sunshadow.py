@@ -29,6 +29,7 @@ import numpy as np
 import warp as wp
 
 from kernels import runtime
+from kernels.buffers import Workspace
 from kernels.shade import camera_hit, camera_ray
 
 
@@ -219,8 +220,7 @@ class SunShadowMap:
         nb = (int(res) + self.m.block - 1) // self.m.block
         self.m.bmin = wp.zeros((nb, nb), dtype=wp.float32, device=self.device)
         self.m.bmax = wp.zeros((nb, nb), dtype=wp.float32, device=self.device)
-        self._verts = _Buffer(wp.vec3, self.device)
-        self._tris = _Buffer(wp.int32, self.device, cols=3)
+        self._buffers = Workspace()  # the occluder's vertices and triangles, grown only when a shape needs more
         self._key: bytes | None = None  # the shape the map holds (render)
         self.n_renders = 0  # rasterisations so far (a translation needs none)
 
@@ -243,8 +243,8 @@ class SunShadowMap:
         self.m.depth.fill_(float("inf"))
         fwd = np.array(self.m.fwd, np.float64)
         self.m.z_min = float(((v - c) @ fwd).min())
-        verts = self._verts.put(v.astype(np.float32))
-        tris = self._tris.put(np.asarray(faces, np.int32))
+        verts = self._buffers.upload("verts", v.astype(np.float32), wp.vec3, self.device)
+        tris = self._buffers.upload("tris", np.asarray(faces, np.int32), wp.int32, self.device)
         wp.launch(_raster, dim=len(faces), inputs=[self.m, verts, tris], device=self.device)
         wp.launch(_block_range, dim=self.m.bmin.shape, inputs=[self.m], device=self.device)
 
@@ -279,30 +279,6 @@ class LookupPoints:
         self.pos = wp.array(np.asarray(points, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
         self.fp = wp.array(fp, dtype=wp.float32, device=device)
         self.out = wp.zeros(max(self.n, 1), dtype=wp.float32, device=device)
-
-
-class _Buffer:
-    """A device array reused between calls: grown (doubled) only when a call needs more room;
-    `put` copies host data in (through a kept host staging array off the CPU)."""
-
-    def __init__(self, dtype, device: str, cols: int = 0):
-        self.dtype, self.device, self.cols = dtype, device, cols  # cols: a 2-D buffer's row length
-        self.dev = None
-        self.host = None
-
-    def put(self, data: np.ndarray) -> wp.array:
-        n = len(data)
-        if self.dev is None or self.dev.shape[0] < n:
-            shape = (max(n, 2 * (0 if self.dev is None else self.dev.shape[0])),) + ((self.cols,) if self.cols else ())
-            self.dev = wp.empty(shape, dtype=self.dtype, device=self.device)
-            self.host = None if wp.get_device(self.device).is_cpu else \
-                wp.empty(shape, dtype=self.dtype, device="cpu", pinned=True)
-        if self.host is None:
-            self.dev.numpy()[:n] = data
-        else:
-            self.host.numpy()[:n] = data
-            wp.copy(self.dev, self.host, count=n * int(np.prod(self.dev.shape[1:])))
-        return self.dev
 
 
 # ----------------------------------------------------------------------------- outline rays

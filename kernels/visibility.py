@@ -128,6 +128,13 @@ class Occluder:
             return np.zeros((0, 3, 3))
         return self._pts.numpy().astype(np.float64)[self._idx.numpy().reshape(-1, 3)]
 
+    def move(self, vertices: np.ndarray) -> None:
+        """The same triangles at new vertex positions (V,3) m: copied into the mesh's buffer and the
+        BVH refit (Warp Mesh.refit; nothing allocated). No-op when empty."""
+        if self.mesh is not None:
+            self._pts.assign(np.asarray(vertices, np.float32))
+            self.mesh.refit()
+
 
 def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.ndarray,
                     patch_normals: np.ndarray, occluders: list[Occluder], n_side: int = 2,

@@ -366,7 +366,7 @@ class ShadowSources:
     def spread(self, starts: np.ndarray, pos: np.ndarray, key: np.ndarray, eyes: np.ndarray,
                target: np.ndarray) -> np.ndarray:
         """(n,2,3) m: each node's extent across its eye's view, the PCSS light size of its map
-        (kernels.composite.penumbra): the principal half-axes, each of the RMS distance along it,
+        (kernels.masked_sums.penumbra): the principal half-axes, each of the RMS distance along it,
         of the offsets perpendicular to the direction from the eye to `target` (the object) of its marked
         members (pos[starts[k]:starts[k+1]]) from the eye, weighted by key as the eye is (uniformly
         where the keys sum to 0). A node of one member has 0 (a point source)."""

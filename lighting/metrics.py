@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-LUM_RGB = np.array([0.2126, 0.7152, 0.0722])  # Rec.709, RGB order
+from recon.response import LUMA
+
+LUM_RGB = LUMA  # Rec.709, RGB order (recon.response.LUMA)
 FLIP_NOTE = ("FLIP not computed: the maintained package (flip-evaluator) is not installed here and "
              "packages may not be installed; see the error heat-map instead")
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from recon.camera import Camera
+from recon.response import LUMA
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
 @dataclass

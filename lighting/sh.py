@@ -12,12 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-# normalisation constants of the real SH basis, l <= 2
-C0 = 0.282094791773878
-C1 = 0.488602511902920
-C2 = 1.092548430592079
-C3 = 0.315391565252520
-C4 = 0.546274215296040
+from kernels.sh9 import C0, C1, C2, C3, C4  # noqa: F401 (normalisation constants of the real SH basis, l <= 2)
+
 BAND = np.array([0, 1, 1, 1, 2, 2, 2, 2, 2])
 A_HAT = np.array([np.pi, 2 * np.pi / 3, np.pi / 4])[BAND]  # clamped-cosine convolution per coefficient
 

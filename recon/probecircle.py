@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from kernels.luma import LUMA
+
 CROP_SIZE = 256  # px, the size of the ball-inscribed crops written for the engine
 
 
 def _grey(img: np.ndarray) -> np.ndarray:
     g = img.astype(np.float32)
-    return g @ np.array([0.2126, 0.7152, 0.0722], np.float32) if g.ndim == 3 else g
+    return g @ LUMA.astype(np.float32) if g.ndim == 3 else g
 
 
 def hough_circles(img: np.ndarray, n_max: int = 12) -> list[tuple[float, float, float]]:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec.709 luminance weights of linear RGB
+from kernels.luma import LUMA  # noqa: F401 (Rec.709 luminance weights of linear RGB; re-exported)
 
 
 def luminance(rgb: np.ndarray) -> np.ndarray:

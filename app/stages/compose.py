@@ -1,6 +1,6 @@
 """Compose stage: the second order and the compositing of a frame (HDR or LDR), on what changed.
 
-The reference it reproduces (the engine's numpy form before issue 17), per pixel x of the frame:
+The reference it reproduces (compose_reference, the numpy form), per pixel x of the frame:
 
   dE_v   = G_v dB                              second order at receiver vertices, dB = the change of
                                                patch radiance (shadowed patches, object light) (P,3)
@@ -14,7 +14,7 @@ The reference it reproduces (the engine's numpy form before issue 17), per pixel
 Per scene (ComposeStage.__init__): the pixel -> receiver-vertex rows restricted to receiver pixels,
 T(L_b), the LDR frame's unchanged radiance, G_v in the kernel's buffer (a frame sums over the
 changed patches only), the response's breakpoints and lookup grids, and every per-pixel
-buffer at full-frame size (kernels.compose.Compositor). Per frame the host work is a few launches:
+buffer at full-frame size (kernels.pixel_compose.Compositor). Per frame the host work is a few launches:
 the shadows' share computed and written at pix_sel by a kernel (share_kernel), the fill's values
 written by the fill's own kernel straight into the frame's shadow buffer, a sparse object light
 scattered by a kernel (scatter_kernel), the sun's pixels and the object's
@@ -38,7 +38,7 @@ from typing import Callable
 import numpy as np
 
 from app import runtime
-from kernels.compose import EX_COV, EX_OBJ, EX_SUN, Compositor
+from kernels.pixel_compose import EX_COV, EX_OBJ, EX_SUN, Compositor
 from lighting.transfer import intensity_transfers
 
 FillFn = Callable[..., "np.ndarray | None"]  # fill(known, values, missing, out=None): the values at missing,
@@ -189,9 +189,9 @@ def nonzero_rows(a: np.ndarray) -> np.ndarray:
 def compose_reference(mode: str, L_b, L_b_levels, E_x, rho_x, recv_pix, pix_rows, pix_bary, photo, response,
                       pix_sel, O_pix, fill_sel, fill: FillFn, R_pix, dE_v, cov, obj_rad, sun_pix=None,
                       sun_loss=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The engine's numpy form of the second order's interpolation and the compose step (before
-    issue 17), over full-frame arrays: the specification ComposeStage.frame reproduces (tests/kernels/
-    test_compose.py, bench/bench_compose.py). R_pix dense (N,3); returns (radiance, pixels, room) (N,3)."""
+    """The numpy form of the second order's interpolation and the compose step, over full-frame
+    arrays: the specification ComposeStage.frame reproduces (tests/kernels/test_compose.py,
+    bench/bench_compose.py). R_pix dense (N,3); returns (radiance, pixels, room) (N,3)."""
     resp = response
     dE_x = np.zeros_like(L_b)
     if dE_v is not None:

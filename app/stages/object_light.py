@@ -1,45 +1,29 @@
 """Object light stage: the light the object reflects onto the room (pixels and patch centres), as
-irradiance / pi (DESIGN "Per-frame stages"). The object's proxy triangles are the emitters."""
+irradiance / pi (DESIGN "Per-frame stages"). The object's proxy triangles are the emitters.
+
+ObjectLight is built once per scene from the receiver map and the patch mesh; per frame
+`triangle_radiance` lights the proxy's triangles from the room, `light` sums their light onto the
+pixels and the patch centres, and `centre_light_parts` splits the centres' light into the room's
+and the sun's parts (a room with a sun)."""
 from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kernels.buffers import Workspace, workspace
+from app.config import ObjectConfig
+from kernels.buffers import Workspace, Workspaces
 from kernels.farfield import VertexInterpolation, point_emitter_sum
 from kernels.visibility import (Occluder, SeenEmitters, distance_to, emitter_sum, emitter_sum_seen_bounded,
                                 segments_visible, transfer_matrix)
+from recon.patches import PatchMesh
 from recon.proxy import bounding_sphere
 from recon.response import luminance
 from recon.scene import SceneObject
 
-if TYPE_CHECKING:
-    from app.engine import Engine
-
-
-def triangle_radiance(eng: "Engine", obj: SceneObject, pv, pf, proxy_occ, B: np.ndarray) -> np.ndarray:
-    """Outgoing radiance (T,3) of each proxy triangle, lit at its centroid by patches of radiance B
-    (P,3), gathered with visibility past the scene and the proxy (self-occlusion) over a coarse
-    set of patches (PatchBlocks.gather_set): the emitters and the patches near the object as they
-    are, the other patches merged in blocks of a quad's patches, coarser farther away.
-    (The SH9 volume x the proxy's self transfer in place of the non-emitting patches was measured and
-    left out: on lamps_room it lit the proxy brighter and raised spurious from 0.0037 to 0.0050.)"""
-    c = pv[pf].mean(1)
-    corners, normals, B_set = patch_blocks(eng).gather_set(B, *bounding_sphere(pv))
-    shape = proxy_shape(eng, pv, pf, proxy_occ)
-    G = transfer_matrix(c, shape.normals, corners, normals,
-                        [eng.scene_occ, proxy_occ], n_side=1, eps=GATHER_EPS, device=eng.device,
-                        chunk=max(16, -(-len(c) // 2)),  # two launches side by side: both cores
-                        workspace=workspace(eng, "object_irradiance"), free=shape.free, free_res=FREE_RES)
-    return obj.albedo * (G.astype(np.float64) @ B_set)
-
-
-BLOCKS = (2,)  # patches a side of the blocks of non-emitting patches gathered as one, fine to coarse
-# (2, 4) was measured: lamps_room's triangle_radiance 2.8x cheaper than every patch instead of 2.1x, but
-# its all-sources spurious 0.0048 -> 0.0051 (0.0049 with 2 alone)
+BLOCKS = (2,)  # patches a side of the blocks of non-emitting patches gathered as one, fine to coarse (a
+# coarser level saves time but lets the proxy's light err more: docs/history.md)
 BLOCK_NEAR = 4.0  # a block is split within this many block radii of the object's sphere (PatchBlocks)
 
 
@@ -136,14 +120,6 @@ def _patch_grid(pm, idx: np.ndarray) -> tuple[int, int] | None:
     return nu, nv
 
 
-def patch_blocks(eng: "Engine") -> PatchBlocks:
-    """The engine's PatchBlocks (made on first use: it depends on the scene only)."""
-    b = getattr(eng, "_patch_blocks", None)
-    if b is None or b._pm is not eng.pre.patches:
-        b = eng._patch_blocks = PatchBlocks(eng.pre.patches)
-    return b
-
-
 @dataclass
 class ExtraEmitters:
     """Emitters the object has besides its proxy's triangles (the sunlit pieces of its faces,
@@ -162,140 +138,6 @@ class ExtraEmitters:
     # of its unoccluded light (kernels.visibility.emitter_sum_seen_bounded); 0: exact form factors
     uploaded: SeenEmitters | None = None  # tris, rad, seen and tolerance already on the device (one upload
     # for the frame's sums), or None
-
-
-def object_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, covered: np.ndarray | None = None,
-                 extra: ExtraEmitters | None = None, centres: bool = True):
-    """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi.
-
-    Far from the object the reflected light varies slowly: it is evaluated at receiver vertices
-    and interpolated like the transfers, on the pixels of the patches it reaches (one kernel over
-    the frame, kernels.farfield.VertexInterpolation); beyond FAR_FIELD radii the proxy's triangles
-    are point emitters (kernels.farfield.point_emitter_sum).
-    Within `near_factor` bounding radii of the object's centre, where it changes fast (contact,
-    under a seat), it is evaluated per pixel where the upper bound of its gain exceeds a quarter
-    level: exactly on an adaptive screen grid, blended between the grid's nodes where the light
-    varies slowly (_near_pixels). covered: optional (H*W,) bool, pixels the object hides entirely
-    (their room is not seen: left at the interpolated value). extra: emitters besides the proxy's
-    triangles (ExtraEmitters), or None. centres=False: R_cen is None (the caller sums it in parts, as
-    the sun's branch does: sun_centre_light).
-    """
-    pre, pm = eng.pre, eng.pre.patches
-    table = pixel_table(eng)
-    tris = pv[pf]
-    shape = proxy_shape(eng, pv, pf, proxy_occ)
-    tvis = shape.visibility
-    far = _far_emitters(tris, tri_rad, tvis.seen, extra) if extra is not None else None
-    rv = pre.recv_vert
-    R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, eng.device,
-                     tvis, workspace(eng, "object_light.vertices"), far, extra, shape.free)
-    # the pixels of the patches with a vertex that gets a visible share of the object's light take
-    # the vertices' light, interpolated
-    reach_v = luminance(R_v) * float(eng.rho_x.max()) > 5e-4 * float(luminance(eng.B_src).mean())
-    touched = np.zeros(len(pm.vert_pos), bool)
-    touched[rv[reach_v]] = True
-    patch_on = np.zeros(pm.n_patches, bool)
-    patch_on[pm.tri_patch[touched[pm.tris].any(1)]] = True
-    R_pix = vertex_interpolation(eng).run(patch_on, R_v)
-    # near the object the pixels whose gain may pass a quarter level are evaluated per pixel
-    # (_near_pixels): the pixels of the touched patches that reach within near_factor radii
-    near_p = np.flatnonzero(patch_on & (np.linalg.norm(pm.centre - centre, axis=1)
-                                        < eng.near_factor * radius + pm.radius))
-    rp = table.pixels_of(near_p)
-    dist = np.linalg.norm(eng.pix_pos[rp] - centre, axis=1)
-    rp, dist = rp[dist < eng.near_factor * radius], dist[dist < eng.near_factor * radius]
-    bound = eng.rho_x[rp] * _light_bound(eng.pix_pos[rp], dist, tri_rad, radius, extra, centre)
-    above = bound > headroom(eng, 0.25, rp)  # T(L_b + bound) - T(L_b) > 0.25 level
-    sel = rp[above[:, 0] | above[:, 1] | above[:, 2]]
-    if covered is not None:
-        sel = sel[~covered[sel]]
-    if len(sel):
-        R_pix[sel] = _near_pixels(eng, sel, tris, tri_rad, proxy_occ, extra, shape.free)
-    R_cen = centre_light(eng, pv, pf, tri_rad, proxy_occ, centre, radius, extra, far) if centres else None
-    eng._n_object_light_pixels = len(sel)
-    return R_pix, R_cen
-
-
-def centre_light(eng: "Engine", pv, pf, tri_rad, proxy_occ, centre, radius, extra: ExtraEmitters | None = None,
-                 far: tuple | None = None, site: str = "object_light.centres",
-                 faces: np.ndarray | None = None) -> np.ndarray:
-    """The light (P,3) the object reflects onto the patch centres, as irradiance/pi (object_light's
-    R_cen; far: its far-field emitters when there are extra ones; site: the call site's kernel buffers).
-    faces: only these faces emit (their rows of the shape's tables; tri_rad (T,3) zero elsewhere), with
-    the extra emitters."""
-    pm = eng.pre.patches
-    tris, rad = pv[pf], tri_rad
-    shape = proxy_shape(eng, pv, pf, proxy_occ)
-    free = shape.free
-    if faces is not None:
-        tris, rad = tris[faces], tri_rad[faces]
-        free = free[faces] if free is not None else None
-        far = _far_emitters(tris, rad, shape.visibility.seen[faces], extra)
-    dist_c = np.linalg.norm(pm.centre - centre, axis=1)
-    reach = luminance(_light_bound(pm.centre, dist_c, tri_rad, radius, extra, centre))
-    near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
-    R_cen = np.zeros((pm.n_patches, 3))
-    R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, rad, proxy_occ, centre, radius,
-                               eng.device, shape.visibility, workspace(eng, site), far, extra, free)
-    return R_cen
-
-
-def sun_centre_light(eng: "Engine", pv, pf, sun_rad, proxy_occ, centre, radius, extra: ExtraEmitters | None,
-                     site: str = "object_light.centres.sun") -> np.ndarray:
-    """centre_light (P,3) of the object's light from the sun alone: the faces with sun radiance
-    sun_rad (T,3) (the wholly sunlit ones; the others zero) and the lit pieces `extra`. Only those
-    faces are summed (their rows of the shape's tables), so with centre_light of the room's light it
-    makes the whole light at the patch centres for about the cost of one call (the sum is linear in
-    the radiance; each part skips the centres its own bound puts below centre_light's threshold)."""
-    key = shape_key(pv, pf)
-    if getattr(eng, "_sun_centre_shape", None) != key:  # a shape's first frame: every face that faces the
-        # sun (zero radiance where unlit), so that its kernel buffers are made at their capacity once
-        eng._sun_centre_shape = key
-        T = pv[pf]
-        faces = np.flatnonzero((np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]) @ eng.sun_light.d > 0)
-                               | sun_rad.any(1))
-    else:
-        faces = np.flatnonzero(sun_rad.any(1))
-    if len(faces) == 0 and (extra is None or len(extra.tris) == 0):
-        return np.zeros((eng.pre.patches.n_patches, 3))
-    return centre_light(eng, pv, pf, sun_rad, proxy_occ, centre, radius, extra, site=site, faces=faces)
-
-
-def centre_light_parts(eng: "Engine", pv, pf, room_rad, sun_rad, proxy_occ, centre, radius,
-                       extra: ExtraEmitters | None, site: str = "object_light.centres.parts"
-                       ) -> tuple[np.ndarray, np.ndarray]:
-    """centre_light (P,3) of the room's light room_rad (T,3) and, apart, of the sun's: sun_rad (T,3) (the
-    wholly sunlit faces; zero elsewhere) with the lit pieces `extra`, as centre_light(room_rad) and
-    sun_centre_light give them (their sum: the whole light at the patch centres). One pass: near the
-    object one launch sums both with one ray per face and centre (SeenEmitters.sum_with_rays2), at the
-    centres the whole light's bound reaches (those of either part); beyond FAR_FIELD each part's point
-    emitters (the sun's: its lit faces and the pieces' stand-ins)."""
-    pm = eng.pre.patches
-    tris = pv[pf]
-    shape = proxy_shape(eng, pv, pf, proxy_occ)
-    if extra is None or extra.uploaded is None or len(extra.tris) == 0:  # no pieces: two plain calls
-        return (centre_light(eng, pv, pf, room_rad, proxy_occ, centre, radius, site=site + ".room"),
-                sun_centre_light(eng, pv, pf, sun_rad, proxy_occ, centre, radius, extra, site=site + ".sun"))
-    dist_c = np.linalg.norm(pm.centre - centre, axis=1)
-    reach = luminance(_light_bound(pm.centre, dist_c, room_rad + sun_rad, radius, extra, centre))
-    near_c = np.flatnonzero((reach > 1e-4 * luminance(eng.B_src).mean()) & ~pm.is_emitter)
-    room, sun = np.zeros((pm.n_patches, 3)), np.zeros((pm.n_patches, 3))
-    ws = workspace(eng, site)
-    far = dist_c[near_c] > FAR_FIELD * radius
-    c_near, c_far = near_c[~far], near_c[far]
-    if len(c_near):
-        room[c_near], sun[c_near] = extra.uploaded.sum_with_rays2(
-            pm.centre[c_near], pm.normal[c_near], tris, room_rad, sun_rad, proxy_occ, eps=EXACT_EPS, split=256,
-            workspace=ws, free=shape.free, free_res=FREE_RES)
-    if len(c_far):
-        faces = np.flatnonzero(sun_rad.any(1))
-        for out, far_em, name in ((room, _far_emitters(tris, room_rad, shape.visibility.seen, None), "far.room"),
-                                  (sun, _far_emitters(tris[faces], sun_rad[faces], shape.visibility.seen[faces],
-                                                      extra), "far.sun")):
-            out[c_far] = point_emitter_sum(pm.centre[c_far], pm.normal[c_far], *far_em, CUBE_RES, device=eng.device,
-                                           split=256, workspace=_sub_workspace(ws, name),
-                                           capacity=2 * len(tris) + extra.capacity)
-    return room, sun
 
 
 def _far_emitters(tris: np.ndarray, rad: np.ndarray, seen: np.ndarray, extra: ExtraEmitters | None) -> tuple:
@@ -339,39 +181,6 @@ def _light_bound(points: np.ndarray, dist: np.ndarray, tri_rad: np.ndarray, radi
     t, rad = tri_rad.max(0), extra.rad.max(0)
     out = np.minimum(np.maximum(t, rad)[:, None] * f_obj, t[:, None] * f_obj + rad[:, None] * f_pc)
     return out.T
-
-
-def headroom(eng: "Engine", levels: float, idx: np.ndarray) -> np.ndarray:
-    """(len(idx),3) float32: at pixels idx and per channel the most radiance s >= 0 (L_b's units) that
-    added to the photo's L_b raises it by at most `levels` (8-bit levels: T(L_b + s) - T(L_b) <= levels;
-    inf where T cannot rise that much), from the response's breakpoints (exact: T is piecewise linear
-    and non-decreasing). A test s > headroom in place of T(L_b + s) - T(L_b) > levels, with no response
-    evaluation per frame. It depends on the scene only, so a level's first call works it out at every
-    receiver pixel at once and keeps it (per L_b array and level): a drag frame, whose near region moves
-    onto new pixels, only looks it up. Per channel it is a function of the pixel's L_b alone, so it is
-    evaluated once per distinct L_b value (a photo's pixels share few: its 8-bit levels) and gathered;
-    a pixel outside the receivers is worked out when first asked for and kept."""
-    cached = getattr(eng, "_ol_headroom", None)
-    if cached is None or cached[0] is not eng.L_b:
-        rp = np.flatnonzero(eng.recv_pix)
-        vals = [np.unique(eng.L_b[rp, c], return_inverse=True) for c in range(3)]  # (distinct values, rows)
-        n = max(len(u) for u, _ in vals)
-        table = np.stack([np.pad(u, (0, n - len(u)), mode="edge") for u, _ in vals], 1)  # (n,3) L_b values
-        inv = np.stack([i.reshape(-1) for _, i in vals], 1)  # (len(rp),3) each receiver's row of table
-        cached = eng._ol_headroom = (eng.L_b, rp, table, inv, {})
-    _, rp, table, inv, per_level = cached
-    if levels not in per_level:
-        h, known = np.zeros(eng.L_b.shape, np.float32), np.zeros(len(eng.L_b), bool)
-        hv = _headroom_at(eng.scene.response, table, levels)
-        h[rp] = np.take_along_axis(hv, inv, 0)
-        known[rp] = True
-        per_level[levels] = (h, known)
-    h, known = per_level[levels]
-    new = idx[~known[idx]]
-    if len(new):
-        h[new] = _headroom_at(eng.scene.response, eng.L_b[new], levels)
-        known[new] = True
-    return h[idx]
 
 
 def _headroom_at(resp, L: np.ndarray, levels: float) -> np.ndarray:
@@ -545,15 +354,6 @@ def shape_key(pv: np.ndarray, pf: np.ndarray) -> str:
     return hashlib.sha1(np.round(pv - pv.mean(0), 6).tobytes() + np.ascontiguousarray(pf).tobytes()).hexdigest()
 
 
-def proxy_shape(eng: "Engine", pv: np.ndarray, pf: np.ndarray, proxy_occ: Occluder) -> ProxyShape:
-    """The proxy's ProxyShape, kept for the last shape (shape_key)."""
-    key = shape_key(pv, pf)
-    cached = getattr(eng, "_proxy_shape", None)
-    if cached is None or cached[0] != key:
-        cached = eng._proxy_shape = (key, ProxyShape(pv[pf], proxy_occ))
-    return cached[1]
-
-
 def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
                centre: np.ndarray, radius: float, device, tvis: TriangleVisibility | None = None,
                ws: Workspace | None = None, far_emitters: tuple | None = None,
@@ -606,26 +406,6 @@ class PixelTable:
         return np.sort(self.pixels[idx])
 
 
-def vertex_interpolation(eng: "Engine") -> VertexInterpolation:
-    """The engine's VertexInterpolation of the receiver vertices' light onto the receiver pixels (made
-    on first use: it depends on the scene only)."""
-    key = (eng.pre.patches, eng.recv_pix, eng.pix_rows)
-    cached = getattr(eng, "_ol_interpolation", None)
-    if cached is None or any(a is not b for a, b in zip(cached[0], key)):
-        interp = VertexInterpolation(np.where(eng.recv_pix, eng.pix_patch, -1), eng.pix_rows, eng.pre.pix_bary,
-                                     eng.pre.patches.n_patches, len(eng.pre.recv_vert), eng.device)
-        cached = eng._ol_interpolation = (key, interp)
-    return cached[1]
-
-
-def pixel_table(eng: "Engine") -> PixelTable:
-    """The engine's PixelTable (made on first use: it depends on the scene only)."""
-    t = getattr(eng, "_pixel_table", None)
-    if t is None:
-        t = eng._pixel_table = PixelTable(eng.recv_pix, eng.pix_patch, eng.pre.patches.n_patches)
-    return t
-
-
 GRID_STRIDES = (16, 8, 4, 2)  # px between the adaptive grid's exact samples, coarse to fine (_near_pixels)
 GRID_TOLERANCE = 0.5  # levels: a cell of the coarsest stride whose nodes differ by more is refined
 # (x (coarsest / stride)^2 at a finer stride: the blend's error falls with the cell's area)
@@ -652,14 +432,8 @@ def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
 
 
 def _sub_workspace(ws: Workspace | None, name: str) -> Workspace | None:
-    """The buffers of a second kernel at a call site (the extra emitters' sum, the far field), kept
-    beside the site's own."""
-    if ws is None:
-        return None
-    subs = ws.__dict__.setdefault("_subs", {})
-    if name not in subs:
-        subs[name] = Workspace(ws.rows, ws.sources)
-    return subs[name]
+    """ws.sub(name), None without a workspace (fresh buffers)."""
+    return None if ws is None else ws.sub(name)
 
 
 class _ScreenValues:
@@ -692,77 +466,6 @@ def _distinct(idx: np.ndarray, size: int) -> np.ndarray:
     mark = np.zeros(size, bool)
     mark[idx] = True
     return np.flatnonzero(mark)
-
-
-def _near_pixels(eng: "Engine", sel: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
-                 extra: ExtraEmitters | None = None, free: np.ndarray | None = None) -> np.ndarray:
-    """The object's light (len(sel),3), irradiance/pi, at the listed pixels `sel` near the object.
-
-    An adaptive screen grid: at each stride of GRID_STRIDES a pixel whose cell (its four nodes)
-    lies on its own quad (one plane), at least GRID_CLEARANCE cell diagonals from the object's
-    proxy (the light varies on the scale of that distance) and whose nodes differ by at most
-    GRID_TOLERANCE levels (x (coarsest / stride)^2 at a finer stride: a blend's error falls with
-    the cell's area) takes the bilinear blend of the nodes, evaluated exactly
-    (kernels.visibility.emitter_sum); the rest go on to the next, finer stride, and what is left
-    after the finest is evaluated per pixel (contact, quad edges, the object's silhouette).
-    The cells' quad test is made once per scene (StrideTable), the clearance once per cell and frame,
-    the blend's test against the response through `headroom` (no response evaluation per pixel).
-    """
-    pm = eng.pre.patches
-    W = eng.scene.camera.width
-    sv = getattr(eng, "_ol_screen", None)
-    if sv is None or len(sv.known) != len(eng.pix_pos):
-        sv = eng._ol_screen = _ScreenValues(len(eng.pix_pos))
-    sv.clear()
-    ws = workspace(eng, "near_pixels.exact")
-
-    def values_of(idx: np.ndarray) -> np.ndarray:
-        return _exact_sum(eng.pix_pos[idx], pm.normal[eng.pix_patch[idx]], tris, tri_rad, proxy_occ, eng.device,
-                          ws, extra, free)
-
-    out = np.zeros((len(sel), 3))
-    todo = np.arange(len(sel))
-    for s in GRID_STRIDES:
-        if len(todo) == 0:
-            break
-        st = stride_table(eng, s)
-        p = sel[todo]
-        ok = st.pixel_ok[p]  # the pixel's cell lies on its own quad, on receivers
-        if not ok.any():
-            continue
-        cid = st.cell[p]
-        cells = _distinct(cid[ok], st.n_cells)  # the cells holding pixels to do
-        nodes = st.nodes(cells)  # (C,4)
-        # clearance: the cell's nodes' distance to the proxy, against its diagonal
-        cn = np.unique(nodes)
-        d = distance_to(proxy_occ, eng.pix_pos[cn], workspace=workspace(eng, "near_pixels.clearance"))
-        d_node = d[np.searchsorted(cn, nodes)].min(1)
-        diag = np.linalg.norm(eng.pix_pos[nodes[:, 0]] - eng.pix_pos[nodes[:, 3]], axis=1)
-        clear = d_node > GRID_CLEARANCE * diag
-        if not clear.any():
-            continue
-        cells, nodes = cells[clear], nodes[clear]
-        slot = np.full(st.n_cells, -1, np.int64)
-        slot[cells] = np.arange(len(cells))
-        h = slot[cid]
-        ok &= h >= 0
-        sv.add(np.unique(nodes), values_of)
-        cc = sv.value[nodes]  # (cells, 4, 3) the cells' node values
-        k = np.flatnonzero(ok)
-        fp, h = p[k], h[k]
-        spread = eng.rho_x[fp] * (cc.max(1) - cc.min(1))[h]
-        below = spread <= headroom(eng, GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2, fp)
-        smooth = below[:, 0] & below[:, 1] & below[:, 2]  # (.all(1) loops 3 values at a time: slower)
-        k, fp, h = k[smooth], fp[smooth], h[smooth]
-        out[todo[k]] = _bilinear(cc[h], fp, W, s)
-        keep = np.ones(len(todo), bool)
-        keep[k] = False
-        todo = todo[keep]
-    if len(todo):
-        sv.add(sel[todo], values_of)
-        out[todo] = sv.value[sel[todo]]
-    eng._n_object_light_exact = sv.count
-    return out
 
 
 def _bilinear(corner: np.ndarray, fp: np.ndarray, W: int, s: int) -> np.ndarray:
@@ -808,13 +511,319 @@ class StrideTable:
         return ny * self.W + nx
 
 
-def stride_table(eng: "Engine", s: int) -> StrideTable:
-    """The engine's StrideTable of stride s (made on first use: it depends on the scene only)."""
-    tables = getattr(eng, "_ol_strides", None)
-    if tables is None or tables[0] is not eng.recv_pix:
-        tables = eng._ol_strides = (eng.recv_pix, {})
-    if s not in tables[1]:
-        cam = eng.scene.camera
-        pix_quad = np.where(eng.pix_patch >= 0, eng.pre.patches.quad[np.maximum(eng.pix_patch, 0)], -1)
-        tables[1][s] = StrideTable(s, cam.height, cam.width, eng.recv_pix, pix_quad)
-    return tables[1][s]
+class ObjectLight:
+    """The light the object reflects onto the room, for one scene: built once from the receiver map
+    (pixels, their patches, positions, reflectance, the photo's radiance and response), the patch
+    mesh, the radiance receivers gather and the room's occluder; owns its per-scene tables
+    (PatchBlocks, PixelTable, VertexInterpolation, StrideTables, headroom) and the per-shape
+    ProxyShape, and its kernels' buffers. Irradiance/pi throughout."""
+
+    def __init__(self, config: ObjectConfig, patches: PatchMesh, recv_vert: np.ndarray, pix_bary: np.ndarray,
+                 pix_pos: np.ndarray, pix_patch: np.ndarray, pix_rows: np.ndarray, recv_pix: np.ndarray,
+                 rho_x: np.ndarray, L_b: np.ndarray, B_src: np.ndarray, scene_occ: Occluder, response,
+                 camera, device: str, sun_dir: np.ndarray | None = None):
+        """config: near_factor (the per-pixel region); recv_vert (Vr,), pix_bary (H*W,3): the precompute's
+        receiver vertices and pixel barycentrics; pix_pos, pix_patch, pix_rows, recv_pix, rho_x, L_b: the
+        receiver map (app.stages.receiver_map, after the sun's changes); B_src (P,3): the radiance receivers
+        gather; response: the camera's (headroom); sun_dir: unit direction towards the sun, or None."""
+        self.config = config
+        self.patches, self.recv_vert, self.pix_bary = patches, recv_vert, pix_bary
+        self.pix_pos, self.pix_patch, self.pix_rows, self.recv_pix = pix_pos, pix_patch, pix_rows, recv_pix
+        self.rho_x, self.L_b, self.B_src = rho_x, L_b, B_src
+        self.scene_occ, self.response, self.camera, self.device = scene_occ, response, camera, device
+        self.sun_dir = sun_dir
+        self.n_pixels = 0  # pixels the last frame evaluated per pixel (the near region)
+        self.n_exact = 0  # of those, the ones summed exactly (the rest blended on the screen grid)
+        self._workspaces = Workspaces()
+        self._patch_blocks: PatchBlocks | None = None
+        self._pixel_table: PixelTable | None = None
+        self._interpolation: VertexInterpolation | None = None
+        self._strides: dict[int, StrideTable] = {}
+        self._screen: _ScreenValues | None = None
+        self._headroom: tuple | None = None
+        self._proxy_shape: tuple | None = None  # (shape_key, ProxyShape) of the last proxy shape
+        self._sun_centre_shape: str | None = None  # the proxy shape sun_centre_light last saw
+
+    def triangle_radiance(self, obj: SceneObject, pv, pf, proxy_occ, B: np.ndarray) -> np.ndarray:
+        """Outgoing radiance (T,3) of each proxy triangle, lit at its centroid by patches of radiance B
+        (P,3), gathered with visibility past the scene and the proxy (self-occlusion) over a coarse
+        set of patches (PatchBlocks.gather_set): the emitters and the patches near the object as they
+        are, the other patches merged in blocks of a quad's patches, coarser farther away."""
+        c = pv[pf].mean(1)
+        corners, normals, B_set = self.patch_blocks().gather_set(B, *bounding_sphere(pv))
+        shape = self.proxy_shape(pv, pf, proxy_occ)
+        G = transfer_matrix(c, shape.normals, corners, normals,
+                            [self.scene_occ, proxy_occ], n_side=1, eps=GATHER_EPS, device=self.device,
+                            chunk=max(16, -(-len(c) // 2)),  # two launches side by side: both cores
+                            workspace=self._workspaces.get("object_irradiance"), free=shape.free, free_res=FREE_RES)
+        return obj.albedo * (G.astype(np.float64) @ B_set)
+
+    def patch_blocks(self) -> PatchBlocks:
+        """The engine's PatchBlocks (made on first use: it depends on the scene only)."""
+        if self._patch_blocks is None:
+            self._patch_blocks = PatchBlocks(self.patches)
+        return self._patch_blocks
+
+    def light(self, pv, pf, tri_rad, proxy_occ, centre, radius, covered: np.ndarray | None = None,
+                     extra: ExtraEmitters | None = None, centres: bool = True):
+        """Light reflected by the object onto pixels (H*W,3) and patch centres (P,3), as irradiance/pi.
+
+        Far from the object the reflected light varies slowly: it is evaluated at receiver vertices
+        and interpolated like the transfers, on the pixels of the patches it reaches (one kernel over
+        the frame, kernels.farfield.VertexInterpolation); beyond FAR_FIELD radii the proxy's triangles
+        are point emitters (kernels.farfield.point_emitter_sum).
+        Within `near_factor` bounding radii of the object's centre, where it changes fast (contact,
+        under a seat), it is evaluated per pixel where the upper bound of its gain exceeds a quarter
+        level: exactly on an adaptive screen grid, blended between the grid's nodes where the light
+        varies slowly (_near_pixels). covered: optional (H*W,) bool, pixels the object hides entirely
+        (their room is not seen: left at the interpolated value). extra: emitters besides the proxy's
+        triangles (ExtraEmitters), or None. centres=False: R_cen is None (the caller sums it in parts, as
+        the sun's branch does: sun_centre_light).
+        """
+        pm = self.patches
+        table = self.pixel_table()
+        tris = pv[pf]
+        shape = self.proxy_shape(pv, pf, proxy_occ)
+        tvis = shape.visibility
+        far = _far_emitters(tris, tri_rad, tvis.seen, extra) if extra is not None else None
+        rv = self.recv_vert
+        R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, self.device,
+                         tvis, self._workspaces.get("object_light.vertices"), far, extra, shape.free)
+        # the pixels of the patches with a vertex that gets a visible share of the object's light take
+        # the vertices' light, interpolated
+        reach_v = luminance(R_v) * float(self.rho_x.max()) > 5e-4 * float(luminance(self.B_src).mean())
+        touched = np.zeros(len(pm.vert_pos), bool)
+        touched[rv[reach_v]] = True
+        patch_on = np.zeros(pm.n_patches, bool)
+        patch_on[pm.tri_patch[touched[pm.tris].any(1)]] = True
+        R_pix = self.vertex_interpolation().run(patch_on, R_v)
+        # near the object the pixels whose gain may pass a quarter level are evaluated per pixel
+        # (_near_pixels): the pixels of the touched patches that reach within near_factor radii
+        near_p = np.flatnonzero(patch_on & (np.linalg.norm(pm.centre - centre, axis=1)
+                                            < self.config.near_factor * radius + pm.radius))
+        rp = table.pixels_of(near_p)
+        dist = np.linalg.norm(self.pix_pos[rp] - centre, axis=1)
+        rp, dist = rp[dist < self.config.near_factor * radius], dist[dist < self.config.near_factor * radius]
+        bound = self.rho_x[rp] * _light_bound(self.pix_pos[rp], dist, tri_rad, radius, extra, centre)
+        above = bound > self.headroom(0.25, rp)  # T(L_b + bound) - T(L_b) > 0.25 level
+        sel = rp[above[:, 0] | above[:, 1] | above[:, 2]]
+        if covered is not None:
+            sel = sel[~covered[sel]]
+        if len(sel):
+            R_pix[sel] = self._near_pixels(sel, tris, tri_rad, proxy_occ, extra, shape.free)
+        R_cen = self.centre_light(pv, pf, tri_rad, proxy_occ, centre, radius, extra, far) if centres else None
+        self.n_pixels = len(sel)
+        return R_pix, R_cen
+
+    def centre_light(self, pv, pf, tri_rad, proxy_occ, centre, radius, extra: ExtraEmitters | None = None,
+                     far: tuple | None = None, site: str = "object_light.centres",
+                     faces: np.ndarray | None = None) -> np.ndarray:
+        """The light (P,3) the object reflects onto the patch centres, as irradiance/pi (object_light's
+        R_cen; far: its far-field emitters when there are extra ones; site: the call site's kernel buffers).
+        faces: only these faces emit (their rows of the shape's tables; tri_rad (T,3) zero elsewhere), with
+        the extra emitters."""
+        pm = self.patches
+        tris, rad = pv[pf], tri_rad
+        shape = self.proxy_shape(pv, pf, proxy_occ)
+        free = shape.free
+        if faces is not None:
+            tris, rad = tris[faces], tri_rad[faces]
+            free = free[faces] if free is not None else None
+            far = _far_emitters(tris, rad, shape.visibility.seen[faces], extra)
+        dist_c = np.linalg.norm(pm.centre - centre, axis=1)
+        reach = luminance(_light_bound(pm.centre, dist_c, tri_rad, radius, extra, centre))
+        near_c = np.flatnonzero((reach > 1e-4 * luminance(self.B_src).mean()) & ~pm.is_emitter)
+        R_cen = np.zeros((pm.n_patches, 3))
+        R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, rad, proxy_occ, centre, radius,
+                                   self.device, shape.visibility, self._workspaces.get(site), far, extra, free)
+        return R_cen
+
+    def sun_centre_light(self, pv, pf, sun_rad, proxy_occ, centre, radius, extra: ExtraEmitters | None,
+                         site: str = "object_light.centres.sun") -> np.ndarray:
+        """centre_light (P,3) of the object's light from the sun alone: the faces with sun radiance
+        sun_rad (T,3) (the wholly sunlit ones; the others zero) and the lit pieces `extra`. Only those
+        faces are summed (their rows of the shape's tables), so with centre_light of the room's light it
+        makes the whole light at the patch centres for about the cost of one call (the sum is linear in
+        the radiance; each part skips the centres its own bound puts below centre_light's threshold)."""
+        key = shape_key(pv, pf)
+        if self._sun_centre_shape != key:  # a shape's first frame: every face that faces the
+            # sun (zero radiance where unlit), so that its kernel buffers are made at their capacity once
+            self._sun_centre_shape = key
+            T = pv[pf]
+            faces = np.flatnonzero((np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]) @ self.sun_dir > 0)
+                                   | sun_rad.any(1))
+        else:
+            faces = np.flatnonzero(sun_rad.any(1))
+        if len(faces) == 0 and (extra is None or len(extra.tris) == 0):
+            return np.zeros((self.patches.n_patches, 3))
+        return self.centre_light(pv, pf, sun_rad, proxy_occ, centre, radius, extra, site=site, faces=faces)
+
+    def centre_light_parts(self, pv, pf, room_rad, sun_rad, proxy_occ, centre, radius,
+                           extra: ExtraEmitters | None, site: str = "object_light.centres.parts"
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """centre_light (P,3) of the room's light room_rad (T,3) and, apart, of the sun's: sun_rad (T,3) (the
+        wholly sunlit faces; zero elsewhere) with the lit pieces `extra`, as centre_light(room_rad) and
+        sun_centre_light give them (their sum: the whole light at the patch centres). One pass: near the
+        object one launch sums both with one ray per face and centre (SeenEmitters.sum_with_rays2), at the
+        centres the whole light's bound reaches (those of either part); beyond FAR_FIELD each part's point
+        emitters (the sun's: its lit faces and the pieces' stand-ins)."""
+        pm = self.patches
+        tris = pv[pf]
+        shape = self.proxy_shape(pv, pf, proxy_occ)
+        if extra is None or extra.uploaded is None or len(extra.tris) == 0:  # no pieces: two plain calls
+            return (self.centre_light(pv, pf, room_rad, proxy_occ, centre, radius, site=site + ".room"),
+                    self.sun_centre_light(pv, pf, sun_rad, proxy_occ, centre, radius, extra, site=site + ".sun"))
+        dist_c = np.linalg.norm(pm.centre - centre, axis=1)
+        reach = luminance(_light_bound(pm.centre, dist_c, room_rad + sun_rad, radius, extra, centre))
+        near_c = np.flatnonzero((reach > 1e-4 * luminance(self.B_src).mean()) & ~pm.is_emitter)
+        room, sun = np.zeros((pm.n_patches, 3)), np.zeros((pm.n_patches, 3))
+        ws = self._workspaces.get(site)
+        far = dist_c[near_c] > FAR_FIELD * radius
+        c_near, c_far = near_c[~far], near_c[far]
+        if len(c_near):
+            room[c_near], sun[c_near] = extra.uploaded.sum_with_rays2(
+                pm.centre[c_near], pm.normal[c_near], tris, room_rad, sun_rad, proxy_occ, eps=EXACT_EPS, split=256,
+                workspace=ws, free=shape.free, free_res=FREE_RES)
+        if len(c_far):
+            faces = np.flatnonzero(sun_rad.any(1))
+            for out, far_em, name in ((room, _far_emitters(tris, room_rad, shape.visibility.seen, None), "far.room"),
+                                      (sun, _far_emitters(tris[faces], sun_rad[faces], shape.visibility.seen[faces],
+                                                          extra), "far.sun")):
+                out[c_far] = point_emitter_sum(pm.centre[c_far], pm.normal[c_far], *far_em, CUBE_RES,
+                                               device=self.device,
+                                               split=256, workspace=_sub_workspace(ws, name),
+                                               capacity=2 * len(tris) + extra.capacity)
+        return room, sun
+
+    def headroom(self, levels: float, idx: np.ndarray) -> np.ndarray:
+        """(len(idx),3) float32: at pixels idx and per channel the most radiance s >= 0 (L_b's units) that
+        added to the photo's L_b raises it by at most `levels` (8-bit levels: T(L_b + s) - T(L_b) <= levels;
+        inf where T cannot rise that much), from the response's breakpoints (exact: T is piecewise linear
+        and non-decreasing). A test s > headroom in place of T(L_b + s) - T(L_b) > levels, with no response
+        evaluation per frame. It depends on the scene only, so a level's first call works it out at every
+        receiver pixel at once and keeps it (per L_b array and level): a drag frame, whose near region moves
+        onto new pixels, only looks it up. Per channel it is a function of the pixel's L_b alone, so it is
+        evaluated once per distinct L_b value (a photo's pixels share few: its 8-bit levels) and gathered;
+        a pixel outside the receivers is worked out when first asked for and kept."""
+        cached = self._headroom
+        if cached is None:
+            rp = np.flatnonzero(self.recv_pix)
+            vals = [np.unique(self.L_b[rp, c], return_inverse=True) for c in range(3)]  # (distinct values, rows)
+            n = max(len(u) for u, _ in vals)
+            table = np.stack([np.pad(u, (0, n - len(u)), mode="edge") for u, _ in vals], 1)  # (n,3) L_b values
+            inv = np.stack([i.reshape(-1) for _, i in vals], 1)  # (len(rp),3) each receiver's row of table
+            cached = self._headroom = (rp, table, inv, {})
+        rp, table, inv, per_level = cached
+        if levels not in per_level:
+            h, known = np.zeros(self.L_b.shape, np.float32), np.zeros(len(self.L_b), bool)
+            hv = _headroom_at(self.response, table, levels)
+            h[rp] = np.take_along_axis(hv, inv, 0)
+            known[rp] = True
+            per_level[levels] = (h, known)
+        h, known = per_level[levels]
+        new = idx[~known[idx]]
+        if len(new):
+            h[new] = _headroom_at(self.response, self.L_b[new], levels)
+            known[new] = True
+        return h[idx]
+
+    def proxy_shape(self, pv: np.ndarray, pf: np.ndarray, proxy_occ: Occluder) -> ProxyShape:
+        """The proxy's ProxyShape, kept for the last shape (shape_key)."""
+        key = shape_key(pv, pf)
+        cached = self._proxy_shape
+        if cached is None or cached[0] != key:
+            cached = self._proxy_shape = (key, ProxyShape(pv[pf], proxy_occ))
+        return cached[1]
+
+    def vertex_interpolation(self) -> VertexInterpolation:
+        """The engine's VertexInterpolation of the receiver vertices' light onto the receiver pixels (made
+        on first use: it depends on the scene only)."""
+        if self._interpolation is None:
+            self._interpolation = VertexInterpolation(np.where(self.recv_pix, self.pix_patch, -1), self.pix_rows,
+                                                      self.pix_bary, self.patches.n_patches, len(self.recv_vert),
+                                                      self.device)
+        return self._interpolation
+
+    def pixel_table(self) -> PixelTable:
+        """The engine's PixelTable (made on first use: it depends on the scene only)."""
+        if self._pixel_table is None:
+            self._pixel_table = PixelTable(self.recv_pix, self.pix_patch, self.patches.n_patches)
+        return self._pixel_table
+
+    def _near_pixels(self, sel: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
+                     extra: ExtraEmitters | None = None, free: np.ndarray | None = None) -> np.ndarray:
+        """The object's light (len(sel),3), irradiance/pi, at the listed pixels `sel` near the object.
+
+        An adaptive screen grid: at each stride of GRID_STRIDES a pixel whose cell (its four nodes)
+        lies on its own quad (one plane), at least GRID_CLEARANCE cell diagonals from the object's
+        proxy (the light varies on the scale of that distance) and whose nodes differ by at most
+        GRID_TOLERANCE levels (x (coarsest / stride)^2 at a finer stride: a blend's error falls with
+        the cell's area) takes the bilinear blend of the nodes, evaluated exactly
+        (kernels.visibility.emitter_sum); the rest go on to the next, finer stride, and what is left
+        after the finest is evaluated per pixel (contact, quad edges, the object's silhouette).
+        The cells' quad test is made once per scene (StrideTable), the clearance once per cell and frame,
+        the blend's test against the response through `headroom` (no response evaluation per pixel).
+        """
+        pm = self.patches
+        W = self.camera.width
+        if self._screen is None:
+            self._screen = _ScreenValues(len(self.pix_pos))
+        sv = self._screen
+        sv.clear()
+        ws = self._workspaces.get("near_pixels.exact")
+
+        def values_of(idx: np.ndarray) -> np.ndarray:
+            return _exact_sum(self.pix_pos[idx], pm.normal[self.pix_patch[idx]], tris, tri_rad, proxy_occ, self.device,
+                              ws, extra, free)
+
+        out = np.zeros((len(sel), 3))
+        todo = np.arange(len(sel))
+        for s in GRID_STRIDES:
+            if len(todo) == 0:
+                break
+            st = self.stride_table(s)
+            p = sel[todo]
+            ok = st.pixel_ok[p]  # the pixel's cell lies on its own quad, on receivers
+            if not ok.any():
+                continue
+            cid = st.cell[p]
+            cells = _distinct(cid[ok], st.n_cells)  # the cells holding pixels to do
+            nodes = st.nodes(cells)  # (C,4)
+            # clearance: the cell's nodes' distance to the proxy, against its diagonal
+            cn = np.unique(nodes)
+            d = distance_to(proxy_occ, self.pix_pos[cn], workspace=self._workspaces.get("near_pixels.clearance"))
+            d_node = d[np.searchsorted(cn, nodes)].min(1)
+            diag = np.linalg.norm(self.pix_pos[nodes[:, 0]] - self.pix_pos[nodes[:, 3]], axis=1)
+            clear = d_node > GRID_CLEARANCE * diag
+            if not clear.any():
+                continue
+            cells, nodes = cells[clear], nodes[clear]
+            slot = np.full(st.n_cells, -1, np.int64)
+            slot[cells] = np.arange(len(cells))
+            h = slot[cid]
+            ok &= h >= 0
+            sv.add(np.unique(nodes), values_of)
+            cc = sv.value[nodes]  # (cells, 4, 3) the cells' node values
+            k = np.flatnonzero(ok)
+            fp, h = p[k], h[k]
+            spread = self.rho_x[fp] * (cc.max(1) - cc.min(1))[h]
+            below = spread <= self.headroom(GRID_TOLERANCE * (GRID_STRIDES[0] / s) ** 2, fp)
+            smooth = below[:, 0] & below[:, 1] & below[:, 2]  # (.all(1) loops 3 values at a time: slower)
+            k, fp, h = k[smooth], fp[smooth], h[smooth]
+            out[todo[k]] = _bilinear(cc[h], fp, W, s)
+            keep = np.ones(len(todo), bool)
+            keep[k] = False
+            todo = todo[keep]
+        if len(todo):
+            sv.add(sel[todo], values_of)
+            out[todo] = sv.value[sel[todo]]
+        self.n_exact = sv.count
+        return out
+
+    def stride_table(self, s: int) -> StrideTable:
+        """The engine's StrideTable of stride s (made on first use: it depends on the scene only)."""
+        if s not in self._strides:
+            cam = self.camera
+            pix_quad = np.where(self.pix_patch >= 0, self.patches.quad[np.maximum(self.pix_patch, 0)], -1)
+            self._strides[s] = StrideTable(s, cam.height, cam.width, self.recv_pix, pix_quad)
+        return self._strides[s]

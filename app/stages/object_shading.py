@@ -5,36 +5,47 @@ Radiance at the shading mesh's vertices = albedo x (indirect SH9 volume x the ob
 self-occlusion transfer (precomputed radiance transfer, kept per shape in the object's frame)
 + the emitters with visibility + the change of the room's patches in the object's shadow), plus
 one bounce between the object's own parts; interpolated at the camera hits. Units: radiance.
+
+ObjectShading is built once per scene from the camera, the scene's occluders, the patch mesh and the
+room's light; per frame `object_shape` gives the proxy and the shading mesh at the pose,
+`object_hits` the object's pixels and `shade` its radiance there (a ShadedObject).
 """
 from __future__ import annotations
 
 import functools
 import hashlib
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from app.runtime import split as _split
-from kernels.buffers import workspace
+from app.config import ObjectConfig
+from kernels.buffers import Workspaces
 from kernels.raycast import cast_rays
 from kernels.shade import CameraHits, SampledPatchSum, patch_groups, self_transfer
 from kernels.visibility import Occluder
+from lighting.irradiance import RoomLight
+from lighting.sun import SunLight
 from lighting.envmap import CubeMap, cube_directions, phong_prefilter, reflect
+from recon.patches import PatchMesh
 from recon.proxy import simplify, subdivide
 from recon.response import luminance
 from recon.scene import SceneObject
-
-if TYPE_CHECKING:
-    from app.engine import Engine
-
 
 SPLIT_PAIRS = 1024  # (point, patch) pairs a concurrent part of a gather over patches gets at least (the
 # item count from which app.runtime.parts splits a launch of one-patch items): pair_split
 
 
-VIS_STRIDE = 4  # distinct vertices per visibility sample (kernels.shade.SampledPatchSum; 1: a ray per pair)
+def pair_split(device: str, n_patches: int):
+    """app.runtime.split for a gather of every one of n_patches patches at each point (the emitters', the
+    sun's lost patches', dB's), sized by work, not by points: a part gets at least SPLIT_PAIRS (point,
+    patch) pairs, an exact form factor each, so a few hundred points of tens of patches already outweigh
+    a thread's hand-off (app.runtime.parts' default counts items of one patch: ~900 such points ran on
+    one core)."""
+    return functools.partial(_split, device=device, min_items=max(1, SPLIT_PAIRS // max(n_patches, 1)))
+
+
 
 
 @dataclass
@@ -111,176 +122,6 @@ def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.nda
         known = known | new
     out[~known] = out[known].mean(0)
     return out
-
-
-def object_shape(eng: "Engine", obj: SceneObject):
-    """(proxy vertices, proxy faces, proxy Occluder, shading mesh (v, n, f), shading-mesh Occluder)
-    of the object at its pose. The simplification, the subdivision and both BVHs are made once
-    per object shape, kept in the shape's own frame (centred: the key is the centred mesh to
-    1 um, as _self_transfer's); a pose that only moves the object translates them and refits
-    the BVHs (Warp Mesh.refit) instead (shape_cache False: made afresh every frame)."""
-    p, v = eng.params, obj.vertices
-    offset = v.mean(0)
-    key = hashlib.sha1(np.round(v - offset, 6).tobytes() + np.round(obj.normals, 6).tobytes()
-                       + np.ascontiguousarray(obj.faces).tobytes() + str(p.proxy_faces).encode()).hexdigest()
-    sh = eng._shape if eng.shape_cache else None
-    if sh is None or sh["key"] != key:
-        pv, pf, _ = simplify(v, obj.faces, p.proxy_faces)
-        sv, sn, sf = subdivide(v, obj.normals, obj.faces, max_edge=0.08, max_faces=3000)
-        sh = {"key": key, "offset": offset, "pv": pv - offset, "pf": pf, "sv": sv - offset, "sn": sn, "sf": sf,
-              "proxy_occ": Occluder(pv, pf, eng.device), "shade_occ": Occluder(sv, sf, eng.device)}
-        if eng.shape_cache:
-            eng._shape = sh
-        eng.n_shape_builds += 1
-    pv, sv = sh["pv"] + offset, sh["sv"] + offset
-    if not np.array_equal(offset, sh["offset"]):  # moved: translate the BVHs' points and refit
-        for occ, pts in ((sh["proxy_occ"], pv), (sh["shade_occ"], sv)):
-            if occ.mesh is not None:
-                occ._pts.assign(pts.astype(np.float32))
-                occ.mesh.refit()
-        sh["offset"] = offset
-    eng._shade_occ = (sv, sh["shade_occ"])  # object_vertex_radiance's own-shadow mesh, this frame
-    return pv, sh["pf"], sh["proxy_occ"], (sv, sh["sn"], sh["sf"]), sh["shade_occ"]
-
-
-def object_hits(eng: "Engine", verts: np.ndarray, faces: np.ndarray, camera=None, supersample: int | None = None,
-                 occluder: Occluder | None = None) -> "ObjectHits":
-    """Sub-pixel camera rays against the object mesh, depth-tested against the scene model
-    (camera: default the scene's; another one sees the same world, e.g. the full-resolution
-    photo's, app.workres)."""
-    cam = camera or eng.scene.camera
-    H, W, s = cam.height, cam.width, max(1, supersample or eng.params.supersample)
-    uv, z = cam.project(verts)
-    if np.any(z <= 1e-6):
-        u0, v0, u1, v1 = 0, 0, W - 1, H - 1
-    else:
-        u0, v0 = np.floor(uv.min(0) - 1).astype(int)
-        u1, v1 = np.ceil(uv.max(0) + 1).astype(int)
-        u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
-    if u0 > u1 or v0 > v1:
-        return ObjectHits(H, W, s, (0, 0, -1, -1), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0, bool))
-    ch = eng.__dict__.get("_camera_hits")
-    if ch is None:
-        ch = eng._camera_hits = CameraHits(eng.device)
-    tri, bary, hit = ch(occluder or Occluder(verts, faces, eng.device), eng.cam_occ, cam.centre,
-                        cam.R.T @ np.linalg.inv(cam.K), (u0, v0, u1, v1), s,
-                        functools.partial(_split, device=eng.device))
-    return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, hit)
-
-
-def vertex_radiance(eng: "Engine", obj: SceneObject, mesh, proxy_occ: Occluder,
-                    dB: np.ndarray | None = None) -> np.ndarray:
-    """Outgoing radiance (V,3) at the shading mesh's vertices (mesh = (verts, normals, faces)).
-
-    albedo x (indirect SH9 x self-occlusion transfer + exact emitters + dB, the change of the
-    room's patches in the object's shadow), plus one bounce between the object's own parts.
-    Everything is evaluated once per distinct (position, normal) of the mesh (ShapeShading.uniq).
-    """
-    v, n, f = mesh
-    pm = eng.pre.patches
-    # the shading mesh shadows itself: the coarse proxy would cut through its surface and
-    # shadow vertices that lie outside it
-    cached = eng._shade_occ
-    own = cached[1] if cached is not None and cached[0] is v else Occluder(v, f, eng.device)
-    ss = shape_shading(eng, v, n, f)
-    vu, nu = v[ss.uniq], n[ss.uniq]
-    E_ind = np.einsum("vk,vkc->vc", ss.T, eng.room_light.indirect_sh(vu))
-    rl = eng.room_light  # the emitters, exact form factors, visibility cast at samples (ShapeShading)
-    em, groups = emitter_groups(eng)
-    room = rl.occluder
-    if getattr(eng, "shaft_cull", True) and len(em) and \
-            shaft_clear(room_triangles(eng, room), vu, nu, groups[1], pm.normal[em[groups[0][:-1]]], 2e-3,
-                        boxes=room_triangle_boxes(eng, room)):
-        room = Occluder(None, None, eng.device) if eng.__dict__.get("_no_room") is None else eng._no_room
-        eng._no_room = room  # no room triangle between the object and the emitters: no room rays
-    g = ss.gathered  # the distinct vertices whose radiance is read (the buried ones get their neighbours')
-    vg, ng = vu[g], nu[g]
-    E = np.zeros((len(vu), 3))
-    E[g] = ss.direct_sum(vg, ng, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3,
-                         pair_split(eng, len(em)), groups)
-    sun_u = None
-    if getattr(eng, "sun_pix", None) is not None:  # sun: direct, with the object's self-shadowing
-        # the object's own shadow is kept per shape (the sun's rays are parallel: a move changes none
-        # of it); per frame only the room's shadow is tested
-        self_lit = ss.sun_self_lit(eng.sun_light.d, vu, nu, own)
-        on = np.flatnonzero(self_lit > 0)  # the room's shadow tested only where the object's own leaves the sun
-        vis_u = np.zeros(len(vu))
-        vis_u[on] = eng.sun_light.visibility(vu[on], nu[on]) * self_lit[on]
-        sun_u = vis_u[:, None] * (eng.sun_light.sun.irradiance / np.pi)
-        eng._obj_sun_vis = vis_u[ss.inv]  # each vertex's sun share, cos x visibility (sharpened per camera hit later)
-        # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
-        # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
-        ch = np.flatnonzero(np.abs(eng._sun_dB).sum(1) > 0) if eng._sun_dB is not None else []
-        if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
-            E[g] += ss.sun_dB_sum(vg, ng, pm.corners[ch], pm.normal[ch], eng._sun_dB[ch], [eng.scene_occ, own],
-                                  2e-3, pair_split(eng, len(ch)))
-    if dB is not None:
-        # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
-        loss = np.abs(luminance(dB)) * pm.area
-        order = np.argsort(-loss)
-        order = order[loss[order] > 0]
-        keep = int(np.searchsorted(np.cumsum(loss[order]), 0.95 * loss.sum())) + 1 if len(order) else 0
-        changed = order[:keep]
-        far = np.zeros(0, np.int64)
-        if len(changed) and getattr(eng, "dB_far_field", True):
-            # beyond DB_FAR bounding radii a patch's loss reaches the object as a far field: radiance SH9
-            # at a probe grid over the object's box, through the cached self-occlusion transfer
-            lo, hi = vu.min(0), vu.max(0)
-            centre = 0.5 * (lo + hi)
-            radius = float(np.linalg.norm(vu - centre, axis=1).max())
-            pr = pm.radius
-            d = np.linalg.norm(pm.centre[changed] - centre, axis=1) - pr[changed]
-            is_far = (d >= DB_FAR * radius) & (2.0 * pr[changed] <= DB_CLUSTER * (d + pr[changed]))
-            far, changed = changed[is_far], changed[~is_far]
-            if len(far):
-                probes, weights = _probe_grid(lo, hi, vu, DB_PROBES)
-                pc, pn, pa, prad = cluster_patches(pm.centre[far], pm.normal[far], pm.area[far], pm.quad[far],
-                                                   dB[far], d[is_far] + pr[far], 2.0 * float(pr.min()))
-                L = far_field_sh(eng, probes, lo, hi, pc, pn, pa, prad)
-                E += np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, L))
-        if len(changed):
-            # the loss varies slowly over the object (the shadowed patches are beyond it):
-            # gather it at a spread subset of vertices and interpolate by position and normal
-            sub = ss.sub
-            E += ss.interpolate(ss.dB_sum(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed], dB[changed],
-                                          [eng.scene_occ, own], 2e-3, pair_split(eng, len(changed))))
-    E += E_ind
-    if sun_u is not None:
-        E += sun_u
-    L_vert = obj.albedo * np.maximum(E, 0.0)[ss.inv]
-    # vertices buried inside another part of the object (a chair's back-rest inside its seat)
-    # see almost nothing; their values would darken the visible triangles they belong to
-    L_vert = _fill_from_neighbours(L_vert, f, ss.buried)
-    # one bounce between the object's own parts: occluded directions see the object's radiance
-    if ss.bounce is not None:
-        L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
-    return L_vert
-
-
-def pair_split(eng: "Engine", n_patches: int):
-    """app.runtime.split for a gather of every one of n_patches patches at each point (the emitters', the
-    sun's lost patches', dB's), sized by work, not by points: a part gets at least SPLIT_PAIRS (point,
-    patch) pairs, an exact form factor each, so a few hundred points of tens of patches already outweigh
-    a thread's hand-off (app.runtime.parts' default counts items of one patch: ~900 such points ran on
-    one core)."""
-    return functools.partial(_split, device=eng.device, min_items=max(1, SPLIT_PAIRS // max(n_patches, 1)))
-
-
-def room_triangles(eng: "Engine", occ: Occluder) -> np.ndarray:
-    """The room occluder's triangles (T,3,3) float64, read back once per engine."""
-    cached = eng.__dict__.get("_room_tris")
-    if cached is None or cached[0] is not occ:
-        cached = eng._room_tris = [occ, occ.triangles(), None]
-    return cached[1]
-
-
-def room_triangle_boxes(eng: "Engine", occ: Occluder) -> "_TriangleBoxes":
-    """The room occluder's triangles in buckets (_TriangleBoxes), made once per engine beside room_triangles."""
-    tris = room_triangles(eng, occ)
-    cached = eng._room_tris
-    if cached[2] is None:
-        cached[2] = _TriangleBoxes(tris)
-    return cached[2]
 
 
 def _facing(p: np.ndarray, n: np.ndarray, polys: np.ndarray, pn: np.ndarray) -> np.ndarray:
@@ -412,55 +253,6 @@ def cluster_patches(pc: np.ndarray, pn: np.ndarray, area: np.ndarray, quad: np.n
     return centroid, normal, a, rad
 
 
-def far_field_sh(eng: "Engine", probes: np.ndarray, lo: np.ndarray, hi: np.ndarray, pc: np.ndarray, pn: np.ndarray,
-                 area: np.ndarray, radiance: np.ndarray, eps: float = 2e-3) -> np.ndarray:
-    """Radiance SH9 coefficients (Q,9,3) at the probes (Q,3, inside the box lo..hi) of far patches (centres
-    pc (M,3), unit normals pn (M,3), areas (M,) m^2, radiance (M,3)), each a point of solid angle
-    A cos / r^2 from every probe, seen past the room (eng.scene_occ) as from the box's 8 corners (one ray
-    per corner and patch, cast from 1 mm towards the box centre: a corner may lie on the floor the object
-    stands on), interpolated trilinearly: a room shadow's edge across the box gives a partial share."""
-    from lighting import sh
-
-    if len(pc) == 0:
-        return np.zeros((len(probes), 9, 3))
-    b = pc + pn * eps
-    corners, vis_w = _probe_grid(lo, hi, probes, 2)  # (8,3), (Q,8)
-    centre = 0.5 * (lo + hi)
-    to_c = centre - corners
-    lc = np.linalg.norm(to_c, axis=1, keepdims=True)
-    o = corners + to_c / np.maximum(lc, 1e-12) * np.minimum(1e-3, 0.5 * lc)
-    dv = b[None] - o[:, None]
-    dist = np.linalg.norm(dv, axis=2)
-    faces = np.einsum("qmc,mc->qm", dv, pn) < 0  # the patch's emitting side towards the corner
-    seen = np.flatnonzero(faces.reshape(-1))
-    vis = np.zeros(faces.size)
-    if len(seen):
-        q = seen // len(pc)
-        d = (dv / dist[..., None]).reshape(-1, 3)[seen]
-        _, _, depth = cast_rays(eng.scene_occ, o[q], d, workspace=workspace(eng, "dB_far"))
-        vis[seen] = depth >= dist.reshape(-1)[seen]
-    vis = vis_w @ vis.reshape(faces.shape)  # (Q,M)
-    dv = b[None] - probes[:, None]  # (Q,M,3)
-    dist = np.linalg.norm(dv, axis=2)
-    w = dv / dist[..., None]
-    cos_j = -np.einsum("qmc,mc->qm", w, pn)
-    omega = np.where(cos_j > 0, area * cos_j / dist ** 2, 0.0) * vis
-    Yw = sh.basis(w) * omega[..., None]  # (Q,M,9)
-    return np.matmul(Yw.transpose(0, 2, 1), np.asarray(radiance, np.float64))  # (Q,9,3)
-
-
-def emitter_groups(eng: "Engine") -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    """The room's emitter patches in kernels.shade.patch_groups order (one group per surface and
-    radiance that tiles a rectangle) and the groups (start, polys), made once per engine."""
-    cached = eng.__dict__.get("_emitter_groups")
-    if cached is None:
-        rl, pm = eng.room_light, eng.pre.patches
-        em = rl.emitters
-        order, start, polys = patch_groups(pm.corners[em], pm.quad[em], rl.radiance[em])
-        cached = eng._emitter_groups = (em[order], (start, polys))
-    return cached
-
-
 def _object_above(p: np.ndarray, n: np.ndarray, mesh_points: np.ndarray, tol: float = 1e-6,
                   block: int = 512) -> np.ndarray:
     """(N,) bool: some of the mesh's points lie more than `tol` metres above the plane through
@@ -561,7 +353,7 @@ class ShapeShading:
         self.inv = self.inv.reshape(-1)
         own = Occluder(local, f, device)
         T, hit_face, hit_bary = self_transfer(local, n, own, prt_dirs, device=device)
-        self.transfer = (T, hit_face, hit_bary)  # at every vertex (Engine._self_transfer)
+        self.transfer = (T, hit_face, hit_bary)  # at every vertex
         self.T = T[self.uniq].astype(np.float64)
         hit = hit_face >= 0
         self.buried = hit.mean(axis=1) > 0.7
@@ -624,70 +416,308 @@ class ShapeShading:
         return np.einsum("vk,vkc->vc", w, values[j])
 
 
-def shape_shading(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndarray) -> ShapeShading:
-    """ShapeShading of the mesh, kept for the last shape (the key is the centred mesh to 1 um)."""
-    local = v - v.mean(0)
-    key = hashlib.sha1(np.round(local, 6).tobytes() + np.round(n, 6).tobytes()
-                       + np.ascontiguousarray(f).tobytes()
-                       + f"{eng.params.prt_dirs} {getattr(eng, 'vis_stride', VIS_STRIDE)}".encode()).hexdigest()
-    cached = eng._prt_cache
-    if cached is None or cached[0] != key:
-        eng._prt_cache = cached = (key, ShapeShading(local, n, f, eng.params.prt_dirs, eng.dB_samples, eng.device,
-                                                     getattr(eng, "vis_stride", VIS_STRIDE),
-                                                     len(eng.room_light.emitters)))
-        cached[1].key = key
-    return cached[1]
+@dataclass
+class ShadedObject:
+    """ObjectShading.shade's result."""
+
+    radiance: np.ndarray  # (H,W,3) the object's radiance averaged over each pixel's camera hits
+    L_vert: np.ndarray | None  # (V,3) radiance at the shading mesh's vertices (None: the object is unseen)
+    sun_vis: np.ndarray | None  # (V,) each vertex's sun share, cos x visibility (None: no sun)
 
 
-def self_transfer_cached(eng: "Engine", v: np.ndarray, n: np.ndarray, f: np.ndarray):
-    """kernels.shade.self_transfer in the object's own frame (centred), kept for the last mesh
-    shape: self-occlusion does not change when the object slides, only when it turns or changes
-    (the key is the centred mesh to 1 um). Centred, the float32 ray casts give the same answer at
-    every position: in world coordinates 3-4 % of the rays grazing a neighbouring face flipped
-    between positions 0.4 m apart, up to 13 levels on the object while dragging."""
-    return shape_shading(eng, v, n, f).transfer
+class ObjectShading:
+    """The object's shape, its pixels and its outgoing radiance, for one scene: built once from the
+    camera and the scene's occluders, the patch mesh, the room's light (SH9 volume and emitters),
+    the radiance receivers gather and the sun (None: none lights the room); owns the per-shape
+    caches (proxy, shading mesh and BVHs; ShapeShading) and its kernels' buffers. Radiance units."""
 
+    def __init__(self, config: ObjectConfig, camera, cam_occ: Occluder, scene_occ: Occluder, patches: PatchMesh,
+                 room_light: RoomLight, B_src: np.ndarray, device: str, sun: SunLight | None = None):
+        """cam_occ: the scene as the camera sees it (depth test); scene_occ: the room's occluder (shadows
+        of the changed patches); B_src (P,3): the room's radiance (the specular map)."""
+        self.config = config  # reassignable: its keys are part of the per-shape caches' keys
+        self.camera, self.cam_occ, self.scene_occ, self.device = camera, cam_occ, scene_occ, device
+        self.patches, self.room_light, self.B_src, self.sun = patches, room_light, B_src, sun
+        self.n_shape_builds = 0  # object shapes simplified/subdivided so far
+        self._workspaces = Workspaces()
+        self._shape: dict | None = None  # the last shape's proxy, shading mesh and BVHs (object_shape)
+        self._shade_occ: tuple | None = None  # (shading-mesh vertices, their Occluder) of the current frame
+        self._prt: tuple | None = None  # (key, ShapeShading) of the last shape (shape_shading)
+        self._camera_hits: CameraHits | None = None
+        self._emitter_groups: tuple | None = None
+        self._room_tris: list | None = None  # [occluder, its triangles, their _TriangleBoxes]
+        self._no_room: Occluder | None = None  # an empty occluder: no room triangle in the way
 
-def shade_object(eng: "Engine", obj: SceneObject, mesh, hits: "ObjectHits", proxy_occ, dB: np.ndarray) -> np.ndarray:
-    """Object radiance (H,W,3) from `object_vertex_radiance`, interpolated at the camera hits."""
-    eng._last_L_vert = None
-    if not hits.hit.any():
-        return np.zeros((hits.H, hits.W, 3))
-    L_vert = eng.object_vertex_radiance(obj, mesh, proxy_occ, dB)
-    eng._last_L_vert = L_vert
-    v, n, f = mesh
-    h = hits.hit
-    sub = np.zeros((len(h), 3))
-    corners = f[hits.tri[h]]
-    sub[h] = np.einsum("nk,nkc->nc", hits.bary[h], L_vert[corners])
-    if getattr(eng, "sun_pix", None) is not None:  # sun: its direct light per camera hit (a sharp edge
-        # across a face, not a vertex blend), on the faces with a sunlit corner (on the others both the
-        # per-hit sun and the vertex blend it replaces are 0); rays where a shadow edge crosses a face
-        own = eng._shade_occ[1] if eng._shade_occ is not None and eng._shade_occ[0] is v else \
-            Occluder(v, f, eng.device)
-        hh = np.flatnonzero(h)
-        k, delta = eng.sun_light.hit_correction(v, n, f, eng._obj_sun_vis, hits.tri[hh], hits.bary[hh], [own])
-        if len(k):
-            hk = hh[k]
-            sub[hk] = np.maximum(sub[hk] + obj.albedo * (delta[:, None] * (eng.sun_light.sun.irradiance / np.pi)),
-                                 0.0)
-    if eng.params.specular > 0:
-        pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])
-        nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-        view = pos - eng.scene.camera.centre
-        view /= np.linalg.norm(view, axis=1, keepdims=True)
-        env = eng.specular_map(0.5 * (v.min(0) + v.max(0)))
-        sub[h] += eng.params.specular * env.lookup(reflect(view, nrm))
-    return hits.average(sub)
+    def object_shape(self, obj: SceneObject):
+        """(proxy vertices, proxy faces, proxy Occluder, shading mesh (v, n, f), shading-mesh Occluder)
+        of the object at its pose. The simplification, the subdivision and both BVHs are made once
+        per object shape, kept in the shape's own frame (centred: the key is the centred mesh to
+        1 um, as shape_shading's); a pose that only moves the object translates them and refits
+        the BVHs (Warp Mesh.refit) instead (shape_cache False: made afresh every frame)."""
+        p, v = self.config, obj.vertices
+        offset = v.mean(0)
+        key = hashlib.sha1(np.round(v - offset, 6).tobytes() + np.round(obj.normals, 6).tobytes()
+                           + np.ascontiguousarray(obj.faces).tobytes() + str(p.proxy_faces).encode()).hexdigest()
+        sh = self._shape if self.config.shape_cache else None
+        if sh is None or sh["key"] != key:
+            pv, pf, _ = simplify(v, obj.faces, p.proxy_faces)
+            sv, sn, sf = subdivide(v, obj.normals, obj.faces, max_edge=0.08, max_faces=3000)
+            sh = {"key": key, "offset": offset, "pv": pv - offset, "pf": pf, "sv": sv - offset, "sn": sn, "sf": sf,
+                  "proxy_occ": Occluder(pv, pf, self.device), "shade_occ": Occluder(sv, sf, self.device)}
+            if self.config.shape_cache:
+                self._shape = sh
+            self.n_shape_builds += 1
+        pv, sv = sh["pv"] + offset, sh["sv"] + offset
+        if not np.array_equal(offset, sh["offset"]):  # moved: translate the BVHs' points and refit
+            sh["proxy_occ"].move(pv)
+            sh["shade_occ"].move(sv)
+            sh["offset"] = offset
+        self._shade_occ = (sv, sh["shade_occ"])  # vertex_radiance's own-shadow mesh, this frame
+        return pv, sh["pf"], sh["proxy_occ"], (sv, sh["sn"], sh["sf"]), sh["shade_occ"]
 
+    def object_hits(self, verts: np.ndarray, faces: np.ndarray, camera=None, supersample: int | None = None,
+                     occluder: Occluder | None = None) -> "ObjectHits":
+        """Sub-pixel camera rays against the object mesh, depth-tested against the scene model
+        (camera: default the scene's; another one sees the same world, e.g. the full-resolution
+        photo's, app.workres)."""
+        cam = camera or self.camera
+        H, W, s = cam.height, cam.width, max(1, supersample or self.config.supersample)
+        uv, z = cam.project(verts)
+        if np.any(z <= 1e-6):
+            u0, v0, u1, v1 = 0, 0, W - 1, H - 1
+        else:
+            u0, v0 = np.floor(uv.min(0) - 1).astype(int)
+            u1, v1 = np.ceil(uv.max(0) + 1).astype(int)
+            u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
+        if u0 > u1 or v0 > v1:
+            return ObjectHits(H, W, s, (0, 0, -1, -1), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0, bool))
+        ch = self._camera_hits
+        if ch is None:
+            ch = self._camera_hits = CameraHits(self.device)
+        tri, bary, hit = ch(occluder or Occluder(verts, faces, self.device), self.cam_occ, cam.centre,
+                            cam.R.T @ np.linalg.inv(cam.K), (u0, v0, u1, v1), s,
+                            functools.partial(_split, device=self.device))
+        return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, hit)
 
-def specular_map(eng: "Engine", centre: np.ndarray) -> CubeMap:
-    """The room's radiance seen from `centre` (the object's centre, object absent), pre-filtered
-    with the Phong lobe of `shininess` (seed sec. 5, fig. 9)."""
-    p, pm = eng.params, eng.pre.patches
-    res_in = max(2 * p.envmap_res, int(np.ceil(2 * np.sqrt(p.shininess))))
-    dirs, _ = cube_directions(res_in)
-    tri, _, _ = cast_rays(eng.cam_occ, np.asarray(centre, np.float64), dirs, workspace=workspace(eng, "specular_map"))
-    L = np.where((tri >= 0)[:, None], eng.B_src[pm.tri_patch[np.maximum(tri, 0)]], 0.0)
-    return phong_prefilter(L, res_in, p.shininess, p.envmap_res)
+    def vertex_radiance(self, obj: SceneObject, mesh, proxy_occ: Occluder, dB: np.ndarray | None = None,
+                        sun_dB: np.ndarray | None = None) -> np.ndarray:
+        """Outgoing radiance (V,3) at the shading mesh's vertices (mesh = (verts, normals, faces)).
+
+        albedo x (indirect SH9 x self-occlusion transfer + exact emitters + dB, the change of the
+        room's patches in the object's shadow (P,3)), plus one bounce between the object's own parts;
+        with a sun, its direct light with the object's self-shadowing and sun_dB (P,3), the sun the
+        object blocks from each patch this frame. Everything is evaluated once per distinct (position,
+        normal) of the mesh (ShapeShading.uniq)."""
+        return self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB)[0]
+
+    def _vertex_radiance(self, obj: SceneObject, mesh, proxy_occ: Occluder, dB: np.ndarray | None,
+                         sun_dB: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """(vertex_radiance, each vertex's sun share (V,) cos x visibility, None without a sun)."""
+        v, n, f = mesh
+        pm = self.patches
+        # the shading mesh shadows itself: the coarse proxy would cut through its surface and
+        # shadow vertices that lie outside it
+        cached = self._shade_occ
+        own = cached[1] if cached is not None and cached[0] is v else Occluder(v, f, self.device)
+        ss = self.shape_shading(v, n, f)
+        vu, nu = v[ss.uniq], n[ss.uniq]
+        E_ind = np.einsum("vk,vkc->vc", ss.T, self.room_light.indirect_sh(vu))
+        rl = self.room_light  # the emitters, exact form factors, visibility cast at samples (ShapeShading)
+        em, groups = self.emitter_groups()
+        room = rl.occluder
+        if self.config.shaft_cull and len(em) and \
+                shaft_clear(self.room_triangles(room), vu, nu, groups[1], pm.normal[em[groups[0][:-1]]], 2e-3,
+                            boxes=self.room_triangle_boxes(room)):
+            room = Occluder(None, None, self.device) if self._no_room is None else self._no_room
+            self._no_room = room  # no room triangle between the object and the emitters: no room rays
+        g = ss.gathered  # the distinct vertices whose radiance is read (the buried ones get their neighbours')
+        vg, ng = vu[g], nu[g]
+        E = np.zeros((len(vu), 3))
+        E[g] = ss.direct_sum(vg, ng, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3,
+                             pair_split(self.device, len(em)), groups)
+        sun_u = sun_vis = None
+        if self.sun is not None:  # sun: direct, with the object's self-shadowing
+            # the object's own shadow is kept per shape (the sun's rays are parallel: a move changes none
+            # of it); per frame only the room's shadow is tested
+            self_lit = ss.sun_self_lit(self.sun.d, vu, nu, own)
+            on = np.flatnonzero(self_lit > 0)  # the room's shadow tested only where the object's own leaves the sun
+            vis_u = np.zeros(len(vu))
+            vis_u[on] = self.sun.visibility(vu[on], nu[on]) * self_lit[on]
+            sun_u = vis_u[:, None] * (self.sun.sun.irradiance / np.pi)
+            sun_vis = vis_u[ss.inv]  # each vertex's sun share, cos x visibility (sharpened per camera hit later)
+            # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
+            # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
+            ch = np.flatnonzero(np.abs(sun_dB).sum(1) > 0) if sun_dB is not None else []
+            if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
+                E[g] += ss.sun_dB_sum(vg, ng, pm.corners[ch], pm.normal[ch], sun_dB[ch], [self.scene_occ, own],
+                                      2e-3, pair_split(self.device, len(ch)))
+        if dB is not None:
+            # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
+            loss = np.abs(luminance(dB)) * pm.area
+            order = np.argsort(-loss)
+            order = order[loss[order] > 0]
+            keep = int(np.searchsorted(np.cumsum(loss[order]), 0.95 * loss.sum())) + 1 if len(order) else 0
+            changed = order[:keep]
+            far = np.zeros(0, np.int64)
+            if len(changed) and self.config.dB_far_field:
+                # beyond DB_FAR bounding radii a patch's loss reaches the object as a far field: radiance SH9
+                # at a probe grid over the object's box, through the cached self-occlusion transfer
+                lo, hi = vu.min(0), vu.max(0)
+                centre = 0.5 * (lo + hi)
+                radius = float(np.linalg.norm(vu - centre, axis=1).max())
+                pr = pm.radius
+                d = np.linalg.norm(pm.centre[changed] - centre, axis=1) - pr[changed]
+                is_far = (d >= DB_FAR * radius) & (2.0 * pr[changed] <= DB_CLUSTER * (d + pr[changed]))
+                far, changed = changed[is_far], changed[~is_far]
+                if len(far):
+                    probes, weights = _probe_grid(lo, hi, vu, DB_PROBES)
+                    pc, pn, pa, prad = cluster_patches(pm.centre[far], pm.normal[far], pm.area[far], pm.quad[far],
+                                                       dB[far], d[is_far] + pr[far], 2.0 * float(pr.min()))
+                    L = self.far_field_sh(probes, lo, hi, pc, pn, pa, prad)
+                    E += np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, L))
+            if len(changed):
+                # the loss varies slowly over the object (the shadowed patches are beyond it):
+                # gather it at a spread subset of vertices and interpolate by position and normal
+                sub = ss.sub
+                E += ss.interpolate(ss.dB_sum(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed], dB[changed],
+                                              [self.scene_occ, own], 2e-3, pair_split(self.device, len(changed))))
+        E += E_ind
+        if sun_u is not None:
+            E += sun_u
+        L_vert = obj.albedo * np.maximum(E, 0.0)[ss.inv]
+        # vertices buried inside another part of the object (a chair's back-rest inside its seat)
+        # see almost nothing; their values would darken the visible triangles they belong to
+        L_vert = _fill_from_neighbours(L_vert, f, ss.buried)
+        # one bounce between the object's own parts: occluded directions see the object's radiance
+        if ss.bounce is not None:
+            L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
+        return L_vert, sun_vis
+
+    def room_triangles(self, occ: Occluder) -> np.ndarray:
+        """The room occluder's triangles (T,3,3) float64, read back once per engine."""
+        cached = self._room_tris
+        if cached is None or cached[0] is not occ:
+            cached = self._room_tris = [occ, occ.triangles(), None]
+        return cached[1]
+
+    def room_triangle_boxes(self, occ: Occluder) -> "_TriangleBoxes":
+        """The room occluder's triangles in buckets (_TriangleBoxes), made once per engine beside room_triangles."""
+        tris = self.room_triangles(occ)
+        cached = self._room_tris
+        if cached[2] is None:
+            cached[2] = _TriangleBoxes(tris)
+        return cached[2]
+
+    def far_field_sh(self, probes: np.ndarray, lo: np.ndarray, hi: np.ndarray, pc: np.ndarray, pn: np.ndarray,
+                     area: np.ndarray, radiance: np.ndarray, eps: float = 2e-3) -> np.ndarray:
+        """Radiance SH9 coefficients (Q,9,3) at the probes (Q,3, inside the box lo..hi) of far patches (centres
+        pc (M,3), unit normals pn (M,3), areas (M,) m^2, radiance (M,3)), each a point of solid angle
+        A cos / r^2 from every probe, seen past the room (self.scene_occ) as from the box's 8 corners (one ray
+        per corner and patch, cast from 1 mm towards the box centre: a corner may lie on the floor the object
+        stands on), interpolated trilinearly: a room shadow's edge across the box gives a partial share."""
+        from lighting import sh
+
+        if len(pc) == 0:
+            return np.zeros((len(probes), 9, 3))
+        b = pc + pn * eps
+        corners, vis_w = _probe_grid(lo, hi, probes, 2)  # (8,3), (Q,8)
+        centre = 0.5 * (lo + hi)
+        to_c = centre - corners
+        lc = np.linalg.norm(to_c, axis=1, keepdims=True)
+        o = corners + to_c / np.maximum(lc, 1e-12) * np.minimum(1e-3, 0.5 * lc)
+        dv = b[None] - o[:, None]
+        dist = np.linalg.norm(dv, axis=2)
+        faces = np.einsum("qmc,mc->qm", dv, pn) < 0  # the patch's emitting side towards the corner
+        seen = np.flatnonzero(faces.reshape(-1))
+        vis = np.zeros(faces.size)
+        if len(seen):
+            q = seen // len(pc)
+            d = (dv / dist[..., None]).reshape(-1, 3)[seen]
+            _, _, depth = cast_rays(self.scene_occ, o[q], d, workspace=self._workspaces.get("dB_far"))
+            vis[seen] = depth >= dist.reshape(-1)[seen]
+        vis = vis_w @ vis.reshape(faces.shape)  # (Q,M)
+        dv = b[None] - probes[:, None]  # (Q,M,3)
+        dist = np.linalg.norm(dv, axis=2)
+        w = dv / dist[..., None]
+        cos_j = -np.einsum("qmc,mc->qm", w, pn)
+        omega = np.where(cos_j > 0, area * cos_j / dist ** 2, 0.0) * vis
+        Yw = sh.basis(w) * omega[..., None]  # (Q,M,9)
+        return np.matmul(Yw.transpose(0, 2, 1), np.asarray(radiance, np.float64))  # (Q,9,3)
+
+    def emitter_groups(self) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """The room's emitter patches in kernels.shade.patch_groups order (one group per surface and
+        radiance that tiles a rectangle) and the groups (start, polys), made once per engine."""
+        cached = self._emitter_groups
+        if cached is None:
+            rl, pm = self.room_light, self.patches
+            em = rl.emitters
+            order, start, polys = patch_groups(pm.corners[em], pm.quad[em], rl.radiance[em])
+            cached = self._emitter_groups = (em[order], (start, polys))
+        return cached
+
+    def shape_shading(self, v: np.ndarray, n: np.ndarray, f: np.ndarray) -> ShapeShading:
+        """ShapeShading of the mesh, kept for the last shape: self-occlusion does not change when the
+        object slides, only when it turns or changes (the key is the centred mesh to 1 um). Centred,
+        the float32 ray casts give the same answer at every position: in world coordinates 3-4 % of
+        the rays grazing a neighbouring face flipped between positions 0.4 m apart, up to 13 levels on
+        the object while dragging."""
+        local = v - v.mean(0)
+        key = hashlib.sha1(np.round(local, 6).tobytes() + np.round(n, 6).tobytes()
+                           + np.ascontiguousarray(f).tobytes()
+                           + f"{self.config.prt_dirs} {self.config.vis_stride}".encode()).hexdigest()
+        cached = self._prt
+        if cached is None or cached[0] != key:
+            self._prt = cached = (key, ShapeShading(local, n, f, self.config.prt_dirs, self.config.dB_samples,
+                                                    self.device, self.config.vis_stride,
+                                                    len(self.room_light.emitters)))
+            cached[1].key = key
+        return cached[1]
+
+    def forget_shapes(self) -> None:
+        """Drop the per-shape caches (proxy, shading mesh, BVHs, ShapeShading): the next frame makes
+        them afresh."""
+        self._shape = self._shade_occ = self._prt = None
+
+    def shade(self, obj: SceneObject, mesh, hits: ObjectHits, proxy_occ: Occluder, dB: np.ndarray,
+              sun_dB: np.ndarray | None = None) -> ShadedObject:
+        """The object's radiance from vertex_radiance, interpolated at the camera hits (with a sun, its
+        direct light per hit; with a specular lobe, the room's reflection)."""
+        if not hits.hit.any():
+            return ShadedObject(np.zeros((hits.H, hits.W, 3)), None, None)
+        L_vert, sun_vis = self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB)
+        v, n, f = mesh
+        h = hits.hit
+        sub = np.zeros((len(h), 3))
+        corners = f[hits.tri[h]]
+        sub[h] = np.einsum("nk,nkc->nc", hits.bary[h], L_vert[corners])
+        if self.sun is not None:  # sun: its direct light per camera hit (a sharp edge
+            # across a face, not a vertex blend), on the faces with a sunlit corner (on the others both the
+            # per-hit sun and the vertex blend it replaces are 0); rays where a shadow edge crosses a face
+            own = self._shade_occ[1] if self._shade_occ is not None and self._shade_occ[0] is v else \
+                Occluder(v, f, self.device)
+            hh = np.flatnonzero(h)
+            k, delta = self.sun.hit_correction(v, n, f, sun_vis, hits.tri[hh], hits.bary[hh], [own])
+            if len(k):
+                hk = hh[k]
+                sub[hk] = np.maximum(sub[hk] + obj.albedo * (delta[:, None] * (self.sun.sun.irradiance / np.pi)),
+                                     0.0)
+        if self.config.specular > 0:
+            pos = np.einsum("nk,nkc->nc", hits.bary[h], v[corners])
+            nrm = np.einsum("nk,nkc->nc", hits.bary[h], n[corners])
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+            view = pos - self.camera.centre
+            view /= np.linalg.norm(view, axis=1, keepdims=True)
+            env = self.specular_map(0.5 * (v.min(0) + v.max(0)))
+            sub[h] += self.config.specular * env.lookup(reflect(view, nrm))
+        return ShadedObject(hits.average(sub), L_vert, sun_vis)
+
+    def specular_map(self, centre: np.ndarray) -> CubeMap:
+        """The room's radiance seen from `centre` (the object's centre, object absent), pre-filtered
+        with the Phong lobe of `shininess` (seed sec. 5, fig. 9)."""
+        p, pm = self.config, self.patches
+        res_in = max(2 * p.envmap_res, int(np.ceil(2 * np.sqrt(p.shininess))))
+        dirs, _ = cube_directions(res_in)
+        tri, _, _ = cast_rays(self.cam_occ, np.asarray(centre, np.float64), dirs,
+                              workspace=self._workspaces.get("specular_map"))
+        L = np.where((tri >= 0)[:, None], self.B_src[pm.tri_patch[np.maximum(tri, 0)]], 0.0)
+        return phong_prefilter(L, res_in, p.shininess, p.envmap_res)

@@ -24,6 +24,7 @@ from typing import Callable, Literal
 import numpy as np
 from tqdm import tqdm
 
+from app.config import LIGHTING, Lighting, PrecomputeConfig  # noqa: F401 (LIGHTING, Lighting: re-exported)
 from app.stages import artefact_cache
 from kernels.raycast import cast_rays
 from kernels.visibility import Occluder, transfer_matrix
@@ -39,31 +40,6 @@ from recon.scene import Scene
 
 log = logging.getLogger("photoar")
 CACHE_VERSION = 6
-Lighting = Literal["known", "captured", "photo"]
-# How the room is lit (EngineParams.lighting; the one list the command line and the engine use):
-LIGHTING = {
-    "known": "the scene's declared emitters (emitted_radiance) and radiosity",
-    "captured": "the bracketed mirror-ball probe and the photo; emitters are the patches brighter than any "
-                "reflector could be, the camera response is recovered from the bracket",
-    "photo": "the photo alone: sRGB assumed, window/lamp radiance fitted to the walls (lighting.photolight)",
-}
-
-
-@dataclass(frozen=True)
-class PrecomputeConfig:
-    """What the scene precompute reads of the engine's knobs, and nothing else: its fields are
-    the precompute's cache key (with the scene's inputs, hash_scene)."""
-
-    patch_size: float  # m, receiver/source patches
-    emitter_patch_size: float  # m, emitter patches
-    vis_side: int  # visibility samples per patch side for receiver transfers
-    bounces: int  # light bounces the camera sees (B holds bounces+1 iterates)
-    lighting: str  # a key of LIGHTING
-
-    def cache_key(self) -> dict:
-        return dataclasses.asdict(self)
-
-
 @dataclass
 class Precomputed:
     """Per-scene data that does not depend on the object (cached on disk)."""

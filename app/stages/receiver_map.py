@@ -29,6 +29,7 @@ class ReceiverMap:
     recv_pix: np.ndarray  # (H*W,) bool
     E_v: np.ndarray  # (Vr,3)
     E_x: np.ndarray  # (H*W,3)
+    rho_x: np.ndarray | None = None  # (H*W,3) reflectance, once E_x and L_b are final (reflectance)
 
 
 def receiver_map(scene: Scene, pre: Precomputed, B_src: np.ndarray) -> ReceiverMap:

@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from app import runtime
 from kernels.buffers import Buffer
-from kernels.composite import MaskedSum
+from kernels.masked_sums import MaskedSum
 from kernels.maskfill import WindowFill
 from kernels.shadowmap import ShadowMaps
 from kernels.visibility import Occluder
@@ -166,7 +166,7 @@ class ShadowPass:
         or LDR intensity), W_c (P,S,3) patch-centre transfers; per_source: one map per source
         (maps of map_res), else maps of clusters (cluster_map_res); spread (S,2,3) m: each
         cluster's half-axes across its view (FrameSources.spread), whose penumbra a cluster map's lookup filters by
-        (kernels.composite.penumbra; ignored with per_source, whose maps keep the hard lookup);
+        (kernels.masked_sums.penumbra; ignored with per_source, whose maps keep the hard lookup);
         full_maps: cluster maps of map_res too (Engine.refine's frames at rest); scale (H*W,3):
         the sums of the pixels' unshadowed light (E_x, or levels in LDR), given: a cluster frame of
         one batch fills on the graded lattice (_run_graded)."""
@@ -174,7 +174,7 @@ class ShadowPass:
             return (yield from self._run_graded(proxy, centre, radius, coverage, cand, eyes, W_pix, W_c,
                                                 spread, full_maps, scale))
         self._fill.set_spacing(np.zeros(0, np.int64), 2)
-        pix_pt, fill_pt, cen = self._select(centre, radius, coverage, cand)
+        pix_pt, fill_pt, cen = self.select(centre, radius, coverage, cand)
         R = self.n_pix_points
         self.sums.select(np.concatenate([pix_pt, R + cen]))
         primary = self.maps_full if per_source or full_maps else self.maps_cluster
@@ -210,7 +210,7 @@ class ShadowPass:
             if k + 1 < len(firsts) and self.pipelined:  # the next batch's maps: aimed and drawn on the side
                 drawing = runtime.background(functools.partial(draw, k + 1, False))  # thread while this is summed
             try:
-                self._upload_batch(cand, W_pix, W_c, first, n, cen)
+                self.upload_batch(cand, W_pix, W_c, first, n, cen)
                 self.sums.prepare(self.maps, n, 0, self.cand.dev,
                                   split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
                 # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
@@ -265,7 +265,7 @@ class ShadowPass:
         ax = None if spread is None else spread[:n]
         n = self.maps.prepare(eyes, None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
         runtime.split(self.maps.raster, n, dev, min_items=1)
-        self._upload_batch(cand, W_pix, W_c, 0, n, cen)
+        self.upload_batch(cand, W_pix, W_c, 0, n, cen)
 
         def square_corners(pts: np.ndarray, s: int) -> tuple[np.ndarray, np.ndarray]:
             """(the squares of spacing s holding points pts, the wanted corners of those not summed yet)."""
@@ -366,7 +366,7 @@ class ShadowPass:
         return self._fill.fill(known, values, missing,
                                split=lambda launch, n: runtime.split(launch, n, self.device, min_items=8192), out=out)
 
-    def _select(self, centre: np.ndarray, radius: float, coverage: np.ndarray, cand: np.ndarray
+    def select(self, centre: np.ndarray, radius: float, coverage: np.ndarray, cand: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(exact pixel points, filled pixel points, patch centres) of the frame; points index
         the receiver pixels (self.recv)."""
@@ -392,7 +392,7 @@ class ShadowPass:
         cen = np.flatnonzero(ok & ~self.emitter)
         return pix_pt, fill_pt, cen
 
-    def _upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int,
+    def upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int,
                       cen: np.ndarray) -> None:
         """Sources first..first+n-1's transfers and candidate flags into the batch buffers. Of the
         patch-centre rows only those of the frame's centres `cen` that are candidates of some source

@@ -1,4 +1,4 @@
-"""The sun stage: the directional source's per-frame work (DESIGN "Per-frame stages", issue 20).
+"""The sun stage: the directional source's per-frame work (DESIGN "Per-frame stages").
 
 Per frame, on listed points only (the sunlit pixels and sample points of sunlit patches, fixed per
 scene; the object's proxy and its silhouette):
@@ -17,7 +17,10 @@ Units: irradiance/pi (the radiance a white Lambertian surface reflects), as in a
 """
 from __future__ import annotations
 
+import copy
 import functools
+import logging
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -27,7 +30,14 @@ from kernels.blocked_transfer import BlockedPairs
 from kernels.sunshadow import OutlineShade, SunShadowMap
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
-from lighting.sun import SunLight, SunlitPieces
+from app.stages.shadow_pass import window_pairs
+from lighting.sun import SunLight, SunlitPieces, estimate_sun, no_sun_reason, openings, surface_albedo
+from recon.assemble import SUN_DECLARED_BY_USER
+from recon.patches import PatchMesh
+from recon.response import LUMA, luminance
+from recon.scene import Scene
+
+log = logging.getLogger("photoar")
 
 
 PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility table (~6 degrees): at floor
@@ -98,7 +108,7 @@ def piece_runs(part: np.ndarray, share: np.ndarray, parent: np.ndarray, rows: tu
 
 
 class SunStage:
-    """The sun's per-frame work for one scene (built by Engine._sun_setup_pixels)."""
+    """The sun's per-frame work for one scene (built by SunSetup.apply)."""
 
     def __init__(self, light: SunLight, pts: np.ndarray, footprint: np.ndarray, E_pix: np.ndarray,
                  c_patch: np.ndarray, c_pts: np.ndarray, c_vis: np.ndarray, n_patches: int, device: str,
@@ -127,11 +137,17 @@ class SunStage:
         self.patches = patches
         self._later: LaterBounces | None = None  # the scene's later-bounce operators (later_bounces)
         self._blocked: tuple | None = None  # (key, BlockedPairs of the receiver vertices and clusters, clusters, Vr)
-        self._lost: np.ndarray | None = None  # (Pc,K) the last frame's lost share of the sun per sample point
+        self.lost: np.ndarray | None = None  # (Pc,K) the last frame's lost share of the sun per sample point
+        # of the sunlit patches (frame())
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
         self._outline = OutlineShade(device, light.entries, light.d)  # refine_clipped_edges's
         # rays and their shading (buffers kept)
         self._emitters = SeenEmitters(device)  # object_emitters's lit pieces on the device (buffers kept)
+
+    @property
+    def edge_rays(self) -> int:
+        """Rays refine_clipped_edges cast in its last call."""
+        return self._outline.rays
 
     def frame(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The sun's pass for an object: (irradiance/pi lost at the sunlit pixels (N,3), at every
@@ -139,9 +155,9 @@ class SunStage:
         self.map.render(vertices, faces)
         occ = self.map.occlusion_at(self._lookups)
         occ_pix, occ_c = occ[:self._n_pix], occ[self._n_pix:].reshape(self.c_vis.shape)
-        self._lost = self.c_vis * occ_c  # share of the sun lost at each sample point (first_pass_blocked)
+        self.lost = self.c_vis * occ_c  # share of the sun lost at each sample point (first_pass_blocked)
         loss_c = np.zeros((self.n_patches, 3))
-        loss_c[self.c_patch] = self._lost.mean(1)[:, None] * self.E_perp
+        loss_c[self.c_patch] = self.lost.mean(1)[:, None] * self.E_perp
         return occ_pix[:, None] * self.E_pix, loss_c
 
     def later_bounces(self, dB1: np.ndarray, albedo: np.ndarray, G: np.ndarray, G_v: np.ndarray,
@@ -175,7 +191,7 @@ class SunStage:
         oriented box about the occluder, tested instead of `box` (upright_box; first_pass_blocked casts fewer
         rays, the same answer)."""
         extra_v = None
-        if occluder is not None and self._lost is not None and self.c_patch.size and np.any(dB1[self.c_patch]):
+        if occluder is not None and self.lost is not None and self.c_patch.size and np.any(dB1[self.c_patch]):
             if recv_points is None or box is None:
                 raise ValueError("SunStage.later_bounces: the occluder needs recv_points and its box")
             later = bounces > 2  # the loss's pass through G (at the patches) is a later bounce
@@ -247,7 +263,7 @@ class SunStage:
             self._blocked = (key, pairs, cl, len(T_v))  # the transfers live in the pairs (uploaded once)
         _, pairs, cl, Vr = self._blocked
         J, K = self.c_vis.shape
-        w = self._lost
+        w = self.lost
         pts = self.c_pts.reshape(J, K, 3)
         change = dB1[self.c_patch]
         lost = np.flatnonzero(change.any(1))
@@ -358,7 +374,7 @@ class SunStage:
         the object's radiance there or next to it is 1 or more (a sunlit face; radiance 1 is the
         white level). Object radiance per ray: L_vert interpolated, with the sun per hit (its
         self-shadow edge: rays on the faces it crosses, SunLight.hit_correction; sun_vis (V,) the
-        vertices' sun share) as Engine._shade_object does.
+        vertices' sun share) as ObjectShading.shade does.
 
         Adaptive: `edge_first` rays (the s x s grid's corners, first_samples) are cast on every outline
         pixel and the other s*s - edge_first only where some of those reach the object and some do not; of
@@ -376,7 +392,7 @@ class SunStage:
         # the object's box and 2 pixels around it: every outline pixel and its 3x3 window lie inside
         y0, y1 = max(by - 2, 0), min(by + bh + 2, H)
         x0, x1 = max(bx - 2, 0), min(bx + bw + 2, W)
-        lum = obj_rad[y0:y1, x0:x1] @ np.array([0.2126, 0.7152, 0.0722])
+        lum = obj_rad[y0:y1, x0:x1] @ LUMA
         bright = (lum >= 1.0) | clipped.reshape(H, W)[y0:y1, x0:x1]
         on = (cov[y0:y1, x0:x1] > 0).astype(np.uint8)
         box = np.ones((3, 3), np.uint8)
@@ -570,3 +586,257 @@ class LaterBounces:
             return None
         out = np.einsum("cve,ec->vc", self.H[:, :, nz], xe[nz].astype(np.float32))
         return out + np.einsum("vk,ck->vc", self.V, total)
+
+
+@dataclass
+class SunPixels:
+    """What the sun changes of the scene's per-scene arrays (SunSetup.apply): new arrays, the
+    receiver map's own are left as they were."""
+
+    patches: PatchMesh  # the patch mesh with the emission and reflectivity the sun leaves (captured/photo)
+    recv_pix: np.ndarray  # (H*W,) bool receivers, sunlit patches' pixels added (captured/photo)
+    E_x: np.ndarray  # (H*W,3) irradiance/pi, the direct sun added on sunlit pixels
+    L_b: np.ndarray  # (H*W,3) photo radiance, the model's rho E_x where a sunlit pixel clips
+    rho_pix: np.ndarray | None = None  # (N,) pixels whose reflectance is the surface's albedo (clipped, edge)
+    rho: np.ndarray | None = None  # (N,3) that albedo
+    pix: np.ndarray | None = None  # (S,) the sunlit receiver pixels (None: the sun lights no surface)
+    stage: SunStage | None = None  # the sun's per-frame work
+    photo_clip: np.ndarray | None = None  # (H*W,) bool: the photo clips (some channel at 254 or more)
+
+    def reflectance(self, rho_x: np.ndarray) -> np.ndarray:
+        """rho_x (H*W,3) with the sun's albedo on the clipped and edge pixels (in place; returned)."""
+        if self.pix is not None:
+            rho_x[self.rho_pix] = self.rho
+        return rho_x
+
+
+class SunSetup:
+    """Which sun lights the room (EngineParams.sun under its lighting) and what it changes once per
+    scene: the direct sun joins E_x, clipped sunlit pixels take the model's radiance, and under
+    captured or photo light the sun estimated from the photo turns the sunlit patches the radiance
+    flagged as emitters back into reflectors (apply, on its own copy of the patch mesh).
+
+    The sunlit patch clips in the photo: there L_b is a floor, not the radiance, and a shadow term
+    that is a share of L_b would be far too small. On clipped sunlit pixels L_b is replaced by the
+    model's radiance rho x (E_x + E_sun), rho the surface's albedo (declared texture, or the patch
+    reflectivity the captured light recovered), so the sun's shadow there is the absolute
+    rho x E_sun x occluded share."""
+
+    def __init__(self, scene: Scene, lighting: str, choice: str, scene_occ: Occluder, patches: PatchMesh):
+        """Known light lights the precompute with the declared sun; captured and photo light take the
+        declared one or the estimate in apply(), after the precompute. ValueError when --sun declared
+        has no sun entry."""
+        self.scene, self.lighting, self.scene_occ = scene, lighting, scene_occ
+        self.where = str(scene.meta.get("json_path", scene.name))
+        self.source = self._source(choice)  # "declared", "estimate" or None (no sun)
+        self.patches = patches  # apply() works on a copy of the precompute's (its emission and reflectivity)
+        self.light: SunLight | None = None
+        self.estimate: dict | None = None  # the photo's sun estimate (lighting.sun.estimate_sun's info)
+        self._patch_light: np.ndarray | None = None
+        if self.source == "declared" and lighting == "known":
+            self.light = SunLight(scene.sun, openings(scene), scene_occ, where=f"{self.where}: sun")
+
+    def _source(self, choice: str) -> str | None:
+        sun, lighting = self.scene.sun, self.lighting
+        if choice == "declared" and sun is None:
+            raise ValueError(f"{self.where}: --sun declared: the scene has no sun entry (`photoar scene "
+                             "--sun-direction/--sun-irradiance` writes one)")
+        if lighting == "known":
+            if sun is not None and sun.strength_estimated:
+                raise ValueError(f"{self.where}: sun: its strength is to be estimated from the photo "
+                                 "(\"strength\": \"estimate\"): use --lighting captured, or give `photoar scene "
+                                 "--sun-irradiance`")
+            return "declared" if sun is not None else None
+        if lighting == "captured":
+            if choice == "auto":
+                user = sun is not None and self.scene.meta.get("sun_declared_by") == SUN_DECLARED_BY_USER
+                return "declared" if user else "estimate"
+            return choice
+        return "estimate"  # photo: from the photo alone (as captured light's estimate)
+
+    def patch_light(self) -> np.ndarray:
+        """Direct sun irradiance/pi (P,3) averaged over each patch (computed once per sun)."""
+        if self._patch_light is None:
+            pm = self.patches
+            self._patch_light = np.zeros((pm.n_patches, 3))
+            if self.light is not None and self.light.active:
+                self._patch_light = self.light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)
+        return self._patch_light
+
+    @property
+    def on(self) -> bool:
+        """True when the sun lights some surface: it then takes one pass of every frame."""
+        return self.light is not None and self.light.active and self.patch_light().any()
+
+    def report(self) -> dict:
+        """The sun used (report.json "sun"): from "declared" or "estimate", its unit direction towards
+        the sun (world, +Y up), irradiance_perpendicular (RGB, scene radiance units x sr), and whether
+        it lights some surface (lights_room; else no_direct_sun says why)."""
+        sun = self.light.sun
+        d = {"from": self.source, "direction": (sun.direction / np.linalg.norm(sun.direction)).tolist(),
+             "irradiance_perpendicular": np.asarray(sun.irradiance, float).tolist(), "lights_room": bool(self.on)}
+        if self.source == "declared" and self.scene.sun.strength_estimated:
+            d["strength_from"] = "estimate"  # the declared direction, the strength estimated from the photo
+        if self.light.reason:
+            d["no_direct_sun"] = self.light.reason
+        return d
+
+    def apply(self, pre, rm, device: str) -> SunPixels:
+        """The sun's changes to the receiver map `rm` (app.stages.receiver_map) of the precompute `pre`."""
+        E_x, L_b, recv_pix = rm.E_x.copy(), rm.L_b.copy(), rm.recv_pix.copy()
+        self.patches = copy.copy(pre.patches)
+        self.patches.emission, self.patches.albedo = pre.patches.emission.copy(), pre.patches.albedo.copy()
+        if self.lighting in ("captured", "photo"):  # the sun estimated from the photo (no probe: photo)
+            self._estimate(pre, rm, E_x, recv_pix)
+        out = SunPixels(self.patches, recv_pix, E_x, L_b)
+        if not self.on:
+            return out
+        scene, pm, cam = self.scene, self.patches, self.scene.camera
+        pix_patch, pix_pos = rm.pix_patch, rm.pix_pos
+        rp = np.flatnonzero(recv_pix)
+        nrm = pm.normal[pix_patch[rp]]
+        vis = self.light.visibility(pix_pos[rp], nrm)
+        lit = vis > 0
+        out.pix = rp[lit]
+        E_sun = vis[lit, None] * (self.light.sun.irradiance / np.pi)  # the estimate with captured light
+        E_x[out.pix] += E_sun
+        # pixel footprint on the surface (m): filter radius of the shadow lookup (box ~ disk)
+        depth = pre.pix_depth[out.pix].astype(np.float64)
+        cos_v = np.abs(np.einsum("nc,nc->n", rm.dirs[out.pix], nrm[lit]))
+        footprint = 0.5 * depth / cam.K[0, 0] / np.sqrt(np.maximum(cos_v, 0.05))
+        pts = pix_pos[out.pix] + nrm[lit] * 1e-3
+        # clipped sunlit pixels: model radiance instead of the photo's floor
+        sat = (scene.photo.reshape(-1, 3)[out.pix] >= 254).any(1)
+        idx = out.pix[sat]
+        rho = self._albedo(pm, pix_patch, pix_pos, idx)
+        # pixels next to the sunlit ones (partly sunlit, centre in shade) and the clipped ones: the
+        # photo's L_b / E_x is no reflectance there; take the surface's albedo
+        H, W = cam.height, cam.width
+        lit_img = np.zeros(H * W, bool)
+        lit_img[out.pix] = True
+        near = np.zeros(H * W, bool)
+        for dy, dx, src, dst in window_pairs(H, W):
+            near[dst] |= lit_img[src]
+        edge = np.flatnonzero(near & ~lit_img & recv_pix)
+        out.rho_pix = np.concatenate([idx, edge])
+        out.rho = np.concatenate([rho, self._albedo(pm, pix_patch, pix_pos, edge)])
+        L_b[idx] = np.maximum(L_b[idx], rho * E_x[idx])
+        # sample points of sunlit patches (second order: the patches' lost sun)
+        lit_c = np.flatnonzero(self.patch_light().any(1))
+        n_side = 4
+        f = (np.arange(n_side) + 0.5) / n_side
+        fu, fv = [a.ravel() for a in np.meshgrid(f, f)]
+        c0 = pm.corners[lit_c, 0]
+        c_pts = (c0[:, None] + fu[None, :, None] * (pm.corners[lit_c, 1] - c0)[:, None]
+                 + fv[None, :, None] * (pm.corners[lit_c, 3] - c0)[:, None]).reshape(-1, 3)
+        nrm_c = np.repeat(pm.normal[lit_c], len(fu), axis=0)
+        c_vis = self.light.visibility(c_pts, nrm_c).reshape(len(lit_c), len(fu))
+        out.photo_clip = (scene.photo.reshape(-1, 3) >= 254).any(1)
+        out.stage = SunStage(self.light, pts, footprint, E_sun, lit_c, c_pts + nrm_c * 1e-3, c_vis, pm.n_patches,
+                             device, patches=pm)
+        return out
+
+    def _albedo(self, pm: PatchMesh, pix_patch: np.ndarray, pix_pos: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """The surface's albedo (N,3) at pixels idx: the declared texture's under known light, else the
+        patch reflectivity the light recovered."""
+        if self.lighting == "known":
+            return surface_albedo(self.scene, pm.quad[pix_patch[idx]], pix_pos[idx].astype(np.float64),
+                                  pm.albedo[pix_patch[idx]])
+        return pm.albedo[pix_patch[idx]]
+
+    def _estimate(self, pre, rm, E_x: np.ndarray, recv_pix: np.ndarray) -> None:
+        """Captured or photo light: the sun estimated from the photo and the radiance mesh
+        (lighting.sun.estimate_sun) replaces the declared one (or the declared one as given, --sun
+        declared); the sunlit patches take the reflectivity of their surface's unlit patches and
+        become receivers (recv_pix, E_x edited here: apply's copies). The declared sun, if any, is
+        only reported against."""
+        pm, scene = self.patches, self.scene
+        if not openings(scene):
+            self.light = None
+            if scene.sun is not None:  # a sun with no way in (lighting.sun.no_sun_reason)
+                log.warning("%s", no_sun_reason(scene.sun.direction, scene.sun.irradiance, [], f"{self.where}: sun"))
+            return
+        sat = np.any(scene.photo.reshape(-1, 3) >= 255, axis=1)
+        pix_patch, pix_rows = rm.pix_patch, rm.pix_rows
+        # the captured radiance flags the sunlit patch as an emitter (brighter than the mesh, which
+        # holds no sun, can light it); the sun is looked for on every surface but windows and lamps
+        shaped = np.array([q.light_shaped for q in scene.quads], bool)[pm.quad]
+        recv_any = (pre.pix_tri >= 0) & (pix_rows.min(1) >= 0) & ~shaped[np.maximum(pix_patch, 0)]
+        flagged = pm.is_emitter & ~shaped  # plain surfaces the radiance test flagged: tried as sunlit
+        kept = pm.emission[flagged].copy()
+        pm.emission[flagged] = 0.0
+        if self.source == "declared" and scene.sun.strength_estimated:  # its direction; strength from the photo
+            sun, info = estimate_sun(scene, pm, pix_patch, rm.pix_pos.astype(np.float64), rm.dirs, rm.L_b,
+                                     sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ, direction=scene.sun.direction)
+            where = f"{self.where}: sun (strength estimated)"
+        elif self.source == "declared":  # the user's sun as given (--sun); no estimate
+            sun, info, where = scene.sun, None, f"{self.where}: sun"
+        else:
+            sun, info = estimate_sun(scene, pm, pix_patch, rm.pix_pos.astype(np.float64), rm.dirs, rm.L_b,
+                                     sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ)
+            where = f"{self.where}: sun estimate"
+        self._patch_light = None
+        self.light = SunLight(sun, openings(scene), self.scene_occ, where=where) if sun else None
+        if sun is None and self.source == "declared":
+            log.warning("%s: its strength could not be estimated from the photo (%s): no direct sun; give "
+                        "`photoar scene --sun-irradiance`", where, info.get("reason"))
+        if info is not None and sun is not None and scene.sun is not None and not scene.sun.strength_estimated:
+            d0 = scene.sun.direction / np.linalg.norm(scene.sun.direction)
+            info["declared_direction"] = d0.tolist()
+            info["direction_error_deg"] = float(np.degrees(np.arccos(np.clip(sun.direction @ d0, -1, 1))))
+            info["declared_irradiance_perpendicular"] = scene.sun.irradiance.tolist()
+            info["strength_ratio"] = float(luminance(sun.irradiance) / max(luminance(scene.sun.irradiance), 1e-12))
+        if info is not None:
+            self.estimate = info
+            log.info("%s", estimate_line(info))
+            log.debug("sun estimate: %s", info)
+        if self.light is not None and self.light.active:
+            # patches the sun lights are reflectors, not emitters: receivers of the object's shadows;
+            # the other flagged ones emit again
+            lit = self.patch_light().any(1)
+            pm.emission[flagged & ~lit] = kept[~lit[flagged]]
+            new = recv_any & ~recv_pix & lit[np.maximum(pix_patch, 0)]
+            recv_pix |= new
+            E_x[new] = np.einsum("nk,nkc->nc", pre.pix_bary[new], rm.E_v[pix_rows[new]])
+            # sunlit patches: the photo clips there and the probe sees them coarsely; take the
+            # reflectivity of the unlit patches of the same surface (as the strength estimate does)
+            for q in np.unique(pm.quad[lit]):
+                same = (pm.quad == q) & ~pm.is_emitter
+                if (same & ~lit).sum() >= 3:
+                    pm.albedo[same & lit] = np.median(pm.albedo[same & ~lit], axis=0)
+        else:
+            pm.emission[flagged] = kept  # no sun: what the radiance flagged emits
+
+    def photo_report(self, photo_light: dict) -> dict:
+        """Photo light with openings: photo_light (the fit's report) with "sun": whether the sun estimated
+        from the photo lights the room and how many patches it lights (the fit's clipped-region emitters
+        among them marked sunlit reflectors); a declared sun that the photo does not show is warned about
+        (it is never used). Without openings photo_light as it is."""
+        if not openings(self.scene):
+            return photo_light
+        lit = self.patch_light().any(1)
+        out = {**photo_light, "sun": {"modelled": bool(self.on), "sunlit_patches": int(lit.sum()),
+                                      "estimate": "sun_estimate"}}
+        lit_quads = {self.scene.quads[q].name for q in np.unique(self.patches.quad[lit])}
+        emitters = []
+        for em in photo_light.get("emitters", []):  # clipped regions the sun explains
+            name, clip = em["name"].removesuffix(" (clipped region)"), em["name"].endswith(" (clipped region)")
+            emitters.append({**em, "sunlit_reflector": True} if clip and name in lit_quads else em)
+        if "emitters" in photo_light:
+            out["emitters"] = emitters
+        if not self.on and self.scene.sun is not None:
+            reason = (self.estimate or {}).get("reason", "its estimate lights no surface")
+            log.warning("%s: sun: --lighting photo found no sun in the photo (%s); the "
+                        "declared sun is not used", self.where, reason)
+        return out
+
+
+def estimate_line(info: dict) -> str:
+    """One short line of a sun estimate (lighting.sun.estimate_sun's info; report.json holds it whole)."""
+    if "irradiance_perpendicular" not in info:
+        return f"sun estimate: no sun ({info.get('reason', 'none found')})"
+    line = "sun estimate: direction ({:.3f}, {:.3f}, {:.3f}), irradiance ({:.3g}, {:.3g}, {:.3g})".format(
+        *info["direction"], *info["irradiance_perpendicular"])
+    if "direction_error_deg" in info:
+        line += f"; {info['direction_error_deg']:.2f} deg and {info['strength_ratio']:.2f}x against the declared sun"
+    return line

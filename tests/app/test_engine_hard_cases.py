@@ -182,12 +182,12 @@ def test_self_transfer_is_reused_while_the_object_slides(scene, engine, monkeypa
     calls = []
     real = stage.self_transfer
     monkeypatch.setattr(stage, "self_transfer", lambda *a, **k: calls.append(1) or real(*a, **k))
-    engine._prt_cache = None
+    engine.object_shading.forget_shapes()
     engine.render(scene.obj)
     moved = _translated(scene.obj, [0.37, 0.0, -0.21])
     reused = engine.render(moved)
     assert len(calls) == 1
-    engine._prt_cache = None
+    engine.object_shading.forget_shapes()
     fresh = engine.render(moved)
     assert len(calls) == 2
     diff = np.abs(reused.pixels.astype(int) - fresh.pixels.astype(int))

@@ -22,7 +22,7 @@ def demo(tmp_path_factory):
 
 def _passes(eng, obj, cfg) -> tuple[int, int]:
     """(passes the frame took under the injected cost model, sources listed for it)."""
-    eng._cost = {"fixed_s": FIXED, "per_pass_s": PER_PASS}
+    eng.budget.cost = {"fixed_s": FIXED, "per_pass_s": PER_PASS}
     st = eng.render(obj, cfg).stats
     return st["passes"], st["n_sources"]
 
@@ -62,14 +62,14 @@ def test_no_sources_no_passes_and_no_cost_learnt(demo):
     scene, eng = demo
     away = moved(scene.obj, np.array([0.0, 50.0, 0.0]))
     for fps in (1.0, 100.0):
-        eng._cost = {"fixed_s": FIXED, "per_pass_s": PER_PASS}
+        eng.budget.cost = {"fixed_s": FIXED, "per_pass_s": PER_PASS}
         st = eng.render(away, FrameConfig(fps=fps)).stats
         assert st["passes"] == 0 and st["n_sources"] == 0
-        assert eng._cost == {"fixed_s": FIXED, "per_pass_s": PER_PASS}
+        assert eng.budget.cost == {"fixed_s": FIXED, "per_pass_s": PER_PASS}
     # the first --fps frame with no cost measured yet: the calibration frame has no passes to time either
-    eng._cost = None
+    eng.budget.cost = None
     st = eng.render(away, FrameConfig(fps=30.0)).stats
-    assert st["passes"] == 0 and st["fps_calibration_s"] > 0 and eng._cost is None
+    assert st["passes"] == 0 and st["fps_calibration_s"] > 0 and eng.budget.cost is None
     # with sources again, the next frame measures its costs and keeps to a budget
     st = eng.render(scene.obj, FrameConfig(fps=1e3)).stats
-    assert st["fps_calibration_s"] > 0 and st["passes"] == 1 and eng._cost["per_pass_s"] > 0
+    assert st["fps_calibration_s"] > 0 and st["passes"] == 1 and eng.budget.cost["per_pass_s"] > 0

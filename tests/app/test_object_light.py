@@ -27,7 +27,7 @@ def demo(tmp_path_factory):
     scene = load_scene(demo_scene_dir())
     eng = Engine(scene, EngineParams(**FAST), cache_dir=tmp_path_factory.mktemp("c"), device="cpu", quiet=True)
     frame = eng.render(scene.obj)
-    pv, pf, proxy_occ, _, _ = eng._object_shape(scene.obj)
+    pv, pf, proxy_occ, _, _ = eng.object_shading.object_shape(scene.obj)
     return scene, eng, frame, pv, pf, proxy_occ
 
 
@@ -37,7 +37,7 @@ def test_patch_blocks_span_their_patches(demo, level):
     # its patches' (form factors add over area), so a radiance uniform over it gathers exactly
     _, eng, _, pv, pf, proxy_occ = demo
     pm = eng.pre.patches
-    blocks = OL.patch_blocks(eng).levels[level]
+    blocks = eng.object_light.patch_blocks().levels[level]
     inb = np.flatnonzero(blocks.block_of >= 0)
     assert len(blocks.centre) > 4 and len(inb) > 3 * len(blocks.centre)
     assert not pm.is_emitter[inb].any()
@@ -46,7 +46,7 @@ def test_patch_blocks_span_their_patches(demo, level):
                                                        blocks.corners[:, 3] - blocks.corners[:, 0]), axis=1),
                                rtol=1e-9)
     pts = pv[pf].mean(1)
-    nrm = OL.proxy_shape(eng, pv, pf, proxy_occ).normals
+    nrm = eng.object_light.proxy_shape(pv, pf, proxy_occ).normals
     fine = transfer_matrix(pts, nrm, pm.corners, pm.normal, [], n_side=1, device="cpu")
     coarse = transfer_matrix(pts, nrm, blocks.corners, blocks.normal, [], n_side=1, device="cpu")
     summed = np.zeros_like(coarse)
@@ -73,10 +73,10 @@ def test_triangle_radiance_on_blocks_matches_every_patch(demo, monkeypatch):
     # 1 % in total and 5 % at 95 % of the triangles (brighter than a tenth of the brightest)
     scene, eng, _, pv, pf, proxy_occ = demo
     B = eng.B_obj
-    ours = luminance(OL.triangle_radiance(eng, scene.obj, pv, pf, proxy_occ, B))
-    n_set = len(OL.patch_blocks(eng).gather_set(B, *bounding_sphere(pv))[0])
+    ours = luminance(eng.object_light.triangle_radiance(scene.obj, pv, pf, proxy_occ, B))
+    n_set = len(eng.object_light.patch_blocks().gather_set(B, *bounding_sphere(pv))[0])
     monkeypatch.setattr(OL, "BLOCK_NEAR", np.inf)  # every block split: the exact gather
-    exact = luminance(OL.triangle_radiance(eng, scene.obj, pv, pf, proxy_occ, B))
+    exact = luminance(eng.object_light.triangle_radiance(scene.obj, pv, pf, proxy_occ, B))
     assert n_set < 0.8 * eng.pre.patches.n_patches  # the coarse set is coarser
     assert abs(ours.sum() / exact.sum() - 1) < 0.01
     big = exact > 0.1 * exact.max()
@@ -119,7 +119,7 @@ def test_far_field_kernel_matches_ray_per_triangle(demo):
     far = np.flatnonzero((np.linalg.norm(pm.centre - centre, axis=1) > OL.FAR_FIELD * radius) & ~pm.is_emitter)
     tris = pv[pf]
     rad = np.random.default_rng(1).uniform(0.2, 1.0, (len(pf), 3))
-    tvis = OL.proxy_shape(eng, pv, pf, proxy_occ).visibility
+    tvis = eng.object_light.proxy_shape(pv, pf, proxy_occ).visibility
     ours = OL._reflected(pm.centre[far], pm.normal[far], tris, rad, proxy_occ, centre, radius, "cpu", tvis)
     d = tris.mean(1)[None] - pm.centre[far][:, None]
     tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
@@ -136,14 +136,14 @@ def test_object_light_coarse_against_exact_on_the_frame(demo, monkeypatch):
     scene, eng, frame, pv, pf, proxy_occ = demo
     centre, radius = bounding_sphere(pv)
     covered = frame.coverage.reshape(-1) >= 1.0
-    tri_rad = eng._object_triangle_radiance(scene.obj, pv, pf, proxy_occ, eng.B_obj)
-    ours, ours_c = eng._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, covered)
+    tri_rad = eng.object_light.triangle_radiance(scene.obj, pv, pf, proxy_occ, eng.B_obj)
+    ours, ours_c = eng.object_light.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered)
     monkeypatch.setattr(OL, "BLOCK_NEAR", np.inf)
     monkeypatch.setattr(OL, "GRID_STRIDES", ())
-    tri_exact = eng._object_triangle_radiance(scene.obj, pv, pf, proxy_occ, eng.B_obj)
-    exact, exact_c = eng._object_light(pv, pf, tri_exact, proxy_occ, centre, radius, covered)
+    tri_exact = eng.object_light.triangle_radiance(scene.obj, pv, pf, proxy_occ, eng.B_obj)
+    exact, exact_c = eng.object_light.light(pv, pf, tri_exact, proxy_occ, centre, radius, covered)
     resp = scene.response
-    d = resp.to_levels(eng.L_b + eng.rho_x * ours) - resp.to_levels(eng.L_b + eng.rho_x * exact)
+    d = resp.to_levels(eng.receivers.L_b + eng.receivers.rho_x * ours) - resp.to_levels(eng.receivers.L_b + eng.receivers.rho_x * exact)
     lit = np.abs(exact).sum(1) > 0
     assert lit.sum() > 500
     worst, rms = np.abs(d).max(), np.sqrt((d[lit] ** 2).mean())
@@ -240,12 +240,12 @@ def test_headroom_matches_the_response(demo):
     scene, eng, *_ = demo
     resp = scene.response
     rng = np.random.default_rng(5)
-    idx = rng.choice(len(eng.L_b), 20000)
+    idx = rng.choice(len(eng.receivers.L_b), 20000)
     for levels in (0.25, 2.0):
-        h = OL.headroom(eng, levels, np.unique(idx))[np.searchsorted(np.unique(idx), idx)].astype(np.float64)
+        h = eng.object_light.headroom(levels, np.unique(idx))[np.searchsorted(np.unique(idx), idx)].astype(np.float64)
         assert np.isfinite(h).any()
         s = np.where(np.isfinite(h), h, 1.0) * rng.uniform(0.5, 1.5, (len(idx), 3)) + rng.uniform(0, 1e-3, (len(idx), 3))
-        gain = resp.to_levels(eng.L_b[idx] + s) - resp.to_levels(eng.L_b[idx])
+        gain = resp.to_levels(eng.receivers.L_b[idx] + s) - resp.to_levels(eng.receivers.L_b[idx])
         clear = np.abs(s - h) > 1e-5 * np.maximum(h, 1e-9)  # not at the boundary (float32 headroom)
         clear &= np.abs(gain - levels) > 1e-6
         assert clear.mean() > 0.9
@@ -256,24 +256,26 @@ def test_headroom_is_worked_out_once_for_every_receiver(demo, monkeypatch):
     # a level's first call works out every receiver pixel (a drag frame's new pixels are only looked up),
     # with the values of a pixel at a time; a pixel outside the receivers is worked out when asked
     scene, eng, *_ = demo
-    rp = np.flatnonzero(eng.recv_pix)
-    other = np.flatnonzero(~eng.recv_pix)
+    rp = np.flatnonzero(eng.receivers.recv_pix)
+    other = np.flatnonzero(~eng.receivers.recv_pix)
     assert len(other)
     rng = np.random.default_rng(8)
     calls = []
     work = OL._headroom_at
     monkeypatch.setattr(OL, "_headroom_at", lambda resp, L, levels: calls.append(len(L)) or work(resp, L, levels))
-    monkeypatch.setattr(eng, "L_b", eng.L_b.copy())  # a new L_b array: nothing kept
-    OL.headroom(eng, 0.5, rp[:3])
+    # private reach: the stage's headroom table dropped, so that this test sees its first call (the
+    # fixture's frames already made it)
+    monkeypatch.setattr(eng.object_light, "_headroom", None)
+    eng.object_light.headroom(0.5, rp[:3])
     assert len(calls) == 1
     later = np.sort(rng.choice(rp, 5000))
-    got = OL.headroom(eng, 0.5, later)
+    got = eng.object_light.headroom(0.5, later)
     assert len(calls) == 1  # a lookup
-    one = np.concatenate([work(scene.response, eng.L_b[[p]], 0.5) for p in later[:300]])
+    one = np.concatenate([work(scene.response, eng.receivers.L_b[[p]], 0.5) for p in later[:300]])
     np.testing.assert_array_equal(got[:300], one)
-    out = OL.headroom(eng, 0.5, other[:4])
+    out = eng.object_light.headroom(0.5, other[:4])
     assert calls[1:] == [4]
-    np.testing.assert_array_equal(out, work(scene.response, eng.L_b[other[:4]], 0.5))
+    np.testing.assert_array_equal(out, work(scene.response, eng.receivers.L_b[other[:4]], 0.5))
 
 
 def test_light_bound_holds_with_pieces():

@@ -26,7 +26,7 @@ def demo(tmp_path_factory):
     scene = load_scene(demo_scene_dir())
     eng = Engine(scene, EngineParams(**FAST), cache_dir=tmp_path_factory.mktemp("c"), device="cpu", quiet=True)
     frame = eng.render(scene.obj)
-    pv, pf, proxy_occ, mesh, _ = eng._object_shape(scene.obj)
+    pv, pf, proxy_occ, mesh, _ = eng.object_shading.object_shape(scene.obj)
     return scene, eng, frame, pv, pf, proxy_occ, mesh
 
 
@@ -41,9 +41,9 @@ def test_distance_to_a_triangle():
 
 def test_pixel_table_lists_the_pixels_of_patches(demo):
     _, eng, *_ = demo
-    table = OL.pixel_table(eng)
-    patches = np.unique(eng.pix_patch[eng.recv_pix])[::3]
-    brute = np.flatnonzero(eng.recv_pix & np.isin(eng.pix_patch, patches))
+    table = eng.object_light.pixel_table()
+    patches = np.unique(eng.receivers.pix_patch[eng.receivers.recv_pix])[::3]
+    brute = np.flatnonzero(eng.receivers.recv_pix & np.isin(eng.receivers.pix_patch, patches))
     np.testing.assert_array_equal(table.pixels_of(patches), brute)
     assert len(table.pixels_of(np.zeros(0, int))) == 0
 
@@ -58,7 +58,7 @@ def test_far_field_matches_the_exact_sum(demo):
     far = np.flatnonzero((np.linalg.norm(pm.centre - centre, axis=1) > OL.FAR_FIELD * radius) & ~pm.is_emitter)
     rng = np.random.default_rng(0)
     tri_rad = rng.uniform(0.2, 1.0, (len(pf), 3))
-    tvis = OL.proxy_shape(eng, pv, pf, proxy_occ).visibility
+    tvis = eng.object_light.proxy_shape(pv, pf, proxy_occ).visibility
     ours = luminance(OL._reflected(pm.centre[far], pm.normal[far], pv[pf], tri_rad, proxy_occ, centre, radius,
                                    "cpu", tvis))
     exact = luminance(emitter_sum(pm.centre[far], pm.normal[far], pv[pf], tri_rad, proxy_occ, device="cpu"))
@@ -73,16 +73,16 @@ def test_near_pixels_on_the_grid_match_per_pixel(demo, monkeypatch):
     # the adaptive grid's blends against every pixel evaluated exactly: within a level everywhere
     scene, eng, frame, pv, pf, proxy_occ, _ = demo
     centre, radius = bounding_sphere(pv)
-    tri_rad = eng._object_triangle_radiance(scene.obj, pv, pf, proxy_occ, eng.B_obj)
+    tri_rad = eng.object_light.triangle_radiance(scene.obj, pv, pf, proxy_occ, eng.B_obj)
     covered = frame.coverage.reshape(-1) >= 1.0
-    grid, _ = eng._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, covered)
-    n_exact = eng._n_object_light_exact
+    grid, _ = eng.object_light.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered)
+    n_exact = eng.object_light.n_exact
     monkeypatch.setattr(OL, "GRID_STRIDES", ())
-    exact, _ = eng._object_light(pv, pf, tri_rad, proxy_occ, centre, radius, covered)
+    exact, _ = eng.object_light.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered)
     sel = np.abs(exact).sum(1) > 0
-    assert sel.sum() > 500 and n_exact < 0.5 * eng._n_object_light_exact
+    assert sel.sum() > 500 and n_exact < 0.5 * eng.object_light.n_exact
     resp = scene.response
-    d = resp.to_levels(eng.L_b + eng.rho_x * grid) - resp.to_levels(eng.L_b + eng.rho_x * exact)
+    d = resp.to_levels(eng.receivers.L_b + eng.receivers.rho_x * grid) - resp.to_levels(eng.receivers.L_b + eng.receivers.rho_x * exact)
     assert np.abs(d).max() <= 1.0 and np.sqrt((d[sel] ** 2).mean()) <= 0.05
 
 
@@ -91,7 +91,7 @@ def test_shading_once_per_distinct_vertex_equals_every_vertex(demo):
     # at every vertex equals the distinct vertices' expanded
     scene, eng, _, _, _, _, mesh = demo
     v, n, f = mesh
-    ss = OS.shape_shading(eng, v, n, f)
+    ss = eng.object_shading.shape_shading(v, n, f)
     assert len(ss.uniq) < len(v)
     own = Occluder(v, f, "cpu")
     every = eng.room_light.direct(v, n, [own], n_side=1)
@@ -104,7 +104,7 @@ def test_far_field_loss_matches_the_exact_gather(demo):
     # (clustered patches) against the exact gather at every distinct vertex (a ray per vertex and patch)
     scene, eng, _, _, _, _, mesh = demo
     v, n, f = mesh
-    ss = OS.shape_shading(eng, v, n, f)
+    ss = eng.object_shading.shape_shading(v, n, f)
     vu, nu = v[ss.uniq], n[ss.uniq]
     pm = eng.pre.patches
     lo, hi = vu.min(0), vu.max(0)
@@ -119,7 +119,7 @@ def test_far_field_loss_matches_the_exact_gather(demo):
     cl = OS.cluster_patches(pm.centre[far], pm.normal[far], pm.area[far], pm.quad[far], dB, d[far] + pm.radius[far],
                             2.0 * float(pm.radius.min()))
     assert len(cl[0]) < len(far)
-    ours = np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, OS.far_field_sh(eng, probes, lo, hi, *cl)))
+    ours = np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, eng.object_shading.far_field_sh(probes, lo, hi, *cl)))
     U = len(vu)
     exact_sum = SampledPatchSum(np.ones(U, bool), np.arange(U), np.full((U, 1), -1), "cpu", max_patches=len(far))
     exact = exact_sum(vu, nu, pm.corners[far], pm.normal[far], dB, [eng.scene_occ, Occluder(v, f, "cpu")], 2e-3)
@@ -127,8 +127,8 @@ def test_far_field_loss_matches_the_exact_gather(demo):
     # SH9 (the indirect light's own order) holds the total; per vertex its error is measured against the
     # vertex's irradiance without any loss (what a pixel shows): measured 0.9 % mean, 5 % at the 95th
     assert exact.min() < 0 and abs(ours.sum() / exact.sum() - 1) < 0.10, ours.sum() / exact.sum()
-    pv, pf, proxy_occ, *_ = eng._object_shape(scene.obj)
-    E = luminance(OS.vertex_radiance(eng, scene.obj, mesh, proxy_occ, None))[ss.uniq] / luminance(scene.obj.albedo)
+    pv, pf, proxy_occ, *_ = eng.object_shading.object_shape(scene.obj)
+    E = luminance(eng.object_shading.vertex_radiance(scene.obj, mesh, proxy_occ, None))[ss.uniq] / luminance(scene.obj.albedo)
     rel = np.abs(ours - exact) / E
     assert rel.mean() < 0.02 and np.percentile(rel, 95) < 0.08, (rel.mean(), np.percentile(rel, 95))
 
@@ -167,11 +167,11 @@ def test_shaft_clear_room_gives_the_exact_emitter_light(demo):
     # equals the one with them (every vertex a sample: a ray per vertex and patch)
     scene, eng, _, _, _, _, mesh = demo
     v, n, f = mesh
-    ss = OS.shape_shading(eng, v, n, f)
+    ss = eng.object_shading.shape_shading(v, n, f)
     vu, nu = v[ss.uniq], n[ss.uniq]
     pm, rl = eng.pre.patches, eng.room_light
-    em, groups = OS.emitter_groups(eng)
-    tris = OS.room_triangles(eng, rl.occluder)
+    em, groups = eng.object_shading.emitter_groups()
+    tris = eng.object_shading.room_triangles(rl.occluder)
     assert OS.shaft_clear(tris, vu, nu, groups[1], pm.normal[em[groups[0][:-1]]], 2e-3)
     U = len(vu)
     s = SampledPatchSum(np.ones(U, bool), np.arange(U), np.full((U, 1), -1), "cpu", max_patches=len(em))
@@ -199,23 +199,23 @@ def test_gathers_over_patches_split_by_point_patch_pairs(demo, monkeypatch):
     seen = []
     real = OS.pair_split
 
-    def recording(eng_, n_patches):
-        split = real(eng_, n_patches)
+    def recording(device, n_patches):
+        split = real(device, n_patches)
 
         def run(launch, n):
-            seen.append((n, n_patches, runtime.parts(eng_.device, n, split.keywords["min_items"])))
+            seen.append((n, n_patches, runtime.parts(device, n, split.keywords["min_items"])))
             split(launch, n)
         return run
 
     monkeypatch.setattr(OS, "pair_split", recording)
-    ours = OS.vertex_radiance(eng, scene.obj, mesh, proxy_occ, dB)
-    assert {m for _, m, _ in seen} >= {len(OS.emitter_groups(eng)[0])} and len({m for _, m, _ in seen}) >= 2
+    ours = eng.object_shading.vertex_radiance(scene.obj, mesh, proxy_occ, dB)
+    assert {m for _, m, _ in seen} >= {len(eng.object_shading.emitter_groups()[0])} and len({m for _, m, _ in seen}) >= 2
     for n, m, k in seen:  # two parts exactly where each gets SPLIT_PAIRS pairs
         assert k == (2 if n // max(1, OS.SPLIT_PAIRS // m) >= 2 else 1), (n, m, k)
     assert any(k == 2 and n < 1024 for n, _, k in seen)  # under the points' threshold, split by its work
-    monkeypatch.setattr(OS, "pair_split", lambda e, m: functools.partial(runtime.split, device=e.device,
-                                                                         min_items=10 ** 9))
-    one = OS.vertex_radiance(eng, scene.obj, mesh, proxy_occ, dB)
+    monkeypatch.setattr(OS, "pair_split", lambda device, m: functools.partial(runtime.split, device=device,
+                                                                              min_items=10 ** 9))
+    one = eng.object_shading.vertex_radiance(scene.obj, mesh, proxy_occ, dB)
     assert ours.max() > 0
     np.testing.assert_array_equal(ours, one)
 
@@ -237,19 +237,22 @@ def test_skipping_buried_vertices_keeps_the_vertex_radiance(demo):
     # for bit, and the emitters' light at the kept vertices equals the full gather's there
     scene, eng, _, _, _, proxy_occ, mesh = demo
     v, n, f = mesh
-    ss = OS.shape_shading(eng, v, n, f)
+    ss = eng.object_shading.shape_shading(v, n, f)
     assert isinstance(ss.gathered, np.ndarray) and len(ss.gathered) < len(ss.uniq)  # some are skipped
     dB = np.where(eng.pre.patches.is_emitter[:, None], 0.0, -0.3 * eng.B_obj)
-    skipped = OS.vertex_radiance(eng, scene.obj, mesh, proxy_occ, dB)
-    full = OS.ShapeShading(v - v.mean(0), n, f, eng.params.prt_dirs, eng.dB_samples, eng.device,
-                           getattr(eng, "vis_stride", OS.VIS_STRIDE), len(eng.room_light.emitters), skip_buried=False)
+    skipped = eng.object_shading.vertex_radiance(scene.obj, mesh, proxy_occ, dB)
+    oc = eng.object_shading.config
+    full = OS.ShapeShading(v - v.mean(0), n, f, oc.prt_dirs, oc.dB_samples, eng.device, oc.vis_stride,
+                           len(eng.room_light.emitters), skip_buried=False)
     assert full.gathered == slice(None)
-    key, saved = eng._prt_cache
+    # private reach: the stage's per-shape ShapeShading swapped for one that gathers at every vertex (no
+    # public knob makes one: skipping the buried vertices is not a setting)
+    key, saved = eng.object_shading._prt
     full.key = key
-    eng._prt_cache = (key, full)
+    eng.object_shading._prt = (key, full)
     try:
-        every = OS.vertex_radiance(eng, scene.obj, mesh, proxy_occ, dB)
+        every = eng.object_shading.vertex_radiance(scene.obj, mesh, proxy_occ, dB)
     finally:
-        eng._prt_cache = (key, saved)
+        eng.object_shading._prt = (key, saved)
     assert skipped.max() > 0
     np.testing.assert_array_equal(skipped, every)

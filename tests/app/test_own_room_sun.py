@@ -216,9 +216,9 @@ def test_users_sun_that_cannot_enter_under_captured_light(sun_room_folder, tmp_p
     with caplog.at_level(logging.WARNING, logger="photoar"):
         e = Engine(s, EngineParams(patch_size=0.4, emitter_patch_size=0.3, passes=8, lighting="captured"),
                    cache_dir=tmp_path, quiet=True)
-    assert e.sun_from == "declared" and e.sun_estimate is None and not e.sun_on
+    assert e.sun.source == "declared" and e.sun.estimate is None and not e.sun.on
     assert [w for w in _warnings(caplog) if "below the horizon" in w and str(sun_room_folder) in w]
-    rep = e.sun_report
+    rep = e.sun.report()
     assert rep["from"] == "declared" and rep["lights_room"] is False and "below the horizon" in rep["no_direct_sun"]
     np.testing.assert_allclose(rep["direction"], s.sun.direction)
 

@@ -6,7 +6,7 @@ Measured (evaluate --passes 50,all): window_room 50 passes 0.957 / 0.872 against
 0.954 / 0.767 (1.269 before the clusters' maps got their penumbra: one sharp copy of the shadow per
 cluster banded the soft shadow); lamps_room 0.975 / 1.552 against 0.988 / 1.237 (1.394 before).
 With the depth range pyramid's early outs and a blocker search shared by a cell's points
-(kernels.composite._run_blockers): window_room 0.957 / 0.875, lamps_room 0.975 / 1.553.
+(kernels.masked_sums._run_blockers): window_room 0.957 / 0.875, lamps_room 0.975 / 1.553.
 
 sun_room does not meet it today (strict xfail: the test fails once the bound holds, so the mark comes
 off then): 50 passes 1.226 / 2.957 against all sources 1.033 / 1.501 (bound 2.13). The 50-pass

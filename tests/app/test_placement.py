@@ -134,7 +134,7 @@ def test_move_changes_only_pixels_near_old_and_new_shadows_and_undo_is_exact(dem
     # the visible ones (more than one level; one-level flips of the faint second-order term reach
     # the far walls) lie within 2.5 m of the old or the new resting point
     big = np.abs(a.pixels.astype(int) - b.pixels.astype(int)).max(2) > 1
-    pos = ctl.engine.pix_pos.reshape(*moved.shape, 3)[big]
+    pos = ctl.engine.receivers.pix_pos.reshape(*moved.shape, 3)[big]
     d = np.minimum(np.linalg.norm(pos - np.asarray(ctl.undo_stack[-1].position), axis=1),
                    np.linalg.norm(pos - np.asarray(ctl.pose.position), axis=1))
     print(f"move 0.64 m: {moved.sum()} pixels changed, {big.sum()} by more than 1 level, "

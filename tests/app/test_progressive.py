@@ -63,22 +63,22 @@ def test_refine_schedule_is_set_by_the_drag_budget_and_the_source_count(demo):
         assert len(sched) == (2 if 2 * passes <= listed / 8 else 1), (passes, listed)
     assert eng.refine_schedule(scene.obj, FrameConfig(passes=None)) == [FrameConfig(None)]
     # once timed: no finer frame when it took as long as the all-sources frame (it would show nothing sooner)
-    saved = dict(eng._rest_s)
+    saved = dict(eng.refiner.rest_s)
     assert set(saved) == {"finer", "exact"} and 0 < saved["finer"] < saved["exact"]  # refine timed both
     try:
-        eng._rest_s.update(finer=1.0, exact=1.0)
+        eng.refiner.rest_s.update(finer=1.0, exact=1.0)
         assert eng.refine_schedule(scene.obj, FrameConfig(passes=10)) == [FrameConfig(None)]
-        eng._rest_s.update(finer=0.9)
+        eng.refiner.rest_s.update(finer=0.9)
         assert len(eng.refine_schedule(scene.obj, FrameConfig(passes=10))) == 2
     finally:
-        eng._rest_s.update(saved)
+        eng.refiner.rest_s.update(saved)
     assert eng.refine_schedule(scene.obj, FrameConfig(passes=10, mode="ldr"))[0].mode == "ldr"
     # without a budget the call runs to the all-sources frame (no intermediate one is made), also when one
     # was under way
-    starts = eng._frames_started
+    starts = eng.frames_started
     fr = eng.refine(moved(scene.obj, np.array([-0.3, 0.0, 0.0])), FrameConfig(passes=10))
     assert fr.stats["exact"] and fr.stats["refine_calls"] == 1 and fr.stats["refine_frames"] == 0
-    assert eng._frames_started == starts + 1
+    assert eng.frames_started == starts + 1
     other = moved(scene.obj, np.array([-0.6, 0.0, 0.0]))
     assert eng.refine(other, FrameConfig(passes=10), budget_s=0.0) is None  # the finer frame begun
     fr = eng.refine(other, FrameConfig(passes=10))
@@ -124,24 +124,25 @@ def test_object_shape_is_built_once_per_shape_and_refit_when_dragged(demo):
     scene, eng = demo
     cfg = FrameConfig(passes=10)
     eng.render(scene.obj, cfg)
-    builds = eng.n_shape_builds
+    builds = eng.object_shading.n_shape_builds
     for o in drag_offsets(scene, scene.obj, 3):
         obj = moved(scene.obj, o)
         kept = eng.render(obj, cfg)
-        eng.shape_cache = False
+        kept_cfg = eng.object_shading.config
+        eng.object_shading.config = dataclasses.replace(kept_cfg, shape_cache=False)
         try:
             fresh = eng.render(obj, cfg)
         finally:
-            eng.shape_cache = True
+            eng.object_shading.config = kept_cfg
         assert _rmse(kept.pixels, fresh.pixels) <= 0.05, o
-    assert eng.n_shape_builds == builds + 3  # only the three fresh ones
+    assert eng.object_shading.n_shape_builds == builds + 3  # only the three fresh ones
     c, s = np.cos(0.5), np.sin(0.5)
     R = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
     centre = scene.obj.vertices.mean(0)
     turned = dataclasses.replace(scene.obj, vertices=(scene.obj.vertices - centre) @ R.T + centre,
                                  normals=scene.obj.normals @ R.T)
     eng.render(turned, cfg)
-    assert eng.n_shape_builds == builds + 4
+    assert eng.object_shading.n_shape_builds == builds + 4
 
 
 def test_placement_refine_shows_intermediate_frames_at_rest(tmp_path):

@@ -3,6 +3,8 @@
 The selection is checked against its definition written over the whole image (the form the
 engine had before the stage listed pixels per patch), the fill against a direct 3x3 mean.
 """
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -64,7 +66,7 @@ def test_listed_pixels_follow_their_definition(demo):
     cam = scene.camera
     H, W = cam.height, cam.width
     yy, xx = np.mgrid[0:H, 0:W]
-    lattice = ((yy % 2 == 0) & (xx % 2 == 0)).reshape(-1) & eng.recv_pix
+    lattice = ((yy % 2 == 0) & (xx % 2 == 0)).reshape(-1) & eng.receivers.recv_pix
     quad = sp.pix_quad
     cover = np.zeros(H * W, bool)
     for _, _, src, dst in window_pairs(H, W):
@@ -80,10 +82,10 @@ def test_listed_pixels_follow_their_definition(demo):
         u, v = cam.project(centre[None])[0][0].astype(int)
         cov[max(v - 20, 0):v + 20, max(u - 20, 0):u + 20] = 1.0  # a block the object covers
         cov[max(v - 25, 0):v + 25, max(u - 25, 0):max(u - 20, 0)] = 0.5  # partly covered: still wanted
-        want = eng.recv_pix & (cov.reshape(-1) < 1.0) & cand.any(1)[np.maximum(eng.pix_patch, 0)]
-        near = np.linalg.norm(eng.pix_pos - centre, axis=1) < sp.near_factor * radius
+        want = eng.receivers.recv_pix & (cov.reshape(-1) < 1.0) & cand.any(1)[np.maximum(eng.receivers.pix_patch, 0)]
+        near = np.linalg.norm(eng.receivers.pix_pos - centre, axis=1) < sp.near_factor * radius
         exact = want & (near | lattice | ~cover)
-        pix_pt, fill_pt, cen = sp._select(centre, radius, cov, cand)
+        pix_pt, fill_pt, cen = sp.select(centre, radius, cov, cand)
         np.testing.assert_array_equal(np.sort(sp.recv[pix_pt]), np.flatnonzero(exact))
         np.testing.assert_array_equal(np.sort(sp.recv[fill_pt]), np.flatnonzero(want & ~exact))
         np.testing.assert_array_equal(cen, np.flatnonzero(cand.any(1) & ~eng.pre.patches.is_emitter))
@@ -107,11 +109,11 @@ def test_masked_sums_are_cut_by_work_and_equal_whatever_the_cut(demo):
     scene, eng = demo
     sp, sums = eng.shadow_pass, eng.shadow_pass.sums
     obj = scene.obj
-    pv, pf, occ, _, _ = eng._object_shape(obj)
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(obj)
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
     centre, radius = bounding_sphere(pv)
     cov = np.zeros((scene.camera.height, scene.camera.width))
-    pix_pt, _, cen = sp._select(centre, radius, cov, fs.cand)
+    pix_pt, _, cen = sp.select(centre, radius, cov, fs.cand)
     pts = np.concatenate([pix_pt, sp.n_pix_points + cen])
     out = []
     for k in (1, 2, 3):
@@ -124,7 +126,7 @@ def test_masked_sums_are_cut_by_work_and_equal_whatever_the_cut(demo):
         for first in range(0, min(len(fs.eyes), 3 * sp.batch), sp.batch):  # the first three batches
             n = maps.prepare(fs.eyes[first:first + sp.batch])
             maps.raster(0, n)
-            sp._upload_batch(fs.cand, fs.W_v, fs.W_c, first, n, cen)
+            sp.upload_batch(fs.cand, fs.W_v, fs.W_c, first, n, cen)
             sums.prepare(maps, n, 0, sp.cand.dev, split=lambda launch, m: [launch(a, b) for a, b in
                                                                             ((0, m // 2), (m // 2, m))])
             parts = sums.balanced(k)
@@ -209,9 +211,9 @@ def test_graded_lattice_matches_the_exact_sums_on_a_real_room(shared_scenes_cach
     eng = Engine(scene, EngineParams(), cache_dir=shared_scenes_cache, quiet=True)
     sp = eng.shadow_pass
     obj = scene.obj
-    pv, pf, occ, shade_mesh, shade_occ = eng._object_shape(obj)
+    pv, pf, occ, shade_mesh, shade_occ = eng.object_shading.object_shape(obj)
     centre, radius = bounding_sphere(pv)
-    cov = eng._object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ).coverage()
+    cov = eng.object_shading.object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ).coverage()
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), 50)
 
     def masks(scale):
@@ -223,7 +225,7 @@ def test_graded_lattice_matches_the_exact_sums_on_a_real_room(shared_scenes_cach
             except StopIteration as stop:
                 return stop.value
 
-    E = eng.E_x
+    E = eng.receivers.E_x
     g = masks(E)
     counts = dict(sp.last_graded)
     # a pixel is summed or filled, never both (compose would overwrite the exact sum with the fill)
@@ -253,7 +255,7 @@ def test_pipelined_batches_give_the_same_masks(demo):
     # of several batches (the non-graded path)
     scene, eng = demo
     sp = eng.shadow_pass
-    pv, pf, occ, _, _ = eng._object_shape(scene.obj)
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
     centre, radius = bounding_sphere(pv)
     cov = np.zeros((scene.camera.height, scene.camera.width))
     for passes in (None, 2 * sp.batch + 5):
@@ -288,7 +290,7 @@ def test_the_sun_takes_a_pass_of_the_budget_and_leaves_the_masks_alone(shared_sc
 
     scene = load_scene(shared_scene("sun_room"))
     eng = Engine(scene, EngineParams(passes=50), cache_dir=shared_scenes_cache, quiet=True)
-    assert eng.sun_pix is not None and eng.sun_on
+    assert eng.sun_pixels.pix is not None and eng.sun.on
     got = {}
     run = eng.shadow_pass.run
 
@@ -302,8 +304,7 @@ def test_the_sun_takes_a_pass_of_the_budget_and_leaves_the_masks_alone(shared_sc
     frames = {}
     for on, passes in ((True, 50), (False, 49), (False, 50)):
         if not on:
-            monkeypatch.setattr(eng, "sun_pix", None)
-            monkeypatch.setattr(type(eng), "sun_on", property(lambda self: False))
+            monkeypatch.setattr(eng, "sun_pixels", dataclasses.replace(eng.sun_pixels, pix=None, stage=None))
         st = eng.render(obj, FrameConfig(passes, eng.params.mode)).stats
         frames[on, passes] = dict(got, passes=st["passes"])
     sun, off, off50 = frames[True, 50], frames[False, 49], frames[False, 50]

@@ -1,4 +1,4 @@
-"""The compose stage (app.stages.compose, kernels.compose) against the engine's numpy form it replaced,
+"""The compose stage (app.stages.compose, kernels.pixel_compose) against the engine's numpy form it replaced,
 on a synthetic frame with every case: shadows on listed and filled pixels, non-receiver pixels, the
 object light in its three forms, the sun's loss, partial coverage, and clipping on either side."""
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 import warp as wp
 
 from app.stages.compose import ComposeStage, compose_reference, nonzero_rows
-from kernels.compose import GRID_CELLS, lookup, pack_response, rounding_table, to_pixel
+from kernels.pixel_compose import GRID_CELLS, lookup, pack_response, rounding_table, to_pixel
 from lighting.photolight import srgb_response
 
 H, W, VR, P = 24, 32, 40, 12
@@ -219,7 +219,7 @@ def test_second_order_sums_in_patch_order(n_vert, device):
     """Several vertices per thread, side by side: each vertex's sum is still G_v[v, p] dB[p] added in
     patch order in float64, bit for bit, for vertex counts that leave a partial group of rows, and
     over two launch ranges (as the two-core split cuts them)."""
-    from kernels.compose import Compositor
+    from kernels.pixel_compose import Compositor
 
     rng = np.random.default_rng(n_vert)
     G_v = (rng.random((n_vert, 30)) * 0.1).astype(np.float32)

@@ -124,7 +124,7 @@ def test_object_moved_up_changes_shading_like_brute_force(window_light):
         mesh = subdivide(obj.vertices, obj.normals, obj.faces, max_edge=0.08, max_faces=3000)
         pv, pf, _ = simplify(obj.vertices, obj.faces)
         proxy = Occluder(pv, pf)
-        ours = eng.object_vertex_radiance(obj, mesh, proxy)
+        ours = eng.object_shading.vertex_radiance(obj, mesh, proxy)
         v, n, _ = mesh
         G = transfer_matrix(v, n, pm.corners, pm.normal, [eng.scene_occ, proxy], n_side=2, eps=2e-3)
         brute = obj.albedo * (G.astype(float) @ eng.B_src)
@@ -150,7 +150,7 @@ def test_specular_map_sees_the_room_from_the_object(window_light):
     try:
         eng.params = dataclasses.replace(params, shininess=200.0, envmap_res=16)
         c = scene.obj.centre
-        cm = eng.specular_map(c)
+        cm = eng.object_shading.specular_map(c)
         win = next(q for q in scene.quads if q.role == "window")
         to_win = win.corners.mean(0) - c
         got = cm.lookup(to_win[None])[0]
@@ -182,7 +182,7 @@ def test_specular_adds_light_only_on_the_object(window_light):
     changed = np.any(diff != 0, axis=2)
     assert changed.sum() > 100
     assert np.all(diff >= -1e-6)
-    hits = eng._object_hits(scene.obj.vertices, scene.obj.faces)
+    hits = eng.object_shading.object_hits(scene.obj.vertices, scene.obj.faces)
     assert np.all(hits.coverage()[changed] > 0)
     added = diff[changed].mean(0) / 0.2
     assert np.all(added > eng.B_src.min(0)) and np.all(added < eng.B_src.max(0))

@@ -1,4 +1,4 @@
-"""Tests for kernels.shadowmap.ShadowMaps and kernels.composite.MaskedSum.
+"""Tests for kernels.shadowmap.ShadowMaps and kernels.masked_sums.MaskedSum.
 
 Scene: a square plate (two triangles) at y = 1 over the floor y = 0, point sources above it. The
 reference is exact and analytic: the segment from a floor point p to an eye e crosses the plate's
@@ -13,7 +13,7 @@ import warp as wp
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from kernels.composite import MaskedSum  # noqa: E402
+from kernels.masked_sums import MaskedSum  # noqa: E402
 from kernels.shadowmap import ShadowMaps  # noqa: E402
 
 HALF = 0.5  # plate half-size (m)
@@ -316,7 +316,7 @@ def test_ray_mode_culling_by_the_proxy_box(device):
     assert pairs0 == n and pairs1 < 0.7 * n and c0.sum() > 200
 
 # ----------------------------------------------------------------------------------------------------------
-# cluster maps: the penumbra of a map that stands for a spread of sources (kernels.composite.penumbra)
+# cluster maps: the penumbra of a map that stands for a spread of sources (kernels.masked_sums.penumbra)
 # ----------------------------------------------------------------------------------------------------------
 
 def _cluster_sums(device, pts, eyes, spread, cull=True, res=256, axes=None, tile=None):
@@ -362,7 +362,7 @@ def test_spread_gives_the_square_light_penumbra(device):
 def test_small_cells_share_a_blocker_search(device):
     # a square light seen obliquely (the plate's depth varies across the map), cells of 3 x 3 cm (9
     # points each): a run within one tap spacing of its mean searches the blockers once
-    # (kernels.composite._run_blockers); the penumbra stays that of the square light, within a
+    # (kernels.masked_sums._run_blockers); the penumbra stays that of the square light, within a
     # small difference of every point searching on its own (one cell of all points)
     h = 0.2
     pts = _floor_grid(step=0.01, ext=1.2)

@@ -1,10 +1,10 @@
 """The depth range pyramid of cluster maps (kernels.shadowmap.depth_range) and the penumbra's early
-outs that read it (kernels.composite._box_taps): the pyramid bounds every texel of a range, and
+outs that read it (kernels.masked_sums._box_taps): the pyramid bounds every texel of a range, and
 sums with the early outs equal those that look every tap up."""
 import numpy as np
 import warp as wp
 
-from kernels.composite import MaskedSum
+from kernels.masked_sums import MaskedSum
 from kernels.shadowmap import MapSet, ShadowMaps, depth_range
 from tests.kernels.test_shadowmap import CUBE_HI, CUBE_LO, _cube, _floor_grid, _wp2
 

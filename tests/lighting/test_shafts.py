@@ -213,7 +213,7 @@ def test_thirty_frames_along_a_path_reuse_the_precompute(engine):
     runs = eng.n_precompute
     base = scene.obj
     eng.render(base, FrameConfig(passes=10))
-    shapes = eng.n_shape_builds
+    shapes = eng.object_shading.n_shape_builds
     lit = []
     for k in range(30):
         obj = copy.copy(base)
@@ -222,7 +222,7 @@ def test_thirty_frames_along_a_path_reuse_the_precompute(engine):
         assert fr.stats["passes"] <= 10
         lit.append(fr.radiance)
     assert eng.n_precompute == runs and eng.shadow_sources is shafts and eng.room_light is room_light
-    assert eng.n_shape_builds == shapes  # translated and refit, not simplified/subdivided again
+    assert eng.object_shading.n_shape_builds == shapes  # translated and refit, not simplified/subdivided again
     # the frames differ: the shadow follows the object
     assert np.abs(lit[0] - lit[-1]).max() > 0.01
 
@@ -243,25 +243,25 @@ def test_all_sources_shadow_matches_a_brute_force_over_every_source(engine, demo
     src = np.sort(eng.shadow_sources.src_ids)
     eyes = (pm.centre + pm.normal * 1e-3)[src]
     W = pre.G_v[:, src].astype(np.float64)[:, :, None] * eng.B_src[src][None]  # (Vr,S,3)
-    free = eng.recv_pix & (fr.coverage.reshape(-1) == 0)
+    free = eng.receivers.recv_pix & (fr.coverage.reshape(-1) == 0)
     rng = np.random.default_rng(5)
-    near = np.linalg.norm(eng.pix_pos - scene.obj.vertices.mean(0), axis=1) < 1.5
+    near = np.linalg.norm(eng.receivers.pix_pos - scene.obj.vertices.mean(0), axis=1) < 1.5
     pix = np.concatenate([rng.choice(np.flatnonzero(free & near), 1500, replace=False),
                           rng.choice(np.flatnonzero(free & ~near), 500, replace=False)])
     rs = o3d.t.geometry.RaycastingScene()
     rs.add_triangles(o3d.core.Tensor(scene.obj.vertices.astype(np.float32)),
                      o3d.core.Tensor(np.asarray(scene.obj.faces, np.uint32)))
-    x = eng.pix_pos[pix].astype(np.float64)
+    x = eng.receivers.pix_pos[pix].astype(np.float64)
     d = eyes[None, :, :] - x[:, None, :]
     dist = np.linalg.norm(d, axis=2)
     rays = np.concatenate([x[:, None, :].repeat(len(src), 1), d / dist[..., None]], axis=2).reshape(-1, 6)
     t = rs.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["t_hit"].numpy().reshape(dist.shape)
     blocked = t < dist
-    W_x = np.einsum("nk,nkjc->njc", pre.pix_bary[pix], W[eng.pix_rows[pix]])
+    W_x = np.einsum("nk,nkjc->njc", pre.pix_bary[pix], W[eng.receivers.pix_rows[pix]])
     eps = np.einsum("nj,njc->nc", blocked, W_x)
-    L_b = eng.L_b[pix]
+    L_b = eng.receivers.L_b[pix]
     with np.errstate(divide="ignore", invalid="ignore"):
-        want = L_b * (1 - np.clip(np.where(eng.E_x[pix] > 0, eps / eng.E_x[pix], 0.0), 0, 1))
+        want = L_b * (1 - np.clip(np.where(eng.receivers.E_x[pix] > 0, eps / eng.receivers.E_x[pix], 0.0), 0, 1))
     got = fr.room.reshape(-1, 3)[pix]
     shadow_want, shadow_got = (L_b - want).sum(1), (L_b - got).sum(1)
     assert shadow_want.sum() > 0.02 * L_b.sum()  # the object does shadow the sampled pixels
@@ -311,7 +311,7 @@ def test_fps_measures_before_the_first_frame(tmp_path):
     scene = load_scene(demo_scene_dir())
     eng = Engine(scene, EngineParams(patch_size=0.35, emitter_patch_size=0.2, fps=0.1), cache_dir=tmp_path,
                  device="cpu", quiet=True)
-    assert eng._cost is None
+    assert eng.budget.cost is None
     fr = eng.render(scene.obj)
     assert fr.stats["fps_calibration_s"] > 0
     assert fr.stats["passes"] > 1, fr.stats["passes"]

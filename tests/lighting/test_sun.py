@@ -122,18 +122,20 @@ def test_captured_light_warns_when_the_declared_sun_has_no_opening(caplog, decla
     import logging
     from types import SimpleNamespace
 
-    from app.engine import Engine
+    from app.stages.sun import SunSetup
 
     s = load_scene(shared_scene("sun_room"), load_textures=False)
     for q in s.quads:
         q.opening = False
     if not declared:
         s.sun = None
-    stub = SimpleNamespace(pre=SimpleNamespace(patches=None), scene=s, sun_light="unset",
-                           _sun_where=s.meta["json_path"])
+    setup = SunSetup(s, "captured", "auto", None, None)
+    none = np.zeros((1, 3))
+    pre = SimpleNamespace(patches=SimpleNamespace(emission=none, albedo=none))
+    rm = SimpleNamespace(E_x=none, L_b=none, recv_pix=np.zeros(1, bool))
     with caplog.at_level(logging.WARNING, logger="photoar"):
-        Engine._sun_captured(stub)  # returns before any use of the precompute
-    assert stub.sun_light is None
+        out = setup.apply(pre, rm, "cpu")  # returns before any use of the precompute's arrays
+    assert setup.light is None and out.stage is None
     msgs = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     if declared:
         assert msgs == [f"{s.meta['json_path']}: sun: the scene has no opening (window with \"opening\": true): "
@@ -386,7 +388,7 @@ def test_sun_frame_allocates_nothing_after_the_first_frame(sun_drag):
     from tests.app.test_frame_allocations import _report
 
     s, e, frames, events = sun_drag
-    assert e.sun_on and all(f.stats["timings"]["sun"] > 0 for f in frames)
+    assert e.sun.on and all(f.stats["timings"]["sun"] > 0 for f in frames)
     assert not events, _report(events)
 
 
@@ -401,20 +403,20 @@ def test_adaptive_outline_matches_every_ray(sun_drag):
 
     s, e, frames, _ = sun_drag
     obj = moved(s.obj, drag_offsets(s, s.obj, 5)[-1])  # the last frame's: e's L_vert and sun share are its
-    _, _, _, mesh, occ = e._object_shape(obj)
-    cov0 = e._object_hits(mesh[0], mesh[2], occluder=occ).coverage()
+    _, _, _, mesh, occ = e.object_shading.object_shape(obj)
+    cov0 = e.object_shading.object_hits(mesh[0], mesh[2], occluder=occ).coverage()
     H, W = cov0.shape
-    st = e.sun_stage
+    st = e.sun_pixels.stage
 
     def refine(s_: int, first):
         cov, rad = cov0.copy(), np.full((H, W, 3), 2.0)
         st.edge_first = first
         try:
-            pix = st.refine_clipped_edges(s.camera, e.cam_occ, mesh, occ, e._last_L_vert, e._obj_sun_vis,
+            pix = st.refine_clipped_edges(s.camera, e.cam_occ, mesh, occ, e.last_shading[1], e.last_shading[3],
                                           obj.albedo, cov, rad, np.zeros(H * W, bool), s=s_)
         finally:
             st.edge_first = 4
-        return pix, cov.reshape(-1)[pix], rad.reshape(-1, 3)[pix], st._outline.rays
+        return pix, cov.reshape(-1)[pix], rad.reshape(-1, 3)[pix], st.edge_rays
 
     pix, c, r, rays = refine(4, 4)
     pix4, c4, r4, rays4 = refine(4, None)
@@ -437,21 +439,20 @@ def test_sunlit_object_light_matches_a_ray_per_piece(sun_drag):
     # faces' pieces with their per-shape visibility table, one point per face in the far field)
     # against every lit piece as its own triangle with a ray per receiver (the form before issue
     # 20's cost work): the same light on the pixels and patch centres within a few per cent
-    from app.stages import object_light as OL
 
     s, e, frames, _ = sun_drag
     obj = s.obj
-    pv, pf, occ, _, _ = e._object_shape(obj)
+    pv, pf, occ, _, _ = e.object_shading.object_shape(obj)
     centre, radius = bounding_sphere(pv)
-    tri_rad = e._object_triangle_radiance(obj, pv, pf, occ, e.B_obj)
-    cov = np.zeros(len(e.L_b), bool)
-    base_p, base_c = e._object_light(pv, pf, tri_rad, occ, centre, radius, cov)
-    sub, E, _ = e.sun_light.sunlit_elements(pv[pf], [occ], size=radius / 4.0)
+    tri_rad = e.object_light.triangle_radiance(obj, pv, pf, occ, e.B_obj)
+    cov = np.zeros(len(e.receivers.L_b), bool)
+    base_p, base_c = e.object_light.light(pv, pf, tri_rad, occ, centre, radius, cov)
+    sub, E, _ = e.sun.light.sunlit_elements(pv[pf], [occ], size=radius / 4.0)
     v = np.concatenate([pv, sub.reshape(-1, 3)])
     f = np.concatenate([pf, len(pv) + np.arange(3 * len(sub)).reshape(-1, 3)])
-    ref_p, ref_c = OL.object_light(e, v, f, np.concatenate([tri_rad, obj.albedo * E]), occ, centre, radius, cov)
-    rad2, extra = e.sun_stage.object_emitters(pv, pf, tri_rad, obj.albedo, occ, radius)
-    ours_p, ours_c = e._object_light(pv, pf, rad2, occ, centre, radius, cov, extra)
+    ref_p, ref_c = e.object_light.light(v, f, np.concatenate([tri_rad, obj.albedo * E]), occ, centre, radius, cov)
+    rad2, extra = e.sun_pixels.stage.object_emitters(pv, pf, tri_rad, obj.albedo, occ, radius)
+    ours_p, ours_c = e.object_light.light(pv, pf, rad2, occ, centre, radius, cov, extra)
     assert extra is not None and len(extra.tris) < len(sub)
     sun_p = np.abs(ref_p - base_p).sum()
     assert sun_p > 0.5 * np.abs(base_p).sum()  # the sun's share of the object's light is large here
@@ -466,23 +467,23 @@ def test_later_bounces_on_clusters_match_the_dense_sum(sun_drag):
     # first-bounce change (the object's sun shadow and its light) and for one on the sunlit patches only
     s, e, frames, _ = sun_drag
     pm = e.pre.patches
-    pv, pf, occ, _, _ = e._object_shape(s.obj)
-    loss, loss_c = e.sun_stage.frame(s.obj.vertices, s.obj.faces)
+    pv, pf, occ, _, _ = e.object_shading.object_shape(s.obj)
+    loss, loss_c = e.sun_pixels.stage.frame(s.obj.vertices, s.obj.faces)
     centre, radius = bounding_sphere(pv)
-    _, R_cen = e._object_light(pv, pf, e._object_triangle_radiance(s.obj, pv, pf, occ, e.B_obj), occ, centre, radius)
+    _, R_cen = e.object_light.light(pv, pf, e.object_light.triangle_radiance(s.obj, pv, pf, occ, e.B_obj), occ, centre, radius)
     G, G_v = e.pre.G_c.astype(np.float64), e.pre.G_v.astype(np.float64)
     for dB1 in (pm.albedo * (R_cen - loss_c), -pm.albedo * loss_c):
         assert np.abs(dB1).sum() > 0
-        ours = e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4)
+        ours = e.sun_pixels.stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4)
         cur, more = dB1, np.zeros_like(dB1)
         for _ in range(2):
             cur = pm.albedo * (G @ cur)
             more += cur
         ref = G_v @ more
-        err = np.abs(ours - ref) / np.maximum(e.E_v, 1e-12)
-        assert np.abs(ref).max() > 0.01 * e.E_v.max()  # a change worth carrying
+        err = np.abs(ours - ref) / np.maximum(e.receivers.E_v, 1e-12)
+        assert np.abs(ref).max() > 0.01 * e.receivers.E_v.max()  # a change worth carrying
         assert np.percentile(err, 99) < 0.01 and err.max() < 0.03
-    assert e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2) is None  # no later bounce
+    assert e.sun_pixels.stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2) is None  # no later bounce
 
 
 def test_pcss_block_ranges_give_the_taps_answer():
@@ -747,10 +748,10 @@ def test_captured_estimate_recovers_other_suns(tmp_path, direction):
     s.sun = dataclasses.replace(s.sun, direction=d, irradiance=np.array([40.0, 38.0, 33.0]))
     e = Engine(s, EngineParams(patch_size=0.3, emitter_patch_size=0.2), cache_dir=tmp_path, quiet=True)
     pm = e.pre.patches
-    rho = pm.albedo[np.maximum(e.pix_patch, 0)]
-    L = np.where(e.recv_pix[:, None], rho * e.E_x, 0.0)
-    sat = np.any(L * s.camera.exposure_time >= 1.0, axis=1) & e.recv_pix
-    sun, info = estimate_sun(s, pm, e.pix_patch, e.pix_pos.astype(float), e.dirs, L, sat, e.recv_pix, e.pre.B[-1],
+    rho = pm.albedo[np.maximum(e.receivers.pix_patch, 0)]
+    L = np.where(e.receivers.recv_pix[:, None], rho * e.receivers.E_x, 0.0)
+    sat = np.any(L * s.camera.exposure_time >= 1.0, axis=1) & e.receivers.recv_pix
+    sun, info = estimate_sun(s, pm, e.receivers.pix_patch, e.receivers.pix_pos.astype(float), e.receivers.dirs, L, sat, e.receivers.recv_pix, e.pre.B[-1],
                              e.pre.G_c, e.scene_occ)
     assert sun is not None, info
     err = np.degrees(np.arccos(np.clip(sun.direction @ d, -1, 1)))
@@ -781,7 +782,7 @@ def test_engine_with_a_sun_that_cannot_enter(tmp_path, direction, why, caplog):
         e = Engine(s, EngineParams(patch_size=0.4, emitter_patch_size=0.3, passes=8), cache_dir=tmp_path, quiet=True)
         fr = e.render(s.obj)
     assert any(why in r.getMessage() for r in caplog.records)
-    assert not e.sun_on and fr.stats["passes"] == 8
+    assert not e.sun.on and fr.stats["passes"] == 8
     assert np.all(np.isfinite(fr.radiance))
 
 
@@ -794,9 +795,9 @@ def test_captured_estimate_finds_no_sun_in_a_sunless_photo(tmp_path):
     s.sun = None
     e = Engine(s, EngineParams(patch_size=0.3, emitter_patch_size=0.2), cache_dir=tmp_path, quiet=True)
     pm = e.pre.patches
-    L = np.where(e.recv_pix[:, None], pm.albedo[np.maximum(e.pix_patch, 0)] * e.E_x, 0.0)
-    sat = np.any(L * s.camera.exposure_time >= 1.0, axis=1) & e.recv_pix
-    sun, info = estimate_sun(s, pm, e.pix_patch, e.pix_pos.astype(float), e.dirs, L, sat, e.recv_pix, e.pre.B[-1],
+    L = np.where(e.receivers.recv_pix[:, None], pm.albedo[np.maximum(e.receivers.pix_patch, 0)] * e.receivers.E_x, 0.0)
+    sat = np.any(L * s.camera.exposure_time >= 1.0, axis=1) & e.receivers.recv_pix
+    sun, info = estimate_sun(s, pm, e.receivers.pix_patch, e.receivers.pix_pos.astype(float), e.receivers.dirs, L, sat, e.receivers.recv_pix, e.pre.B[-1],
                              e.pre.G_c, e.scene_occ)
     assert sun is None and info["reason"], info
 

@@ -22,9 +22,9 @@ def _sun_loss(coarse):
     """The sun's loss at the object's pose as first_pass_blocked takes it: (engine, patches, sun stage,
     dB1 (P,3) the patches' change, the proxy (pv, pf, its occluder), its box grown 1 mm, receiver points)."""
     s, e = coarse
-    pm, st = e.pre.patches, e.sun_stage
+    pm, st = e.pre.patches, e.sun_pixels.stage
     _, loss_c = st.frame(s.obj.vertices, s.obj.faces)
-    pv, pf, occ, _, _ = e._object_shape(s.obj)
+    pv, pf, occ, _, _ = e.object_shading.object_shape(s.obj)
     box = (pv.min(0) - 1e-3, pv.max(0) + 1e-3)
     return e, pm, st, -pm.albedo * loss_c, (pv, pf, occ), box, pm.vert_inset[e.pre.recv_vert]
 
@@ -45,24 +45,24 @@ def test_each_change_gets_the_bounces_it_has_left(coarse):
     # patches (two made: sun -> object -> patch) bounces-3: with 4 bounces, 2 and 1 passes
     s, e = coarse
     pm = e.pre.patches
-    loss, loss_c = e.sun_stage.frame(s.obj.vertices, s.obj.faces)
+    loss, loss_c = e.sun_pixels.stage.frame(s.obj.vertices, s.obj.faces)
     dB1 = -pm.albedo * loss_c
     dB2 = np.zeros_like(dB1)
     near = np.linalg.norm(pm.centre - s.obj.vertices.mean(0), axis=1) < 1.0
     dB2[near & ~pm.is_emitter] = 0.05 * pm.albedo[near & ~pm.is_emitter]
-    ours = e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4, dB2=dB2)
+    ours = e.sun_pixels.stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4, dB2=dB2)
     ref = _dense(e, dB1, 2) + _dense(e, dB2, 1)
     err = np.abs(ours - ref).sum() / np.abs(ref).sum()
     assert err < 0.02, err
     # the same passes left at the patches (onto: the caller's one pass through G_v carries them)
     onto = np.zeros_like(dB1)
-    assert e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4, dB2=dB2, onto=onto) is None
+    assert e.sun_pixels.stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4, dB2=dB2, onto=onto) is None
     assert np.allclose(e.pre.G_v.astype(np.float64) @ onto, ours, rtol=1e-4, atol=1e-5 * np.abs(ours).max())
     # the object's light alone: one later pass, not two (the count before: a fifth bounce)
-    ours2 = e.sun_stage.later_bounces(0 * dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4, dB2=dB2)
+    ours2 = e.sun_pixels.stage.later_bounces(0 * dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4, dB2=dB2)
     one, two = _dense(e, dB2, 1), _dense(e, dB2, 2)
     assert np.abs(ours2 - one).sum() < 0.25 * np.abs(two - one).sum()  # measured: 0.03 of it
-    assert e.sun_stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2, dB2=dB2) is None
+    assert e.sun_pixels.stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2, dB2=dB2) is None
 
 
 def test_blocked_first_pass_matches_rays_to_every_lost_sample(coarse):
@@ -72,7 +72,7 @@ def test_blocked_first_pass_matches_rays_to_every_lost_sample(coarse):
     blk_v, blk_c = st.first_pass_blocked(occ, box, dB1, e.pre.G_c, e.pre.G_v, recv)
     # reference: every lost sample point as its own target, with its patch's transfer
     K = st.c_vis.shape[1]
-    lost = st._lost
+    lost = st.lost
     i, k = np.nonzero(lost > 0)
     pts = st.c_pts.reshape(len(st.c_patch), K, 3)[i, k]
     w = (lost[i, k] / K)[:, None] * pm.albedo[st.c_patch[i]] * st.E_perp  # (M,3): minus each point's dB1 share
@@ -116,7 +116,7 @@ def test_patches_blocked_pairs_from_cluster_centres_match_rays_to_every_lost_sam
     e, pm, st, dB1, (pv, pf, occ), box, recv = _sun_loss(coarse)
     _, blk_c = st.first_pass_blocked(occ, box, dB1, e.pre.G_c, e.pre.G_v, recv)
     K = st.c_vis.shape[1]
-    lost = st._lost
+    lost = st.lost
     pts = st.c_pts.reshape(len(st.c_patch), K, 3)
     alive = pm.albedo.any(1)[:, None]
     G_s = e.pre.G_c[:, st.c_patch].astype(np.float64) * alive
