@@ -239,9 +239,9 @@ def test_strength_estimated_for_the_given_direction(inputs, tmp_path, capsys):
     s = load_scene(room, load_textures=False)
     e = Engine(s, EngineParams(patch_size=0.4, emitter_patch_size=0.3, passes=8, lighting="captured"),
                cache_dir=tmp_path / "c", quiet=True)
-    assert e.sun_from == "declared" and e.sun_on
-    np.testing.assert_allclose(e.sun_light.sun.direction, s.sun.direction, atol=1e-12)
-    rep = e.sun_report
+    assert e.sun.source == "declared" and e.sun.on
+    np.testing.assert_allclose(e.sun.light.sun.direction, s.sun.direction, atol=1e-12)
+    rep = e.sun.report()
     assert rep["strength_from"] == "estimate" and rep["lights_room"] is True
     ratio = luminance(np.array(rep["irradiance_perpendicular"])) / luminance(np.array(inputs["sun"]["irradiance_perpendicular"]))
     print(f"strength estimated for the given direction: {ratio:.3f} x the declared sun's")
@@ -249,11 +249,13 @@ def test_strength_estimated_for_the_given_direction(inputs, tmp_path, capsys):
     # known light (a folder with a camera_response) has no photo estimate to take the strength from
     import types
 
-    stub = types.SimpleNamespace(scene=s, params=EngineParams(lighting="known"), _sun_where=str(room / "scene.json"))
+    from app.stages.sun import SunSetup
+
+    stub = types.SimpleNamespace(scene=s, lighting="known", where=str(room / "scene.json"))
     with pytest.raises(ValueError, match='strength is to be estimated from the photo .*"strength": "estimate"'):
-        Engine._sun_source(stub)
-    stub.params = EngineParams(lighting="captured")
-    assert Engine._sun_source(stub) == "declared"
+        SunSetup._source(stub, "auto")
+    stub.lighting = "captured"
+    assert SunSetup._source(stub, "auto") == "declared"
 
 
 def test_known_light_reference_refuses_a_sun_to_estimate(tmp_path, capsys):
