@@ -98,6 +98,7 @@ def main(argv=None) -> int:
     ap.add_argument("--rerun", action="store_true", help="run the rooms that already have a result again")
     ap.add_argument("--lights", default="captured,photo", help="lights of the own-room flow (default %(default)s)")
     ap.add_argument("--no-true-camera", action="store_true", help="skip the flow on the true camera")
+    ap.add_argument("--no-declared-sun", action="store_true", help="skip the flow with the sun typed in")
     ap.add_argument("--no-known", action="store_true", help="skip the benchmark folder under known light")
     ap.add_argument("--keep", help="keep each room's work folders under this folder")
     ap.add_argument("--no-flow", action="store_true", help="only render (with --render)")
@@ -151,7 +152,8 @@ def main(argv=None) -> int:
         work = Path(a.keep) / f"{k}_{s}" if a.keep else Path(tempfile.mkdtemp(prefix=f"unseen_{k}_{s}_"))
         try:
             row.update(run_room(folder, work, shared, lights=tuple(a.lights.split(",")),
-                                true_camera=not a.no_true_camera, known=not a.no_known))
+                                true_camera=not a.no_true_camera, known=not a.no_known,
+                                declared_sun=not a.no_declared_sun))
         except Exception as e:  # a failing room is a row with its error, never dropped
             row["error"] = f"{type(e).__name__}: {e}"
             traceback.print_exc()
