@@ -184,12 +184,13 @@ def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
     times = [float(times[i]) for i in order]
     asm.check_probe_inside(a.probe_centre, a.probe_radius, a.probe_shot_from, lo, hi)
     lp = asm.light_probe_block(a.probe_centre, a.probe_radius, a.probe_shot_from, shots[0].shape[0], files, times)
+    merged = _check_response(a, [shots[i] for i in order], times)
     if not a.skip_probe_check:
         from lighting.probecheck import check_probe_pose
 
         try:
             chk = check_probe_pose(lp, a.probe_shot_from, [shots[i] for i in order], times, photo, photo_t, cam,
-                                   prims)
+                                   prims, merged=merged)
         except ValueError as e:
             raise ValueError(f"--probe: {e}") from None
         log.info("probe pose check: log-luminance correlation with the photo %.2f (turned 180 deg: %.2f)",
@@ -206,6 +207,19 @@ def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
             log.warning("--probe-shot-from: the probe images agree poorly with the photo for this pose "
                         "(log-luminance correlation %.2f)", chk.corr_given)
     return lp
+
+
+def _check_response(a, shots: list[np.ndarray], times: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Merge the bracket (shortest first) with the response recovered from it, as captured light will,
+    and warn when one channel's response does not fit the bracket. Returns (radiance, response)."""
+    from lighting import hdr
+
+    try:
+        rad, g = hdr.merge_bracket(shots, times)
+    except ValueError as e:
+        raise ValueError(f"--probe: {e}") from None
+    hdr.warn_unfit_channel(hdr.channel_residuals(shots, times, g), f"--probe {a.probe[0]}")
+    return rad, g
 
 
 def write_room(room: Path, scene: dict, images: dict[str, np.ndarray], copies: dict[str, bytes]) -> None:

@@ -477,3 +477,36 @@ def test_turned_box_becomes_the_shared_parsers_quads():
     np.testing.assert_allclose(got["q"]["size"], [0.5, 0.8, 1.0], atol=1e-12)
     np.testing.assert_allclose(lo, [0, 0, 0])
     np.testing.assert_allclose(hi, [4, 2.6, 4])
+
+
+@pytest.mark.parametrize("drift", [False, True])
+def test_scene_checks_the_brackets_response(inputs, caplog, drift):
+    """The probe bracket's recovered response is checked per channel against the bracket: window_room's
+    bracket passes quietly; with green's gain drifting from shot to shot (x1.3, x0.8: a white balance
+    that changed) one warning names green and its figure."""
+    import logging
+
+    from lighting import hdr
+    from recon.io import read_image_rgb, write_png
+
+    argv = scene_argv(inputs, inputs["tmp"] / f"room_resp_{drift}", inputs["camera"])
+    if drift:
+        gt = hdr.scene_true_response(shared_scene("window_room"))
+        f = hdr.forward_table(gt)[1]
+        probes = []
+        for i, p in enumerate(inputs["probes"]):
+            img = read_image_rgb(p)
+            X = gt[img[..., 1], 1] * (1.0, 1.3, 0.8)[i % 3]
+            img[..., 1] = np.where(img[..., 1] >= 254, 255, np.rint(255 * np.interp(np.clip(X, 0, 1),
+                                                                                     np.arange(256) / 255.0, f)))
+            probes.append(inputs["tmp"] / f"drift_{i}.png")
+            write_png(probes[-1], img)
+        i0 = argv.index("--probe") + 1
+        argv[i0:i0 + len(probes)] = map(str, probes)
+    with caplog.at_level(logging.WARNING, logger="photoar"):
+        assert main(["-q", *argv, "--skip-probe-check"]) == 0
+    w = [r.getMessage() for r in caplog.records if "camera response" in r.getMessage()]
+    if drift:
+        assert len(w) == 1 and "green channel" in w[0] and w[0].startswith(f"--probe {probes[0]}: "), w
+    else:
+        assert w == []
