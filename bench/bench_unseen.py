@@ -43,12 +43,14 @@ sys.path.insert(0, str(ROOT))
 # Fixed before any result was seen; never drop one.
 SEEDS: dict[str, list[int]] = {"window": [101, 102, 103], "lamps": [101, 102, 103], "sun": [101, 102, 103]}
 # spp per room kind (SPP_MAIN is per half: the main images are the mean of two halves). Chosen so the
-# 9 rooms render in about an hour on 2 shared cores (measured: 640x480 costs ~2 s per spp there under
-# load, at nice 19); rooms with an opening path-trace more noisily, so they get more samples.
+# rooms render in about an hour on 2 shared cores at nice 19: measured there under load (6 users), a
+# 640x480 image costs 2-11 s per spp and the 5 extra views (unused here) ~3 min whatever their spp;
+# the first room (window_101) took 17 min at 2 x 20 spp. Rooms with an opening path-trace more noisily,
+# so they get twice the samples. The spp actually used is stored beside each room (bench_render.json).
 SPP: dict[str, dict[str, int]] = {
-    "window": {"SPP_MAIN": 20, "SPP_VIEW": 2, "SPP_PROBE": 64},
-    "lamps": {"SPP_MAIN": 20, "SPP_VIEW": 2, "SPP_PROBE": 64},
-    "sun": {"SPP_MAIN": 48, "SPP_VIEW": 2, "SPP_PROBE": 64},
+    "window": {"SPP_MAIN": 12, "SPP_VIEW": 1, "SPP_PROBE": 32},
+    "lamps": {"SPP_MAIN": 12, "SPP_VIEW": 1, "SPP_PROBE": 32},
+    "sun": {"SPP_MAIN": 24, "SPP_VIEW": 1, "SPP_PROBE": 32},
 }
 METRICS = ("energy_ratio", "rmse_affected", "rmse_affected_if_untouched", "spurious", "rmse_object", "bias_object")
 
