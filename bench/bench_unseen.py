@@ -100,6 +100,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rerun", action="store_true", help="run the rooms that already have a result again")
     ap.add_argument("--lights", default="captured,photo", help="lights of the own-room flow (default %(default)s)")
     ap.add_argument("--no-true-camera", action="store_true", help="skip the flow on the true camera")
+    ap.add_argument("--true-camera-lights", default="captured",
+                    help="lights of the flow on the true camera (default %(default)s)")
     ap.add_argument("--no-declared-sun", action="store_true", help="skip the flow with the sun typed in")
     ap.add_argument("--no-known", action="store_true", help="skip the benchmark folder under known light")
     ap.add_argument("--keep", help="keep each room's work folders under this folder")
@@ -155,7 +157,8 @@ def main(argv=None) -> int:
         try:
             row.update(run_room(folder, work, shared, lights=tuple(a.lights.split(",")),
                                 true_camera=not a.no_true_camera, known=not a.no_known,
-                                declared_sun=not a.no_declared_sun))
+                                declared_sun=not a.no_declared_sun,
+                                true_lights=tuple(a.true_camera_lights.split(","))))
         except Exception as e:  # a failing room is a row with its error, never dropped
             row["error"] = f"{type(e).__name__}: {e}"
             traceback.print_exc()

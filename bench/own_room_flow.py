@@ -177,12 +177,13 @@ def _composite_argv(room: Path, out: Path, inp: dict, lighting: str, cache: Path
 
 
 def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"), true_camera: bool = True,
-             known: bool = True, declared_sun: bool = True) -> dict:
+             known: bool = True, declared_sun: bool = True, true_lights=("captured",)) -> dict:
     """The own-room flow on benchmark folder `root` (work files under `work`), every composite scored.
 
     calibrate (clicked lines + camera height) -> scene (tape room, geometry only; openings marked;
     the probe bracket with its tape pose) -> composite under each of `lights` with the object's
-    colour; with `true_camera` also the same flow on the scene's true camera ('<light> true cam');
+    colour; with `true_camera` also the same flow on the scene's true camera for `true_lights`
+    ('<light> true cam');
     with `declared_sun`, in a room with a sun, captured light with the sun typed in (--sun-direction,
     --sun-irradiance: the truth's) on the calibrated camera ('captured sun declared');
     with `known` the benchmark folder itself under known light. Returns {"lights": {name: score or
@@ -221,7 +222,7 @@ def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"),
     for tag, cam in cams.items():
         room = work / f"room{tag.replace(' ', '_')}"
         rc, err = step(f"scene{tag}", scene_argv(inp, room, cam))
-        for light in lights:
+        for light in (lights if tag == "" else [x for x in lights if x in true_lights]):
             name = light + tag
             if rc != 0:
                 res["lights"][name] = {"error": f"scene: {err}"}
