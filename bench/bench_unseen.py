@@ -106,6 +106,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-known", action="store_true", help="skip the benchmark folder under known light")
     ap.add_argument("--keep", help="keep each room's work folders under this folder")
     ap.add_argument("--no-flow", action="store_true", help="only render (with --render)")
+    ap.add_argument("--report", action="store_true",
+                    help="only print the table of the results there are (a rendered room without one is a row "
+                         "'not run')")
     a = ap.parse_args(argv)
     rooms = rooms_dir(a.rooms)
     rooms.mkdir(parents=True, exist_ok=True)
@@ -153,6 +156,11 @@ def main(argv=None) -> int:
             continue
         rj = folder / "bench_render.json"
         row["render"] = json.loads(rj.read_text()) if rj.is_file() else None
+        if a.report:
+            row["error"] = "not run"
+            results.append(row)
+            print_room(row)
+            continue
         work = Path(a.keep) / f"{k}_{s}" if a.keep else Path(tempfile.mkdtemp(prefix=f"unseen_{k}_{s}_"))
         try:
             row.update(run_room(folder, work, shared, lights=tuple(a.lights.split(",")),
@@ -207,12 +215,12 @@ def print_summary(results: list[dict]) -> None:
     import numpy as np
 
     lights = sorted({n for r in results for n in (r.get("lights") or {})})
-    print("\nover rooms (median / worst; worst energy = farthest from 1; failed rooms counted apart)")
+    print("\nover rooms (median / worst; worst energy = farthest from 1; rooms without a result counted apart)")
     for n in lights:
         ok = [r["lights"][n] for r in results if n in (r.get("lights") or {}) and "error" not in r["lights"][n]]
         failed = len(results) - len(ok)
         if not ok:
-            print(f"  {n:<16} no room ran ({failed} failed)")
+            print(f"  {n:<16} no result in any room")
             continue
         e = np.array([s["energy_ratio"] for s in ok])
         ra = np.array([s["rmse_affected"] / max(s["rmse_affected_if_untouched"], 1e-9) for s in ok])
@@ -221,7 +229,7 @@ def print_summary(results: list[dict]) -> None:
         print(f"  {n:<16} energy {np.median(e):.3f} / {e[np.argmax(np.abs(e - 1))]:.3f}"
               f"   rmse_aff/untouched {np.median(ra):.2f} / {ra.max():.2f}"
               f"   spurious {np.median(sp):.4f} / {sp.max():.4f}"
-              f"   rmse_obj {np.median(ro):.2f} / {ro.max():.2f}   ({len(ok)} rooms, {failed} failed)")
+              f"   rmse_obj {np.median(ro):.2f} / {ro.max():.2f}   ({len(ok)} rooms, {failed} without a result)")
 
 
 if __name__ == "__main__":
