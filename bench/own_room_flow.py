@@ -209,10 +209,6 @@ def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"),
                                  str(inp["height"]), "--out", str(work / "cal")])
     if rc == 0:
         cams[""] = work / "cal" / "camera.json"
-        c = json.loads(cams[""].read_text())
-        t = inp["scene"]["main_camera"]
-        res["calibration"] = {"focal_rel_err": c["K"]["fx"] / t["K"]["fx"] - 1,
-                              "centre_err_m": float(np.linalg.norm(np.subtract(c["centre"], t["centre"])))}
     else:
         for light in lights:
             res["lights"][light] = {"error": f"calibrate: {err}"}
@@ -222,6 +218,12 @@ def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"),
     for tag, cam in cams.items():
         room = work / f"room{tag.replace(' ', '_')}"
         rc, err = step(f"scene{tag}", scene_argv(inp, room, cam))
+        if rc == 0 and tag == "":  # the camera scene wrote (turned where it had to be) against the truth
+            c = json.loads((room / "scene.json").read_text())["main_camera"]
+            t = inp["scene"]["main_camera"]
+            centre = -np.asarray(c["R"]).T @ np.asarray(c["t"])
+            res["calibration"] = {"focal_rel_err": c["K"]["fx"] / t["K"]["fx"] - 1,
+                                  "centre_err_m": float(np.linalg.norm(centre - np.asarray(t["centre"])))}
         for light in (lights if tag == "" else [x for x in lights if x in true_lights]):
             name = light + tag
             if rc != 0:
