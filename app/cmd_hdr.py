@@ -71,6 +71,8 @@ def run(a: argparse.Namespace) -> int:
         rad, g = hdr.merge_bracket(images, a.times, g, method=a.merge)
     except ValueError as e:
         raise ValueError(f"{a.images[0]}: {e}") from None
+    resid = hdr.channel_residuals(images, a.times, g)
+    hdr.warn_unfit_channel(resid, str(a.images[0]))
     valid = hdr.valid_mask(images)
     sat = hdr.saturated_mask(images, a.times)
     log.info("merged %d exposures: radiance %.3g .. %.3g, %.1f %% pixels clipped in the shortest exposure",
@@ -84,6 +86,9 @@ def run(a: argparse.Namespace) -> int:
             "normalisation": "inverse_table[c][255] = 1 per channel (X = 1 just reaches level 255)",
             "calibration": a.calibration, "merge": a.merge,
             "images": [str(p) for p in a.images], "times": a.times,
+            "channel_residual_levels": resid,
+            "channel_residual_doc": "per channel (R, G, B), rms of each exposure's level minus the level its merged "
+                                    "radiance predicts through the response (about 1 when the response fits)",
             "valid_fraction": float(valid.mean()), "saturated_fraction": float(sat.mean()),
             "seconds": time.perf_counter() - t0})
         plot_response(g, stage / "response.png")

@@ -136,7 +136,7 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
         raise ValueError(f"{a.photo}: no exposure time: give --exposure-time S (the file has no EXIF ExposureTime)")
     if not (np.isfinite(t) and t > 0):
         raise ValueError(f"--exposure-time: must be a positive number of seconds, got {t}")
-    asm.check_camera_in_room(cam, lo, hi, str(a.camera), str(a.primitives))
+    cam, turned = _camera_in_room(a, cam, lo, hi)
     rel = cam.focal_rel_sigma
     if cam.ill_conditioned or (rel is not None and rel > 0.05):
         log.warning("%s: the focal length is uncertain%s: the composite may be misregistered", a.camera,
@@ -171,7 +171,8 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
         _warn_no_sun(sun, prims, "--sun-direction" if a.sun_direction is not None else
                      "--when/--where" if by_time else f"{a.primitives}: sun")
     scene = asm.scene_dict(a.room.name, cam, t, prims, lo, hi, light_probe, sun)
-    copies = {"camera.json": a.camera.read_bytes(), "primitives.json": a.primitives.read_bytes()}
+    copies = {"camera.json": _turned_camera_json(a.camera, cam) if turned else a.camera.read_bytes(),
+              "primitives.json": a.primitives.read_bytes()}
     return scene, images, copies
 
 
@@ -262,6 +263,34 @@ def _sun_from_when_where(a: argparse.Namespace, lo, hi) -> dict:
     return sun
 
 
+def _camera_in_room(a, cam, lo, hi):
+    """(camera, turned): the calibrated camera, or its 180 deg turn about +Y when only the turned one
+    lies inside the taped room (the photo's +X runs leftwards: calibrate's other sign of the floor
+    axes, --flip-xz); neither inside is an error naming the files."""
+    from recon import assemble as asm
+
+    if asm.camera_in_room(cam, lo, hi):
+        return cam, False
+    turned = asm.turned_about_y(cam)
+    if not asm.camera_in_room(turned, lo, hi):
+        asm.check_camera_in_room(cam, lo, hi, str(a.camera), str(a.primitives))  # raises, naming both files
+    log.warning("%s: the camera centre %s m lies outside the room of %s, turned 180 deg about +Y at %s m it lies "
+                "inside: using the turned camera (the room's +X runs leftwards in the photo, as calibrate "
+                "--flip-xz would take it)", a.camera, np.round(cam.centre, 2).tolist(), a.primitives,
+                np.round(turned.centre, 2).tolist())
+    return turned, True
+
+
+def _turned_camera_json(path: Path, cam) -> bytes:
+    """The user's camera.json with the turned pose (R, t, centre) written in, other fields kept."""
+    from recon.io import SceneError, dumps_json, read_json
+
+    d = read_json(path, SceneError)
+    block = next((d[k] for k in ("main_camera", "camera") if k in d), d)
+    block.update({"R": cam.R.tolist(), "t": cam.t.tolist(), "centre": cam.centre.tolist()})
+    return (dumps_json(d, indent=2) + "\n").encode()
+
+
 def _warn_no_sun(sun: dict, prims: list[dict], where: str) -> None:
     """Warn when the sun cannot light the room: the engine's test (lighting.sun.no_sun_reason: below
     the horizon, no opening, zero irradiance, every opening facing away)."""
@@ -323,12 +352,13 @@ def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
     times = [float(times[i]) for i in order]
     asm.check_probe_inside(a.probe_centre, a.probe_radius, a.probe_shot_from, lo, hi)
     lp = asm.light_probe_block(a.probe_centre, a.probe_radius, a.probe_shot_from, shots[0].shape[0], files, times)
+    merged = _check_response(a, [shots[i] for i in order], times)
     if not a.skip_probe_check:
         from lighting.probecheck import check_probe_pose
 
         try:
             chk = check_probe_pose(lp, a.probe_shot_from, [shots[i] for i in order], times, photo, photo_t, cam,
-                                   prims)
+                                   prims, merged=merged)
         except ValueError as e:
             raise ValueError(f"--probe: {e}") from None
         log.info("probe pose check: log-luminance correlation with the photo %.2f (turned 180 deg: %.2f)",
@@ -345,6 +375,19 @@ def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
             log.warning("--probe-shot-from: the probe images agree poorly with the photo for this pose "
                         "(log-luminance correlation %.2f)", chk.corr_given)
     return lp
+
+
+def _check_response(a, shots: list[np.ndarray], times: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Merge the bracket (shortest first) with the response recovered from it, as captured light will,
+    and warn when one channel's response does not fit the bracket. Returns (radiance, response)."""
+    from lighting import hdr
+
+    try:
+        rad, g = hdr.merge_bracket(shots, times)
+    except ValueError as e:
+        raise ValueError(f"--probe: {e}") from None
+    hdr.warn_unfit_channel(hdr.channel_residuals(shots, times, g), f"--probe {a.probe[0]}")
+    return rad, g
 
 
 def write_room(room: Path, scene: dict, images: dict[str, np.ndarray], copies: dict[str, bytes]) -> None:

@@ -5,7 +5,7 @@ usage: python bench/bench_clickmodel_unseen.py [--shared ../shared] [--seeds 1-2
 Only roomgen's config drawer and geometry helpers are used (room box, furniture boxes, window and
 lamp quads, the main camera), so nothing is rendered and Mitsuba is not needed (a stub stands in
 for its import). For each room the true corners are projected with the true camera plus `--noise`
-px of Gaussian noise (tests/clicks_truth.py: what the photo shows is clicked), modelled, and each
+px of Gaussian noise (bench/clicks_truth.py: what the photo shows is clicked), modelled, and each
 item's error is printed against the 3 cm of issue 38, with the metres one pixel spans there
 (test_clickmodel's bound is 3 cm + 3 px). The same figures for the shared rooms are in
 tests/recon/test_clickmodel.py.
@@ -63,7 +63,7 @@ def main() -> None:
     rg = roomgen(a.shared)
     from recon.camera import Camera
     from recon.clickmodel import ClickError, model_from_clicks
-    from tests.clicks_truth import true_clicks
+    from bench.clicks_truth import true_clicks
     from tests.recon.test_clickmodel import _errors
 
     logging.disable(logging.WARNING)

@@ -306,6 +306,67 @@ def merge_bracket(images: list[np.ndarray], times: list[float], response: np.nda
     return rad, g
 
 
+# ----------------------------------------------------------------------------- response check
+
+CHANNELS = ("red", "green", "blue")
+
+
+def channel_residuals(images: list[np.ndarray], times: list[float], g: np.ndarray,
+                      max_samples: int = 200_000, seed: int = 0) -> np.ndarray:
+    """Per channel (3,), how far the bracket's exposures disagree with their merge, in pixel levels.
+
+    The merge here is the per-channel mean of g_c(z_q) / t_q over the exposures q whose level is
+    trusted (LOW..HIGH), weighted by the triangle weight of the level; a level clipped in some
+    exposure never enters it (OpenCV's merge still gives level 255 a small weight, which biases
+    pixels that clip in the longer exposures and would hide a channel's own error). Each trusted
+    exposure then predicts the level f_c(L t_q) = g_c^-1(L t_q); the residual is the rms of
+    (observed - predicted) over the pixels trusted in at least two exposures. A response that fits
+    the bracket leaves quantisation and sensor noise (about a level); a channel whose curve is wrong,
+    or whose shots differ in more than the exposure time, leaves many levels."""
+    images, t = check_bracket(images, times)
+    g = check_response(g)
+    lv = np.arange(256, dtype=np.float64)
+    w_lv = np.minimum(lv - LOW + 1, HIGH + 1 - lv).clip(0)  # triangle weight, 0 outside LOW..HIGH
+    n_px = images[0].shape[0] * images[0].shape[1]
+    idx = np.arange(n_px)
+    if n_px > max_samples:
+        idx = np.random.default_rng(seed).choice(n_px, max_samples, replace=False)
+    out = np.full(3, np.nan)
+    for c in range(3):
+        z = np.stack([im[..., c].ravel()[idx] for im in images])  # (Q, N) levels
+        w = w_lv[z]
+        logx = np.log(np.maximum(g[z, c], 1e-12) / t[:, None])
+        two = (w > 0).sum(0) >= 2
+        L = np.exp((w * logx).sum(0)[two] / w.sum(0)[two])
+        x = g[:, c] + lv * 1e-12  # strictly increasing for the inverse lookup
+        use = w[:, two] > 0
+        pred = np.interp((L[None] * t[:, None])[use], x, lv)
+        if use.any():
+            out[c] = float(np.sqrt(np.mean((z[:, two][use] - pred) ** 2)))
+    return out
+
+
+def warn_unfit_channel(residuals: np.ndarray, name: str = "bracket", floor: float = 2.0, ratio: float = 3.0) -> int | None:
+    """Log one warning when one channel's response fits the bracket far worse than the others.
+
+    residuals: channel_residuals' (3,) levels. A channel is far off when its residual exceeds both
+    `floor` levels (8-bit quantisation alone leaves 0.3 level rms; sensor noise about 1) and `ratio` x
+    the median channel's (the merge's own noise on this bracket). Returns the channel, or None."""
+    r = np.asarray(residuals, float)
+    if not np.all(np.isfinite(r)):
+        return None
+    c = int(np.argmax(r))
+    med = float(np.median(r))
+    if r[c] <= max(floor, ratio * med):
+        return None
+    others = ", ".join(f"{CHANNELS[k]} {r[k]:.1f}" for k in range(3) if k != c)
+    log.warning("%s: the camera response recovered for the %s channel does not fit the bracket: its exposures "
+                "disagree with their merge by %.1f levels rms (%s); that channel's light is unreliable: check "
+                "that the shots differ in exposure time only (same aperture, ISO, white balance)",
+                name, CHANNELS[c], r[c], others)
+    return c
+
+
 # ----------------------------------------------------------------------------- scenes
 
 def scene_probe_files(scene_dir: Path) -> tuple[list[Path], list[float], dict]:

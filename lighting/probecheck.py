@@ -108,13 +108,15 @@ def _agreement(light_probe: dict, probe_lum: np.ndarray, photo: np.ndarray, g: n
 
 
 def check_probe_pose(light_probe: dict, shot_from, probe_images: list[np.ndarray], times: list[float],
-                     photo: np.ndarray, exposure_time: float, cam: Camera, prims: list[dict]) -> PoseCheck:
+                     photo: np.ndarray, exposure_time: float, cam: Camera, prims: list[dict],
+                     merged: tuple[np.ndarray, np.ndarray] | None = None) -> PoseCheck:
     """Agreement of the probe bracket with the photo for the given pose and the pose turned 180 deg
-    (module docstring). cam: the photo's camera; prims: scene.json primitives (recon.assemble)."""
+    (module docstring). cam: the photo's camera; prims: scene.json primitives (recon.assemble);
+    merged: the bracket's (radiance, inverse response) when already merged (lighting.hdr)."""
     from lighting.hdr import merge_bracket
     from recon.assemble import probe_camera
 
-    rad, g = merge_bracket(probe_images, times)
+    rad, g = merge_bracket(probe_images, times) if merged is None else merged
     probe_lum = rad.astype(np.float64) @ LUMA
     quads = _quad_list(prims)
     c = np.asarray(light_probe["centre"], float)

@@ -123,11 +123,29 @@ def parse_primitives(d, src: str) -> tuple[list[dict], np.ndarray, np.ndarray]:
     return out, lo, hi
 
 
+def camera_in_room(cam: Camera, lo: np.ndarray, hi: np.ndarray, tol: float = 1e-3) -> bool:
+    """The camera centre lies in the room box [lo, hi] (metres, world), within `tol`."""
+    c = cam.centre
+    return bool(np.all(c >= lo - tol) and np.all(c <= hi + tol))
+
+
+TURN_Y = np.diag([-1.0, 1.0, -1.0])  # 180 deg about the world +Y axis through the origin
+
+
+def turned_about_y(cam: Camera) -> Camera:
+    """The same photo with the world turned 180 deg about +Y through the origin: the other sign of
+    the floor axes that vanishing lines leave open (calibrate's --flip-xz). x_cam = R x + t with
+    x = TURN_Y x', so R' = R TURN_Y, t' = t; the centre becomes TURN_Y C."""
+    import dataclasses
+
+    return dataclasses.replace(cam, R=cam.R @ TURN_Y, t=cam.t.copy())
+
+
 def check_camera_in_room(cam: Camera, lo: np.ndarray, hi: np.ndarray, camera_src: str, prims_src: str,
                          tol: float = 1e-3) -> None:
     """The photo was taken inside the room: its camera centre lies in the room box."""
     c = cam.centre
-    if np.any(c < lo - tol) or np.any(c > hi + tol):
+    if not camera_in_room(cam, lo, hi, tol):
         raise SceneError(f"{camera_src}: the camera centre {np.round(c, 3).tolist()} m lies outside the room "
                          f"{np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()} of {prims_src}: check the "
                          "calibration's scale (camera height / known length) and the room's measurements")

@@ -14,7 +14,7 @@ import pytest
 
 from app.cli import main
 from tests.app.test_gui import xvfb  # noqa: F401  (the Xvfb fixture)
-from tests.clicks_truth import true_clicks
+from bench.clicks_truth import true_clicks
 from tests.conftest import ROOT, shared_scene
 from tests.own_room import benchmark_camera_json
 

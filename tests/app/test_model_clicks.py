@@ -3,7 +3,7 @@ photo (recon/clickmodel.py) through the command line, its errors, and the user's
 the clicked model in place of the hand-written room file:
 calibrate on the clicked lines -> model --clicks -> scene with the bracket -> composite --lighting
 captured with the object's colour, scored against the shared scenes' truth. The clicks are the true
-corners projected with the TRUE camera plus 1 px noise (tests/clicks_truth.py); the chain models
+corners projected with the TRUE camera plus 1 px noise (bench/clicks_truth.py); the chain models
 them with calibrate's camera."""
 import json
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from tests.clicks_truth import true_clicks
+from bench.clicks_truth import true_clicks
 from tests.conftest import score, shared_scene
 from tests.own_room import benchmark_camera_json, fmt, scene_argv, write_inputs
 

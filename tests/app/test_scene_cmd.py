@@ -505,3 +505,76 @@ def test_turned_box_becomes_the_shared_parsers_quads():
     np.testing.assert_allclose(got["q"]["size"], [0.5, 0.8, 1.0], atol=1e-12)
     np.testing.assert_allclose(lo, [0, 0, 0])
     np.testing.assert_allclose(hi, [4, 2.6, 4])
+
+
+@pytest.mark.parametrize("drift", [False, True])
+def test_scene_checks_the_brackets_response(inputs, caplog, drift):
+    """The probe bracket's recovered response is checked per channel against the bracket: window_room's
+    bracket passes quietly; with green's gain drifting from shot to shot (x1.3, x0.8: a white balance
+    that changed) one warning names green and its figure."""
+    import logging
+
+    from lighting import hdr
+    from recon.io import read_image_rgb, write_png
+
+    argv = scene_argv(inputs, inputs["tmp"] / f"room_resp_{drift}", inputs["camera"])
+    if drift:
+        gt = hdr.scene_true_response(shared_scene("window_room"))
+        f = hdr.forward_table(gt)[1]
+        probes = []
+        for i, p in enumerate(inputs["probes"]):
+            img = read_image_rgb(p)
+            X = gt[img[..., 1], 1] * (1.0, 1.3, 0.8)[i % 3]
+            img[..., 1] = np.where(img[..., 1] >= 254, 255, np.rint(255 * np.interp(np.clip(X, 0, 1),
+                                                                                     np.arange(256) / 255.0, f)))
+            probes.append(inputs["tmp"] / f"drift_{i}.png")
+            write_png(probes[-1], img)
+        i0 = argv.index("--probe") + 1
+        argv[i0:i0 + len(probes)] = map(str, probes)
+    with caplog.at_level(logging.WARNING, logger="photoar"):
+        assert main(["-q", *argv, "--skip-probe-check"]) == 0
+    w = [r.getMessage() for r in caplog.records if "camera response" in r.getMessage()]
+    if drift:
+        assert len(w) == 1 and "green channel" in w[0] and w[0].startswith(f"--probe {probes[0]}: "), w
+    else:
+        assert w == []
+
+
+def test_camera_turned_about_y_lands_inside(inputs, caplog, capsys):
+    """window_room's true camera with the floor axes' other sign (the world turned 180 deg about +Y: what
+    calibrate gives when the room's +X runs leftwards in the photo) lies outside the taped room; scene
+    turns it back, says so in one line, and writes the true pose into scene.json and camera.json."""
+    import logging
+
+    from recon.camera import Camera
+
+    truth = benchmark_camera_json(inputs["scene"])
+    F = np.diag([-1.0, 1.0, -1.0])
+    flipped = {**truth, "R": (np.array(truth["R"]) @ F).tolist(), "centre": (F @ truth["centre"]).tolist()}
+    cam = inputs["tmp"] / "in" / "camera_flipped.json"
+    cam.write_text(json.dumps(flipped))
+    room = inputs["tmp"] / "room_flipped"
+    with caplog.at_level(logging.WARNING, logger="photoar"):
+        rc, err = _run([*scene_argv(inputs, room, cam), "--skip-probe-check"], capsys)
+    assert rc == 0, err
+    w = [r.getMessage() for r in caplog.records if "turned 180 deg" in r.getMessage()]
+    assert len(w) == 1 and w[0].startswith(f"{cam}: the camera centre") and "--flip-xz" in w[0], w
+    d = json.loads((room / "scene.json").read_text())
+    np.testing.assert_allclose(d["main_camera"]["R"], truth["R"], atol=1e-12)
+    np.testing.assert_allclose(d["main_camera"]["t"], truth["t"], atol=1e-12)
+    written = Camera.load(room / "camera.json")
+    np.testing.assert_allclose(written.R, truth["R"], atol=1e-12)
+    np.testing.assert_allclose(written.centre, truth["centre"], atol=1e-9)
+
+
+def test_camera_outside_either_way_is_refused(inputs, capsys):
+    # moved 20 m along +X: outside the room and turned too; one error line, nothing written
+    truth = benchmark_camera_json(inputs["scene"])
+    C = np.array(truth["centre"]) + [20.0, 0, 0]
+    far = {**truth, "t": (-np.array(truth["R"]) @ C).tolist(), "centre": C.tolist()}
+    cam = inputs["tmp"] / "in" / "camera_far.json"
+    cam.write_text(json.dumps(far))
+    room = inputs["tmp"] / "room_far"
+    rc, err = _run([*scene_argv(inputs, room, cam), "--skip-probe-check"], capsys)
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "check the calibration's scale" in err, err
+    assert not room.exists()

@@ -163,3 +163,62 @@ def test_hdr_file_formats_and_bad_exr(tmp_path):
         hdr.load_radiance(tmp_path / "nan.exr")
     with pytest.raises(FileNotFoundError):
         hdr.load_radiance(tmp_path / "absent.exr")
+
+
+def _gamma_bracket(tmp_path, green_gains=(1.0, 1.0, 1.0)):
+    """A synthetic 3-exposure bracket through a gamma-2.2 response; green's exposure scaled per shot by
+    `green_gains` (a shot whose green gain drifted: no one curve maps its levels to X = L t)."""
+    from recon.io import write_png
+
+    rng = np.random.default_rng(1)
+    L = np.exp(rng.uniform(np.log(0.02), np.log(4.0), (64, 96, 3))).astype(np.float32)
+    times = [0.0625, 0.25, 1.0]
+    paths = []
+    for i, (t, k) in enumerate(zip(times, green_gains)):
+        X = L * t
+        X[..., 1] *= k
+        paths.append(tmp_path / f"e{i}.png")
+        write_png(paths[-1], np.rint(255 * np.clip(X, 0, 1) ** (1 / 2.2)).astype(np.uint8))
+    return paths, times
+
+
+def _warnings(caplog):
+    return [r.getMessage() for r in caplog.records if r.levelno >= 30]
+
+
+def test_response_check_flags_a_broken_channel(caplog):
+    # lamps_room's bracket merged with its true response: every channel's exposures agree with the merge
+    # to about a level; with green's curve broken (g^1.5: 8 % off at level 128) green disagrees by many levels
+    import logging
+
+    scene = shared_scene("lamps_room")
+    images, times = _bracket(scene)
+    gt = hdr.scene_true_response(scene)
+    good = hdr.channel_residuals(images, times, gt)
+    assert np.all(good < 1.0), good
+    broken = gt.copy()
+    broken[:, 1] = gt[:, 1] ** 1.5
+    bad = hdr.channel_residuals(images, times, broken)
+    assert bad[1] > 5.0 and np.all(np.abs(bad[[0, 2]] - good[[0, 2]]) < 0.05), (good, bad)
+    with caplog.at_level(logging.WARNING, logger="photoar"):
+        assert hdr.warn_unfit_channel(good, "ball") is None
+        assert hdr.warn_unfit_channel(bad, "ball") == 1
+    w = _warnings(caplog)
+    assert len(w) == 1 and w[0].startswith("ball: ") and "green channel" in w[0] and f"{bad[1]:.1f} levels" in w[0]
+
+
+@pytest.mark.parametrize("gains", [(1.0, 1.0, 1.0), (1.0, 1.6, 0.7)])
+def test_cli_hdr_warns_when_one_channel_does_not_fit(tmp_path, caplog, gains):
+    import logging
+
+    paths, times = _gamma_bracket(tmp_path, gains)
+    out = tmp_path / "out"
+    with caplog.at_level(logging.WARNING, logger="photoar"):
+        assert main(["-q", "hdr", *map(str, paths), "--times", *map(str, times), "--out", str(out)]) == 0
+    r = json.loads((out / "response.json").read_text())["channel_residual_levels"]
+    w = [m for m in _warnings(caplog) if "camera response" in m]
+    if gains[1] == 1.0:
+        assert max(r) < 2.0 and w == [], (r, w)
+    else:
+        assert r[1] > 3 * max(r[0], r[2]), r
+        assert len(w) == 1 and w[0].startswith(f"{paths[0]}: ") and "green channel" in w[0], w

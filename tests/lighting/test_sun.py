@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 
+from bench.own_room_flow import spurious_noise_floor
 from recon.proxy import bounding_sphere
 from recon.scene import SceneError, Sun, load_scene
 from tests.conftest import score, shared_scene
@@ -582,32 +583,7 @@ def test_sun_room_known_object(sun_composite):
     assert s["rmse_object"] <= 6 and abs(s["bias_object"]) <= 1.5, s
 
 
-def _spurious_noise_floor(scene, sims: int = 4, seed: int = 0) -> float:
-    """The `spurious` figure an exact answer would score against this scene's noisy truth.
-
-    score.py calls a pixel 'rest' where the blurred |truth - background| is at most 2 levels: the
-    truth's Monte Carlo noise decides that wherever the true change is near 2 levels. Model: the
-    true change m = the truth's change blurred with sigma 4 px; the noise per pixel = the local rms
-    of the truth's change about its sigma-1.5 blur (x1.3 for what that blur removes), Gaussian,
-    blurred with the scorer's sigma 2. Spurious of the exact answer = share of simulated 'rest'
-    pixels where |m| > 2, mean over `sims` draws."""
-    import cv2
-
-    w = np.array([0.0722, 0.7152, 0.2126])
-    bg = cv2.imread(str(scene / "background.png")).astype(float) @ w
-    tr = cv2.imread(str(scene / "truth.png")).astype(float) @ w
-    mask = cv2.dilate((cv2.imread(str(scene / "truth_mask.png"), 0) > 127).astype(np.uint8),
-                      np.ones((5, 5), np.uint8)) > 0
-    blur = lambda x, s: cv2.GaussianBlur(x, (0, 0), s)  # noqa: E731
-    raw = tr - bg
-    m = blur(raw, 4.0)
-    sd = 1.3 * np.sqrt(blur((raw - blur(raw, 1.5)) ** 2, 6.0))
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(sims):
-        rest = ~mask & (np.abs(m + blur(rng.standard_normal(raw.shape) * sd, 2.0)) <= 2.0)
-        out.append(float((np.abs(m)[rest] > 2.0).mean()))
-    return float(np.mean(out))
+_spurious_noise_floor = spurious_noise_floor  # the model: bench/own_room_flow.py
 
 
 def test_spurious_noise_floor_of_the_truth():

@@ -1,7 +1,7 @@
 """recon/clickmodel: the room from clicks on a calibrated photo, against the shared scenes' truth.
 
 The clicks are the true corners of window_room, lamps_room and sun_room projected with the true
-camera (tests/clicks_truth.py), exactly or with 1 px of seeded Gaussian noise. Without noise the
+camera (bench/clicks_truth.py), exactly or with 1 px of seeded Gaussian noise. Without noise the
 model is the truth to a millimetre (the geometry is exact); with 1 px noise each wall, furniture
 piece and window quad is within 3 cm plus what 3 px of click move the point there (far from the
 camera a pixel spans several centimetres of floor: a bound in metres alone would test the noise;
@@ -15,7 +15,7 @@ import pytest
 
 from recon.camera import Camera
 from recon.clickmodel import ClickError, hit_plane, model_from_clicks
-from tests.clicks_truth import furniture_groups, true_clicks
+from bench.clicks_truth import furniture_groups, true_clicks
 from tests.conftest import shared_scene
 
 SCENES = ["window_room", "lamps_room", "sun_room"]

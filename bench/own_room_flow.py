@@ -1,0 +1,260 @@
+"""What a photographer would have of a benchmark room, and nothing more: the photo, its
+clicked vanishing lines, the room measured with a tape (geometry only: no albedo, no emitted
+radiance), a mirror-ball bracket with its exposure times and the ball's tape-measured pose, the
+object mesh. Helpers shared by test_scene_cmd, test_own_room and test_readme_walkthrough."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from recon.vanishing import lines_from_scene
+
+
+def tape_room(scene: dict) -> dict:
+    """{"primitives": [...]}: the room as one box of role "room", furniture boxes, window/lamp quads."""
+    lo, hi = np.array(scene["world"]["room_min"]), np.array(scene["world"]["room_max"])
+    prims = [{"name": "room", "type": "box", "role": "room", "center": ((lo + hi) / 2).tolist(),
+              "size": (hi - lo).tolist()}]
+    for p in scene["primitives"]:
+        if p.get("role") in ("room", "sun") or p.get("type") == "sun":
+            continue
+        role = {"ceiling_lamp": "lamp", "point_lamp": "lamp"}.get(p["role"], p["role"])
+        q = {"name": p["name"], "type": p["type"], "role": role}
+        q.update({k: p[k] for k in ("center", "size", "corners", "normal") if k in p})
+        prims.append(q)
+    return {"primitives": prims}
+
+
+def probe_args(scene: dict) -> dict:
+    """The probe's tape pose and bracket: centre, radius, shot-from (the probe camera's centre), times."""
+    lp = scene["light_probe"]
+    return {"centre": lp["centre"], "radius": lp["radius"], "shot_from": lp["camera"]["centre"],
+            "times": lp["exposure_times"], "files": lp["ldr_files"]}
+
+
+def object_pose(scene: dict, mesh: Path) -> tuple[list[float], float]:
+    """--place (world point of the bottom centre of the mesh's own bounding box) and --yaw (deg,
+    right-handed about +Y) of the scene's synthetic object (object_to_world = T R_y(yaw))."""
+    from recon.scene import load_mesh
+
+    M = np.array(scene["synthetic_object"]["object_to_world"], float)
+    v, _, _ = load_mesh(mesh)
+    lo, hi = v.min(0), v.max(0)
+    pivot = np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
+    place = M[:3, :3] @ pivot + M[:3, 3]
+    yaw = float(np.degrees(np.arctan2(M[0, 2], M[0, 0])))
+    return place.tolist(), yaw
+
+
+def write_inputs(scene_dir: Path, out: Path) -> dict:
+    """Write the user's files for benchmark `scene_dir` into `out`: photo.png, lines.json, room.json,
+    clicks.json (the room clicked on the photo, as `photoar gui --model` saves it: bench/clicks_truth.py,
+    1 px noise), ball_N.png, the object's mesh as object.ply. Returns the numbers a user would type (the
+    object's albedo is the product's colour, which the user knows)."""
+    scene = json.loads((scene_dir / "scene.json").read_text())
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.copy(scene_dir / "background.png", out / "photo.png")
+    (out / "lines.json").write_text(json.dumps(lines_from_scene(scene)))
+    (out / "room.json").write_text(json.dumps(tape_room(scene), indent=1))
+    from bench.clicks_truth import true_clicks
+
+    (out / "clicks.json").write_text(json.dumps(true_clicks(scene, sigma_px=1.0, seed=0)[0], indent=1))
+    pa = probe_args(scene)
+    probes = []
+    for i, f in enumerate(pa["files"]):
+        shutil.copy(scene_dir / f, out / f"ball_{i}.png")
+        probes.append(out / f"ball_{i}.png")
+    mesh = scene_dir / scene["synthetic_object"]["mesh"]
+    shutil.copy(mesh, out / "object.ply")
+    place, yaw = object_pose(scene, mesh)
+    return {"scene": scene, "photo": out / "photo.png", "lines": out / "lines.json", "room": out / "room.json",
+            "clicks": out / "clicks.json", "probes": probes, "mesh": out / "object.ply", "exposure": scene["main_camera"]["exposure_time"],
+            "height": scene["main_camera"]["centre"][1], "place": place, "yaw": yaw,
+            "albedo": scene["synthetic_object"]["albedo"], **pa}
+
+
+def fmt(v) -> str:
+    return ",".join(repr(float(x)) for x in v)
+
+
+def scene_argv(inp: dict, room: Path, camera: Path, shot_from=None) -> list[str]:
+    """`photoar scene` arguments for the inputs of write_inputs."""
+    return ["scene", str(room), "--photo", str(inp["photo"]), "--exposure-time", str(inp["exposure"]),
+            "--camera", str(camera), "--primitives", str(inp["room"]),
+            "--probe", *map(str, inp["probes"]), "--probe-times", *map(str, inp["times"]),
+            "--probe-centre", fmt(inp["centre"]), "--probe-radius", str(inp["radius"]),
+            "--probe-shot-from", fmt(inp["shot_from"] if shot_from is None else shot_from)]
+
+
+def benchmark_camera_json(scene: dict) -> dict:
+    """camera.json of the scene's true main camera (calibrate's format: K block, R, t)."""
+    c = scene["main_camera"]
+    return {"K": c["K"], **{k: c["K"][k] for k in ("fx", "fy", "cx", "cy", "width", "height")}, "R": c["R"],
+            "t": c["t"], "centre": c["centre"]}
+
+
+def spurious_noise_floor(scene: Path, sims: int = 4, seed: int = 0) -> float:
+    """The `spurious` figure an exact answer would score against this scene's noisy truth.
+
+    score.py calls a pixel 'rest' where the blurred |truth - background| is at most 2 levels: the
+    truth's Monte Carlo noise decides that wherever the true change is near 2 levels. Model: the
+    true change m = the truth's change blurred with sigma 4 px; the noise per pixel = the local rms
+    of the truth's change about its sigma-1.5 blur (x1.3 for what that blur removes), Gaussian,
+    blurred with the scorer's sigma 2. Spurious of the exact answer = share of simulated 'rest'
+    pixels where |m| > 2, mean over `sims` draws."""
+    import cv2
+
+    w = np.array([0.0722, 0.7152, 0.2126])
+    bg = cv2.imread(str(scene / "background.png")).astype(float) @ w
+    tr = cv2.imread(str(scene / "truth.png")).astype(float) @ w
+    mask = cv2.dilate((cv2.imread(str(scene / "truth_mask.png"), 0) > 127).astype(np.uint8),
+                      np.ones((5, 5), np.uint8)) > 0
+    blur = lambda x, s: cv2.GaussianBlur(x, (0, 0), s)  # noqa: E731
+    raw = tr - bg
+    m = blur(raw, 4.0)
+    sd = 1.3 * np.sqrt(blur((raw - blur(raw, 1.5)) ** 2, 6.0))
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(sims):
+        rest = ~mask & (np.abs(m + blur(rng.standard_normal(raw.shape) * sd, 2.0)) <= 2.0)
+        out.append(float((np.abs(m)[rest] > 2.0).mean()))
+    return float(np.mean(out))
+
+
+def score(scene_dir: Path, composite_png: Path, shared: Path) -> dict:
+    """The shared scorer's figures (shared/tools/score.py, run as its own process)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, str(Path(shared) / "tools" / "score.py"), str(scene_dir),
+                          str(composite_png)], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def declared_openings(room_json: Path, scene: dict) -> None:
+    """Mark in the tape room each window the truth has as an opening in a wall (a user sees the hole)."""
+    room = json.loads(room_json.read_text())
+    openings = {p["name"] for p in scene["primitives"] if p.get("opening")}
+    for p in room["primitives"]:
+        if p["name"] in openings:
+            p["opening"] = True
+    room_json.write_text(json.dumps(room, indent=1))
+
+
+def _photoar(argv: list[str]) -> tuple[int, str, list[str]]:
+    """Run `photoar ARGV` in this process: (exit code, its error text, its warning lines)."""
+    import contextlib
+    import io
+    import logging
+
+    from app.cli import main
+
+    class _Keep(logging.Handler):
+        def __init__(self):
+            super().__init__(logging.WARNING)
+            self.lines: list[str] = []
+
+        def emit(self, record):
+            self.lines.append(record.getMessage())
+
+    keep, err = _Keep(), io.StringIO()
+    log = logging.getLogger("photoar")
+    log.addHandler(keep)
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            try:
+                rc = main(["-q", *argv])
+            except SystemExit as e:
+                rc = int(e.code or 0)
+    finally:
+        log.removeHandler(keep)
+    return rc, err.getvalue().strip(), keep.lines
+
+
+def _composite_argv(room: Path, out: Path, inp: dict, lighting: str, cache: Path) -> list[str]:
+    return ["composite", str(room), "--out", str(out), "--lighting", lighting, "--object", str(inp["mesh"]),
+            "--place", fmt(inp["place"]), "--yaw", repr(inp["yaw"]), "--object-albedo", fmt(inp["albedo"]),
+            "--cache", str(cache)]
+
+
+def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"), true_camera: bool = True,
+             known: bool = True, declared_sun: bool = True, true_lights=("captured",)) -> dict:
+    """The own-room flow on benchmark folder `root` (work files under `work`), every composite scored.
+
+    calibrate (clicked lines + camera height) -> scene (tape room, geometry only; openings marked;
+    the probe bracket with its tape pose) -> composite under each of `lights` with the object's
+    colour; with `true_camera` also the same flow on the scene's true camera for `true_lights`
+    ('<light> true cam');
+    with `declared_sun`, in a room with a sun, captured light with the sun typed in (--sun-direction,
+    --sun-irradiance: the truth's) on the calibrated camera ('captured sun declared');
+    with `known` the benchmark folder itself under known light. Returns {"lights": {name: score or
+    {"error"}}, "warnings": {step: [lines]}, "calibration": {...}, "spurious_floor", "seconds": {...}}."""
+    import time
+
+    work.mkdir(parents=True, exist_ok=True)
+    cache = work / "cache"
+    inp = write_inputs(root, work / "in")
+    declared_openings(inp["room"], inp["scene"])
+    res: dict = {"lights": {}, "warnings": {}, "seconds": {}, "spurious_floor": spurious_noise_floor(root)}
+
+    def step(name, argv):
+        t0 = time.time()
+        rc, err, warns = _photoar(argv)
+        res["seconds"][name] = round(time.time() - t0, 1)
+        if warns:
+            res["warnings"][name] = warns
+        return rc, err
+
+    cams = {}
+    rc, err = step("calibrate", ["calibrate", str(inp["photo"]), "--lines", str(inp["lines"]), "--height",
+                                 str(inp["height"]), "--out", str(work / "cal")])
+    if rc == 0:
+        cams[""] = work / "cal" / "camera.json"
+    else:
+        for light in lights:
+            res["lights"][light] = {"error": f"calibrate: {err}"}
+    if true_camera:
+        cams[" true cam"] = work / "in" / "camera_true.json"
+        cams[" true cam"].write_text(json.dumps(benchmark_camera_json(inp["scene"])))
+    for tag, cam in cams.items():
+        room = work / f"room{tag.replace(' ', '_')}"
+        rc, err = step(f"scene{tag}", scene_argv(inp, room, cam))
+        if rc == 0 and tag == "":  # the camera scene wrote (turned where it had to be) against the truth
+            c = json.loads((room / "scene.json").read_text())["main_camera"]
+            t = inp["scene"]["main_camera"]
+            centre = -np.asarray(c["R"]).T @ np.asarray(c["t"])
+            res["calibration"] = {"focal_rel_err": c["K"]["fx"] / t["K"]["fx"] - 1,
+                                  "centre_err_m": float(np.linalg.norm(centre - np.asarray(t["centre"])))}
+        for light in (lights if tag == "" else [x for x in lights if x in true_lights]):
+            name = light + tag
+            if rc != 0:
+                res["lights"][name] = {"error": f"scene: {err}"}
+                continue
+            out = work / f"out_{light}{tag.replace(' ', '_')}"
+            rc2, err2 = step(f"composite {name}", _composite_argv(room, out, inp, light, cache))
+            res["lights"][name] = (score(root, out / "composite.png", shared) if rc2 == 0
+                                   else {"error": f"composite: {err2}"})
+    sun = next((p for p in inp["scene"]["primitives"] if p["type"] == "sun"), None)
+    if declared_sun and sun is not None and "" in cams:
+        room = work / "room_sun"
+        rc, err = step("scene sun declared", scene_argv(inp, room, cams[""]) + [
+            f"--sun-direction={fmt(sun['direction_to_sun'])}", "--sun-irradiance",
+            fmt(sun["irradiance_perpendicular"])])
+        name = "captured sun declared"
+        if rc != 0:
+            res["lights"][name] = {"error": f"scene: {err}"}
+        else:
+            out = work / "out_sun_declared"
+            rc2, err2 = step(f"composite {name}", _composite_argv(room, out, inp, "captured", cache))
+            res["lights"][name] = (score(root, out / "composite.png", shared) if rc2 == 0
+                                   else {"error": f"composite: {err2}"})
+    if known:
+        out = work / "out_known"
+        rc, err = step("composite known", ["composite", str(root), "--out", str(out), "--lighting", "known",
+                                           "--cache", str(cache)])
+        res["lights"]["known (benchmark)"] = (score(root, out / "composite.png", shared) if rc == 0
+                                              else {"error": f"composite: {err}"})
+    return res
