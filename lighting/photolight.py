@@ -11,8 +11,7 @@ photo gives everything else, read through a response that is assumed, not measur
 * **Emitters** are the model's window / lamp quads and the clipped regions of the photo (patches
   most of whose pixels have a channel at 255). A patch the photo shows unclipped keeps its
   measured radiance; the rest of each emitter quad (clipped, or out of view) is one unknown RGB
-  radiance per quad, at least as bright as the quad's pixels show on average, clipped ones counted
-  at the clip level (a lower bound: a visible window is never fitted darker than it looks).
+  radiance per quad, at least as bright as its clipped pixels show (a lower bound).
 * **Inverse radiosity.** The walls show how strong the unknown emitters are: a photo-seen wall
   patch i has radiance L_i = rho * E_i with E_i = sum_j G_ij B_j (irradiance/pi through the
   transfers G, visibility included) and the wall albedo prior rho. Unseen patches gather,
@@ -184,7 +183,11 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     if not pr.relative:
         w = np.full(len(S), 1.0 / np.median(wall_lum))
     w = np.where(fit_on, w, 0.0)
-    lower = _lower_bounds(patches, group, gquads, pix_patch, L_b, sat)
+    lower = np.zeros((ng, 3))
+    for g in range(ng):  # the clipped pixels' radiance is a lower bound of their emitter
+        px = np.flatnonzero(ok & sat & (group[np.maximum(pix_patch, 0)] == g))
+        if len(px):
+            lower[g] = np.median(L_b[px], axis=0)
     reach = np.abs(w[:, None] * A1).sum(0)
     unresolved = reach <= 1e-9 * max(reach.max(initial=0.0), 1e-300)  # no measured wall sees the group
     e, std, at_bound, resid = _solve_emitters(w[:, None] * A1, w, L_S, a0, rho, lower, unresolved)
@@ -235,33 +238,6 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     return PhotoLight(B, refl, origin, report)
 
 
-def _lower_bounds(patches: PatchMesh, group: np.ndarray, gquads: list[int], pix_patch: np.ndarray,
-                  L_b: np.ndarray, sat: np.ndarray) -> np.ndarray:
-    """(G,3) lower bound of each unknown group's radiance from the photo.
-
-    A window / lamp quad: the mean radiance of every photo pixel on the quad, its clipped pixels
-    counted at the clip level (a lower bound of each) and its unclipped ones at what they measure.
-    The part of the quad the fit must find (clipped, or out of view) is taken to be at least as
-    bright as the part the photo shows: a visible window is never fitted darker than it looks, and
-    one clipped pixel no longer lifts a patch to the clip level. A clipped region outside the
-    model: the median of its clipped pixels."""
-    ng = len(gquads)
-    lower = np.zeros((ng, 3))
-    ok = pix_patch >= 0
-    pq = patches.quad[np.maximum(pix_patch, 0)]
-    pg = group[np.maximum(pix_patch, 0)]
-    for g, q in enumerate(gquads):
-        if patches.is_emitter[patches.quad == q].any():
-            px = np.flatnonzero(ok & (pq == q))
-            if len(px):
-                lower[g] = L_b[px].mean(axis=0)
-        else:
-            px = np.flatnonzero(ok & sat & (pg == g))
-            if len(px):
-                lower[g] = np.median(L_b[px], axis=0)
-    return lower
-
-
 def _solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarray, rho: float,
                     lower: np.ndarray, unresolved: np.ndarray):
     """Bounded least squares of rho (a0 + A1 e) = L_S per channel, rows weighted by w (J1 = w A1).
@@ -299,20 +275,17 @@ def _warn(report: dict, where: str, emit: np.ndarray, count: np.ndarray) -> None
     elif not ems and not (emit & (count > 0)).any():
         warn.append("no emitter is seen in the photo or needs fitting")
     for em in ems:
-        shown = any(v > 0 for v in em["lower_bound"])
         if not em["seen_by_walls"]:
-            warn.append(f"{em['name']}: no wall seen in the photo is lit by it, so the walls cannot tell how bright "
-                        "it is; " + (f"kept as bright as the photo shows it ({em['lower_bound']})" if shown
-                                     else "it is not in the photo either, so it gives no light"))
-        elif em["at_lower_bound"] and shown:
+            warn.append(f"{em['name']}: no wall seen in the photo receives its light; radiance set to its "
+                        f"lower bound {em['lower_bound']}")
+        elif em["at_lower_bound"] and any(v > 0 for v in em["lower_bound"]):
             warn.append(f"{em['name']}: the walls are darker than the albedo prior {report['wall_albedo_prior']} "
-                        f"allows with this light as bright as the photo shows it (they reflect "
-                        f"{report['implied_wall_albedo']} of it): kept at the brightness the photo shows")
+                        f"allows with this emitter as bright as the photo shows it (implied wall albedo "
+                        f"{report['implied_wall_albedo']}); radiance held at the photo's lower bound")
         elif em["at_lower_bound"]:
-            warn.append(f"{em['name']}: not seen in the photo, and the walls are as bright without it: it gives "
-                        "no light")
+            warn.append(f"{em['name']}: the walls need no light from it (radiance 0)")
         elif em["rel_std"] is not None and em["rel_std"] > 0.5:
-            warn.append(f"{em['name']}: the walls pin its brightness down poorly (+-{100 * em['rel_std']:.0f} %)")
+            warn.append(f"{em['name']}: radiance poorly determined by the walls (+-{100 * em['rel_std']:.0f} %)")
     if report["fitted_on"] != "walls":
         warn.append("no wall of the room is seen: the albedo prior is applied to floor, ceiling and furniture")
     if report["implied_wall_albedo"] < 0.5 * report["wall_albedo_prior"]:
