@@ -65,6 +65,16 @@ def window_light(tmp_path_factory):
     return scene, eng
 
 
+def engine_like(scene, eng, **knobs):
+    """An engine on `scene` and `eng`'s precompute cache with some knobs changed: the stages take their
+    configs when built, so a changed knob is a new engine (its precompute is read from the cache)."""
+    import dataclasses
+
+    from app.engine import Engine
+
+    return Engine(scene, dataclasses.replace(eng.params, **knobs), cache_dir=eng.cache_dir, quiet=True)
+
+
 def test_volume_against_brute_force(window_light):
     # 50 random interior points and normals: mean relative error < 3 % at 0.25 m spacing
     from kernels.visibility import transfer_matrix
@@ -141,43 +151,32 @@ def test_object_moved_up_changes_shading_like_brute_force(window_light):
 def test_specular_map_sees_the_room_from_the_object(window_light):
     # the pre-filtered cube map at the chair's centre, looked up towards the window, holds about
     # the window's emitted radiance; towards the floor straight below, the floor's radiance
-    import dataclasses
 
     from recon.response import luminance
 
     scene, eng = window_light
-    params = eng.params
-    try:
-        eng.params = dataclasses.replace(params, shininess=200.0, envmap_res=16)
-        c = scene.obj.centre
-        cm = eng.object_shading.specular_map(c)
-        win = next(q for q in scene.quads if q.role == "window")
-        to_win = win.corners.mean(0) - c
-        got = cm.lookup(to_win[None])[0]
-        np.testing.assert_allclose(got, win.emission, rtol=0.15)
-        pm = eng.pre.patches
-        floor = pm.normal[:, 1] > 0.99
-        below = np.argmin(np.where(floor, np.linalg.norm(pm.centre - [c[0], 0.0, c[2]], axis=1), np.inf))
-        down = cm.lookup(np.array([[0.0, -1.0, 0.0]]))[0]
-        assert luminance(down) < 0.05 * luminance(win.emission)
-        np.testing.assert_allclose(luminance(down), luminance(eng.B_src[below]), rtol=0.5)
-    finally:
-        eng.params = params
+    eng = engine_like(scene, eng, shininess=200.0, envmap_res=16)
+    c = scene.obj.centre
+    cm = eng.object_shading.specular_map(c)
+    win = next(q for q in scene.quads if q.role == "window")
+    to_win = win.corners.mean(0) - c
+    got = cm.lookup(to_win[None])[0]
+    np.testing.assert_allclose(got, win.emission, rtol=0.15)
+    pm = eng.pre.patches
+    floor = pm.normal[:, 1] > 0.99
+    below = np.argmin(np.where(floor, np.linalg.norm(pm.centre - [c[0], 0.0, c[2]], axis=1), np.inf))
+    down = cm.lookup(np.array([[0.0, -1.0, 0.0]]))[0]
+    assert luminance(down) < 0.05 * luminance(win.emission)
+    np.testing.assert_allclose(luminance(down), luminance(eng.B_src[below]), rtol=0.5)
 
 
 def test_specular_adds_light_only_on_the_object(window_light):
     # k_s > 0 leaves every pixel off the object bit-identical and brightens the object by k_s
     # times radiance that lies within the room's range
-    import dataclasses
 
     scene, eng = window_light
-    params = eng.params
     base = eng.render(scene.obj).radiance
-    try:
-        eng.params = dataclasses.replace(params, specular=0.2)
-        spec = eng.render(scene.obj).radiance
-    finally:
-        eng.params = params
+    spec = engine_like(scene, eng, specular=0.2).render(scene.obj).radiance
     diff = spec - base
     changed = np.any(diff != 0, axis=2)
     assert changed.sum() > 100
