@@ -151,7 +151,6 @@ def test_object_moved_up_changes_shading_like_brute_force(window_light):
 def test_specular_map_sees_the_room_from_the_object(window_light):
     # the pre-filtered cube map at the chair's centre, looked up towards the window, holds about
     # the window's emitted radiance; towards the floor straight below, the floor's radiance
-
     from recon.response import luminance
 
     scene, eng = window_light
