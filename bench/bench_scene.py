@@ -42,7 +42,7 @@ def main() -> None:
     import cv2
 
     from tests.own_room import benchmark_camera_json, scene_argv, write_inputs
-    from tests.test_scene_cmd import _exif_jpeg, _pasted
+    from tests.app.test_scene_cmd import _exif_jpeg, _pasted
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default="window_room")
