@@ -258,3 +258,22 @@ def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"),
         res["lights"]["known (benchmark)"] = (score(root, out / "composite.png", shared) if rc == 0
                                               else {"error": f"composite: {err}"})
     return res
+
+
+def sunlit_inputs(scene_dir: Path, out: Path) -> dict:
+    """write_inputs for a room with a sun (sun_room): the taped room with its windows marked as openings
+    (room.json; room_no_opening.json keeps the unmarked one), the scene's true camera as camera.json, and
+    the scene's sun entry under "sun". Adds "camera", "room_no_opening", "tmp" (= `out`), "root" and "sun"."""
+    inp = write_inputs(scene_dir, out / "in")
+    room = json.loads(inp["room"].read_text())
+    inp["room_no_opening"] = out / "in" / "room_no_opening.json"
+    inp["room_no_opening"].write_text(json.dumps(room))
+    for p in room["primitives"]:
+        if p["role"] == "window":
+            p["opening"] = True
+    inp["room"].write_text(json.dumps(room))
+    inp["camera"] = out / "in" / "camera.json"
+    inp["camera"].write_text(json.dumps(benchmark_camera_json(inp["scene"])))
+    inp["tmp"], inp["root"] = out, scene_dir
+    inp["sun"] = next((p for p in inp["scene"]["primitives"] if p["type"] == "sun"), None)
+    return inp

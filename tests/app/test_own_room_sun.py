@@ -11,29 +11,14 @@ import pytest
 
 from app.cli import main
 from tests.conftest import score, shared_scene
-from tests.own_room import benchmark_camera_json, fmt, scene_argv, write_inputs
+from tests.own_room import fmt, scene_argv, sunlit_inputs
 
 
 @pytest.fixture(scope="module")
 def sun_inputs(tmp_path_factory):
     """sun_room's user files (tests/own_room.py), the tape room's window flagged as an opening, the
     true camera as camera.json, and the declared sun's numbers as the user would type them."""
-    root = shared_scene("sun_room")
-    tmp = tmp_path_factory.mktemp("own_sun")
-    inp = write_inputs(root, tmp / "in")
-    room = json.loads(inp["room"].read_text())
-    no_opening = tmp / "in" / "room_no_opening.json"
-    no_opening.write_text(json.dumps(room))
-    for p in room["primitives"]:
-        if p["role"] == "window":
-            p["opening"] = True
-    inp["room"].write_text(json.dumps(room))
-    inp["room_no_opening"] = no_opening
-    cam = tmp / "in" / "camera.json"
-    cam.write_text(json.dumps(benchmark_camera_json(inp["scene"])))
-    inp["camera"], inp["tmp"], inp["root"] = cam, tmp, root
-    inp["sun"] = next(p for p in inp["scene"]["primitives"] if p["type"] == "sun")
-    return inp
+    return sunlit_inputs(shared_scene("sun_room"), tmp_path_factory.mktemp("own_sun"))
 
 
 def _sun_args(direction, irradiance):

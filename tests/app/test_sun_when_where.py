@@ -13,7 +13,7 @@ import pytest
 from app.cli import main
 from recon.sunpos import room_direction, solar_position
 from tests.conftest import shared_scene
-from tests.own_room import benchmark_camera_json, fmt, scene_argv, write_inputs
+from tests.own_room import fmt, scene_argv, sunlit_inputs
 
 PARIS = (48.8566, 2.3522)
 CEST = timezone(timedelta(hours=2))
@@ -23,18 +23,7 @@ CEST = timezone(timedelta(hours=2))
 def inputs(tmp_path_factory):
     """sun_room's user files with the window as an opening and the true camera (as in
     test_own_room_sun), and its declared sun."""
-    root = shared_scene("sun_room")
-    tmp = tmp_path_factory.mktemp("sun_when")
-    inp = write_inputs(root, tmp / "in")
-    room = json.loads(inp["room"].read_text())
-    for p in room["primitives"]:
-        if p["role"] == "window":
-            p["opening"] = True
-    inp["room"].write_text(json.dumps(room))
-    cam = tmp / "in" / "camera.json"
-    cam.write_text(json.dumps(benchmark_camera_json(inp["scene"])))
-    inp["camera"], inp["tmp"], inp["root"] = cam, tmp, root
-    inp["sun"] = next(p for p in inp["scene"]["primitives"] if p["type"] == "sun")
+    inp = sunlit_inputs(shared_scene("sun_room"), tmp_path_factory.mktemp("sun_when"))
     return inp
 
 

@@ -2,7 +2,6 @@
 wall's hit there must not block it, whatever the sun's direction (in float32 that hit falls just
 before or just after the exit by rounding alone, which speckled the sunlit floor and the object's
 sun shadow)."""
-import json
 import math
 
 import numpy as np
@@ -10,7 +9,7 @@ import pytest
 
 from recon.scene import Sun, load_scene
 from tests.conftest import shared_scene
-from tests.own_room import benchmark_camera_json, fmt, scene_argv, write_inputs
+from tests.own_room import fmt, scene_argv, sunlit_inputs
 
 
 @pytest.fixture(scope="module")
@@ -23,17 +22,8 @@ def own_room(tmp_path_factory):
     from kernels import runtime
     from recon.patches import build_patches
 
-    root = shared_scene("sun_room")
-    tmp = tmp_path_factory.mktemp("exit_plane")
-    inp = write_inputs(root, tmp / "in")
-    model = json.loads(inp["room"].read_text())
-    for p in model["primitives"]:
-        if p["role"] == "window":
-            p["opening"] = True
-    inp["room"].write_text(json.dumps(model))
-    cam = tmp / "in" / "camera.json"
-    cam.write_text(json.dumps(benchmark_camera_json(inp["scene"])))
-    sun = next(p for p in inp["scene"]["primitives"] if p["type"] == "sun")
+    inp = sunlit_inputs(shared_scene("sun_room"), tmp_path_factory.mktemp("exit_plane"))
+    tmp, cam, sun = inp["tmp"], inp["camera"], inp["sun"]
     assert main(["-q", *scene_argv(inp, tmp / "room", cam), "--skip-probe-check", "--sun-direction",
                  fmt(sun["direction_to_sun"]), "--sun-irradiance", fmt(sun["irradiance_perpendicular"])]) == 0
     runtime.init()
