@@ -55,6 +55,16 @@ class ModelController:
         self._redo: list[tuple] = []
         self._drag: Handle | None = None
         self.message = ""
+        self._edges = None  # the photo's recon.edgesnap.EdgeImage, made at the first model
+
+    @property
+    def edges(self):
+        """The photo prepared once for refining the clicks (the model is redone on every click)."""
+        if self._edges is None:
+            from recon.edgesnap import EdgeImage
+
+            self._edges = EdgeImage(self.photo)
+        return self._edges
 
     # ------------------------------------------------------------------ state and history
     def _state(self) -> tuple:
@@ -210,7 +220,8 @@ class ModelController:
             level = logger.level
             logger.setLevel(logging.ERROR)  # the preview is redone on every click: no repeated warnings
             try:
-                return model_from_clicks(self.clicks_json(), self.camera, self.src, self.ceiling_height), ""
+                return model_from_clicks(self.clicks_json(), self.camera, self.src, self.ceiling_height,
+                                         photo=self.edges), ""
             finally:
                 logger.setLevel(level)
         except SceneError as e:
@@ -233,4 +244,5 @@ class ModelController:
         """Write out/clicks.json and out/primitives.json (and overlay.png) with app.cmd_model.write_model."""
         from app.cmd_model import write_model
 
-        return write_model(out, self.clicks_json(), self.camera, self.photo, self.src, self.ceiling_height)
+        return write_model(out, self.clicks_json(), self.camera, self.photo, self.src, self.ceiling_height,
+                           self.edges)

@@ -5,7 +5,8 @@ schema of recon/primitives.py) and overlay.png (its wireframe over the photo), a
 `photoar model --clicks clicks.json --camera camera.json --out DIR [--image PHOTO]`: the room
 modelled from clicks on the calibrated photo (recon/clickmodel.py; the clicks file is documented in
 docs/scene-format.md): DIR/primitives.json (the `photoar scene --primitives` format), a copy of the
-clicks as DIR/clicks.json and, with --image, DIR/overlay.png (the model drawn over the photo).
+clicks as DIR/clicks.json and, with --image, DIR/overlay.png (the model drawn over the photo); with
+--image the clicks are also refined against the photo's edges (recon/clickedges.py).
 
 SCENE.json is a model file or a scene.json (its "primitives"; the scene graph is then inferred).
 Without image constraints in it, nothing moves and the overlay shows the model as it is.
@@ -32,7 +33,8 @@ def register(sub) -> None:
                    help="with --clicks: the ceiling's height above the floor (m) when no click gives it (default "
                         "2.5 m, with a warning)")
     p.add_argument("--image", type=Path, default=None,
-                   help="the photo (required without --clicks; with it, overlay.png draws the model over it)")
+                   help="the photo (required without --clicks; with it, the clicks are refined against its edges "
+                        "and overlay.png draws the model over it)")
     p.add_argument("--camera", type=Path, required=True, help="camera.json from `photoar calibrate` (or a "
                    "scene.json, whose main_camera is used)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
@@ -112,14 +114,19 @@ def run_clicks(a: argparse.Namespace) -> int:
 
 
 def write_model(out: Path, clicks: dict, camera, photo: np.ndarray | None, src: str,
-                ceiling_height: float | None = None):
-    """Model `clicks` (recon.clickmodel) and write out/primitives.json, out/clicks.json and, with
-    the photo, out/overlay.png, all or nothing (the one code path of `model --clicks` and the gui's
-    model mode). Returns the ClickModel; ClickError (nothing written) for a click it refuses."""
+                ceiling_height: float | None = None, edges=None):
+    """Model `clicks` (recon.clickmodel; with the photo, refined against its edges: `edges` is its
+    recon.edgesnap.EdgeImage when the caller keeps one) and write out/primitives.json,
+    out/clicks.json and, with the photo, out/overlay.png, all or nothing (the one code path of
+    `model --clicks` and the gui's model mode). Returns the ClickModel; ClickError (nothing
+    written) for a click it refuses."""
     from recon.clickmodel import model_from_clicks
     from recon.io import AtomicOutput, write_json, write_png
 
-    model = model_from_clicks(clicks, camera, src, ceiling_height)
+    model = model_from_clicks(clicks, camera, src, ceiling_height,
+                              photo=None if photo is None else edges if edges is not None else photo)
+    if model.refined:
+        log.info("refined against the photo: %s", ", ".join(f"{k}: {v}" for k, v in model.refined.items()))
     log.info("%d primitives from %d clicks; room %s m (walls guessed: %s; ceiling from %s)", len(model.primitives),
              len(clicks["clicks"]), np.round(model.hi - model.lo, 2).tolist(), ", ".join(model.guessed) or "none",
              model.ceiling_from)

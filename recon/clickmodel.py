@@ -66,6 +66,7 @@ TOP_MISS_PX = 25.0  # px: the top click must lie within this of the vertical lin
 DESK_TOP_M = 0.04  # m, a desk's top slab
 DESK_LEG_M = 0.05  # m, a desk leg's square section
 DESK_LEG_INSET_M = 0.04  # m from the footprint's edge to a leg's outer face
+CLICK_SIGMA_PX = 1.0  # px per coordinate: a click's noise, what a refinement may move it (recon/clickedges.py)
 QUAD_OFFSET_M = 0.002  # m in front of its surface: a window or lamp drawn on a wall or the ceiling
 FACES = {(0, -1): "left", (0, 1): "right", (2, -1): "back", (2, 1): "front"}
 
@@ -95,10 +96,13 @@ class ClickModel:
     hi: np.ndarray  # (3,) room box max, m
     ceiling_from: str
     guessed: list[str]  # room faces no click showed
+    refined: dict[str, str] | None = None  # with the photo: each wall / piece / quad -> how it was refined
 
     def to_json(self) -> dict:
-        return {"primitives": self.primitives,
-                "model": {"from": "clicks", "ceiling_from": self.ceiling_from, "guessed_walls": self.guessed}}
+        model = {"from": "clicks", "ceiling_from": self.ceiling_from, "guessed_walls": self.guessed}
+        if self.refined is not None:
+            model["refined_from_photo"] = self.refined
+        return {"primitives": self.primitives, "model": model}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -134,8 +138,18 @@ def axis_vector(axis: int) -> np.ndarray:
 class _Clicks:
     """Validation helpers bound to one clicks file and camera."""
 
-    def __init__(self, camera: Camera, src: str):
+    def __init__(self, camera: Camera, src: str, edges=None, occluders: list[dict] | None = None):
         self.camera, self.src = camera, src
+        self.edges = edges  # recon.clickedges.PhotoEdges, or None: clicks only
+        self.occluders = occluders or []  # the clicks-only model's furniture boxes
+        self.refined: dict[str, str] = {}
+
+    def blocker(self, name: str):
+        """recon.clickedges.box_blocker of every furniture box but piece `name`'s own."""
+        from recon.clickedges import box_blocker
+
+        return box_blocker(self.camera, [b for b in self.occluders
+                                         if b["name"] != name and not b["name"].startswith(name + "_")])
 
     def err(self, where: str, msg: str) -> ClickError:
         return ClickError(f"{self.src}: {where}: {msg}")
@@ -207,13 +221,22 @@ def load_clicks(path: str | os.PathLike) -> dict:
 # ----------------------------------------------------------------------------------------------
 # The model
 
-def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_height: float | None = None
-                      ) -> ClickModel:
+def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_height: float | None = None,
+                      photo=None, click_sigma_px: float = CLICK_SIGMA_PX) -> ClickModel:
     """The room model of a clicks dict (load_clicks) in `camera`'s world (floor y = 0, +Y up).
 
     ceiling_height (m) is used when no click gives the ceiling; without either it is
-    DEFAULT_CEILING_M with a warning. Raises ClickError naming `src` and the click."""
-    P = _Clicks(camera, src)
+    DEFAULT_CEILING_M with a warning. photo (RGB uint8 (H,W,3), or a recon.edgesnap.EdgeImage of
+    it): refine the clicks against its edges (recon/clickedges.py; click_sigma_px the clicks' noise,
+    px per coordinate); None: the clicks as they are. Raises ClickError naming `src` and the click."""
+    if photo is not None:
+        from recon.clickedges import PhotoEdges
+
+        raw = model_from_clicks(d, camera, src, ceiling_height)
+        P = _Clicks(camera, src, PhotoEdges(photo, camera, click_sigma_px),
+                    [p for p in raw.primitives if p.get("role") == "furniture" and p["type"] == "box"])
+    else:
+        P = _Clicks(camera, src)
     cam_c = camera.centre
     if not cam_c[1] > 0:
         raise ClickError(f"{src}: the camera centre {np.round(cam_c, 3).tolist()} is not above the floor y = 0 of "
@@ -245,6 +268,10 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
         line = json_field(c, "floor_line", where + ".", src)
         n_pts = len(line) if isinstance(line, list) and len(line) >= 2 else 2  # two points, or more along it
         uv = P.pixels(c, "floor_line", n_pts, where)
+        if P.edges is not None:
+            snapped = P.edges.floor_line(uv)
+            P.refined[name] = "as clicked" if snapped is None else "snapped to the wall-floor edge"
+            uv = uv if snapped is None else snapped
         pts = [_floor(P, uv[k], where, f"floor_line[{k}]") for k in range(n_pts)]
         a, b = pts[0], pts[-1]
         e = b - a
@@ -363,7 +390,7 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
                           "how": how, "labels": [] if w is None else list(w.labels)})
     room = {"name": "room", "type": "box", "role": "room", "center": ((lo + hi) / 2).tolist(),
             "size": (hi - lo).tolist(), "walls": wall_list}
-    return ClickModel([room] + prims, lo, hi, ceiling_from, guessed)
+    return ClickModel([room] + prims, lo, hi, ceiling_from, guessed, P.refined if P.edges is not None else None)
 
 
 def _wall_offset(camera: Camera, points: list[np.ndarray], uv: np.ndarray, axis: int) -> float:
@@ -483,12 +510,15 @@ def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, a
 
 
 def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: float, f: np.ndarray,
-                uv: np.ndarray, top_uv: np.ndarray, wall_end: bool) -> tuple[np.ndarray, np.ndarray, float]:
+                uv: np.ndarray, top_uv: np.ndarray, wall_end: bool, photo: tuple | None = None
+                ) -> tuple[np.ndarray, np.ndarray, float]:
     """The footprint's ranges and height (yaw kept) whose clicked corners project nearest their
     clicks and the top corner nearest the top click, in pixels (_reproject_fit): the top click also
     pins floor[0]'s position, and a click's weight follows the metres its pixel spans. A side no
     clicked corner lies on keeps its distance to the opposite side (size_m), or its place with
-    `wall_end` (the wall the piece stands against)."""
+    `wall_end` (the wall the piece stands against). photo: (the _Clicks with the photo's edges, the
+    piece's name, is a desk): then the box's edges snapped to the photo join the fit
+    (recon/clickedges.py)."""
     e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
     known = [k for k in range(3) if np.isfinite(f[k, 0])]
     ix = {k: int(abs(f[k] @ e1 - xr[1]) < abs(f[k] @ e1 - xr[0])) for k in known}  # each click's end of
@@ -509,8 +539,42 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
         out = [x[ix[k]] * e1 + x[iz[k]] * e2 for k in known]
         return np.array(out + [out[0] + [0.0, x[4], 0.0]])
 
-    x = full(_reproject_fit(x0[active], pts, np.vstack([uv[known], top_uv[None]]), camera))
+    uvs = np.vstack([uv[known], top_uv[None]])
+    y = _reproject_fit(x0[active], pts, uvs, camera)
+    if photo is not None and photo[0].edges is not None:
+        P, name, desk = photo
+
+        def corners(y):  # corner b: bit 0 the x end, bit 1 floor / top, bit 2 the z end
+            x = full(y)
+            return np.array([x[b & 1] * e1 + x[2 + (b >> 2 & 1)] * e2 + [0.0, (b >> 1 & 1) * x[4], 0.0]
+                             for b in range(8)])
+
+        lines = P.edges.lines(corners(y), _box_edges(camera.centre, corners(y), (e1, np.array([0.0, 1, 0]), e2), desk),
+                              P.blocker(name))
+        y, kept = P.edges.refine(y, corners, pts, uvs, lines)
+        P.refined[name] = f"{kept} edges snapped" if kept else "as clicked"
+    x = full(y)
     return np.sort(x[:2]), np.sort(x[2:4]), float(x[4])
+
+
+def _box_edges(centre: np.ndarray, corners: np.ndarray, axes, top_only: bool) -> list[tuple[int, int]]:
+    """The edges (corner index pairs, corners indexed by bits: 0 along axes[0], 1 along axes[1] (up),
+    2 along axes[2]) of a box that border a face turned to the camera at `centre`; with top_only,
+    those of its top face (a desk: its slab's other edges depend on the assumed thickness)."""
+    out = []
+    for i in range(8):
+        for b in (1, 2, 4):
+            j = i | b
+            if j == i or (top_only and not (i & 2 and j & 2)):
+                continue
+            for c, ax in zip((1, 2, 4), axes):
+                if c == b:
+                    continue
+                normal = ax if i & c else -ax
+                if float((centre - corners[i]) @ normal) > 0:
+                    out.append((i, j))
+                    break
+    return out
 
 
 def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.ndarray, lo, hi, px_m: float) -> None:
@@ -575,7 +639,7 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
         raise P.err(where, f"top [{top_uv[0]:g}, {top_uv[1]:g}] is not straight above floor[0] (the vertical line "
                            f"over it passes {miss:.0f} px away): click the top corner above floor[0]")
     xr, zr, h = _refine_box(P.camera, yaw, xr, zr, float(h), f, uv, top_uv,
-                            against is not None and P.sizes(c, where) is None)
+                            against is not None and P.sizes(c, where) is None, (P, name, kind == "desk"))
     px_m = max(_pixel_metres(P, uv[k]) for k in range(3) if np.isfinite(uv[k, 0]))
     _against_walls(P, where, yaw, xr, zr, lo, hi, px_m)
     if h > hi[1] + WALL_TOL_M:
@@ -647,11 +711,12 @@ def _quad(P: _Clicks, c: dict, where: str, name: str, role: str, lo, hi, wall_of
             best = (spread, groups_u, groups_v)
     _, groups_u, groups_v = best
     size = P.sizes(c, where)
-    rect = []
+    rect, ends_all, missing = [], [], []
     for ax, groups in ((u_ax, groups_u), (v_ax, groups_v)):
         k_size = (1 if ax == 1 else 0) if axis != 1 else (0 if ax == 0 else 1)  # size_m: [across, up] / [x, z]
         ends = [[pts[k, ax] for k in g if k in known] for g in groups]
         ends = [float(np.mean(e)) if e else None for e in ends]
+        missing += [e is None for e in ends]
         for i in (0, 1):
             if ends[i] is None:
                 # the unclicked corners: the clicked ones of the opposite side moved to this end
@@ -661,7 +726,12 @@ def _quad(P: _Clicks, c: dict, where: str, name: str, role: str, lo, hi, wall_of
                     return [q + (end - q[ax]) * axis_vector(ax) for q in anchors]
 
                 ends[i] = P.missing_end(where, ends[1 - i], size, k_size, corners)
-        a, b = sorted(ends)
+        ends_all += ends
+    if P.edges is not None:
+        ends_all = _refine_quad(P, name, axis, offset, (u_ax, v_ax), (groups_u, groups_v), np.array(ends_all),
+                                missing, known, uv)
+    for q, ax in enumerate((u_ax, v_ax)):
+        a, b = sorted(ends_all[2 * q:2 * q + 2])
         if b - a < 0.02:
             raise P.err(where, f"its corners span {(b - a) * 100:.1f} cm along {'xyz'[ax]}: click the four corners "
                                "in order around it")
@@ -682,6 +752,43 @@ def _quad(P: _Clicks, c: dict, where: str, name: str, role: str, lo, hi, wall_of
     if opening:
         q["opening"] = True
     return q
+
+
+def _refine_quad(P: _Clicks, name: str, axis: int, offset: float, axes: tuple[int, int], groups, x0: np.ndarray,
+                 missing: list[bool], known: list[int], uv: np.ndarray) -> np.ndarray:
+    """A quad's side coordinates x0 (4,: the two ends along axes[0], then along axes[1]; end i holds
+    the corners groups[.][i]) refined with its four sides snapped to the photo (recon/clickedges.py;
+    an emitter's clipped edge is used). An end no clicked corner lies on keeps its distance to the
+    opposite end (size_m)."""
+    idx = [[next(i for i in (0, 1) if k in groups[q][i]) + 2 * q for q in (0, 1)] for k in range(4)]
+    active = [m for m in range(4) if not missing[m]]
+
+    def corners(y):
+        x = x0.copy()
+        x[active] = y
+        for m in range(4):
+            if missing[m]:
+                x[m] = x[m ^ 1] + (x0[m] - x0[m ^ 1])
+        out = np.zeros((4, 3))
+        out[:, axis] = offset
+        for k in range(4):
+            out[k, axes[0]], out[k, axes[1]] = x[idx[k][0]], x[idx[k][1]]
+        return out
+
+    def clicks(y):
+        return corners(y)[known]
+
+    y0 = x0[active]
+    y = _reproject_fit(y0, clicks, uv[known], P.camera)
+    lines = P.edges.lines(corners(y), [(0, 1), (1, 2), (2, 3), (3, 0)], P.blocker(name), clipped_ok=True)
+    y, kept = P.edges.refine(y, corners, clicks, uv[known], lines)
+    P.refined[name] = f"{kept} edges snapped" if kept else "as clicked"
+    x = x0.copy()
+    x[active] = y
+    for m in range(4):
+        if missing[m]:
+            x[m] = x[m ^ 1] + (x0[m] - x0[m ^ 1])
+    return x
 
 
 def primitive_edges(p: dict, camera: Camera, near: float = 0.05) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -81,8 +81,18 @@ class EdgeImage:
         return cv2.remap(img, P[..., 0].astype(np.float32), P[..., 1].astype(np.float32), cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
-    def snap(self, seg: np.ndarray, click_sigma_px: float = 0.5) -> tuple[np.ndarray, float, int] | None:
-        """(snapped segment (4,), robust spread px, samples used), or None when the edge is not found."""
+    def snap(self, seg: np.ndarray, click_sigma_px: float = 0.5, search_px: float = SEARCH_PX,
+             clipped_ok: bool = False, opposite_px: float | None = None, max_spread_px: float = MAX_SPREAD_PX
+             ) -> tuple[np.ndarray, float, int] | None:
+        """(snapped segment (4,), robust spread px, samples used), or None when the edge is not found.
+
+        search_px: half-width of the search across the line (px; SEARCH_PX for calibrate's 0.5 px
+        clicks, wider for noisier ones); clipped_ok: keep samples next to clipped pixels (the edge
+        of a clipped emitter, which is all there is to find there, moves out by under a pixel);
+        opposite_px: an edge of the opposite polarity makes a sample ambiguous only within this
+        distance (px) of its peak (None: anywhere in the search window, as for thin bars; a
+        textured floor next to a long edge has such edges a few pixels off, too far to drag it);
+        max_spread_px: the largest robust spread of the sample edges about the line accepted."""
         import cv2
 
         a, b = np.asarray(seg[:2], float), np.asarray(seg[2:], float)
@@ -92,14 +102,14 @@ class EdgeImage:
         d = (b - a) / length
         n = np.array([-d[1], d[0]])
         ts = np.arange(0.08 * length, 0.92 * length, 1.0)
-        ss = np.arange(-SEARCH_PX, SEARCH_PX + 1e-9, STEP_PX)
+        ss = np.arange(-search_px, search_px + 1e-9, STEP_PX)
         base = a + ts[:, None] * d  # (T,2)
         P = base[:, None, :] + ss[None, :, None] * n  # (T,S,2)
         inside = np.all((P[..., 0] >= 1) & (P[..., 0] <= self.shape[1] - 2) & (P[..., 1] >= 1)
                         & (P[..., 1] <= self.shape[0] - 2), axis=1)
         g = self._sample(self.gx, P) * n[0] + self._sample(self.gy, P) * n[1]  # (T,S)
         iu = np.clip(np.rint(base).astype(int), 0, [self.shape[1] - 1, self.shape[0] - 1])
-        ok = inside & ~self.near_clip[iu[:, 1], iu[:, 0]]
+        ok = inside if clipped_ok else inside & ~self.near_clip[iu[:, 1], iu[:, 0]]
         if ok.sum() < MIN_FOUND * len(ts):
             return None
         peak = g[np.arange(len(ts)), np.argmax(np.abs(g), axis=1)]
@@ -112,7 +122,10 @@ class EdgeImage:
         locmax = np.zeros_like(g, bool)
         locmax[:, 1:-1] = (g[:, 1:-1] >= g[:, :-2]) & (g[:, 1:-1] >= g[:, 2:])
         near = np.abs(ss[None, :] - ss[k][:, None]) <= 1.0  # within 1 px of the sample's peak
-        second = (g < -AMBIGUOUS * gmax[:, None]) | (locmax & ~near & (g > AMBIGUOUS * gmax[:, None]))
+        opp = g < -AMBIGUOUS * gmax[:, None]
+        if opposite_px is not None:
+            opp &= np.abs(ss[None, :] - ss[k][:, None]) <= opposite_px
+        second = opp | (locmax & ~near & (g > AMBIGUOUS * gmax[:, None]))
         ok &= ~np.any(second, axis=1)
         # centroid of the gradient above half its peak, within +-1 px of the peak
         w = np.where(near, np.clip(g - 0.5 * gmax[:, None], 0, None), 0.0)
@@ -129,7 +142,7 @@ class EdgeImage:
         nn = np.array([-dd[1], dd[0]])  # the fitted line's normal
         r = (pts - p0) @ nn
         spread = 1.4826 * float(np.median(np.abs(r - np.median(r))))
-        if spread > MAX_SPREAD_PX:
+        if spread > max_spread_px:
             return None
         # the click must agree with the edge found: its endpoints' distances from the fitted line are
         # N(0, click sigma^2) if it is the same edge (chi-square, 2 dof, 99 %)
@@ -137,6 +150,12 @@ class EdgeImage:
             return None
         proj = lambda q: p0 + np.dot(q - p0, dd) * dd  # noqa: E731
         return np.concatenate([proj(a), proj(b)]), spread, int(len(pts))
+
+
+def line_sigma(spread_px: float, used: int) -> float:
+    """Noise (px, per endpoint, across the line) of a line snapped with robust spread spread_px from
+    `used` samples: max(SIGMA_FLOOR_PX, 2 spread / sqrt(used)) (see the module docstring)."""
+    return max(SIGMA_FLOOR_PX, 2.0 * float(spread_px) / float(np.sqrt(used)))
 
 
 def snap_segments(image: np.ndarray | EdgeImage, segs: np.ndarray, click_sigma_px: float = 0.5) -> SnapResult:
@@ -150,6 +169,6 @@ def snap_segments(image: np.ndarray | EdgeImage, segs: np.ndarray, click_sigma_p
         if r is None:
             continue
         out[i], spread[i], used = r
-        sig[i] = max(SIGMA_FLOOR_PX, 2.0 * spread[i] / np.sqrt(used))
+        sig[i] = line_sigma(spread[i], used)
         snapped[i] = True
     return SnapResult(out, sig, snapped, spread)

@@ -2,7 +2,7 @@
 loop clicks two walls, the ceiling, a desk (one point clicked off and dragged into place, a stray
 point undone), a window on the back wall and the room's own window (two corners out of the photo,
 its size typed) on window_room's photo, and saves; the saved clicks and primitives are
-those of `photoar model --clicks` on the same clicks. The controller's undo/redo/drag logic is also
+those of `photoar model --clicks --image` on the same clicks (both refine the clicks against the photo). The controller's undo/redo/drag logic is also
 tested without a window."""
 import json
 import os
@@ -75,7 +75,8 @@ def test_gui_model_mode_saves_what_model_clicks_writes(xvfb, tmp_path):  # noqa:
         pytest.skip(f"Open3D GUI cannot open a window here: {r.stderr.strip().splitlines()[-1]}")
     assert r.returncode == 0, r.stderr[-2000:]
     assert main(["-q", "model", "--clicks", str(tmp_path / "ref_clicks.json"), "--camera",
-                 str(tmp_path / "camera.json"), "--out", str(tmp_path / "cli_model")]) == 0
+                 str(tmp_path / "camera.json"), "--image", str(root / "background.png"),
+                 "--out", str(tmp_path / "cli_model")]) == 0
     gui_clicks = json.loads((out / "clicks.json").read_text())["clicks"]
     assert [c["label"] for c in gui_clicks] == [c["label"] for c in ref["clicks"]]
     for g, c in zip(gui_clicks, ref["clicks"]):
@@ -86,8 +87,10 @@ def test_gui_model_mode_saves_what_model_clicks_writes(xvfb, tmp_path):  # noqa:
                 want = [q for q in c[key] if q is not None] if key == "corners" else c[key]
                 np.testing.assert_allclose(got, want, atol=1e-6, err_msg=key)
         assert g.get("size_m") == c.get("size_m")
-    ours = json.loads((out / "primitives.json").read_text())["primitives"]
-    cli = json.loads((tmp_path / "cli_model" / "primitives.json").read_text())["primitives"]
+    ours_d = json.loads((out / "primitives.json").read_text())
+    cli_d = json.loads((tmp_path / "cli_model" / "primitives.json").read_text())
+    assert ours_d["model"]["refined_from_photo"] == cli_d["model"]["refined_from_photo"]
+    ours, cli = ours_d["primitives"], cli_d["primitives"]
     assert [p["name"] for p in ours] == [p["name"] for p in cli]
     assert {"room", "desk1_top", "desk1_leg3", "window1", "window2"} <= {p["name"] for p in ours}
     for a, b in zip(ours, cli):

@@ -43,11 +43,21 @@ def test_model_clicks_writes_primitives_and_overlay(window_room_clicks, capsys):
     # the camera stands inside; the guessed front wall 0.3 m behind it
     assert hi[2] == pytest.approx(sc["main_camera"]["centre"][2] + 0.3, abs=1e-9)
     assert json.loads((out / "clicks.json").read_text()) == json.loads((tmp / "clicks.json").read_text())
-    # the same clicks without --image: no overlay; the primitives are the same
+    # with the photo the clicks were refined against its edges: the back wall's foot snapped
+    refined = d["model"]["refined_from_photo"]
+    assert set(refined) == {"left", "back", "desk", "window"} and refined["back"].startswith("snapped"), refined
+    # the same clicks without --image: no overlay, no refinement: the clicks-only model
     rc = main(["-q", "model", "--clicks", str(tmp / "clicks.json"), "--camera", str(tmp / "camera.json"),
                "--out", str(tmp / "out2")])
     assert rc == 0 and not (tmp / "out2" / "overlay.png").exists()
-    assert json.loads((tmp / "out2" / "primitives.json").read_text()) == d
+    d2 = json.loads((tmp / "out2" / "primitives.json").read_text())
+    assert "refined_from_photo" not in d2["model"]
+    from recon.camera import Camera
+    from recon.clickmodel import model_from_clicks
+
+    cam = Camera.load(tmp / "camera.json")
+    clicks = json.loads((tmp / "clicks.json").read_text())
+    assert d2 == json.loads(json.dumps(model_from_clicks(clicks, cam, "clicks.json").to_json()))
 
 
 def test_model_clicks_error_is_one_line_and_writes_nothing(window_room_clicks, capsys):

@@ -1,0 +1,218 @@
+"""Clicks refined against the photo's edges (for recon/clickmodel.py, when the photo is given).
+
+A click is off by about a pixel, but the photo holds a straight edge to ~0.1 px along its length
+(recon/edgesnap.py). So, with the photo:
+
+  * a wall's floor_line is snapped to the wall-floor edge under it (EdgeImage.snap, searching
+    SEARCH_SIGMAS click sigmas either side), and each click is moved onto the snapped line; the snap
+    is kept only when every click lies within its noise of the line (chi-square, 1 dof, 99 %);
+  * a furniture piece or a window/lamp quad is first fitted from its clicks; then each edge of that
+    model the photo can show (a box's top-face edges, and for a solid box also its floor and
+    vertical edges, on a face turned to the camera; a quad's four sides), along its longest stretch
+    inside the photo and in front of every other piece (the clicks-only model of the others), is
+    snapped to the photo (EdgeImage.snap, the model's edge standing in for a clicked segment, so the
+    snap must agree with it within the click noise). Each snapped edge adds two residuals (its
+    fitted line's distance from the model's edge at the stretch's ends, in units of the line's
+    noise) to the same least-squares fit in pixels as the clicks. A line the fit disagrees with
+    (chi-square, 2 dof, 99.9 %) is dropped and the fit redone; if a click then moves more than its
+    noise allows (chi-square, 2 dof, 99.9 %), the piece keeps its clicks-only fit.
+
+A desk's floor corners lie under its top, where the photo shows nothing; its top's edges pin the
+footprint and height. Edges of a desk's top slab other than the top face's are not used: the slab's
+thickness (DESK_TOP_M) is assumed, not measured.
+
+Conventions: pixels as recon/camera.py ((0, 0) the centre of the top-left pixel), metres.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from recon.camera import Camera
+from recon.edgesnap import SEARCH_PX, EdgeImage, line_sigma
+
+SEARCH_SIGMAS = 3.5  # the search across an edge spans this many click sigmas either side
+MIN_EDGE_PX = 20.0  # a model edge's visible stretch shorter than this in the photo is not snapped
+BORDER_PX = 3.0  # samples this close to the photo's border are not used
+EDGE_SAMPLES = 41  # points along a model edge tested for visibility
+OCCLUDER_GAP_M = 0.01  # a sight line must pass this far before the edge to count as blocked
+OCCLUDER_SHRINK_M = 0.02  # occluders are shrunk by this on every side: the clicks-only model of the other
+# pieces is off by the click noise (about a centimetre a pixel), and a piece standing against another
+# (a sofa's seat against its back) must not hide the edge they share
+OPPOSITE_PX = 2.0  # an opposite edge further than this from a sample's peak does not drag it (the 3x3 Sobel's
+# reach plus the photo's own blur, about a pixel each); a textured floor or wall has such edges nearer
+# than the click noise, so the whole search window cannot be required clear of them
+MAX_SPREAD_CLICKS = 0.5  # the sample edges' robust spread about a snapped line may reach this many click
+# sigmas: a line fitted to n samples then still sits within 2 spread / sqrt(n) << a click's noise (a
+# noisy or low-contrast photo spreads them more than calibrate's 0.25 px allows for its 0.5 px clicks)
+CHI2_1DOF_99 = 6.63
+CHI2_2DOF_999 = 13.82
+
+
+@dataclass
+class EdgeLine:
+    """A model edge (corner indices i, j of the piece's corner function) snapped to the photo over
+    the stretch t0..t1 (fractions from corner i): the line through p0 (2,) with unit normal n (2,),
+    its noise sigma (px)."""
+
+    i: int
+    j: int
+    t0: float
+    t1: float
+    p0: np.ndarray
+    n: np.ndarray
+    sigma: float
+
+
+class PhotoEdges:
+    """The photo prepared for refining clicks, with the click noise (px, per coordinate)."""
+
+    def __init__(self, photo: np.ndarray | EdgeImage, camera: Camera, click_sigma_px: float = 1.0):
+        self.edges = photo if isinstance(photo, EdgeImage) else EdgeImage(photo)
+        if self.edges.shape != (camera.height, camera.width):
+            raise ValueError(f"the photo is {self.edges.shape[1]}x{self.edges.shape[0]}, the camera "
+                             f"{camera.width}x{camera.height}")
+        self.camera, self.sigma = camera, float(click_sigma_px)
+        self.search = max(SEARCH_PX, SEARCH_SIGMAS * self.sigma)
+
+    def _snap(self, seg: np.ndarray, clipped_ok: bool = False):
+        return self.edges.snap(np.asarray(seg, float), self.sigma, self.search, clipped_ok, OPPOSITE_PX,
+                               MAX_SPREAD_CLICKS * self.sigma)
+
+    def floor_line(self, uv: np.ndarray) -> np.ndarray | None:
+        """A wall's floor_line clicks (m,2) moved onto the wall-floor edge snapped under the first
+        to the last, or None when the edge is not found or a click lies off it beyond its noise."""
+        uv = np.asarray(uv, float)
+        r = self._snap(np.r_[uv[0], uv[-1]])
+        if r is None:
+            return None
+        seg = r[0]
+        p0, d = seg[:2], (seg[2:] - seg[:2]) / np.linalg.norm(seg[2:] - seg[:2])
+        n = np.array([-d[1], d[0]])
+        off = (uv - p0) @ n
+        if np.any(off ** 2 > CHI2_1DOF_99 * self.sigma ** 2):
+            return None
+        return uv - off[:, None] * n
+
+    def lines(self, corners: np.ndarray, pairs: list[tuple[int, int]], blocked: Callable[[np.ndarray], np.ndarray],
+              clipped_ok: bool = False) -> list[EdgeLine]:
+        """The model edges `pairs` of corners (N,3) snapped to the photo, each over its longest
+        stretch inside the photo and not `blocked` (callable (M,3) points -> (M,) bool)."""
+        cam = self.camera
+        ts = np.linspace(0.0, 1.0, EDGE_SAMPLES)
+        out = []
+        for i, j in pairs:
+            X = corners[i] + ts[:, None] * (corners[j] - corners[i])
+            uv, z = cam.project(X)
+            ok = (z > 0.05) & (uv[:, 0] >= BORDER_PX) & (uv[:, 0] <= cam.width - 1 - BORDER_PX) & \
+                (uv[:, 1] >= BORDER_PX) & (uv[:, 1] <= cam.height - 1 - BORDER_PX)
+            ok[ok] = ~blocked(X[ok])
+            run = _longest_run(ok)
+            if run is None:
+                continue
+            a, b = run
+            if np.linalg.norm(uv[b] - uv[a]) < MIN_EDGE_PX:
+                continue
+            r = self._snap(np.r_[uv[a], uv[b]], clipped_ok)
+            if r is None:
+                continue
+            seg, spread, used = r
+            d = (seg[2:] - seg[:2]) / np.linalg.norm(seg[2:] - seg[:2])
+            out.append(EdgeLine(i, j, float(ts[a]), float(ts[b]), seg[:2].copy(), np.array([-d[1], d[0]]),
+                                line_sigma(spread, used)))
+        return out
+
+    def residuals(self, lines: list[EdgeLine], corners: np.ndarray) -> np.ndarray:
+        """Each line's distance (px) from the model edge's projection at its stretch's two ends,
+        scaled to click units (x click sigma / line sigma): (2 len(lines),)."""
+        if not lines:
+            return np.zeros(0)
+        out = np.empty(2 * len(lines))
+        for k, L in enumerate(lines):
+            X = corners[L.i] + np.array([L.t0, L.t1])[:, None] * (corners[L.j] - corners[L.i])
+            uv, z = self.camera.project(X)
+            out[2 * k:2 * k + 2] = ((uv - L.p0) @ L.n) * (self.sigma / L.sigma) if np.all(z > 1e-6) else 1e6
+        return out
+
+    def refine(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray], clicks: Callable[[np.ndarray], np.ndarray],
+               uv: np.ndarray, lines: list[EdgeLine]) -> tuple[np.ndarray, int]:
+        """(parameters, lines kept): the least-squares fit in pixels of the clicks uv (m,2) (their
+        model points clicks(x) (m,3)) and the snapped `lines` (edges of corners(x)), from x0 (the
+        clicks-only fit). Lines the fit disagrees with are dropped one by one; (x0, 0) when none is
+        left or a click would move beyond its noise."""
+        from scipy.optimize import least_squares
+
+        lines = list(lines)
+        while lines:
+            def fun(x, lines=lines):
+                p, z = self.camera.project(clicks(x))
+                r_click = (p - uv).ravel() if np.all(z > 1e-6) else np.full(uv.size, 1e6)
+                return np.r_[r_click, self.residuals(lines, corners(x))]
+
+            r = least_squares(fun, np.asarray(x0, float), method="trf")
+            if not (r.success and np.all(np.isfinite(r.x))):
+                return x0, 0
+            rl = self.residuals(lines, corners(r.x)).reshape(-1, 2) / self.sigma  # in line sigmas
+            chi = (rl ** 2).sum(axis=1)
+            worst = int(np.argmax(chi))
+            if chi[worst] > CHI2_2DOF_999:
+                del lines[worst]
+                continue
+            p, _ = self.camera.project(clicks(r.x))
+            if np.any(((p - uv) ** 2).sum(axis=1) > CHI2_2DOF_999 * self.sigma ** 2):
+                return x0, 0
+            return r.x, len(lines)
+        return x0, 0
+
+
+def _longest_run(ok: np.ndarray) -> tuple[int, int] | None:
+    """(first, last) index of the longest run of True in ok, or None."""
+    best, start = None, None
+    for k, v in enumerate(np.r_[ok, False]):
+        if v and start is None:
+            start = k
+        elif not v and start is not None:
+            if best is None or k - 1 - start > best[1] - best[0]:
+                best = (start, k - 1)
+            start = None
+    return best if best is not None and best[1] > best[0] else None
+
+
+def box_blocker(camera: Camera, boxes: list[dict]) -> Callable[[np.ndarray], np.ndarray]:
+    """Callable (M,3) points -> (M,) bool: the sight line from the camera to the point passes
+    through one of `boxes` (user primitives format: center, size, yaw_deg; each shrunk by
+    OCCLUDER_SHRINK_M) before OCCLUDER_GAP_M short of it."""
+    import math
+
+    C = camera.centre
+    frames = []
+    for b in boxes:
+        yaw = math.radians(b.get("yaw_deg", 0.0))
+        R = np.array([[math.cos(yaw), 0, -math.sin(yaw)], [0, 1, 0], [math.sin(yaw), 0, math.cos(yaw)]])  # rows: e1, y, e2
+        frames.append((R, np.asarray(b["center"], float),
+                       np.maximum(np.asarray(b["size"], float) / 2 - OCCLUDER_SHRINK_M, 0.0)))
+
+    def blocked(X: np.ndarray) -> np.ndarray:
+        X = np.atleast_2d(X)
+        dist = np.linalg.norm(X - C, axis=1)
+        smax = np.clip(1.0 - OCCLUDER_GAP_M / np.maximum(dist, 1e-9), 0.0, 1.0)
+        out = np.zeros(len(X), bool)
+        for R, c, h in frames:
+            o = R @ (C - c)
+            d = (X - C) @ R.T
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t1 = (-h - o) / d
+                t2 = (h - o) / d
+            lo = np.where(np.isnan(t1), -np.inf, np.minimum(t1, t2))
+            hi = np.where(np.isnan(t2), np.inf, np.maximum(t1, t2))
+            par = d == 0  # a sight line parallel to a slab: inside it or never
+            inside = np.abs(o) <= h
+            lo = np.where(par, np.where(inside, -np.inf, np.inf), lo)
+            hi = np.where(par, np.where(inside, np.inf, -np.inf), hi)
+            tin, tout = lo.max(axis=1), hi.min(axis=1)
+            out |= (tin <= tout) & (tout >= 0) & (tin <= smax)
+        return out
+
+    return blocked
