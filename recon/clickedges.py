@@ -1,25 +1,30 @@
 """Clicks refined against the photo's edges (for recon/clickmodel.py, when the photo is given).
 
-A click is off by about a pixel, but the photo holds a straight edge to ~0.1 px along its length
-(recon/edgesnap.py). So, with the photo:
+A click is off by about a pixel, but the photo holds a straight edge to a fraction of a pixel along
+its length (recon/edgesnap.py). So, with the photo, each wall, furniture piece and window/lamp quad
+is first fitted from its clicks; then the edges of that model the photo can show are snapped to it
+(EdgeImage.snap, the model's edge standing in for a clicked segment: the snap must agree with it
+within the click noise, searching SEARCH_SIGMAS click sigmas either side):
 
-  * a wall's floor_line is snapped to the wall-floor edge under it (EdgeImage.snap, searching
-    SEARCH_SIGMAS click sigmas either side), and each click is moved onto the snapped line; the snap
-    is kept only when every click lies within its noise of the line (chi-square, 1 dof, 99 %);
-  * a furniture piece or a window/lamp quad is first fitted from its clicks; then each edge of that
-    model the photo can show (a box's top-face edges, and for a solid box also its floor and
-    vertical edges, on a face turned to the camera; a quad's four sides), along its longest stretch
-    inside the photo and in front of every other piece (the clicks-only model of the others), is
-    snapped to the photo (EdgeImage.snap, the model's edge standing in for a clicked segment, so the
-    snap must agree with it within the click noise). Each snapped edge adds two residuals (its
-    fitted line's distance from the model's edge at the stretch's ends, in units of the line's
-    noise) to the same least-squares fit in pixels as the clicks. A line the fit disagrees with
-    (chi-square, 2 dof, 99.9 %) is dropped and the fit redone; if a click then moves more than its
-    noise allows (chi-square, 2 dof, 99.9 %), the piece keeps its clicks-only fit.
+  * a wall: its foot (the wall-floor edge) between its first and last click, in each stretch no
+    piece of furniture hides (the clicks-only model of the furniture); a stretch that does not snap
+    whole (its two sides swap which is brighter along it: a skirting over planks of varying tone)
+    is tried in pieces of about PIECE_PX;
+  * a furniture piece: its box's edges that border a face turned to the camera (a desk: its top
+    face's only), along their longest stretch inside the photo and in front of every other piece;
+  * a window or lamp: its four sides (an emitter's clipped edge is used: it is all there is).
 
-A desk's floor corners lie under its top, where the photo shows nothing; its top's edges pin the
-footprint and height. Edges of a desk's top slab other than the top face's are not used: the slab's
-thickness (DESK_TOP_M) is assumed, not measured.
+Each snapped line adds two residuals (its distance from the model's edge at the stretch's two ends,
+in units of its noise: the samples' spread, at least LINE_SIGMA_FLOOR_PX) to the same least-squares
+fit in pixels as the clicks, with the same structure (walls on the room's axes, footprints
+rectangles, quads on their planes). A line the fit leaves off by more than its noise allows
+(chi-square, 2 dof, 99.9 %) is dropped and the fit redone; if a click then moves more than its
+noise allows (chi-square, 2 dof, 99.99 %), the item keeps its clicks-only fit ("as clicked").
+
+What the photo cannot refine stays as clicked: a desk's floor corners (under its top: its top's
+edges pin the footprint and height instead; the slab's thickness DESK_TOP_M is assumed, so its lower
+edges are not used), a corner hidden behind another piece or out of the photo, an edge with no
+contrast.
 
 Conventions: pixels as recon/camera.py ((0, 0) the centre of the top-left pixel), metres.
 """
@@ -34,7 +39,9 @@ from recon.camera import Camera
 from recon.edgesnap import SEARCH_PX, EdgeImage, line_sigma
 
 SEARCH_SIGMAS = 3.5  # the search across an edge spans this many click sigmas either side
-MIN_EDGE_PX = 20.0  # a model edge's visible stretch shorter than this in the photo is not snapped
+MIN_EDGE_PX = 20.0
+PIECE_PX = 40.0  # a wall's foot that does not snap whole is tried in pieces about this long (px): long
+# enough for ~30 samples (a line to ~0.1 px), short enough for one floor plank's tone at a time  # a model edge's visible stretch shorter than this in the photo is not snapped
 BORDER_PX = 3.0  # samples this close to the photo's border are not used
 EDGE_SAMPLES = 41  # points along a model edge tested for visibility
 OCCLUDER_GAP_M = 0.01  # a sight line must pass this far before the edge to count as blocked
@@ -44,11 +51,12 @@ OCCLUDER_SHRINK_M = 0.02  # occluders are shrunk by this on every side: the clic
 OPPOSITE_PX = 2.0  # an opposite edge further than this from a sample's peak does not drag it (the 3x3 Sobel's
 # reach plus the photo's own blur, about a pixel each); a textured floor or wall has such edges nearer
 # than the click noise, so the whole search window cannot be required clear of them
-MAX_SPREAD_CLICKS = 0.5  # the sample edges' robust spread about a snapped line may reach this many click
-# sigmas: a line fitted to n samples then still sits within 2 spread / sqrt(n) << a click's noise (a
-# noisy or low-contrast photo spreads them more than calibrate's 0.25 px allows for its 0.5 px clicks)
-CHI2_1DOF_99 = 6.63
-CHI2_2DOF_999 = 13.82
+LINE_SIGMA_FLOOR_PX = 0.25  # px: a snapped line's noise is at least this: where a crease's edge appears
+# depends on its shading (a contact shadow, a skirting's texture), an error along the whole line that
+# the samples' spread does not show (edgesnap's own floor, 0.1 px, is for calibrate's long lines)
+CHI2_2DOF_999 = 13.82  # a snapped line the fit leaves this far off (in its sigmas) is dropped
+CHI2_2DOF_9999 = 18.42  # a click moved this far (in click sigmas) sends the piece back to its clicks: at
+# 1e-4 a click, a room's ~20 clicks fall back for noise alone in under 0.2 % of rooms
 
 
 @dataclass
@@ -78,23 +86,43 @@ class PhotoEdges:
         self.search = max(SEARCH_PX, SEARCH_SIGMAS * self.sigma)
 
     def _snap(self, seg: np.ndarray, clipped_ok: bool = False):
-        return self.edges.snap(np.asarray(seg, float), self.sigma, self.search, clipped_ok, OPPOSITE_PX,
-                               MAX_SPREAD_CLICKS * self.sigma)
+        return self.edges.snap(np.asarray(seg, float), self.sigma, self.search, clipped_ok, OPPOSITE_PX)
 
-    def floor_line(self, uv: np.ndarray) -> np.ndarray | None:
-        """A wall's floor_line clicks (m,2) moved onto the wall-floor edge snapped under the first
-        to the last, or None when the edge is not found or a click lies off it beyond its noise."""
-        uv = np.asarray(uv, float)
-        r = self._snap(np.r_[uv[0], uv[-1]])
-        if r is None:
-            return None
-        seg = r[0]
-        p0, d = seg[:2], (seg[2:] - seg[:2]) / np.linalg.norm(seg[2:] - seg[:2])
-        n = np.array([-d[1], d[0]])
-        off = (uv - p0) @ n
-        if np.any(off ** 2 > CHI2_1DOF_99 * self.sigma ** 2):
-            return None
-        return uv - off[:, None] * n
+    def foot_lines(self, a: np.ndarray, b: np.ndarray, blocked: Callable[[np.ndarray], np.ndarray]
+                   ) -> list[tuple[np.ndarray, np.ndarray, EdgeLine]]:
+        """A wall's foot between its first and last clicked floor points a, b (3,) snapped to the
+        photo, in each stretch at least MIN_EDGE_PX long that no furniture (`blocked`) hides:
+        (stretch start (3,), end (3,), its EdgeLine with i, j = 0, 1 over t 0..1)."""
+        ts = np.linspace(0.0, 1.0, EDGE_SAMPLES)
+        X = a + ts[:, None] * (b - a)
+        uv, z = self.camera.project(X)
+        ok = (z > 0.05) & (uv[:, 0] >= BORDER_PX) & (uv[:, 0] <= self.camera.width - 1 - BORDER_PX) & \
+            (uv[:, 1] >= BORDER_PX) & (uv[:, 1] <= self.camera.height - 1 - BORDER_PX)
+        ok[ok] = ~blocked(X[ok])
+        out = []
+        for s, e in _runs(ok):
+            length = float(np.linalg.norm(uv[e] - uv[s]))
+            if length < MIN_EDGE_PX:
+                continue
+            # the whole stretch; where its polarity changes along it (planks of varying tone against
+            # the skirting), pieces of about PIECE_PX, each with its own
+            n_pieces = max(1, int(length // PIECE_PX))
+            for pieces in ([(s, e)], [] if n_pieces == 1 else
+                           list(zip(np.linspace(s, e, n_pieces + 1).astype(int)[:-1],
+                                    np.linspace(s, e, n_pieces + 1).astype(int)[1:]))):
+                found = []
+                for ps, pe in pieces:
+                    r = self._snap(np.r_[uv[ps], uv[pe]])
+                    if r is None:
+                        continue
+                    seg, spread, used = r
+                    d = (seg[2:] - seg[:2]) / np.linalg.norm(seg[2:] - seg[:2])
+                    found.append((X[ps], X[pe], EdgeLine(0, 1, 0.0, 1.0, seg[:2].copy(), np.array([-d[1], d[0]]),
+                                                         max(LINE_SIGMA_FLOOR_PX, line_sigma(spread, used)))))
+                if found:
+                    out += found
+                    break
+        return out
 
     def lines(self, corners: np.ndarray, pairs: list[tuple[int, int]], blocked: Callable[[np.ndarray], np.ndarray],
               clipped_ok: bool = False) -> list[EdgeLine]:
@@ -121,7 +149,7 @@ class PhotoEdges:
             seg, spread, used = r
             d = (seg[2:] - seg[:2]) / np.linalg.norm(seg[2:] - seg[:2])
             out.append(EdgeLine(i, j, float(ts[a]), float(ts[b]), seg[:2].copy(), np.array([-d[1], d[0]]),
-                                line_sigma(spread, used)))
+                                max(LINE_SIGMA_FLOOR_PX, line_sigma(spread, used))))
         return out
 
     def residuals(self, lines: list[EdgeLine], corners: np.ndarray) -> np.ndarray:
@@ -161,10 +189,23 @@ class PhotoEdges:
                 del lines[worst]
                 continue
             p, _ = self.camera.project(clicks(r.x))
-            if np.any(((p - uv) ** 2).sum(axis=1) > CHI2_2DOF_999 * self.sigma ** 2):
+            if np.any(((p - uv) ** 2).sum(axis=1) > CHI2_2DOF_9999 * self.sigma ** 2):
                 return x0, 0
             return r.x, len(lines)
         return x0, 0
+
+
+def _runs(ok: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) index of every run of True in ok at least two long."""
+    out, start = [], None
+    for k, v in enumerate(np.r_[ok, False]):
+        if v and start is None:
+            start = k
+        elif not v and start is not None:
+            if k - 1 > start:
+                out.append((start, k - 1))
+            start = None
+    return out
 
 
 def _longest_run(ok: np.ndarray) -> tuple[int, int] | None:
@@ -183,7 +224,9 @@ def _longest_run(ok: np.ndarray) -> tuple[int, int] | None:
 def box_blocker(camera: Camera, boxes: list[dict]) -> Callable[[np.ndarray], np.ndarray]:
     """Callable (M,3) points -> (M,) bool: the sight line from the camera to the point passes
     through one of `boxes` (user primitives format: center, size, yaw_deg; each shrunk by
-    OCCLUDER_SHRINK_M) before OCCLUDER_GAP_M short of it."""
+    OCCLUDER_SHRINK_M), entering and leaving it before OCCLUDER_GAP_M short of the point. A point
+    inside a box is not blocked by it: two pieces that touch (a sofa's seat against its back) overlap
+    in their clicks-only models by the click noise, and the edge they share is in the photo."""
     import math
 
     C = camera.centre
@@ -212,7 +255,7 @@ def box_blocker(camera: Camera, boxes: list[dict]) -> Callable[[np.ndarray], np.
             lo = np.where(par, np.where(inside, -np.inf, np.inf), lo)
             hi = np.where(par, np.where(inside, np.inf, -np.inf), hi)
             tin, tout = lo.max(axis=1), hi.min(axis=1)
-            out |= (tin <= tout) & (tout >= 0) & (tin <= smax)
+            out |= (tin <= tout) & (tout >= 0) & (tout <= smax)  # the line leaves the box before the point
         return out
 
     return blocked

@@ -84,6 +84,7 @@ class Wall:
     labels: list[str] = field(default_factory=list)
     points: list[np.ndarray] = field(default_factory=list)  # floor points (3,) behind it
     uv: np.ndarray | None = None  # (m,2) their clicks
+    feet: list = field(default_factory=list)  # with the photo: (start (3,), end (3,), EdgeLine) snapped stretches
 
 
 @dataclass
@@ -268,11 +269,8 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
         line = json_field(c, "floor_line", where + ".", src)
         n_pts = len(line) if isinstance(line, list) and len(line) >= 2 else 2  # two points, or more along it
         uv = P.pixels(c, "floor_line", n_pts, where)
-        if P.edges is not None:
-            snapped = P.edges.floor_line(uv)
-            P.refined[name] = "as clicked" if snapped is None else "snapped to the wall-floor edge"
-            uv = uv if snapped is None else snapped
         pts = [_floor(P, uv[k], where, f"floor_line[{k}]") for k in range(n_pts)]
+        feet = P.edges.foot_lines(pts[0], pts[-1], P.blocker("")) if P.edges is not None else []
         a, b = pts[0], pts[-1]
         e = b - a
         length = math.hypot(e[0], e[2])
@@ -286,7 +284,7 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
                              f"{AXIS_DEG:g}): the room is a box in the calibrated frame's axes; check the clicks "
                              "and the calibration")
         axis = 2 - along
-        offset = _wall_offset(camera, pts, uv, axis)
+        offset, kept = _wall_offset(camera, pts, uv, axis, P.edges, feet)
         side = -1 if cam_c[axis] > offset else 1
         face = FACES[(axis, side)]
         if face in walls:
@@ -296,10 +294,13 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
                                  f"{abs(w.offset - offset):.2f} m from it: one face of the room box each")
             w.points += pts
             w.uv = np.vstack([w.uv, uv])
-            w.offset = _wall_offset(camera, w.points, w.uv, axis)
+            w.feet += feet
+            w.offset, kept = _wall_offset(camera, w.points, w.uv, axis, P.edges, w.feet)
             w.labels.append(name)
         else:
-            walls[face] = Wall(face, axis, side, offset, [name], pts, uv)
+            walls[face] = Wall(face, axis, side, offset, [name], pts, uv, feet)
+        if P.edges is not None:
+            P.refined[name] = f"{kept} stretches of its foot snapped" if kept else "as clicked"
         wall_of[name] = walls[face]
     if not walls:
         raise ClickError(f"{src}: no wall: click at least one wall's floor line ({{\"label\": \"wall\", ...}})")
@@ -393,19 +394,37 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
     return ClickModel([room] + prims, lo, hi, ceiling_from, guessed, P.refined if P.edges is not None else None)
 
 
-def _wall_offset(camera: Camera, points: list[np.ndarray], uv: np.ndarray, axis: int) -> float:
-    """The wall's coordinate along `axis` (m) whose foot line (y = 0) passes nearest the clicks uv
-    (m,2) in pixels; each click's position along the wall is a free parameter. Starts from the
-    mean of the clicks' floor points `points`."""
+def _wall_offset(camera: Camera, points: list[np.ndarray], uv: np.ndarray, axis: int, edges=None,
+                 feet: list | None = None) -> tuple[float, int]:
+    """(the wall's coordinate along `axis` (m) whose foot line (y = 0) passes nearest the clicks uv
+    (m,2) in pixels, the number of snapped stretches used); each click's position along the wall
+    is a free parameter. Starts from the mean of the clicks' floor points `points`. With `edges`
+    (recon.clickedges.PhotoEdges) and `feet` (stretches of the foot snapped to the photo: (start,
+    end, EdgeLine)), the snapped lines join the fit (PhotoEdges.refine)."""
+    from dataclasses import replace
+
     along = 2 - axis
     x0 = np.r_[np.mean([p[axis] for p in points]), [p[along] for p in points]]
+    uv = np.asarray(uv, np.float64)
 
     def pts(x):
         out = np.zeros((len(points), 3))
         out[:, axis], out[:, along] = x[0], x[1:]
         return out
 
-    return float(_reproject_fit(x0, pts, np.asarray(uv, np.float64), camera)[0])
+    x = _reproject_fit(x0, pts, uv, camera)
+    if edges is None or not feet:
+        return float(x[0]), 0
+    ends = np.array([q for s, e, _ in feet for q in (s, e)])
+    lines = [replace(L, i=2 * k, j=2 * k + 1, t0=0.0, t1=1.0) for k, (_, _, L) in enumerate(feet)]
+
+    def corners(x):
+        out = ends.copy()
+        out[:, axis], out[:, 1] = x[0], 0.0
+        return out
+
+    x, kept = edges.refine(x, corners, pts, uv, lines)
+    return float(x[0]), kept
 
 
 def _floor(P: _Clicks, uv, where: str, at: str) -> np.ndarray:

@@ -82,8 +82,7 @@ class EdgeImage:
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
     def snap(self, seg: np.ndarray, click_sigma_px: float = 0.5, search_px: float = SEARCH_PX,
-             clipped_ok: bool = False, opposite_px: float | None = None, max_spread_px: float = MAX_SPREAD_PX
-             ) -> tuple[np.ndarray, float, int] | None:
+             clipped_ok: bool = False, opposite_px: float | None = None) -> tuple[np.ndarray, float, int] | None:
         """(snapped segment (4,), robust spread px, samples used), or None when the edge is not found.
 
         search_px: half-width of the search across the line (px; SEARCH_PX for calibrate's 0.5 px
@@ -91,8 +90,7 @@ class EdgeImage:
         of a clipped emitter, which is all there is to find there, moves out by under a pixel);
         opposite_px: an edge of the opposite polarity makes a sample ambiguous only within this
         distance (px) of its peak (None: anywhere in the search window, as for thin bars; a
-        textured floor next to a long edge has such edges a few pixels off, too far to drag it);
-        max_spread_px: the largest robust spread of the sample edges about the line accepted."""
+        textured floor next to a long edge has such edges a few pixels off, too far to drag it)."""
         import cv2
 
         a, b = np.asarray(seg[:2], float), np.asarray(seg[2:], float)
@@ -142,7 +140,7 @@ class EdgeImage:
         nn = np.array([-dd[1], dd[0]])  # the fitted line's normal
         r = (pts - p0) @ nn
         spread = 1.4826 * float(np.median(np.abs(r - np.median(r))))
-        if spread > max_spread_px:
+        if spread > MAX_SPREAD_PX:
             return None
         # the click must agree with the edge found: its endpoints' distances from the fitted line are
         # N(0, click sigma^2) if it is the same edge (chi-square, 2 dof, 99 %)

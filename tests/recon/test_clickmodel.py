@@ -260,3 +260,117 @@ def test_wall_off_the_axes_and_top_not_above(window_room):
     desk = next(c for c in clicks["clicks"] if c.get("name") == "desk")
     _refused(cam, _edited(clicks, "desk", top=[desk["top"][0] - 60.0, desk["top"][1]]), "furniture 'desk'",
              "not straight above floor[0]")
+
+
+# ----------------------------------------------------------------------------------------------
+# Refined against the photo (recon/clickedges.py)
+
+def runs_refined(item, snapped):
+    n = sum(item in s for s in snapped)
+    return f"foot snapped in {n} of {len(snapped)}" if item.startswith("wall ") else ""
+
+
+def _photo_edges(name):
+    from recon.edgesnap import EdgeImage
+    from recon.io import read_image_rgb
+
+    return EdgeImage(read_image_rgb(shared_scene(name) / "background.png"))
+
+
+def _synthetic_feet(cam, lo, ss=4):
+    """An 8-bit photo of the room's floor (dark) against its walls (light) through `cam`: each
+    pixel the mean of ss x ss rays, floor where the ray meets y = 0 inside x > lo[0], z > lo[2]."""
+    h, w = cam.height, cam.width
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    u = (np.arange(w)[None, :, None, None] + off[None, None, None, :]) + 0 * off[None, None, :, None]
+    v = (np.arange(h)[:, None, None, None] + off[None, None, :, None]) + 0 * off[None, None, None, :]
+    u, v = np.broadcast_arrays(u, v)
+    d = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(cam.K).T @ cam.R  # world directions
+    C = cam.centre
+    s = -C[1] / np.where(d[..., 1] < 0, d[..., 1], -1e-12)
+    floor = (d[..., 1] < 0) & (C[0] + s * d[..., 0] > lo[0]) & (C[2] + s * d[..., 2] > lo[2])
+    val = np.where(floor, 60.0, 180.0).mean(axis=(2, 3))
+    return np.repeat(np.round(val).astype(np.uint8)[..., None], 3, axis=2)
+
+
+def test_walls_snap_to_an_analytic_edge():
+    """window_room's camera over a synthetic photo whose only edges are the true wall-floor lines
+    (anti-aliased, 4x4 rays a pixel): with 1 px click noise the snapped walls are within 0.2 px of
+    floor there (under 8 mm; measured 0.03-0.11 px), against ~1 cm as clicked. The clicks keep their
+    weight in the fit (1 px against a line's noise floor of 0.25 px: 1/17 of a click's error stays,
+    3 sigma 0.18 px); without the photo nothing is refined."""
+    sc, cam = _scene("window_room")
+    photo = _synthetic_feet(cam, np.array(sc["world"]["room_min"], float))
+    logging.disable(logging.WARNING)
+    try:
+        for seed in range(5):
+            clicks, done = true_clicks(sc, sigma_px=1.0, seed=seed)
+            clicks["clicks"] = [c for c in clicks["clicks"] if c["label"] == "wall"]
+            m = model_from_clicks(clicks, cam, "window_room", 2.6, photo=photo)
+            m0 = model_from_clicks(clicks, cam, "window_room", 2.6)
+            for face in done["walls"]:
+                ax, side = FACE_AXIS[face]
+                err = abs((m.lo, m.hi)[side][ax] - (sc["world"]["room_min"], sc["world"]["room_max"])[side][ax])
+                px = _px_m(cam, next(c for c in clicks["clicks"] if c["name"] == face)["floor_line"], [0, 1, 0], 0.0)
+                assert m.refined[face] != "as clicked", (seed, m.refined)
+                assert err <= 0.2 * px, (seed, face, err, px)
+            assert "refined_from_photo" not in m0.to_json()["model"]
+    finally:
+        logging.disable(logging.NOTSET)
+
+
+def test_box_blocker():
+    """A unit box 2 m in front of a camera at the origin looking down +Z hides what is behind it, not
+    what is in front of it or beside it, nor a point inside it (pieces that touch)."""
+    from recon.clickedges import box_blocker
+
+    cam = Camera(np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), np.eye(3), np.zeros(3), 640, 480)
+    blocked = box_blocker(cam, [{"center": [0.0, 0.0, 2.0], "size": [1.0, 1.0, 1.0]}])
+    got = blocked(np.array([[0.0, 0.0, 4.0], [0.0, 0.0, 1.0], [2.0, 0.0, 4.0], [0.0, 0.0, 2.2], [0.1, 0.1, 2.6]]))
+    assert got.tolist() == [True, False, False, False, True]
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_clicks_refined_against_the_photo(name):
+    """Ten seeds of 1 px noise, the clicks refined against the photo. A wall whose foot snapped is
+    within the issue's 3 cm on every seed, and so is the ceiling. The rest keeps the bound of clicks,
+    3 cm + 3 px: what the photo does not show sharply stays as clicked: window_room's and sun_room's
+    left walls (a skirting of the floor's tone over planks that run along it: no straight edge of
+    one polarity), lamps_room's sofa seat (its back floor corner lies behind the seat, its top's
+    back and front edges too faint to snap), sun_room's desk (it runs out of the photo; its back
+    side from clicks where 1 px is 2.7 cm of floor); and a window carries its wall's error
+    (window_room's and sun_room's are on those left walls). With exact clicks every item is
+    within 3 cm (the refinement does not lock onto a wrong edge), and over all items and seeds the
+    mean error is lower than as clicked."""
+    sc, cam = _scene(name)
+    edges = _photo_edges(name)
+    logging.disable(logging.WARNING)
+    try:
+        clicks, done = true_clicks(sc, sigma_px=0.0)
+        exact = _errors(sc, cam, clicks, done, model_from_clicks(clicks, cam, name, 2.6, photo=edges))
+        runs, runs0, snapped = [], [], []
+        for seed in range(10):
+            clicks, done = true_clicks(sc, sigma_px=1.0, seed=seed)
+            m = model_from_clicks(clicks, cam, name, 2.6, photo=edges)
+            runs.append(_errors(sc, cam, clicks, done, m))
+            runs0.append(_errors(sc, cam, clicks, done, model_from_clicks(clicks, cam, name, 2.6)))
+            snapped.append({f"wall {k}" for k, v in m.refined.items() if v != "as clicked"})
+    finally:
+        logging.disable(logging.NOTSET)
+    print(name, "exact clicks, refined:", {k: round(v[0] * 100, 1) for k, v in exact.items()})
+    for k, (e, _) in exact.items():
+        assert e <= 0.03, (k, e)
+    for k in runs[0]:
+        errs = np.array([r[k][0] for r in runs])
+        errs0 = np.array([r[k][0] for r in runs0])
+        px = runs[0][k][1]
+        flat = np.array([k in s or k == "ceiling" for s in snapped])  # the ceiling: one click, 1 px = 1.3 cm
+        print(f"{name} {k}: median {np.median(errs0) * 100:.1f} -> {np.median(errs) * 100:.1f} cm, max "
+              f"{errs0.max() * 100:.1f} -> {errs.max() * 100:.1f} cm, 1 px = {px * 100:.1f} cm; "
+              f"{runs_refined(k, snapped)}")
+        assert np.all(errs[flat] <= 0.03), k
+        assert np.all(errs <= 0.03 + 3 * px), k
+    mean = np.mean([v[0] for r in runs for v in r.values()])
+    mean0 = np.mean([v[0] for r in runs0 for v in r.values()])
+    print(f"{name}: mean error {mean0 * 100:.2f} -> {mean * 100:.2f} cm")
+    assert mean < mean0
