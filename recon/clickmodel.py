@@ -31,6 +31,9 @@ Method:
   * a window or lamp: four corners on a wall or the ceiling plane, fitted by the axis-aligned
     rectangle on that plane (each side the mean of the two corners nearer it); set QUAD_OFFSET_M in
     front of its surface (an emitter drawn on it), an opening (a hole in the wall) in it;
+  * with the photo (model_from_clicks(photo=...)), each wall, piece and quad fitted from its clicks
+    is refined: the edges of it the photo shows sharply are snapped (recon/clickedges.py) and join
+    its least-squares fit in pixels; what the photo does not confirm stays as clicked;
   * walls that no click shows are placed WALL_MARGIN_M beyond the camera (recon/roomfit.py's rule:
     the photographer stands between the camera and the wall behind), and beyond every clicked
     primitive, and flagged guessed.
