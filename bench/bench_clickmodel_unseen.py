@@ -113,7 +113,8 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float) -> None:
     print()
     for kind, v in every.items():
         v = np.array(v)
-        print(f"{kind:<10} {len(v):4d} items: median {np.median(v[:, 0]) * 100:.1f} -> {np.median(v[:, 1]) * 100:.1f} cm, "
+        print(f"{kind:<10} {len(v):4d} items: median {np.median(v[:, 0]) * 100:.1f} -> "
+              f"{np.median(v[:, 1]) * 100:.1f} cm, "
               f"worst {v[:, 0].max() * 100:.1f} -> {v[:, 1].max() * 100:.1f} cm, within 3 cm "
               f"{int((v[:, 0] <= 0.03).sum())} -> {int((v[:, 1] <= 0.03).sum())}")
 

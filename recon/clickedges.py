@@ -39,9 +39,9 @@ from recon.camera import Camera
 from recon.edgesnap import SEARCH_PX, EdgeImage, line_sigma
 
 SEARCH_SIGMAS = 3.5  # the search across an edge spans this many click sigmas either side
-MIN_EDGE_PX = 20.0
+MIN_EDGE_PX = 20.0  # a model edge's visible stretch shorter than this in the photo (px) is not snapped
 PIECE_PX = 40.0  # a wall's foot that does not snap whole is tried in pieces about this long (px): long
-# enough for ~30 samples (a line to ~0.1 px), short enough for one floor plank's tone at a time  # a model edge's visible stretch shorter than this in the photo is not snapped
+# enough for ~30 samples (a line to ~0.1 px), short enough for one floor plank's tone at a time
 BORDER_PX = 3.0  # samples this close to the photo's border are not used
 EDGE_SAMPLES = 41  # points along a model edge tested for visibility
 OCCLUDER_GAP_M = 0.01  # a sight line must pass this far before the edge to count as blocked
@@ -164,8 +164,9 @@ class PhotoEdges:
             out[2 * k:2 * k + 2] = ((uv - L.p0) @ L.n) * (self.sigma / L.sigma) if np.all(z > 1e-6) else 1e6
         return out
 
-    def refine(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray], clicks: Callable[[np.ndarray], np.ndarray],
-               uv: np.ndarray, lines: list[EdgeLine]) -> tuple[np.ndarray, int]:
+    def refine(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
+               clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]
+               ) -> tuple[np.ndarray, int]:
         """(parameters, lines kept): the least-squares fit in pixels of the clicks uv (m,2) (their
         model points clicks(x) (m,3)) and the snapped `lines` (edges of corners(x)), from x0 (the
         clicks-only fit). Lines the fit disagrees with are dropped one by one; (x0, 0) when none is
@@ -233,7 +234,8 @@ def box_blocker(camera: Camera, boxes: list[dict]) -> Callable[[np.ndarray], np.
     frames = []
     for b in boxes:
         yaw = math.radians(b.get("yaw_deg", 0.0))
-        R = np.array([[math.cos(yaw), 0, -math.sin(yaw)], [0, 1, 0], [math.sin(yaw), 0, math.cos(yaw)]])  # rows: e1, y, e2
+        # rows: the box's local x (e1), y and z (e2) axes in the world
+        R = np.array([[math.cos(yaw), 0, -math.sin(yaw)], [0, 1, 0], [math.sin(yaw), 0, math.cos(yaw)]])
         frames.append((R, np.asarray(b["center"], float),
                        np.maximum(np.asarray(b["size"], float) / 2 - OCCLUDER_SHRINK_M, 0.0)))
 

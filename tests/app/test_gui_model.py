@@ -2,7 +2,8 @@
 loop clicks two walls, the ceiling, a desk (one point clicked off and dragged into place, a stray
 point undone), a window on the back wall and the room's own window (two corners out of the photo,
 its size typed) on window_room's photo, and saves; the saved clicks and primitives are
-those of `photoar model --clicks --image` on the same clicks (both refine the clicks against the photo). The controller's undo/redo/drag logic is also
+those of `photoar model --clicks --image` on the same clicks (both refine the clicks against the
+photo). The controller's undo/redo/drag logic is also
 tested without a window."""
 import json
 import os
