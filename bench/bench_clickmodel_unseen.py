@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import types
 from pathlib import Path
@@ -30,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("PHOTOAR_SHARED", ROOT.parent / "shared"))
 sys.path.insert(0, str(ROOT))
 
 
@@ -83,7 +85,7 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float) -> None:
     print(f"{'room':<12} {'item':<16} {'median cm':>14} {'worst cm':>14} {'1 px cm':>8} refined")
     for name in only:
         root = Path(name) if "/" in name else (rooms / name if (rooms / name).is_dir()
-                                               else ROOT.parent / "shared" / "scenes" / name)
+                                               else SHARED / "scenes" / name)
         sc = json.loads((root / "scene.json").read_text())
         cam = Camera.from_json(sc["main_camera"], str(root), "main_camera.")
         t = time.time()
@@ -121,7 +123,7 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
+    ap.add_argument("--shared", type=Path, default=SHARED, help="the shared folder (default $PHOTOAR_SHARED)")
     ap.add_argument("--seeds", default="1-12")
     ap.add_argument("--noise", type=float, default=1.0)
     ap.add_argument("--rooms", type=Path, default=None, help="folder of rendered rooms (with --only)")
