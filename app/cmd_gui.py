@@ -10,7 +10,7 @@ under Xvfb: `xvfb-run -a photoar gui ...`).
 
 With --model the window models the room instead (app/gui.py ModelWindow over
 app/clickmodeller.py): click walls, the ceiling, furniture, windows and lamps on the photo, and Save
-writes DIR/clicks.json and DIR/primitives.json exactly as `photoar model --clicks` does (DIR
+writes DIR/clicks.json and DIR/primitives.json exactly as `photoar model --clicks --image` does (DIR
 defaults to ROOM/model). The photo and camera are ROOM's scene.json and background.png, or
 --photo/--camera (a calibrated photo before any room folder exists). --script EVENTS.json plays
 mouse events through the window and exits (the headless mode; ModelWindow.run_script).
