@@ -294,13 +294,22 @@ def _camera_in_room(a, cam, lo, hi):
 def _refine_camera(a, cam, prims, photo):
     """calibrate's camera refined against the photo's edges of the room and the clicked lines its
     camera.json keeps (recon.camrefine); one info line when taken, one warning when the input camera
-    is kept."""
+    is kept. None (not tried) for a room clicked on the photo with this camera (`photoar model`)."""
     from recon.camrefine import refine_camera
     from recon.io import SceneError, read_json
 
+    model = read_json(a.primitives, SceneError)
+    if isinstance(model, dict) and isinstance(model.get("model"), dict) and model["model"].get("from") == "clicks":
+        # `photoar model --clicks` measured the room through this very camera: its edges project where
+        # the camera put them, and cannot correct it
+        log.info("camera not refined: %s was clicked on the photo with this camera (no independent room "
+                 "measurement)", a.primitives)
+        return None
     r = refine_camera(cam, prims, photo, read_json(a.camera, SceneError))
     if r.accepted:
         log.info("camera refined against the room's edges: %s", r.summary())
+    elif r.fits:
+        log.info("camera kept: %s", r.reason)
     else:
         log.warning("%s: kept this camera, not refined against the room's edges: %s", a.camera, r.reason)
     return r
