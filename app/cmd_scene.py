@@ -7,7 +7,8 @@ Assembles and validates a room folder (docs/scene-format.md, scene format 1): RO
 background.png (the photo, turned upright by its EXIF orientation), probe_XX.png (the bracket,
 shortest exposure first; cropped to the ball with --probe-circle auto), camera.json and
 primitives.json (copies of the inputs; camera.json with the camera scene uses: turned into the
-room when it has to be, refined against the photo's edges of the room unless --no-refine-camera). The folder is staged beside ROOM and swapped in whole (recon.io.AtomicFolder);
+room when it has to be, refined against the photo's edges of the room unless --no-refine-camera,
+recon/camrefine.py). The folder is staged beside ROOM and swapped in whole (recon.io.AtomicFolder);
 files a previous run wrote and this one does not are gone, other files in ROOM are kept.
 The logic lives in recon/assemble.py (pure functions); this module reads and writes files.
 """

@@ -21,23 +21,21 @@ projected into the photo and aligned with the photo's edges:
 
 Free: rotation (3), centre x and z (m), focal length (fx = fy, log-parametrised); held: the camera
 height (centre y, from calibrate's --height), the principal point, the room (taped). The refined
-camera is accepted when the fit is well-conditioned and the edge residual drops (guard()); else
-the input camera is kept.
+camera is accepted when the fit is well-conditioned, agrees with the clicked lines and lowers the
+edge residual (_guard); else the input camera is kept, as it is also when the refinement would move
+the room's edges by under MIN_MOVE_PX (the camera already fits: a true camera stays put).
 
 Conventions: recon/camera.py (OpenCV, x_cam = R X + t, pixel (0,0) the centre of the top-left pixel).
 """
 from __future__ import annotations
 
 import dataclasses
-import logging
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from recon.camera import Camera
-
-log = logging.getLogger("photoar")
 
 ORIENT_BINS = 12  # bins of the edge normal's angle over [0, pi): 15 deg; a match may be one bin off
 SAMPLE_STEP_PX = 3.0  # spacing of the edge samples in the image at the input camera
