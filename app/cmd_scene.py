@@ -1,5 +1,5 @@
-"""`photoar scene ROOM --photo PHOTO --exposure-time S --camera CAMERA.json --primitives MODEL.json [--no-refine-camera]
-[--probe IMG... --probe-times T... --probe-centre X,Y,Z --probe-radius R --probe-shot-from X,Y,Z
+"""`photoar scene ROOM --photo PHOTO --exposure-time S --camera CAMERA.json --primitives MODEL.json
+[--no-refine-camera] [--probe IMG... --probe-times T... --probe-centre X,Y,Z --probe-radius R --probe-shot-from X,Y,Z
 [--probe-circle auto]] [--sun-direction X,Y,Z --sun-irradiance R,G,B | [--sun-from-photo] [--when DATE_TIME]
 [--where LAT,LON] (--north DEG | --wall-bearing WALL=DEG) [--sun-irradiance R,G,B]]`
 
@@ -142,7 +142,7 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
     if not (np.isfinite(t) and t > 0):
         raise ValueError(f"--exposure-time: must be a positive number of seconds, got {t}")
     cam, turned = _camera_in_room(a, cam, lo, hi)
-    refinement = None if a.no_refine_camera else _refine_camera(a, cam, prims, photo)
+    refinement = None if a.no_refine_camera else _refine_camera(a, cam, prims, model, photo)
     if refinement is not None and refinement.accepted:
         cam = refinement.camera
     rel = cam.focal_rel_sigma
@@ -292,14 +292,13 @@ def _camera_in_room(a, cam, lo, hi):
     return turned, True
 
 
-def _refine_camera(a, cam, prims, photo):
+def _refine_camera(a, cam, prims, model, photo):
     """calibrate's camera refined against the photo's edges of the room and the clicked lines its
     camera.json keeps (recon.camrefine); one info line when taken, one warning when the input camera
     is kept. None (not tried) for a room clicked on the photo with this camera (`photoar model`)."""
     from recon.camrefine import refine_camera
     from recon.io import SceneError, read_json
 
-    model = read_json(a.primitives, SceneError)
     if isinstance(model, dict) and isinstance(model.get("model"), dict) and model["model"].get("from") == "clicks":
         # `photoar model --clicks` measured the room through this very camera: its edges project where
         # the camera put them, and cannot correct it

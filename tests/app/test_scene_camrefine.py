@@ -59,3 +59,18 @@ def test_no_refine_camera_keeps_calibrates(calibrated, capsys):
     np.testing.assert_allclose(d["main_camera"]["R"], cal.R, atol=1e-12)
     np.testing.assert_allclose(d["main_camera"]["t"], cal.t, atol=1e-12)
     assert (room / "camera.json").read_bytes() == inp["camera"].read_bytes()
+
+
+def test_room_clicked_with_the_same_camera_is_not_used(calibrated, capsys):
+    """A room from `photoar model --clicks` was measured through this camera: its edges cannot correct
+    it, so scene keeps calibrate's camera."""
+    inp, room = calibrated, calibrated["tmp"] / "room_clicked"
+    model = json.loads(inp["room"].read_text())
+    model["model"] = {"from": "clicks"}
+    clicked = inp["tmp"] / "clicked_model.json"
+    clicked.write_text(json.dumps(model))
+    assert main(["-q", "scene", str(room), "--photo", str(inp["photo"]), "--exposure-time", str(inp["exposure"]),
+                 "--camera", str(inp["camera"]), "--primitives", str(clicked)]) == 0, capsys.readouterr().err
+    d = json.loads((room / "scene.json").read_text())
+    assert "refinement" not in d["main_camera"]
+    np.testing.assert_allclose(d["main_camera"]["t"], Camera.load(inp["camera"]).t, atol=1e-12)
