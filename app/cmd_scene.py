@@ -1,12 +1,14 @@
 """`photoar scene ROOM --photo PHOTO --exposure-time S --camera CAMERA.json --primitives MODEL.json
-[--probe IMG... --probe-times T... --probe-centre X,Y,Z --probe-radius R --probe-shot-from X,Y,Z
+[--no-refine-camera] [--probe IMG... --probe-times T... --probe-centre X,Y,Z --probe-radius R --probe-shot-from X,Y,Z
 [--probe-circle auto]] [--sun-direction X,Y,Z --sun-irradiance R,G,B | [--sun-from-photo] [--when DATE_TIME]
 [--where LAT,LON] (--north DEG | --wall-bearing WALL=DEG) [--sun-irradiance R,G,B]]`
 
 Assembles and validates a room folder (docs/scene-format.md, scene format 1): ROOM/scene.json,
 background.png (the photo, turned upright by its EXIF orientation), probe_XX.png (the bracket,
 shortest exposure first; cropped to the ball with --probe-circle auto), camera.json and
-primitives.json (copies of the inputs). The folder is staged beside ROOM and swapped in whole (recon.io.AtomicFolder);
+primitives.json (copies of the inputs; camera.json with the camera scene uses: turned into the
+room when it has to be, refined against the photo's edges of the room unless --no-refine-camera,
+recon/camrefine.py). The folder is staged beside ROOM and swapped in whole (recon.io.AtomicFolder);
 files a previous run wrote and this one does not are gone, other files in ROOM are kept.
 The logic lives in recon/assemble.py (pure functions); this module reads and writes files.
 """
@@ -35,6 +37,9 @@ def register(sub) -> None:
     p.add_argument("--exposure-time", type=seconds, default=None, metavar="S",
                    help="the photo's exposure time: seconds, 1/250 or 4ms (default: its EXIF ExposureTime)")
     p.add_argument("--camera", type=Path, required=True, help="camera.json of `photoar calibrate`")
+    p.add_argument("--no-refine-camera", action="store_true",
+                   help="keep --camera as it is; by default its pose and focal length are refined against the "
+                        "photo's edges of the room (recon/camrefine.py), the camera height and the room held")
     p.add_argument("--primitives", type=Path, required=True,
                    help="the room model: model.json of `photoar model`, primitives.json of `photoar reconstruct`, "
                         'or {"primitives": [...]} with a box of role "room" (docs/scene-format.md)')
@@ -137,8 +142,11 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
     if not (np.isfinite(t) and t > 0):
         raise ValueError(f"--exposure-time: must be a positive number of seconds, got {t}")
     cam, turned = _camera_in_room(a, cam, lo, hi)
+    refinement = None if a.no_refine_camera else _refine_camera(a, cam, prims, model, photo)
+    if refinement is not None and refinement.accepted:
+        cam = refinement.camera
     rel = cam.focal_rel_sigma
-    if cam.ill_conditioned or (rel is not None and rel > 0.05):
+    if (refinement is None or not refinement.accepted) and (cam.ill_conditioned or (rel is not None and rel > 0.05)):
         log.warning("%s: the focal length is uncertain%s: the composite may be misregistered", a.camera,
                     f" (std(f)/f = {rel:.1%})" if rel is not None else "")
 
@@ -171,7 +179,10 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
         _warn_no_sun(sun, prims, "--sun-direction" if a.sun_direction is not None else
                      "--when/--where" if by_time else f"{a.primitives}: sun")
     scene = asm.scene_dict(a.room.name, cam, t, prims, lo, hi, light_probe, sun)
-    copies = {"camera.json": _turned_camera_json(a.camera, cam) if turned else a.camera.read_bytes(),
+    if refinement is not None:
+        scene["main_camera"]["refinement"] = refinement.to_json()
+    changed = turned or (refinement is not None and refinement.accepted)
+    copies = {"camera.json": _camera_json(a.camera, cam) if changed else a.camera.read_bytes(),
               "primitives.json": a.primitives.read_bytes()}
     return scene, images, copies
 
@@ -281,13 +292,47 @@ def _camera_in_room(a, cam, lo, hi):
     return turned, True
 
 
-def _turned_camera_json(path: Path, cam) -> bytes:
-    """The user's camera.json with the turned pose (R, t, centre) written in, other fields kept."""
+def _refine_camera(a, cam, prims, model, photo):
+    """calibrate's camera refined against the photo's edges of the room and the clicked lines its
+    camera.json keeps (recon.camrefine); one info line when taken, one warning when the input camera
+    is kept. None (not tried) for a room clicked on the photo with this camera (`photoar model`)."""
+    from recon.camrefine import refine_camera
+    from recon.io import SceneError, read_json
+
+    if isinstance(model, dict) and isinstance(model.get("model"), dict) and model["model"].get("from") == "clicks":
+        # `photoar model --clicks` measured the room through this very camera: its edges project where
+        # the camera put them, and cannot correct it
+        log.info("camera not refined: %s was clicked on the photo with this camera (no independent room "
+                 "measurement)", a.primitives)
+        return None
+    r = refine_camera(cam, prims, photo, read_json(a.camera, SceneError))
+    if r.accepted:
+        log.info("camera refined against the room's edges: %s", r.summary())
+    elif r.fits:
+        log.info("camera kept: %s", r.reason)
+    else:
+        log.warning("%s: kept this camera, not refined against the room's edges: %s", a.camera, r.reason)
+    return r
+
+
+def _camera_json(path: Path, cam) -> bytes:
+    """The user's camera.json with the camera scene uses (turned and/or refined: focal length, R, t,
+    centre) written in, other fields kept."""
     from recon.io import SceneError, dumps_json, read_json
 
     d = read_json(path, SceneError)
     block = next((d[k] for k in ("main_camera", "camera") if k in d), d)
+    fx, fy = float(cam.K[0, 0]), float(cam.K[1, 1])
     block.update({"R": cam.R.tolist(), "t": cam.t.tolist(), "centre": cam.centre.tolist()})
+    if isinstance(block.get("K"), dict):
+        block["K"].update({"fx": fx, "fy": fy})
+    elif "K" in block:
+        block["K"] = cam.K.tolist()
+    for k, v in (("fx", fx), ("fy", fy)):
+        if k in block:
+            block[k] = v
+    if "K_matrix" in block:
+        block["K_matrix"] = cam.K.tolist()
     return (dumps_json(d, indent=2) + "\n").encode()
 
 

@@ -192,7 +192,16 @@ def print_room(row: dict, flush=False) -> None:
     r = row.get("render") or {}
     spp = f"spp main 2x{r.get('SPP_MAIN', '?')} probe {r.get('SPP_PROBE', '?')}" if r else "spp ?"
     cal = row.get("calibration") or {}
-    cal = (f"; calibrated focal {cal['focal_rel_err']:+.2%}, centre {cal['centre_err_m']:.3f} m off" if cal else "")
+    ref = cal.get("refinement") if cal else None
+    if ref and ref.get("accepted"):  # scene refined calibrate's camera against the room's edges
+        cal = (f"; calibrated focal {cal['calibrated_focal_rel_err']:+.2%}, centre {cal['calibrated_centre_err_m']:.3f}"
+               f" m off; refined {cal['focal_rel_err']:+.2%}, {cal['centre_err_m']:.3f} m (edge rms "
+               f"{ref['rms_edge_px']:.2f} px over {ref['n_edge_samples']} samples, lines {ref['rms_lines_px']:.2f} px)")
+    elif ref:
+        cal = (f"; calibrated focal {cal['focal_rel_err']:+.2%}, centre {cal['centre_err_m']:.3f} m off (not refined: "
+               f"{ref['reason']})")
+    else:
+        cal = (f"; calibrated focal {cal['focal_rel_err']:+.2%}, centre {cal['centre_err_m']:.3f} m off" if cal else "")
     print(f"\n{row['room']} ({spp}; spurious floor {_cell(row.get('spurious_floor'))}{cal})"
           + (f"  ERROR {row['error']}" if "error" in row else ""), flush=flush)
     lines = row.get("lights") or {}

@@ -228,6 +228,16 @@ def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"),
             centre = -np.asarray(c["R"]).T @ np.asarray(c["t"])
             res["calibration"] = {"focal_rel_err": c["K"]["fx"] / t["K"]["fx"] - 1,
                                   "centre_err_m": float(np.linalg.norm(centre - np.asarray(t["centre"])))}
+            if "refinement" in c:  # scene's camera refinement (recon/camrefine.py): calibrate's camera before it
+                r = c["refinement"]
+                res["calibration"]["refinement"] = r
+                if r["accepted"]:
+                    cal = json.loads(cams[""].read_text())
+                    cal_c = np.asarray(cal["centre"], float)
+                    t_c = np.asarray(t["centre"], float)
+                    res["calibration"]["calibrated_focal_rel_err"] = cal["fx"] / t["K"]["fx"] - 1
+                    res["calibration"]["calibrated_centre_err_m"] = float(min(  # calibrate's, or its turn about +Y
+                        np.linalg.norm(cal_c - t_c), np.linalg.norm(cal_c * [-1, 1, -1] - t_c)))
         for light in (lights if tag == "" else [x for x in lights if x in true_lights]):
             name = light + tag
             if rc != 0:

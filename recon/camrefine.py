@@ -1,0 +1,517 @@
+"""Refine a calibrated camera against the photo's edges of the taped room (issue 34, item 6).
+
+`photoar calibrate` gets the camera from a few clicked vanishing lines and the camera height; a
+percent of focal length or a few cm of centre move an object's outline by pixels. Once `scene` has
+the room (room box, furniture boxes, window/lamp quads, world metres), the room's own edges are
+projected into the photo and aligned with the photo's edges:
+
+1. edges: every edge of every quad / box face (duplicates shared by two faces merged), sampled in
+   3D; a sample is kept where the ray from the camera reaches it before anything else of the room
+   (Open3D RaycastingScene) and it projects inside the image;
+2. coarse (ICP on oriented edges): the photo's Canny edges are split by the orientation of their
+   gradient; each sample is matched to the nearest edge pixel whose orientation is within one bin
+   of its projected edge's normal (distance transform with labels); robust least squares
+   (scipy.optimize.least_squares, Cauchy loss) of the point-to-line distances n.(q - uv); the match
+   radius shrinks 64 -> 2 px;
+3. fine: each sample's edge is re-measured to sub-pixel accuracy as the centroid of the gradient
+   profile across the projected edge (recon/edgesnap.py's gradient image, its clipped-pixel mask
+   and its centroid rule), and the fit repeated;
+4. the clicked vanishing lines of calibrate (camera.json "vanishing_points": the segments it used)
+   enter the same least squares with calibrate's residual (recon/vanishing._seg_residual).
+
+Free: rotation (3), centre x and z (m), focal length (fx = fy, log-parametrised); held: the camera
+height (centre y, from calibrate's --height), the principal point, the room (taped). The refined
+camera is accepted when the fit is well-conditioned, agrees with the clicked lines and lowers the
+edge residual (_guard); else the input camera is kept, as it is also when the refinement would move
+the room's edges by under MIN_MOVE_PX (the camera already fits: a true camera stays put).
+
+Conventions: recon/camera.py (OpenCV, x_cam = R X + t, pixel (0,0) the centre of the top-left pixel).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from recon.camera import Camera
+
+ORIENT_BINS = 12  # bins of the edge normal's angle over [0, pi): 15 deg; a match may be one bin off
+SAMPLE_STEP_PX = 3.0  # spacing of the edge samples in the image at the input camera
+END_TRIM_PX = 6.0  # samples closer than this to an edge's projected end are dropped: corners mix edges
+BORDER_PX = 3.0  # samples this close to the image border are dropped (the gradient needs its neighbours)
+MIN_EDGE_PX = 12.0  # an edge shorter than this in the image is skipped (a point lamp's box)
+COARSE_RADII_PX = (64.0, 32.0, 16.0, 8.0, 4.0, 2.0)  # match radius of the coarse stages (a 4 % focal
+# error moves a 640 px photo's edges by up to 13 px, a 0.3 m centre error by tens of px)
+ROBUST_SIGMAS = 2.0  # the robust loss's scale, in sigmas of the stage's edge noise
+PROFILE_HALF_PX = 2.0  # the fine stage's search either side of the projected edge
+PROFILE_STEP_PX = 0.25
+FINE_SIGMA_PX = 0.3  # noise of a sub-pixel edge sample (edgesnap's spreads: 0.05-0.25 px)
+COARSE_SIGMA_PX = 1.0  # noise of a Canny edge pixel: quantised to 1 px
+SNAPPED_SIGMA_PX = 0.25  # a clicked line that calibrate snapped: edgesnap accepts spreads up to 0.25 px
+CLICKED_SIGMA_PX = 0.5  # a clicked line left as clicked: the click noise calibrate assumes
+CHAMFER_CAP_PX = 3.0  # edge residual: mean over samples of min(distance to the photo's edge, cap)
+MIN_SAMPLES = 60  # 10 per free parameter
+EDGE_WEIGHT_SAMPLES = 20  # one edge's samples share its model error: it weighs at most this many (see _solve)
+MAX_PRED_STD_PX = 0.25  # conditioning: a 1-sigma parameter error may move the samples this much (rms)
+MIN_MOVE_PX = 1.0  # a refinement that moves the room's edges less (rms) is not made: the room model's own
+# edges sit 0.2-0.4 px off the photo's (creases, contact shadows, shading; per edge, at the true camera), and
+# refining the true camera moved them 0.17-0.77 px in 8 of 11 rooms (the shared three, 8 unseen ones; in the
+# other three the residual check refused the move); a pixel of error is what moves an object's outline
+MIN_LINE_DIRECTIONS_DEG = 20.0  # the samples' 3D edges must span two directions at least this far apart
+
+
+@dataclass
+class Refinement:
+    """Outcome of refine_camera. Distances in metres, angles in degrees, errors in pixels."""
+    camera: Camera  # the refined camera when accepted, else the input camera
+    accepted: bool
+    reason: str  # why not accepted ("" when accepted)
+    fits: bool  # not accepted because the input camera already fits (the refinement moves under MIN_MOVE_PX)
+    moved_px: float  # rms image motion of the room's edge samples from the input to the refined camera
+    n_edge_samples: int  # edge samples of the final fit (inliers of the sub-pixel stage)
+    rms_edge_px: float  # rms distance of those samples from their sub-pixel edges, refined camera
+    n_lines: int  # clicked segments of calibrate used
+    rms_lines_px: float  # rms endpoint distance of the clicked segments from their vanishing lines
+    focal_change: float  # refined / input focal - 1
+    centre_moved_m: float
+    rotation_deg: float
+    chamfer_before_px: float  # edge residual (CHAMFER_CAP_PX-capped mean distance) at the input camera
+    chamfer_after_px: float  # ... at the refined camera
+    seconds: float
+
+    def to_json(self) -> dict:
+        d = {k: v for k, v in dataclasses.asdict(self).items() if k != "camera"}
+        return {k: (round(v, 6) if isinstance(v, float) else v) for k, v in d.items()}
+
+    def summary(self) -> str:
+        """One line for the log."""
+        return (f"{self.n_edge_samples} room-edge samples, rms {self.rms_edge_px:.2f} px; {self.n_lines} clicked "
+                f"lines, rms {self.rms_lines_px:.2f} px; moved focal {100 * self.focal_change:+.2f} %, centre "
+                f"{self.centre_moved_m:.3f} m, {self.rotation_deg:.2f} deg ({self.moved_px:.2f} px); edge residual "
+                f"{self.chamfer_before_px:.2f} -> {self.chamfer_after_px:.2f} px ({self.seconds:.1f} s)")
+
+
+# ----------------------------------------------------------------------------------------------
+# The room's edges
+
+def room_faces(prims: list[dict]) -> list[np.ndarray]:
+    """The (4,3) corners of every quad / box face of scene.json primitives (recon/assemble.py's
+    parse_primitives output: quads and axis-aligned boxes), metres."""
+    from recon.scene import box_faces
+
+    faces = []
+    for p in prims:
+        if p.get("type") == "quad":
+            faces.append(np.asarray(p["corners"], float))
+        elif p.get("type") == "box":
+            c, s = np.asarray(p["center"], float), np.asarray(p["size"], float)
+            faces += [f[2] for f in box_faces(c - s / 2, c + s / 2)]
+    return faces
+
+
+def room_edges(faces: list[np.ndarray]) -> np.ndarray:
+    """(E,2,3) distinct edges of the faces (an edge two faces share counts once), metres."""
+    seen, out = set(), []
+    for f in faces:
+        for k in range(4):
+            a, b = f[k], f[(k + 1) % 4]
+            key = tuple(sorted((tuple(np.round(a, 4)), tuple(np.round(b, 4)))))
+            if key not in seen and np.linalg.norm(b - a) > 1e-6:
+                seen.add(key)
+                out.append((a, b))
+    return np.asarray(out, float).reshape(-1, 2, 3)
+
+
+class _Occluder:
+    """Ray casting against the room's faces (Open3D RaycastingScene)."""
+
+    def __init__(self, faces: list[np.ndarray]):
+        import open3d as o3d
+
+        V = np.concatenate(faces).astype(np.float32)
+        F = np.concatenate([np.array([[0, 1, 2], [0, 2, 3]]) + 4 * i for i in range(len(faces))]).astype(np.uint32)
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(o3d.core.Tensor(V), o3d.core.Tensor(F))
+
+    def visible(self, centre: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """(N,) bool: nothing of the room lies between `centre` and each point (a point on a surface
+        is reached by its own surface: 1 cm + 0.5 % of the distance of slack)."""
+        import open3d as o3d
+
+        d = pts - centre
+        dist = np.linalg.norm(d, axis=1)
+        rays = np.concatenate([np.broadcast_to(centre, pts.shape), d / dist[:, None]], 1).astype(np.float32)
+        t = self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        return t >= dist - (0.01 + 0.005 * dist)
+
+
+@dataclass
+class _Samples:
+    X: np.ndarray  # (N,3) points on the edges, m
+    D: np.ndarray  # (N,3) unit edge direction, m
+    edge: np.ndarray  # (N,) index of the edge
+
+
+def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder) -> _Samples:
+    """Visible samples along the edges, about SAMPLE_STEP_PX apart in the image of `cam`."""
+    Xs, Ds, idx = [], [], []
+    C = cam.centre
+    for i, (a, b) in enumerate(edges):
+        # clip the edge to the part in front of the camera (z_cam > 5 cm)
+        za, zb = (cam.R @ a + cam.t)[2], (cam.R @ b + cam.t)[2]
+        if za < 0.05 and zb < 0.05:
+            continue
+        t0, t1 = 0.0, 1.0
+        if za < 0.05:
+            t0 = (0.05 - za) / (zb - za)
+        if zb < 0.05:
+            t1 = (0.05 - za) / (zb - za)
+        p, q = a + t0 * (b - a), a + t1 * (b - a)
+        uv, _ = cam.project(np.stack([p, q]))
+        length = float(np.linalg.norm(uv[1] - uv[0]))
+        if not length >= MIN_EDGE_PX:
+            continue
+        n = int(np.ceil(length / SAMPLE_STEP_PX))
+        s = (np.arange(n) + 0.5) / n
+        X = p + s[:, None] * (q - p)
+        Xs.append(X)
+        Ds.append(np.broadcast_to((b - a) / np.linalg.norm(b - a), X.shape))
+        idx.append(np.full(n, i))
+    if not Xs:
+        return _Samples(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, int))
+    X, D, idx = np.concatenate(Xs), np.concatenate(Ds), np.concatenate(idx)
+    uv, z = cam.project(X)
+    ok = (z > 0.05) & np.all(uv >= BORDER_PX, axis=1) & (uv[:, 0] <= cam.width - 1 - BORDER_PX) \
+        & (uv[:, 1] <= cam.height - 1 - BORDER_PX)
+    # away from the ends of each edge's projected (clipped) run: corners mix two edges' gradients
+    for i in np.unique(idx):
+        m = idx == i
+        u = uv[m]
+        along = np.linalg.norm(u - u[0], axis=1)
+        ok[np.flatnonzero(m)] &= (along >= END_TRIM_PX - SAMPLE_STEP_PX / 2) & (along <= along[-1] - END_TRIM_PX
+                                                                                 + SAMPLE_STEP_PX / 2)
+    ok[ok] &= occ.visible(C, X[ok])
+    return _Samples(X[ok], D[ok], idx[ok])
+
+
+# ----------------------------------------------------------------------------------------------
+# The photo's edges
+
+class PhotoEdges:
+    """The photo prepared once: oriented Canny edges with their nearest-pixel maps, and edgesnap's
+    linear gradient image for the sub-pixel stage."""
+
+    def __init__(self, image: np.ndarray):
+        import cv2
+
+        from recon.edgesnap import EdgeImage
+
+        img = np.asarray(image)
+        self.fine = EdgeImage(img)  # linear gray gradient, clipped-pixel mask (raises on a non-8-bit image)
+        gray = cv2.cvtColor(img[:, :, :3], cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
+        g = cv2.GaussianBlur(gray, (0, 0), 1.0)
+        gx = cv2.Sobel(g.astype(np.float32), cv2.CV_32F, 1, 0, ksize=3)
+        gy = cv2.Sobel(g.astype(np.float32), cv2.CV_32F, 0, 1, ksize=3)
+        # hysteresis thresholds relative to the photo's own gradients: a crease between two walls
+        # is a few levels; the median gradient is the photo's texture and noise
+        mag = np.hypot(gx, gy) / 8.0  # levels per pixel
+        hi = max(4.0, 4.0 * float(np.median(mag)))
+        edges = cv2.Canny(g, 0.5 * hi * 8.0, hi * 8.0, L2gradient=True) > 0
+        ang = np.mod(np.arctan2(gy, gx), np.pi)
+        b = np.minimum((ang / (np.pi / ORIENT_BINS)).astype(int), ORIENT_BINS - 1)
+        self.n_edge_px = int(edges.sum())
+        self.shape = gray.shape
+        self.near = []  # per bin: (distance (H,W), nearest edge pixel (H,W,2) as (u, v))
+        for k in range(ORIENT_BINS):
+            m = edges & np.isin(b, [(k - 1) % ORIENT_BINS, k, (k + 1) % ORIENT_BINS])
+            self.near.append(_nearest(m))
+
+    def match(self, uv: np.ndarray, normal_angle: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest oriented edge pixel (N,2) of each projected sample and whether one lies within `radius` px."""
+        iu = np.clip(np.rint(uv).astype(int), 0, [self.shape[1] - 1, self.shape[0] - 1])
+        k = np.minimum((np.mod(normal_angle, np.pi) / (np.pi / ORIENT_BINS)).astype(int), ORIENT_BINS - 1)
+        q = np.zeros_like(uv)
+        d = np.full(len(uv), np.inf)
+        for b in np.unique(k):
+            m = k == b
+            dist, pos = self.near[b]
+            d[m] = dist[iu[m, 1], iu[m, 0]]
+            q[m] = pos[iu[m, 1], iu[m, 0]]
+        return q, d <= radius
+
+    def distance(self, uv: np.ndarray, normal_angle: np.ndarray) -> np.ndarray:
+        """Distance (px) from each projected sample to the nearest oriented edge pixel (inf: none)."""
+        q, _ = self.match(uv, normal_angle, np.inf)
+        return np.linalg.norm(q - uv, axis=1) if len(uv) else np.zeros(0)
+
+    def subpixel(self, uv: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sub-pixel edge positions (N,2) across each projected sample (unit normal n) within
+        +-PROFILE_HALF_PX, and which were found: edgesnap's rule per sample (the centroid of the
+        gradient above half its peak within 1 px of it; no peak on the window's border, no second
+        peak over half as strong, no clipped pixel within 3 px)."""
+        from recon.edgesnap import AMBIGUOUS
+
+        E = self.fine
+        ss = np.arange(-PROFILE_HALF_PX, PROFILE_HALF_PX + 1e-9, PROFILE_STEP_PX)
+        P = uv[:, None, :] + ss[None, :, None] * n[:, None, :]
+        g = E._sample(E.gx, P) * n[:, None, 0] + E._sample(E.gy, P) * n[:, None, 1]
+        g *= np.where(g[np.arange(len(g)), np.argmax(np.abs(g), axis=1)] >= 0, 1.0, -1.0)[:, None]  # peak > 0
+        k = np.argmax(g, axis=1)
+        gmax = g[np.arange(len(g)), k]
+        ok = (k > 0) & (k < len(ss) - 1) & (gmax > 0)
+        iu = np.clip(np.rint(uv).astype(int), 0, [E.shape[1] - 1, E.shape[0] - 1])
+        ok &= ~E.near_clip[iu[:, 1], iu[:, 0]]
+        locmax = np.zeros_like(g, bool)
+        locmax[:, 1:-1] = (g[:, 1:-1] >= g[:, :-2]) & (g[:, 1:-1] >= g[:, 2:])
+        near = np.abs(ss[None, :] - ss[k][:, None]) <= 1.0
+        # ambiguous (edgesnap's rule): an opposite edge anywhere in the window (a thin bar, a dark line
+        # along a crease: its far side drags the centroid) or a second one over 1 px away, over half as strong
+        ok &= ~np.any((g < -AMBIGUOUS * gmax[:, None]) | (locmax & ~near & (g > AMBIGUOUS * gmax[:, None])), axis=1)
+        w = np.where(near, np.clip(g - 0.5 * gmax[:, None], 0, None), 0.0)
+        wsum = w.sum(axis=1)
+        ok &= wsum > 0
+        off = (w * ss[None, :]).sum(axis=1) / np.maximum(wsum, 1e-12)
+        return uv + off[:, None] * n, ok
+
+
+def _nearest(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (px) to the nearest True pixel of `mask` and that pixel's (u, v); inf where none."""
+    import cv2
+
+    H, W = mask.shape
+    if not mask.any():
+        return np.full((H, W), np.inf, np.float32), np.zeros((H, W, 2), np.float32)
+    dist, lab = cv2.distanceTransformWithLabels((~mask).astype(np.uint8), cv2.DIST_L2, 5,
+                                                labelType=cv2.DIST_LABEL_PIXEL)
+    vs, us = np.nonzero(mask)
+    coords = np.zeros((lab.max() + 1, 2), np.float32)
+    coords[lab[vs, us]] = np.stack([us, vs], 1)
+    return dist, coords[lab]
+
+
+# ----------------------------------------------------------------------------------------------
+# The fit
+
+def clicked_lines(camera_json: dict | None) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """calibrate's segments ({axis: (N,4) px}) and their noise ({axis: (N,) px per endpoint}) from a
+    camera.json's "vanishing_points" (the segments its fit used: snapped, or as clicked); empty for a
+    camera.json without them."""
+    segs, sig = {}, {}
+    vps = (camera_json or {}).get("vanishing_points") or {}
+    for a, v in vps.items():
+        try:
+            s = np.asarray(v["segments"], float).reshape(-1, 4)
+            inl = np.asarray(v.get("inliers", [True] * len(s)), bool)
+            snapped = np.asarray(v.get("snapped") or [False] * len(s), bool)
+        except (KeyError, TypeError, ValueError):
+            continue
+        if a in ("x", "y", "z") and len(s) == len(inl) == len(snapped) and np.all(np.isfinite(s)):
+            segs[a], sig[a] = s[inl], np.where(snapped[inl], SNAPPED_SIGMA_PX, CLICKED_SIGMA_PX)
+    return segs, sig
+
+
+class _Model:
+    """Camera parameters x = [rotation vector (3, applied after the input R), centre x, centre z
+    (m), log(f / f0)] about the input camera."""
+
+    def __init__(self, cam: Camera):
+        self.cam0 = cam
+        self.C0 = cam.centre
+
+    def camera(self, x: np.ndarray) -> Camera:
+        import cv2
+
+        R = cv2.Rodrigues(np.asarray(x[:3], float).reshape(3, 1))[0] @ self.cam0.R
+        C = np.array([self.C0[0] + x[3], self.C0[1], self.C0[2] + x[4]])
+        K = self.cam0.K.copy()
+        K[0, 0], K[1, 1] = self.cam0.K[0, 0] * np.exp(x[5]), self.cam0.K[1, 1] * np.exp(x[5])
+        return dataclasses.replace(self.cam0, K=K, R=R, t=-R @ C)
+
+
+def _project(cam: Camera, S: _Samples) -> tuple[np.ndarray, np.ndarray]:
+    """Projected samples (N,2) and the unit normals (N,2) of their projected edges."""
+    uv, _ = cam.project(S.X)
+    uv2, _ = cam.project(S.X + 0.01 * S.D)
+    d = uv2 - uv
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    return uv, np.stack([-d[:, 1], d[:, 0]], 1)
+
+
+def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e: float, lines, f_scale: float):
+    """Least squares of the edge residuals n.(q - uv)/sig_e (robust: Cauchy at f_scale, whose pull of
+    a wrong match falls as 1/r, so texture matched at a wide radius hardly moves a camera that already
+    fits; soft-L1's pull stays constant and let such matches drag a true camera by 6 % of focal) and of the
+    clicked lines' residuals (calibrate's, normalised by their noise; not robust: calibrate kept only
+    the segments its own fit agreed with). Samples along one edge share its model error (texture,
+    the taped sizes): each edge weighs at most as much as EDGE_WEIGHT_SAMPLES independent samples."""
+    from scipy.optimize import least_squares
+
+    from recon.vanishing import _seg_residual
+
+    segs, sig = lines
+    idx = {"x": 0, "y": 1, "z": 2}
+    _, inv, counts = np.unique(S.edge, return_inverse=True, return_counts=True)
+    w = np.sqrt(np.minimum(1.0, EDGE_WEIGHT_SAMPLES / counts[inv])) / sig_e
+    ne = len(S.X)
+
+    def fun(x):
+        cam = model.camera(x)
+        uv, n = _project(cam, S)
+        r = [np.sum(n * (q - uv), axis=1) * w]
+        KR = cam.K @ cam.R
+        r += [_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / sig[a] for a in segs]
+        return np.concatenate(r)
+
+    def loss(z):  # Cauchy on the edge samples, squares on the clicked lines (z = (r / f_scale)^2)
+        out = np.empty((3, len(z)))
+        t = 1.0 + z[:ne]
+        out[0, :ne], out[1, :ne], out[2, :ne] = np.log1p(z[:ne]), 1.0 / t, -1.0 / t ** 2
+        out[0, ne:], out[1, ne:], out[2, ne:] = z[ne:], 1.0, 0.0
+        return out
+
+    return least_squares(fun, x0, loss=loss, f_scale=f_scale, x_scale=[1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3],
+                         method="trf", max_nfev=50)
+
+
+def _edge_chamfer(cam: Camera, S: _Samples, photo: PhotoEdges) -> float:
+    """The edge residual of a camera on the samples S: mean distance of their projections from the
+    nearest oriented photo edge, capped at CHAMFER_CAP_PX (a sample out of the image counts the cap)."""
+    if len(S.X) == 0:
+        return float("inf")
+    uv, n = _project(cam, S)
+    d = np.full(len(uv), CHAMFER_CAP_PX)
+    inside = np.all(uv >= 0, axis=1) & (uv[:, 0] <= cam.width - 1) & (uv[:, 1] <= cam.height - 1)
+    d[inside] = photo.distance(uv[inside], np.arctan2(n[inside, 1], n[inside, 0]))
+    return float(np.mean(np.minimum(d, CHAMFER_CAP_PX)))
+
+
+def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None) -> Refinement:
+    """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
+    (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
+    module docstring; the input camera comes back (accepted False, with the reason) when the guard fails."""
+    t0 = time.time()
+    image = np.asarray(image)
+    if image.shape[:2] != (cam.height, cam.width):
+        raise ValueError(f"the photo is {image.shape[1]}x{image.shape[0]}, the camera {cam.width}x{cam.height}")
+    faces = room_faces(prims)
+    edges = room_edges(faces)
+    occ = _Occluder(faces)
+    photo = PhotoEdges(image)
+    lines = clicked_lines(camera_json)
+    model = _Model(cam)
+    x = np.zeros(6)
+    S = _sample_edges(cam, edges, occ)
+    for i, radius in enumerate(COARSE_RADII_PX):
+        if i == 2:  # the camera may have moved by tens of px: the visible samples again
+            S = _sample_edges(model.camera(x), edges, occ)
+        if len(S.X) < MIN_SAMPLES:
+            break
+        uv, n = _project(model.camera(x), S)
+        q, ok = photo.match(uv, np.arctan2(n[:, 1], n[:, 0]), radius)
+        if ok.sum() < MIN_SAMPLES:
+            break
+        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
+        x = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS).x
+    res, used, resid = None, np.zeros(0, bool), np.zeros(0)
+    S = _sample_edges(model.camera(x), edges, occ)
+    for _ in range(3):
+        if len(S.X) < MIN_SAMPLES:
+            break
+        uv, n = _project(model.camera(x), S)
+        q, ok = photo.subpixel(uv, n)
+        if ok.sum() < MIN_SAMPLES:
+            break
+        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
+        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
+        x = res.x
+        used = ok
+        uv1, n1 = _project(model.camera(x), sub)
+        resid = np.sum(n1 * (q[ok] - uv1), axis=1)
+    refined = model.camera(x)
+    return _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, time.time() - t0)
+
+
+def _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, seconds) -> Refinement:
+    """Accept `refined` when: enough edge samples fit it and the fit is well-conditioned
+    (_conditioning); it moves the room's edges by at least MIN_MOVE_PX (else the input already fits:
+    `fits`); it agrees with the clicked lines within their noise; the edge residual (capped distance
+    to the photo's oriented edges, on the room points either camera sees) drops; it lies in the room."""
+    from recon.vanishing import _seg_residual, rotation_error_deg
+
+    idx = {"x": 0, "y": 1, "z": 2}
+    segs, sig = lines
+    KR = refined.K @ refined.R
+    lr = np.concatenate([_seg_residual(segs[a], KR[:, idx[a]]) for a in segs]) if segs else np.zeros(0)
+    inl = np.abs(resid) <= 3 * ROBUST_SIGMAS * FINE_SIGMA_PX  # beyond 3x the loss's scale: an outlier
+    # the same room points for both cameras: those either camera sees
+    S0, S1 = _sample_edges(cam, edges, occ), S
+    both = _Samples(np.concatenate([S0.X, S1.X]), np.concatenate([S0.D, S1.D]), np.concatenate([S0.edge, S1.edge]))
+    before, after = _edge_chamfer(cam, both, photo), _edge_chamfer(refined, both, photo)
+    u0, _ = _project(cam, S)
+    u1, _ = _project(refined, S)
+    out = dict(moved_px=float(np.sqrt(np.mean(np.sum((u1 - u0) ** 2, axis=1)))) if len(S.X) else 0.0,
+               n_edge_samples=int(inl.sum()), rms_edge_px=float(np.sqrt(np.mean(resid[inl] ** 2))) if inl.any()
+               else float("nan"), n_lines=int(len(lr)), rms_lines_px=float(np.sqrt(np.mean(lr ** 2))) if len(lr)
+               else float("nan"), focal_change=float(refined.K[0, 0] / cam.K[0, 0] - 1),
+               centre_moved_m=float(np.linalg.norm(refined.centre - cam.centre)),
+               rotation_deg=rotation_error_deg(refined.R, cam.R), chamfer_before_px=before, chamfer_after_px=after,
+               seconds=float(seconds))
+    reason = ""
+    if res is None or inl.sum() < MIN_SAMPLES:
+        reason = (f"too few of the room's edges found in the photo ({int(inl.sum())} samples, need {MIN_SAMPLES})")
+    else:
+        reason = _conditioning(res, S, used, inl) or ""
+    moved = out["moved_px"]
+    if not reason and moved < MIN_MOVE_PX:
+        return Refinement(cam, False, f"the camera already fits the room's edges (refining moves them {moved:.2f} px "
+                          f"rms < {MIN_MOVE_PX:g} px, within the room model's own edge offsets)", True, **out)
+    if not reason and len(lr):
+        # the refined camera must agree with the clicked lines within their noise: chi-square of the
+        # normalised residuals (calibrate's) at most its 99.9 % point for that many segments
+        from scipy.stats import chi2
+
+        z = np.concatenate([_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / sig[a] for a in segs])
+        lim = float(chi2.ppf(0.999, len(z)))
+        if not float(z @ z) <= lim:
+            reason = (f"the refined camera disagrees with the clicked lines (chi-square {float(z @ z):.1f} > "
+                      f"{lim:.1f})")
+    if not reason and not after <= before:
+        reason = f"the edge residual does not drop ({before:.2f} -> {after:.2f} px)"
+    lo, hi = edges.reshape(-1, 3).min(0), edges.reshape(-1, 3).max(0)
+    if not reason and not (np.all(refined.centre >= lo - 1e-3) and np.all(refined.centre <= hi + 1e-3)):
+        reason = "the refined camera lies outside the room"
+    if reason:
+        return Refinement(cam, False, reason, False, **out)
+    return Refinement(refined, True, "", False, **out)
+
+
+def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray) -> str | None:
+    """None when the fit pins every free parameter: the Jacobian has full rank, the inlier samples'
+    projected edges span two directions, and a one-sigma error of the parameters (the covariance
+    scaled by the residuals) moves the samples by at most MAX_PRED_STD_PX rms; else the reason."""
+    J = res.jac
+    ne = int(used.sum())
+    Je = J[:ne][inl]
+    try:
+        s = np.linalg.svd(J, compute_uv=False)
+        if not s[-1] > 1e-9 * s[0]:
+            return "the room's edges do not determine the camera (rank-deficient fit)"
+        cov = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return "the room's edges do not determine the camera (singular fit)"
+    r = res.fun
+    dof = max(len(r) - len(res.x), 1)
+    scale = max(float(r @ r) / dof, 1.0)
+    pred = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Je, cov * scale, Je), 0.0)) * FINE_SIGMA_PX
+    rms_pred = float(np.sqrt(np.mean(pred ** 2))) if len(pred) else float("inf")
+    if not rms_pred <= MAX_PRED_STD_PX:
+        return f"the fit is ill-conditioned (a one-sigma error moves the edges {rms_pred:.2f} px rms)"
+    # directions of the inlier samples' edges in 3D (world axes): at least two far enough apart
+    D = S.D[used][inl]
+    if len(D):
+        G = np.abs(D @ D.T)
+        if np.min(G) > np.cos(np.radians(MIN_LINE_DIRECTIONS_DEG)):
+            return "the room's edges found in the photo run in one direction only"
+    return None
