@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app.dragframe import DragStages
 from app.config import (LIGHTING, SUN_SOURCES, EngineParams, FrameConfig, Lighting, Mode,  # noqa: F401
                         ObjectConfig, PrecomputeConfig, ShadowConfig, SunSource)  # (re-exported)
 from app.frame_budget import FrameBudget
@@ -118,6 +119,7 @@ class Engine:
         if p.lighting == "photo":
             self.photo_light = self.sun.photo_report(self.photo_light)
         sp = self.sun_pixels
+        self.pre_lit = pre  # the precompute before the sun's changes (app.dragframe builds its own from it)
         self.pre = pre = dataclasses.replace(pre, patches=sp.patches)
         self.receivers: ReceiverMap = dataclasses.replace(
             rm, recv_pix=sp.recv_pix, E_x=sp.E_x, L_b=sp.L_b, rho_x=sp.reflectance(reflectance(sp.L_b, sp.E_x)))
@@ -139,6 +141,7 @@ class Engine:
         self.object_light = ObjectLight(oc, pm, pre.recv_vert, pre.pix_bary, r.pix_pos, r.pix_patch, r.pix_rows,
                                         r.recv_pix, r.rho_x, r.L_b, B_src, self.scene_occ, scene.response, cam, dev,
                                         sun_dir=sun_light.d if sun_light is not None else None)
+        self._drag: dict[int, DragStages] = {}  # drag frames' coarse pixel stages, per scale (made on first use)
         self.budget = FrameBudget()  # --fps: the measured frame cost
         self.frames_started = 0  # frames begun (render and refine): refine restarts after another
         self.refiner = Refiner(self._frame_steps, self.shadow_sources.traverse, self.shadow_sources.empty,
@@ -256,7 +259,8 @@ class Engine:
         calibration_s = 0.0
         if config.fps is not None and self.budget.cost is None and self.budget.override is None:
             calibration_s = self._calibrate(obj, config)
-        pm, oc, r, sun = self.pre.patches, self.params.object, self.receivers, self.sun_pixels.stage
+        px = self.pixel_stages(config.drag)  # the room's per-pixel stages: full resolution or the drag's coarse
+        pm, oc, r, sun = self.pre.patches, self.params.object, px.receivers, px.sun_pixels.stage
         timings: dict[str, float] = {}
         t_all = t = time.perf_counter()
 
@@ -273,6 +277,7 @@ class Engine:
         # ---- object pixels: coverage and depth against the scene model
         hits = self.object_shading.object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ)
         cov = hits.coverage()
+        cov_px = cov if px is self else px.zero_cov  # the drag's coarse room is computed under the object too
         t = tick("object", t)
 
         # ---- source list from the shaft hierarchy, grouped into the frame's passes (sec. 6.2.1, 6.4)
@@ -282,8 +287,8 @@ class Engine:
 
         # ---- occlusion masks: listed pixels and patch centres (app.stages.shadow_pass; yields per batch)
         ldr = config.mode == "ldr"
-        masks = yield from self.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov, fs.cand, fs.eyes,
-                                                self.compose.ldr_weights(fs.W_v) if ldr else fs.W_v, fs.W_c,
+        masks = yield from px.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov_px, fs.cand, fs.eyes,
+                                                px.compose.ldr_weights(fs.W_v) if ldr else fs.W_v, fs.W_c,
                                                 fs.n_listed == len(fs.eyes), spread=fs.spread,
                                                 full_maps=config.full_maps, scale=r.L_b_levels if ldr else r.E_x)
         t = tick("masks", t)
@@ -300,13 +305,13 @@ class Engine:
         obj_rad = shaded.radiance
         if sun is not None:
             dB_shadow = dB_shadow + sun_dB
-            if shaded.L_vert is not None:  # sun: the outline where sunlight clips, sampled finely
-                sun.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
+            if shaded.L_vert is not None:  # sun: the outline where sunlight clips, sampled finely (full size)
+                self.sun_pixels.stage.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
                                          shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip)
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres (app.stages.object_light)
-        R_pix, R_cen, R_cen_sun = self._object_light(obj, pv, pf, proxy_occ, centre, radius, cov, dB_shadow) \
+        R_pix, R_cen, R_cen_sun = self._object_light(px, obj, pv, pf, proxy_occ, centre, radius, cov_px, dB_shadow) \
             if oc.object_light else (np.zeros((r.L_b.shape[0], 3)), np.zeros((pm.n_patches, 3)), None)
         t = tick("object_light", t)
 
@@ -315,14 +320,21 @@ class Engine:
         if oc.second_order:
             dB = dB_shadow + pm.albedo * R_cen
             more = None if sun is None else self._sun_later_bounces(sun, sun_dB, R_cen_sun, proxy_occ, pv, dB)
-            dE_v = self.compose.second_order(dB, dE_more=more)
+            dE_v = px.compose.second_order(dB, dE_more=more)
         t = tick("second_order", t)
 
         # ---- compose (app.stages.compose): HDR or LDR, on the pixels that changed
-        radiance, pixels, room = self.compose.frame(config.mode, masks.pix_sel, masks.O_pix, masks.fill_sel,
-                                                    self.shadow_pass.fill, R_pix, dE_v, cov, obj_rad,
-                                                    self.sun_pixels.pix, sun_loss)
-        tick("compose", t)
+        if px is self:
+            radiance, pixels, room = self.compose.frame(config.mode, masks.pix_sel, masks.O_pix, masks.fill_sel,
+                                                        self.shadow_pass.fill, R_pix, dE_v, cov, obj_rad,
+                                                        self.sun_pixels.pix, sun_loss)
+            tick("compose", t)
+        else:  # the drag frame: the coarse room (HDR), its ratio to the photo upsampled, the object over it
+            _, _, room_c = px.compose.frame("hdr", masks.pix_sel, masks.O_pix, masks.fill_sel, px.shadow_pass.fill,
+                                            R_pix, dE_v, px.zero_cov, px.zero_rad, px.sun_pixels.pix, sun_loss)
+            t = tick("compose", t)
+            radiance, pixels, room = px.finish(room_c, cov, obj_rad)
+            tick("upsample", t)
         frame_s = time.perf_counter() - t_all
         self.budget.measured(frame_s, timings["masks"], len(fs.eyes))
         self.last_shading = (shade_mesh, shaded.L_vert, obj.albedo, shaded.sun_vis) if hits.hit.any() else None
@@ -331,11 +343,21 @@ class Engine:
             stats["fps_calibration_s"] = calibration_s
         return Frame(radiance, pixels, stats, room, cov.astype(np.float32))
 
-    def _object_light(self, obj: SceneObject, pv, pf, proxy_occ, centre, radius, cov, dB_shadow):
+    def pixel_stages(self, drag: int | None):
+        """The room's per-pixel stages of a frame (receivers, sun_pixels, shadow_pass, compose,
+        object_light): the engine's own at full resolution (drag None), else the drag frame's at
+        1/drag resolution (app.dragframe.DragStages, made on the first frame at that scale)."""
+        if drag is None:
+            return self
+        if drag not in self._drag:
+            self._drag[drag] = DragStages(self, drag)
+        return self._drag[drag]
+
+    def _object_light(self, px, obj: SceneObject, pv, pf, proxy_occ, centre, radius, cov, dB_shadow):
         """(R_pix (H*W,3), R_cen (P,3), R_cen_sun: R_cen's part from the sun alone or None): the light the
         object reflects, lit by the room's light B_obj + dB_shadow (and the sun: its sunlit parts light
         the room too, as small pieces; SunStage.object_emitters)."""
-        ol, sun = self.object_light, self.sun_pixels.stage
+        ol, sun = px.object_light, px.sun_pixels.stage
         tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
         covered = cov.reshape(-1) >= 1.0
         if sun is None:

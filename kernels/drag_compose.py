@@ -1,0 +1,147 @@
+"""The drag frame's full-resolution compose: the coarse room's ratio to the photo brought back
+bilinearly, applied to the photo, the object mixed over it (app.dragframe).
+
+One thread per full-resolution pixel, float64, the camera response as kernels.pixel_compose
+evaluates it:
+
+  ratio  = bilinear over the coarse pixels' ratios room_c / L_b_c (1 where L_b_c is 0), pixel
+           centres as cv2.resize's INTER_LINEAR (coarse x = (x + 0.5) / s - 0.5, clamped at the edges)
+  room   = L_b x ratio where the pixel is a receiver and the ratio moves it by more than RATIO_EPS,
+           else L_b with the photo's own levels
+  pixel  = (1 - c) T(room) + c T(L_obj), or T((1 - c) room + c L_obj) where either side clips
+"""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from kernels.pixel_compose import PX_LB, PX_STILL, to_levels, to_pixel
+
+RATIO_EPS = 1e-6  # a ratio this close to 1 leaves the photo's level (float32 noise of the coarse room)
+
+
+@wp.func
+def _coarse_ratio(room_c: wp.array2d(dtype=wp.float32), inv_c: wp.array2d(dtype=wp.float32), j: int, c: int
+                  ) -> wp.float64:
+    inv = inv_c[j, c]
+    if inv > wp.float32(0.0):
+        return wp.float64(room_c[j, c]) * wp.float64(inv)
+    return wp.float64(1.0)
+
+
+@wp.kernel
+def drag_compose_kernel(first: int, W: int, w: int, h: int, s: int, room_c: wp.array2d(dtype=wp.float32),
+                        inv_c: wp.array2d(dtype=wp.float32), recv: wp.array(dtype=wp.uint8),
+                        px: wp.array2d(dtype=wp.float64), cov: wp.array(dtype=wp.float32),
+                        obj: wp.array2d(dtype=wp.float32), tab: wp.array2d(dtype=wp.float64),
+                        grid: wp.array2d(dtype=wp.int32), rtab: wp.array2d(dtype=wp.int16), exposure: wp.float64,
+                        out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
+                        out_pix: wp.array2d(dtype=wp.uint8)):
+    """room_c (h*w,3) the coarse room radiance, inv_c (h*w,3) 1 / its photo radiance (0: none); recv
+    (N,) 1 where the full pixel is a receiver; px the HDR per-scene table (pixel_compose.PX_*); cov (N,)
+    and obj (N,3) the object's coverage and radiance at full resolution; out, out_room, out_pix as
+    pixel_compose.compose_kernel's."""
+    i = first + wp.tid()
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    full = wp.float64(255.0)
+    y = i // W
+    x = i - y * W
+    sf = wp.float64(s)
+    fx = (wp.float64(x) + wp.float64(0.5)) / sf - wp.float64(0.5)
+    fy = (wp.float64(y) + wp.float64(0.5)) / sf - wp.float64(0.5)
+    x0 = int(wp.floor(fx))
+    y0 = int(wp.floor(fy))
+    ax = fx - wp.float64(x0)
+    ay = fy - wp.float64(y0)
+    xa = wp.clamp(x0, 0, w - 1)
+    xb = wp.clamp(x0 + 1, 0, w - 1)
+    ya = wp.clamp(y0, 0, h - 1)
+    yb = wp.clamp(y0 + 1, 0, h - 1)
+    moved = False
+    ratio = wp.vec3d(one, one, one)
+    if recv[i] != wp.uint8(0):
+        for c in range(3):
+            r00 = _coarse_ratio(room_c, inv_c, ya * w + xa, c)
+            r01 = _coarse_ratio(room_c, inv_c, ya * w + xb, c)
+            r10 = _coarse_ratio(room_c, inv_c, yb * w + xa, c)
+            r11 = _coarse_ratio(room_c, inv_c, yb * w + xb, c)
+            r = (one - ay) * ((one - ax) * r00 + ax * r01) + ay * ((one - ax) * r10 + ax * r11)
+            ratio[c] = r
+            if wp.abs(r - one) > wp.float64(RATIO_EPS):
+                moved = True
+    cv = wp.float64(cov[i])
+    rad = wp.vec3d()
+    lev = wp.vec3d()
+    q = wp.vec3i()
+    rounded = False
+    if moved:
+        rounded = cv == zero
+        for c in range(3):
+            rad[c] = wp.max(px[i, PX_LB + c] * ratio[c], zero)
+            if rounded:
+                q[c] = to_pixel(rad[c], c, exposure, rtab, tab, grid)
+            else:
+                lev[c] = to_levels(rad[c], c, exposure, tab, grid)
+    else:
+        for c in range(3):
+            rad[c] = px[i, PX_LB + c]
+            lev[c] = px[i, PX_STILL + c]
+    pr = wp.vec3d(rad[0], rad[1], rad[2])
+    pl = wp.vec3d(lev[0], lev[1], lev[2])
+    if cv > zero:
+        clips = lev[0] >= full or lev[1] >= full or lev[2] >= full
+        for c in range(3):
+            o = wp.float64(obj[i, c])
+            pr[c] = (one - cv) * rad[c] + cv * o
+            t = to_levels(o, c, exposure, tab, grid)
+            pl[c] = (one - cv) * lev[c] + cv * t
+            if t >= full:
+                clips = True
+        if clips and cv < one:
+            for c in range(3):
+                pl[c] = to_levels(pr[c], c, exposure, tab, grid)
+    for c in range(3):
+        out[i, c] = wp.float32(pr[c])
+        out_room[i, c] = wp.float32(rad[c])
+        if rounded:
+            out_pix[i, c] = wp.uint8(q[c])
+        else:
+            out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(pl[c]), zero, full)))
+
+
+class DragCompose:
+    """The drag frame's compose at full resolution for one scale: the per-scene inputs uploaded once
+    (the coarse photo's inverse radiance, the receiver flags; the response tables and the HDR pixel
+    table are the full compositor's, kernels.pixel_compose.Compositor), per frame one launch per core.
+    Output arrays are new per frame (the caller owns them)."""
+
+    def __init__(self, compositor, shape: tuple[int, int], coarse: tuple[int, int], scale: int,
+                 inv_Lb_c: np.ndarray, recv: np.ndarray, device: str):
+        """compositor: the full frame's Compositor; shape (H,W), coarse (h,w); inv_Lb_c (h*w,3) float32;
+        recv (H*W,) bool."""
+        self.k, self.device = compositor, device
+        self.H, self.W = shape
+        self.h, self.w = coarse
+        self.s = scale
+        self._inv = wp.array(np.ascontiguousarray(inv_Lb_c, np.float32), dtype=wp.float32, device=device)
+        self._recv = wp.array(recv.astype(np.uint8), dtype=wp.uint8, device=device)
+
+    def run(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, split
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(radiance (N,3) float32, room (N,3) float32, pixels (N,3) uint8) from the coarse room
+        room_c (h*w,3), the object's coverage cov (N,) and radiance obj_rad (N,3) (float32)."""
+        d, n, k = self.device, self.H * self.W, self.k
+        rc = wp.array(np.ascontiguousarray(room_c.reshape(-1, 3), np.float32), dtype=wp.float32, device=d)
+        cv = wp.array(np.ascontiguousarray(cov.reshape(-1), np.float32), dtype=wp.float32, device=d)
+        ob = wp.array(np.ascontiguousarray(obj_rad.reshape(-1, 3), np.float32), dtype=wp.float32, device=d)
+        outs = [wp.empty((n, 3), dtype=dt, device=d) for dt in (wp.float32, wp.float32, wp.uint8)]
+
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(drag_compose_kernel, dim=hi - lo, device=d,
+                      inputs=[lo, self.W, self.w, self.h, self.s, rc, self._inv, self._recv, k._px["hdr"], cv, ob,
+                              k._tab, k._grid, k._rtab, k._exposure, *outs])
+
+        split(launch, n)
+        wp.synchronize_device(d)
+        return tuple(o.numpy() for o in outs)
