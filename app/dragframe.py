@@ -31,6 +31,21 @@ from recon.camera import Camera
 from recon.scene import Scene
 
 
+# Cluster-map size of the drag frame at 1/s resolution: CLUSTER_MAP_RES (128, the full frame's) over s,
+# at least 64: a map texel then spans about as many working pixels as at full resolution, so the
+# coarse frame resolves the same shadow detail per pixel; 64 is the smallest size whose penumbra
+# filter (kernels.masked_sums.penumbra) keeps the clusters' soft shadows smooth
+# (bench/bench_drag.py: 1/2 resolution, 64 and 128 px maps score alike on the shared rooms).
+MIN_DRAG_MAP_RES = 64
+
+
+def drag_map_res(scale: int) -> int:
+    """The drag frame's cluster-map size at 1/scale resolution (MIN_DRAG_MAP_RES's rule)."""
+    from app.stages.shadow_pass import CLUSTER_MAP_RES
+
+    return max(MIN_DRAG_MAP_RES, CLUSTER_MAP_RES // scale)
+
+
 def coarse_camera(cam: Camera, s: int) -> Camera:
     """The camera of 1/s the size each way (width, height rounded up) whose pixel (i, j) covers the
     full camera's s x s block starting at (s i, s j): focal lengths / s, principal point mapped with
@@ -58,7 +73,8 @@ class DragStages:
     reads: receivers, sun_pixels, shadow_pass, compose, object_light), and the finish that brings the
     room's change back to full resolution. Made once per scale, on the first drag frame at it."""
 
-    def __init__(self, engine, scale: int):
+    def __init__(self, engine, scale: int, map_res: int | None = None):
+        """map_res: the drag frame's cluster map size (default: drag_map_res(scale))."""
         from app.stages.compose import ComposeStage
         from app.stages.object_light import ObjectLight
         from app.stages.shadow_pass import ShadowPass
@@ -82,7 +98,8 @@ class DragStages:
         self.receivers: ReceiverMap = r
         pm, sh, oc = pre.patches, p.shadow, p.object
         self.shadow_pass = ShadowPass(r.pix_pos, r.pix_rows, pre.pix_bary, r.pix_patch, r.recv_pix, pm,
-                                      len(pre.recv_vert), cam.width, cam.height, sh.batch, sh.map_res, dev, quiet=True)
+                                      len(pre.recv_vert), cam.width, cam.height, sh.batch, sh.map_res, dev, quiet=True,
+                                      cluster_map_res=map_res or drag_map_res(s))
         self.compose = ComposeStage(L_b=r.L_b, L_b_levels=r.L_b_levels, E_x=r.E_x, rho_x=r.rho_x, recv_pix=r.recv_pix,
                                     pix_rows=r.pix_rows, pix_bary=pre.pix_bary, photo=sc.photo,
                                     response=sc.response, G_v=pre.G_v, E_v=r.E_v, recv_vert=pre.recv_vert,
@@ -101,6 +118,20 @@ class DragStages:
         self._compose = DragCompose(engine.compose.k, self.full_shape, self.shape, s, self._inv_Lb.reshape(-1, 3),
                                     engine.receivers.recv_pix, dev)
         self._split = functools.partial(runtime.split, device=dev)
+        self._tri_rad: tuple | None = None  # (shape, centre, radiance) of the proxy's last computed light
+
+    def triangle_radiance(self, compute, pv: np.ndarray, pf: np.ndarray, centre: np.ndarray, reach: float
+                          ) -> np.ndarray:
+        """The proxy triangles' outgoing radiance (T,3) while dragging: compute() (ObjectLight.
+        triangle_radiance, rays to the room's patches) when the object has moved by `reach` metres or more
+        since the pose it was last computed at (or its shape changed), else that pose's values. reach is
+        the SH volume's spacing (ObjectConfig.volume_spacing): the room light the object's shading reads
+        is itself sampled that finely, so its own light is not resolved more finely while it moves either."""
+        key = (pf.shape, len(pv), float(np.round(np.ptp(pv, axis=0).sum(), 6)))
+        last = self._tri_rad
+        if last is None or last[0] != key or np.linalg.norm(centre - last[1]) >= reach:
+            last = self._tri_rad = (key, np.asarray(centre, np.float64).copy(), compute())
+        return last[2]
 
     def ratio(self, room_c: np.ndarray) -> np.ndarray:
         """(H,W,3) float32 full-resolution ratio room / photo from the coarse room (h,w,3) radiance:

@@ -358,7 +358,11 @@ class Engine:
         object reflects, lit by the room's light B_obj + dB_shadow (and the sun: its sunlit parts light
         the room too, as small pieces; SunStage.object_emitters)."""
         ol, sun = px.object_light, px.sun_pixels.stage
-        tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
+        if px is self:
+            tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
+        else:  # a drag frame: the proxy's radiance of a pose near this one (DragStages.triangle_radiance)
+            tri_rad = px.triangle_radiance(lambda: ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow),
+                                           pv, pf, centre, self.params.object.volume_spacing)
         covered = cov.reshape(-1) >= 1.0
         if sun is None:
             return (*ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered), None)
