@@ -25,7 +25,7 @@ import numpy as np
 
 from app import runtime
 from app.stages.receiver_map import ReceiverMap, receiver_map, reflectance
-from kernels.drag_compose import DragCompose
+from kernels.drag_compose import RATIO_EPS, DragCompose
 from kernels.raycast import cast_rays
 from recon.camera import Camera
 from recon.scene import Scene
@@ -146,28 +146,34 @@ class DragStages:
         up[self._no_ratio] = 1.0
         return up
 
-    def finish(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray
+    def finish(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, sun=None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(radiance (H,W,3) float32, pixels (H,W,3) uint8, room (H,W,3) float32) at full resolution
-        from the coarse room room_c (h,w,3) and the object's cov (H,W), obj_rad (H,W,3): one kernel
-        (kernels.drag_compose), the form finish_reference specifies."""
+        from the coarse room room_c (h,w,3) without the sun, the object's cov (H,W), obj_rad (H,W,3), and
+        sun: None or (pixels (n,), the share of their light the object takes from the sun (n,3)) at full
+        resolution (Engine._sun_share): one kernel (kernels.drag_compose), the form finish_reference
+        specifies."""
         H, W = self.full_shape
-        rad, room, pix = self._compose.run(room_c, cov, obj_rad, self._split)
+        rad, room, pix = self._compose.run(room_c, cov, obj_rad, self._split, sun)
         return rad.reshape(H, W, 3), pix.reshape(H, W, 3), room.reshape(H, W, 3)
 
-    def finish_reference(self, engine, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray
+    def finish_reference(self, engine, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, sun=None
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """finish in numpy (its specification; tests): at full resolution:
-        the photo's radiance L_b times the upsampled ratio, in levels T(room) where the ratio moves it
+        the photo's radiance L_b times the upsampled ratio less the sun's share u (max(L_b (ratio - u), 0)), in levels T(room) where the ratio moves it
         (else the photo's own levels), and the object (coverage cov (H,W), radiance obj_rad (H,W,3))
         mixed over it as compose_reference does (levels, or radiance where either side clips)."""
         rc = engine.receivers
         resp = engine.scene.response
         H, W = self.full_shape
-        ratio = self.ratio(room_c).reshape(-1, 3)
+        ratio = self.ratio(room_c).reshape(-1, 3).astype(np.float64)
         L_b = rc.L_b
-        room = (L_b * ratio).astype(np.float32)
-        changed = np.flatnonzero(np.abs(ratio - 1.0).max(1) > 1e-6)
+        changed = np.abs(ratio - 1.0).max(1) > RATIO_EPS
+        if sun is not None:
+            ratio[sun[0]] -= sun[1]
+            changed[sun[0]] |= sun[1].any(1)
+        room = np.maximum(L_b * ratio, 0.0).astype(np.float32)
+        changed = np.flatnonzero(changed)
         levels = rc.L_b_levels.copy()
         levels[changed] = resp.to_levels(room[changed])
         c = cov.reshape(-1)

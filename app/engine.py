@@ -260,7 +260,8 @@ class Engine:
         if config.fps is not None and self.budget.cost is None and self.budget.override is None:
             calibration_s = self._calibrate(obj, config)
         px = self.pixel_stages(config.drag)  # the room's per-pixel stages: full resolution or the drag's coarse
-        pm, oc, r, sun = self.pre.patches, self.params.object, px.receivers, px.sun_pixels.stage
+        # the sun's pass is always the full frame's (its shadow is hard-edged, and cheap at full size)
+        pm, oc, r, sun = self.pre.patches, self.params.object, px.receivers, self.sun_pixels.stage
         timings: dict[str, float] = {}
         t_all = t = time.perf_counter()
 
@@ -331,9 +332,9 @@ class Engine:
             tick("compose", t)
         else:  # the drag frame: the coarse room (HDR), its ratio to the photo upsampled, the object over it
             _, _, room_c = px.compose.frame("hdr", masks.pix_sel, masks.O_pix, masks.fill_sel, px.shadow_pass.fill,
-                                            R_pix, dE_v, px.zero_cov, px.zero_rad, px.sun_pixels.pix, sun_loss)
+                                            R_pix, dE_v, px.zero_cov, px.zero_rad)
             t = tick("compose", t)
-            radiance, pixels, room = px.finish(room_c, cov, obj_rad)
+            radiance, pixels, room = px.finish(room_c, cov, obj_rad, self._sun_share(sun_loss))
             tick("upsample", t)
         frame_s = time.perf_counter() - t_all
         self.budget.measured(frame_s, timings["masks"], len(fs.eyes))
@@ -342,6 +343,14 @@ class Engine:
         if calibration_s:
             stats["fps_calibration_s"] = calibration_s
         return Frame(radiance, pixels, stats, room, cov.astype(np.float32))
+
+    def _sun_share(self, sun_loss: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """(the sun's pixels, the share of each one's light E_x the object takes from it (n,3), clipped to
+        [0, 1]) at full resolution, as compose takes it; None without a sun."""
+        if sun_loss is None:
+            return None
+        pix = self.sun_pixels.pix
+        return pix, np.clip(sun_loss / np.maximum(self.receivers.E_x[pix], 1e-12), 0.0, 1.0)
 
     def pixel_stages(self, drag: int | None):
         """The room's per-pixel stages of a frame (receivers, sun_pixels, shadow_pass, compose,
@@ -357,7 +366,7 @@ class Engine:
         """(R_pix (H*W,3), R_cen (P,3), R_cen_sun: R_cen's part from the sun alone or None): the light the
         object reflects, lit by the room's light B_obj + dB_shadow (and the sun: its sunlit parts light
         the room too, as small pieces; SunStage.object_emitters)."""
-        ol, sun = px.object_light, px.sun_pixels.stage
+        ol, sun = px.object_light, self.sun_pixels.stage
         if px is self:
             tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
         else:  # a drag frame: the proxy's radiance of a pose near this one (DragStages.triangle_radiance)

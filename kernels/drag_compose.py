@@ -6,8 +6,9 @@ evaluates it:
 
   ratio  = bilinear over the coarse pixels' ratios room_c / L_b_c (1 where L_b_c is 0), pixel
            centres as cv2.resize's INTER_LINEAR (coarse x = (x + 0.5) / s - 0.5, clamped at the edges)
-  room   = L_b x ratio where the pixel is a receiver and the ratio moves it by more than RATIO_EPS,
-           else L_b with the photo's own levels
+  room   = max(L_b x (ratio - u), 0) where the pixel is a receiver and the ratio moves it by more than
+           RATIO_EPS or the sun's share u (the share of its light the object takes from the sun, computed
+           at full resolution: the sun's shadow is hard-edged) is not 0; else L_b with the photo's own levels
   pixel  = (1 - c) T(room) + c T(L_obj), or T((1 - c) room + c L_obj) where either side clips
 """
 from __future__ import annotations
@@ -32,13 +33,14 @@ def _coarse_ratio(room_c: wp.array2d(dtype=wp.float32), inv_c: wp.array2d(dtype=
 @wp.kernel
 def drag_compose_kernel(first: int, W: int, w: int, h: int, s: int, room_c: wp.array2d(dtype=wp.float32),
                         inv_c: wp.array2d(dtype=wp.float32), recv: wp.array(dtype=wp.uint8),
+                        sun: wp.array2d(dtype=wp.float32),
                         px: wp.array2d(dtype=wp.float64), cov: wp.array(dtype=wp.float32),
                         obj: wp.array2d(dtype=wp.float32), tab: wp.array2d(dtype=wp.float64),
                         grid: wp.array2d(dtype=wp.int32), rtab: wp.array2d(dtype=wp.int16), exposure: wp.float64,
                         out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
                         out_pix: wp.array2d(dtype=wp.uint8)):
     """room_c (h*w,3) the coarse room radiance, inv_c (h*w,3) 1 / its photo radiance (0: none); recv
-    (N,) 1 where the full pixel is a receiver; px the HDR per-scene table (pixel_compose.PX_*); cov (N,)
+    (N,) 1 where the full pixel is a receiver; sun (N,3) the sun's share u (cleared as read); px the HDR per-scene table (pixel_compose.PX_*); cov (N,)
     and obj (N,3) the object's coverage and radiance at full resolution; out, out_room, out_pix as
     pixel_compose.compose_kernel's."""
     i = first + wp.tid()
@@ -69,6 +71,11 @@ def drag_compose_kernel(first: int, W: int, w: int, h: int, s: int, room_c: wp.a
             r = (one - ay) * ((one - ax) * r00 + ax * r01) + ay * ((one - ax) * r10 + ax * r11)
             ratio[c] = r
             if wp.abs(r - one) > wp.float64(RATIO_EPS):
+                moved = True
+            u = wp.float64(sun[i, c])
+            if u != zero:
+                ratio[c] = r - u
+                sun[i, c] = wp.float32(0.0)  # left cleared for the next frame
                 moved = True
     cv = wp.float64(cov[i])
     rad = wp.vec3d()
@@ -126,12 +133,21 @@ class DragCompose:
         self.s = scale
         self._inv = wp.array(np.ascontiguousarray(inv_Lb_c, np.float32), dtype=wp.float32, device=device)
         self._recv = wp.array(recv.astype(np.uint8), dtype=wp.uint8, device=device)
+        self._sun_np = np.zeros((self.H * self.W, 3), np.float32)  # the sun's share, cleared by the kernel
+        self._sun = wp.array(self._sun_np, dtype=wp.float32, device=device, copy=False) if wp.get_device(
+            device).is_cpu else wp.zeros((self.H * self.W, 3), dtype=wp.float32, device=device)
 
-    def run(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, split
+    def run(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, split, sun=None
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(radiance (N,3) float32, room (N,3) float32, pixels (N,3) uint8) from the coarse room
-        room_c (h*w,3), the object's coverage cov (N,) and radiance obj_rad (N,3) (float32)."""
+        room_c (h*w,3), the object's coverage cov (N,) and radiance obj_rad (N,3) (float32); sun: None or
+        (pixels (n,), the sun's share there (n,3))."""
         d, n, k = self.device, self.H * self.W, self.k
+        if sun is not None:
+            self._sun_np[sun[0]] = sun[1]
+            if not wp.get_device(d).is_cpu:
+                self._sun.assign(self._sun_np)
+                self._sun_np[sun[0]] = 0.0
         rc = wp.array(np.ascontiguousarray(room_c.reshape(-1, 3), np.float32), dtype=wp.float32, device=d)
         cv = wp.array(np.ascontiguousarray(cov.reshape(-1), np.float32), dtype=wp.float32, device=d)
         ob = wp.array(np.ascontiguousarray(obj_rad.reshape(-1, 3), np.float32), dtype=wp.float32, device=d)
@@ -139,7 +155,7 @@ class DragCompose:
 
         def launch(lo: int, hi: int) -> None:
             wp.launch(drag_compose_kernel, dim=hi - lo, device=d,
-                      inputs=[lo, self.W, self.w, self.h, self.s, rc, self._inv, self._recv, k._px["hdr"], cv, ob,
+                      inputs=[lo, self.W, self.w, self.h, self.s, rc, self._inv, self._recv, self._sun, k._px["hdr"], cv, ob,
                               k._tab, k._grid, k._rtab, k._exposure, *outs])
 
         split(launch, n)

@@ -68,6 +68,17 @@ def test_drag_compose_kernel_matches_its_reference(demo_engine):
     assert np.mean(pix_k != pix_r) < 1e-3
     np.testing.assert_allclose(room_k, room_r, rtol=1e-4, atol=1e-7)
     np.testing.assert_allclose(rad_k, rad_r, rtol=1e-4, atol=1e-7)
+    # with the sun's share at full resolution (pixels, share of their light taken): room = L_b (ratio - u)
+    sun_pix = np.flatnonzero(eng.receivers.recv_pix)[::7]
+    share = rng.uniform(0.0, 1.0, (len(sun_pix), 3))
+    rad_k, pix_k, room_k = px.finish(room_c.astype(np.float32), cov, obj_rad, (sun_pix, share))
+    rad_r, pix_r, room_r = px.finish_reference(eng, room_c.astype(np.float32), cov, obj_rad, (sun_pix, share))
+    assert np.abs(pix_k.astype(int) - pix_r).max() <= 1 and np.mean(pix_k != pix_r) < 1e-3
+    np.testing.assert_allclose(room_k, room_r, rtol=1e-4, atol=1e-6)
+    # the kernel clears the share as it reads it: the next frame without a sun has none
+    rad_1, pix_1, _ = px.finish(room_c.astype(np.float32), cov, obj_rad)
+    rad_0, pix_0, _ = px.finish_reference(eng, room_c.astype(np.float32), cov, obj_rad)
+    assert np.abs(pix_1.astype(int) - pix_0).max() <= 1
     # a coarse room equal to the photo leaves every uncovered pixel at the photo's level
     rad1, pix1, _ = px.finish(px.receivers.L_b.reshape(h, w, 3).astype(np.float32), np.zeros_like(cov),
                               np.zeros_like(obj_rad))
