@@ -118,19 +118,20 @@ class DragStages:
         self._compose = DragCompose(engine.compose.k, self.full_shape, self.shape, s, self._inv_Lb.reshape(-1, 3),
                                     engine.receivers.recv_pix, dev)
         self._split = functools.partial(runtime.split, device=dev)
-        self._tri_rad: tuple | None = None  # (shape, centre, radiance) of the proxy's last computed light
+        self._near: dict[str, tuple] = {}  # near_pose: (shape, centre, value) of the last computed pose
 
-    def triangle_radiance(self, compute, pv: np.ndarray, pf: np.ndarray, centre: np.ndarray, reach: float
-                          ) -> np.ndarray:
-        """The proxy triangles' outgoing radiance (T,3) while dragging: compute() (ObjectLight.
-        triangle_radiance, rays to the room's patches) when the object has moved by `reach` metres or more
-        since the pose it was last computed at (or its shape changed), else that pose's values. reach is
-        the SH volume's spacing (ObjectConfig.volume_spacing): the room light the object's shading reads
-        is itself sampled that finely, so its own light is not resolved more finely while it moves either."""
-        key = (pf.shape, len(pv), float(np.round(np.ptp(pv, axis=0).sum(), 6)))
-        last = self._tri_rad
+    def near_pose(self, what: str, compute, vertices: np.ndarray, faces: np.ndarray, centre: np.ndarray,
+                  reach: float):
+        """compute()'s value for `what` while dragging: computed when the object has moved by `reach`
+        metres or more since the pose it was last computed at (or its mesh (vertices, faces) changed
+        shape), else that pose's value. reach is the SH volume's spacing (ObjectConfig.volume_spacing):
+        the room light the object's shading reads is itself sampled that finely, so the object's own
+        light (its radiance per vertex, its proxy's per triangle) is not resolved more finely while it
+        moves either."""
+        key = (faces.shape, len(vertices), float(np.round(np.ptp(vertices, axis=0).sum(), 6)))
+        last = self._near.get(what)
         if last is None or last[0] != key or np.linalg.norm(centre - last[1]) >= reach:
-            last = self._tri_rad = (key, np.asarray(centre, np.float64).copy(), compute())
+            last = self._near[what] = (key, np.asarray(centre, np.float64).copy(), compute())
         return last[2]
 
     def ratio(self, room_c: np.ndarray) -> np.ndarray:

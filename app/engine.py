@@ -302,7 +302,15 @@ class Engine:
             sun_loss, sun_loss_c = sun.frame(obj.vertices, obj.faces)
             sun_dB = -pm.albedo * sun_loss_c  # the object gathers it exactly (ObjectShading.vertex_radiance)
             t = tick("sun", t)
-        shaded = self.object_shading.shade(obj, shade_mesh, hits, proxy_occ, dB_shadow, sun_dB)
+        shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_shadow, sun_dB)
+        if px is not self and sun is None and hits.hit.any():  # a drag frame: the vertex radiance of a near pose
+            # (with a sun the object's light changes sharply at the sunlit patch's edge: computed every frame)
+            fresh = []
+            vertex = px.near_pose("object radiance", lambda: (fresh.append(shade()) or (fresh[0].L_vert, None)),
+                                  shade_mesh[0], shade_mesh[2], centre, oc.volume_spacing)
+            shaded = fresh[0] if fresh else shade(vertex=vertex)
+        else:
+            shaded = shade()
         obj_rad = shaded.radiance
         if sun is not None:
             dB_shadow = dB_shadow + sun_dB
@@ -370,8 +378,9 @@ class Engine:
         if px is self:
             tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
         else:  # a drag frame: the proxy's radiance of a pose near this one (DragStages.triangle_radiance)
-            tri_rad = px.triangle_radiance(lambda: ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow),
-                                           pv, pf, centre, self.params.object.volume_spacing)
+            tri_rad = px.near_pose("proxy light", lambda: ol.triangle_radiance(obj, pv, pf, proxy_occ,
+                                                                               self.B_obj + dB_shadow),
+                                   pv, pf, centre, self.params.object.volume_spacing)
         covered = cov.reshape(-1) >= 1.0
         if sun is None:
             return (*ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered), None)
