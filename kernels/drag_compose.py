@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from kernels.pixel_compose import PX_LB, PX_STILL, to_levels, to_pixel
+from kernels.pixel_compose import PX_LB, PX_STILL, _Mirror, to_levels, to_pixel
 
 RATIO_EPS = 1e-6  # a ratio this close to 1 leaves the photo's level (float32 noise of the coarse room)
 
@@ -120,8 +120,9 @@ def drag_compose_kernel(first: int, W: int, w: int, h: int, s: int, room_c: wp.a
 class DragCompose:
     """The drag frame's compose at full resolution for one scale: the per-scene inputs uploaded once
     (the coarse photo's inverse radiance, the receiver flags; the response tables and the HDR pixel
-    table are the full compositor's, kernels.pixel_compose.Compositor), per frame one launch per core.
-    Output arrays are new per frame (the caller owns them)."""
+    table are the full compositor's, kernels.pixel_compose.Compositor), the per-frame inputs in buffers
+    made once, the outputs from the compositor's pool (Compositor._outputs: a frame that is still held
+    keeps its arrays); per frame one launch per core and no allocation."""
 
     def __init__(self, compositor, shape: tuple[int, int], coarse: tuple[int, int], scale: int,
                  inv_Lb_c: np.ndarray, recv: np.ndarray, device: str):
@@ -131,11 +132,13 @@ class DragCompose:
         self.H, self.W = shape
         self.h, self.w = coarse
         self.s = scale
-        self._inv = wp.array(np.ascontiguousarray(inv_Lb_c, np.float32), dtype=wp.float32, device=device)
-        self._recv = wp.array(recv.astype(np.uint8), dtype=wp.uint8, device=device)
-        self._sun_np = np.zeros((self.H * self.W, 3), np.float32)  # the sun's share, cleared by the kernel
-        self._sun = wp.array(self._sun_np, dtype=wp.float32, device=device, copy=False) if wp.get_device(
-            device).is_cpu else wp.zeros((self.H * self.W, 3), dtype=wp.float32, device=device)
+        n, m, f32 = self.H * self.W, self.h * self.w, wp.float32
+        self._inv = _Mirror.of(np.ascontiguousarray(inv_Lb_c, np.float32), f32, device)
+        self._recv = _Mirror.of(recv.astype(np.uint8), wp.uint8, device)
+        self._sun = _Mirror((n, 3), f32, device)  # the sun's share, cleared by the kernel as it reads it
+        self._room = _Mirror((m, 3), f32, device)
+        self._cov = _Mirror((n,), f32, device)
+        self._obj = _Mirror((n, 3), f32, device)
 
     def run(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, split, sun=None
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -143,21 +146,33 @@ class DragCompose:
         room_c (h*w,3), the object's coverage cov (N,) and radiance obj_rad (N,3) (float32); sun: None or
         (pixels (n,), the sun's share there (n,3))."""
         d, n, k = self.device, self.H * self.W, self.k
+        self._room.np[:] = room_c.reshape(-1, 3)
+        self._cov.np[:] = cov.reshape(-1)
+        self._obj.np[:] = obj_rad.reshape(-1, 3)
+        for m in (self._room, self._cov, self._obj):
+            m.push()
         if sun is not None:
-            self._sun_np[sun[0]] = sun[1]
+            self._sun.np[sun[0]] = sun[1]
+            self._sun.push()
             if not wp.get_device(d).is_cpu:
-                self._sun.assign(self._sun_np)
-                self._sun_np[sun[0]] = 0.0
-        rc = wp.array(np.ascontiguousarray(room_c.reshape(-1, 3), np.float32), dtype=wp.float32, device=d)
-        cv = wp.array(np.ascontiguousarray(cov.reshape(-1), np.float32), dtype=wp.float32, device=d)
-        ob = wp.array(np.ascontiguousarray(obj_rad.reshape(-1, 3), np.float32), dtype=wp.float32, device=d)
-        outs = [wp.empty((n, 3), dtype=dt, device=d) for dt in (wp.float32, wp.float32, wp.uint8)]
+                self._sun.np[sun[0]] = 0.0  # CUDA: the host copy is cleared here, the device's by the kernel
+        rad, room, pix = k._outputs()
+        if k._out is None:  # the CPU: the kernel writes the returned arrays (wrapped, not copied)
+            outs = [wp.array(a, dtype=dt, device=d, copy=False)
+                    for a, dt in ((rad, wp.float32), (room, wp.float32), (pix, wp.uint8))]
+        else:
+            outs = [o.dev for o in k._out]
 
         def launch(lo: int, hi: int) -> None:
             wp.launch(drag_compose_kernel, dim=hi - lo, device=d,
-                      inputs=[lo, self.W, self.w, self.h, self.s, rc, self._inv, self._recv, self._sun, k._px["hdr"], cv, ob,
+                      inputs=[lo, self.W, self.w, self.h, self.s, self._room.dev, self._inv.dev, self._recv.dev,
+                              self._sun.dev, k._px["hdr"], self._cov.dev, self._obj.dev,
                               k._tab, k._grid, k._rtab, k._exposure, *outs])
 
         split(launch, n)
         wp.synchronize_device(d)
-        return tuple(o.numpy() for o in outs)
+        if k._out is not None:
+            for o, a in zip(k._out, (rad, room, pix)):
+                o.pull()
+                a[...] = o.np
+        return rad, room, pix
