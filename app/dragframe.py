@@ -39,6 +39,10 @@ from recon.scene import Scene
 MIN_DRAG_MAP_RES = 64
 
 
+# (A frame with a map per source, when the room has no more sources than the passes, takes the same rule
+# from the full frame's map size: max(MIN_DRAG_MAP_RES, map_res / s).)
+
+
 def drag_map_res(scale: int) -> int:
     """The drag frame's cluster-map size at 1/scale resolution (MIN_DRAG_MAP_RES's rule)."""
     from app.stages.shadow_pass import CLUSTER_MAP_RES
@@ -98,7 +102,8 @@ class DragStages:
         self.receivers: ReceiverMap = r
         pm, sh, oc = pre.patches, p.shadow, p.object
         self.shadow_pass = ShadowPass(r.pix_pos, r.pix_rows, pre.pix_bary, r.pix_patch, r.recv_pix, pm,
-                                      len(pre.recv_vert), cam.width, cam.height, sh.batch, sh.map_res, dev, quiet=True,
+                                      len(pre.recv_vert), cam.width, cam.height, sh.batch,
+                                      max(MIN_DRAG_MAP_RES, sh.map_res // s), dev, quiet=True,
                                       cluster_map_res=map_res or drag_map_res(s))
         self.compose = ComposeStage(L_b=r.L_b, L_b_levels=r.L_b_levels, E_x=r.E_x, rho_x=r.rho_x, recv_pix=r.recv_pix,
                                     pix_rows=r.pix_rows, pix_bary=pre.pix_bary, photo=sc.photo,
