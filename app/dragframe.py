@@ -166,7 +166,8 @@ class DragStages:
     def finish_reference(self, engine, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, sun=None
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """finish in numpy (its specification; tests): at full resolution:
-        the photo's radiance L_b times the upsampled ratio less the sun's share u (max(L_b (ratio - u), 0)), in levels T(room) where the ratio moves it
+        the photo's radiance L_b times the upsampled ratio less the sun's share u (max(L_b (ratio - u), 0)),
+        in levels T(room) where the ratio moves it
         (else the photo's own levels), and the object (coverage cov (H,W), radiance obj_rad (H,W,3))
         mixed over it as compose_reference does (levels, or radiance where either side clips)."""
         rc = engine.receivers

@@ -27,6 +27,10 @@ hit with self-shadowing, and its outline beside clipping light is sampled finely
 
 The LDR path replaces L_ij by intensity transfers S_ij (lighting.transfer, fig. 13) subtracted
 from the 8-bit photo.
+
+A drag frame (FrameConfig.drag = s, app.dragframe) runs the room's per-pixel stages at 1/s resolution
+(HDR) and brings the room's ratio to the photo back bilinearly; the object, the sun's pass and the
+per-patch work stay the full frame's. Frames at rest (drag None) never use it.
 """
 from __future__ import annotations
 
@@ -39,9 +43,9 @@ from pathlib import Path
 
 import numpy as np
 
-from app.dragframe import DragStages
 from app.config import (LIGHTING, SUN_SOURCES, EngineParams, FrameConfig, Lighting, Mode,  # noqa: F401
                         ObjectConfig, PrecomputeConfig, ShadowConfig, SunSource)  # (re-exported)
+from app.dragframe import DragStages
 from app.frame_budget import FrameBudget
 from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner  # noqa: F401 (re-exported)
 from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
@@ -287,7 +291,7 @@ class Engine:
         t = tick("sources", t)
 
         # ---- occlusion masks: listed pixels and patch centres (app.stages.shadow_pass; yields per batch)
-        ldr = config.mode == "ldr"
+        ldr = config.mode == "ldr" and px is self  # a drag frame is composed in HDR
         masks = yield from px.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov_px, fs.cand, fs.eyes,
                                                 px.compose.ldr_weights(fs.W_v) if ldr else fs.W_v, fs.W_c,
                                                 fs.n_listed == len(fs.eyes), spread=fs.spread,
@@ -315,7 +319,7 @@ class Engine:
         if sun is not None:
             dB_shadow = dB_shadow + sun_dB
             if shaded.L_vert is not None:  # sun: the outline where sunlight clips, sampled finely (full size)
-                self.sun_pixels.stage.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
+                sun.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
                                          shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip)
         t = tick("object_shading", t)
 
@@ -377,7 +381,7 @@ class Engine:
         ol, sun = px.object_light, self.sun_pixels.stage
         if px is self:
             tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
-        else:  # a drag frame: the proxy's radiance of a pose near this one (DragStages.triangle_radiance)
+        else:  # a drag frame: the proxy's radiance of a pose near this one (DragStages.near_pose)
             tri_rad = px.near_pose("proxy light", lambda: ol.triangle_radiance(obj, pv, pf, proxy_occ,
                                                                                self.B_obj + dB_shadow),
                                    pv, pf, centre, self.params.object.volume_spacing)

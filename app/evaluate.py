@@ -161,7 +161,8 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None, drag: int | 
               refine_passes: int | None = None):
     """Frame times of n poses along a drag over the floor (app.dragpath) at `passes` (drag frames at
     1/drag resolution, FrameConfig.drag; None: full-resolution frames); the first frame is excluded.
-    Engine.refine's budget at rest is refine_passes (None: `passes`). Then the release: the object back at its own pose, one frame at `passes`
+    Engine.refine's budget at rest is refine_passes (None: `passes`).
+    Then the release: the object back at its own pose, one frame at `passes`
     (the last move) and Engine.refine (steps of 1/30 s), which shows intermediate frames
     (Engine.refine_schedule) and ends in the all-sources frame. exact_s: the time from that move
     to the all-sources frame; converge_s: to the first frame shown at rest (the release frame
@@ -212,7 +213,8 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None, drag: int | 
              "frame_s_mean": float(times.mean()), "frame_s_p95": float(np.percentile(times, 95)),
              "frame_s": [float(s["frame_s"]) for s in stats], "offsets_m": offsets.tolist(),
              "length_m": float(np.linalg.norm(offsets[-1] - offsets[0])), "precompute_runs": engine.n_precompute - before,
-             "drag_scale": drag, "stages_ms": path_stages_ms(stats[1:]), "converge_s": converge_s, "converge_frames": converge_frames,
+             "drag_scale": drag, "stages_ms": path_stages_ms(stats[1:]), "converge_s": converge_s,
+             "converge_frames": converge_frames,
              "exact_s": exact_s, "exact_frames": steps, "converge_measures": measures,
              "release_frame_s": float(release.stats["frame_s"]), "refine_s": done.stats["refine_s"],
              "shown": [{"t_s": t, "passes": int(f.stats["passes"]), "exact": bool(f.stats.get("exact", False)),

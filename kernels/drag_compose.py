@@ -40,7 +40,8 @@ def drag_compose_kernel(first: int, W: int, w: int, h: int, s: int, room_c: wp.a
                         out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
                         out_pix: wp.array2d(dtype=wp.uint8)):
     """room_c (h*w,3) the coarse room radiance, inv_c (h*w,3) 1 / its photo radiance (0: none); recv
-    (N,) 1 where the full pixel is a receiver; sun (N,3) the sun's share u (cleared as read); px the HDR per-scene table (pixel_compose.PX_*); cov (N,)
+    (N,) 1 where the full pixel is a receiver; sun (N,3) the sun's share u (cleared as read); px the HDR
+    per-scene table (pixel_compose.PX_*); cov (N,)
     and obj (N,3) the object's coverage and radiance at full resolution; out, out_room, out_pix as
     pixel_compose.compose_kernel's."""
     i = first + wp.tid()
