@@ -62,6 +62,10 @@ def register(sub) -> None:
                    help="after the frames, save a PNG of the window and exit")
     g.add_argument("--frames", type=_positive_int, default=None,
                    help="composite this many frames of the placement, then exit (default 1 with --screenshot)")
+    g.add_argument("--drag-bench", type=_positive_int, default=None, metavar="N",
+                   help="script a drag of N mouse moves through the window's event loop (one each 1/60 s), then "
+                        "print one JSON line: events, event_to_screen_ms_mean, event_to_screen_ms_p95, "
+                        "frames_shown; and exit (run it under xvfb-run)")
     g.add_argument("--window", type=_size, default=(1280, 720), metavar="WxH", help="window size (default 1280x720)")
     g.add_argument("--cache", type=Path, default=None,
                    help="folder for per-scene precompute (default $PHOTOAR_CACHE or ~/.cache/photoar)")
@@ -185,6 +189,15 @@ def _show(a: argparse.Namespace, ctl, choices) -> int:
     app.initialize()
     win = PlacementWindow(ctl, choices, title=f"photoar - {ctl.scene.name}", width=a.window[0],
                           height=a.window[1], object_size=a.object_size)
+    if a.drag_bench is not None:
+        import json
+
+        res = win.run_drag_bench(a.drag_bench)
+        print(json.dumps(res))
+        win.closed = True
+        win.window.close()
+        app.run_one_tick()
+        return 0
     n = a.frames or (1 if a.screenshot is not None else None)
     if n is None:
         app.run()

@@ -136,6 +136,9 @@ class FrameConfig:
                                    "(at most --passes)")
     full_maps: bool = knob(False, "cluster maps at the all-sources map size, not the drag frames' smaller one "
                                   "(Engine.refine's intermediate frames at rest: hard lamp shadows need it)")
+    drag: int | None = knob(None, "drag frame: the room's change at 1/drag resolution each way, upsampled as the "
+                                  "ratio to the photo; the object at full resolution (app.dragframe). None: the "
+                                  "frame at full resolution (at rest)")
 
     def __post_init__(self):
         check_literals(self)
@@ -145,6 +148,9 @@ class FrameConfig:
         if passes is not None and (isinstance(passes, bool) or not isinstance(passes, (int, np.integer))
                                    or passes < 1):
             raise ValueError(f"passes must be an integer of at least 1 or None (all sources), got {passes!r}")
+        drag = self.drag
+        if drag is not None and (isinstance(drag, bool) or not isinstance(drag, (int, np.integer)) or drag < 2):
+            raise ValueError(f"drag must be an integer of at least 2 (1/drag resolution) or None, got {drag!r}")
 
 
 def _same(cls, name: str):

@@ -27,6 +27,10 @@ hit with self-shadowing, and its outline beside clipping light is sampled finely
 
 The LDR path replaces L_ij by intensity transfers S_ij (lighting.transfer, fig. 13) subtracted
 from the 8-bit photo.
+
+A drag frame (FrameConfig.drag = s, app.dragframe) runs the room's per-pixel stages at 1/s resolution
+(HDR) and brings the room's ratio to the photo back bilinearly; the object, the sun's pass and the
+per-patch work stay the full frame's. Frames at rest (drag None) never use it.
 """
 from __future__ import annotations
 
@@ -41,6 +45,7 @@ import numpy as np
 
 from app.config import (LIGHTING, SUN_SOURCES, EngineParams, FrameConfig, Lighting, Mode,  # noqa: F401
                         ObjectConfig, PrecomputeConfig, ShadowConfig, SunSource)  # (re-exported)
+from app.dragframe import DragStages
 from app.frame_budget import FrameBudget
 from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner  # noqa: F401 (re-exported)
 from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
@@ -118,6 +123,7 @@ class Engine:
         if p.lighting == "photo":
             self.photo_light = self.sun.photo_report(self.photo_light)
         sp = self.sun_pixels
+        self.pre_lit = pre  # the precompute before the sun's changes (app.dragframe builds its own from it)
         self.pre = pre = dataclasses.replace(pre, patches=sp.patches)
         self.receivers: ReceiverMap = dataclasses.replace(
             rm, recv_pix=sp.recv_pix, E_x=sp.E_x, L_b=sp.L_b, rho_x=sp.reflectance(reflectance(sp.L_b, sp.E_x)))
@@ -139,6 +145,7 @@ class Engine:
         self.object_light = ObjectLight(oc, pm, pre.recv_vert, pre.pix_bary, r.pix_pos, r.pix_patch, r.pix_rows,
                                         r.recv_pix, r.rho_x, r.L_b, B_src, self.scene_occ, scene.response, cam, dev,
                                         sun_dir=sun_light.d if sun_light is not None else None)
+        self._drag: dict[int, DragStages] = {}  # drag frames' coarse pixel stages, per scale (made on first use)
         self.budget = FrameBudget()  # --fps: the measured frame cost
         self.frames_started = 0  # frames begun (render and refine): refine restarts after another
         self.refiner = Refiner(self._frame_steps, self.shadow_sources.traverse, self.shadow_sources.empty,
@@ -256,7 +263,9 @@ class Engine:
         calibration_s = 0.0
         if config.fps is not None and self.budget.cost is None and self.budget.override is None:
             calibration_s = self._calibrate(obj, config)
-        pm, oc, r, sun = self.pre.patches, self.params.object, self.receivers, self.sun_pixels.stage
+        px = self.pixel_stages(config.drag)  # the room's per-pixel stages: full resolution or the drag's coarse
+        # the sun's pass is always the full frame's (its shadow is hard-edged, and cheap at full size)
+        pm, oc, r, sun = self.pre.patches, self.params.object, px.receivers, self.sun_pixels.stage
         timings: dict[str, float] = {}
         t_all = t = time.perf_counter()
 
@@ -273,6 +282,7 @@ class Engine:
         # ---- object pixels: coverage and depth against the scene model
         hits = self.object_shading.object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ)
         cov = hits.coverage()
+        cov_px = cov if px is self else px.zero_cov  # the drag's coarse room is computed under the object too
         t = tick("object", t)
 
         # ---- source list from the shaft hierarchy, grouped into the frame's passes (sec. 6.2.1, 6.4)
@@ -281,9 +291,9 @@ class Engine:
         t = tick("sources", t)
 
         # ---- occlusion masks: listed pixels and patch centres (app.stages.shadow_pass; yields per batch)
-        ldr = config.mode == "ldr"
-        masks = yield from self.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov, fs.cand, fs.eyes,
-                                                self.compose.ldr_weights(fs.W_v) if ldr else fs.W_v, fs.W_c,
+        ldr = config.mode == "ldr" and px is self  # a drag frame is composed in HDR
+        masks = yield from px.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov_px, fs.cand, fs.eyes,
+                                                px.compose.ldr_weights(fs.W_v) if ldr else fs.W_v, fs.W_c,
                                                 fs.n_listed == len(fs.eyes), spread=fs.spread,
                                                 full_maps=config.full_maps, scale=r.L_b_levels if ldr else r.E_x)
         t = tick("masks", t)
@@ -296,17 +306,25 @@ class Engine:
             sun_loss, sun_loss_c = sun.frame(obj.vertices, obj.faces)
             sun_dB = -pm.albedo * sun_loss_c  # the object gathers it exactly (ObjectShading.vertex_radiance)
             t = tick("sun", t)
-        shaded = self.object_shading.shade(obj, shade_mesh, hits, proxy_occ, dB_shadow, sun_dB)
+        shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_shadow, sun_dB)
+        if px is not self and sun is None and hits.hit.any():  # a drag frame: the vertex radiance of a near pose
+            # (with a sun the object's light changes sharply at the sunlit patch's edge: computed every frame)
+            fresh = []
+            vertex = px.near_pose("object radiance", lambda: (fresh.append(shade()) or (fresh[0].L_vert, None)),
+                                  shade_mesh[0], shade_mesh[2], centre, oc.volume_spacing)
+            shaded = fresh[0] if fresh else shade(vertex=vertex)
+        else:
+            shaded = shade()
         obj_rad = shaded.radiance
         if sun is not None:
             dB_shadow = dB_shadow + sun_dB
-            if shaded.L_vert is not None:  # sun: the outline where sunlight clips, sampled finely
+            if shaded.L_vert is not None:  # sun: the outline where sunlight clips, sampled finely (full size)
                 sun.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
                                          shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip)
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres (app.stages.object_light)
-        R_pix, R_cen, R_cen_sun = self._object_light(obj, pv, pf, proxy_occ, centre, radius, cov, dB_shadow) \
+        R_pix, R_cen, R_cen_sun = self._object_light(px, obj, pv, pf, proxy_occ, centre, radius, cov_px, dB_shadow) \
             if oc.object_light else (np.zeros((r.L_b.shape[0], 3)), np.zeros((pm.n_patches, 3)), None)
         t = tick("object_light", t)
 
@@ -315,14 +333,21 @@ class Engine:
         if oc.second_order:
             dB = dB_shadow + pm.albedo * R_cen
             more = None if sun is None else self._sun_later_bounces(sun, sun_dB, R_cen_sun, proxy_occ, pv, dB)
-            dE_v = self.compose.second_order(dB, dE_more=more)
+            dE_v = px.compose.second_order(dB, dE_more=more)
         t = tick("second_order", t)
 
         # ---- compose (app.stages.compose): HDR or LDR, on the pixels that changed
-        radiance, pixels, room = self.compose.frame(config.mode, masks.pix_sel, masks.O_pix, masks.fill_sel,
-                                                    self.shadow_pass.fill, R_pix, dE_v, cov, obj_rad,
-                                                    self.sun_pixels.pix, sun_loss)
-        tick("compose", t)
+        if px is self:
+            radiance, pixels, room = self.compose.frame(config.mode, masks.pix_sel, masks.O_pix, masks.fill_sel,
+                                                        self.shadow_pass.fill, R_pix, dE_v, cov, obj_rad,
+                                                        self.sun_pixels.pix, sun_loss)
+            tick("compose", t)
+        else:  # the drag frame: the coarse room (HDR), its ratio to the photo upsampled, the object over it
+            _, _, room_c = px.compose.frame("hdr", masks.pix_sel, masks.O_pix, masks.fill_sel, px.shadow_pass.fill,
+                                            R_pix, dE_v, px.zero_cov, px.zero_rad)
+            t = tick("compose", t)
+            radiance, pixels, room = px.finish(room_c, cov, obj_rad, self._sun_share(sun_loss))
+            tick("upsample", t)
         frame_s = time.perf_counter() - t_all
         self.budget.measured(frame_s, timings["masks"], len(fs.eyes))
         self.last_shading = (shade_mesh, shaded.L_vert, obj.albedo, shaded.sun_vis) if hits.hit.any() else None
@@ -331,12 +356,35 @@ class Engine:
             stats["fps_calibration_s"] = calibration_s
         return Frame(radiance, pixels, stats, room, cov.astype(np.float32))
 
-    def _object_light(self, obj: SceneObject, pv, pf, proxy_occ, centre, radius, cov, dB_shadow):
+    def _sun_share(self, sun_loss: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """(the sun's pixels, the share of each one's light E_x the object takes from it (n,3), clipped to
+        [0, 1]) at full resolution, as compose takes it; None without a sun."""
+        if sun_loss is None:
+            return None
+        pix = self.sun_pixels.pix
+        return pix, np.clip(sun_loss / np.maximum(self.receivers.E_x[pix], 1e-12), 0.0, 1.0)
+
+    def pixel_stages(self, drag: int | None):
+        """The room's per-pixel stages of a frame (receivers, sun_pixels, shadow_pass, compose,
+        object_light): the engine's own at full resolution (drag None), else the drag frame's at
+        1/drag resolution (app.dragframe.DragStages, made on the first frame at that scale)."""
+        if drag is None:
+            return self
+        if drag not in self._drag:
+            self._drag[drag] = DragStages(self, drag)
+        return self._drag[drag]
+
+    def _object_light(self, px, obj: SceneObject, pv, pf, proxy_occ, centre, radius, cov, dB_shadow):
         """(R_pix (H*W,3), R_cen (P,3), R_cen_sun: R_cen's part from the sun alone or None): the light the
         object reflects, lit by the room's light B_obj + dB_shadow (and the sun: its sunlit parts light
         the room too, as small pieces; SunStage.object_emitters)."""
-        ol, sun = self.object_light, self.sun_pixels.stage
-        tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
+        ol, sun = px.object_light, self.sun_pixels.stage
+        if px is self:
+            tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
+        else:  # a drag frame: the proxy's radiance of a pose near this one (DragStages.near_pose)
+            tri_rad = px.near_pose("proxy light", lambda: ol.triangle_radiance(obj, pv, pf, proxy_occ,
+                                                                               self.B_obj + dB_shadow),
+                                   pv, pf, centre, self.params.object.volume_spacing)
         covered = cov.reshape(-1) >= 1.0
         if sun is None:
             return (*ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered), None)

@@ -11,7 +11,12 @@ reference of `photoar reference` (`--reference-spp N`), else against the all-sou
 (then that row itself scores zero).
 
 `--path N` adds a drag: N poses of the object along a straight line over the floor through its
-pose (app.dragpath), rendered at the smallest pass budget given, from the same precompute.
+pose (app.dragpath), rendered as drag frames (FrameConfig.drag = DRAG_SCALE: the room at 1/2
+resolution, app.dragframe, DRAG_PASSES passes) from the same precompute (the release at rest refines
+from the smallest pass budget given, as the GUI's slider sets it), and a row
+with "passes": "drag": that drag frame at the scene's own pose, scored like the others. The path's
+"stages_ms" has "python": the frame time less the sum of the timed stages (the glue between the
+stages, measured by subtraction; the stages' own numpy is inside their times).
 evaluation.json gets "path": positions (N), passes, frame_s_mean and frame_s_p95 over frames
 2..N (the first frame pays one-off work: kernels, the object's shape), and the per-phase mean
 "stages_ms"; then the release at rest (drag_path): converge_s (to all-source quality against the
@@ -28,6 +33,13 @@ import numpy as np
 
 log = logging.getLogger("photoar")
 
+# The drag frame (app.dragframe): the room at 1/DRAG_SCALE resolution each way with DRAG_PASSES passes, the
+# cheapest configuration of bench/bench_drag.py's (docs/benchmarks.md) within issue 36's error bound
+# (rmse_affected <= 1.5 x the all-sources frame's + 0.5, energy 0.93-1.07) on every room measured: 1/4
+# loses lamps_room's hard lamp shadows; fewer passes leave the clusters' excess darkening of sunlit rooms
+# (energy 1.235 at 50 passes on sun_room, 1.083 at 100 on the unseen sun_101; 1.02-1.03 at 200)
+DRAG_SCALE = 2
+DRAG_PASSES = 200
 CONVERGE_RMSE = 0.05  # levels: "all-source quality" (issue 17): rmse_affected within this of the all-sources frame's
 
 
@@ -77,6 +89,11 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
         order.append(None)  # the all-sources frame is the reference
     for n in order:
         frames[n] = engine.render(scene.obj, dataclasses.replace(engine.frame_config(), passes=n))
+    finite = [n for n in passes if n is not None]
+    drag_cfg = dataclasses.replace(engine.frame_config(), passes=DRAG_PASSES, drag=DRAG_SCALE)
+    if path is not None:
+        engine.render(scene.obj, drag_cfg)  # the drag stages made, kernels compiled: the row's time is a frame's
+        frames["drag"] = engine.render(scene.obj, drag_cfg)
     truth_png = Path(scene_dir) / "truth.png"
     if truth_png.is_file() and (Path(scene_dir) / "truth_mask.png").is_file():
         truth = read_image_rgb(truth_png)
@@ -102,7 +119,7 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
         against = "all-sources composite"
     rows = []
     reg = metrics.regions(scene.photo, truth, mask)["affected"]  # the same for every row
-    for n in passes:
+    for n in passes + (["drag"] if "drag" in frames else []):
         fr = frames[n]
         s = metrics.score_regions(fr.pixels, scene.photo, truth, mask)
         rows.append({"passes": "all" if n is None else n, "n_passes": fr.stats["passes"],
@@ -111,17 +128,18 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
                      "energy_ratio": s["energy_ratio"], "rmse_affected": s["rmse_affected"],
                      "spurious": s["spurious"], "rmse_object": s["rmse_object"],
                      "ssim_affected": metrics.ssim(fr.pixels, truth, reg) if reg.any() else 1.0,
-                     "n_sources": fr.stats["n_sources"], "against": against, "stages_ms": stages_ms(fr.stats)})
+                     "n_sources": fr.stats["n_sources"], "against": against, "stages_ms": stages_ms(fr.stats),
+                     **({"drag_scale": DRAG_SCALE} if n == "drag" else {})})
     log.info("\n%s", table(rows, ["passes", "frame_s", "traversal_s", "energy_ratio", "rmse_affected", "spurious",
                                   "ssim_affected"]))
     extra = {}
     if path is not None:
-        finite = [n for n in passes if n is not None]
         rmse = None
         if against == "truth.png":  # converge_s: to the first frame within CONVERGE_RMSE of the all-sources one
             def rmse(pixels):
                 return metrics.score_regions(pixels, scene.photo, truth, mask)["rmse_affected"]
-        extra["path"], converged = drag_path(engine, scene, min(finite) if finite else None, path, rmse)
+        extra["path"], converged = drag_path(engine, scene, drag_cfg.passes, path, rmse, drag=DRAG_SCALE,
+                                             refine_passes=min(finite) if finite else None)
         extra["converge_s"] = extra["path"]["converge_s"]
         extra["exact_s"] = extra["path"]["exact_s"]
         if None in frames:  # the refined frame against the all-sources row (levels)
@@ -134,14 +152,17 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
         plot_xy({"photoar": ([r["frame_s"] for r in rows], [r["rmse_affected"] for r in rows])},
                 "frame time (s)", f"RMSE over affected pixels (levels) vs {against}", stage / "speed_vs_error.png",
                 title=f"{scene.name}: passes {', '.join(str(r['passes']) for r in rows)}")
-        for n in passes:
+        for n in passes + (["drag"] if "drag" in frames else []):
             write_png(stage / f"composite_{'all' if n is None else n}.png", frames[n].pixels)
     return rows
 
 
-def drag_path(engine, scene, passes: int | None, n: int, rmse=None):
-    """Frame times of n poses along a drag over the floor (app.dragpath) at `passes`; the first
-    frame is excluded. Then the release: the object back at its own pose, one frame at `passes`
+def drag_path(engine, scene, passes: int | None, n: int, rmse=None, drag: int | None = None,
+              refine_passes: int | None = None):
+    """Frame times of n poses along a drag over the floor (app.dragpath) at `passes` (drag frames at
+    1/drag resolution, FrameConfig.drag; None: full-resolution frames); the first frame is excluded.
+    Engine.refine's budget at rest is refine_passes (None: `passes`).
+    Then the release: the object back at its own pose, one frame at `passes`
     (the last move) and Engine.refine (steps of 1/30 s), which shows intermediate frames
     (Engine.refine_schedule) and ends in the all-sources frame. exact_s: the time from that move
     to the all-sources frame; converge_s: to the first frame shown at rest (the release frame
@@ -154,18 +175,18 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None):
     import dataclasses
 
     from app.dragpath import drag_offsets, moved
-    from app.report import mean_stages_ms
 
     offsets = drag_offsets(scene, scene.obj, n)
-    cfg = dataclasses.replace(engine.frame_config(), passes=passes)
+    cfg = dataclasses.replace(engine.frame_config(), passes=passes, drag=drag)
     before = engine.n_precompute
     stats = [engine.render(moved(scene.obj, o), cfg).stats for o in offsets]
     t0 = time.perf_counter()
     release = engine.render(scene.obj, cfg)
     shown = [(time.perf_counter() - t0, 1, release)]  # (seconds since the move, frame slices, frame)
     steps = 1
+    rest = cfg if refine_passes is None else dataclasses.replace(cfg, passes=refine_passes, drag=None)
     while True:
-        fr = engine.refine(scene.obj, cfg, budget_s=1 / 30)
+        fr = engine.refine(scene.obj, rest, budget_s=1 / 30)
         steps += 1
         if fr is not None:
             shown.append((time.perf_counter() - t0, steps, fr))
@@ -192,13 +213,25 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None):
              "frame_s_mean": float(times.mean()), "frame_s_p95": float(np.percentile(times, 95)),
              "frame_s": [float(s["frame_s"]) for s in stats], "offsets_m": offsets.tolist(),
              "length_m": float(np.linalg.norm(offsets[-1] - offsets[0])), "precompute_runs": engine.n_precompute - before,
-             "stages_ms": mean_stages_ms(stats[1:]), "converge_s": converge_s, "converge_frames": converge_frames,
+             "drag_scale": drag, "stages_ms": path_stages_ms(stats[1:]), "converge_s": converge_s,
+             "converge_frames": converge_frames,
              "exact_s": exact_s, "exact_frames": steps, "converge_measures": measures,
              "release_frame_s": float(release.stats["frame_s"]), "refine_s": done.stats["refine_s"],
              "shown": [{"t_s": t, "passes": int(f.stats["passes"]), "exact": bool(f.stats.get("exact", False)),
                         **({"rmse_affected": scores[i]} if scores is not None else {})}
                        for i, (t, _, f) in enumerate(shown)]}
     return entry, done
+
+
+def path_stages_ms(all_stats: list[dict]) -> dict[str, float]:
+    """Per-stage mean milliseconds over frames (app.report.mean_stages_ms) and "python": the mean of
+    frame time less the sum of its timed stages, i.e. the Python/numpy glue between the stages,
+    measured by subtraction (the stages' own glue is inside their times)."""
+    from app.report import mean_stages_ms
+
+    out = mean_stages_ms(all_stats)
+    out["python"] = 1e3 * float(np.mean([s["frame_s"] - sum(s.get("timings", {}).values()) for s in all_stats]))
+    return out
 
 
 def register(sub) -> None:

@@ -202,6 +202,7 @@ class PlacementWindow:
         self.frames_shown = 0
         self.refined_frames = 0  # frames at rest shown by _refine_at_rest (intermediate and all-sources)
         self.last_frame = None  # FrameResult on display
+        self._bench_shown: list | None = None  # run_drag_bench: (time, pose) of each frame shown
         self.frame_times: list[float] = []  # seconds per engine frame (not kept ones)
         self.error: str | None = None
         self.engine_ready = threading.Event()
@@ -317,6 +318,13 @@ class PlacementWindow:
         self.tabs.frame = self.gui.Rect(r.x, r.y, r.width - pw, r.height)
         self.panel.frame = self.gui.Rect(r.get_right() - pw, r.y, pw, r.height)
 
+    def pixel_to_window(self, u: float, v: float) -> tuple[float, float]:
+        """Photo pixel (u, v) -> window coordinates (image_to_pixel's inverse)."""
+        f = self.image.frame
+        cam = self.ctl.scene.camera
+        s, ox, oy = image_fit(f.width, f.height, cam.width, cam.height)
+        return f.x + ox + (u + 0.5) * s, f.y + oy + (v + 0.5) * s
+
     def image_to_pixel(self, x: float, y: float) -> tuple[float, float] | None:
         """Window coordinates -> photo pixel (u, v) (None outside the photo)."""
         f = self.image.frame
@@ -420,6 +428,8 @@ class PlacementWindow:
         budget = "all" if st.get("budget") is None else st["budget"]
         self.pass_label.text = f"passes: {st['passes']} (budget {budget}), {st['mode'].upper()}"
         self.frames_shown += 1
+        if self._bench_shown is not None:  # --drag-bench: when each pose reached the window
+            self._bench_shown.append((time.perf_counter(), pose))
         self.window.post_redraw()
 
     def _set_image(self, pixels: np.ndarray) -> None:
@@ -663,6 +673,72 @@ class PlacementWindow:
             self.window.post_redraw()
             self.app.run_one_tick()
             time.sleep(0.02)
+
+
+    def run_drag_bench(self, n: int, interval_s: float = 1 / 60, timeout_s: float = 600.0) -> dict:
+        """Headless drag benchmark (`photoar gui --drag-bench N`): once the engine is ready and the
+        object's first frame is on screen, press the mouse on the object's footprint, play n DRAG events
+        through the window's own handler (_on_image_mouse), one every interval_s (a 60 Hz mouse) with the
+        event loop running between them, along the straight drag of app.dragpath projected to the photo;
+        wait for the last pose's frame, release. Each event's latency is the time from its handling to
+        the first frame handed to the window (_show_frame: the image updated, a redraw posted) of its pose
+        or a later one (the render loop drops the poses it had no time for: it renders the newest).
+        Returns drag_latencies' figures."""
+        from app.dragpath import drag_offsets
+
+        T = self.gui.MouseEvent.Type
+        t0 = time.perf_counter()
+
+        def spin_until(cond, what: str) -> None:
+            while not cond():
+                if self.error is not None:
+                    raise RuntimeError(f"{self.ctl.scene.root}: {self.error}")
+                if time.perf_counter() - t0 > timeout_s:
+                    raise RuntimeError(f"{self.ctl.scene.root}: --drag-bench: no {what} after {timeout_s:.0f} s")
+                self.app.run_one_tick()
+                time.sleep(0.002)
+
+        spin_until(lambda: self.engine_ready.is_set() and self.frames_shown > 0, "first frame")
+        obj = self.ctl.scene_object()
+        if obj is None:
+            raise ValueError(f"{self.ctl.scene.root}: --drag-bench needs an object (scene.json's or --object)")
+        lo, hi = obj.vertices.min(0), obj.vertices.max(0)
+        pivot = np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
+        uv, _ = self.ctl.scene.camera.project(pivot + drag_offsets(self.ctl.scene, obj, n + 1))
+        self._on_image_mouse(_ScriptMouse(T.BUTTON_DOWN, *self.pixel_to_window(*uv[0])))
+        self._bench_shown = []
+        events: list[tuple[float, Pose]] = []
+        for k in range(1, n + 1):
+            next_t = time.perf_counter() + interval_s
+            self._on_image_mouse(_ScriptMouse(T.DRAG, *self.pixel_to_window(*uv[k])))
+            events.append((time.perf_counter(), self.ctl.pose))
+            while time.perf_counter() < next_t:
+                self.app.run_one_tick()
+                time.sleep(0.001)
+        last = events[-1][1]
+        spin_until(lambda: any(p == last for _, p in self._bench_shown), "frame of the last pose")
+        shown, self._bench_shown = self._bench_shown, None
+        self._on_image_mouse(_ScriptMouse(T.BUTTON_UP, *self.pixel_to_window(*uv[n])))
+        return drag_latencies(events, shown)
+
+
+def drag_latencies(events: list[tuple[float, object]], shown: list[tuple[float, object]]) -> dict:
+    """The --drag-bench figures from events (time s, pose made) in order and frames shown (time s, pose):
+    an event's latency is the time to the first frame shown after it of its pose or a later event's
+    (a pose is matched to the last event that made it); events with no such frame are left out of the
+    mean and p95 (run_drag_bench waits for the last pose's frame: there are none). {"events",
+    "event_to_screen_ms_mean", "event_to_screen_ms_p95", "frames_shown": frames shown from the first
+    event on}."""
+    index = {p: i for i, (_, p) in enumerate(events)}
+    lat = []
+    for i, (t, _) in enumerate(events):
+        after = [ts - t for ts, p in shown if ts >= t and index.get(p, -1) >= i]
+        if after:
+            lat.append(1e3 * min(after))
+    lat_a = np.array(lat) if lat else np.full(1, np.nan)
+    return {"events": len(events), "event_to_screen_ms_mean": float(lat_a.mean()),
+            "event_to_screen_ms_p95": float(np.percentile(lat_a, 95)),
+            "frames_shown": sum(1 for ts, _ in shown if ts >= events[0][0]) if events else 0}
 
 
 # ---------------------------------------------------------------------------- model mode

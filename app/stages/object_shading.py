@@ -679,12 +679,13 @@ class ObjectShading:
         self._shape = self._shade_occ = self._prt = None
 
     def shade(self, obj: SceneObject, mesh, hits: ObjectHits, proxy_occ: Occluder, dB: np.ndarray,
-              sun_dB: np.ndarray | None = None) -> ShadedObject:
+              sun_dB: np.ndarray | None = None, vertex: tuple | None = None) -> ShadedObject:
         """The object's radiance from vertex_radiance, interpolated at the camera hits (with a sun, its
-        direct light per hit; with a specular lobe, the room's reflection)."""
+        direct light per hit; with a specular lobe, the room's reflection). vertex: (L_vert, sun_vis) of
+        this shading mesh to use instead of vertex_radiance's (the drag frame's, app.dragframe)."""
         if not hits.hit.any():
             return ShadedObject(np.zeros((hits.H, hits.W, 3)), None, None)
-        L_vert, sun_vis = self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB)
+        L_vert, sun_vis = vertex if vertex is not None else self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB)
         v, n, f = mesh
         h = hits.hit
         sub = np.zeros((len(h), 3))

@@ -35,7 +35,7 @@ def test_evaluate_path_and_stage_table(tmp_path):
                  "--patch-size", "0.35", "--cache", str(tmp_path / "cache")]) == 0
     ev = json.loads((out / "evaluation.json").read_text())
     p = ev["path"]
-    assert p["positions"] == 4 and p["passes"] == 20 and p["precompute_runs"] == 0
+    assert p["positions"] == 4 and p["passes"] == 200 and p["precompute_runs"] == 0  # the drag frame's
     assert len(p["frame_s"]) == 4 and len(p["offsets_m"]) == 4
     rest = np.array(p["frame_s"][1:])  # the first frame is excluded
     assert p["frame_s_mean"] == pytest.approx(rest.mean())
@@ -46,6 +46,12 @@ def test_evaluate_path_and_stage_table(tmp_path):
         assert {"proxy", "object", "sources", "masks", "object_shading", "object_light", "compose"} <= set(st)
         assert 0 < sum(st.values()) <= 1e3 * r["frame_s"] + 1e-6
     assert set(p["stages_ms"]) >= {"masks", "compose"}
+    # the drag frame (issue 36): a row at the scene's pose, and the path made of drag frames, whose stage
+    # table has the coarse room's upsampling and the glue between the stages ("python", by subtraction)
+    (drag,) = [r for r in ev["rows"] if r["passes"] == "drag"]
+    assert drag["drag_scale"] == p["drag_scale"] == 2 and (out / "composite_drag.png").is_file()
+    assert {"upsample", "python"} <= set(p["stages_ms"]) and p["stages_ms"]["python"] >= -1e-6
+    assert sum(p["stages_ms"].values()) == pytest.approx(1e3 * rest.mean(), rel=1e-6)
     # at rest after the drag: refined to the all-sources frame (the "all" row) at the object's pose
     assert ev["converge_s"] == p["converge_s"] > 0 and p["converge_frames"] > 1
     assert 0 < p["release_frame_s"] < p["converge_s"] and "all-sources frame" in p["converge_measures"]
@@ -69,17 +75,20 @@ def test_evaluate_reaches_all_source_quality_before_the_exact_frame(shared_scene
     p, shown = ev["path"], ev["path"]["shown"]
     assert f"all-source quality after {p['converge_s']:.2f} s" in line and f"after {p['exact_s']:.2f} s" in line
     assert [s["exact"] for s in shown] == [False, False, True]  # the release frame, refine's finer frame, all sources
-    assert [s["passes"] for s in shown[:2]] == [50, 100] and shown[2]["passes"] == ev["rows"][1]["n_passes"]
+    # the release is the drag frame (200 passes at 1/2 resolution), refine's finer frame has twice the
+    # smallest budget of --passes on full-size maps at full resolution
+    assert [s["passes"] for s in shown[:2]] == [200, 100] and shown[2]["passes"] == ev["rows"][1]["n_passes"]
     t = [s["t_s"] for s in shown]
     assert 0 < p["release_frame_s"] <= t[0] < t[1] < t[2]
     # refine ends in the all-sources frame: its score is the "all" row's
     assert p["converge_rmse_vs_all"] <= 0.05
     assert shown[2]["rmse_affected"] == pytest.approx(ev["rows"][1]["rmse_affected"], abs=0.01)
-    # the finer frame is closer to the truth than the release frame and within 0.05 of the all-sources frame:
-    # all-source quality is reached there, before the exact frame
-    assert shown[1]["rmse_affected"] < shown[0]["rmse_affected"] - 0.05
-    assert shown[1]["rmse_affected"] <= shown[2]["rmse_affected"] + 0.05
-    assert ev["converge_s"] == p["converge_s"] == t[1] < p["exact_s"] == ev["exact_s"] == t[2]
+    # all-source quality (within 0.05 of the all-sources frame's rmse_affected) is reached at the first frame
+    # shown at rest that has it, before the exact frame: the finer frame, or already the release (the drag
+    # frame of 200 passes scores 0.77 here, the all-sources frame 0.77)
+    first = next(i for i, s in enumerate(shown) if s["rmse_affected"] <= shown[2]["rmse_affected"] + 0.05)
+    assert first < 2 and shown[1]["rmse_affected"] <= shown[2]["rmse_affected"] + 0.05
+    assert ev["converge_s"] == p["converge_s"] == t[first] < p["exact_s"] == ev["exact_s"] == t[2]
     assert p["converge_frames"] < p["exact_frames"] and "within 0.05" in p["converge_measures"]
 
 

@@ -152,3 +152,17 @@ def test_frame_allocates_nothing_after_the_first_frame(drag_allocations):
     # every stage: no Warp array allocated, no BVH built after the first frame of a shape
     _, _, events = drag_allocations
     assert not events, _report(events)
+
+
+def test_drag_frame_allocates_nothing_after_its_first_frame(tmp_path_factory):
+    # the drag frame (FrameConfig.drag, app.dragframe): its coarse stages and full-resolution compose are
+    # made on the first drag frame; frames 2..N of a drag allocate no Warp array and build no BVH
+    scene = load_scene(demo_scene_dir())
+    eng = Engine(scene, EngineParams(patch_size=0.35), cache_dir=tmp_path_factory.mktemp("cache"), quiet=True)
+    offs = drag_offsets(scene, scene.obj, 5)
+    cfg = FrameConfig(passes=10, drag=2)
+    eng.render(moved(scene.obj, offs[0]), cfg)
+    with counting_allocations() as events:
+        frames = [eng.render(moved(scene.obj, o), cfg) for o in offs[1:]]
+    assert all(f.stats["passes"] >= 2 for f in frames)
+    assert not events, _report(events)

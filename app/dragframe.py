@@ -1,0 +1,201 @@
+"""The drag frame: the room's change computed at a coarser working resolution, the object at full.
+
+While the pose changes (FrameConfig.drag = s), the per-pixel stages of the room (shadow pass,
+object light onto the room, the sun's pixels, compose) run on a camera of 1/s the size each way
+(DragStages: the same precompute's transfers, a coarse camera ID buffer and receiver map); the
+per-patch work (source list, patch centres, second order) is the full frame's. The room's change
+is kept as the ratio room / photo (HDR radiance) at the coarse pixels, brought back bilinearly to
+the full size and applied to the full-resolution photo; the object's own pixels (coverage, depth,
+shading) are always computed at full resolution and composited over it (finish).
+
+Why a ratio: it is smooth where the photo has texture (shadows do not follow texture), so bilinear
+upsampling of it loses little (DESIGN "A coarser drag frame": +0.07-0.13 levels rmse_affected from
+1/2, +0.7-0.9 from 1/4); the coarse stages see no coverage, so the shadow under the object is
+computed too and the ratio has no hole at the object's outline to bleed into the contact shadow.
+
+The at-rest frames (FrameConfig.drag None) never touch this module: they stay byte-identical.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import cv2
+import numpy as np
+
+from app import runtime
+from app.stages.receiver_map import ReceiverMap, receiver_map, reflectance
+from kernels.drag_compose import RATIO_EPS, DragCompose
+from kernels.raycast import cast_rays
+from recon.camera import Camera
+from recon.scene import Scene
+
+
+# Cluster-map size of the drag frame at 1/s resolution: CLUSTER_MAP_RES (128, the full frame's) over s,
+# at least 64: a map texel then spans about as many working pixels as at full resolution, so the
+# coarse frame resolves the same shadow detail per pixel; 64 is the smallest size whose penumbra
+# filter (kernels.masked_sums.penumbra) keeps the clusters' soft shadows smooth
+# (bench/bench_drag.py: 1/2 resolution, 64 and 128 px maps score alike on the shared rooms).
+MIN_DRAG_MAP_RES = 64
+
+
+# (A frame with a map per source, when the room has no more sources than the passes, takes the same rule
+# from the full frame's map size: max(MIN_DRAG_MAP_RES, map_res / s).)
+
+
+def drag_map_res(scale: int) -> int:
+    """The drag frame's cluster-map size at 1/scale resolution (MIN_DRAG_MAP_RES's rule)."""
+    from app.stages.shadow_pass import CLUSTER_MAP_RES
+
+    return max(MIN_DRAG_MAP_RES, CLUSTER_MAP_RES // scale)
+
+
+def coarse_camera(cam: Camera, s: int) -> Camera:
+    """The camera of 1/s the size each way (width, height rounded up) whose pixel (i, j) covers the
+    full camera's s x s block starting at (s i, s j): focal lengths / s, principal point mapped with
+    pixel centres at integers ((c + 0.5) / s - 0.5)."""
+    K = cam.K.astype(np.float64).copy()
+    K[0, 0] /= s
+    K[1, 1] /= s
+    K[0, 2] = (K[0, 2] + 0.5) / s - 0.5
+    K[1, 2] = (K[1, 2] + 0.5) / s - 0.5
+    return dataclasses.replace(cam, K=K, width=-(-cam.width // s), height=-(-cam.height // s))
+
+
+def coarse_scene(scene: Scene, s: int) -> Scene:
+    """`scene` seen by coarse_camera(s), its photo averaged over each s x s block (cv2.INTER_AREA on
+    the image padded by edge replication to a multiple of s)."""
+    cam = coarse_camera(scene.camera, s)
+    H, W = scene.camera.height, scene.camera.width
+    photo = cv2.copyMakeBorder(scene.photo, 0, cam.height * s - H, 0, cam.width * s - W, cv2.BORDER_REPLICATE)
+    photo = cv2.resize(photo, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+    return dataclasses.replace(scene, camera=cam, photo=photo)
+
+
+class DragStages:
+    """The room's per-pixel stages of an Engine at 1/scale resolution (the attributes Engine's frame
+    reads: receivers, sun_pixels, shadow_pass, compose, object_light), and the finish that brings the
+    room's change back to full resolution. Made once per scale, on the first drag frame at it."""
+
+    def __init__(self, engine, scale: int, map_res: int | None = None):
+        """map_res: the drag frame's cluster map size (default: drag_map_res(scale))."""
+        from app.stages.compose import ComposeStage
+        from app.stages.object_light import ObjectLight
+        from app.stages.shadow_pass import ShadowPass
+        from app.stages.sun import SunSetup
+
+        if scale < 2:
+            raise ValueError(f"a drag frame's working resolution is 1/scale with scale >= 2, got {scale}")
+        self.scale = s = scale
+        p, dev, pre = engine.params, engine.device, engine.pre_lit
+        self.scene = sc = coarse_scene(engine.scene, s)
+        cam = sc.camera
+        pix_tri, pix_bary, pix_depth = cast_rays(engine.cam_occ, cam.centre, cam.pixel_rays().reshape(-1, 3))
+        pre = dataclasses.replace(pre, pix_tri=pix_tri, pix_bary=pix_bary, pix_depth=pix_depth)
+        B_src = pre.B[p.bounces - 1]
+        rm = receiver_map(sc, pre, B_src)
+        sun = SunSetup(sc, p.lighting, p.sun, engine.scene_occ, pre.patches)
+        self.sun_pixels = sp = sun.apply(pre, rm, dev)
+        self.pre = pre = dataclasses.replace(pre, patches=sp.patches)
+        r = dataclasses.replace(
+            rm, recv_pix=sp.recv_pix, E_x=sp.E_x, L_b=sp.L_b, rho_x=sp.reflectance(reflectance(sp.L_b, sp.E_x)))
+        self.receivers: ReceiverMap = r
+        pm, sh, oc = pre.patches, p.shadow, p.object
+        self.shadow_pass = ShadowPass(r.pix_pos, r.pix_rows, pre.pix_bary, r.pix_patch, r.recv_pix, pm,
+                                      len(pre.recv_vert), cam.width, cam.height, sh.batch,
+                                      max(MIN_DRAG_MAP_RES, sh.map_res // s), dev, quiet=True,
+                                      cluster_map_res=map_res or drag_map_res(s))
+        self.compose = ComposeStage(L_b=r.L_b, L_b_levels=r.L_b_levels, E_x=r.E_x, rho_x=r.rho_x, recv_pix=r.recv_pix,
+                                    pix_rows=r.pix_rows, pix_bary=pre.pix_bary, photo=sc.photo,
+                                    response=sc.response, G_v=pre.G_v, E_v=r.E_v, recv_vert=pre.recv_vert,
+                                    patches=pm, shape=(cam.height, cam.width), device=dev)
+        sun_light = sun.light if sp.pix is not None else None
+        self.object_light = ObjectLight(oc, pm, pre.recv_vert, pre.pix_bary, r.pix_pos, r.pix_patch, r.pix_rows,
+                                        r.recv_pix, r.rho_x, r.L_b, B_src, engine.scene_occ, sc.response, cam, dev,
+                                        sun_dir=sun_light.d if sun_light is not None else None)
+        self.shape = (cam.height, cam.width)
+        self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object
+        self.zero_rad = np.zeros((*self.shape, 3), np.float32)
+        self.full_shape = (engine.scene.camera.height, engine.scene.camera.width)
+        L_b_c = r.L_b.reshape(*self.shape, 3)
+        self._inv_Lb = np.where(L_b_c > 0, 1.0 / np.maximum(L_b_c, 1e-30), 0.0).astype(np.float32)
+        self._no_ratio = ~engine.receivers.recv_pix.reshape(self.full_shape)  # keep the photo (emitters, sky)
+        self._compose = DragCompose(engine.compose.k, self.full_shape, self.shape, s, self._inv_Lb.reshape(-1, 3),
+                                    engine.receivers.recv_pix, dev)
+        self._split = functools.partial(runtime.split, device=dev)
+        self._near: dict[str, tuple] = {}  # near_pose: (shape, centre, value) of the last computed pose
+
+    def near_pose(self, what: str, compute, vertices: np.ndarray, faces: np.ndarray, centre: np.ndarray,
+                  reach: float):
+        """compute()'s value for `what` while dragging: computed when the object has moved by `reach`
+        metres or more since the pose it was last computed at (or its mesh (vertices, faces) changed
+        shape), else that pose's value. reach is the SH volume's spacing (ObjectConfig.volume_spacing):
+        the room light the object's shading reads is itself sampled that finely, so the object's own
+        light (its radiance per vertex, its proxy's per triangle) is not resolved more finely while it
+        moves either."""
+        key = (faces.shape, len(vertices), float(np.round(np.ptp(vertices, axis=0).sum(), 6)))
+        last = self._near.get(what)
+        if last is None or last[0] != key or np.linalg.norm(centre - last[1]) >= reach:
+            last = self._near[what] = (key, np.asarray(centre, np.float64).copy(), compute())
+        return last[2]
+
+    def ratio(self, room_c: np.ndarray) -> np.ndarray:
+        """(H,W,3) float32 full-resolution ratio room / photo from the coarse room (h,w,3) radiance:
+        1 where the coarse photo is black or the full pixel is no receiver; bilinear between the coarse
+        pixels' centres (cv2.resize, half-pixel centres: the block layout of coarse_camera)."""
+        s = self.scale
+        ratio_c = np.where(self._inv_Lb > 0, room_c * self._inv_Lb, np.float32(1.0))
+        h, w = self.shape
+        up = cv2.resize(ratio_c, (w * s, h * s), interpolation=cv2.INTER_LINEAR)
+        H, W = self.full_shape
+        up = up[:H, :W]
+        up[self._no_ratio] = 1.0
+        return up
+
+    def finish(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, sun=None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(radiance (H,W,3) float32, pixels (H,W,3) uint8, room (H,W,3) float32) at full resolution
+        from the coarse room room_c (h,w,3) without the sun, the object's cov (H,W), obj_rad (H,W,3), and
+        sun: None or (pixels (n,), the share of their light the object takes from the sun (n,3)) at full
+        resolution (Engine._sun_share): one kernel (kernels.drag_compose), the form finish_reference
+        specifies."""
+        H, W = self.full_shape
+        rad, room, pix = self._compose.run(room_c, cov, obj_rad, self._split, sun)
+        return rad.reshape(H, W, 3), pix.reshape(H, W, 3), room.reshape(H, W, 3)
+
+    def finish_reference(self, engine, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, sun=None
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """finish in numpy (its specification; tests): at full resolution:
+        the photo's radiance L_b times the upsampled ratio less the sun's share u (max(L_b (ratio - u), 0)),
+        in levels T(room) where the ratio moves it
+        (else the photo's own levels), and the object (coverage cov (H,W), radiance obj_rad (H,W,3))
+        mixed over it as compose_reference does (levels, or radiance where either side clips)."""
+        rc = engine.receivers
+        resp = engine.scene.response
+        H, W = self.full_shape
+        ratio = self.ratio(room_c).reshape(-1, 3).astype(np.float64)
+        L_b = rc.L_b
+        changed = np.abs(ratio - 1.0).max(1) > RATIO_EPS
+        if sun is not None:
+            ratio[sun[0]] -= sun[1]
+            changed[sun[0]] |= sun[1].any(1)
+        room = np.maximum(L_b * ratio, 0.0).astype(np.float32)
+        changed = np.flatnonzero(changed)
+        levels = rc.L_b_levels.copy()
+        levels[changed] = resp.to_levels(room[changed])
+        c = cov.reshape(-1)
+        on = np.flatnonzero(c > 0)
+        radiance = room.copy()
+        if len(on):
+            cc = c[on, None].astype(np.float64)
+            o = obj_rad.reshape(-1, 3)[on]
+            radiance[on] = (1 - cc) * room[on] + cc * o
+            obj_levels = resp.to_levels(o)
+            room_levels = levels[on]
+            mix = (1 - cc) * room_levels + cc * obj_levels
+            edge = ((obj_levels >= 255) | (room_levels >= 255)).any(1) & (cc[:, 0] < 1)
+            if edge.any():
+                mix[edge] = resp.to_levels(radiance[on[edge]])
+            levels[on] = mix
+        pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8)
+        return radiance.reshape(H, W, 3), pixels.reshape(H, W, 3), room.reshape(H, W, 3)

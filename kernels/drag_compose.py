@@ -1,0 +1,179 @@
+"""The drag frame's full-resolution compose: the coarse room's ratio to the photo brought back
+bilinearly, applied to the photo, the object mixed over it (app.dragframe).
+
+One thread per full-resolution pixel, float64, the camera response as kernels.pixel_compose
+evaluates it:
+
+  ratio  = bilinear over the coarse pixels' ratios room_c / L_b_c (1 where L_b_c is 0), pixel
+           centres as cv2.resize's INTER_LINEAR (coarse x = (x + 0.5) / s - 0.5, clamped at the edges)
+  room   = max(L_b x (ratio - u), 0) where the pixel is a receiver and the ratio moves it by more than
+           RATIO_EPS or the sun's share u (the share of its light the object takes from the sun, computed
+           at full resolution: the sun's shadow is hard-edged) is not 0; else L_b with the photo's own levels
+  pixel  = (1 - c) T(room) + c T(L_obj), or T((1 - c) room + c L_obj) where either side clips
+"""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from kernels.pixel_compose import PX_LB, PX_STILL, _Mirror, to_levels, to_pixel
+
+RATIO_EPS = 1e-6  # a ratio this close to 1 leaves the photo's level (float32 noise of the coarse room)
+
+
+@wp.func
+def _coarse_ratio(room_c: wp.array2d(dtype=wp.float32), inv_c: wp.array2d(dtype=wp.float32), j: int, c: int
+                  ) -> wp.float64:
+    inv = inv_c[j, c]
+    if inv > wp.float32(0.0):
+        return wp.float64(room_c[j, c]) * wp.float64(inv)
+    return wp.float64(1.0)
+
+
+@wp.kernel
+def drag_compose_kernel(first: int, W: int, w: int, h: int, s: int, room_c: wp.array2d(dtype=wp.float32),
+                        inv_c: wp.array2d(dtype=wp.float32), recv: wp.array(dtype=wp.uint8),
+                        sun: wp.array2d(dtype=wp.float32),
+                        px: wp.array2d(dtype=wp.float64), cov: wp.array(dtype=wp.float32),
+                        obj: wp.array2d(dtype=wp.float32), tab: wp.array2d(dtype=wp.float64),
+                        grid: wp.array2d(dtype=wp.int32), rtab: wp.array2d(dtype=wp.int16), exposure: wp.float64,
+                        out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
+                        out_pix: wp.array2d(dtype=wp.uint8)):
+    """room_c (h*w,3) the coarse room radiance, inv_c (h*w,3) 1 / its photo radiance (0: none); recv
+    (N,) 1 where the full pixel is a receiver; sun (N,3) the sun's share u (cleared as read); px the HDR
+    per-scene table (pixel_compose.PX_*); cov (N,)
+    and obj (N,3) the object's coverage and radiance at full resolution; out, out_room, out_pix as
+    pixel_compose.compose_kernel's."""
+    i = first + wp.tid()
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    full = wp.float64(255.0)
+    y = i // W
+    x = i - y * W
+    sf = wp.float64(s)
+    fx = (wp.float64(x) + wp.float64(0.5)) / sf - wp.float64(0.5)
+    fy = (wp.float64(y) + wp.float64(0.5)) / sf - wp.float64(0.5)
+    x0 = int(wp.floor(fx))
+    y0 = int(wp.floor(fy))
+    ax = fx - wp.float64(x0)
+    ay = fy - wp.float64(y0)
+    xa = wp.clamp(x0, 0, w - 1)
+    xb = wp.clamp(x0 + 1, 0, w - 1)
+    ya = wp.clamp(y0, 0, h - 1)
+    yb = wp.clamp(y0 + 1, 0, h - 1)
+    moved = False
+    ratio = wp.vec3d(one, one, one)
+    if recv[i] != wp.uint8(0):
+        for c in range(3):
+            r00 = _coarse_ratio(room_c, inv_c, ya * w + xa, c)
+            r01 = _coarse_ratio(room_c, inv_c, ya * w + xb, c)
+            r10 = _coarse_ratio(room_c, inv_c, yb * w + xa, c)
+            r11 = _coarse_ratio(room_c, inv_c, yb * w + xb, c)
+            r = (one - ay) * ((one - ax) * r00 + ax * r01) + ay * ((one - ax) * r10 + ax * r11)
+            ratio[c] = r
+            if wp.abs(r - one) > wp.float64(RATIO_EPS):
+                moved = True
+            u = wp.float64(sun[i, c])
+            if u != zero:
+                ratio[c] = r - u
+                sun[i, c] = wp.float32(0.0)  # left cleared for the next frame
+                moved = True
+    cv = wp.float64(cov[i])
+    rad = wp.vec3d()
+    lev = wp.vec3d()
+    q = wp.vec3i()
+    rounded = False
+    if moved:
+        rounded = cv == zero
+        for c in range(3):
+            rad[c] = wp.max(px[i, PX_LB + c] * ratio[c], zero)
+            if rounded:
+                q[c] = to_pixel(rad[c], c, exposure, rtab, tab, grid)
+            else:
+                lev[c] = to_levels(rad[c], c, exposure, tab, grid)
+    else:
+        for c in range(3):
+            rad[c] = px[i, PX_LB + c]
+            lev[c] = px[i, PX_STILL + c]
+    pr = wp.vec3d(rad[0], rad[1], rad[2])
+    pl = wp.vec3d(lev[0], lev[1], lev[2])
+    if cv > zero:
+        clips = lev[0] >= full or lev[1] >= full or lev[2] >= full
+        for c in range(3):
+            o = wp.float64(obj[i, c])
+            pr[c] = (one - cv) * rad[c] + cv * o
+            t = to_levels(o, c, exposure, tab, grid)
+            pl[c] = (one - cv) * lev[c] + cv * t
+            if t >= full:
+                clips = True
+        if clips and cv < one:
+            for c in range(3):
+                pl[c] = to_levels(pr[c], c, exposure, tab, grid)
+    for c in range(3):
+        out[i, c] = wp.float32(pr[c])
+        out_room[i, c] = wp.float32(rad[c])
+        if rounded:
+            out_pix[i, c] = wp.uint8(q[c])
+        else:
+            out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(pl[c]), zero, full)))
+
+
+class DragCompose:
+    """The drag frame's compose at full resolution for one scale: the per-scene inputs uploaded once
+    (the coarse photo's inverse radiance, the receiver flags; the response tables and the HDR pixel
+    table are the full compositor's, kernels.pixel_compose.Compositor), the per-frame inputs in buffers
+    made once, the outputs from the compositor's pool (Compositor._outputs: a frame that is still held
+    keeps its arrays); per frame one launch per core and no allocation."""
+
+    def __init__(self, compositor, shape: tuple[int, int], coarse: tuple[int, int], scale: int,
+                 inv_Lb_c: np.ndarray, recv: np.ndarray, device: str):
+        """compositor: the full frame's Compositor; shape (H,W), coarse (h,w); inv_Lb_c (h*w,3) float32;
+        recv (H*W,) bool."""
+        self.k, self.device = compositor, device
+        self.H, self.W = shape
+        self.h, self.w = coarse
+        self.s = scale
+        n, m, f32 = self.H * self.W, self.h * self.w, wp.float32
+        self._inv = _Mirror.of(np.ascontiguousarray(inv_Lb_c, np.float32), f32, device)
+        self._recv = _Mirror.of(recv.astype(np.uint8), wp.uint8, device)
+        self._sun = _Mirror((n, 3), f32, device)  # the sun's share, cleared by the kernel as it reads it
+        self._room = _Mirror((m, 3), f32, device)
+        self._cov = _Mirror((n,), f32, device)
+        self._obj = _Mirror((n, 3), f32, device)
+
+    def run(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, split, sun=None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(radiance (N,3) float32, room (N,3) float32, pixels (N,3) uint8) from the coarse room
+        room_c (h*w,3), the object's coverage cov (N,) and radiance obj_rad (N,3) (float32); sun: None or
+        (pixels (n,), the sun's share there (n,3))."""
+        d, n, k = self.device, self.H * self.W, self.k
+        self._room.np[:] = room_c.reshape(-1, 3)
+        self._cov.np[:] = cov.reshape(-1)
+        self._obj.np[:] = obj_rad.reshape(-1, 3)
+        for m in (self._room, self._cov, self._obj):
+            m.push()
+        if sun is not None:
+            self._sun.np[sun[0]] = sun[1]
+            self._sun.push()
+            if not wp.get_device(d).is_cpu:
+                self._sun.np[sun[0]] = 0.0  # CUDA: the host copy is cleared here, the device's by the kernel
+        rad, room, pix = k._outputs()
+        if k._out is None:  # the CPU: the kernel writes the returned arrays (wrapped, not copied)
+            outs = [wp.array(a, dtype=dt, device=d, copy=False)
+                    for a, dt in ((rad, wp.float32), (room, wp.float32), (pix, wp.uint8))]
+        else:
+            outs = [o.dev for o in k._out]
+
+        def launch(lo: int, hi: int) -> None:
+            wp.launch(drag_compose_kernel, dim=hi - lo, device=d,
+                      inputs=[lo, self.W, self.w, self.h, self.s, self._room.dev, self._inv.dev, self._recv.dev,
+                              self._sun.dev, k._px["hdr"], self._cov.dev, self._obj.dev,
+                              k._tab, k._grid, k._rtab, k._exposure, *outs])
+
+        split(launch, n)
+        wp.synchronize_device(d)
+        if k._out is not None:
+            for o, a in zip(k._out, (rad, room, pix)):
+                o.pull()
+                a[...] = o.np
+        return rad, room, pix

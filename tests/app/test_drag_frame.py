@@ -1,0 +1,123 @@
+"""The drag frame (FrameConfig.drag, app.dragframe, kernels.drag_compose): the room's change at a coarser
+working resolution, upsampled as the ratio to the photo, the object at full resolution."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from app.cli import demo_scene_dir
+
+
+def test_coarse_camera_maps_pixel_blocks():
+    # a world point seen at full-resolution pixel (u, v) is seen at ((u + 0.5) / s - 0.5, ...) by the
+    # camera of 1/s the size: coarse pixel i covers full pixels s i .. s i + s - 1 (pixel centres at integers)
+    from app.dragframe import coarse_camera
+    from recon.scene import load_scene
+
+    cam = load_scene(demo_scene_dir()).camera
+    rng = np.random.default_rng(0)
+    pts = cam.centre + cam.pixel_rays()[rng.integers(0, cam.height, 20), rng.integers(0, cam.width, 20)] * 3.0
+    uv, _ = cam.project(pts)
+    for s in (2, 4):
+        c = coarse_camera(cam, s)
+        assert (c.width, c.height) == (-(-cam.width // s), -(-cam.height // s))
+        uv_c, _ = c.project(pts)
+        np.testing.assert_allclose(uv_c, (uv + 0.5) / s - 0.5, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def demo_engine(tmp_path_factory):
+    from app.engine import Engine, EngineParams
+    from recon.scene import load_scene
+
+    scene = load_scene(demo_scene_dir())
+    return scene, Engine(scene, EngineParams(patch_size=0.35), cache_dir=tmp_path_factory.mktemp("cache"), quiet=True)
+
+
+def test_drag_frame_leaves_the_frames_at_rest_unchanged(demo_engine):
+    # the drag frame is a separate path: a 50-pass frame and the all-sources frame are byte-identical
+    # before and after drag frames of two scales
+    from app.engine import FrameConfig
+
+    scene, eng = demo_engine
+    before = [eng.render(scene.obj, FrameConfig(passes=p)).pixels.copy() for p in (50, None)]
+    for s in (2, 4):
+        eng.render(scene.obj, FrameConfig(passes=50, drag=s))
+    after = [eng.render(scene.obj, FrameConfig(passes=p)).pixels for p in (50, None)]
+    for a, b in zip(before, after):
+        assert np.array_equal(a, b)
+
+
+def test_drag_compose_kernel_matches_its_reference(demo_engine):
+    # kernels.drag_compose against DragStages.finish_reference (numpy, float32 ratio): the 8-bit frame
+    # within 1 level (the two round a ratio computed in float64 and float32), radiance within 1e-4 relative
+    from app.engine import FrameConfig
+
+    scene, eng = demo_engine
+    fr = eng.render(scene.obj, FrameConfig(passes=50, drag=2))
+    px = eng.pixel_stages(2)
+    cov = fr.coverage
+    # one coarse room (the photo darkened or brightened per coarse pixel) through both finishes
+    rng = np.random.default_rng(1)
+    h, w = px.shape
+    room_c = px.receivers.L_b.reshape(h, w, 3) * rng.uniform(0.6, 1.1, (h, w, 1))
+    obj_rad = fr.radiance * (cov[..., None] > 0)
+    rad_k, pix_k, room_k = px.finish(room_c.astype(np.float32), cov, obj_rad)
+    rad_r, pix_r, room_r = px.finish_reference(eng, room_c.astype(np.float32), cov, obj_rad)
+    assert np.abs(pix_k.astype(int) - pix_r).max() <= 1
+    assert np.mean(pix_k != pix_r) < 1e-3
+    np.testing.assert_allclose(room_k, room_r, rtol=1e-4, atol=1e-7)
+    np.testing.assert_allclose(rad_k, rad_r, rtol=1e-4, atol=1e-7)
+    # with the sun's share at full resolution (pixels, share of their light taken): room = L_b (ratio - u)
+    sun_pix = np.flatnonzero(eng.receivers.recv_pix)[::7]
+    share = rng.uniform(0.0, 1.0, (len(sun_pix), 3))
+    rad_k, pix_k, room_k = px.finish(room_c.astype(np.float32), cov, obj_rad, (sun_pix, share))
+    rad_r, pix_r, room_r = px.finish_reference(eng, room_c.astype(np.float32), cov, obj_rad, (sun_pix, share))
+    assert np.abs(pix_k.astype(int) - pix_r).max() <= 1 and np.mean(pix_k != pix_r) < 1e-3
+    np.testing.assert_allclose(room_k, room_r, rtol=1e-4, atol=1e-6)
+    # the kernel clears the share as it reads it: the next frame without a sun has none
+    rad_1, pix_1, _ = px.finish(room_c.astype(np.float32), cov, obj_rad)
+    rad_0, pix_0, _ = px.finish_reference(eng, room_c.astype(np.float32), cov, obj_rad)
+    assert np.abs(pix_1.astype(int) - pix_0).max() <= 1
+    # a coarse room equal to the photo leaves every uncovered pixel at the photo's level
+    rad1, pix1, _ = px.finish(px.receivers.L_b.reshape(h, w, 3).astype(np.float32), np.zeros_like(cov),
+                              np.zeros_like(obj_rad))
+    assert np.array_equal(pix1, scene.photo)
+
+
+@pytest.mark.parametrize("room", ["window_room", "lamps_room", "sun_room"])
+def test_drag_frame_scores_near_the_all_sources_frame(shared_scenes_cache, room):
+    # each shared room against its truth (tools/score.py's measures, lighting.metrics): evaluate's drag frame
+    # (1/2 resolution, 200 passes) within issue 36's bound, rmse_affected <= 1.5 x the all-sources frame's
+    # + 0.5 and energy_ratio in 0.93-1.07 (sun_room: the sun's pass at full resolution); its change lies where
+    # the full-resolution frame of as many passes changes the photo
+    import cv2
+
+    from app.engine import Engine, EngineParams, FrameConfig
+    from app.evaluate import DRAG_PASSES, DRAG_SCALE
+    from lighting import metrics
+    from recon.io import read_image_rgb
+    from recon.scene import load_scene
+    from tests.conftest import shared_scene
+
+    d = shared_scene(room)
+    scene = load_scene(d)
+    eng = Engine(scene, EngineParams(), cache_dir=shared_scenes_cache, quiet=True)
+    truth = read_image_rgb(d / "truth.png")
+    mask = cv2.imread(str(d / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+    full = eng.render(scene.obj, FrameConfig(passes=None))
+    same = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES))
+    drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
+    s_all = metrics.score_regions(full.pixels, scene.photo, truth, mask)
+    s_drag = metrics.score_regions(drag.pixels, scene.photo, truth, mask)
+    assert s_drag["rmse_affected"] <= 1.5 * s_all["rmse_affected"] + 0.5
+    assert 0.93 <= s_drag["energy_ratio"] <= 1.07
+    # the object's own pixels are the full frame's (full resolution, the same shading)
+    inside = same.coverage >= 1
+    assert np.abs(drag.pixels[inside].astype(int) - same.pixels[inside]).max() <= 1
+    # where the drag frame moves a pixel by more than 2 levels, the full-resolution frame moves it or a pixel
+    # within 2 working pixels (the bilinear footprint) by more than half a level
+    moved = (np.abs(same.pixels.astype(int) - scene.photo).max(2) > 0.5).astype(np.uint8)
+    near = cv2.dilate(moved, np.ones((4 * DRAG_SCALE + 1,) * 2, np.uint8)) > 0
+    moved_drag = np.abs(drag.pixels.astype(int) - scene.photo).max(2) > 2
+    assert np.mean(moved_drag & ~near) < 1e-4
