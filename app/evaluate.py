@@ -31,15 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
+from app.config import DRAG_PASSES, DRAG_SCALE  # the drag frame's settings
+
 log = logging.getLogger("photoar")
 
-# The drag frame (app.dragframe): the room at 1/DRAG_SCALE resolution each way with DRAG_PASSES passes, the
-# cheapest configuration of bench/bench_drag.py's (docs/benchmarks.md) within issue 36's error bound
-# (rmse_affected <= 1.5 x the all-sources frame's + 0.5, energy 0.93-1.07) on every room measured: 1/4
-# loses lamps_room's hard lamp shadows; fewer passes leave the clusters' excess darkening of sunlit rooms
-# (energy 1.235 at 50 passes on sun_room, 1.083 at 100 on the unseen sun_101; 1.02-1.03 at 200)
-DRAG_SCALE = 2
-DRAG_PASSES = 200
 CONVERGE_RMSE = 0.05  # levels: "all-source quality" (issue 17): rmse_affected within this of the all-sources frame's
 
 

@@ -34,6 +34,8 @@ from typing import Callable
 
 import numpy as np
 
+from app.config import DRAG_PASSES as DRAG_FRAME_PASSES, DRAG_SCALE
+
 from recon.scene import Scene, SceneError, SceneObject, furniture_boxes, load_mesh, load_scene
 from recon.io import read_json
 
@@ -479,7 +481,9 @@ class PlacementController:
         with self._lock:
             if self._config is None:
                 p = self.params
-                self._config = FrameConfig(DRAG_PASSES, "hdr") if p is None else FrameConfig(p.passes, p.mode, p.fps)
+                # with no settings given, frames while the object moves are drag frames (app.dragframe)
+                self._config = (FrameConfig(DRAG_FRAME_PASSES, "hdr", drag=DRAG_SCALE) if p is None
+                                else FrameConfig(p.passes, p.mode, p.fps))
             return self._config
 
     @property
@@ -555,7 +559,7 @@ class PlacementController:
             pose = self.pose if pose is None else pose
             if eng is None:
                 raise RuntimeError(f"{self.scene.root}: the engine is not ready (precompute still running)")
-            cfg = replace(self.config, passes=None, fps=None)
+            cfg = replace(self.config, passes=None, fps=None, drag=None)
             key = (pose, cfg)
             kept = self._kept_frame(key, t0)
             if kept is not None:
@@ -563,7 +567,9 @@ class PlacementController:
         obj = self.scene_object(pose)
         if obj is None:  # the photo itself: nothing to refine
             return self.render(pose)
-        f = eng.refine(obj, replace(self.config, fps=None), budget_s)  # the drag budget sets the frames at rest
+        at_rest = replace(self.config, fps=None, drag=None,  # full resolution; the drag budget sets the frames
+                          passes=DRAG_PASSES if self.config.drag else self.config.passes)
+        f = eng.refine(obj, at_rest, budget_s)
         if f is None or not (f.stats["exact"] or intermediate):
             return None
         fr = FrameResult(f.pixels, f.radiance, {"passes": f.stats["passes"], "engine_s": f.stats["refine_s"],
