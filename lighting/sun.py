@@ -415,7 +415,7 @@ def sunlit_pixels(L_b: np.ndarray, saturated: np.ndarray, pix_quad: np.ndarray, 
 
     out = np.zeros(len(L_b), bool)
     lum = np.log(np.maximum(luminance(L_b), 1e-9))
-    if shape is not None:
+    if shape is not None and shape[0] * shape[1] == len(lum):
         lum = median_filter(lum.reshape(shape), size=DENOISE_PX, mode="nearest").ravel()
     for q in np.unique(pix_quad[recv]):
         idx = np.flatnonzero(recv & (pix_quad == q))
