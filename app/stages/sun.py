@@ -38,6 +38,7 @@ from recon.response import luminance
 from recon.scene import Scene
 
 log = logging.getLogger("photoar")
+CLIP_LEVEL = 254  # an 8-bit level at or above which a photo channel counts as clipped (the sun's pixels)
 
 
 PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility table (~6 degrees): at floor
@@ -375,7 +376,8 @@ class SunStage:
         Outline: pixels partly covered, or uncovered/covered ones beside a pixel that is not;
         clipping: the photo clips there or next to it (`clipped` (H*W,) bool, a sunlit floor) or
         the object's radiance there or next to it reaches the photo's white level in some channel (a
-        sunlit face; self.white, the response's radiance at level 255: it scales as 1 / exposure). Object radiance per ray: L_vert interpolated, with the sun per hit (its
+        sunlit face; self.white, the response's radiance at level 255: it scales as 1 / exposure).
+        Object radiance per ray: L_vert interpolated, with the sun per hit (its
         self-shadow edge: rays on the faces it crosses, SunLight.hit_correction; sun_vis (V,) the
         vertices' sun share) as ObjectShading.shade does.
 
@@ -713,24 +715,16 @@ class SunSetup:
         lit_img = np.zeros(H * W, bool)
         lit_img[out.pix] = True
         near = np.zeros(H * W, bool)
-        unlit_near = np.zeros(H * W, bool)
         for dy, dx, src, dst in window_pairs(H, W):
             near[dst] |= lit_img[src]
-            unlit_near[dst] |= ~lit_img[src]
         edge = np.flatnonzero(near & ~lit_img & recv_pix)
-        # clipped sunlit pixels: model radiance instead of the photo's floor (clipped_sunlit); the
-        # sunlit region's outer pixels (partly in shade in the photo) are judged one by one
-        white = scene.response.to_radiance(np.full((1, 3), 255, np.uint8))[0]
-        region, sat_c = clipped_sunlit(scene.photo.reshape(-1, 3)[out.pix], pix_patch[out.pix])
-        region &= ~unlit_near[out.pix, None]
-        sat = region.any(1) | sat_c.any(1)
+        # clipped sunlit pixels: model radiance instead of the photo's floor
+        sat = (scene.photo.reshape(-1, 3)[out.pix] >= CLIP_LEVEL).any(1)
         idx = out.pix[sat]
         rho = self._albedo(pm, pix_patch, pix_pos, idx)
         out.rho_pix = np.concatenate([idx, edge])
         out.rho = np.concatenate([rho, self._albedo(pm, pix_patch, pix_pos, edge)])
-        model = rho * E_x[idx]
-        L_b[idx] = np.where(region[sat], np.maximum(model, white),
-                            np.maximum(L_b[idx], model))
+        L_b[idx] = np.maximum(L_b[idx], rho * E_x[idx])
         # sample points of sunlit patches (second order: the patches' lost sun)
         lit_c = np.flatnonzero(self.patch_light().any(1))
         n_side = 4
@@ -882,33 +876,6 @@ class SunSetup:
             log.warning("%s: sun: --lighting photo found no sun in the photo (%s); the "
                         "declared sun is not used", self.where, reason)
         return out
-
-
-CLIP_LEVEL = 254  # an 8-bit level at or above which a channel counts as clipped (the engine's rule)
-
-
-def clipped_sunlit(levels: np.ndarray, patch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Which channels of the sunlit pixels are a clipped floor, not a measurement: (region (S,3),
-    pixel (S,3)) bool for their photo levels (S,3) uint8 and patches (S,).
-
-    region: the channel clips on the median sunlit pixel of the pixel's patch. Then the sunlit
-    surface there is above the white level and a pixel of it that does not clip is a noise draw
-    (grain, Monte Carlo, one channel at 250) of a clipped surface: every sunlit pixel of the patch
-    takes the model's radiance in that channel, so the sun's shadow is a function of the geometry
-    and the albedo with no per-pixel speckle (a per-pixel split leaves clipped pixels at rho E_ind
-    and their unclipped neighbours at a few times less). pixel: the pixel itself clips in the
-    channel (outside such regions a pixel with a clipped channel is a floor in every channel, raised
-    to the model's where that is brighter)."""
-    sat_c = np.asarray(levels) >= CLIP_LEVEL
-    region = np.zeros_like(sat_c)
-    if len(patch) == 0:
-        return region, sat_c
-    _, inv, counts = np.unique(patch, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    for c in range(3):  # the median pixel clips when more than half of the patch's do
-        share = np.bincount(inv, sat_c[:, c], len(counts)) / counts
-        region[:, c] = share[inv] > 0.5
-    return region, sat_c
 
 
 def estimate_line(info: dict) -> str:
