@@ -390,15 +390,33 @@ def surface_albedo(scene: Scene, quad: np.ndarray, points: np.ndarray, fallback:
 SUN_DIAMETER_DEG = 0.53  # the sun's mean apparent diameter seen from the earth (a constant of nature)
 
 
+# Otsu's separation of a single-humped distribution is at most the uniform one's: split at its
+# middle, the class means lie half the range apart and each class's spread is (range / 2) / sqrt(12),
+# so (m1 - m0) / spread = 2 sqrt(3). A sun edge makes two humps, separated by more.
+UNIMODAL_SEPARATION = 2.0 * np.sqrt(3.0)
+DENOISE_PX = 5  # median window (px) of sunlit_pixels: a sun patch is many pixels across, pixel noise is not
+
+
 def sunlit_pixels(L_b: np.ndarray, saturated: np.ndarray, pix_quad: np.ndarray, recv: np.ndarray,
-                  min_ratio: float = 3.0) -> np.ndarray:
+                  min_ratio: float = 3.0, shape: tuple[int, int] | None = None) -> np.ndarray:
     """(N,) bool: receiver pixels lit by the sun in the photo. Per quad, saturated pixels, and pixels
     above the Otsu split of the quad's log-luminance when the bright class is at least `min_ratio`
-    times the dark one (direct sun is many times the sky's light; a smooth gradient is not split)."""
+    times the dark one (direct sun is many times the sky's light) and the two classes are two humps:
+    their means further apart than UNIMODAL_SEPARATION x their pooled spread (a smooth gradient or
+    plain noise is one hump and is not split).
+
+    With `shape` (H, W) (N = H W, pixels in image order) the log-luminance is first median-filtered
+    over DENOISE_PX x DENOISE_PX pixels: a noisy photo (a few spp render, grain, a pixel at level 0)
+    has per-pixel outliers that would become Otsu's dark class on their own; a sun patch, many
+    pixels across, keeps its edge through a median."""
+    from scipy.ndimage import median_filter
+
     from lighting.sources import luminance
 
     out = np.zeros(len(L_b), bool)
     lum = np.log(np.maximum(luminance(L_b), 1e-9))
+    if shape is not None and shape[0] * shape[1] == len(lum):
+        lum = median_filter(lum.reshape(shape), size=DENOISE_PX, mode="nearest").ravel()
     for q in np.unique(pix_quad[recv]):
         idx = np.flatnonzero(recv & (pix_quad == q))
         if len(idx) < 50:
@@ -412,7 +430,10 @@ def sunlit_pixels(L_b: np.ndarray, saturated: np.ndarray, pix_quad: np.ndarray, 
         between = k * (len(v) - k) * (m1 - m0) ** 2
         i = int(np.argmax(between))
         bright = v > order[i]
-        if np.exp(m1[i] - m0[i]) >= min_ratio:
+        if bright.all() or not bright.any():
+            continue
+        spread = np.sqrt(0.5 * (v[bright].var() + v[~bright].var()))
+        if np.exp(m1[i] - m0[i]) >= min_ratio and m1[i] - m0[i] > UNIMODAL_SEPARATION * spread:
             out[idx[bright]] = True
     out |= saturated & recv
     return out
@@ -448,7 +469,7 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
         info.update(direction=d.tolist(), direction_from="declared")
         return _sun_strength(d, holes, occluder, pm, B, G_c, info)
     pix_quad = np.where(pix_patch >= 0, pm.quad[np.maximum(pix_patch, 0)], -1)
-    lit = sunlit_pixels(L_b, saturated, pix_quad, recv)
+    lit = sunlit_pixels(L_b, saturated, pix_quad, recv, shape=scene.photo.shape[:2])
     if lit.sum() < 50:
         return None, {"reason": "no sunlit region in the photo"}
     nrm = pm.normal[np.maximum(pix_patch, 0)]

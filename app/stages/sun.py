@@ -34,10 +34,11 @@ from app.stages.shadow_pass import window_pairs
 from lighting.sun import SunLight, SunlitPieces, estimate_sun, no_sun_reason, openings, surface_albedo
 from recon.assemble import SUN_DECLARED_BY_USER
 from recon.patches import PatchMesh
-from recon.response import LUMA, luminance
+from recon.response import luminance
 from recon.scene import Scene
 
 log = logging.getLogger("photoar")
+CLIP_LEVEL = 254  # an 8-bit level at or above which a photo channel counts as clipped (the sun's pixels)
 
 
 PIECE_TABLE_RES = 16  # cells per cube side of the sunlit pieces' visibility table (~6 degrees): at floor
@@ -112,12 +113,15 @@ class SunStage:
 
     def __init__(self, light: SunLight, pts: np.ndarray, footprint: np.ndarray, E_pix: np.ndarray,
                  c_patch: np.ndarray, c_pts: np.ndarray, c_vis: np.ndarray, n_patches: int, device: str,
-                 patches=None):
+                 patches=None, white: np.ndarray | None = None):
         """light: the sun through the openings; pts (N,3), footprint (N,) m, E_pix (N,3): the sunlit
         pixels' lookup points, pixel footprints and direct sun; c_patch (Pc,), c_pts (Pc*K,3),
         c_vis (Pc,K): sunlit patches, their K sample points and the sun's visibility there; patches:
-        the scene's PatchMesh (the clusters of later_bounces)."""
+        the scene's PatchMesh (the clusters of later_bounces); white (3,): the photo's white level in
+        radiance, the response's radiance at level 255 per channel (default 1: a response whose top
+        is 1 at exposure 1 s)."""
         self.light = light
+        self.white = np.ones(3) if white is None else np.asarray(white, np.float64).reshape(3)
         self.pts, self.footprint, self.E_pix = pts, footprint.astype(np.float32), E_pix
         self.c_patch, self.c_pts, self.c_vis = c_patch, c_pts, c_vis
         self.n_patches = n_patches
@@ -371,8 +375,9 @@ class SunStage:
 
         Outline: pixels partly covered, or uncovered/covered ones beside a pixel that is not;
         clipping: the photo clips there or next to it (`clipped` (H*W,) bool, a sunlit floor) or
-        the object's radiance there or next to it is 1 or more (a sunlit face; radiance 1 is the
-        white level). Object radiance per ray: L_vert interpolated, with the sun per hit (its
+        the object's radiance there or next to it reaches the photo's white level in some channel (a
+        sunlit face; self.white, the response's radiance at level 255: it scales as 1 / exposure).
+        Object radiance per ray: L_vert interpolated, with the sun per hit (its
         self-shadow edge: rays on the faces it crosses, SunLight.hit_correction; sun_vis (V,) the
         vertices' sun share) as ObjectShading.shade does.
 
@@ -392,8 +397,7 @@ class SunStage:
         # the object's box and 2 pixels around it: every outline pixel and its 3x3 window lie inside
         y0, y1 = max(by - 2, 0), min(by + bh + 2, H)
         x0, x1 = max(bx - 2, 0), min(bx + bw + 2, W)
-        lum = obj_rad[y0:y1, x0:x1] @ LUMA
-        bright = (lum >= 1.0) | clipped.reshape(H, W)[y0:y1, x0:x1]
+        bright = (obj_rad[y0:y1, x0:x1] >= self.white).any(-1) | clipped.reshape(H, W)[y0:y1, x0:x1]
         on = (cov[y0:y1, x0:x1] > 0).astype(np.uint8)
         box = np.ones((3, 3), np.uint8)
         near_on = cv2.dilate(on, box) > 0
@@ -695,7 +699,7 @@ class SunSetup:
         pix_patch, pix_pos = rm.pix_patch, rm.pix_pos
         rp = np.flatnonzero(recv_pix)
         nrm = pm.normal[pix_patch[rp]]
-        vis = self.light.visibility(pix_pos[rp], nrm)
+        vis = self._ring_share(rp, nrm, self.light.visibility(pix_pos[rp], nrm), rm, E_x, L_b)
         lit = vis > 0
         out.pix = rp[lit]
         E_sun = vis[lit, None] * (self.light.sun.irradiance / np.pi)  # the estimate with captured light
@@ -705,10 +709,6 @@ class SunSetup:
         cos_v = np.abs(np.einsum("nc,nc->n", rm.dirs[out.pix], nrm[lit]))
         footprint = 0.5 * depth / cam.K[0, 0] / np.sqrt(np.maximum(cos_v, 0.05))
         pts = pix_pos[out.pix] + nrm[lit] * 1e-3
-        # clipped sunlit pixels: model radiance instead of the photo's floor
-        sat = (scene.photo.reshape(-1, 3)[out.pix] >= 254).any(1)
-        idx = out.pix[sat]
-        rho = self._albedo(pm, pix_patch, pix_pos, idx)
         # pixels next to the sunlit ones (partly sunlit, centre in shade) and the clipped ones: the
         # photo's L_b / E_x is no reflectance there; take the surface's albedo
         H, W = cam.height, cam.width
@@ -718,6 +718,10 @@ class SunSetup:
         for dy, dx, src, dst in window_pairs(H, W):
             near[dst] |= lit_img[src]
         edge = np.flatnonzero(near & ~lit_img & recv_pix)
+        # clipped sunlit pixels: model radiance instead of the photo's floor
+        sat = (scene.photo.reshape(-1, 3)[out.pix] >= CLIP_LEVEL).any(1)
+        idx = out.pix[sat]
+        rho = self._albedo(pm, pix_patch, pix_pos, idx)
         out.rho_pix = np.concatenate([idx, edge])
         out.rho = np.concatenate([rho, self._albedo(pm, pix_patch, pix_pos, edge)])
         L_b[idx] = np.maximum(L_b[idx], rho * E_x[idx])
@@ -731,9 +735,45 @@ class SunSetup:
                  + fv[None, :, None] * (pm.corners[lit_c, 3] - c0)[:, None]).reshape(-1, 3)
         nrm_c = np.repeat(pm.normal[lit_c], len(fu), axis=0)
         c_vis = self.light.visibility(c_pts, nrm_c).reshape(len(lit_c), len(fu))
-        out.photo_clip = (scene.photo.reshape(-1, 3) >= 254).any(1)
+        out.photo_clip = (scene.photo.reshape(-1, 3) >= CLIP_LEVEL).any(1)
         out.stage = SunStage(self.light, pts, footprint, E_sun, lit_c, c_pts + nrm_c * 1e-3, c_vis, pm.n_patches,
-                             device, patches=pm)
+                             device, patches=pm, white=scene.response.to_radiance(np.full((1, 3), 255, np.uint8))[0])
+        return out
+
+    def _ring_share(self, rp: np.ndarray, nrm: np.ndarray, vis: np.ndarray, rm, E_x: np.ndarray,
+                    L_b: np.ndarray) -> np.ndarray:
+        """The sun's visibility vis (R,) (cos x sunlit, at pixel centres) of the receiver pixels rp,
+        with the sun's share the photo measures on the two pixel rings along the sunlit region's
+        outline: its outer lit pixels and the unlit ones beside them. A pixel the outline crosses is
+        partly sunlit in the photo, while its centre is wholly lit or wholly not: taken at its centre,
+        the sun's shadow leaves a dark line on the lit side (the photo's partial light over the full
+        sun) and a bright one on the other (light the object's shadow never removes).
+        Share s = (L_b / rho - E_ind) / E_sun (luminance, clipped to [0, 1]; rho the surface's albedo,
+        E_ind the light without the sun, E_sun its full direct light there); on a lit pixel that clips
+        the photo is a floor and the share stays 1."""
+        cam, pm, pix_patch = self.scene.camera, self.patches, rm.pix_patch
+        H, W = cam.height, cam.width
+        lit_img = np.zeros(H * W, bool)
+        lit_img[rp[vis > 0]] = True
+        lit_nb, unlit_nb = np.zeros(H * W, bool), np.zeros(H * W, bool)
+        for _, _, src, dst in window_pairs(H, W):
+            lit_nb[dst] |= lit_img[src]
+            unlit_nb[dst] |= ~lit_img[src]
+        cos = np.maximum(nrm @ self.light.d, 0.0)
+        ring = np.flatnonzero(np.where(vis > 0, unlit_nb[rp], lit_nb[rp] & (cos > 0)))
+        if len(ring) == 0:
+            return vis
+        px = rp[ring]
+        rho = self._albedo(pm, pix_patch, rm.pix_pos, px)
+        E_sun = cos[ring, None] * (self.light.sun.irradiance / np.pi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            share = (luminance(L_b[px] / np.maximum(rho, 1e-6) - E_x[px])
+                     / np.maximum(luminance(E_sun), 1e-30))
+        share = np.clip(np.nan_to_num(share), 0.0, 1.0)
+        clipped = (self.scene.photo.reshape(-1, 3)[px] >= CLIP_LEVEL).any(1)
+        share = np.where(clipped & (vis[ring] > 0), 1.0, share)
+        out = vis.copy()
+        out[ring] = share * cos[ring]
         return out
 
     def _albedo(self, pm: PatchMesh, pix_patch: np.ndarray, pix_pos: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -788,7 +828,14 @@ class SunSetup:
             info["strength_ratio"] = float(luminance(sun.irradiance) / max(luminance(scene.sun.irradiance), 1e-12))
         if info is not None:
             self.estimate = info
-            log.info("%s", estimate_line(info))
+            if sun is None and self.source == "estimate" and (sat & recv_any).any():
+                # a room with an opening whose photo clips on its surfaces, and no sun: its shadow and
+                # its light on the object are left out; the user must hear it (under -q too)
+                log.warning("%s: %s: the photo clips on %d surface pixels but no sun was found; the "
+                            "composite has no sun shadow (give `photoar scene --sun-direction` if the sun "
+                            "shines in)", self.where, estimate_line(info), int((sat & recv_any).sum()))
+            else:
+                log.info("%s", estimate_line(info))
             log.debug("sun estimate: %s", info)
         if self.light is not None and self.light.active:
             # patches the sun lights are reflectors, not emitters: receivers of the object's shadows;
