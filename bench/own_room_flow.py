@@ -37,16 +37,53 @@ def probe_args(scene: dict) -> dict:
 
 def object_pose(scene: dict, mesh: Path) -> tuple[list[float], float]:
     """--place (world point of the bottom centre of the mesh's own bounding box) and --yaw (deg,
-    right-handed about +Y) of the scene's synthetic object (object_to_world = T R_y(yaw))."""
+    right-handed about +Y) of the scene's synthetic object (object_to_world = T R_y(yaw)); for an
+    object resting tilted, of the mesh `resting_mesh` writes (the tilt in the mesh: what the user's
+    product file holds)."""
     from recon.scene import load_mesh
 
     M = np.array(scene["synthetic_object"]["object_to_world"], float)
     v, _, _ = load_mesh(mesh)
+    rest = _rest_rotation(M)
+    v = v @ rest.T
     lo, hi = v.min(0), v.max(0)
     pivot = np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
-    place = M[:3, :3] @ pivot + M[:3, 3]
-    yaw = float(np.degrees(np.arctan2(M[0, 2], M[0, 0])))
+    yaw = _yaw(M)
+    place = _rot_y(yaw) @ pivot + M[:3, 3]
     return place.tolist(), yaw
+
+
+def _yaw(M: np.ndarray) -> float:
+    return float(np.degrees(np.arctan2(M[0, 2], M[0, 0])))
+
+
+def _rot_y(deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def _rest_rotation(M: np.ndarray) -> np.ndarray:
+    """What object_to_world does besides the yaw (a tilt, a scale): R_y(yaw)^T M[:3, :3]."""
+    return _rot_y(_yaw(M)).T @ M[:3, :3]
+
+
+def resting_mesh(scene: dict, mesh: Path, out: Path) -> None:
+    """Write the scene's object mesh as the user's product file: as it rests in the room up to its yaw
+    and place (`composite` takes only --place/--yaw: a tilted object's tilt is in its mesh). A mesh
+    the scene only turns about +Y (and translates) is copied as it is."""
+    import open3d as o3d
+
+    rest = _rest_rotation(np.array(scene["synthetic_object"]["object_to_world"], float))
+    if np.abs(rest - np.eye(3)).max() < 1e-6:
+        shutil.copy(mesh, out)
+        return
+    m = o3d.io.read_triangle_mesh(str(mesh))
+    m.vertices = o3d.utility.Vector3dVector(np.asarray(m.vertices) @ rest.T)
+    if m.has_vertex_normals():
+        n = np.asarray(m.vertex_normals) @ np.linalg.inv(rest)
+        m.vertex_normals = o3d.utility.Vector3dVector(n / np.linalg.norm(n, axis=1, keepdims=True))
+    if not o3d.io.write_triangle_mesh(str(out), m):
+        raise RuntimeError(f"{out}: could not write the object's mesh")
 
 
 def write_inputs(scene_dir: Path, out: Path) -> dict:
@@ -68,7 +105,7 @@ def write_inputs(scene_dir: Path, out: Path) -> dict:
         shutil.copy(scene_dir / f, out / f"ball_{i}.png")
         probes.append(out / f"ball_{i}.png")
     mesh = scene_dir / scene["synthetic_object"]["mesh"]
-    shutil.copy(mesh, out / "object.ply")
+    resting_mesh(scene, mesh, out / "object.ply")
     place, yaw = object_pose(scene, mesh)
     return {"scene": scene, "photo": out / "photo.png", "lines": out / "lines.json", "room": out / "room.json",
             "clicks": out / "clicks.json", "probes": probes, "mesh": out / "object.ply", "exposure": scene["main_camera"]["exposure_time"],
