@@ -138,9 +138,15 @@ class Engine:
                                     pix_rows=r.pix_rows, pix_bary=pre.pix_bary, photo=scene.photo,
                                     response=scene.response, G_v=pre.G_v, E_v=r.E_v, recv_vert=pre.recv_vert,
                                     patches=pm, shape=(cam.height, cam.width), device=dev)
-        self.room_light = self._room_light(B_src, oc.volume_spacing)  # SH9 volume of the indirect light
+        # the object gathers the room from the measured radiance, with the sun's model radiance on the
+        # sunlit patches the photo does not measure (SunSetup.object_radiance), and the sunlit patches
+        # gathered exactly, not through the SH volume (B_src and the volume alone without a sunlit patch)
+        B_lit, near = self.sun.object_radiance(pre, B_src), self.sun.sunlit_patches()
+        self.room_light = self._room_light(np.where(near[:, None], 0.0, B_lit) if near.any() else B_lit,
+                                           oc.volume_spacing)  # SH9 volume of the indirect light
+        self.room_light.gather_exactly(near, B_lit)
         sun_light = self.sun.light if sp.pix is not None else None  # None: no sun lights the room
-        self.object_shading = ObjectShading(oc, cam, self.cam_occ, self.scene_occ, pm, self.room_light, B_src, dev,
+        self.object_shading = ObjectShading(oc, cam, self.cam_occ, self.scene_occ, pm, self.room_light, B_lit, dev,
                                             sun=sun_light)
         self.object_light = ObjectLight(oc, pm, pre.recv_vert, pre.pix_bary, r.pix_pos, r.pix_patch, r.pix_rows,
                                         r.recv_pix, r.rho_x, r.L_b, B_src, self.scene_occ, scene.response, cam, dev,

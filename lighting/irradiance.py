@@ -35,6 +35,17 @@ class RoomLight:
         self.volume: IrradianceVolume = volume if volume is not None else build_volume(
             room_min, room_max, spacing, patches.corners, patches.normal, indirect, occluder, patches.tri_patch, device)
 
+    def gather_exactly(self, near: np.ndarray, radiance: np.ndarray) -> None:
+        """Move the non-emitting patches `near` (P,) bool into the exact gather at `radiance` (P,3):
+        bright reflectors (a sunlit floor patch) that SH9's broad lobe would spread. The volume must
+        have been built without them (their radiance 0 there), or they would count twice."""
+        near = np.asarray(near, bool) & (np.asarray(radiance).sum(1) > 0)
+        if not near.any():
+            return
+        self.radiance = self.radiance.copy()
+        self.radiance[near] = np.asarray(radiance, np.float64)[near]
+        self.emitters = np.union1d(self.emitters, np.flatnonzero(near))
+
     def indirect_sh(self, points: np.ndarray) -> np.ndarray:
         """Radiance SH coefficients (N,9,3) of the non-emitting patches at points (N,3)."""
         return self.volume.lookup(points)

@@ -31,6 +31,7 @@ from kernels.sunshadow import OutlineShade, SunShadowMap
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
 from app.stages.shadow_pass import window_pairs
+from lighting.radiance import PHOTO
 from lighting.sun import SunLight, SunlitPieces, estimate_sun, no_sun_reason, openings, surface_albedo
 from recon.assemble import SUN_DECLARED_BY_USER
 from recon.patches import PatchMesh
@@ -738,6 +739,46 @@ class SunSetup:
         out.photo_clip = (scene.photo.reshape(-1, 3) >= CLIP_LEVEL).any(1)
         out.stage = SunStage(self.light, pts, footprint, E_sun, lit_c, c_pts + nrm_c * 1e-3, c_vis, pm.n_patches,
                              device, patches=pm, white=scene.response.to_radiance(np.full((1, 3), 255, np.uint8))[0])
+        return out
+
+    def sunlit_patches(self) -> np.ndarray:
+        """(P,) bool: the reflectors the sun lights under captured or photo light (none without a sun
+        on some surface, and under known light, whose radiosity and SH volume hold the sun as before).
+        The object gathers them exactly (lighting.irradiance.RoomLight.gather_exactly), not through
+        the SH volume: a sunlit patch is several times brighter than the rest of the room and often a
+        few cm from the object (it stands in it), where the 0.25 m SH9 grid's broad lobe spreads it."""
+        if self.lighting not in ("captured", "photo") or not self.on:
+            return np.zeros(self.patches.n_patches, bool)
+        return self.patch_light().any(1) & ~self.patches.is_emitter
+
+    def object_radiance(self, pre, B_src: np.ndarray) -> np.ndarray:
+        """The patch radiance (P,3) the object gathers the room's light from (its SH volume and exact
+        gather), after apply(): B_src, with the model's rho x (E_ind + E_sun) on the sunlit patches
+        the photo does not measure (captured or photo light, a sun that lights the room).
+
+        Under captured or photo light B_src is measured: a patch with origin PHOTO (lighting.radiance)
+        by its unclipped photo pixels, which stays. A sunlit patch whose photo pixels clip has only
+        the probe's view of it (coarse: the sun patch's edge is smeared over its neighbours, a few
+        probe pixels at grazing angles) or the photo fit's clipped-region bound; a sphere standing in
+        the patch then gathers far too little from the floor under it. The sun estimated from this
+        photo already implies that radiance: rho (the surface's reflectivity, set by _estimate) times
+        the gathered light E_ind = G_c B_src plus the sun's share on the patch (patch_light: the
+        patch's sunlit fraction x cos x E_sun). A patch with no reflectivity (rho 0: an emitter kept,
+        or a sunlit surface with no unlit patch to lend it one) keeps its measurement. B_src itself
+        when nothing changes (known light: the sun is in the radiosity; no sun; no such patch)."""
+        if self.lighting not in ("captured", "photo") or not self.on or pre.origin is None:
+            return B_src
+        pm, sun = self.patches, self.patch_light()
+        lit = (sun.any(1) & ~pm.is_emitter & (np.asarray(pre.origin) != PHOTO)
+               & (luminance(pm.albedo) > 0))
+        if not lit.any():
+            return B_src
+        out = np.array(B_src, np.float64, copy=True)
+        E_ind = pre.G_c[lit].astype(np.float64) @ np.asarray(B_src, np.float64)
+        out[lit] = pm.albedo[lit] * (E_ind + sun[lit])
+        log.debug("sun: %d sunlit patches light the object with the model's radiance (luminance %.3g, "
+                  "measured %.3g)", int(lit.sum()), float(luminance(out[lit]).mean()),
+                  float(luminance(np.asarray(B_src)[lit]).mean()))
         return out
 
     def _ring_share(self, rp: np.ndarray, nrm: np.ndarray, vis: np.ndarray, rm, E_x: np.ndarray,
