@@ -36,7 +36,7 @@ from typing import Callable
 import numpy as np
 
 from recon.camera import Camera
-from recon.edgesnap import SEARCH_PX, EdgeImage, line_sigma
+from recon.edgesnap import AMBIGUOUS, MAX_SPREAD_PX, MIN_FOUND, SEARCH_PX, STEP_PX, EdgeImage, line_sigma
 
 SEARCH_SIGMAS = 3.5  # the search across an edge spans this many click sigmas either side
 MIN_EDGE_PX = 20.0  # a model edge's visible stretch shorter than this in the photo (px) is not snapped
@@ -51,6 +51,12 @@ OCCLUDER_SHRINK_M = 0.02  # occluders are shrunk by this on every side: the clic
 OPPOSITE_PX = 2.0  # an opposite edge further than this from a sample's peak does not drag it (the 3x3 Sobel's
 # reach plus the photo's own blur, about a pixel each); a textured floor or wall has such edges nearer
 # than the click noise, so the whole search window cannot be required clear of them
+FAINT_MIN_PIECES = 4  # a faint edge is cut into at least this many pieces: a line through 3 points or more
+# shows its own spread
+FAINT_MARGIN_PX = 2.0  # a faint edge's profile is sampled this far beyond the search (its peak's half width
+# and more), so that an edge near the search's end is still seen whole
+FAINT_SNR = 4.0  # a piece's mean gradient profile must peak this many of its noise sigmas high (a false
+# peak from the texture alone: under 1e-4 of pieces for Gaussian noise; the window holds ~30 positions)
 LINE_SIGMA_FLOOR_PX = 0.25  # px: a snapped line's noise is at least this: where a crease's edge appears
 # depends on its shading (a contact shadow, a skirting's texture), an error along the whole line that
 # the samples' spread does not show (edgesnap's own floor, 0.1 px, is for calibrate's long lines)
@@ -85,8 +91,86 @@ class PhotoEdges:
         self.camera, self.sigma = camera, float(click_sigma_px)
         self.search = max(SEARCH_PX, SEARCH_SIGMAS * self.sigma)
 
-    def _snap(self, seg: np.ndarray, clipped_ok: bool = False):
-        return self.edges.snap(np.asarray(seg, float), self.sigma, self.search, clipped_ok, OPPOSITE_PX)
+    def _snap(self, seg: np.ndarray, clipped_ok: bool = False, faint: bool = False):
+        """edgesnap's sample-by-sample snap; failing that, with `faint`, the piecewise profile snap."""
+        seg = np.asarray(seg, float)
+        r = self.edges.snap(seg, self.sigma, self.search, clipped_ok, OPPOSITE_PX)
+        if r is None and faint:
+            r = self.snap_faint(seg, clipped_ok)
+        return r
+
+    def snap_faint(self, seg: np.ndarray, clipped_ok: bool = False) -> tuple[np.ndarray, float, int] | None:
+        """A straight edge too faint against the texture beside it for edgesnap's sample-by-sample
+        snap (two walls of nearly one tone meeting at a corner, a skirting of the floor's tone), or
+        whose polarity swaps along it (planks of varying tone against the skirting): the segment is cut
+        into pieces of about PIECE_PX (at least FAINT_MIN_PIECES), and in each the gradient across the
+        line is averaged along it (the texture's gradients, uncorrelated from pixel to pixel, average
+        out as 1/sqrt(n); the edge's does not), its own polarity taken, and the edge is the centroid of
+        the mean profile above half its peak. A piece counts when its peak stands FAINT_SNR times above
+        the noise of that mean (the spread of the single profiles / sqrt(n)) and no second peak in the
+        window is over AMBIGUOUS of it; a line through the pieces' edges (least squares) is accepted
+        when at least MIN_FOUND of the pieces count, their spread about it is at most MAX_SPREAD_PX and
+        the model's segment lies within the click noise of it (chi-square, 2 dof, 99.99 %: the gate the
+        fit applies to the clicks themselves; a segment pinned by one click, a corner out of the photo,
+        is off by that click's noise all along).
+        Returns (segment (4,) the model's endpoints projected onto the line, spread px, pieces used)
+        as EdgeImage.snap does, or None."""
+        E = self.edges
+        a, b = seg[:2], seg[2:]
+        length = float(np.linalg.norm(b - a))
+        if length < MIN_EDGE_PX:
+            return None
+        d = (b - a) / length
+        n = np.array([-d[1], d[0]])
+        ts = np.arange(0.04 * length, 0.96 * length, 1.0)
+        ss = np.arange(-self.search - FAINT_MARGIN_PX, self.search + FAINT_MARGIN_PX + 1e-9, STEP_PX)
+        base = a + ts[:, None] * d
+        P = base[:, None, :] + ss[None, :, None] * n
+        inside = np.all((P[..., 0] >= 1) & (P[..., 0] <= E.shape[1] - 2) & (P[..., 1] >= 1)
+                        & (P[..., 1] <= E.shape[0] - 2), axis=1)
+        iu = np.clip(np.rint(base).astype(int), 0, [E.shape[1] - 1, E.shape[0] - 1])
+        ok = inside if clipped_ok else inside & ~E.near_clip[iu[:, 1], iu[:, 0]]
+        g = E._sample(E.gx, P) * n[0] + E._sample(E.gy, P) * n[1]  # (T,S)
+        n_pieces = max(FAINT_MIN_PIECES, int(round(length / PIECE_PX)))
+        bounds = np.linspace(0, len(ts), n_pieces + 1).astype(int)
+        pts = []
+        for k0, k1 in zip(bounds[:-1], bounds[1:]):
+            rows = np.arange(k0, k1)[ok[k0:k1]]
+            if len(rows) < max(5, 0.6 * (k1 - k0)):
+                continue
+            m = g[rows].mean(axis=0)
+            sem = float(np.median(g[rows].std(axis=0))) / np.sqrt(len(rows))
+            # the extremum (either polarity) nearest the model's line, within the search
+            ext = np.r_[False, ((m[1:-1] >= m[:-2]) & (m[1:-1] >= m[2:]) & (m[1:-1] > FAINT_SNR * sem)) |
+                        ((m[1:-1] <= m[:-2]) & (m[1:-1] <= m[2:]) & (m[1:-1] < -FAINT_SNR * sem)), False]
+            ext &= np.abs(ss) <= self.search
+            if not ext.any():
+                continue
+            k = int(np.flatnonzero(ext)[np.argmin(np.abs(ss[ext]))])
+            m = m * np.sign(m[k])
+            peak = m[k]
+            far = np.abs(ss - ss[k]) > 1.0
+            if _second_peak(m, k, AMBIGUOUS * peak, FAINT_SNR * sem, np.abs(ss) <= self.search) or \
+                    np.any(_local_min(m) & (np.abs(ss - ss[k]) <= OPPOSITE_PX) & (m < -AMBIGUOUS * peak)):
+                continue
+            w = np.where(~far, np.clip(m - 0.5 * peak, 0, None), 0.0)
+            off = float((w * ss).sum() / w.sum())
+            pts.append(base[rows].mean(axis=0) + off * n)
+        if len(pts) < max(3, MIN_FOUND * n_pieces):
+            return None
+        pts = np.array(pts)
+        c = pts.mean(axis=0)
+        _, _, vt = np.linalg.svd(pts - c)
+        dd = vt[0]
+        nn = np.array([-dd[1], dd[0]])
+        r = (pts - c) @ nn
+        spread = float(np.sqrt((r ** 2).sum() / max(1, len(r) - 2)))
+        if spread > MAX_SPREAD_PX:
+            return None
+        if ((a - c) @ nn) ** 2 + ((b - c) @ nn) ** 2 > CHI2_2DOF_9999 * self.sigma ** 2:
+            return None
+        proj = lambda q: c + np.dot(q - c, dd) * dd  # noqa: E731
+        return np.concatenate([proj(a), proj(b)]), spread, int(len(pts))
 
     def foot_lines(self, a: np.ndarray, b: np.ndarray, blocked: Callable[[np.ndarray], np.ndarray]
                    ) -> list[tuple[np.ndarray, np.ndarray, EdgeLine]]:
@@ -106,13 +190,15 @@ class PhotoEdges:
                 continue
             # the whole stretch; where its polarity changes along it (planks of varying tone against
             # the skirting), pieces of about PIECE_PX, each with its own
+            # and, failing both, the whole stretch as a faint edge (snap_faint)
             n_pieces = max(1, int(length // PIECE_PX))
-            for pieces in ([(s, e)], [] if n_pieces == 1 else
-                           list(zip(np.linspace(s, e, n_pieces + 1).astype(int)[:-1],
-                                    np.linspace(s, e, n_pieces + 1).astype(int)[1:]))):
+            for pieces, faint in (([(s, e)], False), ([] if n_pieces == 1 else
+                                  list(zip(np.linspace(s, e, n_pieces + 1).astype(int)[:-1],
+                                           np.linspace(s, e, n_pieces + 1).astype(int)[1:])), False),
+                                  ([(s, e)], True)):
                 found = []
                 for ps, pe in pieces:
-                    r = self._snap(np.r_[uv[ps], uv[pe]])
+                    r = self.snap_faint(np.r_[uv[ps], uv[pe]]) if faint else self._snap(np.r_[uv[ps], uv[pe]])
                     if r is None:
                         continue
                     seg, spread, used = r
@@ -125,9 +211,10 @@ class PhotoEdges:
         return out
 
     def lines(self, corners: np.ndarray, pairs: list[tuple[int, int]], blocked: Callable[[np.ndarray], np.ndarray],
-              clipped_ok: bool = False) -> list[EdgeLine]:
+              clipped_ok: bool = False, faint: bool = False) -> list[EdgeLine]:
         """The model edges `pairs` of corners (N,3) snapped to the photo, each over its longest
-        stretch inside the photo and not `blocked` (callable (M,3) points -> (M,) bool)."""
+        stretch inside the photo and not `blocked` (callable (M,3) points -> (M,) bool); with
+        `faint`, an edge edgesnap does not find is tried as a faint one (snap_faint)."""
         cam = self.camera
         ts = np.linspace(0.0, 1.0, EDGE_SAMPLES)
         out = []
@@ -143,7 +230,7 @@ class PhotoEdges:
             a, b = run
             if np.linalg.norm(uv[b] - uv[a]) < MIN_EDGE_PX:
                 continue
-            r = self._snap(np.r_[uv[a], uv[b]], clipped_ok)
+            r = self._snap(np.r_[uv[a], uv[b]], clipped_ok, faint)
             if r is None:
                 continue
             seg, spread, used = r
@@ -167,9 +254,16 @@ class PhotoEdges:
     def refine(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
                clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]
                ) -> tuple[np.ndarray, int]:
+        """(parameters, number of lines kept): refine_lines."""
+        x, kept = self.refine_lines(x0, corners, clicks, uv, lines)
+        return x, len(kept)
+
+    def refine_lines(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
+                     clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]
+                     ) -> tuple[np.ndarray, list[EdgeLine]]:
         """(parameters, lines kept): the least-squares fit in pixels of the clicks uv (m,2) (their
         model points clicks(x) (m,3)) and the snapped `lines` (edges of corners(x)), from x0 (the
-        clicks-only fit). Lines the fit disagrees with are dropped one by one; (x0, 0) when none is
+        clicks-only fit). Lines the fit disagrees with are dropped one by one; (x0, []) when none is
         left or a click would move beyond its noise."""
         from scipy.optimize import least_squares
 
@@ -182,7 +276,7 @@ class PhotoEdges:
 
             r = least_squares(fun, np.asarray(x0, float), method="trf")
             if not (r.success and np.all(np.isfinite(r.x))):
-                return x0, 0
+                return x0, []
             rl = self.residuals(lines, corners(r.x)).reshape(-1, 2) / self.sigma  # in line sigmas
             chi = (rl ** 2).sum(axis=1)
             worst = int(np.argmax(chi))
@@ -191,9 +285,29 @@ class PhotoEdges:
                 continue
             p, _ = self.camera.project(clicks(r.x))
             if np.any(((p - uv) ** 2).sum(axis=1) > CHI2_2DOF_9999 * self.sigma ** 2):
-                return x0, 0
-            return r.x, len(lines)
-        return x0, 0
+                return x0, []
+            return r.x, lines
+        return x0, []
+
+
+def _local_min(m: np.ndarray) -> np.ndarray:
+    """(S,) bool: the profile's interior local minima (an edge of the opposite polarity; the tail of
+    one further off is not)."""
+    return np.r_[False, (m[1:-1] <= m[:-2]) & (m[1:-1] < m[2:]), False]
+
+
+def _second_peak(m: np.ndarray, k: int, level: float, prominence: float, window: np.ndarray) -> bool:
+    """Profile m (S,) has, inside `window` (S,) bool, a local maximum other than k above `level` that
+    stands out as a peak of its own: the profile dips by more than `prominence` between it and k (a
+    shoulder, the shading next to an edge, does not)."""
+    locmax = np.r_[False, (m[1:-1] >= m[:-2]) & (m[1:-1] > m[2:]), False]
+    for j in np.flatnonzero(locmax & window & (m > level)):
+        if j == k:
+            continue
+        lo, hi = sorted((j, k))
+        if m[j] - m[lo:hi + 1].min() > prominence:
+            return True
+    return False
 
 
 def _runs(ok: np.ndarray) -> list[tuple[int, int]]:

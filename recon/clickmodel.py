@@ -47,7 +47,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -315,7 +315,7 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
         (lo if w.side < 0 else hi)[w.axis] = w.offset
 
     # ceiling
-    heights = []
+    heights, ceil_clicks = [], []
     for label, where, c in items:
         if label != "ceiling":
             continue
@@ -330,6 +330,7 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
             raise ClickError(f"{src}: {where}: edge [{uv[0]:g}, {uv[1]:g}] does not meet wall {wname!r} above the "
                              "camera: click where that wall meets the ceiling")
         heights.append(float(p[1]))
+        ceil_clicks.append((w, uv))
     if heights:
         hi[1], ceiling_from = float(np.mean(heights)), f"{len(heights)} ceiling click(s)"
     elif ceiling_height is not None:
@@ -344,6 +345,8 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
     if not hi[1] > cam_c[1]:
         raise ClickError(f"{src}: the ceiling ({hi[1]:.2f} m, from {ceiling_from}) is below the camera "
                          f"({cam_c[1]:.2f} m)")
+    if P.edges is not None:
+        _refine_room(P, walls, ceil_clicks, lo, hi, ceiling_from != "default")
 
     names = {"room"} | set(wall_of)
     prims: list[dict] = []
@@ -395,6 +398,104 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
     room = {"name": "room", "type": "box", "role": "room", "center": ((lo + hi) / 2).tolist(),
             "size": (hi - lo).tolist(), "walls": wall_list}
     return ClickModel([room] + prims, lo, hi, ceiling_from, guessed, P.refined if P.edges is not None else None)
+
+
+def _refine_room(P: _Clicks, walls: dict[str, Wall], ceil_clicks: list[tuple[Wall, np.ndarray]], lo: np.ndarray,
+                 hi: np.ndarray, ceiling_known: bool) -> None:
+    """The clicked walls' offsets and the ceiling's height refined together against the photo (in
+    place: walls, lo, hi, P.refined): each wall's foot alone fixes it only where its foot snapped,
+    but the room's other straight edges hold it too: the vertical corner where two clicked walls
+    meet (through the known camera it fixes the one wall's offset once the other's is known) and
+    each wall's ceiling edge (with a known ceiling). One least-squares fit in pixels of every wall
+    and ceiling click and every snapped line (recon/clickedges.PhotoEdges.refine_lines), started
+    from the walls fitted one by one; it keeps them when it fails. With the ceiling from clicks,
+    its height is a parameter too; with the ceiling unknown (the default), the corner lines are
+    snapped up to the camera's height only (the ceiling is surely above it) and no ceiling edge is."""
+    cam = P.camera
+    ws = list(walls.values())
+    nw = len(ws)
+    free_h = bool(ceil_clicks)
+    nh = int(free_h)
+    x0, owner, uv = [w.offset for w in ws] + ([float(hi[1])] if free_h else []), [], []
+    for k, w in enumerate(ws):
+        for p, q in zip(w.points, w.uv):
+            x0.append(float(p[2 - w.axis]))
+            owner.append((k, False))
+            uv.append(q)
+    for w, q in ceil_clicks:
+        k = ws.index(w)
+        p = hit_plane(cam, q, axis_vector(w.axis), w.offset)
+        x0.append(float(p[2 - w.axis]))
+        owner.append((k, True))
+        uv.append(q)
+    x0, uv = np.array(x0, float), np.array(uv, float)
+
+    def height(x):
+        return float(x[nw]) if free_h else float(hi[1])
+
+    def clicks(x):
+        out = np.zeros((len(owner), 3))
+        for j, (k, up) in enumerate(owner):
+            w = ws[k]
+            out[j, w.axis], out[j, 2 - w.axis], out[j, 1] = x[k], x[nw + nh + j], height(x) if up else 0.0
+        return out
+
+    # the model's line ends: (wall index or None, axis, ...) as functions of x
+    ends: list = []  # each: callable x -> (3,)
+    lines, touches = [], []
+    for k, w in enumerate(ws):  # the feet already snapped
+        for s, e, L in w.feet:
+            for q in (s, e):
+                ends.append(lambda x, q=q, k=k, a=w.axis: np.where(np.arange(3) == a, x[k], q * [1, 0, 1]))
+            lines.append(replace(L, i=len(ends) - 2, j=len(ends) - 1, t0=0.0, t1=1.0))
+            touches.append(("foot", (k,)))
+    top = (lambda x: height(x)) if ceiling_known else (lambda x: float(cam.centre[1]))
+    model_pairs, model_touch = [], []
+    for k1, w1 in enumerate(ws):  # vertical corners of two clicked walls
+        for k2, w2 in enumerate(ws):
+            if w1.axis == 0 and w2.axis == 2:
+                for y in (0, 1):
+                    ends.append(lambda x, k1=k1, k2=k2, y=y: np.array([x[k1], y * top(x), x[k2]]))
+                model_pairs.append((len(ends) - 2, len(ends) - 1))
+                model_touch.append(("corner", (k1, k2)))
+    if ceiling_known:
+        for k, w in enumerate(ws):  # each wall's ceiling edge, between its neighbours or its clicks
+            along = 2 - w.axis
+            pos = [p[along] for p in w.points]
+            rng = [lo[along] if np.isfinite(lo[along]) else min(pos), hi[along] if np.isfinite(hi[along]) else max(pos)]
+            kk = [next((m for m, v in enumerate(ws) if v.axis == along and v.side == sd), None) for sd in (-1, 1)]
+            for r, m in zip(rng, kk):
+                ends.append(lambda x, k=k, a=w.axis, al=along, r=r, m=m:
+                            np.where(np.arange(3) == a, x[k], np.where(np.arange(3) == al, r if m is None else x[m], height(x))))
+            model_pairs.append((len(ends) - 2, len(ends) - 1))
+            model_touch.append(("ceiling", (k,)))
+
+    def corners(x):
+        return np.array([f(x) for f in ends]) if ends else np.zeros((0, 3))
+
+    if model_pairs:
+        found = P.edges.lines(corners(x0), model_pairs, P.blocker(""), faint=True)
+        by_pair = {pair: t for pair, t in zip(model_pairs, model_touch)}
+        lines += found
+        touches += [by_pair[(L.i, L.j)] for L in found]
+    if not lines:
+        return
+    x, kept = P.edges.refine_lines(x0, corners, clicks, uv, lines)
+    if not kept:
+        return
+    kept_touch = [touches[next(i for i, M in enumerate(lines) if M is L)] for L in kept]
+    for k, w in enumerate(ws):
+        w.offset = float(x[k])
+        (lo if w.side < 0 else hi)[w.axis] = w.offset
+        what = {t: sum(1 for kind, ks in kept_touch if kind == t and k in ks) for t in ("foot", "corner", "ceiling")}
+        if any(what.values()):
+            words = [f"{n} {label}" for n, label in ((what["foot"], "stretches of its foot"),
+                                                       (what["corner"], "corner lines"),
+                                                       (what["ceiling"], "ceiling edges")) if n]
+            for name in w.labels:
+                P.refined[name] = ", ".join(words) + " snapped"
+    if free_h:
+        hi[1] = height(x)
 
 
 def _wall_offset(camera: Camera, points: list[np.ndarray], uv: np.ndarray, axis: int, edges=None,
@@ -802,7 +903,7 @@ def _refine_quad(P: _Clicks, name: str, axis: int, offset: float, axes: tuple[in
 
     y0 = x0[active]
     y = _reproject_fit(y0, clicks, uv[known], P.camera)
-    lines = P.edges.lines(corners(y), [(0, 1), (1, 2), (2, 3), (3, 0)], P.blocker(name), clipped_ok=True)
+    lines = P.edges.lines(corners(y), [(0, 1), (1, 2), (2, 3), (3, 0)], P.blocker(name), clipped_ok=True, faint=True)
     y, kept = P.edges.refine(y, corners, clicks, uv[known], lines)
     P.refined[name] = f"{kept} edges snapped" if kept else "as clicked"
     x = x0.copy()
