@@ -42,6 +42,8 @@ SEARCH_SIGMAS = 3.5  # the search across an edge spans this many click sigmas ei
 MIN_EDGE_PX = 20.0  # a model edge's visible stretch shorter than this in the photo (px) is not snapped
 PIECE_PX = 40.0  # a wall's foot that does not snap whole is tried in pieces about this long (px): long
 # enough for ~30 samples (a line to ~0.1 px), short enough for one floor plank's tone at a time
+MIN_SEARCH_PX = 1.0  # px: a search narrower than this either side cannot hold an edge's peak (its centroid
+# spans +-1 px)
 BORDER_PX = 3.0  # samples this close to the photo's border are not used
 EDGE_SAMPLES = 41  # points along a model edge tested for visibility
 OCCLUDER_GAP_M = 0.01  # a sight line must pass this far before the edge to count as blocked
@@ -57,9 +59,12 @@ FAINT_MARGIN_PX = 2.0  # a faint edge's profile is sampled this far beyond the s
 # and more), so that an edge near the search's end is still seen whole
 FAINT_SNR = 4.0  # a piece's mean gradient profile must peak this many of its noise sigmas high (a false
 # peak from the texture alone: under 1e-4 of pieces for Gaussian noise; the window holds ~30 positions)
-LINE_SIGMA_FLOOR_PX = 0.25  # px: a snapped line's noise is at least this: where a crease's edge appears
-# depends on its shading (a contact shadow, a skirting's texture), an error along the whole line that
-# the samples' spread does not show (edgesnap's own floor, 0.1 px, is for calibrate's long lines)
+LINE_SIGMA_FLOOR_PX = 0.5  # px: a snapped line's noise is at least this: where a crease's edge appears
+# depends on its shading (a contact shadow, a skirting's texture, a clipped emitter's pixels), an error
+# along the whole line that the samples' spread does not show (edgesnap's own floor, 0.1 px, is for
+# calibrate's long lines); the true rooms' edges sit 0.2-0.5 px off the photo's (recon/camrefine.py's
+# measurement on all eleven rendered rooms, and the walls' feet here with exact clicks)
+CHI2_1DOF_99 = 6.63  # a side held on a wall must not raise the fit's chi-square more than this (99 %)
 CHI2_2DOF_999 = 13.82  # a snapped line the fit leaves this far off (in its sigmas) is dropped
 CHI2_2DOF_9999 = 18.42  # a click moved this far (in click sigmas) sends the piece back to its clicks: at
 # 1e-4 a click, a room's ~20 clicks fall back for noise alone in under 0.2 % of rooms
@@ -91,15 +96,18 @@ class PhotoEdges:
         self.camera, self.sigma = camera, float(click_sigma_px)
         self.search = max(SEARCH_PX, SEARCH_SIGMAS * self.sigma)
 
-    def _snap(self, seg: np.ndarray, clipped_ok: bool = False, faint: bool = False):
-        """edgesnap's sample-by-sample snap; failing that, with `faint`, the piecewise profile snap."""
+    def _snap(self, seg: np.ndarray, clipped_ok: bool = False, faint: bool = False, search: float | None = None):
+        """edgesnap's sample-by-sample snap; failing that, with `faint`, the piecewise profile snap;
+        searching `search` px either side (default self.search)."""
         seg = np.asarray(seg, float)
-        r = self.edges.snap(seg, self.sigma, self.search, clipped_ok, OPPOSITE_PX)
+        search = self.search if search is None else search
+        r = self.edges.snap(seg, self.sigma, search, clipped_ok, OPPOSITE_PX)
         if r is None and faint:
-            r = self.snap_faint(seg, clipped_ok)
+            r = self.snap_faint(seg, clipped_ok, search)
         return r
 
-    def snap_faint(self, seg: np.ndarray, clipped_ok: bool = False) -> tuple[np.ndarray, float, int] | None:
+    def snap_faint(self, seg: np.ndarray, clipped_ok: bool = False, search: float | None = None
+                   ) -> tuple[np.ndarray, float, int] | None:
         """A straight edge too faint against the texture beside it for edgesnap's sample-by-sample
         snap (two walls of nearly one tone meeting at a corner, a skirting of the floor's tone), or
         whose polarity swaps along it (planks of varying tone against the skirting): the segment is cut
@@ -116,6 +124,7 @@ class PhotoEdges:
         Returns (segment (4,) the model's endpoints projected onto the line, spread px, pieces used)
         as EdgeImage.snap does, or None."""
         E = self.edges
+        search = self.search if search is None else search
         a, b = seg[:2], seg[2:]
         length = float(np.linalg.norm(b - a))
         if length < MIN_EDGE_PX:
@@ -123,7 +132,7 @@ class PhotoEdges:
         d = (b - a) / length
         n = np.array([-d[1], d[0]])
         ts = np.arange(0.04 * length, 0.96 * length, 1.0)
-        ss = np.arange(-self.search - FAINT_MARGIN_PX, self.search + FAINT_MARGIN_PX + 1e-9, STEP_PX)
+        ss = np.arange(-search - FAINT_MARGIN_PX, search + FAINT_MARGIN_PX + 1e-9, STEP_PX)
         base = a + ts[:, None] * d
         P = base[:, None, :] + ss[None, :, None] * n
         inside = np.all((P[..., 0] >= 1) & (P[..., 0] <= E.shape[1] - 2) & (P[..., 1] >= 1)
@@ -143,14 +152,14 @@ class PhotoEdges:
             # the extremum (either polarity) nearest the model's line, within the search
             ext = np.r_[False, ((m[1:-1] >= m[:-2]) & (m[1:-1] >= m[2:]) & (m[1:-1] > FAINT_SNR * sem)) |
                         ((m[1:-1] <= m[:-2]) & (m[1:-1] <= m[2:]) & (m[1:-1] < -FAINT_SNR * sem)), False]
-            ext &= np.abs(ss) <= self.search
+            ext &= np.abs(ss) <= search
             if not ext.any():
                 continue
             k = int(np.flatnonzero(ext)[np.argmin(np.abs(ss[ext]))])
             m = m * np.sign(m[k])
             peak = m[k]
             far = np.abs(ss - ss[k]) > 1.0
-            if _second_peak(m, k, AMBIGUOUS * peak, FAINT_SNR * sem, np.abs(ss) <= self.search) or \
+            if _second_peak(m, k, AMBIGUOUS * peak, FAINT_SNR * sem, np.abs(ss) <= search) or \
                     np.any(_local_min(m) & (np.abs(ss - ss[k]) <= OPPOSITE_PX) & (m < -AMBIGUOUS * peak)):
                 continue
             w = np.where(~far, np.clip(m - 0.5 * peak, 0, None), 0.0)
@@ -214,10 +223,18 @@ class PhotoEdges:
               clipped_ok: bool = False, faint: bool = False) -> list[EdgeLine]:
         """The model edges `pairs` of corners (N,3) snapped to the photo, each over its longest
         stretch inside the photo and not `blocked` (callable (M,3) points -> (M,) bool); with
-        `faint`, an edge edgesnap does not find is tried as a faint one (snap_faint)."""
+        `faint`, an edge edgesnap does not find is tried as a faint one (snap_faint). An edge is
+        searched at most half way to the nearest other edge of `pairs` (not sharing a corner with
+        it: the median distance along its stretch), so that it cannot snap to that one's place (a
+        thin top face's two long edges); nearer than 2 MIN_SEARCH_PX it is not snapped."""
         cam = self.camera
         ts = np.linspace(0.0, 1.0, EDGE_SAMPLES)
         out = []
+        proj = {}
+        for i, j in pairs:
+            e, z = cam.project(corners[[i, j]])
+            if np.all(z > 0.05):
+                proj[(i, j)] = e
         for i, j in pairs:
             X = corners[i] + ts[:, None] * (corners[j] - corners[i])
             uv, z = cam.project(X)
@@ -230,7 +247,13 @@ class PhotoEdges:
             a, b = run
             if np.linalg.norm(uv[b] - uv[a]) < MIN_EDGE_PX:
                 continue
-            r = self._snap(np.r_[uv[a], uv[b]], clipped_ok, faint)
+            mid = uv[a:b + 1]
+            sep = min((float(np.median(_seg_dist(mid, e))) for (p, q), e in proj.items() if not {p, q} & {i, j}),
+                      default=np.inf)
+            search = min(self.search, sep / 2)
+            if search < MIN_SEARCH_PX:
+                continue
+            r = self._snap(np.r_[uv[a], uv[b]], clipped_ok, faint, search)
             if r is None:
                 continue
             seg, spread, used = r
@@ -250,6 +273,55 @@ class PhotoEdges:
             uv, z = self.camera.project(X)
             out[2 * k:2 * k + 2] = ((uv - L.p0) @ L.n) * (self.sigma / L.sigma) if np.all(z > 1e-6) else 1e6
         return out
+
+    def chi2(self, x: np.ndarray, corners: Callable[[np.ndarray], np.ndarray], clicks: Callable[[np.ndarray], np.ndarray],
+             uv: np.ndarray, lines: list[EdgeLine]) -> float:
+        """The fit's chi-square at parameters x: the clicks' and the lines' residuals in their sigmas."""
+        p, z = self.camera.project(clicks(x))
+        if not np.all(z > 1e-6):
+            return float("inf")
+        r = np.r_[(p - uv).ravel(), self.residuals(lines, corners(x))] / self.sigma
+        return float(r @ r)
+
+    def sd(self, x: np.ndarray, corners: Callable[[np.ndarray], np.ndarray], clicks: Callable[[np.ndarray], np.ndarray],
+           lines: list[EdgeLine], step: float = 1e-4) -> np.ndarray:
+        """Standard deviations (n,) of the fit's parameters x (n,) (their units, metres) from the
+        clicks' noise and the lines' (the least-squares covariance sigma^2 (J^T J)^-1, J by forward
+        differences of `step`); inf for a parameter the clicks and lines do not pin."""
+        def fun(q):
+            p, _ = self.camera.project(clicks(q))
+            return np.r_[p.ravel(), self.residuals(lines, corners(q))]
+
+        x = np.asarray(x, float)
+        f0 = fun(x)
+        J = np.stack([(fun(x + step * np.eye(len(x))[k]) - f0) / step for k in range(len(x))], axis=1)
+        try:
+            cov = np.linalg.inv(J.T @ J) * self.sigma ** 2
+        except np.linalg.LinAlgError:
+            return np.full(len(x), np.inf)
+        return np.sqrt(np.clip(np.diag(cov), 0.0, None))
+
+    def held(self, x: np.ndarray, j: int, value: float, corners: Callable[[np.ndarray], np.ndarray],
+             clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]) -> np.ndarray:
+        """The least-squares fit of the clicks and `lines` (as refine_lines, none dropped) from x with
+        parameter j held at `value`; x itself when the fit fails."""
+        from scipy.optimize import least_squares
+
+        def full(y):
+            return np.insert(y, j, value)
+
+        def fun(y):
+            q = full(y)
+            p, z = self.camera.project(clicks(q))
+            if not np.all(z > 1e-6):
+                return np.full(uv.size + 2 * len(lines), 1e6)
+            return np.r_[(p - uv).ravel(), self.residuals(lines, corners(q))]
+
+        y0 = np.delete(np.asarray(x, float), j)
+        if y0.size == 0:
+            return full(y0)
+        r = least_squares(fun, y0, method="trf")
+        return full(r.x) if r.success and np.all(np.isfinite(r.x)) else np.asarray(x, float)
 
     def refine(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
                clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]
@@ -288,6 +360,13 @@ class PhotoEdges:
                 return x0, []
             return r.x, lines
         return x0, []
+
+
+def _seg_dist(P: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Distances (M,) of points P (M,2) from the segment e (2,2)."""
+    d = e[1] - e[0]
+    t = np.clip((P - e[0]) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(P - (e[0] + t[:, None] * d), axis=1)
 
 
 def _local_min(m: np.ndarray) -> np.ndarray:

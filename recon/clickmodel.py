@@ -70,6 +70,11 @@ DESK_TOP_M = 0.04  # m, a desk's top slab
 DESK_LEG_M = 0.05  # m, a desk leg's square section
 DESK_LEG_INSET_M = 0.04  # m from the footprint's edge to a leg's outer face
 CLICK_SIGMA_PX = 1.0  # px per coordinate: a click's noise, what a refinement may move it (recon/clickedges.py)
+SIDES = ("x min", "x max", "z min", "z max", "top")  # a piece's parameters (local axes when turned)
+TOLERANCE_M = 0.03  # m: issue 38's accuracy for walls, furniture and quads; a piece's side the clicks and the
+# photo pin less well than this (at Z99 sigma) is reported as ill-determined
+Z99 = 2.576  # the two-sided 99 % point of the normal distribution
+SNAP_ROUNDS = 3  # rounds of snapping a piece's edges around its latest fit (_snap_and_refine)
 QUAD_OFFSET_M = 0.002  # m in front of its surface: a window or lamp drawn on a wall or the ceiling
 FACES = {(0, -1): "left", (0, 1): "right", (2, -1): "back", (2, 1): "front"}
 
@@ -101,11 +106,15 @@ class ClickModel:
     ceiling_from: str
     guessed: list[str]  # room faces no click showed
     refined: dict[str, str] | None = None  # with the photo: each wall / piece / quad -> how it was refined
+    uncertain: dict[str, dict[str, float]] | None = None  # with the photo: piece -> {side: standard deviation
+    # m} of the sides pinned less well than TOLERANCE_M (at Z99 sigma)
 
     def to_json(self) -> dict:
         model = {"from": "clicks", "ceiling_from": self.ceiling_from, "guessed_walls": self.guessed}
         if self.refined is not None:
             model["refined_from_photo"] = self.refined
+            model["ill_determined"] = {k: {side: round(Z99 * v, 4) for side, v in sides.items()}
+                                       for k, sides in (self.uncertain or {}).items()}
         return {"primitives": self.primitives, "model": model}
 
 
@@ -147,6 +156,7 @@ class _Clicks:
         self.edges = edges  # recon.clickedges.PhotoEdges, or None: clicks only
         self.occluders = occluders or []  # the clicks-only model's furniture boxes
         self.refined: dict[str, str] = {}
+        self.uncertain: dict[str, dict[str, float]] = {}  # piece -> {side: standard deviation m} (TOLERANCE_M)
 
     def blocker(self, name: str):
         """recon.clickedges.box_blocker of every furniture box but piece `name`'s own."""
@@ -397,7 +407,12 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
                           "how": how, "labels": [] if w is None else list(w.labels)})
     room = {"name": "room", "type": "box", "role": "room", "center": ((lo + hi) / 2).tolist(),
             "size": (hi - lo).tolist(), "walls": wall_list}
-    return ClickModel([room] + prims, lo, hi, ceiling_from, guessed, P.refined if P.edges is not None else None)
+    for name, sides in P.uncertain.items():
+        log.warning("%s: %s: %s pinned only to %s by its clicks and the photo (%s sigma): click its corners with care "
+                    "or give its sizes (size_m)", src, name, ", ".join(sides),
+                    ", ".join(f"+-{Z99 * v * 100:.1f} cm" for v in sides.values()), f"{Z99:g}")
+    return ClickModel([room] + prims, lo, hi, ceiling_from, guessed, P.refined if P.edges is not None else None,
+                      P.uncertain if P.edges is not None else None)
 
 
 def _refine_room(P: _Clicks, walls: dict[str, Wall], ceil_clicks: list[tuple[Wall, np.ndarray]], lo: np.ndarray,
@@ -665,19 +680,79 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
     uvs = np.vstack([uv[known], top_uv[None]])
     y = _reproject_fit(x0[active], pts, uvs, camera)
     if photo is not None and photo[0].edges is not None:
-        P, name, desk = photo
+        P, name, desk, lo, hi = photo
 
-        def corners(y):  # corner b: bit 0 the x end, bit 1 floor / top, bit 2 the z end
+        def corners(y):  # corner b: bit 0 the x end, bit 1 bottom / top, bit 2 the z end; a desk: its slab
             x = full(y)
-            return np.array([x[b & 1] * e1 + x[2 + (b >> 2 & 1)] * e2 + [0.0, (b >> 1 & 1) * x[4], 0.0]
+            bottom = x[4] - DESK_TOP_M if desk else 0.0
+            return np.array([x[b & 1] * e1 + x[2 + (b >> 2 & 1)] * e2 + [0.0, x[4] if b & 2 else bottom, 0.0]
                              for b in range(8)])
 
-        lines = P.edges.lines(corners(y), _box_edges(camera.centre, corners(y), (e1, np.array([0.0, 1, 0]), e2), desk),
-                              P.blocker(name))
-        y, kept = P.edges.refine(y, corners, pts, uvs, lines)
-        P.refined[name] = f"{kept} edges snapped" if kept else "as clicked"
+        y, kept = _snap_and_refine(P, name, y, corners, pts, uvs, (e1, np.array([0.0, 1, 0]), e2))
+        held = []
+        if kept and yaw == 0.0:
+            y, held = _hold_on_walls(P, y, active, full, corners, pts, uvs, kept, lo, hi)
+        words = ([f"{len(kept)} edges snapped"] if kept else []) + \
+            [f"{SIDES[j]} side against the wall" for j in held]
+        P.refined[name] = ", ".join(words) if words else "as clicked"
+        free = [k for k, j in enumerate(active) if j not in held]
+        if free:
+            def sub(q, y=y, free=free):
+                out = y.copy()
+                out[free] = q
+                return out
+
+            sd = P.edges.sd(y[free], lambda q: corners(sub(q)), lambda q: pts(sub(q)), kept)
+            loose = {SIDES[active[k]]: float(v) for k, v in zip(free, sd) if not Z99 * v <= TOLERANCE_M}
+            if loose:
+                P.uncertain[name] = loose
     x = full(y)
     return np.sort(x[:2]), np.sort(x[2:4]), float(x[4])
+
+
+def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np.ndarray, axes) -> tuple[np.ndarray, list]:
+    """A piece's fit y refined with its edges snapped to the photo (recon/clickedges.py), in rounds:
+    the edges are snapped around the model of the last fit and the fit redone, until a round finds
+    no edge more (at most SNAP_ROUNDS): a click off by 3 sigma puts some edges beyond their search
+    (a desk's slab: its top's and underside's front edges 4 cm apart), the fit on the others brings
+    them in."""
+    y0, kept = y, []
+    for _ in range(SNAP_ROUNDS):
+        lines = P.edges.lines(corners(y), _box_edges(P.camera.centre, corners(y), axes, False), P.blocker(name),
+                              faint=True)
+        if len(lines) <= len(kept):
+            break
+        y, kept = P.edges.refine_lines(y0, corners, pts, uvs, lines)
+    return y, kept
+
+
+def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], full, corners, pts, uvs: np.ndarray, lines: list,
+                   lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """An axis-aligned piece's fit y (its parameters `active` of [x min, x max, z min, z max, top])
+    with each side that the clicks and snapped `lines` allow on a clicked wall put there: a side
+    whose own edge the photo shows (a snapped line on it: a side hidden under another piece, a sofa's
+    seat under its back, is not judged) is held on the wall when that raises the fit's chi-square
+    (click noise units) by at most CHI2_1DOF_99 (the side's place is one number: a piece the photo
+    cannot tell from standing against the wall stands against it; a side further off than its noise
+    keeps its fit). Returns (y, the sides held)."""
+    from recon.clickedges import CHI2_1DOF_99
+
+    base = P.edges.chi2(y, corners, pts, uvs, lines)
+    held = []
+    for j in range(4):
+        axis, side = (0, 2)[j // 2], (-1, 1)[j % 2]
+        bound = (lo if side < 0 else hi)[axis]
+        bit, end = (1, 4)[j // 2], j % 2  # corner bits: bit 0 the x end, bit 2 the z end
+        seen = any(bool(L.i & bit) == end and bool(L.j & bit) == end for L in lines)
+        if j not in active or not np.isfinite(bound) or not seen:
+            continue
+        k = active.index(j)
+        y1 = P.edges.held(y, k, float(bound), corners, pts, uvs, lines)
+        c1 = P.edges.chi2(y1, corners, pts, uvs, lines)
+        if c1 - base <= CHI2_1DOF_99:
+            y, base = y1, c1
+            held.append(j)
+    return y, held
 
 
 def _box_edges(centre: np.ndarray, corners: np.ndarray, axes, top_only: bool) -> list[tuple[int, int]]:
@@ -762,7 +837,7 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
         raise P.err(where, f"top [{top_uv[0]:g}, {top_uv[1]:g}] is not straight above floor[0] (the vertical line "
                            f"over it passes {miss:.0f} px away): click the top corner above floor[0]")
     xr, zr, h = _refine_box(P.camera, yaw, xr, zr, float(h), f, uv, top_uv,
-                            against is not None and P.sizes(c, where) is None, (P, name, kind == "desk"))
+                            against is not None and P.sizes(c, where) is None, (P, name, kind == "desk", lo, hi))
     px_m = max(_pixel_metres(P, uv[k]) for k in range(3) if np.isfinite(uv[k, 0]))
     _against_walls(P, where, yaw, xr, zr, lo, hi, px_m)
     if h > hi[1] + WALL_TOL_M:

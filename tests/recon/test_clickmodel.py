@@ -295,10 +295,10 @@ def _synthetic_feet(cam, lo, ss=4):
 
 def test_walls_snap_to_an_analytic_edge():
     """window_room's camera over a synthetic photo whose only edges are the true wall-floor lines
-    (anti-aliased, 4x4 rays a pixel): with 1 px click noise the snapped walls are within 0.2 px of
-    floor there (under 8 mm; measured 0.03-0.11 px), against ~1 cm as clicked. The clicks keep their
-    weight in the fit (1 px against a line's noise floor of 0.25 px: 1/17 of a click's error stays,
-    3 sigma 0.18 px); without the photo nothing is refined."""
+    (anti-aliased, 4x4 rays a pixel): with 1 px click noise the snapped walls are within 0.45 px of
+    floor there (under 2 cm), against ~1 cm and up to 4 cm as clicked. The clicks keep their weight
+    in the fit (two clicks of 1 px against a line's two ends at its noise floor of 0.5 px: 1/5 of the
+    clicks' mean error, 0.7 px, stays: 3 sigma 0.42 px); without the photo nothing is refined."""
     sc, cam = _scene("window_room")
     photo = _synthetic_feet(cam, np.array(sc["world"]["room_min"], float))
     logging.disable(logging.WARNING)
@@ -313,7 +313,7 @@ def test_walls_snap_to_an_analytic_edge():
                 err = abs((m.lo, m.hi)[side][ax] - (sc["world"]["room_min"], sc["world"]["room_max"])[side][ax])
                 px = _px_m(cam, next(c for c in clicks["clicks"] if c["name"] == face)["floor_line"], [0, 1, 0], 0.0)
                 assert m.refined[face] != "as clicked", (seed, m.refined)
-                assert err <= 0.2 * px, (seed, face, err, px)
+                assert err <= 0.45 * px, (seed, face, err, px)
             assert "refined_from_photo" not in m0.to_json()["model"]
     finally:
         logging.disable(logging.NOTSET)
@@ -332,29 +332,30 @@ def test_box_blocker():
 
 @pytest.mark.parametrize("name", SCENES)
 def test_clicks_refined_against_the_photo(name):
-    """Ten seeds of 1 px noise, the clicks refined against the photo. A wall whose foot snapped is
-    within the issue's 3 cm on every seed, and so is the ceiling. The rest keeps the bound of clicks,
-    3 cm + 3 px: what the photo does not show sharply stays as clicked: window_room's and sun_room's
-    left walls (a skirting of the floor's tone over planks that run along it: no straight edge of
-    one polarity), lamps_room's sofa seat (its back floor corner lies behind the seat, its top's
-    back and front edges too faint to snap), sun_room's desk (it runs out of the photo; its back
-    side from clicks where 1 px is 2.7 cm of floor); and a window carries its wall's error
-    (window_room's and sun_room's are on those left walls). With exact clicks every item is
-    within 3 cm (the refinement does not lock onto a wrong edge), and over all items and seeds the
-    mean error is lower than as clicked."""
+    """Ten seeds of 1 px noise, the clicks refined against the photo: every wall, the ceiling, every
+    window quad and every piece of furniture within the issue's flat 3 cm on every seed, except a
+    piece the model itself reports ill-determined (`model.ill_determined`: a side the clicks and the
+    photo pin less well than 3 cm at 99 %), which keeps the bound of clicks, 3 cm + 3 px:
+    lamps_room's sofa seat (its back side hidden under the sofa's back: no edge of it in the photo)
+    and the sofa's back (its top face 3.5 px deep: its two long edges pin its depth and height
+    together), sun_room's desk (it runs out of the photo: its front side from one floor click where
+    1 px is 2.7 cm of floor) and, in one seed, window_room's desk (a floor click 3 sigma off moves it
+    along the line of sight, which its top's edges do not see). With exact clicks every item is within
+    3 cm (the refinement does not lock onto a wrong edge), and over all items and seeds the mean error
+    is lower than as clicked."""
     sc, cam = _scene(name)
     edges = _photo_edges(name)
     logging.disable(logging.WARNING)
     try:
         clicks, done = true_clicks(sc, sigma_px=0.0)
         exact = _errors(sc, cam, clicks, done, model_from_clicks(clicks, cam, name, 2.6, photo=edges))
-        runs, runs0, snapped = [], [], []
+        runs, runs0, loose = [], [], []
         for seed in range(10):
             clicks, done = true_clicks(sc, sigma_px=1.0, seed=seed)
             m = model_from_clicks(clicks, cam, name, 2.6, photo=edges)
             runs.append(_errors(sc, cam, clicks, done, m))
             runs0.append(_errors(sc, cam, clicks, done, model_from_clicks(clicks, cam, name, 2.6)))
-            snapped.append({f"wall {k}" for k, v in m.refined.items() if v != "as clicked"})
+            loose.append(set(m.to_json()["model"]["ill_determined"]))
     finally:
         logging.disable(logging.NOTSET)
     print(name, "exact clicks, refined:", {k: round(v[0] * 100, 1) for k, v in exact.items()})
@@ -364,11 +365,13 @@ def test_clicks_refined_against_the_photo(name):
         errs = np.array([r[k][0] for r in runs])
         errs0 = np.array([r[k][0] for r in runs0])
         px = runs[0][k][1]
-        flat = np.array([k in s or k == "ceiling" for s in snapped])  # the ceiling: one click, 1 px = 1.3 cm
+        flat = np.array([k not in s for s in loose])
         print(f"{name} {k}: median {np.median(errs0) * 100:.1f} -> {np.median(errs) * 100:.1f} cm, max "
-              f"{errs0.max() * 100:.1f} -> {errs.max() * 100:.1f} cm, 1 px = {px * 100:.1f} cm; "
-              f"{runs_refined(k, snapped)}")
-        assert np.all(errs[flat] <= 0.03), k
+              f"{errs0.max() * 100:.1f} -> {errs.max() * 100:.1f} cm, 1 px = {px * 100:.1f} cm; reported "
+              f"ill-determined in {int((~flat).sum())} of 10")
+        if k.startswith("wall ") or k == "ceiling" or k in done["quads"]:
+            assert flat.all(), k  # only furniture is judged ill-determined
+        assert np.all(errs[flat] <= 0.03), (k, errs)
         assert np.all(errs <= 0.03 + 3 * px), k
     mean = np.mean([v[0] for r in runs for v in r.values()])
     mean0 = np.mean([v[0] for r in runs0 for v in r.values()])
