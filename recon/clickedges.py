@@ -59,11 +59,9 @@ FAINT_MARGIN_PX = 2.0  # a faint edge's profile is sampled this far beyond the s
 # and more), so that an edge near the search's end is still seen whole
 FAINT_SNR = 4.0  # a piece's mean gradient profile must peak this many of its noise sigmas high (a false
 # peak from the texture alone: under 1e-4 of pieces for Gaussian noise; the window holds ~30 positions)
-LINE_SIGMA_FLOOR_PX = 0.5  # px: a snapped line's noise is at least this: where a crease's edge appears
-# depends on its shading (a contact shadow, a skirting's texture, a clipped emitter's pixels), an error
-# along the whole line that the samples' spread does not show (edgesnap's own floor, 0.1 px, is for
-# calibrate's long lines); the true rooms' edges sit 0.2-0.5 px off the photo's (recon/camrefine.py's
-# measurement on all eleven rendered rooms, and the walls' feet here with exact clicks)
+LINE_SIGMA_FLOOR_PX = 0.25  # px: a snapped line's noise is at least this: where a crease's edge appears
+# depends on its shading (a contact shadow, a skirting's texture), an error along the whole line that
+# the samples' spread does not show (edgesnap's own floor, 0.1 px, is for calibrate's long lines)
 CHI2_1DOF_99 = 6.63  # a side held on a wall must not raise the fit's chi-square more than this (99 %)
 CHI2_2DOF_999 = 13.82  # a snapped line the fit leaves this far off (in its sigmas) is dropped
 CHI2_2DOF_9999 = 18.42  # a click moved this far (in click sigmas) sends the piece back to its clicks: at

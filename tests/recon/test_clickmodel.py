@@ -295,10 +295,10 @@ def _synthetic_feet(cam, lo, ss=4):
 
 def test_walls_snap_to_an_analytic_edge():
     """window_room's camera over a synthetic photo whose only edges are the true wall-floor lines
-    (anti-aliased, 4x4 rays a pixel): with 1 px click noise the snapped walls are within 0.45 px of
-    floor there (under 2 cm), against ~1 cm and up to 4 cm as clicked. The clicks keep their weight
-    in the fit (two clicks of 1 px against a line's two ends at its noise floor of 0.5 px: 1/5 of the
-    clicks' mean error, 0.7 px, stays: 3 sigma 0.42 px); without the photo nothing is refined."""
+    (anti-aliased, 4x4 rays a pixel): with 1 px click noise the snapped walls are within 0.2 px of
+    floor there (under 8 mm; measured 0.03-0.11 px), against ~1 cm as clicked. The clicks keep their
+    weight in the fit (1 px against a line's noise floor of 0.25 px: 1/17 of a click's error stays,
+    3 sigma 0.18 px); without the photo nothing is refined."""
     sc, cam = _scene("window_room")
     photo = _synthetic_feet(cam, np.array(sc["world"]["room_min"], float))
     logging.disable(logging.WARNING)
@@ -313,7 +313,7 @@ def test_walls_snap_to_an_analytic_edge():
                 err = abs((m.lo, m.hi)[side][ax] - (sc["world"]["room_min"], sc["world"]["room_max"])[side][ax])
                 px = _px_m(cam, next(c for c in clicks["clicks"] if c["name"] == face)["floor_line"], [0, 1, 0], 0.0)
                 assert m.refined[face] != "as clicked", (seed, m.refined)
-                assert err <= 0.45 * px, (seed, face, err, px)
+                assert err <= 0.2 * px, (seed, face, err, px)
             assert "refined_from_photo" not in m0.to_json()["model"]
     finally:
         logging.disable(logging.NOTSET)
@@ -341,14 +341,17 @@ def test_clicks_refined_against_the_photo(name):
     together), sun_room's desk (it runs out of the photo: its front side from one floor click where
     1 px is 2.7 cm of floor) and, in one seed, window_room's desk (a floor click 3 sigma off moves it
     along the line of sight, which its top's edges do not see). With exact clicks every item is within
-    3 cm (the refinement does not lock onto a wrong edge), and over all items and seeds the mean error
-    is lower than as clicked."""
+    3 cm (the refinement does not lock onto a wrong edge), an ill-determined one within 3 cm + 1 px
+    (the sofa's back: its top's two edges, each 0.2-0.5 px off like every edge here, pin its depth
+    and height together: 3.7 cm), and over all items and seeds the mean error is lower than as
+    clicked."""
     sc, cam = _scene(name)
     edges = _photo_edges(name)
     logging.disable(logging.WARNING)
     try:
         clicks, done = true_clicks(sc, sigma_px=0.0)
-        exact = _errors(sc, cam, clicks, done, model_from_clicks(clicks, cam, name, 2.6, photo=edges))
+        m = model_from_clicks(clicks, cam, name, 2.6, photo=edges)
+        exact, exact_loose = _errors(sc, cam, clicks, done, m), set(m.to_json()["model"]["ill_determined"])
         runs, runs0, loose = [], [], []
         for seed in range(10):
             clicks, done = true_clicks(sc, sigma_px=1.0, seed=seed)
@@ -359,8 +362,8 @@ def test_clicks_refined_against_the_photo(name):
     finally:
         logging.disable(logging.NOTSET)
     print(name, "exact clicks, refined:", {k: round(v[0] * 100, 1) for k, v in exact.items()})
-    for k, (e, _) in exact.items():
-        assert e <= 0.03, (k, e)
+    for k, (e, px) in exact.items():
+        assert e <= 0.03 + (px if k in exact_loose else 0.0), (k, e)
     for k in runs[0]:
         errs = np.array([r[k][0] for r in runs])
         errs0 = np.array([r[k][0] for r in runs0])
