@@ -9,10 +9,17 @@ within the click noise, searching SEARCH_SIGMAS click sigmas either side):
   * a wall: its foot (the wall-floor edge) between its first and last click, in each stretch no
     piece of furniture hides (the clicks-only model of the furniture); a stretch that does not snap
     whole (its two sides swap which is brighter along it: a skirting over planks of varying tone)
-    is tried in pieces of about PIECE_PX;
+    is tried in pieces of about PIECE_PX, and failing that as a faint edge (snap_faint);
+  * the room (recon/clickmodel._refine_room): the vertical corner where two clicked walls meet and
+    each wall's ceiling edge;
   * a furniture piece: its box's edges that border a face turned to the camera (a desk: its top
-    face's only), along their longest stretch inside the photo and in front of every other piece;
+    slab's), along their longest stretch inside the photo and in front of every other piece, each
+    searched at most half way to the piece's nearest other edge;
   * a window or lamp: its four sides (an emitter's clipped edge is used: it is all there is).
+
+An edge edgesnap does not find sample by sample (too faint against the texture, its polarity
+swapping along it, a clipped emitter's edge stepping from pixel to pixel) is tried by snap_faint:
+gradient profiles averaged over pieces of the edge.
 
 Each snapped line adds two residuals (its distance from the model's edge at the stretch's two ends,
 in units of its noise: the samples' spread, at least LINE_SIGMA_FLOOR_PX) to the same least-squares
@@ -21,10 +28,10 @@ rectangles, quads on their planes). A line the fit leaves off by more than its n
 (chi-square, 2 dof, 99.9 %) is dropped and the fit redone; if a click then moves more than its
 noise allows (chi-square, 2 dof, 99.99 %), the item keeps its clicks-only fit ("as clicked").
 
-What the photo cannot refine stays as clicked: a desk's floor corners (under its top: its top's
-edges pin the footprint and height instead; the slab's thickness DESK_TOP_M is assumed, so its lower
-edges are not used), a corner hidden behind another piece or out of the photo, an edge with no
-contrast.
+What the photo cannot refine stays as clicked: a desk's floor corners (under its top: its slab's
+edges pin the footprint and height instead), a corner hidden behind another piece or out of the
+photo, an edge with no contrast. PhotoEdges.sd gives a fit's parameter uncertainties (the
+least-squares covariance), which recon/clickmodel.py reports for the sides pinned worse than 3 cm.
 
 Conventions: pixels as recon/camera.py ((0, 0) the centre of the top-left pixel), metres.
 """
@@ -272,8 +279,8 @@ class PhotoEdges:
             out[2 * k:2 * k + 2] = ((uv - L.p0) @ L.n) * (self.sigma / L.sigma) if np.all(z > 1e-6) else 1e6
         return out
 
-    def chi2(self, x: np.ndarray, corners: Callable[[np.ndarray], np.ndarray], clicks: Callable[[np.ndarray], np.ndarray],
-             uv: np.ndarray, lines: list[EdgeLine]) -> float:
+    def chi2(self, x: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
+             clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]) -> float:
         """The fit's chi-square at parameters x: the clicks' and the lines' residuals in their sigmas."""
         p, z = self.camera.project(clicks(x))
         if not np.all(z > 1e-6):

@@ -32,8 +32,12 @@ Method:
     rectangle on that plane (each side the mean of the two corners nearer it); set QUAD_OFFSET_M in
     front of its surface (an emitter drawn on it), an opening (a hole in the wall) in it;
   * with the photo (model_from_clicks(photo=...)), each wall, piece and quad fitted from its clicks
-    is refined: the edges of it the photo shows sharply are snapped (recon/clickedges.py) and join
-    its least-squares fit in pixels; what the photo does not confirm stays as clicked;
+    is refined: the edges of it the photo shows are snapped (recon/clickedges.py) and join its
+    least-squares fit in pixels; what the photo does not confirm stays as clicked. The walls and
+    the ceiling are then refitted together with the room's corner and ceiling edges (_refine_room);
+    a piece's edges are snapped in rounds (_snap_and_refine), a side of it the fit cannot tell from
+    a clicked wall is put against it (_hold_on_walls), and a side pinned worse than TOLERANCE_M (at
+    99 %) is reported ill-determined (ClickModel.uncertain, a warning);
   * walls that no click shows are placed WALL_MARGIN_M beyond the camera (recon/roomfit.py's rule:
     the photographer stands between the camera and the wall behind), and beyond every clicked
     primitive, and flagged guessed.
@@ -455,7 +459,7 @@ def _refine_room(P: _Clicks, walls: dict[str, Wall], ceil_clicks: list[tuple[Wal
             out[j, w.axis], out[j, 2 - w.axis], out[j, 1] = x[k], x[nw + nh + j], height(x) if up else 0.0
         return out
 
-    # the model's line ends: (wall index or None, axis, ...) as functions of x
+    # the ends of the lines to fit (callables x -> (3,)) and which walls each line touches
     ends: list = []  # each: callable x -> (3,)
     lines, touches = [], []
     for k, w in enumerate(ws):  # the feet already snapped
@@ -481,7 +485,8 @@ def _refine_room(P: _Clicks, walls: dict[str, Wall], ceil_clicks: list[tuple[Wal
             kk = [next((m for m, v in enumerate(ws) if v.axis == along and v.side == sd), None) for sd in (-1, 1)]
             for r, m in zip(rng, kk):
                 ends.append(lambda x, k=k, a=w.axis, al=along, r=r, m=m:
-                            np.where(np.arange(3) == a, x[k], np.where(np.arange(3) == al, r if m is None else x[m], height(x))))
+                            np.where(np.arange(3) == a, x[k],
+                                     np.where(np.arange(3) == al, r if m is None else x[m], height(x))))
             model_pairs.append((len(ends) - 2, len(ends) - 1))
             model_touch.append(("ceiling", (k,)))
 
@@ -710,7 +715,8 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
     return np.sort(x[:2]), np.sort(x[2:4]), float(x[4])
 
 
-def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np.ndarray, axes) -> tuple[np.ndarray, list]:
+def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np.ndarray, axes
+                     ) -> tuple[np.ndarray, list]:
     """A piece's fit y refined with its edges snapped to the photo (recon/clickedges.py), in rounds:
     the edges are snapped around the model of the last fit and the fit redone, until a round finds
     no edge more (at most SNAP_ROUNDS): a click off by 3 sigma puts some edges beyond their search
