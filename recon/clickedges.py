@@ -121,8 +121,9 @@ class PhotoEdges:
         out as 1/sqrt(n); the edge's does not), its own polarity taken, and the edge is the centroid of
         the mean profile above half its peak. A piece counts when its peak stands FAINT_SNR times above
         the noise of that mean (the spread of the single profiles / sqrt(n)) and no second peak in the
-        window is over AMBIGUOUS of it; a line through the pieces' edges (least squares) is accepted
-        when at least MIN_FOUND of the pieces count, their spread about it is at most MAX_SPREAD_PX and
+        window is over AMBIGUOUS of it; a line through the pieces' edges (least squares, the piece
+        furthest off dropped while the spread exceeds MAX_SPREAD_PX) is accepted when at least
+        MIN_FOUND of the pieces count, their spread about it is at most MAX_SPREAD_PX and
         the model's segment lies within the click noise of it (chi-square, 2 dof, 99.99 %: the gate the
         fit applies to the clicks themselves; a segment pinned by one click, a corner out of the photo,
         is off by that click's noise all along).
@@ -173,14 +174,19 @@ class PhotoEdges:
         if len(pts) < max(3, MIN_FOUND * n_pieces):
             return None
         pts = np.array(pts)
-        c = pts.mean(axis=0)
-        _, _, vt = np.linalg.svd(pts - c)
-        dd = vt[0]
-        nn = np.array([-dd[1], dd[0]])
-        r = (pts - c) @ nn
-        spread = float(np.sqrt((r ** 2).sum() / max(1, len(r) - 2)))
-        if spread > MAX_SPREAD_PX:
-            return None
+        while True:  # a line through the pieces' edges; a piece off it (one that straddles a swap of
+            # polarity, or a crossing edge) is dropped while enough are left
+            c = pts.mean(axis=0)
+            _, _, vt = np.linalg.svd(pts - c)
+            dd = vt[0]
+            nn = np.array([-dd[1], dd[0]])
+            r = (pts - c) @ nn
+            spread = float(np.sqrt((r ** 2).sum() / max(1, len(r) - 2)))
+            if spread <= MAX_SPREAD_PX:
+                break
+            if len(pts) - 1 < max(3, MIN_FOUND * n_pieces):
+                return None
+            pts = np.delete(pts, int(np.argmax(np.abs(r))), axis=0)
         if ((a - c) @ nn) ** 2 + ((b - c) @ nn) ** 2 > CHI2_2DOF_9999 * self.sigma ** 2:
             return None
         proj = lambda q: c + np.dot(q - c, dd) * dd  # noqa: E731

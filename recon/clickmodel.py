@@ -696,7 +696,7 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
         y, kept = _snap_and_refine(P, name, y, corners, pts, uvs, (e1, np.array([0.0, 1, 0]), e2))
         held = []
         if kept and yaw == 0.0:
-            y, held = _hold_on_walls(P, y, active, full, corners, pts, uvs, kept, lo, hi)
+            y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi)
         words = ([f"{len(kept)} edges snapped"] if kept else []) + \
             [f"{SIDES[j]} side against the wall" for j in held]
         P.refined[name] = ", ".join(words) if words else "as clicked"
@@ -732,7 +732,7 @@ def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np
     return y, kept
 
 
-def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], full, corners, pts, uvs: np.ndarray, lines: list,
+def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, uvs: np.ndarray, lines: list,
                    lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, list[int]]:
     """An axis-aligned piece's fit y (its parameters `active` of [x min, x max, z min, z max, top])
     with each side that the clicks and snapped `lines` allow on a clicked wall put there: a side
