@@ -60,8 +60,9 @@ OCCLUDER_SHRINK_M = 0.02  # occluders are shrunk by this on every side: the clic
 OPPOSITE_PX = 2.0  # an opposite edge further than this from a sample's peak does not drag it (the 3x3 Sobel's
 # reach plus the photo's own blur, about a pixel each); a textured floor or wall has such edges nearer
 # than the click noise, so the whole search window cannot be required clear of them
-FAINT_MIN_PIECES = 4  # a faint edge is cut into at least this many pieces: a line through 3 points or more
-# shows its own spread
+FAINT_MIN_PIECES = 4  # a faint edge is cut into at least this many pieces, and at least this many must find
+# it: a line through 4 points shows its own spread with 2 degrees of freedom (through 3, with one: three
+# pieces on two different edges can line up by chance)
 FAINT_MARGIN_PX = 2.0  # a faint edge's profile is sampled this far beyond the search (its peak's half width
 # and more), so that an edge near the search's end is still seen whole
 FAINT_SNR = 4.0  # a piece's mean gradient profile must peak this many of its noise sigmas high (a false
@@ -123,7 +124,7 @@ class PhotoEdges:
         the noise of that mean (the spread of the single profiles / sqrt(n)) and no second peak in the
         window is over AMBIGUOUS of it; a line through the pieces' edges (least squares, the piece
         furthest off dropped while the spread exceeds MAX_SPREAD_PX) is accepted when at least
-        MIN_FOUND of the pieces count, their spread about it is at most MAX_SPREAD_PX and
+        MIN_FOUND of the pieces and FAINT_MIN_PIECES count, their spread about it is at most MAX_SPREAD_PX and
         the model's segment lies within the click noise of it (chi-square, 2 dof, 99.99 %: the gate the
         fit applies to the clicks themselves; a segment pinned by one click, a corner out of the photo,
         is off by that click's noise all along).
@@ -171,7 +172,7 @@ class PhotoEdges:
             w = np.where(~far, np.clip(m - 0.5 * peak, 0, None), 0.0)
             off = float((w * ss).sum() / w.sum())
             pts.append(base[rows].mean(axis=0) + off * n)
-        if len(pts) < max(3, MIN_FOUND * n_pieces):
+        if len(pts) < max(FAINT_MIN_PIECES, MIN_FOUND * n_pieces):
             return None
         pts = np.array(pts)
         while True:  # a line through the pieces' edges; a piece off it (one that straddles a swap of
@@ -184,7 +185,7 @@ class PhotoEdges:
             spread = float(np.sqrt((r ** 2).sum() / max(1, len(r) - 2)))
             if spread <= MAX_SPREAD_PX:
                 break
-            if len(pts) - 1 < max(3, MIN_FOUND * n_pieces):
+            if len(pts) - 1 < max(FAINT_MIN_PIECES, MIN_FOUND * n_pieces):
                 return None
             pts = np.delete(pts, int(np.argmax(np.abs(r))), axis=0)
         if ((a - c) @ nn) ** 2 + ((b - c) @ nn) ** 2 > CHI2_2DOF_9999 * self.sigma ** 2:
