@@ -313,6 +313,20 @@ class PhotoEdges:
             return np.full(len(x), np.inf)
         return np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
+    def fit(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
+            clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]) -> np.ndarray:
+        """The least-squares fit of the clicks and `lines` from x0 (none dropped); x0 when it fails."""
+        from scipy.optimize import least_squares
+
+        def fun(q):
+            p, z = self.camera.project(clicks(q))
+            if not np.all(z > 1e-6):
+                return np.full(uv.size + 2 * len(lines), 1e6)
+            return np.r_[(p - uv).ravel(), self.residuals(lines, corners(q))]
+
+        r = least_squares(fun, np.asarray(x0, float), method="trf")
+        return r.x if r.success and np.all(np.isfinite(r.x)) else np.asarray(x0, float)
+
     def held(self, x: np.ndarray, j: int, value: float, corners: Callable[[np.ndarray], np.ndarray],
              clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]) -> np.ndarray:
         """The least-squares fit of the clicks and `lines` (as refine_lines, none dropped) from x with

@@ -97,6 +97,7 @@ class Wall:
     points: list[np.ndarray] = field(default_factory=list)  # floor points (3,) behind it
     uv: np.ndarray | None = None  # (m,2) their clicks
     feet: list = field(default_factory=list)  # with the photo: (start (3,), end (3,), EdgeLine) snapped stretches
+    sd: float = 0.0  # with the photo: the offset's standard deviation (m) from its clicks and snapped lines
 
 
 @dataclass
@@ -161,6 +162,7 @@ class _Clicks:
         self.occluders = occluders or []  # the clicks-only model's furniture boxes
         self.refined: dict[str, str] = {}
         self.uncertain: dict[str, dict[str, float]] = {}  # piece -> {side: standard deviation m} (TOLERANCE_M)
+        self.ceiling_sd = 0.0  # m: the ceiling height's standard deviation when clicked (with the photo)
 
     def blocker(self, name: str):
         """recon.clickedges.box_blocker of every furniture box but piece `name`'s own."""
@@ -498,9 +500,15 @@ def _refine_room(P: _Clicks, walls: dict[str, Wall], ceil_clicks: list[tuple[Wal
         by_pair = {pair: t for pair, t in zip(model_pairs, model_touch)}
         lines += found
         touches += [by_pair[(L.i, L.j)] for L in found]
-    if not lines:
-        return
-    x, kept = P.edges.refine_lines(x0, corners, clicks, uv, lines)
+    x, kept = P.edges.refine_lines(x0, corners, clicks, uv, lines) if lines else (x0, [])
+    sd = P.edges.sd(x, corners, clicks, kept)
+    if free_h:
+        P.ceiling_sd = float(sd[nw])
+    for k, w in enumerate(ws):  # a wall its clicks and the photo pin worse than TOLERANCE_M (at Z99 sigma)
+        w.sd = float(sd[k])
+        if not Z99 * sd[k] <= TOLERANCE_M:
+            for name in w.labels:
+                P.uncertain[name] = {"offset": float(sd[k])}
     if not kept:
         return
     kept_touch = [touches[next(i for i, M in enumerate(lines) if M is L)] for L in kept]
@@ -874,10 +882,10 @@ def _quad(P: _Clicks, c: dict, where: str, name: str, role: str, lo, hi, wall_of
     if on == "ceiling":
         if opening:
             raise P.err(where, "an opening must be on a wall")
-        axis, offset, inward = 1, float(hi[1]), -1.0
+        axis, offset, inward, plane_sd = 1, float(hi[1]), -1.0, P.ceiling_sd
     elif on in wall_of:
         w = wall_of[on]
-        axis, offset, inward = w.axis, w.offset, -float(w.side)
+        axis, offset, inward, plane_sd = w.axis, w.offset, -float(w.side), w.sd
     else:
         raise P.err(where, f"'on' must be 'ceiling' or a clicked wall's name ({', '.join(sorted(wall_of))}), got {on!r}")
     n = axis_vector(axis)
@@ -933,7 +941,7 @@ def _quad(P: _Clicks, c: dict, where: str, name: str, role: str, lo, hi, wall_of
         ends_all += ends
     if P.edges is not None:
         ends_all = _refine_quad(P, name, axis, offset, (u_ax, v_ax), (groups_u, groups_v), np.array(ends_all),
-                                missing, known, uv)
+                                missing, known, uv, plane_sd)
     for q, ax in enumerate((u_ax, v_ax)):
         a, b = sorted(ends_all[2 * q:2 * q + 2])
         if b - a < 0.02:
@@ -959,22 +967,25 @@ def _quad(P: _Clicks, c: dict, where: str, name: str, role: str, lo, hi, wall_of
 
 
 def _refine_quad(P: _Clicks, name: str, axis: int, offset: float, axes: tuple[int, int], groups, x0: np.ndarray,
-                 missing: list[bool], known: list[int], uv: np.ndarray) -> np.ndarray:
+                 missing: list[bool], known: list[int], uv: np.ndarray, plane_sd: float = 0.0) -> np.ndarray:
     """A quad's side coordinates x0 (4,: the two ends along axes[0], then along axes[1]; end i holds
     the corners groups[.][i]) refined with its four sides snapped to the photo (recon/clickedges.py;
     an emitter's clipped edge is used). An end no clicked corner lies on keeps its distance to the
-    opposite end (size_m)."""
+    opposite end (size_m). The quad is reported ill-determined when its corners are pinned worse
+    than TOLERANCE_M (at Z99 sigma): its sides' own uncertainty and its plane's (plane_sd, m: the
+    wall's or the ceiling's), carried through the fit (a quad seen at a grazing angle moves along its
+    plane many times what its plane moves)."""
     idx = [[next(i for i in (0, 1) if k in groups[q][i]) + 2 * q for q in (0, 1)] for k in range(4)]
     active = [m for m in range(4) if not missing[m]]
 
-    def corners(y):
+    def corners(y, plane=offset):
         x = x0.copy()
         x[active] = y
         for m in range(4):
             if missing[m]:
                 x[m] = x[m ^ 1] + (x0[m] - x0[m ^ 1])
         out = np.zeros((4, 3))
-        out[:, axis] = offset
+        out[:, axis] = plane
         for k in range(4):
             out[k, axes[0]], out[k, axes[1]] = x[idx[k][0]], x[idx[k][1]]
         return out
@@ -985,8 +996,17 @@ def _refine_quad(P: _Clicks, name: str, axis: int, offset: float, axes: tuple[in
     y0 = x0[active]
     y = _reproject_fit(y0, clicks, uv[known], P.camera)
     lines = P.edges.lines(corners(y), [(0, 1), (1, 2), (2, 3), (3, 0)], P.blocker(name), clipped_ok=True, faint=True)
-    y, kept = P.edges.refine(y, corners, clicks, uv[known], lines)
-    P.refined[name] = f"{kept} edges snapped" if kept else "as clicked"
+    y, kept = P.edges.refine_lines(y, corners, clicks, uv[known], lines)
+    P.refined[name] = f"{len(kept)} edges snapped" if kept else "as clicked"
+    sd = P.edges.sd(y, corners, clicks, kept)
+    if plane_sd > 0:  # the fit on the plane moved by 1 mm, scaled to the plane's sigma
+        dp = 1e-3
+        y2 = P.edges.fit(y, lambda q: corners(q, offset + dp), lambda q: corners(q, offset + dp)[known],
+                         uv[known], kept)
+        sd = np.sqrt(sd ** 2 + ((y2 - y) / dp * plane_sd) ** 2)
+    worst = float(np.sqrt(np.max(sd) ** 2 + plane_sd ** 2)) if len(sd) else plane_sd
+    if not Z99 * worst <= TOLERANCE_M:
+        P.uncertain[name] = {"corners": worst}
     x = x0.copy()
     x[active] = y
     for m in range(4):
