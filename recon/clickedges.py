@@ -49,8 +49,9 @@ SEARCH_SIGMAS = 3.5  # the search across an edge spans this many click sigmas ei
 MIN_EDGE_PX = 20.0  # a model edge's visible stretch shorter than this in the photo (px) is not snapped
 PIECE_PX = 40.0  # a wall's foot that does not snap whole is tried in pieces about this long (px): long
 # enough for ~30 samples (a line to ~0.1 px), short enough for one floor plank's tone at a time
-MIN_SEARCH_PX = 1.0  # px: a search narrower than this either side cannot hold an edge's peak (its centroid
-# spans +-1 px)
+MIN_SEARCH_PX = 2.0  # px: an edge is searched at least this far either side: its peak's centroid spans
+# +-1 px and a neighbouring edge within OPPOSITE_PX drags it, so two model edges nearer than twice this
+# (a thin top face's two long edges) cannot be told apart and neither is snapped
 BORDER_PX = 3.0  # samples this close to the photo's border are not used
 EDGE_SAMPLES = 41  # points along a model edge tested for visibility
 OCCLUDER_GAP_M = 0.01  # a sight line must pass this far before the edge to count as blocked
@@ -237,8 +238,8 @@ class PhotoEdges:
         stretch inside the photo and not `blocked` (callable (M,3) points -> (M,) bool); with
         `faint`, an edge edgesnap does not find is tried as a faint one (snap_faint). An edge is
         searched at most half way to the nearest other edge of `pairs` (not sharing a corner with
-        it: the median distance along its stretch), so that it cannot snap to that one's place (a
-        thin top face's two long edges); nearer than 2 MIN_SEARCH_PX it is not snapped."""
+        it: the median distance along its stretch), so that it cannot snap to that one's place; nearer
+        than 2 MIN_SEARCH_PX (a thin top face's two long edges) it is not snapped."""
         cam = self.camera
         ts = np.linspace(0.0, 1.0, EDGE_SAMPLES)
         out = []
