@@ -7,8 +7,9 @@ usage: python bench/bench_clickmodel_unseen.py [--shared ../shared] [--seeds 1-2
 With --rooms: rendered rooms (benchmark folders: scene.json, background.png; a name without a
 slash is a shared scene) are clicked with `--draws` noise seeds and modelled from the clicks alone
 and refined against the photo (recon/clickedges.py); per item kind (wall, ceiling, furniture,
-quad) the median and worst error over all draws, clicks only -> refined, and how often each item
-was refined (the rest kept as clicked).
+quad) the median and worst error over all draws, clicks only -> refined, how often each item
+was refined (the rest kept as clicked) and how often the model reported it ill-determined
+(`model.ill_determined`: a side pinned worse than 3 cm at 99 %).
 
 Without --rooms:
 Only roomgen's config drawer and geometry helpers are used (room box, furniture boxes, window and
@@ -82,7 +83,7 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float) -> None:
 
     logging.disable(logging.WARNING)
     every: dict[str, list] = {}
-    print(f"{'room':<12} {'item':<16} {'median cm':>14} {'worst cm':>14} {'1 px cm':>8} refined")
+    print(f"{'room':<12} {'item':<16} {'median cm':>14} {'worst cm':>14} {'1 px cm':>8} refined ill")
     for name in only:
         root = Path(name) if "/" in name else (rooms / name if (rooms / name).is_dir()
                                                else SHARED / "scenes" / name)
@@ -104,13 +105,15 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float) -> None:
             for item in e0:
                 key = item.removeprefix("wall ")
                 per.setdefault(item, []).append((e0[item][0], e1[item][0], e0[item][1],
-                                                 m1.refined.get(key, "as clicked") != "as clicked"))
-                every.setdefault(_kind(item, done), []).append((e0[item][0], e1[item][0]))
+                                                 m1.refined.get(key, "as clicked") != "as clicked",
+                                                 key in (m1.uncertain or {})))
+                every.setdefault(_kind(item, done), []).append((e0[item][0], e1[item][0],
+                                                                key in (m1.uncertain or {})))
         for item, v in per.items():
             v = np.array(v, float)
             print(f"{name:<12} {item:<16} {np.median(v[:, 0]) * 100:6.1f} -> {np.median(v[:, 1]) * 100:4.1f} "
                   f"{v[:, 0].max() * 100:6.1f} -> {v[:, 1].max() * 100:4.1f} {v[0, 2] * 100:8.1f} "
-                  f"{int(v[:, 3].sum())}/{len(v)}")
+                  f"{int(v[:, 3].sum())}/{len(v)} {int(v[:, 4].sum())}/{len(v)}")
         print(f"{name:<12} ({time.time() - t:.1f} s for {draws} draws, both fits)")
     print()
     for kind, v in every.items():
@@ -118,7 +121,8 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float) -> None:
         print(f"{kind:<10} {len(v):4d} items: median {np.median(v[:, 0]) * 100:.1f} -> "
               f"{np.median(v[:, 1]) * 100:.1f} cm, "
               f"worst {v[:, 0].max() * 100:.1f} -> {v[:, 1].max() * 100:.1f} cm, within 3 cm "
-              f"{int((v[:, 0] <= 0.03).sum())} -> {int((v[:, 1] <= 0.03).sum())}")
+              f"{int((v[:, 0] <= 0.03).sum())} -> {int((v[:, 1] <= 0.03).sum())}; beyond 3 cm and not reported "
+              f"ill-determined {int(((v[:, 1] > 0.03) & (v[:, 2] == 0)).sum())}")
 
 
 def main() -> None:

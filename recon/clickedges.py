@@ -9,10 +9,17 @@ within the click noise, searching SEARCH_SIGMAS click sigmas either side):
   * a wall: its foot (the wall-floor edge) between its first and last click, in each stretch no
     piece of furniture hides (the clicks-only model of the furniture); a stretch that does not snap
     whole (its two sides swap which is brighter along it: a skirting over planks of varying tone)
-    is tried in pieces of about PIECE_PX;
+    is tried in pieces of about PIECE_PX, and failing that as a faint edge (snap_faint);
+  * the room (recon/clickmodel._refine_room): the vertical corner where two clicked walls meet and
+    each wall's ceiling edge;
   * a furniture piece: its box's edges that border a face turned to the camera (a desk: its top
-    face's only), along their longest stretch inside the photo and in front of every other piece;
+    slab's), along their longest stretch inside the photo and in front of every other piece, each
+    searched at most half way to the piece's nearest other edge;
   * a window or lamp: its four sides (an emitter's clipped edge is used: it is all there is).
+
+An edge edgesnap does not find sample by sample (too faint against the texture, its polarity
+swapping along it, a clipped emitter's edge stepping from pixel to pixel) is tried by snap_faint:
+gradient profiles averaged over pieces of the edge.
 
 Each snapped line adds two residuals (its distance from the model's edge at the stretch's two ends,
 in units of its noise: the samples' spread, at least LINE_SIGMA_FLOOR_PX) to the same least-squares
@@ -21,10 +28,10 @@ rectangles, quads on their planes). A line the fit leaves off by more than its n
 (chi-square, 2 dof, 99.9 %) is dropped and the fit redone; if a click then moves more than its
 noise allows (chi-square, 2 dof, 99.99 %), the item keeps its clicks-only fit ("as clicked").
 
-What the photo cannot refine stays as clicked: a desk's floor corners (under its top: its top's
-edges pin the footprint and height instead; the slab's thickness DESK_TOP_M is assumed, so its lower
-edges are not used), a corner hidden behind another piece or out of the photo, an edge with no
-contrast.
+What the photo cannot refine stays as clicked: a desk's floor corners (under its top: its slab's
+edges pin the footprint and height instead), a corner hidden behind another piece or out of the
+photo, an edge with no contrast. PhotoEdges.sd gives a fit's parameter uncertainties (the
+least-squares covariance), which recon/clickmodel.py reports for the sides pinned worse than 3 cm.
 
 Conventions: pixels as recon/camera.py ((0, 0) the centre of the top-left pixel), metres.
 """
@@ -36,12 +43,15 @@ from typing import Callable
 import numpy as np
 
 from recon.camera import Camera
-from recon.edgesnap import SEARCH_PX, EdgeImage, line_sigma
+from recon.edgesnap import AMBIGUOUS, MAX_SPREAD_PX, MIN_FOUND, SEARCH_PX, STEP_PX, EdgeImage, line_sigma
 
 SEARCH_SIGMAS = 3.5  # the search across an edge spans this many click sigmas either side
 MIN_EDGE_PX = 20.0  # a model edge's visible stretch shorter than this in the photo (px) is not snapped
 PIECE_PX = 40.0  # a wall's foot that does not snap whole is tried in pieces about this long (px): long
 # enough for ~30 samples (a line to ~0.1 px), short enough for one floor plank's tone at a time
+MIN_SEARCH_PX = 2.0  # px: an edge is searched at least this far either side: its peak's centroid spans
+# +-1 px and a neighbouring edge within OPPOSITE_PX drags it, so two model edges nearer than twice this
+# (a thin top face's two long edges) cannot be told apart and neither is snapped
 BORDER_PX = 3.0  # samples this close to the photo's border are not used
 EDGE_SAMPLES = 41  # points along a model edge tested for visibility
 OCCLUDER_GAP_M = 0.01  # a sight line must pass this far before the edge to count as blocked
@@ -51,9 +61,17 @@ OCCLUDER_SHRINK_M = 0.02  # occluders are shrunk by this on every side: the clic
 OPPOSITE_PX = 2.0  # an opposite edge further than this from a sample's peak does not drag it (the 3x3 Sobel's
 # reach plus the photo's own blur, about a pixel each); a textured floor or wall has such edges nearer
 # than the click noise, so the whole search window cannot be required clear of them
+FAINT_MIN_PIECES = 4  # a faint edge is cut into at least this many pieces, and at least this many must find
+# it: a line through 4 points shows its own spread with 2 degrees of freedom (through 3, with one: three
+# pieces on two different edges can line up by chance)
+FAINT_MARGIN_PX = 2.0  # a faint edge's profile is sampled this far beyond the search (its peak's half width
+# and more), so that an edge near the search's end is still seen whole
+FAINT_SNR = 4.0  # a piece's mean gradient profile must peak this many of its noise sigmas high (a false
+# peak from the texture alone: under 1e-4 of pieces for Gaussian noise; the window holds ~30 positions)
 LINE_SIGMA_FLOOR_PX = 0.25  # px: a snapped line's noise is at least this: where a crease's edge appears
 # depends on its shading (a contact shadow, a skirting's texture), an error along the whole line that
 # the samples' spread does not show (edgesnap's own floor, 0.1 px, is for calibrate's long lines)
+CHI2_1DOF_99 = 6.63  # a side held on a wall must not raise the fit's chi-square more than this (99 %)
 CHI2_2DOF_999 = 13.82  # a snapped line the fit leaves this far off (in its sigmas) is dropped
 CHI2_2DOF_9999 = 18.42  # a click moved this far (in click sigmas) sends the piece back to its clicks: at
 # 1e-4 a click, a room's ~20 clicks fall back for noise alone in under 0.2 % of rooms
@@ -85,8 +103,96 @@ class PhotoEdges:
         self.camera, self.sigma = camera, float(click_sigma_px)
         self.search = max(SEARCH_PX, SEARCH_SIGMAS * self.sigma)
 
-    def _snap(self, seg: np.ndarray, clipped_ok: bool = False):
-        return self.edges.snap(np.asarray(seg, float), self.sigma, self.search, clipped_ok, OPPOSITE_PX)
+    def _snap(self, seg: np.ndarray, clipped_ok: bool = False, faint: bool = False, search: float | None = None):
+        """edgesnap's sample-by-sample snap; failing that, with `faint`, the piecewise profile snap;
+        searching `search` px either side (default self.search)."""
+        seg = np.asarray(seg, float)
+        search = self.search if search is None else search
+        r = self.edges.snap(seg, self.sigma, search, clipped_ok, OPPOSITE_PX)
+        if r is None and faint:
+            r = self.snap_faint(seg, clipped_ok, search)
+        return r
+
+    def snap_faint(self, seg: np.ndarray, clipped_ok: bool = False, search: float | None = None
+                   ) -> tuple[np.ndarray, float, int] | None:
+        """A straight edge too faint against the texture beside it for edgesnap's sample-by-sample
+        snap (two walls of nearly one tone meeting at a corner, a skirting of the floor's tone), or
+        whose polarity swaps along it (planks of varying tone against the skirting): the segment is cut
+        into pieces of about PIECE_PX (at least FAINT_MIN_PIECES), and in each the gradient across the
+        line is averaged along it (the texture's gradients, uncorrelated from pixel to pixel, average
+        out as 1/sqrt(n); the edge's does not), its own polarity taken, and the edge is the centroid of
+        the mean profile above half its peak. A piece counts when its peak stands FAINT_SNR times above
+        the noise of that mean (the spread of the single profiles / sqrt(n)) and no second peak in the
+        window is over AMBIGUOUS of it; a line through the pieces' edges (least squares, the piece
+        furthest off dropped while the spread exceeds MAX_SPREAD_PX) is accepted when at least
+        MIN_FOUND of the pieces and FAINT_MIN_PIECES count, their spread about it is at most MAX_SPREAD_PX and
+        the model's segment lies within the click noise of it (chi-square, 2 dof, 99.99 %: the gate the
+        fit applies to the clicks themselves; a segment pinned by one click, a corner out of the photo,
+        is off by that click's noise all along).
+        Returns (segment (4,) the model's endpoints projected onto the line, spread px, pieces used)
+        as EdgeImage.snap does, or None."""
+        E = self.edges
+        search = self.search if search is None else search
+        a, b = seg[:2], seg[2:]
+        length = float(np.linalg.norm(b - a))
+        if length < MIN_EDGE_PX:
+            return None
+        d = (b - a) / length
+        n = np.array([-d[1], d[0]])
+        ts = np.arange(0.04 * length, 0.96 * length, 1.0)
+        ss = np.arange(-search - FAINT_MARGIN_PX, search + FAINT_MARGIN_PX + 1e-9, STEP_PX)
+        base = a + ts[:, None] * d
+        P = base[:, None, :] + ss[None, :, None] * n
+        inside = np.all((P[..., 0] >= 1) & (P[..., 0] <= E.shape[1] - 2) & (P[..., 1] >= 1)
+                        & (P[..., 1] <= E.shape[0] - 2), axis=1)
+        iu = np.clip(np.rint(base).astype(int), 0, [E.shape[1] - 1, E.shape[0] - 1])
+        ok = inside if clipped_ok else inside & ~E.near_clip[iu[:, 1], iu[:, 0]]
+        g = E._sample(E.gx, P) * n[0] + E._sample(E.gy, P) * n[1]  # (T,S)
+        n_pieces = max(FAINT_MIN_PIECES, int(round(length / PIECE_PX)))
+        bounds = np.linspace(0, len(ts), n_pieces + 1).astype(int)
+        pts = []
+        for k0, k1 in zip(bounds[:-1], bounds[1:]):
+            rows = np.arange(k0, k1)[ok[k0:k1]]
+            if len(rows) < max(5, 0.6 * (k1 - k0)):
+                continue
+            m = g[rows].mean(axis=0)
+            sem = float(np.median(g[rows].std(axis=0))) / np.sqrt(len(rows))
+            # the extremum (either polarity) nearest the model's line, within the search
+            ext = np.r_[False, ((m[1:-1] >= m[:-2]) & (m[1:-1] >= m[2:]) & (m[1:-1] > FAINT_SNR * sem)) |
+                        ((m[1:-1] <= m[:-2]) & (m[1:-1] <= m[2:]) & (m[1:-1] < -FAINT_SNR * sem)), False]
+            ext &= np.abs(ss) <= search
+            if not ext.any():
+                continue
+            k = int(np.flatnonzero(ext)[np.argmin(np.abs(ss[ext]))])
+            m = m * np.sign(m[k])
+            peak = m[k]
+            far = np.abs(ss - ss[k]) > 1.0
+            if _second_peak(m, k, AMBIGUOUS * peak, FAINT_SNR * sem, np.abs(ss) <= search) or \
+                    np.any(_local_min(m) & (np.abs(ss - ss[k]) <= OPPOSITE_PX) & (m < -AMBIGUOUS * peak)):
+                continue
+            w = np.where(~far, np.clip(m - 0.5 * peak, 0, None), 0.0)
+            off = float((w * ss).sum() / w.sum())
+            pts.append(base[rows].mean(axis=0) + off * n)
+        if len(pts) < max(FAINT_MIN_PIECES, MIN_FOUND * n_pieces):
+            return None
+        pts = np.array(pts)
+        while True:  # a line through the pieces' edges; a piece off it (one that straddles a swap of
+            # polarity, or a crossing edge) is dropped while enough are left
+            c = pts.mean(axis=0)
+            _, _, vt = np.linalg.svd(pts - c)
+            dd = vt[0]
+            nn = np.array([-dd[1], dd[0]])
+            r = (pts - c) @ nn
+            spread = float(np.sqrt((r ** 2).sum() / max(1, len(r) - 2)))
+            if spread <= MAX_SPREAD_PX:
+                break
+            if len(pts) - 1 < max(FAINT_MIN_PIECES, MIN_FOUND * n_pieces):
+                return None
+            pts = np.delete(pts, int(np.argmax(np.abs(r))), axis=0)
+        if ((a - c) @ nn) ** 2 + ((b - c) @ nn) ** 2 > CHI2_2DOF_9999 * self.sigma ** 2:
+            return None
+        proj = lambda q: c + np.dot(q - c, dd) * dd  # noqa: E731
+        return np.concatenate([proj(a), proj(b)]), spread, int(len(pts))
 
     def foot_lines(self, a: np.ndarray, b: np.ndarray, blocked: Callable[[np.ndarray], np.ndarray]
                    ) -> list[tuple[np.ndarray, np.ndarray, EdgeLine]]:
@@ -106,13 +212,15 @@ class PhotoEdges:
                 continue
             # the whole stretch; where its polarity changes along it (planks of varying tone against
             # the skirting), pieces of about PIECE_PX, each with its own
+            # and, failing both, the whole stretch as a faint edge (snap_faint)
             n_pieces = max(1, int(length // PIECE_PX))
-            for pieces in ([(s, e)], [] if n_pieces == 1 else
-                           list(zip(np.linspace(s, e, n_pieces + 1).astype(int)[:-1],
-                                    np.linspace(s, e, n_pieces + 1).astype(int)[1:]))):
+            for pieces, faint in (([(s, e)], False), ([] if n_pieces == 1 else
+                                  list(zip(np.linspace(s, e, n_pieces + 1).astype(int)[:-1],
+                                           np.linspace(s, e, n_pieces + 1).astype(int)[1:])), False),
+                                  ([(s, e)], True)):
                 found = []
                 for ps, pe in pieces:
-                    r = self._snap(np.r_[uv[ps], uv[pe]])
+                    r = self.snap_faint(np.r_[uv[ps], uv[pe]]) if faint else self._snap(np.r_[uv[ps], uv[pe]])
                     if r is None:
                         continue
                     seg, spread, used = r
@@ -125,12 +233,21 @@ class PhotoEdges:
         return out
 
     def lines(self, corners: np.ndarray, pairs: list[tuple[int, int]], blocked: Callable[[np.ndarray], np.ndarray],
-              clipped_ok: bool = False) -> list[EdgeLine]:
+              clipped_ok: bool = False, faint: bool = False) -> list[EdgeLine]:
         """The model edges `pairs` of corners (N,3) snapped to the photo, each over its longest
-        stretch inside the photo and not `blocked` (callable (M,3) points -> (M,) bool)."""
+        stretch inside the photo and not `blocked` (callable (M,3) points -> (M,) bool); with
+        `faint`, an edge edgesnap does not find is tried as a faint one (snap_faint). An edge is
+        searched at most half way to the nearest other edge of `pairs` (not sharing a corner with
+        it: the median distance along its stretch), so that it cannot snap to that one's place; nearer
+        than 2 MIN_SEARCH_PX (a thin top face's two long edges) it is not snapped."""
         cam = self.camera
         ts = np.linspace(0.0, 1.0, EDGE_SAMPLES)
         out = []
+        proj = {}
+        for i, j in pairs:
+            e, z = cam.project(corners[[i, j]])
+            if np.all(z > 0.05):
+                proj[(i, j)] = e
         for i, j in pairs:
             X = corners[i] + ts[:, None] * (corners[j] - corners[i])
             uv, z = cam.project(X)
@@ -143,7 +260,13 @@ class PhotoEdges:
             a, b = run
             if np.linalg.norm(uv[b] - uv[a]) < MIN_EDGE_PX:
                 continue
-            r = self._snap(np.r_[uv[a], uv[b]], clipped_ok)
+            mid = uv[a:b + 1]
+            sep = min((float(np.median(_seg_dist(mid, e))) for (p, q), e in proj.items() if not {p, q} & {i, j}),
+                      default=np.inf)
+            search = min(self.search, sep / 2)
+            if search < MIN_SEARCH_PX:
+                continue
+            r = self._snap(np.r_[uv[a], uv[b]], clipped_ok, faint, search)
             if r is None:
                 continue
             seg, spread, used = r
@@ -164,12 +287,82 @@ class PhotoEdges:
             out[2 * k:2 * k + 2] = ((uv - L.p0) @ L.n) * (self.sigma / L.sigma) if np.all(z > 1e-6) else 1e6
         return out
 
+    def chi2(self, x: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
+             clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]) -> float:
+        """The fit's chi-square at parameters x: the clicks' and the lines' residuals in their sigmas."""
+        p, z = self.camera.project(clicks(x))
+        if not np.all(z > 1e-6):
+            return float("inf")
+        r = np.r_[(p - uv).ravel(), self.residuals(lines, corners(x))] / self.sigma
+        return float(r @ r)
+
+    def sd(self, x: np.ndarray, corners: Callable[[np.ndarray], np.ndarray], clicks: Callable[[np.ndarray], np.ndarray],
+           lines: list[EdgeLine], step: float = 1e-4) -> np.ndarray:
+        """Standard deviations (n,) of the fit's parameters x (n,) (their units, metres) from the
+        clicks' noise and the lines' (the least-squares covariance sigma^2 (J^T J)^-1, J by forward
+        differences of `step`); inf for a parameter the clicks and lines do not pin."""
+        def fun(q):
+            p, _ = self.camera.project(clicks(q))
+            return np.r_[p.ravel(), self.residuals(lines, corners(q))]
+
+        x = np.asarray(x, float)
+        f0 = fun(x)
+        J = np.stack([(fun(x + step * np.eye(len(x))[k]) - f0) / step for k in range(len(x))], axis=1)
+        try:
+            cov = np.linalg.inv(J.T @ J) * self.sigma ** 2
+        except np.linalg.LinAlgError:
+            return np.full(len(x), np.inf)
+        return np.sqrt(np.clip(np.diag(cov), 0.0, None))
+
+    def fit(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
+            clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]) -> np.ndarray:
+        """The least-squares fit of the clicks and `lines` from x0 (none dropped); x0 when it fails."""
+        from scipy.optimize import least_squares
+
+        def fun(q):
+            p, z = self.camera.project(clicks(q))
+            if not np.all(z > 1e-6):
+                return np.full(uv.size + 2 * len(lines), 1e6)
+            return np.r_[(p - uv).ravel(), self.residuals(lines, corners(q))]
+
+        r = least_squares(fun, np.asarray(x0, float), method="trf")
+        return r.x if r.success and np.all(np.isfinite(r.x)) else np.asarray(x0, float)
+
+    def held(self, x: np.ndarray, j: int, value: float, corners: Callable[[np.ndarray], np.ndarray],
+             clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]) -> np.ndarray:
+        """The least-squares fit of the clicks and `lines` (as refine_lines, none dropped) from x with
+        parameter j held at `value`; x itself when the fit fails."""
+        from scipy.optimize import least_squares
+
+        def full(y):
+            return np.insert(y, j, value)
+
+        def fun(y):
+            q = full(y)
+            p, z = self.camera.project(clicks(q))
+            if not np.all(z > 1e-6):
+                return np.full(uv.size + 2 * len(lines), 1e6)
+            return np.r_[(p - uv).ravel(), self.residuals(lines, corners(q))]
+
+        y0 = np.delete(np.asarray(x, float), j)
+        if y0.size == 0:
+            return full(y0)
+        r = least_squares(fun, y0, method="trf")
+        return full(r.x) if r.success and np.all(np.isfinite(r.x)) else np.asarray(x, float)
+
     def refine(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
                clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]
                ) -> tuple[np.ndarray, int]:
+        """(parameters, number of lines kept): refine_lines."""
+        x, kept = self.refine_lines(x0, corners, clicks, uv, lines)
+        return x, len(kept)
+
+    def refine_lines(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
+                     clicks: Callable[[np.ndarray], np.ndarray], uv: np.ndarray, lines: list[EdgeLine]
+                     ) -> tuple[np.ndarray, list[EdgeLine]]:
         """(parameters, lines kept): the least-squares fit in pixels of the clicks uv (m,2) (their
         model points clicks(x) (m,3)) and the snapped `lines` (edges of corners(x)), from x0 (the
-        clicks-only fit). Lines the fit disagrees with are dropped one by one; (x0, 0) when none is
+        clicks-only fit). Lines the fit disagrees with are dropped one by one; (x0, []) when none is
         left or a click would move beyond its noise."""
         from scipy.optimize import least_squares
 
@@ -182,7 +375,7 @@ class PhotoEdges:
 
             r = least_squares(fun, np.asarray(x0, float), method="trf")
             if not (r.success and np.all(np.isfinite(r.x))):
-                return x0, 0
+                return x0, []
             rl = self.residuals(lines, corners(r.x)).reshape(-1, 2) / self.sigma  # in line sigmas
             chi = (rl ** 2).sum(axis=1)
             worst = int(np.argmax(chi))
@@ -191,9 +384,36 @@ class PhotoEdges:
                 continue
             p, _ = self.camera.project(clicks(r.x))
             if np.any(((p - uv) ** 2).sum(axis=1) > CHI2_2DOF_9999 * self.sigma ** 2):
-                return x0, 0
-            return r.x, len(lines)
-        return x0, 0
+                return x0, []
+            return r.x, lines
+        return x0, []
+
+
+def _seg_dist(P: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Distances (M,) of points P (M,2) from the segment e (2,2)."""
+    d = e[1] - e[0]
+    t = np.clip((P - e[0]) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(P - (e[0] + t[:, None] * d), axis=1)
+
+
+def _local_min(m: np.ndarray) -> np.ndarray:
+    """(S,) bool: the profile's interior local minima (an edge of the opposite polarity; the tail of
+    one further off is not)."""
+    return np.r_[False, (m[1:-1] <= m[:-2]) & (m[1:-1] < m[2:]), False]
+
+
+def _second_peak(m: np.ndarray, k: int, level: float, prominence: float, window: np.ndarray) -> bool:
+    """Profile m (S,) has, inside `window` (S,) bool, a local maximum other than k above `level` that
+    stands out as a peak of its own: the profile dips by more than `prominence` between it and k (a
+    shoulder, the shading next to an edge, does not)."""
+    locmax = np.r_[False, (m[1:-1] >= m[:-2]) & (m[1:-1] > m[2:]), False]
+    for j in np.flatnonzero(locmax & window & (m > level)):
+        if j == k:
+            continue
+        lo, hi = sorted((j, k))
+        if m[j] - m[lo:hi + 1].min() > prominence:
+            return True
+    return False
 
 
 def _runs(ok: np.ndarray) -> list[tuple[int, int]]:

@@ -32,8 +32,12 @@ Method:
     rectangle on that plane (each side the mean of the two corners nearer it); set QUAD_OFFSET_M in
     front of its surface (an emitter drawn on it), an opening (a hole in the wall) in it;
   * with the photo (model_from_clicks(photo=...)), each wall, piece and quad fitted from its clicks
-    is refined: the edges of it the photo shows sharply are snapped (recon/clickedges.py) and join
-    its least-squares fit in pixels; what the photo does not confirm stays as clicked;
+    is refined: the edges of it the photo shows are snapped (recon/clickedges.py) and join its
+    least-squares fit in pixels; what the photo does not confirm stays as clicked. The walls and
+    the ceiling are then refitted together with the room's corner and ceiling edges (_refine_room);
+    a piece's edges are snapped in rounds (_snap_and_refine), a side of it the fit cannot tell from
+    a clicked wall is put against it (_hold_on_walls), and a side pinned worse than TOLERANCE_M (at
+    99 %) is reported ill-determined (ClickModel.uncertain, a warning);
   * walls that no click shows are placed WALL_MARGIN_M beyond the camera (recon/roomfit.py's rule:
     the photographer stands between the camera and the wall behind), and beyond every clicked
     primitive, and flagged guessed.
@@ -47,7 +51,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -70,6 +74,11 @@ DESK_TOP_M = 0.04  # m, a desk's top slab
 DESK_LEG_M = 0.05  # m, a desk leg's square section
 DESK_LEG_INSET_M = 0.04  # m from the footprint's edge to a leg's outer face
 CLICK_SIGMA_PX = 1.0  # px per coordinate: a click's noise, what a refinement may move it (recon/clickedges.py)
+SIDES = ("x min", "x max", "z min", "z max", "top")  # a piece's parameters (local axes when turned)
+TOLERANCE_M = 0.03  # m: issue 38's accuracy for walls, furniture and quads; a piece's side the clicks and the
+# photo pin less well than this (at Z99 sigma) is reported as ill-determined
+Z99 = 2.576  # the two-sided 99 % point of the normal distribution
+SNAP_ROUNDS = 3  # rounds of snapping a piece's edges around its latest fit (_snap_and_refine)
 QUAD_OFFSET_M = 0.002  # m in front of its surface: a window or lamp drawn on a wall or the ceiling
 FACES = {(0, -1): "left", (0, 1): "right", (2, -1): "back", (2, 1): "front"}
 
@@ -88,6 +97,7 @@ class Wall:
     points: list[np.ndarray] = field(default_factory=list)  # floor points (3,) behind it
     uv: np.ndarray | None = None  # (m,2) their clicks
     feet: list = field(default_factory=list)  # with the photo: (start (3,), end (3,), EdgeLine) snapped stretches
+    sd: float = 0.0  # with the photo: the offset's standard deviation (m) from its clicks and snapped lines
 
 
 @dataclass
@@ -101,11 +111,15 @@ class ClickModel:
     ceiling_from: str
     guessed: list[str]  # room faces no click showed
     refined: dict[str, str] | None = None  # with the photo: each wall / piece / quad -> how it was refined
+    uncertain: dict[str, dict[str, float]] | None = None  # with the photo: piece -> {side: standard deviation
+    # m} of the sides pinned less well than TOLERANCE_M (at Z99 sigma)
 
     def to_json(self) -> dict:
         model = {"from": "clicks", "ceiling_from": self.ceiling_from, "guessed_walls": self.guessed}
         if self.refined is not None:
             model["refined_from_photo"] = self.refined
+            model["ill_determined"] = {k: {side: round(Z99 * v, 4) for side, v in sides.items()}
+                                       for k, sides in (self.uncertain or {}).items()}
         return {"primitives": self.primitives, "model": model}
 
 
@@ -147,6 +161,8 @@ class _Clicks:
         self.edges = edges  # recon.clickedges.PhotoEdges, or None: clicks only
         self.occluders = occluders or []  # the clicks-only model's furniture boxes
         self.refined: dict[str, str] = {}
+        self.uncertain: dict[str, dict[str, float]] = {}  # piece -> {side: standard deviation m} (TOLERANCE_M)
+        self.ceiling_sd = 0.0  # m: the ceiling height's standard deviation when clicked (with the photo)
 
     def blocker(self, name: str):
         """recon.clickedges.box_blocker of every furniture box but piece `name`'s own."""
@@ -315,7 +331,7 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
         (lo if w.side < 0 else hi)[w.axis] = w.offset
 
     # ceiling
-    heights = []
+    heights, ceil_clicks = [], []
     for label, where, c in items:
         if label != "ceiling":
             continue
@@ -330,6 +346,7 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
             raise ClickError(f"{src}: {where}: edge [{uv[0]:g}, {uv[1]:g}] does not meet wall {wname!r} above the "
                              "camera: click where that wall meets the ceiling")
         heights.append(float(p[1]))
+        ceil_clicks.append((w, uv))
     if heights:
         hi[1], ceiling_from = float(np.mean(heights)), f"{len(heights)} ceiling click(s)"
     elif ceiling_height is not None:
@@ -344,6 +361,8 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
     if not hi[1] > cam_c[1]:
         raise ClickError(f"{src}: the ceiling ({hi[1]:.2f} m, from {ceiling_from}) is below the camera "
                          f"({cam_c[1]:.2f} m)")
+    if P.edges is not None:
+        _refine_room(P, walls, ceil_clicks, lo, hi, ceiling_from != "default")
 
     names = {"room"} | set(wall_of)
     prims: list[dict] = []
@@ -394,7 +413,117 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
                           "how": how, "labels": [] if w is None else list(w.labels)})
     room = {"name": "room", "type": "box", "role": "room", "center": ((lo + hi) / 2).tolist(),
             "size": (hi - lo).tolist(), "walls": wall_list}
-    return ClickModel([room] + prims, lo, hi, ceiling_from, guessed, P.refined if P.edges is not None else None)
+    for name, sides in P.uncertain.items():
+        log.warning("%s: %s: %s pinned only to %s by its clicks and the photo (%s sigma): click its corners with care "
+                    "or give its sizes (size_m)", src, name, ", ".join(sides),
+                    ", ".join(f"+-{Z99 * v * 100:.1f} cm" for v in sides.values()), f"{Z99:g}")
+    return ClickModel([room] + prims, lo, hi, ceiling_from, guessed, P.refined if P.edges is not None else None,
+                      P.uncertain if P.edges is not None else None)
+
+
+def _refine_room(P: _Clicks, walls: dict[str, Wall], ceil_clicks: list[tuple[Wall, np.ndarray]], lo: np.ndarray,
+                 hi: np.ndarray, ceiling_known: bool) -> None:
+    """The clicked walls' offsets and the ceiling's height refined together against the photo (in
+    place: walls, lo, hi, P.refined): each wall's foot alone fixes it only where its foot snapped,
+    but the room's other straight edges hold it too: the vertical corner where two clicked walls
+    meet (through the known camera it fixes the one wall's offset once the other's is known) and
+    each wall's ceiling edge (with a known ceiling). One least-squares fit in pixels of every wall
+    and ceiling click and every snapped line (recon/clickedges.PhotoEdges.refine_lines), started
+    from the walls fitted one by one; it keeps them when it fails. With the ceiling from clicks,
+    its height is a parameter too; with the ceiling unknown (the default), the corner lines are
+    snapped up to the camera's height only (the ceiling is surely above it) and no ceiling edge is."""
+    cam = P.camera
+    ws = list(walls.values())
+    nw = len(ws)
+    free_h = bool(ceil_clicks)
+    nh = int(free_h)
+    x0, owner, uv = [w.offset for w in ws] + ([float(hi[1])] if free_h else []), [], []
+    for k, w in enumerate(ws):
+        for p, q in zip(w.points, w.uv):
+            x0.append(float(p[2 - w.axis]))
+            owner.append((k, False))
+            uv.append(q)
+    for w, q in ceil_clicks:
+        k = ws.index(w)
+        p = hit_plane(cam, q, axis_vector(w.axis), w.offset)
+        x0.append(float(p[2 - w.axis]))
+        owner.append((k, True))
+        uv.append(q)
+    x0, uv = np.array(x0, float), np.array(uv, float)
+
+    def height(x):
+        return float(x[nw]) if free_h else float(hi[1])
+
+    def clicks(x):
+        out = np.zeros((len(owner), 3))
+        for j, (k, up) in enumerate(owner):
+            w = ws[k]
+            out[j, w.axis], out[j, 2 - w.axis], out[j, 1] = x[k], x[nw + nh + j], height(x) if up else 0.0
+        return out
+
+    # the ends of the lines to fit (callables x -> (3,)) and which walls each line touches
+    ends: list = []  # each: callable x -> (3,)
+    lines, touches = [], []
+    for k, w in enumerate(ws):  # the feet already snapped
+        for s, e, L in w.feet:
+            for q in (s, e):
+                ends.append(lambda x, q=q, k=k, a=w.axis: np.where(np.arange(3) == a, x[k], q * [1, 0, 1]))
+            lines.append(replace(L, i=len(ends) - 2, j=len(ends) - 1, t0=0.0, t1=1.0))
+            touches.append(("foot", (k,)))
+    top = (lambda x: height(x)) if ceiling_known else (lambda x: float(cam.centre[1]))
+    model_pairs, model_touch = [], []
+    for k1, w1 in enumerate(ws):  # vertical corners of two clicked walls
+        for k2, w2 in enumerate(ws):
+            if w1.axis == 0 and w2.axis == 2:
+                for y in (0, 1):
+                    ends.append(lambda x, k1=k1, k2=k2, y=y: np.array([x[k1], y * top(x), x[k2]]))
+                model_pairs.append((len(ends) - 2, len(ends) - 1))
+                model_touch.append(("corner", (k1, k2)))
+    if ceiling_known:
+        for k, w in enumerate(ws):  # each wall's ceiling edge, between its neighbours or its clicks
+            along = 2 - w.axis
+            pos = [p[along] for p in w.points]
+            rng = [lo[along] if np.isfinite(lo[along]) else min(pos), hi[along] if np.isfinite(hi[along]) else max(pos)]
+            kk = [next((m for m, v in enumerate(ws) if v.axis == along and v.side == sd), None) for sd in (-1, 1)]
+            for r, m in zip(rng, kk):
+                ends.append(lambda x, k=k, a=w.axis, al=along, r=r, m=m:
+                            np.where(np.arange(3) == a, x[k],
+                                     np.where(np.arange(3) == al, r if m is None else x[m], height(x))))
+            model_pairs.append((len(ends) - 2, len(ends) - 1))
+            model_touch.append(("ceiling", (k,)))
+
+    def corners(x):
+        return np.array([f(x) for f in ends]) if ends else np.zeros((0, 3))
+
+    if model_pairs:
+        found = P.edges.lines(corners(x0), model_pairs, P.blocker(""), faint=True)
+        by_pair = {pair: t for pair, t in zip(model_pairs, model_touch)}
+        lines += found
+        touches += [by_pair[(L.i, L.j)] for L in found]
+    x, kept = P.edges.refine_lines(x0, corners, clicks, uv, lines) if lines else (x0, [])
+    sd = P.edges.sd(x, corners, clicks, kept)
+    if free_h:
+        P.ceiling_sd = float(sd[nw])
+    for k, w in enumerate(ws):  # a wall its clicks and the photo pin worse than TOLERANCE_M (at Z99 sigma)
+        w.sd = float(sd[k])
+        if not Z99 * sd[k] <= TOLERANCE_M:
+            for name in w.labels:
+                P.uncertain[name] = {"offset": float(sd[k])}
+    if not kept:
+        return
+    kept_touch = [touches[next(i for i, M in enumerate(lines) if M is L)] for L in kept]
+    for k, w in enumerate(ws):
+        w.offset = float(x[k])
+        (lo if w.side < 0 else hi)[w.axis] = w.offset
+        what = {t: sum(1 for kind, ks in kept_touch if kind == t and k in ks) for t in ("foot", "corner", "ceiling")}
+        if any(what.values()):
+            words = [f"{n} {label}" for n, label in ((what["foot"], "stretches of its foot"),
+                                                       (what["corner"], "corner lines"),
+                                                       (what["ceiling"], "ceiling edges")) if n]
+            for name in w.labels:
+                P.refined[name] = ", ".join(words) + " snapped"
+    if free_h:
+        hi[1] = height(x)
 
 
 def _wall_offset(camera: Camera, points: list[np.ndarray], uv: np.ndarray, axis: int, edges=None,
@@ -564,19 +693,80 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
     uvs = np.vstack([uv[known], top_uv[None]])
     y = _reproject_fit(x0[active], pts, uvs, camera)
     if photo is not None and photo[0].edges is not None:
-        P, name, desk = photo
+        P, name, desk, lo, hi = photo
 
-        def corners(y):  # corner b: bit 0 the x end, bit 1 floor / top, bit 2 the z end
+        def corners(y):  # corner b: bit 0 the x end, bit 1 bottom / top, bit 2 the z end; a desk: its slab
             x = full(y)
-            return np.array([x[b & 1] * e1 + x[2 + (b >> 2 & 1)] * e2 + [0.0, (b >> 1 & 1) * x[4], 0.0]
+            bottom = x[4] - DESK_TOP_M if desk else 0.0
+            return np.array([x[b & 1] * e1 + x[2 + (b >> 2 & 1)] * e2 + [0.0, x[4] if b & 2 else bottom, 0.0]
                              for b in range(8)])
 
-        lines = P.edges.lines(corners(y), _box_edges(camera.centre, corners(y), (e1, np.array([0.0, 1, 0]), e2), desk),
-                              P.blocker(name))
-        y, kept = P.edges.refine(y, corners, pts, uvs, lines)
-        P.refined[name] = f"{kept} edges snapped" if kept else "as clicked"
+        y, kept = _snap_and_refine(P, name, y, corners, pts, uvs, (e1, np.array([0.0, 1, 0]), e2))
+        held = []
+        if kept and yaw == 0.0:
+            y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi)
+        words = ([f"{len(kept)} edges snapped"] if kept else []) + \
+            [f"{SIDES[j]} side against the wall" for j in held]
+        P.refined[name] = ", ".join(words) if words else "as clicked"
+        free = [k for k, j in enumerate(active) if j not in held]
+        if free:
+            def sub(q, y=y, free=free):
+                out = y.copy()
+                out[free] = q
+                return out
+
+            sd = P.edges.sd(y[free], lambda q: corners(sub(q)), lambda q: pts(sub(q)), kept)
+            loose = {SIDES[active[k]]: float(v) for k, v in zip(free, sd) if not Z99 * v <= TOLERANCE_M}
+            if loose:
+                P.uncertain[name] = loose
     x = full(y)
     return np.sort(x[:2]), np.sort(x[2:4]), float(x[4])
+
+
+def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np.ndarray, axes
+                     ) -> tuple[np.ndarray, list]:
+    """A piece's fit y refined with its edges snapped to the photo (recon/clickedges.py), in rounds:
+    the edges are snapped around the model of the last fit and the fit redone, until a round finds
+    no edge more (at most SNAP_ROUNDS): a click off by 3 sigma puts some edges beyond their search
+    (a desk's slab: its top's and underside's front edges 4 cm apart), the fit on the others brings
+    them in."""
+    y0, kept = y, []
+    for _ in range(SNAP_ROUNDS):
+        lines = P.edges.lines(corners(y), _box_edges(P.camera.centre, corners(y), axes, False), P.blocker(name),
+                              faint=True)
+        if len(lines) <= len(kept):
+            break
+        y, kept = P.edges.refine_lines(y0, corners, pts, uvs, lines)
+    return y, kept
+
+
+def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, uvs: np.ndarray, lines: list,
+                   lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """An axis-aligned piece's fit y (its parameters `active` of [x min, x max, z min, z max, top])
+    with each side that the clicks and snapped `lines` allow on a clicked wall put there: a side
+    whose own edge the photo shows (a snapped line on it: a side hidden under another piece, a sofa's
+    seat under its back, is not judged) is held on the wall when that raises the fit's chi-square
+    (click noise units) by at most CHI2_1DOF_99 (the side's place is one number: a piece the photo
+    cannot tell from standing against the wall stands against it; a side further off than its noise
+    keeps its fit). Returns (y, the sides held)."""
+    from recon.clickedges import CHI2_1DOF_99
+
+    base = P.edges.chi2(y, corners, pts, uvs, lines)
+    held = []
+    for j in range(4):
+        axis, side = (0, 2)[j // 2], (-1, 1)[j % 2]
+        bound = (lo if side < 0 else hi)[axis]
+        bit, end = (1, 4)[j // 2], j % 2  # corner bits: bit 0 the x end, bit 2 the z end
+        seen = any(bool(L.i & bit) == end and bool(L.j & bit) == end for L in lines)
+        if j not in active or not np.isfinite(bound) or not seen:
+            continue
+        k = active.index(j)
+        y1 = P.edges.held(y, k, float(bound), corners, pts, uvs, lines)
+        c1 = P.edges.chi2(y1, corners, pts, uvs, lines)
+        if c1 - base <= CHI2_1DOF_99:
+            y, base = y1, c1
+            held.append(j)
+    return y, held
 
 
 def _box_edges(centre: np.ndarray, corners: np.ndarray, axes, top_only: bool) -> list[tuple[int, int]]:
@@ -661,7 +851,7 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
         raise P.err(where, f"top [{top_uv[0]:g}, {top_uv[1]:g}] is not straight above floor[0] (the vertical line "
                            f"over it passes {miss:.0f} px away): click the top corner above floor[0]")
     xr, zr, h = _refine_box(P.camera, yaw, xr, zr, float(h), f, uv, top_uv,
-                            against is not None and P.sizes(c, where) is None, (P, name, kind == "desk"))
+                            against is not None and P.sizes(c, where) is None, (P, name, kind == "desk", lo, hi))
     px_m = max(_pixel_metres(P, uv[k]) for k in range(3) if np.isfinite(uv[k, 0]))
     _against_walls(P, where, yaw, xr, zr, lo, hi, px_m)
     if h > hi[1] + WALL_TOL_M:
@@ -692,10 +882,10 @@ def _quad(P: _Clicks, c: dict, where: str, name: str, role: str, lo, hi, wall_of
     if on == "ceiling":
         if opening:
             raise P.err(where, "an opening must be on a wall")
-        axis, offset, inward = 1, float(hi[1]), -1.0
+        axis, offset, inward, plane_sd = 1, float(hi[1]), -1.0, P.ceiling_sd
     elif on in wall_of:
         w = wall_of[on]
-        axis, offset, inward = w.axis, w.offset, -float(w.side)
+        axis, offset, inward, plane_sd = w.axis, w.offset, -float(w.side), w.sd
     else:
         raise P.err(where, f"'on' must be 'ceiling' or a clicked wall's name ({', '.join(sorted(wall_of))}), got {on!r}")
     n = axis_vector(axis)
@@ -751,7 +941,7 @@ def _quad(P: _Clicks, c: dict, where: str, name: str, role: str, lo, hi, wall_of
         ends_all += ends
     if P.edges is not None:
         ends_all = _refine_quad(P, name, axis, offset, (u_ax, v_ax), (groups_u, groups_v), np.array(ends_all),
-                                missing, known, uv)
+                                missing, known, uv, plane_sd)
     for q, ax in enumerate((u_ax, v_ax)):
         a, b = sorted(ends_all[2 * q:2 * q + 2])
         if b - a < 0.02:
@@ -777,22 +967,25 @@ def _quad(P: _Clicks, c: dict, where: str, name: str, role: str, lo, hi, wall_of
 
 
 def _refine_quad(P: _Clicks, name: str, axis: int, offset: float, axes: tuple[int, int], groups, x0: np.ndarray,
-                 missing: list[bool], known: list[int], uv: np.ndarray) -> np.ndarray:
+                 missing: list[bool], known: list[int], uv: np.ndarray, plane_sd: float = 0.0) -> np.ndarray:
     """A quad's side coordinates x0 (4,: the two ends along axes[0], then along axes[1]; end i holds
     the corners groups[.][i]) refined with its four sides snapped to the photo (recon/clickedges.py;
     an emitter's clipped edge is used). An end no clicked corner lies on keeps its distance to the
-    opposite end (size_m)."""
+    opposite end (size_m). The quad is reported ill-determined when its corners are pinned worse
+    than TOLERANCE_M (at Z99 sigma): its sides' own uncertainty and its plane's (plane_sd, m: the
+    wall's or the ceiling's), carried through the fit (a quad seen at a grazing angle moves along its
+    plane many times what its plane moves)."""
     idx = [[next(i for i in (0, 1) if k in groups[q][i]) + 2 * q for q in (0, 1)] for k in range(4)]
     active = [m for m in range(4) if not missing[m]]
 
-    def corners(y):
+    def corners(y, plane=offset):
         x = x0.copy()
         x[active] = y
         for m in range(4):
             if missing[m]:
                 x[m] = x[m ^ 1] + (x0[m] - x0[m ^ 1])
         out = np.zeros((4, 3))
-        out[:, axis] = offset
+        out[:, axis] = plane
         for k in range(4):
             out[k, axes[0]], out[k, axes[1]] = x[idx[k][0]], x[idx[k][1]]
         return out
@@ -802,9 +995,18 @@ def _refine_quad(P: _Clicks, name: str, axis: int, offset: float, axes: tuple[in
 
     y0 = x0[active]
     y = _reproject_fit(y0, clicks, uv[known], P.camera)
-    lines = P.edges.lines(corners(y), [(0, 1), (1, 2), (2, 3), (3, 0)], P.blocker(name), clipped_ok=True)
-    y, kept = P.edges.refine(y, corners, clicks, uv[known], lines)
-    P.refined[name] = f"{kept} edges snapped" if kept else "as clicked"
+    lines = P.edges.lines(corners(y), [(0, 1), (1, 2), (2, 3), (3, 0)], P.blocker(name), clipped_ok=True, faint=True)
+    y, kept = P.edges.refine_lines(y, corners, clicks, uv[known], lines)
+    P.refined[name] = f"{len(kept)} edges snapped" if kept else "as clicked"
+    sd = P.edges.sd(y, corners, clicks, kept)
+    if plane_sd > 0:  # the fit on the plane moved by 1 mm, scaled to the plane's sigma
+        dp = 1e-3
+        y2 = P.edges.fit(y, lambda q: corners(q, offset + dp), lambda q: corners(q, offset + dp)[known],
+                         uv[known], kept)
+        sd = np.sqrt(sd ** 2 + ((y2 - y) / dp * plane_sd) ** 2)
+    worst = float(np.sqrt(np.max(sd) ** 2 + plane_sd ** 2)) if len(sd) else plane_sd
+    if not Z99 * worst <= TOLERANCE_M:
+        P.uncertain[name] = {"corners": worst}
     x = x0.copy()
     x[active] = y
     for m in range(4):

@@ -46,12 +46,15 @@ def test_model_clicks_writes_primitives_and_overlay(window_room_clicks, capsys):
     # with the photo the clicks were refined against its edges: the back wall's foot snapped
     refined = d["model"]["refined_from_photo"]
     assert set(refined) == {"left", "back", "desk", "window"} and refined["back"].endswith("snapped"), refined
+    # what the clicks and the photo pin worse than 3 cm (99 %) is listed: nothing in this draw (window_room's
+    # desk is, in 3 of tests/recon/test_clickmodel.py's 10 draws)
+    assert d["model"]["ill_determined"] == {}, d["model"]["ill_determined"]
     # the same clicks without --image: no overlay, no refinement: the clicks-only model
     rc = main(["-q", "model", "--clicks", str(tmp / "clicks.json"), "--camera", str(tmp / "camera.json"),
                "--out", str(tmp / "out2")])
     assert rc == 0 and not (tmp / "out2" / "overlay.png").exists()
     d2 = json.loads((tmp / "out2" / "primitives.json").read_text())
-    assert "refined_from_photo" not in d2["model"]
+    assert "refined_from_photo" not in d2["model"] and "ill_determined" not in d2["model"]
     from recon.camera import Camera
     from recon.clickmodel import model_from_clicks
 
@@ -116,9 +119,9 @@ def test_own_room_chain_with_clicked_model(tmp_path, capsys, own_room_cache, nam
     assert rc == 0, capsys.readouterr().err
     s = score(root, tmp_path / "out" / "composite.png")
     print(f"{name} (clicked model, skipped out of the photo: {done['skipped']}): {json.dumps(s)}")
-    # measured (clicks refined against the photo): window_room energy 0.933, rmse_affected 1.26
-    # (untouched 9.86), rmse_object 5.17; lamps_room 0.930, 2.93 (36.2), 1.66; sun_room 0.899, 1.52
-    # (21.4), 8.95 (as clicked: 0.931 / 1.27 / 5.18, 0.926 / 3.04 / 1.63, 0.911 / 1.57 / 8.26)
+    # measured (clicks refined against the photo): window_room energy 0.921, rmse_affected 1.55
+    # (untouched 9.86), rmse_object 5.21; lamps_room 0.931, 2.97 (36.2), 1.72; sun_room 0.906, 1.66
+    # (21.4), 9.11 (as clicked: 0.931 / 1.27 / 5.18, 0.926 / 3.04 / 1.63, 0.911 / 1.57 / 8.26)
     assert 0.8 <= s["energy_ratio"] <= 1.25, s
     assert s["rmse_affected"] <= 0.6 * s["rmse_affected_if_untouched"], s
     # sun_room misses the own-room bound of 8 on the object (issue 38, open): calibrate's camera (0.24
@@ -126,5 +129,6 @@ def test_own_room_chain_with_clicked_model(tmp_path, capsys, own_room_cache, nam
     # tape room on the same camera scored 8.43, this clicked model on the true camera 6.31), and since
     # the sunlit patches light the object exactly instead of through the SH volume (docs/unseen.md, "The
     # object in a sunlit patch") the chair lacks light the volume's 2.4x over-light from those
-    # patches used to hide (8.09 -> 8.95); the bound is that measurement plus 0.5
+    # patches used to hide (8.09 -> 8.95; 9.11 with the refinement's faint edges and wall holds); the
+    # bound is 8.95 plus 0.5
     assert s["rmse_object"] <= (9.5 if name == "sun_room" else 8), s

@@ -332,45 +332,91 @@ def test_box_blocker():
 
 @pytest.mark.parametrize("name", SCENES)
 def test_clicks_refined_against_the_photo(name):
-    """Ten seeds of 1 px noise, the clicks refined against the photo. A wall whose foot snapped is
-    within the issue's 3 cm on every seed, and so is the ceiling. The rest keeps the bound of clicks,
-    3 cm + 3 px: what the photo does not show sharply stays as clicked: window_room's and sun_room's
-    left walls (a skirting of the floor's tone over planks that run along it: no straight edge of
-    one polarity), lamps_room's sofa seat (its back floor corner lies behind the seat, its top's
-    back and front edges too faint to snap), sun_room's desk (it runs out of the photo; its back
-    side from clicks where 1 px is 2.7 cm of floor); and a window carries its wall's error
-    (window_room's and sun_room's are on those left walls). With exact clicks every item is
-    within 3 cm (the refinement does not lock onto a wrong edge), and over all items and seeds the
-    mean error is lower than as clicked."""
+    """Ten seeds of 1 px noise, the clicks refined against the photo: every wall, the ceiling, every
+    window quad and every piece of furniture within the issue's flat 3 cm on every seed, except a
+    piece the model itself reports ill-determined (`model.ill_determined`: a side the clicks and the
+    photo pin less well than 3 cm at 99 %; no wall here is), which keeps the bound of clicks, 3 cm + 3 px:
+    lamps_room's sofa seat (its back side hidden under the sofa's back: no edge of it in the photo)
+    and the sofa's back (its top face 3.5 px deep: its two long edges too near to tell apart, so
+    its depth rests on floor clicks hidden behind the seat), sun_room's desk (it runs out of the photo: its front side from one floor click where
+    1 px is 2.7 cm of floor) and, in one seed, window_room's desk (a floor click 3 sigma off moves it
+    along the line of sight, which its top's edges do not see). With exact clicks every item is within
+    3 cm (the refinement does not lock onto a wrong edge; an ill-determined one is allowed 1 px
+    more), and over all items and seeds the mean error is lower than as clicked."""
     sc, cam = _scene(name)
     edges = _photo_edges(name)
     logging.disable(logging.WARNING)
     try:
         clicks, done = true_clicks(sc, sigma_px=0.0)
-        exact = _errors(sc, cam, clicks, done, model_from_clicks(clicks, cam, name, 2.6, photo=edges))
-        runs, runs0, snapped = [], [], []
+        m = model_from_clicks(clicks, cam, name, 2.6, photo=edges)
+        exact, exact_loose = _errors(sc, cam, clicks, done, m), set(m.to_json()["model"]["ill_determined"])
+        runs, runs0, loose = [], [], []
         for seed in range(10):
             clicks, done = true_clicks(sc, sigma_px=1.0, seed=seed)
             m = model_from_clicks(clicks, cam, name, 2.6, photo=edges)
             runs.append(_errors(sc, cam, clicks, done, m))
             runs0.append(_errors(sc, cam, clicks, done, model_from_clicks(clicks, cam, name, 2.6)))
-            snapped.append({f"wall {k}" for k, v in m.refined.items() if v != "as clicked"})
+            loose.append(set(m.to_json()["model"]["ill_determined"]))
     finally:
         logging.disable(logging.NOTSET)
     print(name, "exact clicks, refined:", {k: round(v[0] * 100, 1) for k, v in exact.items()})
-    for k, (e, _) in exact.items():
-        assert e <= 0.03, (k, e)
+    for k, (e, px) in exact.items():
+        assert e <= 0.03 + (px if k in exact_loose else 0.0), (k, e)
     for k in runs[0]:
         errs = np.array([r[k][0] for r in runs])
         errs0 = np.array([r[k][0] for r in runs0])
         px = runs[0][k][1]
-        flat = np.array([k in s or k == "ceiling" for s in snapped])  # the ceiling: one click, 1 px = 1.3 cm
+        flat = np.array([k not in s for s in loose])
         print(f"{name} {k}: median {np.median(errs0) * 100:.1f} -> {np.median(errs) * 100:.1f} cm, max "
-              f"{errs0.max() * 100:.1f} -> {errs.max() * 100:.1f} cm, 1 px = {px * 100:.1f} cm; "
-              f"{runs_refined(k, snapped)}")
-        assert np.all(errs[flat] <= 0.03), k
+              f"{errs0.max() * 100:.1f} -> {errs.max() * 100:.1f} cm, 1 px = {px * 100:.1f} cm; reported "
+              f"ill-determined in {int((~flat).sum())} of 10")
+        if k.startswith("wall ") or k == "ceiling" or k in done["quads"]:
+            assert flat.all(), k  # every wall snapped here; the ceiling and quads are not judged
+        assert np.all(errs[flat] <= 0.03), (k, errs)
         assert np.all(errs <= 0.03 + 3 * px), k
     mean = np.mean([v[0] for r in runs for v in r.values()])
     mean0 = np.mean([v[0] for r in runs0 for v in r.values()])
     print(f"{name}: mean error {mean0 * 100:.2f} -> {mean * 100:.2f} cm")
     assert mean < mean0
+
+
+def test_faint_edge_with_swapping_polarity():
+    """recon/clickedges.PhotoEdges.snap_faint on a synthetic photo: a straight edge between a wall of
+    one tone and planks 120 px long alternately 8 levels darker and lighter than it (the polarity
+    swaps along the edge), anti-aliased (4x4 samples a pixel), under Gaussian noise of 4 levels a
+    pixel: edgesnap's sample-by-sample snap finds nothing; from a model line 1.5 px off, the averaged
+    pieces find the edge on each of eight noise draws, its ends within 0.5 px (twice the 0.25 px
+    noise floor a snapped line gets in the fit) and 0.2 px on average (measured 0.28 and 0.11); a
+    model line 6 px off (beyond the search) is refused."""
+    from recon.clickedges import PhotoEdges
+    from recon.edgesnap import EdgeImage
+
+    h, w, ss = 240, 320, 4
+    a, b = np.array([20.0, 80.0]), np.array([300.0, 150.0])  # the true edge, pixels
+    d = (b - a) / np.linalg.norm(b - a)
+    n = np.array([-d[1], d[0]])
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    v, u = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    P = np.stack(np.broadcast_arrays(u[..., None, None] + off[None, None, None, :],
+                                     v[..., None, None] + off[None, None, :, None]), -1)
+    across = (P - a) @ n
+    along = (P - a) @ d
+    plank = np.where((along // 120) % 2 == 0, 112.0, 128.0)
+    val = np.where(across > 0, plank, 120.0).mean(axis=(2, 3))
+    cam = Camera(np.array([[300.0, 0, w / 2 - 0.5], [0, 300, h / 2 - 0.5], [0, 0, 1]]), np.eye(3), np.zeros(3), w, h)
+    errs = []
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        img = np.clip(np.round(val + rng.normal(0.0, 4.0, val.shape)), 0, 255).astype(np.uint8)
+        photo = EdgeImage(np.repeat(img[..., None], 3, axis=2))
+        pe = PhotoEdges(photo, cam, 1.0)
+        model = np.r_[a + 1.5 * n, b + 1.5 * n]
+        assert photo.snap(model, 1.0, pe.search, False, 2.0) is None
+        r = pe.snap_faint(model)
+        assert r is not None, seed
+        seg = r[0]
+        for end, true in ((seg[:2], a), (seg[2:], b)):
+            errs.append(abs(float((end - true) @ n)))
+        assert pe.snap_faint(np.r_[a + 6.0 * n, b + 6.0 * n]) is None
+    print(f"faint edge: ends off by {np.mean(errs):.3f} px on average, {max(errs):.3f} px at worst (8 draws)")
+    assert max(errs) <= 0.5 and np.mean(errs) <= 0.2, errs
