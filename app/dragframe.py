@@ -87,6 +87,9 @@ class DragStages:
         if scale < 2:
             raise ValueError(f"a drag frame's working resolution is 1/scale with scale >= 2, got {scale}")
         self.scale = s = scale
+        # the frame's clusters split near the object first (ShadowSources.near_factor); False: the plain
+        # key of the frames at rest (bench/bench_drag.py's A/B)
+        self.near_split = True
         p, dev, pre = engine.params, engine.device, engine.pre_lit
         self.scene = sc = coarse_scene(engine.scene, s)
         cam = sc.camera
