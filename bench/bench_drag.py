@@ -10,7 +10,8 @@ same machine load for all), and one frame at the scene's own pose scored against
 (lighting.metrics, tools/score.py's measures). A configuration is `full:P` (today's drag frame: full
 resolution, P passes) or `S:M:P` (FrameConfig.drag = S: the room at 1/S resolution each way, cluster
 maps of M px, P passes whose clusters are split near the object first; app.dragframe) or `S:M:P:plain`
-(the same with the plain key of the frames at rest; printed with a "p" after P). Prints per configuration the path's mean and p95 frame time,
+(the same with the frames at rest's cluster key and object-light reach, DragStages(plain=True): the drag
+frame before those were chosen; printed with a "p" after P). Prints per configuration the path's mean and p95 frame time,
 the per-stage means (ms) and energy_ratio / rmse_affected, next to the all-sources frame's score and
 the acceptance bound (rmse_affected <= 1.5 x the all-sources frame's + 0.5, energy 0.93-1.07); the
 Pareto front: the configurations within the bound that no other within it beats on both time and
@@ -42,7 +43,7 @@ DEFAULT_CONFIGS = "2:64:200:plain,2:64:64:plain,2:64:64,2:64:32,3:64:64,4:64:64"
 
 def parse_config(text: str) -> tuple[int | None, int | None, int, bool]:
     """'full:50' -> (None, None, 50, False); '2:64:50' -> (2, 64, 50, True); '2:64:50:plain' -> (2, 64, 50,
-    False): the clusters of the plain key (the frames at rest's), not split near the object first."""
+    False): the frames at rest's cluster key and object-light reach (DragStages(plain=True))."""
     parts = text.split(":")
     if parts[0] == "full" and len(parts) == 2:
         return None, None, int(parts[1]), False
@@ -72,9 +73,7 @@ def bench_scene(d: Path, configs: list, n_path: int, rounds: int = 2) -> dict:
 
     full = eng.render(scene.obj, FrameConfig())
     out = {"scene": str(d), "all_sources": {"frame_s": full.stats["frame_s"], **score(full)}, "rows": []}
-    stages = {c: DragStages(eng, c[0], map_res=c[1]) for c in configs if c[0] is not None}
-    for c, st in stages.items():
-        st.near_split = c[3]
+    stages = {c: DragStages(eng, c[0], map_res=c[1], plain=not c[3]) for c in configs if c[0] is not None}
     offsets = drag_offsets(scene, scene.obj, n_path)
     stats = {c: [] for c in configs}
     scores = {}

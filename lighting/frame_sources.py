@@ -35,10 +35,17 @@ from recon.response import luminance
 
 BOX_GRID_M = 1e-3  # the object's box is grown outward to this grid before selection (select)
 # near_factor's floor on a node's distance to the object's box (m): it only keeps the factor finite for
-# nodes touching the box (ten steps of BOX_GRID_M); those are split first whatever its value. A floor of a
-# patch's size (0.25 m) instead ranks nodes touching the box with those a patch away, and leaves the unseen
-# sun_101's 64-pass drag frame at energy 1.15 (0.02 m, 0.05 m: 1.05; bench_drag.py)
+# nodes touching the box (ten steps of BOX_GRID_M). A floor of a patch's size (0.25 m) instead ranks nodes
+# touching the box with those a patch away, and leaves the unseen sun_101's 64-pass drag frame at energy
+# 1.15 (0.01-0.05 m: 1.05)
 NEAR_FLOOR_M = 0.01
+# near_factor's cap on size / distance: the factor stands for a cluster's error against its key, which
+# cannot exceed the key itself; a node 10 times as large as its distance spans most of the object's
+# view (half-angle atan(5) = 79 degrees), its shadow wrong throughout, and a closer one is not more wrong.
+# Uncapped, the nodes touching the box (up to 1 + size / NEAR_FLOOR_M) take the passes the window's clusters
+# need (window_room's 64-pass drag frame: rmse_affected 1.38 uncapped, 0.93 capped at 10, 0.88 at 3; sun_101
+# energy 1.05 at 10 and uncapped, 1.10 at 3)
+NEAR_MAX_RATIO = 10.0
 # memory allowed to the per-scene table of single-source transfers (ShadowSources.keep_single_transfers);
 # a room whose table is larger makes each list's transfers per frame instead (kept for the next one)
 SINGLE_TABLE_MAX_BYTES = 1 << 30
@@ -319,7 +326,7 @@ class ShadowSources:
 
     def near_factor(self, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
         """(N,) per source-tree node: 1 + its box's diagonal over its distance to the object's box
-        [box_min, box_max] (m), the distance at least NEAR_FLOOR_M.
+        [box_min, box_max] (m), the distance at least NEAR_FLOOR_M, the ratio at most NEAR_MAX_RATIO.
 
         Why: a cluster's one map puts all of its members' light at its eye. A member at offset s from
         the eye casts the object's shadow shifted by about s x (receiver distance) / (distance to the
@@ -331,7 +338,8 @@ class ShadowSources:
         if getattr(self, "_node_size", None) is None:  # per tree (not in the cached artefact of older runs)
             self._node_size = np.linalg.norm(t.box_max - t.box_min, axis=1)
         gap = np.maximum(0.0, np.maximum(t.box_min - box_max, box_min - t.box_max))
-        return 1.0 + self._node_size / np.maximum(np.linalg.norm(gap, axis=1), NEAR_FLOOR_M)
+        return 1.0 + np.minimum(self._node_size / np.maximum(np.linalg.norm(gap, axis=1), NEAR_FLOOR_M),
+                                NEAR_MAX_RATIO)
 
     def representatives(self, marked: np.ndarray, passes: int | None, key: np.ndarray | None = None,
                         node_factor: np.ndarray | None = None) -> list[int]:

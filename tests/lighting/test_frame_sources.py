@@ -125,9 +125,9 @@ def test_the_all_sources_frame_is_the_same_with_and_without_the_table(engine):
 
 
 def test_near_factor_is_a_node_extent_over_its_distance_to_the_box(engine):
-    # near_factor: 1 + (node box diagonal) / max(distance between the node's box and the object's, NEAR_FLOOR_M),
-    # against a point-to-box distance computed corner by corner for each node
-    from lighting.frame_sources import NEAR_FLOOR_M
+    # near_factor: 1 + min((node box diagonal) / max(distance between the node's box and the object's,
+    # NEAR_FLOOR_M), NEAR_MAX_RATIO), against a box-to-box distance computed axis by axis for each node
+    from lighting.frame_sources import NEAR_FLOOR_M, NEAR_MAX_RATIO
 
     scene, eng = engine
     ss = eng.shadow_sources
@@ -139,8 +139,10 @@ def test_near_factor_is_a_node_extent_over_its_distance_to_the_box(engine):
     # the gap between two boxes: per axis, how far apart their intervals are (0 where they overlap)
     d = np.array([np.sqrt(sum(max(0.0, t.box_min[n, a] - hi[a], lo[a] - t.box_max[n, a]) ** 2 for a in range(3)))
                   for n in range(t.n_nodes)])
-    np.testing.assert_allclose(f, 1 + size / np.maximum(d, NEAR_FLOOR_M), rtol=1e-12)
-    assert (f >= 1).all() and f[0] == pytest.approx(1 + size[0] / NEAR_FLOOR_M)  # the root holds the box
+    np.testing.assert_allclose(f, 1 + np.minimum(size / np.maximum(d, NEAR_FLOOR_M), NEAR_MAX_RATIO), rtol=1e-12)
+    assert (f >= 1).all() and f[0] == 1 + NEAR_MAX_RATIO  # the root holds the box
+    far = d > size  # nodes farther than their own size: below the cap, the plain ratio
+    assert far.any() and np.allclose(f[far], 1 + size[far] / d[far], rtol=1e-12)
 
 
 def test_near_split_splits_the_clusters_beside_the_object_first(engine):
