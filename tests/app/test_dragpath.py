@@ -35,7 +35,9 @@ def test_evaluate_path_and_stage_table(tmp_path):
                  "--patch-size", "0.35", "--cache", str(tmp_path / "cache")]) == 0
     ev = json.loads((out / "evaluation.json").read_text())
     p = ev["path"]
-    assert p["positions"] == 4 and p["passes"] == 200 and p["precompute_runs"] == 0  # the drag frame's
+    from app.config import DRAG_PASSES
+
+    assert p["positions"] == 4 and p["passes"] == DRAG_PASSES == 64 and p["precompute_runs"] == 0  # the drag frame's
     assert len(p["frame_s"]) == 4 and len(p["offsets_m"]) == 4
     rest = np.array(p["frame_s"][1:])  # the first frame is excluded
     assert p["frame_s_mean"] == pytest.approx(rest.mean())
