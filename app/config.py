@@ -125,12 +125,14 @@ class ObjectConfig:
 
 
 # The drag frame (app.dragframe; the GUI's frames while the object moves, evaluate's drag row): the
-# room at 1/DRAG_SCALE resolution each way with DRAG_PASSES passes, the cheapest configuration of bench/bench_drag.py's (docs/benchmarks.md) within issue 36's error bound
-# (rmse_affected <= 1.5 x the all-sources frame's + 0.5, energy 0.93-1.07) on every room measured: 1/4
-# loses lamps_room's hard lamp shadows; fewer passes leave the clusters' excess darkening of sunlit rooms
-# (energy 1.235 at 50 passes on sun_room, 1.083 at 100 on the unseen sun_101; 1.02-1.03 at 200)
+# room at 1/DRAG_SCALE resolution each way with DRAG_PASSES passes whose clusters are split near the
+# object first (ShadowSources.near_factor), the cheapest configuration of bench/bench_drag.py's
+# (docs/benchmarks.md) within issue 36's error bound (rmse_affected <= 1.5 x the all-sources frame's + 0.5,
+# energy 0.93-1.07) on every room measured: 1/4 loses lamps_room's hard lamp shadows; 48 passes leave
+# sun_room at energy 1.08; 64 is also one batch of maps (ShadowConfig.batch), whose frame sums on the
+# graded lattice (ShadowPass._run_graded)
 DRAG_SCALE = 2
-DRAG_PASSES = 200
+DRAG_PASSES = 64
 
 
 @dataclass(frozen=True)

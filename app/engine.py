@@ -293,7 +293,8 @@ class Engine:
 
         # ---- source list from the shaft hierarchy, grouped into the frame's passes (sec. 6.2.1, 6.4)
         fs = self.shadow_sources.select(pv.min(0), pv.max(0), self.budget.passes(config, sun is not None),
-                                        functools.partial(split_launches, device=self.device, min_items=64))
+                                        functools.partial(split_launches, device=self.device, min_items=64),
+                                        near_split=px is not self and px.near_split)
         t = tick("sources", t)
 
         # ---- occlusion masks: listed pixels and patch centres (app.stages.shadow_pass; yields per batch)

@@ -9,7 +9,9 @@ one Engine (the default precompute cache); then for each configuration a drag of
 same machine load for all), and one frame at the scene's own pose scored against its truth
 (lighting.metrics, tools/score.py's measures). A configuration is `full:P` (today's drag frame: full
 resolution, P passes) or `S:M:P` (FrameConfig.drag = S: the room at 1/S resolution each way, cluster
-maps of M px, P passes; app.dragframe). Prints per configuration the path's mean and p95 frame time,
+maps of M px, P passes whose clusters are split near the object first; app.dragframe) or `S:M:P:plain`
+(the same with the frames at rest's cluster key and object-light reach, DragStages(plain=True): the drag
+frame before those were chosen; printed with a "p" after P). Prints per configuration the path's mean and p95 frame time,
 the per-stage means (ms) and energy_ratio / rmse_affected, next to the all-sources frame's score and
 the acceptance bound (rmse_affected <= 1.5 x the all-sources frame's + 0.5, energy 0.93-1.07); the
 Pareto front: the configurations within the bound that no other within it beats on both time and
@@ -36,17 +38,19 @@ from lighting import metrics  # noqa: E402
 from recon.io import read_image_rgb  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
-DEFAULT_CONFIGS = "full:50,2:128:50,2:64:50,2:64:25,4:64:50,4:64:100,4:64:20"
+DEFAULT_CONFIGS = "2:64:200:plain,2:64:64:plain,2:64:64,2:64:32,3:64:64,4:64:64"
 
 
-def parse_config(text: str) -> tuple[int | None, int | None, int]:
-    """'full:50' -> (None, None, 50); '2:64:50' -> (2, 64, 50)."""
+def parse_config(text: str) -> tuple[int | None, int | None, int, bool]:
+    """'full:50' -> (None, None, 50, False); '2:64:50' -> (2, 64, 50, True); '2:64:50:plain' -> (2, 64, 50,
+    False): the frames at rest's cluster key and object-light reach (DragStages(plain=True))."""
     parts = text.split(":")
     if parts[0] == "full" and len(parts) == 2:
-        return None, None, int(parts[1])
-    if len(parts) != 3:
-        raise argparse.ArgumentTypeError(f"a configuration is full:P or S:M:P, got {text!r}")
-    return int(parts[0]), int(parts[1]), int(parts[2])
+        return None, None, int(parts[1]), False
+    plain = len(parts) == 4 and parts[3] == "plain"
+    if len(parts) != 3 and not plain:
+        raise argparse.ArgumentTypeError(f"a configuration is full:P, S:M:P or S:M:P:plain, got {text!r}")
+    return int(parts[0]), int(parts[1]), int(parts[2]), not plain
 
 
 def scene_dir(name: str) -> Path:
@@ -69,7 +73,7 @@ def bench_scene(d: Path, configs: list, n_path: int, rounds: int = 2) -> dict:
 
     full = eng.render(scene.obj, FrameConfig())
     out = {"scene": str(d), "all_sources": {"frame_s": full.stats["frame_s"], **score(full)}, "rows": []}
-    stages = {c: DragStages(eng, c[0], map_res=c[1]) for c in configs if c[0] is not None}
+    stages = {c: DragStages(eng, c[0], map_res=c[1], plain=not c[3]) for c in configs if c[0] is not None}
     offsets = drag_offsets(scene, scene.obj, n_path)
     stats = {c: [] for c in configs}
     scores = {}
@@ -87,6 +91,7 @@ def bench_scene(d: Path, configs: list, n_path: int, rounds: int = 2) -> dict:
     for c in configs:
         t = np.array([s["frame_s"] for s in stats[c]]) * 1e3
         row = {"config": "full" if c[0] is None else f"1/{c[0]}", "map_res": c[1], "passes": c[2],
+               "near_split": c[3],
                "mean_ms": float(t.mean()), "p95_ms": float(np.percentile(t, 95)), **scores[c],
                "stages_ms": path_stages_ms(stats[c])}
         row["within_bound"] = bool(row["rmse_affected"] <= bound and 0.93 <= row["energy_ratio"] <= 1.07)
@@ -106,11 +111,11 @@ def print_scene(res: dict) -> None:
     print(f"\n{res['scene']}: all sources {a['frame_s']:.2f} s, energy {a['energy_ratio']:.3f}, rmse "
           f"{a['rmse_affected']:.2f} (bound: rmse <= {res['bound_rmse']:.2f}, energy 0.93-1.07)")
     keys = ["masks", "object_shading", "object_light", "sources", "object", "compose", "upsample", "python"]
-    print(f"{'config':>6} {'map':>4} {'P':>4} {'mean':>7} {'p95':>7} {'energy':>7} {'rmse':>6}  " +
+    print(f"{'config':>6} {'map':>4} {'P':>4}  {'mean':>7} {'p95':>7} {'energy':>7} {'rmse':>6}  " +
           " ".join(f"{k[:9]:>9}" for k in keys) + "  pareto")
     for r in res["rows"]:
         st = r["stages_ms"]
-        print(f"{r['config']:>6} {r['map_res'] or '':>4} {r['passes']:>4} {r['mean_ms']:7.1f} {r['p95_ms']:7.1f} "
+        print(f"{r['config']:>6} {r['map_res'] or '':>4} {r['passes']:>4}{' ' if r['near_split'] else 'p'} {r['mean_ms']:7.1f} {r['p95_ms']:7.1f} "
               f"{r['energy_ratio']:7.3f} {r['rmse_affected']:6.2f}  " +
               " ".join(f"{st.get(k, 0.0):9.1f}" for k in keys) +
               ("  *" if r["pareto"] else ("" if r["within_bound"] else "  (out of bound)")))

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from kernels.pixel_compose import PX_LB, PX_STILL, _Mirror, to_levels, to_pixel
+from kernels.pixel_compose import PX_LB, PX_STILL, _Mirror, mix_levels, mix_radiance, to_levels, to_pixel
 
 RATIO_EPS = 1e-6  # a ratio this close to 1 leaves the photo's level (float32 noise of the coarse room)
 
@@ -97,18 +97,10 @@ def drag_compose_kernel(first: int, W: int, w: int, h: int, s: int, room_c: wp.a
             lev[c] = px[i, PX_STILL + c]
     pr = wp.vec3d(rad[0], rad[1], rad[2])
     pl = wp.vec3d(lev[0], lev[1], lev[2])
-    if cv > zero:
-        clips = lev[0] >= full or lev[1] >= full or lev[2] >= full
-        for c in range(3):
-            o = wp.float64(obj[i, c])
-            pr[c] = (one - cv) * rad[c] + cv * o
-            t = to_levels(o, c, exposure, tab, grid)
-            pl[c] = (one - cv) * lev[c] + cv * t
-            if t >= full:
-                clips = True
-        if clips and cv < one:
-            for c in range(3):
-                pl[c] = to_levels(pr[c], c, exposure, tab, grid)
+    if cv > zero:  # the object over it, as compose_kernel mixes it
+        o = wp.vec3d(wp.float64(obj[i, 0]), wp.float64(obj[i, 1]), wp.float64(obj[i, 2]))
+        pr = mix_radiance(rad, cv, o)
+        pl = mix_levels(rad, lev, cv, o, exposure, tab, grid)
     for c in range(3):
         out[i, c] = wp.float32(pr[c])
         out_room[i, c] = wp.float32(rad[c])

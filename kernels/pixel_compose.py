@@ -147,6 +147,36 @@ EX_SUN, EX_OBJ, EX_COV = 0, 3, 6
 EX_WIDTH = 7
 
 
+@wp.func
+def mix_radiance(rad: wp.vec3d, cov: wp.float64, o: wp.vec3d) -> wp.vec3d:
+    """(1 - cov) rad + cov o: a pixel's radiance with the object (radiance o) over its share cov."""
+    one = wp.float64(1.0)
+    return wp.vec3d((one - cov) * rad[0] + cov * o[0], (one - cov) * rad[1] + cov * o[1],
+                    (one - cov) * rad[2] + cov * o[2])
+
+
+@wp.func
+def mix_levels(rad: wp.vec3d, lev: wp.vec3d, cov: wp.float64, o: wp.vec3d, exposure: wp.float64,
+               tab: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32)) -> wp.vec3d:
+    """The level of a pixel the object covers by cov > 0 over the room (radiance rad, levels lev): the
+    levels mixed, (1 - cov) lev + cov T(o), or T(mix_radiance) where a level is only a floor (either
+    side clips) and the object does not cover it all (compose_kernel, drag_compose_kernel)."""
+    one = wp.float64(1.0)
+    full = wp.float64(255.0)
+    clips = lev[0] >= full or lev[1] >= full or lev[2] >= full
+    pl = wp.vec3d()
+    for c in range(3):
+        t = to_levels(o[c], c, exposure, tab, grid)
+        pl[c] = (one - cov) * lev[c] + cov * t
+        if t >= full:
+            clips = True
+    if clips and cov < one:
+        pr = mix_radiance(rad, cov, o)
+        for c in range(3):
+            pl[c] = to_levels(pr[c], c, exposure, tab, grid)
+    return pl
+
+
 @wp.kernel
 def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows: wp.array2d(dtype=wp.int32),
                    bary: wp.array2d(dtype=wp.float32), shade: wp.array2d(dtype=wp.float64),
@@ -247,18 +277,9 @@ def compose_kernel(first: int, ldr: int, px: wp.array2d(dtype=wp.float64), rows:
                 lev[c] = px[i, PX_STILL + c]
     pr = wp.vec3d(rad[0], rad[1], rad[2])  # the pixel's radiance
     pl = wp.vec3d(lev[0], lev[1], lev[2])  # its level
-    if cov > zero:
-        # the object: mix levels, or radiance where a level is only a floor (it clips on either side)
-        clips = lev[0] >= full or lev[1] >= full or lev[2] >= full
-        for c in range(3):
-            pr[c] = (one - cov) * rad[c] + cov * o[c]
-            t = to_levels(o[c], c, exposure, tab, grid)
-            pl[c] = (one - cov) * lev[c] + cov * t
-            if t >= full:
-                clips = True
-        if clips and cov < one:
-            for c in range(3):
-                pl[c] = to_levels(pr[c], c, exposure, tab, grid)
+    if cov > zero:  # the object over it
+        pr = mix_radiance(rad, cov, o)
+        pl = mix_levels(rad, lev, cov, o, exposure, tab, grid)
     for c in range(3):
         out[i, c] = wp.float32(pr[c])
         out_room[i, c] = wp.float32(rad[c])

@@ -35,7 +35,9 @@ def test_evaluate_path_and_stage_table(tmp_path):
                  "--patch-size", "0.35", "--cache", str(tmp_path / "cache")]) == 0
     ev = json.loads((out / "evaluation.json").read_text())
     p = ev["path"]
-    assert p["positions"] == 4 and p["passes"] == 200 and p["precompute_runs"] == 0  # the drag frame's
+    from app.config import DRAG_PASSES
+
+    assert p["positions"] == 4 and p["passes"] == DRAG_PASSES == 64 and p["precompute_runs"] == 0  # the drag frame's
     assert len(p["frame_s"]) == 4 and len(p["offsets_m"]) == 4
     rest = np.array(p["frame_s"][1:])  # the first frame is excluded
     assert p["frame_s_mean"] == pytest.approx(rest.mean())
@@ -75,9 +77,11 @@ def test_evaluate_reaches_all_source_quality_before_the_exact_frame(shared_scene
     p, shown = ev["path"], ev["path"]["shown"]
     assert f"all-source quality after {p['converge_s']:.2f} s" in line and f"after {p['exact_s']:.2f} s" in line
     assert [s["exact"] for s in shown] == [False, False, True]  # the release frame, refine's finer frame, all sources
-    # the release is the drag frame (200 passes at 1/2 resolution), refine's finer frame has twice the
+    # the release is the drag frame (DRAG_PASSES at 1/2 resolution), refine's finer frame has twice the
     # smallest budget of --passes on full-size maps at full resolution
-    assert [s["passes"] for s in shown[:2]] == [200, 100] and shown[2]["passes"] == ev["rows"][1]["n_passes"]
+    from app.config import DRAG_PASSES
+
+    assert [s["passes"] for s in shown[:2]] == [DRAG_PASSES, 100] and shown[2]["passes"] == ev["rows"][1]["n_passes"]
     t = [s["t_s"] for s in shown]
     assert 0 < p["release_frame_s"] <= t[0] < t[1] < t[2]
     # refine ends in the all-sources frame: its score is the "all" row's
@@ -85,7 +89,7 @@ def test_evaluate_reaches_all_source_quality_before_the_exact_frame(shared_scene
     assert shown[2]["rmse_affected"] == pytest.approx(ev["rows"][1]["rmse_affected"], abs=0.01)
     # all-source quality (within 0.05 of the all-sources frame's rmse_affected) is reached at the first frame
     # shown at rest that has it, before the exact frame: the finer frame, or already the release (the drag
-    # frame of 200 passes scores 0.77 here, the all-sources frame 0.77)
+    # frame of 64 passes scores 0.94 here, the all-sources frame 0.77: the finer frame)
     first = next(i for i, s in enumerate(shown) if s["rmse_affected"] <= shown[2]["rmse_affected"] + 0.05)
     assert first < 2 and shown[1]["rmse_affected"] <= shown[2]["rmse_affected"] + 0.05
     assert ev["converge_s"] == p["converge_s"] == t[first] < p["exact_s"] == ev["exact_s"] == t[2]

@@ -122,3 +122,57 @@ def test_the_all_sources_frame_is_the_same_with_and_without_the_table(engine):
     assert with_table.stats["passes"] == without.stats["passes"] > 1
     np.testing.assert_array_equal(with_table.radiance, without.radiance)
     np.testing.assert_array_equal(with_table.pixels, without.pixels)
+
+
+def test_near_factor_is_a_node_extent_over_its_distance_to_the_box(engine):
+    # near_factor: 1 + min((node box diagonal) / max(distance between the node's box and the object's,
+    # NEAR_FLOOR_M), NEAR_MAX_RATIO), against a box-to-box distance computed axis by axis for each node
+    from lighting.frame_sources import NEAR_FLOOR_M, NEAR_MAX_RATIO
+
+    scene, eng = engine
+    ss = eng.shadow_sources
+    t = ss.src_tree
+    v = scene.obj.vertices
+    lo, hi = v.min(0), v.max(0)
+    f = ss.near_factor(lo, hi)
+    size = np.linalg.norm(t.box_max - t.box_min, axis=1)
+    # the gap between two boxes: per axis, how far apart their intervals are (0 where they overlap)
+    d = np.array([np.sqrt(sum(max(0.0, t.box_min[n, a] - hi[a], lo[a] - t.box_max[n, a]) ** 2 for a in range(3)))
+                  for n in range(t.n_nodes)])
+    np.testing.assert_allclose(f, 1 + np.minimum(size / np.maximum(d, NEAR_FLOOR_M), NEAR_MAX_RATIO), rtol=1e-12)
+    assert (f >= 1).all() and f[0] == 1 + NEAR_MAX_RATIO  # the root holds the box
+    far = d > size  # nodes farther than their own size: below the cap, the plain ratio
+    assert far.any() and np.allclose(f[far], 1 + size[far] / d[far], rtol=1e-12)
+
+
+def test_near_split_splits_the_clusters_beside_the_object_first(engine):
+    # with the same pass budget, the drag frame's rule (near_split) leaves the sources nearest the object's
+    # box in smaller clusters than the plain key: the nodes within 0.3 m of the box hold fewer members each
+    scene, eng = engine
+    ss = eng.shadow_sources
+    t = ss.src_tree
+    v = scene.obj.vertices
+    lo, hi = np.floor(v.min(0) * 1e3) / 1e3, np.ceil(v.max(0) * 1e3) / 1e3
+    marked = ss.traverse(lo, hi)[0]
+    key = ss.blocked_key(lo, hi)
+    passes = 16
+    assert marked.sum() > 4 * passes
+    plain = ss.representatives(marked, passes, key)
+    near = ss.representatives(marked, passes, key, ss.near_factor(lo, hi))
+    assert len(plain) == len(near) == passes
+    for nodes in (plain, near):  # both cover every marked source once
+        cover = np.zeros(len(marked), int)
+        for n in nodes:
+            cover[t.lo[n]:t.hi[n]] += 1
+        assert (cover[marked] == 1).all()
+    pos_near = ss.near_factor(lo, hi) > 1 + np.linalg.norm(t.box_max - t.box_min, axis=1) / 0.3  # within 0.3 m
+
+    def members_near(nodes):
+        c = [marked[t.lo[n]:t.hi[n]].sum() for n in nodes if pos_near[n]]
+        return np.mean(c) if c else 0.0
+
+    assert any(pos_near[n] for n in near)
+    assert members_near(near) < members_near(plain)
+    # and the frame that uses it has as many passes
+    fs = ss.select(v.min(0), v.max(0), passes, near_split=True)
+    assert len(fs.eyes) == passes and fs.W_v.shape[1] == passes
