@@ -59,6 +59,11 @@ MIN_MOVE_PX = 1.0  # a refinement that moves the room's edges less (rms) is not 
 # edges sit 0.2-0.4 px off the photo's (creases, contact shadows, shading; per edge, at the true camera), and
 # refining the true camera moved them 0.17-0.77 px in 8 of 11 rooms (the shared three, 8 unseen ones; in the
 # other three the residual check refused the move); a pixel of error is what moves an object's outline
+CENTRE_STEP_PX = 4.0  # the centre search's grid step, as the motion of an edge at the median depth: twice
+# the coarse stage's 2 px final match radius, so the grid's best point is within the ICP's reach
+DROP_CONFIDENCE = 0.95  # a centre-search fit replaces the input camera's own fit only on a drop of the
+# room's edges' distances from the photo's edges this certain (one-sided)
+CENTRE_HYPOTHESES = 3  # the centre search's best local minima refined besides the input camera
 MIN_LINE_DIRECTIONS_DEG = 20.0  # the samples' 3D edges must span two directions at least this far apart
 
 
@@ -154,8 +159,32 @@ class _Samples:
     edge: np.ndarray  # (N,) index of the edge
 
 
+def _clip_to_image(u0: np.ndarray, u1: np.ndarray, cam: Camera) -> tuple[float, float] | None:
+    """The parameter range [s0, s1] of the image segment u0 + s (u1 - u0), s in [0, 1], that lies
+    within BORDER_PX of the image's inside (Liang-Barsky); None when none does."""
+    lo = np.array([BORDER_PX, BORDER_PX])
+    hi = np.array([cam.width - 1 - BORDER_PX, cam.height - 1 - BORDER_PX])
+    d = u1 - u0
+    s0, s1 = 0.0, 1.0
+    for k in range(2):
+        for p, q in ((-d[k], u0[k] - lo[k]), (d[k], hi[k] - u0[k])):
+            if abs(p) < 1e-12:
+                if q < 0:
+                    return None
+                continue
+            r = q / p
+            if p < 0:
+                s0 = max(s0, r)
+            else:
+                s1 = min(s1, r)
+    return (s0, s1) if s1 > s0 else None
+
+
 def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder) -> _Samples:
-    """Visible samples along the edges, about SAMPLE_STEP_PX apart in the image of `cam`."""
+    """Visible samples along the edges, SAMPLE_STEP_PX apart in the image of `cam`: each edge's
+    projection is clipped to the image and sampled evenly there, each image sample taken back to its
+    3D point on the edge (perspective-correct), so an edge running towards the camera weighs what its
+    length in the photo shows, not its length in metres."""
     Xs, Ds, idx = [], [], []
     C = cam.centre
     for i, (a, b) in enumerate(edges):
@@ -169,29 +198,32 @@ def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder) -> _Samples:
         if zb < 0.05:
             t1 = (0.05 - za) / (zb - za)
         p, q = a + t0 * (b - a), a + t1 * (b - a)
+        zp, zq = za + t0 * (zb - za), za + t1 * (zb - za)
         uv, _ = cam.project(np.stack([p, q]))
-        length = float(np.linalg.norm(uv[1] - uv[0]))
+        span = _clip_to_image(uv[0], uv[1], cam)
+        if span is None:
+            continue
+        full = float(np.linalg.norm(uv[1] - uv[0]))
+        length = full * (span[1] - span[0])
         if not length >= MIN_EDGE_PX:
             continue
         n = int(np.ceil(length / SAMPLE_STEP_PX))
-        s = (np.arange(n) + 0.5) / n
-        X = p + s[:, None] * (q - p)
+        s = span[0] + (np.arange(n) + 0.5) / n * (span[1] - span[0])
+        # away from the ends of the edge's projected (near-plane clipped) run: corners mix two edges' gradients
+        s = s[(s * full >= END_TRIM_PX - SAMPLE_STEP_PX / 2) & ((1 - s) * full >= END_TRIM_PX - SAMPLE_STEP_PX / 2)]
+        if len(s) == 0:
+            continue
+        t = s * zp / ((1 - s) * zq + s * zp)  # image parameter -> 3D parameter (perspective-correct)
+        X = p + t[:, None] * (q - p)
         Xs.append(X)
         Ds.append(np.broadcast_to((b - a) / np.linalg.norm(b - a), X.shape))
-        idx.append(np.full(n, i))
+        idx.append(np.full(len(X), i))
     if not Xs:
         return _Samples(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, int))
     X, D, idx = np.concatenate(Xs), np.concatenate(Ds), np.concatenate(idx)
     uv, z = cam.project(X)
-    ok = (z > 0.05) & np.all(uv >= BORDER_PX, axis=1) & (uv[:, 0] <= cam.width - 1 - BORDER_PX) \
-        & (uv[:, 1] <= cam.height - 1 - BORDER_PX)
-    # away from the ends of each edge's projected (clipped) run: corners mix two edges' gradients
-    for i in np.unique(idx):
-        m = idx == i
-        u = uv[m]
-        along = np.linalg.norm(u - u[0], axis=1)
-        ok[np.flatnonzero(m)] &= (along >= END_TRIM_PX - SAMPLE_STEP_PX / 2) & (along <= along[-1] - END_TRIM_PX
-                                                                                 + SAMPLE_STEP_PX / 2)
+    ok = (z > 0.05) & np.all(uv >= BORDER_PX - 1e-6, axis=1) & (uv[:, 0] <= cam.width - 1 - BORDER_PX + 1e-6) \
+        & (uv[:, 1] <= cam.height - 1 - BORDER_PX + 1e-6)
     ok[ok] &= occ.visible(C, X[ok])
     return _Samples(X[ok], D[ok], idx[ok])
 
@@ -314,11 +346,14 @@ def clicked_lines(camera_json: dict | None) -> tuple[dict[str, np.ndarray], dict
 
 class _Model:
     """Camera parameters x = [rotation vector (3, applied after the input R), centre x, centre z
-    (m), log(f / f0)] about the input camera."""
+    (m), log(f / f0)] about the input camera, and with `free_pp` the principal point's offset
+    [du, dv] (px) after them."""
 
-    def __init__(self, cam: Camera):
+    def __init__(self, cam: Camera, free_pp: bool = False):
         self.cam0 = cam
         self.C0 = cam.centre
+        self.free_pp = free_pp
+        self.n = 8 if free_pp else 6
 
     def camera(self, x: np.ndarray) -> Camera:
         import cv2
@@ -327,6 +362,8 @@ class _Model:
         C = np.array([self.C0[0] + x[3], self.C0[1], self.C0[2] + x[4]])
         K = self.cam0.K.copy()
         K[0, 0], K[1, 1] = self.cam0.K[0, 0] * np.exp(x[5]), self.cam0.K[1, 1] * np.exp(x[5])
+        if self.free_pp:
+            K[0, 2], K[1, 2] = self.cam0.K[0, 2] + x[6], self.cam0.K[1, 2] + x[7]
         return dataclasses.replace(self.cam0, K=K, R=R, t=-R @ C)
 
 
@@ -371,7 +408,7 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e: flo
         out[0, ne:], out[1, ne:], out[2, ne:] = z[ne:], 1.0, 0.0
         return out
 
-    return least_squares(fun, x0, loss=loss, f_scale=f_scale, x_scale=[1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3],
+    return least_squares(fun, x0, loss=loss, f_scale=f_scale, x_scale=[1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:len(x0)],
                          method="trf", max_nfev=50)
 
 
@@ -387,6 +424,116 @@ def _edge_chamfer(cam: Camera, S: _Samples, photo: PhotoEdges) -> float:
     return float(np.mean(np.minimum(d, CHAMFER_CAP_PX)))
 
 
+def _centre_search(cam: Camera, S: _Samples, photo: PhotoEdges) -> list[np.ndarray]:
+    """Starting points [0, 0, 0, dx, dz, 0] (_Model's parameters) of the fit: the best local minima of
+    the capped edge residual over a grid of camera centres about the input one, rotation, focal length
+    and height held.
+
+    Why: the clicked vanishing lines fix the rotation and the focal length, not where in the room the
+    camera stands; a centre a few tens of cm off shifts the room's image by tens of px, where the ICP's
+    wide first match radius can lock onto other strong edges (a sunlit patch's border, the floor's
+    texture) and end in a wrong basin. The grid spans the centres that move an edge at the samples'
+    median depth by up to the widest match radius (COARSE_RADII_PX[0]), in steps that move it
+    CENTRE_STEP_PX; the residual is capped at 2 steps so a grid point half a step from an edge still
+    counts it matched. The samples are the input camera's (the visible set changes little over the grid)."""
+    if len(S.X) == 0:
+        return []
+    f = float(cam.K[0, 0])
+    _, z = cam.project(S.X)
+    zmed = float(np.median(z))
+    half, step = COARSE_RADII_PX[0] * zmed / f, CENTRE_STEP_PX * zmed / f
+    k = int(np.floor(half / step))
+    offs = np.arange(-k, k + 1) * step
+    dx, dz = np.meshgrid(offs, offs, indexing="ij")
+    dC = np.stack([dx.ravel(), np.zeros(dx.size), dz.ravel()], 1)  # (G,3) world offsets of the centre
+    cap = 2.0 * CENTRE_STEP_PX
+    RX, RD = S.X @ cam.R.T, S.D @ cam.R.T
+    K = cam.K
+    cost = np.empty(len(dC))
+    dist = np.stack([d for d, _ in photo.near])  # (bins, H, W)
+    H, W = photo.shape
+    for i0 in range(0, len(dC), 64):
+        Xc = RX[None] + cam.t[None, None] - (dC[i0:i0 + 64] @ cam.R.T)[:, None]  # (g,N,3) camera coordinates
+        zc = Xc[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = (Xc @ K.T)[..., :2] / zc[..., None]
+            uv2 = ((Xc + 0.01 * RD[None]) @ K.T)[..., :2] / (zc + 0.01 * RD[None, :, 2])[..., None]
+        d = uv2 - uv
+        ang = np.mod(np.arctan2(d[..., 0], -d[..., 1]), np.pi)  # the normal (-dv, du)'s angle
+        b = np.minimum((ang / (np.pi / ORIENT_BINS)).astype(int), ORIENT_BINS - 1)
+        iu = np.rint(np.nan_to_num(uv, nan=-1.0, posinf=-1.0, neginf=-1.0)).astype(np.int64)
+        inside = (zc > 0.05) & (iu[..., 0] >= 0) & (iu[..., 0] < W) & (iu[..., 1] >= 0) & (iu[..., 1] < H)
+        dd = np.full(zc.shape, cap)
+        dd[inside] = np.minimum(dist[b[inside], iu[..., 1][inside], iu[..., 0][inside]], cap)
+        cost[i0:i0 + 64] = dd.mean(axis=1)
+    C = cost.reshape(dx.shape)
+    pad = np.pad(C, 1, constant_values=np.inf)
+    nb = np.stack([pad[1 + i:1 + i + C.shape[0], 1 + j:1 + j + C.shape[1]] for i in (-1, 0, 1) for j in (-1, 0, 1)
+                   if i or j])
+    minima = np.flatnonzero((C <= nb.min(axis=0)).ravel())
+    best = minima[np.argsort(cost[minima])][:CENTRE_HYPOTHESES]
+    return [np.array([0.0, 0.0, 0.0, dC[i, 0], dC[i, 2], 0.0]) for i in best]  # pad for a free principal point
+
+
+@dataclass
+class _Fit:
+    """One candidate camera: parameters x, its last least-squares result (None: no stage ran), the
+    samples of that stage, which of them it used and their residuals (px), and the stage's noise (px)."""
+    x: np.ndarray
+    res: object
+    S: _Samples
+    used: np.ndarray
+    resid: np.ndarray
+    sigma: float
+
+
+def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines) -> list[_Fit]:
+    """ICP on the oriented Canny edges over the match radii `radii`, then the sub-pixel stage, from
+    parameters x: the candidates after the coarse stages and after the sub-pixel stage (the latter
+    only when it ran). Both are kept: in a noisy photo the sub-pixel profiles can pull the camera off
+    (their peaks are noise), which the edge residual, scored over all the room's samples, shows."""
+    out = []
+    S = _sample_edges(model.camera(x), edges, occ)
+    res = None
+    for i, radius in enumerate(radii):
+        if i == 2:  # the camera may have moved by tens of px: the visible samples again
+            S = _sample_edges(model.camera(x), edges, occ)
+        if len(S.X) < MIN_SAMPLES:
+            break
+        uv, n = _project(model.camera(x), S)
+        q, ok = photo.match(uv, np.arctan2(n[:, 1], n[:, 0]), radius)
+        if ok.sum() < MIN_SAMPLES:
+            break
+        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
+        res = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
+        x = res.x
+        uv1, n1 = _project(model.camera(x), sub)
+        out_c = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), COARSE_SIGMA_PX)
+    out.append(out_c if res is not None else _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), COARSE_SIGMA_PX))
+    S = _sample_edges(model.camera(x), edges, occ)
+    fine = None
+    for _ in range(3):
+        if len(S.X) < MIN_SAMPLES:
+            break
+        uv, n = _project(model.camera(x), S)
+        q, ok = photo.subpixel(uv, n)
+        if ok.sum() < MIN_SAMPLES:
+            break
+        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
+        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
+        x = res.x
+        uv1, n1 = _project(model.camera(x), sub)
+        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), FINE_SIGMA_PX)
+    if fine is not None:
+        out.append(fine)
+    return out
+
+
+def _union(*ss: _Samples) -> _Samples:
+    return _Samples(np.concatenate([s.X for s in ss]), np.concatenate([s.D for s in ss]),
+                    np.concatenate([s.edge for s in ss]))
+
+
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None) -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
@@ -400,51 +547,75 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     occ = _Occluder(faces)
     photo = PhotoEdges(image)
     lines = clicked_lines(camera_json)
-    model = _Model(cam)
-    x = np.zeros(6)
-    S = _sample_edges(cam, edges, occ)
-    for i, radius in enumerate(COARSE_RADII_PX):
-        if i == 2:  # the camera may have moved by tens of px: the visible samples again
-            S = _sample_edges(model.camera(x), edges, occ)
-        if len(S.X) < MIN_SAMPLES:
-            break
-        uv, n = _project(model.camera(x), S)
-        q, ok = photo.match(uv, np.arctan2(n[:, 1], n[:, 0]), radius)
-        if ok.sum() < MIN_SAMPLES:
-            break
-        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        x = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS).x
-    res, used, resid = None, np.zeros(0, bool), np.zeros(0)
-    S = _sample_edges(model.camera(x), edges, occ)
-    for _ in range(3):
-        if len(S.X) < MIN_SAMPLES:
-            break
-        uv, n = _project(model.camera(x), S)
-        q, ok = photo.subpixel(uv, n)
-        if ok.sum() < MIN_SAMPLES:
-            break
-        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
-        x = res.x
-        used = ok
-        uv1, n1 = _project(model.camera(x), sub)
-        resid = np.sum(n1 * (q[ok] - uv1), axis=1)
-    refined = model.camera(x)
-    return _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, time.time() - t0)
+    # calibrate's principal point from three vanishing points is weak (the orthocentre of their
+    # triangle moves far with a distant vanishing point); the room's known edges determine it, so it is
+    # refined too; the image centre (calibrate's default) or a given one is held
+    model = _Model(cam, free_pp=(camera_json or {}).get("principal_point_from") == "three vanishing points")
+    S0 = _sample_edges(cam, edges, occ)
+    # hypotheses: the input camera with the full coarse schedule, and the centre search's best minima,
+    # whose grid leaves an edge at the median depth within CENTRE_STEP_PX / 2: their ICP starts at the
+    # match radius of 4 grid steps (an edge at a quarter of the median depth)
+    starts = [(np.zeros(model.n), COARSE_RADII_PX)]
+    grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
+    starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for x0 in _centre_search(cam, S0, photo)]
+    # each start's sub-pixel fit (its last stage; the coarse one where the sub-pixel stage did not run)
+    fits = [c[-1] for c in (_fit(model, x0, radii, edges, occ, photo, lines) for x0, radii in starts)]
+    fits = [f for f in fits if f.res is not None]
+    if not fits:
+        return _guard(cam, cam, _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0),
+                                     FINE_SIGMA_PX), lines, edges, occ, photo, time.time() - t0)
+    # the input camera's own fit stands unless a centre-search start's fit brings the room's edges
+    # closer to the photo's, significantly so (_drops), on the room points any of them (or the input) sees
+    common = _union(S0, *[f.S for f in fits])
+    best = fits[0]
+    gains = [_drops(model.camera(best.x), model.camera(f.x), common, photo) for f in fits[1:]]
+    if any(g > 0 for g in gains):
+        best = fits[1 + int(np.argmax(gains))]
+    return _guard(cam, model.camera(best.x), best, lines, edges, occ, photo, time.time() - t0)
 
 
-def _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, seconds) -> Refinement:
+def _edge_distances(cam: Camera, S: _Samples, photo: PhotoEdges) -> np.ndarray:
+    """Each sample's distance (px) from the nearest oriented photo edge, capped at CHAMFER_CAP_PX (a
+    sample out of the image counts the cap)."""
+    uv, n = _project(cam, S)
+    d = np.full(len(uv), CHAMFER_CAP_PX)
+    inside = np.all(uv >= 0, axis=1) & (uv[:, 0] <= cam.width - 1) & (uv[:, 1] <= cam.height - 1)
+    d[inside] = photo.distance(uv[inside], np.arctan2(n[inside, 1], n[inside, 0]))
+    return np.minimum(d, CHAMFER_CAP_PX)
+
+
+def _drops(a: Camera, b: Camera, S: _Samples, photo: PhotoEdges) -> float:
+    """How significantly camera b brings the room's edges closer to the photo's than camera a: the
+    one-sided paired t statistic over the room's edges of the drop of each edge's mean capped distance
+    (an edge's samples share its model error, so the edges, not the samples, are the independent
+    units; a mean over samples lets a long edge in texture outvote the others), over its critical
+    value at DROP_CONFIDENCE; > 0: significant, else 0 or below."""
+    from scipy.stats import t as student
+
+    da, db = _edge_distances(a, S, photo), _edge_distances(b, S, photo)
+    es = np.unique(S.edge)
+    if len(es) < 3:
+        return 0.0
+    diff = np.array([np.mean(da[S.edge == e] - db[S.edge == e]) for e in es])
+    sd = float(np.std(diff, ddof=1))
+    if not sd > 0.0:
+        return 0.0
+    return float(np.mean(diff) / (sd / np.sqrt(len(es))) - student.ppf(DROP_CONFIDENCE, len(es) - 1))
+
+
+def _guard(cam, refined, fit: _Fit, lines, edges, occ, photo, seconds) -> Refinement:
     """Accept `refined` when: enough edge samples fit it and the fit is well-conditioned
     (_conditioning); it moves the room's edges by at least MIN_MOVE_PX (else the input already fits:
     `fits`); it agrees with the clicked lines within their noise; the edge residual (capped distance
     to the photo's oriented edges, on the room points either camera sees) drops; it lies in the room."""
     from recon.vanishing import _seg_residual, rotation_error_deg
 
+    res, S, used, resid = fit.res, fit.S, fit.used, fit.resid
     idx = {"x": 0, "y": 1, "z": 2}
     segs, sig = lines
     KR = refined.K @ refined.R
     lr = np.concatenate([_seg_residual(segs[a], KR[:, idx[a]]) for a in segs]) if segs else np.zeros(0)
-    inl = np.abs(resid) <= 3 * ROBUST_SIGMAS * FINE_SIGMA_PX  # beyond 3x the loss's scale: an outlier
+    inl = np.abs(resid) <= 3 * ROBUST_SIGMAS * fit.sigma  # beyond 3x the loss's scale: an outlier
     # the same room points for both cameras: those either camera sees
     S0, S1 = _sample_edges(cam, edges, occ), S
     both = _Samples(np.concatenate([S0.X, S1.X]), np.concatenate([S0.D, S1.D]), np.concatenate([S0.edge, S1.edge]))
@@ -462,7 +633,7 @@ def _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, seconds)
     if res is None or inl.sum() < MIN_SAMPLES:
         reason = (f"too few of the room's edges found in the photo ({int(inl.sum())} samples, need {MIN_SAMPLES})")
     else:
-        reason = _conditioning(res, S, used, inl) or ""
+        reason = _conditioning(res, S, used, inl, fit.sigma) or ""
     moved = out["moved_px"]
     if not reason and moved < MIN_MOVE_PX:
         return Refinement(cam, False, f"the camera already fits the room's edges (refining moves them {moved:.2f} px "
@@ -487,7 +658,7 @@ def _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, seconds)
     return Refinement(refined, True, "", False, **out)
 
 
-def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray) -> str | None:
+def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: float) -> str | None:
     """None when the fit pins every free parameter: the Jacobian has full rank, the inlier samples'
     projected edges span two directions, and a one-sigma error of the parameters (the covariance
     scaled by the residuals) moves the samples by at most MAX_PRED_STD_PX rms; else the reason."""
@@ -504,7 +675,7 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray) -> str | 
     r = res.fun
     dof = max(len(r) - len(res.x), 1)
     scale = max(float(r @ r) / dof, 1.0)
-    pred = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Je, cov * scale, Je), 0.0)) * FINE_SIGMA_PX
+    pred = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Je, cov * scale, Je), 0.0)) * sigma
     rms_pred = float(np.sqrt(np.mean(pred ** 2))) if len(pred) else float("inf")
     if not rms_pred <= MAX_PRED_STD_PX:
         return f"the fit is ill-conditioned (a one-sigma error moves the edges {rms_pred:.2f} px rms)"
