@@ -17,13 +17,21 @@ projected into the photo and aligned with the photo's edges:
    profile across the projected edge (recon/edgesnap.py's gradient image, its clipped-pixel mask
    and its centroid rule), and the fit repeated;
 4. the clicked vanishing lines of calibrate (camera.json "vanishing_points": the segments it used)
-   enter the same least squares with calibrate's residual (recon/vanishing._seg_residual).
+   enter the same least squares with calibrate's residual (recon/vanishing._seg_residual);
+5. more starts (_centre_search): the clicked lines fix the rotation and focal length, not where the
+   camera stands, and a centre tens of cm off can send the wide first match radius into a wrong basin
+   (a sunlit patch's border, floor texture). A grid of centres (rotation, focal, height held) is scored
+   by the capped edge residual, and its best local minima are fitted too (stages 2-3 from a smaller
+   radius). A start's fit replaces the input camera's own only when it brings the room's edges closer to
+   the photo's edges significantly (_drops: a one-sided paired t-test over the room's edges).
 
-Free: rotation (3), centre x and z (m), focal length (fx = fy, log-parametrised); held: the camera
-height (centre y, from calibrate's --height), the principal point, the room (taped). The refined
-camera is accepted when the fit is well-conditioned, agrees with the clicked lines and lowers the
-edge residual (_guard); else the input camera is kept, as it is also when the refinement would move
-the room's edges by under MIN_MOVE_PX (the camera already fits: a true camera stays put).
+Free: rotation (3), centre x and z (m), focal length (fx = fy, log-parametrised), and the principal
+point when calibrate took it from three vanishing points (camera.json "principal_point_from"; that
+estimate is weak, the room's known edges pin it); held: the camera height (centre y, from calibrate's
+--height), the principal point otherwise, the room (taped). The refined camera is accepted when the fit
+is well-conditioned, agrees with the clicked lines and lowers the edge residual (_guard); else the
+input camera is kept, as it is also when the refinement would move the room's edges by under
+MIN_MOVE_PX (the camera already fits: a true camera stays put).
 
 Conventions: recon/camera.py (OpenCV, x_cam = R X + t, pixel (0,0) the centre of the top-left pixel).
 """
@@ -80,6 +88,8 @@ class Refinement:
     n_lines: int  # clicked segments of calibrate used
     rms_lines_px: float  # rms endpoint distance of the clicked segments from their vanishing lines
     focal_change: float  # refined / input focal - 1
+    principal_point_moved_px: float  # 0 unless calibrate took it from three vanishing points (then refined)
+    start: str  # the fit kept: "input" (from the input camera) or "centre search" (from one of its centres)
     centre_moved_m: float
     rotation_deg: float
     chamfer_before_px: float  # edge residual (CHAMFER_CAP_PX-capped mean distance) at the input camera
@@ -94,7 +104,8 @@ class Refinement:
         """One line for the log."""
         return (f"{self.n_edge_samples} room-edge samples, rms {self.rms_edge_px:.2f} px; {self.n_lines} clicked "
                 f"lines, rms {self.rms_lines_px:.2f} px; moved focal {100 * self.focal_change:+.2f} %, centre "
-                f"{self.centre_moved_m:.3f} m, {self.rotation_deg:.2f} deg ({self.moved_px:.2f} px); edge residual "
+                f"{self.centre_moved_m:.3f} m, {self.rotation_deg:.2f} deg, principal point "
+                f"{self.principal_point_moved_px:.1f} px ({self.moved_px:.2f} px; from the {self.start}); edge residual "
                 f"{self.chamfer_before_px:.2f} -> {self.chamfer_after_px:.2f} px ({self.seconds:.1f} s)")
 
 
@@ -159,32 +170,8 @@ class _Samples:
     edge: np.ndarray  # (N,) index of the edge
 
 
-def _clip_to_image(u0: np.ndarray, u1: np.ndarray, cam: Camera) -> tuple[float, float] | None:
-    """The parameter range [s0, s1] of the image segment u0 + s (u1 - u0), s in [0, 1], that lies
-    within BORDER_PX of the image's inside (Liang-Barsky); None when none does."""
-    lo = np.array([BORDER_PX, BORDER_PX])
-    hi = np.array([cam.width - 1 - BORDER_PX, cam.height - 1 - BORDER_PX])
-    d = u1 - u0
-    s0, s1 = 0.0, 1.0
-    for k in range(2):
-        for p, q in ((-d[k], u0[k] - lo[k]), (d[k], hi[k] - u0[k])):
-            if abs(p) < 1e-12:
-                if q < 0:
-                    return None
-                continue
-            r = q / p
-            if p < 0:
-                s0 = max(s0, r)
-            else:
-                s1 = min(s1, r)
-    return (s0, s1) if s1 > s0 else None
-
-
 def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder) -> _Samples:
-    """Visible samples along the edges, SAMPLE_STEP_PX apart in the image of `cam`: each edge's
-    projection is clipped to the image and sampled evenly there, each image sample taken back to its
-    3D point on the edge (perspective-correct), so an edge running towards the camera weighs what its
-    length in the photo shows, not its length in metres."""
+    """Visible samples along the edges, about SAMPLE_STEP_PX apart in the image of `cam`."""
     Xs, Ds, idx = [], [], []
     C = cam.centre
     for i, (a, b) in enumerate(edges):
@@ -198,32 +185,29 @@ def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder) -> _Samples:
         if zb < 0.05:
             t1 = (0.05 - za) / (zb - za)
         p, q = a + t0 * (b - a), a + t1 * (b - a)
-        zp, zq = za + t0 * (zb - za), za + t1 * (zb - za)
         uv, _ = cam.project(np.stack([p, q]))
-        span = _clip_to_image(uv[0], uv[1], cam)
-        if span is None:
-            continue
-        full = float(np.linalg.norm(uv[1] - uv[0]))
-        length = full * (span[1] - span[0])
+        length = float(np.linalg.norm(uv[1] - uv[0]))
         if not length >= MIN_EDGE_PX:
             continue
         n = int(np.ceil(length / SAMPLE_STEP_PX))
-        s = span[0] + (np.arange(n) + 0.5) / n * (span[1] - span[0])
-        # away from the ends of the edge's projected (near-plane clipped) run: corners mix two edges' gradients
-        s = s[(s * full >= END_TRIM_PX - SAMPLE_STEP_PX / 2) & ((1 - s) * full >= END_TRIM_PX - SAMPLE_STEP_PX / 2)]
-        if len(s) == 0:
-            continue
-        t = s * zp / ((1 - s) * zq + s * zp)  # image parameter -> 3D parameter (perspective-correct)
-        X = p + t[:, None] * (q - p)
+        s = (np.arange(n) + 0.5) / n
+        X = p + s[:, None] * (q - p)
         Xs.append(X)
         Ds.append(np.broadcast_to((b - a) / np.linalg.norm(b - a), X.shape))
-        idx.append(np.full(len(X), i))
+        idx.append(np.full(n, i))
     if not Xs:
         return _Samples(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, int))
     X, D, idx = np.concatenate(Xs), np.concatenate(Ds), np.concatenate(idx)
     uv, z = cam.project(X)
-    ok = (z > 0.05) & np.all(uv >= BORDER_PX - 1e-6, axis=1) & (uv[:, 0] <= cam.width - 1 - BORDER_PX + 1e-6) \
-        & (uv[:, 1] <= cam.height - 1 - BORDER_PX + 1e-6)
+    ok = (z > 0.05) & np.all(uv >= BORDER_PX, axis=1) & (uv[:, 0] <= cam.width - 1 - BORDER_PX) \
+        & (uv[:, 1] <= cam.height - 1 - BORDER_PX)
+    # away from the ends of each edge's projected (clipped) run: corners mix two edges' gradients
+    for i in np.unique(idx):
+        m = idx == i
+        u = uv[m]
+        along = np.linalg.norm(u - u[0], axis=1)
+        ok[np.flatnonzero(m)] &= (along >= END_TRIM_PX - SAMPLE_STEP_PX / 2) & (along <= along[-1] - END_TRIM_PX
+                                                                                 + SAMPLE_STEP_PX / 2)
     ok[ok] &= occ.visible(C, X[ok])
     return _Samples(X[ok], D[ok], idx[ok])
 
@@ -485,14 +469,12 @@ class _Fit:
     used: np.ndarray
     resid: np.ndarray
     sigma: float
+    start: str = "input"
 
 
-def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines) -> list[_Fit]:
+def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines) -> _Fit:
     """ICP on the oriented Canny edges over the match radii `radii`, then the sub-pixel stage, from
-    parameters x: the candidates after the coarse stages and after the sub-pixel stage (the latter
-    only when it ran). Both are kept: in a noisy photo the sub-pixel profiles can pull the camera off
-    (their peaks are noise), which the edge residual, scored over all the room's samples, shows."""
-    out = []
+    parameters x: the sub-pixel stage's fit (res None when it did not run)."""
     S = _sample_edges(model.camera(x), edges, occ)
     res = None
     for i, radius in enumerate(radii):
@@ -507,9 +489,6 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
         res = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
-        uv1, n1 = _project(model.camera(x), sub)
-        out_c = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), COARSE_SIGMA_PX)
-    out.append(out_c if res is not None else _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), COARSE_SIGMA_PX))
     S = _sample_edges(model.camera(x), edges, occ)
     fine = None
     for _ in range(3):
@@ -524,9 +503,8 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
         x = res.x
         uv1, n1 = _project(model.camera(x), sub)
         fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), FINE_SIGMA_PX)
-    if fine is not None:
-        out.append(fine)
-    return out
+    # no sub-pixel stage: res None (the guard reports too few edges, as for any fit that found too few)
+    return fine if fine is not None else _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), FINE_SIGMA_PX)
 
 
 def _union(*ss: _Samples) -> _Samples:
@@ -559,7 +537,8 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
     starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for x0 in _centre_search(cam, S0, photo)]
     # each start's sub-pixel fit (its last stage; the coarse one where the sub-pixel stage did not run)
-    fits = [c[-1] for c in (_fit(model, x0, radii, edges, occ, photo, lines) for x0, radii in starts)]
+    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines), start="input" if i == 0
+                                else "centre search") for i, (x0, radii) in enumerate(starts)]
     fits = [f for f in fits if f.res is not None]
     if not fits:
         return _guard(cam, cam, _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0),
@@ -626,6 +605,7 @@ def _guard(cam, refined, fit: _Fit, lines, edges, occ, photo, seconds) -> Refine
                n_edge_samples=int(inl.sum()), rms_edge_px=float(np.sqrt(np.mean(resid[inl] ** 2))) if inl.any()
                else float("nan"), n_lines=int(len(lr)), rms_lines_px=float(np.sqrt(np.mean(lr ** 2))) if len(lr)
                else float("nan"), focal_change=float(refined.K[0, 0] / cam.K[0, 0] - 1),
+               principal_point_moved_px=float(np.linalg.norm(refined.K[:2, 2] - cam.K[:2, 2])), start=fit.start,
                centre_moved_m=float(np.linalg.norm(refined.centre - cam.centre)),
                rotation_deg=rotation_error_deg(refined.R, cam.R), chamfer_before_px=before, chamfer_after_px=after,
                seconds=float(seconds))
