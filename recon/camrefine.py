@@ -22,8 +22,10 @@ projected into the photo and aligned with the photo's edges:
    camera stands, and a centre tens of cm off can send the wide first match radius into a wrong basin
    (a sunlit patch's border, floor texture). A grid of centres (rotation, focal, height held) is scored
    by the capped edge residual, and its best local minima are fitted too (stages 2-3 from a smaller
-   radius). A start's fit replaces the input camera's own only when it brings the room's edges closer to
-   the photo's edges significantly (_drops: a one-sided paired t-test over the room's edges).
+   radius). A start's fit replaces the input camera's own when it brings the room's edges closer to
+   the photo's edges, on average over the room's edges (_edge_gain);
+6. a photo edge point explains one room edge (_exclusive): a match nearer to another parallel room
+   edge is dropped, so two close parallel edges do not both lock onto the stronger photo edge.
 
 Free: rotation (3), centre x and z (m), focal length (fx = fy, log-parametrised), and the principal
 point when calibrate took it from three vanishing points (camera.json "principal_point_from"; that
@@ -69,8 +71,6 @@ MIN_MOVE_PX = 1.0  # a refinement that moves the room's edges less (rms) is not 
 # other three the residual check refused the move); a pixel of error is what moves an object's outline
 CENTRE_STEP_PX = 4.0  # the centre search's grid step, as the motion of an edge at the median depth: twice
 # the coarse stage's 2 px final match radius, so the grid's best point is within the ICP's reach
-DROP_CONFIDENCE = 0.95  # a centre-search fit replaces the input camera's own fit only on a drop of the
-# room's edges' distances from the photo's edges this certain (one-sided)
 CENTRE_HYPOTHESES = 3  # the centre search's best local minima refined besides the input camera
 MIN_LINE_DIRECTIONS_DEG = 20.0  # the samples' 3D edges must span two directions at least this far apart
 
@@ -484,6 +484,7 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
             break
         uv, n = _project(model.camera(x), S)
         q, ok = photo.match(uv, np.arctan2(n[:, 1], n[:, 0]), radius)
+        ok &= _exclusive(uv, n, S.edge, q)
         if ok.sum() < MIN_SAMPLES:
             break
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
@@ -496,6 +497,7 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
             break
         uv, n = _project(model.camera(x), S)
         q, ok = photo.subpixel(uv, n)
+        ok &= _exclusive(uv, n, S.edge, q)
         if ok.sum() < MIN_SAMPLES:
             break
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
@@ -505,6 +507,29 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
         fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), FINE_SIGMA_PX)
     # no sub-pixel stage: res None (the guard reports too few edges, as for any fit that found too few)
     return fine if fine is not None else _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), FINE_SIGMA_PX)
+
+
+def _exclusive(uv: np.ndarray, n: np.ndarray, edge: np.ndarray, q: np.ndarray, k: int = 8) -> np.ndarray:
+    """(N,) bool: the photo edge point q matched to each projected sample (uv, unit normal n, room
+    edge index) is not nearer to another room edge of the same orientation (normals within one
+    orientation bin), judged on the k projected samples nearest to q: a photo edge explains one room
+    edge (ICP's uniqueness rule), so two close parallel room edges (a wardrobe's silhouette and its
+    corner beside it) cannot both lock onto the stronger of their photo edges."""
+    from scipy.spatial import cKDTree
+
+    keep = np.ones(len(uv), bool)
+    fin = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(uv), axis=1)
+    if fin.sum() < 2:
+        return keep
+    idx = np.flatnonzero(fin)
+    tree = cKDTree(uv[idx])
+    _, nb = tree.query(q[idx], k=min(k, len(idx)))
+    nb = idx[nb.reshape(len(idx), -1)]
+    own = np.abs(np.sum(n[idx] * (q[idx] - uv[idx]), axis=1))
+    other = np.abs(np.sum(n[nb] * (q[idx][:, None] - uv[nb]), axis=2))
+    parallel = np.abs(np.sum(n[nb] * n[idx][:, None], axis=2)) >= np.cos(np.pi / ORIENT_BINS)
+    keep[idx] = ~np.any((edge[nb] != edge[idx][:, None]) & parallel & (other < own[:, None]), axis=1)
+    return keep
 
 
 def _union(*ss: _Samples) -> _Samples:
@@ -544,10 +569,10 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         return _guard(cam, cam, _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0),
                                      FINE_SIGMA_PX), lines, edges, occ, photo, time.time() - t0)
     # the input camera's own fit stands unless a centre-search start's fit brings the room's edges
-    # closer to the photo's, significantly so (_drops), on the room points any of them (or the input) sees
+    # closer to the photo's (_edge_gain), on the room points any of them (or the input) sees
     common = _union(S0, *[f.S for f in fits])
     best = fits[0]
-    gains = [_drops(model.camera(best.x), model.camera(f.x), common, photo) for f in fits[1:]]
+    gains = [_edge_gain(model.camera(best.x), model.camera(f.x), common, photo) for f in fits[1:]]
     if any(g > 0 for g in gains):
         best = fits[1 + int(np.argmax(gains))]
     return _guard(cam, model.camera(best.x), best, lines, edges, occ, photo, time.time() - t0)
@@ -563,23 +588,17 @@ def _edge_distances(cam: Camera, S: _Samples, photo: PhotoEdges) -> np.ndarray:
     return np.minimum(d, CHAMFER_CAP_PX)
 
 
-def _drops(a: Camera, b: Camera, S: _Samples, photo: PhotoEdges) -> float:
-    """How significantly camera b brings the room's edges closer to the photo's than camera a: the
-    one-sided paired t statistic over the room's edges of the drop of each edge's mean capped distance
-    (an edge's samples share its model error, so the edges, not the samples, are the independent
-    units; a mean over samples lets a long edge in texture outvote the others), over its critical
-    value at DROP_CONFIDENCE; > 0: significant, else 0 or below."""
-    from scipy.stats import t as student
-
+def _edge_gain(a: Camera, b: Camera, S: _Samples, photo: PhotoEdges) -> float:
+    """How much closer camera b brings the room's edges to the photo's edges than camera a (px): the
+    mean over the room's edges of the drop of each edge's mean capped distance. The edges, not the
+    samples, are the units: an edge's samples share its model error, and a mean over samples lets one
+    long edge lying in texture (a floor edge running towards the camera, thousands of samples) outvote
+    the rest."""
     da, db = _edge_distances(a, S, photo), _edge_distances(b, S, photo)
     es = np.unique(S.edge)
-    if len(es) < 3:
+    if len(es) == 0:
         return 0.0
-    diff = np.array([np.mean(da[S.edge == e] - db[S.edge == e]) for e in es])
-    sd = float(np.std(diff, ddof=1))
-    if not sd > 0.0:
-        return 0.0
-    return float(np.mean(diff) / (sd / np.sqrt(len(es))) - student.ppf(DROP_CONFIDENCE, len(es) - 1))
+    return float(np.mean([np.mean(da[S.edge == e] - db[S.edge == e]) for e in es]))
 
 
 def _guard(cam, refined, fit: _Fit, lines, edges, occ, photo, seconds) -> Refinement:
