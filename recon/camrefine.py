@@ -71,7 +71,8 @@ MIN_MOVE_PX = 1.0  # a refinement that moves the room's edges less (rms) is not 
 # other three the residual check refused the move); a pixel of error is what moves an object's outline
 CENTRE_STEP_PX = 4.0  # the centre search's grid step, as the motion of an edge at the median depth: twice
 # the coarse stage's 2 px final match radius, so the grid's best point is within the ICP's reach
-CENTRE_HYPOTHESES = 3  # the centre search's best local minima refined besides the input camera
+CENTRE_HYPOTHESES = 3  # the centre search's best local minima refined besides the input camera: each costs
+# one fit; three leave room for the true basin when texture basins score better on the grid's coarse residual
 MIN_LINE_DIRECTIONS_DEG = 20.0  # the samples' 3D edges must span two directions at least this far apart
 
 
@@ -105,8 +106,8 @@ class Refinement:
         return (f"{self.n_edge_samples} room-edge samples, rms {self.rms_edge_px:.2f} px; {self.n_lines} clicked "
                 f"lines, rms {self.rms_lines_px:.2f} px; moved focal {100 * self.focal_change:+.2f} %, centre "
                 f"{self.centre_moved_m:.3f} m, {self.rotation_deg:.2f} deg, principal point "
-                f"{self.principal_point_moved_px:.1f} px ({self.moved_px:.2f} px; from the {self.start}); edge residual "
-                f"{self.chamfer_before_px:.2f} -> {self.chamfer_after_px:.2f} px ({self.seconds:.1f} s)")
+                f"{self.principal_point_moved_px:.1f} px ({self.moved_px:.2f} px; from the {self.start}); edge "
+                f"residual {self.chamfer_before_px:.2f} -> {self.chamfer_after_px:.2f} px ({self.seconds:.1f} s)")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -392,8 +393,8 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e: flo
         out[0, ne:], out[1, ne:], out[2, ne:] = z[ne:], 1.0, 0.0
         return out
 
-    return least_squares(fun, x0, loss=loss, f_scale=f_scale, x_scale=[1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:len(x0)],
-                         method="trf", max_nfev=50)
+    x_scale = [1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:len(x0)]  # rad, m, log f, px (principal point)
+    return least_squares(fun, x0, loss=loss, f_scale=f_scale, x_scale=x_scale, method="trf", max_nfev=50)
 
 
 def _edge_chamfer(cam: Camera, S: _Samples, photo: PhotoEdges) -> float:
@@ -512,7 +513,8 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
 def _exclusive(uv: np.ndarray, n: np.ndarray, edge: np.ndarray, q: np.ndarray, k: int = 8) -> np.ndarray:
     """(N,) bool: the photo edge point q matched to each projected sample (uv, unit normal n, room
     edge index) is not nearer to another room edge of the same orientation (normals within one
-    orientation bin), judged on the k projected samples nearest to q: a photo edge explains one room
+    orientation bin), judged on the k projected samples nearest to q (8 at the 3 px sample step reach
+    12 px along an edge, past the 2 px profile window and the last coarse radii): a photo edge explains one room
     edge (ICP's uniqueness rule), so two close parallel room edges (a wardrobe's silhouette and its
     corner beside it) cannot both lock onto the stronger of their photo edges."""
     from scipy.spatial import cKDTree
@@ -561,7 +563,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     starts = [(np.zeros(model.n), COARSE_RADII_PX)]
     grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
     starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for x0 in _centre_search(cam, S0, photo)]
-    # each start's sub-pixel fit (its last stage; the coarse one where the sub-pixel stage did not run)
+    # each start's sub-pixel fit (a start whose sub-pixel stage did not run is dropped)
     fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines), start="input" if i == 0
                                 else "centre search") for i, (x0, radii) in enumerate(starts)]
     fits = [f for f in fits if f.res is not None]
