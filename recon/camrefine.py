@@ -17,13 +17,23 @@ projected into the photo and aligned with the photo's edges:
    profile across the projected edge (recon/edgesnap.py's gradient image, its clipped-pixel mask
    and its centroid rule), and the fit repeated;
 4. the clicked vanishing lines of calibrate (camera.json "vanishing_points": the segments it used)
-   enter the same least squares with calibrate's residual (recon/vanishing._seg_residual).
+   enter the same least squares with calibrate's residual (recon/vanishing._seg_residual);
+5. more starts (_centre_search): the clicked lines fix the rotation and focal length, not where the
+   camera stands, and a centre tens of cm off can send the wide first match radius into a wrong basin
+   (a sunlit patch's border, floor texture). A grid of centres (rotation, focal, height held) is scored
+   by the capped edge residual, and its best local minima are fitted too (stages 2-3 from a smaller
+   radius). A start's fit replaces the input camera's own when it brings the room's edges closer to
+   the photo's edges, on average over the room's edges (_edge_gain);
+6. a photo edge point explains one room edge (_exclusive): a match nearer to another parallel room
+   edge is dropped, so two close parallel edges do not both lock onto the stronger photo edge.
 
-Free: rotation (3), centre x and z (m), focal length (fx = fy, log-parametrised); held: the camera
-height (centre y, from calibrate's --height), the principal point, the room (taped). The refined
-camera is accepted when the fit is well-conditioned, agrees with the clicked lines and lowers the
-edge residual (_guard); else the input camera is kept, as it is also when the refinement would move
-the room's edges by under MIN_MOVE_PX (the camera already fits: a true camera stays put).
+Free: rotation (3), centre x and z (m), focal length (fx = fy, log-parametrised), and the principal
+point when calibrate took it from three vanishing points (camera.json "principal_point_from"; that
+estimate is weak, the room's known edges pin it); held: the camera height (centre y, from calibrate's
+--height), the principal point otherwise, the room (taped). The refined camera is accepted when the fit
+is well-conditioned, agrees with the clicked lines and lowers the edge residual (_guard); else the
+input camera is kept, as it is also when the refinement would move the room's edges by under
+MIN_MOVE_PX (the camera already fits: a true camera stays put).
 
 Conventions: recon/camera.py (OpenCV, x_cam = R X + t, pixel (0,0) the centre of the top-left pixel).
 """
@@ -59,6 +69,10 @@ MIN_MOVE_PX = 1.0  # a refinement that moves the room's edges less (rms) is not 
 # edges sit 0.2-0.4 px off the photo's (creases, contact shadows, shading; per edge, at the true camera), and
 # refining the true camera moved them 0.17-0.77 px in 8 of 11 rooms (the shared three, 8 unseen ones; in the
 # other three the residual check refused the move); a pixel of error is what moves an object's outline
+CENTRE_STEP_PX = 4.0  # the centre search's grid step, as the motion of an edge at the median depth: twice
+# the coarse stage's 2 px final match radius, so the grid's best point is within the ICP's reach
+CENTRE_HYPOTHESES = 3  # the centre search's best local minima refined besides the input camera: each costs
+# one fit; three leave room for the true basin when texture basins score better on the grid's coarse residual
 MIN_LINE_DIRECTIONS_DEG = 20.0  # the samples' 3D edges must span two directions at least this far apart
 
 
@@ -75,6 +89,8 @@ class Refinement:
     n_lines: int  # clicked segments of calibrate used
     rms_lines_px: float  # rms endpoint distance of the clicked segments from their vanishing lines
     focal_change: float  # refined / input focal - 1
+    principal_point_moved_px: float  # 0 unless calibrate took it from three vanishing points (then refined)
+    start: str  # the fit kept: "input" (from the input camera) or "centre search" (from one of its centres)
     centre_moved_m: float
     rotation_deg: float
     chamfer_before_px: float  # edge residual (CHAMFER_CAP_PX-capped mean distance) at the input camera
@@ -89,8 +105,9 @@ class Refinement:
         """One line for the log."""
         return (f"{self.n_edge_samples} room-edge samples, rms {self.rms_edge_px:.2f} px; {self.n_lines} clicked "
                 f"lines, rms {self.rms_lines_px:.2f} px; moved focal {100 * self.focal_change:+.2f} %, centre "
-                f"{self.centre_moved_m:.3f} m, {self.rotation_deg:.2f} deg ({self.moved_px:.2f} px); edge residual "
-                f"{self.chamfer_before_px:.2f} -> {self.chamfer_after_px:.2f} px ({self.seconds:.1f} s)")
+                f"{self.centre_moved_m:.3f} m, {self.rotation_deg:.2f} deg, principal point "
+                f"{self.principal_point_moved_px:.1f} px ({self.moved_px:.2f} px; from the {self.start}); edge "
+                f"residual {self.chamfer_before_px:.2f} -> {self.chamfer_after_px:.2f} px ({self.seconds:.1f} s)")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -314,11 +331,14 @@ def clicked_lines(camera_json: dict | None) -> tuple[dict[str, np.ndarray], dict
 
 class _Model:
     """Camera parameters x = [rotation vector (3, applied after the input R), centre x, centre z
-    (m), log(f / f0)] about the input camera."""
+    (m), log(f / f0)] about the input camera, and with `free_pp` the principal point's offset
+    [du, dv] (px) after them."""
 
-    def __init__(self, cam: Camera):
+    def __init__(self, cam: Camera, free_pp: bool = False):
         self.cam0 = cam
         self.C0 = cam.centre
+        self.free_pp = free_pp
+        self.n = 8 if free_pp else 6
 
     def camera(self, x: np.ndarray) -> Camera:
         import cv2
@@ -327,6 +347,8 @@ class _Model:
         C = np.array([self.C0[0] + x[3], self.C0[1], self.C0[2] + x[4]])
         K = self.cam0.K.copy()
         K[0, 0], K[1, 1] = self.cam0.K[0, 0] * np.exp(x[5]), self.cam0.K[1, 1] * np.exp(x[5])
+        if self.free_pp:
+            K[0, 2], K[1, 2] = self.cam0.K[0, 2] + x[6], self.cam0.K[1, 2] + x[7]
         return dataclasses.replace(self.cam0, K=K, R=R, t=-R @ C)
 
 
@@ -371,8 +393,8 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e: flo
         out[0, ne:], out[1, ne:], out[2, ne:] = z[ne:], 1.0, 0.0
         return out
 
-    return least_squares(fun, x0, loss=loss, f_scale=f_scale, x_scale=[1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3],
-                         method="trf", max_nfev=50)
+    x_scale = [1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:len(x0)]  # rad, m, log f, px (principal point)
+    return least_squares(fun, x0, loss=loss, f_scale=f_scale, x_scale=x_scale, method="trf", max_nfev=50)
 
 
 def _edge_chamfer(cam: Camera, S: _Samples, photo: PhotoEdges) -> float:
@@ -385,6 +407,136 @@ def _edge_chamfer(cam: Camera, S: _Samples, photo: PhotoEdges) -> float:
     inside = np.all(uv >= 0, axis=1) & (uv[:, 0] <= cam.width - 1) & (uv[:, 1] <= cam.height - 1)
     d[inside] = photo.distance(uv[inside], np.arctan2(n[inside, 1], n[inside, 0]))
     return float(np.mean(np.minimum(d, CHAMFER_CAP_PX)))
+
+
+def _centre_search(cam: Camera, S: _Samples, photo: PhotoEdges) -> list[np.ndarray]:
+    """Starting points [0, 0, 0, dx, dz, 0] (_Model's parameters) of the fit: the best local minima of
+    the capped edge residual over a grid of camera centres about the input one, rotation, focal length
+    and height held.
+
+    Why: the clicked vanishing lines fix the rotation and the focal length, not where in the room the
+    camera stands; a centre a few tens of cm off shifts the room's image by tens of px, where the ICP's
+    wide first match radius can lock onto other strong edges (a sunlit patch's border, the floor's
+    texture) and end in a wrong basin. The grid spans the centres that move an edge at the samples'
+    median depth by up to the widest match radius (COARSE_RADII_PX[0]), in steps that move it
+    CENTRE_STEP_PX; the residual is capped at 2 steps so a grid point half a step from an edge still
+    counts it matched. The samples are the input camera's (the visible set changes little over the grid)."""
+    if len(S.X) == 0:
+        return []
+    f = float(cam.K[0, 0])
+    _, z = cam.project(S.X)
+    zmed = float(np.median(z))
+    half, step = COARSE_RADII_PX[0] * zmed / f, CENTRE_STEP_PX * zmed / f
+    k = int(np.floor(half / step))
+    offs = np.arange(-k, k + 1) * step
+    dx, dz = np.meshgrid(offs, offs, indexing="ij")
+    dC = np.stack([dx.ravel(), np.zeros(dx.size), dz.ravel()], 1)  # (G,3) world offsets of the centre
+    cap = 2.0 * CENTRE_STEP_PX
+    RX, RD = S.X @ cam.R.T, S.D @ cam.R.T
+    K = cam.K
+    cost = np.empty(len(dC))
+    dist = np.stack([d for d, _ in photo.near])  # (bins, H, W)
+    H, W = photo.shape
+    for i0 in range(0, len(dC), 64):
+        Xc = RX[None] + cam.t[None, None] - (dC[i0:i0 + 64] @ cam.R.T)[:, None]  # (g,N,3) camera coordinates
+        zc = Xc[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = (Xc @ K.T)[..., :2] / zc[..., None]
+            uv2 = ((Xc + 0.01 * RD[None]) @ K.T)[..., :2] / (zc + 0.01 * RD[None, :, 2])[..., None]
+        d = uv2 - uv
+        ang = np.mod(np.arctan2(d[..., 0], -d[..., 1]), np.pi)  # the normal (-dv, du)'s angle
+        b = np.minimum((ang / (np.pi / ORIENT_BINS)).astype(int), ORIENT_BINS - 1)
+        iu = np.rint(np.nan_to_num(uv, nan=-1.0, posinf=-1.0, neginf=-1.0)).astype(np.int64)
+        inside = (zc > 0.05) & (iu[..., 0] >= 0) & (iu[..., 0] < W) & (iu[..., 1] >= 0) & (iu[..., 1] < H)
+        dd = np.full(zc.shape, cap)
+        dd[inside] = np.minimum(dist[b[inside], iu[..., 1][inside], iu[..., 0][inside]], cap)
+        cost[i0:i0 + 64] = dd.mean(axis=1)
+    C = cost.reshape(dx.shape)
+    pad = np.pad(C, 1, constant_values=np.inf)
+    nb = np.stack([pad[1 + i:1 + i + C.shape[0], 1 + j:1 + j + C.shape[1]] for i in (-1, 0, 1) for j in (-1, 0, 1)
+                   if i or j])
+    minima = np.flatnonzero((C <= nb.min(axis=0)).ravel())
+    best = minima[np.argsort(cost[minima])][:CENTRE_HYPOTHESES]
+    return [np.array([0.0, 0.0, 0.0, dC[i, 0], dC[i, 2], 0.0]) for i in best]  # pad for a free principal point
+
+
+@dataclass
+class _Fit:
+    """One candidate camera: parameters x, its last least-squares result (None: no stage ran), the
+    samples of that stage, which of them it used and their residuals (px), and the stage's noise (px)."""
+    x: np.ndarray
+    res: object
+    S: _Samples
+    used: np.ndarray
+    resid: np.ndarray
+    sigma: float
+    start: str = "input"
+
+
+def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines) -> _Fit:
+    """ICP on the oriented Canny edges over the match radii `radii`, then the sub-pixel stage, from
+    parameters x: the sub-pixel stage's fit (res None when it did not run)."""
+    S = _sample_edges(model.camera(x), edges, occ)
+    res = None
+    for i, radius in enumerate(radii):
+        if i == 2:  # the camera may have moved by tens of px: the visible samples again
+            S = _sample_edges(model.camera(x), edges, occ)
+        if len(S.X) < MIN_SAMPLES:
+            break
+        uv, n = _project(model.camera(x), S)
+        q, ok = photo.match(uv, np.arctan2(n[:, 1], n[:, 0]), radius)
+        ok &= _exclusive(uv, n, S.edge, q)
+        if ok.sum() < MIN_SAMPLES:
+            break
+        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
+        res = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
+        x = res.x
+    S = _sample_edges(model.camera(x), edges, occ)
+    fine = None
+    for _ in range(3):
+        if len(S.X) < MIN_SAMPLES:
+            break
+        uv, n = _project(model.camera(x), S)
+        q, ok = photo.subpixel(uv, n)
+        ok &= _exclusive(uv, n, S.edge, q)
+        if ok.sum() < MIN_SAMPLES:
+            break
+        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
+        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
+        x = res.x
+        uv1, n1 = _project(model.camera(x), sub)
+        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), FINE_SIGMA_PX)
+    # no sub-pixel stage: res None (the guard reports too few edges, as for any fit that found too few)
+    return fine if fine is not None else _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), FINE_SIGMA_PX)
+
+
+def _exclusive(uv: np.ndarray, n: np.ndarray, edge: np.ndarray, q: np.ndarray, k: int = 8) -> np.ndarray:
+    """(N,) bool: the photo edge point q matched to each projected sample (uv, unit normal n, room
+    edge index) is not nearer to another room edge of the same orientation (normals within one
+    orientation bin), judged on the k projected samples nearest to q (8 at the 3 px sample step reach
+    12 px along an edge, past the 2 px profile window and the last coarse radii): a photo edge explains one room
+    edge (ICP's uniqueness rule), so two close parallel room edges (a wardrobe's silhouette and its
+    corner beside it) cannot both lock onto the stronger of their photo edges."""
+    from scipy.spatial import cKDTree
+
+    keep = np.ones(len(uv), bool)
+    fin = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(uv), axis=1)
+    if fin.sum() < 2:
+        return keep
+    idx = np.flatnonzero(fin)
+    tree = cKDTree(uv[idx])
+    _, nb = tree.query(q[idx], k=min(k, len(idx)))
+    nb = idx[nb.reshape(len(idx), -1)]
+    own = np.abs(np.sum(n[idx] * (q[idx] - uv[idx]), axis=1))
+    other = np.abs(np.sum(n[nb] * (q[idx][:, None] - uv[nb]), axis=2))
+    parallel = np.abs(np.sum(n[nb] * n[idx][:, None], axis=2)) >= np.cos(np.pi / ORIENT_BINS)
+    keep[idx] = ~np.any((edge[nb] != edge[idx][:, None]) & parallel & (other < own[:, None]), axis=1)
+    return keep
+
+
+def _union(*ss: _Samples) -> _Samples:
+    return _Samples(np.concatenate([s.X for s in ss]), np.concatenate([s.D for s in ss]),
+                    np.concatenate([s.edge for s in ss]))
 
 
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None) -> Refinement:
@@ -400,51 +552,70 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     occ = _Occluder(faces)
     photo = PhotoEdges(image)
     lines = clicked_lines(camera_json)
-    model = _Model(cam)
-    x = np.zeros(6)
-    S = _sample_edges(cam, edges, occ)
-    for i, radius in enumerate(COARSE_RADII_PX):
-        if i == 2:  # the camera may have moved by tens of px: the visible samples again
-            S = _sample_edges(model.camera(x), edges, occ)
-        if len(S.X) < MIN_SAMPLES:
-            break
-        uv, n = _project(model.camera(x), S)
-        q, ok = photo.match(uv, np.arctan2(n[:, 1], n[:, 0]), radius)
-        if ok.sum() < MIN_SAMPLES:
-            break
-        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        x = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS).x
-    res, used, resid = None, np.zeros(0, bool), np.zeros(0)
-    S = _sample_edges(model.camera(x), edges, occ)
-    for _ in range(3):
-        if len(S.X) < MIN_SAMPLES:
-            break
-        uv, n = _project(model.camera(x), S)
-        q, ok = photo.subpixel(uv, n)
-        if ok.sum() < MIN_SAMPLES:
-            break
-        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
-        x = res.x
-        used = ok
-        uv1, n1 = _project(model.camera(x), sub)
-        resid = np.sum(n1 * (q[ok] - uv1), axis=1)
-    refined = model.camera(x)
-    return _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, time.time() - t0)
+    # calibrate's principal point from three vanishing points is weak (the orthocentre of their
+    # triangle moves far with a distant vanishing point); the room's known edges determine it, so it is
+    # refined too; the image centre (calibrate's default) or a given one is held
+    model = _Model(cam, free_pp=(camera_json or {}).get("principal_point_from") == "three vanishing points")
+    S0 = _sample_edges(cam, edges, occ)
+    # hypotheses: the input camera with the full coarse schedule, and the centre search's best minima,
+    # whose grid leaves an edge at the median depth within CENTRE_STEP_PX / 2: their ICP starts at the
+    # match radius of 4 grid steps (an edge at a quarter of the median depth)
+    starts = [(np.zeros(model.n), COARSE_RADII_PX)]
+    grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
+    starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for x0 in _centre_search(cam, S0, photo)]
+    # each start's sub-pixel fit (a start whose sub-pixel stage did not run is dropped)
+    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines), start="input" if i == 0
+                                else "centre search") for i, (x0, radii) in enumerate(starts)]
+    fits = [f for f in fits if f.res is not None]
+    if not fits:
+        return _guard(cam, cam, _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0),
+                                     FINE_SIGMA_PX), lines, edges, occ, photo, time.time() - t0)
+    # the input camera's own fit stands unless a centre-search start's fit brings the room's edges
+    # closer to the photo's (_edge_gain), on the room points any of them (or the input) sees
+    common = _union(S0, *[f.S for f in fits])
+    best = fits[0]
+    gains = [_edge_gain(model.camera(best.x), model.camera(f.x), common, photo) for f in fits[1:]]
+    if any(g > 0 for g in gains):
+        best = fits[1 + int(np.argmax(gains))]
+    return _guard(cam, model.camera(best.x), best, lines, edges, occ, photo, time.time() - t0)
 
 
-def _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, seconds) -> Refinement:
+def _edge_distances(cam: Camera, S: _Samples, photo: PhotoEdges) -> np.ndarray:
+    """Each sample's distance (px) from the nearest oriented photo edge, capped at CHAMFER_CAP_PX (a
+    sample out of the image counts the cap)."""
+    uv, n = _project(cam, S)
+    d = np.full(len(uv), CHAMFER_CAP_PX)
+    inside = np.all(uv >= 0, axis=1) & (uv[:, 0] <= cam.width - 1) & (uv[:, 1] <= cam.height - 1)
+    d[inside] = photo.distance(uv[inside], np.arctan2(n[inside, 1], n[inside, 0]))
+    return np.minimum(d, CHAMFER_CAP_PX)
+
+
+def _edge_gain(a: Camera, b: Camera, S: _Samples, photo: PhotoEdges) -> float:
+    """How much closer camera b brings the room's edges to the photo's edges than camera a (px): the
+    mean over the room's edges of the drop of each edge's mean capped distance. The edges, not the
+    samples, are the units: an edge's samples share its model error, and a mean over samples lets one
+    long edge lying in texture (a floor edge running towards the camera, thousands of samples) outvote
+    the rest."""
+    da, db = _edge_distances(a, S, photo), _edge_distances(b, S, photo)
+    es = np.unique(S.edge)
+    if len(es) == 0:
+        return 0.0
+    return float(np.mean([np.mean(da[S.edge == e] - db[S.edge == e]) for e in es]))
+
+
+def _guard(cam, refined, fit: _Fit, lines, edges, occ, photo, seconds) -> Refinement:
     """Accept `refined` when: enough edge samples fit it and the fit is well-conditioned
     (_conditioning); it moves the room's edges by at least MIN_MOVE_PX (else the input already fits:
     `fits`); it agrees with the clicked lines within their noise; the edge residual (capped distance
     to the photo's oriented edges, on the room points either camera sees) drops; it lies in the room."""
     from recon.vanishing import _seg_residual, rotation_error_deg
 
+    res, S, used, resid = fit.res, fit.S, fit.used, fit.resid
     idx = {"x": 0, "y": 1, "z": 2}
     segs, sig = lines
     KR = refined.K @ refined.R
     lr = np.concatenate([_seg_residual(segs[a], KR[:, idx[a]]) for a in segs]) if segs else np.zeros(0)
-    inl = np.abs(resid) <= 3 * ROBUST_SIGMAS * FINE_SIGMA_PX  # beyond 3x the loss's scale: an outlier
+    inl = np.abs(resid) <= 3 * ROBUST_SIGMAS * fit.sigma  # beyond 3x the loss's scale: an outlier
     # the same room points for both cameras: those either camera sees
     S0, S1 = _sample_edges(cam, edges, occ), S
     both = _Samples(np.concatenate([S0.X, S1.X]), np.concatenate([S0.D, S1.D]), np.concatenate([S0.edge, S1.edge]))
@@ -455,6 +626,7 @@ def _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, seconds)
                n_edge_samples=int(inl.sum()), rms_edge_px=float(np.sqrt(np.mean(resid[inl] ** 2))) if inl.any()
                else float("nan"), n_lines=int(len(lr)), rms_lines_px=float(np.sqrt(np.mean(lr ** 2))) if len(lr)
                else float("nan"), focal_change=float(refined.K[0, 0] / cam.K[0, 0] - 1),
+               principal_point_moved_px=float(np.linalg.norm(refined.K[:2, 2] - cam.K[:2, 2])), start=fit.start,
                centre_moved_m=float(np.linalg.norm(refined.centre - cam.centre)),
                rotation_deg=rotation_error_deg(refined.R, cam.R), chamfer_before_px=before, chamfer_after_px=after,
                seconds=float(seconds))
@@ -462,7 +634,7 @@ def _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, seconds)
     if res is None or inl.sum() < MIN_SAMPLES:
         reason = (f"too few of the room's edges found in the photo ({int(inl.sum())} samples, need {MIN_SAMPLES})")
     else:
-        reason = _conditioning(res, S, used, inl) or ""
+        reason = _conditioning(res, S, used, inl, fit.sigma) or ""
     moved = out["moved_px"]
     if not reason and moved < MIN_MOVE_PX:
         return Refinement(cam, False, f"the camera already fits the room's edges (refining moves them {moved:.2f} px "
@@ -487,7 +659,7 @@ def _guard(cam, refined, res, S, used, resid, lines, edges, occ, photo, seconds)
     return Refinement(refined, True, "", False, **out)
 
 
-def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray) -> str | None:
+def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: float) -> str | None:
     """None when the fit pins every free parameter: the Jacobian has full rank, the inlier samples'
     projected edges span two directions, and a one-sigma error of the parameters (the covariance
     scaled by the residuals) moves the samples by at most MAX_PRED_STD_PX rms; else the reason."""
@@ -504,7 +676,7 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray) -> str | 
     r = res.fun
     dof = max(len(r) - len(res.x), 1)
     scale = max(float(r @ r) / dof, 1.0)
-    pred = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Je, cov * scale, Je), 0.0)) * FINE_SIGMA_PX
+    pred = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Je, cov * scale, Je), 0.0)) * sigma
     rms_pred = float(np.sqrt(np.mean(pred ** 2))) if len(pred) else float("inf")
     if not rms_pred <= MAX_PRED_STD_PX:
         return f"the fit is ill-conditioned (a one-sigma error moves the edges {rms_pred:.2f} px rms)"

@@ -15,7 +15,7 @@ import pytest
 
 from recon import assemble as asm
 from recon.camera import Camera
-from recon.camrefine import _Occluder, _project, _sample_edges, refine_camera, room_edges, room_faces
+from recon.camrefine import _exclusive, _Occluder, _project, _sample_edges, refine_camera, room_edges, room_faces
 from tests.conftest import shared_scene
 
 LO, HI = np.array([0.0, 0.0, 0.0]), np.array([4.0, 2.6, 5.0])
@@ -91,6 +91,40 @@ def test_synthetic_perturbed_camera_comes_back(synthetic):
     assert _image_shift(r.camera, truth) < 0.25
     assert r.n_edge_samples >= 200 and r.rms_edge_px < 0.3
     assert r.chamfer_after_px < r.chamfer_before_px
+
+
+def test_synthetic_far_centre_and_principal_point_come_back(synthetic):
+    """A centre 0.25 m off (beyond the ICP's first basin in a room of flat faces) and a principal point
+    25 px off, as calibrate reports it from three vanishing points: the centre search and the freed
+    principal point bring the camera back to within 0.5 px of image motion."""
+    truth, img = synthetic
+    start = _perturbed(truth, deg=0.3, dc=(0.2, 0.0, -0.15), focal=1.01)
+    K = start.K.copy()
+    K[0, 2] += 25.0
+    K[1, 2] -= 10.0
+    start = dataclasses.replace(start, K=K)
+    assert _image_shift(start, truth) > 10.0
+    r = refine_camera(start, PRIMS, img, {"principal_point_from": "three vanishing points"})
+    assert r.accepted, r.reason
+    assert _image_shift(r.camera, truth) < 0.5
+    assert np.linalg.norm(r.camera.K[:2, 2] - truth.K[:2, 2]) < 2.0
+    held = refine_camera(start, PRIMS, img)  # the principal point held: it stays where calibrate put it
+    assert np.allclose(held.camera.K[:2, 2], start.K[:2, 2])
+
+
+def test_exclusive_one_photo_edge_per_room_edge():
+    """Two parallel vertical room edges 6 px apart (u = 100 and 106), samples 3 px apart along v; every
+    sample matched to the photo edge at u = 101: only the nearer room edge keeps its matches. A crossing
+    (horizontal) room edge nearer to the point does not count: only parallel edges compete."""
+    v = np.arange(0.0, 30.0, 3.0)
+    uv = np.concatenate([np.stack([np.full_like(v, 100.0), v], 1), np.stack([np.full_like(v, 106.0), v], 1),
+                         np.stack([np.arange(90.0, 120.0, 3.0), np.full_like(v, 15.0)], 1)])
+    n = np.concatenate([np.tile([1.0, 0.0], (20, 1)), np.tile([0.0, 1.0], (10, 1))])
+    edge = np.repeat([0, 1, 2], 10)
+    q = uv.copy()
+    q[:20, 0] = 101.0
+    keep = _exclusive(uv, n, edge, q)
+    assert keep[:10].all() and not keep[10:20].any() and keep[20:].all()
 
 
 def test_synthetic_true_camera_stays_put(synthetic):
