@@ -10,7 +10,9 @@ photo gives everything else, read through a response that is assumed, not measur
   take the photo's mean radiance over all their pixels, a clipped one at the radiance its level
   reads (lighting.radiance.photo_radiance with clipped_share): one clipped pixel of a window seen
   through no longer throws away the rest of its patch, as it must in captured light, which has
-  the probe to fall back on.
+  the probe to fall back on. Except on an emitter quad whose seen pixels mostly clip: there the
+  unclipped pixels are the border's, mixed with the frame, and a patch with any clipped pixel
+  stays unknown.
 * **Emitters** are the model's window / lamp quads and the clipped regions of the photo (patches
   most of whose pixels have a channel at 255). A patch the photo measures keeps its measured
   radiance; the rest of each emitter quad (mostly clipped, or out of view) is one unknown RGB
@@ -148,6 +150,13 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     n_all = np.bincount(pix_patch[ok], minlength=P)
     n_sat = np.bincount(pix_patch[ok & sat], minlength=P)
     emit = patches.is_emitter
+    # an emitter quad the photo shows mostly clipped (a window seen bright): the unclipped pixels of
+    # its patches are the frame's mixed border pixels, so any clipped pixel leaves the patch unknown
+    nq = int(patches.quad.max()) + 1
+    q_sat = np.bincount(patches.quad, n_sat, nq) >= pr.clipped_share * np.maximum(np.bincount(patches.quad, n_all, nq), 1)
+    strict = emit & q_sat[patches.quad] & (n_sat > 0)
+    rad_s, _ = photo_radiance(pix_patch, L_b, sat, P)
+    rad[strict], count[strict] = rad_s[strict], 0
     clipped = ~emit & (n_sat >= pr.min_pixels) & (n_sat >= pr.clipped_share * np.maximum(n_all, 1))
     measured = (count >= pr.min_pixels) & ~clipped
     count = np.where(measured, count, 0)
