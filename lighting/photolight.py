@@ -26,7 +26,9 @@ photo gives everything else, read through a response that is assumed, not measur
   E_i is then linear in the unknown radiances e; e is the bounded linear least-squares solution
   (scipy.optimize.lsq_linear, e >= the lower bound) of rho E_i(e) = L_i, with residuals
   relative to L_i (every wall counts alike, not only the bright ones near the window).
-* **Every seen surface, each with its own albedo** (`surface_albedos`). The walls (vertical room
+* **Every seen surface, each with its own albedo** (`surface_albedos`, off by default: it tells
+  lamps apart in two unseen lamp rooms but costs the shared lamps_room 5.4 -> 11.8 rmse_object,
+  docs/unseen.md "Photo light"). The walls (vertical room
   surfaces) carry the albedo prior, which sets the light's scale. The floor, the ceiling and each
   furniture face join the fit with an RGB albedo of their own, the per-channel median of L / E over
   their patches under the current light, alternated with the emitters' fit (a few rounds). The
@@ -74,7 +76,7 @@ class PhotoPriors:
     min_pixels: int = 4  # unclipped pixels a patch needs to be measured by the photo
     clipped_share: float = 0.5  # a patch is a clipped region when this share of its pixels is clipped
     relative: bool = True  # residuals relative to each wall's radiance (False: absolute)
-    surface_albedos: bool = True  # floors, ceilings, furniture join the fit, each with its own albedo
+    surface_albedos: bool = False  # floors, ceilings, furniture join the fit, each with its own albedo
 
 
 @dataclass

@@ -82,7 +82,7 @@ def test_floor_joins_the_fit_with_its_own_albedo(tinted_floor_room):
     # stays in it, not in the window's (within 5 % of the true radiance, per channel)
     _, pm, G, B = tinted_floor_room
     pix_patch, photo, resp = _photo(pm, B, exposure=0.4)
-    fit = _fit(pm, G, pix_patch, photo, resp)
+    fit = _fit(pm, G, pix_patch, photo, resp, surface_albedos=True)
     floor = int(np.flatnonzero([np.allclose(a, [0.35, 0.25, 0.15]) for a in pm.albedo])[0])
     alb = fit.report["surface_albedos"][f"q{pm.quad[floor]}"]
     assert np.abs(np.array(alb) / [0.35, 0.25, 0.15] - 1).max() < 0.05, fit.report["surface_albedos"]
@@ -165,6 +165,20 @@ def test_visible_unclipped_window_keeps_what_the_photo_shows(room, caplog):
     assert np.abs(np.array(em["radiance"]) / WINDOW - 1).max() < 0.01, em
     assert np.abs(fit.radiance[win] / WINDOW - 1).max() < 0.01  # seen and unseen halves alike
     assert "kept as bright as the photo shows it" in caplog.text
+
+
+def test_clipped_window_border_pixels_do_not_measure_it(room):
+    # a clipped window (exposure 0.4) whose first patch shows 6 of its 10 pixels unclipped and dark
+    # (the frame mixed in, level 120): the patch is still fitted with the window, not measured at
+    # the border's mean, and the window stays within 5 %
+    _, pm, G, B = room
+    pix_patch, photo, resp = _photo(pm, B, exposure=0.4)
+    first = np.flatnonzero(pix_patch == np.flatnonzero(pm.is_emitter)[0])[:6]
+    photo = photo.copy()
+    photo[first] = 120
+    fit = _fit(pm, G, pix_patch, photo, resp)
+    assert fit.origin[np.flatnonzero(pm.is_emitter)[0]] == PL.FITTED
+    assert np.abs(np.array(fit.report["emitters"][0]["radiance"]) / WINDOW - 1).max() < 0.05, fit.report
 
 
 def test_a_few_clipped_pixels_keep_a_patch_measured():
