@@ -27,7 +27,7 @@ photo gives everything else, read through a response that is assumed, not measur
   (scipy.optimize.lsq_linear, e >= the lower bound) of rho E_i(e) = L_i, with residuals
   relative to L_i (every wall counts alike, not only the bright ones near the window).
 * **Every seen surface, each with its own albedo** (`surface_albedos`, off by default: it tells
-  lamps apart in two unseen lamp rooms but costs the shared lamps_room 5.4 -> 11.8 rmse_object,
+  lamps apart in two unseen lamp rooms but costs the shared lamps_room 7.7 -> 11.8 rmse_object,
   docs/unseen.md "Photo light"). The walls (vertical room
   surfaces) carry the albedo prior, which sets the light's scale. The floor, the ceiling and each
   furniture face join the fit with an RGB albedo of their own, the per-channel median of L / E over
