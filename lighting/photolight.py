@@ -155,7 +155,8 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     # an emitter quad the photo shows mostly clipped (a window seen bright): the unclipped pixels of
     # its patches are the frame's mixed border pixels, so any clipped pixel leaves the patch unknown
     nq = int(patches.quad.max()) + 1
-    q_sat = np.bincount(patches.quad, n_sat, nq) >= pr.clipped_share * np.maximum(np.bincount(patches.quad, n_all, nq), 1)
+    q_all = np.maximum(np.bincount(patches.quad, n_all, nq), 1)
+    q_sat = np.bincount(patches.quad, n_sat, nq) >= pr.clipped_share * q_all
     strict = emit & q_sat[patches.quad] & (n_sat > 0)
     rad_s, _ = photo_radiance(pix_patch, L_b, sat, P)
     rad[strict], count[strict] = rad_s[strict], 0
