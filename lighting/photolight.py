@@ -6,23 +6,40 @@ photo gives everything else, read through a response that is assumed, not measur
 * **Response.** The photo is read through the standard sRGB curve (IEC 61966-2-1), optionally
   raised to `gamma_scale` (the response prior varied by the sensitivity bench); radiance is
   sRGB-linear / exposure_time, in the scene's arbitrary units.
-* **Photo-seen patches** (at least `min_pixels` unclipped pixels) take the photo's mean radiance,
-  as in captured light (lighting.radiance.photo_radiance).
+* **Photo-seen patches** (at least `min_pixels` pixels, fewer than `clipped_share` of them clipped)
+  take the photo's mean radiance over all their pixels, a clipped one at the radiance its level
+  reads (lighting.radiance.photo_radiance with clipped_share): one clipped pixel of a window seen
+  through no longer throws away the rest of its patch, as it must in captured light, which has
+  the probe to fall back on. Except on an emitter quad whose seen pixels mostly clip: there the
+  unclipped pixels are the border's, mixed with the frame, and a patch with any clipped pixel
+  stays unknown.
 * **Emitters** are the model's window / lamp quads and the clipped regions of the photo (patches
-  most of whose pixels have a channel at 255). A patch the photo shows unclipped keeps its
-  measured radiance; the rest of each emitter quad (clipped, or out of view) is one unknown RGB
-  radiance per quad, at least as bright as its clipped pixels show (a lower bound).
+  most of whose pixels have a channel at 255). A patch the photo measures keeps its measured
+  radiance; the rest of each emitter quad (mostly clipped, or out of view) is one unknown RGB
+  radiance per quad, at least as bright as its clipped pixels show and as the photo measures the
+  quad's seen patches (a lower bound: the model's window or lamp is one uniform emitter), so a
+  window the photo shows is never fitted darker than it looks, and never to 0.
 * **Inverse radiosity.** The walls show how strong the unknown emitters are: a photo-seen wall
   patch i has radiance L_i = rho * E_i with E_i = sum_j G_ij B_j (irradiance/pi through the
   transfers G, visibility included) and the wall albedo prior rho. Unseen patches gather,
   B_U = r (G_U. B), r = the unseen reflectivity prior, solved exactly: (I - r G_UU) B_U = r G_U,rest B_rest.
   E_i is then linear in the unknown radiances e; e is the bounded linear least-squares solution
-  (scipy.optimize.lsq_linear, e >= the clipped lower bound) of rho E_i(e) = L_i, with residuals
+  (scipy.optimize.lsq_linear, e >= the lower bound) of rho E_i(e) = L_i, with residuals
   relative to L_i (every wall counts alike, not only the bright ones near the window).
+* **Every seen surface, each with its own albedo** (`surface_albedos`, off by default: it tells
+  lamps apart in two unseen lamp rooms but costs the shared lamps_room 7.7 -> 11.8 rmse_object,
+  docs/unseen.md "Photo light"). The walls (vertical room
+  surfaces) carry the albedo prior, which sets the light's scale. The floor, the ceiling and each
+  furniture face join the fit with an RGB albedo of their own, the per-channel median of L / E over
+  their patches under the current light, alternated with the emitters' fit (a few rounds). The
+  walls see the lamps from afar and at grazing angles, so from them alone a small bright lamp and
+  a large dim one trade light freely; the pool of light on the floor under a lamp, the glow on the
+  ceiling around it and the lit table top tell them apart (their albedo being free, they add the
+  light's shape, not its scale, and their colour goes into their albedo, not into the lamps').
 * **Uncertainty.** The covariance sigma^2 (J^T J)^-1 of the fit (sigma^2 from the residual, J the
   weighted design matrix) gives a 1-sigma relative error per emitter; it ignores the priors. The
   fit is repeated with the wall albedo prior at -20 % / +20 % (the transfers' solve is shared, so
-  this costs two small least squares) and each emitter's relative change is reported beside it;
+  this costs two more small fits) and each emitter's relative change is reported beside it;
   bench/bench_photolight.py measures all three priors' effect on the composite.
 
 Priors (not fitted to any scene): wall albedo 0.55 (a mid-grey painted wall; interior walls are
@@ -59,6 +76,7 @@ class PhotoPriors:
     min_pixels: int = 4  # unclipped pixels a patch needs to be measured by the photo
     clipped_share: float = 0.5  # a patch is a clipped region when this share of its pixels is clipped
     relative: bool = True  # residuals relative to each wall's radiance (False: absolute)
+    surface_albedos: bool = False  # floors, ceilings, furniture join the fit, each with its own albedo
 
 
 @dataclass
@@ -129,11 +147,19 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     photo = np.asarray(photo).reshape(-1, 3)
     L_b = response.to_radiance(photo)
     sat = np.any(photo >= 255, axis=1)
-    rad, count = photo_radiance(pix_patch, L_b, sat, P)
+    rad, count = photo_radiance(pix_patch, L_b, sat, P, pr.clipped_share)
     ok = pix_patch >= 0
     n_all = np.bincount(pix_patch[ok], minlength=P)
     n_sat = np.bincount(pix_patch[ok & sat], minlength=P)
     emit = patches.is_emitter
+    # an emitter quad the photo shows mostly clipped (a window seen bright): the unclipped pixels of
+    # its patches are the frame's mixed border pixels, so any clipped pixel leaves the patch unknown
+    nq = int(patches.quad.max()) + 1
+    q_all = np.maximum(np.bincount(patches.quad, n_all, nq), 1)
+    q_sat = np.bincount(patches.quad, n_sat, nq) >= pr.clipped_share * q_all
+    strict = emit & q_sat[patches.quad] & (n_sat > 0)
+    rad_s, _ = photo_radiance(pix_patch, L_b, sat, P)
+    rad[strict], count[strict] = rad_s[strict], 0
     clipped = ~emit & (n_sat >= pr.min_pixels) & (n_sat >= pr.clipped_share * np.maximum(n_all, 1))
     measured = (count >= pr.min_pixels) & ~clipped
     count = np.where(measured, count, 0)
@@ -182,18 +208,24 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     w = 1.0 / np.maximum(wall_lum, 1e-3 * np.median(wall_lum))  # relative residuals
     if not pr.relative:
         w = np.full(len(S), 1.0 / np.median(wall_lum))
-    w = np.where(fit_on, w, 0.0)
-    lower = np.zeros((ng, 3))
-    for g in range(ng):  # the clipped pixels' radiance is a lower bound of their emitter
-        px = np.flatnonzero(ok & sat & (group[np.maximum(pix_patch, 0)] == g))
-        if len(px):
-            lower[g] = np.median(L_b[px], axis=0)
+    w_all, w = w, np.where(fit_on, w, 0.0)
+    lower, lower_from = _lower_bounds(patches, group, gquads, pix_patch, L_b, sat, rad, count, measured)
     reach = np.abs(w[:, None] * A1).sum(0)
     unresolved = reach <= 1e-9 * max(reach.max(initial=0.0), 1e-300)  # no measured wall sees the group
-    e, std, at_bound, resid = _solve_emitters(w[:, None] * A1, w, L_S, a0, rho, lower, unresolved)
+    qS = patches.quad[S]
+    J1 = w[:, None] * A1
+    e, std, at_bound, resid = _solve_emitters(J1, w, L_S, a0, rho, lower, unresolved)
     # the prior's share of the uncertainty: the same fit with the albedo prior -20 % / +20 %
-    e_lo = _solve_emitters(w[:, None] * A1, w, L_S, a0, 0.8 * rho, lower, unresolved)[0]
-    e_hi = _solve_emitters(w[:, None] * A1, w, L_S, a0, min(1.2 * rho, 0.999), lower, unresolved)[0]
+    e_lo = _solve_emitters(J1, w, L_S, a0, 0.8 * rho, lower, unresolved)[0]
+    e_hi = _solve_emitters(J1, w, L_S, a0, min(1.2 * rho, 0.999), lower, unresolved)[0]
+    rho_S = np.full((len(S), 3), rho)
+    if pr.surface_albedos and not fit_on.all():
+        rho_S, e = _surface_albedos(qS, fit_on, A1, w_all, L_S, a0, rho, lower, unresolved)
+        e_lo = _surface_albedos(qS, fit_on, A1, w_all, L_S, a0, 0.8 * rho, lower, unresolved)[1]
+        e_hi = _surface_albedos(qS, fit_on, A1, w_all, L_S, a0, min(1.2 * rho, 0.999), lower, unresolved)[1]
+        at_bound = e <= lower * (1 + 1e-9) + 1e-300
+        res = w[:, None] * (rho * (a0 + A1 @ e) - L_S)
+        resid = np.sqrt(np.mean(res[fit_on] ** 2, axis=0))
     if not np.all(np.isfinite(e)):
         raise RuntimeError(f"{where}: inverse radiosity gave non-finite emitter radiance")
 
@@ -221,7 +253,7 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
         rel = float(luminance(np.nan_to_num(std[g])) / lum) if lum > 0 else float("nan")
         prior = [float(luminance(x[g])) / lum - 1 if lum > 0 else float("nan") for x in (e_lo, e_hi)]
         emitters.append({"name": nm, "radiance": [round(float(v), 4) for v in e[g]],
-                         "lower_bound": [round(float(v), 4) for v in lower[g]],
+                         "lower_bound": [round(float(v), 4) for v in lower[g]], "lower_bound_from": lower_from[g],
                          "rel_std": None if not np.isfinite(rel) else round(rel, 4),
                          "albedo_prior_x0.8_x1.2": [None if not np.isfinite(v) else round(v, 4) for v in prior],
                          "at_lower_bound": bool(at_bound[g].all()), "seen_by_walls": bool(not unresolved[g]),
@@ -231,6 +263,9 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
               "implied_wall_albedo": round(implied, 4),
               "fit_rms_relative_residual": [round(float(v), 4) for v in resid],
               "fitted_on": "walls" if not fit_on.all() or vertical[S].all() else "all seen surfaces (no wall in view)",
+              "surface_albedos": {(quad_names[q] if quad_names else f"quad {q}"):
+                                  [round(float(v), 3) for v in rho_S[qS == q][0]]
+                                  for q in np.unique(qS[~fit_on])} if pr.surface_albedos else {},
               "wall_patches_fitted": int(fit_on.sum()), "patches_from_photo": int(measured.sum()), "patches_gathered": int(len(U)),
               "patches_fitted": int(len(X)), "clipped_region_patches": int(clipped.sum()),
               "emitters": emitters}
@@ -238,9 +273,68 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     return PhotoLight(B, refl, origin, report)
 
 
-def _solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarray, rho: float,
+def _lower_bounds(patches: PatchMesh, group: np.ndarray, gquads: list[int], pix_patch: np.ndarray,
+                  L_b: np.ndarray, sat: np.ndarray, rad: np.ndarray, count: np.ndarray, measured: np.ndarray
+                  ) -> tuple[np.ndarray, list[str]]:
+    """(G,3) the least radiance each unknown group can have: the median of its own clipped pixels
+    (a clipped pixel reads its true value or less), and for an emitter quad also the mean radiance
+    the photo measures on the quad's measured patches (the model's window or lamp is one uniform
+    emitter, so its unmeasured rest, out of view or clipped, is at least as bright as what the photo
+    shows of it). 0 where neither exists (an emitter wholly out of view, with no clipped pixel).
+    Also where each bound comes from: "clipped pixels", "the photo's view of it" or "none"."""
+    ng = len(gquads)
+    lower, source = np.zeros((ng, 3)), ["none"] * ng
+    ok = pix_patch >= 0
+    gpix = np.where(ok, group[np.maximum(pix_patch, 0)], -1)
+    for g, q in enumerate(gquads):
+        px = np.flatnonzero(sat & (gpix == g))
+        if len(px):
+            lower[g], source[g] = np.median(L_b[px], axis=0), "clipped pixels"
+        seen = measured & (patches.quad == q) & patches.is_emitter
+        if seen.any():
+            shown = np.average(rad[seen], axis=0, weights=count[seen])
+            if luminance(shown) > luminance(lower[g]):
+                source[g] = "the photo's view of it"
+            lower[g] = np.maximum(lower[g], shown)
+    return lower, source
+
+
+def _surface_albedos(quad: np.ndarray, wall: np.ndarray, A1: np.ndarray, w: np.ndarray, L_S: np.ndarray,
+                     a0: np.ndarray, rho: float, lower: np.ndarray, unresolved: np.ndarray, rounds: int = 8
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Albedo (|S|,3) of every seen surface and the emitters' radiance (G,3) fitted on them all.
+
+    The walls carry the albedo prior rho; each other seen quad (floor, ceiling, furniture: too
+    varied for one prior) gets its own RGB albedo, the per-channel median of L / E over its patches
+    under the current light. Alternated a few rounds with the emitters' bounded fit over all seen
+    surfaces, which gives the emitters' relative strengths; each round the light is then scaled,
+    per channel, to fit the walls alone (least squares of rho (a0 + s A1 e) = L over the walls), so
+    that the walls and the prior still set its scale and colour, as in the walls-only fit."""
+    rho_S = np.full((len(wall), 3), rho)
+    w_wall = np.where(wall, w, 0.0)
+    e = np.zeros((A1.shape[1], 3))
+    for _ in range(rounds):
+        e = _solve_emitters(w[:, None] * A1, w, L_S, a0, rho_S, lower, unresolved)[0]
+        for c in range(3):  # the walls' scale
+            p, y = rho * (A1 @ e[:, c]), L_S[:, c] - rho * a0[:, c]
+            den = np.sum((w_wall * p) ** 2)
+            if den > 0:
+                e[:, c] = np.maximum(e[:, c] * max(np.sum(w_wall ** 2 * p * y) / den, 0.0), lower[:, c])
+        ratio = L_S / np.maximum(a0 + A1 @ e, 1e-300)
+        new = rho_S.copy()
+        for q in np.unique(quad[~wall]):
+            m = (quad == q) & ~wall
+            new[m] = np.clip(np.median(ratio[m], axis=0), 0.02, 0.95)
+        if np.allclose(new, rho_S, rtol=1e-3):
+            break
+        rho_S = new
+    return rho_S, e
+
+
+def _solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarray, rho: float | np.ndarray,
                     lower: np.ndarray, unresolved: np.ndarray):
-    """Bounded least squares of rho (a0 + A1 e) = L_S per channel, rows weighted by w (J1 = w A1).
+    """Bounded least squares of rho (a0 + A1 e) = L_S per channel, rows weighted by w (J1 = w A1);
+    rho one albedo for every row, or one per row (|S|,) or per row and channel (|S|,3).
     Returns e (G,3), its 1-sigma std (G,3) (NaN where at a bound or not seen), at_bound (G,3) and
     the RMS weighted residual per channel (3,)."""
     ng, fit_on = J1.shape[1], w > 0
@@ -248,9 +342,10 @@ def _solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarr
     at_bound, resid = np.zeros((ng, 3), bool), np.zeros(3)
     if ng == 0:
         return e, std, at_bound, resid
-    J = rho * J1
+    rho = np.broadcast_to(np.asarray(rho, np.float64).reshape(-1, 1) if np.ndim(rho) < 2 else rho, (len(w), 3))
     for c in range(3):
-        b = w * (L_S[:, c] - rho * a0[:, c])
+        J = rho[:, c, None] * J1
+        b = w * (L_S[:, c] - rho[:, c] * a0[:, c])
         sol = lsq_linear(J, b, bounds=(lower[:, c], np.inf), method="bvls")
         e[:, c] = sol.x
         res = J @ sol.x - b
@@ -262,6 +357,11 @@ def _solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarr
             cov = np.sum(res ** 2) / dof * np.linalg.pinv(J[:, free].T @ J[:, free])
             std[free, c] = np.sqrt(np.clip(np.diag(cov), 0, None))
     return e, std, at_bound, resid
+
+
+def _rgb(v) -> str:
+    """An RGB radiance for a warning line: '(r, g, b)' to 3 significant digits."""
+    return "({:.3g}, {:.3g}, {:.3g})".format(*v)
 
 
 def _warn(report: dict, where: str, emit: np.ndarray, count: np.ndarray) -> None:
@@ -278,12 +378,17 @@ def _warn(report: dict, where: str, emit: np.ndarray, count: np.ndarray) -> None
         if not em["seen_by_walls"]:
             warn.append(f"{em['name']}: no wall seen in the photo receives its light; radiance set to its "
                         f"lower bound {em['lower_bound']}")
+        elif em["at_lower_bound"] and em.get("lower_bound_from") == "the photo's view of it":
+            warn.append(f"{em['name']}: kept as bright as the photo shows it ({_rgb(em['lower_bound'])}); the "
+                        f"walls alone would make it dimmer (they look darker than a wall of albedo "
+                        f"{report['wall_albedo_prior']} lit by it)")
         elif em["at_lower_bound"] and any(v > 0 for v in em["lower_bound"]):
-            warn.append(f"{em['name']}: the walls are darker than the albedo prior {report['wall_albedo_prior']} "
-                        f"allows with this emitter as bright as the photo shows it (implied wall albedo "
-                        f"{report['implied_wall_albedo']}); radiance held at the photo's lower bound")
+            warn.append(f"{em['name']}: kept at the least brightness its clipped pixels allow "
+                        f"({_rgb(em['lower_bound'])}); the walls alone would make it dimmer: they look darker than the "
+                        f"albedo prior {report['wall_albedo_prior']} allows (implied {report['implied_wall_albedo']})")
         elif em["at_lower_bound"]:
-            warn.append(f"{em['name']}: the walls need no light from it (radiance 0)")
+            warn.append(f"{em['name']}: left dark (radiance 0): the photo does not show it and the walls "
+                        f"need no light from it")
         elif em["rel_std"] is not None and em["rel_std"] > 0.5:
             warn.append(f"{em['name']}: radiance poorly determined by the walls (+-{100 * em['rel_std']:.0f} %)")
     if report["fitted_on"] != "walls":

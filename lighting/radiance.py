@@ -119,16 +119,29 @@ def _sum_per_patch(patch: np.ndarray, values: np.ndarray, n_patches: int) -> np.
     return np.stack([np.bincount(patch, values[:, c], minlength=n_patches) for c in range(3)], axis=1)
 
 
-def photo_radiance(pix_patch: np.ndarray, L_b: np.ndarray, saturated: np.ndarray, n_patches: int
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Mean photo radiance (P,3) per patch over its unsaturated pixels, and their count (P,).
+def photo_radiance(pix_patch: np.ndarray, L_b: np.ndarray, saturated: np.ndarray, n_patches: int,
+                   clipped_share: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Mean photo radiance (P,3) per patch and the count (P,) of pixels it is measured from.
 
     pix_patch (H*W,) patch per pixel (-1 none); L_b (H*W,3) radiance; saturated (H*W,) bool.
-    Patches with any saturated pixel get count 0 (their radiance is only a lower bound)."""
+    clipped_share None (captured light): the mean over the unsaturated pixels, and a patch with any
+    saturated pixel gets count 0 (its radiance is only a lower bound).
+    clipped_share s in (0, 1] (photo light, which has no probe to fall back on): a patch fewer than
+    s of whose pixels saturate is measured from all its pixels, each saturated one at the radiance
+    its clipped level reads (a lower bound of its true value, so the mean is one too, exact where
+    nothing clips); count = its pixels. A patch with a share s or more keeps count 0."""
     ok = pix_patch >= 0
     cnt = np.bincount(pix_patch[ok & ~saturated], minlength=n_patches).astype(np.float64)
     sat = np.bincount(pix_patch[ok & saturated], minlength=n_patches)
     rad = np.zeros((n_patches, 3))
+    if clipped_share is not None:
+        if not 0 < clipped_share <= 1:
+            raise ValueError(f"clipped_share must be in (0, 1], got {clipped_share}")
+        total = cnt + sat
+        for c in range(3):
+            rad[:, c] = np.bincount(pix_patch[ok], L_b[ok, c], minlength=n_patches)
+        rad /= np.maximum(total, 1)[:, None]
+        return rad, np.where(sat < clipped_share * np.maximum(total, 1), total, 0.0)
     good = ok & ~saturated
     for c in range(3):
         rad[:, c] = np.bincount(pix_patch[good], L_b[good, c], minlength=n_patches)

@@ -24,31 +24,41 @@ WINDOW = 8.0  # radiance of the test window
 RHO = 0.55
 
 
-def _box_room(window: bool = True):
-    """A closed 3 x 2.5 x 3 m room (walls albedo RHO) with a 1 x 1 m window on the back wall."""
+def _box_room(window: bool = True, floor=RHO):
+    """A closed 3 x 2.5 x 3 m room (walls albedo RHO, the floor `floor`) with a 1 x 1 m window on the
+    back wall."""
     from recon.patches import build_patches
     from recon.scene import Quad, box_faces
 
     quads = []
     for axis, side, c, n in box_faces(np.zeros(3), ROOM, inward=True):
-        quads.append(Quad(f"wall{axis}{side}", c, n, np.full(3, RHO), np.zeros(3), "room"))
+        alb = np.broadcast_to(np.asarray(floor, float), (3,)) if (axis, n[1]) == (1, 1.0) else np.full(3, RHO)
+        quads.append(Quad(f"wall{axis}{side}", c, n, alb.copy(), np.zeros(3), "room"))
     if window:
         c = np.array([[1.0, 0.8, 1e-3], [2.0, 0.8, 1e-3], [2.0, 1.8, 1e-3], [1.0, 1.8, 1e-3]])
         quads.append(Quad("window", c, np.array([0.0, 0.0, 1.0]), np.zeros(3), np.full(3, WINDOW), "window"))
     return SimpleNamespace(quads=quads), build_patches(SimpleNamespace(quads=quads), 0.5, 0.25)
 
 
-@pytest.fixture(scope="module")
-def room():
+def _solved(scene, pm):
     from kernels.visibility import Occluder, transfer_matrix
 
-    scene, pm = _box_room()
     solid = ~pm.is_emitter[pm.tri_patch]
     occ = Occluder(pm.vert_pos, pm.tris[solid], "cpu")
     G = transfer_matrix(pm.centre, pm.normal, pm.corners, pm.normal, [occ], n_side=2, device="cpu")
     np.fill_diagonal(G, 0.0)
     B = gather(G, pm.albedo * ~pm.is_emitter[:, None], pm.emission, 60)[-1]
     return scene, pm, G, B
+
+
+@pytest.fixture(scope="module")
+def room():
+    return _solved(*_box_room())
+
+
+@pytest.fixture(scope="module")
+def tinted_floor_room():
+    return _solved(*_box_room(floor=[0.35, 0.25, 0.15]))
 
 
 def _photo(pm, B, exposure: float, unseen_quad: int = 1, scale: float = 1.0):
@@ -62,7 +72,21 @@ def _photo(pm, B, exposure: float, unseen_quad: int = 1, scale: float = 1.0):
 
 def _fit(pm, G, pix_patch, photo, resp, **kw):
     pm = SimpleNamespace(**{k: getattr(pm, k) for k in ("quad", "normal", "n_patches", "is_emitter")})
-    return PL.fit_photo_light(pm, G, pix_patch, photo, resp, PL.PhotoPriors(**kw), where="test.png")
+    return PL.fit_photo_light(pm, G, pix_patch, photo, resp, PL.PhotoPriors(**kw), where="test.png",
+                              quad_names=[f"q{q}" for q in range(pm.quad.max() + 1)])
+
+
+def test_floor_joins_the_fit_with_its_own_albedo(tinted_floor_room):
+    # a floor of albedo (0.35, 0.25, 0.15) under walls of 0.55 (the prior): the floor's albedo comes
+    # out of the fit (within 5 %: the sRGB quantisation and the one albedo per quad), and its colour
+    # stays in it, not in the window's (within 5 % of the true radiance, per channel)
+    _, pm, G, B = tinted_floor_room
+    pix_patch, photo, resp = _photo(pm, B, exposure=0.4)
+    fit = _fit(pm, G, pix_patch, photo, resp, surface_albedos=True)
+    floor = int(np.flatnonzero([np.allclose(a, [0.35, 0.25, 0.15]) for a in pm.albedo])[0])
+    alb = fit.report["surface_albedos"][f"q{pm.quad[floor]}"]
+    assert np.abs(np.array(alb) / [0.35, 0.25, 0.15] - 1).max() < 0.05, fit.report["surface_albedos"]
+    assert np.abs(np.array(fit.report["emitters"][0]["radiance"]) / WINDOW - 1).max() < 0.05, fit.report
 
 
 def test_clipped_window_found_from_the_walls(room):
@@ -72,7 +96,7 @@ def test_clipped_window_found_from_the_walls(room):
     assert np.all(photo[pm.is_emitter[pix_patch]] == 255)
     fit = _fit(pm, G, pix_patch, photo, resp)
     em = fit.report["emitters"]
-    assert len(em) == 1 and em[0]["name"].startswith("quad")
+    assert len(em) == 1 and em[0]["name"] == f"q{pm.quad[pm.is_emitter][0]}"
     rel = np.abs(np.array(em[0]["radiance"]) / WINDOW - 1)
     assert rel.max() < 0.05, em
     assert 0 < em[0]["rel_std"] < 0.2 and not em[0]["at_lower_bound"]
@@ -122,6 +146,59 @@ def test_walls_darker_than_the_prior_allows(room, caplog):
     assert any("darker than the albedo prior" in w for w in fit.report["warnings"])
     assert "darker than the albedo prior" in caplog.text
     assert np.all(np.isfinite(fit.radiance)) and np.all(np.isfinite(fit.reflectivity))
+
+
+def test_visible_unclipped_window_keeps_what_the_photo_shows(room, caplog):
+    # half the window in view and unclipped (exposure 0.1: the window at 0.8 of white), walls 5x too
+    # dark for the 0.55 prior: the walls alone would pin the window's unseen half at 0; it is held at
+    # the radiance the photo measures on its seen half (the true WINDOW, within the 8-bit rounding)
+    _, pm, G, B = room
+    pix_patch, photo, resp = _photo(pm, B, exposure=0.1, scale=0.2)
+    win = np.flatnonzero(pm.is_emitter)
+    hidden = np.isin(pix_patch, win[: len(win) // 2])
+    pix_patch, photo = pix_patch[~hidden], photo[~hidden]
+    assert photo[pm.is_emitter[pix_patch]].max() < 255
+    with caplog.at_level(logging.WARNING, logger="photoar"):
+        fit = _fit(pm, G, pix_patch, photo, resp)
+    em = fit.report["emitters"][0]
+    assert em["at_lower_bound"] and em["lower_bound_from"] == "the photo's view of it"
+    assert np.abs(np.array(em["radiance"]) / WINDOW - 1).max() < 0.01, em
+    assert np.abs(fit.radiance[win] / WINDOW - 1).max() < 0.01  # seen and unseen halves alike
+    assert "kept as bright as the photo shows it" in caplog.text
+
+
+def test_clipped_window_border_pixels_do_not_measure_it(room):
+    # a clipped window (exposure 0.4) whose first patch shows 6 of its 10 pixels unclipped and dark
+    # (the frame mixed in, level 120): the patch is still fitted with the window, not measured at
+    # the border's mean, and the window stays within 5 %
+    _, pm, G, B = room
+    pix_patch, photo, resp = _photo(pm, B, exposure=0.4)
+    first = np.flatnonzero(pix_patch == np.flatnonzero(pm.is_emitter)[0])[:6]
+    photo = photo.copy()
+    photo[first] = 120
+    fit = _fit(pm, G, pix_patch, photo, resp)
+    assert fit.origin[np.flatnonzero(pm.is_emitter)[0]] == PL.FITTED
+    assert np.abs(np.array(fit.report["emitters"][0]["radiance"]) / WINDOW - 1).max() < 0.05, fit.report
+
+
+def test_a_few_clipped_pixels_keep_a_patch_measured():
+    # photo light: a patch fewer than half of whose pixels clip is measured from all its pixels
+    # (the clipped ones at their level's radiance); captured light still drops it (count 0)
+    from lighting.radiance import photo_radiance
+
+    pix_patch = np.repeat([0, 1], 10)
+    L_b = np.full((20, 3), 2.0)
+    sat = np.zeros(20, bool)
+    sat[[0, 1, 2]] = True  # 3 of 10 on patch 0
+    sat[10:16] = True  # 6 of 10 on patch 1
+    L_b[sat] = 5.0  # the clipped level's radiance
+    rad, cnt = photo_radiance(pix_patch, L_b, sat, 2, clipped_share=0.5)
+    assert cnt.tolist() == [10, 0]
+    assert np.allclose(rad[0], (7 * 2.0 + 3 * 5.0) / 10, rtol=1e-12)
+    rad_c, cnt_c = photo_radiance(pix_patch, L_b, sat, 2)
+    assert cnt_c.tolist() == [0, 0] and np.allclose(rad_c[0], 2.0)
+    with pytest.raises(ValueError, match="clipped_share"):
+        photo_radiance(pix_patch, L_b, sat, 2, clipped_share=0.0)
 
 
 def test_photo_with_no_bright_region(caplog):
