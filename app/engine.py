@@ -140,7 +140,8 @@ class Engine:
                                     patches=pm, shape=(cam.height, cam.width), device=dev)
         # the object gathers the room from the measured radiance, with the sun's model radiance on the
         # sunlit patches the photo does not measure (SunSetup.object_radiance), and the sunlit patches
-        # gathered exactly, not through the SH volume (B_src and the volume alone without a sunlit patch)
+        # gathered exactly, not through the SH volume (captured and known light; B_src and the volume alone
+        # without a sunlit patch)
         B_lit, near = self.sun.object_radiance(pre, B_src), self.sun.sunlit_patches()
         self.room_light = self._room_light(np.where(near[:, None], 0.0, B_lit) if near.any() else B_lit,
                                            oc.volume_spacing)  # SH9 volume of the indirect light

@@ -742,13 +742,13 @@ class SunSetup:
         return out
 
     def sunlit_patches(self) -> np.ndarray:
-        """(P,) bool: the reflectors the sun lights under captured light (none without a sun on some
-        surface; none under known light, whose radiosity and SH volume hold the sun as before, nor
-        under photo light, see object_radiance).
+        """(P,) bool: the reflectors the sun lights under captured and known light (none without a sun
+        on some surface, nor under photo light, see object_radiance; under known light at the
+        radiosity's radiance, which holds the sun).
         The object gathers them exactly (lighting.irradiance.RoomLight.gather_exactly), not through
         the SH volume: a sunlit patch is several times brighter than the rest of the room and often a
         few cm from the object (it stands in it), where the 0.25 m SH9 grid's broad lobe spreads it."""
-        if self.lighting != "captured" or not self.on:
+        if self.lighting not in ("captured", "known") or not self.on:
             return np.zeros(self.patches.n_patches, bool)
         return self.patch_light().any(1) & ~self.patches.is_emitter
 
