@@ -30,6 +30,7 @@ from kernels.blocked_transfer import BlockedPairs
 from kernels.sunshadow import OutlineShade, SunShadowMap
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
+from app.stages.receiver_map import reflectance
 from app.stages.shadow_pass import window_pairs
 from lighting.radiance import PHOTO
 from lighting.sun import SunLight, SunlitPieces, estimate_sun, no_sun_reason, openings, surface_albedo
@@ -719,13 +720,17 @@ class SunSetup:
         for dy, dx, src, dst in window_pairs(H, W):
             near[dst] |= lit_img[src]
         edge = np.flatnonzero(near & ~lit_img & recv_pix)
-        # clipped sunlit pixels: model radiance instead of the photo's floor
-        sat = (scene.photo.reshape(-1, 3)[out.pix] >= CLIP_LEVEL).any(1)
-        idx = out.pix[sat]
+        # clipped sunlit pixels: model radiance instead of the photo's floor, channel by channel (a channel
+        # below the clip level is a measurement: a dark plank in the sun clips in red only, and its green
+        # and blue taken from the model would brighten it where nothing changes)
+        clip_c = scene.photo.reshape(-1, 3)[out.pix] >= CLIP_LEVEL
+        sat = clip_c.any(1)
+        idx, clip_c = out.pix[sat], clip_c[sat]
         rho = self._albedo(pm, pix_patch, pix_pos, idx)
+        L_b[idx] = np.where(clip_c, np.maximum(L_b[idx], rho * E_x[idx]), L_b[idx])
+        rho = np.where(clip_c, rho, reflectance(L_b[idx], E_x[idx]))  # the measured channels' own
         out.rho_pix = np.concatenate([idx, edge])
         out.rho = np.concatenate([rho, self._albedo(pm, pix_patch, pix_pos, edge)])
-        L_b[idx] = np.maximum(L_b[idx], rho * E_x[idx])
         # sample points of sunlit patches (second order: the patches' lost sun)
         lit_c = np.flatnonzero(self.patch_light().any(1))
         n_side = 4
