@@ -231,19 +231,29 @@ def lift_off_contacts(p: np.ndarray, n: np.ndarray, centre: np.ndarray, normal: 
     out = np.array(p, np.float64, copy=True)
     if len(p) == 0 or len(centre) == 0:
         return out
-    h = np.maximum(CONTACT_LIFT * np.asarray(radius, np.float64), 2.0 * eps)
+    radius = np.asarray(radius, np.float64)
+    h = np.maximum(CONTACT_LIFT * radius, 2.0 * eps)
+    reach = radius + 2.0 * h  # a touching point lies within this of the patch's centre
     for _ in range(2):  # a point in a corner touches two surfaces
-        rel = out[:, None, :] - centre[None]  # (N,M,3)
-        d = np.einsum("nmc,mc->nm", rel, normal)
-        inplane = np.linalg.norm(rel - d[..., None] * normal[None], axis=2) < radius + h
-        cos = n @ normal.T
-        touch = (np.abs(d) < h) & inplane & (np.abs(cos) < 1.0 - 1e-3) & (d < h - 1e-9)
-        rows = np.flatnonzero(touch.any(1))
-        if not len(rows):
+        near = cKDTree(out).query_ball_point(centre, reach)  # per patch, the points that may touch it
+        cnt = np.fromiter((len(a) for a in near), np.int64, len(near))
+        if not cnt.sum():
             break
-        j = np.argmin(np.where(touch[rows], d[rows], np.inf), axis=1)  # the deepest contact first
-        t = normal[j] - cos[rows, j][:, None] * n[rows]  # the face's direction rising off the surface
-        out[rows] += ((h[j] - d[rows, j]) / np.einsum("nc,nc->n", t, t))[:, None] * t
+        pi = np.concatenate([np.asarray(a, np.int64) for a in near if len(a)])
+        pj = np.repeat(np.arange(len(centre)), cnt)
+        rel = out[pi] - centre[pj]
+        d = np.einsum("kc,kc->k", rel, normal[pj])
+        inplane = np.linalg.norm(rel - d[:, None] * normal[pj], axis=1) < radius[pj] + h[pj]
+        cos = np.einsum("kc,kc->k", n[pi], normal[pj])
+        touch = (np.abs(d) < h[pj] - 1e-9) & inplane & (np.abs(cos) < 1.0 - 1e-3)
+        if not touch.any():
+            break
+        pi, pj, d, cos = pi[touch], pj[touch], d[touch], cos[touch]
+        first = np.lexsort((d, pi))  # per point, its deepest contact first
+        keep = first[np.r_[True, pi[first][1:] != pi[first][:-1]]]
+        pi, pj, d, cos = pi[keep], pj[keep], d[keep], cos[keep]
+        t = normal[pj] - cos[:, None] * n[pi]  # the face's direction rising off the surface
+        out[pi] += ((h[pj] - d) / np.einsum("kc,kc->k", t, t))[:, None] * t
     return out
 
 
