@@ -602,7 +602,7 @@ class SunPixels:
     patches: PatchMesh  # the patch mesh with the emission and reflectivity the sun leaves (captured/photo)
     recv_pix: np.ndarray  # (H*W,) bool receivers, sunlit patches' pixels added (captured/photo)
     E_x: np.ndarray  # (H*W,3) irradiance/pi, the direct sun added on sunlit pixels
-    L_b: np.ndarray  # (H*W,3) photo radiance, the model's rho E_x where a sunlit pixel clips
+    L_b: np.ndarray  # (H*W,3) photo radiance, at least the model's rho E_x in a sunlit pixel's clipped channels
     rho_pix: np.ndarray | None = None  # (N,) pixels whose reflectance is the surface's albedo (clipped, edge)
     rho: np.ndarray | None = None  # (N,3) that albedo
     pix: np.ndarray | None = None  # (S,) the sunlit receiver pixels (None: the sun lights no surface)
@@ -623,10 +623,10 @@ class SunSetup:
     flagged as emitters back into reflectors (apply, on its own copy of the patch mesh).
 
     The sunlit patch clips in the photo: there L_b is a floor, not the radiance, and a shadow term
-    that is a share of L_b would be far too small. On clipped sunlit pixels L_b is replaced by the
-    model's radiance rho x (E_x + E_sun), rho the surface's albedo (declared texture, or the patch
-    reflectivity the captured light recovered), so the sun's shadow there is the absolute
-    rho x E_sun x occluded share."""
+    that is a share of L_b would be far too small. In the clipped channels of sunlit pixels L_b is
+    raised to the model's radiance rho x (E_x + E_sun), rho the surface's albedo (declared texture, or
+    the patch reflectivity the captured light recovered), so the sun's shadow there is the absolute
+    rho x E_sun x occluded share; a channel below the clip level is a measurement and stays."""
 
     def __init__(self, scene: Scene, lighting: str, choice: str, scene_occ: Occluder, patches: PatchMesh):
         """Known light lights the precompute with the declared sun; captured and photo light take the
