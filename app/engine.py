@@ -141,7 +141,8 @@ class Engine:
                                     patches=pm, shape=(cam.height, cam.width), device=dev)
         # the object gathers the room from the measured radiance, with the sun's model radiance on the
         # sunlit patches the photo does not measure (SunSetup.object_radiance), and the sunlit patches
-        # gathered exactly, not through the SH volume (B_src and the volume alone without a sunlit patch)
+        # gathered exactly, not through the SH volume (captured and known light; B_src and the volume alone
+        # without a sunlit patch)
         B_lit, near = self.sun.object_radiance(pre, B_src), self.sun.sunlit_patches()
         if p.lighting == "photo":  # the same for photo light (app.stages.photo_sun)
             B_lit, near = photo_object_light(self.sun, pre, B_src)

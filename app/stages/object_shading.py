@@ -212,6 +212,51 @@ DB_FAR = 2.0  # bounding radii (nearest point of the patch to the object's box c
 DB_PROBES = 4  # probes per axis of the far field's grid over the object's box
 
 
+
+CONTACT_LIFT = 0.1  # of a contacting patch's bounding radius: the height above a room surface at which a
+# vertex touching it gathers that surface's light (lift_off_contacts)
+
+
+def lift_off_contacts(p: np.ndarray, n: np.ndarray, centre: np.ndarray, normal: np.ndarray, radius: np.ndarray,
+                      eps: float) -> np.ndarray:
+    """Points (N,3) moved within their own tangent plane (normals n (N,3)) to a height h above each
+    room patch (centre, unit normal (M,3), bounding radius (M,) m) they touch, i.e. lie within h of
+    its plane over its extent; h = CONTACT_LIFT x the patch's radius, at least 2 x the rays' eps.
+    A point on the foot of a chair's leg lies in the floor's plane, where the floor's form factor is
+    0, while at any height above it the floor fills the lower half of the hemisphere (a half-plane's
+    form factor does not depend on the height): the vertex stands for the surface above it, so it
+    takes the limit from above. At a tenth of the patch's radius the contacting patch still holds
+    about 90 % of that light. Points whose face lies in the patch's plane (|n . normal| within 1e-3
+    of 1: a foot's sole, a face against a wall) are left: no point of such a face sees the surface."""
+    out = np.array(p, np.float64, copy=True)
+    if len(p) == 0 or len(centre) == 0:
+        return out
+    radius = np.asarray(radius, np.float64)
+    h = np.maximum(CONTACT_LIFT * radius, 2.0 * eps)
+    reach = radius + 2.0 * h  # a touching point lies within this of the patch's centre
+    for _ in range(2):  # a point in a corner touches two surfaces
+        near = cKDTree(out).query_ball_point(centre, reach)  # per patch, the points that may touch it
+        cnt = np.fromiter((len(a) for a in near), np.int64, len(near))
+        if not cnt.sum():
+            break
+        pi = np.concatenate([np.asarray(a, np.int64) for a in near if len(a)])
+        pj = np.repeat(np.arange(len(centre)), cnt)
+        rel = out[pi] - centre[pj]
+        d = np.einsum("kc,kc->k", rel, normal[pj])
+        inplane = np.linalg.norm(rel - d[:, None] * normal[pj], axis=1) < radius[pj] + h[pj]
+        cos = np.einsum("kc,kc->k", n[pi], normal[pj])
+        touch = (np.abs(d) < h[pj] - 1e-9) & inplane & (np.abs(cos) < 1.0 - 1e-3)
+        if not touch.any():
+            break
+        pi, pj, d, cos = pi[touch], pj[touch], d[touch], cos[touch]
+        first = np.lexsort((d, pi))  # per point, its deepest contact first
+        keep = first[np.r_[True, pi[first][1:] != pi[first][:-1]]]
+        pi, pj, d, cos = pi[keep], pj[keep], d[keep], cos[keep]
+        t = normal[pj] - cos[:, None] * n[pi]  # the face's direction rising off the surface
+        out[pi] += ((h[pj] - d) / np.einsum("kc,kc->k", t, t))[:, None] * t
+    return out
+
+
 def _probe_grid(lo: np.ndarray, hi: np.ndarray, points: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """(probes (n^3,3), weights (N,n^3)): an n x n x n grid spanning the box lo..hi and the trilinear
     weights of the points (N,3) inside it (a flat axis puts all its weight on its first level)."""
@@ -532,6 +577,9 @@ class ObjectShading:
             self._no_room = room  # no room triangle between the object and the emitters: no room rays
         g = ss.gathered  # the distinct vertices whose radiance is read (the buried ones get their neighbours')
         vg, ng = vu[g], nu[g]
+        ch = np.flatnonzero(np.abs(sun_dB).sum(1) > 0) if self.sun is not None and sun_dB is not None else []
+        touch = np.union1d(em, ch).astype(np.int64)  # the patches gathered exactly: where a vertex touches one,
+        vg = lift_off_contacts(vg, ng, pm.centre[touch], pm.normal[touch], pm.radius[touch], 2e-3)  # from above
         E = np.zeros((len(vu), 3))
         E[g] = ss.direct_sum(vg, ng, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3,
                              pair_split(self.device, len(em)), groups)
@@ -547,7 +595,6 @@ class ObjectShading:
             sun_vis = vis_u[ss.inv]  # each vertex's sun share, cos x visibility (sharpened per camera hit later)
             # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
             # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
-            ch = np.flatnonzero(np.abs(sun_dB).sum(1) > 0) if sun_dB is not None else []
             if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
                 E[g] += ss.sun_dB_sum(vg, ng, pm.corners[ch], pm.normal[ch], sun_dB[ch], [self.scene_occ, own],
                                       2e-3, pair_split(self.device, len(ch)))

@@ -30,6 +30,7 @@ from kernels.blocked_transfer import BlockedPairs
 from kernels.sunshadow import OutlineShade, SunShadowMap
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
+from app.stages.receiver_map import reflectance
 from app.stages.shadow_pass import window_pairs
 from lighting.radiance import PHOTO
 from lighting.sun import SunLight, SunlitPieces, estimate_sun, no_sun_reason, openings, surface_albedo
@@ -601,7 +602,7 @@ class SunPixels:
     patches: PatchMesh  # the patch mesh with the emission and reflectivity the sun leaves (captured/photo)
     recv_pix: np.ndarray  # (H*W,) bool receivers, sunlit patches' pixels added (captured/photo)
     E_x: np.ndarray  # (H*W,3) irradiance/pi, the direct sun added on sunlit pixels
-    L_b: np.ndarray  # (H*W,3) photo radiance, the model's rho E_x where a sunlit pixel clips
+    L_b: np.ndarray  # (H*W,3) photo radiance, at least the model's rho E_x in a sunlit pixel's clipped channels
     rho_pix: np.ndarray | None = None  # (N,) pixels whose reflectance is the surface's albedo (clipped, edge)
     rho: np.ndarray | None = None  # (N,3) that albedo
     pix: np.ndarray | None = None  # (S,) the sunlit receiver pixels (None: the sun lights no surface)
@@ -622,10 +623,10 @@ class SunSetup:
     flagged as emitters back into reflectors (apply, on its own copy of the patch mesh).
 
     The sunlit patch clips in the photo: there L_b is a floor, not the radiance, and a shadow term
-    that is a share of L_b would be far too small. On clipped sunlit pixels L_b is replaced by the
-    model's radiance rho x (E_x + E_sun), rho the surface's albedo (declared texture, or the patch
-    reflectivity the captured light recovered), so the sun's shadow there is the absolute
-    rho x E_sun x occluded share."""
+    that is a share of L_b would be far too small. In the clipped channels of sunlit pixels L_b is
+    raised to the model's radiance rho x (E_x + E_sun), rho the surface's albedo (declared texture, or
+    the patch reflectivity the captured light recovered), so the sun's shadow there is the absolute
+    rho x E_sun x occluded share; a channel below the clip level is a measurement and stays."""
 
     def __init__(self, scene: Scene, lighting: str, choice: str, scene_occ: Occluder, patches: PatchMesh):
         """Known light lights the precompute with the declared sun; captured and photo light take the
@@ -719,13 +720,17 @@ class SunSetup:
         for dy, dx, src, dst in window_pairs(H, W):
             near[dst] |= lit_img[src]
         edge = np.flatnonzero(near & ~lit_img & recv_pix)
-        # clipped sunlit pixels: model radiance instead of the photo's floor
-        sat = (scene.photo.reshape(-1, 3)[out.pix] >= CLIP_LEVEL).any(1)
-        idx = out.pix[sat]
+        # clipped sunlit pixels: model radiance instead of the photo's floor, channel by channel (a channel
+        # below the clip level is a measurement: a dark plank in the sun clips in red only, and its green
+        # and blue taken from the model would brighten it where nothing changes)
+        clip_c = scene.photo.reshape(-1, 3)[out.pix] >= CLIP_LEVEL
+        sat = clip_c.any(1)
+        idx, clip_c = out.pix[sat], clip_c[sat]
         rho = self._albedo(pm, pix_patch, pix_pos, idx)
+        L_b[idx] = np.where(clip_c, np.maximum(L_b[idx], rho * E_x[idx]), L_b[idx])
+        rho = np.where(clip_c, rho, reflectance(L_b[idx], E_x[idx]))  # the measured channels' own
         out.rho_pix = np.concatenate([idx, edge])
         out.rho = np.concatenate([rho, self._albedo(pm, pix_patch, pix_pos, edge)])
-        L_b[idx] = np.maximum(L_b[idx], rho * E_x[idx])
         # sample points of sunlit patches (second order: the patches' lost sun)
         lit_c = np.flatnonzero(self.patch_light().any(1))
         n_side = 4
@@ -742,13 +747,13 @@ class SunSetup:
         return out
 
     def sunlit_patches(self) -> np.ndarray:
-        """(P,) bool: the reflectors the sun lights under captured light (none without a sun on some
-        surface; none under known light, whose radiosity and SH volume hold the sun as before, nor
-        under photo light, see object_radiance).
+        """(P,) bool: the reflectors the sun lights under captured and known light (none without a sun
+        on some surface, nor under photo light, see object_radiance; under known light at the
+        radiosity's radiance, which holds the sun).
         The object gathers them exactly (lighting.irradiance.RoomLight.gather_exactly), not through
         the SH volume: a sunlit patch is several times brighter than the rest of the room and often a
         few cm from the object (it stands in it), where the 0.25 m SH9 grid's broad lobe spreads it."""
-        if self.lighting != "captured" or not self.on:
+        if self.lighting not in ("captured", "known") or not self.on:
             return np.zeros(self.patches.n_patches, bool)
         return self.patch_light().any(1) & ~self.patches.is_emitter
 

@@ -154,10 +154,11 @@ def test_captured_light_uses_the_users_sun(sun_room_folder, sun_inputs, tmp_path
     np.testing.assert_allclose(rep["sun"]["irradiance_perpendicular"], inp["sun"]["irradiance_perpendicular"])
     s = score(root, tmp_path / "auto" / "composite.png")
     print(f"own sun room, declared sun: {json.dumps(s)}")
-    # measured: energy 0.862, rmse_affected 1.91 (untouched 21.4), rmse_object 5.92 (the estimate: 0.856, 3.96, 6.48)
+    # measured: energy 0.894, rmse_affected 1.39 (untouched 21.4), rmse_object 3.57 (bias -0.9; 7.23 while
+    # the chair's feet, in the floor's plane, got none of the sunlit floor's exact gather)
     assert 0.75 <= s["energy_ratio"] <= 1.1, s
     assert s["rmse_affected"] <= 2.8, s
-    assert s["rmse_object"] <= 7.5, s
+    assert s["rmse_object"] <= 5.0, s
     # the chair's sun shadow on the sunlit floor: where the truth drops by more than 40 levels, ours
     # drops by nearly as much (measured 158.9 against 161.4 levels; no sun would leave ~0)
     lum = lambda p: cv2.imread(str(p)).astype(float).mean(-1)
