@@ -817,8 +817,12 @@ def _box_edges(centre: np.ndarray, corners: np.ndarray, axes, top_only: bool) ->
 
 def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.ndarray, lo, hi, px_m: float) -> None:
     """Refuse a footprint crossing a clicked wall by more than WALL_TOL_M + 3 px; put a side within
-    WALL_SNAP_M of one (or across it) against it (axis-aligned footprints). px_m: metres on the
-    floor per pixel at the footprint's clicks (far from the camera a pixel spans centimetres)."""
+    WALL_SNAP_M of one (or across it) against it (axis-aligned footprints), clicks only: with the
+    photo (P.edges) a side goes against a wall only by _hold_on_walls's chi-square test, and one
+    across a wall is put on it (a side the photo does not show, a sofa's seat under its back, is
+    no nearer a wall for being within WALL_SNAP_M of it when a pixel spans centimetres there).
+    px_m: metres on the floor per pixel at the footprint's clicks (far from the camera a pixel
+    spans centimetres)."""
     tol, snap = WALL_TOL_M + 3 * px_m, WALL_SNAP_M
     yaw_c, yaw_s = math.cos(yaw), math.sin(yaw)
     e1, e2 = np.array([yaw_c, -yaw_s]), np.array([yaw_s, yaw_c])  # world (x, z) of local x, z
@@ -834,6 +838,8 @@ def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.nd
                                    "inside the room (check the floor corners and the walls' floor lines)")
     if yaw != 0.0:
         return
+    if P.edges is not None:
+        snap = 0.0
     for rng, axis in ((xr, 0), (zr, 2)):
         if np.isfinite(lo[axis]) and rng[0] - lo[axis] < snap:
             rng[0] = lo[axis]
