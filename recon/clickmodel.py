@@ -35,7 +35,8 @@ Method:
     is refined: the edges of it the photo shows are snapped (recon/clickedges.py) and join its
     least-squares fit in pixels; what the photo does not confirm stays as clicked. The walls and
     the ceiling are then refitted together with the room's corner and ceiling edges (_refine_room);
-    a piece's edges are snapped in rounds (_snap_and_refine), a side of it the fit cannot tell from
+    a piece's edges are snapped in rounds (_snap_and_refine; a desk's legs' vertical edges too: they
+    see a move along the line of sight its top's edges do not), a side of it the fit cannot tell from
     a clicked wall is put against it (_hold_on_walls), and a side pinned worse than TOLERANCE_M (at
     99 %) is reported ill-determined (ClickModel.uncertain, a warning);
   * walls that no click shows are placed WALL_MARGIN_M beyond the camera (recon/roomfit.py's rule:
@@ -695,13 +696,21 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
     if photo is not None and photo[0].edges is not None:
         P, name, desk, lo, hi = photo
 
-        def corners(y):  # corner b: bit 0 the x end, bit 1 bottom / top, bit 2 the z end; a desk: its slab
-            x = full(y)
+        def corners(y):  # corner b: bit 0 the x end, bit 1 bottom / top, bit 2 the z end; a desk: its slab,
+            x = full(y)  # then its legs' (leg l's corner b at 8 + 8 l + b; l: bit 0 the x end, bit 1 the z end)
             bottom = x[4] - DESK_TOP_M if desk else 0.0
-            return np.array([x[b & 1] * e1 + x[2 + (b >> 2 & 1)] * e2 + [0.0, x[4] if b & 2 else bottom, 0.0]
-                             for b in range(8)])
+            out = [x[b & 1] * e1 + x[2 + (b >> 2 & 1)] * e2 + [0.0, x[4] if b & 2 else bottom, 0.0] for b in range(8)]
+            if desk:
+                i0, i1 = DESK_LEG_INSET_M, DESK_LEG_INSET_M + DESK_LEG_M
+                for leg in range(4):
+                    lx = (x[0] + i0, x[0] + i1) if not leg & 1 else (x[1] - i1, x[1] - i0)
+                    lz = (x[2] + i0, x[2] + i1) if not leg & 2 else (x[3] - i1, x[3] - i0)
+                    out += [lx[b & 1] * e1 + lz[b >> 2 & 1] * e2 + [0.0, bottom if b & 2 else 0.0, 0.0]
+                            for b in range(8)]
+            return np.array(out)
 
-        y, kept = _snap_and_refine(P, name, y, corners, pts, uvs, (e1, np.array([0.0, 1, 0]), e2))
+        slab = (lambda y: _box(name, yaw, *_slab_ranges(full(y), desk))) if desk else None
+        y, kept = _snap_and_refine(P, name, y, corners, pts, uvs, (e1, np.array([0.0, 1, 0]), e2), slab)
         held = []
         if kept and yaw == 0.0:
             y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi)
@@ -723,17 +732,34 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
     return np.sort(x[:2]), np.sort(x[2:4]), float(x[4])
 
 
-def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np.ndarray, axes
+def _slab_ranges(x: np.ndarray, desk: bool) -> tuple:
+    """A piece's parameters x [x min, x max, z min, z max, top] -> the (x, y, z) ranges of its box
+    (a desk: its top slab)."""
+    return x[:2], (x[4] - DESK_TOP_M if desk else 0.0, x[4]), x[2:4]
+
+
+def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np.ndarray, axes, slab=None
                      ) -> tuple[np.ndarray, list]:
     """A piece's fit y refined with its edges snapped to the photo (recon/clickedges.py), in rounds:
     the edges are snapped around the model of the last fit and the fit redone, until a round finds
     no edge more (at most SNAP_ROUNDS): a click off by 3 sigma puts some edges beyond their search
     (a desk's slab: its top's and underside's front edges 4 cm apart), the fit on the others brings
-    them in."""
+    them in. A desk (slab: y -> its top slab's box entry; corners(y) then holds its legs' corners
+    after the slab's 8) also snaps its legs' vertical edges, where neither another piece nor its
+    own slab hides them: a move along the line of sight, which its top's edges do not see, turns
+    the legs' vertical planes through the camera (legs at different bearings), the floor clicks
+    alone pin it otherwise."""
+    from recon.clickedges import box_blocker
+
     y0, kept = y, []
     for _ in range(SNAP_ROUNDS):
-        lines = P.edges.lines(corners(y), _box_edges(P.camera.centre, corners(y), axes, False), P.blocker(name),
-                              faint=True)
+        C = corners(y)
+        lines = P.edges.lines(C, _box_edges(P.camera.centre, C[:8], axes, False), P.blocker(name), faint=True)
+        if slab is not None:
+            others, own = P.blocker(name), box_blocker(P.camera, [slab(y)])
+            legs = [(8 + 8 * leg + i, 8 + 8 * leg + j) for leg in range(4)
+                    for i, j in _box_edges(P.camera.centre, C[8 + 8 * leg:16 + 8 * leg], axes, False) if j - i == 2]
+            lines += P.edges.lines(C, legs, lambda X: others(X) | own(X), faint=True)
         if len(lines) <= len(kept):
             break
         y, kept = P.edges.refine_lines(y0, corners, pts, uvs, lines)
@@ -757,7 +783,7 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
         axis, side = (0, 2)[j // 2], (-1, 1)[j % 2]
         bound = (lo if side < 0 else hi)[axis]
         bit, end = (1, 4)[j // 2], j % 2  # corner bits: bit 0 the x end, bit 2 the z end
-        seen = any(bool(L.i & bit) == end and bool(L.j & bit) == end for L in lines)
+        seen = any(max(L.i, L.j) < 8 and bool(L.i & bit) == end and bool(L.j & bit) == end for L in lines)
         if j not in active or not np.isfinite(bound) or not seen:
             continue
         k = active.index(j)
@@ -791,8 +817,12 @@ def _box_edges(centre: np.ndarray, corners: np.ndarray, axes, top_only: bool) ->
 
 def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.ndarray, lo, hi, px_m: float) -> None:
     """Refuse a footprint crossing a clicked wall by more than WALL_TOL_M + 3 px; put a side within
-    WALL_SNAP_M of one (or across it) against it (axis-aligned footprints). px_m: metres on the
-    floor per pixel at the footprint's clicks (far from the camera a pixel spans centimetres)."""
+    WALL_SNAP_M of one (or across it) against it (axis-aligned footprints), clicks only: with the
+    photo (P.edges) a side goes against a wall only by _hold_on_walls's chi-square test, and one
+    across a wall is put on it (a side the photo does not show, a sofa's seat under its back, is
+    no nearer a wall for being within WALL_SNAP_M of it when a pixel spans centimetres there).
+    px_m: metres on the floor per pixel at the footprint's clicks (far from the camera a pixel
+    spans centimetres)."""
     tol, snap = WALL_TOL_M + 3 * px_m, WALL_SNAP_M
     yaw_c, yaw_s = math.cos(yaw), math.sin(yaw)
     e1, e2 = np.array([yaw_c, -yaw_s]), np.array([yaw_s, yaw_c])  # world (x, z) of local x, z
@@ -808,6 +838,8 @@ def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.nd
                                    "inside the room (check the floor corners and the walls' floor lines)")
     if yaw != 0.0:
         return
+    if P.edges is not None:
+        snap = 0.0
     for rng, axis in ((xr, 0), (zr, 2)):
         if np.isfinite(lo[axis]) and rng[0] - lo[axis] < snap:
             rng[0] = lo[axis]

@@ -330,6 +330,11 @@ def test_box_blocker():
     assert got.tolist() == [True, False, False, False, True]
 
 
+# the pieces a draw of test_clicks_refined_against_the_photo puts beyond a flat 3 cm (each reported
+# ill-determined there): measured worst 7.4, 3.4 and 3.5 cm
+BEYOND_3CM = {"lamps_room": ("sofa_seat", "sofa_back"), "sun_room": ("desk",)}
+
+
 @pytest.mark.parametrize("name", SCENES)
 def test_clicks_refined_against_the_photo(name):
     """Ten seeds of 1 px noise, the clicks refined against the photo: every wall, the ceiling, every
@@ -339,8 +344,11 @@ def test_clicks_refined_against_the_photo(name):
     lamps_room's sofa seat (its back side hidden under the sofa's back: no edge of it in the photo)
     and the sofa's back (its top face 3.5 px deep: its two long edges too near to tell apart, so
     its depth rests on floor clicks hidden behind the seat), sun_room's desk (it runs out of the photo: its front side from one floor click where
-    1 px is 2.7 cm of floor) and, in one seed, window_room's desk (a floor click 3 sigma off moves it
-    along the line of sight, which its top's edges do not see). With exact clicks every item is within
+    1 px is 2.7 cm of floor; a floor click 3 sigma off moves it along the line of sight, which its
+    top's edges do not see). Every other piece is within the flat 3 cm on every seed, reported or
+    not (BEYOND_3CM): window_room's desk, reported in one seed, is held there by its legs' vertical
+    edges (a move along the line of sight turns their planes through the camera by the sine of
+    their bearing, about 0.2 there). With exact clicks every item is within
     3 cm (the refinement does not lock onto a wrong edge; an ill-determined one is allowed 1 px
     more), and over all items and seeds the mean error is lower than as clicked."""
     sc, cam = _scene(name)
@@ -374,6 +382,8 @@ def test_clicks_refined_against_the_photo(name):
             assert flat.all(), k  # every wall snapped here; the ceiling and quads are not judged
         assert np.all(errs[flat] <= 0.03), (k, errs)
         assert np.all(errs <= 0.03 + 3 * px), k
+        if k not in BEYOND_3CM.get(name, ()):  # window_room's desk too, reported or not (its legs' edges)
+            assert np.all(errs <= 0.03), (k, errs)
     mean = np.mean([v[0] for r in runs for v in r.values()])
     mean0 = np.mean([v[0] for r in runs0 for v in r.values()])
     print(f"{name}: mean error {mean0 * 100:.2f} -> {mean * 100:.2f} cm")
