@@ -53,7 +53,6 @@ from app.stages import precompute as scene_precompute
 from app.stages.compose import ComposeStage
 from app.stages.object_light import ObjectLight
 from app.stages.object_shading import ObjectShading
-from app.stages.photo_sun import photo_object_light
 from app.stages.precompute import Precomputed, hash_scene as _hash_scene  # noqa: F401 (re-exported)
 from app.stages.receiver_map import ReceiverMap, receiver_map, reflectance
 from app.stages.shadow_pass import ShadowPass
@@ -141,11 +140,8 @@ class Engine:
                                     patches=pm, shape=(cam.height, cam.width), device=dev)
         # the object gathers the room from the measured radiance, with the sun's model radiance on the
         # sunlit patches the photo does not measure (SunSetup.object_radiance), and the sunlit patches
-        # gathered exactly, not through the SH volume (captured and known light; B_src and the volume alone
-        # without a sunlit patch)
+        # gathered exactly, not through the SH volume (B_src and the volume alone without a sunlit patch)
         B_lit, near = self.sun.object_radiance(pre, B_src), self.sun.sunlit_patches()
-        if p.lighting == "photo":  # the same for photo light (app.stages.photo_sun)
-            B_lit, near = photo_object_light(self.sun, pre, B_src)
         self.room_light = self._room_light(np.where(near[:, None], 0.0, B_lit) if near.any() else B_lit,
                                            oc.volume_spacing)  # SH9 volume of the indirect light
         self.room_light.gather_exactly(near, B_lit)

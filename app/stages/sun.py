@@ -747,34 +747,34 @@ class SunSetup:
         return out
 
     def sunlit_patches(self) -> np.ndarray:
-        """(P,) bool: the reflectors the sun lights under captured and known light (none without a sun
-        on some surface, nor under photo light, see object_radiance; under known light at the
-        radiosity's radiance, which holds the sun).
+        """(P,) bool: the reflectors the sun lights (none without a sun on some surface; under known
+        light at the radiosity's radiance, which holds the sun).
         The object gathers them exactly (lighting.irradiance.RoomLight.gather_exactly), not through
         the SH volume: a sunlit patch is several times brighter than the rest of the room and often a
         few cm from the object (it stands in it), where the 0.25 m SH9 grid's broad lobe spreads it."""
-        if self.lighting not in ("captured", "known") or not self.on:
+        if not self.on:
             return np.zeros(self.patches.n_patches, bool)
         return self.patch_light().any(1) & ~self.patches.is_emitter
 
     def object_radiance(self, pre, B_src: np.ndarray) -> np.ndarray:
         """The patch radiance (P,3) the object gathers the room's light from (its SH volume and exact
         gather), after apply(): B_src, with the model's rho x (E_ind + E_sun) on the sunlit patches
-        the photo does not measure (captured light, a sun that lights the room).
+        the photo does not measure (captured and photo light, a sun that lights the room).
 
         Under captured light B_src is measured: a patch with origin PHOTO (lighting.radiance)
         by its unclipped photo pixels, which stays. A sunlit patch whose photo pixels clip has only
         the probe's view of it (coarse: the sun patch's edge is smeared over its neighbours, a few
         probe pixels at grazing angles); a sphere standing in the patch then gathers far too little
-        from the floor under it. The sun estimated from this
-        photo already implies that radiance: rho (the surface's reflectivity, set by _estimate) times
-        the gathered light E_ind = G_c B_src plus the sun's share on the patch (patch_light: the
-        patch's sunlit fraction x cos x E_sun). A patch with no reflectivity (rho 0: an emitter kept,
-        or a sunlit surface with no unlit patch to lend it one) keeps its measurement. B_src itself
-        when nothing changes (known light: the sun is in the radiosity; no sun; no such patch).
-        Photo light keeps its fit: its object is too bright already in a sunny room (docs/unseen.md),
-        and the model's sunlit patches made it brighter still."""
-        if self.lighting != "captured" or not self.on or pre.origin is None:
+        from the floor under it. Under photo light (lighting.photolight) such a patch is fitted as a
+        clipped emitter group whose radiance is whatever the walls ask of it, held at least at the
+        white level: a floor as bright as the photo's white, not as the sun makes it. The sun
+        estimated from this photo already implies that radiance: rho (the surface's reflectivity, set
+        by _estimate) times the gathered light E_ind = G_c B_src plus the sun's share on the patch
+        (patch_light: the patch's sunlit fraction x cos x E_sun). A patch with no reflectivity (rho 0:
+        an emitter kept, or a sunlit surface with no unlit patch to lend it one) keeps its
+        measurement. B_src itself when nothing changes (known light: the sun is in the radiosity; no
+        sun; no such patch)."""
+        if self.lighting not in ("captured", "photo") or not self.on:
             return B_src
         pm, sun = self.patches, self.patch_light()
         lit = (sun.any(1) & ~pm.is_emitter & (np.asarray(pre.origin) != PHOTO)
@@ -784,9 +784,11 @@ class SunSetup:
         out = np.array(B_src, np.float64, copy=True)
         E_ind = pre.G_c[lit].astype(np.float64) @ np.asarray(B_src, np.float64)
         out[lit] = pm.albedo[lit] * (E_ind + sun[lit])
-        log.debug("sun: %d sunlit patches light the object with the model's radiance (luminance %.3g, "
-                  "measured %.3g)", int(lit.sum()), float(luminance(out[lit]).mean()),
-                  float(luminance(np.asarray(B_src)[lit]).mean()))
+        # photo light's one info line says what it did to its fit (captured light's measurement: debug)
+        (log.info if self.lighting == "photo" else log.debug)(
+            "%s light: the sun lights %d patches the photo shows clipped; the object sees them as lit by the "
+            "estimated sun (mean luminance %.3g, the photo's clipped value %.3g)", self.lighting, int(lit.sum()),
+            float(luminance(out[lit]).mean()), float(luminance(np.asarray(B_src)[lit]).mean()))
         return out
 
     def _ring_share(self, rp: np.ndarray, nrm: np.ndarray, vis: np.ndarray, rm, E_x: np.ndarray,
