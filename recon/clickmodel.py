@@ -164,6 +164,8 @@ class _Clicks:
         self.refined: dict[str, str] = {}
         self.uncertain: dict[str, dict[str, float]] = {}  # piece -> {side: standard deviation m} (TOLERANCE_M)
         self.ceiling_sd = 0.0  # m: the ceiling height's standard deviation when clicked (with the photo)
+        self.wall_sd: dict[tuple[int, int], float] = {}  # (axis, side) -> a clicked wall offset's sd (m) for
+        # _hold_on_walls, with the photo: at least its foot line's noise floor in metres
 
     def blocker(self, name: str):
         """recon.clickedges.box_blocker of every furniture box but piece `name`'s own."""
@@ -505,8 +507,11 @@ def _refine_room(P: _Clicks, walls: dict[str, Wall], ceil_clicks: list[tuple[Wal
     sd = P.edges.sd(x, corners, clicks, kept)
     if free_h:
         P.ceiling_sd = float(sd[nw])
+    from recon.clickedges import LINE_SIGMA_FLOOR_PX
+
     for k, w in enumerate(ws):  # a wall its clicks and the photo pin worse than TOLERANCE_M (at Z99 sigma)
         w.sd = float(sd[k])
+        P.wall_sd[(w.axis, w.side)] = max(w.sd, LINE_SIGMA_FLOOR_PX * _foot_metres_per_px(cam, w))
         if not Z99 * sd[k] <= TOLERANCE_M:
             for name in w.labels:
                 P.uncertain[name] = {"offset": float(sd[k])}
@@ -525,6 +530,22 @@ def _refine_room(P: _Clicks, walls: dict[str, Wall], ceil_clicks: list[tuple[Wal
                 P.refined[name] = ", ".join(words) + " snapped"
     if free_h:
         hi[1] = height(x)
+
+
+def _foot_metres_per_px(camera: Camera, w: Wall) -> float:
+    """Metres wall w's offset moves per pixel its foot line moves across itself in the photo (the
+    mean over its floor clicks; a far wall seen at a grazing angle: centimetres)."""
+    n, a = axis_vector(w.axis), axis_vector(2 - w.axis)
+    out = []
+    for p in w.points:
+        uv, z = camera.project(np.array([p, p + 0.01 * a, p + 0.01 * n]))
+        if not np.all(z > 0):
+            continue
+        d = uv[1] - uv[0]
+        across = abs(float((uv[2] - uv[0]) @ np.array([-d[1], d[0]]) / max(np.linalg.norm(d), 1e-12)))
+        if across > 0:
+            out.append(0.01 / across)
+    return float(np.mean(out)) if out else 0.0
 
 
 def _wall_offset(camera: Camera, points: list[np.ndarray], uv: np.ndarray, axis: int, edges=None,
@@ -712,8 +733,13 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
         slab = (lambda y: _box(name, yaw, *_slab_ranges(full(y), desk))) if desk else None
         y, kept = _snap_and_refine(P, name, y, corners, pts, uvs, (e1, np.array([0.0, 1, 0]), e2), slab)
         held = []
-        if kept and yaw == 0.0:
-            y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi)
+        if yaw == 0.0:
+            # the sides a click the photo shows lies on (a corner no piece hides, nor the piece itself)
+            own = slab(y) if desk else _box(name, yaw, *_slab_ranges(full(y), False))
+            shown = _shown(P, name, pts(y), own, not desk)
+            on = [(ix[k], iz[k]) for k in known] + [(ix[known[0]], iz[known[0]])]
+            clicked = {j for ok, sides in zip(shown, on) if ok for j in sides}
+            y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi, clicked)
         words = ([f"{len(kept)} edges snapped"] if kept else []) + \
             [f"{SIDES[j]} side against the wall" for j in held]
         P.refined[name] = ", ".join(words) if words else "as clicked"
@@ -766,15 +792,56 @@ def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np
     return y, kept
 
 
+def _shown(P: _Clicks, name: str, X: np.ndarray, own: dict, solid: bool) -> np.ndarray:
+    """(m,) bool: piece `name`'s clicked corners X (m,3) (its current fit, corners of the upright box
+    `own`) that the photo surely shows: the sight line from the camera to the corner meets no other
+    piece (the clicks-only model) grown by OCCLUDER_SHRINK_M, its click noise (a corner where two
+    pieces meet, a seat's top corner at the end of a sofa's back, is not surely shown), and, for a
+    `solid` piece, the corner is on a face of its own box turned to the camera (a convex box hides
+    its other corners); a desk's own top slab is tested as another piece (its floor corners are not
+    its corners)."""
+    from recon.clickedges import OCCLUDER_SHRINK_M
+
+    others = [b for b in P.occluders if b["name"] != name and not b["name"].startswith(name + "_")]
+    C = P.camera.centre
+    hidden = np.zeros(len(X), bool)
+    for b in others + ([] if solid else [own]):
+        R, c = _local_axes(b), np.asarray(b["center"], float)
+        h = np.asarray(b["size"], float) / 2 + OCCLUDER_SHRINK_M
+        o, d = R @ (C - c), (X - C) @ R.T  # the segment C + t d, t in [0, 1], in the box's frame
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (-h - o) / d, (h - o) / d
+        par = d == 0  # parallel to a slab: inside it for every t, or never
+        lo_t = np.where(par, np.where(np.abs(o) <= h, -np.inf, np.inf), np.minimum(t1, t2)).max(axis=1)
+        hi_t = np.where(par, np.where(np.abs(o) <= h, np.inf, -np.inf), np.maximum(t1, t2)).min(axis=1)
+        hidden |= (lo_t <= hi_t) & (hi_t >= 0.0) & (lo_t <= 1.0)
+    if solid:
+        c, h = np.asarray(own["center"], float), np.asarray(own["size"], float) / 2
+        R = _local_axes(own)
+        loc, eye = (X - c) @ R.T, R @ (C - c)
+        turned = np.zeros(len(X), bool)
+        for a in range(3):  # a corner is on the face of its end along axis a; turned when the eye is beyond it
+            turned |= np.sign(loc[:, a]) * eye[a] > h[a]
+        hidden |= ~turned
+    return ~hidden
+
+
+def _local_axes(b: dict) -> np.ndarray:
+    """(3,3) rows: a box entry's local x, y, z axes in the world (yaw_deg about +Y)."""
+    yaw = math.radians(b.get("yaw_deg", 0.0))
+    return np.array([[math.cos(yaw), 0, -math.sin(yaw)], [0, 1.0, 0], [math.sin(yaw), 0, math.cos(yaw)]])
+
+
 def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, uvs: np.ndarray, lines: list,
-                   lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, list[int]]:
+                   lo: np.ndarray, hi: np.ndarray, clicked: set[int] = frozenset()) -> tuple[np.ndarray, list[int]]:
     """An axis-aligned piece's fit y (its parameters `active` of [x min, x max, z min, z max, top])
-    with each side that the clicks and snapped `lines` allow on a clicked wall put there: a side
-    whose own edge the photo shows (a snapped line on it: a side hidden under another piece, a sofa's
-    seat under its back, is not judged) is held on the wall when that raises the fit's chi-square
-    (click noise units) by at most CHI2_1DOF_99 (the side's place is one number: a piece the photo
-    cannot tell from standing against the wall stands against it; a side further off than its noise
-    keeps its fit). Returns (y, the sides held)."""
+    with each side that the clicks and snapped `lines` allow on a clicked wall put there: a side the
+    photo shows (a snapped line on it, or a click on a corner of it no piece hides: `clicked`, its
+    indices; a side hidden under another piece, a sofa's seat under its back, is not judged: only
+    clicks on hidden corners place it) is held on the wall when the side and the wall are one plane
+    within both their noises (_against_chi2 at most CHI2_1DOF_99: the side's place is one number; a
+    piece the photo cannot tell from standing against the wall stands against it; a side further
+    off than its noise keeps its fit). Returns (y, the sides held)."""
     from recon.clickedges import CHI2_1DOF_99
 
     base = P.edges.chi2(y, corners, pts, uvs, lines)
@@ -783,16 +850,34 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
         axis, side = (0, 2)[j // 2], (-1, 1)[j % 2]
         bound = (lo if side < 0 else hi)[axis]
         bit, end = (1, 4)[j // 2], j % 2  # corner bits: bit 0 the x end, bit 2 the z end
-        seen = any(max(L.i, L.j) < 8 and bool(L.i & bit) == end and bool(L.j & bit) == end for L in lines)
+        seen = j in clicked or any(max(L.i, L.j) < 8 and bool(L.i & bit) == end and bool(L.j & bit) == end
+                                   for L in lines)
         if j not in active or not np.isfinite(bound) or not seen:
             continue
         k = active.index(j)
         y1 = P.edges.held(y, k, float(bound), corners, pts, uvs, lines)
-        c1 = P.edges.chi2(y1, corners, pts, uvs, lines)
-        if c1 - base <= CHI2_1DOF_99:
-            y, base = y1, c1
+        d, rise, wall_sd = float(y[k]) - float(bound), P.edges.chi2(y1, corners, pts, uvs, lines) - base, \
+            P.wall_sd.get((axis, side), 0.0)
+        if _against_chi2(d, rise, wall_sd) <= CHI2_1DOF_99:
+            if rise > 0.0 and wall_sd > 0.0:  # the one plane: the side's fit and the wall's, by their variances
+                var_s, var_w = d * d / rise, wall_sd * wall_sd
+                y1 = P.edges.held(y, k, float(bound) + d * var_w / (var_s + var_w), corners, pts, uvs, lines)
+            y, base = y1, P.edges.chi2(y1, corners, pts, uvs, lines)
             held.append(j)
     return y, held
+
+
+def _against_chi2(d: float, rise: float, wall_sd: float) -> float:
+    """The chi-square of a piece's side standing on a wall d (m) from the side's fit, when holding it
+    on the wall's fitted offset raises the piece's chi-square by `rise` and the wall's offset has
+    its own standard deviation wall_sd (m): the two are one plane when their difference is within
+    both noises, d^2 / (var_side + var_wall), the side's variance being d^2 / rise (the piece's fit
+    is linear in its sides over a few centimetres). wall_sd is at least what the snapped line's
+    noise floor (LINE_SIGMA_FLOOR_PX) is in metres at the wall's foot: its stretches are one crease
+    and share that error (_refine_room)."""
+    if rise <= 0.0 or d == 0.0:
+        return max(rise, 0.0)
+    return d * d / (d * d / rise + wall_sd * wall_sd)
 
 
 def _box_edges(centre: np.ndarray, corners: np.ndarray, axes, top_only: bool) -> list[tuple[int, int]]:
