@@ -1,0 +1,378 @@
+"""The click model's furniture (recon/clickmodel.py): a footprint from three floor corners and a top
+corner, refined against the photo (its edges snapped in rounds, a desk's legs too), a side held on a
+wall when the two are one plane within both their noises, and its boxes (a desk's slab and legs)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from recon.camera import Camera
+from recon.io import json_field
+from recon.clickbase import (DESK_LEG_INSET_M, DESK_LEG_M, DESK_TOP_M, FACES, FURNITURE_KINDS, RIGHT_ANGLE_DEG, SIDES,
+                             SNAP_DEG, SNAP_ROUNDS, TOLERANCE_M, TOP_MISS_PX, WALL_SNAP_M, WALL_TOL_M, Wall, Z99,
+                             _Clicks, _floor, _pixel_metres, _reproject_fit, ray)
+
+
+def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, against: Wall | None = None
+               ) -> tuple[float, np.ndarray, np.ndarray]:
+    """Upright rectangle through floor corners f (3,3) (f[1] the corner between the others; a row of
+    nan: a corner out of the photo): yaw (rad, about +Y as recon/scene.rot_y: local x = (cos, 0,
+    -sin)), and its sorted ranges (2,) along local x and local z (m). Each side is the mean of the
+    clicked corners on it; a side with none is size_m away from the opposite one, or on the wall
+    `against` (the wall the piece stands against)."""
+    known = [k for k in range(3) if np.isfinite(f[k, 0])]
+    if len(known) < 2:
+        raise P.err(where, "at least two of the three floor corners must be clicked")
+    a, b = f[0] - f[1], f[2] - f[1]
+    edges = [(e, math.hypot(e[0], e[2])) for e, ks in ((a, (0, 1)), (b, (1, 2))) if all(k in known for k in ks)]
+    if any(le < 0.02 for _, le in edges):
+        raise P.err(where, "two floor corners are less than 2 cm apart: click three corners of the footprint in "
+                           "order around it")
+    if len(edges) == 2:
+        cos_ab = abs(a[0] * b[0] + a[2] * b[2]) / (edges[0][1] * edges[1][1])
+        if math.degrees(math.asin(min(cos_ab, 1.0))) > RIGHT_ANGLE_DEG:
+            raise P.err(where, f"the floor corners make a {math.degrees(math.acos(cos_ab)):.0f} deg corner at "
+                               "floor[1]: click three corners of the footprint in order around it (floor[1] between "
+                               "the others)")
+    # each edge's yaw (mod 90 deg), averaged by length on the 4x angle circle
+    z = sum(le * complex(math.cos(4 * math.atan2(-e[2], e[0])), math.sin(4 * math.atan2(-e[2], e[0])))
+            for e, le in edges)
+    yaw = math.atan2(z.imag, z.real) / 4 if edges else 0.0
+    if abs(math.degrees(yaw)) < SNAP_DEG:
+        yaw = 0.0
+    elif len(known) < 3:
+        raise P.err(where, f"the footprint is turned {math.degrees(yaw):.0f} deg from the room's axes: click all three "
+                           "floor corners")
+    e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
+    if 1 in known and 0 in known:
+        a_on_e1 = abs(a @ e1) >= abs(a @ e2)
+    elif 1 in known:
+        a_on_e1 = abs(b @ e1) < abs(b @ e2)
+    else:
+        a_on_e1 = True  # f0 and f2 diagonal: they pin every side either way
+    ea, eb = (e1, e2) if a_on_e1 else (e2, e1)
+    # along the a edge (f1 -> f0): f0 on one side, f1 and f2 on the other; along b: f2, and f0 and f1
+    ends = []
+    for axis_vec, lone, pair, k in ((ea, 0, (1, 2), 0), (eb, 2, (0, 1), 1)):
+        far = f[lone] @ axis_vec if lone in known else None
+        near = [f[j] @ axis_vec for j in pair if j in known]
+        near = float(np.mean(near)) if near else None
+        if far is None:  # f[lone] out of the photo; then f1 is clicked, and shares its other side
+            def corners(end, axis_vec=axis_vec):
+                return [f[1] + (end - f[1] @ axis_vec) * axis_vec]
+
+            if size is None and against is not None and abs(axis_vec[against.axis]) > 1 - 1e-9:
+                far = against.offset * float(axis_vec[against.axis])
+            else:
+                far = P.missing_end(where, near, size, k, corners)
+        ends.append(np.sort(np.array([far, near])))
+    xr, zr = (ends[0], ends[1]) if a_on_e1 else (ends[1], ends[0])
+    return yaw, xr, zr
+
+
+def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: float, f: np.ndarray,
+                uv: np.ndarray, top_uv: np.ndarray, wall_end: bool, photo: tuple | None = None
+                ) -> tuple[np.ndarray, np.ndarray, float]:
+    """The footprint's ranges and height (yaw kept) whose clicked corners project nearest their
+    clicks and the top corner nearest the top click, in pixels (_reproject_fit): the top click also
+    pins floor[0]'s position, and a click's weight follows the metres its pixel spans. A side no
+    clicked corner lies on keeps its distance to the opposite side (size_m), or its place with
+    `wall_end` (the wall the piece stands against). photo: (the _Clicks with the photo's edges, the
+    piece's name, is a desk): then the box's edges snapped to the photo join the fit
+    (recon/clickedges.py)."""
+    e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
+    known = [k for k in range(3) if np.isfinite(f[k, 0])]
+    ix = {k: int(abs(f[k] @ e1 - xr[1]) < abs(f[k] @ e1 - xr[0])) for k in known}  # each click's end of
+    iz = {k: 2 + int(abs(f[k] @ e2 - zr[1]) < abs(f[k] @ e2 - zr[0])) for k in known}  # each range
+    x0 = np.r_[xr, zr, h]
+    active = sorted(set(ix.values()) | set(iz.values())) + [4]
+
+    def full(y):
+        x = x0.copy()
+        x[active] = y
+        for j in range(4):
+            if j not in active and not wall_end:
+                x[j] = x[j ^ 1] + (x0[j] - x0[j ^ 1])
+        return x
+
+    def pts(y):
+        x = full(y)
+        out = [x[ix[k]] * e1 + x[iz[k]] * e2 for k in known]
+        return np.array(out + [out[0] + [0.0, x[4], 0.0]])
+
+    uvs = np.vstack([uv[known], top_uv[None]])
+    y = _reproject_fit(x0[active], pts, uvs, camera)
+    if photo is not None and photo[0].edges is not None:
+        P, name, desk, lo, hi = photo
+
+        def corners(y):  # corner b: bit 0 the x end, bit 1 bottom / top, bit 2 the z end; a desk: its slab,
+            x = full(y)  # then its legs' (leg l's corner b at 8 + 8 l + b; l: bit 0 the x end, bit 1 the z end)
+            bottom = x[4] - DESK_TOP_M if desk else 0.0
+            out = [x[b & 1] * e1 + x[2 + (b >> 2 & 1)] * e2 + [0.0, x[4] if b & 2 else bottom, 0.0] for b in range(8)]
+            if desk:
+                i0, i1 = DESK_LEG_INSET_M, DESK_LEG_INSET_M + DESK_LEG_M
+                for leg in range(4):
+                    lx = (x[0] + i0, x[0] + i1) if not leg & 1 else (x[1] - i1, x[1] - i0)
+                    lz = (x[2] + i0, x[2] + i1) if not leg & 2 else (x[3] - i1, x[3] - i0)
+                    out += [lx[b & 1] * e1 + lz[b >> 2 & 1] * e2 + [0.0, bottom if b & 2 else 0.0, 0.0]
+                            for b in range(8)]
+            return np.array(out)
+
+        slab = (lambda y: _box(name, yaw, *_slab_ranges(full(y), desk))) if desk else None
+        y, kept = _snap_and_refine(P, name, y, corners, pts, uvs, (e1, np.array([0.0, 1, 0]), e2), slab)
+        held = []
+        if yaw == 0.0:
+            # the sides a click the photo shows lies on (a corner no piece hides, nor the piece itself)
+            own = slab(y) if desk else _box(name, yaw, *_slab_ranges(full(y), False))
+            shown = _shown(P, name, pts(y), own, not desk)
+            on = [(ix[k], iz[k]) for k in known] + [(ix[known[0]], iz[known[0]])]
+            clicked = {j for ok, sides in zip(shown, on) if ok for j in sides}
+            y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi, clicked)
+        words = ([f"{len(kept)} edges snapped"] if kept else []) + \
+            [f"{SIDES[j]} side against the wall" for j in held]
+        P.refined[name] = ", ".join(words) if words else "as clicked"
+        free = [k for k, j in enumerate(active) if j not in held]
+        if free:
+            def sub(q, y=y, free=free):
+                out = y.copy()
+                out[free] = q
+                return out
+
+            sd = P.edges.sd(y[free], lambda q: corners(sub(q)), lambda q: pts(sub(q)), kept)
+            loose = {SIDES[active[k]]: float(v) for k, v in zip(free, sd) if not Z99 * v <= TOLERANCE_M}
+            if loose:
+                P.uncertain[name] = loose
+    x = full(y)
+    return np.sort(x[:2]), np.sort(x[2:4]), float(x[4])
+
+
+def _slab_ranges(x: np.ndarray, desk: bool) -> tuple:
+    """A piece's parameters x [x min, x max, z min, z max, top] -> the (x, y, z) ranges of its box
+    (a desk: its top slab)."""
+    return x[:2], (x[4] - DESK_TOP_M if desk else 0.0, x[4]), x[2:4]
+
+
+def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np.ndarray, axes, slab=None
+                     ) -> tuple[np.ndarray, list]:
+    """A piece's fit y refined with its edges snapped to the photo (recon/clickedges.py), in rounds:
+    the edges are snapped around the model of the last fit and the fit redone, until a round finds
+    no edge more (at most SNAP_ROUNDS): a click off by 3 sigma puts some edges beyond their search
+    (a desk's slab: its top's and underside's front edges 4 cm apart), the fit on the others brings
+    them in. A desk (slab: y -> its top slab's box entry; corners(y) then holds its legs' corners
+    after the slab's 8) also snaps its legs' vertical edges, where neither another piece nor its
+    own slab hides them: a move along the line of sight, which its top's edges do not see, turns
+    the legs' vertical planes through the camera (legs at different bearings), the floor clicks
+    alone pin it otherwise."""
+    from recon.clickedges import box_blocker
+
+    y0, kept = y, []
+    for _ in range(SNAP_ROUNDS):
+        C = corners(y)
+        lines = P.edges.lines(C, _box_edges(P.camera.centre, C[:8], axes, False), P.blocker(name), faint=True)
+        if slab is not None:
+            others, own = P.blocker(name), box_blocker(P.camera, [slab(y)])
+            legs = [(8 + 8 * leg + i, 8 + 8 * leg + j) for leg in range(4)
+                    for i, j in _box_edges(P.camera.centre, C[8 + 8 * leg:16 + 8 * leg], axes, False) if j - i == 2]
+            lines += P.edges.lines(C, legs, lambda X: others(X) | own(X), faint=True)
+        if len(lines) <= len(kept):
+            break
+        y, kept = P.edges.refine_lines(y0, corners, pts, uvs, lines)
+    return y, kept
+
+
+def _shown(P: _Clicks, name: str, X: np.ndarray, own: dict, solid: bool) -> np.ndarray:
+    """(m,) bool: piece `name`'s clicked corners X (m,3) (its current fit, corners of the upright box
+    `own`) that the photo surely shows: the sight line from the camera to the corner meets no other
+    piece (the clicks-only model) grown by OCCLUDER_SHRINK_M, its click noise (a corner where two
+    pieces meet, a seat's top corner at the end of a sofa's back, is not surely shown), and, for a
+    `solid` piece, the corner is on a face of its own box turned to the camera (a convex box hides
+    its other corners); a desk's own top slab is tested as another piece (its floor corners are not
+    its corners)."""
+    from recon.clickedges import OCCLUDER_SHRINK_M
+
+    others = [b for b in P.occluders if b["name"] != name and not b["name"].startswith(name + "_")]
+    C = P.camera.centre
+    hidden = np.zeros(len(X), bool)
+    for b in others + ([] if solid else [own]):
+        R, c = _local_axes(b), np.asarray(b["center"], float)
+        h = np.asarray(b["size"], float) / 2 + OCCLUDER_SHRINK_M
+        o, d = R @ (C - c), (X - C) @ R.T  # the segment C + t d, t in [0, 1], in the box's frame
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (-h - o) / d, (h - o) / d
+        par = d == 0  # parallel to a slab: inside it for every t, or never
+        lo_t = np.where(par, np.where(np.abs(o) <= h, -np.inf, np.inf), np.minimum(t1, t2)).max(axis=1)
+        hi_t = np.where(par, np.where(np.abs(o) <= h, np.inf, -np.inf), np.maximum(t1, t2)).min(axis=1)
+        hidden |= (lo_t <= hi_t) & (hi_t >= 0.0) & (lo_t <= 1.0)
+    if solid:
+        c, h = np.asarray(own["center"], float), np.asarray(own["size"], float) / 2
+        R = _local_axes(own)
+        loc, eye = (X - c) @ R.T, R @ (C - c)
+        turned = np.zeros(len(X), bool)
+        for a in range(3):  # a corner is on the face of its end along axis a; turned when the eye is beyond it
+            turned |= np.sign(loc[:, a]) * eye[a] > h[a]
+        hidden |= ~turned
+    return ~hidden
+
+
+def _local_axes(b: dict) -> np.ndarray:
+    """(3,3) rows: a box entry's local x, y, z axes in the world (yaw_deg about +Y)."""
+    yaw = math.radians(b.get("yaw_deg", 0.0))
+    return np.array([[math.cos(yaw), 0, -math.sin(yaw)], [0, 1.0, 0], [math.sin(yaw), 0, math.cos(yaw)]])
+
+
+def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, uvs: np.ndarray, lines: list,
+                   lo: np.ndarray, hi: np.ndarray, clicked: set[int] = frozenset()) -> tuple[np.ndarray, list[int]]:
+    """An axis-aligned piece's fit y (its parameters `active` of [x min, x max, z min, z max, top])
+    with each side that the clicks and snapped `lines` allow on a clicked wall put there: a side the
+    photo shows (a snapped line on it, or a click on a corner of it no piece hides: `clicked`, its
+    indices; a side hidden under another piece, a sofa's seat under its back, is not judged: only
+    clicks on hidden corners place it) is held on the wall when the side and the wall are one plane
+    within both their noises (_against_chi2 at most CHI2_1DOF_99: the side's place is one number; a
+    piece the photo cannot tell from standing against the wall stands against it; a side further
+    off than its noise keeps its fit). Returns (y, the sides held)."""
+    from recon.clickedges import CHI2_1DOF_99
+
+    base = P.edges.chi2(y, corners, pts, uvs, lines)
+    held = []
+    for j in range(4):
+        axis, side = (0, 2)[j // 2], (-1, 1)[j % 2]
+        bound = (lo if side < 0 else hi)[axis]
+        bit, end = (1, 4)[j // 2], j % 2  # corner bits: bit 0 the x end, bit 2 the z end
+        seen = j in clicked or any(max(L.i, L.j) < 8 and bool(L.i & bit) == end and bool(L.j & bit) == end
+                                   for L in lines)
+        if j not in active or not np.isfinite(bound) or not seen:
+            continue
+        k = active.index(j)
+        y1 = P.edges.held(y, k, float(bound), corners, pts, uvs, lines)
+        d, rise, wall_sd = float(y[k]) - float(bound), P.edges.chi2(y1, corners, pts, uvs, lines) - base, \
+            P.wall_sd.get((axis, side), 0.0)
+        if _against_chi2(d, rise, wall_sd) <= CHI2_1DOF_99:
+            if rise > 0.0 and wall_sd > 0.0:  # the one plane: the side's fit and the wall's, by their variances
+                var_s, var_w = d * d / rise, wall_sd * wall_sd
+                y1 = P.edges.held(y, k, float(bound) + d * var_w / (var_s + var_w), corners, pts, uvs, lines)
+            y, base = y1, P.edges.chi2(y1, corners, pts, uvs, lines)
+            held.append(j)
+    return y, held
+
+
+def _against_chi2(d: float, rise: float, wall_sd: float) -> float:
+    """The chi-square of a piece's side standing on a wall d (m) from the side's fit, when holding it
+    on the wall's fitted offset raises the piece's chi-square by `rise` and the wall's offset has
+    its own standard deviation wall_sd (m): the two are one plane when their difference is within
+    both noises, d^2 / (var_side + var_wall), the side's variance being d^2 / rise (the piece's fit
+    is linear in its sides over a few centimetres). wall_sd is at least what the snapped line's
+    noise floor (LINE_SIGMA_FLOOR_PX) is in metres at the wall's foot: its stretches are one crease
+    and share that error (_refine_room)."""
+    if rise <= 0.0 or d == 0.0:
+        return max(rise, 0.0)
+    return d * d / (d * d / rise + wall_sd * wall_sd)
+
+
+def _box_edges(centre: np.ndarray, corners: np.ndarray, axes, top_only: bool) -> list[tuple[int, int]]:
+    """The edges (corner index pairs, corners indexed by bits: 0 along axes[0], 1 along axes[1] (up),
+    2 along axes[2]) of a box that border a face turned to the camera at `centre`; with top_only,
+    those of its top face (a desk: its slab's other edges depend on the assumed thickness)."""
+    out = []
+    for i in range(8):
+        for b in (1, 2, 4):
+            j = i | b
+            if j == i or (top_only and not (i & 2 and j & 2)):
+                continue
+            for c, ax in zip((1, 2, 4), axes):
+                if c == b:
+                    continue
+                normal = ax if i & c else -ax
+                if float((centre - corners[i]) @ normal) > 0:
+                    out.append((i, j))
+                    break
+    return out
+
+
+def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.ndarray, lo, hi, px_m: float) -> None:
+    """Refuse a footprint crossing a clicked wall by more than WALL_TOL_M + 3 px; put a side within
+    WALL_SNAP_M of one (or across it) against it (axis-aligned footprints), clicks only: with the
+    photo (P.edges) a side goes against a wall only by _hold_on_walls's chi-square test, and one
+    across a wall is put on it (a side the photo does not show, a sofa's seat under its back, is
+    no nearer a wall for being within WALL_SNAP_M of it when a pixel spans centimetres there).
+    px_m: metres on the floor per pixel at the footprint's clicks (far from the camera a pixel
+    spans centimetres)."""
+    tol, snap = WALL_TOL_M + 3 * px_m, WALL_SNAP_M
+    yaw_c, yaw_s = math.cos(yaw), math.sin(yaw)
+    e1, e2 = np.array([yaw_c, -yaw_s]), np.array([yaw_s, yaw_c])  # world (x, z) of local x, z
+    corners = np.array([x * e1 + z * e2 for x in xr for z in zr])
+    for k, axis in ((0, 0), (1, 2)):
+        for side, bound in ((-1, lo[axis]), (1, hi[axis])):
+            if not np.isfinite(bound):
+                continue
+            beyond = float(np.max(side * (corners[:, k] - bound)))
+            if beyond > tol:
+                face = FACES[(axis, side)]
+                raise P.err(where, f"the footprint crosses the {face} wall by {beyond:.2f} m: furniture stands "
+                                   "inside the room (check the floor corners and the walls' floor lines)")
+    if yaw != 0.0:
+        return
+    if P.edges is not None:
+        snap = 0.0
+    for rng, axis in ((xr, 0), (zr, 2)):
+        if np.isfinite(lo[axis]) and rng[0] - lo[axis] < snap:
+            rng[0] = lo[axis]
+        if np.isfinite(hi[axis]) and hi[axis] - rng[1] < snap:
+            rng[1] = hi[axis]
+
+
+def _box(name: str, yaw: float, xr, yr, zr) -> dict:
+    """A box entry from its local ranges (m) turned by yaw (rad)."""
+    e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
+    c = (sum(xr) / 2) * e1 + (sum(zr) / 2) * e2 + np.array([0, sum(yr) / 2, 0])
+    d = {"name": name, "type": "box", "role": "furniture", "center": c.tolist(),
+         "size": [float(xr[1] - xr[0]), float(yr[1] - yr[0]), float(zr[1] - zr[0])]}
+    if yaw != 0.0:
+        d["yaw_deg"] = math.degrees(yaw)
+    return d
+
+
+def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict[str, Wall]) -> list[dict]:
+    """A furniture click -> its boxes (a desk's top slab and legs, or one box)."""
+    kind = json_field(c, "kind", where + ".", P.src)
+    if kind not in FURNITURE_KINDS:
+        raise P.err(where, f"field 'kind' must be one of {', '.join(FURNITURE_KINDS)}, got {kind!r}")
+    uv = P.pixels(c, "floor", 3, where, nulls=True)
+    top_uv = P.pixels(c, "top", None, where)
+    if not np.isfinite(uv[0, 0]):
+        raise P.err(where, "floor[0] must be clicked: the top corner is the one straight above it")
+    f = np.array([_floor(P, uv[k], where, f"floor[{k}]") if np.isfinite(uv[k, 0]) else np.full(3, np.nan)
+                  for k in range(3)])
+    against = c.get("against")
+    if against is not None and against not in wall_of:
+        raise P.err(where, f"'against' must name a clicked wall ({', '.join(sorted(wall_of))}), got {against!r}")
+    yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where), wall_of.get(against))
+    # height: the vertical line over floor[0] nearest the top click's ray (least squares in h, s)
+    C, d = ray(P.camera, top_uv)
+    A = np.stack([np.array([0.0, 1.0, 0.0]), -d], axis=1)
+    (h, s), *_ = np.linalg.lstsq(A, C - f[0], rcond=None)
+    uv_line, z = P.camera.project((f[0] + [0.0, h, 0.0])[None])
+    miss = float(np.linalg.norm(uv_line[0] - top_uv)) if z[0] > 0 else math.inf
+    if not (h > 0 and s > 0 and miss <= TOP_MISS_PX):
+        raise P.err(where, f"top [{top_uv[0]:g}, {top_uv[1]:g}] is not straight above floor[0] (the vertical line "
+                           f"over it passes {miss:.0f} px away): click the top corner above floor[0]")
+    xr, zr, h = _refine_box(P.camera, yaw, xr, zr, float(h), f, uv, top_uv,
+                            against is not None and P.sizes(c, where) is None, (P, name, kind == "desk", lo, hi))
+    px_m = max(_pixel_metres(P, uv[k]) for k in range(3) if np.isfinite(uv[k, 0]))
+    _against_walls(P, where, yaw, xr, zr, lo, hi, px_m)
+    if h > hi[1] + WALL_TOL_M:
+        raise P.err(where, f"its top ({h:.2f} m) is above the ceiling ({hi[1]:.2f} m)")
+    h = float(min(h, hi[1]))
+    if kind == "box":
+        return [_box(name, yaw, xr, (0.0, h), zr)]
+    if h <= DESK_TOP_M + 0.01 or min(xr[1] - xr[0], zr[1] - zr[0]) < 2 * (DESK_LEG_M + DESK_LEG_INSET_M):
+        raise P.err(where, f"a desk {xr[1] - xr[0]:.2f} x {zr[1] - zr[0]:.2f} m and {h:.2f} m high is too small for "
+                           f"a {DESK_TOP_M * 100:g} cm top on legs: use kind 'box'")
+    out = [_box(f"{name}_top", yaw, xr, (h - DESK_TOP_M, h), zr)]
+    i0, i1 = DESK_LEG_INSET_M, DESK_LEG_INSET_M + DESK_LEG_M
+    k = 0
+    for lx in ((xr[0] + i0, xr[0] + i1), (xr[1] - i1, xr[1] - i0)):
+        for lz in ((zr[0] + i0, zr[0] + i1), (zr[1] - i1, zr[1] - i0)):
+            out.append(_box(f"{name}_leg{k}", yaw, lx, (0.0, h - DESK_TOP_M), lz))
+            k += 1
+    return out
