@@ -47,9 +47,29 @@ def furniture_groups(scene: dict) -> list[dict]:
     return out
 
 
-def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: int = 2) -> tuple[dict, dict]:
+def _unhidden(cam: Camera, scene: dict, g: dict, P: np.ndarray) -> np.ndarray:
+    """(m,) bool: furniture group g's corners P (m,3) that no piece hides (the true boxes: another
+    piece, or g's own box; a desk's own top slab), as recon/clickfurniture._shown judges them."""
+    from recon.clickbase import _Clicks
+    from recon.clickfurniture import _shown
+
+    boxes = [p for p in scene["primitives"] if p.get("role") == "furniture" and p["type"] == "box"]
+    desk = g["kind"] == "desk"
+    own = next(p for p in boxes if p["name"] == (g["name"] + "_top" if desk else g["name"]))
+    if not desk:  # the group's own box from the floor up, as the clicks model it
+        lo, hi = np.array([g["x"][0], 0.0, g["z"][0]]), np.array([g["x"][1], g["top"], g["z"][1]])
+        own = {"name": g["name"], "center": ((lo + hi) / 2).tolist(), "size": (hi - lo).tolist()}
+    others = [b for b in boxes if b["name"] != g["name"] and not b["name"].startswith(g["name"] + "_")]
+    return _shown(_Clicks(cam, "truth", None, others), g["name"], np.atleast_2d(P), own)
+
+
+def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: int = 2, seen_only: bool = False
+                ) -> tuple[dict, dict]:
     """(clicks dict with `wall_points` points on each wall's foot, what was clicked: {"walls": [faces], "ceiling": bool, "furniture": [names],
-    "quads": [names], "skipped": [names]}) for a benchmark scene.json dict."""
+    "quads": [names], "skipped": [names]}) for a benchmark scene.json dict. With `seen_only`, a
+    furniture corner another piece or the piece itself hides is not clicked either (as a user who
+    clicks only what they see: null, with the footprint's sizes in size_m, measured), and a piece
+    with no visible floor corner under its top click is skipped."""
     rng = np.random.default_rng(seed)
     mc = scene["main_camera"]
     cam = Camera.from_json(mc, "scene.json", "main_camera.")
@@ -88,7 +108,11 @@ def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: 
                 idx = [k, (k + step) % 4, (k + 2 * step) % 4]
                 top = ring[k] + [0, g["top"], 0]
                 vis = _visible(cam, ring[idx])
-                if not (vis[0] and vis.sum() >= 2 and _visible(cam, top[None])[0]):
+                top_vis = _visible(cam, top[None])[0]
+                if seen_only:
+                    vis = vis & _unhidden(cam, scene, g, ring[idx])
+                    top_vis = top_vis and bool(_unhidden(cam, scene, g, top)[0])
+                if not (vis[0] and vis.sum() >= 2 and top_vis):
                     continue
                 uv, _ = cam.project(ring[idx])
                 score = (int(vis.sum()), float(np.linalg.norm(uv[1] - uv[0]) + np.linalg.norm(uv[2] - uv[1])))

@@ -167,14 +167,20 @@ class _Clicks:
 
     def missing_end(self, where: str, known: float, size: np.ndarray | None, k: int, corners) -> float:
         """The end of a side no clicked corner pins: `known` -/+ size[k], whichever puts the unclicked
-        corners (callable end -> list of world points) out of the photo."""
+        corners (callable end -> list of world points) out of the photo; when both put them in it, the
+        corners are hidden (behind the piece, or another one): the end that puts them further from
+        the camera."""
         if size is None:
             raise self.err(where, "a side has no clicked corner (corners out of the photo are null): give its "
                                   "length in size_m, or the wall it stands against in 'against'")
-        ok = [e for e in (known - size[k], known + size[k]) if all(self.outside(X) for X in corners(e))]
+        ends = (known - size[k], known + size[k])
+        ok = [e for e in ends if all(self.outside(X) for X in corners(e))]
+        if not ok:
+            far = [float(np.mean([np.linalg.norm(X - self.camera.centre) for X in corners(e)])) for e in ends]
+            ok = [ends[int(np.argmax(far))]]
         if len(ok) != 1:
             raise self.err(where, "cannot tell on which side the corners out of the photo lie (size_m puts them "
-                                  f"{'in the photo both ways' if not ok else 'out of it both ways'}): click them")
+                                  "out of it both ways): click them")
         return float(ok[0])
 
 

@@ -125,7 +125,7 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
         if yaw == 0.0:
             # the sides a click the photo shows lies on (a corner no piece hides, nor the piece itself)
             own = slab(y) if desk else _box(name, yaw, *_slab_ranges(full(y), False))
-            shown = _shown(P, name, pts(y), own, not desk)
+            shown = _shown(P, name, pts(y), own)
             on = [(ix[k], iz[k]) for k in known] + [(ix[known[0]], iz[known[0]])]
             clicked = {j for ok, sides in zip(shown, on) if ok for j in sides}
             y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi, clicked)
@@ -181,37 +181,37 @@ def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np
     return y, kept
 
 
-def _shown(P: _Clicks, name: str, X: np.ndarray, own: dict, solid: bool) -> np.ndarray:
-    """(m,) bool: piece `name`'s clicked corners X (m,3) (its current fit, corners of the upright box
-    `own`) that the photo surely shows: the sight line from the camera to the corner meets no other
-    piece (the clicks-only model) grown by OCCLUDER_SHRINK_M, its click noise (a corner where two
-    pieces meet, a seat's top corner at the end of a sofa's back, is not surely shown), and, for a
-    `solid` piece, the corner is on a face of its own box turned to the camera (a convex box hides
-    its other corners); a desk's own top slab is tested as another piece (its floor corners are not
-    its corners)."""
+def _shown(P: _Clicks, name: str, X: np.ndarray, own: dict) -> np.ndarray:
+    """(m,) bool: piece `name`'s clicked corners X (m,3) (its current fit) that the photo surely
+    shows: the sight line from the camera to the corner meets no other piece (the clicks-only model)
+    grown by OCCLUDER_SHRINK_M, its click noise (a corner where two pieces meet, a seat's top corner
+    at the end of a sofa's back, is not surely shown); a corner on the piece's own box `own` (an
+    upright box entry: a box piece's, a desk's top slab) lies on a face of it turned to the camera (a
+    convex box hides its other corners), and one off it (a desk's floor corners) is not hidden by it
+    (grown as the others)."""
     from recon.clickedges import OCCLUDER_SHRINK_M
 
     others = [b for b in P.occluders if b["name"] != name and not b["name"].startswith(name + "_")]
     C = P.camera.centre
-    hidden = np.zeros(len(X), bool)
-    for b in others + ([] if solid else [own]):
+    R, c = _local_axes(own), np.asarray(own["center"], float)
+    h = np.asarray(own["size"], float) / 2
+    loc, eye = (X - c) @ R.T, R @ (C - c)
+    on_own = np.all(np.abs(loc) <= h + 1e-6, axis=1)
+    turned = np.zeros(len(X), bool)
+    for a in range(3):  # a corner is on the face of its end along axis a; turned when the eye is beyond it
+        turned |= np.sign(loc[:, a]) * eye[a] > h[a]
+    hidden = on_own & ~turned
+    for b in others + [own]:
         R, c = _local_axes(b), np.asarray(b["center"], float)
-        h = np.asarray(b["size"], float) / 2 + OCCLUDER_SHRINK_M
+        hb = np.asarray(b["size"], float) / 2 + OCCLUDER_SHRINK_M
         o, d = R @ (C - c), (X - C) @ R.T  # the segment C + t d, t in [0, 1], in the box's frame
         with np.errstate(divide="ignore", invalid="ignore"):
-            t1, t2 = (-h - o) / d, (h - o) / d
+            t1, t2 = (-hb - o) / d, (hb - o) / d
         par = d == 0  # parallel to a slab: inside it for every t, or never
-        lo_t = np.where(par, np.where(np.abs(o) <= h, -np.inf, np.inf), np.minimum(t1, t2)).max(axis=1)
-        hi_t = np.where(par, np.where(np.abs(o) <= h, np.inf, -np.inf), np.maximum(t1, t2)).min(axis=1)
-        hidden |= (lo_t <= hi_t) & (hi_t >= 0.0) & (lo_t <= 1.0)
-    if solid:
-        c, h = np.asarray(own["center"], float), np.asarray(own["size"], float) / 2
-        R = _local_axes(own)
-        loc, eye = (X - c) @ R.T, R @ (C - c)
-        turned = np.zeros(len(X), bool)
-        for a in range(3):  # a corner is on the face of its end along axis a; turned when the eye is beyond it
-            turned |= np.sign(loc[:, a]) * eye[a] > h[a]
-        hidden |= ~turned
+        lo_t = np.where(par, np.where(np.abs(o) <= hb, -np.inf, np.inf), np.minimum(t1, t2)).max(axis=1)
+        hi_t = np.where(par, np.where(np.abs(o) <= hb, np.inf, -np.inf), np.maximum(t1, t2)).min(axis=1)
+        hit = (lo_t <= hi_t) & (hi_t >= 0.0) & (lo_t <= 1.0)
+        hidden |= hit & ~on_own if b is own else hit
     return ~hidden
 
 
