@@ -248,8 +248,8 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
     room = {"name": "room", "type": "box", "role": "room", "center": ((lo + hi) / 2).tolist(),
             "size": (hi - lo).tolist(), "walls": wall_list}
     for name, sides in P.uncertain.items():
-        log.warning("%s: %s: %s pinned only to %s by its clicks and the photo (%s sigma): click its corners with care "
-                    "or give its sizes (size_m)", src, name, ", ".join(sides),
+        log.warning("%s: %s: %s pinned only to %s by its clicks and the photo (%s sigma): click its corners with care, "
+                    "a hidden one as null with the footprint's sizes in size_m", src, name, ", ".join(sides),
                     ", ".join(f"+-{Z99 * v * 100:.1f} cm" for v in sides.values()), f"{Z99:g}")
     return ClickModel([room] + prims, lo, hi, ceiling_from, guessed, P.refined if P.edges is not None else None,
                       P.uncertain if P.edges is not None else None)
