@@ -2,7 +2,7 @@
 
 usage: python bench/bench_clickmodel_unseen.py [--shared ../shared] [--seeds 1-20] [--noise 1.0]
        python bench/bench_clickmodel_unseen.py --rooms ~/.cache/photoar/rooms --only window_101,sun_102
-                                               [--draws 10] [--noise 1.0]
+                                               [--draws 10] [--noise 1.0] [--seen-only]
 
 With --rooms: rendered rooms (benchmark folders: scene.json, background.png; a name without a
 slash is a shared scene) are clicked with `--draws` noise seeds and modelled from the clicks alone
@@ -69,7 +69,7 @@ def _kind(item: str, done: dict) -> str:
             else "quad" if item in done["quads"] else "furniture")
 
 
-def rendered(rooms: Path, only: list[str], draws: int, noise: float) -> None:
+def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: bool = False) -> None:
     """Clicks only -> refined against the photo, per item kind, on rendered rooms."""
     import json
     import time
@@ -93,7 +93,7 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float) -> None:
         edges = EdgeImage(read_image_rgb(root / "background.png"))
         per: dict[str, list] = {}
         for seed in range(draws):
-            clicks, done = true_clicks(sc, sigma_px=noise, seed=seed)
+            clicks, done = true_clicks(sc, sigma_px=noise, seed=seed, seen_only=seen_only)
             ch = None if done["ceiling"] else sc["world"]["room_max"][1]
             try:
                 m0 = model_from_clicks(clicks, cam, name, ch)
@@ -133,9 +133,11 @@ def main() -> None:
     ap.add_argument("--rooms", type=Path, default=None, help="folder of rendered rooms (with --only)")
     ap.add_argument("--only", default="window_room,lamps_room,sun_room", help="rooms, comma-separated")
     ap.add_argument("--draws", type=int, default=10, help="noise seeds per rendered room")
+    ap.add_argument("--seen-only", action="store_true", help="with --rooms: click only the furniture corners no "
+                    "piece hides (hidden ones null, the footprint's sizes measured: bench/clicks_truth.py)")
     a = ap.parse_args()
     if a.rooms is not None:
-        rendered(a.rooms.expanduser(), [r for r in a.only.split(",") if r], a.draws, a.noise)
+        rendered(a.rooms.expanduser(), [r for r in a.only.split(",") if r], a.draws, a.noise, a.seen_only)
         return
     lo_s, _, hi_s = a.seeds.partition("-")
     seeds = range(int(lo_s), int(hi_s or lo_s) + 1)
