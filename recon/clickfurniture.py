@@ -72,8 +72,8 @@ def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, a
 
 
 def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: float, f: np.ndarray,
-                uv: np.ndarray, top_uv: np.ndarray, wall_end: bool, photo: tuple | None = None
-                ) -> tuple[np.ndarray, np.ndarray, float]:
+                uv: np.ndarray, top_uv: np.ndarray, wall_end: bool, photo: tuple | None = None,
+                sizes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
     """The footprint's ranges and height (yaw kept) whose clicked corners project nearest their
     clicks and the top corner nearest the top click, in pixels (_reproject_fit): the top click also
     pins floor[0]'s position, and a click's weight follows the metres its pixel spans. A side no
@@ -87,6 +87,15 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
     iz = {k: 2 + int(abs(f[k] @ e2 - zr[1]) < abs(f[k] @ e2 - zr[0])) for k in known}  # each range
     x0 = np.r_[xr, zr, h]
     active = sorted(set(ix.values()) | set(iz.values())) + [4]
+    if sizes is not None and not wall_end:  # measured sizes hold a range both of whose ends are clicked:
+        for j0 in (0, 2):  # its far end (from the camera) follows the near one
+            if j0 in active and j0 + 1 in active:
+                size = min(sizes, key=lambda v: abs(abs(x0[j0 + 1] - x0[j0]) - v))
+                axis_vec = e1 if j0 == 0 else e2
+                c = float(camera.centre @ axis_vec)
+                far = j0 if abs(c - x0[j0]) > abs(c - x0[j0 + 1]) else j0 + 1
+                x0[far] = x0[far ^ 1] + (size if far > far ^ 1 else -size)
+                active.remove(far)
 
     def full(y):
         x = x0.copy()
@@ -128,11 +137,12 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
             shown = _shown(P, name, pts(y), own)
             on = [(ix[k], iz[k]) for k in known] + [(ix[known[0]], iz[known[0]])]
             clicked = {j for ok, sides in zip(shown, on) if ok for j in sides}
-            y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi, clicked)
+            y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi, clicked, x0)
         words = ([f"{len(kept)} edges snapped"] if kept else []) + \
             [f"{SIDES[j]} side against the wall" for j in held]
         P.refined[name] = ", ".join(words) if words else "as clicked"
-        free = [k for k, j in enumerate(active) if j not in held]
+        free = [k for k, j in enumerate(active)  # a side following a held one is held too
+                if j not in held and not (j < 4 and (j ^ 1) in held and (j ^ 1) not in active)]
         if free:
             def sub(q, y=y, free=free):
                 out = y.copy()
@@ -222,7 +232,8 @@ def _local_axes(b: dict) -> np.ndarray:
 
 
 def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, uvs: np.ndarray, lines: list,
-                   lo: np.ndarray, hi: np.ndarray, clicked: set[int] = frozenset()) -> tuple[np.ndarray, list[int]]:
+                   lo: np.ndarray, hi: np.ndarray, clicked: set[int] = frozenset(), offsets: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, list[int]]:
     """An axis-aligned piece's fit y (its parameters `active` of [x min, x max, z min, z max, top])
     with each side that the clicks and snapped `lines` allow on a clicked wall put there: a side the
     photo shows (a snapped line on it, or a click on a corner of it no piece hides: `clicked`, its
@@ -241,16 +252,17 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
         bit, end = (1, 4)[j // 2], j % 2  # corner bits: bit 0 the x end, bit 2 the z end
         seen = j in clicked or any(max(L.i, L.j) < 8 and bool(L.i & bit) == end and bool(L.j & bit) == end
                                    for L in lines)
-        if j not in active or not np.isfinite(bound) or not seen:
+        if not np.isfinite(bound) or not seen or (j not in active and (j ^ 1) not in active):
             continue
-        k = active.index(j)
-        y1 = P.edges.held(y, k, float(bound), corners, pts, uvs, lines)
-        d, rise, wall_sd = float(y[k]) - float(bound), P.edges.chi2(y1, corners, pts, uvs, lines) - base, \
+        shift = 0.0 if j in active else float(offsets[j] - offsets[j ^ 1])  # a side following its partner
+        k = active.index(j if j in active else j ^ 1)
+        y1 = P.edges.held(y, k, float(bound) - shift, corners, pts, uvs, lines)
+        d, rise, wall_sd = float(y[k]) + shift - float(bound), P.edges.chi2(y1, corners, pts, uvs, lines) - base, \
             P.wall_sd.get((axis, side), 0.0)
         if _against_chi2(d, rise, wall_sd) <= CHI2_1DOF_99:
             if rise > 0.0 and wall_sd > 0.0:  # the one plane: the side's fit and the wall's, by their variances
                 var_s, var_w = d * d / rise, wall_sd * wall_sd
-                y1 = P.edges.held(y, k, float(bound) + d * var_w / (var_s + var_w), corners, pts, uvs, lines)
+                y1 = P.edges.held(y, k, float(bound) - shift + d * var_w / (var_s + var_w), corners, pts, uvs, lines)
             y, base = y1, P.edges.chi2(y1, corners, pts, uvs, lines)
             held.append(j)
     return y, held
@@ -357,7 +369,8 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
         raise P.err(where, f"top [{top_uv[0]:g}, {top_uv[1]:g}] is not straight above floor[0] (the vertical line "
                            f"over it passes {miss:.0f} px away): click the top corner above floor[0]")
     xr, zr, h = _refine_box(P.camera, yaw, xr, zr, float(h), f, uv, top_uv,
-                            against is not None and P.sizes(c, where) is None, (P, name, kind == "desk", lo, hi))
+                            against is not None and P.sizes(c, where) is None, (P, name, kind == "desk", lo, hi),
+                            P.sizes(c, where))
     px_m = max(_pixel_metres(P, uv[k]) for k in range(3) if np.isfinite(uv[k, 0]))
     _against_walls(P, where, yaw, xr, zr, lo, hi, px_m)
     if h > hi[1] + WALL_TOL_M:
