@@ -46,8 +46,8 @@ def test_model_clicks_writes_primitives_and_overlay(window_room_clicks, capsys):
     # with the photo the clicks were refined against its edges: the back wall's foot snapped
     refined = d["model"]["refined_from_photo"]
     assert set(refined) == {"left", "back", "desk", "window"} and refined["back"].endswith("snapped"), refined
-    # what the clicks and the photo pin worse than 3 cm (99 %) is listed: nothing in this draw (window_room's
-    # desk is, in 1 of tests/recon/test_clickmodel.py's 10 draws)
+    # what the clicks and the photo pin worse than 3 cm (99 %) is listed: nothing here (window_room's desk,
+    # held on its back wall, is in none of tests/recon/test_clickmodel.py's 10 draws)
     assert d["model"]["ill_determined"] == {}, d["model"]["ill_determined"]
     # the same clicks without --image: no overlay, no refinement: the clicks-only model
     rc = main(["-q", "model", "--clicks", str(tmp / "clicks.json"), "--camera", str(tmp / "camera.json"),
