@@ -78,9 +78,11 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
     clicks and the top corner nearest the top click, in pixels (_reproject_fit): the top click also
     pins floor[0]'s position, and a click's weight follows the metres its pixel spans. A side no
     clicked corner lies on keeps its distance to the opposite side (size_m), or its place with
-    `wall_end` (the wall the piece stands against). photo: (the _Clicks with the photo's edges, the
-    piece's name, is a desk): then the box's edges snapped to the photo join the fit
-    (recon/clickedges.py)."""
+    `wall_end` (the wall the piece stands against). `sizes` (size_m, m, measured with a tape: surer
+    than clicks a pixel of which spans centimetres far off) also hold a range both of whose ends are
+    clicked: its end further from the camera follows the nearer one. photo: (the _Clicks with the
+    photo's edges, the piece's name, is a desk, the room's lo, hi): then the box's edges snapped to
+    the photo join the fit (recon/clickedges.py)."""
     e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
     known = [k for k in range(3) if np.isfinite(f[k, 0])]
     ix = {k: int(abs(f[k] @ e1 - xr[1]) < abs(f[k] @ e1 - xr[0])) for k in known}  # each click's end of
@@ -90,7 +92,11 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
     if sizes is not None and not wall_end:  # measured sizes hold a range both of whose ends are clicked:
         for j0 in (0, 2):  # its far end (from the camera) follows the near one
             if j0 in active and j0 + 1 in active:
-                size = min(sizes, key=lambda v: abs(abs(x0[j0 + 1] - x0[j0]) - v))
+                end = ix if j0 == 0 else iz  # size_m: [|floor[0] floor[1]|, |floor[1] floor[2]|]
+                size = next((sizes[n] for n, (p, q) in enumerate(((0, 1), (1, 2)))
+                             if p in end and q in end and end[p] != end[q]), None)
+                if size is None:
+                    continue
                 axis_vec = e1 if j0 == 0 else e2
                 c = float(camera.centre @ axis_vec)
                 far = j0 if abs(c - x0[j0]) > abs(c - x0[j0 + 1]) else j0 + 1
