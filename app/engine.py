@@ -52,6 +52,7 @@ from app.runtime import split as split_launches  # the two-core split (sources: 
 from app.stages import precompute as scene_precompute
 from app.stages.compose import ComposeStage
 from app.stages.object_light import ObjectLight
+from app.stages.object_drag import DragObject
 from app.stages.object_shading import ObjectShading
 from app.stages.precompute import Precomputed, hash_scene as _hash_scene  # noqa: F401 (re-exported)
 from app.stages.receiver_map import ReceiverMap, receiver_map, reflectance
@@ -152,6 +153,10 @@ class Engine:
                                         r.recv_pix, r.rho_x, r.L_b, B_src, self.scene_occ, scene.response, cam, dev,
                                         sun_dir=sun_light.d if sun_light is not None else None)
         self._drag: dict[int, DragStages] = {}  # drag frames' coarse pixel stages, per scale (made on first use)
+        # drag frames shade the object and send its light from per-shape tables (app.stages.object_drag);
+        # False: as at rest (bench/bench_drag_object.py's A/B)
+        self.drag_object_tables = True
+        self.object_drag = DragObject(self.object_shading, dev)
         self.budget = FrameBudget()  # --fps: the measured frame cost
         self.frames_started = 0  # frames begun (render and refine): refine restarts after another
         self.refiner = Refiner(self._frame_steps, self.shadow_sources.traverse, self.shadow_sources.empty,
@@ -314,7 +319,11 @@ class Engine:
             sun_dB = -pm.albedo * sun_loss_c  # the object gathers it exactly (ObjectShading.vertex_radiance)
             t = tick("sun", t)
         shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_shadow, sun_dB)
-        if px is not self and sun is None and hits.hit.any():  # a drag frame: the vertex radiance of a near pose
+        tables = self.object_drag.shade(obj, shade_mesh, hits, dB_shadow, sun_dB) \
+            if px is not self and self.drag_object_tables else None  # None: not turned about +Y only
+        if tables is not None:
+            shaded = tables.shaded
+        elif px is not self and sun is None and hits.hit.any():  # a drag frame: the vertex radiance of a near pose
             # (with a sun the object's light changes sharply at the sunlit patch's edge: computed every frame)
             fresh = []
             vertex = px.near_pose("object radiance", lambda: (fresh.append(shade()) or (fresh[0].L_vert, None)),
@@ -325,14 +334,15 @@ class Engine:
         obj_rad = shaded.radiance
         if sun is not None:
             dB_shadow = dB_shadow + sun_dB
-            if shaded.L_vert is not None:  # sun: the outline where sunlight clips, sampled finely (full size)
+            if shaded.L_vert is not None and tables is None:  # sun: the outline where sunlight clips, sampled
+                # finely (full size; not while dragging from the tables)
                 sun.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
                                          shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip)
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres (app.stages.object_light)
-        R_pix, R_cen, R_cen_sun = self._object_light(px, obj, pv, pf, proxy_occ, centre, radius, cov_px, dB_shadow) \
-            if oc.object_light else (np.zeros((r.L_b.shape[0], 3)), np.zeros((pm.n_patches, 3)), None)
+        R_pix, R_cen, R_cen_sun = self._object_light(px, obj, pv, pf, proxy_occ, centre, radius, cov_px, dB_shadow,
+                                                     tables) if oc.object_light else (np.zeros((r.L_b.shape[0], 3)), np.zeros((pm.n_patches, 3)), None)
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)
@@ -381,18 +391,26 @@ class Engine:
             self._drag[drag] = DragStages(self, drag)
         return self._drag[drag]
 
-    def _object_light(self, px, obj: SceneObject, pv, pf, proxy_occ, centre, radius, cov, dB_shadow):
+    def _object_light(self, px, obj: SceneObject, pv, pf, proxy_occ, centre, radius, cov, dB_shadow, tables=None):
         """(R_pix (H*W,3), R_cen (P,3), R_cen_sun: R_cen's part from the sun alone or None): the light the
         object reflects, lit by the room's light B_obj + dB_shadow (and the sun: its sunlit parts light
-        the room too, as small pieces; SunStage.object_emitters)."""
+        the room too, as small pieces; SunStage.object_emitters). tables: a drag frame's DragShaded
+        (app.stages.object_drag): the coarse proxy's triangles, lit from its vertex radiance, send it."""
         ol, sun = px.object_light, self.sun_pixels.stage
+        covered = cov.reshape(-1) >= 1.0
+        if tables is not None:
+            cpv, cpf, cocc, tri_room, tri_sun = self.object_drag.proxy(tables.shaded.L_vert, tables.L_sun)
+            if tri_sun is None:
+                return (*ol.light(cpv, cpf, tri_room, cocc, centre, radius, covered), None)
+            R_pix, _ = ol.light(cpv, cpf, tri_room + tri_sun, cocc, centre, radius, covered, centres=False)
+            R_cen_room, R_cen_sun = ol.centre_light_parts(cpv, cpf, tri_room, tri_sun, cocc, centre, radius, None)
+            return R_pix, R_cen_room + R_cen_sun, R_cen_sun
         if px is self:
             tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
         else:  # a drag frame: the proxy's radiance of a pose near this one (DragStages.near_pose)
             tri_rad = px.near_pose("proxy light", lambda: ol.triangle_radiance(obj, pv, pf, proxy_occ,
                                                                                self.B_obj + dB_shadow),
                                    pv, pf, centre, self.params.object.volume_spacing)
-        covered = cov.reshape(-1) >= 1.0
         if sun is None:
             return (*ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered), None)
         room_tri_rad = tri_rad
