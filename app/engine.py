@@ -395,15 +395,15 @@ class Engine:
         """(R_pix (H*W,3), R_cen (P,3), R_cen_sun: R_cen's part from the sun alone or None): the light the
         object reflects, lit by the room's light B_obj + dB_shadow (and the sun: its sunlit parts light
         the room too, as small pieces; SunStage.object_emitters). tables: a drag frame's DragShaded
-        (app.stages.object_drag): the coarse proxy's triangles, lit from its vertex radiance, send it."""
+        (app.stages.object_drag): the proxy's triangles take its vertex radiance (no rays), and send it."""
         ol, sun = px.object_light, self.sun_pixels.stage
         covered = cov.reshape(-1) >= 1.0
         if tables is not None:
-            cpv, cpf, cocc, tri_room, tri_sun = self.object_drag.proxy(tables.shaded.L_vert, tables.L_sun)
+            tri_room, tri_sun = self.object_drag.proxy_radiance(pv, pf, tables.shaded.L_vert, tables.L_sun)
             if tri_sun is None:
-                return (*ol.light(cpv, cpf, tri_room, cocc, centre, radius, covered), None)
-            R_pix, _ = ol.light(cpv, cpf, tri_room + tri_sun, cocc, centre, radius, covered, centres=False)
-            R_cen_room, R_cen_sun = ol.centre_light_parts(cpv, cpf, tri_room, tri_sun, cocc, centre, radius, None)
+                return (*ol.light(pv, pf, tri_room, proxy_occ, centre, radius, covered), None)
+            R_pix, _ = ol.light(pv, pf, tri_room + tri_sun, proxy_occ, centre, radius, covered, centres=False)
+            R_cen_room, R_cen_sun = ol.centre_light_parts(pv, pf, tri_room, tri_sun, proxy_occ, centre, radius, None)
             return R_pix, R_cen_room + R_cen_sun, R_cen_sun
         if px is self:
             tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)

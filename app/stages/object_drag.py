@@ -18,9 +18,11 @@ up axis +Y keeps every table), and per frame only the room's light is looked up:
   frame: a translation casts none) x the room's shadow: the opening the sun comes through, per vertex
   (a plane and a quad: no ray), and what else blocks it, at the probes, interpolated.
 
-The object's light on the room uses a coarse proxy of DRAG_PROXY_FACES triangles whose radiance is the
-area-weighted mean of the shaded vertices nearest each (a sparse map made once per shape), with the
-room's and the sun's parts apart (the frame's later sun bounces need them).
+The object's light on the room: the frame's proxy (the same triangles as at rest) takes its triangles'
+radiance from the shaded vertices (the area-weighted mean of those nearest each, a sparse map made once per
+shape and proxy) instead of gathering the room at each triangle by rays, with the room's and the sun's parts
+apart (the frame's later sun bounces need them). A coarser proxy (48 triangles simplified from the shading
+mesh) was tried and not kept: facets near a contact sent several times the light (docs/benchmarks.md).
 
 Units: radiance; E as irradiance / pi, as in app.stages.object_shading.
 """
@@ -31,13 +33,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from kernels.buffers import Workspaces
 from kernels.formfactor import point_to_polygon
+from kernels.hit_average import hit_average
 from kernels.raycast import cast_rays
 from kernels.visibility import Occluder
 from lighting import sh
-from recon.proxy import simplify
 
 # Probes per axis of the grid over the object's box where the room's light is looked up: 3 (27 probes)
 # resolves a change across the box to second order (a light gradient, the sun patch's edge halfway up),
@@ -54,12 +57,15 @@ VIS_RES = 8
 # read the sun's edge across a face from it (the frame at rest casts a ray per hit there); 256 over the object's
 # extent puts a texel at ~4 mm on a 1 m chair, below a 640 px frame's pixel at 2 m.
 SUN_MAP_RES = 256
-# Triangles of the coarse proxy whose light the drag frame sends to the room ("a few dozen patches": issue 36):
-# the exact stage's cost grows with the proxy's triangles, the light's shape is kept at the scale of the box.
-DRAG_PROXY_FACES = 48
+# Proxy triangles whose centroids a shading vertex considers for its radiance (the nearest ones, the first
+# facing its way taken): a vertex's own triangle lies among the few nearest.
+PROXY_CANDIDATES = 8
 # The changed patches (the object's shadow) projected at the probes: those holding this share of the lost
 # power, at most DB_MAX of them (the frame at rest keeps the same 95 %: ObjectShading._vertex_radiance).
 DB_SHARE = 0.95
+# Bounding radii (nearest point of a patch to the object's centre) within which a changed patch's loss is
+# gathered with exact form factors at the vertices (app.stages.object_shading's DB_FAR, the same rule).
+DB_NEAR = 2.0
 KEY_OFFSET = 1.0 / 3.0  # DragObject.shape's key: coordinates to 10 um on a grid offset by a third of a step
 DB_MAX = 512
 
@@ -180,7 +186,36 @@ def disk_sh(probes: np.ndarray, centres: np.ndarray, normals: np.ndarray, areas:
     w = dv / np.maximum(r, 1e-9)[..., None]
     cos = -np.einsum("qmc,mc->qm", w, normals)
     omega = np.where(cos > 0, 2 * np.pi * (1 - r / np.sqrt(r * r + areas / np.pi)) * cos, 0.0)
-    return np.einsum("qmk,qm,mc->qkc", sh.basis(w), omega, np.asarray(radiance, np.float64))
+    Yw = sh.basis(w) * omega[..., None]  # (Q,M,9)
+    return np.matmul(Yw.transpose(0, 2, 1), np.asarray(radiance, np.float64))
+
+
+def fill_operator(faces: np.ndarray, missing: np.ndarray, n: int, rounds: int = 8) -> sp.csr_matrix:
+    """(n,n) sparse F with F @ values == app.stages.object_shading._fill_from_neighbours(values, faces, missing,
+    rounds) for every values (n,C): the same rings of neighbour means, as rows of weights (it is linear)."""
+    if not missing.any() or missing.all():
+        return sp.identity(n, format="csr")
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.concatenate([e, e[:, ::-1]])
+    known = ~missing
+    F = sp.identity(n, format="csr")
+    for _ in range(rounds):
+        src = known[e[:, 0]] & ~known[e[:, 1]]
+        if not src.any():
+            break
+        dst, frm = e[src, 1], e[src, 0]
+        cnt = np.bincount(dst, minlength=n)
+        S = sp.csr_matrix((1.0 / cnt[dst], (dst, frm)), shape=(n, n))  # duplicates summed, as np.add.at
+        new = cnt > 0
+        keep = sp.diags((~new).astype(np.float64))
+        F = (keep @ F + S @ F).tocsr()
+        known = known | new
+    if not known.all():
+        mean = sp.csr_matrix(np.where(known, 1.0 / known.sum(), 0.0)[None]) @ F
+        rows = np.flatnonzero(~known)
+        F = (sp.diags(known.astype(np.float64)) @ F + sp.csr_matrix(
+            (np.ones(len(rows)), (rows, np.zeros(len(rows), np.int64))), shape=(n, 1)) @ mean).tocsr()
+    return F
 
 
 class DragShape:
@@ -199,33 +234,46 @@ class DragShape:
         T, hit_face, _ = ss.transfer
         self.lu, self.nu = local[ss.uniq], normals[ss.uniq]
         self.vis = visibility_table(self.nu, hit_face[ss.uniq] < 0)
+        self.fill = fill_operator(faces, ss.buried, len(local))  # _fill_from_neighbours as one sparse product
         lo, hi = self.lu.min(0), self.lu.max(0)
         lo = lo + np.array([0.0, min(PROBE_LIFT, 0.5 * (hi[1] - lo[1])), 0.0])
         self.probes, self.weights = probe_grid(lo, hi, self.lu)
         self.own = Occluder(local, faces, device)  # for the sun's self-shadow, cast in this frame
         self._sun: dict[tuple, np.ndarray] = {}
-        # coarse proxy: each shading vertex to the nearest coarse triangle facing its way, area-weighted
-        pv, pf, _ = simplify(local, faces, DRAG_PROXY_FACES, max_faces=DRAG_PROXY_FACES)
-        self.proxy_v, self.proxy_f = pv, pf
-        tris = pv[pf]
+        self._to_proxy: tuple[str, sp.csr_matrix] | None = None  # (proxy key, its map) of the last proxy
+
+    def to_proxy(self, pv_local: np.ndarray, pf: np.ndarray) -> sp.csr_matrix:
+        """(T,V) sparse: the radiance of each triangle of a proxy (vertices pv_local (Tv,3) in this frame, faces
+        pf (T,3)) as the area-weighted mean of the shading vertices nearest it among those facing its way
+        (each vertex to the triangle whose centroid is nearest of those whose normal is within 90 deg of its
+        own; a triangle no vertex chose takes its nearest vertex's), made once per proxy."""
+        key = hashlib.sha1(np.floor(pv_local * 1e5 + KEY_OFFSET).tobytes() + np.ascontiguousarray(pf).tobytes()
+                           ).hexdigest()
+        if self._to_proxy is not None and self._to_proxy[0] == key:
+            return self._to_proxy[1]
+        local, normals, faces = self.local, self.normals, self.faces
+        tris = pv_local[pf]
         tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
         tc = tris.mean(1)
         fa = 0.5 * np.linalg.norm(np.cross(local[faces[:, 1]] - local[faces[:, 0]],
                                            local[faces[:, 2]] - local[faces[:, 0]]), axis=1)
         va = np.bincount(faces.ravel(), np.repeat(fa / 3.0, 3), len(local))
-        d = np.linalg.norm(local[:, None] - tc[None], axis=2)  # (V,Tc)
-        d_facing = np.where(normals @ tn.T > 0.0, d, np.inf)
-        best = np.where(np.isfinite(d_facing.min(1)), d_facing.argmin(1), d.argmin(1))
+        _, cand = cKDTree(tc).query(local, k=min(PROXY_CANDIDATES, len(tc)))
+        cand = cand.reshape(len(local), -1)  # nearest centroids first
+        facing = np.einsum("vc,vkc->vk", normals, tn[cand]) > 0.0
+        first = np.where(facing.any(1), facing.argmax(1), 0)
+        best = cand[np.arange(len(local)), first]
         M = sp.csr_matrix((va, (best, np.arange(len(local)))), shape=(len(pf), len(local)))
         rows = np.asarray(M.sum(1)).ravel()
-        empty = np.flatnonzero(rows <= 0)  # a coarse triangle no vertex chose: its nearest vertex's value
+        empty = np.flatnonzero(rows <= 0)
         if len(empty):
-            extra = sp.csr_matrix((np.ones(len(empty)), (empty, d[:, empty].argmin(0))), shape=M.shape)
-            M = M + extra
+            _, near = cKDTree(local).query(tc[empty])
+            M = M + sp.csr_matrix((np.ones(len(empty)), (empty, near)), shape=M.shape)
             rows = np.asarray(M.sum(1)).ravel()
-        self.to_proxy = sp.diags(1.0 / rows) @ M  # (Tc,V): L_vert -> the coarse triangles' radiance
-        self.proxy_occ: Occluder | None = None  # at the pose (posed by DragObject.proxy)
+        M = (sp.diags(1.0 / rows) @ M).tocsr()
+        self._to_proxy = (key, M)
+        return M
 
     def sun_map(self, d_local: np.ndarray) -> tuple:
         """The object's orthographic depth map toward the sun direction d_local (this frame), made once per
@@ -321,7 +369,7 @@ class DragObject:
               ) -> DragShaded | None:
         """The object's radiance at its camera hits from the per-shape tables (module docstring); None when
         the object is not turned about +Y only (the caller shades it as at rest)."""
-        from app.stages.object_shading import ShadedObject, _fill_from_neighbours
+        from app.stages.object_shading import ShadedObject
 
         yaw = yaw_of(obj.object_to_world)
         if yaw is None:
@@ -336,6 +384,7 @@ class DragObject:
         vu, nu = mean + ds.lu @ R.T, ds.nu @ R.T
         # ---- SH: the volume's indirect light and the object's shadow on the room, rotated into the object's frame
         L = rl.indirect_sh(probes)  # (Q,9,3)
+        near_light = None  # (patches, corners, centres, radiance change) of the near changed patches
         change = dB if dB is not None else None
         if sun_dB is not None:
             change = sun_dB if change is None else change + sun_dB
@@ -346,7 +395,17 @@ class DragObject:
             if len(order):
                 keep = int(np.searchsorted(np.cumsum(loss[order]), DB_SHARE * loss[order].sum())) + 1
                 k = order[:keep]
-                L = L + disk_sh(probes, pm.centre[k], pm.normal[k], pm.area[k], change[k])
+                # near the object (within DB_NEAR bounding radii of its centre) a patch is a polygon, its form
+                # factor exact at every vertex (the floor under the object fills half of a low vertex's view,
+                # which no disk at a probe resolves), farther a disk at the probes (SH)
+                centre = 0.5 * (vu.min(0) + vu.max(0))
+                radius = float(np.linalg.norm(vu - centre, axis=1).max())
+                near = np.linalg.norm(pm.centre[k] - centre, axis=1) - pm.radius[k] < DB_NEAR * radius
+                kn, kf = k[near], k[~near]
+                if len(kf):
+                    L = L + disk_sh(probes, pm.centre[kf], pm.normal[kf], pm.area[kf], change[kf])
+                if len(kn):
+                    near_light = (kn, pm.corners[kn], pm.centre[kn], change[kn])
         A = sh_yaw_matrix(yaw)
         Lc = np.einsum("kj,qjc->qkc", A, L)  # (Q,9,3) in the object's frame
         Lv = (ds.weights @ Lc.reshape(len(probes), 27)).reshape(-1, 9, 3)
@@ -365,6 +424,12 @@ class DragObject:
                                     workspace=self._ws.get("drag.probe_rays"))
             seen = (depth.reshape(dist.shape) >= dist * (1 - 1e-2) - 1e-2).astype(np.float64)  # (Q,G)
             E += (F * own * (ds.weights @ seen)) @ rad
+        if near_light is not None:  # the near changed patches: exact form factors x own visibility (no room's)
+            _, corners, cen, rad = near_light
+            F = point_to_polygon(vu, nu, corners, device=self.device, workspace=self._ws.get("drag.near_ff"),
+                                 capacity=DB_MAX)
+            own = np.take_along_axis(ds.vis, _octa_cell((cen[None] - vu[:, None]) @ R, VIS_RES), axis=1)
+            E += (F * own) @ rad
         # ---- the sun: cos x the object's own shadow (per shape and direction) x the room's at the probes
         E_sun = None
         sun_vis = None
@@ -385,48 +450,52 @@ class DragObject:
         L_room = albedo * np.maximum(E, 0.0)[ss.inv]
         L_sun = albedo * E_sun[ss.inv] if E_sun is not None else None
         L_vert = L_room + L_sun if L_sun is not None else L_room
-        L_vert = _fill_from_neighbours(L_vert, f, ss.buried)
+        L_vert = ds.fill @ L_vert
         if ss.bounce is not None:
-            L_vert = _fill_from_neighbours(L_vert + albedo * (ss.bounce @ L_vert), f, ss.buried)
+            L_vert = ds.fill @ (L_vert + albedo * (ss.bounce @ L_vert))
         if L_sun is not None:
-            L_sun = _fill_from_neighbours(L_sun, f, ss.buried)
-        if not hits.hit.any():
-            shaded = ShadedObject(np.zeros((hits.H, hits.W, 3)), L_vert, sun_vis)
-        else:
-            h = hits.hit
-            sub = np.zeros((len(h), 3))
-            corners = f[hits.tri[h]]
-            bary = hits.bary[h]
-            if L_sun is None:
-                sub[h] = np.einsum("nk,nkc->nc", bary, L_vert[corners])
-            else:  # the sun per camera hit (its edge across a face), the rest blended from the vertices
-                p = np.einsum("nk,nkc->nc", bary, v[corners])
-                nh = np.einsum("nk,nkc->nc", bary, n[corners])
-                nh /= np.maximum(np.linalg.norm(nh, axis=1, keepdims=True), 1e-12)
-                room_h = np.einsum("nk,nk->n", bary, room_u[ss.inv][corners])
-                cos = np.maximum(nh @ d, 0.0)
-                on = np.flatnonzero(cos > 0)
-                share_h = np.zeros(len(p))
-                if len(on):
-                    share_h[on] = cos[on] * ds.sun_lit_at((p[on] - mean) @ R, R.T @ d) * room_h[on] * \
-                        np.isfinite(osh.sun.exit_distance(p[on]))
-                sub[h] = np.einsum("nk,nkc->nc", bary, (L_vert - L_sun)[corners]) + \
-                    albedo * (share_h[:, None] * (osh.sun.sun.irradiance / np.pi))
-            shaded = ShadedObject(hits.average(sub), L_vert, sun_vis)
+            L_sun = ds.fill @ L_sun
+        add = colour = None
+        if L_sun is not None and hits.hit.any():  # the sun per camera hit (its edge across a face), the rest
+            # blended from the vertices
+            h = np.flatnonzero(hits.hit)
+            corners, bary = f[hits.tri[h]], hits.bary[h].astype(np.float64)
+            nh = np.einsum("nk,nkc->nc", bary, n[corners])
+            cos = np.maximum(nh @ d, 0.0) / np.maximum(np.linalg.norm(nh, axis=1), 1e-12)
+            on = np.flatnonzero(cos > 0)
+            add = np.zeros(len(hits.hit))
+            if len(on):
+                hk, ck, bk = h[on], corners[on], bary[on]
+                p = np.einsum("nk,nkc->nc", bk, v[ck])
+                room_h = np.einsum("nk,nk->n", bk, room_u[ss.inv][ck])
+                add[hk] = cos[on] * ds.sun_lit_at((p - mean) @ R, R.T @ d) * room_h * \
+                    np.isfinite(osh.sun.exit_distance(p))
+            colour = albedo * (osh.sun.sun.irradiance / np.pi)
+        radiance = hit_average(hits, f, L_vert - L_sun if L_sun is not None else L_vert, add, colour, self.device,
+                               self._ws.get("drag.hits"))
+        shaded = ShadedObject(radiance, L_vert, sun_vis)
         self.last = DragShaded(shaded, L_sun)
         return self.last
 
-    def proxy(self, L_vert: np.ndarray, L_sun: np.ndarray | None
-              ) -> tuple[np.ndarray, np.ndarray, Occluder, np.ndarray, np.ndarray | None]:
-        """(coarse proxy vertices (Tv,3) at the last shaded pose, faces (Tc,3), its Occluder, the room's part of
-        each triangle's radiance (Tc,3), the sun's part (Tc,3) or None) from the shaded vertex radiance."""
+    def proxy_radiance(self, pv: np.ndarray, pf: np.ndarray, L_vert: np.ndarray, L_sun: np.ndarray | None
+                       ) -> tuple[np.ndarray, np.ndarray | None]:
+        """(the room's part of each proxy triangle's radiance (T,3), the sun's part (T,3) or None) for the frame's
+        proxy (pv (Tv,3) at the last shaded pose, pf (T,3)) from the shaded vertex radiance: no rays."""
         ds = self._shape[1]
         _, R, mean = self._pose
-        pv = mean + ds.proxy_v @ R.T
-        if ds.proxy_occ is None:
-            ds.proxy_occ = Occluder(pv, ds.proxy_f, self.device)
-        else:
-            ds.proxy_occ.move(pv)
-        tri = ds.to_proxy @ L_vert
-        tri_sun = ds.to_proxy @ L_sun if L_sun is not None else None
-        return pv, ds.proxy_f, ds.proxy_occ, (tri - tri_sun if tri_sun is not None else tri), tri_sun
+        M = ds.to_proxy((pv - mean) @ R, pf)
+        tri = M @ L_vert
+        tri_sun = M @ L_sun if L_sun is not None else None
+        # a triangle facing a room surface closer than its own size (a foot's sole, a sphere's bottom on the floor)
+        # sees mostly the dark contact under it, which its vertices' SH light does not resolve: its light is
+        # scaled by that distance over its size (one ray along its normal; 0 at contact, whole from its size on)
+        t = pv[pf]
+        nt = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        size = np.sqrt(0.5 * np.linalg.norm(nt, axis=1))
+        nt /= np.maximum(2.0 * size[:, None] ** 2, 1e-18)
+        _, _, depth = cast_rays(self.shading.scene_occ, t.mean(1) + nt * 1e-4, nt,
+                                workspace=self._ws.get("drag.contact"))
+        k = np.minimum(np.maximum(depth.astype(np.float64), 0.0) / np.maximum(size, 1e-9), 1.0)[:, None]
+        tri = tri * k
+        tri_sun = tri_sun * k if tri_sun is not None else None
+        return (tri - tri_sun if tri_sun is not None else tri), tri_sun
