@@ -47,6 +47,7 @@ from app.config import (LIGHTING, SUN_SOURCES, EngineParams, FrameConfig, Lighti
                         ObjectConfig, PrecomputeConfig, ShadowConfig, SunSource)  # (re-exported)
 from app.dragframe import DragStages
 from app.frame_budget import FrameBudget
+from app.glue import KernelClock
 from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner  # noqa: F401 (re-exported)
 from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
 from app.stages import precompute as scene_precompute
@@ -156,7 +157,9 @@ class Engine:
         # drag frames shade the object and send its light from per-shape tables (app.stages.object_drag);
         # False: as at rest (bench/bench_drag_object.py's A/B)
         self.drag_object_tables = True
-        self.object_drag = DragObject(self.object_shading, dev)
+        rest = ~pm.is_emitter
+        self.object_drag = DragObject(self.object_shading, dev, (pm.area[rest] @ self.B_obj[rest]) / np.maximum(
+            pm.area[rest] @ B_src[rest], 1e-30))
         self.budget = FrameBudget()  # --fps: the measured frame cost
         self.frames_started = 0  # frames begun (render and refine): refine restarts after another
         self.refiner = Refiner(self._frame_steps, self.shadow_sources.traverse, self.shadow_sources.empty,
@@ -278,11 +281,16 @@ class Engine:
         # the sun's pass is always the full frame's (its shadow is hard-edged, and cheap at full size)
         pm, oc, r, sun = self.pre.patches, self.params.object, px.receivers, self.sun_pixels.stage
         timings: dict[str, float] = {}
+        glue: dict[str, float] = {}  # per stage its seconds outside Warp kernels (app.glue)
+        clock = KernelClock().__enter__()  # left on a frame abandoned mid-way: it then counts nothing that matters
         t_all = t = time.perf_counter()
+        k_last = [0.0]
 
         def tick(name: str, t: float) -> float:
             now = time.perf_counter()
             timings[name] = now - t
+            glue[name] = timings[name] - (clock.seconds - k_last[0])
+            k_last[0] = clock.seconds
             return now
 
         # ---- the object's shape: proxy and shading mesh (app.stages.object_shading)
@@ -366,9 +374,12 @@ class Engine:
             radiance, pixels, room = px.finish(room_c, cov, obj_rad, self._sun_share(sun_loss))
             tick("upsample", t)
         frame_s = time.perf_counter() - t_all
+        clock.__exit__(None, None, None)
         self.budget.measured(frame_s, timings["masks"], len(fs.eyes))
         self.last_shading = (shade_mesh, shaded.L_vert, obj.albedo, shaded.sun_vis) if hits.hit.any() else None
         stats = self._stats(fs, masks, frame_s, timings, len(pf), config.mode, sun is not None)
+        stats["glue"] = glue
+        stats["kernel_s"] = clock.seconds
         if calibration_s:
             stats["fps_calibration_s"] = calibration_s
         return Frame(radiance, pixels, stats, room, cov.astype(np.float32))
@@ -399,7 +410,7 @@ class Engine:
         ol, sun = px.object_light, self.sun_pixels.stage
         covered = cov.reshape(-1) >= 1.0
         if tables is not None:
-            tri_room, tri_sun = self.object_drag.proxy_radiance(pv, pf, tables.shaded.L_vert, tables.L_sun)
+            tri_room, tri_sun = self.object_drag.proxy_radiance(pv, pf, tables.L_proxy, tables.L_sun)
             if tri_sun is None:
                 return (*ol.light(pv, pf, tri_room, proxy_occ, centre, radius, covered), None)
             R_pix, _ = ol.light(pv, pf, tri_room + tri_sun, proxy_occ, centre, radius, covered, centres=False)

@@ -338,13 +338,18 @@ class DragShaded:
 
     shaded: object  # app.stages.object_shading.ShadedObject
     L_sun: np.ndarray | None
+    L_proxy: np.ndarray  # (V,3) the radiance the proxy sends to the room (DragObject.shade: a bounce fewer)
 
 
 class DragObject:
     """The drag frame's object shading and object proxy for one scene (built on an ObjectShading: its
     room light, emitters, sun and config)."""
 
-    def __init__(self, shading, device: str):
+    def __init__(self, shading, device: str, bounce_scale: np.ndarray | None = None):
+        """bounce_scale (3,): the room's indirect light one bounce fewer over the light the object is shaded
+        with (the object's light on the room is a bounce later: Engine.B_obj over B_src, area-weighted over
+        the non-emitting patches); the proxy's radiance takes the indirect part so scaled, and no self-bounce."""
+        self.bounce_scale = np.ones(3) if bounce_scale is None else np.asarray(bounce_scale, np.float64)
         self.shading, self.device = shading, device
         self._shape: tuple[str, DragShape] | None = None
         self.last: DragShaded | None = None
@@ -410,6 +415,7 @@ class DragObject:
         Lc = np.einsum("kj,qjc->qkc", A, L)  # (Q,9,3) in the object's frame
         Lv = (ds.weights @ Lc.reshape(len(probes), 27)).reshape(-1, 9, 3)
         E = np.einsum("uk,ukc->uc", ss.T, Lv)
+        E_proxy = E * self.bounce_scale  # the indirect a bounce fewer; the emitters' and the sun's as they are
         # ---- the exact emitters: form factors x own visibility by direction x the room's at the probes
         em, (start, polys) = osh.emitter_groups()
         if len(em):
@@ -423,13 +429,19 @@ class DragObject:
             _, _, depth = cast_rays(rl.occluder, np.repeat(probes, len(cen), 0), (dp / dist[..., None]).reshape(-1, 3),
                                     workspace=self._ws.get("drag.probe_rays"))
             seen = (depth.reshape(dist.shape) >= dist * (1 - 1e-2) - 1e-2).astype(np.float64)  # (Q,G)
-            E += (F * own * (ds.weights @ seen)) @ rad
-        if near_light is not None:  # the near changed patches: exact form factors x own visibility (no room's)
+            E_em = (F * own * (ds.weights @ seen)) @ rad
+            E += E_em
+            E_proxy += E_em
+        if near_light is not None:  # the near changed patches: exact form factors x own visibility (no room's), at
+            # the spread subset of vertices the frame at rest gathers them at, interpolated (ShapeShading.sub)
             _, corners, cen, rad = near_light
-            F = point_to_polygon(vu, nu, corners, device=self.device, workspace=self._ws.get("drag.near_ff"),
-                                 capacity=DB_MAX)
-            own = np.take_along_axis(ds.vis, _octa_cell((cen[None] - vu[:, None]) @ R, VIS_RES), axis=1)
-            E += (F * own) @ rad
+            sub = ss.sub
+            F = point_to_polygon(vu[sub], nu[sub], corners, device=self.device,
+                                 workspace=self._ws.get("drag.near_ff"), capacity=DB_MAX)
+            own = np.take_along_axis(ds.vis[sub], _octa_cell((cen[None] - vu[sub][:, None]) @ R, VIS_RES), axis=1)
+            E_near = ss.interpolate((F * own) @ rad)
+            E += E_near
+            E_proxy += E_near
         # ---- the sun: cos x the object's own shadow (per shape and direction) x the room's at the probes
         E_sun = None
         sun_vis = None
@@ -448,6 +460,7 @@ class DragObject:
             sun_vis = share[ss.inv]
         albedo = obj.albedo
         L_room = albedo * np.maximum(E, 0.0)[ss.inv]
+        L_proxy = ds.fill @ (albedo * np.maximum(E_proxy, 0.0)[ss.inv])
         L_sun = albedo * E_sun[ss.inv] if E_sun is not None else None
         L_vert = L_room + L_sun if L_sun is not None else L_room
         L_vert = ds.fill @ L_vert
@@ -474,7 +487,7 @@ class DragObject:
         radiance = hit_average(hits, f, L_vert - L_sun if L_sun is not None else L_vert, add, colour, self.device,
                                self._ws.get("drag.hits"))
         shaded = ShadedObject(radiance, L_vert, sun_vis)
-        self.last = DragShaded(shaded, L_sun)
+        self.last = DragShaded(shaded, L_sun, L_proxy + L_sun if L_sun is not None else L_proxy)
         return self.last
 
     def proxy_radiance(self, pv: np.ndarray, pf: np.ndarray, L_vert: np.ndarray, L_sun: np.ndarray | None

@@ -149,3 +149,32 @@ def test_fill_operator_is_fill_from_neighbours():
     for missing, rounds in ((v[:, 1] > 0.6, 8), (v[:, 1] > -0.5, 1)):
         F = fill_operator(f, missing, len(v), rounds)
         np.testing.assert_allclose(F @ values, _fill_from_neighbours(values, f, missing, rounds), atol=1e-12)
+
+
+def test_kernel_clock_counts_launches_once_and_only_on_its_thread():
+    # app.glue.KernelClock: a launch on the clock's thread is counted; launches that app.runtime runs in the
+    # pool are counted once, as the wait of the thread that made them (not twice, not per pooled thread);
+    # an inner clock takes its launches from the outer one; no clock, no count
+    from app.glue import KernelClock
+    from app.runtime import run
+    from kernels.formfactor import point_to_polygon
+
+    pts = np.random.default_rng(0).random((20000, 3)) * [1, 0, 1]
+    nrm = np.broadcast_to([0.0, 1.0, 0.0], pts.shape).copy()
+    poly = np.array([[[0, 1, 0], [0, 1, 1], [1, 1, 1], [1, 1, 0]]], float)
+    point_to_polygon(pts, nrm, poly, device="cpu")  # compiled before the clocks run
+    calls = []
+
+    with KernelClock() as outer:
+        point_to_polygon(pts, nrm, poly, device="cpu")
+        one = outer.seconds
+        assert one > 0
+        run([lambda: calls.append(point_to_polygon(pts, nrm, poly, device="cpu")) for _ in range(2)])
+        assert len(calls) == 2 and outer.seconds > one
+        before = outer.seconds
+        with KernelClock() as inner:
+            point_to_polygon(pts, nrm, poly, device="cpu")
+        assert inner.seconds > 0 and outer.seconds == before
+    after = outer.seconds
+    point_to_polygon(pts, nrm, poly, device="cpu")
+    assert outer.seconds == after
