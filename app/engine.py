@@ -327,8 +327,11 @@ class Engine:
             sun_dB = -pm.albedo * sun_loss_c  # the object gathers it exactly (ObjectShading.vertex_radiance)
             t = tick("sun", t)
         shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_shadow, sun_dB)
+        # a drag frame in a room no sun lights: the object from per-shape tables (None: not turned about +Y only);
+        # with a sun they are not used yet (sun_room / sun_101: the object's rmse against the truth 12-17 levels
+        # against 3.4-7.4 at rest, the energy of sun_101's drag row 1.12: docs/benchmarks.md)
         tables = self.object_drag.shade(obj, shade_mesh, hits, dB_shadow, sun_dB) \
-            if px is not self and self.drag_object_tables else None  # None: not turned about +Y only
+            if px is not self and self.drag_object_tables and sun is None else None
         if tables is not None:
             shaded = tables.shaded
         elif px is not self and sun is None and hits.hit.any():  # a drag frame: the vertex radiance of a near pose

@@ -190,32 +190,43 @@ def disk_sh(probes: np.ndarray, centres: np.ndarray, normals: np.ndarray, areas:
     return np.matmul(Yw.transpose(0, 2, 1), np.asarray(radiance, np.float64))
 
 
-def fill_operator(faces: np.ndarray, missing: np.ndarray, n: int, rounds: int = 8) -> sp.csr_matrix:
-    """(n,n) sparse F with F @ values == app.stages.object_shading._fill_from_neighbours(values, faces, missing,
-    rounds) for every values (n,C): the same rings of neighbour means, as rows of weights (it is linear)."""
-    if not missing.any() or missing.all():
-        return sp.identity(n, format="csr")
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.concatenate([e, e[:, ::-1]])
-    known = ~missing
-    F = sp.identity(n, format="csr")
-    for _ in range(rounds):
-        src = known[e[:, 0]] & ~known[e[:, 1]]
-        if not src.any():
-            break
-        dst, frm = e[src, 1], e[src, 0]
-        cnt = np.bincount(dst, minlength=n)
-        S = sp.csr_matrix((1.0 / cnt[dst], (dst, frm)), shape=(n, n))  # duplicates summed, as np.add.at
-        new = cnt > 0
-        keep = sp.diags((~new).astype(np.float64))
-        F = (keep @ F + S @ F).tocsr()
-        known = known | new
-    if not known.all():
-        mean = sp.csr_matrix(np.where(known, 1.0 / known.sum(), 0.0)[None]) @ F
-        rows = np.flatnonzero(~known)
-        F = (sp.diags(known.astype(np.float64)) @ F + sp.csr_matrix(
-            (np.ones(len(rows)), (rows, np.zeros(len(rows), np.int64))), shape=(n, 1)) @ mean).tocsr()
-    return F
+class FillOperator:
+    """app.stages.object_shading._fill_from_neighbours(values, faces, missing, rounds) for any values (n,C) as
+    `F @ values`: the rounds of neighbour means as one sparse matrix (it is linear), then the rows no round
+    reached set to the mean of the others (done at apply time: as matrix rows they would be dense)."""
+
+    def __init__(self, faces: np.ndarray, missing: np.ndarray, n: int, rounds: int = 8):
+        self.identity = not missing.any() or missing.all()
+        if self.identity:
+            return
+        e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+        e = np.concatenate([e, e[:, ::-1]])
+        known = ~missing
+        F = sp.identity(n, format="csr")
+        for _ in range(rounds):
+            src = known[e[:, 0]] & ~known[e[:, 1]]
+            if not src.any():
+                break
+            dst, frm = e[src, 1], e[src, 0]
+            cnt = np.bincount(dst, minlength=n)
+            S = sp.csr_matrix((1.0 / cnt[dst], (dst, frm)), shape=(n, n))  # duplicates summed, as np.add.at
+            F = (sp.diags((cnt == 0).astype(np.float64)) @ F + S @ F).tocsr()
+            known = known | (cnt > 0)
+        self.F, self.known = F, known
+        self.left = np.flatnonzero(~known)
+
+    def __matmul__(self, values: np.ndarray) -> np.ndarray:
+        if self.identity:
+            return values
+        out = self.F @ values
+        if len(self.left):
+            out[self.left] = out[self.known].mean(0)
+        return out
+
+
+def fill_operator(faces: np.ndarray, missing: np.ndarray, n: int, rounds: int = 8) -> FillOperator:
+    """FillOperator(faces, missing, n, rounds)."""
+    return FillOperator(faces, missing, n, rounds)
 
 
 class DragShape:
@@ -432,16 +443,23 @@ class DragObject:
             E_em = (F * own * (ds.weights @ seen)) @ rad
             E += E_em
             E_proxy += E_em
-        if near_light is not None:  # the near changed patches: exact form factors x own visibility (no room's), at
-            # the spread subset of vertices the frame at rest gathers them at, interpolated (ShapeShading.sub)
-            _, corners, cen, rad = near_light
-            sub = ss.sub
-            F = point_to_polygon(vu[sub], nu[sub], corners, device=self.device,
-                                 workspace=self._ws.get("drag.near_ff"), capacity=DB_MAX)
-            own = np.take_along_axis(ds.vis[sub], _octa_cell((cen[None] - vu[sub][:, None]) @ R, VIS_RES), axis=1)
-            E_near = ss.interpolate((F * own) @ rad)
-            E += E_near
-            E_proxy += E_near
+        if near_light is not None:  # the near changed patches: exact form factors x own visibility (no room's); the
+            # sun's loss (a large, sharp loss right beside the object) at every vertex, the rest at the spread subset
+            # of vertices the frame at rest gathers them at, interpolated (ShapeShading.sub), as at rest
+            kn, corners, cen, rad = near_light
+            sunny = np.abs(sun_dB[kn]).sum(1) > 0 if sun_dB is not None else np.zeros(len(kn), bool)
+            for part, rows in ((~sunny, ss.sub), (sunny, slice(None))):
+                if not part.any():
+                    continue
+                F = point_to_polygon(vu[rows], nu[rows], corners[part], device=self.device,
+                                     workspace=self._ws.get(f"drag.near_ff.{part is sunny}"), capacity=DB_MAX)
+                own = np.take_along_axis(ds.vis[rows], _octa_cell((cen[part][None] - vu[rows][:, None]) @ R, VIS_RES),
+                                         axis=1)
+                E_near = (F * own) @ rad[part]
+                if part is not sunny:
+                    E_near = ss.interpolate(E_near)
+                E += E_near
+                E_proxy += E_near
         # ---- the sun: cos x the object's own shadow (per shape and direction) x the room's at the probes
         E_sun = None
         sun_vis = None
