@@ -7,7 +7,8 @@ Per scene (a shared scene's name or a benchmark folder, e.g. ~/.cache/photoar/ro
 drag frame (FrameConfig(passes, drag=DRAG_SCALE)) with Engine.drag_object_tables True ("tables":
 app.stages.object_drag) and False ("rest": the object shaded and its light sent as at rest, the drag
 frame before) rendered alternately along a drag of --path poses (app.dragpath; the first pose excluded).
-Prints per configuration the path's mean object_shading / object_light / frame ms, and at the scene's own
+Prints per configuration the path's mean object_shading / object_light / frame ms and the frame's time outside
+Warp kernels ("python", app.glue), and at the scene's own
 pose the drag frame's error: rmse of the object's pixels (8-bit levels, pixels the all-sources frame covers
 fully) against the all-sources frame's, and the truth's rmse_object / rmse_affected / energy_ratio
 (lighting.metrics, tools/score.py's measures). Timings depend on the machine's load: compare the rows of one run.
@@ -65,6 +66,7 @@ def bench_scene(d: Path, n_path: int, passes: int, rounds: int = 2) -> dict:
         for k in ("object_shading", "object_light"):
             row[k + "_ms"] = 1e3 * float(np.mean([s["timings"][k] for s in st]))
         row["frame_ms"] = 1e3 * float(np.mean([s["frame_s"] for s in st]))
+        row["python_ms"] = 1e3 * float(np.mean([s["frame_s"] - s["kernel_s"] for s in st]))  # app.glue
     return out
 
 
@@ -81,10 +83,11 @@ def main() -> None:
         al = res["all_sources"]
         print(f"\n{res['scene']}: all sources rmse_object {al['rmse_object']:.2f}, rmse_affected "
               f"{al['rmse_affected']:.2f}, energy {al['energy_ratio']:.3f}")
-        print(f"{'object':>7} {'shading ms':>10} {'light ms':>9} {'frame ms':>9}  {'obj vs all':>10} "
+        print(f"{'object':>7} {'shading ms':>10} {'light ms':>9} {'frame ms':>9} {'python ms':>9}  {'obj vs all':>10} "
               f"{'rmse_obj':>8} {'rmse_aff':>8} {'energy':>7}")
         for name, r in res["rows"].items():
-            print(f"{name:>7} {r['object_shading_ms']:10.1f} {r['object_light_ms']:9.1f} {r['frame_ms']:9.1f}  "
+            print(f"{name:>7} {r['object_shading_ms']:10.1f} {r['object_light_ms']:9.1f} {r['frame_ms']:9.1f} "
+                  f"{r['python_ms']:9.1f}  "
                   f"{r['object_vs_all_sources']:10.2f} {r['rmse_object']:8.2f} {r['rmse_affected']:8.2f} "
                   f"{r['energy_ratio']:7.3f}")
         sys.stdout.flush()

@@ -159,23 +159,6 @@ def visibility_table(normals: np.ndarray, unblocked: np.ndarray, res: int = VIS_
     return np.where(cnt > 0, free / np.maximum(cnt, 1), 1.0).astype(np.float32)
 
 
-def probe_grid(lo: np.ndarray, hi: np.ndarray, points: np.ndarray, n: int = PROBES) -> tuple[np.ndarray, np.ndarray]:
-    """(probes (n^3,3) over the box lo..hi, trilinear weights (N,n^3) of the points (N,3), clamped into the box)."""
-    axes = [np.linspace(lo[a], hi[a], n) for a in range(3)]
-    probes = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    t = np.clip((points - lo) / np.maximum(hi - lo, 1e-12) * (n - 1), 0.0, n - 1)
-    i0 = np.minimum(np.floor(t).astype(np.int64), n - 2)
-    fr = t - i0
-    w = np.zeros((len(points), n ** 3))
-    rows = np.arange(len(points))
-    for corner in range(8):
-        bits = [(corner >> a) & 1 for a in range(3)]
-        wc = np.prod([fr[:, a] if b else 1.0 - fr[:, a] for a, b in enumerate(bits)], axis=0)
-        idx = ((i0[:, 0] + bits[0]) * n + i0[:, 1] + bits[1]) * n + i0[:, 2] + bits[2]
-        np.add.at(w, (rows, idx), wc)
-    return probes, w
-
-
 def disk_sh(probes: np.ndarray, centres: np.ndarray, normals: np.ndarray, areas: np.ndarray,
             radiance: np.ndarray) -> np.ndarray:
     """Radiance SH9 (Q,9,3) at the probes (Q,3) of patches as disks (centres, unit normals (M,3), areas (M,) m^2,
@@ -236,7 +219,7 @@ class DragShape:
     shadow per sun direction."""
 
     def __init__(self, local: np.ndarray, normals: np.ndarray, faces: np.ndarray, shading, device: str):
-        from app.stages.object_shading import ShapeShading
+        from app.stages.object_shading import ShapeShading, _probe_grid
 
         cfg = shading.config
         self.local, self.normals, self.faces = local, normals, faces
@@ -248,7 +231,7 @@ class DragShape:
         self.fill = fill_operator(faces, ss.buried, len(local))  # _fill_from_neighbours as one sparse product
         lo, hi = self.lu.min(0), self.lu.max(0)
         lo = lo + np.array([0.0, min(PROBE_LIFT, 0.5 * (hi[1] - lo[1])), 0.0])
-        self.probes, self.weights = probe_grid(lo, hi, self.lu)
+        self.probes, self.weights = _probe_grid(lo, hi, self.lu, PROBES)
         self.own = Occluder(local, faces, device)  # for the sun's self-shadow, cast in this frame
         self._sun: dict[tuple, np.ndarray] = {}
         self._to_proxy: tuple[str, sp.csr_matrix] | None = None  # (proxy key, its map) of the last proxy
