@@ -1,7 +1,8 @@
 """The object while dragging, from per-shape tables: its shading and its light on the room, no rays per vertex.
 
-Used by the drag frame only (FrameConfig.drag; app.engine); at rest app.stages.object_shading and
-app.stages.object_light run as before. Everything per vertex is computed once per object shape in the
+Used by the drag frame only (FrameConfig.drag; app.engine), and there only in rooms no sun lights (with a
+sun the object's error is not yet within bounds: docs/benchmarks.md "The object while dragging"); at rest
+app.stages.object_shading and app.stages.object_light run as before. Everything per vertex is computed once per object shape in the
 shape's own frame (canonical: centred, yaw 0; a pose that translates the object or turns it about the
 up axis +Y keeps every table), and per frame only the room's light is looked up:
 
