@@ -47,11 +47,13 @@ from app.config import (LIGHTING, SUN_SOURCES, EngineParams, FrameConfig, Lighti
                         ObjectConfig, PrecomputeConfig, ShadowConfig, SunSource)  # (re-exported)
 from app.dragframe import DragStages
 from app.frame_budget import FrameBudget
+from app.glue import KernelClock
 from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner  # noqa: F401 (re-exported)
 from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
 from app.stages import precompute as scene_precompute
 from app.stages.compose import ComposeStage
 from app.stages.object_light import ObjectLight
+from app.stages.object_drag import DragObject
 from app.stages.object_shading import ObjectShading
 from app.stages.precompute import Precomputed, hash_scene as _hash_scene  # noqa: F401 (re-exported)
 from app.stages.receiver_map import ReceiverMap, receiver_map, reflectance
@@ -152,6 +154,12 @@ class Engine:
                                         r.recv_pix, r.rho_x, r.L_b, B_src, self.scene_occ, scene.response, cam, dev,
                                         sun_dir=sun_light.d if sun_light is not None else None)
         self._drag: dict[int, DragStages] = {}  # drag frames' coarse pixel stages, per scale (made on first use)
+        # drag frames shade the object and send its light from per-shape tables (app.stages.object_drag);
+        # False: as at rest (bench/bench_drag_object.py's A/B)
+        self.drag_object_tables = True
+        rest = ~pm.is_emitter
+        self.object_drag = DragObject(self.object_shading, dev, (pm.area[rest] @ self.B_obj[rest]) / np.maximum(
+            pm.area[rest] @ B_src[rest], 1e-30))
         self.budget = FrameBudget()  # --fps: the measured frame cost
         self.frames_started = 0  # frames begun (render and refine): refine restarts after another
         self.refiner = Refiner(self._frame_steps, self.shadow_sources.traverse, self.shadow_sources.empty,
@@ -273,11 +281,16 @@ class Engine:
         # the sun's pass is always the full frame's (its shadow is hard-edged, and cheap at full size)
         pm, oc, r, sun = self.pre.patches, self.params.object, px.receivers, self.sun_pixels.stage
         timings: dict[str, float] = {}
+        glue: dict[str, float] = {}  # per stage its seconds outside Warp kernels (app.glue)
+        clock = KernelClock().__enter__()  # left on a frame abandoned mid-way: it then counts nothing that matters
         t_all = t = time.perf_counter()
+        k_last = [0.0]
 
         def tick(name: str, t: float) -> float:
             now = time.perf_counter()
             timings[name] = now - t
+            glue[name] = timings[name] - (clock.seconds - k_last[0])
+            k_last[0] = clock.seconds
             return now
 
         # ---- the object's shape: proxy and shading mesh (app.stages.object_shading)
@@ -314,7 +327,14 @@ class Engine:
             sun_dB = -pm.albedo * sun_loss_c  # the object gathers it exactly (ObjectShading.vertex_radiance)
             t = tick("sun", t)
         shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_shadow, sun_dB)
-        if px is not self and sun is None and hits.hit.any():  # a drag frame: the vertex radiance of a near pose
+        # a drag frame in a room no sun lights: the object from per-shape tables (None: not turned about +Y only);
+        # with a sun they are not used yet (sun_room / sun_101: the object's rmse against the truth 12-17 levels
+        # against 3.4-7.4 at rest, the energy of sun_101's drag row 1.12: docs/benchmarks.md)
+        tables = self.object_drag.shade(obj, shade_mesh, hits, dB_shadow, sun_dB) \
+            if px is not self and self.drag_object_tables and sun is None else None
+        if tables is not None:
+            shaded = tables.shaded
+        elif px is not self and sun is None and hits.hit.any():  # a drag frame: the vertex radiance of a near pose
             # (with a sun the object's light changes sharply at the sunlit patch's edge: computed every frame)
             fresh = []
             vertex = px.near_pose("object radiance", lambda: (fresh.append(shade()) or (fresh[0].L_vert, None)),
@@ -325,14 +345,15 @@ class Engine:
         obj_rad = shaded.radiance
         if sun is not None:
             dB_shadow = dB_shadow + sun_dB
-            if shaded.L_vert is not None:  # sun: the outline where sunlight clips, sampled finely (full size)
+            if shaded.L_vert is not None and tables is None:  # sun: the outline where sunlight clips, sampled
+                # finely (full size; not while dragging from the tables)
                 sun.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
                                          shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip)
         t = tick("object_shading", t)
 
         # ---- light the object reflects, onto pixels and patch centres (app.stages.object_light)
-        R_pix, R_cen, R_cen_sun = self._object_light(px, obj, pv, pf, proxy_occ, centre, radius, cov_px, dB_shadow) \
-            if oc.object_light else (np.zeros((r.L_b.shape[0], 3)), np.zeros((pm.n_patches, 3)), None)
+        R_pix, R_cen, R_cen_sun = self._object_light(px, obj, pv, pf, proxy_occ, centre, radius, cov_px, dB_shadow,
+                                                     tables) if oc.object_light else (np.zeros((r.L_b.shape[0], 3)), np.zeros((pm.n_patches, 3)), None)
         t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)
@@ -356,9 +377,12 @@ class Engine:
             radiance, pixels, room = px.finish(room_c, cov, obj_rad, self._sun_share(sun_loss))
             tick("upsample", t)
         frame_s = time.perf_counter() - t_all
+        clock.__exit__(None, None, None)
         self.budget.measured(frame_s, timings["masks"], len(fs.eyes))
         self.last_shading = (shade_mesh, shaded.L_vert, obj.albedo, shaded.sun_vis) if hits.hit.any() else None
         stats = self._stats(fs, masks, frame_s, timings, len(pf), config.mode, sun is not None)
+        stats["glue"] = glue
+        stats["kernel_s"] = clock.seconds
         if calibration_s:
             stats["fps_calibration_s"] = calibration_s
         return Frame(radiance, pixels, stats, room, cov.astype(np.float32))
@@ -381,18 +405,26 @@ class Engine:
             self._drag[drag] = DragStages(self, drag)
         return self._drag[drag]
 
-    def _object_light(self, px, obj: SceneObject, pv, pf, proxy_occ, centre, radius, cov, dB_shadow):
+    def _object_light(self, px, obj: SceneObject, pv, pf, proxy_occ, centre, radius, cov, dB_shadow, tables=None):
         """(R_pix (H*W,3), R_cen (P,3), R_cen_sun: R_cen's part from the sun alone or None): the light the
         object reflects, lit by the room's light B_obj + dB_shadow (and the sun: its sunlit parts light
-        the room too, as small pieces; SunStage.object_emitters)."""
+        the room too, as small pieces; SunStage.object_emitters). tables: a drag frame's DragShaded
+        (app.stages.object_drag): the proxy's triangles take its vertex radiance (no rays), and send it."""
         ol, sun = px.object_light, self.sun_pixels.stage
+        covered = cov.reshape(-1) >= 1.0
+        if tables is not None:
+            tri_room, tri_sun = self.object_drag.proxy_radiance(pv, pf, tables.L_proxy, tables.L_sun)
+            if tri_sun is None:
+                return (*ol.light(pv, pf, tri_room, proxy_occ, centre, radius, covered), None)
+            R_pix, _ = ol.light(pv, pf, tri_room + tri_sun, proxy_occ, centre, radius, covered, centres=False)
+            R_cen_room, R_cen_sun = ol.centre_light_parts(pv, pf, tri_room, tri_sun, proxy_occ, centre, radius, None)
+            return R_pix, R_cen_room + R_cen_sun, R_cen_sun
         if px is self:
             tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)
         else:  # a drag frame: the proxy's radiance of a pose near this one (DragStages.near_pose)
             tri_rad = px.near_pose("proxy light", lambda: ol.triangle_radiance(obj, pv, pf, proxy_occ,
                                                                                self.B_obj + dB_shadow),
                                    pv, pf, centre, self.params.object.volume_spacing)
-        covered = cov.reshape(-1) >= 1.0
         if sun is None:
             return (*ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered), None)
         room_tri_rad = tri_rad

@@ -15,8 +15,8 @@ pose (app.dragpath), rendered as drag frames (FrameConfig.drag = DRAG_SCALE: the
 resolution, app.dragframe, DRAG_PASSES passes) from the same precompute (the release at rest refines
 from the smallest pass budget given, as the GUI's slider sets it), and a row
 with "passes": "drag": that drag frame at the scene's own pose, scored like the others. The path's
-"stages_ms" has "python": the frame time less the sum of the timed stages (the glue between the
-stages, measured by subtraction; the stages' own numpy is inside their times).
+"stages_ms" has "python": the frame's time outside Warp kernels on the rendering thread, measured by
+timers around every launch (app.glue.KernelClock): the Python and numpy glue within and between the stages.
 evaluation.json gets "path": positions (N), passes, frame_s_mean and frame_s_p95 over frames
 2..N (the first frame pays one-off work: kernels, the object's shape), and the per-phase mean
 "stages_ms"; then the release at rest (drag_path): converge_s (to all-source quality against the
@@ -219,13 +219,15 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None, drag: int | 
 
 
 def path_stages_ms(all_stats: list[dict]) -> dict[str, float]:
-    """Per-stage mean milliseconds over frames (app.report.mean_stages_ms) and "python": the mean of
-    frame time less the sum of its timed stages, i.e. the Python/numpy glue between the stages,
-    measured by subtraction (the stages' own glue is inside their times)."""
+    """Per-stage mean milliseconds over frames (app.report.mean_stages_ms) and "python": the mean of the
+    frame's time outside Warp kernels on the rendering thread (app.glue.KernelClock: the Python and numpy glue,
+    within the stages and between them; stats["kernel_s"]), or, for frames without that measure, the frame
+    time less the sum of its timed stages."""
     from app.report import mean_stages_ms
 
     out = mean_stages_ms(all_stats)
-    out["python"] = 1e3 * float(np.mean([s["frame_s"] - sum(s.get("timings", {}).values()) for s in all_stats]))
+    out["python"] = 1e3 * float(np.mean([s["frame_s"] - s["kernel_s"] if "kernel_s" in s else
+                                         s["frame_s"] - sum(s.get("timings", {}).values()) for s in all_stats]))
     return out
 
 

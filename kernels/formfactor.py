@@ -94,11 +94,13 @@ def _point_to_polygon_kernel(
 
 
 def point_to_polygon(points: np.ndarray, normals: np.ndarray, polygons: np.ndarray,
-                     device: str | None = None) -> np.ndarray:
+                     device: str | None = None, workspace=None, capacity: int = 0) -> np.ndarray:
     """Unoccluded form factors from receiver points to convex polygons.
 
     points (N,3), normals (N,3) unit receiver normals, polygons (M,K,3) vertices in metres, emitting
-    on the side of (v1-v0)x(v2-v0). Returns (N,M) float64, dimensionless.
+    on the side of (v1-v0)x(v2-v0). Returns (N,M) float64, dimensionless. workspace: the call site's
+    kernels.buffers.Workspace (its buffers kept: nothing allocated once they hold the sizes asked), or None;
+    capacity: the polygons its buffers hold at least (a caller whose count varies from call to call).
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
@@ -111,6 +113,14 @@ def point_to_polygon(points: np.ndarray, normals: np.ndarray, polygons: np.ndarr
     if n == 0 or m == 0:
         return np.zeros((n, m), dtype=np.float64)
     device = runtime.device(device)
+    if workspace is not None:
+        out = workspace.buffer("ff", n, wp.float64, device, (max(m, capacity),))
+        wp.launch(_point_to_polygon_kernel, dim=(n, m),
+                  inputs=[workspace.upload("points", points, wp.vec3d, device),
+                          workspace.upload("normals", normals, wp.vec3d, device),
+                          workspace.upload("polys", polygons, wp.vec3d, device, capacity), polygons.shape[1]],
+                  outputs=[out.dev[:n, :m]], device=device)
+        return out.pull(n)[:, :m].copy()
     out = wp.zeros((n, m), dtype=wp.float64, device=device)
     wp.launch(_point_to_polygon_kernel, dim=(n, m),
               inputs=[wp.array(points, dtype=wp.vec3d, device=device),

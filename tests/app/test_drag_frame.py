@@ -118,8 +118,17 @@ def test_drag_frame_scores_near_the_all_sources_frame(shared_scenes_cache, room)
     s_drag = metrics.score_regions(drag.pixels, scene.photo, truth, mask)
     assert s_drag["rmse_affected"] <= 1.5 * s_all["rmse_affected"] + 0.5
     assert 0.93 <= s_drag["energy_ratio"] <= 1.07
-    # the object's own pixels are the full frame's (full resolution, the same shading)
     inside = same.coverage >= 1
+    if eng.sun_pixels.stage is None:
+        # the object from per-shape tables (app.stages.object_drag: SH9 at 27 probes, the self-visibility by
+        # 30-degree cells, no rays per vertex) within 3 levels rmse of the full frame's object pixels, i.e. a few
+        # per cent of the object's level, with no bias beyond 1 level (the room's light in SH9 errs by 1-3 %)
+        diff = drag.pixels[inside].astype(float) - same.pixels[inside]
+        assert np.sqrt(np.mean(diff ** 2)) <= 3.0 and abs(diff.mean()) <= 1.0
+        eng.drag_object_tables = False  # the object shaded as at rest: the frames below and their bound
+        drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
+        eng.drag_object_tables = True
+    # shaded as at rest (a room a sun lights always is), the object's own pixels are the full frame's
     assert np.abs(drag.pixels[inside].astype(int) - same.pixels[inside]).max() <= 1
     # where the drag frame moves a pixel by more than 2 levels, the full-resolution frame moves it or a pixel
     # within 2 working pixels (the bilinear footprint) by more than half a level

@@ -49,11 +49,15 @@ def test_evaluate_path_and_stage_table(tmp_path):
         assert 0 < sum(st.values()) <= 1e3 * r["frame_s"] + 1e-6
     assert set(p["stages_ms"]) >= {"masks", "compose"}
     # the drag frame (issue 36): a row at the scene's pose, and the path made of drag frames, whose stage
-    # table has the coarse room's upsampling and the glue between the stages ("python", by subtraction)
+    # table has the coarse room's upsampling and the glue ("python": the frame's time outside Warp kernels,
+    # app.glue): the timed stages make up the frame, the glue is part of it
     (drag,) = [r for r in ev["rows"] if r["passes"] == "drag"]
     assert drag["drag_scale"] == p["drag_scale"] == 2 and (out / "composite_drag.png").is_file()
-    assert {"upsample", "python"} <= set(p["stages_ms"]) and p["stages_ms"]["python"] >= -1e-6
-    assert sum(p["stages_ms"].values()) == pytest.approx(1e3 * rest.mean(), rel=1e-6)
+    assert {"upsample", "python"} <= set(p["stages_ms"])
+    stages = dict(p["stages_ms"])
+    glue = stages.pop("python")
+    assert sum(stages.values()) == pytest.approx(1e3 * rest.mean(), rel=1e-3)  # the ticks enclose the frame
+    assert 0 < glue < 1e3 * rest.mean()
     # at rest after the drag: refined to the all-sources frame (the "all" row) at the object's pose
     assert ev["converge_s"] == p["converge_s"] > 0 and p["converge_frames"] > 1
     assert 0 < p["release_frame_s"] < p["converge_s"] and "all-sources frame" in p["converge_measures"]

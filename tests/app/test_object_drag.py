@@ -1,0 +1,180 @@
+"""The drag frame's object from per-shape tables (app.stages.object_drag): SH rotation about +Y, the PRT
+transfer of a convex shape, the self-visibility table, the yaw read from a pose."""
+import numpy as np
+import pytest
+
+from app.stages.object_drag import (_fib_sphere, prt_directions, rot_y, sh_yaw_matrix, visibility_table,
+                                    yaw_of)
+from lighting import sh
+
+
+def _radiance(w: np.ndarray) -> np.ndarray:
+    """A test environment (N,3) at unit directions w (N,3): a sharp lobe, a broad one and a floor, per channel."""
+    a = np.array([0.3, 0.8, 0.52]) / np.linalg.norm([0.3, 0.8, 0.52])
+    b = np.array([-0.7, -0.2, 0.4]) / np.linalg.norm([-0.7, -0.2, 0.4])
+    lobe = np.maximum(w @ a, 0.0) ** 6
+    broad = np.exp(2.0 * (w @ b - 1.0))
+    return np.stack([lobe + 0.2, broad, lobe * broad + 0.5 * (w[:, 1] < 0)], 1)
+
+
+def _project(f, n: int = 40000) -> np.ndarray:
+    """SH9 coefficients (9,3) of f over n equal-area directions (quadrature error ~1e-4 for these lobes)."""
+    D = _fib_sphere(n)
+    return sh.project(D, f(D), np.full(n, 4 * np.pi / n))
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.4, -1.3, 2.9])
+def test_yaw_rotated_sh_is_the_sh_of_the_rotated_function(yaw):
+    # the coefficients of g(c) = f(R_y(yaw) c), projected directly, against sh_yaw_matrix(yaw) @ f's: equal
+    # within the quadrature's error (1e-3 of the largest coefficient); projection commutes with a rotation,
+    # so the identity is exact for any f, band-limited or not
+    R = rot_y(yaw)
+    f_c = _project(_radiance)
+    g_c = _project(lambda c: _radiance(c @ R.T))
+    rotated = sh_yaw_matrix(yaw) @ f_c
+    np.testing.assert_allclose(rotated, g_c, atol=1e-3 * np.abs(f_c).max())
+
+
+def test_yaw_matrices_compose_and_keep_the_zonal_terms():
+    # a turn by a then b is a turn by a + b; the up axis' zonal terms (l, m = 0 about +Y) never move; orthogonal
+    a, b = 0.7, -2.1
+    np.testing.assert_allclose(sh_yaw_matrix(a) @ sh_yaw_matrix(b), sh_yaw_matrix(a + b), atol=1e-12)
+    np.testing.assert_allclose(sh_yaw_matrix(0.0), np.eye(9), atol=1e-12)
+    A = sh_yaw_matrix(1.1)
+    np.testing.assert_allclose(A @ A.T, np.eye(9), atol=1e-12)
+    up = sh.basis(np.array([0.0, 1.0, 0.0]))  # a function of y alone: its projection is kept
+    np.testing.assert_allclose(A.T @ up, up, atol=1e-12)
+
+
+def _icosphere(level: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    t = (1 + 5 ** 0.5) / 2
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
+                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
+    f = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6],
+         [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10],
+         [8, 6, 7], [9, 8, 1]]
+    v = list(v / np.linalg.norm(v, axis=1, keepdims=True))
+    for _ in range(level):
+        mid: dict = {}
+        nf = []
+        for a, b, c in f:
+            def m(i, j):
+                k = (min(i, j), max(i, j))
+                if k not in mid:
+                    p = v[i] + v[j]
+                    v.append(p / np.linalg.norm(p))
+                    mid[k] = len(v) - 1
+                return mid[k]
+            ab, bc, ca = m(a, b), m(b, c), m(c, a)
+            nf += [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
+        f = nf
+    return np.array(v), np.array(f, np.int32)
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.9])
+def test_prt_of_a_convex_shape_gives_the_cosine_irradiance(yaw):
+    # a sphere of 0.3 m (convex: nothing of it hides the sky from its own vertices): its PRT transfer (the
+    # frame's kernels.shade.self_transfer, 128 cosine-distributed rays) in its own frame, under an environment
+    # turned into that frame by sh_yaw_matrix, gives irradiance / pi. Constant radiance L0: L0 exactly (to the
+    # rays' quadrature); a linear environment a + b.w: (pi a + 2 pi / 3 b.n) / pi at the world normal n, within
+    # 2 % of the constant term (128 stratified rays integrate a linear function to ~1e-3; the rest is rounding)
+    from kernels.shade import self_transfer
+    from kernels.visibility import Occluder
+
+    v, f = _icosphere(2)
+    v = v * 0.3
+    n = v / np.linalg.norm(v, axis=1, keepdims=True)
+    T, hit, _ = self_transfer(v, n, Occluder(v, f, "cpu"), 128, device="cpu")
+    assert (hit < 0).all()  # convex: every ray leaves
+    R = rot_y(yaw)
+    A = sh_yaw_matrix(yaw)
+    a, b = np.array([0.4, 1.0, 2.0]), np.array([[0.3, 0.1, -0.5], [0.2, 0.6, 0.1], [-0.4, 0.0, 0.3]])  # b[c] per channel
+    # the environment in world coordinates: L(w) = a + b w (coefficients: 4 pi C0 a and 4 pi / 3 C1 b)
+    L = np.zeros((9, 3))
+    L[0] = 4 * np.pi * sh.C0 * a
+    L[1], L[2], L[3] = (4 * np.pi / 3 * sh.C1 * b[:, k] for k in (1, 2, 0))
+    E = T.astype(np.float64) @ (A @ L)  # (V,3) at the vertices, in the sphere's frame
+    n_world = n @ R.T  # the sphere's vertices turned by yaw
+    expected = a + (2.0 / 3.0) * (n_world @ b.T)
+    np.testing.assert_allclose(E, expected, atol=0.02 * a.min())
+    L0 = np.zeros((9, 3))
+    L0[0] = 4 * np.pi * sh.C0 * a
+    np.testing.assert_allclose(T.astype(np.float64) @ (A @ L0), np.broadcast_to(a, E.shape), rtol=2e-3)
+
+
+def test_visibility_table_reads_the_prt_rays_by_direction():
+    # a vertex on a plane's top with a wall beside it: rays toward the wall's side are blocked; the table says 1
+    # above the open side and 0 toward the wall, and the directions it bins are self_transfer's own
+    from kernels.shade import self_transfer
+    from kernels.visibility import Occluder
+
+    # a floor point at the origin, a wall x = 0.05 from y = 0 up to 2 m, 4 m wide: blocks nearly all of +x's half
+    wall = np.array([[0.05, 0.0, -2.0], [0.05, 0.0, 2.0], [0.05, 2.0, 2.0], [0.05, 2.0, -2.0]])
+    p = np.array([[0.0, 0.0, 0.0]])
+    nrm = np.array([[0.0, 1.0, 0.0]])
+    occ = Occluder(wall, np.array([[0, 1, 2], [0, 2, 3]], np.int32), "cpu")
+    T, hit, _ = self_transfer(p, nrm, occ, 128, device="cpu")
+    D = prt_directions(nrm, 128)[0]
+    np.testing.assert_array_equal(hit[0] >= 0, (D[:, 0] > 0) & (D[:, 1] * 0.05 / np.maximum(D[:, 0], 1e-9) < 2.0)
+                                  & (np.abs(D[:, 2]) * 0.05 / np.maximum(D[:, 0], 1e-9) < 2.0))
+    tab = visibility_table(nrm, hit < 0)[0]
+    from app.stages.object_drag import VIS_RES, _octa_cell
+
+    toward_wall = _octa_cell(np.array([0.7, 0.3, 0.0]) / np.linalg.norm([0.7, 0.3, 0.0]), VIS_RES)
+    away = _octa_cell(np.array([-0.7, 0.3, 0.0]) / np.linalg.norm([-0.7, 0.3, 0.0]), VIS_RES)
+    assert tab[toward_wall] == 0.0 and tab[away] == 1.0
+
+
+def test_yaw_of_reads_a_placed_pose_and_refuses_a_tilt():
+    from app.placement import _rot_y
+
+    M = np.eye(4)
+    M[:3, :3] = _rot_y(37.0) * 1.7
+    M[:3, 3] = [1, 2, 3]
+    assert yaw_of(M) == pytest.approx(np.radians(37.0), abs=1e-12)
+    c, s = np.cos(0.2), np.sin(0.2)
+    M[:3, :3] = _rot_y(37.0) @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]])  # tilted about x
+    assert yaw_of(M) is None
+
+
+def test_fill_operator_is_fill_from_neighbours():
+    # the sparse operator gives _fill_from_neighbours' values for any values: a subdivided sphere with a cap of
+    # buried vertices (filled over rings), and with a far vertex left after one round (the known mean)
+    from app.stages.object_drag import fill_operator
+    from app.stages.object_shading import _fill_from_neighbours
+
+    v, f = _icosphere(3)
+    rng = np.random.default_rng(1)
+    values = rng.random((len(v), 3))
+    for missing, rounds in ((v[:, 1] > 0.6, 8), (v[:, 1] > -0.5, 1)):
+        F = fill_operator(f, missing, len(v), rounds)
+        np.testing.assert_allclose(F @ values, _fill_from_neighbours(values, f, missing, rounds), atol=1e-12)
+
+
+def test_kernel_clock_counts_launches_once_and_only_on_its_thread():
+    # app.glue.KernelClock: a launch on the clock's thread is counted; launches that app.runtime runs in the
+    # pool are counted once, as the wait of the thread that made them (not twice, not per pooled thread);
+    # an inner clock takes its launches from the outer one; no clock, no count
+    from app.glue import KernelClock
+    from app.runtime import run
+    from kernels.formfactor import point_to_polygon
+
+    pts = np.random.default_rng(0).random((20000, 3)) * [1, 0, 1]
+    nrm = np.broadcast_to([0.0, 1.0, 0.0], pts.shape).copy()
+    poly = np.array([[[0, 1, 0], [0, 1, 1], [1, 1, 1], [1, 1, 0]]], float)
+    point_to_polygon(pts, nrm, poly, device="cpu")  # compiled before the clocks run
+    calls = []
+
+    with KernelClock() as outer:
+        point_to_polygon(pts, nrm, poly, device="cpu")
+        one = outer.seconds
+        assert one > 0
+        run([lambda: calls.append(point_to_polygon(pts, nrm, poly, device="cpu")) for _ in range(2)])
+        assert len(calls) == 2 and outer.seconds > one
+        before = outer.seconds
+        with KernelClock() as inner:
+            point_to_polygon(pts, nrm, poly, device="cpu")
+        assert inner.seconds > 0 and outer.seconds == before
+    after = outer.seconds
+    point_to_polygon(pts, nrm, poly, device="cpu")
+    assert outer.seconds == after
