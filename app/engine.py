@@ -186,6 +186,7 @@ class Engine:
 
         emit = np.zeros(pre.patches.n_patches, bool)
         emit[self.room_light.emitters] = True
+        emit &= ~sunlit  # a sunlit patch fitted as a clipped region has the sun's model radiance: not scaled
         return local_light(pre.patches, pre.G_c, B_lit, emit, np.asarray(pre.origin) == PHOTO, sunlit), emit
 
     def _shadow_sources(self, B_src: np.ndarray):

@@ -19,10 +19,14 @@ multiplied by it. Where the fit is right s is ~1; the walls' fit, the albedo pri
 light away from the object are left as they are.
 
 Which patches: measured by the photo (not emitters, not clipped, not lit by the sun: a sunlit patch's
-L holds the sun, which E does not), within NEAR_RADII bounding radii of the object's centre, and at
-least MIN_PATCHES of them (the nearest, when fewer lie within): a surface's texture varies patch to
-patch by ~10 %, so one patch is no measurement and a dozen average it out (at the 0.2 m patches of a
-room, NEAR_RADII of a 0.3 m object's radius covers ~20 floor patches). The scale is clamped to
+L holds the sun, which E does not), closer to the object's centre than the nearest scaled emitter
+patch is, and than NEAR_RADII bounding radii: the fit's error is a wrong split between emitters, so
+its factor changes where the mix of emitters lighting a point changes, on the scale of the distance
+to them; within that distance the surfaces see the emitters much as the object does. The widest
+such disc is taken because a surface's texture varies by ~10 % from place to place (a floor brighter
+by 10 % over half a metre around the object in window_101) and only a wide disc averages it out. At
+least MIN_PATCHES patches (the nearest, when fewer lie within): one patch is no measurement. The
+scale is clamped to
 [1/MAX_SCALE, MAX_SCALE]: beyond that the patches say more about the model (a missing lamp, a surface
 modelled wrong) than about the emitters' split.
 """
@@ -49,13 +53,16 @@ class LocalLight:
     target: np.ndarray
     e_dir: np.ndarray
     e_ind: np.ndarray
+    emitter_centre: np.ndarray  # (m,3) m, the centres of the emitter patches the scale multiplies
 
     def scale(self, centre: np.ndarray, radius: float) -> float:
         """The emitter scale at an object with bounding sphere (centre, radius m); 1 with no patch."""
-        if len(self.centre) == 0:
+        if len(self.centre) == 0 or len(self.emitter_centre) == 0:
             return 1.0
-        d = np.linalg.norm(self.centre - np.asarray(centre, np.float64), axis=1)
-        near = np.flatnonzero(d <= NEAR_RADII * max(radius, 0.0))
+        centre = np.asarray(centre, np.float64)
+        reach = max(NEAR_RADII * max(radius, 0.0), float(np.linalg.norm(self.emitter_centre - centre, axis=1).min()))
+        d = np.linalg.norm(self.centre - centre, axis=1)
+        near = np.flatnonzero(d <= reach)
         if len(near) < MIN_PATCHES:
             near = np.argsort(d)[:MIN_PATCHES]
         den = float(np.sum(self.e_dir[near] ** 2))
@@ -80,7 +87,7 @@ def local_light(patches, G: np.ndarray, B: np.ndarray, emitters: np.ndarray, mea
     idx = np.flatnonzero(use)
     if len(idx) == 0:
         z = np.zeros(0)
-        return LocalLight(np.zeros((0, 3)), z, z, z)
+        return LocalLight(np.zeros((0, 3)), z, z, z, np.zeros((0, 3)))
     Bl = luminance(np.asarray(B, np.float64))
     Gi = np.asarray(G[idx], np.float64)
     em = np.zeros(P, bool)
@@ -98,4 +105,4 @@ def local_light(patches, G: np.ndarray, B: np.ndarray, emitters: np.ndarray, mea
         if m.sum() >= MIN_PATCHES:  # a surface with too few measured patches has no albedo of its own here
             rho[quad == q] = np.median(ratio[m])
     keep = np.isfinite(rho) & (rho > 0) & ok
-    return LocalLight(patches.centre[idx[keep]], L[keep] / rho[keep], e_dir[keep], e_ind[keep])
+    return LocalLight(patches.centre[idx[keep]], L[keep] / rho[keep], e_dir[keep], e_ind[keep], patches.centre[em])
