@@ -126,7 +126,8 @@ def main(scene_dir: str | Path, out: str | Path, params: EngineParams | None = N
         report["radiance_mesh"] = RadianceMesh(engine.pre.B[-1], engine.pre.albedo, engine.pre.origin,
                                              engine.pre.emitter).summary()
     if params.lighting == "photo":
-        report["photo_light"] = engine.photo_light
+        report["photo_light"] = {**engine.photo_light,
+                                 "emitter_scale_at_object": round(engine.object_shading.emitter_scale, 4)}
     with AtomicOutput(out) as stage:
         write_png(stage / "composite.png", pixels)
         write_exr(stage / "composite.exr", radiance)

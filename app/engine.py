@@ -146,10 +146,12 @@ class Engine:
         B_lit, near = self.sun.object_radiance(pre, B_src), self.sun.sunlit_patches()
         self.room_light = self._room_light(np.where(near[:, None], 0.0, B_lit) if near.any() else B_lit,
                                            oc.volume_spacing)  # SH9 volume of the indirect light
+        # photo light: the fitted emitters' strength at the object, read off the surfaces around it
+        local = self._local_light(pre, B_lit, near) if p.lighting == "photo" else None
         self.room_light.gather_exactly(near, B_lit)
         sun_light = self.sun.light if sp.pix is not None else None  # None: no sun lights the room
         self.object_shading = ObjectShading(oc, cam, self.cam_occ, self.scene_occ, pm, self.room_light, B_lit, dev,
-                                            sun=sun_light)
+                                            sun=sun_light, local_light=local)
         self.object_light = ObjectLight(oc, pm, pre.recv_vert, pre.pix_bary, r.pix_pos, r.pix_patch, r.pix_rows,
                                         r.recv_pix, r.rho_x, r.L_b, B_src, self.scene_occ, scene.response, cam, dev,
                                         sun_dir=sun_light.d if sun_light is not None else None)
@@ -183,6 +185,17 @@ class Engine:
         report = scene_precompute.fit_photo_light(pre, self.scene, self.params.bounces, priors)
         self.photo_light = {**report, **{k: v for k, v in self.photo_light.items() if k.startswith("declared")}}
         log.debug("photo light: %s", {k: v for k, v in self.photo_light.items() if k != "warnings"})
+
+    def _local_light(self, pre: Precomputed, B_lit: np.ndarray, sunlit: np.ndarray):
+        """Photo light: (lighting.photolocal.LocalLight, the emitter patches (P,) bool it scales: the room
+        light's, before the sunlit reflectors join them)."""
+        from lighting.photolocal import local_light
+        from lighting.radiance import PHOTO
+
+        emit = np.zeros(pre.patches.n_patches, bool)
+        emit[self.room_light.emitters] = True
+        emit &= ~sunlit  # a sunlit patch fitted as a clipped region has the sun's model radiance: not scaled
+        return local_light(pre.patches, pre.G_c, B_lit, emit, np.asarray(pre.origin) == PHOTO, sunlit), emit
 
     def _shadow_sources(self, B_src: np.ndarray):
         """The shaft hierarchy of the shadow sources (lighting.frame_sources), from the cache when there,

@@ -477,9 +477,11 @@ class ObjectShading:
     caches (proxy, shading mesh and BVHs; ShapeShading) and its kernels' buffers. Radiance units."""
 
     def __init__(self, config: ObjectConfig, camera, cam_occ: Occluder, scene_occ: Occluder, patches: PatchMesh,
-                 room_light: RoomLight, B_src: np.ndarray, device: str, sun: SunLight | None = None):
+                 room_light: RoomLight, B_src: np.ndarray, device: str, sun: SunLight | None = None,
+                 local_light: tuple | None = None):
         """cam_occ: the scene as the camera sees it (depth test); scene_occ: the room's occluder (shadows
-        of the changed patches); B_src (P,3): the room's radiance (the specular map)."""
+        of the changed patches); B_src (P,3): the room's radiance (the specular map); local_light: photo
+        light's (lighting.photolocal.LocalLight, emitter patches (P,) bool it scales), None: no scale."""
         self.config = config  # reassignable: its keys are part of the per-shape caches' keys
         self.camera, self.cam_occ, self.scene_occ, self.device = camera, cam_occ, scene_occ, device
         self.patches, self.room_light, self.B_src, self.sun = patches, room_light, B_src, sun
@@ -492,6 +494,8 @@ class ObjectShading:
         self._emitter_groups: tuple | None = None
         self._room_tris: list | None = None  # [occluder, its triangles, their _TriangleBoxes]
         self._no_room: Occluder | None = None  # an empty occluder: no room triangle in the way
+        self.local_light = local_light
+        self.emitter_scale = 1.0  # the last frame's photo-light emitter scale at the object (lighting.photolocal)
 
     def object_shape(self, obj: SceneObject):
         """(proxy vertices, proxy faces, proxy Occluder, shading mesh (v, n, f), shading-mesh Occluder)
@@ -581,7 +585,13 @@ class ObjectShading:
         touch = np.union1d(em, ch).astype(np.int64)  # the patches gathered exactly: where a vertex touches one,
         vg = lift_off_contacts(vg, ng, pm.centre[touch], pm.normal[touch], pm.radius[touch], 2e-3)  # from above
         E = np.zeros((len(vu), 3))
-        E[g] = ss.direct_sum(vg, ng, pm.corners[em], pm.normal[em], rl.radiance[em], [room, own], 2e-3,
+        rad_em = rl.radiance[em]
+        if self.local_light is not None:  # photo light: the emitters' strength the surfaces around it show
+            local, scalable = self.local_light
+            c = 0.5 * (vu.min(0) + vu.max(0))
+            self.emitter_scale = local.scale(c, float(np.linalg.norm(vu - c, axis=1).max()))
+            rad_em = np.where(scalable[em][:, None], self.emitter_scale * rad_em, rad_em)
+        E[g] = ss.direct_sum(vg, ng, pm.corners[em], pm.normal[em], rad_em, [room, own], 2e-3,
                              pair_split(self.device, len(em)), groups)
         sun_u = sun_vis = None
         if self.sun is not None:  # sun: direct, with the object's self-shadowing
