@@ -133,6 +133,11 @@ class ObjectConfig:
 # graded lattice (ShadowPass._run_graded)
 DRAG_SCALE = 2
 DRAG_PASSES = 64
+# How a drag frame computes the room's change (FrameConfig.drag_shadow): "maps" (clustered shadow maps,
+# DRAG_PASSES of them) or "spheres" (app.dragshadow: the object as spheres against the room's SH light and
+# its compact sources, no maps); evaluate and the GUI drag with this one
+DRAG_SHADOW = "maps"
+DragShadow = Literal["maps", "spheres"]
 
 
 @dataclass(frozen=True)
@@ -150,6 +155,9 @@ class FrameConfig:
     drag: int | None = knob(None, "drag frame: the room's change at 1/drag resolution each way, upsampled as the "
                                   "ratio to the photo; the object at full resolution (app.dragframe). None: the "
                                   "frame at full resolution (at rest)")
+    drag_shadow: DragShadow = knob("maps", "a drag frame's room change: maps (clustered shadow maps, `passes`) or "
+                                           "spheres (the object as spheres against the room's SH light, "
+                                           "app.dragshadow)")
 
     def __post_init__(self):
         check_literals(self)

@@ -213,3 +213,15 @@ class DragStages:
             levels[on] = mix
         pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8)
         return radiance.reshape(H, W, 3), pixels.reshape(H, W, 3), room.reshape(H, W, 3)
+
+
+def sphere_stages(engine, scale: int):
+    """The sphere drag frame's per-scene data of `engine` at 1/scale (app.dragshadow.SphereShadow, made on
+    the first frame and kept with the coarse stages; FrameConfig.drag_shadow "spheres")."""
+    from app.dragshadow import SphereShadow
+
+    key = ("spheres", scale)
+    if key not in engine._drag:
+        engine._drag[key] = SphereShadow(engine, scale)
+    return engine._drag[key]
+
