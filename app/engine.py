@@ -45,7 +45,7 @@ import numpy as np
 
 from app.config import (LIGHTING, SUN_SOURCES, EngineParams, FrameConfig, Lighting, Mode,  # noqa: F401
                         ObjectConfig, PrecomputeConfig, ShadowConfig, SunSource)  # (re-exported)
-from app.dragframe import DragStages, sphere_stages
+from app.dragframe import DragStages, sphere_stages, uses_spheres
 from app.frame_budget import FrameBudget
 from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner  # noqa: F401 (re-exported)
 from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
@@ -269,7 +269,7 @@ class Engine:
         calibration_s = 0.0
         if config.fps is not None and self.budget.cost is None and self.budget.override is None:
             calibration_s = self._calibrate(obj, config)
-        if config.drag is not None and config.drag_shadow == "spheres":  # no maps (app.dragshadow)
+        if uses_spheres(self, config):  # a drag frame with no shadow maps (app.dragshadow)
             return (yield from sphere_stages(self, config.drag).frame_steps(obj, config))
         px = self.pixel_stages(config.drag)  # the room's per-pixel stages: full resolution or the drag's coarse
         # the sun's pass is always the full frame's (its shadow is hard-edged, and cheap at full size)
