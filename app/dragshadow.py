@@ -36,9 +36,11 @@ CUBE_POWER = 4
 # Voxels along the object's longest side when its solid is sampled (solid_points): 1 cm for a 1 m chair, three
 # across its 3 cm legs
 VOXELS = 96
-# A part filling less of its ellipsoid of inertia than this is cut in two (fit_parts): a box fills 0.89 of
-# its own, a ball 1, an L of two equal bars about 0.5
+# A part whose ellipsoid of inertia is less than this share inside the object is cut in two (fit_parts): a
+# ball's is all inside, a box's about 0.75 (the ellipsoid reaches past its faces), half a ring's or an L's
+# much less (the hole, the corner's empty side)
 MIN_FILL = 0.6
+FILL_SAMPLES = 2000
 
 
 def solid_points(vertices: np.ndarray, faces: np.ndarray, lo: np.ndarray, side: float) -> np.ndarray:
@@ -75,15 +77,19 @@ def components(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
     return sorted(out, key=len, reverse=True)
 
 
-def _ellipsoid(pts: np.ndarray, half: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """(centre, axes (3,3), fill: the share of the ellipsoid's volume the points' voxels take) of points
-    (voxel centres, voxel side 2 half): the ellipsoid of inertia, semi-axes sqrt(5) sigma_i, at least half."""
+def _ellipsoid(pts: np.ndarray, half: float, inside) -> tuple[np.ndarray, np.ndarray, float]:
+    """(centre, axes (3,3), fill) of points (voxel centres, voxel side 2 half): the ellipsoid of inertia,
+    semi-axes sqrt(5) sigma_i, at least half; fill: the share of FILL_SAMPLES points spread evenly in it
+    (a fixed seed) that inside(points) (n,) bool finds in the object (a ring's half: its hole is empty)."""
     c = pts.mean(0)
     q = pts - c
     ev, vec = np.linalg.eigh(q.T @ q / len(pts))
     semi = np.maximum(np.sqrt(5.0 * np.maximum(ev, 0.0)), max(half, 1e-4))
-    fill = len(pts) * (2 * half) ** 3 / (4 / 3 * np.pi * np.prod(semi))
-    return c, vec * semi, float(fill)
+    A = vec * semi
+    u = np.random.default_rng(0).normal(size=(FILL_SAMPLES, 3))
+    u *= (np.random.default_rng(1).uniform(size=(FILL_SAMPLES, 1)) ** (1 / 3)) / np.linalg.norm(u, axis=1, keepdims=True)
+    fill = float(np.mean(inside(c + u @ A.T)))
+    return c, A, fill
 
 
 def fit_parts(vertices: np.ndarray, faces: np.ndarray, k: int = N_PARTS, seed: int = 0
@@ -91,14 +97,22 @@ def fit_parts(vertices: np.ndarray, faces: np.ndarray, k: int = N_PARTS, seed: i
     """(centres (k',3), axes (k',3,3): columns the semi-axes) of ellipsoids standing for a triangle mesh
     (m, its own frame) as an occluder. Each connected piece's solid (solid_points) is one part, its
     ellipsoid of inertia (Legendre's: the solid ellipsoid of the same centroid and second moments; a ball
-    is its own, a slab a flat one, a leg a needle); a part that fills less than MIN_FILL of its ellipsoid
+    is its own, a slab a flat one, a leg a needle); a part whose ellipsoid is less than MIN_FILL inside the object
     (an L, two legs joined by a rail) is cut in two by k-means, the worst first, while there are fewer than
     k parts (the largest pieces are kept whole when there are more pieces than k: the smallest are
     merged into their nearest part's points). A piece with no inside (open, paper-thin) stands for its
     vertices. k' <= k."""
+    import open3d as o3d
+
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces)
     half = float((v.max(0) - v.min(0)).max()) / VOXELS / 2
+    rs = o3d.t.geometry.RaycastingScene()
+    rs.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(f.astype(np.uint32)))
+
+    def inside(p: np.ndarray) -> np.ndarray:
+        return rs.compute_occupancy(o3d.core.Tensor(p.astype(np.float32))).numpy() > 0
+
     parts = []
     for comp in components(v, f):
         pts = solid_points(v, f[comp], lo=v.min(0), side=2 * half)
@@ -110,7 +124,7 @@ def fit_parts(vertices: np.ndarray, faces: np.ndarray, k: int = N_PARTS, seed: i
         c = small.mean(0)
         j = int(np.argmin([np.linalg.norm(p.mean(0) - c) for p in parts]))
         parts[j] = np.concatenate([parts[j], small])
-    fits = [_ellipsoid(p, half) for p in parts]
+    fits = [_ellipsoid(p, half, inside) for p in parts]
     while len(parts) < k:
         j = int(np.argmin([ft[2] for ft in fits]))
         if fits[j][2] >= MIN_FILL or len(parts[j]) < 8:
@@ -121,7 +135,7 @@ def fit_parts(vertices: np.ndarray, faces: np.ndarray, k: int = N_PARTS, seed: i
         for m in (lab == 0, lab == 1):
             if m.sum() >= 2:
                 parts.append(pts[m])
-                fits.append(_ellipsoid(pts[m], half))
+                fits.append(_ellipsoid(pts[m], half, inside))
     return np.array([ft[0] for ft in fits]), np.array([ft[1] for ft in fits])
 
 
@@ -244,10 +258,9 @@ class SphereShadow:
         room[self.pix] = self._Lb[self.pix] * np.maximum(rat[:n] + dE / np.maximum(self._E_x, 1e-12), 0.0)
         return room
 
-    def frame_steps(self, obj, config):
-        """Engine._frame_steps for a sphere drag frame (a generator with no yields, returns the Frame)."""
-        from app.engine import Frame
-
+    def frame_steps(self, obj, config, frame_type):
+        """Engine._frame_steps for a sphere drag frame (a generator with no yields, returns a frame_type:
+        app.engine.Frame, passed in: the engine imports this module)."""
         eng, px = self.engine, self.px
         sun, oc = eng.sun_pixels.stage, eng.params.object
         timings: dict[str, float] = {}
@@ -296,7 +309,7 @@ class SphereShadow:
         stats = {"frame_s": frame_s, "timings": timings, "n_sources": int(self.n_cells) + int(sun is not None),
                  "passes": int(sun is not None), "spheres": int(len(sc)), "mode": "hdr", "drag_shadow": "spheres",
                  "n_patches": int(pm.n_patches)}
-        return Frame(radiance, pixels, stats, room, cov.astype(np.float32))
+        return frame_type(radiance, pixels, stats, room, cov.astype(np.float32))
         yield  # a generator (Engine.render drives it)
 
     @staticmethod

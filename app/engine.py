@@ -270,7 +270,7 @@ class Engine:
         if config.fps is not None and self.budget.cost is None and self.budget.override is None:
             calibration_s = self._calibrate(obj, config)
         if uses_spheres(self, config):  # a drag frame with no shadow maps (app.dragshadow)
-            return (yield from sphere_stages(self, config.drag).frame_steps(obj, config))
+            return (yield from sphere_stages(self, config.drag).frame_steps(obj, config, Frame))
         px = self.pixel_stages(config.drag)  # the room's per-pixel stages: full resolution or the drag's coarse
         # the sun's pass is always the full frame's (its shadow is hard-edged, and cheap at full size)
         pm, oc, r, sun = self.pre.patches, self.params.object, px.receivers, self.sun_pixels.stage

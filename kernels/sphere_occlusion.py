@@ -27,8 +27,8 @@ point (an ambient cube per part); the caps' union as independent caps.
 
 ratio(x) = r0 (1 + reflected / E_x), r0 = 1 - (blocked_sh + blocked_compact) / E_x, per colour, clamped at 0:
 the parts' side facing x is lit by x's surroundings, which their shadow darkens by about r0 too (the object's
-shading, L_vert, sees the room unshadowed); E_x the point's whole light (with the sun's, which app.dragshadow takes at full resolution). Points with
-E_x = 0 keep 1.
+shading, L_vert, sees the room unshadowed); E_x the point's whole light (with the sun's, which
+app.dragshadow takes at full resolution). Points with E_x = 0 keep 1; a point inside a part gets 0.
 """
 from __future__ import annotations
 
