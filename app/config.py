@@ -136,11 +136,9 @@ DRAG_PASSES = 64
 # How a drag frame computes the room's change (FrameConfig.drag_shadow): "maps" (clustered shadow maps,
 # DRAG_PASSES of them), "spheres" (app.dragshadow: the object as ellipsoids against the room's SH light and
 # its compact sources, no maps) or "auto": spheres in a room no sun lights, else maps (app.dragframe.
-# uses_spheres). evaluate and the GUI drag with DRAG_SHADOW. "auto" is what the measurements support (the
-# sphere frame holds issue 36's error bound on the sunless rooms measured at 0.27-0.47 of the map frame's
-# time, and misses it in sunlit ones: docs/benchmarks.md "The sphere drag frame"); "maps" stays until the
-# evaluate tests that read the map frame's stages and pass counts (tests/app/test_dragpath.py) are
-# re-measured with it
+# uses_spheres). evaluate and the GUI drag with DRAG_SHADOW: maps, the only one within issue 36's error bound
+# on every room measured (the sphere frame holds it on window_room and lamps_room at 0.27-0.47 of the time and
+# misses it on sun_room and three unseen rooms: docs/benchmarks.md "The sphere drag frame")
 DRAG_SHADOW = "maps"
 DragShadow = Literal["maps", "spheres", "auto"]
 
