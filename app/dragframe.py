@@ -232,4 +232,3 @@ def sphere_stages(engine, scale: int):
     if key not in engine._drag:
         engine._drag[key] = SphereShadow(engine, scale)
     return engine._drag[key]
-

@@ -12,8 +12,8 @@ reference of `photoar reference` (`--reference-spp N`), else against the all-sou
 
 `--path N` adds a drag: N poses of the object along a straight line over the floor through its
 pose (app.dragpath), rendered as drag frames (FrameConfig.drag = DRAG_SCALE: the room at 1/2
-resolution, app.dragframe; DRAG_SHADOW: no maps where no sun lights the room, app.dragshadow, else
-DRAG_PASSES passes) from the same precompute (the release at rest refines
+resolution, app.dragframe; the room's change as DRAG_SHADOW says: maps, DRAG_PASSES of them, or the
+sphere frame of app.dragshadow) from the same precompute (the release at rest refines
 from the smallest pass budget given, as the GUI's slider sets it), and a row
 with "passes": "drag": that drag frame at the scene's own pose, scored like the others. The path's
 "stages_ms" has "python": the frame time less the sum of the timed stages (the glue between the
