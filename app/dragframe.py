@@ -213,3 +213,22 @@ class DragStages:
             levels[on] = mix
         pixels = np.clip(np.rint(levels), 0, 255).astype(np.uint8)
         return radiance.reshape(H, W, 3), pixels.reshape(H, W, 3), room.reshape(H, W, 3)
+
+
+def uses_spheres(engine, config) -> bool:
+    """Whether a frame of `config` is a sphere drag frame: a drag frame with drag_shadow "spheres", or
+    "auto" in a room no sun lights (config.DRAG_SHADOW's rule)."""
+    if config.drag is None:
+        return False
+    return config.drag_shadow == "spheres" or (config.drag_shadow == "auto" and engine.sun_pixels.stage is None)
+
+
+def sphere_stages(engine, scale: int):
+    """The sphere drag frame's per-scene data of `engine` at 1/scale (app.dragshadow.SphereShadow, made on
+    the first frame and kept with the coarse stages; FrameConfig.drag_shadow "spheres")."""
+    from app.dragshadow import SphereShadow
+
+    key = ("spheres", scale)
+    if key not in engine._drag:
+        engine._drag[key] = SphereShadow(engine, scale)
+    return engine._drag[key]

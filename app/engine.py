@@ -45,7 +45,7 @@ import numpy as np
 
 from app.config import (LIGHTING, SUN_SOURCES, EngineParams, FrameConfig, Lighting, Mode,  # noqa: F401
                         ObjectConfig, PrecomputeConfig, ShadowConfig, SunSource)  # (re-exported)
-from app.dragframe import DragStages
+from app.dragframe import DragStages, sphere_stages, uses_spheres
 from app.frame_budget import FrameBudget
 from app.glue import KernelClock
 from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner  # noqa: F401 (re-exported)
@@ -290,6 +290,8 @@ class Engine:
         calibration_s = 0.0
         if config.fps is not None and self.budget.cost is None and self.budget.override is None:
             calibration_s = self._calibrate(obj, config)
+        if uses_spheres(self, config):  # a drag frame with no shadow maps (app.dragshadow)
+            return (yield from sphere_stages(self, config.drag).frame_steps(obj, config, Frame))
         px = self.pixel_stages(config.drag)  # the room's per-pixel stages: full resolution or the drag's coarse
         # the sun's pass is always the full frame's (its shadow is hard-edged, and cheap at full size)
         pm, oc, r, sun = self.pre.patches, self.params.object, px.receivers, self.sun_pixels.stage

@@ -12,7 +12,8 @@ reference of `photoar reference` (`--reference-spp N`), else against the all-sou
 
 `--path N` adds a drag: N poses of the object along a straight line over the floor through its
 pose (app.dragpath), rendered as drag frames (FrameConfig.drag = DRAG_SCALE: the room at 1/2
-resolution, app.dragframe, DRAG_PASSES passes) from the same precompute (the release at rest refines
+resolution, app.dragframe; the room's change as DRAG_SHADOW says: maps, DRAG_PASSES of them, or the
+sphere frame of app.dragshadow) from the same precompute (the release at rest refines
 from the smallest pass budget given, as the GUI's slider sets it), and a row
 with "passes": "drag": that drag frame at the scene's own pose, scored like the others. The path's
 "stages_ms" has "python": the frame's time outside Warp kernels on the rendering thread, measured by
@@ -31,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.config import DRAG_PASSES, DRAG_SCALE  # the drag frame's settings
+from app.config import DRAG_PASSES, DRAG_SCALE, DRAG_SHADOW  # the drag frame's settings
 
 log = logging.getLogger("photoar")
 
@@ -85,7 +86,8 @@ def main(scene_dir: str | Path, out: str | Path, passes: list[int | None], param
     for n in order:
         frames[n] = engine.render(scene.obj, dataclasses.replace(engine.frame_config(), passes=n))
     finite = [n for n in passes if n is not None]
-    drag_cfg = dataclasses.replace(engine.frame_config(), passes=DRAG_PASSES, drag=DRAG_SCALE)
+    drag_cfg = dataclasses.replace(engine.frame_config(), passes=DRAG_PASSES, drag=DRAG_SCALE,
+                                   drag_shadow=DRAG_SHADOW)
     if path is not None:
         engine.render(scene.obj, drag_cfg)  # the drag stages made, kernels compiled: the row's time is a frame's
         frames["drag"] = engine.render(scene.obj, drag_cfg)
@@ -172,7 +174,7 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None, drag: int | 
     from app.dragpath import drag_offsets, moved
 
     offsets = drag_offsets(scene, scene.obj, n)
-    cfg = dataclasses.replace(engine.frame_config(), passes=passes, drag=drag)
+    cfg = dataclasses.replace(engine.frame_config(), passes=passes, drag=drag, drag_shadow=DRAG_SHADOW)
     before = engine.n_precompute
     stats = [engine.render(moved(scene.obj, o), cfg).stats for o in offsets]
     t0 = time.perf_counter()

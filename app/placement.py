@@ -34,7 +34,7 @@ from typing import Callable
 
 import numpy as np
 
-from app.config import DRAG_PASSES as DRAG_FRAME_PASSES, DRAG_SCALE
+from app.config import DRAG_PASSES as DRAG_FRAME_PASSES, DRAG_SCALE, DRAG_SHADOW
 
 from recon.scene import Scene, SceneError, SceneObject, furniture_boxes, load_mesh, load_scene
 from recon.io import read_json
@@ -482,7 +482,8 @@ class PlacementController:
             if self._config is None:
                 p = self.params
                 # with no settings given, frames while the object moves are drag frames (app.dragframe)
-                self._config = (FrameConfig(DRAG_FRAME_PASSES, "hdr", drag=DRAG_SCALE) if p is None
+                self._config = (FrameConfig(DRAG_FRAME_PASSES, "hdr", drag=DRAG_SCALE, drag_shadow=DRAG_SHADOW)
+                                if p is None
                                 else FrameConfig(p.passes, p.mode, p.fps))
             return self._config
 
