@@ -316,19 +316,20 @@ def _refine_camera(a, cam, prims, model, photo):
 
 
 def _camera_json(path: Path, cam) -> bytes:
-    """The user's camera.json with the camera scene uses (turned and/or refined: focal length, R, t,
-    centre) written in, other fields kept."""
+    """The user's camera.json with the camera scene uses (turned and/or refined: focal length,
+    principal point, R, t, centre) written in, other fields kept."""
     from recon.io import SceneError, dumps_json, read_json
 
     d = read_json(path, SceneError)
     block = next((d[k] for k in ("main_camera", "camera") if k in d), d)
     fx, fy = float(cam.K[0, 0]), float(cam.K[1, 1])
+    cx, cy = float(cam.K[0, 2]), float(cam.K[1, 2])  # refined too when calibrate took it from three VPs
     block.update({"R": cam.R.tolist(), "t": cam.t.tolist(), "centre": cam.centre.tolist()})
     if isinstance(block.get("K"), dict):
-        block["K"].update({"fx": fx, "fy": fy})
+        block["K"].update({"fx": fx, "fy": fy, "cx": cx, "cy": cy})
     elif "K" in block:
         block["K"] = cam.K.tolist()
-    for k, v in (("fx", fx), ("fy", fy)):
+    for k, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)):
         if k in block:
             block[k] = v
     if "K_matrix" in block:
