@@ -40,6 +40,10 @@ def register(sub) -> None:
     p.add_argument("--no-refine-camera", action="store_true",
                    help="keep --camera as it is; by default its pose and focal length are refined against the "
                         "photo's edges of the room (recon/camrefine.py), the camera height and the room held")
+    p.add_argument("--camera-edges", choices=("profiles", "lines"), default="profiles",
+                   help="how the refinement measures the room's edges in the photo: 'profiles' (each sample on "
+                        "its own, the default) or 'lines' (each edge as one line against the photo's own noise: "
+                        "for grainy photos; docs/unseen.md)")
     p.add_argument("--primitives", type=Path, required=True,
                    help="the room model: model.json of `photoar model`, primitives.json of `photoar reconstruct`, "
                         'or {"primitives": [...]} with a box of role "room" (docs/scene-format.md)')
@@ -305,7 +309,8 @@ def _refine_camera(a, cam, prims, model, photo):
         log.info("camera not refined: %s was clicked on the photo with this camera (no independent room "
                  "measurement)", a.primitives)
         return None
-    r = refine_camera(cam, prims, photo, read_json(a.camera, SceneError))
+    r = refine_camera(cam, prims, photo, read_json(a.camera, SceneError),
+                      fine_stage=getattr(a, "camera_edges", "profiles"))
     if r.accepted:
         log.info("camera refined against the room's edges: %s", r.summary())
     elif r.fits:
@@ -316,19 +321,20 @@ def _refine_camera(a, cam, prims, model, photo):
 
 
 def _camera_json(path: Path, cam) -> bytes:
-    """The user's camera.json with the camera scene uses (turned and/or refined: focal length, R, t,
-    centre) written in, other fields kept."""
+    """The user's camera.json with the camera scene uses (turned and/or refined: focal length,
+    principal point, R, t, centre) written in, other fields kept."""
     from recon.io import SceneError, dumps_json, read_json
 
     d = read_json(path, SceneError)
     block = next((d[k] for k in ("main_camera", "camera") if k in d), d)
     fx, fy = float(cam.K[0, 0]), float(cam.K[1, 1])
+    cx, cy = float(cam.K[0, 2]), float(cam.K[1, 2])  # refined too when calibrate took it from three VPs
     block.update({"R": cam.R.tolist(), "t": cam.t.tolist(), "centre": cam.centre.tolist()})
     if isinstance(block.get("K"), dict):
-        block["K"].update({"fx": fx, "fy": fy})
+        block["K"].update({"fx": fx, "fy": fy, "cx": cx, "cy": cy})
     elif "K" in block:
         block["K"] = cam.K.tolist()
-    for k, v in (("fx", fx), ("fy", fy)):
+    for k, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)):
         if k in block:
             block[k] = v
     if "K_matrix" in block:

@@ -104,6 +104,8 @@ def main(argv=None) -> int:
                     help="lights of the flow on the true camera (default %(default)s)")
     ap.add_argument("--no-declared-sun", action="store_true", help="skip the flow with the sun typed in")
     ap.add_argument("--no-known", action="store_true", help="skip the benchmark folder under known light")
+    ap.add_argument("--camera-edges", choices=("profiles", "lines"), default="profiles",
+                    help="scene's camera refinement: how it measures the room's edges (scene --camera-edges)")
     ap.add_argument("--keep", help="keep each room's work folders under this folder")
     ap.add_argument("--no-flow", action="store_true", help="only render (with --render)")
     ap.add_argument("--report", action="store_true",
@@ -166,7 +168,8 @@ def main(argv=None) -> int:
             row.update(run_room(folder, work, shared, lights=tuple(a.lights.split(",")),
                                 true_camera=not a.no_true_camera, known=not a.no_known,
                                 declared_sun=not a.no_declared_sun,
-                                true_lights=tuple(a.true_camera_lights.split(","))))
+                                true_lights=tuple(a.true_camera_lights.split(",")),
+                                scene_extra=("--camera-edges", a.camera_edges)))
         except Exception as e:  # a failing room is a row with its error, never dropped
             row["error"] = f"{type(e).__name__}: {e}"
             traceback.print_exc()

@@ -218,7 +218,8 @@ def _composite_argv(room: Path, out: Path, inp: dict, lighting: str, cache: Path
 
 
 def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"), true_camera: bool = True,
-             known: bool = True, declared_sun: bool = True, true_lights=("captured",)) -> dict:
+             known: bool = True, declared_sun: bool = True, true_lights=("captured",),
+             scene_extra: tuple[str, ...] = ()) -> dict:
     """The own-room flow on benchmark folder `root` (work files under `work`), every composite scored.
 
     calibrate (clicked lines + camera height) -> scene (tape room, geometry only; openings marked;
@@ -227,7 +228,8 @@ def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"),
     ('<light> true cam');
     with `declared_sun`, in a room with a sun, captured light with the sun typed in (--sun-direction,
     --sun-irradiance: the truth's) on the calibrated camera ('captured sun declared');
-    with `known` the benchmark folder itself under known light. Returns {"lights": {name: score or
+    with `known` the benchmark folder itself under known light; `scene_extra`: more `scene` arguments
+    for the calibrated camera's runs (e.g. --camera-edges lines; the true camera's rows stay as they are). Returns {"lights": {name: score or
     {"error"}}, "warnings": {step: [lines]}, "calibration": {...}, "spurious_floor", "seconds": {...}}."""
     import time
 
@@ -258,7 +260,7 @@ def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"),
         cams[" true cam"].write_text(json.dumps(benchmark_camera_json(inp["scene"])))
     for tag, cam in cams.items():
         room = work / f"room{tag.replace(' ', '_')}"
-        rc, err = step(f"scene{tag}", scene_argv(inp, room, cam))
+        rc, err = step(f"scene{tag}", scene_argv(inp, room, cam) + (list(scene_extra) if tag == "" else []))
         if rc == 0 and tag == "":  # the camera scene wrote (turned where it had to be) against the truth
             c = json.loads((room / "scene.json").read_text())["main_camera"]
             t = inp["scene"]["main_camera"]
@@ -287,7 +289,7 @@ def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"),
     sun = next((p for p in inp["scene"]["primitives"] if p["type"] == "sun"), None)
     if declared_sun and sun is not None and "" in cams:
         room = work / "room_sun"
-        rc, err = step("scene sun declared", scene_argv(inp, room, cams[""]) + [
+        rc, err = step("scene sun declared", scene_argv(inp, room, cams[""]) + list(scene_extra) + [
             f"--sun-direction={fmt(sun['direction_to_sun'])}", "--sun-irradiance",
             fmt(sun["irradiance_perpendicular"])])
         name = "captured sun declared"

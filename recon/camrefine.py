@@ -15,7 +15,9 @@ projected into the photo and aligned with the photo's edges:
    radius shrinks 64 -> 2 px;
 3. fine: each sample's edge is re-measured to sub-pixel accuracy as the centroid of the gradient
    profile across the projected edge (recon/edgesnap.py's gradient image, its clipped-pixel mask
-   and its centroid rule), and the fit repeated;
+   and its centroid rule), and the fit repeated; or, with fine_stage="lines" (not the default: see
+   docs/unseen.md), each edge is found as one line against the photo's own noise (recon/edgelines.py,
+   _line_stage);
 4. the clicked vanishing lines of calibrate (camera.json "vanishing_points": the segments it used)
    enter the same least squares with calibrate's residual (recon/vanishing._seg_residual);
 5. more starts (_centre_search): the clicked lines fix the rotation and focal length, not where the
@@ -57,12 +59,19 @@ COARSE_RADII_PX = (64.0, 32.0, 16.0, 8.0, 4.0, 2.0)  # match radius of the coars
 ROBUST_SIGMAS = 2.0  # the robust loss's scale, in sigmas of the stage's edge noise
 PROFILE_HALF_PX = 2.0  # the fine stage's search either side of the projected edge
 PROFILE_STEP_PX = 0.25
+FINE_STAGES = ("profiles", "lines")  # the sub-pixel stage: per sample (the default) or whole edges (edgelines)
+LINE_RADIUS_PX = 4.0  # the line stage's search either side of the projected edge: twice the coarse stage's
+# last match radius (2 px), which leaves each sample within 2 px of a photo edge, with room for the tilt
 FINE_SIGMA_PX = 0.3  # noise of a sub-pixel edge sample (edgesnap's spreads: 0.05-0.25 px)
 COARSE_SIGMA_PX = 1.0  # noise of a Canny edge pixel: quantised to 1 px
 SNAPPED_SIGMA_PX = 0.25  # a clicked line that calibrate snapped: edgesnap accepts spreads up to 0.25 px
 CLICKED_SIGMA_PX = 0.5  # a clicked line left as clicked: the click noise calibrate assumes
 CHAMFER_CAP_PX = 3.0  # edge residual: mean over samples of min(distance to the photo's edge, cap)
 MIN_SAMPLES = 60  # 10 per free parameter
+PP_PRIOR_REL = 0.01  # a freed principal point's prior: the image centre, 1 sigma = this fraction of the larger
+# image side (calibrate's own assumption, recon/vanishing.calibrate_lines pp_sigma_px): a principal point
+# shift and a small rotation move far edges alike, and in a noisy photo with few edges found the fit
+# trades one for the other
 EDGE_WEIGHT_SAMPLES = 20  # one edge's samples share its model error: it weighs at most this many (see _solve)
 MAX_PRED_STD_PX = 0.25  # conditioning: a 1-sigma parameter error may move the samples this much (rms)
 MIN_MOVE_PX = 1.0  # a refinement that moves the room's edges less (rms) is not made: the room model's own
@@ -334,10 +343,11 @@ class _Model:
     (m), log(f / f0)] about the input camera, and with `free_pp` the principal point's offset
     [du, dv] (px) after them."""
 
-    def __init__(self, cam: Camera, free_pp: bool = False):
+    def __init__(self, cam: Camera, free_pp: bool = False, pp_prior: bool = False):
         self.cam0 = cam
         self.C0 = cam.centre
         self.free_pp = free_pp
+        self.pp_prior = pp_prior  # a freed principal point held near the image centre (_solve, PP_PRIOR_REL)
         self.n = 8 if free_pp else 6
 
     def camera(self, x: np.ndarray) -> Camera:
@@ -361,13 +371,15 @@ def _project(cam: Camera, S: _Samples) -> tuple[np.ndarray, np.ndarray]:
     return uv, np.stack([-d[:, 1], d[:, 0]], 1)
 
 
-def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e: float, lines, f_scale: float):
-    """Least squares of the edge residuals n.(q - uv)/sig_e (robust: Cauchy at f_scale, whose pull of
-    a wrong match falls as 1/r, so texture matched at a wide radius hardly moves a camera that already
-    fits; soft-L1's pull stays constant and let such matches drag a true camera by 6 % of focal) and of the
-    clicked lines' residuals (calibrate's, normalised by their noise; not robust: calibrate kept only
-    the segments its own fit agreed with). Samples along one edge share its model error (texture,
-    the taped sizes): each edge weighs at most as much as EDGE_WEIGHT_SAMPLES independent samples."""
+def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lines, f_scale: float):
+    """Least squares of the edge residuals n.(q - uv)/sig_e (sig_e: px, one figure or one per sample;
+    robust: Cauchy at f_scale, whose pull of a wrong match falls as 1/r, so texture matched at a wide
+    radius hardly moves a camera that already fits; soft-L1's pull stays constant and let such matches
+    drag a true camera by 6 % of focal) and of the clicked lines' residuals (calibrate's, normalised by
+    their noise; not robust: calibrate kept only the segments its own fit agreed with), and, with
+    model.pp_prior and a free principal point, calibrate's prior on it (the image centre, PP_PRIOR_REL
+    of the larger side, 1 sigma). Samples along one edge share its model error (texture, the taped
+    sizes): each edge weighs at most as much as EDGE_WEIGHT_SAMPLES independent samples."""
     from scipy.optimize import least_squares
 
     from recon.vanishing import _seg_residual
@@ -375,8 +387,10 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e: flo
     segs, sig = lines
     idx = {"x": 0, "y": 1, "z": 2}
     _, inv, counts = np.unique(S.edge, return_inverse=True, return_counts=True)
-    w = np.sqrt(np.minimum(1.0, EDGE_WEIGHT_SAMPLES / counts[inv])) / sig_e
+    w = np.sqrt(np.minimum(1.0, EDGE_WEIGHT_SAMPLES / counts[inv])) / np.asarray(sig_e, float)
     ne = len(S.X)
+    pp0 = np.array([(model.cam0.width - 1) / 2.0, (model.cam0.height - 1) / 2.0])
+    pp_sig = PP_PRIOR_REL * max(model.cam0.width, model.cam0.height)
 
     def fun(x):
         cam = model.camera(x)
@@ -384,6 +398,8 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e: flo
         r = [np.sum(n * (q - uv), axis=1) * w]
         KR = cam.K @ cam.R
         r += [_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / sig[a] for a in segs]
+        if model.free_pp and model.pp_prior:  # calibrate's prior: the principal point near the image centre
+            r.append((cam.K[:2, 2] - pp0) / pp_sig)
         return np.concatenate(r)
 
     def loss(z):  # Cauchy on the edge samples, squares on the clicked lines (z = (r / f_scale)^2)
@@ -469,11 +485,12 @@ class _Fit:
     S: _Samples
     used: np.ndarray
     resid: np.ndarray
-    sigma: float
+    sigma: np.ndarray  # (used,) noise of each used sample, px
     start: str = "input"
 
 
-def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines) -> _Fit:
+def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines,
+         fine_stage: str = "profiles") -> _Fit:
     """ICP on the oriented Canny edges over the match radii `radii`, then the sub-pixel stage, from
     parameters x: the sub-pixel stage's fit (res None when it did not run)."""
     S = _sample_edges(model.camera(x), edges, occ)
@@ -491,6 +508,17 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
         res = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
+    fine = _line_stage(model, x, edges, occ, photo, lines) if fine_stage == "lines" else \
+        _profile_stage(model, x, edges, occ, photo, lines)
+    if fine is not None:
+        return fine
+    # no sub-pixel stage: res None (the guard reports too few edges, as for any fit that found too few)
+    S = _sample_edges(model.camera(x), edges, occ)
+    return _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), np.zeros(0))
+
+
+def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines) -> _Fit | None:
+    """The per-sample sub-pixel stage (edgesnap's centroid at every sample), three rounds."""
     S = _sample_edges(model.camera(x), edges, occ)
     fine = None
     for _ in range(3):
@@ -505,9 +533,76 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
         res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
         uv1, n1 = _project(model.camera(x), sub)
-        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), FINE_SIGMA_PX)
-    # no sub-pixel stage: res None (the guard reports too few edges, as for any fit that found too few)
-    return fine if fine is not None else _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), FINE_SIGMA_PX)
+        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX))
+    return fine
+
+
+def _line_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines) -> _Fit | None:
+    """The sub-pixel stage on whole edges (recon/edgelines.py), three rounds: each room edge's line is
+    found near its projection (+-LINE_RADIUS_PX, significance against the photo's own noise); its
+    samples are matched to the points of that line, each with the noise
+    sqrt(FINE_SIGMA_PX^2 + n_eff sigma_line^2): the room model's own error per sample, as in the
+    profile stage, plus the line's measured noise (sigma_line: its mean offset's, px) spread over the
+    n_eff = min(samples, EDGE_WEIGHT_SAMPLES) samples the edge weighs in _solve, so a faint edge in
+    grain weighs what its measurement is worth and a clean edge weighs as in the profile stage. The
+    samples of an edge not found as a line keep edgesnap's per-sample rule (the profile stage's, at
+    FINE_SIGMA_PX) where the sample's gradient peak stands out of its edge strip's measured noise
+    (edgelines.significance_z over the profile's positions): a short or partly hidden edge still counts
+    where its profiles are clean, not where they are grain."""
+    from recon.edgelines import find_line, gradient_noise, significance_z
+
+    S = _sample_edges(model.camera(x), edges, occ)
+    fine = None
+    E = photo.fine
+    for _ in range(3):
+        if len(S.X) < MIN_SAMPLES:
+            break
+        uv, n = _project(model.camera(x), S)
+        q = np.full_like(uv, np.nan)
+        sig = np.zeros(len(uv))
+        noise = np.full(len(uv), np.inf)  # gradient noise of each sample's edge strip (inf: not measured)
+        iu = np.clip(np.rint(uv).astype(int), 0, [E.shape[1] - 1, E.shape[0] - 1])
+        clear = ~E.near_clip[iu[:, 1], iu[:, 0]]  # edgesnap's rule: clipping moves an edge by up to 0.5 px
+        for e in np.unique(S.edge):
+            m = np.flatnonzero((S.edge == e) & clear)
+            if len(m) < 2:
+                continue
+            ne = n[m].mean(axis=0)
+            ne /= np.linalg.norm(ne)
+            along = uv[m] @ np.array([-ne[1], ne[0]])
+            span = along.max() - along.min()
+            if not span > 0:
+                continue
+            t = (along - along.min()) / span
+            L = find_line(E, uv[m], ne, t, LINE_RADIUS_PX)
+            if L is not None:
+                q[m] = uv[m] + L.offset(t)[:, None] * ne
+                sig[m] = L.sigma_px
+            else:
+                noise[m] = gradient_noise(E, uv[m], ne, LINE_RADIUS_PX)
+        lined = np.all(np.isfinite(q), axis=1)
+        if (~lined).any():  # edges not found as a line: edgesnap's per-sample rule, where its peak stands
+            # out of the edge's own noise (Bonferroni over the profile's positions, 1 % false alarm)
+            qp, okp = photo.subpixel(uv[~lined], n[~lined])
+            nl = n[~lined]
+            g = np.abs(E._sample(E.gx, qp[None])[0] * nl[:, 0] + E._sample(E.gy, qp[None])[0] * nl[:, 1])
+            z1 = significance_z(int(round(2 * PROFILE_HALF_PX / PROFILE_STEP_PX)) + 1)
+            okp &= g >= z1 * noise[~lined]
+            q[~lined] = np.where(okp[:, None], qp, np.nan)
+            sig[~lined] = 0.0
+        ok = np.all(np.isfinite(q), axis=1)
+        ok &= _exclusive(uv, n, S.edge, q)
+        if ok.sum() < MIN_SAMPLES:
+            break
+        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
+        _, inv, counts = np.unique(sub.edge, return_inverse=True, return_counts=True)
+        n_eff = np.minimum(counts[inv], EDGE_WEIGHT_SAMPLES)
+        sigma = np.sqrt(FINE_SIGMA_PX ** 2 + n_eff * sig[ok] ** 2)
+        res = _solve(model, x, sub, q[ok], sigma, lines, f_scale=ROBUST_SIGMAS)
+        x = res.x
+        uv1, n1 = _project(model.camera(x), sub)
+        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), sigma)
+    return fine
 
 
 def _exclusive(uv: np.ndarray, n: np.ndarray, edge: np.ndarray, q: np.ndarray, k: int = 8) -> np.ndarray:
@@ -539,10 +634,16 @@ def _union(*ss: _Samples) -> _Samples:
                     np.concatenate([s.edge for s in ss]))
 
 
-def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None) -> Refinement:
+def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
+                  fine_stage: str = "profiles") -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
-    module docstring; the input camera comes back (accepted False, with the reason) when the guard fails."""
+    module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
+    fine_stage: "profiles" (per-sample sub-pixel edges, the default) or "lines" (each edge found as one
+    line against the photo's own noise, recon/edgelines.py; a freed principal point then also gets
+    calibrate's prior, PP_PRIOR_REL): see docs/unseen.md for where each does better."""
+    if fine_stage not in FINE_STAGES:
+        raise ValueError(f"fine_stage: expected one of {FINE_STAGES}, got {fine_stage!r}")
     t0 = time.time()
     image = np.asarray(image)
     if image.shape[:2] != (cam.height, cam.width):
@@ -555,7 +656,8 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     # calibrate's principal point from three vanishing points is weak (the orthocentre of their
     # triangle moves far with a distant vanishing point); the room's known edges determine it, so it is
     # refined too; the image centre (calibrate's default) or a given one is held
-    model = _Model(cam, free_pp=(camera_json or {}).get("principal_point_from") == "three vanishing points")
+    model = _Model(cam, free_pp=(camera_json or {}).get("principal_point_from") == "three vanishing points",
+                   pp_prior=fine_stage == "lines")
     S0 = _sample_edges(cam, edges, occ)
     # hypotheses: the input camera with the full coarse schedule, and the centre search's best minima,
     # whose grid leaves an edge at the median depth within CENTRE_STEP_PX / 2: their ICP starts at the
@@ -564,12 +666,12 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
     starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for x0 in _centre_search(cam, S0, photo)]
     # each start's sub-pixel fit (a start whose sub-pixel stage did not run is dropped)
-    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines), start="input" if i == 0
+    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage), start="input" if i == 0
                                 else "centre search") for i, (x0, radii) in enumerate(starts)]
     fits = [f for f in fits if f.res is not None]
     if not fits:
         return _guard(cam, cam, _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0),
-                                     FINE_SIGMA_PX), lines, edges, occ, photo, time.time() - t0)
+                                     np.zeros(0)), lines, edges, occ, photo, time.time() - t0)
     # the input camera's own fit stands unless a centre-search start's fit brings the room's edges
     # closer to the photo's (_edge_gain), on the room points any of them (or the input) sees
     common = _union(S0, *[f.S for f in fits])
@@ -659,7 +761,7 @@ def _guard(cam, refined, fit: _Fit, lines, edges, occ, photo, seconds) -> Refine
     return Refinement(refined, True, "", False, **out)
 
 
-def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: float) -> str | None:
+def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: np.ndarray) -> str | None:
     """None when the fit pins every free parameter: the Jacobian has full rank, the inlier samples'
     projected edges span two directions, and a one-sigma error of the parameters (the covariance
     scaled by the residuals) moves the samples by at most MAX_PRED_STD_PX rms; else the reason."""
@@ -676,7 +778,7 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: fl
     r = res.fun
     dof = max(len(r) - len(res.x), 1)
     scale = max(float(r @ r) / dof, 1.0)
-    pred = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Je, cov * scale, Je), 0.0)) * sigma
+    pred = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Je, cov * scale, Je), 0.0)) * np.asarray(sigma)[inl]
     rms_pred = float(np.sqrt(np.mean(pred ** 2))) if len(pred) else float("inf")
     if not rms_pred <= MAX_PRED_STD_PX:
         return f"the fit is ill-conditioned (a one-sigma error moves the edges {rms_pred:.2f} px rms)"

@@ -74,3 +74,36 @@ def test_room_clicked_with_the_same_camera_is_not_used(calibrated, capsys):
     d = json.loads((room / "scene.json").read_text())
     assert "refinement" not in d["main_camera"]
     np.testing.assert_allclose(d["main_camera"]["t"], Camera.load(inp["camera"]).t, atol=1e-12)
+
+
+def test_camera_json_gets_a_refined_principal_point(calibrated, tmp_path):
+    """A principal point refined from three vanishing points (camrefine frees it then) reaches the
+    room's camera.json: every K field (the K block, the top-level copies, K_matrix) is the camera's."""
+    import dataclasses
+
+    from app.cmd_scene import _camera_json
+
+    cal = Camera.load(calibrated["camera"])
+    K = cal.K.copy()
+    K[0, 2] += 12.5
+    K[1, 2] -= 7.25
+    cam = dataclasses.replace(cal, K=K)
+    out = tmp_path / "camera.json"
+    out.write_bytes(_camera_json(calibrated["camera"], cam))
+    d = json.loads(out.read_text())
+    np.testing.assert_allclose(Camera.load(out).K, K, atol=1e-9)
+    assert d["cx"] == pytest.approx(K[0, 2]) and d["cy"] == pytest.approx(K[1, 2])
+    assert d["K"]["cx"] == pytest.approx(K[0, 2]) and d["K"]["cy"] == pytest.approx(K[1, 2])
+    np.testing.assert_allclose(d["K_matrix"], K, atol=1e-9)
+
+
+def test_camera_edges_lines(calibrated, capsys):
+    """`scene --camera-edges lines`: window_room's calibrated camera refined with the edges found as
+    whole lines gets within the same bounds as the default (0.45 % of focal, 2 cm)."""
+    inp, room = calibrated, calibrated["tmp"] / "room_lines"
+    assert _scene(inp, room, "--camera-edges", "lines") == 0, capsys.readouterr().err
+    d = json.loads((room / "scene.json").read_text())
+    assert d["main_camera"]["refinement"]["accepted"]
+    cam, truth = Camera.load(room / "scene.json"), Camera.load(shared_scene("window_room") / "scene.json")
+    assert abs(cam.K[0, 0] / truth.K[0, 0] - 1) < 0.0045
+    assert np.linalg.norm(cam.centre - truth.centre) < 0.02
