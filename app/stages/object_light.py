@@ -152,15 +152,17 @@ def _far_emitters(tris: np.ndarray, rad: np.ndarray, seen: np.ndarray, extra: Ex
 
 
 ROOM_EPS = 1e-3  # m: a receiver's end of its segments to the object pulled off its surface along its normal
+ROOM_CELLS = 2  # cells a side of the object's box that group its light into point sources (room_share;
+# 3 and 4 gave the same error against a ray per (receiver, triangle) on sun_102's receiver vertices)
 
 
-def _source_groups(tris: np.ndarray, tri_rad: np.ndarray, centre: np.ndarray,
-                   extra: ExtraEmitters | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(points (G,3), unit normals (G,3), power (G,)) of the object's light grouped by octant about
-    `centre` and by the axis its emitters face (the largest component of the normal, with its sign):
-    per group the power-weighted centroid and mean normal of its emitters (the proxy's triangles of
-    radiance tri_rad (T,3) and the extra emitters' far-field stand-ins) and their power (luminance x
-    area); groups without light are left out."""
+def _source_groups(tris: np.ndarray, tri_rad: np.ndarray, extra: ExtraEmitters | None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points (G,3), unit normals (G,3), power (G,)) of the object's light grouped by cell (ROOM_CELLS a
+    side of the emitters' box) and by the axis its emitters face (the largest component of the normal,
+    with its sign): per group the power-weighted centroid and mean normal of its emitters (the proxy's
+    triangles of radiance tri_rad (T,3) and the extra emitters' far-field stand-ins) and their power
+    (luminance x area); groups without light are left out."""
     tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # twice the area x normal
     c, P = tris.mean(1), luminance(tri_rad) * 0.5 * np.linalg.norm(tn, axis=1)
     if extra is not None and len(extra.far_c):
@@ -170,17 +172,21 @@ def _source_groups(tris: np.ndarray, tri_rad: np.ndarray, centre: np.ndarray,
     nrm = tn / np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
     ax = np.abs(nrm).argmax(1)
     facing = 2 * ax + (nrm[np.arange(len(nrm)), ax] < 0)
-    group = ((c - centre) > 0) @ np.array([1, 2, 4]) + 8 * facing
-    power = np.bincount(group, P, 48)
+    k = ROOM_CELLS
+    lo, hi = c.min(0), c.max(0)
+    cell = np.clip(((c - lo) / np.maximum(hi - lo, 1e-9) * k).astype(np.int64), 0, k - 1)
+    group = (cell @ np.array([1, k, k * k])) * 6 + facing
+    m = 6 * k ** 3
+    power = np.bincount(group, P, m)
     on = np.flatnonzero(power > 0)
-    pts = np.stack([np.bincount(group, P * c[:, k], 48) for k in range(3)], 1)[on] / power[on, None]
-    n = np.stack([np.bincount(group, P * nrm[:, k], 48) for k in range(3)], 1)[on]
+    pts = np.stack([np.bincount(group, P * c[:, j], m) for j in range(3)], 1)[on] / power[on, None]
+    n = np.stack([np.bincount(group, P * nrm[:, j], m) for j in range(3)], 1)[on]
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     return pts, n, power[on]
 
 
 def room_share(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray,
-               centre: np.ndarray, room: Occluder, extra: ExtraEmitters | None = None) -> np.ndarray:
+               room: Occluder, extra: ExtraEmitters | None = None) -> np.ndarray:
     """(N,) in [0, 1]: the share of the object's light that reaches each receiver point (N,3, unit
     normals (N,3)) past the room `room` (its walls and furniture; the object itself is not in it).
 
@@ -188,8 +194,8 @@ def room_share(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     went through a sofa seat onto the sofa's back and through the sofa back onto the wall (sun_102: a
     sunlit torus 2 m in front of a sofa, +2 levels on the sofa back where the truth has +0.2). A
     receiver's view of the object is blocked as a whole or along an occluder's edge across it, so the
-    object is taken as a few point sources (_source_groups: by octant about `centre` and by the axis its
-    faces face, at most 48), each weighted at the receiver by the point-source form factor (power x both
+    object is taken as a few point sources (_source_groups: by cell of its box, 2 a side, and by the axis
+    its faces face: at most 48), each weighted at the receiver by the point-source form factor (power x both
     cosines / distance^2) and tested with one segment: a few rays per receiver in place of one per
     (receiver, triangle). Groups whose faces look away from a receiver weigh nothing there, so a face
     the room hides does not borrow the visibility of the object's far side."""
@@ -197,7 +203,7 @@ def room_share(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     out = np.ones(n)
     if n == 0:
         return out
-    src, src_n, power = _source_groups(tris, tri_rad, centre, extra)
+    src, src_n, power = _source_groups(tris, tri_rad, extra)
     if len(src) == 0:
         return out
     d = src[None] - points[:, None]  # (N,G,3) receiver -> source
@@ -452,7 +458,7 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
                                      split=256, workspace=_sub_workspace(ws, "far"), capacity=2 * len(tris))
     if room is not None:
         lit = np.flatnonzero(out.any(1))
-        out[lit] *= room_share(points[lit], normals[lit], tris, tri_rad, centre, room, extra)[:, None]
+        out[lit] *= room_share(points[lit], normals[lit], tris, tri_rad, room, extra)[:, None]
     return out
 
 
@@ -767,7 +773,7 @@ class ObjectLight:
                                                capacity=2 * len(tris) + extra.capacity)
         # the room's walls and furniture between a centre and the object (room_share, of the whole light)
         lit = near_c[(room[near_c] + sun[near_c]).any(1)]
-        share = room_share(pm.centre[lit], pm.normal[lit], tris, room_rad + sun_rad, centre, self.scene_occ, extra)
+        share = room_share(pm.centre[lit], pm.normal[lit], tris, room_rad + sun_rad, self.scene_occ, extra)
         room[lit] *= share[:, None]
         sun[lit] *= share[:, None]
         return room, sun

@@ -367,7 +367,7 @@ def test_room_between_takes_its_share_of_the_object_light():
     both = Occluder(np.concatenate([v, sv]), np.concatenate([f, sf + len(v)]), "cpu")
     alone = emitter_sum(pts, nrm, tris, rad, obj, eps=OL.EXACT_EPS, device="cpu")
     exact = emitter_sum(pts, nrm, tris, rad, both, eps=OL.EXACT_EPS, device="cpu")
-    share = OL.room_share(pts, nrm, tris, rad, np.array([0.0, 0.2, 0.0]), room)
+    share = OL.room_share(pts, nrm, tris, rad, room)
     ours = alone * share[:, None]
     lum_a, lum_e, lum_o = luminance(alone), luminance(exact), luminance(ours)
     hidden, seen = lum_e < 1e-6 * lum_a.max(), lum_e > 0.999 * lum_a
@@ -383,5 +383,4 @@ def test_room_between_takes_its_share_of_the_object_light():
     # without the room's share the screen would be ignored: the object's light on the wall's foot
     assert lum_a[hidden].min() > 0.3 * lum_a.max()
     # no room between (an empty room): every share is 1
-    np.testing.assert_array_equal(OL.room_share(pts, nrm, tris, rad, np.array([0.0, 0.2, 0.0]),
-                                                Occluder(None, None, "cpu")), 1.0)
+    np.testing.assert_array_equal(OL.room_share(pts, nrm, tris, rad, Occluder(None, None, "cpu")), 1.0)
