@@ -57,7 +57,7 @@ from app.stages.precompute import Precomputed, hash_scene as _hash_scene  # noqa
 from app.stages.receiver_map import ReceiverMap, receiver_map, reflectance
 from app.stages.shadow_pass import ShadowPass
 from app.stages.sun import SunPixels, SunSetup, estimate_line as _sun_estimate_line, upright_box  # noqa: F401
-from app.stages.second_order import blocked_pass
+from app.stages.second_order import blocked_pass, blocked_workspace
 from kernels import runtime
 from lighting.irradiance import RoomLight
 from lighting.radiance import load_captured_probe
@@ -152,6 +152,7 @@ class Engine:
         self.object_light = ObjectLight(oc, pm, pre.recv_vert, pre.pix_bary, r.pix_pos, r.pix_patch, r.pix_rows,
                                         r.recv_pix, r.rho_x, r.L_b, B_src, self.scene_occ, scene.response, cam, dev,
                                         sun_dir=sun_light.d if sun_light is not None else None)
+        self._blocked_ws = blocked_workspace(dev)  # the second order's blocked pairs' buffers (_blocked_second_order)
         self._drag: dict[int, DragStages] = {}  # drag frames' coarse pixel stages, per scale (made on first use)
         self.budget = FrameBudget()  # --fps: the measured frame cost
         self.frames_started = 0  # frames begun (render and refine): refine restarts after another
@@ -419,7 +420,7 @@ class Engine:
         pre, pm = self.pre, self.pre.patches
         rv = pre.recv_vert
         return blocked_pass(dB, pre.G_v, pm.vert_inset[rv], pm.vert_normal[rv], pm.centre, pm.normal, pm.area,
-                            proxy_occ, (centre, radius))
+                            proxy_occ, (centre, radius), self._blocked_ws)
 
     def _sun_later_bounces(self, sun, sun_dB, R_cen_sun, proxy_occ, pv, dB: np.ndarray) -> np.ndarray | None:
         """The sunlit patch light the object blocks (the room's main source) and the sunlit object's own

@@ -186,7 +186,7 @@ def _source_groups(tris: np.ndarray, tri_rad: np.ndarray, extra: ExtraEmitters |
 
 
 def room_share(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray,
-               room: Occluder, extra: ExtraEmitters | None = None) -> np.ndarray:
+               room: Occluder, extra: ExtraEmitters | None = None, workspace: Workspace | None = None) -> np.ndarray:
     """(N,) in [0, 1]: the share of the object's light that reaches each receiver point (N,3, unit
     normals (N,3)) past the room `room` (its walls and furniture; the object itself is not in it).
 
@@ -215,7 +215,7 @@ def room_share(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     if len(rows) == 0:
         return out
     vis = np.zeros(w.shape)
-    vis[rows, g] = segments_visible(room, points[rows] + normals[rows] * ROOM_EPS, src[g])
+    vis[rows, g] = segments_visible(room, points[rows] + normals[rows] * ROOM_EPS, src[g], workspace)
     total = w.sum(1)
     ok = total > 0
     out[ok] = (w * vis).sum(1)[ok] / total[ok]
@@ -458,7 +458,8 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
                                      split=256, workspace=_sub_workspace(ws, "far"), capacity=2 * len(tris))
     if room is not None:
         lit = np.flatnonzero(out.any(1))
-        out[lit] *= room_share(points[lit], normals[lit], tris, tri_rad, room, extra)[:, None]
+        out[lit] *= room_share(points[lit], normals[lit], tris, tri_rad, room, extra,
+                               _sub_workspace(ws, "room"))[:, None]
     return out
 
 
@@ -773,7 +774,8 @@ class ObjectLight:
                                                capacity=2 * len(tris) + extra.capacity)
         # the room's walls and furniture between a centre and the object (room_share, of the whole light)
         lit = near_c[(room[near_c] + sun[near_c]).any(1)]
-        share = room_share(pm.centre[lit], pm.normal[lit], tris, room_rad + sun_rad, self.scene_occ, extra)
+        share = room_share(pm.centre[lit], pm.normal[lit], tris, room_rad + sun_rad, self.scene_occ, extra,
+                           ws.sub("room"))
         room[lit] *= share[:, None]
         sun[lit] *= share[:, None]
         return room, sun

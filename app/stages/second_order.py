@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kernels.buffers import Workspace
 from kernels.visibility import Occluder, segments_visible
 from recon.response import luminance
 
@@ -22,15 +23,27 @@ EPS = 1e-3  # m: segment ends pulled off their surfaces along the normal
 BLOCK = 512  # patches per block of pairs tested together (memory: Vr x BLOCK floats a few times)
 
 
+def blocked_workspace(device: str) -> Workspace:
+    """The kernel buffers blocked_pass's segments use, made now at their capacity (a Workspace's rows), so
+    that no frame allocates them (the engine makes it with its stages)."""
+    import warp as wp
+
+    ws = Workspace()
+    for name, dtype in (("a", wp.vec3), ("b", wp.vec3), ("out", wp.int32)):
+        ws.buffer(name, ws.rows, dtype, device)
+    return ws
+
+
 def blocked_pass(dB: np.ndarray, G_v: np.ndarray, recv_points: np.ndarray, recv_normals: np.ndarray,
                  centres: np.ndarray, normals: np.ndarray, area: np.ndarray, occluder: Occluder,
-                 sphere: tuple[np.ndarray, float]) -> np.ndarray | None:
+                 sphere: tuple[np.ndarray, float], workspace: Workspace | None = None) -> np.ndarray | None:
     """(Vr,3): G_v's pass of dB (P,3) over the (receiver vertex, patch) pairs the object blocks, i.e.
     sum_j G_v[i, j] (1 - V_obj(i, j)) dB_j, to be taken from the engine's one pass; None when no pair is
     blocked. recv_points, recv_normals (Vr,3): the receiver vertices; centres, normals, area: the patches'.
     One segment per pair, receiver to patch centre, cast against the object's `occluder` only where it
     passes through the object's bounding `sphere` (centre, radius); only the patches that hold KEEP of
-    the change's power are tested."""
+    the change's power are tested. workspace: the call site's kernel buffers (nothing allocated once they
+    exist), or None."""
     power = np.abs(luminance(dB)) * area
     order = np.argsort(-power)
     order = order[power[order] > 0]
@@ -59,7 +72,7 @@ def blocked_pass(dB: np.ndarray, G_v: np.ndarray, recv_points: np.ndarray, recv_
         vi, jj = np.nonzero(cand)
         if len(vi) == 0:
             continue
-        blocked = segments_visible(occluder, a[vi], bj[jj]) == 0
+        blocked = segments_visible(occluder, a[vi], bj[jj], workspace) == 0
         if not blocked.any():
             continue
         hit = True
