@@ -4,8 +4,8 @@ The engine passes the change of patch radiance dB (the object's shadow on the pa
 light) on to the receiver vertices once, through the unoccluded transfers G_v. Where the object stands
 between a receiver and a changed patch, the shadow pass has already taken that patch's whole radiance
 from the receiver (the patch is one of the frame's sources): its change must not reach the receiver
-again. lamps_102 (a torus under lamps; the wall behind the lamps sees the torus's shadow on the floor
-through the torus): half of the second order at the receivers 1.5 m or more away came over such pairs,
+again. lamps_102 (a torus under lamps, its soft shadows on the floor around it): half of the second order
+at the receivers 1.5 m or more from the torus came over pairs the torus blocks,
 and the wall came out darker than the truth over a wide area (-1.0 to -2.1 levels where the truth has
 -0.6 to -1.3). The sun's own loss has the same rule in SunStage.later_bounces (first_pass_blocked).
 """
