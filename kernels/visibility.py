@@ -191,9 +191,24 @@ def transfer_matrix(points: np.ndarray, normals: np.ndarray, patch_corners: np.n
     return out
 
 
-def segments_visible(occluder: Occluder, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N,) int32: 1 where segment a_i->b_i is unblocked by the occluder mesh (throughput benchmarks)."""
+def segments_visible(occluder: Occluder, a: np.ndarray, b: np.ndarray, workspace: Workspace | None = None
+                     ) -> np.ndarray:
+    """(N,) int32: 1 where segment a_i->b_i is unblocked by the occluder mesh. `workspace`: the call site's
+    buffers (kernels.buffers.Workspace), launches of at most its `rows` segments, nothing allocated once
+    they exist (None: fresh arrays, one launch)."""
     device = occluder.device
+    if workspace is not None:
+        n, step = len(a), workspace.rows
+        out = np.empty(n, np.int32)
+        for lo in range(0, n, step):
+            hi = min(lo + step, n)
+            da = workspace.upload("a", np.asarray(a[lo:hi], np.float32), wp.vec3, device, capacity=step)
+            db = workspace.upload("b", np.asarray(b[lo:hi], np.float32), wp.vec3, device, capacity=step)
+            ob = workspace.buffer("out", step, wp.int32, device)
+            wp.launch(_visibility_kernel, dim=hi - lo, inputs=[wp.uint64(occluder.id), da, db], outputs=[ob.dev],
+                      device=device)
+            out[lo:hi] = ob.pull(hi - lo)
+        return out
     out = wp.zeros(len(a), dtype=wp.int32, device=device)
     wp.launch(_visibility_kernel, dim=len(a),
               inputs=[wp.uint64(occluder.id), wp.array(np.asarray(a, np.float32), dtype=wp.vec3, device=device),

@@ -320,3 +320,67 @@ def test_bilinear_blend_reproduces_a_bilinear_function():
     corner = np.stack([f(y0, x0), f(y0, x0 + s), f(y0 + s, x0), f(y0 + s, x0 + s)])  # (4,3)
     got = OL._bilinear(np.broadcast_to(corner, (len(yy), 4, 3)), yy * W + xx, W, s)
     np.testing.assert_allclose(got, f(yy, xx), rtol=1e-12, atol=1e-12)
+
+
+def _grid_box(lo, hi, k: int):
+    """A closed box of k x k quads a face (2 k^2 triangles, CCW seen from outside): vertices, faces."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    t = np.linspace(0.0, 1.0, k + 1)
+    verts, faces = [], []
+    for ax in range(3):
+        for side in (0, 1):
+            u, w = (ax + 1) % 3, (ax + 2) % 3
+            g = np.zeros((k + 1, k + 1, 3))
+            g[..., ax] = hi[ax] if side else lo[ax]
+            g[..., u] = lo[u] + (hi[u] - lo[u]) * t[:, None]
+            g[..., w] = lo[w] + (hi[w] - lo[w]) * t[None, :]
+            base = sum(len(x) for x in verts)
+            verts.append(g.reshape(-1, 3))
+            i = np.arange(k)[:, None] * (k + 1) + np.arange(k)[None, :]
+            a, b, c, d = i, i + k + 1, i + k + 2, i + 1
+            q = np.stack([np.stack([a, b, c], -1), np.stack([a, c, d], -1)], 2).reshape(-1, 3) + base
+            n = np.zeros(3)
+            n[ax] = 1.0 if side else -1.0
+            v = np.concatenate(verts)
+            flip = np.cross(v[q[:, 1]] - v[q[:, 0]], v[q[:, 2]] - v[q[:, 0]]) @ n < 0
+            q[flip] = q[flip][:, ::-1]
+            faces.append(q)
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def test_room_between_takes_its_share_of_the_object_light():
+    # an emitting box (the object, 0.4 m) 2 m in front of a wall of receivers, and a low screen (the room's
+    # furniture) between them: the object's light on the wall with the room's share (room_share) against
+    # the exact sum with a ray per (receiver, triangle) past the object and the screen together
+    v, f = _grid_box([-0.2, 0.0, -0.2], [0.2, 0.4, 0.2], 6)
+    tris = v[f]
+    rad = np.tile([[1.0, 0.8, 0.6]], (len(f), 1))
+    obj = Occluder(v, f, "cpu")
+    # the receivers: a vertical wall at z = -2 facing +z, heights 0 .. 1.2 m; the screen: a quad at
+    # z = -1, 0.3 m high, across the whole width (from a receiver low on the wall it hides the object)
+    ys = np.linspace(0.02, 1.2, 60)
+    pts = np.stack([np.zeros_like(ys), ys, np.full_like(ys, -2.0)], 1)
+    nrm = np.tile([[0.0, 0.0, 1.0]], (len(ys), 1))
+    sv = np.array([[-3, 0, -1], [3, 0, -1], [3, 0.3, -1], [-3, 0.3, -1]], float)
+    sf = np.array([[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]])  # both sides
+    room = Occluder(sv, sf, "cpu")
+    both = Occluder(np.concatenate([v, sv]), np.concatenate([f, sf + len(v)]), "cpu")
+    alone = emitter_sum(pts, nrm, tris, rad, obj, eps=OL.EXACT_EPS, device="cpu")
+    exact = emitter_sum(pts, nrm, tris, rad, both, eps=OL.EXACT_EPS, device="cpu")
+    share = OL.room_share(pts, nrm, tris, rad, room)
+    ours = alone * share[:, None]
+    lum_a, lum_e, lum_o = luminance(alone), luminance(exact), luminance(ours)
+    hidden, seen = lum_e < 1e-6 * lum_a.max(), lum_e > 0.999 * lum_a
+    assert hidden.sum() >= 5 and seen.sum() >= 20  # the screen hides the object from the wall's foot only
+    assert (share[hidden] == 0).all() and (share[seen] == 1).all()
+    np.testing.assert_allclose(lum_o[seen], lum_a[seen], rtol=1e-12)
+    # through the screen's shadow edge the groups give a step, not the exact ramp: within 0.3 of the
+    # object's unblocked light of the exact value (measured 0.25), and the wall's total within 2 %
+    # (measured 0.9 %; ignoring the screen: +54 %)
+    assert np.abs(lum_o - lum_e).max() <= 0.3 * lum_a.max()
+    assert abs(lum_o.sum() / lum_e.sum() - 1) < 0.02
+    assert lum_a.sum() / lum_e.sum() > 1.3
+    # without the room's share the screen would be ignored: the object's light on the wall's foot
+    assert lum_a[hidden].min() > 0.3 * lum_a.max()
+    # no room between (an empty room): every share is 1
+    np.testing.assert_array_equal(OL.room_share(pts, nrm, tris, rad, Occluder(None, None, "cpu")), 1.0)
