@@ -147,8 +147,11 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
             shown = _shown(P, name, pts(y), own)
             on = [(ix[k], iz[k]) for k in known] + [(ix[known[0]], iz[known[0]])]
             clicked = {j for ok, sides in zip(shown, on) if ok for j in sides}
+            free_of_others = _shown(P, name, pts(y), own, by_others=True)
+            behind = {j for j in range(4) if any(j in sides for sides in on)
+                      and all(ok for ok, sides in zip(free_of_others, on) if j in sides)}
             y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi, clicked, x0,
-                                     _piece_planes(P, name, full(y)))
+                                     _piece_planes(P, name, full(y)), behind)
         words = ([f"{len(kept)} edges snapped"] if kept else []) + \
             [f"{SIDES[j]} side against {what}" for j, (what, _) in held.items()]
         P.refined[name] = ", ".join(words) if words else "as clicked"
@@ -191,7 +194,9 @@ def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np
     the edges are snapped around the model of the last fit and the fit redone, until a round finds
     no edge more (at most SNAP_ROUNDS): a click off by 3 sigma puts some edges beyond their search
     (a desk's slab: its top's and underside's front edges 4 cm apart), the fit on the others brings
-    them in. A desk (slab: y -> its top slab's box entry; corners(y) then holds its legs' corners
+    them in. Each edge is searched about where the last fit puts it, as far as that fit's own noise
+    there reaches (PhotoEdges.predicted_sd): an edge the other edges already pin to a fraction of a
+    pixel is searched no further than that (a seat's foot, its floor's plank seams 3-4 px below it). A desk (slab: y -> its top slab's box entry; corners(y) then holds its legs' corners
     after the slab's 8) also snaps its legs' vertical edges, where neither another piece nor its
     own slab hides them: a move along the line of sight, which its top's edges do not see, turns
     the legs' vertical planes through the camera (legs at different bearings), the floor clicks
@@ -201,7 +206,9 @@ def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np
     y0, kept = y, []
     for _ in range(SNAP_ROUNDS):
         C = corners(y)
-        lines = P.edges.lines(C, _box_edges(P.camera.centre, C[:8], axes, False), P.blocker(name), faint=True)
+        pairs = _box_edges(P.camera.centre, C[:8], axes, False)
+        model_sd = P.edges.predicted_sd(y, corners, pts, kept, pairs)
+        lines = P.edges.lines(C, pairs, P.blocker(name), faint=True, model_sd=model_sd)
         if slab is not None:
             others, own = P.blocker(name), box_blocker(P.camera, [slab(y)])
             legs = [(8 + 8 * leg + i, 8 + 8 * leg + j) for leg in range(4)
@@ -213,14 +220,15 @@ def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np
     return y, kept
 
 
-def _shown(P: _Clicks, name: str, X: np.ndarray, own: dict) -> np.ndarray:
+def _shown(P: _Clicks, name: str, X: np.ndarray, own: dict, by_others: bool = False) -> np.ndarray:
     """(m,) bool: piece `name`'s clicked corners X (m,3) (its current fit) that the photo surely
     shows: the sight line from the camera to the corner meets no other piece (the clicks-only model)
     grown by OCCLUDER_SHRINK_M, its click noise (a corner where two pieces meet, a seat's top corner
     at the end of a sofa's back, is not surely shown); a corner on the piece's own box `own` (an
     upright box entry: a box piece's, a desk's top slab) lies on a face of it turned to the camera (a
     convex box hides its other corners), and one off it (a desk's floor corners) is not hidden by it
-    (grown as the others)."""
+    (grown as the others). by_others: (m,) bool the corners no other piece hides (the piece's own box
+    aside)."""
     from recon.clickedges import OCCLUDER_SHRINK_M
 
     others = [b for b in P.occluders if b["name"] != name and not b["name"].startswith(name + "_")]
@@ -233,6 +241,7 @@ def _shown(P: _Clicks, name: str, X: np.ndarray, own: dict) -> np.ndarray:
     for a in range(3):  # a corner is on the face of its end along axis a; turned when the eye is beyond it
         turned |= np.sign(loc[:, a]) * eye[a] > h[a]
     hidden = on_own & ~turned
+    other = np.zeros(len(X), bool)
     for b in others + [own]:
         R, c = _local_axes(b), np.asarray(b["center"], float)
         hb = np.asarray(b["size"], float) / 2 + OCCLUDER_SHRINK_M
@@ -243,7 +252,13 @@ def _shown(P: _Clicks, name: str, X: np.ndarray, own: dict) -> np.ndarray:
         lo_t = np.where(par, np.where(np.abs(o) <= hb, -np.inf, np.inf), np.minimum(t1, t2)).max(axis=1)
         hi_t = np.where(par, np.where(np.abs(o) <= hb, np.inf, -np.inf), np.maximum(t1, t2)).min(axis=1)
         hit = (lo_t <= hi_t) & (hi_t >= 0.0) & (lo_t <= 1.0)
-        hidden |= hit & ~on_own if b is own else hit
+        if b is own:
+            if by_others:
+                return ~other
+            hidden |= hit & ~on_own
+        else:
+            hidden |= hit
+            other = other | hit
     return ~hidden
 
 
@@ -280,7 +295,8 @@ def _piece_planes(P: _Clicks, name: str, x: np.ndarray, reach: float = 3 * 0.01)
 
 def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, uvs: np.ndarray, lines: list,
                    lo: np.ndarray, hi: np.ndarray, clicked: set[int] = frozenset(), offsets: np.ndarray | None = None,
-                   planes: dict[int, list] | None = None) -> tuple[np.ndarray, dict[int, tuple[str, float]]]:
+                   planes: dict[int, list] | None = None, behind: set[int] = frozenset()
+                   ) -> tuple[np.ndarray, dict[int, tuple[str, float]]]:
     """An axis-aligned piece's fit y (its parameters `active` of [x min, x max, z min, z max, top])
     with each side that the clicks and snapped `lines` allow on a clicked wall, or on a face of
     another piece (`planes`: _piece_planes), put there: a side the photo shows (a snapped line on it,
@@ -289,7 +305,10 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
     held on the plane when the side and the plane are one within both their noises (_against_chi2
     at most CHI2_1DOF_99: the side's place is one number; a piece the photo cannot tell from standing
     against the wall stands against it; a side further off than its noise keeps its fit); of several
-    such planes, the one most alike. Returns (y, {side held: (what it is held on, the held place's
+    such planes, the one most alike. A side whose clicked corners only the piece itself hides
+    (`behind`: its far side, which no other piece covers) is judged against a wall too: nothing
+    else can stand between it and the wall unseen, as a piece under another's overhang can (a
+    seat under its back, whose far side the back covers, stays unjudged). Returns (y, {side held: (what it is held on, the held place's
     sd m)})."""
     from recon.clickedges import CHI2_1DOF_99
 
@@ -298,10 +317,11 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
     for j in range(4):
         axis, side = (0, 2)[j // 2], (-1, 1)[j % 2]
         bound = (lo if side < 0 else hi)[axis]
-        if j not in _seen_sides(clicked, lines) or (j not in active and (j ^ 1) not in active):
+        seen = j in _seen_sides(clicked, lines)
+        if not (seen or j in behind) or (j not in active and (j ^ 1) not in active):
             continue
         cands = ([(float(bound), P.wall_sd.get((axis, side), 0.0), "the wall")] if np.isfinite(bound) else []) + \
-            list((planes or {}).get(j, []))
+            (list((planes or {}).get(j, [])) if seen else [])
         shift = 0.0 if j in active else float(offsets[j] - offsets[j ^ 1])  # a side following its partner
         k = active.index(j if j in active else j ^ 1)
         best = None
