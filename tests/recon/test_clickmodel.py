@@ -348,6 +348,11 @@ def test_corners_the_photo_shows():
               {"name": "touching", "center": [-0.61, -0.5, 2.5], "size": [0.2, 0.2, 0.2]}]
     got = _shown(_Clicks(cam, "t", None, others), "cube", X, own)
     assert got.tolist() == [False, True, True, False] + [False] * 4
+    # hidden by another piece (by_others): the two near corners above, and the far corner behind the
+    # blocker (its sight line passes (0.29, 0.29) at z = 2, inside the blocker grown by 2 cm); the
+    # other far corners only the cube itself hides (a far side a wall hold may judge)
+    got = _shown(_Clicks(cam, "t", None, others), "cube", X, own, by_others=True)
+    assert got.tolist() == [False, True, True, False, True, True, True, False]
     slab = {"name": "desk_top", "center": [0.0, -0.45, 3.0], "size": [1.0, 0.1, 1.0]}  # a desk's top, not solid
     desk = _Clicks(cam, "t", None, [slab])
     assert _shown(desk, "desk", np.array([[0.5, 0.5, 2.5], [0.0, -0.9, 5.0], [0.5, -0.4, 2.5]]), slab).tolist() == \
@@ -586,3 +591,25 @@ def test_on_names_a_piece_it_can_stand_on():
     # two pieces standing on each other
     d = _edited(clicks, "sofa_seat", on="sofa_back")
     _refused(cam, d, "'on' must name")
+
+
+def test_predicted_edge_noise_is_the_fits():
+    """recon/clickedges.PhotoEdges.predicted_sd, analytic: a horizontal segment 5 m ahead of a camera
+    (f = 500 px) at height x, clicked at its two ends with 1 px of noise: the fit's x has sd
+    1 px / (100 px/m sqrt 2), so the edge's place across itself in the photo has sd 1/sqrt 2 px; with a
+    snapped line of 0.25 px on it as well (its two ends, 16 clicks' weight each), 1/sqrt(2 + 32) px.
+    lines() then searches that edge 3.5 sigma + 1 px either side (at least 2 px), not the clicks'
+    3.5 px."""
+    from recon.clickedges import EdgeLine, PhotoEdges
+
+    cam = Camera(np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), np.eye(3), np.zeros(3), 640, 480)
+    pe = PhotoEdges(np.zeros((480, 640, 3), np.uint8), cam, 1.0)
+
+    def corners(x):
+        return np.array([[-1.0, x[0], 5.0], [1.0, x[0], 5.0]])
+
+    sd = pe.predicted_sd(np.array([0.2]), corners, corners, [], [(0, 1)])
+    assert sd[(0, 1)] == pytest.approx(1 / np.sqrt(2), rel=1e-3)
+    line = EdgeLine(0, 1, 0.0, 1.0, np.array([220.0, 260.0]), np.array([0.0, 1.0]), 0.25)
+    sd = pe.predicted_sd(np.array([0.2]), corners, corners, [line], [(0, 1)])
+    assert sd[(0, 1)] == pytest.approx(1 / np.sqrt(34), rel=1e-3)
