@@ -165,10 +165,12 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
 
             sd = P.edges.sd(y[free], lambda q: corners(sub(q)), lambda q: pts(sub(q)), kept)
             loose = {SIDES[active[k]]: float(v) for k, v in zip(free, sd) if not Z99 * v <= TOLERANCE_M}
-            if loose:
-                P.uncertain[name] = loose
         else:
-            sd = []
+            sd, loose = [], {}
+        # a side held on a plane is as sure as the two together (a wall its own clicks pin loosely)
+        loose.update({SIDES[j]: float(v) for j, (_, v) in held.items() if not Z99 * v <= TOLERANCE_M})
+        if loose:
+            P.uncertain[name] = loose
         if yaw == 0.0:  # its sides' places and noise, for the pieces modelled after it (_piece_planes)
             x, side_sd = full(y), {active[k]: float(v) for k, v in zip(free, sd)}
             for j in range(4):
@@ -389,14 +391,16 @@ def _box_edges(centre: np.ndarray, corners: np.ndarray, axes, top_only: bool) ->
     return out
 
 
-def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.ndarray, lo, hi, px_m: float) -> None:
+def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.ndarray, lo, hi, px_m: float,
+                   name: str | None = None) -> None:
     """Refuse a footprint crossing a clicked wall by more than WALL_TOL_M + 3 px; put a side within
     WALL_SNAP_M of one (or across it) against it (axis-aligned footprints), clicks only: with the
     photo (P.edges) a side goes against a wall only by _hold_on_walls's chi-square test, and one
     across a wall is put on it (a side the photo does not show, a sofa's seat under its back, is
     no nearer a wall for being within WALL_SNAP_M of it when a pixel spans centimetres there).
     px_m: metres on the floor per pixel at the footprint's clicks (far from the camera a pixel
-    spans centimetres)."""
+    spans centimetres). A side put on a wall the photo pins worse than TOLERANCE_M (P.wall_sd, at Z99
+    sigma) is reported ill-determined for piece `name` with that wall's sd."""
     tol, snap = WALL_TOL_M + 3 * px_m, WALL_SNAP_M
     yaw_c, yaw_s = math.cos(yaw), math.sin(yaw)
     e1, e2 = np.array([yaw_c, -yaw_s]), np.array([yaw_s, yaw_c])  # world (x, z) of local x, z
@@ -415,10 +419,12 @@ def _against_walls(P: _Clicks, where: str, yaw: float, xr: np.ndarray, zr: np.nd
     if P.edges is not None:
         snap = 0.0
     for rng, axis in ((xr, 0), (zr, 2)):
-        if np.isfinite(lo[axis]) and rng[0] - lo[axis] < snap:
-            rng[0] = lo[axis]
-        if np.isfinite(hi[axis]) and hi[axis] - rng[1] < snap:
-            rng[1] = hi[axis]
+        for end, side, bound in ((0, -1, lo[axis]), (1, 1, hi[axis])):
+            if np.isfinite(bound) and side * (bound - rng[end]) < snap:
+                rng[end] = bound
+                sd = P.wall_sd.get((axis, side), 0.0)  # with the photo: the side is now as sure as the wall
+                if name is not None and not Z99 * sd <= TOLERANCE_M:
+                    P.uncertain.setdefault(name, {})[SIDES[2 * (axis // 2) + end]] = sd
 
 
 def _box(name: str, yaw: float, xr, yr, zr) -> dict:
@@ -478,7 +484,7 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
                             against is not None and P.sizes(c, where) is None, (P, name, kind == "desk", lo, hi),
                             P.sizes(c, where), base)
     px_m = max(_pixel_metres(P, uv[k], base) for k in range(3) if np.isfinite(uv[k, 0]))
-    _against_walls(P, where, yaw, xr, zr, lo, hi, px_m)
+    _against_walls(P, where, yaw, xr, zr, lo, hi, px_m, name)
     if support is not None:
         _stands_on(P, where, on, support, yaw, xr, zr, px_m)
     if h > hi[1] + WALL_TOL_M:
