@@ -53,8 +53,8 @@ def main() -> None:
         r = least_squares(fun, [z_true])
         sd = a.noise / float(np.sqrt((r.jac ** 2).sum()))
         errs.append(float(r.x[0] - z_true))
-        print(f"draw {seed:2d}: z min {r.x[0] * 100:5.1f} cm (true {z_true * 100:.1f}), error {errs[-1] * 100:+5.1f} cm, "
-              f"sd {sd * 100:.2f} cm")
+        print(f"draw {seed:2d}: z min {r.x[0] * 100:5.1f} cm (true {z_true * 100:.1f}), "
+              f"error {errs[-1] * 100:+5.1f} cm, sd {sd * 100:.2f} cm")
     e = np.abs(errs)
     print(f"{a.draws} draws: worst {e.max() * 100:.1f} cm, median {np.median(e) * 100:.1f} cm, beyond 3 cm in "
           f"{int((e > 0.03).sum())}; the first 10: worst {e[:10].max() * 100:.1f} cm")

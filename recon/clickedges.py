@@ -275,7 +275,8 @@ class PhotoEdges:
                       default=np.inf)
             sd_e = (model_sd or {}).get((i, j))
             sigma = self.sigma if sd_e is None else max(self.sigma, sd_e)
-            search = self.search if sd_e is None else min(self.search, max(MIN_SEARCH_PX, SEARCH_SIGMAS * sd_e + PEAK_PX))
+            search = self.search if sd_e is None else \
+                min(self.search, max(MIN_SEARCH_PX, SEARCH_SIGMAS * sd_e + PEAK_PX))
             search = min(search, sep / 2)
             if search < MIN_SEARCH_PX:
                 continue

@@ -198,7 +198,8 @@ def _snap_and_refine(P: _Clicks, name: str, y: np.ndarray, corners, pts, uvs: np
     (a desk's slab: its top's and underside's front edges 4 cm apart), the fit on the others brings
     them in. Each edge is searched about where the last fit puts it, as far as that fit's own noise
     there reaches (PhotoEdges.predicted_sd): an edge the other edges already pin to a fraction of a
-    pixel is searched no further than that (a seat's foot, its floor's plank seams 3-4 px below it). A desk (slab: y -> its top slab's box entry; corners(y) then holds its legs' corners
+    pixel is searched no further than that (a seat's foot, its floor's plank seams 3-4 px below it).
+    A desk (slab: y -> its top slab's box entry; corners(y) then holds its legs' corners
     after the slab's 8) also snaps its legs' vertical edges, where neither another piece nor its
     own slab hides them: a move along the line of sight, which its top's edges do not see, turns
     the legs' vertical planes through the camera (legs at different bearings), the floor clicks
@@ -310,8 +311,8 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
     such planes, the one most alike. A side whose clicked corners only the piece itself hides
     (`behind`: its far side, which no other piece covers) is judged against a wall too: nothing
     else can stand between it and the wall unseen, as a piece under another's overhang can (a
-    seat under its back, whose far side the back covers, stays unjudged). Returns (y, {side held: (what it is held on, the held place's
-    sd m)})."""
+    seat under its back, whose far side the back covers, stays unjudged). Returns (y, {side held:
+    (what it is held on, the held place's sd m)})."""
     from recon.clickedges import CHI2_1DOF_99
 
     base = P.edges.chi2(y, corners, pts, uvs, lines)
@@ -459,8 +460,8 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
         support = support_of(pieces[on])
         base = float(support["center"][1] + support["size"][1] / 2)
         if not base < P.camera.centre[1]:
-            raise P.err(where, f"the top of {on!r} ({base:.2f} m) is not below the camera ({P.camera.centre[1]:.2f} m): "
-                               "corners on it cannot be seen")
+            raise P.err(where, f"the top of {on!r} ({base:.2f} m) is not below the camera "
+                               f"({P.camera.centre[1]:.2f} m): corners on it cannot be seen")
     uv = P.pixels(c, "floor", 3, where, nulls=True)
     top_uv = P.pixels(c, "top", None, where)
     if not np.isfinite(uv[0, 0]):
@@ -493,8 +494,8 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
     if kind == "box":
         return [_box(name, yaw, xr, (base, h), zr)]
     if h - base <= DESK_TOP_M + 0.01 or min(xr[1] - xr[0], zr[1] - zr[0]) < 2 * (DESK_LEG_M + DESK_LEG_INSET_M):
-        raise P.err(where, f"a desk {xr[1] - xr[0]:.2f} x {zr[1] - zr[0]:.2f} m and {h - base:.2f} m high is too small for "
-                           f"a {DESK_TOP_M * 100:g} cm top on legs: use kind 'box'")
+        raise P.err(where, f"a desk {xr[1] - xr[0]:.2f} x {zr[1] - zr[0]:.2f} m and {h - base:.2f} m high is too small "
+                           f"for a {DESK_TOP_M * 100:g} cm top on legs: use kind 'box'")
     out = [_box(f"{name}_top", yaw, xr, (h - DESK_TOP_M, h), zr)]
     i0, i1 = DESK_LEG_INSET_M, DESK_LEG_INSET_M + DESK_LEG_M
     k = 0
