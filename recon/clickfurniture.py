@@ -10,18 +10,21 @@ import numpy as np
 
 from recon.camera import Camera
 from recon.io import json_field
-from recon.clickbase import (DESK_LEG_INSET_M, DESK_LEG_M, DESK_TOP_M, FACES, FURNITURE_KINDS, RIGHT_ANGLE_DEG, SIDES,
-                             SNAP_DEG, SNAP_ROUNDS, TOLERANCE_M, TOP_MISS_PX, WALL_SNAP_M, WALL_TOL_M, Wall, Z99,
-                             _Clicks, _floor, _pixel_metres, _reproject_fit, ray)
+from recon.clickbase import (CLICK_SIGMA_PX, DESK_LEG_INSET_M, DESK_LEG_M, DESK_TOP_M, FACES, FURNITURE_KINDS,
+                             RIGHT_ANGLE_DEG, SIDES, SNAP_DEG, SNAP_ROUNDS, TOLERANCE_M, TOP_MISS_PX, WALL_SNAP_M,
+                             WALL_TOL_M, Wall, Z99, _Clicks, _floor, _pixel_metres, _reproject_fit, ray)
 
 
-def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, against: Wall | None = None
-               ) -> tuple[float, np.ndarray, np.ndarray]:
+def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, against: Wall | None = None,
+               noise_m: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray]:
     """Upright rectangle through floor corners f (3,3) (f[1] the corner between the others; a row of
     nan: a corner out of the photo): yaw (rad, about +Y as recon/scene.rot_y: local x = (cos, 0,
     -sin)), and its sorted ranges (2,) along local x and local z (m). Each side is the mean of the
     clicked corners on it; a side with none is size_m away from the opposite one, or on the wall
-    `against` (the wall the piece stands against)."""
+    `against` (the wall the piece stands against). The footprint is axis-aligned when its yaw is
+    within SNAP_DEG of the room's axes, or within what the clicks' noise turns its edges by (Z99
+    sigma; noise_m (3,): metres of floor one click sigma spans at each corner, across its edge): two
+    corners a short edge apart far off cannot tell 12 deg from 0."""
     known = [k for k in range(3) if np.isfinite(f[k, 0])]
     if len(known) < 2:
         raise P.err(where, "at least two of the three floor corners must be clicked")
@@ -40,7 +43,13 @@ def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, a
     z = sum(le * complex(math.cos(4 * math.atan2(-e[2], e[0])), math.sin(4 * math.atan2(-e[2], e[0])))
             for e, le in edges)
     yaw = math.atan2(z.imag, z.real) / 4 if edges else 0.0
-    if abs(math.degrees(yaw)) < SNAP_DEG:
+    snap_deg = SNAP_DEG
+    if noise_m is not None and edges:  # the yaw's sd from its edges' (radians): end noise across / length
+        info = sum(le * le / (noise_m[i] ** 2 + noise_m[j] ** 2)
+                   for (_, le), (i, j) in zip(edges, [ks for ks in ((0, 1), (1, 2)) if all(k in known for k in ks)]))
+        if info > 0:
+            snap_deg = max(SNAP_DEG, Z99 * math.degrees(1.0 / math.sqrt(info)))
+    if abs(math.degrees(yaw)) < snap_deg:
         yaw = 0.0
     elif len(known) < 3:
         raise P.err(where, f"the footprint is turned {math.degrees(yaw):.0f} deg from the room's axes: click all three "
@@ -471,7 +480,9 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
     against = c.get("against")
     if against is not None and against not in wall_of:
         raise P.err(where, f"'against' must name a clicked wall ({', '.join(sorted(wall_of))}), got {against!r}")
-    yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where), wall_of.get(against))
+    sigma = P.edges.sigma if P.edges is not None else CLICK_SIGMA_PX
+    noise_m = np.array([sigma * _pixel_metres(P, uv[k], base) if np.isfinite(uv[k, 0]) else np.nan for k in range(3)])
+    yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where), wall_of.get(against), noise_m)
     # height: the vertical line over floor[0] nearest the top click's ray (least squares in h, s)
     C, d = ray(P.camera, top_uv)
     A = np.stack([np.array([0.0, 1.0, 0.0]), -d], axis=1)

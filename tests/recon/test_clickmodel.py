@@ -613,3 +613,24 @@ def test_predicted_edge_noise_is_the_fits():
     line = EdgeLine(0, 1, 0.0, 1.0, np.array([220.0, 260.0]), np.array([0.0, 1.0]), 0.25)
     sd = pe.predicted_sd(np.array([0.2]), corners, corners, [line], [(0, 1)])
     assert sd[(0, 1)] == pytest.approx(1 / np.sqrt(34), rel=1e-3)
+
+
+def test_turn_within_the_clicks_noise_is_no_turn():
+    """recon/clickfurniture._footprint: two floor corners 0.31 m apart whose edge runs 11.3 deg off the
+    room's x axis (the third corner null, the sizes measured). Where one click sigma spans 4 cm of
+    floor at each (far off), the edge's direction is known to 10.6 deg (atan of 5.7 cm across 0.31 m),
+    so 11.3 deg is within Z99 sigma of none: the footprint is axis-aligned. Where a sigma spans 5 mm
+    (1.3 deg) the turn is real and, with two corners only, refused as before."""
+    from recon.clickbase import _Clicks
+    from recon.clickfurniture import _footprint
+
+    sc, cam = _scene("window_room")
+    P = _Clicks(cam, "clicks.json")
+    f = np.array([[1.0, 0.0, 1.0], [1.3, 0.0, 1.06], [np.nan] * 3])
+    yaw, xr, zr = _footprint(P, f, "clicks[3] (furniture 'shelf')", np.array([0.306, 0.5]),
+                             noise_m=np.array([0.04, 0.04, np.nan]))
+    assert yaw == 0.0
+    np.testing.assert_allclose(xr, [1.0, 1.3], atol=1e-9)
+    with pytest.raises(ClickError, match="turned -11 deg"):
+        _footprint(P, f, "clicks[3] (furniture 'shelf')", np.array([0.306, 0.5]),
+                   noise_m=np.array([0.005, 0.005, np.nan]))
