@@ -280,14 +280,19 @@ def _local_axes(b: dict) -> np.ndarray:
     return np.array([[math.cos(yaw), 0, -math.sin(yaw)], [0, 1.0, 0], [math.sin(yaw), 0, math.cos(yaw)]])
 
 
+NEAR_FACE_M = 0.1  # m: a generous bound on a side's own noise (a hidden side's, 1 px = 3-5 cm far off, 2.6
+# sigma): a face of another piece further off is not worth the chi-square test
+
+
 def _piece_planes(P: _Clicks, name: str, x: np.ndarray, reach: float = 3 * 0.01) -> dict[int, list]:
     """The faces of the pieces modelled before piece `name` (P.sides: axis-aligned ones, with the photo)
     that each of its sides j (0..3: x min, x max, z min, z max; x its [x min, x max, z min, z max])
     might stand on: {j: [(coordinate m, its sd m, label)]}. A side may be flush with the other's side
     of the same end (a sofa's back over its seat, both ending at one plane) or against its opposite
     side (a cabinet beside a desk), when the two footprints meet across the other axis (overlap, or
-    come within `reach`, 3 cm: three pixels of click noise at a few metres) and the two faces are
-    near enough to be one plane at all (within `reach` plus 3 sigma of both)."""
+    come within `reach`, 3 cm: three pixels of click noise at a few metres). Faces further off than
+    NEAR_FACE_M plus `reach` and 3 of that face's sigmas are not offered (they cannot pass
+    _hold_on_walls's chi-square test, which decides)."""
     out: dict[int, list] = {j: [] for j in range(4)}
     for other, (q, sd) in P.sides.items():
         if other == name:
@@ -300,7 +305,7 @@ def _piece_planes(P: _Clicks, name: str, x: np.ndarray, reach: float = 3 * 0.01)
                 continue
             for m in (j, j ^ 1):  # flush, or against
                 s_m = sd.get(m, float("inf"))
-                if np.isfinite(s_m) and abs(float(x[j]) - float(q[m])) <= reach + 3 * s_m + 0.1:
+                if np.isfinite(s_m) and abs(float(x[j]) - float(q[m])) <= NEAR_FACE_M + reach + 3 * s_m:
                     out[j].append((float(q[m]), s_m, f"{other!r}"))
     return out
 
