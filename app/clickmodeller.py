@@ -12,7 +12,8 @@ Tools and the clicks each needs, in photo pixels (u, v), (0, 0) the centre of th
   clicked) or "ceiling"; `opening` marks a window that is a hole in its wall.
 A corner out of the photo is skipped (skip_corner: a null in the clicks file; furniture floor[1] or
 floor[2], up to two quad corners); the side it alone would fix comes from `size_m` (metres, tape) or,
-for furniture, the wall it stands `against`.
+for furniture, the wall it stands `against`. A piece standing on another (`stands_on`: "on" in the
+clicks file) has its floor corners clicked on that piece's top.
 """
 from __future__ import annotations
 
@@ -50,6 +51,7 @@ class ModelController:
         self.opening = False
         self.size_m: list[float] | None = None  # [a, b] m for sides no clicked corner fixes
         self.against: str | None = None  # the wall a furniture piece stands against
+        self.stands_on: str | None = None  # the furniture piece a new one stands on ("on"; None: the floor)
         self.pending: list[list[float] | None] = []
         self._undo: list[tuple] = []
         self._redo: list[tuple] = []
@@ -99,6 +101,10 @@ class ModelController:
     def walls(self) -> list[str]:
         return [c["name"] for c in self.clicks if c.get("label") == "wall"]
 
+    def pieces(self) -> list[str]:
+        """The furniture clicked so far (what a new piece may stand on)."""
+        return [c["name"] for c in self.clicks if c.get("label") == "furniture"]
+
     def _name(self, base: str) -> str:
         used = {c.get("name") for c in self.clicks}
         k = 1
@@ -146,6 +152,8 @@ class ModelController:
             c = {"label": "furniture", "name": self._name(t), "kind": t, "floor": p[:3], "top": p[3]}
             if self.against and None in p:
                 c["against"] = self.against
+            if self.stands_on:  # its floor corners clicked on that piece's top
+                c["on"] = self.stands_on
         else:
             on = self.quad_on or (walls[-1] if walls else "ceiling")
             c = {"label": t, "name": self._name(t), "on": on, "corners": p,

@@ -793,6 +793,10 @@ class ModelWindow:
         self.opening = gui.Checkbox("opening (a hole in the wall)")
         self.opening.set_on_checked(self._on_opening)
         p.add_child(self.opening)
+        p.add_child(gui.Label("Furniture stands on"))
+        self.stands_on = gui.Combobox()
+        self.stands_on.set_on_selection_changed(self._on_stands_on)
+        p.add_child(self.stands_on)
         p.add_child(gui.Label("Corners out of the photo: sizes (m), against"))
         row = gui.Horiz(0.4 * em)
         self.size = gui.TextEdit()
@@ -854,6 +858,10 @@ class ModelWindow:
         for n in ["no wall"] + self.ctl.walls():
             self.against.add_item(n)
         self.against.selected_text = self.ctl.against or "no wall"
+        self.stands_on.clear_items()
+        for n in ["floor"] + self.ctl.pieces():
+            self.stands_on.add_item(n)
+        self.stands_on.selected_text = self.ctl.stands_on or "floor"
         from app.clickmodeller import NEEDS, TOOLS
 
         self.tools.selected_index = TOOLS.index(self.ctl.tool)
@@ -926,6 +934,9 @@ class ModelWindow:
     def _on_against(self, text: str, index: int) -> None:
         self.ctl.against = None if text == "no wall" else text
 
+    def _on_stands_on(self, text: str, index: int) -> None:
+        self.ctl.stands_on = None if text == "floor" else text
+
     def _on_skip(self) -> None:
         self._guard(self.ctl.skip_corner)
         self.refresh()
@@ -969,8 +980,8 @@ class ModelWindow:
         """Headless mode: play `events` through the window's own handlers, each after a few turns of
         the event loop (so layout and redraws happen as they would for a user). Events:
         {"tool": name}, {"on": wall name | "ceiling" | "last wall"}, {"opening": bool},
-        {"size_m": "a, b"}, {"against": wall name | "no wall"}, {"skip": true} (a corner out of the
-        photo), {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
+        {"size_m": "a, b"}, {"against": wall name | "no wall"}, {"stands_on": piece name | "floor"},
+        {"skip": true} (a corner out of the photo), {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
         (press on a clicked point, move, release), {"undo": n}, {"redo": n}, {"save": true}."""
         gui = self.gui
         from app.clickmodeller import TOOLS
@@ -1004,6 +1015,9 @@ class ModelWindow:
             elif "against" in ev:
                 self.against.selected_text = ev["against"]
                 self._on_against(ev["against"], 0)
+            elif "stands_on" in ev:
+                self.stands_on.selected_text = ev["stands_on"]
+                self._on_stands_on(ev["stands_on"], 0)
             elif ev.get("skip"):
                 self._on_skip()
             elif "click" in ev:
@@ -1024,6 +1038,6 @@ class ModelWindow:
             elif ev.get("save"):
                 self._on_save()
             else:
-                raise ValueError(f"script event {ev!r}: expected tool, on, opening, size_m, against, skip, click, drag, "
-                                 "undo, redo or save")
+                raise ValueError(f"script event {ev!r}: expected tool, on, opening, size_m, against, stands_on, skip, "
+                                 "click, drag, undo, redo or save")
             spin()

@@ -56,20 +56,34 @@ def _unhidden(cam: Camera, scene: dict, g: dict, P: np.ndarray) -> np.ndarray:
     boxes = [p for p in scene["primitives"] if p.get("role") == "furniture" and p["type"] == "box"]
     desk = g["kind"] == "desk"
     own = next(p for p in boxes if p["name"] == (g["name"] + "_top" if desk else g["name"]))
-    if not desk:  # the group's own box from the floor up, as the clicks model it
-        lo, hi = np.array([g["x"][0], 0.0, g["z"][0]]), np.array([g["x"][1], g["top"], g["z"][1]])
+    if not desk:  # the group's own box from the floor (or what it stands on) up, as the clicks model it
+        lo = np.array([g["x"][0], g.get("base", 0.0), g["z"][0]])
+        hi = np.array([g["x"][1], g["top"], g["z"][1]])
         own = {"name": g["name"], "center": ((lo + hi) / 2).tolist(), "size": (hi - lo).tolist()}
     others = [b for b in boxes if b["name"] != g["name"] and not b["name"].startswith(g["name"] + "_")]
     return _shown(_Clicks(cam, "truth", None, others), g["name"], np.atleast_2d(P), own)
 
 
-def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: int = 2, seen_only: bool = False
-                ) -> tuple[dict, dict]:
+def support(groups: list[dict], g: dict) -> dict | None:
+    """The group g stands on: one whose top is g's bottom (within 5 mm) and whose footprint holds g's
+    footprint's centre; None for a piece on the floor."""
+    if g["bottom"] < 0.005:
+        return None
+    cx, cz = sum(g["x"]) / 2, sum(g["z"]) / 2
+    return next((o for o in groups if o is not g and abs(o["top"] - g["bottom"]) < 0.005
+                 and o["x"][0] <= cx <= o["x"][1] and o["z"][0] <= cz <= o["z"][1]), None)
+
+
+def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: int = 2, seen_only: bool = False,
+                stacked: bool = False) -> tuple[dict, dict]:
     """(clicks dict with `wall_points` points on each wall's foot, what was clicked: {"walls": [faces], "ceiling": bool, "furniture": [names],
     "quads": [names], "skipped": [names]}) for a benchmark scene.json dict. With `seen_only`, a
     furniture corner another piece or the piece itself hides is not clicked either (as a user who
     clicks only what they see: null, with the footprint's sizes in size_m, measured), and a piece
-    with no visible floor corner under its top click is skipped."""
+    with no visible floor corner under its top click is skipped. With `stacked`, a piece standing on
+    another (a sofa's back on its seat: bench `support`) is clicked as such: `"on"` names that one and
+    its `floor` corners are where it meets that one's top (else its footprint's corners on the floor
+    under it, hidden or not)."""
     rng = np.random.default_rng(seed)
     mc = scene["main_camera"]
     cam = Camera.from_json(mc, "scene.json", "main_camera.")
@@ -99,14 +113,19 @@ def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: 
             if len(E):
                 clicks.append({"label": "ceiling", "wall": face, "edge": px(E[len(E) // 2])})
                 done["ceiling"] = True
-    for g in furniture_groups(scene):
+    groups = furniture_groups(scene)
+    for g in groups:
         (x0, x1), (z0, z1) = g["x"], g["z"]
-        ring = np.array([[x0, 0, z0], [x1, 0, z0], [x1, 0, z1], [x0, 0, z1]])
+        under = support(groups, g) if stacked else None
+        base = g["bottom"] if under is not None else 0.0
+        if under is not None:
+            g = {**g, "base": base}
+        ring = np.array([[x0, base, z0], [x1, base, z0], [x1, base, z1], [x0, base, z1]])
         best = None
         for k in range(4):
             for step in (1, -1):
                 idx = [k, (k + step) % 4, (k + 2 * step) % 4]
-                top = ring[k] + [0, g["top"], 0]
+                top = ring[k] + [0, g["top"] - base, 0]
                 vis = _visible(cam, ring[idx])
                 top_vis = _visible(cam, top[None])[0]
                 if seen_only:
@@ -124,6 +143,8 @@ def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: 
         _, idx, top, vis = best
         floor = [px(ring[i]) if v else None for i, v in zip(idx, vis)]
         c = {"label": "furniture", "name": g["name"], "kind": g["kind"], "floor": floor, "top": px(top)}
+        if under is not None:
+            c["on"] = under["name"]
         if not vis.all():  # the user measures the footprint's sides
             c["size_m"] = [float(np.linalg.norm(ring[idx[0]] - ring[idx[1]])),
                            float(np.linalg.norm(ring[idx[2]] - ring[idx[1]]))]

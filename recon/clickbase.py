@@ -119,6 +119,8 @@ class _Clicks:
         self.ceiling_sd = 0.0  # m: the ceiling height's standard deviation when clicked (with the photo)
         self.wall_sd: dict[tuple[int, int], float] = {}  # (axis, side) -> a clicked wall offset's sd (m) for
         # _hold_on_walls, with the photo: at least its foot line's noise floor in metres
+        self.sides: dict[str, tuple[np.ndarray, dict[int, float]]] = {}  # with the photo: an axis-aligned piece ->
+        # ([x min, x max, z min, z max] m, {side: sd m}), for the pieces modelled after it (_piece_planes)
 
     def blocker(self, name: str):
         """recon.clickedges.box_blocker of every furniture box but piece `name`'s own."""
@@ -200,9 +202,15 @@ def load_clicks(path: str | os.PathLike) -> dict:
     return d
 
 
-def _floor(P: _Clicks, uv, where: str, at: str) -> np.ndarray:
-    p = hit_plane(P.camera, uv, [0.0, 1.0, 0.0], 0.0)
+def _floor(P: _Clicks, uv, where: str, at: str, base: float = 0.0, on: str | None = None) -> np.ndarray:
+    """The point (3,) where click uv's ray meets the floor (y = 0), or with `on` (a piece's name) the
+    top of that piece, the plane y = base (m, below the camera); ClickError when it meets it behind
+    the camera (on or above the plane's horizon)."""
+    p = hit_plane(P.camera, uv, [0.0, 1.0, 0.0], base)
     if p is None:
+        if on is not None:
+            raise P.err(where, f"{at} = [{uv[0]:g}, {uv[1]:g}] is on or above the horizon of the top of {on!r} "
+                               f"({base:.2f} m high): a corner on it must be clicked below that horizon")
         raise P.err(where, f"{at} = [{uv[0]:g}, {uv[1]:g}] is on or above the horizon: a floor point must be "
                            "clicked below it, where the floor is seen")
     return p
@@ -226,10 +234,11 @@ def _reproject_fit(x0: np.ndarray, points, uv: np.ndarray, camera: Camera) -> np
     return r.x if r.success and np.all(np.isfinite(r.x)) else x0
 
 
-def _pixel_metres(P: _Clicks, uv) -> float:
-    """Metres on the floor that one pixel spans at the floor click uv (the larger of u and v)."""
-    p = hit_plane(P.camera, uv, [0.0, 1.0, 0.0], 0.0)
-    steps = [hit_plane(P.camera, np.asarray(uv) + d, [0.0, 1.0, 0.0], 0.0) for d in ((1.0, 0.0), (0.0, 1.0))]
+def _pixel_metres(P: _Clicks, uv, base: float = 0.0) -> float:
+    """Metres on the floor (or the plane y = base, m) that one pixel spans at the click uv there (the
+    larger of u and v)."""
+    p = hit_plane(P.camera, uv, [0.0, 1.0, 0.0], base)
+    steps = [hit_plane(P.camera, np.asarray(uv) + d, [0.0, 1.0, 0.0], base) for d in ((1.0, 0.0), (0.0, 1.0))]
     return max((float(np.linalg.norm(q - p)) for q in steps if q is not None), default=1.0)
 
 

@@ -52,6 +52,8 @@ PIECE_PX = 40.0  # a wall's foot that does not snap whole is tried in pieces abo
 MIN_SEARCH_PX = 2.0  # px: an edge is searched at least this far either side: its peak's centroid spans
 # +-1 px and a neighbouring edge within OPPOSITE_PX drags it, so two model edges nearer than twice this
 # (a thin top face's two long edges) cannot be told apart and neither is snapped
+PEAK_PX = 1.0  # px: a search from a fit's predicted place reaches this much further, so that an edge at its
+# SEARCH_SIGMAS bound still shows its peak whole (an edge's gradient peak is about 2 px wide: the 3x3 Sobel)
 BORDER_PX = 3.0  # samples this close to the photo's border are not used
 EDGE_SAMPLES = 41  # points along a model edge tested for visibility
 OCCLUDER_GAP_M = 0.01  # a sight line must pass this far before the edge to count as blocked
@@ -103,18 +105,20 @@ class PhotoEdges:
         self.camera, self.sigma = camera, float(click_sigma_px)
         self.search = max(SEARCH_PX, SEARCH_SIGMAS * self.sigma)
 
-    def _snap(self, seg: np.ndarray, clipped_ok: bool = False, faint: bool = False, search: float | None = None):
+    def _snap(self, seg: np.ndarray, clipped_ok: bool = False, faint: bool = False, search: float | None = None,
+              sigma: float | None = None):
         """edgesnap's sample-by-sample snap; failing that, with `faint`, the piecewise profile snap;
         searching `search` px either side (default self.search)."""
         seg = np.asarray(seg, float)
         search = self.search if search is None else search
-        r = self.edges.snap(seg, self.sigma, search, clipped_ok, OPPOSITE_PX)
+        sigma = self.sigma if sigma is None else sigma
+        r = self.edges.snap(seg, sigma, search, clipped_ok, OPPOSITE_PX)
         if r is None and faint:
-            r = self.snap_faint(seg, clipped_ok, search)
+            r = self.snap_faint(seg, clipped_ok, search, sigma)
         return r
 
-    def snap_faint(self, seg: np.ndarray, clipped_ok: bool = False, search: float | None = None
-                   ) -> tuple[np.ndarray, float, int] | None:
+    def snap_faint(self, seg: np.ndarray, clipped_ok: bool = False, search: float | None = None,
+                   sigma: float | None = None) -> tuple[np.ndarray, float, int] | None:
         """A straight edge too faint against the texture beside it for edgesnap's sample-by-sample
         snap (two walls of nearly one tone meeting at a corner, a skirting of the floor's tone), or
         whose polarity swaps along it (planks of varying tone against the skirting): the segment is cut
@@ -189,7 +193,8 @@ class PhotoEdges:
             if len(pts) - 1 < max(FAINT_MIN_PIECES, MIN_FOUND * n_pieces):
                 return None
             pts = np.delete(pts, int(np.argmax(np.abs(r))), axis=0)
-        if ((a - c) @ nn) ** 2 + ((b - c) @ nn) ** 2 > CHI2_2DOF_9999 * self.sigma ** 2:
+        sigma = self.sigma if sigma is None else sigma
+        if ((a - c) @ nn) ** 2 + ((b - c) @ nn) ** 2 > CHI2_2DOF_9999 * sigma ** 2:
             return None
         proj = lambda q: c + np.dot(q - c, dd) * dd  # noqa: E731
         return np.concatenate([proj(a), proj(b)]), spread, int(len(pts))
@@ -233,13 +238,18 @@ class PhotoEdges:
         return out
 
     def lines(self, corners: np.ndarray, pairs: list[tuple[int, int]], blocked: Callable[[np.ndarray], np.ndarray],
-              clipped_ok: bool = False, faint: bool = False) -> list[EdgeLine]:
+              clipped_ok: bool = False, faint: bool = False, model_sd: dict | None = None) -> list[EdgeLine]:
         """The model edges `pairs` of corners (N,3) snapped to the photo, each over its longest
         stretch inside the photo and not `blocked` (callable (M,3) points -> (M,) bool); with
         `faint`, an edge edgesnap does not find is tried as a faint one (snap_faint). An edge is
         searched at most half way to the nearest other edge of `pairs` (not sharing a corner with
         it: the median distance along its stretch), so that it cannot snap to that one's place; nearer
-        than 2 MIN_SEARCH_PX (a thin top face's two long edges) it is not snapped."""
+        than 2 MIN_SEARCH_PX (a thin top face's two long edges) it is not snapped. model_sd: {pair: px}
+        the model edge's own noise across itself where a fit gives it (predicted_sd): it is searched
+        SEARCH_SIGMAS of that either side (at least MIN_SEARCH_PX: a fit pinning an edge to a fraction of
+        a pixel keeps the search off a texture's edges a few pixels away, a floor's plank seams along a
+        piece's foot), and the edge found must agree with it within that noise or the click noise,
+        whichever is larger (an edge far from every click moves more than a click does)."""
         cam = self.camera
         ts = np.linspace(0.0, 1.0, EDGE_SAMPLES)
         out = []
@@ -263,10 +273,14 @@ class PhotoEdges:
             mid = uv[a:b + 1]
             sep = min((float(np.median(_seg_dist(mid, e))) for (p, q), e in proj.items() if not {p, q} & {i, j}),
                       default=np.inf)
-            search = min(self.search, sep / 2)
+            sd_e = (model_sd or {}).get((i, j))
+            sigma = self.sigma if sd_e is None else max(self.sigma, sd_e)
+            search = self.search if sd_e is None else \
+                min(self.search, max(MIN_SEARCH_PX, SEARCH_SIGMAS * sd_e + PEAK_PX))
+            search = min(search, sep / 2)
             if search < MIN_SEARCH_PX:
                 continue
-            r = self._snap(np.r_[uv[a], uv[b]], clipped_ok, faint, search)
+            r = self._snap(np.r_[uv[a], uv[b]], clipped_ok, faint, search, sigma)
             if r is None:
                 continue
             seg, spread, used = r
@@ -295,6 +309,48 @@ class PhotoEdges:
             return float("inf")
         r = np.r_[(p - uv).ravel(), self.residuals(lines, corners(x))] / self.sigma
         return float(r @ r)
+
+    def predicted_sd(self, x: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
+                     clicks: Callable[[np.ndarray], np.ndarray], lines: list[EdgeLine],
+                     pairs: list[tuple[int, int]], step: float = 1e-4) -> dict[tuple[int, int], float]:
+        """{pair: px}: the standard deviation across itself, in the photo, of each model edge `pairs` of
+        corners(x) from the fit at x (its clicks and `lines`, the least-squares covariance; the larger
+        of its two ends), for PhotoEdges.lines's model_sd; {} when the fit does not pin every
+        parameter."""
+        x = np.asarray(x, float)
+        cov = self.cov(x, corners, clicks, lines, step)
+        if cov is None:
+            return {}
+        C0 = corners(x)
+        dC = [corners(x + step * np.eye(len(x))[k]) for k in range(len(x))]
+        out = {}
+        for i, j in pairs:
+            uv, z = self.camera.project(C0[[i, j]])
+            if not np.all(z > 1e-6) or np.linalg.norm(uv[1] - uv[0]) < 1e-6:
+                continue
+            d = (uv[1] - uv[0]) / np.linalg.norm(uv[1] - uv[0])
+            n = np.array([-d[1], d[0]])
+            J = np.stack([(self.camera.project(D[[i, j]])[0] - uv) @ n / step for D in dC], axis=1)  # (2, n)
+            var = np.einsum("ik,kl,il->i", J, cov, J)
+            out[(i, j)] = float(np.sqrt(max(var.max(), 0.0)))
+        return out
+
+    def cov(self, x: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
+            clicks: Callable[[np.ndarray], np.ndarray], lines: list[EdgeLine], step: float = 1e-4
+            ) -> np.ndarray | None:
+        """The fit's parameter covariance sigma^2 (J^T J)^-1 at x (J by forward differences of
+        `step`); None where the clicks and lines do not pin every parameter."""
+        def fun(q):
+            p, _ = self.camera.project(clicks(q))
+            return np.r_[p.ravel(), self.residuals(lines, corners(q))]
+
+        x = np.asarray(x, float)
+        f0 = fun(x)
+        J = np.stack([(fun(x + step * np.eye(len(x))[k]) - f0) / step for k in range(len(x))], axis=1)
+        try:
+            return np.linalg.inv(J.T @ J) * self.sigma ** 2
+        except np.linalg.LinAlgError:
+            return None
 
     def sd(self, x: np.ndarray, corners: Callable[[np.ndarray], np.ndarray], clicks: Callable[[np.ndarray], np.ndarray],
            lines: list[EdgeLine], step: float = 1e-4) -> np.ndarray:

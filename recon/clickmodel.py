@@ -12,6 +12,9 @@ clicks file (docs/scene-format.md, "Clicks file"):
       {"label": "window" | "lamp", "name": "w1", "on": "back" | "ceiling",
        "corners": [[u, v], [u, v], [u, v], [u, v]], "opening": false}]}
 
+A furniture piece may name another it stands on ("on": "desk"): its floor corners are then on that
+piece's top and its box starts there (that piece is modelled first, _support_order).
+
 Conventions: the camera's world frame (recon/camera.py; `photoar calibrate` puts the floor at
 y = 0, +Y up, X and Z along the room's vanishing directions), metres; pixel (u, v) with (0, 0) the
 centre of the top-left pixel, inside the photo.
@@ -37,7 +40,8 @@ Method:
     the ceiling are then refitted together with the room's corner and ceiling edges (_refine_room);
     a piece's edges are snapped in rounds (_snap_and_refine; a desk's legs' vertical edges too: they
     see a move along the line of sight its top's edges do not), a side of it that is one plane with
-    a clicked wall within both their noises is put against it (_hold_on_walls; a side only clicks on
+    a clicked wall, or a face of a piece modelled before it, within both their noises is put against it
+    (_hold_on_walls, _piece_planes; a side only clicks on
     hidden corners place is not judged: _shown), and a side pinned worse than TOLERANCE_M (at 99 %)
     is reported ill-determined (ClickModel.uncertain, a warning);
   * walls that no click shows are placed WALL_MARGIN_M beyond the camera (recon/roomfit.py's rule:
@@ -201,15 +205,14 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
     names = {"room"} | set(wall_of)
     prims: list[dict] = []
     extents: list[np.ndarray] = []  # points every wall must contain (guessed walls are moved beyond them)
-    for label, where, c in items:
-        if label in ("wall", "ceiling"):
-            continue
+    pieces: dict[str, list[dict]] = {}  # furniture modelled so far: name -> its boxes
+    for label, where, c in _support_order(items):
         name = c["name"]
         if name in names:
             raise ClickError(f"{src}: {where}: duplicate name {name!r}")
         names.add(name)
         if label == "furniture":
-            new = _furniture(P, c, where, name, lo, hi, wall_of)
+            new = pieces[name] = _furniture(P, c, where, name, lo, hi, wall_of, pieces)
         else:
             new = [_quad(P, c, where, name, label, lo, hi, wall_of)]
         for p in new:
@@ -253,6 +256,23 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
                     ", ".join(f"+-{Z99 * v * 100:.1f} cm" for v in sides.values()), f"{Z99:g}")
     return ClickModel([room] + prims, lo, hi, ceiling_from, guessed, P.refined if P.edges is not None else None,
                       P.uncertain if P.edges is not None else None)
+
+
+def _support_order(items: list[tuple[str, str, dict]]) -> list[tuple[str, str, dict]]:
+    """The furniture, window and lamp clicks (not walls or the ceiling) in file order, except that a
+    piece standing `on` another comes after that one (a piece naming no earlier-modelled piece, or
+    in a cycle, keeps its place: _furniture refuses it)."""
+    rest = [it for it in items if it[0] not in ("wall", "ceiling")]
+    out: list[tuple[str, str, dict]] = []
+    done: set[str] = set()
+    while rest:
+        k = next((i for i, (label, _, c) in enumerate(rest) if label != "furniture" or c.get("on") is None
+                  or c.get("on") in done), None)
+        if k is None:  # what is left names unknown pieces or stands in a cycle: in file order, to be refused
+            k = 0
+        out.append(rest.pop(k))
+        done.add(out[-1][2].get("name"))
+    return out
 
 
 def primitive_edges(p: dict, camera: Camera, near: float = 0.05) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -134,3 +134,11 @@ def test_controller_undo_redo_and_drag():
     assert ctl.skip_corner() is None and ctl.pending[-1] is None
     d = ctl.click(400, 300)
     assert d["floor"][2] is None and d["against"] == "wall1" and "size_m" not in d
+    # a box standing on that desk: "on" names it (its corners then clicked on the desk's top)
+    ctl.against = None
+    ctl.set_tool("box")
+    ctl.stands_on = ctl.pieces()[0]
+    for q in ((380, 330), (360, 325), (390, 320)):
+        assert ctl.click(*q) is None
+    b = ctl.click(380, 300)
+    assert ctl.pieces() == [d["name"], b["name"]] and b["on"] == d["name"] and "against" not in b
