@@ -84,11 +84,15 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
     out = {"room": name, "pp_from": cj.get("principal_point_from"), "calibrated": camera_errors(cam, truth, S)}
     for v in variants:
         t0 = time.time()
-        r = refine_camera(cam, prims, img, cj, **_variant(v))
+        kw = _variant(v)
+        import recon.camrefine as cr
+        for k in [k for k in kw if k.startswith("cr.")]:
+            setattr(cr, k[3:], kw.pop(k))
+        r = refine_camera(cam, prims, img, cj, **kw)
         out[v or "default"] = {**camera_errors(r.camera, truth, S), "accepted": r.accepted, "reason": r.reason,
                                "seconds": time.time() - t0, "refinement": r.to_json()}
         if true_start:
-            r = refine_camera(truth, prims, img, None, **_variant(v))
+            r = refine_camera(truth, prims, img, None, **kw)
             moved = camera_errors(r.camera, truth, S) if r.accepted else None
             out[(v or "default") + " from truth"] = {"moved_px": r.moved_px, "accepted": r.accepted,
                                                      "reason": r.reason, "errors": moved}
