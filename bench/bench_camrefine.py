@@ -10,7 +10,7 @@ room's edge samples the truth's camera sees.
 
 `python bench/bench_camrefine.py [--rooms DIR] [--only window_101,...,sun_room] [--variant profiles]
 [--variant lines] [--true] [--json OUT]`; a variant is refine_camera's keyword arguments as
-`key=value,key=value` (e.g. `fine_stage=lines`). Shared rooms (window_room, lamps_room, sun_room) are
+`key=value,key=value` (e.g. `fine_stage=lines`, `fine_stage=lines,principal_point=free`). Shared rooms (window_room, lamps_room, sun_room) are
 read from $PHOTOAR_SHARED/scenes.
 """
 from __future__ import annotations
@@ -85,9 +85,6 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
     for v in variants:
         t0 = time.time()
         kw = _variant(v)
-        import recon.camrefine as cr
-        for k in [k for k in kw if k.startswith("cr.")]:
-            setattr(cr, k[3:], kw.pop(k))
         r = refine_camera(cam, prims, img, cj, **kw)
         out[v or "default"] = {**camera_errors(r.camera, truth, S), "accepted": r.accepted, "reason": r.reason,
                                "seconds": time.time() - t0, "refinement": r.to_json()}
