@@ -46,25 +46,23 @@ def at_image_centre(cam: Camera) -> Camera:
     return dataclasses.replace(cam, K=K, R=R, t=-R @ cam.centre)
 
 
-def select(held, free, fit, edges, occ, photo, lines, fine_stage: str):
+def select(held, free, fit, solve, refit):
     """(fit, model, note): the held model's `fit` kept, or the free model's fit when freeing the
     principal point drops the fit's cost by more than CHI2_2DOF_999 on the held fit's own data (its
     last solve's edge samples, matched edge points, noise and shared edge error, and the clicked
-    lines); then the free model's sub-pixel stage runs on from there. held, free: camrefine._Model of
-    the same input camera without and with the principal point."""
-    from recon import camrefine as cr
-
-    sub, q, sig, edge_var = fit.data
-    kw = {"f_scale": cr.ROBUST_SIGMAS, "edge_var": edge_var, "weighting": "model"}
-    held_res = cr._solve(held, fit.x, sub, q, sig, lines, **kw)
-    res = cr._solve(free, np.concatenate([held_res.x, np.zeros(free.n - held.n)]), sub, q, sig, lines, **kw)
+    lines), both solved with the per-edge model error; then the free model's sub-pixel stage runs on
+    from there. held, free: recon.camrefine._Model of the same input camera without and with the
+    principal point; solve(model, x0, data): the least-squares result (camrefine._solve with the
+    "model" edge weighting) on `data`; refit(model, x): the sub-pixel stage's fit from x (None: too
+    few edges)."""
+    held_res = solve(held, fit.x, fit.data)
+    res = solve(free, np.concatenate([held_res.x, np.zeros(free.n - held.n)]), fit.data)
     drop = 2.0 * (float(held_res.cost) - float(res.cost))
     moved = float(np.linalg.norm(free.camera(res.x).K[:2, 2] - held.cam0.K[:2, 2]))
     if not drop > CHI2_2DOF_999:
         return fit, held, (f"held at the image centre (freeing it, {moved:.1f} px away, drops the fit's "
                            f"chi-square by {drop:.1f} <= {CHI2_2DOF_999:.1f})")
-    stage = cr._line_stage if fine_stage == "lines" else cr._profile_stage
-    out = stage(free, res.x, edges, occ, photo, lines)
+    out = refit(free, res.x)
     if out is None:
         return fit, held, f"held at the image centre (the free fit found too few edges; chi-square drop {drop:.1f})"
     return (dataclasses.replace(out, start=fit.start), free,

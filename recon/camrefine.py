@@ -618,7 +618,14 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         note = "held at the image centre"
         if best is not None and principal_point == "select":
             free = _Model(held.cam0, free_pp=True, pp_prior=fine_stage == "lines")
-            best, model, note = campp.select(held, free, best, **stage)
+            fine = _line_stage if fine_stage == "lines" else _profile_stage
+
+            def solve(m, x0, data):
+                sub, q, sig, edge_var = data
+                return _solve(m, x0, sub, q, sig, lines, f_scale=ROBUST_SIGMAS, edge_var=edge_var, weighting="model")
+
+            best, model, note = campp.select(held, free, best, solve,
+                                             lambda m, x: fine(m, x, edges, occ, photo, lines))
     else:
         model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
         best = _search(model, **stage)
