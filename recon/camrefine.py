@@ -8,7 +8,8 @@ projected into the photo and aligned with the photo's edges:
 1. edges: every edge of every quad / box face (duplicates shared by two faces merged), sampled in
    3D; a sample is kept where the ray from the camera reaches it before anything else of the room
    (Open3D RaycastingScene) and it projects inside the image;
-2. coarse (ICP on oriented edges): the photo's Canny edges are split by the orientation of their
+2. coarse (ICP on oriented edges; the photo's edges prepared once in recon/photoedges.py): the
+   photo's Canny edges are split by the orientation of their
    gradient; each sample is matched to the nearest edge pixel whose orientation is within one bin
    of its projected edge's normal (distance transform with labels); robust least squares
    (scipy.optimize.least_squares, Cauchy loss) of the point-to-line distances n.(q - uv); the match
@@ -29,10 +30,12 @@ projected into the photo and aligned with the photo's edges:
 6. a photo edge point explains one room edge (_exclusive): a match nearer to another parallel room
    edge is dropped, so two close parallel edges do not both lock onto the stronger photo edge.
 
-Free: rotation (3), centre x and z (m), focal length (fx = fy, log-parametrised), and the principal
-point when calibrate took it from three vanishing points (camera.json "principal_point_from"; that
-estimate is weak, the room's known edges pin it); held: the camera height (centre y, from calibrate's
---height), the principal point otherwise, the room (taped). The refined camera is accepted when the fit
+Free: rotation (3), centre x and z (m), focal length (fx = fy, log-parametrised); held: the camera
+height (centre y, from calibrate's --height), the principal point, the room (taped). A principal point
+calibrate took from three vanishing points (camera.json "principal_point_from"; that estimate is weak)
+is moved to the image centre and held there, and freed only when the room's edges and the clicked
+lines fit significantly better with it free (recon/campp.py: calibrate's chi-square test redone on the
+room's edges, each edge carrying the room model's own error). The refined camera is accepted when the fit
 is well-conditioned, agrees with the clicked lines and lowers the edge residual (_guard); else the
 input camera is kept, as it is also when the refinement would move the room's edges by under
 MIN_MOVE_PX (the camera already fits: a true camera stays put).
@@ -48,8 +51,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from recon.camera import Camera
+from recon.photoedges import ORIENT_BINS, PROFILE_HALF_PX, PROFILE_STEP_PX, PhotoEdges  # noqa: F401 (re-exported)
 
-ORIENT_BINS = 12  # bins of the edge normal's angle over [0, pi): 15 deg; a match may be one bin off
 SAMPLE_STEP_PX = 3.0  # spacing of the edge samples in the image at the input camera
 END_TRIM_PX = 6.0  # samples closer than this to an edge's projected end are dropped: corners mix edges
 BORDER_PX = 3.0  # samples this close to the image border are dropped (the gradient needs its neighbours)
@@ -57,8 +60,6 @@ MIN_EDGE_PX = 12.0  # an edge shorter than this in the image is skipped (a point
 COARSE_RADII_PX = (64.0, 32.0, 16.0, 8.0, 4.0, 2.0)  # match radius of the coarse stages (a 4 % focal
 # error moves a 640 px photo's edges by up to 13 px, a 0.3 m centre error by tens of px)
 ROBUST_SIGMAS = 2.0  # the robust loss's scale, in sigmas of the stage's edge noise
-PROFILE_HALF_PX = 2.0  # the fine stage's search either side of the projected edge
-PROFILE_STEP_PX = 0.25
 FINE_STAGES = ("profiles", "lines")  # the sub-pixel stage: per sample (the default) or whole edges (edgelines)
 LINE_RADIUS_PX = 4.0  # the line stage's search either side of the projected edge: twice the coarse stage's
 # last match radius (2 px), which leaves each sample within 2 px of a photo edge, with room for the tilt
@@ -72,7 +73,13 @@ PP_PRIOR_REL = 0.01  # a freed principal point's prior: the image centre, 1 sigm
 # image side (calibrate's own assumption, recon/vanishing.calibrate_lines pp_sigma_px): a principal point
 # shift and a small rotation move far edges alike, and in a noisy photo with few edges found the fit
 # trades one for the other
-EDGE_WEIGHT_SAMPLES = 20  # one edge's samples share its model error: it weighs at most this many (see _solve)
+EDGE_WEIGHT_SAMPLES = 20  # the fit: one edge's samples share its model error, it weighs at most this many (_solve)
+EDGE_MODEL_SIGMA_PX = 0.3  # the model selection (recon/campp.py): the room model's own error of one edge's image
+# (px, 1 sigma, shared by its samples): the taped room's edges sit 0.2-0.4 px off the photo's at the true camera
+# (creases, contact shadows, shading, the tape), so an edge of n samples counts as one measurement of variance
+# sigma_sample^2 / n + this^2 (_edge_weights "model"). Not the fit's weighting: fitted so (docs/unseen.md) the
+# short furniture edges weigh as much as the room's long ones and the clicked lines far more than before, and
+# window_103's refined camera went 0.19 -> 5.6 px off, window_101's 0.55 -> 2.0 px
 MAX_PRED_STD_PX = 0.25  # conditioning: a 1-sigma parameter error may move the samples this much (rms)
 MIN_MOVE_PX = 1.0  # a refinement that moves the room's edges less (rms) is not made: the room model's own
 # edges sit 0.2-0.4 px off the photo's (creases, contact shadows, shading; per edge, at the true camera), and
@@ -105,6 +112,7 @@ class Refinement:
     chamfer_before_px: float  # edge residual (CHAMFER_CAP_PX-capped mean distance) at the input camera
     chamfer_after_px: float  # ... at the refined camera
     seconds: float
+    principal_point: str = ""  # how the principal point was modelled (recon/campp.py); "" when held as given
 
     def to_json(self) -> dict:
         d = {k: v for k, v in dataclasses.asdict(self).items() if k != "camera"}
@@ -116,7 +124,8 @@ class Refinement:
                 f"lines, rms {self.rms_lines_px:.2f} px; moved focal {100 * self.focal_change:+.2f} %, centre "
                 f"{self.centre_moved_m:.3f} m, {self.rotation_deg:.2f} deg, principal point "
                 f"{self.principal_point_moved_px:.1f} px ({self.moved_px:.2f} px; from the {self.start}); edge "
-                f"residual {self.chamfer_before_px:.2f} -> {self.chamfer_after_px:.2f} px ({self.seconds:.1f} s)")
+                f"residual {self.chamfer_before_px:.2f} -> {self.chamfer_after_px:.2f} px ({self.seconds:.1f} s)"
+                + (f"; principal point {self.principal_point}" if self.principal_point else ""))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -223,101 +232,6 @@ def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder) -> _Samples:
 
 
 # ----------------------------------------------------------------------------------------------
-# The photo's edges
-
-class PhotoEdges:
-    """The photo prepared once: oriented Canny edges with their nearest-pixel maps, and edgesnap's
-    linear gradient image for the sub-pixel stage."""
-
-    def __init__(self, image: np.ndarray):
-        import cv2
-
-        from recon.edgesnap import EdgeImage
-
-        img = np.asarray(image)
-        self.fine = EdgeImage(img)  # linear gray gradient, clipped-pixel mask (raises on a non-8-bit image)
-        gray = cv2.cvtColor(img[:, :, :3], cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
-        g = cv2.GaussianBlur(gray, (0, 0), 1.0)
-        gx = cv2.Sobel(g.astype(np.float32), cv2.CV_32F, 1, 0, ksize=3)
-        gy = cv2.Sobel(g.astype(np.float32), cv2.CV_32F, 0, 1, ksize=3)
-        # hysteresis thresholds relative to the photo's own gradients: a crease between two walls
-        # is a few levels; the median gradient is the photo's texture and noise
-        mag = np.hypot(gx, gy) / 8.0  # levels per pixel
-        hi = max(4.0, 4.0 * float(np.median(mag)))
-        edges = cv2.Canny(g, 0.5 * hi * 8.0, hi * 8.0, L2gradient=True) > 0
-        ang = np.mod(np.arctan2(gy, gx), np.pi)
-        b = np.minimum((ang / (np.pi / ORIENT_BINS)).astype(int), ORIENT_BINS - 1)
-        self.n_edge_px = int(edges.sum())
-        self.shape = gray.shape
-        self.near = []  # per bin: (distance (H,W), nearest edge pixel (H,W,2) as (u, v))
-        for k in range(ORIENT_BINS):
-            m = edges & np.isin(b, [(k - 1) % ORIENT_BINS, k, (k + 1) % ORIENT_BINS])
-            self.near.append(_nearest(m))
-
-    def match(self, uv: np.ndarray, normal_angle: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-        """Nearest oriented edge pixel (N,2) of each projected sample and whether one lies within `radius` px."""
-        iu = np.clip(np.rint(uv).astype(int), 0, [self.shape[1] - 1, self.shape[0] - 1])
-        k = np.minimum((np.mod(normal_angle, np.pi) / (np.pi / ORIENT_BINS)).astype(int), ORIENT_BINS - 1)
-        q = np.zeros_like(uv)
-        d = np.full(len(uv), np.inf)
-        for b in np.unique(k):
-            m = k == b
-            dist, pos = self.near[b]
-            d[m] = dist[iu[m, 1], iu[m, 0]]
-            q[m] = pos[iu[m, 1], iu[m, 0]]
-        return q, d <= radius
-
-    def distance(self, uv: np.ndarray, normal_angle: np.ndarray) -> np.ndarray:
-        """Distance (px) from each projected sample to the nearest oriented edge pixel (inf: none)."""
-        q, _ = self.match(uv, normal_angle, np.inf)
-        return np.linalg.norm(q - uv, axis=1) if len(uv) else np.zeros(0)
-
-    def subpixel(self, uv: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Sub-pixel edge positions (N,2) across each projected sample (unit normal n) within
-        +-PROFILE_HALF_PX, and which were found: edgesnap's rule per sample (the centroid of the
-        gradient above half its peak within 1 px of it; no peak on the window's border, no second
-        peak over half as strong, no clipped pixel within 3 px)."""
-        from recon.edgesnap import AMBIGUOUS
-
-        E = self.fine
-        ss = np.arange(-PROFILE_HALF_PX, PROFILE_HALF_PX + 1e-9, PROFILE_STEP_PX)
-        P = uv[:, None, :] + ss[None, :, None] * n[:, None, :]
-        g = E._sample(E.gx, P) * n[:, None, 0] + E._sample(E.gy, P) * n[:, None, 1]
-        g *= np.where(g[np.arange(len(g)), np.argmax(np.abs(g), axis=1)] >= 0, 1.0, -1.0)[:, None]  # peak > 0
-        k = np.argmax(g, axis=1)
-        gmax = g[np.arange(len(g)), k]
-        ok = (k > 0) & (k < len(ss) - 1) & (gmax > 0)
-        iu = np.clip(np.rint(uv).astype(int), 0, [E.shape[1] - 1, E.shape[0] - 1])
-        ok &= ~E.near_clip[iu[:, 1], iu[:, 0]]
-        locmax = np.zeros_like(g, bool)
-        locmax[:, 1:-1] = (g[:, 1:-1] >= g[:, :-2]) & (g[:, 1:-1] >= g[:, 2:])
-        near = np.abs(ss[None, :] - ss[k][:, None]) <= 1.0
-        # ambiguous (edgesnap's rule): an opposite edge anywhere in the window (a thin bar, a dark line
-        # along a crease: its far side drags the centroid) or a second one over 1 px away, over half as strong
-        ok &= ~np.any((g < -AMBIGUOUS * gmax[:, None]) | (locmax & ~near & (g > AMBIGUOUS * gmax[:, None])), axis=1)
-        w = np.where(near, np.clip(g - 0.5 * gmax[:, None], 0, None), 0.0)
-        wsum = w.sum(axis=1)
-        ok &= wsum > 0
-        off = (w * ss[None, :]).sum(axis=1) / np.maximum(wsum, 1e-12)
-        return uv + off[:, None] * n, ok
-
-
-def _nearest(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distance (px) to the nearest True pixel of `mask` and that pixel's (u, v); inf where none."""
-    import cv2
-
-    H, W = mask.shape
-    if not mask.any():
-        return np.full((H, W), np.inf, np.float32), np.zeros((H, W, 2), np.float32)
-    dist, lab = cv2.distanceTransformWithLabels((~mask).astype(np.uint8), cv2.DIST_L2, 5,
-                                                labelType=cv2.DIST_LABEL_PIXEL)
-    vs, us = np.nonzero(mask)
-    coords = np.zeros((lab.max() + 1, 2), np.float32)
-    coords[lab[vs, us]] = np.stack([us, vs], 1)
-    return dist, coords[lab]
-
-
-# ----------------------------------------------------------------------------------------------
 # The fit
 
 def clicked_lines(camera_json: dict | None) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -371,23 +285,46 @@ def _project(cam: Camera, S: _Samples) -> tuple[np.ndarray, np.ndarray]:
     return uv, np.stack([-d[:, 1], d[:, 0]], 1)
 
 
-def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lines, f_scale: float):
+def _edge_weights(S: _Samples, sig_e, edge_var=None, weighting: str = "capped") -> np.ndarray:
+    """(N,) weight of each sample's squared normalised residual. "capped" (the fit's): min(1,
+    EDGE_WEIGHT_SAMPLES / n_e), n_e the samples of its edge: an edge weighs at most that many samples.
+    "model" (the model selection's, the per-edge model-error term): sig^2 / (sig^2 + n_e V_e), sig the
+    sample's own noise (px), V_e (px^2, default EDGE_MODEL_SIGMA_PX^2) the error the edge's samples share
+    (the room model's, plus a measured line's noise): summed over an edge's samples, a common offset d of
+    the edge costs d^2 / (sig^2 / n_e + V_e), the generalised least squares of samples sharing an error."""
+    _, inv, counts = np.unique(S.edge, return_inverse=True, return_counts=True)
+    if weighting == "capped":
+        return np.minimum(1.0, EDGE_WEIGHT_SAMPLES / counts[inv])
+    if weighting != "model":
+        raise ValueError(f"weighting: expected 'capped' or 'model', got {weighting!r}")
+    sig2 = np.broadcast_to(np.asarray(sig_e, float), (len(S.X),)) ** 2
+    V = EDGE_MODEL_SIGMA_PX ** 2 if edge_var is None else np.asarray(edge_var, float)
+    return sig2 / (sig2 + counts[inv] * V)
+
+
+def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lines, f_scale: float, edge_var=None,
+           weighting: str = "capped"):
     """Least squares of the edge residuals n.(q - uv)/sig_e (sig_e: px, one figure or one per sample;
     robust: Cauchy at f_scale, whose pull of a wrong match falls as 1/r, so texture matched at a wide
     radius hardly moves a camera that already fits; soft-L1's pull stays constant and let such matches
     drag a true camera by 6 % of focal) and of the clicked lines' residuals (calibrate's, normalised by
     their noise; not robust: calibrate kept only the segments its own fit agreed with), and, with
     model.pp_prior and a free principal point, calibrate's prior on it (the image centre, PP_PRIOR_REL
-    of the larger side, 1 sigma). Samples along one edge share its model error (texture, the taped
-    sizes): each edge weighs at most as much as EDGE_WEIGHT_SAMPLES independent samples."""
+    of the larger side, 1 sigma). Samples along one edge share its error (_edge_weights): "capped" scales
+    each sample's residual by the root of its weight (each edge weighs at most EDGE_WEIGHT_SAMPLES
+    independent samples); "model" (edge_var px^2 per sample) weights each sample's loss instead, so the
+    robust loss still judges each sample against its own noise while an edge weighs what its shared error
+    allows; the result then carries `edge_weight` (those weights) for the conditioning."""
     from scipy.optimize import least_squares
 
     from recon.vanishing import _seg_residual
 
     segs, sig = lines
     idx = {"x": 0, "y": 1, "z": 2}
-    _, inv, counts = np.unique(S.edge, return_inverse=True, return_counts=True)
-    w = np.sqrt(np.minimum(1.0, EDGE_WEIGHT_SAMPLES / counts[inv])) / np.asarray(sig_e, float)
+    a_e = _edge_weights(S, sig_e, edge_var, weighting)
+    w = (np.sqrt(a_e) if weighting == "capped" else 1.0) / np.asarray(sig_e, float)
+    if weighting == "capped":
+        a_e = np.ones(len(S.X))
     ne = len(S.X)
     pp0 = np.array([(model.cam0.width - 1) / 2.0, (model.cam0.height - 1) / 2.0])
     pp_sig = PP_PRIOR_REL * max(model.cam0.width, model.cam0.height)
@@ -402,15 +339,17 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lin
             r.append((cam.K[:2, 2] - pp0) / pp_sig)
         return np.concatenate(r)
 
-    def loss(z):  # Cauchy on the edge samples, squares on the clicked lines (z = (r / f_scale)^2)
+    def loss(z):  # weighted Cauchy on the edge samples, squares on the clicked lines (z = (r / f_scale)^2)
         out = np.empty((3, len(z)))
         t = 1.0 + z[:ne]
-        out[0, :ne], out[1, :ne], out[2, :ne] = np.log1p(z[:ne]), 1.0 / t, -1.0 / t ** 2
+        out[0, :ne], out[1, :ne], out[2, :ne] = a_e * np.log1p(z[:ne]), a_e / t, -a_e / t ** 2
         out[0, ne:], out[1, ne:], out[2, ne:] = z[ne:], 1.0, 0.0
         return out
 
     x_scale = [1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:len(x0)]  # rad, m, log f, px (principal point)
-    return least_squares(fun, x0, loss=loss, f_scale=f_scale, x_scale=x_scale, method="trf", max_nfev=50)
+    res = least_squares(fun, x0, loss=loss, f_scale=f_scale, x_scale=x_scale, method="trf", max_nfev=50)
+    res.edge_weight = a_e if weighting == "model" else None
+    return res
 
 
 def _edge_chamfer(cam: Camera, S: _Samples, photo: PhotoEdges) -> float:
@@ -487,6 +426,7 @@ class _Fit:
     resid: np.ndarray
     sigma: np.ndarray  # (used,) noise of each used sample, px
     start: str = "input"
+    data: tuple | None = None  # the last solve's data (samples, matched edge points, sigma, edge_var): campp.select
 
 
 def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines,
@@ -533,7 +473,8 @@ def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, 
         res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
         uv1, n1 = _project(model.camera(x), sub)
-        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX))
+        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX),
+                    data=(sub, q[ok], FINE_SIGMA_PX, None))
     return fine
 
 
@@ -601,7 +542,8 @@ def _line_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lin
         res = _solve(model, x, sub, q[ok], sigma, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
         uv1, n1 = _project(model.camera(x), sub)
-        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), sigma)
+        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), sigma,
+                    data=(sub, q[ok], FINE_SIGMA_PX, EDGE_MODEL_SIGMA_PX ** 2 + sig[ok] ** 2))
     return fine
 
 
@@ -634,16 +576,27 @@ def _union(*ss: _Samples) -> _Samples:
                     np.concatenate([s.edge for s in ss]))
 
 
+PP_MODELS = ("select", "free", "held")  # a principal point from three vanishing points: chosen by the
+# photo's edges (recon/campp.py), always refined, or held at the image centre
+
+
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
-                  fine_stage: str = "profiles") -> Refinement:
+                  fine_stage: str = "profiles", principal_point: str = "select") -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
     module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
     fine_stage: "profiles" (per-sample sub-pixel edges, the default) or "lines" (each edge found as one
     line against the photo's own noise, recon/edgelines.py; a freed principal point then also gets
-    calibrate's prior, PP_PRIOR_REL): see docs/unseen.md for where each does better."""
+    calibrate's prior, PP_PRIOR_REL): see docs/unseen.md for where each does better.
+    principal_point (used when calibrate took it from three vanishing points; else it is held as given):
+    "select" (the default: fitted held at the image centre, freed only when the room's edges and the
+    clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre)."""
+    from recon import campp
+
     if fine_stage not in FINE_STAGES:
         raise ValueError(f"fine_stage: expected one of {FINE_STAGES}, got {fine_stage!r}")
+    if principal_point not in PP_MODELS:
+        raise ValueError(f"principal_point: expected one of {PP_MODELS}, got {principal_point!r}")
     t0 = time.time()
     image = np.asarray(image)
     if image.shape[:2] != (cam.height, cam.width):
@@ -654,10 +607,41 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     photo = PhotoEdges(image)
     lines = clicked_lines(camera_json)
     # calibrate's principal point from three vanishing points is weak (the orthocentre of their
-    # triangle moves far with a distant vanishing point); the room's known edges determine it, so it is
-    # refined too; the image centre (calibrate's default) or a given one is held
-    model = _Model(cam, free_pp=(camera_json or {}).get("principal_point_from") == "three vanishing points",
-                   pp_prior=fine_stage == "lines")
+    # triangle moves far with a distant vanishing point): it is held at the image centre or refined
+    # (principal_point); the image centre (calibrate's default) or a given one is held
+    pp3 = (camera_json or {}).get("principal_point_from") == "three vanishing points"
+    stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage}
+    note = "refined (calibrate's, from three vanishing points)" if pp3 else ""
+    if pp3 and principal_point != "free":
+        held = _Model(campp.at_image_centre(cam), free_pp=False)
+        best, model = _search(held, **stage), held
+        note = "held at the image centre"
+        if best is not None and principal_point == "select":
+            free = _Model(held.cam0, free_pp=True, pp_prior=fine_stage == "lines")
+            fine = _line_stage if fine_stage == "lines" else _profile_stage
+
+            def solve(m, x0, data):
+                sub, q, sig, edge_var = data
+                return _solve(m, x0, sub, q, sig, lines, f_scale=ROBUST_SIGMAS, edge_var=edge_var, weighting="model")
+
+            best, model, note = campp.select(held, free, best, solve,
+                                             lambda m, x: fine(m, x, edges, occ, photo, lines))
+    else:
+        model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
+        best = _search(model, **stage)
+    if best is None:
+        S0 = _sample_edges(cam, edges, occ)
+        best, refined = _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0), np.zeros(0)), cam
+    else:
+        refined = model.camera(best.x)
+    r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
+    return dataclasses.replace(r, principal_point=note)
+
+
+def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str) -> _Fit | None:
+    """The best fit of `model` over its starts (None when no start's sub-pixel stage ran): the input
+    camera (model.cam0) with the full coarse schedule, and the centre search's best minima."""
+    cam = model.cam0
     S0 = _sample_edges(cam, edges, occ)
     # hypotheses: the input camera with the full coarse schedule, and the centre search's best minima,
     # whose grid leaves an edge at the median depth within CENTRE_STEP_PX / 2: their ICP starts at the
@@ -670,8 +654,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
                                 else "centre search") for i, (x0, radii) in enumerate(starts)]
     fits = [f for f in fits if f.res is not None]
     if not fits:
-        return _guard(cam, cam, _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0),
-                                     np.zeros(0)), lines, edges, occ, photo, time.time() - t0)
+        return None
     # the input camera's own fit stands unless a centre-search start's fit brings the room's edges
     # closer to the photo's (_edge_gain), on the room points any of them (or the input) sees
     common = _union(S0, *[f.S for f in fits])
@@ -679,7 +662,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     gains = [_edge_gain(model.camera(best.x), model.camera(f.x), common, photo) for f in fits[1:]]
     if any(g > 0 for g in gains):
         best = fits[1 + int(np.argmax(gains))]
-    return _guard(cam, model.camera(best.x), best, lines, edges, occ, photo, time.time() - t0)
+    return best
 
 
 def _edge_distances(cam: Camera, S: _Samples, photo: PhotoEdges) -> np.ndarray:
@@ -775,7 +758,10 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: np
         cov = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         return "the room's edges do not determine the camera (singular fit)"
-    r = res.fun
+    r = np.array(res.fun, float)
+    a = getattr(res, "edge_weight", None)  # the per-edge weights _solve's loss applies (res.jac has them)
+    if a is not None:
+        r[:len(a)] *= np.sqrt(a)
     dof = max(len(r) - len(res.x), 1)
     scale = max(float(r @ r) / dof, 1.0)
     pred = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Je, cov * scale, Je), 0.0)) * np.asarray(sigma)[inl]

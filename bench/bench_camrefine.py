@@ -1,0 +1,134 @@
+"""The camera refinement (recon/camrefine.py) against the truth's camera, room by room.
+
+Per room: calibrate's camera (the room's clicked lines, snapped to the photo, plus the camera height:
+recon.vanishing.calibrate_lines, as `photoar calibrate` runs it; turned 180 deg about +Y when only the
+turn lies in the taped room, as `scene` does), then `refine_camera` with each variant given, and, with
+--true, the refinement started from the truth's camera (no clicked lines: how far the photo's edges
+drag a camera that is right). Errors against the truth's camera: focal (%), principal point (px),
+rotation (deg), centre (cm), and the image error: rms px between the two cameras' images of the
+room's edge samples the truth's camera sees.
+
+`python bench/bench_camrefine.py [--rooms DIR] [--only window_101,...,sun_room] [--variant profiles]
+[--variant lines] [--true] [--json OUT]`; a variant is refine_camera's keyword arguments as
+`key=value,key=value` (e.g. `fine_stage=lines`, `fine_stage=lines,principal_point=free`). Shared rooms (window_room, lamps_room, sun_room) are
+read from $PHOTOAR_SHARED/scenes.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+UNSEEN = [f"{k}_{s}" for k in ("window", "lamps", "sun") for s in (101, 102, 103)]
+SHARED_ROOMS = ["window_room", "lamps_room", "sun_room"]
+
+
+def _room_dir(name: str, rooms: Path) -> Path:
+    if name in SHARED_ROOMS:
+        return Path(os.environ.get("PHOTOAR_SHARED", ROOT.parent / "shared")) / "scenes" / name
+    return rooms / name
+
+
+def camera_errors(cam, truth, S) -> dict:
+    """Errors of `cam` against `truth`: focal %, principal point px, rotation deg, centre cm, and the
+    image error px (rms over the samples S, the truth's visible room-edge samples)."""
+    from recon.camrefine import _project
+    from recon.vanishing import rotation_error_deg
+
+    ua, _ = _project(cam, S)
+    ub, _ = _project(truth, S)
+    return {"focal_pct": 100 * (cam.K[0, 0] / truth.K[0, 0] - 1),
+            "pp_px": float(np.linalg.norm(cam.K[:2, 2] - truth.K[:2, 2])),
+            "rot_deg": rotation_error_deg(cam.R, truth.R),
+            "centre_cm": 100 * float(np.linalg.norm(cam.centre - truth.centre)),
+            "image_px": float(np.sqrt(np.mean(np.sum((ua - ub) ** 2, axis=1)))) if len(S.X) else float("nan")}
+
+
+def _variant(text: str) -> dict:
+    out = {}
+    for kv in filter(None, text.split(",")):
+        k, v = kv.split("=", 1)
+        out[k] = {"true": True, "false": False}.get(v.lower(), v)
+    return out
+
+
+def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> dict:
+    from bench.own_room_flow import tape_room
+    from recon import assemble as asm
+    from recon.camera import Camera
+    from recon.camrefine import _Occluder, _sample_edges, refine_camera, room_edges, room_faces
+    from recon.io import read_image_rgb
+    from recon.vanishing import calibrate_lines, lines_from_scene, parse_lines
+
+    root = _room_dir(name, rooms)
+    sc = json.loads((root / "scene.json").read_text())
+    truth = Camera.load(root / "scene.json")
+    img = read_image_rgb(root / "background.png")
+    cal = calibrate_lines(parse_lines(lines_from_scene(sc)), truth.width, truth.height,
+                          camera_height=truth.centre[1], image=img)
+    prims, lo, hi = asm.parse_primitives(tape_room(sc), "room")
+    cam = cal.camera
+    if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
+        cam = asm.turned_about_y(cam)
+    faces = room_faces(prims)
+    S = _sample_edges(truth, room_edges(faces), _Occluder(faces))
+    cj = cal.to_json()
+    out = {"room": name, "pp_from": cj.get("principal_point_from"), "calibrated": camera_errors(cam, truth, S)}
+    for v in variants:
+        t0 = time.time()
+        kw = _variant(v)
+        r = refine_camera(cam, prims, img, cj, **kw)
+        out[v or "default"] = {**camera_errors(r.camera, truth, S), "accepted": r.accepted, "reason": r.reason,
+                               "seconds": time.time() - t0, "refinement": r.to_json()}
+        if true_start:
+            r = refine_camera(truth, prims, img, None, **kw)
+            moved = camera_errors(r.camera, truth, S) if r.accepted else None
+            out[(v or "default") + " from truth"] = {"moved_px": r.moved_px, "accepted": r.accepted,
+                                                     "reason": r.reason, "errors": moved}
+    return out
+
+
+def _fmt(e: dict) -> str:
+    return (f"{e['focal_pct']:+.2f} % / {e['pp_px']:.1f} px / {e['rot_deg']:.2f} deg / {e['centre_cm']:.1f} cm / "
+            f"{e['image_px']:.2f} px")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--rooms", type=Path, default=Path(os.environ.get("PHOTOAR_ROOMS",
+                                                                      Path.home() / ".cache/photoar/rooms")))
+    ap.add_argument("--only", default=",".join(UNSEEN + SHARED_ROOMS))
+    ap.add_argument("--variant", action="append", default=None,
+                    help="refine_camera keyword arguments key=value,... (repeatable; default: the default)")
+    ap.add_argument("--true", action="store_true", help="also refine from the truth's camera (no clicked lines)")
+    ap.add_argument("--json", type=Path, help="write the results here")
+    a = ap.parse_args()
+    variants = a.variant or [""]
+    results = []
+    for name in a.only.split(","):
+        r = run_room(name, a.rooms, variants, a.true)
+        results.append(r)
+        print(f"{name} (principal point from: {r['pp_from']}): calibrated {_fmt(r['calibrated'])}", flush=True)
+        for v in variants:
+            e = r[v or "default"]
+            print(f"  {v or 'default'}: {_fmt(e)}{'' if e['accepted'] else ' (kept: ' + e['reason'] + ')'}"
+                  f" [{e['seconds']:.1f} s]", flush=True)
+            if a.true:
+                t = r[(v or "default") + " from truth"]
+                print(f"    from truth: moves {t['moved_px']:.2f} px, "
+                      f"{'taken: ' + _fmt(t['errors']) if t['accepted'] else 'kept (' + t['reason'] + ')'}",
+                      flush=True)
+        if a.json:
+            a.json.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,106 @@
+"""The photo's edges prepared once for the camera refinement (recon/camrefine.py): oriented Canny
+edges with their nearest-pixel maps (the ICP's matches), and edgesnap's linear gradient image for the
+sub-pixel stage (per-sample centroid profiles).
+
+Conventions: recon/camera.py (pixel (0,0) the centre of the top-left pixel); an edge's orientation is
+the angle of its normal over [0, pi), in ORIENT_BINS bins.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+ORIENT_BINS = 12  # bins of the edge normal's angle over [0, pi): 15 deg; a match may be one bin off
+PROFILE_HALF_PX = 2.0  # the fine stage's search either side of the projected edge
+PROFILE_STEP_PX = 0.25
+
+
+class PhotoEdges:
+    """The photo prepared once: oriented Canny edges with their nearest-pixel maps, and edgesnap's
+    linear gradient image for the sub-pixel stage."""
+
+    def __init__(self, image: np.ndarray):
+        import cv2
+
+        from recon.edgesnap import EdgeImage
+
+        img = np.asarray(image)
+        self.fine = EdgeImage(img)  # linear gray gradient, clipped-pixel mask (raises on a non-8-bit image)
+        gray = cv2.cvtColor(img[:, :, :3], cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
+        g = cv2.GaussianBlur(gray, (0, 0), 1.0)
+        gx = cv2.Sobel(g.astype(np.float32), cv2.CV_32F, 1, 0, ksize=3)
+        gy = cv2.Sobel(g.astype(np.float32), cv2.CV_32F, 0, 1, ksize=3)
+        # hysteresis thresholds relative to the photo's own gradients: a crease between two walls
+        # is a few levels; the median gradient is the photo's texture and noise
+        mag = np.hypot(gx, gy) / 8.0  # levels per pixel
+        hi = max(4.0, 4.0 * float(np.median(mag)))
+        edges = cv2.Canny(g, 0.5 * hi * 8.0, hi * 8.0, L2gradient=True) > 0
+        ang = np.mod(np.arctan2(gy, gx), np.pi)
+        b = np.minimum((ang / (np.pi / ORIENT_BINS)).astype(int), ORIENT_BINS - 1)
+        self.n_edge_px = int(edges.sum())
+        self.shape = gray.shape
+        self.near = []  # per bin: (distance (H,W), nearest edge pixel (H,W,2) as (u, v))
+        for k in range(ORIENT_BINS):
+            m = edges & np.isin(b, [(k - 1) % ORIENT_BINS, k, (k + 1) % ORIENT_BINS])
+            self.near.append(_nearest(m))
+
+    def match(self, uv: np.ndarray, normal_angle: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest oriented edge pixel (N,2) of each projected sample and whether one lies within `radius` px."""
+        iu = np.clip(np.rint(uv).astype(int), 0, [self.shape[1] - 1, self.shape[0] - 1])
+        k = np.minimum((np.mod(normal_angle, np.pi) / (np.pi / ORIENT_BINS)).astype(int), ORIENT_BINS - 1)
+        q = np.zeros_like(uv)
+        d = np.full(len(uv), np.inf)
+        for b in np.unique(k):
+            m = k == b
+            dist, pos = self.near[b]
+            d[m] = dist[iu[m, 1], iu[m, 0]]
+            q[m] = pos[iu[m, 1], iu[m, 0]]
+        return q, d <= radius
+
+    def distance(self, uv: np.ndarray, normal_angle: np.ndarray) -> np.ndarray:
+        """Distance (px) from each projected sample to the nearest oriented edge pixel (inf: none)."""
+        q, _ = self.match(uv, normal_angle, np.inf)
+        return np.linalg.norm(q - uv, axis=1) if len(uv) else np.zeros(0)
+
+    def subpixel(self, uv: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sub-pixel edge positions (N,2) across each projected sample (unit normal n) within
+        +-PROFILE_HALF_PX, and which were found: edgesnap's rule per sample (the centroid of the
+        gradient above half its peak within 1 px of it; no peak on the window's border, no second
+        peak over half as strong, no clipped pixel within 3 px)."""
+        from recon.edgesnap import AMBIGUOUS
+
+        E = self.fine
+        ss = np.arange(-PROFILE_HALF_PX, PROFILE_HALF_PX + 1e-9, PROFILE_STEP_PX)
+        P = uv[:, None, :] + ss[None, :, None] * n[:, None, :]
+        g = E._sample(E.gx, P) * n[:, None, 0] + E._sample(E.gy, P) * n[:, None, 1]
+        g *= np.where(g[np.arange(len(g)), np.argmax(np.abs(g), axis=1)] >= 0, 1.0, -1.0)[:, None]  # peak > 0
+        k = np.argmax(g, axis=1)
+        gmax = g[np.arange(len(g)), k]
+        ok = (k > 0) & (k < len(ss) - 1) & (gmax > 0)
+        iu = np.clip(np.rint(uv).astype(int), 0, [E.shape[1] - 1, E.shape[0] - 1])
+        ok &= ~E.near_clip[iu[:, 1], iu[:, 0]]
+        locmax = np.zeros_like(g, bool)
+        locmax[:, 1:-1] = (g[:, 1:-1] >= g[:, :-2]) & (g[:, 1:-1] >= g[:, 2:])
+        near = np.abs(ss[None, :] - ss[k][:, None]) <= 1.0
+        # ambiguous (edgesnap's rule): an opposite edge anywhere in the window (a thin bar, a dark line
+        # along a crease: its far side drags the centroid) or a second one over 1 px away, over half as strong
+        ok &= ~np.any((g < -AMBIGUOUS * gmax[:, None]) | (locmax & ~near & (g > AMBIGUOUS * gmax[:, None])), axis=1)
+        w = np.where(near, np.clip(g - 0.5 * gmax[:, None], 0, None), 0.0)
+        wsum = w.sum(axis=1)
+        ok &= wsum > 0
+        off = (w * ss[None, :]).sum(axis=1) / np.maximum(wsum, 1e-12)
+        return uv + off[:, None] * n, ok
+
+
+def _nearest(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (px) to the nearest True pixel of `mask` and that pixel's (u, v); inf where none."""
+    import cv2
+
+    H, W = mask.shape
+    if not mask.any():
+        return np.full((H, W), np.inf, np.float32), np.zeros((H, W, 2), np.float32)
+    dist, lab = cv2.distanceTransformWithLabels((~mask).astype(np.uint8), cv2.DIST_L2, 5,
+                                                labelType=cv2.DIST_LABEL_PIXEL)
+    vs, us = np.nonzero(mask)
+    coords = np.zeros((lab.max() + 1, 2), np.float32)
+    coords[lab[vs, us]] = np.stack([us, vs], 1)
+    return dist, coords[lab]
