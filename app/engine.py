@@ -49,6 +49,7 @@ from app.dragframe import DragStages, sphere_stages, uses_spheres
 from app.frame_budget import FrameBudget
 from app.glue import KernelClock
 from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner  # noqa: F401 (re-exported)
+from app.rest_maps import RestMaps
 from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
 from app.stages import precompute as scene_precompute
 from app.stages.compose import ComposeStage
@@ -159,6 +160,8 @@ class Engine:
         rv = pre.recv_vert  # the second order's blocked pairs at rest (_blocked_second_order), one Warp launch
         self._blocked = BlockedSecondOrder(pre.G_v, pm.vert_inset[rv], pm.vert_normal[rv], pm.centre, pm.normal,
                                            pm.area, dev)
+        # the all-sources frame's map size per source (app.rest_maps; None: every map map_res, for A/B)
+        self.rest_maps: RestMaps | None = RestMaps(r.E_v)
         self._drag: dict[int, DragStages] = {}  # drag frames' coarse pixel stages, per scale (made on first use)
         # drag frames shade the object and send its light from per-shape tables (app.stages.object_drag);
         # False: as at rest (bench/bench_drag_object.py's A/B)
@@ -327,6 +330,9 @@ class Engine:
         fs = self.shadow_sources.select(pv.min(0), pv.max(0), self.budget.passes(config, sun is not None),
                                         functools.partial(split_launches, device=self.device, min_items=64),
                                         near_split=px is not self and px.near_split)
+        order = None  # the all-sources frame: its weak sources on half-size maps (app.rest_maps), drawn last
+        if px is self and config.passes is None and self.rest_maps is not None and len(fs.eyes):
+            order = self.rest_maps.order(fs)
         t = tick("sources", t)
 
         # ---- occlusion masks: listed pixels and patch centres (app.stages.shadow_pass; yields per batch)
@@ -334,7 +340,8 @@ class Engine:
         masks = yield from px.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov_px, fs.cand, fs.eyes,
                                                 px.compose.ldr_weights(fs.W_v) if ldr else fs.W_v, fs.W_c,
                                                 fs.n_listed == len(fs.eyes), spread=fs.spread,
-                                                full_maps=config.full_maps, scale=r.L_b_levels if ldr else r.E_x)
+                                                full_maps=config.full_maps, scale=r.L_b_levels if ldr else r.E_x,
+                                                order=order)
         t = tick("masks", t)
 
         # ---- the object lit by the room, whose patches in its shadow send it less light (and the sun's pass)
