@@ -53,7 +53,8 @@ class Masks:
 
 # Map size of frames whose maps stand for clusters of sources (a pass budget): 128 scores as
 # well as 256 there; a map per source (the all-sources frame at rest) keeps EngineParams.map_res,
-# whose hard lamp shadows lose at 128 (bench/bench_shadow_pass.py measures both).
+# whose hard lamp shadows lose at 128 (bench/bench_shadow_pass.py measures both), except for the
+# weak sources, which take this size too (app.rest_maps; run's order).
 CLUSTER_MAP_RES = 128
 # Graded lattice (ShadowPass._run_graded): a lattice square is filled from its corners where their
 # shadow fractions (occluded share of the pixel's light: sum / scale) differ by at most this much;
