@@ -43,18 +43,17 @@ class BlockedSecondOrder:
     receiver vertex walks the kept patches, casts a ray only where the segment meets the box about the
     object and G_v > 0, and sums G_v dB over the blocked pairs in the launch (no pair lists in numpy, no
     per-block transfers gathered). The receiver vertices (lifted EPS) and G_v (float32) are uploaded once,
-    on the first call; a call uploads only the kept patches' centres, columns and changes (buffers of
-    capacity P: nothing allocated after the first call). Valid on any Warp device."""
+    when it is made (with the engine's stages); a call uploads only the kept patches' centres, columns and
+    changes (buffers of capacity P: no frame allocates). Valid on any Warp device."""
 
     def __init__(self, G_v: np.ndarray, recv_points: np.ndarray, recv_normals: np.ndarray, centres: np.ndarray,
                  normals: np.ndarray, area: np.ndarray, device: str):
         """G_v (Vr,P) receiver-vertex -> patch transfers; recv_points, recv_normals (Vr,3) the receiver
         vertices; centres, normals (P,3), area (P,) m^2 the patches'."""
-        self._G_v, self.device = G_v, device
-        self._a = recv_points + recv_normals * EPS
         self._b = centres + normals * EPS
         self._area = area
-        self._pairs: BlockedPairs | None = None
+        self._pairs = BlockedPairs(recv_points + recv_normals * EPS, np.asarray(G_v, np.float32), device,
+                                   capacity=len(self._b))
 
     def __call__(self, dB: np.ndarray, occluder: Occluder, box: tuple[np.ndarray, np.ndarray],
                  obb: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
@@ -66,9 +65,6 @@ class BlockedSecondOrder:
         cols = kept_patches(dB, self._area)
         if len(cols) == 0:
             return None
-        if self._pairs is None:
-            self._pairs = BlockedPairs(self._a, np.asarray(self._G_v, np.float32), self.device,
-                                       capacity=len(self._b))
         near, _, _ = self._pairs.sums(occluder, self._b[cols], cols, dB[cols], box, split, obb=obb)
         return near if near.any() else None
 
