@@ -123,8 +123,8 @@ def main(argv=None) -> int:
         res[name] = r
         for v in variants:
             x = r[v]
-            print(f"{path.name:12s} {v:7s} frame {x['frame_s']:.2f} s (CPU {x['cpu_s']:.2f} s)  energy {x['energy_ratio']:.4f} rmse_aff "
-                  f"{x['rmse_affected']:.4f} spurious {x['spurious']:.4f} rmse_obj {x['rmse_object']:.3f}  "
+            print(f"{path.name:12s} {v:7s} frame {x['frame_s']:.2f} s (CPU {x['cpu_s']:.2f} s)  "
+                  f"energy {x['energy_ratio']:.4f} rmse_aff {x['rmse_affected']:.4f} spurious {x['spurious']:.4f} rmse_obj {x['rmse_object']:.3f}  "
                   f"full-size maps {x['full_size_maps']} of {x['n_sources']}  vs {variants[0]} "
                   f"{x['rmse_vs_' + variants[0]]:.3f}  {x['stages_ms']}", flush=True)
     if a.json:
