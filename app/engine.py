@@ -49,6 +49,7 @@ from app.dragframe import DragStages, sphere_stages, uses_spheres
 from app.frame_budget import FrameBudget
 from app.glue import KernelClock
 from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner  # noqa: F401 (re-exported)
+from app.rest_maps import RestMaps
 from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
 from app.stages import precompute as scene_precompute
 from app.stages.compose import ComposeStage
@@ -59,7 +60,7 @@ from app.stages.precompute import Precomputed, hash_scene as _hash_scene  # noqa
 from app.stages.receiver_map import ReceiverMap, receiver_map, reflectance
 from app.stages.shadow_pass import ShadowPass
 from app.stages.sun import SunPixels, SunSetup, estimate_line as _sun_estimate_line, upright_box  # noqa: F401
-from app.stages.second_order import blocked_pass, blocked_workspace
+from app.stages.second_order import BlockedSecondOrder
 from kernels import runtime
 from lighting.irradiance import RoomLight
 from lighting.radiance import load_captured_probe
@@ -156,7 +157,11 @@ class Engine:
         self.object_light = ObjectLight(oc, pm, pre.recv_vert, pre.pix_bary, r.pix_pos, r.pix_patch, r.pix_rows,
                                         r.recv_pix, r.rho_x, r.L_b, B_src, self.scene_occ, scene.response, cam, dev,
                                         sun_dir=sun_light.d if sun_light is not None else None)
-        self._blocked_ws = blocked_workspace(dev)  # the second order's blocked pairs' buffers (_blocked_second_order)
+        rv = pre.recv_vert  # the second order's blocked pairs at rest (_blocked_second_order), one Warp launch
+        self._blocked = BlockedSecondOrder(pre.G_v, pm.vert_inset[rv], pm.vert_normal[rv], pm.centre, pm.normal,
+                                           pm.area, dev)
+        # the all-sources frame's map size per source (app.rest_maps; None: every map map_res, for A/B)
+        self.rest_maps: RestMaps | None = RestMaps(r.E_v)
         self._drag: dict[int, DragStages] = {}  # drag frames' coarse pixel stages, per scale (made on first use)
         # drag frames shade the object and send its light from per-shape tables (app.stages.object_drag);
         # False: as at rest (bench/bench_drag_object.py's A/B)
@@ -325,6 +330,9 @@ class Engine:
         fs = self.shadow_sources.select(pv.min(0), pv.max(0), self.budget.passes(config, sun is not None),
                                         functools.partial(split_launches, device=self.device, min_items=64),
                                         near_split=px is not self and px.near_split)
+        order = None  # the all-sources frame: its weak sources on half-size maps (app.rest_maps), drawn last
+        if px is self and config.passes is None and self.rest_maps is not None and len(fs.eyes):
+            order = self.rest_maps.order(fs)
         t = tick("sources", t)
 
         # ---- occlusion masks: listed pixels and patch centres (app.stages.shadow_pass; yields per batch)
@@ -332,7 +340,8 @@ class Engine:
         masks = yield from px.shadow_pass.run((pv, pf, proxy_occ), centre, radius, cov_px, fs.cand, fs.eyes,
                                                 px.compose.ldr_weights(fs.W_v) if ldr else fs.W_v, fs.W_c,
                                                 fs.n_listed == len(fs.eyes), spread=fs.spread,
-                                                full_maps=config.full_maps, scale=r.L_b_levels if ldr else r.E_x)
+                                                full_maps=config.full_maps, scale=r.L_b_levels if ldr else r.E_x,
+                                                order=order)
         t = tick("masks", t)
 
         # ---- the object lit by the room, whose patches in its shadow send it less light (and the sun's pass)
@@ -381,7 +390,7 @@ class Engine:
             # the pairs the object blocks (the shadow pass took those patches whole): in the all-sources frame
             # at rest (a frame of fewer passes or a drag frame skips it: 1-2 s a frame on the loaded 2-core
             # machine); the sun's loss has its own (SunStage.later_bounces)
-            blk = self._blocked_second_order(dB_room + pm.albedo * R_cen, proxy_occ, centre, radius) \
+            blk = self._blocked_second_order(dB_room + pm.albedo * R_cen, proxy_occ, pv) \
                 if px is self and config.passes is None else None
             more = None if sun is None else self._sun_later_bounces(sun, sun_dB, R_cen_sun, proxy_occ, pv, dB)
             if blk is not None:
@@ -461,13 +470,12 @@ class Engine:
                                                       centre, radius, extra)
         return R_pix, R_cen_sun + R_cen_room, R_cen_sun
 
-    def _blocked_second_order(self, dB: np.ndarray, proxy_occ, centre, radius: float) -> np.ndarray | None:
-        """(Vr,3) the second order's pass of dB (P,3) over the (receiver vertex, patch) pairs the object blocks
-        (app.stages.second_order), or None."""
-        pre, pm = self.pre, self.pre.patches
-        rv = pre.recv_vert
-        return blocked_pass(dB, pre.G_v, pm.vert_inset[rv], pm.vert_normal[rv], pm.centre, pm.normal, pm.area,
-                            proxy_occ, (centre, radius), self._blocked_ws)
+    def _blocked_second_order(self, dB: np.ndarray, proxy_occ, pv: np.ndarray) -> np.ndarray | None:
+        """(Vr,3) the second order's pass of dB (P,3) over the (receiver vertex, patch) pairs the object (its
+        proxy: occluder proxy_occ, vertices pv) blocks, or None (app.stages.second_order.BlockedSecondOrder:
+        a Warp launch over both cores; blocked_pass is its numpy reference)."""
+        return self._blocked(dB, proxy_occ, (pv.min(0) - 1e-3, pv.max(0) + 1e-3), obb=upright_box(pv),
+                             split=functools.partial(split_launches, device=self.device, min_items=256))
 
     def _sun_later_bounces(self, sun, sun_dB, R_cen_sun, proxy_occ, pv, dB: np.ndarray) -> np.ndarray | None:
         """The sunlit patch light the object blocks (the room's main source) and the sunlit object's own

@@ -53,7 +53,8 @@ class Masks:
 
 # Map size of frames whose maps stand for clusters of sources (a pass budget): 128 scores as
 # well as 256 there; a map per source (the all-sources frame at rest) keeps EngineParams.map_res,
-# whose hard lamp shadows lose at 128 (bench/bench_shadow_pass.py measures both).
+# whose hard lamp shadows lose at 128 (bench/bench_shadow_pass.py measures both), except for the
+# weak sources, which take this size too (app.rest_maps; run's order).
 CLUSTER_MAP_RES = 128
 # Graded lattice (ShadowPass._run_graded): a lattice square is filled from its corners where their
 # shadow fractions (occluded share of the pixel's light: sum / scale) differ by at most this much;
@@ -156,7 +157,7 @@ class ShadowPass:
     def run(self, proxy: tuple[np.ndarray, np.ndarray, Occluder | None], centre: np.ndarray, radius: float,
             coverage: np.ndarray, cand: np.ndarray, eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray,
             per_source: bool = True, spread: np.ndarray | None = None, full_maps: bool = False,
-            scale: np.ndarray | None = None):
+            scale: np.ndarray | None = None, order: tuple[np.ndarray, int] | None = None):
         """The frame's masks, as a generator: yields the sources done after each batch of maps
         (Engine.refine may pause there) and returns the Masks.
 
@@ -169,7 +170,10 @@ class ShadowPass:
         (kernels.masked_sums.penumbra; ignored with per_source, whose maps keep the hard lookup);
         full_maps: cluster maps of map_res too (Engine.refine's frames at rest); scale (H*W,3):
         the sums of the pixels' unshadowed light (E_x, or levels in LDR), given: a cluster frame of
-        one batch fills on the graded lattice (_run_graded)."""
+        one batch fills on the graded lattice (_run_graded); order: with per_source, (perm (S,), hard): the
+        passes drawn in the order perm, its first `hard` on maps of map_res, the others on maps of
+        cluster_map_res (the same hard lookup; in batches of their own; app.rest_maps); None: every pass
+        in its order, map_res."""
         if self.graded and scale is not None and not per_source and 0 < len(eyes) <= self.batch:
             return (yield from self._run_graded(proxy, centre, radius, coverage, cand, eyes, W_pix, W_c,
                                                 spread, full_maps, scale))
@@ -178,19 +182,25 @@ class ShadowPass:
         R = self.n_pix_points
         self.sums.select(np.concatenate([pix_pt, R + cen]))
         primary = self.maps_full if per_source or full_maps else self.maps_cluster
-        pair = (primary, self._twin[id(primary)])
         n_src, dev = len(eyes), self.device
-        firsts = list(range(0, n_src, self.batch))
-        for m in pair[:1 + (self.pipelined and len(firsts) > 1)]:
-            m.set_proxy(proxy[0], proxy[1], proxy[2])
+        perm, hard = (None, n_src) if order is None or not per_source else (order[0], min(max(int(order[1]), 0), n_src))
+        if perm is not None:
+            eyes = eyes[perm]
+        # batches [first, end): the hard sources' on `primary`, then the others' on the cluster-size maps
+        firsts = list(range(0, hard, self.batch)) + list(range(hard, n_src, self.batch))
+        ends = [min(f + self.batch, hard if f < hard else n_src) for f in firsts]
+        kinds = [primary if f < hard else self.maps_cluster for f in firsts]
+        for base in dict.fromkeys(map(id, kinds)):
+            m0 = primary if base == id(primary) else self.maps_cluster
+            for m in (m0, self._twin[id(m0)])[:1 + (self.pipelined and len(firsts) > 1)]:
+                m.set_proxy(proxy[0], proxy[1], proxy[2])
 
         def aim(k: int) -> tuple[ShadowMaps, int]:
-            """Batch k's maps (set k % 2 when pipelined), aimed; (maps, n)."""
-            maps = pair[k % 2] if self.pipelined else primary
-            first = firsts[k]
-            ax = None if per_source or spread is None else spread[first:first + self.batch]
-            return maps, maps.prepare(eyes[first:first + self.batch],
-                                      None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
+            """Batch k's maps (set k % 2 of its size when pipelined), aimed; (maps, n)."""
+            maps = (kinds[k], self._twin[id(kinds[k])])[k % 2] if self.pipelined else kinds[k]
+            first, end = firsts[k], ends[k]
+            ax = None if per_source or spread is None else spread[first:end]
+            return maps, maps.prepare(eyes[first:end], None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
 
         def draw(k: int, split: bool) -> tuple[ShadowMaps, int]:
             """aim(k), then its maps drawn: split over the cores, or in one launch (the side thread's work)."""
@@ -210,7 +220,7 @@ class ShadowPass:
             if k + 1 < len(firsts) and self.pipelined:  # the next batch's maps: aimed and drawn on the side
                 drawing = runtime.background(functools.partial(draw, k + 1, False))  # thread while this is summed
             try:
-                self.upload_batch(cand, W_pix, W_c, first, n, cen)
+                self.upload_batch(cand, W_pix, W_c, first, n, cen, None if perm is None else perm[first:first + n])
                 self.sums.prepare(self.maps, n, 0, self.cand.dev,
                                   split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
                 # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
@@ -393,18 +403,33 @@ class ShadowPass:
         return pix_pt, fill_pt, cen
 
     def upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int,
-                      cen: np.ndarray) -> None:
-        """Sources first..first+n-1's transfers and candidate flags into the batch buffers. Of the
+                      cen: np.ndarray, cols: np.ndarray | None = None) -> None:
+        """Sources first..first+n-1's transfers and candidate flags into the batch buffers (cols: the
+        passes' columns instead, n of them, e.g. run's perm). Of the
         patch-centre rows only those of the frame's centres `cen` that are candidates of some source
         of the batch: the masked sums read no other (a centre's list holds its candidates only)."""
         Vr = self.n_recv_vert
         w = self.weights.host
-        w[:Vr, :n] = W_pix[:, first:first + n]
-        c = cen[cand[cen, first:first + n].any(1)]
-        w[Vr + c, :n] = W_c[c, first:first + n]
+        if cols is None:
+            w[:Vr, :n] = W_pix[:, first:first + n]
+            c = cen[cand[cen, first:first + n].any(1)]
+            w[Vr + c, :n] = W_c[c, first:first + n]
+            self.cand.host[:, :n] = cand[:, first:first + n]
+        else:
+            w[:Vr, :n] = W_pix[:, cols]
+            cc = cand[:, cols]
+            c = cen[cc[cen].any(1)]
+            w[Vr + c, :n] = _take(W_c, c, cols)
+            self.cand.host[:, :n] = cc
         self.weights.push()
-        self.cand.host[:, :n] = cand[:, first:first + n]
         self.cand.push()
+
+
+def _take(W, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """W[rows][:, cols] of an (R,S,3) array or a ColumnView (lighting.frame_sources), gathering only those."""
+    if hasattr(W, "table"):  # a ColumnView: its table's rows and columns
+        return W.table[W.r0 + rows[:, None], W.pos[cols][None, :]]
+    return W[np.ix_(rows, cols)]
 
 
 def _square_corners(index: np.ndarray, quad: np.ndarray, x0: np.ndarray, y0: np.ndarray, q: np.ndarray, s: int,

@@ -50,3 +50,48 @@ def test_blocked_pairs_are_the_ones_the_object_hides(monkeypatch):
     v2, _ = _cube([0.0, 0.3, -1.0], 0.2)
     assert blocked_pass(dB, G_v, recv, rn, cen, pn, area, Occluder(v2, f, "cpu"),
                         (np.array([0.0, 0.3, -1.0]), 0.2 * np.sqrt(3))) is None
+
+
+def _wall_floor_case():
+    """Receivers on a wall, changed floor patches, G_v and dB drawn at random (as above), and a cube."""
+    rng = np.random.default_rng(1)
+    recv = np.stack([rng.uniform(-1, 1, 300), rng.uniform(0.05, 1.5, 300), np.zeros(300)], 1)
+    rn = np.tile([0.0, 0.0, 1.0], (300, 1))
+    xs, zs = np.meshgrid(np.linspace(-1, 1, 11), np.linspace(0.5, 2.5, 11))
+    cen = np.stack([xs.ravel(), np.zeros(xs.size), zs.ravel()], 1)
+    pn = np.tile([0.0, 1.0, 0.0], (len(cen), 1))
+    area = np.full(len(cen), 0.04)
+    dB = np.zeros((len(cen), 3))
+    dB[:, 0] = -rng.uniform(0.1, 1.0, len(cen))
+    dB[:, 1] = 0.5 * dB[:, 0]
+    dB[::7] *= -0.3  # some patches the object lights (positive change)
+    G_v = rng.uniform(0.0, 1e-3, (300, len(cen))) * (rng.uniform(size=(300, len(cen))) > 0.1)  # some zero
+    return recv, rn, cen, pn, area, dB, G_v
+
+
+def test_kernel_equals_the_numpy_reference(monkeypatch):
+    # BlockedSecondOrder (one Warp launch) against blocked_pass (numpy pair search + a ray per candidate):
+    # the same blocked pairs, so the same sums up to float32 rounding (rtol 1e-5), with the upright box and
+    # with an oriented box about a turned cube, at KEEP 1 and 0.99, and None where nothing is blocked
+    from app.stages.second_order import BlockedSecondOrder
+    from app.stages.sun import upright_box
+
+    recv, rn, cen, pn, area, dB, G_v = _wall_floor_case()
+    kern = BlockedSecondOrder(G_v, recv, rn, cen, pn, area, "cpu")
+    v, f = _cube([0.1, 0.3, 1.2], 0.25)
+    c = np.array([0.1, 0.3, 1.2])
+    turn = np.array([[np.cos(0.5), 0.0, np.sin(0.5)], [0.0, 1.0, 0.0], [-np.sin(0.5), 0.0, np.cos(0.5)]])
+    for verts in (v, (v - c) @ turn.T + c):
+        occ = Occluder(verts, f, "cpu")
+        sphere = (c, 0.25 * np.sqrt(3) + 1e-6)
+        box = (verts.min(0) - 1e-3, verts.max(0) + 1e-3)
+        for keep in (1.0, 0.99):
+            monkeypatch.setattr(SO, "KEEP", keep)
+            want = blocked_pass(dB, G_v, recv, rn, cen, pn, area, occ, sphere)
+            assert want is not None and np.abs(want).max() > 1e-4
+            for obb in (None, upright_box(verts)):
+                got = kern(dB, occ, box, obb=obb)
+                np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-9 * np.abs(want).max())
+    v2, _ = _cube([0.0, 0.3, -1.0], 0.2)
+    assert kern(dB, Occluder(v2, f, "cpu"), (v2.min(0), v2.max(0))) is None
+    assert kern(np.zeros_like(dB), Occluder(v, f, "cpu"), (v.min(0), v.max(0))) is None

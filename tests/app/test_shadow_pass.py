@@ -314,3 +314,60 @@ def test_the_sun_takes_a_pass_of_the_budget_and_leaves_the_masks_alone(shared_sc
     np.testing.assert_array_equal(sun["cand"], off["cand"])
     for f in ("pix_sel", "fill_sel", "cen_sel", "O_pix", "O_cen"):
         np.testing.assert_array_equal(getattr(sun["masks"], f), getattr(off["masks"], f), err_msg=f)
+
+
+def _masks(sp, proxy, centre, radius, cov, fs, W_v=None, order=None):
+    """ShadowPass.run's Masks of an all-sources frame (its generator run to the end)."""
+    steps = sp.run(proxy, centre, radius, cov, fs.cand, fs.eyes, fs.W_v if W_v is None else W_v, fs.W_c, True,
+                   order=order)
+    try:
+        while True:
+            next(steps)
+    except StopIteration as stop:
+        return stop.value
+
+
+def test_all_sources_order_and_half_size_maps(demo):
+    # run(order=(perm, hard)): the passes drawn in the order perm, the first `hard` on map_res maps, the
+    # others on cluster_map_res maps with the same hard lookup. Every pass hard in a shuffled order: the
+    # masks of the listed order (sums in another order: float rounding); none hard: bitwise the frame whose
+    # every map is half-size; a mix: the sum of the two parts drawn apart (each with the other's transfers
+    # zero, so the same pixels are listed)
+    scene, eng = demo
+    sp = eng.shadow_pass
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
+    centre, radius = bounding_sphere(pv)
+    proxy = (pv, pf, occ)
+    cov = np.zeros((scene.camera.height, scene.camera.width))
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    S = len(fs.eyes)
+    assert S > 2 * sp.batch
+    perm = np.random.default_rng(5).permutation(S)
+    ref = _masks(sp, proxy, centre, radius, cov, fs)
+    assert np.abs(ref.O_pix).sum() > 0
+    got = _masks(sp, proxy, centre, radius, cov, fs, order=(perm, S))
+    np.testing.assert_array_equal(got.pix_sel, ref.pix_sel)
+    np.testing.assert_allclose(got.O_pix, ref.O_pix, rtol=1e-5, atol=1e-6 * np.abs(ref.O_pix).max())
+    np.testing.assert_allclose(got.O_cen, ref.O_cen, rtol=1e-5, atol=1e-6 * np.abs(ref.O_cen).max())
+    full = sp.maps_full
+    try:  # every map half-size
+        sp.maps_full = sp.maps_cluster
+        half = _masks(sp, proxy, centre, radius, cov, fs)
+    finally:
+        sp.maps_full = full
+    got = _masks(sp, proxy, centre, radius, cov, fs, order=(np.arange(S), 0))
+    np.testing.assert_array_equal(got.O_pix, half.O_pix)
+    assert np.abs(half.O_pix - ref.O_pix).max() > 0  # the map size shows
+    h = S // 3 + 1  # a mix: the first h of perm full-size
+    got = _masks(sp, proxy, centre, radius, cov, fs, order=(perm, h))
+    W = np.asarray(fs.W_v)
+    Wa, Wb = W.copy(), W.copy()
+    Wa[:, perm[h:]] = 0.0
+    Wb[:, perm[:h]] = 0.0
+    a = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wa)
+    try:
+        sp.maps_full = sp.maps_cluster
+        b = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wb)
+    finally:
+        sp.maps_full = full
+    np.testing.assert_allclose(got.O_pix, a.O_pix + b.O_pix, rtol=1e-5, atol=1e-6 * np.abs(ref.O_pix).max())

@@ -1,0 +1,136 @@
+"""The all-sources frame at rest (issue 36, item 5): before/after in one process, scored against the truth.
+
+usage: python bench/bench_rest.py [--scenes window_room,lamps_room,sun_room,~/.cache/photoar/rooms/lamps_102]
+                                  [--repeat 3] [--variants before,kernel,after,all128] [--json OUT]
+
+Per scene (a shared scene's name or a benchmark folder with truth.png and truth_mask.png) one engine,
+warm (one frame of each variant first), then `--repeat` rounds in which every variant renders the
+all-sources frame at the object's own pose, interleaved (the machine's load falls on every variant
+alike). Variants:
+  before: the second order's blocked pairs by the numpy pair search (app.stages.second_order.blocked_pass),
+          every map at map_res (the code before this bench);
+  kernel: the blocked pairs in one Warp launch (BlockedSecondOrder), every map at map_res;
+  after:  the kernel, and the weak sources on half-size maps (app.rest_maps: the engine's default);
+  all128: the kernel, every source on a half-size map (what the rule is measured against).
+Prints per variant the median frame seconds (wall, and the process's CPU seconds: both cores, steadier
+under load) and stage milliseconds, the sources on full-size maps, and
+energy_ratio / rmse_affected / spurious / rmse_object against the truth (the frames are deterministic:
+scored once).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def scene_dir(name: str) -> Path:
+    """A benchmark folder: the path itself, or a shared scene's name (under $PHOTOAR_SHARED/scenes)."""
+    p = Path(os.path.expanduser(name))
+    return p if p.is_dir() else Path(os.environ.get("PHOTOAR_SHARED", ROOT.parent / "shared")) / "scenes" / name
+
+
+def variant(engine, name: str, kernel, numpy_blocked, rest_maps: dict) -> None:
+    """Set the engine to one variant (module docstring); rest_maps: {"after": ..., "all128": ...}."""
+    engine._blocked = numpy_blocked if name == "before" else kernel
+    engine.rest_maps = rest_maps.get(name)
+
+
+def run_scene(path: Path, variants: list[str], repeat: int) -> dict:
+    import cv2
+
+    from app.composite import default_cache_dir
+    from app.engine import Engine, EngineParams
+    from app.stages.second_order import blocked_pass
+    from lighting import metrics
+    from recon.io import read_image_rgb
+    from recon.proxy import bounding_sphere
+    from recon.scene import load_scene
+
+    scene = load_scene(path)
+    engine = Engine(scene, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
+    pre, pm = engine.pre, engine.pre.patches
+    rv = pre.recv_vert
+
+    def numpy_blocked(dB, occ, box, obb=None, split=None):
+        pv = occ.triangles().reshape(-1, 3)
+        return blocked_pass(dB, pre.G_v, pm.vert_inset[rv], pm.vert_normal[rv], pm.centre, pm.normal, pm.area,
+                            occ, bounding_sphere(pv))
+
+    from app.rest_maps import RestMaps
+
+    r = engine.receivers
+    kernel = engine._blocked
+    rest_maps = {"after": engine.rest_maps,
+                 "all128": RestMaps(r.E_v, budget=np.inf)}
+    truth = read_image_rgb(path / "truth.png")
+    mask = cv2.imread(str(path / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+    cfg = dataclasses.replace(engine.frame_config(), passes=None)
+    times: dict[str, list] = {v: [] for v in variants}
+    out: dict[str, dict] = {}
+    for rnd in range(repeat + 1):
+        for v in (variants if rnd % 2 == 0 else variants[::-1]):
+            variant(engine, v, kernel, numpy_blocked, rest_maps)
+            c0 = time.process_time()
+            fr = engine.render(scene.obj, cfg)
+            cpu = time.process_time() - c0
+            if rnd == 0:  # warm: kernels compiled, buffers sized; scored once
+                s = metrics.score_regions(fr.pixels, scene.photo, truth, mask)
+                hard = None if engine.rest_maps is None else int((~engine.rest_maps.weak(
+                    engine.shadow_sources.select(*_box(engine, scene.obj), None))).sum())
+                out[v] = {k: float(s[k]) for k in ("energy_ratio", "rmse_affected", "spurious", "rmse_object")}
+                out[v].update(n_sources=fr.stats["n_sources"], full_size_maps=hard, pixels=fr.pixels)
+                continue
+            times[v].append((fr.stats["frame_s"], fr.stats["timings"], cpu))
+    for v in variants:
+        fs = [t[0] for t in times[v]]
+        out[v]["frame_s"] = float(np.median(fs))
+        out[v]["cpu_s"] = float(np.median([t[2] for t in times[v]]))
+        out[v]["stages_ms"] = {k: round(1e3 * float(np.median([t[1][k] for t in times[v]])), 1)
+                               for k in times[v][0][1]}
+    base = out[variants[0]]["pixels"].astype(np.float64)
+    for v in variants:
+        out[v]["rmse_vs_" + variants[0]] = float(np.sqrt(np.mean((out[v].pop("pixels") - base) ** 2)))
+    return out
+
+
+def _box(engine, obj):
+    pv = engine.object_shading.object_shape(obj)[0]
+    return pv.min(0), pv.max(0)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", default="window_room,lamps_room,sun_room")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--variants", default="before,kernel,after,all128")
+    ap.add_argument("--json", help="write the results here")
+    a = ap.parse_args(argv)
+    variants = a.variants.split(",")
+    res = {}
+    for name in a.scenes.split(","):
+        path = scene_dir(name)
+        r = run_scene(path, variants, a.repeat)
+        res[name] = r
+        for v in variants:
+            x = r[v]
+            print(f"{path.name:12s} {v:7s} frame {x['frame_s']:.2f} s (CPU {x['cpu_s']:.2f} s)  "
+                  f"energy {x['energy_ratio']:.4f} rmse_aff {x['rmse_affected']:.4f} spurious {x['spurious']:.4f} rmse_obj {x['rmse_object']:.3f}  "
+                  f"full-size maps {x['full_size_maps']} of {x['n_sources']}  vs {variants[0]} "
+                  f"{x['rmse_vs_' + variants[0]]:.3f}  {x['stages_ms']}", flush=True)
+    if a.json:
+        Path(a.json).write_text(json.dumps(res, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
