@@ -24,15 +24,17 @@ WINDOW = 8.0  # radiance of the test window
 RHO = 0.55
 
 
-def _box_room(window: bool = True, floor=RHO):
-    """A closed 3 x 2.5 x 3 m room (walls albedo RHO, the floor `floor`) with a 1 x 1 m window on the
-    back wall."""
+def _box_room(window: bool = True, floor=RHO, wall=RHO, ceiling=None):
+    """A closed 3 x 2.5 x 3 m room (walls albedo `wall`, the floor `floor`, the ceiling `ceiling`,
+    None: `wall`) with a 1 x 1 m window on the back wall."""
     from recon.patches import build_patches
     from recon.scene import Quad, box_faces
 
     quads = []
     for axis, side, c, n in box_faces(np.zeros(3), ROOM, inward=True):
-        alb = np.broadcast_to(np.asarray(floor, float), (3,)) if (axis, n[1]) == (1, 1.0) else np.full(3, RHO)
+        alb = np.full(3, wall, float)
+        if axis == 1:
+            alb = np.broadcast_to(np.asarray(floor if n[1] > 0 else (wall if ceiling is None else ceiling), float), (3,))
         quads.append(Quad(f"wall{axis}{side}", c, n, alb.copy(), np.zeros(3), "room"))
     if window:
         c = np.array([[1.0, 0.8, 1e-3], [2.0, 0.8, 1e-3], [2.0, 1.8, 1e-3], [1.0, 1.8, 1e-3]])
