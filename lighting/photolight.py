@@ -24,7 +24,7 @@ photo gives everything else, read through a response that is assumed, not measur
   transfers G, visibility included) and the wall albedo prior rho. Unseen patches gather,
   B_U = r (G_U. B), solved exactly: (I - r G_UU) B_U = r G_U,rest B_rest, r each unseen patch's
   reflectivity: that of its own surface where the photo shows part of it (one material per quad:
-  the median L / E of its seen patches, refitted with the unseen light; the walls' albedo on a wall
+  least squares of L against E over its seen patches, refitted with the unseen light; the walls' albedo on a wall
   not in view), `ceiling_albedo` on a ceiling not in view, the unseen reflectivity prior elsewhere
   (`unseen_by_surface`, lighting.photoalbedo; off: the prior everywhere).
 * **The walls' albedo** is the prior unless `fit_albedo`: then it is the one that best explains
@@ -62,6 +62,7 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from lighting.photoalbedo import fit_albedo_scale, seen_transfers as _seen_transfers, solve_emitters as _solve_emitters
 from lighting.radiance import GATHERED, PHOTO, photo_radiance
 from lighting.sources import luminance
@@ -205,9 +206,6 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     M[X, group[X]] = 1.0
     G64 = np.asarray(G, np.float64)
     r = pr.unseen_reflectivity
-    r_patch = np.full(P, r)  # reflectivity of each unseen patch
-    a0, A1, Z0, Z1 = _seen_transfers(G64, S, U, r_patch, known, M)
-
     L_S = rad[S]
     w = 1.0 / np.maximum(wall_lum, 1e-3 * np.median(wall_lum))  # relative residuals
     if not pr.relative:
@@ -217,13 +215,16 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     qS = patches.quad[S]
     rho = np.full(3, pr.wall_albedo)  # the walls' albedo (RGB)
     albedo_fit = None
-    if (pr.fit_albedo or pr.unseen_by_surface) and ng:
+    r_patch = np.full(P, r)  # reflectivity of each unseen patch
+    if pr.fit_albedo or pr.unseen_by_surface:
         ceiling_q = (roles == "room") & (np.bincount(patches.quad, patches.normal[:, 1], nq)
                                          < -0.5 * np.maximum(np.bincount(patches.quad, minlength=nq), 1))
         albedo_fit = fit_albedo_scale(G64, S, U, known, M, qS, fit_on, w_all, L_S, lower, patches.quad,
                                       vertical, ceiling_q, pr, fit_walls=pr.fit_albedo)
         rho, r_patch = albedo_fit.wall, albedo_fit.r_patch
         a0, A1, Z0, Z1 = albedo_fit.a0, albedo_fit.A1, albedo_fit.Z0, albedo_fit.Z1
+    else:
+        a0, A1, Z0, Z1 = _seen_transfers(G64, S, U, r_patch, known, M)
     reach = np.abs(w[:, None] * A1).sum(0)
     unresolved = reach <= 1e-9 * max(reach.max(initial=0.0), 1e-300)  # no measured wall sees the group
     J1 = w[:, None] * A1
