@@ -58,8 +58,9 @@ class AlbedoFit:
 
 def seen_transfers(G: np.ndarray, S: np.ndarray, U: np.ndarray, r_patch: np.ndarray, known: np.ndarray,
                    M: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(a0 (|S|,3), A1 (|S|,G), Z0 (|U|,3), Z1 (|U|,G)): irradiance/pi at the seen patches S from the known radiance (P,3)
-    and per unit radiance of each unknown group (M (P,G) its patches), the unseen patches U gathering
+    """(a0 (|S|,3), A1 (|S|,G), Z0 (|U|,3), Z1 (|U|,G)): irradiance/pi at the seen patches S from the
+    known radiance (P,3) and per unit radiance of each unknown group (M (P,G) its patches), the unseen
+    patches U gathering
     with reflectivity r_patch[U], solved exactly: (I - r G_UU) B_U = r (G_U. known + G_U. M e);
     B_U = Z0 + Z1 e."""
     ng = M.shape[1]
@@ -128,7 +129,7 @@ def fit_albedo_scale(G: np.ndarray, S: np.ndarray, U: np.ndarray, known: np.ndar
 
 
 def solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarray, rho: float | np.ndarray,
-                    lower: np.ndarray, unresolved: np.ndarray):
+                   lower: np.ndarray, unresolved: np.ndarray):
     """Bounded least squares of rho (a0 + A1 e) = L_S per channel, rows weighted by w (J1 = w A1);
     rho one albedo for every row, or one per row (|S|,) or per row and channel (|S|,3).
     Returns e (G,3), its 1-sigma std (G,3) (NaN where at a bound or not seen), at_bound (G,3) and
