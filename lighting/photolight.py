@@ -22,7 +22,15 @@ photo gives everything else, read through a response that is assumed, not measur
 * **Inverse radiosity.** The walls show how strong the unknown emitters are: a photo-seen wall
   patch i has radiance L_i = rho * E_i with E_i = sum_j G_ij B_j (irradiance/pi through the
   transfers G, visibility included) and the wall albedo prior rho. Unseen patches gather,
-  B_U = r (G_U. B), r = the unseen reflectivity prior, solved exactly: (I - r G_UU) B_U = r G_U,rest B_rest.
+  B_U = r (G_U. B), solved exactly: (I - r G_UU) B_U = r G_U,rest B_rest, r each unseen patch's
+  reflectivity: that of its own surface where the photo shows part of it (one material per quad:
+  least squares of L against E over its seen patches, refitted with the unseen light; the walls' albedo on a wall
+  not in view), `ceiling_albedo` on a ceiling not in view, the unseen reflectivity prior elsewhere
+  (`unseen_by_surface`, lighting.photoalbedo; off: the prior everywhere).
+* **The walls' albedo** is the prior unless `fit_albedo`: then it is the one that best explains
+  every seen surface's interreflections (lighting.photoalbedo). Exact on an exact model, it does not
+  identify the albedo in the rendered rooms (their texture, the coarse patches, the assumed response
+  bias it low: docs/unseen.md), so it is off.
   E_i is then linear in the unknown radiances e; e is the bounded linear least-squares solution
   (scipy.optimize.lsq_linear, e >= the lower bound) of rho E_i(e) = L_i, with residuals
   relative to L_i (every wall counts alike, not only the bright ones near the window).
@@ -44,7 +52,8 @@ photo gives everything else, read through a response that is assumed, not measur
 
 Priors (not fitted to any scene): wall albedo 0.55 (a mid-grey painted wall; interior walls are
 0.5-0.8, floors 0.2-0.5, so one grey value for every seen surface), unseen reflectivity 0.5 (the
-seed's value for patches nobody sees), response sRGB.
+seed's value for patches nobody sees), an unseen ceiling 0.8 (white ceiling paint; the lighting
+handbooks' recommended ceiling reflectance is 0.7-0.9), response sRGB.
 """
 from __future__ import annotations
 
@@ -53,8 +62,8 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
+from lighting.photoalbedo import fit_albedo_scale, seen_transfers as _seen_transfers, solve_emitters as _solve_emitters
 from lighting.radiance import GATHERED, PHOTO, photo_radiance
 from lighting.sources import luminance
 from lighting.tonemap import CameraResponse
@@ -77,6 +86,10 @@ class PhotoPriors:
     clipped_share: float = 0.5  # a patch is a clipped region when this share of its pixels is clipped
     relative: bool = True  # residuals relative to each wall's radiance (False: absolute)
     surface_albedos: bool = False  # floors, ceilings, furniture join the fit, each with its own albedo
+    fit_albedo: bool = False  # the walls' albedo from the interreflections (lighting.photoalbedo): does not
+    # identify it in the unseen rooms (docs/unseen.md), so off
+    unseen_by_surface: bool = True  # unseen patches reflect as their surface's seen part (lighting.photoalbedo)
+    ceiling_albedo: float = 0.8  # an unseen ceiling's reflectivity with unseen_by_surface / fit_albedo
 
 
 @dataclass
@@ -140,9 +153,9 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     Raises ValueError when the photo holds no usable light.
     """
     pr = priors or PhotoPriors()
-    if not 0 < pr.wall_albedo < 1 or not 0 <= pr.unseen_reflectivity < 1:
-        raise ValueError(f"wall albedo must be in (0, 1) and unseen reflectivity in [0, 1), got "
-                         f"{pr.wall_albedo}, {pr.unseen_reflectivity}")
+    if not 0 < pr.wall_albedo < 1 or not 0 <= pr.unseen_reflectivity < 1 or not 0 <= pr.ceiling_albedo < 1:
+        raise ValueError(f"wall albedo must be in (0, 1), unseen reflectivity and ceiling albedo in [0, 1), got "
+                         f"{pr.wall_albedo}, {pr.unseen_reflectivity}, {pr.ceiling_albedo}")
     P = patches.n_patches
     photo = np.asarray(photo).reshape(-1, 3)
     L_b = response.to_radiance(photo)
@@ -193,32 +206,35 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     M[X, group[X]] = 1.0
     G64 = np.asarray(G, np.float64)
     r = pr.unseen_reflectivity
-    if len(U):
-        A_uu = np.eye(len(U)) - r * G64[np.ix_(U, U)]
-        rhs = np.concatenate([r * (G64[U] @ known), r * (G64[U] @ M)], axis=1)
-        Z = np.linalg.solve(A_uu, rhs)
-        Z0, Z1 = Z[:, :3], Z[:, 3:]
-    else:
-        Z0, Z1 = np.zeros((0, 3)), np.zeros((0, ng))
-    a0 = G64[S] @ known + G64[np.ix_(S, U)] @ Z0  # (|S|,3) irradiance/pi from what is known
-    A1 = G64[S] @ M + G64[np.ix_(S, U)] @ Z1  # (|S|,ng) per unit radiance of each unknown group
-
-    rho = pr.wall_albedo
     L_S = rad[S]
     w = 1.0 / np.maximum(wall_lum, 1e-3 * np.median(wall_lum))  # relative residuals
     if not pr.relative:
         w = np.full(len(S), 1.0 / np.median(wall_lum))
     w_all, w = w, np.where(fit_on, w, 0.0)
     lower, lower_from = _lower_bounds(patches, group, gquads, pix_patch, L_b, sat, rad, count, measured)
+    qS = patches.quad[S]
+    rho = np.full(3, pr.wall_albedo)  # the walls' albedo (RGB)
+    albedo_fit = None
+    r_patch = np.full(P, r)  # reflectivity of each unseen patch
+    if pr.fit_albedo or pr.unseen_by_surface:
+        ceiling_q = (roles == "room") & (np.bincount(patches.quad, patches.normal[:, 1], nq)
+                                         < -0.5 * np.maximum(np.bincount(patches.quad, minlength=nq), 1))
+        albedo_fit = fit_albedo_scale(G64, S, U, known, M, qS, fit_on, w_all, L_S, lower, patches.quad,
+                                      vertical, ceiling_q, pr, fit_walls=pr.fit_albedo)
+        rho, r_patch = albedo_fit.wall, albedo_fit.r_patch
+        a0, A1, Z0, Z1 = albedo_fit.a0, albedo_fit.A1, albedo_fit.Z0, albedo_fit.Z1
+    else:
+        a0, A1, Z0, Z1 = _seen_transfers(G64, S, U, r_patch, known, M)
     reach = np.abs(w[:, None] * A1).sum(0)
     unresolved = reach <= 1e-9 * max(reach.max(initial=0.0), 1e-300)  # no measured wall sees the group
-    qS = patches.quad[S]
     J1 = w[:, None] * A1
-    e, std, at_bound, resid = _solve_emitters(J1, w, L_S, a0, rho, lower, unresolved)
-    # the prior's share of the uncertainty: the same fit with the albedo prior -20 % / +20 %
-    e_lo = _solve_emitters(J1, w, L_S, a0, 0.8 * rho, lower, unresolved)[0]
-    e_hi = _solve_emitters(J1, w, L_S, a0, min(1.2 * rho, 0.999), lower, unresolved)[0]
-    rho_S = np.full((len(S), 3), rho)
+    rho_rows = np.broadcast_to(rho, (len(S), 3))
+    e, std, at_bound, resid = _solve_emitters(J1, w, L_S, a0, rho_rows, lower, unresolved)
+    # the prior's share of the uncertainty: the same fit with the walls' albedo -20 % / +20 %
+    e_lo = _solve_emitters(J1, w, L_S, a0, 0.8 * rho_rows, lower, unresolved)[0]
+    e_hi = _solve_emitters(J1, w, L_S, a0, np.minimum(1.2 * rho_rows, 0.999), lower, unresolved)[0]
+    rho_S = np.array(rho_rows)
+    rho = float(luminance(rho))
     if pr.surface_albedos and not fit_on.all():
         rho_S, e = _surface_albedos(qS, fit_on, A1, w_all, L_S, a0, rho, lower, unresolved)
         e_lo = _surface_albedos(qS, fit_on, A1, w_all, L_S, a0, 0.8 * rho, lower, unresolved)[1]
@@ -236,7 +252,7 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     with np.errstate(divide="ignore", invalid="ignore"):
         refl = np.where(E > 0, B / E, r)
     refl = np.clip(np.nan_to_num(refl, nan=r), 0.0, 1.0)
-    refl[U] = r
+    refl[U] = r_patch[U, None]
     refl[emit | (group >= 0)] = 0.0
     origin = np.full(P, GATHERED, np.int8)
     origin[measured] = PHOTO
@@ -260,6 +276,9 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
                          "patches": int(np.sum(group == g))})
     report = {"response": "sRGB (assumed)" if pr.gamma_scale == 1 else f"sRGB^-1 ** {pr.gamma_scale} (assumed)",
               "wall_albedo_prior": pr.wall_albedo, "unseen_reflectivity": r,
+              "wall_albedo": [round(float(v), 4) for v in rho_S[fit_on][0]] if fit_on.any() else None,
+              "wall_albedo_from": "interreflections" if pr.fit_albedo and albedo_fit is not None else "prior",
+              "albedo_fit": albedo_fit.report(quad_names) if albedo_fit is not None else None,
               "implied_wall_albedo": round(implied, 4),
               "fit_rms_relative_residual": [round(float(v), 4) for v in resid],
               "fitted_on": "walls" if not fit_on.all() or vertical[S].all() else "all seen surfaces (no wall in view)",
@@ -329,34 +348,6 @@ def _surface_albedos(quad: np.ndarray, wall: np.ndarray, A1: np.ndarray, w: np.n
             break
         rho_S = new
     return rho_S, e
-
-
-def _solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarray, rho: float | np.ndarray,
-                    lower: np.ndarray, unresolved: np.ndarray):
-    """Bounded least squares of rho (a0 + A1 e) = L_S per channel, rows weighted by w (J1 = w A1);
-    rho one albedo for every row, or one per row (|S|,) or per row and channel (|S|,3).
-    Returns e (G,3), its 1-sigma std (G,3) (NaN where at a bound or not seen), at_bound (G,3) and
-    the RMS weighted residual per channel (3,)."""
-    ng, fit_on = J1.shape[1], w > 0
-    e, std = np.zeros((ng, 3)), np.full((ng, 3), np.nan)
-    at_bound, resid = np.zeros((ng, 3), bool), np.zeros(3)
-    if ng == 0:
-        return e, std, at_bound, resid
-    rho = np.broadcast_to(np.asarray(rho, np.float64).reshape(-1, 1) if np.ndim(rho) < 2 else rho, (len(w), 3))
-    for c in range(3):
-        J = rho[:, c, None] * J1
-        b = w * (L_S[:, c] - rho[:, c] * a0[:, c])
-        sol = lsq_linear(J, b, bounds=(lower[:, c], np.inf), method="bvls")
-        e[:, c] = sol.x
-        res = J @ sol.x - b
-        resid[c] = float(np.sqrt(np.mean(res[fit_on] ** 2)))
-        at_bound[:, c] = sol.x <= lower[:, c] * (1 + 1e-9) + 1e-300
-        free = ~at_bound[:, c] & ~unresolved
-        dof = max(int(fit_on.sum()) - int(free.sum()), 1)
-        if free.any():
-            cov = np.sum(res ** 2) / dof * np.linalg.pinv(J[:, free].T @ J[:, free])
-            std[free, c] = np.sqrt(np.clip(np.diag(cov), 0, None))
-    return e, std, at_bound, resid
 
 
 def _rgb(v) -> str:

@@ -5,9 +5,10 @@ radiance, probe) is composited with --lighting photo through the CLI. Before, th
 an emitter "floor (clipped region)" and the object's sun shadow was missing (energy 0.28,
 rmse_affected 21.2 of 21.4 untouched, rmse_object 78.9). Now the sun is estimated from the photo
 (lighting.sun.estimate_sun, as captured light does) and the sunlit floor is a sunlit reflector.
-Measured: energy 1.016, rmse_affected 2.58, rmse_object 5.06 (the object's window light scaled by
-1.63 by what its surroundings show, lighting.photolocal; 5.99 without); sun direction 0.30 deg off
-the declared one, strength ratio 0.978.
+Measured: energy 0.817, rmse_affected 2.11, rmse_object 4.86 (the object's window light scaled by
+2.08 by what its surroundings show, lighting.photolocal; the unseen patches reflect as their surface,
+lighting.photoalbedo: energy 1.016, rmse_object 5.06 with the 0.5 unseen prior); sun direction 0.30
+deg off the declared one, strength ratio 0.978.
 """
 import json
 

@@ -1,0 +1,158 @@
+"""The walls' albedo read off the photo's interreflections (photo light, issue 34).
+
+Photo light (lighting.photolight) explains each photo-seen patch i as L_i = rho_q E_i, E_i = a0_i +
+A1_i e: a0 the irradiance/pi from what the photo measures (the seen surfaces' radiance, and the
+unseen patches gathered from it), A1 e the unknown emitters' share (directly, and through the unseen
+patches). One photo fixes rho x light wherever a patch is lit by the emitters alone, but not where it
+is lit by the room: a0 is measured, in the photo's own units, and does not scale with the emitters.
+So (e x k, rho / k) fits the photo only when a0 = 0; in a closed room the share of the light that
+comes from the other surfaces differs from patch to patch (the floor under a table, the corners,
+the wall facing the window), and the albedo that explains them all is determined.
+
+The fit: every seen quad q has its own RGB albedo rho_q (the walls, the vertical room quads, share
+one: they are usually one paint, and together they see the emitters from many sides); the emitters
+e >= their lower bounds. Alternating least squares: e by bounded least squares over every seen
+patch at the current albedos, then each albedo in closed form (sum w^2 L E / sum w^2 E^2 over its
+patches), until they settle. Residuals are relative (weights w = 1 / L), as in the walls' fit.
+
+The unseen patches gather with the albedo of their own surface where the photo shows part of it
+(one material per quad), the walls' where a wall is not seen at all, `ceiling_albedo` on an unseen
+ceiling (ceiling paint: the lighting handbooks' recommended ceiling reflectance is 0.7-0.9, walls
+0.5-0.7, floors 0.2-0.4; the ceiling gets its own prior because it is the largest surface out of
+view and the brightest), and `unseen_reflectivity` elsewhere (unseen furniture faces). They change
+a0 and A1, so the whole is repeated (a few outer rounds) until the unseen reflectivities settle.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from lighting.sources import luminance
+
+ALBEDO_RANGE = (0.02, 0.95)  # physical albedos of painted / furnished surfaces (nothing is blacker or whiter)
+
+
+@dataclass
+class AlbedoFit:
+    """The fitted albedos: the walls' (3,), every seen quad's {quad: (3,)}, each patch's reflectivity
+    when unseen (P,), the transfers at it (seen_transfers: a0, A1, Z0, Z1), the emitters (G,3)
+    of the joint fit and the rounds it took."""
+
+    wall: np.ndarray
+    surface: dict
+    r_patch: np.ndarray
+    a0: np.ndarray
+    A1: np.ndarray
+    Z0: np.ndarray
+    Z1: np.ndarray
+    e: np.ndarray
+    rounds: int
+
+    def report(self, names: list[str] | None) -> dict:
+        """{quad name: RGB albedo} of the seen surfaces and the rounds, for report.json."""
+        return {"surfaces": {(names[q] if names else f"quad {q}"): [round(float(v), 3) for v in a]
+                             for q, a in self.surface.items()}, "rounds": self.rounds}
+
+
+def seen_transfers(G: np.ndarray, S: np.ndarray, U: np.ndarray, r_patch: np.ndarray, known: np.ndarray,
+                   M: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(a0 (|S|,3), A1 (|S|,G), Z0 (|U|,3), Z1 (|U|,G)): irradiance/pi at the seen patches S from the
+    known radiance (P,3) and per unit radiance of each unknown group (M (P,G) its patches), the unseen
+    patches U gathering
+    with reflectivity r_patch[U], solved exactly: (I - r G_UU) B_U = r (G_U. known + G_U. M e);
+    B_U = Z0 + Z1 e."""
+    ng = M.shape[1]
+    if len(U):
+        r = r_patch[U, None]
+        A_uu = np.eye(len(U)) - r * G[np.ix_(U, U)]
+        rhs = np.concatenate([r * (G[U] @ known), r * (G[U] @ M)], axis=1)
+        Z = np.linalg.solve(A_uu, rhs)
+        Z0, Z1 = Z[:, :3], Z[:, 3:]
+    else:
+        Z0, Z1 = np.zeros((0, 3)), np.zeros((0, ng))
+    a0 = G[S] @ known + G[np.ix_(S, U)] @ Z0
+    A1 = G[S] @ M + G[np.ix_(S, U)] @ Z1
+    return a0, A1, Z0, Z1
+
+
+def fit_albedo_scale(G: np.ndarray, S: np.ndarray, U: np.ndarray, known: np.ndarray, M: np.ndarray,
+                     qS: np.ndarray, wall: np.ndarray, w: np.ndarray, L_S: np.ndarray, lower: np.ndarray,
+                     quad: np.ndarray, vertical: np.ndarray, ceiling_q: np.ndarray, priors,
+                     fit_walls: bool = True, outer: int = 4, inner: int = 40) -> AlbedoFit:
+    """The albedos and the emitters that best explain every seen patch (module docstring).
+
+    G (P,P) transfers; S seen patches (their radiance L_S (|S|,3) in `known`), U unseen ones, M (P,G)
+    the unknown groups' patches; qS the quad of each seen patch, wall (|S|,) its being a wall, w (|S|,)
+    the relative weights; lower (G,3) the emitters' lower bounds; quad (P,) each patch's quad,
+    vertical (P,) a wall patch, ceiling_q (Q,) a ceiling quad; priors: lighting.photolight.PhotoPriors
+    (wall_albedo the start, ceiling_albedo, unseen_reflectivity); fit_walls False: the walls keep
+    wall_albedo, the other seen surfaces and the unseen patches are fitted around it."""
+    nq = len(ceiling_q)
+    vertical_q = np.bincount(quad, vertical, nq) > 0
+    seen_q = np.unique(qS)
+    groups = [wall] if wall.any() and fit_walls else []
+    groups += [(qS == q) & ~wall for q in seen_q if ((qS == q) & ~wall).any()]
+    rho = np.full((len(S), 3), priors.wall_albedo)
+    r_q = np.where(ceiling_q, priors.ceiling_albedo, priors.unseen_reflectivity)
+    a0 = A1 = Z0 = Z1 = e = None
+    rounds = 0
+    for rounds in range(1, outer + 1):
+        a0, A1, Z0, Z1 = seen_transfers(G, S, U, r_q[quad], known, M)
+        reach = np.abs(w[:, None] * A1).sum(0)
+        unresolved = reach <= 1e-9 * max(reach.max(initial=0.0), 1e-300)
+        for _ in range(inner):
+            e = solve_emitters(w[:, None] * A1, w, L_S, a0, rho, lower, unresolved)[0]
+            E = a0 + A1 @ e
+            new = rho.copy()
+            for m in groups:
+                den = np.sum(w[m, None] ** 2 * E[m] ** 2, axis=0)
+                new[m] = np.where(den > 0, np.sum(w[m, None] ** 2 * L_S[m] * E[m], axis=0) / np.maximum(den, 1e-300),
+                                  rho[m][0])
+            new = np.clip(new, *ALBEDO_RANGE)
+            done = np.allclose(new, rho, rtol=1e-4)
+            rho = new
+            if done:
+                break
+        wall_rho = rho[wall][0] if wall.any() else np.full(3, priors.wall_albedo)
+        new_q = np.where(ceiling_q, priors.ceiling_albedo, priors.unseen_reflectivity)
+        new_q[vertical_q] = luminance(wall_rho)
+        for q in seen_q:
+            new_q[q] = luminance(rho[qS == q][0])
+        if np.allclose(new_q, r_q, atol=1e-3) or rounds == outer:
+            break  # (r_q stays the one a0, A1 were solved with)
+        r_q = new_q
+    surface = {int(q): rho[qS == q][0] for q in seen_q}
+    wall_rho = rho[wall][0] if wall.any() else np.full(3, priors.wall_albedo)
+    return AlbedoFit(wall_rho, surface, r_q[quad].astype(np.float64), a0, A1, Z0, Z1, e, rounds)
+
+
+def solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarray, rho: float | np.ndarray,
+                   lower: np.ndarray, unresolved: np.ndarray):
+    """Bounded least squares of rho (a0 + A1 e) = L_S per channel, rows weighted by w (J1 = w A1);
+    rho one albedo for every row, or one per row (|S|,) or per row and channel (|S|,3).
+    Returns e (G,3), its 1-sigma std (G,3) (NaN where at a bound or not seen), at_bound (G,3) and
+    the RMS weighted residual per channel (3,)."""
+    ng, fit_on = J1.shape[1], w > 0
+    e, std = np.zeros((ng, 3)), np.full((ng, 3), np.nan)
+    at_bound, resid = np.zeros((ng, 3), bool), np.zeros(3)
+    if ng == 0:
+        return e, std, at_bound, resid
+    rho = np.broadcast_to(np.asarray(rho, np.float64).reshape(-1, 1) if np.ndim(rho) < 2 else rho, (len(w), 3))
+    for c in range(3):
+        J = rho[:, c, None] * J1
+        b = w * (L_S[:, c] - rho[:, c] * a0[:, c])
+        sol = lsq_linear(J, b, bounds=(lower[:, c], np.inf), method="bvls")
+        e[:, c] = sol.x
+        res = J @ sol.x - b
+        resid[c] = float(np.sqrt(np.mean(res[fit_on] ** 2)))
+        at_bound[:, c] = sol.x <= lower[:, c] * (1 + 1e-9) + 1e-300
+        free = ~at_bound[:, c] & ~unresolved
+        dof = max(int(fit_on.sum()) - int(free.sum()), 1)
+        if free.any():
+            cov = np.sum(res ** 2) / dof * np.linalg.pinv(J[:, free].T @ J[:, free])
+            std[free, c] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return e, std, at_bound, resid
+
+
