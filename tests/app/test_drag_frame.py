@@ -88,7 +88,7 @@ def test_drag_compose_kernel_matches_its_reference(demo_engine):
 @pytest.mark.parametrize("room", ["window_room", "lamps_room", "sun_room"])
 def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     # each shared room against its truth (tools/score.py's measures, lighting.metrics): evaluate's drag frame
-    # (1/2 resolution, DRAG_PASSES passes, clusters split near the object first) within issue 36's bound, rmse_affected <= 1.5 x the all-sources frame's
+    # (1/DRAG_SCALE resolution, DRAG_PASSES passes, clusters split near the object first) within issue 36's bound, rmse_affected <= 1.5 x the all-sources frame's
     # + 0.5 and energy_ratio in 0.93-1.07 (sun_room: the sun's pass at full resolution); its change lies where
     # the full-resolution frame of as many passes changes the photo
     import cv2
