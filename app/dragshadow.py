@@ -265,7 +265,7 @@ class SphereShadow:
         sun, oc = eng.sun_pixels.stage, eng.params.object
         ft = FrameTimer()
         tick, timings = ft.tick, ft.timings
-        pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov = eng.frame_object(obj, tick, ft.start)
+        pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov = eng.frame_object(obj, ft)
         t = ft.last
         timings["sources"] = 0.0  # no source list
         pm = eng.pre.patches
