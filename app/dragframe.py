@@ -48,6 +48,15 @@ MIN_DRAG_MAP_RES = 64
 DRAG_LIGHT_NEAR_FACTOR = 1.0
 
 
+# The drag frame's object light groups the object's light for the room's share (how much of it the room's walls
+# and furniture hide from a receiver: app.stages.object_light.room_share) by the axis its faces face alone (at most
+# 6 point sources), not also by cell of its box (ROOM_CELLS 2 a side: up to 48, chosen at rest on sun_102, a torus
+# in front of a sofa). A receiver the room hides the object from partly is rare while dragging over the floor;
+# one cell: object light 0.59 of two cells' ms on lamps_room, the frame within 1 level, rmse 0.004 level of it
+# (docs/benchmarks.md "The drag frame at 1/3")
+DRAG_ROOM_CELLS = 1
+
+
 # (A frame with a map per source, when the room has no more sources than the passes, takes the same rule
 # from the full frame's map size: max(MIN_DRAG_MAP_RES, map_res / s).)
 
@@ -127,6 +136,8 @@ class DragStages:
         self.object_light = ObjectLight(oc_drag, pm, pre.recv_vert, pre.pix_bary, r.pix_pos, r.pix_patch, r.pix_rows,
                                         r.recv_pix, r.rho_x, r.L_b, B_src, engine.scene_occ, sc.response, cam, dev,
                                         sun_dir=sun_light.d if sun_light is not None else None)
+        if not plain:
+            self.object_light.room_cells = DRAG_ROOM_CELLS
         self.shape = (cam.height, cam.width)
         self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object
         self.zero_rad = np.zeros((*self.shape, 3), np.float32)

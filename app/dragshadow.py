@@ -22,8 +22,8 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 
 from app import runtime
+from app.glue import FrameTimer
 from kernels.sphere_occlusion import N_SH, SphereRatio, sh16_np
-from recon.proxy import bounding_sphere
 
 # Compact sources are cut into cells no larger than this (m): a cell is one disk to the kernel, so its
 # shadow is the disk's; half a metre keeps a window's cells within ~15 degrees from 2 m, the angular
@@ -263,20 +263,10 @@ class SphereShadow:
         app.engine.Frame, passed in: the engine imports this module)."""
         eng, px = self.engine, self.px
         sun, oc = eng.sun_pixels.stage, eng.params.object
-        timings: dict[str, float] = {}
-        t_all = t = time.perf_counter()
-
-        def tick(name: str, t: float) -> float:
-            now = time.perf_counter()
-            timings[name] = now - t
-            return now
-
-        pv, pf, proxy_occ, shade_mesh, shade_occ = eng.object_shading.object_shape(obj)
-        centre, radius = bounding_sphere(pv)
-        t = tick("proxy", t)
-        hits = eng.object_shading.object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ)
-        cov = hits.coverage()
-        t = tick("object", t)
+        ft = FrameTimer()
+        tick, timings = ft.tick, ft.timings
+        pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov = eng.frame_object(obj, ft)
+        t = ft.last
         timings["sources"] = 0.0  # no source list
         pm = eng.pre.patches
         dB_shadow = np.zeros((pm.n_patches, 3))
@@ -304,11 +294,11 @@ class SphereShadow:
         t = tick("masks", t)  # the room's shadow: the spheres' kernel (in place of the shadow maps)
         radiance, pixels, room = px.finish(room_c, cov, obj_rad, eng._sun_share(sun_loss))
         tick("upsample", t)
-        frame_s = time.perf_counter() - t_all
+        frame_s = ft.close()
         eng.last_shading = (shade_mesh, shaded.L_vert, obj.albedo, shaded.sun_vis) if hits.hit.any() else None
         stats = {"frame_s": frame_s, "timings": timings, "n_sources": int(self.n_cells) + int(sun is not None),
                  "passes": int(sun is not None), "spheres": int(len(sc)), "mode": "hdr", "drag_shadow": "spheres",
-                 "n_patches": int(pm.n_patches)}
+                 "n_patches": int(pm.n_patches), "glue": ft.glue, "kernel_s": ft.clock.seconds}
         return frame_type(radiance, pixels, stats, room, cov.astype(np.float32))
         yield  # a generator (Engine.render drives it)
 

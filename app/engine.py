@@ -47,7 +47,7 @@ from app.config import (LIGHTING, SUN_SOURCES, EngineParams, FrameConfig, Lighti
                         ObjectConfig, PrecomputeConfig, ShadowConfig, SunSource)  # (re-exported)
 from app.dragframe import DragStages, sphere_stages, uses_spheres
 from app.frame_budget import FrameBudget
-from app.glue import KernelClock
+from app.glue import FrameTimer
 from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner  # noqa: F401 (re-exported)
 from app.rest_maps import RestMaps
 from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
@@ -302,29 +302,11 @@ class Engine:
         px = self.pixel_stages(config.drag)  # the room's per-pixel stages: full resolution or the drag's coarse
         # the sun's pass is always the full frame's (its shadow is hard-edged, and cheap at full size)
         pm, oc, r, sun = self.pre.patches, self.params.object, px.receivers, self.sun_pixels.stage
-        timings: dict[str, float] = {}
-        glue: dict[str, float] = {}  # per stage its seconds outside Warp kernels (app.glue)
-        clock = KernelClock().__enter__()  # left on a frame abandoned mid-way: it then counts nothing that matters
-        t_all = t = time.perf_counter()
-        k_last = [0.0]
-
-        def tick(name: str, t: float) -> float:
-            now = time.perf_counter()
-            timings[name] = now - t
-            glue[name] = timings[name] - (clock.seconds - k_last[0])
-            k_last[0] = clock.seconds
-            return now
-
-        # ---- the object's shape: proxy and shading mesh (app.stages.object_shading)
-        pv, pf, proxy_occ, shade_mesh, shade_occ = self.object_shading.object_shape(obj)
-        centre, radius = bounding_sphere(pv)
-        t = tick("proxy", t)
-
-        # ---- object pixels: coverage and depth against the scene model
-        hits = self.object_shading.object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ)
-        cov = hits.coverage()
+        ft = FrameTimer()
+        tick, timings = ft.tick, ft.timings
+        pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov = self.frame_object(obj, ft)
+        t = ft.last
         cov_px = cov if px is self else px.zero_cov  # the drag's coarse room is computed under the object too
-        t = tick("object", t)
 
         # ---- source list from the shaft hierarchy, grouped into the frame's passes (sec. 6.2.1, 6.4)
         fs = self.shadow_sources.select(pv.min(0), pv.max(0), self.budget.passes(config, sun is not None),
@@ -410,16 +392,29 @@ class Engine:
             t = tick("compose", t)
             radiance, pixels, room = px.finish(room_c, cov, obj_rad, self._sun_share(sun_loss))
             tick("upsample", t)
-        frame_s = time.perf_counter() - t_all
-        clock.__exit__(None, None, None)
+        frame_s = ft.close()
         self.budget.measured(frame_s, timings["masks"], len(fs.eyes))
         self.last_shading = (shade_mesh, shaded.L_vert, obj.albedo, shaded.sun_vis) if hits.hit.any() else None
         stats = self._stats(fs, masks, frame_s, timings, len(pf), config.mode, sun is not None)
-        stats["glue"] = glue
-        stats["kernel_s"] = clock.seconds
+        stats["glue"] = ft.glue
+        stats["kernel_s"] = ft.clock.seconds
         if calibration_s:
             stats["fps_calibration_s"] = calibration_s
         return Frame(radiance, pixels, stats, room, cov.astype(np.float32))
+
+    def frame_object(self, obj: SceneObject, timer: FrameTimer) -> tuple:
+        """Every frame's first steps (the map frames here, the sphere drag frame in app.dragshadow): the object's
+        proxy and shading mesh (app.stages.object_shading), its bounding sphere, and its pixels (camera hits
+        against the scene model, coverage (H,W)); timed as the frame's stages "proxy" and "object" from the
+        timer's last tick (app.glue.FrameTimer: their glue too). Returns (pv, pf, proxy_occ, shade_mesh,
+        shade_occ, centre, radius, hits, cov)."""
+        pv, pf, proxy_occ, shade_mesh, shade_occ = self.object_shading.object_shape(obj)
+        centre, radius = bounding_sphere(pv)
+        t = timer.tick("proxy", timer.last)
+        hits = self.object_shading.object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ)
+        cov = hits.coverage()
+        timer.tick("object", t)
+        return pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov
 
     def _sun_share(self, sun_loss: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
         """(the sun's pixels, the share of each one's light E_x the object takes from it (n,3), clipped to

@@ -11,7 +11,7 @@ reference of `photoar reference` (`--reference-spp N`), else against the all-sou
 (then that row itself scores zero).
 
 `--path N` adds a drag: N poses of the object along a straight line over the floor through its
-pose (app.dragpath), rendered as drag frames (FrameConfig.drag = DRAG_SCALE: the room at 1/2
+pose (app.dragpath), rendered as drag frames (FrameConfig.drag = DRAG_SCALE: the room at 1/3
 resolution, app.dragframe; the room's change as DRAG_SHADOW says: maps, DRAG_PASSES of them, or the
 sphere frame of app.dragshadow) from the same precompute (the release at rest refines
 from the smallest pass budget given, as the GUI's slider sets it), and a row

@@ -69,3 +69,33 @@ class KernelClock:
     def __exit__(self, *exc) -> None:
         _state.clock = self._outer
         self._outer = None
+
+
+class FrameTimer:
+    """A frame's stage timer: `tick(name, t)` records the seconds since t as stage `name` (timings) and, of
+    them, the seconds outside Warp kernels (glue), from a KernelClock running on this thread from the
+    timer's start; `close()` stops the clock. A frame abandoned mid-way leaves its clock on the thread's
+    stack until the next clock replaces it: it then counts nothing that matters."""
+
+    def __init__(self) -> None:
+        self.clock = KernelClock().__enter__()
+        self.timings: dict[str, float] = {}
+        self.glue: dict[str, float] = {}
+        self.start = self.last = time.perf_counter()  # the timer's start, the last tick's end
+        self._k_last = 0.0
+
+    def tick(self, name: str, t: float) -> float:
+        """Record stage `name` as the time since t (perf_counter seconds); returns now."""
+        now = time.perf_counter()
+        self.timings[name] = now - t
+        k = self.clock.seconds
+        self.glue[name] = self.timings[name] - (k - self._k_last)
+        self._k_last = k
+        self.last = now
+        return now
+
+    def close(self) -> float:
+        """Stop the clock; returns the frame's seconds since the timer started."""
+        frame_s = time.perf_counter() - self.start
+        self.clock.__exit__(None, None, None)
+        return frame_s

@@ -11,7 +11,9 @@ same machine load for all), and one frame at the scene's own pose scored against
 resolution, P passes) or `S:M:P` (FrameConfig.drag = S: the room at 1/S resolution each way, cluster
 maps of M px, P passes whose clusters are split near the object first; app.dragframe) or `S:M:P:plain`
 (the same with the frames at rest's cluster key and object-light reach, DragStages(plain=True): the drag
-frame before those were chosen; printed with a "p" after P). Prints per configuration the path's mean and p95 frame time,
+frame before those were chosen; printed with a "p" after P) or `S:M:P:cellsN` (the object light's room share
+in N cells a side of the object's box, app.stages.object_light.room_share; the drag frame's own is
+app.dragframe.DRAG_ROOM_CELLS; printed with a "c" after P). Prints per configuration the path's mean and p95 frame time,
 the per-stage means (ms) and energy_ratio / rmse_affected, next to the all-sources frame's score and
 the acceptance bound (rmse_affected <= 1.5 x the all-sources frame's + 0.5, energy 0.93-1.07); the
 Pareto front: the configurations within the bound that no other within it beats on both time and
@@ -41,16 +43,19 @@ from recon.scene import load_scene  # noqa: E402
 DEFAULT_CONFIGS = "2:64:200:plain,2:64:64:plain,2:64:64,2:64:32,3:64:64,4:64:64"
 
 
-def parse_config(text: str) -> tuple[int | None, int | None, int, bool]:
-    """'full:50' -> (None, None, 50, False); '2:64:50' -> (2, 64, 50, True); '2:64:50:plain' -> (2, 64, 50,
-    False): the frames at rest's cluster key and object-light reach (DragStages(plain=True))."""
+def parse_config(text: str) -> tuple[int | None, int | None, int, bool, int | None]:
+    """'full:50' -> (None, None, 50, False, None); '2:64:50' -> (2, 64, 50, True, None); '2:64:50:plain' ->
+    (2, 64, 50, False, None): the frames at rest's cluster key and object-light reach (DragStages(plain=True));
+    '3:64:64:cells2' -> (3, 64, 64, True, 2): the object light's room share in 2 cells a side (the drag frame's
+    own: app.dragframe.DRAG_ROOM_CELLS)."""
     parts = text.split(":")
     if parts[0] == "full" and len(parts) == 2:
-        return None, None, int(parts[1]), False
+        return None, None, int(parts[1]), False, None
     plain = len(parts) == 4 and parts[3] == "plain"
-    if len(parts) != 3 and not plain:
-        raise argparse.ArgumentTypeError(f"a configuration is full:P, S:M:P or S:M:P:plain, got {text!r}")
-    return int(parts[0]), int(parts[1]), int(parts[2]), not plain
+    cells = int(parts[3][5:]) if len(parts) == 4 and parts[3].startswith("cells") and parts[3][5:].isdigit() else None
+    if len(parts) != 3 and not plain and cells is None:
+        raise argparse.ArgumentTypeError(f"a configuration is full:P, S:M:P, S:M:P:plain or S:M:P:cellsN, got {text!r}")
+    return int(parts[0]), int(parts[1]), int(parts[2]), not plain, cells
 
 
 def scene_dir(name: str) -> Path:
@@ -74,6 +79,9 @@ def bench_scene(d: Path, configs: list, n_path: int, rounds: int = 2) -> dict:
     full = eng.render(scene.obj, FrameConfig())
     out = {"scene": str(d), "all_sources": {"frame_s": full.stats["frame_s"], **score(full)}, "rows": []}
     stages = {c: DragStages(eng, c[0], map_res=c[1], plain=not c[3]) for c in configs if c[0] is not None}
+    for c, st in stages.items():
+        if c[4] is not None:
+            st.object_light.room_cells = c[4]
     offsets = drag_offsets(scene, scene.obj, n_path)
     stats = {c: [] for c in configs}
     scores = {}
@@ -91,7 +99,7 @@ def bench_scene(d: Path, configs: list, n_path: int, rounds: int = 2) -> dict:
     for c in configs:
         t = np.array([s["frame_s"] for s in stats[c]]) * 1e3
         row = {"config": "full" if c[0] is None else f"1/{c[0]}", "map_res": c[1], "passes": c[2],
-               "near_split": c[3],
+               "near_split": c[3], "room_cells": c[4],
                "mean_ms": float(t.mean()), "p95_ms": float(np.percentile(t, 95)), **scores[c],
                "stages_ms": path_stages_ms(stats[c])}
         row["within_bound"] = bool(row["rmse_affected"] <= bound and 0.93 <= row["energy_ratio"] <= 1.07)
@@ -115,7 +123,7 @@ def print_scene(res: dict) -> None:
           " ".join(f"{k[:9]:>9}" for k in keys) + "  pareto")
     for r in res["rows"]:
         st = r["stages_ms"]
-        print(f"{r['config']:>6} {r['map_res'] or '':>4} {r['passes']:>4}{' ' if r['near_split'] else 'p'} {r['mean_ms']:7.1f} {r['p95_ms']:7.1f} "
+        print(f"{r['config']:>6} {r['map_res'] or '':>4} {r['passes']:>4}{'c' if r.get('room_cells') else (' ' if r['near_split'] else 'p')} {r['mean_ms']:7.1f} {r['p95_ms']:7.1f} "
               f"{r['energy_ratio']:7.3f} {r['rmse_affected']:6.2f}  " +
               " ".join(f"{st.get(k, 0.0):9.1f}" for k in keys) +
               ("  *" if r["pareto"] else ("" if r["within_bound"] else "  (out of bound)")))

@@ -156,9 +156,9 @@ ROOM_CELLS = 2  # cells a side of the object's box that group its light into poi
 # 3 and 4 gave the same error against a ray per (receiver, triangle) on sun_102's receiver vertices)
 
 
-def _source_groups(tris: np.ndarray, tri_rad: np.ndarray, extra: ExtraEmitters | None
+def _source_groups(tris: np.ndarray, tri_rad: np.ndarray, extra: ExtraEmitters | None, cells: int = ROOM_CELLS
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(points (G,3), unit normals (G,3), power (G,)) of the object's light grouped by cell (ROOM_CELLS a
+    """(points (G,3), unit normals (G,3), power (G,)) of the object's light grouped by cell (`cells` a
     side of the emitters' box) and by the axis its emitters face (the largest component of the normal,
     with its sign): per group the power-weighted centroid and mean normal of its emitters (the proxy's
     triangles of radiance tri_rad (T,3) and the extra emitters' far-field stand-ins) and their power
@@ -172,7 +172,7 @@ def _source_groups(tris: np.ndarray, tri_rad: np.ndarray, extra: ExtraEmitters |
     nrm = tn / np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
     ax = np.abs(nrm).argmax(1)
     facing = 2 * ax + (nrm[np.arange(len(nrm)), ax] < 0)
-    k = ROOM_CELLS
+    k = cells
     lo, hi = c.min(0), c.max(0)
     cell = np.clip(((c - lo) / np.maximum(hi - lo, 1e-9) * k).astype(np.int64), 0, k - 1)
     group = (cell @ np.array([1, k, k * k])) * 6 + facing
@@ -186,7 +186,8 @@ def _source_groups(tris: np.ndarray, tri_rad: np.ndarray, extra: ExtraEmitters |
 
 
 def room_share(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray,
-               room: Occluder, extra: ExtraEmitters | None = None, workspace: Workspace | None = None) -> np.ndarray:
+               room: Occluder, extra: ExtraEmitters | None = None, workspace: Workspace | None = None,
+               cells: int = ROOM_CELLS) -> np.ndarray:
     """(N,) in [0, 1]: the share of the object's light that reaches each receiver point (N,3, unit
     normals (N,3)) past the room `room` (its walls and furniture; the object itself is not in it).
 
@@ -203,7 +204,7 @@ def room_share(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     out = np.ones(n)
     if n == 0:
         return out
-    src, src_n, power = _source_groups(tris, tri_rad, extra)
+    src, src_n, power = _source_groups(tris, tri_rad, extra, cells)
     if len(src) == 0:
         return out
     d = src[None] - points[:, None]  # (N,G,3) receiver -> source
@@ -429,7 +430,7 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
                centre: np.ndarray, radius: float, device, tvis: TriangleVisibility | None = None,
                ws: Workspace | None = None, far_emitters: tuple | None = None,
                extra: ExtraEmitters | None = None, free: np.ndarray | None = None,
-               room: Occluder | None = None) -> np.ndarray:
+               room: Occluder | None = None, room_cells: int = ROOM_CELLS) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3) at points (N,3) [normals (N,3)]: exact (emitter_sum) within
     FAR_FIELD bounding radii of the object; beyond, where each triangle subtends a small solid angle,
     the point-source form factor A_t cos_x cos_t / (pi r^2) times the triangle's own visibility
@@ -439,7 +440,8 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     unit normal (F,3), radiance (F,3), visibility table rows (F, 6 CUBE_RES^2) bool), or None. extra:
     more emitters summed exactly within FAR_FIELD (_exact_sum), or None. free: the shape's free_cells
     (fewer rays in the exact sum), or None. room: the room's occluder, whose walls and furniture between
-    a point and the object take their share of its light (room_share), or None (the object alone)."""
+    a point and the object take their share of its light (room_share, its light grouped in room_cells a side), or
+    None (the object alone)."""
     out = np.zeros((len(points), 3))
     far = np.linalg.norm(points - centre, axis=1) > FAR_FIELD * radius
     near = np.flatnonzero(~far)
@@ -459,7 +461,7 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     if room is not None:
         lit = np.flatnonzero(out.any(1))
         out[lit] *= room_share(points[lit], normals[lit], tris, tri_rad, room, extra,
-                               _sub_workspace(ws, "room"))[:, None]
+                               _sub_workspace(ws, "room"), room_cells)[:, None]
     return out
 
 
@@ -609,6 +611,9 @@ class ObjectLight:
         self.rho_x, self.L_b, self.B_src = rho_x, L_b, B_src
         self.scene_occ, self.response, self.camera, self.device = scene_occ, response, camera, device
         self.sun_dir = sun_dir
+        # cells a side of the object's box that group its light for the room's share (room_share): ROOM_CELLS;
+        # a drag frame sets app.dragframe.DRAG_ROOM_CELLS
+        self.room_cells = ROOM_CELLS
         self.n_pixels = 0  # pixels the last frame evaluated per pixel (the near region)
         self.n_exact = 0  # of those, the ones summed exactly (the rest blended on the screen grid)
         self._workspaces = Workspaces()
@@ -666,7 +671,7 @@ class ObjectLight:
         rv = self.recv_vert
         R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, self.device,
                          tvis, self._workspaces.get("object_light.vertices"), far, extra, shape.free,
-                         room=self.scene_occ)
+                         room=self.scene_occ, room_cells=self.room_cells)
         # the pixels of the patches with a vertex that gets a visible share of the object's light take
         # the vertices' light, interpolated
         reach_v = luminance(R_v) * float(self.rho_x.max()) > 5e-4 * float(luminance(self.B_src).mean())
@@ -714,7 +719,7 @@ class ObjectLight:
         R_cen = np.zeros((pm.n_patches, 3))
         R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, rad, proxy_occ, centre, radius,
                                    self.device, shape.visibility, self._workspaces.get(site), far, extra, free,
-                                   room=self.scene_occ)
+                                   room=self.scene_occ, room_cells=self.room_cells)
         return R_cen
 
     def sun_centre_light(self, pv, pf, sun_rad, proxy_occ, centre, radius, extra: ExtraEmitters | None,
@@ -775,7 +780,7 @@ class ObjectLight:
         # the room's walls and furniture between a centre and the object (room_share, of the whole light)
         lit = near_c[(room[near_c] + sun[near_c]).any(1)]
         share = room_share(pm.centre[lit], pm.normal[lit], tris, room_rad + sun_rad, self.scene_occ, extra,
-                           ws.sub("room"))
+                           ws.sub("room"), self.room_cells)
         room[lit] *= share[:, None]
         sun[lit] *= share[:, None]
         return room, sun

@@ -35,7 +35,7 @@ def test_evaluate_path_and_stage_table(tmp_path):
                  "--patch-size", "0.35", "--cache", str(tmp_path / "cache")]) == 0
     ev = json.loads((out / "evaluation.json").read_text())
     p = ev["path"]
-    from app.config import DRAG_PASSES
+    from app.config import DRAG_PASSES, DRAG_SCALE
 
     assert p["positions"] == 4 and p["passes"] == DRAG_PASSES == 64 and p["precompute_runs"] == 0  # the drag frame's
     assert len(p["frame_s"]) == 4 and len(p["offsets_m"]) == 4
@@ -52,7 +52,7 @@ def test_evaluate_path_and_stage_table(tmp_path):
     # table has the coarse room's upsampling and the glue ("python": the frame's time outside Warp kernels,
     # app.glue): the timed stages make up the frame, the glue is part of it
     (drag,) = [r for r in ev["rows"] if r["passes"] == "drag"]
-    assert drag["drag_scale"] == p["drag_scale"] == 2 and (out / "composite_drag.png").is_file()
+    assert drag["drag_scale"] == p["drag_scale"] == DRAG_SCALE == 3 and (out / "composite_drag.png").is_file()
     assert {"upsample", "python"} <= set(p["stages_ms"])
     stages = dict(p["stages_ms"])
     glue = stages.pop("python")
@@ -81,7 +81,7 @@ def test_evaluate_reaches_all_source_quality_before_the_exact_frame(shared_scene
     p, shown = ev["path"], ev["path"]["shown"]
     assert f"all-source quality after {p['converge_s']:.2f} s" in line and f"after {p['exact_s']:.2f} s" in line
     assert [s["exact"] for s in shown] == [False, False, True]  # the release frame, refine's finer frame, all sources
-    # the release is the drag frame (DRAG_PASSES at 1/2 resolution), refine's finer frame has twice the
+    # the release is the drag frame (DRAG_PASSES at 1/DRAG_SCALE resolution), refine's finer frame has twice the
     # smallest budget of --passes on full-size maps at full resolution
     from app.config import DRAG_PASSES
 

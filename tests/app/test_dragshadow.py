@@ -7,30 +7,18 @@ import pytest
 
 
 @pytest.mark.parametrize("room", ["window_room", "lamps_room"])
-def test_sphere_drag_frame_scores_within_issue_36s_bound(shared_scenes_cache, room):
+def test_sphere_drag_frame_scores_within_issue_36s_bound(shared_room, room):
     # the drag frame at the scene's pose (1/2 resolution, the object as ellipsoids against the room's SH light
     # and compact sources) against the truth (tools/score.py's measures, lighting.metrics): rmse_affected <=
     # 1.5 x the all-sources frame's + 0.5, energy_ratio 0.93-1.07 (issue 36). sun_room does not hold it
     # (docs/benchmarks.md "The sphere drag frame"). It draws no shadow map: no source list, no passes
-    import cv2
+    from app.engine import FrameConfig
 
-    from app.config import DRAG_SCALE
-    from app.engine import Engine, EngineParams, FrameConfig
-    from lighting import metrics
-    from recon.io import read_image_rgb
-    from recon.scene import load_scene
-    from tests.conftest import shared_scene
-
-    d = shared_scene(room)
-    scene = load_scene(d)
-    eng = Engine(scene, EngineParams(), cache_dir=shared_scenes_cache, quiet=True)
-    truth = read_image_rgb(d / "truth.png")
-    mask = cv2.imread(str(d / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
-    full = eng.render(scene.obj, FrameConfig(passes=None))
-    cfg = FrameConfig(passes=64, drag=DRAG_SCALE, drag_shadow="spheres")
+    sr = shared_room(room)
+    scene, eng = sr.scene, sr.engine
+    cfg = FrameConfig(passes=64, drag=2, drag_shadow="spheres")  # the scale it was measured at
     drag = eng.render(scene.obj, cfg)
-    s_all = metrics.score_regions(full.pixels, scene.photo, truth, mask)
-    s_drag = metrics.score_regions(drag.pixels, scene.photo, truth, mask)
+    s_all, s_drag = sr.s_all, sr.score(drag.pixels)
     assert s_drag["rmse_affected"] <= 1.5 * s_all["rmse_affected"] + 0.5
     assert 0.93 <= s_drag["energy_ratio"] <= 1.07
     assert drag.stats["passes"] == 0 and drag.stats["timings"]["sources"] == 0.0
@@ -50,14 +38,12 @@ def test_sphere_drag_frame_scores_within_issue_36s_bound(shared_scenes_cache, ro
     assert not np.array_equal(fr2.pixels, drag.pixels)
 
 
-def test_frames_at_rest_unchanged_by_sphere_drag_frames(shared_scenes_cache):
+def test_frames_at_rest_unchanged_by_sphere_drag_frames(shared_room):
     # the sphere drag frame is a separate path: the all-sources frame is byte-identical before and after one
-    from app.engine import Engine, EngineParams, FrameConfig
-    from recon.scene import load_scene
-    from tests.conftest import shared_scene
+    from app.engine import FrameConfig
 
-    scene = load_scene(shared_scene("lamps_room"))
-    eng = Engine(scene, EngineParams(), cache_dir=shared_scenes_cache, quiet=True)
+    sr = shared_room("lamps_room")
+    scene, eng = sr.scene, sr.engine
     before = eng.render(scene.obj, FrameConfig(passes=50)).pixels.copy()
     eng.render(scene.obj, FrameConfig(passes=64, drag=2, drag_shadow="spheres"))
     assert np.array_equal(before, eng.render(scene.obj, FrameConfig(passes=50)).pixels)

@@ -178,3 +178,28 @@ def test_kernel_clock_counts_launches_once_and_only_on_its_thread():
     after = outer.seconds
     point_to_polygon(pts, nrm, poly, device="cpu")
     assert outer.seconds == after
+
+
+def test_frame_timer_splits_each_stage_into_kernels_and_glue():
+    # app.glue.FrameTimer: each tick's stage time is the time since the tick before; its glue is that time less the
+    # kernels launched within it (the stage with a launch has less glue than time, the one without has glue equal
+    # to its time); the stages add up to at most the frame; after close the clock counts nothing more
+    from app.glue import FrameTimer
+    from kernels.formfactor import point_to_polygon
+
+    pts = np.random.default_rng(1).random((20000, 3)) * [1, 0, 1]
+    nrm = np.broadcast_to([0.0, 1.0, 0.0], pts.shape).copy()
+    poly = np.array([[[0, 1, 0], [0, 1, 1], [1, 1, 1], [1, 1, 0]]], float)
+    point_to_polygon(pts, nrm, poly, device="cpu")  # compiled before the timer runs
+    ft = FrameTimer()
+    point_to_polygon(pts, nrm, poly, device="cpu")
+    t = ft.tick("kernel", ft.last)
+    np.sort(pts, axis=0)  # numpy only
+    ft.tick("numpy", t)
+    frame_s = ft.close()
+    k = ft.clock.seconds
+    assert k > 0 and ft.glue["kernel"] == pytest.approx(ft.timings["kernel"] - k, abs=1e-9)
+    assert ft.glue["numpy"] == pytest.approx(ft.timings["numpy"], abs=1e-9)
+    assert sum(ft.timings.values()) <= frame_s
+    point_to_polygon(pts, nrm, poly, device="cpu")
+    assert ft.clock.seconds == k

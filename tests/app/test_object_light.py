@@ -348,10 +348,12 @@ def _grid_box(lo, hi, k: int):
     return np.concatenate(verts), np.concatenate(faces)
 
 
-def test_room_between_takes_its_share_of_the_object_light():
+@pytest.mark.parametrize("cells", [2, 1])  # object_light.ROOM_CELLS (at rest), app.dragframe.DRAG_ROOM_CELLS
+def test_room_between_takes_its_share_of_the_object_light(cells):
     # an emitting box (the object, 0.4 m) 2 m in front of a wall of receivers, and a low screen (the room's
-    # furniture) between them: the object's light on the wall with the room's share (room_share) against
-    # the exact sum with a ray per (receiver, triangle) past the object and the screen together
+    # furniture) between them: the object's light on the wall with the room's share (room_share, its light
+    # grouped in `cells` a side of its box) against the exact sum with a ray per (receiver, triangle) past the
+    # object and the screen together
     v, f = _grid_box([-0.2, 0.0, -0.2], [0.2, 0.4, 0.2], 6)
     tris = v[f]
     rad = np.tile([[1.0, 0.8, 0.6]], (len(f), 1))
@@ -367,20 +369,23 @@ def test_room_between_takes_its_share_of_the_object_light():
     both = Occluder(np.concatenate([v, sv]), np.concatenate([f, sf + len(v)]), "cpu")
     alone = emitter_sum(pts, nrm, tris, rad, obj, eps=OL.EXACT_EPS, device="cpu")
     exact = emitter_sum(pts, nrm, tris, rad, both, eps=OL.EXACT_EPS, device="cpu")
-    share = OL.room_share(pts, nrm, tris, rad, room)
+    share = OL.room_share(pts, nrm, tris, rad, room, cells=cells)
     ours = alone * share[:, None]
     lum_a, lum_e, lum_o = luminance(alone), luminance(exact), luminance(ours)
     hidden, seen = lum_e < 1e-6 * lum_a.max(), lum_e > 0.999 * lum_a
     assert hidden.sum() >= 5 and seen.sum() >= 20  # the screen hides the object from the wall's foot only
-    assert (share[hidden] == 0).all() and (share[seen] == 1).all()
+    assert (share[seen] == 1).all()
     np.testing.assert_allclose(lum_o[seen], lum_a[seen], rtol=1e-12)
     # through the screen's shadow edge the groups give a step, not the exact ramp: within 0.3 of the
-    # object's unblocked light of the exact value (measured 0.25), and the wall's total within 2 %
-    # (measured 0.9 %; ignoring the screen: +54 %)
-    assert np.abs(lum_o - lum_e).max() <= 0.3 * lum_a.max()
+    # object's unblocked light of the exact value with 2 cells (measured 0.25), 0.55 with 1 (measured 0.50: one
+    # point per face axis steps where half the box is hidden), and the wall's total within 2 % (measured 0.9 %
+    # and 1.5 %; ignoring the screen: +54 %)
+    if cells == 2:
+        assert (share[hidden] == 0).all()
+    assert np.abs(lum_o - lum_e).max() <= (0.3 if cells == 2 else 0.55) * lum_a.max()
     assert abs(lum_o.sum() / lum_e.sum() - 1) < 0.02
     assert lum_a.sum() / lum_e.sum() > 1.3
     # without the room's share the screen would be ignored: the object's light on the wall's foot
     assert lum_a[hidden].min() > 0.3 * lum_a.max()
     # no room between (an empty room): every share is 1
-    np.testing.assert_array_equal(OL.room_share(pts, nrm, tris, rad, Occluder(None, None, "cpu")), 1.0)
+    np.testing.assert_array_equal(OL.room_share(pts, nrm, tris, rad, Occluder(None, None, "cpu"), cells=cells), 1.0)
