@@ -334,12 +334,25 @@ class Engine:
             sun_loss, sun_loss_c = sun.frame(obj.vertices, obj.faces)
             sun_dB = -pm.albedo * sun_loss_c  # the object gathers it exactly (ObjectShading.vertex_radiance)
             t = tick("sun", t)
-        shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_shadow, sun_dB)
+        dB_room = dB_shadow  # the room's light the object's shadow takes from the patches (the sun's apart)
+        if sun is not None:
+            dB_shadow = dB_shadow + sun_dB
         # a drag frame in a room no sun lights: the object from per-shape tables (None: not turned about +Y only);
         # with a sun they are not used yet (sun_room / sun_101: the object's rmse against the truth 12-17 levels
         # against 3.4-7.4 at rest, the energy of sun_101's drag row 1.12: docs/benchmarks.md)
-        tables = self.object_drag.shade(obj, shade_mesh, hits, dB_shadow, sun_dB) \
+        tables = self.object_drag.shade(obj, shade_mesh, hits, dB_room, sun_dB) \
             if px is not self and self.drag_object_tables and sun is None else None
+
+        # ---- light the object reflects, onto pixels and patch centres (app.stages.object_light): before the
+        # object's own shading, which gathers it back from the patches (the object's light the room reflects)
+        R_pix, R_cen, R_cen_sun = self._object_light(px, obj, pv, pf, proxy_occ, centre, radius, cov_px, dB_shadow,
+                                                     tables) if oc.object_light else (np.zeros((r.L_b.shape[0], 3)), np.zeros((pm.n_patches, 3)), None)
+        t = tick("object_light", t)
+
+        # ---- the object's radiance (app.stages.object_shading): the room's light, less what its shadow takes
+        # from the patches, plus its own light the patches reflect back to it
+        dB_obj = self._object_sees(sun, sun_dB, dB_room, R_cen)
+        shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_obj, sun_dB)
         if tables is not None:
             shaded = tables.shaded
         elif px is not self and sun is None and hits.hit.any():  # a drag frame: the vertex radiance of a near pose
@@ -351,19 +364,11 @@ class Engine:
         else:
             shaded = shade()
         obj_rad = shaded.radiance
-        dB_room = dB_shadow  # the room's light the object's shadow takes from the patches (the sun's apart)
-        if sun is not None:
-            dB_shadow = dB_shadow + sun_dB
-            if shaded.L_vert is not None and tables is None:  # sun: the outline where sunlight clips, sampled
-                # finely (full size; not while dragging from the tables)
-                sun.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
-                                         shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip)
+        if sun is not None and shaded.L_vert is not None and tables is None:  # sun: the outline where sunlight
+            # clips, sampled finely (full size; not while dragging from the tables)
+            sun.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
+                                     shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip)
         t = tick("object_shading", t)
-
-        # ---- light the object reflects, onto pixels and patch centres (app.stages.object_light)
-        R_pix, R_cen, R_cen_sun = self._object_light(px, obj, pv, pf, proxy_occ, centre, radius, cov_px, dB_shadow,
-                                                     tables) if oc.object_light else (np.zeros((r.L_b.shape[0], 3)), np.zeros((pm.n_patches, 3)), None)
-        t = tick("object_light", t)
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)
         dE_v = None
@@ -415,6 +420,24 @@ class Engine:
         cov = hits.coverage()
         timer.tick("object", t)
         return pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov
+
+    def _object_sees(self, sun, sun_dB: np.ndarray | None, dB_room: np.ndarray, R_cen: np.ndarray) -> np.ndarray:
+        """(P,3) the change of the patches' radiance the object gathers this frame, besides sun_dB (the sun
+        its shadow takes from the floor, gathered exactly): the room's light its shadow takes (dB_room), its
+        own light the patches reflect (rho R_cen: object -> patch -> object, a path of the truth's within
+        its bounces), and with a sun the later bounces of sun_dB (SunStage.later_at_patches: the walls and
+        ceiling that the shadowed floor no longer lights). R_cen's room-lit part is the object lit by B_obj,
+        one bounce more than this path leaves it (B[bounces - 3], not kept): a little too much. Measured
+        (known light, rmse_object / bias): with the room-lit part left out sun_room's chair came out darker
+        (3.54 / -1.95 against 3.33 / -1.62 with it); with it window_room's and lamps_room's objects, already
+        bright, gain 0.3-0.4 levels of bias (docs/unseen.md)."""
+        pm = self.pre.patches
+        dB = dB_room + pm.albedo * R_cen
+        if sun is not None:
+            later = sun.later_at_patches(sun_dB, pm.albedo, self.pre.G_c, self.pre.G_v, self.params.bounces)
+            if later is not None:
+                dB = dB + later
+        return dB
 
     def _sun_share(self, sun_loss: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
         """(the sun's pixels, the share of each one's light E_x the object takes from it (n,3), clipped to

@@ -20,8 +20,10 @@ Per room (bench/own_room_flow.py): the user's files (photo, clicked lines, tape 
 the probe bracket with its tape pose, the object's colour); calibrate on the lines + camera height;
 scene; composite under captured and photo light. The same flow with the TRUE camera in place of
 calibrate's (column `true cam`), and the benchmark folder itself under known light. Each composite is
-scored by ../shared/tools/score.py; `floor` is the spurious figure an exact answer would score against
-the room's noisy truth (tests/lighting/test_sun.py's model). Prints one table per room, the median and
+scored by ../shared/tools/score.py; `spurious floor` is the spurious figure an exact answer would score
+against the room's noisy truth (tests/lighting/test_sun.py's model), `rmse_object floor` the rmse_object of
+an exact, noise-free object (the truth's object denoised: bench/own_room_flow.object_noise_floor; JSON
+field "object_floor"). Prints one table per room, the median and
 worst over rooms, and writes everything as JSON (--json, default <rooms>/bench_unseen.json).
 """
 from __future__ import annotations
@@ -205,7 +207,8 @@ def print_room(row: dict, flush=False) -> None:
                f"{ref['reason']})")
     else:
         cal = (f"; calibrated focal {cal['focal_rel_err']:+.2%}, centre {cal['centre_err_m']:.3f} m off" if cal else "")
-    print(f"\n{row['room']} ({spp}; spurious floor {_cell(row.get('spurious_floor'))}{cal})"
+    print(f"\n{row['room']} ({spp}; spurious floor {_cell(row.get('spurious_floor'))}, rmse_object floor "
+          f"{_cell(row.get('object_floor'), '{:.2f}')}{cal})"
           + (f"  ERROR {row['error']}" if "error" in row else ""), flush=flush)
     lines = row.get("lights") or {}
     if not lines:

@@ -161,6 +161,129 @@ def spurious_noise_floor(scene: Path, sims: int = 4, seed: int = 0) -> float:
     return float(np.mean(out))
 
 
+OBJECT_DENOISE_SIGMA = 2.0  # px: the spatial reach of object_noise_floor's filter (the scorer's own blur)
+OBJECT_DENOISE_LOG = 0.5  # its range: a neighbour's light may differ by this in log radiance (pre-smoothed);
+# a sun-shadow edge on the object (a ratio of 10-40, log 2.3-3.7) stays sharp, the pixel noise of a
+# pre-smoothed 24-spp truth (10-20 % in radiance) does not count
+OBJECT_EDGE_LOG = 0.7  # a pixel whose smoothed light differs from a neighbour's by more (a ratio of 2) lies on
+# a shadow's edge (the smoothed noise of a 24-spp truth: ~0.1); it keeps the truth's value
+OBJECT_NORMAL_COS = 0.985  # neighbours on the same face (normals within 10 deg): faces' edges stay sharp
+
+
+def object_render(scene_dir: Path, sub: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(normals (H,W,3) unit, facing the camera; depth (H,W) m, inf where the object is not hit; pure (H,W)
+    bool) of the scene's synthetic object alone on its true camera (Open3D ray casting): normal and depth
+    at the pixel centres, `pure` where all sub x sub samples over the pixel hit the object within
+    OBJECT_NORMAL_COS of the centre's normal and 2 % of its depth (the pixel sees one face)."""
+    import open3d as o3d
+
+    from recon.scene import load_mesh
+
+    scene = json.loads((scene_dir / "scene.json").read_text())
+    so, cam = scene["synthetic_object"], scene["main_camera"]
+    M = np.asarray(so["object_to_world"], float)
+    v, _, f = load_mesh(scene_dir / so["mesh"])
+    v = v @ M[:3, :3].T + M[:3, 3]
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(v.astype(np.float32), np.asarray(f, np.uint32))
+    K = cam["K"]
+    H, W = int(K["height"]), int(K["width"])
+
+    def cast(offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        u, vv = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+        u, vv = u[..., None] + offsets[:, 0], vv[..., None] + offsets[:, 1]  # (H,W,S)
+        d = np.stack([(u - K["cx"]) / K["fx"], (vv - K["cy"]) / K["fy"], np.ones_like(u)], -1) @ np.asarray(cam["R"])
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        o = np.broadcast_to(np.asarray(cam["centre"], float), d.shape)
+        ans = rc.cast_rays(o3d.core.Tensor(np.concatenate([o, d], -1).reshape(-1, 6).astype(np.float32)))
+        depth = ans["t_hit"].numpy().reshape(d.shape[:-1]).astype(np.float64)
+        n = ans["primitive_normals"].numpy().reshape(d.shape).astype(np.float64)
+        return np.where((np.einsum("...c,...c->...", n, d) > 0)[..., None], -n, n), depth
+
+    n, depth = (a[:, :, 0] for a in cast(np.zeros((1, 2))))
+    g = (np.arange(sub) + 0.5) / sub - 0.5
+    ns, ds = cast(np.stack(np.meshgrid(g, g), -1).reshape(-1, 2))
+    with np.errstate(invalid="ignore"):  # a miss's depth is inf
+        pure = np.isfinite(depth) & (np.einsum("hwsc,hwc->hws", ns, n) >= OBJECT_NORMAL_COS).all(2) & \
+            (np.abs(ds - depth[..., None]) <= 0.02 * np.where(np.isfinite(depth), depth, 1.0)[..., None]).all(2)
+    return n, depth, pure
+
+
+def denoised_object(scene_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the truth with its object's noise filtered out (H,W,3) uint8 RGB, truth.png (H,W,3) RGB, truth_mask
+    (H,W)): what an exact, noise-free object would look like in this scene, for object_noise_floor.
+
+    The truth's object pixels carry its Monte Carlo noise (sun_101, 2 x 24 spp: ~30 levels a pixel), and
+    the scorer blurs 8-bit levels: the noise, and through the concave response the noisy pixels' mean
+    level sitting below the level of their mean radiance, remain. The exact object is estimated from the
+    truth itself: truth.exr over the object's fully covered pixels (truth_mask 255) filtered with a joint
+    bilateral filter, the neighbours on the same face (normals and depth of the scene's own mesh on its
+    true camera: object_render) within OBJECT_DENOISE_SIGMA px and OBJECT_DENOISE_LOG of the pixel's light
+    (a sun-shadow edge stays), then taken through the scene's response to 8 bits; its score against
+    truth.png is the floor (object_noise_floor). The partly covered rim pixels and the pixels on a face's edge keep the truth's own values
+    (their noise is not counted): a lower bound of the floor there."""
+    import cv2
+
+    from recon.io import read_exr
+    from recon.response import CameraResponse
+
+    scene = json.loads((scene_dir / "scene.json").read_text())
+    resp = scene["camera_response"]
+    response = CameraResponse(resp["forward_table"], resp["inverse_table"], scene["main_camera"]["exposure_time"])
+    truth = read_exr(scene_dir / "truth.exr").astype(np.float64)
+    png = cv2.imread(str(scene_dir / "truth.png"), cv2.IMREAD_COLOR)[..., ::-1]  # RGB
+    cover = cv2.imread(str(scene_dir / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+    n, depth, pure = object_render(scene_dir)
+    full = (cover >= 255) & pure
+    if not full.any():
+        return png.copy(), png, cover
+    lum = truth @ np.array([0.2126, 0.7152, 0.0722])
+    pre = cv2.GaussianBlur(np.where(full, lum, 0.0), (0, 0), 1.0) / np.maximum(
+        cv2.GaussianBlur(full.astype(np.float64), (0, 0), 1.0), 1e-9)  # luminance smoothed over the object only
+    logl = np.log(np.maximum(pre, 1e-6))
+    r = int(np.ceil(3 * OBJECT_DENOISE_SIGMA))
+    H, W = full.shape
+    pad = lambda a, fill: np.pad(a, [(r, r), (r, r)] + [(0, 0)] * (a.ndim - 2), constant_values=fill)  # noqa: E731
+    t_p, n_p, z_p, f_p, l_p = pad(truth, 0.0), pad(n, 0.0), pad(np.where(full, depth, 0.0), 0.0), pad(full, False), \
+        pad(logl, 0.0)
+    acc, wsum = np.zeros_like(truth), np.zeros((H, W))
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            sl = (slice(r + dy, r + dy + H), slice(r + dx, r + dx + W))
+            w = np.exp(-(dx * dx + dy * dy) / (2 * OBJECT_DENOISE_SIGMA ** 2)) * f_p[sl]
+            w = w * (np.einsum("hwc,hwc->hw", n_p[sl], n) >= OBJECT_NORMAL_COS)
+            w = w * (np.abs(z_p[sl] - depth) <= 0.02 * np.where(full, depth, 1.0))
+            w = w * np.exp(-0.5 * ((l_p[sl] - logl) / OBJECT_DENOISE_LOG) ** 2)
+            acc += w[..., None] * t_p[sl]
+            wsum += w
+    # a pixel on a face's edge (object_render's `pure` False) mixes two faces' light, as the truth's own does,
+    # and so does a pixel a shadow's edge crosses (its smoothed light changes by over OBJECT_EDGE_LOG within a
+    # pixel): each keeps the truth's value (its noise is not counted); only pure pixels are neighbours
+    inner = full & pure
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            sl = (slice(r + dy, r + dy + H), slice(r + dx, r + dx + W))
+            inner &= np.abs(l_p[sl] - logl) <= OBJECT_EDGE_LOG
+    exact = png.copy()
+    den = acc[inner] / np.maximum(wsum[inner], 1e-12)[:, None]
+    exact[inner] = response.to_pixels(den)
+    return exact, png, cover
+
+
+def object_noise_floor(scene_dir: Path) -> float:
+    """The `rmse_object` an exact, noise-free object would score against this scene's noisy truth:
+    denoised_object's image scored against truth.png over score.py's object region (the mask dilated
+    2 px, luminance blurred with sigma 2). A bench figure (it reads the truth), never used by the composite."""
+    import cv2
+
+    exact, png, cover = denoised_object(scene_dir)
+    mask = cv2.dilate((cover > 127).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    lw = np.array([0.2126, 0.7152, 0.0722])  # score.py's Rec.709 weights (it reads BGR)
+    blur = lambda x: cv2.GaussianBlur(x, (0, 0), 2.0)  # noqa: E731
+    d = blur(exact.astype(np.float64) @ lw) - blur(png.astype(np.float64) @ lw)
+    return float(np.sqrt(np.mean(d[mask] ** 2)))
+
+
 def score(scene_dir: Path, composite_png: Path, shared: Path) -> dict:
     """The shared scorer's figures (shared/tools/score.py, run as its own process)."""
     import subprocess
@@ -237,7 +360,8 @@ def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"),
     cache = work / "cache"
     inp = write_inputs(root, work / "in")
     declared_openings(inp["room"], inp["scene"])
-    res: dict = {"lights": {}, "warnings": {}, "seconds": {}, "spurious_floor": spurious_noise_floor(root)}
+    res: dict = {"lights": {}, "warnings": {}, "seconds": {}, "spurious_floor": spurious_noise_floor(root),
+                 "object_floor": object_noise_floor(root)}
 
     def step(name, argv):
         t0 = time.time()

@@ -65,6 +65,27 @@ def test_each_change_gets_the_bounces_it_has_left(coarse):
     assert e.sun_pixels.stage.later_bounces(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2, dB2=dB2) is None
 
 
+def test_later_bounces_at_the_patches_for_the_object(coarse):
+    # what the object gathers of its own sun shadow's later bounces: sum_{k=1}^{bounces-2} (rho G)^k dB1 at
+    # every patch (the walls and ceiling the shadowed floor no longer lights), against the dense sum; on
+    # sun_room's walls it is a sizeable share of the loss itself (the chair's back faced it in sun_101)
+    s, e = coarse
+    pm, st = e.pre.patches, e.sun_pixels.stage
+    _, loss_c = st.frame(s.obj.vertices, s.obj.faces)
+    dB1 = -pm.albedo * loss_c
+    ours = st.later_at_patches(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4)
+    G = e.pre.G_c.astype(np.float64)
+    one = pm.albedo * (G @ dB1)
+    ref = one + pm.albedo * (G @ one)
+    err = np.abs(ours - ref).sum() / np.abs(ref).sum()
+    assert err < 0.05, err  # the passes after the first from the sunlit patches run on clusters
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    ratio = ((ours @ lum) @ pm.area) / ((dB1 @ lum) @ pm.area)  # darker, and of the loss's own size (sun_room
+    assert 0.3 < ratio < 2.0, ratio  # at the default patches: 1.0; rho G keeps power up to the albedo, 2 passes)
+    assert st.later_at_patches(dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 2) is None
+    assert st.later_at_patches(0 * dB1, pm.albedo, e.pre.G_c, e.pre.G_v, 4) is None
+
+
 def test_blocked_first_pass_matches_rays_to_every_lost_sample(coarse):
     # first_pass_blocked puts a sunlit patch's loss at the loss-weighted centre of its lost sample
     # points: against one ray per (receiver vertex, lost sample point) through the object's mesh
