@@ -357,17 +357,9 @@ class PhotoEdges:
         """Standard deviations (n,) of the fit's parameters x (n,) (their units, metres) from the
         clicks' noise and the lines' (the least-squares covariance sigma^2 (J^T J)^-1, J by forward
         differences of `step`); inf for a parameter the clicks and lines do not pin."""
-        def fun(q):
-            p, _ = self.camera.project(clicks(q))
-            return np.r_[p.ravel(), self.residuals(lines, corners(q))]
-
-        x = np.asarray(x, float)
-        f0 = fun(x)
-        J = np.stack([(fun(x + step * np.eye(len(x))[k]) - f0) / step for k in range(len(x))], axis=1)
-        try:
-            cov = np.linalg.inv(J.T @ J) * self.sigma ** 2
-        except np.linalg.LinAlgError:
-            return np.full(len(x), np.inf)
+        cov = self.cov(x, corners, clicks, lines, step)
+        if cov is None:
+            return np.full(len(np.atleast_1d(x)), np.inf)
         return np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
     def fit(self, x0: np.ndarray, corners: Callable[[np.ndarray], np.ndarray],
