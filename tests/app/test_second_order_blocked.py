@@ -21,17 +21,8 @@ def test_blocked_pairs_are_the_ones_the_object_hides(monkeypatch):
     # receivers on a wall (z = 0, facing +z), changed patches on the floor (y = 0) in front of it, a cube
     # (the object) between some of them: the pass over the blocked pairs equals G_v dB summed over the
     # pairs a ray per pair finds blocked, and nothing where the cube hides nothing
-    rng = np.random.default_rng(0)
-    recv = np.stack([rng.uniform(-1, 1, 200), rng.uniform(0.05, 1.5, 200), np.zeros(200)], 1)
-    rn = np.tile([0.0, 0.0, 1.0], (200, 1))
-    xs, zs = np.meshgrid(np.linspace(-1, 1, 9), np.linspace(0.5, 2.5, 9))
-    cen = np.stack([xs.ravel(), np.zeros(xs.size), zs.ravel()], 1)
-    pn = np.tile([0.0, 1.0, 0.0], (len(cen), 1))
-    area = np.full(len(cen), 0.0625)
-    dB = np.zeros((len(cen), 3))
-    dB[:, 0] = -rng.uniform(0.1, 1.0, len(cen))
-    dB[:, 1] = 0.5 * dB[:, 0]
-    G_v = rng.uniform(0.0, 1e-3, (200, len(cen)))
+    recv, rn, cen, pn, area, dB, G_v = _wall_floor_case(seed=0, n_recv=200, n_side=9, area=0.0625,
+                                                        lit_and_zero=False)
     v, f = _cube([0.0, 0.3, 1.0], 0.2)
     occ = Occluder(v, f, "cpu")
     sphere = (np.array([0.0, 0.3, 1.0]), 0.2 * np.sqrt(3))
@@ -52,21 +43,26 @@ def test_blocked_pairs_are_the_ones_the_object_hides(monkeypatch):
                         (np.array([0.0, 0.3, -1.0]), 0.2 * np.sqrt(3))) is None
 
 
-def _wall_floor_case():
-    """Receivers on a wall, changed floor patches, G_v and dB drawn at random (as above), and a cube."""
-    rng = np.random.default_rng(1)
-    recv = np.stack([rng.uniform(-1, 1, 300), rng.uniform(0.05, 1.5, 300), np.zeros(300)], 1)
-    rn = np.tile([0.0, 0.0, 1.0], (300, 1))
-    xs, zs = np.meshgrid(np.linspace(-1, 1, 11), np.linspace(0.5, 2.5, 11))
+def _wall_floor_case(seed: int = 1, n_recv: int = 300, n_side: int = 11, area: float = 0.04,
+                     lit_and_zero: bool = True):
+    """Receivers on a wall (z = 0, facing +z), changed patches on the floor (y = 0) in front of it, G_v
+    and dB drawn at random; with lit_and_zero, some patches the object lights (a positive change) and
+    some zero G_v."""
+    rng = np.random.default_rng(seed)
+    recv = np.stack([rng.uniform(-1, 1, n_recv), rng.uniform(0.05, 1.5, n_recv), np.zeros(n_recv)], 1)
+    rn = np.tile([0.0, 0.0, 1.0], (n_recv, 1))
+    xs, zs = np.meshgrid(np.linspace(-1, 1, n_side), np.linspace(0.5, 2.5, n_side))
     cen = np.stack([xs.ravel(), np.zeros(xs.size), zs.ravel()], 1)
     pn = np.tile([0.0, 1.0, 0.0], (len(cen), 1))
-    area = np.full(len(cen), 0.04)
+    areas = np.full(len(cen), area)
     dB = np.zeros((len(cen), 3))
     dB[:, 0] = -rng.uniform(0.1, 1.0, len(cen))
     dB[:, 1] = 0.5 * dB[:, 0]
-    dB[::7] *= -0.3  # some patches the object lights (positive change)
-    G_v = rng.uniform(0.0, 1e-3, (300, len(cen))) * (rng.uniform(size=(300, len(cen))) > 0.1)  # some zero
-    return recv, rn, cen, pn, area, dB, G_v
+    G_v = rng.uniform(0.0, 1e-3, (n_recv, len(cen)))
+    if lit_and_zero:
+        dB[::7] *= -0.3
+        G_v = G_v * (rng.uniform(size=(n_recv, len(cen))) > 0.1)
+    return recv, rn, cen, pn, areas, dB, G_v
 
 
 def test_kernel_equals_the_numpy_reference(monkeypatch):
