@@ -61,20 +61,11 @@ def _variant(text: str) -> dict:
 
 
 def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> dict:
-    from bench.own_room_flow import tape_room
+    from bench.own_room_flow import calibrated_from_lines
     from recon import assemble as asm
-    from recon.camera import Camera
     from recon.camrefine import _Occluder, _sample_edges, refine_camera, room_edges, room_faces
-    from recon.io import read_image_rgb
-    from recon.vanishing import calibrate_lines, lines_from_scene, parse_lines
 
-    root = _room_dir(name, rooms)
-    sc = json.loads((root / "scene.json").read_text())
-    truth = Camera.load(root / "scene.json")
-    img = read_image_rgb(root / "background.png")
-    cal = calibrate_lines(parse_lines(lines_from_scene(sc)), truth.width, truth.height,
-                          camera_height=truth.centre[1], image=img)
-    prims, lo, hi = asm.parse_primitives(tape_room(sc), "room")
+    truth, img, cal, prims, lo, hi = calibrated_from_lines(_room_dir(name, rooms))
     cam = cal.camera
     if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
         cam = asm.turned_about_y(cam)

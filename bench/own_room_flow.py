@@ -28,6 +28,24 @@ def tape_room(scene: dict) -> dict:
     return {"primitives": prims}
 
 
+def calibrated_from_lines(root: Path):
+    """A benchmark room calibrated as the own-room flow does: calibrate on its clicked lines with the camera
+    height, the tape-measured room parsed. Returns (truth camera, photo (H,W,3), calibration,
+    primitives, room lo, room hi)."""
+    from recon import assemble as asm
+    from recon.camera import Camera
+    from recon.io import read_image_rgb
+    from recon.vanishing import calibrate_lines, parse_lines
+
+    sc = json.loads((root / "scene.json").read_text())
+    truth = Camera.load(root / "scene.json")
+    img = read_image_rgb(root / "background.png")
+    cal = calibrate_lines(parse_lines(lines_from_scene(sc)), truth.width, truth.height,
+                          camera_height=truth.centre[1], image=img)
+    prims, lo, hi = asm.parse_primitives(tape_room(sc), "room")
+    return truth, img, cal, prims, lo, hi
+
+
 def probe_args(scene: dict) -> dict:
     """The probe's tape pose and bracket: centre, radius, shot-from (the probe camera's centre), times."""
     lp = scene["light_probe"]

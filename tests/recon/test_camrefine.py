@@ -7,7 +7,6 @@ gets closer to the truth. Guards: a true camera stays put, a blank photo falls b
 from __future__ import annotations
 
 import dataclasses
-import json
 
 import cv2
 import numpy as np
@@ -197,17 +196,9 @@ def test_shared_window_room_calibrated_camera_gets_closer():
     +0.65 % in focal and 3.1 cm off; refined against the taped room (with the same clicked lines) it
     is within 0.45 % and 2 cm (measured +0.27 %, 1.4 cm), closer in both, and the true camera of the
     same room stays as it is."""
-    from bench.own_room_flow import tape_room
-    from recon.io import read_image_rgb
-    from recon.vanishing import calibrate_lines, lines_from_scene, parse_lines
+    from bench.own_room_flow import calibrated_from_lines
 
-    root = shared_scene("window_room")
-    sc = json.loads((root / "scene.json").read_text())
-    truth = Camera.load(root / "scene.json")
-    img = read_image_rgb(root / "background.png")
-    cal = calibrate_lines(parse_lines(lines_from_scene(sc)), truth.width, truth.height,
-                          camera_height=truth.centre[1], image=img)
-    prims, lo, hi = asm.parse_primitives(tape_room(sc), "room")
+    truth, img, cal, prims, lo, hi = calibrated_from_lines(shared_scene("window_room"))
     cam = cal.camera
     r = refine_camera(cam, prims, img, cal.to_json())
     assert r.accepted, r.reason
