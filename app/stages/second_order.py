@@ -69,17 +69,6 @@ class BlockedSecondOrder:
         return near if near.any() else None
 
 
-def blocked_workspace(device: str) -> Workspace:
-    """The kernel buffers blocked_pass's segments use, made now at their capacity (a Workspace's rows), so
-    that no frame allocates them (the engine makes it with its stages)."""
-    import warp as wp
-
-    ws = Workspace()
-    for name, dtype in (("a", wp.vec3), ("b", wp.vec3), ("out", wp.int32)):
-        ws.buffer(name, ws.rows, dtype, device)
-    return ws
-
-
 def blocked_pass(dB: np.ndarray, G_v: np.ndarray, recv_points: np.ndarray, recv_normals: np.ndarray,
                  centres: np.ndarray, normals: np.ndarray, area: np.ndarray, occluder: Occluder,
                  sphere: tuple[np.ndarray, float], workspace: Workspace | None = None) -> np.ndarray | None:
