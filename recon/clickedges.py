@@ -52,6 +52,12 @@ PIECE_PX = 40.0  # a wall's foot that does not snap whole is tried in pieces abo
 MIN_SEARCH_PX = 2.0  # px: an edge is searched at least this far either side: its peak's centroid spans
 # +-1 px and a neighbouring edge within OPPOSITE_PX drags it, so two model edges nearer than twice this
 # (a thin top face's two long edges) cannot be told apart and neither is snapped
+SCAN_STEP_PX = 1.0  # px between the narrow windows of PhotoEdges.snap_scan: each spans 2 MIN_SEARCH_PX, so
+# an edge anywhere in the search lies within a pixel of some window's centre, inside its peak test
+SCAN_MIN_PX = 2 * PIECE_PX  # px: an edge shorter than this is not scanned: beside a texture's edges its line must
+# average over several of their features (two pieces of a wall's foot) for its place to hold to a fraction of a pixel
+SCAN_SAME_PX = 1.0  # px: lines the narrow windows find nearer than this are one edge (a peak's centroid spans +-1 px
+# as its window moves across it)
 PEAK_PX = 1.0  # px: a search from a fit's predicted place reaches this much further, so that an edge at its
 # SEARCH_SIGMAS bound still shows its peak whole (an edge's gradient peak is about 2 px wide: the 3x3 Sobel)
 BORDER_PX = 3.0  # samples this close to the photo's border are not used
@@ -116,6 +122,39 @@ class PhotoEdges:
         if r is None and faint:
             r = self.snap_faint(seg, clipped_ok, search, sigma)
         return r
+
+    def snap_scan(self, seg: np.ndarray, search: float, sigma: float, clipped_ok: bool = False
+                  ) -> tuple[np.ndarray, float, int] | None:
+        """An edge edgesnap finds ambiguous over the whole search (a texture's edges beside it in the
+        window: a floor's plank seams a few px from a piece's foot, which a sample takes for a second
+        peak), searched in narrow windows (MIN_SEARCH_PX either side) centred SCAN_STEP_PX apart
+        across the search, for an edge at least SCAN_MIN_PX long: it counts when every window that finds a line finds the same one (within
+        SCAN_SAME_PX; the one with the least spread is kept) and it lies within the search. The
+        texture's edges seldom make a line of their own (a seam is broken, curved, of varying tone);
+        where they do, two lines are found and the edge is not snapped. Returns as EdgeImage.snap, or
+        None."""
+        seg = np.asarray(seg, float)
+        a, b = seg[:2], seg[2:]
+        length = float(np.linalg.norm(b - a))
+        if search <= MIN_SEARCH_PX or length < SCAN_MIN_PX:
+            return None
+        d = (b - a) / length
+        n = np.array([-d[1], d[0]])
+        reach = search - MIN_SEARCH_PX
+        found = []
+        for o in np.arange(-reach, reach + 1e-9, SCAN_STEP_PX):
+            r = self.edges.snap(seg + np.r_[o * n, o * n], sigma, MIN_SEARCH_PX, clipped_ok, OPPOSITE_PX)
+            if r is None:
+                continue
+            off = float(np.mean((r[0].reshape(2, 2) - np.stack([a, b])) @ n))
+            if abs(off) <= search:
+                found.append((off, r))
+        if not found:
+            return None
+        offs = np.array([f[0] for f in found])
+        if offs.max() - offs.min() > SCAN_SAME_PX:
+            return None
+        return min((f[1] for f in found), key=lambda r: r[1])
 
     def snap_faint(self, seg: np.ndarray, clipped_ok: bool = False, search: float | None = None,
                    sigma: float | None = None) -> tuple[np.ndarray, float, int] | None:
@@ -280,7 +319,12 @@ class PhotoEdges:
             search = min(search, sep / 2)
             if search < MIN_SEARCH_PX:
                 continue
-            r = self._snap(np.r_[uv[a], uv[b]], clipped_ok, faint, search, sigma)
+            seg = np.r_[uv[a], uv[b]]
+            r = self.edges.snap(seg, sigma, search, clipped_ok, OPPOSITE_PX)
+            if r is None:
+                r = self.snap_scan(seg, search, sigma, clipped_ok)
+            if r is None and faint:
+                r = self.snap_faint(seg, clipped_ok, search, sigma)
             if r is None:
                 continue
             seg, spread, used = r
