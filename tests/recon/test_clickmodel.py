@@ -360,8 +360,10 @@ def test_corners_the_photo_shows():
 
 
 # the pieces a draw of test_clicks_refined_against_the_photo puts beyond a flat 3 cm (each reported
-# ill-determined there): measured worst 7.4 and 3.2 cm. Both rest on clicks of corners the photo does
-# not show (behind the seat, under the back), which no edge in the photo can correct.
+# ill-determined there): measured worst 5.7 and 3.2 cm. Both rest on clicks of corners the photo does
+# not show (behind the seat, under the back), which no edge in the photo can correct: from those clicks
+# alone, every other side given, the seat's back side is 5.3 cm off at worst and the back's front side
+# 3.6 cm on the same seeds (bench/bench_clicks_hidden_limit.py).
 BEYOND_3CM = {"lamps_room": ("sofa_seat", "sofa_back")}
 
 
@@ -463,6 +465,62 @@ def test_faint_edge_with_swapping_polarity():
     assert max(errs) <= 0.5 and np.mean(errs) <= 0.2, errs
 
 
+def _seam_photo(seam_at: float, seam_step: bool, seed: int, h: int = 240, w: int = 320):
+    """A synthetic photo: a piece (tone 100) above a floor (tone 140) along the straight line a -> b
+    (a piece's foot), and `seam_at` px below it a floor feature parallel to it: a dark seam 1 px
+    wide (50 levels darker), or with `seam_step` a second step (the floor 40 levels brighter beyond
+    it), anti-aliased (4x4 samples a pixel), under Gaussian noise of 3 levels. Returns (EdgeImage,
+    camera, a, b, n the unit normal towards the floor)."""
+    from recon.edgesnap import EdgeImage
+
+    ss = 4
+    a, b = np.array([20.0, 100.0]), np.array([300.0, 112.0])
+    d = (b - a) / np.linalg.norm(b - a)
+    n = np.array([-d[1], d[0]])
+    n = n if n[1] > 0 else -n
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    v, u = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    P = np.stack(np.broadcast_arrays(u[..., None, None] + off[None, None, None, :],
+                                     v[..., None, None] + off[None, None, :, None]), -1)
+    across = (P - a) @ n
+    floor = np.where(across > seam_at, 180.0, 140.0) if seam_step else \
+        np.where(np.abs(across - seam_at) < 0.5, 90.0, 140.0)
+    val = np.where(across > 0, floor, 100.0).mean(axis=(2, 3))
+    rng = np.random.default_rng(seed)
+    img = np.clip(np.round(val + rng.normal(0.0, 3.0, val.shape)), 0, 255).astype(np.uint8)
+    cam = Camera(np.array([[300.0, 0, w / 2 - 0.5], [0, 300, h / 2 - 0.5], [0, 0, 1]]), np.eye(3), np.zeros(3), w, h)
+    return EdgeImage(np.repeat(img[..., None], 3, axis=2)), cam, a, b, n
+
+
+def test_edge_beside_a_floor_seam_is_scanned():
+    """recon/clickedges.PhotoEdges.snap_scan on a synthetic photo: a piece's foot with a floor seam
+    3.5 px below it, inside the 3.5 px search a fit gives (a seat's foot over planks). edgesnap over
+    the whole search finds it ambiguous (the seam's side is a second peak); the narrow windows
+    across the search find the foot alone, from a model line on it or 1 px off towards the seam,
+    its ends within
+    0.2 px on each of six noise draws (the snapped line's noise floor is 0.25 px). Where the floor
+    feature is a second step as strong as the foot (two lines), the scan refuses, and an edge
+    shorter than SCAN_MIN_PX is not scanned."""
+    from recon.clickedges import OPPOSITE_PX, SCAN_MIN_PX, PhotoEdges
+
+    errs = []
+    for seed in range(6):
+        photo, cam, a, b, n = _seam_photo(3.5, False, seed)
+        pe = PhotoEdges(photo, cam, 1.0)
+        for shift in (0.0, 1.0):  # the seam inside the model's search
+            model = np.r_[a + shift * n, b + shift * n]
+            assert photo.snap(model, 1.0, 3.5, False, OPPOSITE_PX) is None
+            r = pe.snap_scan(model, 3.5, 1.0)
+            assert r is not None, (seed, shift)
+            errs += [abs(float((r[0][:2] - a) @ n)), abs(float((r[0][2:] - b) @ n))]
+        short = np.r_[a + 2.0 * n, a + 2.0 * n + (SCAN_MIN_PX - 5.0) * (b - a) / np.linalg.norm(b - a)]
+        assert pe.snap_scan(short, 3.5, 1.0) is None
+        photo, cam, a, b, n = _seam_photo(3.0, True, seed)
+        assert PhotoEdges(photo, cam, 1.0).snap_scan(np.r_[a + 1.5 * n, b + 1.5 * n], 3.5, 1.0) is None
+    print(f"foot beside a seam: ends off by {np.mean(errs):.3f} px on average, {max(errs):.3f} px at worst")
+    assert max(errs) <= 0.2
+
+
 def test_clicking_only_what_the_photo_shows():
     """lamps_room's sofa seat clicked as a user who sees it: its two back corners are hidden (under
     the sofa's back, behind the seat itself), so its front corners and the top corner above one are
@@ -470,7 +528,8 @@ def test_clicking_only_what_the_photo_shows():
     whose floor corners the seat hides, cannot be clicked so and is left out). A null corner that
     lies in the photo is behind what is seen: exact clicks give the seat within 5 mm. With 1 px of
     noise (10 seeds, refined against the photo) its worst error is lower than when its hidden
-    corners are clicked (7.4 cm there; measured 3.0 cm here, median 0.4 cm) and its median within 3 cm."""
+    corners are clicked (5.7 cm there; measured 0.2 cm here, median 0.1 cm: its foot, beside the
+    floor's plank seams, snaps on every seed) and it is within the issue's flat 3 cm on every seed."""
     sc, cam = _scene("lamps_room")
     edges = _photo_edges("lamps_room")
     clicks, done = true_clicks(sc, sigma_px=0.0, seen_only=True)
@@ -491,7 +550,7 @@ def test_clicking_only_what_the_photo_shows():
     print(f"sofa seat, worst / median cm: hidden corners clicked {max(hidden) * 100:.1f} / "
           f"{np.median(hidden) * 100:.1f}, only what is seen {max(seen) * 100:.1f} / {np.median(seen) * 100:.1f}")
     assert max(seen) < max(hidden)
-    assert np.median(seen) <= 0.03
+    assert max(seen) <= 0.03
 
 
 def test_measured_sizes_hold_clicked_sides():
@@ -531,8 +590,8 @@ def test_a_piece_standing_on_another():
     `"on": "sofa_seat"`, its corners where it meets the seat's top (bench/clicks_truth.py, stacked).
     Exact clicks give the back to a millimetre with its bottom on the modelled seat's top (refined
     against the photo: within 3 cm, as every piece there). With 1 px of noise (10 seeds, refined)
-    the back keeps the clicks' bound, 3 cm + 3 px (a pixel spans 3-4 cm on the seat's top, seen more grazing than the floor: measured worst 7.2 cm,
-    median 1.9), lies on the seat on every seed and is reported ill-determined whenever it is beyond
+    the back keeps the clicks' bound, 3 cm + 3 px (a pixel spans 3-4 cm on the seat's top, seen more grazing than the floor: measured worst 3.7 cm,
+    median 2.4), lies on the seat on every seed and is reported ill-determined whenever it is beyond
     3 cm; its x min side is held on the seat's (one plane within both their noises, as a side on a
     wall: `model.refined_from_photo` says so) on most seeds."""
     sc, cam = _scene("lamps_room")
