@@ -590,8 +590,8 @@ def test_a_piece_standing_on_another():
     `"on": "sofa_seat"`, its corners where it meets the seat's top (bench/clicks_truth.py, stacked).
     Exact clicks give the back to a millimetre with its bottom on the modelled seat's top (refined
     against the photo: within 3 cm, as every piece there). With 1 px of noise (10 seeds, refined)
-    the back keeps the clicks' bound, 3 cm + 3 px (a pixel spans 3-4 cm on the seat's top, seen more grazing than the floor: measured worst 3.7 cm,
-    median 2.4), lies on the seat on every seed and is reported ill-determined whenever it is beyond
+    the back keeps the clicks' bound, 3 cm + 3 px (a pixel spans 3-4 cm on the seat's top, seen more
+    grazing than the floor: measured worst 3.7 cm, median 2.4), lies on the seat on every seed and is reported ill-determined whenever it is beyond
     3 cm; its x min side is held on the seat's (one plane within both their noises, as a side on a
     wall: `model.refined_from_photo` says so) on most seeds."""
     sc, cam = _scene("lamps_room")
