@@ -17,9 +17,9 @@ within the click noise, searching SEARCH_SIGMAS click sigmas either side):
     searched at most half way to the piece's nearest other edge;
   * a window or lamp: its four sides (an emitter's clipped edge is used: it is all there is).
 
-An edge edgesnap finds ambiguous over its whole search (a texture's edges beside it: a floor's plank
-seams a few pixels from a piece's foot) is searched again in narrow windows across that search
-(snap_scan). An edge edgesnap does not find sample by sample (too faint against the texture, its
+An edge edgesnap does not find over its whole search (ambiguous there: a texture's edges beside
+it, a floor's plank seams a few pixels from a piece's foot) is searched again in narrow windows
+across that search (snap_scan). An edge edgesnap does not find sample by sample (too faint against the texture, its
 polarity swapping along it, a clipped emitter's edge stepping from pixel to pixel) is tried by
 snap_faint: gradient profiles averaged over pieces of the edge.
 
@@ -127,15 +127,15 @@ class PhotoEdges:
 
     def snap_scan(self, seg: np.ndarray, search: float, sigma: float, clipped_ok: bool = False
                   ) -> tuple[np.ndarray, float, int] | None:
-        """An edge edgesnap finds ambiguous over the whole search (a texture's edges beside it in the
-        window: a floor's plank seams a few px from a piece's foot, which a sample takes for a second
-        peak), searched in narrow windows (MIN_SEARCH_PX either side) centred SCAN_STEP_PX apart
-        across the search, for an edge at least SCAN_MIN_PX long: it counts when every window that
-        finds a line finds the same one (within SCAN_SAME_PX; the one with the least spread is kept)
-        and it lies within the search. The
-        texture's edges seldom make a line of their own (a seam is broken, curved, of varying tone);
-        where they do, two lines are found and the edge is not snapped. Returns as EdgeImage.snap, or
-        None."""
+        """An edge edgesnap does not find over the whole search (ambiguous there: a texture's edges
+        beside it in the window, a floor's plank seams a few px from a piece's foot, which a sample
+        takes for a second peak), searched in narrow windows (MIN_SEARCH_PX either side) centred
+        SCAN_STEP_PX apart across the search, for an edge at least SCAN_MIN_PX long: it counts when
+        every window that finds a line finds the same one (within SCAN_SAME_PX; the one with the
+        least spread is kept) and it lies within the search (the bound a whole search keeps; the fit
+        then drops a line it disagrees with, as any other). The texture's edges seldom make a line
+        of their own (a seam is broken, curved, of varying tone); where they do, two lines are found
+        and the edge is not snapped. Returns as EdgeImage.snap, or None."""
         seg = np.asarray(seg, float)
         a, b = seg[:2], seg[2:]
         length = float(np.linalg.norm(b - a))
@@ -283,7 +283,7 @@ class PhotoEdges:
               clipped_ok: bool = False, faint: bool = False, model_sd: dict | None = None) -> list[EdgeLine]:
         """The model edges `pairs` of corners (N,3) snapped to the photo, each over its longest
         stretch inside the photo and not `blocked` (callable (M,3) points -> (M,) bool); an edge
-        edgesnap finds ambiguous over the search is scanned in narrow windows (snap_scan); with
+        edgesnap does not find over the search is scanned in narrow windows (snap_scan); with
         `faint`, one still not found is tried as a faint one (snap_faint). An edge is
         searched at most half way to the nearest other edge of `pairs` (not sharing a corner with
         it: the median distance along its stretch), so that it cannot snap to that one's place; nearer
