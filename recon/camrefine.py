@@ -89,8 +89,6 @@ CENTRE_STEP_PX = 4.0  # the centre search's grid step, as the motion of an edge 
 # the coarse stage's 2 px final match radius, so the grid's best point is within the ICP's reach
 CENTRE_HYPOTHESES = 3  # the centre search's best local minima refined besides the input camera: each costs
 # one fit; three leave room for the true basin when texture basins score better on the grid's coarse residual
-POLARITY_BIAS = False
-SMOOTH_GRAINY = False
 MIN_LINE_DIRECTIONS_DEG = 20.0  # the samples' 3D edges must span two directions at least this far apart
 
 
@@ -305,7 +303,7 @@ def _edge_weights(S: _Samples, sig_e, edge_var=None, weighting: str = "capped") 
 
 
 def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lines, f_scale: float, edge_var=None,
-           weighting: str = "capped", pol: np.ndarray | None = None):
+           weighting: str = "capped"):
     """Least squares of the edge residuals n.(q - uv)/sig_e (sig_e: px, one figure or one per sample;
     robust: Cauchy at f_scale, whose pull of a wrong match falls as 1/r, so texture matched at a wide
     radius hardly moves a camera that already fits; soft-L1's pull stays constant and let such matches
@@ -332,12 +330,9 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lin
     pp_sig = PP_PRIOR_REL * max(model.cam0.width, model.cam0.height)
 
     def fun(x):
-        cam = model.camera(x[:model.n])
+        cam = model.camera(x)
         uv, n = _project(cam, S)
-        d = np.sum(n * (q - uv), axis=1)
-        if pol is not None:  # the photo's edges measured toward their brighter side by x[-1] px
-            d = d - x[-1] * pol
-        r = [d * w]
+        r = [np.sum(n * (q - uv), axis=1) * w]
         KR = cam.K @ cam.R
         r += [_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / sig[a] for a in segs]
         if model.free_pp and model.pp_prior:  # calibrate's prior: the principal point near the image centre
@@ -351,13 +346,9 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lin
         out[0, ne:], out[1, ne:], out[2, ne:] = z[ne:], 1.0, 0.0
         return out
 
-    x_scale = [1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:model.n] + ([0.1] if pol is not None else [])
-    # rad, m, log f, px (principal point), px (the polarity bias)
-    if pol is not None and len(x0) == model.n:
-        x0 = np.append(x0, 0.0)
+    x_scale = [1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:len(x0)]  # rad, m, log f, px (principal point)
     res = least_squares(fun, x0, loss=loss, f_scale=f_scale, x_scale=x_scale, method="trf", max_nfev=50)
     res.edge_weight = a_e if weighting == "model" else None
-    res.n_camera = model.n  # the camera's parameters: res.x[:n_camera] (after them, the polarity bias)
     return res
 
 
@@ -436,7 +427,6 @@ class _Fit:
     sigma: np.ndarray  # (used,) noise of each used sample, px
     start: str = "input"
     data: tuple | None = None  # the last solve's data (samples, matched edge points, sigma, edge_var): campp.select
-    bias_px: float = 0.0  # the photo's edges found this far toward their brighter side (px; _profile_stage)
 
 
 def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines,
@@ -471,59 +461,21 @@ def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, 
     """The per-sample sub-pixel stage (edgesnap's centroid at every sample), three rounds."""
     S = _sample_edges(model.camera(x), edges, occ)
     fine = None
-    b = 0.0
     for _ in range(3):
         if len(S.X) < MIN_SAMPLES:
             break
         uv, n = _project(model.camera(x), S)
         q, ok = photo.subpixel(uv, n)
-        if SMOOTH_GRAINY:
-            grain = _grainy_edges(~_stands_out(photo, uv, n, q, S.edge), S.edge)
-            qs, oks = photo.subpixel(uv, n, smooth=True)
-            q, ok = np.where(grain[:, None], qs, q), np.where(grain, oks, ok)
         ok &= _exclusive(uv, n, S.edge, q)
         if ok.sum() < MIN_SAMPLES:
             break
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        pol = photo.polarity(q[ok], n[ok]) if POLARITY_BIAS else None
-        res = _solve(model, np.append(x, b) if pol is not None else x, sub, q[ok], FINE_SIGMA_PX, lines,
-                     f_scale=ROBUST_SIGMAS, pol=pol)
-        x = res.x[:model.n]
-        b = float(res.x[model.n]) if pol is not None else 0.0
-        qb = q[ok] - (b * pol)[:, None] * n[ok] if pol is not None else q[ok]  # the edges, their bias removed
+        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
+        x = res.x
         uv1, n1 = _project(model.camera(x), sub)
-        fine = _Fit(x, res, S, ok, np.sum(n1 * (qb - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX),
-                    data=(sub, qb, FINE_SIGMA_PX, None), bias_px=b)
+        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX),
+                    data=(sub, q[ok], FINE_SIGMA_PX, None))
     return fine
-
-
-def _grainy_edges(grain: np.ndarray, edge: np.ndarray) -> np.ndarray:
-    """(N,) bool: the samples of the edges most of whose samples are grain (their peaks do not stand out)."""
-    _, inv = np.unique(edge, return_inverse=True)
-    frac = np.bincount(inv, weights=grain.astype(float)) / np.bincount(inv)
-    return frac[inv] > 0.5
-
-
-def _stands_out(photo: PhotoEdges, uv: np.ndarray, n: np.ndarray, q: np.ndarray, edge: np.ndarray) -> np.ndarray:
-    """(N,) bool: the gradient peak a sample's profile found at q stands out of its edge's own noise (the
-    edge's strip +-PROFILE_HALF_PX, edgelines.gradient_noise) by edgelines' significance score for the
-    profile's positions (1 % false alarm, Bonferroni), the line stage's test for a per-sample profile."""
-    from recon.edgelines import gradient_noise, significance_z
-
-    E = photo.fine
-    z1 = significance_z(int(round(2 * PROFILE_HALF_PX / PROFILE_STEP_PX)) + 1)
-    out = np.zeros(len(uv), bool)
-    fin = np.all(np.isfinite(q), axis=1)
-    g = np.zeros(len(uv))
-    g[fin] = np.abs(E._sample(E.gx, q[fin][None])[0] * n[fin, 0] + E._sample(E.gy, q[fin][None])[0] * n[fin, 1])
-    for e in np.unique(edge):
-        m = np.flatnonzero(edge == e)
-        ne = n[m].mean(axis=0)
-        if len(m) < 2 or not np.linalg.norm(ne) > 0:
-            continue
-        noise = gradient_noise(E, uv[m], ne / np.linalg.norm(ne), PROFILE_HALF_PX)
-        out[m] = fin[m] & (g[m] >= z1 * noise)
-    return out
 
 
 def _line_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines) -> _Fit | None:
@@ -812,9 +764,7 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: np
         r[:len(a)] *= np.sqrt(a)
     dof = max(len(r) - len(res.x), 1)
     scale = max(float(r @ r) / dof, 1.0)
-    k = getattr(res, "n_camera", len(res.x))  # the camera's parameters' motion of the samples (not the bias's)
-    pred = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Je[:, :k], cov[:k, :k] * scale, Je[:, :k]), 0.0)) \
-        * np.asarray(sigma)[inl]
+    pred = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Je, cov * scale, Je), 0.0)) * np.asarray(sigma)[inl]
     rms_pred = float(np.sqrt(np.mean(pred ** 2))) if len(pred) else float("inf")
     if not rms_pred <= MAX_PRED_STD_PX:
         return f"the fit is ill-conditioned (a one-sigma error moves the edges {rms_pred:.2f} px rms)"

@@ -12,8 +12,6 @@ import numpy as np
 ORIENT_BINS = 12  # bins of the edge normal's angle over [0, pi): 15 deg; a match may be one bin off
 PROFILE_HALF_PX = 2.0  # the fine stage's search either side of the projected edge
 PROFILE_STEP_PX = 0.25
-SMOOTH_SIGMA_PX = 1.0  # the smoothed gradient's Gaussian (px): the Canny stage's own smoothing, the least that
-# averages a profile point over its neighbours (about 4 pixels' noise in each)
 
 
 class PhotoEdges:
@@ -21,24 +19,12 @@ class PhotoEdges:
     linear gradient image for the sub-pixel stage."""
 
     def __init__(self, image: np.ndarray):
-        import copy
-
         import cv2
 
         from recon.edgesnap import EdgeImage
-        from recon.response import luminance
 
         img = np.asarray(image)
         self.fine = EdgeImage(img)  # linear gray gradient, clipped-pixel mask (raises on a non-8-bit image)
-        # the same gradient of the linear image smoothed (the profile stage's measure where a sample's peak
-        # does not stand out of its edge's noise: recon/camrefine._profile_stage)
-        self.smooth = copy.copy(self.fine)
-        rgb = img if img.ndim == 3 else img[:, :, None]
-        lin = (rgb[:, :, :3].astype(np.float32) / 255.0) ** 2.2  # edgesnap's linearisation
-        lg = cv2.GaussianBlur((luminance(lin) if lin.shape[2] == 3 else lin[:, :, 0]).astype(np.float32), (0, 0),
-                              SMOOTH_SIGMA_PX)
-        self.smooth.gx = cv2.Sobel(lg, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-        self.smooth.gy = cv2.Sobel(lg, cv2.CV_32F, 0, 1, ksize=3) / 8.0
         gray = cv2.cvtColor(img[:, :, :3], cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
         g = cv2.GaussianBlur(gray, (0, 0), 1.0)
         gx = cv2.Sobel(g.astype(np.float32), cv2.CV_32F, 1, 0, ksize=3)
@@ -75,14 +61,14 @@ class PhotoEdges:
         q, _ = self.match(uv, normal_angle, np.inf)
         return np.linalg.norm(q - uv, axis=1) if len(uv) else np.zeros(0)
 
-    def subpixel(self, uv: np.ndarray, n: np.ndarray, smooth: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def subpixel(self, uv: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sub-pixel edge positions (N,2) across each projected sample (unit normal n) within
         +-PROFILE_HALF_PX, and which were found: edgesnap's rule per sample (the centroid of the
         gradient above half its peak within 1 px of it; no peak on the window's border, no second
-        peak over half as strong, no clipped pixel within 3 px); on the smoothed gradient with `smooth`."""
+        peak over half as strong, no clipped pixel within 3 px)."""
         from recon.edgesnap import AMBIGUOUS
 
-        E = self.smooth if smooth else self.fine
+        E = self.fine
         ss = np.arange(-PROFILE_HALF_PX, PROFILE_HALF_PX + 1e-9, PROFILE_STEP_PX)
         P = uv[:, None, :] + ss[None, :, None] * n[:, None, :]
         g = E._sample(E.gx, P) * n[:, None, 0] + E._sample(E.gy, P) * n[:, None, 1]
@@ -103,13 +89,6 @@ class PhotoEdges:
         ok &= wsum > 0
         off = (w * ss[None, :]).sum(axis=1) / np.maximum(wsum, 1e-12)
         return uv + off[:, None] * n, ok
-
-    def polarity(self, q: np.ndarray, n: np.ndarray) -> np.ndarray:
-        """(N,) +1 where the photo gets brighter along the unit normal n across the edge point q, -1 where
-        darker (the sign of the linear gradient along n at q)."""
-        E = self.fine
-        g = E._sample(E.gx, q[None])[0] * n[:, 0] + E._sample(E.gy, q[None])[0] * n[:, 1]
-        return np.where(g >= 0, 1.0, -1.0)
 
 
 def _nearest(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
