@@ -5,8 +5,10 @@ recon.vanishing.calibrate_lines, as `photoar calibrate` runs it; turned 180 deg 
 turn lies in the taped room, as `scene` does), then `refine_camera` with each variant given, and, with
 --true, the refinement started from the truth's camera (no clicked lines: how far the photo's edges
 drag a camera that is right). Errors against the truth's camera: focal (%), principal point (px),
-rotation (deg), centre (cm), and the image error: rms px between the two cameras' images of the
-room's edge samples the truth's camera sees.
+rotation (deg), centre (cm), the image error: rms px between the two cameras' images of the
+room's edge samples the truth's camera sees, and the object's image error: the same over the vertices of the
+scene's synthetic object where it stands (what rmse_object scores: bench/bench_object_shift.py gives how
+rmse_object grows with it). With --json each refined camera (K, R, t) is written too.
 
 `python bench/bench_camrefine.py [--rooms DIR] [--only window_101,...,sun_room] [--variant profiles]
 [--variant lines] [--true] [--json OUT]`; a variant is refine_camera's keyword arguments as
@@ -37,15 +39,32 @@ def _room_dir(name: str, rooms: Path) -> Path:
     return rooms / name
 
 
-def camera_errors(cam, truth, S) -> dict:
-    """Errors of `cam` against `truth`: focal %, principal point px, rotation deg, centre cm, and the
-    image error px (rms over the samples S, the truth's visible room-edge samples)."""
+def object_points(root: Path) -> np.ndarray:
+    """(V,3) world points of the scene's synthetic object (its mesh's vertices through object_to_world), m:
+    where the composite's object lands, which is what rmse_object scores."""
+    from recon.scene import load_mesh
+
+    so = json.loads((root / "scene.json").read_text())["synthetic_object"]
+    v, _, _ = load_mesh(root / so["mesh"])
+    M = np.asarray(so["object_to_world"], float)
+    return v @ M[:3, :3].T + M[:3, 3]
+
+
+def camera_errors(cam, truth, S, P=None) -> dict:
+    """Errors of `cam` against `truth`: focal %, principal point px, rotation deg, centre cm, the
+    image error px (rms over the samples S, the truth's visible room-edge samples) and, with P (the
+    object's world points), the object's image error px (rms over P)."""
     from recon.camrefine import _project
     from recon.vanishing import rotation_error_deg
 
     ua, _ = _project(cam, S)
     ub, _ = _project(truth, S)
-    return {"focal_pct": 100 * (cam.K[0, 0] / truth.K[0, 0] - 1),
+    obj = float("nan")
+    if P is not None and len(P):
+        pa, _ = cam.project(P)
+        pb, _ = truth.project(P)
+        obj = float(np.sqrt(np.mean(np.sum((pa - pb) ** 2, axis=1))))
+    return {"object_px": obj, "focal_pct": 100 * (cam.K[0, 0] / truth.K[0, 0] - 1),
             "pp_px": float(np.linalg.norm(cam.K[:2, 2] - truth.K[:2, 2])),
             "rot_deg": rotation_error_deg(cam.R, truth.R),
             "centre_cm": 100 * float(np.linalg.norm(cam.centre - truth.centre)),
@@ -71,17 +90,19 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
         cam = asm.turned_about_y(cam)
     faces = room_faces(prims)
     S = _sample_edges(truth, room_edges(faces), _Occluder(faces))
+    P = object_points(_room_dir(name, rooms))
     cj = cal.to_json()
-    out = {"room": name, "pp_from": cj.get("principal_point_from"), "calibrated": camera_errors(cam, truth, S)}
+    out = {"room": name, "pp_from": cj.get("principal_point_from"), "calibrated": camera_errors(cam, truth, S, P)}
     for v in variants:
         t0 = time.time()
         kw = _variant(v)
         r = refine_camera(cam, prims, img, cj, **kw)
-        out[v or "default"] = {**camera_errors(r.camera, truth, S), "accepted": r.accepted, "reason": r.reason,
-                               "seconds": time.time() - t0, "refinement": r.to_json()}
+        out[v or "default"] = {**camera_errors(r.camera, truth, S, P), "accepted": r.accepted, "reason": r.reason,
+                               "seconds": time.time() - t0, "refinement": r.to_json(),
+                               "camera": {"K": r.camera.K.tolist(), "R": r.camera.R.tolist(), "t": r.camera.t.tolist()}}
         if true_start:
             r = refine_camera(truth, prims, img, None, **kw)
-            moved = camera_errors(r.camera, truth, S) if r.accepted else None
+            moved = camera_errors(r.camera, truth, S, P) if r.accepted else None
             out[(v or "default") + " from truth"] = {"moved_px": r.moved_px, "accepted": r.accepted,
                                                      "reason": r.reason, "errors": moved}
     return out
@@ -89,7 +110,7 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
 
 def _fmt(e: dict) -> str:
     return (f"{e['focal_pct']:+.2f} % / {e['pp_px']:.1f} px / {e['rot_deg']:.2f} deg / {e['centre_cm']:.1f} cm / "
-            f"{e['image_px']:.2f} px")
+            f"{e['image_px']:.2f} px / object {e['object_px']:.2f} px")
 
 
 def main() -> None:
