@@ -45,25 +45,29 @@ from recon.scene import load_scene  # noqa: E402
 DEFAULT_CONFIGS = "2:64:200:plain,2:64:64:plain,2:64:64,2:64:32,3:64:64,4:64:64"
 
 
-def parse_config(text: str) -> tuple[int | None, int | None, int, bool, int | None]:
-    """'full:50' -> (None, None, 50, False, None); '2:64:50' -> (2, 64, 50, True, None); then
+def parse_config(text: str) -> tuple[int | None, int | None, int, bool, int | None, int | None]:
+    """'full:50' -> (None, None, 50, False, None, None); '2:64:50' -> (2, 64, 50, True, None, None); then
     options after the third part: 'plain' (near_split False: the frames at rest's cluster key and
     object-light reach, DragStages(plain=True)), 'cellsN' (the object light's room share in N cells a side;
-    the drag frame's own: app.dragframe.DRAG_ROOM_CELLS): '3:64:64:cells2' -> (3, 64, 64, True, 2)."""
+    the drag frame's own: app.dragframe.DRAG_ROOM_CELLS), 'tapsN' (N PCSS taps per axis of the cluster maps'
+    lookups, ShadowPass.set_taps; the drag frame's own: app.dragframe.DRAG_PCSS_TAPS): '3:64:64:cells2:taps3'
+    -> (3, 64, 64, True, 2, 3)."""
     parts = text.split(":")
     if parts[0] == "full" and len(parts) == 2:
-        return None, None, int(parts[1]), False, None
+        return None, None, int(parts[1]), False, None, None
     if len(parts) < 3:
-        raise argparse.ArgumentTypeError(f"a configuration is full:P or S:M:P[:plain][:cellsN], got {text!r}")
-    plain, cells = False, None
+        raise argparse.ArgumentTypeError(f"a configuration is full:P or S:M:P[:plain][:cellsN][:tapsN], got {text!r}")
+    plain, cells, taps = False, None, None
     for o in parts[3:]:
         if o == "plain":
             plain = True
         elif o.startswith("cells") and o[5:].isdigit():
             cells = int(o[5:])
+        elif o.startswith("taps") and o[4:].isdigit():
+            taps = int(o[4:])
         else:
             raise argparse.ArgumentTypeError(f"unknown option {o!r} in configuration {text!r}")
-    return int(parts[0]), int(parts[1]), int(parts[2]), not plain, cells
+    return int(parts[0]), int(parts[1]), int(parts[2]), not plain, cells, taps
 
 
 def scene_dir(name: str) -> Path:
@@ -90,6 +94,8 @@ def bench_scene(d: Path, configs: list, n_path: int, rounds: int = 2) -> dict:
     for c, st in stages.items():
         if c[4] is not None:
             st.object_light.room_cells = c[4]
+        if c[5] is not None:
+            st.shadow_pass.set_taps(c[5])
     offsets = drag_offsets(scene, scene.obj, n_path)
     stats = {c: [] for c in configs}
     scores = {}
@@ -112,7 +118,7 @@ def bench_scene(d: Path, configs: list, n_path: int, rounds: int = 2) -> dict:
         t = np.array([s["frame_s"] for s in stats[c]]) * 1e3
         cpu = np.array([s["cpu_s"] for s in stats[c]]) * 1e3
         row = {"config": "full" if c[0] is None else f"1/{c[0]}", "map_res": c[1], "passes": c[2],
-               "near_split": c[3], "room_cells": c[4],
+               "near_split": c[3], "room_cells": c[4], "taps": c[5],
                "mean_ms": float(t.mean()), "p95_ms": float(np.percentile(t, 95)), "cpu_ms": float(cpu.mean()),
                **scores[c],
                "stages_ms": path_stages_ms(stats[c])}
@@ -137,7 +143,7 @@ def print_scene(res: dict) -> None:
           " ".join(f"{k[:9]:>9}" for k in keys) + "  pareto")
     for r in res["rows"]:
         st = r["stages_ms"]
-        print(f"{r['config']:>6} {r['map_res'] or '':>4} {r['passes']:>4}{'c' if r.get('room_cells') else (' ' if r['near_split'] else 'p')} {r['mean_ms']:7.1f} {r['p95_ms']:7.1f} {r['cpu_ms']:7.1f} "
+        print(f"{r['config'] + ('t' + str(r['taps']) if r.get('taps') else ''):>6} {r['map_res'] or '':>4} {r['passes']:>4}{'c' if r.get('room_cells') else (' ' if r['near_split'] else 'p')} {r['mean_ms']:7.1f} {r['p95_ms']:7.1f} {r['cpu_ms']:7.1f} "
               f"{r['energy_ratio']:7.3f} {r['rmse_affected']:6.2f}  " +
               " ".join(f"{st.get(k, 0.0):9.1f}" for k in keys) +
               ("  *" if r["pareto"] else ("" if r["within_bound"] else "  (out of bound)")))
