@@ -3,8 +3,8 @@ bilinearly, applied to the photo, the object mixed over it (app.dragframe).
 
 Two launches: the coarse pixels' ratios room_c / L_b_c (float32, 1 where L_b_c is 0), one thread per
 coarse pixel; then the full-resolution pixels, each thread a run of PIXELS_PER_THREAD consecutive ones
-(on the CPU the per-thread cost, not the arithmetic, dominated a thread per pixel: 0.7x the CPU time
-with both changes), float64 after the ratio, the camera response as kernels.pixel_compose evaluates it:
+(0.54-0.68x the CPU time of a thread per pixel that formed its four neighbours' ratios itself, on three
+rooms: docs/benchmarks.md), float64 after the ratio, the camera response as kernels.pixel_compose evaluates it:
 
   ratio  = bilinear over the coarse pixels' ratios, pixel centres as cv2.resize's INTER_LINEAR
            (coarse x = (x + 0.5) / s - 0.5, clamped at the edges; float32, as cv2.resize)
