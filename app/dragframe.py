@@ -57,6 +57,18 @@ DRAG_LIGHT_NEAR_FACTOR = 1.0
 DRAG_ROOM_CELLS = 1
 
 
+# The drag frame's cluster maps are looked up with 3 x 3 PCSS taps (blocker search and filter), not 5 x 5
+# (kernels.masked_sums.PCSS_TAPS, the frames at rest's): a penumbra point costs 18 taps, not 50. Against the
+# mean of 21 x 21 point sources of a square light a penumbra point errs by 0.085 on average, not 0.054, with
+# the same sum (tests/kernels/test_shadowmap.py); at 1/3 a coarse pixel spans 3 full ones and the upsampled
+# ratio averages the steps further. bench/bench_drag.py `taps5` against `taps3` (one process, loaded, frames'
+# CPU time): window_room 337 -> 316 ms, rmse_affected 0.97 -> 1.02 (bound 1.61); lamps_room 316 -> 295, 1.96 ->
+# 1.96 (2.33); sun_room 539 -> 512, 1.40 -> 1.39, energy 1.037 -> 1.024; unseen sun_101 541 -> 494, 4.09 -> 4.07
+# (6.01), window_101 250 -> 228, 0.79 -> 0.80 (1.63) (docs/benchmarks.md, "The drag frame's per-pixel stages").
+# 4 taps fell between the two, within the load's noise.
+DRAG_PCSS_TAPS = 3
+
+
 # (A frame with a map per source, when the room has no more sources than the passes, takes the same rule
 # from the full frame's map size: max(MIN_DRAG_MAP_RES, map_res / s).)
 
@@ -138,6 +150,7 @@ class DragStages:
                                         sun_dir=sun_light.d if sun_light is not None else None)
         if not plain:
             self.object_light.room_cells = DRAG_ROOM_CELLS
+            self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
         self.shape = (cam.height, cam.width)
         self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object
         self.zero_rad = np.zeros((*self.shape, 3), np.float32)

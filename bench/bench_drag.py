@@ -13,8 +13,9 @@ maps of M px, P passes whose clusters are split near the object first; app.dragf
 (the same with the frames at rest's cluster key and object-light reach, DragStages(plain=True): the drag
 frame before those were chosen; printed with a "p" after P) or `S:M:P:cellsN` (the object light's room share
 in N cells a side of the object's box, app.stages.object_light.room_share; the drag frame's own is
-app.dragframe.DRAG_ROOM_CELLS; printed with a "c" after P). Prints per configuration the path's mean and p95 frame time,
-the per-stage means (ms) and energy_ratio / rmse_affected, next to the all-sources frame's score and
+app.dragframe.DRAG_ROOM_CELLS; printed with a "c" after P). Prints per configuration the path's mean and
+p95 frame time (wall), its mean CPU time ("cpu": the process's, all its threads; steadier than the wall
+time on a loaded machine), the per-stage means (ms) and energy_ratio / rmse_affected, next to the all-sources frame's score and
 the acceptance bound (rmse_affected <= 1.5 x the all-sources frame's + 0.5, energy 0.93-1.07); the
 Pareto front: the configurations within the bound that no other within it beats on both time and
 rmse. Timings depend on the machine's load: compare the rows of one run.
@@ -24,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -43,19 +45,29 @@ from recon.scene import load_scene  # noqa: E402
 DEFAULT_CONFIGS = "2:64:200:plain,2:64:64:plain,2:64:64,2:64:32,3:64:64,4:64:64"
 
 
-def parse_config(text: str) -> tuple[int | None, int | None, int, bool, int | None]:
-    """'full:50' -> (None, None, 50, False, None); '2:64:50' -> (2, 64, 50, True, None); '2:64:50:plain' ->
-    (2, 64, 50, False, None): the frames at rest's cluster key and object-light reach (DragStages(plain=True));
-    '3:64:64:cells2' -> (3, 64, 64, True, 2): the object light's room share in 2 cells a side (the drag frame's
-    own: app.dragframe.DRAG_ROOM_CELLS)."""
+def parse_config(text: str) -> tuple[int | None, int | None, int, bool, int | None, int | None]:
+    """'full:50' -> (None, None, 50, False, None, None); '2:64:50' -> (2, 64, 50, True, None, None); then
+    options after the third part: 'plain' (near_split False: the frames at rest's cluster key and
+    object-light reach, DragStages(plain=True)), 'cellsN' (the object light's room share in N cells a side;
+    the drag frame's own: app.dragframe.DRAG_ROOM_CELLS), 'tapsN' (N PCSS taps per axis of the cluster maps'
+    lookups, ShadowPass.set_taps; the drag frame's own: app.dragframe.DRAG_PCSS_TAPS): '3:64:64:cells2:taps3'
+    -> (3, 64, 64, True, 2, 3)."""
     parts = text.split(":")
     if parts[0] == "full" and len(parts) == 2:
-        return None, None, int(parts[1]), False, None
-    plain = len(parts) == 4 and parts[3] == "plain"
-    cells = int(parts[3][5:]) if len(parts) == 4 and parts[3].startswith("cells") and parts[3][5:].isdigit() else None
-    if len(parts) != 3 and not plain and cells is None:
-        raise argparse.ArgumentTypeError(f"a configuration is full:P, S:M:P, S:M:P:plain or S:M:P:cellsN, got {text!r}")
-    return int(parts[0]), int(parts[1]), int(parts[2]), not plain, cells
+        return None, None, int(parts[1]), False, None, None
+    if len(parts) < 3:
+        raise argparse.ArgumentTypeError(f"a configuration is full:P or S:M:P[:plain][:cellsN][:tapsN], got {text!r}")
+    plain, cells, taps = False, None, None
+    for o in parts[3:]:
+        if o == "plain":
+            plain = True
+        elif o.startswith("cells") and o[5:].isdigit():
+            cells = int(o[5:])
+        elif o.startswith("taps") and o[4:].isdigit():
+            taps = int(o[4:])
+        else:
+            raise argparse.ArgumentTypeError(f"unknown option {o!r} in configuration {text!r}")
+    return int(parts[0]), int(parts[1]), int(parts[2]), not plain, cells, taps
 
 
 def scene_dir(name: str) -> Path:
@@ -82,6 +94,8 @@ def bench_scene(d: Path, configs: list, n_path: int, rounds: int = 2) -> dict:
     for c, st in stages.items():
         if c[4] is not None:
             st.object_light.room_cells = c[4]
+        if c[5] is not None:
+            st.shadow_pass.set_taps(c[5])
     offsets = drag_offsets(scene, scene.obj, n_path)
     stats = {c: [] for c in configs}
     scores = {}
@@ -93,14 +107,20 @@ def bench_scene(d: Path, configs: list, n_path: int, rounds: int = 2) -> dict:
             fr = eng.render(scene.obj, cfg)  # warm, and the frame scored
             if r == 0:
                 scores[c] = score(fr)
-            frames = [eng.render(moved(scene.obj, o), cfg).stats for o in offsets]
+            frames = []
+            for o in offsets:
+                t0 = time.process_time()
+                st = eng.render(moved(scene.obj, o), cfg).stats
+                frames.append({**st, "cpu_s": time.process_time() - t0})
             stats[c].extend(frames[1:])
     bound = 1.5 * out["all_sources"]["rmse_affected"] + 0.5
     for c in configs:
         t = np.array([s["frame_s"] for s in stats[c]]) * 1e3
+        cpu = np.array([s["cpu_s"] for s in stats[c]]) * 1e3
         row = {"config": "full" if c[0] is None else f"1/{c[0]}", "map_res": c[1], "passes": c[2],
-               "near_split": c[3], "room_cells": c[4],
-               "mean_ms": float(t.mean()), "p95_ms": float(np.percentile(t, 95)), **scores[c],
+               "near_split": c[3], "room_cells": c[4], "taps": c[5],
+               "mean_ms": float(t.mean()), "p95_ms": float(np.percentile(t, 95)), "cpu_ms": float(cpu.mean()),
+               **scores[c],
                "stages_ms": path_stages_ms(stats[c])}
         row["within_bound"] = bool(row["rmse_affected"] <= bound and 0.93 <= row["energy_ratio"] <= 1.07)
         out["rows"].append(row)
@@ -119,11 +139,11 @@ def print_scene(res: dict) -> None:
     print(f"\n{res['scene']}: all sources {a['frame_s']:.2f} s, energy {a['energy_ratio']:.3f}, rmse "
           f"{a['rmse_affected']:.2f} (bound: rmse <= {res['bound_rmse']:.2f}, energy 0.93-1.07)")
     keys = ["masks", "object_shading", "object_light", "sources", "object", "compose", "upsample", "python"]
-    print(f"{'config':>6} {'map':>4} {'P':>4}  {'mean':>7} {'p95':>7} {'energy':>7} {'rmse':>6}  " +
+    print(f"{'config':>6} {'map':>4} {'P':>4}  {'mean':>7} {'p95':>7} {'cpu':>7} {'energy':>7} {'rmse':>6}  " +
           " ".join(f"{k[:9]:>9}" for k in keys) + "  pareto")
     for r in res["rows"]:
         st = r["stages_ms"]
-        print(f"{r['config']:>6} {r['map_res'] or '':>4} {r['passes']:>4}{'c' if r.get('room_cells') else (' ' if r['near_split'] else 'p')} {r['mean_ms']:7.1f} {r['p95_ms']:7.1f} "
+        print(f"{r['config'] + ('t' + str(r['taps']) if r.get('taps') else ''):>6} {r['map_res'] or '':>4} {r['passes']:>4}{'c' if r.get('room_cells') else (' ' if r['near_split'] else 'p')} {r['mean_ms']:7.1f} {r['p95_ms']:7.1f} {r['cpu_ms']:7.1f} "
               f"{r['energy_ratio']:7.3f} {r['rmse_affected']:6.2f}  " +
               " ".join(f"{st.get(k, 0.0):9.1f}" for k in keys) +
               ("  *" if r["pareto"] else ("" if r["within_bound"] else "  (out of bound)")))

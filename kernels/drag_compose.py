@@ -1,11 +1,13 @@
 """The drag frame's full-resolution compose: the coarse room's ratio to the photo brought back
 bilinearly, applied to the photo, the object mixed over it (app.dragframe).
 
-One thread per full-resolution pixel, float64, the camera response as kernels.pixel_compose
-evaluates it:
+Two launches: the coarse pixels' ratios room_c / L_b_c (float32, 1 where L_b_c is 0), one thread per
+coarse pixel; then the full-resolution pixels, each thread a run of PIXELS_PER_THREAD consecutive ones
+(0.54-0.68x the CPU time of a thread per pixel that formed its four neighbours' ratios itself, on three
+rooms: docs/benchmarks.md), float64 after the ratio, the camera response as kernels.pixel_compose evaluates it:
 
-  ratio  = bilinear over the coarse pixels' ratios room_c / L_b_c (1 where L_b_c is 0), pixel
-           centres as cv2.resize's INTER_LINEAR (coarse x = (x + 0.5) / s - 0.5, clamped at the edges)
+  ratio  = bilinear over the coarse pixels' ratios, pixel centres as cv2.resize's INTER_LINEAR
+           (coarse x = (x + 0.5) / s - 0.5, clamped at the edges; float32, as cv2.resize)
   room   = max(L_b x (ratio - u), 0) where the pixel is a receiver and the ratio moves it by more than
            RATIO_EPS or the sun's share u (the share of its light the object takes from the sun, computed
            at full resolution: the sun's shadow is hard-edged) is not 0; else L_b with the photo's own levels
@@ -18,58 +20,58 @@ import warp as wp
 
 from kernels.pixel_compose import PX_LB, PX_STILL, _Mirror, mix_levels, mix_radiance, to_levels, to_pixel
 
+PIXELS_PER_THREAD = wp.constant(16)  # consecutive full pixels per thread of drag_compose_kernel
 RATIO_EPS = 1e-6  # a ratio this close to 1 leaves the photo's level (float32 noise of the coarse room)
 
 
-@wp.func
-def _coarse_ratio(room_c: wp.array2d(dtype=wp.float32), inv_c: wp.array2d(dtype=wp.float32), j: int, c: int
-                  ) -> wp.float64:
-    inv = inv_c[j, c]
-    if inv > wp.float32(0.0):
-        return wp.float64(room_c[j, c]) * wp.float64(inv)
-    return wp.float64(1.0)
-
-
 @wp.kernel
-def drag_compose_kernel(first: int, W: int, w: int, h: int, s: int, room_c: wp.array2d(dtype=wp.float32),
-                        inv_c: wp.array2d(dtype=wp.float32), recv: wp.array(dtype=wp.uint8),
+def coarse_ratio_kernel(room_c: wp.array2d(dtype=wp.float32), inv_c: wp.array2d(dtype=wp.float32),
+                        ratio: wp.array(dtype=wp.vec3f)):
+    """ratio[j] = room_c[j] / L_b_c[j] per channel (inv_c = 1 / L_b_c; 1 where inv_c is 0): once per coarse
+    pixel, so that a full pixel reads its four neighbours' ratios only."""
+    j = wp.tid()
+    r = wp.vec3f(1.0, 1.0, 1.0)
+    for c in range(3):
+        inv = inv_c[j, c]
+        if inv > wp.float32(0.0):
+            r[c] = room_c[j, c] * inv
+    ratio[j] = r
+
+
+@wp.func
+def _compose_pixel(i: int, W: int, w: int, h: int, s: int, ratio_c: wp.array(dtype=wp.vec3f),
+                        recv: wp.array(dtype=wp.uint8),
                         sun: wp.array2d(dtype=wp.float32),
                         px: wp.array2d(dtype=wp.float64), cov: wp.array(dtype=wp.float32),
                         obj: wp.array2d(dtype=wp.float32), tab: wp.array2d(dtype=wp.float64),
                         grid: wp.array2d(dtype=wp.int32), rtab: wp.array2d(dtype=wp.int16), exposure: wp.float64,
                         out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
-                        out_pix: wp.array2d(dtype=wp.uint8)):
-    """room_c (h*w,3) the coarse room radiance, inv_c (h*w,3) 1 / its photo radiance (0: none); recv
-    (N,) 1 where the full pixel is a receiver; sun (N,3) the sun's share u (cleared as read); px the HDR
-    per-scene table (pixel_compose.PX_*); cov (N,)
-    and obj (N,3) the object's coverage and radiance at full resolution; out, out_room, out_pix as
-    pixel_compose.compose_kernel's."""
-    i = first + wp.tid()
+                   out_pix: wp.array2d(dtype=wp.uint8)):
+    """Full pixel i of drag_compose_kernel."""
     zero = wp.float64(0.0)
     one = wp.float64(1.0)
     full = wp.float64(255.0)
-    y = i // W
-    x = i - y * W
-    sf = wp.float64(s)
-    fx = (wp.float64(x) + wp.float64(0.5)) / sf - wp.float64(0.5)
-    fy = (wp.float64(y) + wp.float64(0.5)) / sf - wp.float64(0.5)
-    x0 = int(wp.floor(fx))
-    y0 = int(wp.floor(fy))
-    ax = fx - wp.float64(x0)
-    ay = fy - wp.float64(y0)
-    xa = wp.clamp(x0, 0, w - 1)
-    xb = wp.clamp(x0 + 1, 0, w - 1)
-    ya = wp.clamp(y0, 0, h - 1)
-    yb = wp.clamp(y0 + 1, 0, h - 1)
     moved = False
     ratio = wp.vec3d(one, one, one)
     if recv[i] != wp.uint8(0):
+        y = i // W
+        x = i - y * W
+        sf = wp.float32(s)
+        fx = (wp.float32(x) + wp.float32(0.5)) / sf - wp.float32(0.5)
+        fy = (wp.float32(y) + wp.float32(0.5)) / sf - wp.float32(0.5)
+        x0 = int(wp.floor(fx))
+        y0 = int(wp.floor(fy))
+        ax = fx - wp.float32(x0)
+        ay = fy - wp.float32(y0)
+        xa = wp.clamp(x0, 0, w - 1)
+        xb = wp.clamp(x0 + 1, 0, w - 1)
+        ya = wp.clamp(y0, 0, h - 1)
+        yb = wp.clamp(y0 + 1, 0, h - 1)
+        top = (wp.float32(1.0) - ax) * ratio_c[ya * w + xa] + ax * ratio_c[ya * w + xb]
+        bot = (wp.float32(1.0) - ax) * ratio_c[yb * w + xa] + ax * ratio_c[yb * w + xb]
+        rf = (wp.float32(1.0) - ay) * top + ay * bot
         for c in range(3):
-            r00 = _coarse_ratio(room_c, inv_c, ya * w + xa, c)
-            r01 = _coarse_ratio(room_c, inv_c, ya * w + xb, c)
-            r10 = _coarse_ratio(room_c, inv_c, yb * w + xa, c)
-            r11 = _coarse_ratio(room_c, inv_c, yb * w + xb, c)
-            r = (one - ay) * ((one - ax) * r00 + ax * r01) + ay * ((one - ax) * r10 + ax * r11)
+            r = wp.float64(rf[c])
             ratio[c] = r
             if wp.abs(r - one) > wp.float64(RATIO_EPS):
                 moved = True
@@ -110,6 +112,26 @@ def drag_compose_kernel(first: int, W: int, w: int, h: int, s: int, room_c: wp.a
             out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(pl[c]), zero, full)))
 
 
+@wp.kernel
+def drag_compose_kernel(first: int, n: int, W: int, w: int, h: int, s: int, ratio_c: wp.array(dtype=wp.vec3f),
+                        recv: wp.array(dtype=wp.uint8), sun: wp.array2d(dtype=wp.float32),
+                        px: wp.array2d(dtype=wp.float64), cov: wp.array(dtype=wp.float32),
+                        obj: wp.array2d(dtype=wp.float32), tab: wp.array2d(dtype=wp.float64),
+                        grid: wp.array2d(dtype=wp.int32), rtab: wp.array2d(dtype=wp.int16), exposure: wp.float64,
+                        out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
+                        out_pix: wp.array2d(dtype=wp.uint8)):
+    """Full pixels first + PIXELS_PER_THREAD tid .. (at most first + n - 1), one after the other. ratio_c
+    (h*w,) the coarse pixels' ratios (coarse_ratio_kernel); recv (N,) 1 where the full pixel is a receiver;
+    sun (N,3) the sun's share u (cleared as read); px the HDR per-scene table (pixel_compose.PX_*); cov (N,)
+    and obj (N,3) the object's coverage and radiance at full resolution; out, out_room, out_pix as
+    pixel_compose.compose_kernel's."""
+    i0 = first + wp.tid() * PIXELS_PER_THREAD
+    i1 = wp.min(i0 + PIXELS_PER_THREAD, first + n)
+    for i in range(i0, i1):
+        _compose_pixel(i, W, w, h, s, ratio_c, recv, sun, px, cov, obj, tab, grid, rtab, exposure, out, out_room,
+                       out_pix)
+
+
 class DragCompose:
     """The drag frame's compose at full resolution for one scale: the per-scene inputs uploaded once
     (the coarse photo's inverse radiance, the receiver flags; the response tables and the HDR pixel
@@ -130,6 +152,7 @@ class DragCompose:
         self._recv = _Mirror.of(recv.astype(np.uint8), wp.uint8, device)
         self._sun = _Mirror((n, 3), f32, device)  # the sun's share, cleared by the kernel as it reads it
         self._room = _Mirror((m, 3), f32, device)
+        self._ratio = wp.zeros(m, dtype=wp.vec3f, device=device)  # the coarse pixels' ratios, per frame
         self._cov = _Mirror((n,), f32, device)
         self._obj = _Mirror((n, 3), f32, device)
 
@@ -156,9 +179,11 @@ class DragCompose:
         else:
             outs = [o.dev for o in k._out]
 
+        wp.launch(coarse_ratio_kernel, dim=self.h * self.w, device=d, inputs=[self._room.dev, self._inv.dev, self._ratio])
+
         def launch(lo: int, hi: int) -> None:
-            wp.launch(drag_compose_kernel, dim=hi - lo, device=d,
-                      inputs=[lo, self.W, self.w, self.h, self.s, self._room.dev, self._inv.dev, self._recv.dev,
+            wp.launch(drag_compose_kernel, dim=-(-(hi - lo) // PIXELS_PER_THREAD), device=d,
+                      inputs=[lo, hi - lo, self.W, self.w, self.h, self.s, self._ratio, self._recv.dev,
                               self._sun.dev, k._px["hdr"], self._cov.dev, self._obj.dev,
                               k._tab, k._grid, k._rtab, k._exposure, *outs])
 

@@ -75,7 +75,8 @@ def _cell_list_kernel(ms: MapSet, c0: int, cell_group: wp.array(dtype=wp.int32),
     n_list[c] = m
 
 
-PCSS_TAPS = 5  # samples per axis of the blocker search and of the filter
+PCSS_TAPS = 5  # samples per axis of the blocker search and of the filter (the default of ShadowMaps.taps,
+# which a map set's lookups read: MapSet.taps)
 
 
 @wp.func
@@ -91,7 +92,7 @@ def _range_says(ms: MapSet, s: int, xl: float, xh: float, yl: float, yh: float, 
                 a1: wp.vec2, a2: wp.vec2) -> int:
     """What the depth range pyramid says of every tap of the widest boxes (scale g) about the texel
     box xl..xh, yl..yh at view depths zl..zh: 0 none is blocked, 1 all are, -1 unknown."""
-    e = g * (1.0 - 1.0 / float(PCSS_TAPS))
+    e = g * (1.0 - 1.0 / float(ms.taps))
     hx = e * (wp.abs(a1[0]) + wp.abs(a2[0])) + 1.0e-3
     hy = e * (wp.abs(a1[1]) + wp.abs(a2[1])) + 1.0e-3
     x0 = int(wp.floor(xl - hx + 0.5))
@@ -128,7 +129,7 @@ def _blockers(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2:
         return wp.vec2(float(known), 0.0)
     zsum = float(0.0)
     nb = float(0.0)
-    n = PCSS_TAPS
+    n = ms.taps
     for a in range(n):
         for b in range(n):
             u = (2.0 * (float(a) + 0.5) / float(n) - 1.0) * gs
@@ -162,7 +163,7 @@ def _run_blockers(ms: MapSet, s: int, a1: wp.vec2, a2: wp.vec2, xl: float, xh: f
         return wp.vec2(float(known), 0.0)
     gm = wp.min(wp.max(zm - zn, 0.0) / (zm * zn), lim)
     gl = wp.min(wp.max(zl - zn, 0.0) / (zl * zn), lim)
-    step = 2.0 * gm * l1 / float(PCSS_TAPS)
+    step = 2.0 * gm * l1 / float(ms.taps)
     if gl * l1 < 0.5 or wp.max(xh - xl, yh - yl) > step or (gh - gl) * l1 > step:
         return wp.vec2(3.0, 0.0)
     sb = _blockers(ms, s, xm, ym, zm, a1, a2, gm)
@@ -194,7 +195,7 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: 
         if sb[0] >= 0.0:  # no blocker found (lit), or every tap of the widest box blocked: the narrower too (umbra)
             return sb[0]
         zb = sb[1]
-    n = PCSS_TAPS
+    n = ms.taps
     g = wp.min((z - zb) / (z * zb), gs)
     if g * l1 < 0.5:
         return _hard(ms, s, x, y, z)

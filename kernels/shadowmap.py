@@ -64,6 +64,7 @@ class MapSet:
     box_lo: wp.vec3  # the proxy's bounding box, widened by BOX_MARGIN: what a ray-mode map's segments must meet
     box_hi: wp.vec3
     cull: int  # 1: skip triangles facing away from the eye (closed proxies cast the same shadow)
+    taps: int  # samples per axis of a cluster map's PCSS blocker search and filter (kernels.masked_sums.penumbra)
 
 
 @wp.func
@@ -280,6 +281,7 @@ class ShadowMaps:
     res: int = 256
     bias: float = 2e-3
     device: str | None = None
+    taps: int = 5  # MapSet.taps: the PCSS taps per axis of these maps' lookups (kernels.masked_sums.PCSS_TAPS)
 
     def __post_init__(self) -> None:
         self.device = d = runtime.device(self.device)
@@ -310,6 +312,7 @@ class ShadowMaps:
         self.ms.box_lo = wp.vec3(0.0, 0.0, 0.0)
         self.ms.box_hi = wp.vec3(0.0, 0.0, 0.0)
         self.ms.cull = 0
+        self.ms.taps = int(self.taps)
         self.n = 0  # maps in the current batch
         self.n_ray = 0  # of them in ray mode (the masked sums launch their kernel only if any)
         self._soft = False  # the batch has cluster maps (a spread): raster builds their pyramids

@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from app import runtime
 from kernels.buffers import Buffer
-from kernels.masked_sums import MaskedSum
+from kernels.masked_sums import PCSS_TAPS, MaskedSum
 from kernels.maskfill import WindowFill
 from kernels.shadowmap import ShadowMaps
 from kernels.visibility import Occluder
@@ -146,12 +146,22 @@ class ShadowPass:
         self._twin = {id(self.maps_full): ShadowMaps(batch, map_res, device=device)}
         if self.maps_cluster is not self.maps_full:
             self._twin[id(self.maps_cluster)] = ShadowMaps(batch, self.maps_cluster.res, device=device)
+        self.set_taps(PCSS_TAPS)
         self.pipelined = wp.get_device(device).is_cpu  # False: each batch drawn, then summed (A/B; CUDA: async anyway)
         self.maps = self.maps_full  # the last frame's
         self.weights = Buffer((n_recv_vert + P, batch), wp.vec3, device)  # pixel rows, then centre rows
         self.cand = Buffer((P, batch), wp.uint8, device)
         self._fill = WindowFill(W, H, self.pix_quad, device)
         self._covered = np.zeros(H * W, bool)  # scratch: pixels the object covers, this frame
+
+    def set_taps(self, taps: int) -> None:
+        """The PCSS taps per axis of every map set's cluster lookups from now on (ShadowMaps.taps; the
+        frames at rest keep kernels.masked_sums.PCSS_TAPS, the drag frame app.dragframe.DRAG_PCSS_TAPS)."""
+        if taps < 2:
+            raise ValueError(f"a PCSS lookup takes at least 2 taps per axis, got {taps}")
+        self.taps = int(taps)
+        for m in {id(m): m for m in (self.maps_full, self.maps_cluster, *self._twin.values())}.values():
+            m.taps = m.ms.taps = self.taps
 
     # ------------------------------------------------------------------ per frame
     def run(self, proxy: tuple[np.ndarray, np.ndarray, Occluder | None], centre: np.ndarray, radius: float,

@@ -319,9 +319,9 @@ def test_ray_mode_culling_by_the_proxy_box(device):
 # cluster maps: the penumbra of a map that stands for a spread of sources (kernels.masked_sums.penumbra)
 # ----------------------------------------------------------------------------------------------------------
 
-def _cluster_sums(device, pts, eyes, spread, cull=True, res=256, axes=None, tile=None):
+def _cluster_sums(device, pts, eyes, spread, cull=True, res=256, axes=None, tile=None, taps=None):
     S = len(eyes)
-    maps = ShadowMaps(S, res, device=device)
+    maps = ShadowMaps(S, res, device=device) if taps is None else ShadowMaps(S, res, device=device, taps=taps)
     maps.set_proxy(PLATE_V, PLATE_F)
     n = maps.prepare(eyes, spread, axes)
     maps.raster(0, n)
@@ -357,6 +357,24 @@ def test_spread_gives_the_square_light_penumbra(device):
     assert pen.sum() > 500 and np.all((frac >= 0) & (frac <= 1))
     assert np.abs(frac - ref).mean() < 0.02 and np.abs(frac - ref)[pen].mean() < 0.08
     assert np.abs(frac[pen] - 0.5).mean() < 0.45  # soft: not the hard 0/1 of one point source
+
+
+def test_fewer_taps_keep_the_square_light_penumbra(device):
+    # the drag frame's lookups (ShadowMaps.taps = app.dragframe.DRAG_PCSS_TAPS, 3 per axis, against 5 at
+    # rest): the square light's penumbra of the test above, each point within a coarser step of the mean of
+    # 21 x 21 point sources (1/9 of the light per tap), and no bias: the occluded light sums to the
+    # reference's within 2 %
+    h = 0.2
+    pts = _floor_grid(step=0.02, ext=1.5)
+    eye = np.array([[0.0, 2.5, 0.0]])
+    _, frac = _cluster_sums(device, pts, eye, np.array([h]), taps=3)
+    g = np.linspace(-h, h, 21)
+    ref = _exact(pts, np.array([[x, 2.5, z] for x in g for z in g]))[0].mean(1)
+    pen = (ref > 0) & (ref < 1)
+    assert pen.sum() > 500 and np.all((frac >= 0) & (frac <= 1))
+    assert np.abs(frac - ref).mean() < 0.025 and np.abs(frac - ref)[pen].mean() < 0.12
+    assert abs(frac.sum() / ref.sum() - 1.0) < 0.02
+    assert np.abs(frac[pen] - 0.5).mean() < 0.45  # still soft
 
 
 def test_small_cells_share_a_blocker_search(device):
