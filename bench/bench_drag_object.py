@@ -5,8 +5,9 @@ usage: python bench/bench_drag_object.py [--scenes window_room,lamps_room,sun_ro
 
 Per scene (a shared scene's name or a benchmark folder, e.g. ~/.cache/photoar/rooms/sun_101) one Engine; the
 drag frame (FrameConfig(passes, drag=DRAG_SCALE)) with Engine.drag_object_tables True ("tables":
-app.stages.object_drag) and False ("rest": the object shaded and its light sent as at rest, the drag
-frame before) rendered alternately along a drag of --path poses (app.dragpath; the first pose excluded).
+app.stages.object_drag), the same with the object light's far field per triangle ("far_each": ObjectLight.far_cells
+None, the drag frame before DRAG_FAR_CELLS) and with drag_object_tables False ("rest": the object shaded and its
+light sent as at rest) rendered alternately along a drag of --path poses (app.dragpath; the first pose excluded).
 Prints per configuration the path's mean object_shading / object_light / frame ms and the frame's time outside
 Warp kernels ("python", app.glue), and at the scene's own
 pose the drag frame's error: rmse of the object's pixels (8-bit levels, pixels the all-sources frame covers
@@ -26,6 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.composite import default_cache_dir  # noqa: E402
 from app.config import DRAG_SCALE  # noqa: E402
+from app.stages.object_light import DRAG_FAR_CELLS  # noqa: E402
 from app.dragpath import drag_offsets, moved  # noqa: E402
 from app.engine import Engine, EngineParams, FrameConfig  # noqa: E402
 from bench.bench_drag import scene_dir  # noqa: E402
@@ -51,10 +53,12 @@ def bench_scene(d: Path, n_path: int, passes: int, rounds: int = 2) -> dict:
     cfg = FrameConfig(passes=passes, drag=DRAG_SCALE)
     offsets = drag_offsets(scene, scene.obj, n_path)
     out = {"scene": str(d), "all_sources": metrics.score_regions(full.pixels, scene.photo, truth, mask), "rows": {}}
-    times = {k: [] for k in ("tables", "rest")}
+    times = {k: [] for k in ("tables", "far_each", "rest")}
+    ol = eng.pixel_stages(DRAG_SCALE).object_light
     for r in range(rounds):
         for name in times:
-            eng.drag_object_tables = name == "tables"
+            eng.drag_object_tables = name != "rest"
+            ol.far_cells = None if name == "far_each" else DRAG_FAR_CELLS
             fr = eng.render(scene.obj, cfg)
             if r == 0:
                 s = metrics.score_regions(fr.pixels, scene.photo, truth, mask)
@@ -83,10 +87,10 @@ def main() -> None:
         al = res["all_sources"]
         print(f"\n{res['scene']}: all sources rmse_object {al['rmse_object']:.2f}, rmse_affected "
               f"{al['rmse_affected']:.2f}, energy {al['energy_ratio']:.3f}")
-        print(f"{'object':>7} {'shading ms':>10} {'light ms':>9} {'frame ms':>9} {'python ms':>9}  {'obj vs all':>10} "
+        print(f"{'object':>8} {'shading ms':>10} {'light ms':>9} {'frame ms':>9} {'python ms':>9}  {'obj vs all':>10} "
               f"{'rmse_obj':>8} {'rmse_aff':>8} {'energy':>7}")
         for name, r in res["rows"].items():
-            print(f"{name:>7} {r['object_shading_ms']:10.1f} {r['object_light_ms']:9.1f} {r['frame_ms']:9.1f} "
+            print(f"{name:>8} {r['object_shading_ms']:10.1f} {r['object_light_ms']:9.1f} {r['frame_ms']:9.1f} "
                   f"{r['python_ms']:9.1f}  "
                   f"{r['object_vs_all_sources']:10.2f} {r['rmse_object']:8.2f} {r['rmse_affected']:8.2f} "
                   f"{r['energy_ratio']:7.3f}")

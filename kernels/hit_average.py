@@ -40,11 +40,14 @@ def _hit_average_kernel(ww: int, s: int, tri: wp.array(dtype=wp.int32), bary: wp
 
 
 def hit_average(hits, faces: np.ndarray, L_vert: np.ndarray, add: np.ndarray | None, colour: np.ndarray | None,
-                device: str, workspace: Workspace) -> np.ndarray:
+                device: str, workspace: Workspace, out: "FrameImage | None" = None) -> np.ndarray:
     """(H,W,3) float64: the object's radiance per pixel (module docstring) from the camera hits `hits`
     (app.stages.object_shading.ObjectHits), the shading mesh's faces (F,3) and vertex radiance L_vert (V,3),
-    and per sub-sample `add` (n,) of `colour` (3,) (None: none). workspace: the call site's buffers (kept)."""
-    out = np.zeros((hits.H, hits.W, 3))
+    and per sub-sample `add` (n,) of `colour` (3,) (None: none). workspace: the call site's buffers (kept).
+    out: a kept FrameImage to write into (no full-frame array made or cleared per call; the result is its
+    array, valid until the next call with it), or None (a new array)."""
+    kept = out
+    out = np.zeros((hits.H, hits.W, 3)) if kept is None else kept.clear(hits.H, hits.W)
     u0, v0, u1, v1 = hits.rect
     if u1 < u0 or not hits.hit.any():
         return out
@@ -65,4 +68,27 @@ def hit_average(hits, faces: np.ndarray, L_vert: np.ndarray, add: np.ndarray | N
                       wp.vec3d(*np.asarray(colour, np.float64))],
               outputs=[res.dev[:hh * ww]])
     out[v0:v1 + 1, u0:u1 + 1] = res.pull(hh * ww).reshape(hh, ww, 3)
+    if kept is not None:
+        kept.written(hits.rect)
     return out
+
+
+class FrameImage:
+    """A kept (H,W,3) float64 image of which only a rectangle is non-zero: `clear` zeroes the rectangle the
+    last `written` named (not the frame) and returns the image; hit_average's `out`."""
+
+    def __init__(self) -> None:
+        self.image: np.ndarray | None = None
+        self.rect: tuple[int, int, int, int] | None = None  # (u0, v0, u1, v1) inclusive, the last written
+
+    def clear(self, H: int, W: int) -> np.ndarray:
+        if self.image is None or self.image.shape[:2] != (H, W):
+            self.image, self.rect = np.zeros((H, W, 3)), None
+        elif self.rect is not None:
+            u0, v0, u1, v1 = self.rect
+            self.image[v0:v1 + 1, u0:u1 + 1] = 0.0
+            self.rect = None
+        return self.image
+
+    def written(self, rect: tuple[int, int, int, int]) -> None:
+        self.rect = tuple(int(x) for x in rect)

@@ -12,9 +12,10 @@ up axis +Y keeps every table), and per frame only the room's light is looked up:
   cos / sin of m x yaw), interpolated trilinearly and dotted with each vertex's cached self-occlusion
   transfer (PRT, kernels.shade.self_transfer: the same transfer the frame at rest uses);
 - the exact emitters (lamps, windows, the sunlit floor patches): unoccluded polygon form factors at the
-  vertices (kernels.formfactor, no rays) x the object's own visibility toward each emitter, read from
+  vertices (kernels.formfactor) x the object's own visibility toward each emitter, read from
   the cached PRT rays binned by direction (VIS_RES^2 octahedral cells) x the room's visibility, one ray
-  per probe and emitter group, interpolated;
+  per probe and emitter group, interpolated, summed per vertex in one kernel (kernels.drag_gather; so are
+  the near changed patches' form factors below);
 - the sun: cos x the object's own shadow (rays cast once per shape and sun direction in the object's
   frame: a translation casts none) x the room's shadow: the opening the sun comes through, per vertex
   (a plane and a quad: no ray), and what else blocks it, at the probes, interpolated.
@@ -29,16 +30,19 @@ Units: radiance; E as irradiance / pi, as in app.stages.object_shading.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+import warp as wp
 from scipy.spatial import cKDTree
 
+from app.runtime import split as split_launches
 from kernels.buffers import Workspaces
-from kernels.formfactor import point_to_polygon
-from kernels.hit_average import hit_average
+from kernels.drag_gather import gather_seen
+from kernels.hit_average import FrameImage, hit_average
 from kernels.raycast import cast_rays
 from kernels.visibility import Occluder
 from lighting import sh
@@ -236,6 +240,14 @@ class DragShape:
         self.own = Occluder(local, faces, device)  # for the sun's self-shadow, cast in this frame
         self._sun: dict[tuple, np.ndarray] = {}
         self._to_proxy: tuple[str, sp.csr_matrix] | None = None  # (proxy key, its map) of the last proxy
+        self.all_rows = np.arange(len(self.lu))  # every distinct vertex's row of `vis`
+        self._vis_dev: dict[str, wp.array] = {}  # `vis` on a device (kernels.drag_gather), made once
+
+    def vis_on(self, device: str) -> wp.array:
+        """The visibility table `vis` as a Warp array on `device` (uploaded once per shape)."""
+        if device not in self._vis_dev:
+            self._vis_dev[device] = wp.array(self.vis, dtype=wp.float32, device=device)
+        return self._vis_dev[device]
 
     def to_proxy(self, pv_local: np.ndarray, pf: np.ndarray) -> sp.csr_matrix:
         """(T,V) sparse: the radiance of each triangle of a proxy (vertices pv_local (Tv,3) in this frame, faces
@@ -350,6 +362,8 @@ class DragObject:
         self.last: DragShaded | None = None
         self._pose: tuple | None = None  # (yaw, R, mean) of the last shaded pose
         self._ws = Workspaces()  # per call site: a drag allocates nothing after its first frame
+        self._split = functools.partial(split_launches, device=device, min_items=64)
+        self._radiance = FrameImage()  # the per-pixel radiance, kept: only the object's rectangle is rewritten
 
     def shape(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, R: np.ndarray) -> tuple[DragShape, np.ndarray]:
         """(the DragShape of the shading mesh (v, n, f) at a pose of rotation R, its centre (3,))."""
@@ -368,7 +382,8 @@ class DragObject:
     def shade(self, obj, mesh, hits, dB: np.ndarray | None = None, sun_dB: np.ndarray | None = None
               ) -> DragShaded | None:
         """The object's radiance at its camera hits from the per-shape tables (module docstring); None when
-        the object is not turned about +Y only (the caller shades it as at rest)."""
+        the object is not turned about +Y only (the caller shades it as at rest). The per-pixel radiance
+        (shaded.radiance) is a kept image, valid until the next call (the frame composes it before then)."""
         from app.stages.object_shading import ShadedObject
 
         yaw = yaw_of(obj.object_to_world)
@@ -415,31 +430,28 @@ class DragObject:
         em, (start, polys) = osh.emitter_groups()
         if len(em):
             rad = rl.radiance[em[start[:-1]]]  # (G,3) one radiance per group
-            F = point_to_polygon(vu, nu, polys, device=self.device, workspace=self._ws.get("drag.ff"))  # (U,G)
             cen = polys.mean(1)  # (G,3)
-            to = cen[None] - vu[:, None]  # (U,G,3) world
-            own = np.take_along_axis(ds.vis, _octa_cell(to @ R, VIS_RES), axis=1)  # (U,G)
             dp = cen[None] - probes[:, None]  # (Q,G,3)
             dist = np.linalg.norm(dp, axis=2)
             _, _, depth = cast_rays(rl.occluder, np.repeat(probes, len(cen), 0), (dp / dist[..., None]).reshape(-1, 3),
                                     workspace=self._ws.get("drag.probe_rays"))
             seen = (depth.reshape(dist.shape) >= dist * (1 - 1e-2) - 1e-2).astype(np.float64)  # (Q,G)
-            E_em = (F * own * (ds.weights @ seen)) @ rad
+            # form factors x own visibility by direction x the room's, summed per vertex in one kernel
+            E_em = gather_seen(vu, nu, ds.all_rows, ds.vis_on(self.device), polys, rad, R, VIS_RES, self.device,
+                               self._ws.get("drag.ff"), self._split, weights=ds.weights @ seen)
             E += E_em
             E_proxy += E_em
         if near_light is not None:  # the near changed patches: exact form factors x own visibility (no room's); the
             # sun's loss (a large, sharp loss right beside the object) at every vertex, the rest at the spread subset
             # of vertices the frame at rest gathers them at, interpolated (ShapeShading.sub), as at rest
-            kn, corners, cen, rad = near_light
+            kn, corners, _, rad = near_light
             sunny = np.abs(sun_dB[kn]).sum(1) > 0 if sun_dB is not None else np.zeros(len(kn), bool)
-            for part, rows in ((~sunny, ss.sub), (sunny, slice(None))):
+            for part, rows in ((~sunny, ss.sub), (sunny, ds.all_rows)):
                 if not part.any():
                     continue
-                F = point_to_polygon(vu[rows], nu[rows], corners[part], device=self.device,
-                                     workspace=self._ws.get(f"drag.near_ff.{part is sunny}"), capacity=DB_MAX)
-                own = np.take_along_axis(ds.vis[rows], _octa_cell((cen[part][None] - vu[rows][:, None]) @ R, VIS_RES),
-                                         axis=1)
-                E_near = (F * own) @ rad[part]
+                E_near = gather_seen(vu[rows], nu[rows], rows, ds.vis_on(self.device), corners[part], rad[part], R,
+                                     VIS_RES, self.device, self._ws.get(f"drag.near_ff.{part is sunny}"), self._split,
+                                     capacity=DB_MAX)
                 if part is not sunny:
                     E_near = ss.interpolate(E_near)
                 E += E_near
@@ -487,7 +499,7 @@ class DragObject:
                     np.isfinite(osh.sun.exit_distance(p))
             colour = albedo * (osh.sun.sun.irradiance / np.pi)
         radiance = hit_average(hits, f, L_vert - L_sun if L_sun is not None else L_vert, add, colour, self.device,
-                               self._ws.get("drag.hits"))
+                               self._ws.get("drag.hits"), self._radiance)
         shaded = ShadedObject(radiance, L_vert, sun_vis)
         self.last = DragShaded(shaded, L_sun, L_proxy + L_sun if L_sun is not None else L_proxy)
         return self.last

@@ -11,6 +11,7 @@ import hashlib
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from app.config import ObjectConfig
 from kernels.buffers import Workspace, Workspaces
@@ -151,6 +152,38 @@ def _far_emitters(tris: np.ndarray, rad: np.ndarray, seen: np.ndarray, extra: Ex
                                                              extra.far_seen)))
 
 
+class FarGroups:
+    """The far field's point emitters of one proxy shape merged by cell (`cells` a side of their box) and facing
+    axis, as _source_groups groups them (a drag frame's far field, ObjectLight.far_cells: at most 48 emitters in
+    place of the proxy's triangles). Per group the summed area normal tn_g = sum tn_t, and the centroid, the
+    radiance and the visibility rows averaged with weights w_t = tn_t . tn_g / |tn_g| (each member's area
+    projected on the group's facing; a fractional table, which point_emitter_sum takes). For a receiver in front
+    of every member this keeps sum_t B_t cos_t A_t to first order in the members' spread over the distance; at
+    FAR_FIELD (3) radii and 2 cells a side the spread is under half the distance. Made once per shape (the
+    grouping, the normals and the table do not change with a translation); per frame two sparse products."""
+
+    def __init__(self, c: np.ndarray, tn: np.ndarray, seen: np.ndarray, cells: int):
+        nrm = tn / np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
+        ax = np.abs(nrm).argmax(1)
+        facing = 2 * ax + (nrm[np.arange(len(nrm)), ax] < 0)
+        k = cells
+        lo, hi = c.min(0), c.max(0)
+        cell = np.clip(((c - lo) / np.maximum(hi - lo, 1e-9) * k).astype(np.int64), 0, k - 1)
+        _, group = np.unique((cell @ np.array([1, k, k * k])) * 6 + facing, return_inverse=True)
+        m = int(group.max()) + 1 if len(group) else 0
+        self.tn = np.stack([np.bincount(group, tn[:, j], m) for j in range(3)], 1)
+        n_g = self.tn / np.maximum(np.linalg.norm(self.tn, axis=1, keepdims=True), 1e-12)
+        w = np.maximum(np.einsum("tc,tc->t", tn, n_g[group]), 0.0)
+        wsum = np.maximum(np.bincount(group, w, m), 1e-30)
+        self.W = sp.csr_matrix((w / wsum[group], (group, np.arange(len(group)))), shape=(m, len(group)))
+        self.seen = np.asarray(self.W @ np.asarray(seen, np.float64), np.float32)
+
+    def emitters(self, c: np.ndarray, rad: np.ndarray) -> tuple:
+        """(centres (G,3), twice the area x unit normal (G,3), radiance (G,3), visibility rows (G, 6 CUBE_RES^2))
+        of the groups, for the triangles' centroids c (T,3) and radiance rad (T,3) of this frame."""
+        return self.W @ c, self.tn, self.W @ np.asarray(rad, np.float64), self.seen
+
+
 ROOM_EPS = 1e-3  # m: a receiver's end of its segments to the object pulled off its surface along its normal
 ROOM_CELLS = 2  # cells a side of the object's box that group its light into point sources (room_share;
 # 3 and 4 gave the same error against a ray per (receiver, triangle) on sun_102's receiver vertices)
@@ -271,6 +304,10 @@ def _headroom_at(resp, L: np.ndarray, levels: float) -> np.ndarray:
 
 
 FAR_FIELD = 3.0  # bounding radii from the object's centre beyond which its triangles act as point sources
+# The drag frame's far field merges them 2 cells a side (ObjectLight.far_cells, FarGroups): at most 48
+# point emitters, each spanning at most half the object's box, seen from FAR_FIELD radii or farther; the same
+# grouping as room_share's (ROOM_CELLS: 3 and 4 a side gave 2's error there)
+DRAG_FAR_CELLS = 2
 
 
 CUBE_RES = 8  # cells per cube face side of the proxy triangles' visibility table (TriangleVisibility)
@@ -430,7 +467,8 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
                centre: np.ndarray, radius: float, device, tvis: TriangleVisibility | None = None,
                ws: Workspace | None = None, far_emitters: tuple | None = None,
                extra: ExtraEmitters | None = None, free: np.ndarray | None = None,
-               room: Occluder | None = None, room_cells: int = ROOM_CELLS) -> np.ndarray:
+               room: Occluder | None = None, room_cells: int = ROOM_CELLS, far_groups: FarGroups | None = None
+               ) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3) at points (N,3) [normals (N,3)]: exact (emitter_sum) within
     FAR_FIELD bounding radii of the object; beyond, where each triangle subtends a small solid angle,
     the point-source form factor A_t cos_x cos_t / (pi r^2) times the triangle's own visibility
@@ -441,7 +479,8 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     more emitters summed exactly within FAR_FIELD (_exact_sum), or None. free: the shape's free_cells
     (fewer rays in the exact sum), or None. room: the room's occluder, whose walls and furniture between
     a point and the object take their share of its light (room_share, its light grouped in room_cells a side), or
-    None (the object alone)."""
+    None (the object alone). far_groups: the triangles' far field merged (FarGroups of this shape; used when no
+    far_emitters are given), None: each triangle its own."""
     out = np.zeros((len(points), 3))
     far = np.linalg.norm(points - centre, axis=1) > FAR_FIELD * radius
     near = np.flatnonzero(~far)
@@ -449,7 +488,9 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
         out[near] = _exact_sum(points[near], normals[near], tris, tri_rad, proxy_occ, device, ws, extra, free)
     far = np.flatnonzero(far)
     if len(far):
-        if far_emitters is None:
+        if far_emitters is None and far_groups is not None:
+            c, tn, rad, seen = far_groups.emitters(tris.mean(1), tri_rad)
+        elif far_emitters is None:
             c = tris.mean(1)
             tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # (T,3) twice the area x normal
             rad = tri_rad
@@ -614,6 +655,10 @@ class ObjectLight:
         # cells a side of the object's box that group its light for the room's share (room_share): ROOM_CELLS;
         # a drag frame sets app.dragframe.DRAG_ROOM_CELLS
         self.room_cells = ROOM_CELLS
+        # the far field's emitters merged this many cells a side (FarGroups), None: every triangle its own (at
+        # rest); a drag frame sets DRAG_FAR_CELLS (Engine.pixel_stages)
+        self.far_cells: int | None = None
+        self._far_groups: tuple | None = None  # (shape key, cells, FarGroups) of the last proxy shape
         self.n_pixels = 0  # pixels the last frame evaluated per pixel (the near region)
         self.n_exact = 0  # of those, the ones summed exactly (the rest blended on the screen grid)
         self._workspaces = Workspaces()
@@ -671,7 +716,7 @@ class ObjectLight:
         rv = self.recv_vert
         R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, self.device,
                          tvis, self._workspaces.get("object_light.vertices"), far, extra, shape.free,
-                         room=self.scene_occ, room_cells=self.room_cells)
+                         room=self.scene_occ, room_cells=self.room_cells, far_groups=self.far_groups(pv, pf, shape))
         # the pixels of the patches with a vertex that gets a visible share of the object's light take
         # the vertices' light, interpolated
         reach_v = luminance(R_v) * float(self.rho_x.max()) > 5e-4 * float(luminance(self.B_src).mean())
@@ -719,7 +764,8 @@ class ObjectLight:
         R_cen = np.zeros((pm.n_patches, 3))
         R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, rad, proxy_occ, centre, radius,
                                    self.device, shape.visibility, self._workspaces.get(site), far, extra, free,
-                                   room=self.scene_occ, room_cells=self.room_cells)
+                                   room=self.scene_occ, room_cells=self.room_cells,
+                                   far_groups=self.far_groups(pv, pf, shape) if faces is None else None)
         return R_cen
 
     def sun_centre_light(self, pv, pf, sun_rad, proxy_occ, centre, radius, extra: ExtraEmitters | None,
@@ -816,6 +862,19 @@ class ObjectLight:
             h[new] = _headroom_at(self.response, self.L_b[new], levels)
             known[new] = True
         return h[idx]
+
+    def far_groups(self, pv: np.ndarray, pf: np.ndarray, shape: ProxyShape) -> FarGroups | None:
+        """The proxy's FarGroups (far_cells a side), kept for the last shape; None without far_cells."""
+        if self.far_cells is None:
+            return None
+        key = shape_key(pv, pf)
+        cached = self._far_groups
+        if cached is None or cached[0] != key or cached[1] != self.far_cells:
+            tris = pv[pf]
+            tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+            cached = self._far_groups = (key, self.far_cells, FarGroups(tris.mean(1), tn, shape.visibility.seen,
+                                                                        self.far_cells))
+        return cached[2]
 
     def proxy_shape(self, pv: np.ndarray, pf: np.ndarray, proxy_occ: Occluder) -> ProxyShape:
         """The proxy's ProxyShape, kept for the last shape (shape_key)."""

@@ -203,3 +203,70 @@ def test_frame_timer_splits_each_stage_into_kernels_and_glue():
     assert sum(ft.timings.values()) <= frame_s
     point_to_polygon(pts, nrm, poly, device="cpu")
     assert ft.clock.seconds == k
+
+
+def test_gather_seen_kernel_matches_the_numpy_gather():
+    # kernels.drag_gather against what object_drag computed before it, in numpy: point_to_polygon's (N,M) form
+    # factors x the visibility table read at each (vertex, polygon)'s octahedral cell of the direction in the
+    # object's frame x a weight, times the polygons' radiance; float64 both, so within 1e-12 relative (sum order)
+    import warp as wp
+
+    from app.stages.object_drag import VIS_RES, _octa_cell
+    from kernels.buffers import Workspace
+    from kernels.drag_gather import gather_seen
+    from kernels.formfactor import point_to_polygon
+
+    rng = np.random.default_rng(3)
+    N, M = 200, 37
+    pts = rng.uniform(-0.4, 0.4, (N, 3)) + [0.0, 0.5, 0.0]
+    nrm = rng.normal(size=(N, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    # floor-like quads below and around the points, emitting upward (counter-clockwise seen from above)
+    c = np.stack([rng.uniform(-1.5, 1.5, M), rng.uniform(-0.1, 0.05, M), rng.uniform(-1.5, 1.5, M)], 1)
+    h = rng.uniform(0.05, 0.3, (M, 1, 1))
+    polys = c[:, None] + h * np.array([[-1.0, 0, -1], [-1, 0, 1], [1, 0, 1], [1, 0, -1]])
+    rad = rng.uniform(0.0, 2.0, (M, 3))
+    vis = rng.uniform(0.0, 1.0, (N, VIS_RES ** 2)).astype(np.float32)
+    w = rng.uniform(0.0, 1.0, (N, M))
+    R = rot_y(0.83)
+    rows = rng.permutation(N)
+    F = point_to_polygon(pts, nrm, polys, device="cpu")
+    own = np.take_along_axis(vis[rows], _octa_cell((polys.mean(1)[None] - pts[:, None]) @ R, VIS_RES), axis=1)
+    ref = (F * own * w) @ rad
+    assert (F > 0).mean() > 0.3  # the case exercises the sum
+    got = gather_seen(pts, nrm, rows, wp.array(vis, dtype=wp.float32, device="cpu"), polys, rad, R, VIS_RES, "cpu",
+                      Workspace(), weights=w)
+    np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-14)
+    got = gather_seen(pts, nrm, rows, wp.array(vis, dtype=wp.float32, device="cpu"), polys, rad, R, VIS_RES, "cpu",
+                      Workspace())
+    np.testing.assert_allclose(got, (F * own) @ rad, rtol=1e-10, atol=1e-14)
+
+
+def test_hit_average_into_a_kept_image_equals_a_fresh_one():
+    # the drag frame's object radiance is written into a kept image (kernels.hit_average.FrameImage) whose last
+    # rectangle is cleared, not the frame: two calls with rectangles that overlap in part give, each, exactly
+    # the image a fresh call gives (zero outside its own rectangle, the hits' mean inside)
+    from types import SimpleNamespace
+
+    from kernels.buffers import Workspace
+    from kernels.hit_average import FrameImage, hit_average
+
+    rng = np.random.default_rng(5)
+    H, W, s = 24, 32, 2
+    faces = rng.integers(0, 40, (60, 3))
+    L = rng.uniform(0.0, 3.0, (40, 3))
+
+    def hits(rect):
+        u0, v0, u1, v1 = rect
+        n = (v1 - v0 + 1) * s * (u1 - u0 + 1) * s
+        bary = rng.dirichlet(np.ones(3), n).astype(np.float32)
+        return SimpleNamespace(H=H, W=W, s=s, rect=rect, tri=rng.integers(0, 60, n), bary=bary,
+                               hit=rng.uniform(size=n) < 0.7)
+
+    kept, ws = FrameImage(), Workspace()
+    for rect in ((3, 2, 20, 15), (10, 8, 30, 22), (0, 0, 5, 4)):
+        h = hits(rect)
+        got = hit_average(h, faces, L, None, None, "cpu", ws, kept)
+        ref = hit_average(h, faces, L, None, None, "cpu", Workspace())
+        assert got is kept.image and np.abs(ref).sum() > 1.0
+        np.testing.assert_array_equal(got, ref)
