@@ -59,9 +59,10 @@ photo gives everything else, read through a response that is assumed, not measur
   bench/bench_photolight.py measures all three priors' effect on the composite.
 
 Priors (not fitted to any scene): wall albedo 0.55 (a mid-grey painted wall; interior walls are
-0.5-0.8, floors 0.2-0.5, so one grey value for every seen surface), unseen reflectivity 0.5 (the
-seed's value for patches nobody sees), an unseen ceiling 0.8 (white ceiling paint; the lighting
-handbooks' recommended ceiling reflectance is 0.7-0.9), response sRGB.
+0.5-0.8, floors 0.2-0.5, so one grey value for every seen surface; with a measured response it is
+only the fit's start), unseen reflectivity 0.5 (the seed's value for patches nobody sees), an unseen
+ceiling 0.8 (white ceiling paint; the lighting handbooks' recommended ceiling reflectance is
+0.7-0.9), response sRGB where the folder measures none.
 """
 from __future__ import annotations
 
