@@ -6,7 +6,8 @@ usage: python bench/bench_photolight.py [--shared ../shared] [--scenes window_ro
 Per shared scene, stripped of everything photo light must not use (camera_response, albedos and
 textures, emitted_radiance, light_probe; with --keep-bracket the probe's bracket stays, as in a
 user's own room folder, and photo light reads the photo through the response recovered from it
-instead of the assumed sRGB, lighting.photolight.photo_response): the scorer's figures (energy_ratio, rmse_affected and its
+instead of the assumed sRGB, lighting.photolight.photo_response, and the response exponent variant
+changes nothing): the scorer's figures (energy_ratio, rmse_affected and its
 untouched value, spurious, rmse_object) for `composite --lighting photo`, the emitter radiance the
 inverse radiosity estimates next to the declared one, and the same figures with each prior (wall
 albedo, unseen reflectivity, response exponent) varied by -20 % and +20 %. The transfers are

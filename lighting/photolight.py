@@ -1,14 +1,14 @@
 """Radiance mesh from the photo alone: no probe, no declared response, no declared emitters (issue 19).
 
 The scene model gives the geometry, the camera and which quads emit (role window / lamp); the
-photo gives everything else, read through a response that is assumed, not measured:
+photo gives everything else, read through the camera's response where the folder measures it:
 
 * **Response.** The camera's, where the folder has it: the scene's declared camera_response, else
   the one recovered from its probe bracket (lighting.hdr.calibrate_response, as captured light
   recovers it; the bracket's images are used for nothing else: the light still comes from the photo
   alone). Otherwise the standard sRGB curve (IEC 61966-2-1), optionally raised to `gamma_scale` (the
   response prior varied by the sensitivity bench). Radiance is linear / exposure_time, in the
-  response's arbitrary units. A measured response matters twice: the response-film curves of the
+  response's arbitrary units. A measured response matters twice: the camera curves of the
   unseen rooms differ from sRGB by up to 1.5x in linear ratio between level 40 and level 160
   (docs/unseen.md), which the object's light, read off walls at other levels, inherits; and the walls'
   albedo can be read off the interreflections only through the response's slope (below).
