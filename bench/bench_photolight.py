@@ -1,9 +1,13 @@
 """Photo-light benchmark (issue 19): light from the photo alone, and its sensitivity to the priors.
 
 usage: python bench/bench_photolight.py [--shared ../shared] [--scenes window_room lamps_room] [--quick]
+                                        [--keep-bracket]
 
 Per shared scene, stripped of everything photo light must not use (camera_response, albedos and
-textures, emitted_radiance, light_probe): the scorer's figures (energy_ratio, rmse_affected and its
+textures, emitted_radiance, light_probe; with --keep-bracket the probe's bracket stays, as in a
+user's own room folder, and photo light reads the photo through the response recovered from it
+instead of the assumed sRGB, lighting.photolight.photo_response, and the response exponent variant
+changes nothing): the scorer's figures (energy_ratio, rmse_affected and its
 untouched value, spurious, rmse_object) for `composite --lighting photo`, the emitter radiance the
 inverse radiosity estimates next to the declared one, and the same figures with each prior (wall
 albedo, unseen reflectivity, response exponent) varied by -20 % and +20 %. The transfers are
@@ -33,13 +37,17 @@ from lighting.sources import luminance  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
 
-def strip_scene(src: Path, dst: Path) -> Path:
+def strip_scene(src: Path, dst: Path, keep_bracket: bool = False) -> Path:
     """A copy of a benchmark scene folder with only what photo light may use: geometry, roles,
-    camera, photo and the object (no camera_response, albedos, textures, emitted_radiance, probe)."""
+    camera, photo and the object (no camera_response, albedos, textures, emitted_radiance, probe);
+    keep_bracket: the probe's bracket (light_probe and its images) stays, for its response."""
     dst.mkdir(parents=True, exist_ok=True)
     d = json.loads((src / "scene.json").read_text())
-    for k in ("camera_response", "light_probe", "emitters_summary"):
+    for k in ("camera_response", "emitters_summary") + (() if keep_bracket else ("light_probe",)):
         d.pop(k, None)
+    for f in d.get("light_probe", {}).get("ldr_files", []):
+        (dst / f).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(src / f, dst / f)
     for p in d["primitives"]:
         for k in ("albedo", "albedo_texture", "texture_shape", "emitted_radiance"):
             p.pop(k, None)
@@ -61,9 +69,10 @@ def score_png(scene_dir: Path, pixels, shared: Path) -> dict:
 
 def relight(eng: Engine, priors: PhotoPriors):
     """An engine of the same scene with other priors (the transfers from the cache) and one frame of it.
-    Returns the frame and the seconds the new engine took (the fit, the stages; the transfers read)."""
+    Returns the frame, the seconds the new engine took (the fit, the stages; the transfers read) and its
+    fit's report."""
     new = Engine(eng.scene, eng.params, cache_dir=eng.cache_dir, quiet=True, photo_priors=priors)
-    return new.render(new.scene.obj), new.precompute_s
+    return new.render(new.scene.obj), new.precompute_s, new.photo_light
 
 
 def row(scene: str, prior: str, s: dict, fit: dict) -> dict:
@@ -81,6 +90,8 @@ def main() -> int:
     ap.add_argument("--shared", type=Path, default=ROOT.parent / "shared")
     ap.add_argument("--scenes", nargs="+", default=["window_room", "lamps_room"])
     ap.add_argument("--quick", action="store_true", help="nominal priors only (no sensitivity)")
+    ap.add_argument("--keep-bracket", action="store_true",
+                    help="keep the probe bracket: photo light reads the photo through its recovered response")
     a = ap.parse_args()
     base = PhotoPriors()
     variants = [("nominal", base)]
@@ -92,16 +103,16 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for name in a.scenes:
             src = a.shared / "scenes" / name
-            d = strip_scene(src, Path(tmp) / name)
+            d = strip_scene(src, Path(tmp) / name, a.keep_bracket)
             t0 = time.perf_counter()
             eng = Engine(load_scene(d), EngineParams(lighting="photo"), quiet=True)
             pre_s = time.perf_counter() - t0
             declared = load_scene(src).quads
             nominal_lum = 0.0
             for label, pr in variants:
-                frame, fit_s = relight(eng, pr)
+                frame, fit_s, fit = relight(eng, pr)
                 s = score_png(src, frame.pixels, a.shared)
-                rows.append(row(name, label, s, eng.photo_light))
+                rows.append(row(name, label, s, fit))
                 # summed emitter luminance against the nominal priors' (response variants: other units)
                 rows[-1]["emitter_change"] = f"{100 * (rows[-1]['emitter_lum'] / nominal_lum - 1):+.0f}%" \
                     if label != "nominal" and nominal_lum > 0 else ""
@@ -112,12 +123,13 @@ def main() -> int:
                                   "photo_light_fit_s": round(fit_s, 2),
                                   "frame_s": round(frame.stats["frame_s"], 1)})
                     decl = {q.name: [round(float(v), 2) for v in q.emission] for q in declared if q.is_emitter}
-                    for e in eng.photo_light["emitters"]:
-                        emit_rows.append({"scene": name, "emitter": e["name"], "estimated (sRGB units)": e["radiance"],
+                    for e in fit["emitters"]:
+                        emit_rows.append({"scene": name, "emitter": e["name"], "estimated": e["radiance"],
                                           "rel_std": e["rel_std"], "declared (scene units)": decl.get(e["name"], "-")})
     print("photo light: scores of `composite --lighting photo` on stripped scenes, priors varied one at a time")
     print(table(rows, list(rows[0])))
-    print("\nestimated emitter radiance (assumed sRGB response) next to the declared one (true response; unused)")
+    print(f"\nestimated emitter radiance (units of the response photo light read: {fit['response']}) next to the "
+          f"declared one (true response; unused)")
     print(table(emit_rows, list(emit_rows[0])))
     print("\ntimings (this machine, shared CPU: expect 2-4x an idle one)")
     print(table(times, list(times[0])))

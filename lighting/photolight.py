@@ -1,11 +1,17 @@
 """Radiance mesh from the photo alone: no probe, no declared response, no declared emitters (issue 19).
 
 The scene model gives the geometry, the camera and which quads emit (role window / lamp); the
-photo gives everything else, read through a response that is assumed, not measured:
+photo gives everything else, read through the camera's response where the folder measures it:
 
-* **Response.** The photo is read through the standard sRGB curve (IEC 61966-2-1), optionally
-  raised to `gamma_scale` (the response prior varied by the sensitivity bench); radiance is
-  sRGB-linear / exposure_time, in the scene's arbitrary units.
+* **Response.** The camera's, where the folder has it: the scene's declared camera_response, else
+  the one recovered from its probe bracket (lighting.hdr.calibrate_response, as captured light
+  recovers it; the bracket's images are used for nothing else: the light still comes from the photo
+  alone). Otherwise the standard sRGB curve (IEC 61966-2-1), optionally raised to `gamma_scale` (the
+  response prior varied by the sensitivity bench). Radiance is linear / exposure_time, in the
+  response's arbitrary units. A measured response matters twice: the camera curves of the
+  unseen rooms differ from sRGB by up to 1.5x in linear ratio between level 40 and level 160
+  (docs/unseen.md), which the object's light, read off walls at other levels, inherits; and the walls'
+  albedo can be read off the interreflections only through the response's slope (below).
 * **Photo-seen patches** (at least `min_pixels` pixels, fewer than `clipped_share` of them clipped)
   take the photo's mean radiance over all their pixels, a clipped one at the radiance its level
   reads (lighting.radiance.photo_radiance with clipped_share): one clipped pixel of a window seen
@@ -27,10 +33,12 @@ photo gives everything else, read through a response that is assumed, not measur
   least squares of L against E over its seen patches, refitted with the unseen light; the walls' albedo on a wall
   not in view), `ceiling_albedo` on a ceiling not in view, the unseen reflectivity prior elsewhere
   (`unseen_by_surface`, lighting.photoalbedo; off: the prior everywhere).
-* **The walls' albedo** is the prior unless `fit_albedo`: then it is the one that best explains
-  every seen surface's interreflections (lighting.photoalbedo). Exact on an exact model, it does not
-  identify the albedo in the rendered rooms (their texture, the coarse patches, the assumed response
-  bias it low: docs/unseen.md), so it is off.
+* **The walls' albedo** is the one that best explains every seen surface's interreflections
+  (lighting.photoalbedo) when the response is measured (`fit_albedo` None, the default; True / False
+  force it), else the prior. The fit compares the light a patch gets from the other surfaces with
+  the light it gets from the emitters, two parts of one photo at different levels, so its answer is
+  only as good as the response's slope between those levels: with the sRGB assumption it biases the
+  albedo low (window_101 0.49 for a true 0.61), with the measured one it recovers it (docs/unseen.md).
   E_i is then linear in the unknown radiances e; e is the bounded linear least-squares solution
   (scipy.optimize.lsq_linear, e >= the lower bound) of rho E_i(e) = L_i, with residuals
   relative to L_i (every wall counts alike, not only the bright ones near the window).
@@ -51,15 +59,17 @@ photo gives everything else, read through a response that is assumed, not measur
   bench/bench_photolight.py measures all three priors' effect on the composite.
 
 Priors (not fitted to any scene): wall albedo 0.55 (a mid-grey painted wall; interior walls are
-0.5-0.8, floors 0.2-0.5, so one grey value for every seen surface), unseen reflectivity 0.5 (the
-seed's value for patches nobody sees), an unseen ceiling 0.8 (white ceiling paint; the lighting
-handbooks' recommended ceiling reflectance is 0.7-0.9), response sRGB.
+0.5-0.8, floors 0.2-0.5, so one grey value for every seen surface; with a measured response it is
+only the fit's start), unseen reflectivity 0.5 (the seed's value for patches nobody sees), an unseen
+ceiling 0.8 (white ceiling paint; the lighting handbooks' recommended ceiling reflectance is
+0.7-0.9), response sRGB where the folder measures none.
 """
 from __future__ import annotations
 
 import dataclasses
 import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -86,8 +96,8 @@ class PhotoPriors:
     clipped_share: float = 0.5  # a patch is a clipped region when this share of its pixels is clipped
     relative: bool = True  # residuals relative to each wall's radiance (False: absolute)
     surface_albedos: bool = False  # floors, ceilings, furniture join the fit, each with its own albedo
-    fit_albedo: bool = False  # the walls' albedo from the interreflections (lighting.photoalbedo): does not
-    # identify it in the unseen rooms (docs/unseen.md), so off
+    fit_albedo: bool | None = None  # the walls' albedo from the interreflections (lighting.photoalbedo);
+    # None: when the response is measured (it needs the response's slope), True / False: always / never
     unseen_by_surface: bool = True  # unseen patches reflect as their surface's seen part (lighting.photoalbedo)
     ceiling_albedo: float = 0.8  # an unseen ceiling's reflectivity with unseen_by_surface / fit_albedo
 
@@ -111,20 +121,66 @@ def srgb_response(exposure_time: float = 1.0, gamma_scale: float = 1.0) -> Camer
     inv = np.where(z <= 0.04045, z / 12.92, ((z + 0.055) / 1.055) ** 2.4) ** gamma_scale
     xl = z ** (1.0 / gamma_scale)  # forward samples at X = i/255
     fwd = np.where(xl <= 0.0031308, 12.92 * xl, 1.055 * xl ** (1 / 2.4) - 0.055)
-    return CameraResponse(np.tile(fwd, (3, 1)), np.tile(inv, (3, 1)), exposure_time)
+    src = "sRGB (assumed)" if gamma_scale == 1 else f"sRGB^-1 ** {gamma_scale} (assumed)"
+    return PhotoResponse(np.tile(fwd, (3, 1)), np.tile(inv, (3, 1)), exposure_time, source=src)
+
+
+@dataclass
+class PhotoResponse(CameraResponse):
+    """The response photo light reads the photo through: where it came from (`source`, for the report)
+    and whether it was measured (declared or recovered from a bracket) or assumed (sRGB)."""
+
+    source: str = "sRGB (assumed)"
+    measured: bool = False
+
+
+def photo_response(scene, priors: PhotoPriors | None = None) -> PhotoResponse:
+    """The response photo light reads the photo through (module docstring): the scene's declared
+    camera_response, else the one recovered from its probe bracket (measured), else sRGB
+    (`gamma_scale`). A bracket that cannot be read or fitted falls back to sRGB with a warning."""
+    priors = priors or PhotoPriors()
+    t = scene.camera.exposure_time
+    r = scene.response
+    if isinstance(r, PhotoResponse):  # a scene photo light prepared before: measured stays, sRGB takes gamma_scale
+        return r if r.measured else srgb_response(t, priors.gamma_scale)
+    if r is not None:
+        return PhotoResponse(r.forward_table, r.inverse_table, t, source="declared (scene.json camera_response)",
+                             measured=True)
+    root = Path(scene.root) if getattr(scene, "root", None) is not None else None
+    if root is not None and "light_probe" in _scene_json(root):
+        from lighting import hdr
+        from recon.io import read_image_rgb
+
+        try:
+            files, times, _ = hdr.scene_probe_files(root)
+            g = hdr.calibrate_response([read_image_rgb(f) for f in files], times)
+            return PhotoResponse(hdr.forward_table(g), g.T, t, source="recovered from the probe bracket",
+                                 measured=True)
+        except (OSError, ValueError, RuntimeError) as e:
+            log.warning("photo light: %s: the probe bracket gives no response (%s); the photo is read as sRGB",
+                        root / "scene.json", e)
+    return srgb_response(t, priors.gamma_scale)
+
+
+def _scene_json(root) -> dict:
+    import json
+
+    try:
+        return json.loads((root / "scene.json").read_text())
+    except (OSError, ValueError):
+        return {}
 
 
 def prepare_scene(scene, priors: PhotoPriors | None = None):
-    """The scene as photo light sees it: the sRGB response, window / lamp quads marked as emitters
-    (placeholder radiance 1, replaced by the fit) and nothing declared. Returns (scene, declared):
-    declared = {quad name: emitted_radiance} from scene.json, for the report only."""
+    """The scene as photo light sees it: its response (photo_response), window / lamp quads marked as
+    emitters (placeholder radiance 1, replaced by the fit) and nothing declared. Returns (scene,
+    declared): declared = {quad name: emitted_radiance} from scene.json, for the report only."""
     priors = priors or PhotoPriors()
     declared = {q.name: [float(v) for v in q.emission] for q in scene.quads if np.any(q.emission > 0)}
     quads = [dataclasses.replace(q, emission=np.ones(3) if q.role in EMITTER_ROLES else np.zeros(3),
                                  albedo=np.zeros(3), texture=None)  # declared albedos are not used
              for q in scene.quads]
-    response = srgb_response(scene.camera.exposure_time, priors.gamma_scale)
-    return dataclasses.replace(scene, quads=quads, response=response), declared
+    return dataclasses.replace(scene, quads=quads, response=photo_response(scene, priors)), declared
 
 
 def _unknown_groups(patches: PatchMesh, photo_count: np.ndarray, clipped: np.ndarray
@@ -156,6 +212,9 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     if not 0 < pr.wall_albedo < 1 or not 0 <= pr.unseen_reflectivity < 1 or not 0 <= pr.ceiling_albedo < 1:
         raise ValueError(f"wall albedo must be in (0, 1), unseen reflectivity and ceiling albedo in [0, 1), got "
                          f"{pr.wall_albedo}, {pr.unseen_reflectivity}, {pr.ceiling_albedo}")
+    measured_response = bool(getattr(response, "measured", False))
+    if pr.fit_albedo is None:
+        pr = dataclasses.replace(pr, fit_albedo=measured_response)
     P = patches.n_patches
     photo = np.asarray(photo).reshape(-1, 3)
     L_b = response.to_radiance(photo)
@@ -274,7 +333,7 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
                          "albedo_prior_x0.8_x1.2": [None if not np.isfinite(v) else round(v, 4) for v in prior],
                          "at_lower_bound": bool(at_bound[g].all()), "seen_by_walls": bool(not unresolved[g]),
                          "patches": int(np.sum(group == g))})
-    report = {"response": "sRGB (assumed)" if pr.gamma_scale == 1 else f"sRGB^-1 ** {pr.gamma_scale} (assumed)",
+    report = {"response": getattr(response, "source", "given by the caller"),
               "wall_albedo_prior": pr.wall_albedo, "unseen_reflectivity": r,
               "wall_albedo": [round(float(v), 4) for v in rho_S[fit_on][0]] if fit_on.any() else None,
               "wall_albedo_from": "interreflections" if pr.fit_albedo and albedo_fit is not None else "prior",

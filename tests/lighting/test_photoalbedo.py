@@ -5,9 +5,12 @@ Analytic: the closed box room of test_photolight (a window, its photo rendered f
 radiosity through sRGB, the window clipped), with walls brighter than the 0.55 prior or an unseen
 ceiling brighter than the 0.5 unseen prior.
 """
+import json
+
 import numpy as np
 import pytest
 
+from lighting import photolight as PL
 from tests.lighting.test_photolight import WINDOW, _box_room, _fit, _photo, _solved
 
 
@@ -56,3 +59,57 @@ def test_unseen_ceiling_and_wall_reflect_as_their_surface(white_ceiling):
     # the window: within 5 % with the ceiling's light right; the 0.5 prior asks more of it
     assert np.abs(np.array(new.report["emitters"][0]["radiance"]) / WINDOW - 1).max() < 0.05, new.report["emitters"]
     assert old.report["emitters"][0]["radiance"][1] > new.report["emitters"][0]["radiance"][1]
+
+
+def _gamma_response(exposure: float, gamma: float = 1.6):
+    """A camera that is not sRGB (z = X ** (1 / gamma)), marked measured as a bracket's would be."""
+    from lighting.photolight import PhotoResponse
+
+    z = np.arange(256) / 255.0
+    return PhotoResponse(np.tile(z ** (1 / gamma), (3, 1)), np.tile(z ** gamma, (3, 1)), exposure,
+                         source="test camera", measured=True)
+
+
+def test_a_measured_response_fits_the_walls_albedo_by_default(bright_walls):
+    # the photo through a gamma-1.6 camera: read through that (measured) response, the default priors
+    # fit the albedo from the interreflections (walls within 2 % of 0.7, window within 3 %); read
+    # through the assumed sRGB curve they keep the 0.55 prior (the slope it would need is not known)
+    _, pm, G, B = bright_walls
+    resp = _gamma_response(0.4)
+    pix_patch = np.repeat(np.flatnonzero(pm.quad != 1), 10)
+    photo = resp.to_pixels(B[pix_patch])
+    fit = _fit(pm, G, pix_patch, photo, resp)
+    assert fit.report["wall_albedo_from"] == "interreflections" and fit.report["response"] == "test camera"
+    assert np.abs(np.array(fit.report["wall_albedo"]) / 0.7 - 1).max() < 0.02, fit.report["wall_albedo"]
+    assert np.abs(np.array(fit.report["emitters"][0]["radiance"]) / WINDOW - 1).max() < 0.03, fit.report["emitters"]
+    assumed = _fit(pm, G, pix_patch, photo, PL.srgb_response(0.4))
+    assert assumed.report["wall_albedo_from"] == "prior" and assumed.report["response"] == "sRGB (assumed)"
+    off = _fit(pm, G, pix_patch, photo, resp, fit_albedo=False)
+    assert off.report["wall_albedo_from"] == "prior"
+
+
+def test_photo_light_reads_the_photo_through_the_folders_response(tmp_path):
+    # window_room: its declared camera_response is used as is; without it, the one recovered from the
+    # probe bracket (its shape within 5 % of the true inverse response over levels 20-235, relative to
+    # level 128: the recovered one has its own scale); stripped of the bracket too, sRGB is assumed
+    import shutil
+
+    from bench.bench_photolight import strip_scene
+    from recon.scene import load_scene
+    from tests.conftest import shared_scene
+
+    src = shared_scene("window_room")
+    declared = PL.photo_response(load_scene(src))
+    assert declared.measured and declared.source.startswith("declared")
+    d = json.loads((src / "scene.json").read_text())
+    true_inv = np.asarray(d.pop("camera_response")["inverse_table"], float)
+    own = tmp_path / "own"
+    shutil.copytree(src, own)
+    (own / "scene.json").write_text(json.dumps(d))
+    rec = PL.photo_response(load_scene(own))
+    assert rec.measured and rec.source == "recovered from the probe bracket"
+    lv = np.arange(20, 236)
+    shape = (rec.inverse_table[:, lv] / rec.inverse_table[:, 128:129]) / (true_inv[:, lv] / true_inv[:, 128:129])
+    assert np.abs(shape - 1).max() < 0.05, np.abs(shape - 1).max(axis=1)
+    bare = PL.photo_response(load_scene(strip_scene(src, tmp_path / "stripped")))
+    assert not bare.measured and bare.source == "sRGB (assumed)"
