@@ -31,6 +31,7 @@ from tqdm import tqdm
 
 from app import runtime
 from kernels.buffers import Buffer
+from kernels.gather import ColumnGather
 from kernels.masked_sums import MaskedSum
 from kernels.maskfill import WindowFill
 from kernels.shadowmap import ShadowMaps
@@ -150,6 +151,8 @@ class ShadowPass:
         self.maps = self.maps_full  # the last frame's
         self.weights = Buffer((n_recv_vert + P, batch), wp.vec3, device)  # pixel rows, then centre rows
         self.cand = Buffer((P, batch), wp.uint8, device)
+        # run's `order` (the all-sources frame): a batch's scattered columns gathered by a kernel on the CPU
+        self._gather = ColumnGather(max(n_recv_vert, P), batch, device) if wp.get_device(device).is_cpu else None
         self._fill = WindowFill(W, H, self.pix_quad, device)
         self._covered = np.zeros(H * W, bool)  # scratch: pixels the object covers, this frame
 
@@ -415,6 +418,8 @@ class ShadowPass:
             c = cen[cand[cen, first:first + n].any(1)]
             w[Vr + c, :n] = W_c[c, first:first + n]
             self.cand.host[:, :n] = cand[:, first:first + n]
+        elif self._gather is not None and self._gather_cols(cand, W_pix, W_c, cen, cols):
+            pass
         else:
             w[:Vr, :n] = W_pix[:, cols]
             cc = cand[:, cols]
@@ -423,6 +428,17 @@ class ShadowPass:
             self.cand.host[:, :n] = cc
         self.weights.push()
         self.cand.push()
+
+    def _gather_cols(self, cand: np.ndarray, W_pix, W_c, cen: np.ndarray, cols: np.ndarray) -> bool:
+        """upload_batch's columns `cols` by kernels.gather (the same values as its numpy gather, about 5x
+        faster); False, nothing written, where the tables are not host float32 tables."""
+        g, Vr, n = self._gather, self.n_recv_vert, len(cols)
+        # one launch each (a few ms): split over the pool's threads they wait for a core longer than they run
+        if not g.flags(cand, cols, self.cand.dev):
+            return False
+        c = cen[self.cand.host[cen, :n].any(1)]
+        rows = np.arange(Vr)
+        return g.vec3(W_pix, rows, rows, cols, self.weights.dev) and g.vec3(W_c, c, Vr + c, cols, self.weights.dev)
 
 
 def _take(W, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
