@@ -151,6 +151,11 @@ class ShadowPass:
         self.maps = self.maps_full  # the last frame's
         self.weights = Buffer((n_recv_vert + P, batch), wp.vec3, device)  # pixel rows, then centre rows
         self.cand = Buffer((P, batch), wp.uint8, device)
+        # run's batch buffers (transfers, candidate flags): batch k in set k % 2 when pipelined, so that the
+        # side thread uploads the next batch's while this one's are summed
+        self._batch_bufs = [(self.weights, self.cand)]
+        if self.pipelined:
+            self._batch_bufs.append((Buffer((n_recv_vert + P, batch), wp.vec3, device), Buffer((P, batch), wp.uint8, device)))
         # run's `order` (the all-sources frame): a batch's scattered columns gathered by a kernel on the CPU
         self._gather = ColumnGather(max(n_recv_vert, P), batch, device) if wp.get_device(device).is_cpu else None
         self._fill = WindowFill(W, H, self.pix_quad, device)
@@ -205,29 +210,32 @@ class ShadowPass:
             ax = None if per_source or spread is None else spread[first:end]
             return maps, maps.prepare(eyes[first:end], None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
 
-        def draw(k: int, split: bool) -> tuple[ShadowMaps, int]:
-            """aim(k), then its maps drawn: split over the cores, or in one launch (the side thread's work)."""
+        def draw(k: int, split: bool) -> tuple[ShadowMaps, int, tuple[Buffer, Buffer]]:
+            """aim(k), then its maps drawn (split over the cores, or in one launch: the side thread's work)
+            and its transfers and candidate flags uploaded (into set k % 2 when pipelined); (maps, n, buffers)."""
             maps, n = aim(k)
             if split:
                 runtime.split(maps.raster, n, dev, min_items=1)
             else:
                 maps.raster(0, n)
-            return maps, n
+            bufs = self._batch_bufs[k % len(self._batch_bufs)]
+            first = firsts[k]
+            self.upload_batch(cand, W_pix, W_c, first, n, cen, None if perm is None else perm[first:first + n], bufs)
+            return maps, n, bufs
 
         nxt = draw(0, True) if firsts else None
         for k in tqdm(range(len(firsts)), desc="shadow passes", unit="batch", leave=False,
                       disable=self.quiet or n_src <= 4 * self.batch or not sys.stderr.isatty()):
-            self.maps, n = nxt
+            self.maps, n, (w_buf, c_buf) = nxt
             first = firsts[k]
             drawing = None
-            if k + 1 < len(firsts) and self.pipelined:  # the next batch's maps: aimed and drawn on the side
-                drawing = runtime.background(functools.partial(draw, k + 1, False))  # thread while this is summed
+            if k + 1 < len(firsts) and self.pipelined:  # the next batch: its maps aimed and drawn, its transfers
+                drawing = runtime.background(functools.partial(draw, k + 1, False))  # uploaded, on the side thread
             try:
-                self.upload_batch(cand, W_pix, W_c, first, n, cen, None if perm is None else perm[first:first + n])
-                self.sums.prepare(self.maps, n, 0, self.cand.dev,
+                self.sums.prepare(self.maps, n, 0, c_buf.dev,
                                   split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
                 # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
-                runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
+                runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, w_buf.dev, a, b)
                              for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
             finally:  # joined before the pause: nothing runs while refine() holds the frame
                 if drawing is not None:
@@ -406,39 +414,42 @@ class ShadowPass:
         return pix_pt, fill_pt, cen
 
     def upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int,
-                      cen: np.ndarray, cols: np.ndarray | None = None) -> None:
-        """Sources first..first+n-1's transfers and candidate flags into the batch buffers (cols: the
-        passes' columns instead, n of them, e.g. run's perm). Of the
+                      cen: np.ndarray, cols: np.ndarray | None = None, bufs: tuple[Buffer, Buffer] | None = None) -> None:
+        """Sources first..first+n-1's transfers and candidate flags into the batch buffers (bufs: (transfers,
+        flags), default (self.weights, self.cand); cols: the passes' columns instead, n of them, e.g. run's
+        perm). Of the
         patch-centre rows only those of the frame's centres `cen` that are candidates of some source
         of the batch: the masked sums read no other (a centre's list holds its candidates only)."""
         Vr = self.n_recv_vert
-        w = self.weights.host
+        wb, cb = bufs or (self.weights, self.cand)
+        w = wb.host
         if cols is None:
             w[:Vr, :n] = W_pix[:, first:first + n]
             c = cen[cand[cen, first:first + n].any(1)]
             w[Vr + c, :n] = W_c[c, first:first + n]
-            self.cand.host[:, :n] = cand[:, first:first + n]
-        elif self._gather is not None and self._gather_cols(cand, W_pix, W_c, cen, cols):
+            cb.host[:, :n] = cand[:, first:first + n]
+        elif self._gather is not None and self._gather_cols(cand, W_pix, W_c, cen, cols, wb, cb):
             pass
         else:
             w[:Vr, :n] = W_pix[:, cols]
             cc = cand[:, cols]
             c = cen[cc[cen].any(1)]
             w[Vr + c, :n] = _take(W_c, c, cols)
-            self.cand.host[:, :n] = cc
-        self.weights.push()
-        self.cand.push()
+            cb.host[:, :n] = cc
+        wb.push()
+        cb.push()
 
-    def _gather_cols(self, cand: np.ndarray, W_pix, W_c, cen: np.ndarray, cols: np.ndarray) -> bool:
+    def _gather_cols(self, cand: np.ndarray, W_pix, W_c, cen: np.ndarray, cols: np.ndarray, wb: Buffer, cb: Buffer
+                     ) -> bool:
         """upload_batch's columns `cols` by kernels.gather (the same values as its numpy gather, about 5x
         faster); False, nothing written, where the tables are not host float32 tables."""
         g, Vr, n = self._gather, self.n_recv_vert, len(cols)
         # one launch each (a few ms): split over the pool's threads they wait for a core longer than they run
-        if not g.flags(cand, cols, self.cand.dev):
+        if not g.flags(cand, cols, cb.dev):
             return False
-        c = cen[self.cand.host[cen, :n].any(1)]
+        c = cen[cb.host[cen, :n].any(1)]
         rows = np.arange(Vr)
-        return g.vec3(W_pix, rows, rows, cols, self.weights.dev) and g.vec3(W_c, c, Vr + c, cols, self.weights.dev)
+        return g.vec3(W_pix, rows, rows, cols, wb.dev) and g.vec3(W_c, c, Vr + c, cols, wb.dev)
 
 
 def _take(W, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
