@@ -154,6 +154,7 @@ class ShadowPass:
         # run's batch buffers (transfers, candidate flags): batch k in set k % 2 when pipelined, so that the
         # side thread uploads the next batch's while this one's are summed
         self._batch_bufs = [(self.weights, self.cand)]
+        self.upload_aside = True  # False: each batch's transfers uploaded on the rendering thread (A/B)
         if self.pipelined:
             self._batch_bufs.append((Buffer((n_recv_vert + P, batch), wp.vec3, device), Buffer((P, batch), wp.uint8, device)))
         # run's `order` (the all-sources frame): a batch's scattered columns gathered by a kernel on the CPU
@@ -219,9 +220,14 @@ class ShadowPass:
             else:
                 maps.raster(0, n)
             bufs = self._batch_bufs[k % len(self._batch_bufs)]
-            first = firsts[k]
-            self.upload_batch(cand, W_pix, W_c, first, n, cen, None if perm is None else perm[first:first + n], bufs)
+            if self.upload_aside:
+                upload(k, bufs)
             return maps, n, bufs
+
+        def upload(k: int, bufs: tuple[Buffer, Buffer]) -> None:
+            """Batch k's transfers and candidate flags into `bufs`."""
+            first, end = firsts[k], ends[k]
+            self.upload_batch(cand, W_pix, W_c, first, end - first, cen, None if perm is None else perm[first:end], bufs)
 
         nxt = draw(0, True) if firsts else None
         for k in tqdm(range(len(firsts)), desc="shadow passes", unit="batch", leave=False,
@@ -232,6 +238,8 @@ class ShadowPass:
             if k + 1 < len(firsts) and self.pipelined:  # the next batch: its maps aimed and drawn, its transfers
                 drawing = runtime.background(functools.partial(draw, k + 1, False))  # uploaded, on the side thread
             try:
+                if not self.upload_aside:
+                    upload(k, (w_buf, c_buf))
                 self.sums.prepare(self.maps, n, 0, c_buf.dev,
                                   split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
                 # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
