@@ -17,7 +17,10 @@ sums too (second order).
 Everything per scene is set up once (ShadowPass's constructor): the points (receiver pixels and
 patch centres) are uploaded once and a frame uploads the indices of its listed ones, the proxy
 is the object's own per-shape BVH, and the per-batch transfers and candidate flags go into
-buffers of the batch's capacity. Launches are split over the cores by app.runtime.
+buffers of the batch's capacity. A frame of several batches (run) draws the next batch's maps and
+uploads its transfers on a side thread while the batch before is summed (two sets of maps and of
+buffers); the all-sources frame's scattered columns are gathered by a kernel (kernels.gather).
+Launches are split over the cores by app.runtime.
 """
 from __future__ import annotations
 
