@@ -371,3 +371,33 @@ def test_all_sources_order_and_half_size_maps(demo):
     finally:
         sp.maps_full = full
     np.testing.assert_allclose(got.O_pix, a.O_pix + b.O_pix, rtol=1e-5, atol=1e-6 * np.abs(ref.O_pix).max())
+
+
+def test_side_thread_upload_and_column_gather_give_the_same_masks(demo):
+    # the all-sources frame's batches take scattered columns (order): gathered by kernels.gather and uploaded
+    # on the side thread with the next batch's maps, the masks are bitwise those of numpy's gather on the
+    # rendering thread, each batch drawn and summed in turn
+    scene, eng = demo
+    sp = eng.shadow_pass
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
+    centre, radius = bounding_sphere(pv)
+    cov = np.zeros((scene.camera.height, scene.camera.width))
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    S = len(fs.eyes)
+    assert S > 2 * sp.batch
+    order = (np.random.default_rng(7).permutation(S), S // 2)
+    gather = sp._gather
+    assert gather is not None  # the CPU device
+    out = []
+    try:
+        for g, aside, pipelined in ((None, False, False), (gather, True, True), (gather, False, True),
+                                    (None, True, True), (gather, True, False)):
+            sp._gather, sp.upload_aside, sp.pipelined = g, aside, pipelined
+            out.append(_masks(sp, (pv, pf, occ), centre, radius, cov, fs, order=order))
+    finally:
+        sp._gather, sp.upload_aside, sp.pipelined = gather, True, True
+    assert np.abs(out[0].O_pix).sum() > 0 and np.abs(out[0].O_cen).sum() > 0
+    for m in out[1:]:
+        np.testing.assert_array_equal(m.pix_sel, out[0].pix_sel)
+        np.testing.assert_array_equal(m.O_pix, out[0].O_pix)
+        np.testing.assert_array_equal(m.O_cen, out[0].O_cen)
