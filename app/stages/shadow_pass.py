@@ -159,7 +159,8 @@ class ShadowPass:
         self._batch_bufs = [(self.weights, self.cand)]
         self.upload_aside = True  # False: each batch's transfers uploaded on the rendering thread (A/B)
         if self.pipelined:
-            self._batch_bufs.append((Buffer((n_recv_vert + P, batch), wp.vec3, device), Buffer((P, batch), wp.uint8, device)))
+            self._batch_bufs.append((Buffer((n_recv_vert + P, batch), wp.vec3, device),
+                                     Buffer((P, batch), wp.uint8, device)))
         # run's `order` (the all-sources frame): a batch's scattered columns gathered by a kernel on the CPU
         self._gather = ColumnGather(max(n_recv_vert, P), batch, device) if wp.get_device(device).is_cpu else None
         self._fill = WindowFill(W, H, self.pix_quad, device)
@@ -230,7 +231,8 @@ class ShadowPass:
         def upload(k: int, bufs: tuple[Buffer, Buffer]) -> None:
             """Batch k's transfers and candidate flags into `bufs`."""
             first, end = firsts[k], ends[k]
-            self.upload_batch(cand, W_pix, W_c, first, end - first, cen, None if perm is None else perm[first:end], bufs)
+            cols = None if perm is None else perm[first:end]
+            self.upload_batch(cand, W_pix, W_c, first, end - first, cen, cols, bufs)
 
         nxt = draw(0, True) if firsts else None
         for k in tqdm(range(len(firsts)), desc="shadow passes", unit="batch", leave=False,
@@ -425,7 +427,8 @@ class ShadowPass:
         return pix_pt, fill_pt, cen
 
     def upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int,
-                      cen: np.ndarray, cols: np.ndarray | None = None, bufs: tuple[Buffer, Buffer] | None = None) -> None:
+                      cen: np.ndarray, cols: np.ndarray | None = None,
+                      bufs: tuple[Buffer, Buffer] | None = None) -> None:
         """Sources first..first+n-1's transfers and candidate flags into the batch buffers (bufs: (transfers,
         flags), default (self.weights, self.cand); cols: the passes' columns instead, n of them, e.g. run's
         perm). Of the
@@ -439,9 +442,7 @@ class ShadowPass:
             c = cen[cand[cen, first:first + n].any(1)]
             w[Vr + c, :n] = W_c[c, first:first + n]
             cb.host[:, :n] = cand[:, first:first + n]
-        elif self._gather is not None and self._gather_cols(cand, W_pix, W_c, cen, cols, wb, cb):
-            pass
-        else:
+        elif self._gather is None or not self._gather_cols(cand, W_pix, W_c, cen, cols, wb, cb):
             w[:Vr, :n] = W_pix[:, cols]
             cc = cand[:, cols]
             c = cen[cc[cen].any(1)]
@@ -452,8 +453,9 @@ class ShadowPass:
 
     def _gather_cols(self, cand: np.ndarray, W_pix, W_c, cen: np.ndarray, cols: np.ndarray, wb: Buffer, cb: Buffer
                      ) -> bool:
-        """upload_batch's columns `cols` by kernels.gather (the same values as its numpy gather, about 5x
-        faster); False, nothing written, where the tables are not host float32 tables."""
+        """upload_batch's columns `cols` by kernels.gather: the same values as its numpy gather (15-27 ms a
+        batch on the loaded 2-core machine, the kernels 5-6 ms); False where the tables are not host float32
+        tables (upload_batch's numpy gather then writes every buffer)."""
         g, Vr, n = self._gather, self.n_recv_vert, len(cols)
         # one launch each (a few ms): split over the pool's threads they wait for a core longer than they run
         if not g.flags(cand, cols, cb.dev):
