@@ -158,6 +158,7 @@ class ShadowPass:
         # side thread uploads the next batch's while this one's are summed
         self._batch_bufs = [(self.weights, self.cand)]
         self.upload_aside = True  # False: each batch's transfers uploaded on the rendering thread (A/B)
+        self.weak_lattice = True  # run(order=): the weak passes fill the near ring's pixels (weak_ring; False: A/B)
         if self.pipelined:
             self._batch_bufs.append((Buffer((n_recv_vert + P, batch), wp.vec3, device),
                                      Buffer((P, batch), wp.uint8, device)))
@@ -193,10 +194,15 @@ class ShadowPass:
         self._fill.set_spacing(np.zeros(0, np.int64), 2)
         pix_pt, fill_pt, cen = self.select(centre, radius, coverage, cand)
         R = self.n_pix_points
-        self.sums.select(np.concatenate([pix_pt, R + cen]))
         primary = self.maps_full if per_source or full_maps else self.maps_cluster
         n_src, dev = len(eyes), self.device
         perm, hard = (None, n_src) if order is None or not per_source else (order[0], min(max(int(order[1]), 0), n_src))
+        # the weak passes (order's last n_src - hard) skip the ring's own pixels (weak_ring); their sums start apart
+        ring = self.weak_ring(pix_pt, centre, radius) if self.weak_lattice and hard < n_src else None
+        sel_all = np.concatenate([pix_pt, R + cen])
+        sel_weak = sel_all if ring is None else np.concatenate([pix_pt[~ring], R + cen])
+        self.sums.select(sel_all if hard > 0 else sel_weak)
+        strong = None  # the sums of the passes before the weak ones, when these have their own selection
         if perm is not None:
             eyes = eyes[perm]
         # batches [first, end): the hard sources' on `primary`, then the others' on the cluster-size maps
@@ -243,6 +249,9 @@ class ShadowPass:
             if k + 1 < len(firsts) and self.pipelined:  # the next batch: its maps aimed and drawn, its transfers
                 drawing = runtime.background(functools.partial(draw, k + 1, False))  # uploaded, on the side thread
             try:
+                if ring is not None and first == hard and hard > 0:  # the first weak batch
+                    strong = self.sums.result()[0]
+                    self.sums.select(sel_weak)
                 if not self.upload_aside:
                     upload(k, (w_buf, c_buf))
                 self.sums.prepare(self.maps, n, 0, c_buf.dev,
@@ -259,7 +268,34 @@ class ShadowPass:
         self.maps = primary
         acc, _ = self.sums.result()
         n_pix = len(pix_pt)
-        return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, acc[:n_pix], acc[n_pix:])
+        if ring is None:
+            return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, acc[:n_pix], acc[n_pix:])
+        # the weak passes' sums at the ring's pixels: the mean of their sums at the known pixels of the 3x3
+        # window on the same quad (the fill of the lattice's other pixels), added to the strong passes' own
+        out = np.zeros((len(sel_all), 3)) if strong is None else strong
+        keep = np.flatnonzero(~ring)
+        out[keep] += acc[:len(keep)]
+        out[n_pix:] += acc[len(keep):]
+        out[np.flatnonzero(ring)] += self.fill(self.recv[pix_pt[keep]], acc[:len(keep)], self.recv[pix_pt[ring]])
+        return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, out[:n_pix], out[n_pix:])
+
+    def weak_ring(self, pix_pt: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+        """(len(pix_pt),) bool: the exact pixels of an all-sources frame that its weak passes (app.rest_maps)
+        fill instead of summing. They are the pixels summed only because they lie within near_factor bounding
+        radii (not on the lattice, and every one with a lattice pixel of its own quad in its 3x3 window), at
+        graded_near radii or more: beyond the bounding sphere no receiver touches the object. A weak pass
+        changes a pixel by at most WEBER (2 %) of its light, so its own hard edge is no visible step; the strong
+        passes (the lamps' contact shadows) are still summed at every such pixel. A pixel none of whose window's
+        known pixels is summed by the weak passes (the object covers them) stays exact."""
+        pts = pix_pt
+        static = (self.lattice | ~self.lattice_cover)[self.recv[pts]]
+        ring = ~static & (np.linalg.norm(self.pt_pos[pts] - centre, axis=1) >= self.graded_near * radius)
+        if ring.any():
+            at = np.flatnonzero(ring)
+            known = self.recv[pts[~ring]]
+            seen = self.fill(known, np.ones((len(known), 3)), self.recv[pts[at]])
+            ring[at[seen[:, 0] <= 0.0]] = False
+        return ring
 
     def _run_graded(self, proxy, centre: np.ndarray, radius: float, coverage: np.ndarray, cand: np.ndarray,
                     eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, spread: np.ndarray | None,
