@@ -4,7 +4,9 @@ listed pixels and patch centres (seed sec. 6.3.3; DESIGN "Per-frame masks on War
 Per frame, of the receiver pixels on patches that some pass's shaft can shadow (cand):
 - exact: every pixel within `near_factor` bounding radii of the object, and farther out a lattice
   of every second pixel in x and y (plus the pixels no lattice pixel of their own quad
-  neighbours), where shadows are soft and vary slowly: sum_j W_xj M_xj over the passes;
+  neighbours), where shadows are soft and vary slowly: sum_j W_xj M_xj over the passes (the
+  all-sources frame's weak passes, app.rest_maps, fill the off-lattice pixels beyond graded_near
+  radii instead: ShadowPass.weak_ring);
 - filled: the other ones, the mean of the exact values in their 3x3 window on the same quad
   (ShadowPass.fill, kernels.maskfill, given the values compose derives from the sums).
 A cluster frame whose maps fit one batch (the drag's) instead sums on a graded lattice
