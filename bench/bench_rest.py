@@ -1,7 +1,7 @@
 """The all-sources frame at rest (issue 36, item 5): before/after in one process, scored against the truth.
 
 usage: python bench/bench_rest.py [--scenes window_room,lamps_room,sun_room,~/.cache/photoar/rooms/lamps_102]
-                                  [--repeat 3] [--variants before,kernel,prev,upload,after,all128] [--json OUT]
+                                  [--repeat 3] [--variants before,kernel,prev,upload,aside,after,all128] [--json OUT]
 
 Per scene (a shared scene's name or a benchmark folder with truth.png and truth_mask.png) one engine,
 warm (one frame of each variant first), then `--repeat` rounds in which every variant renders the
@@ -12,8 +12,8 @@ alike). Variants:
   kernel: the blocked pairs in one Warp launch (BlockedSecondOrder), every map at map_res;
   prev:   the kernel and the weak sources on half-size maps (app.rest_maps), each batch's scattered transfer columns
           gathered by numpy on the rendering thread (the engine of the round before);
-  upload: prev, the columns gathered by a Warp kernel (kernels.gather) on the side thread that draws the next
-          batch's maps (ShadowPass.upload_aside);
+  upload: prev, the columns gathered by a Warp kernel (kernels.gather);
+  aside:  upload, on the side thread that draws the next batch's maps (ShadowPass.upload_aside);
   after:  upload, and the weak sources' sums filled at the near ring's pixels (ShadowPass.weak_ring): the
           engine's default;
   all128: the kernel, every source on a half-size map (what the rule is measured against).
@@ -51,7 +51,7 @@ def variant(engine, name: str, kernel, numpy_blocked, rest_maps: dict, gather) -
     engine.rest_maps = rest_maps.get(name)
     sp = engine.shadow_pass
     sp._gather = None if name in ("before", "kernel", "prev") else gather
-    sp.upload_aside = sp._gather is not None
+    sp.upload_aside = name == "aside"
     sp.weak_lattice = name in ("after", "all128")
 
 
@@ -80,7 +80,7 @@ def run_scene(path: Path, variants: list[str], repeat: int) -> dict:
 
     r = engine.receivers
     kernel = engine._blocked
-    rest_maps = {"after": engine.rest_maps, "prev": engine.rest_maps, "upload": engine.rest_maps,
+    rest_maps = {"after": engine.rest_maps, "prev": engine.rest_maps, "upload": engine.rest_maps, "aside": engine.rest_maps,
                  "all128": RestMaps(r.E_v, budget=np.inf)}
     gather = engine.shadow_pass._gather
     truth = read_image_rgb(path / "truth.png")
@@ -123,7 +123,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", default="window_room,lamps_room,sun_room")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--variants", default="before,kernel,prev,upload,after,all128")
+    ap.add_argument("--variants", default="before,kernel,prev,upload,aside,after,all128")
     ap.add_argument("--json", help="write the results here")
     a = ap.parse_args(argv)
     variants = a.variants.split(",")

@@ -159,7 +159,10 @@ class ShadowPass:
         # run's batch buffers (transfers, candidate flags): batch k in set k % 2 when pipelined, so that the
         # side thread uploads the next batch's while this one's are summed
         self._batch_bufs = [(self.weights, self.cand)]
-        self.upload_aside = True  # False: each batch's transfers uploaded on the rendering thread (A/B)
+        # True: each batch's transfers uploaded on the side thread with its maps. Off: at load 12-18 it made the
+        # all-sources frame's wall time 0.96-1.27x (bench_rest, variant aside): three threads on two cores leave
+        # one of the sums' two halves late; on an idle machine the side thread's raster already fills the core
+        self.upload_aside = False
         self.weak_lattice = True  # run(order=): the weak passes fill the near ring's pixels (weak_ring; False: A/B)
         if self.pipelined:
             self._batch_bufs.append((Buffer((n_recv_vert + P, batch), wp.vec3, device),

@@ -383,9 +383,9 @@ def _order_and_half_size_maps(scene, eng, sp):
 
 
 def test_side_thread_upload_and_column_gather_give_the_same_masks(demo):
-    # the all-sources frame's batches take scattered columns (order): gathered by kernels.gather and uploaded
-    # on the side thread with the next batch's maps, the masks are bitwise those of numpy's gather on the
-    # rendering thread, each batch drawn and summed in turn
+    # the all-sources frame's batches take scattered columns (order): gathered by kernels.gather, on the
+    # rendering thread or on the side thread with the next batch's maps (upload_aside), the masks are bitwise
+    # those of numpy's gather on the rendering thread, each batch drawn and summed in turn
     scene, eng = demo
     sp = eng.shadow_pass
     pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
@@ -395,7 +395,7 @@ def test_side_thread_upload_and_column_gather_give_the_same_masks(demo):
     S = len(fs.eyes)
     assert S > 2 * sp.batch
     order = (np.random.default_rng(7).permutation(S), S // 2)
-    gather = sp._gather
+    gather, defaults = sp._gather, (sp._gather, sp.upload_aside, sp.pipelined)
     assert gather is not None  # the CPU device
     out = []
     try:
@@ -404,7 +404,7 @@ def test_side_thread_upload_and_column_gather_give_the_same_masks(demo):
             sp._gather, sp.upload_aside, sp.pipelined = g, aside, pipelined
             out.append(_masks(sp, (pv, pf, occ), centre, radius, cov, fs, order=order))
     finally:
-        sp._gather, sp.upload_aside, sp.pipelined = gather, True, True
+        sp._gather, sp.upload_aside, sp.pipelined = defaults
     assert np.abs(out[0].O_pix).sum() > 0 and np.abs(out[0].O_cen).sum() > 0
     for m in out[1:]:
         np.testing.assert_array_equal(m.pix_sel, out[0].pix_sel)
