@@ -19,9 +19,10 @@ sums too (second order).
 Everything per scene is set up once (ShadowPass's constructor): the points (receiver pixels and
 patch centres) are uploaded once and a frame uploads the indices of its listed ones, the proxy
 is the object's own per-shape BVH, and the per-batch transfers and candidate flags go into
-buffers of the batch's capacity. A frame of several batches (run) draws the next batch's maps and
-uploads its transfers on a side thread while the batch before is summed (two sets of maps and of
-buffers); the all-sources frame's scattered columns are gathered by a kernel (kernels.gather).
+buffers of the batch's capacity. A frame of several batches (run) draws the next batch's maps on a
+side thread while the batch before is summed (two sets of maps; its transfers too with upload_aside,
+into a second set of buffers); the all-sources frame's scattered columns are gathered by a kernel
+(kernels.gather).
 Launches are split over the cores by app.runtime.
 """
 from __future__ import annotations
@@ -157,7 +158,7 @@ class ShadowPass:
         self.weights = Buffer((n_recv_vert + P, batch), wp.vec3, device)  # pixel rows, then centre rows
         self.cand = Buffer((P, batch), wp.uint8, device)
         # run's batch buffers (transfers, candidate flags): batch k in set k % 2 when pipelined, so that the
-        # side thread uploads the next batch's while this one's are summed
+        # side thread may upload the next batch's while this one's are summed (upload_aside)
         self._batch_bufs = [(self.weights, self.cand)]
         # True: each batch's transfers uploaded on the side thread with its maps. Off: at load 12-18 it made the
         # all-sources frame's wall time 0.96-1.27x (bench_rest, variant aside): three threads on two cores leave
