@@ -160,9 +160,9 @@ class ShadowPass:
         # run's batch buffers (transfers, candidate flags): batch k in set k % 2 when pipelined, so that the
         # side thread may upload the next batch's while this one's are summed (upload_aside)
         self._batch_bufs = [(self.weights, self.cand)]
-        # True: each batch's transfers uploaded on the side thread with its maps. Off: at load 12-18 it made the
-        # all-sources frame's wall time 0.96-1.27x (bench_rest, variant aside): three threads on two cores leave
-        # one of the sums' two halves late; on an idle machine the side thread's raster already fills the core
+        # True: each batch's transfers uploaded on the side thread with its maps. Off: over runs at load 5-18 it
+        # made the all-sources frame's wall time 0.91-1.27x, its CPU the same (bench_rest, variant aside; three
+        # threads on two cores); idle, the side thread's raster already fills the second core during the upload
         self.upload_aside = False
         self.weak_lattice = True  # run(order=): the weak passes fill the near ring's pixels (weak_ring; False: A/B)
         if self.pipelined:
