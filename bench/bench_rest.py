@@ -80,8 +80,8 @@ def run_scene(path: Path, variants: list[str], repeat: int) -> dict:
 
     r = engine.receivers
     kernel = engine._blocked
-    rest_maps = {"after": engine.rest_maps, "prev": engine.rest_maps, "upload": engine.rest_maps, "aside": engine.rest_maps,
-                 "all128": RestMaps(r.E_v, budget=np.inf)}
+    rest_maps = {v: engine.rest_maps for v in ("prev", "upload", "aside", "after")}
+    rest_maps["all128"] = RestMaps(r.E_v, budget=np.inf)
     gather = engine.shadow_pass._gather
     truth = read_image_rgb(path / "truth.png")
     mask = cv2.imread(str(path / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
