@@ -16,7 +16,9 @@ the others keep the engine's map_res (a lamp that lights most of a floor, the wi
 the floor beside the object). The maximum runs over every receiver vertex (also ones the object cannot
 shade from j), so the rule errs towards the full map; it depends on the room's light only (not on the
 photo or a fitted constant), and is computed once per list of sources (the frames at rest of one pose
-list the same ones).
+list the same ones). For the same reason the shadow pass does not sum the weak sources at the pixels near
+the object that it lists off its lattice beyond the bounding sphere, and fills their part there from the
+listed pixels around (ShadowPass.weak_ring); the strong ones are summed at every listed pixel.
 """
 from __future__ import annotations
 

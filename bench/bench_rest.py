@@ -1,7 +1,7 @@
 """The all-sources frame at rest (issue 36, item 5): before/after in one process, scored against the truth.
 
 usage: python bench/bench_rest.py [--scenes window_room,lamps_room,sun_room,~/.cache/photoar/rooms/lamps_102]
-                                  [--repeat 3] [--variants before,kernel,after,all128] [--json OUT]
+                                  [--repeat 3] [--variants before,kernel,prev,upload,aside,after,all128] [--json OUT]
 
 Per scene (a shared scene's name or a benchmark folder with truth.png and truth_mask.png) one engine,
 warm (one frame of each variant first), then `--repeat` rounds in which every variant renders the
@@ -10,7 +10,12 @@ alike). Variants:
   before: the second order's blocked pairs by the numpy pair search (app.stages.second_order.blocked_pass),
           every map at map_res (the code before this bench);
   kernel: the blocked pairs in one Warp launch (BlockedSecondOrder), every map at map_res;
-  after:  the kernel, and the weak sources on half-size maps (app.rest_maps: the engine's default);
+  prev:   the kernel and the weak sources on half-size maps (app.rest_maps), each batch's scattered transfer columns
+          gathered by numpy on the rendering thread (the engine of the round before);
+  upload: prev, the columns gathered by a Warp kernel (kernels.gather);
+  aside:  upload, on the side thread that draws the next batch's maps (ShadowPass.upload_aside);
+  after:  upload, and the weak sources' sums filled at the near ring's pixels (ShadowPass.weak_ring): the
+          engine's default;
   all128: the kernel, every source on a half-size map (what the rule is measured against).
 Prints per variant the median frame seconds (wall, and the process's CPU seconds: both cores, steadier
 under load) and stage milliseconds, the sources on full-size maps, and
@@ -39,10 +44,15 @@ def scene_dir(name: str) -> Path:
     return p if p.is_dir() else Path(os.environ.get("PHOTOAR_SHARED", ROOT.parent / "shared")) / "scenes" / name
 
 
-def variant(engine, name: str, kernel, numpy_blocked, rest_maps: dict) -> None:
-    """Set the engine to one variant (module docstring); rest_maps: {"after": ..., "all128": ...}."""
+def variant(engine, name: str, kernel, numpy_blocked, rest_maps: dict, gather) -> None:
+    """Set the engine to one variant (module docstring); rest_maps: {"after": ..., "all128": ...}; gather: the
+    shadow pass's ColumnGather."""
     engine._blocked = numpy_blocked if name == "before" else kernel
     engine.rest_maps = rest_maps.get(name)
+    sp = engine.shadow_pass
+    sp._gather = None if name in ("before", "kernel", "prev") else gather
+    sp.upload_aside = name == "aside"
+    sp.weak_lattice = name in ("after", "all128")
 
 
 def run_scene(path: Path, variants: list[str], repeat: int) -> dict:
@@ -70,8 +80,9 @@ def run_scene(path: Path, variants: list[str], repeat: int) -> dict:
 
     r = engine.receivers
     kernel = engine._blocked
-    rest_maps = {"after": engine.rest_maps,
-                 "all128": RestMaps(r.E_v, budget=np.inf)}
+    rest_maps = {v: engine.rest_maps for v in ("prev", "upload", "aside", "after")}
+    rest_maps["all128"] = RestMaps(r.E_v, budget=np.inf)
+    gather = engine.shadow_pass._gather
     truth = read_image_rgb(path / "truth.png")
     mask = cv2.imread(str(path / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
     cfg = dataclasses.replace(engine.frame_config(), passes=None)
@@ -79,7 +90,7 @@ def run_scene(path: Path, variants: list[str], repeat: int) -> dict:
     out: dict[str, dict] = {}
     for rnd in range(repeat + 1):
         for v in (variants if rnd % 2 == 0 else variants[::-1]):
-            variant(engine, v, kernel, numpy_blocked, rest_maps)
+            variant(engine, v, kernel, numpy_blocked, rest_maps, gather)
             c0 = time.process_time()
             fr = engine.render(scene.obj, cfg)
             cpu = time.process_time() - c0
@@ -112,7 +123,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", default="window_room,lamps_room,sun_room")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--variants", default="before,kernel,after,all128")
+    ap.add_argument("--variants", default="before,kernel,prev,upload,aside,after,all128")
     ap.add_argument("--json", help="write the results here")
     a = ap.parse_args(argv)
     variants = a.variants.split(",")

@@ -4,7 +4,9 @@ listed pixels and patch centres (seed sec. 6.3.3; DESIGN "Per-frame masks on War
 Per frame, of the receiver pixels on patches that some pass's shaft can shadow (cand):
 - exact: every pixel within `near_factor` bounding radii of the object, and farther out a lattice
   of every second pixel in x and y (plus the pixels no lattice pixel of their own quad
-  neighbours), where shadows are soft and vary slowly: sum_j W_xj M_xj over the passes;
+  neighbours), where shadows are soft and vary slowly: sum_j W_xj M_xj over the passes (the
+  all-sources frame's weak passes, app.rest_maps, fill the off-lattice pixels beyond graded_near
+  radii instead: ShadowPass.weak_ring);
 - filled: the other ones, the mean of the exact values in their 3x3 window on the same quad
   (ShadowPass.fill, kernels.maskfill, given the values compose derives from the sums).
 A cluster frame whose maps fit one batch (the drag's) instead sums on a graded lattice
@@ -17,7 +19,11 @@ sums too (second order).
 Everything per scene is set up once (ShadowPass's constructor): the points (receiver pixels and
 patch centres) are uploaded once and a frame uploads the indices of its listed ones, the proxy
 is the object's own per-shape BVH, and the per-batch transfers and candidate flags go into
-buffers of the batch's capacity. Launches are split over the cores by app.runtime.
+buffers of the batch's capacity. A frame of several batches (run) draws the next batch's maps on a
+side thread while the batch before is summed (two sets of maps; its transfers too with upload_aside,
+into a second set of buffers); the all-sources frame's scattered columns are gathered by a kernel
+(kernels.gather).
+Launches are split over the cores by app.runtime.
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ from tqdm import tqdm
 
 from app import runtime
 from kernels.buffers import Buffer
+from kernels.gather import ColumnGather
 from kernels.masked_sums import PCSS_TAPS, MaskedSum
 from kernels.maskfill import WindowFill
 from kernels.shadowmap import ShadowMaps
@@ -151,6 +158,19 @@ class ShadowPass:
         self.maps = self.maps_full  # the last frame's
         self.weights = Buffer((n_recv_vert + P, batch), wp.vec3, device)  # pixel rows, then centre rows
         self.cand = Buffer((P, batch), wp.uint8, device)
+        # run's batch buffers (transfers, candidate flags): batch k in set k % 2 when pipelined, so that the
+        # side thread may upload the next batch's while this one's are summed (upload_aside)
+        self._batch_bufs = [(self.weights, self.cand)]
+        # True: each batch's transfers uploaded on the side thread with its maps. Off: over runs at load 5-18 it
+        # made the all-sources frame's wall time 0.91-1.27x, its CPU the same (bench_rest, variant aside; three
+        # threads on two cores); idle, the side thread's raster already fills the second core during the upload
+        self.upload_aside = False
+        self.weak_lattice = True  # run(order=): the weak passes fill the near ring's pixels (weak_ring; False: A/B)
+        if self.pipelined:
+            self._batch_bufs.append((Buffer((n_recv_vert + P, batch), wp.vec3, device),
+                                     Buffer((P, batch), wp.uint8, device)))
+        # run's `order` (the all-sources frame): a batch's scattered columns gathered by a kernel on the CPU
+        self._gather = ColumnGather(max(n_recv_vert, P), batch, device) if wp.get_device(device).is_cpu else None
         self._fill = WindowFill(W, H, self.pix_quad, device)
         self._covered = np.zeros(H * W, bool)  # scratch: pixels the object covers, this frame
 
@@ -190,10 +210,15 @@ class ShadowPass:
         self._fill.set_spacing(np.zeros(0, np.int64), 2)
         pix_pt, fill_pt, cen = self.select(centre, radius, coverage, cand)
         R = self.n_pix_points
-        self.sums.select(np.concatenate([pix_pt, R + cen]))
         primary = self.maps_full if per_source or full_maps else self.maps_cluster
         n_src, dev = len(eyes), self.device
         perm, hard = (None, n_src) if order is None or not per_source else (order[0], min(max(int(order[1]), 0), n_src))
+        # the weak passes (order's last n_src - hard) skip the ring's own pixels (weak_ring); their sums start apart
+        ring = self.weak_ring(pix_pt, centre, radius) if self.weak_lattice and hard < n_src else None
+        sel_all = np.concatenate([pix_pt, R + cen])
+        sel_weak = sel_all if ring is None else np.concatenate([pix_pt[~ring], R + cen])
+        self.sums.select(sel_all if hard > 0 else sel_weak)
+        strong = None  # the sums of the passes before the weak ones, when these have their own selection
         if perm is not None:
             eyes = eyes[perm]
         # batches [first, end): the hard sources' on `primary`, then the others' on the cluster-size maps
@@ -212,29 +237,43 @@ class ShadowPass:
             ax = None if per_source or spread is None else spread[first:end]
             return maps, maps.prepare(eyes[first:end], None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
 
-        def draw(k: int, split: bool) -> tuple[ShadowMaps, int]:
-            """aim(k), then its maps drawn: split over the cores, or in one launch (the side thread's work)."""
+        def draw(k: int, split: bool) -> tuple[ShadowMaps, int, tuple[Buffer, Buffer]]:
+            """aim(k), then its maps drawn (split over the cores, or in one launch: the side thread's work)
+            and its transfers and candidate flags uploaded (into set k % 2 when pipelined); (maps, n, buffers)."""
             maps, n = aim(k)
             if split:
                 runtime.split(maps.raster, n, dev, min_items=1)
             else:
                 maps.raster(0, n)
-            return maps, n
+            bufs = self._batch_bufs[k % len(self._batch_bufs)]
+            if self.upload_aside:
+                upload(k, bufs)
+            return maps, n, bufs
+
+        def upload(k: int, bufs: tuple[Buffer, Buffer]) -> None:
+            """Batch k's transfers and candidate flags into `bufs`."""
+            first, end = firsts[k], ends[k]
+            cols = None if perm is None else perm[first:end]
+            self.upload_batch(cand, W_pix, W_c, first, end - first, cen, cols, bufs)
 
         nxt = draw(0, True) if firsts else None
         for k in tqdm(range(len(firsts)), desc="shadow passes", unit="batch", leave=False,
                       disable=self.quiet or n_src <= 4 * self.batch or not sys.stderr.isatty()):
-            self.maps, n = nxt
+            self.maps, n, (w_buf, c_buf) = nxt
             first = firsts[k]
             drawing = None
-            if k + 1 < len(firsts) and self.pipelined:  # the next batch's maps: aimed and drawn on the side
-                drawing = runtime.background(functools.partial(draw, k + 1, False))  # thread while this is summed
+            if k + 1 < len(firsts) and self.pipelined:  # the next batch: its maps aimed and drawn, its transfers
+                drawing = runtime.background(functools.partial(draw, k + 1, False))  # uploaded, on the side thread
             try:
-                self.upload_batch(cand, W_pix, W_c, first, n, cen, None if perm is None else perm[first:first + n])
-                self.sums.prepare(self.maps, n, 0, self.cand.dev,
+                if ring is not None and first == hard and hard > 0:  # the first weak batch
+                    strong = self.sums.result()[0]
+                    self.sums.select(sel_weak)
+                if not self.upload_aside:
+                    upload(k, (w_buf, c_buf))
+                self.sums.prepare(self.maps, n, 0, c_buf.dev,
                                   split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
                 # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
-                runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
+                runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, w_buf.dev, a, b)
                              for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
             finally:  # joined before the pause: nothing runs while refine() holds the frame
                 if drawing is not None:
@@ -245,7 +284,34 @@ class ShadowPass:
         self.maps = primary
         acc, _ = self.sums.result()
         n_pix = len(pix_pt)
-        return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, acc[:n_pix], acc[n_pix:])
+        if ring is None:
+            return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, acc[:n_pix], acc[n_pix:])
+        # the weak passes' sums at the ring's pixels: the mean of their sums at the known pixels of the 3x3
+        # window on the same quad (the fill of the lattice's other pixels), added to the strong passes' own
+        out = np.zeros((len(sel_all), 3)) if strong is None else strong
+        keep = np.flatnonzero(~ring)
+        out[keep] += acc[:len(keep)]
+        out[n_pix:] += acc[len(keep):]
+        out[np.flatnonzero(ring)] += self.fill(self.recv[pix_pt[keep]], acc[:len(keep)], self.recv[pix_pt[ring]])
+        return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, out[:n_pix], out[n_pix:])
+
+    def weak_ring(self, pix_pt: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+        """(len(pix_pt),) bool: the exact pixels of an all-sources frame that its weak passes (app.rest_maps)
+        fill instead of summing. They are the pixels summed only because they lie within near_factor bounding
+        radii (not on the lattice, and every one with a lattice pixel of its own quad in its 3x3 window), at
+        graded_near radii or more: beyond the bounding sphere no receiver touches the object. A weak pass
+        changes a pixel by at most WEBER (2 %) of its light, so its own hard edge is no visible step; the strong
+        passes (the lamps' contact shadows) are still summed at every such pixel. A pixel none of whose window's
+        known pixels is summed by the weak passes (the object covers them) stays exact."""
+        pts = pix_pt
+        static = (self.lattice | ~self.lattice_cover)[self.recv[pts]]
+        ring = ~static & (np.linalg.norm(self.pt_pos[pts] - centre, axis=1) >= self.graded_near * radius)
+        if ring.any():
+            at = np.flatnonzero(ring)
+            known = self.recv[pts[~ring]]
+            seen = self.fill(known, np.ones((len(known), 3)), self.recv[pts[at]])
+            ring[at[seen[:, 0] <= 0.0]] = False
+        return ring
 
     def _run_graded(self, proxy, centre: np.ndarray, radius: float, coverage: np.ndarray, cand: np.ndarray,
                     eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, spread: np.ndarray | None,
@@ -413,26 +479,42 @@ class ShadowPass:
         return pix_pt, fill_pt, cen
 
     def upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int,
-                      cen: np.ndarray, cols: np.ndarray | None = None) -> None:
-        """Sources first..first+n-1's transfers and candidate flags into the batch buffers (cols: the
-        passes' columns instead, n of them, e.g. run's perm). Of the
+                      cen: np.ndarray, cols: np.ndarray | None = None,
+                      bufs: tuple[Buffer, Buffer] | None = None) -> None:
+        """Sources first..first+n-1's transfers and candidate flags into the batch buffers (bufs: (transfers,
+        flags), default (self.weights, self.cand); cols: the passes' columns instead, n of them, e.g. run's
+        perm). Of the
         patch-centre rows only those of the frame's centres `cen` that are candidates of some source
         of the batch: the masked sums read no other (a centre's list holds its candidates only)."""
         Vr = self.n_recv_vert
-        w = self.weights.host
+        wb, cb = bufs or (self.weights, self.cand)
+        w = wb.host
         if cols is None:
             w[:Vr, :n] = W_pix[:, first:first + n]
             c = cen[cand[cen, first:first + n].any(1)]
             w[Vr + c, :n] = W_c[c, first:first + n]
-            self.cand.host[:, :n] = cand[:, first:first + n]
-        else:
+            cb.host[:, :n] = cand[:, first:first + n]
+        elif self._gather is None or not self._gather_cols(cand, W_pix, W_c, cen, cols, wb, cb):
             w[:Vr, :n] = W_pix[:, cols]
             cc = cand[:, cols]
             c = cen[cc[cen].any(1)]
             w[Vr + c, :n] = _take(W_c, c, cols)
-            self.cand.host[:, :n] = cc
-        self.weights.push()
-        self.cand.push()
+            cb.host[:, :n] = cc
+        wb.push()
+        cb.push()
+
+    def _gather_cols(self, cand: np.ndarray, W_pix, W_c, cen: np.ndarray, cols: np.ndarray, wb: Buffer, cb: Buffer
+                     ) -> bool:
+        """upload_batch's columns `cols` by kernels.gather: the same values as its numpy gather (15-27 ms a
+        batch on the loaded 2-core machine, the kernels 5-6 ms); False where the tables are not host float32
+        tables (upload_batch's numpy gather then writes every buffer)."""
+        g, Vr, n = self._gather, self.n_recv_vert, len(cols)
+        # one launch each (a few ms): split over the pool's threads they wait for a core longer than they run
+        if not g.flags(cand, cols, cb.dev):
+            return False
+        c = cen[cb.host[cen, :n].any(1)]
+        rows = np.arange(Vr)
+        return g.vec3(W_pix, rows, rows, cols, wb.dev) and g.vec3(W_c, c, Vr + c, cols, wb.dev)
 
 
 def _take(W, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

@@ -332,9 +332,18 @@ def test_all_sources_order_and_half_size_maps(demo):
     # others on cluster_map_res maps with the same hard lookup. Every pass hard in a shuffled order: the
     # masks of the listed order (sums in another order: float rounding); none hard: bitwise the frame whose
     # every map is half-size; a mix: the sum of the two parts drawn apart (each with the other's transfers
-    # zero, so the same pixels are listed)
+    # zero, so the same pixels are listed); the weak passes sum every listed pixel here (weak_lattice off:
+    # test_weak_passes_fill_the_near_ring)
     scene, eng = demo
     sp = eng.shadow_pass
+    sp.weak_lattice = False
+    try:
+        _order_and_half_size_maps(scene, eng, sp)
+    finally:
+        sp.weak_lattice = True
+
+
+def _order_and_half_size_maps(scene, eng, sp):
     pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
     centre, radius = bounding_sphere(pv)
     proxy = (pv, pf, occ)
@@ -371,3 +380,76 @@ def test_all_sources_order_and_half_size_maps(demo):
     finally:
         sp.maps_full = full
     np.testing.assert_allclose(got.O_pix, a.O_pix + b.O_pix, rtol=1e-5, atol=1e-6 * np.abs(ref.O_pix).max())
+
+
+def test_side_thread_upload_and_column_gather_give_the_same_masks(demo):
+    # the all-sources frame's batches take scattered columns (order): gathered by kernels.gather, on the
+    # rendering thread or on the side thread with the next batch's maps (upload_aside), the masks are bitwise
+    # those of numpy's gather on the rendering thread, each batch drawn and summed in turn
+    scene, eng = demo
+    sp = eng.shadow_pass
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
+    centre, radius = bounding_sphere(pv)
+    cov = np.zeros((scene.camera.height, scene.camera.width))
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    S = len(fs.eyes)
+    assert S > 2 * sp.batch
+    order = (np.random.default_rng(7).permutation(S), S // 2)
+    gather, defaults = sp._gather, (sp._gather, sp.upload_aside, sp.pipelined)
+    assert gather is not None  # the CPU device
+    out = []
+    try:
+        for g, aside, pipelined in ((None, False, False), (gather, True, True), (gather, False, True),
+                                    (None, True, True), (gather, True, False)):
+            sp._gather, sp.upload_aside, sp.pipelined = g, aside, pipelined
+            out.append(_masks(sp, (pv, pf, occ), centre, radius, cov, fs, order=order))
+    finally:
+        sp._gather, sp.upload_aside, sp.pipelined = defaults
+    assert np.abs(out[0].O_pix).sum() > 0 and np.abs(out[0].O_cen).sum() > 0
+    for m in out[1:]:
+        np.testing.assert_array_equal(m.pix_sel, out[0].pix_sel)
+        np.testing.assert_array_equal(m.O_pix, out[0].O_pix)
+        np.testing.assert_array_equal(m.O_cen, out[0].O_cen)
+
+
+def test_weak_passes_fill_the_near_ring(demo):
+    # run(order=(perm, hard)) with weak_lattice: the weak passes are not summed at the ring's pixels (listed for
+    # being within near_factor radii, off the lattice, at graded_near radii or more) but filled there from their
+    # sums at the other listed pixels (the 3x3 same-quad mean); the strong passes are summed at every pixel.
+    # Against the strong and the weak passes drawn apart (each with the other's transfers zero), every pixel
+    # summed so
+    scene, eng = demo
+    sp = eng.shadow_pass
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
+    centre, radius = bounding_sphere(pv)
+    proxy = (pv, pf, occ)
+    cov = np.zeros((scene.camera.height, scene.camera.width))
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    S = len(fs.eyes)
+    perm = np.random.default_rng(11).permutation(S)
+    h = S // 3 + 1
+    got = _masks(sp, proxy, centre, radius, cov, fs, order=(perm, h))
+    pix_pt = sp.recv_index[got.pix_sel]
+    ring = sp.weak_ring(pix_pt, centre, radius)
+    d = np.linalg.norm(sp.pt_pos[pix_pt] - centre, axis=1)
+    assert ring.sum() > 100  # the demo's object has a ring
+    assert np.all(d[ring] >= sp.graded_near * radius) and np.all(d[ring] < sp.near_factor * radius)
+    assert not np.any(sp.lattice[got.pix_sel[ring]])
+    W = np.asarray(fs.W_v)
+    Wa, Wb = W.copy(), W.copy()
+    Wa[:, perm[h:]] = 0.0
+    Wb[:, perm[:h]] = 0.0
+    a = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wa)
+    full = sp.maps_full
+    try:
+        sp.maps_full = sp.maps_cluster
+        b = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wb)
+    finally:
+        sp.maps_full = full
+    np.testing.assert_array_equal(a.pix_sel, got.pix_sel)
+    tol = 1e-6 * np.abs(a.O_pix + b.O_pix).max()
+    keep = ~ring
+    np.testing.assert_allclose(got.O_pix[keep], a.O_pix[keep] + b.O_pix[keep], rtol=1e-5, atol=tol)
+    filled = sp.fill(got.pix_sel[keep], b.O_pix[keep], got.pix_sel[ring]).copy()
+    np.testing.assert_allclose(got.O_pix[ring], a.O_pix[ring] + filled, rtol=1e-5, atol=tol)
+    assert np.abs(b.O_pix[ring]).sum() > 0 and np.abs(filled - b.O_pix[ring]).max() > 0  # the fill shows
