@@ -152,6 +152,17 @@ def _far_emitters(tris: np.ndarray, rad: np.ndarray, seen: np.ndarray, extra: Ex
                                                              extra.far_seen)))
 
 
+def cell_facing_key(c: np.ndarray, tn: np.ndarray, cells: int) -> np.ndarray:
+    """(N,) int64 group key in [0, 6 cells^3) of emitters at c (N,3) with area normals tn (N,3): the cell of
+    their box (`cells` a side) times 6 plus the axis the normal faces most (0..5: +x, -x, +y, -y, +z, -z)."""
+    nrm = tn / np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
+    ax = np.abs(nrm).argmax(1)
+    facing = 2 * ax + (nrm[np.arange(len(nrm)), ax] < 0)
+    lo, hi = c.min(0), c.max(0)
+    cell = np.clip(((c - lo) / np.maximum(hi - lo, 1e-9) * cells).astype(np.int64), 0, cells - 1)
+    return (cell @ np.array([1, cells, cells * cells])) * 6 + facing
+
+
 class FarGroups:
     """The far field's point emitters of one proxy shape merged by cell (`cells` a side of their box) and facing
     axis, as _source_groups groups them (a drag frame's far field, ObjectLight.far_cells: at most 48 emitters in
@@ -163,13 +174,7 @@ class FarGroups:
     grouping, the normals and the table do not change with a translation); per frame two sparse products."""
 
     def __init__(self, c: np.ndarray, tn: np.ndarray, seen: np.ndarray, cells: int):
-        nrm = tn / np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
-        ax = np.abs(nrm).argmax(1)
-        facing = 2 * ax + (nrm[np.arange(len(nrm)), ax] < 0)
-        k = cells
-        lo, hi = c.min(0), c.max(0)
-        cell = np.clip(((c - lo) / np.maximum(hi - lo, 1e-9) * k).astype(np.int64), 0, k - 1)
-        _, group = np.unique((cell @ np.array([1, k, k * k])) * 6 + facing, return_inverse=True)
+        _, group = np.unique(cell_facing_key(c, tn, cells), return_inverse=True)
         m = int(group.max()) + 1 if len(group) else 0
         self.tn = np.stack([np.bincount(group, tn[:, j], m) for j in range(3)], 1)
         n_g = self.tn / np.maximum(np.linalg.norm(self.tn, axis=1, keepdims=True), 1e-12)
@@ -203,13 +208,8 @@ def _source_groups(tris: np.ndarray, tri_rad: np.ndarray, extra: ExtraEmitters |
         P = np.concatenate([P, luminance(extra.far_rad) * 0.5 * np.linalg.norm(extra.far_tn, axis=1)])
     P = np.maximum(P, 0.0)
     nrm = tn / np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
-    ax = np.abs(nrm).argmax(1)
-    facing = 2 * ax + (nrm[np.arange(len(nrm)), ax] < 0)
-    k = cells
-    lo, hi = c.min(0), c.max(0)
-    cell = np.clip(((c - lo) / np.maximum(hi - lo, 1e-9) * k).astype(np.int64), 0, k - 1)
-    group = (cell @ np.array([1, k, k * k])) * 6 + facing
-    m = 6 * k ** 3
+    group = cell_facing_key(c, tn, cells)
+    m = 6 * cells ** 3
     power = np.bincount(group, P, m)
     on = np.flatnonzero(power > 0)
     pts = np.stack([np.bincount(group, P * c[:, j], m) for j in range(3)], 1)[on] / power[on, None]

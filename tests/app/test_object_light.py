@@ -110,15 +110,21 @@ def test_point_emitters_analytic():
     np.testing.assert_allclose(got[0], 0.5 * A / (np.pi * r * r), rtol=1e-5)
 
 
-def test_far_field_kernel_matches_ray_per_triangle(demo):
-    # the kernel's far field against emitter_sum (a ray per triangle) beyond FAR_FIELD radii, and
-    # against the same point-source sum in numpy (per-shape table of the triangles' visibility)
+def _far_case(demo):
+    """The far-field tests' case: the demo's engine, patches and proxy, its bounding sphere, the non-emitting
+    patches beyond FAR_FIELD radii (indices), the proxy's triangles and a seeded radiance per triangle."""
     _, eng, _, pv, pf, proxy_occ = demo
     centre, radius = bounding_sphere(pv)
     pm = eng.pre.patches
     far = np.flatnonzero((np.linalg.norm(pm.centre - centre, axis=1) > OL.FAR_FIELD * radius) & ~pm.is_emitter)
-    tris = pv[pf]
     rad = np.random.default_rng(1).uniform(0.2, 1.0, (len(pf), 3))
+    return eng, pm, far, pv, pf, proxy_occ, centre, radius, pv[pf], rad
+
+
+def test_far_field_kernel_matches_ray_per_triangle(demo):
+    # the kernel's far field against emitter_sum (a ray per triangle) beyond FAR_FIELD radii, and
+    # against the same point-source sum in numpy (per-shape table of the triangles' visibility)
+    eng, pm, far, pv, pf, proxy_occ, centre, radius, tris, rad = _far_case(demo)
     tvis = eng.object_light.proxy_shape(pv, pf, proxy_occ).visibility
     ours = OL._reflected(pm.centre[far], pm.normal[far], tris, rad, proxy_occ, centre, radius, "cpu", tvis)
     d = tris.mean(1)[None] - pm.centre[far][:, None]
@@ -398,12 +404,7 @@ def test_grouped_far_field_against_a_ray_per_triangle(demo):
     # per_triangle), and per centre lit above a hundredth of the largest, the 90th percentile of the relative
     # error within 0.01 of the per-triangle far field's and its largest within 0.2 of that one's (a grazing
     # centre, where a group's mean normal stands for members on both sides of the horizon); at most 48 emitters
-    _, eng, _, pv, pf, proxy_occ = demo
-    centre, radius = bounding_sphere(pv)
-    pm = eng.pre.patches
-    far = np.flatnonzero((np.linalg.norm(pm.centre - centre, axis=1) > OL.FAR_FIELD * radius) & ~pm.is_emitter)
-    tris = pv[pf]
-    rad = np.random.default_rng(1).uniform(0.2, 1.0, (len(pf), 3))
+    eng, pm, far, pv, pf, proxy_occ, centre, radius, tris, rad = _far_case(demo)
     shape = eng.object_light.proxy_shape(pv, pf, proxy_occ)
     tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     groups = OL.FarGroups(tris.mean(1), tn, shape.visibility.seen, OL.DRAG_FAR_CELLS)

@@ -249,15 +249,21 @@ def test_graded_lattice_matches_the_exact_sums_on_a_real_room(shared_scenes_cach
     np.testing.assert_allclose(g.O_cen, x.O_cen, rtol=1e-5, atol=1e-7)  # patch centres are all summed
 
 
+def _demo_object(scene, eng):
+    """(pv, pf, occ, centre, radius, cov) of the demo's object: its proxy shape, bounding sphere and an
+    all-zero coverage image (the masks' tests see the room without the object's own pixels)."""
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
+    centre, radius = bounding_sphere(pv)
+    return pv, pf, occ, centre, radius, np.zeros((scene.camera.height, scene.camera.width))
+
+
 def test_pipelined_batches_give_the_same_masks(demo):
     # the all-sources frame draws batch k+1's maps (into the twin set) while batch k is summed: the
     # masks are bitwise those of drawing, then summing, each batch in turn; likewise a cluster frame
     # of several batches (the non-graded path)
     scene, eng = demo
     sp = eng.shadow_pass
-    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
-    centre, radius = bounding_sphere(pv)
-    cov = np.zeros((scene.camera.height, scene.camera.width))
+    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
     for passes in (None, 2 * sp.batch + 5):
         fs = eng.shadow_sources.select(pv.min(0), pv.max(0), passes)
         assert len(fs.eyes) > sp.batch  # several batches: the twin maps are used
@@ -344,10 +350,8 @@ def test_all_sources_order_and_half_size_maps(demo):
 
 
 def _order_and_half_size_maps(scene, eng, sp):
-    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
-    centre, radius = bounding_sphere(pv)
+    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
     proxy = (pv, pf, occ)
-    cov = np.zeros((scene.camera.height, scene.camera.width))
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
     S = len(fs.eyes)
     assert S > 2 * sp.batch
@@ -388,9 +392,7 @@ def test_side_thread_upload_and_column_gather_give_the_same_masks(demo):
     # those of numpy's gather on the rendering thread, each batch drawn and summed in turn
     scene, eng = demo
     sp = eng.shadow_pass
-    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
-    centre, radius = bounding_sphere(pv)
-    cov = np.zeros((scene.camera.height, scene.camera.width))
+    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
     S = len(fs.eyes)
     assert S > 2 * sp.batch
@@ -420,10 +422,8 @@ def test_weak_passes_fill_the_near_ring(demo):
     # summed so
     scene, eng = demo
     sp = eng.shadow_pass
-    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
-    centre, radius = bounding_sphere(pv)
+    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
     proxy = (pv, pf, occ)
-    cov = np.zeros((scene.camera.height, scene.camera.width))
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
     S = len(fs.eyes)
     perm = np.random.default_rng(11).permutation(S)
