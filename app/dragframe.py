@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from app import runtime
+from app.stages.object_light import DRAG_FAR_CELLS
 from app.stages.receiver_map import ReceiverMap, receiver_map, reflectance
 from kernels.drag_compose import RATIO_EPS, DragCompose
 from kernels.raycast import cast_rays
@@ -150,6 +151,7 @@ class DragStages:
                                         sun_dir=sun_light.d if sun_light is not None else None)
         if not plain:
             self.object_light.room_cells = DRAG_ROOM_CELLS
+            self.object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (app.stages.object_light.FarGroups)
             self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
         self.shape = (cam.height, cam.width)
         self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object

@@ -53,7 +53,7 @@ from app.rest_maps import RestMaps
 from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
 from app.stages import precompute as scene_precompute
 from app.stages.compose import ComposeStage
-from app.stages.object_light import DRAG_FAR_CELLS, ObjectLight
+from app.stages.object_light import ObjectLight
 from app.stages.object_drag import DragObject
 from app.stages.object_shading import ObjectShading
 from app.stages.precompute import Precomputed, hash_scene as _hash_scene  # noqa: F401 (re-exported)
@@ -455,7 +455,6 @@ class Engine:
             return self
         if drag not in self._drag:
             self._drag[drag] = DragStages(self, drag)
-            self._drag[drag].object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (object_light)
         return self._drag[drag]
 
     def _object_light(self, px, obj: SceneObject, pv, pf, proxy_occ, centre, radius, cov, dB_shadow, tables=None):

@@ -656,7 +656,7 @@ class ObjectLight:
         # a drag frame sets app.dragframe.DRAG_ROOM_CELLS
         self.room_cells = ROOM_CELLS
         # the far field's emitters merged this many cells a side (FarGroups), None: every triangle its own (at
-        # rest); a drag frame sets DRAG_FAR_CELLS (Engine.pixel_stages)
+        # rest); a drag frame sets DRAG_FAR_CELLS (app.dragframe.DragStages)
         self.far_cells: int | None = None
         self._far_groups: tuple | None = None  # (shape key, cells, FarGroups) of the last proxy shape
         self.n_pixels = 0  # pixels the last frame evaluated per pixel (the near region)
