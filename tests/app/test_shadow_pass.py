@@ -453,3 +453,13 @@ def test_weak_passes_fill_the_near_ring(demo):
     filled = sp.fill(got.pix_sel[keep], b.O_pix[keep], got.pix_sel[ring]).copy()
     np.testing.assert_allclose(got.O_pix[ring], a.O_pix[ring] + filled, rtol=1e-5, atol=tol)
     assert np.abs(b.O_pix[ring]).sum() > 0 and np.abs(filled - b.O_pix[ring]).max() > 0  # the fill shows
+
+
+def test_set_taps_refuses_fewer_than_two(demo):
+    # a PCSS lookup needs at least 2 taps per axis: 1 is refused with one line, and the taps stay as they were
+    _, eng = demo
+    sp = eng.shadow_pass
+    before = sp.taps
+    with pytest.raises(ValueError, match="at least 2 taps per axis, got 1"):
+        sp.set_taps(1)
+    assert sp.taps == before and sp.maps_full.taps == before

@@ -113,3 +113,20 @@ def test_photo_light_reads_the_photo_through_the_folders_response(tmp_path):
     assert np.abs(shape - 1).max() < 0.05, np.abs(shape - 1).max(axis=1)
     bare = PL.photo_response(load_scene(strip_scene(src, tmp_path / "stripped")))
     assert not bare.measured and bare.source == "sRGB (assumed)"
+
+
+def test_unreadable_bracket_falls_back_to_srgb_with_one_warning(tmp_path, caplog):
+    # a scene.json whose light_probe names images that are not there: photo light says so in one warning
+    # naming scene.json and the missing file, and reads the photo through the assumed sRGB curve
+    from types import SimpleNamespace
+
+    (tmp_path / "scene.json").write_text(json.dumps(
+        {"light_probe": {"ldr_files": ["probe_a.png", "probe_b.png"], "exposure_times": [0.1, 0.01]}}))
+    scene = SimpleNamespace(camera=SimpleNamespace(exposure_time=0.02), response=None, root=tmp_path)
+    with caplog.at_level("WARNING"):
+        r = PL.photo_response(scene)
+    assert not r.measured and r.source == "sRGB (assumed)"
+    assert r.exposure_time == pytest.approx(0.02, rel=1e-12)
+    warned = [m for m in caplog.messages if "probe bracket gives no response" in m]
+    assert len(warned) == 1 and str(tmp_path / "scene.json") in warned[0] and "probe_a.png" in warned[0], warned
+    np.testing.assert_allclose(r.inverse_table, PL.srgb_response(0.02).inverse_table, rtol=1e-12)
