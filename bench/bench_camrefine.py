@@ -98,6 +98,7 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
         kw = _variant(v)
         r = refine_camera(cam, prims, img, cj, **kw)
         out[v or "default"] = {**camera_errors(r.camera, truth, S, P), "accepted": r.accepted, "reason": r.reason,
+                               "object_std_px": _object_std(r, P),
                                "seconds": time.time() - t0, "refinement": r.to_json(),
                                "camera": {"K": r.camera.K.tolist(), "R": r.camera.R.tolist(), "t": r.camera.t.tolist()}}
         if true_start:
@@ -106,6 +107,16 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
             out[(v or "default") + " from truth"] = {"moved_px": r.moved_px, "accepted": r.accepted,
                                                      "reason": r.reason, "errors": moved}
     return out
+
+
+def _object_std(r, P: np.ndarray) -> float:
+    """The refined fit's own 1-sigma uncertainty of the object's image (px, rms over its vertices), from the
+    fit's parameter covariance (recon.camrefine.camera_covariance); nan without a fit."""
+    from recon.camrefine import point_std_px
+
+    if r.covariance is None or r.x is None or r.camera_at is None or not len(P):
+        return float("nan")
+    return point_std_px(r.camera_at, np.asarray(r.x, float), np.asarray(r.covariance, float), P)
 
 
 def _fmt(e: dict) -> str:
@@ -131,7 +142,9 @@ def main() -> None:
         print(f"{name} (principal point from: {r['pp_from']}): calibrated {_fmt(r['calibrated'])}", flush=True)
         for v in variants:
             e = r[v or "default"]
-            print(f"  {v or 'default'}: {_fmt(e)}{'' if e['accepted'] else ' (kept: ' + e['reason'] + ')'}"
+            print(f"  {v or 'default'}: {_fmt(e)} (fit's own 1 sigma {e['object_std_px']:.2f} px)"
+                  f"{'' if e['accepted'] else ' (kept: ' + e['reason'] + ')'}"
+                  f"{'; ' + e['refinement']['edge_errors'] if e['refinement'].get('edge_errors') else ''}"
                   f" [{e['seconds']:.1f} s]", flush=True)
             if a.true:
                 t = r[(v or "default") + " from truth"]

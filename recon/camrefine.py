@@ -113,9 +113,15 @@ class Refinement:
     chamfer_after_px: float  # ... at the refined camera
     seconds: float
     principal_point: str = ""  # how the principal point was modelled (recon/campp.py); "" when held as given
+    edge_errors: str = ""  # with edge_errors="random": the measured variance components (EdgeErrors), in words
+    covariance: object = dataclasses.field(default=None, repr=False)  # the fit's camera-parameter covariance
+    # (camera_covariance), its parameters `x` and `camera_at(x)` -> Camera: the refined fit's own uncertainty
+    x: object = dataclasses.field(default=None, repr=False)
+    camera_at: object = dataclasses.field(default=None, repr=False)
 
     def to_json(self) -> dict:
-        d = {k: v for k, v in dataclasses.asdict(self).items() if k != "camera"}
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+             if f.name not in ("camera", "covariance", "x", "camera_at")}
         return {k: (round(v, 6) if isinstance(v, float) else v) for k, v in d.items()}
 
     def summary(self) -> str:
@@ -581,7 +587,8 @@ PP_MODELS = ("select", "free", "held")  # a principal point from three vanishing
 
 
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
-                  fine_stage: str = "profiles", principal_point: str = "select") -> Refinement:
+                  fine_stage: str = "profiles", principal_point: str = "select", edge_errors: str = "capped",
+                  lines_share: bool = False) -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
     module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
@@ -590,13 +597,18 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     calibrate's prior, PP_PRIOR_REL): see docs/unseen.md for where each does better.
     principal_point (used when calibrate took it from three vanishing points; else it is held as given):
     "select" (the default: fitted held at the image centre, freed only when the room's edges and the
-    clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre)."""
+    clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre).
+    edge_errors: "capped" (the default) or "random" (after the profile stage, each edge's shared error a
+    random effect of a size measured on the photo, with an edge-level robust loss: _random_effect_stage;
+    lines_share: the clicked lines carry that error too)."""
     from recon import campp
 
     if fine_stage not in FINE_STAGES:
         raise ValueError(f"fine_stage: expected one of {FINE_STAGES}, got {fine_stage!r}")
     if principal_point not in PP_MODELS:
         raise ValueError(f"principal_point: expected one of {PP_MODELS}, got {principal_point!r}")
+    if edge_errors not in EDGE_ERRORS:
+        raise ValueError(f"edge_errors: expected one of {EDGE_ERRORS}, got {edge_errors!r}")
     t0 = time.time()
     image = np.asarray(image)
     if image.shape[:2] != (cam.height, cam.width):
@@ -629,13 +641,21 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     else:
         model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
         best = _search(model, **stage)
+    ee_note = ""
+    if best is not None and edge_errors == "random" and fine_stage == "profiles":
+        got = _random_effect_stage(model, best, edges, occ, photo, lines, lines_share)
+        if got is not None:
+            best, ee = got
+            ee_note = (f"random effect per edge: {ee.n_edges} edges, their own error tau {ee.tau_px:.2f} px, a sample's "
+                       f"s {ee.s_px:.2f} px")
     if best is None:
         S0 = _sample_edges(cam, edges, occ)
         best, refined = _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0), np.zeros(0)), cam
     else:
         refined = model.camera(best.x)
     r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
-    return dataclasses.replace(r, principal_point=note)
+    return dataclasses.replace(r, principal_point=note, edge_errors=ee_note, x=best.x,
+                               covariance=camera_covariance(best.res), camera_at=model.camera)
 
 
 def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str) -> _Fit | None:
@@ -748,14 +768,15 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: np
     """None when the fit pins every free parameter: the Jacobian has full rank, the inlier samples'
     projected edges span two directions, and a one-sigma error of the parameters (the covariance
     scaled by the residuals) moves the samples by at most MAX_PRED_STD_PX rms; else the reason."""
-    J = res.jac
+    J = res.jac.toarray() if hasattr(res.jac, "toarray") else res.jac
     ne = int(used.sum())
-    Je = J[:ne][inl]
+    k = getattr(res, "n_camera", None) or J.shape[1]  # the camera's parameters (then the edges' offsets)
+    Je = J[:ne][inl][:, :k]
     try:
         s = np.linalg.svd(J, compute_uv=False)
         if not s[-1] > 1e-9 * s[0]:
             return "the room's edges do not determine the camera (rank-deficient fit)"
-        cov = np.linalg.inv(J.T @ J)
+        cov = np.linalg.inv(J.T @ J)[:k, :k]
     except np.linalg.LinAlgError:
         return "the room's edges do not determine the camera (singular fit)"
     r = np.array(res.fun, float)
@@ -775,3 +796,179 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: np
         if np.min(G) > np.cos(np.radians(MIN_LINE_DIRECTIONS_DEG)):
             return "the room's edges found in the photo run in one direction only"
     return None
+
+
+# ----------------------------------------------------------------------------------------------
+# The edges' own errors as random effects (refine_camera(edge_errors="random"))
+
+EDGE_ERRORS = ("capped", "random")  # how an edge's shared error enters the fit: "capped" (each edge weighs at
+# most EDGE_WEIGHT_SAMPLES samples at FINE_SIGMA_PX; the default) or "random" (_random_effect_stage)
+MEDIAN_CHI2_1 = 0.454936  # the median of a chi-square variable of 1 dof: a robust variance from squared offsets
+MAD_TO_SIGMA = 1.4826  # the normal distribution's sigma per median absolute deviation
+RE_ITERATIONS = 5  # the variance components re-estimated at most this often per measurement round (they settle
+# in 2-3: each re-estimate changes the weights only through tau / s)
+RE_ROUNDS = 2  # measurement rounds: the sub-pixel edges re-measured at the fitted camera (the profile stage's
+# three rounds have already converged the matches; a second round checks the random-effect camera's own)
+
+
+@dataclass
+class EdgeErrors:
+    """The variance components of the random-effect fit (px): s the noise of one sub-pixel sample about its
+    edge's own offset (pooled over the photo), tau the spread of the edges' own offsets (the room model's
+    error of one edge's image, estimated from the photo), and the fitted offset of each edge."""
+    s_px: float
+    tau_px: float
+    n_edges: int
+    offsets_px: dict  # {edge index: fitted offset, px, along the edge's projected normal}
+
+
+def _variance_components(raw: np.ndarray, inv: np.ndarray, b: np.ndarray, n_params: int) -> tuple[float, float]:
+    """(s, tau) px from the residuals `raw` (n.(q - uv) at the fitted camera, per sample), each sample's edge
+    (inv, 0..E-1) and the edges' fitted offsets b. s: MAD of the samples about their edge's offset, with the
+    dof the offsets and camera take (N / (N - E - p)). tau: the edges' mean residuals m_e have variance
+    tau^2 + s^2 / n_e; tau^2 is their excess over the sampling part, robustly (median over edges of
+    m_e^2 - s^2 / n_e, divided by the median of chi-square 1 dof) and with the REML dof correction E / (E - p)
+    (the camera's p parameters were fitted to the same offsets). tau is floored at the precision with which
+    the longest edge's offset is measured (s / sqrt(max n_e)): below it no edge can tell an offset from noise."""
+    E = len(b)
+    N = len(raw)
+    counts = np.bincount(inv, minlength=E)
+    within = raw - b[inv]
+    s = MAD_TO_SIGMA * float(np.median(np.abs(within - np.median(within))))
+    s *= np.sqrt(N / max(N - E - n_params, 1))
+    m = np.bincount(inv, weights=raw, minlength=E) / np.maximum(counts, 1)
+    excess = float(np.median(m ** 2 - s ** 2 / np.maximum(counts, 1))) / MEDIAN_CHI2_1
+    tau2 = excess * E / max(E - n_params, 1)
+    floor = s / np.sqrt(max(int(counts.max()), 1))
+    return max(s, 1e-6), float(np.sqrt(max(tau2, floor ** 2)))
+
+
+def _solve_random(model: _Model, x0: np.ndarray, b0: np.ndarray, S: _Samples, q: np.ndarray, inv: np.ndarray,
+                  s: float, tau: float, lines, line_tau: float = 0.0):
+    """Least squares of the camera x and one offset b_e per edge (px, along the edge's projected normal):
+    sample residuals (n.(q - uv) - b_e) / s, Cauchy at ROBUST_SIGMAS (a sample against its own noise); edge
+    residuals b_e / tau, Cauchy at ROBUST_SIGMAS (the random effect's prior: an edge whose offset is several
+    tau is an edge whose profile does not mark the geometry, and its offset is then nearly free, so it keeps
+    only its direction's information: the edge-level robust fit); clicked lines as in _solve, their noise
+    sqrt(sig^2 + line_tau^2). For Gaussian losses this is the generalised least squares of samples sharing
+    an edge error of variance tau^2 (the random effect integrated out), which weighs an edge of n samples
+    as one measurement of variance s^2 / n + tau^2 for its offset and in full for its direction."""
+    from scipy.optimize import least_squares
+    from scipy.sparse import lil_matrix
+
+    from recon.vanishing import _seg_residual
+
+    segs, sig = lines
+    idx = {"x": 0, "y": 1, "z": 2}
+    k, E, ne = model.n, len(b0), len(S.X)
+    pp0 = np.array([(model.cam0.width - 1) / 2.0, (model.cam0.height - 1) / 2.0])
+    pp_sig = PP_PRIOR_REL * max(model.cam0.width, model.cam0.height)
+
+    def fun(p):
+        x, b = p[:k], p[k:]
+        cam = model.camera(x)
+        uv, n = _project(cam, S)
+        r = [(np.sum(n * (q - uv), axis=1) - b[inv]) / s, b / tau]
+        KR = cam.K @ cam.R
+        r += [_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / np.sqrt(sig[a] ** 2 + line_tau ** 2)
+              for a in segs]
+        if model.free_pp and model.pp_prior:
+            r.append((cam.K[:2, 2] - pp0) / pp_sig)
+        return np.concatenate(r)
+
+    nr = len(fun(np.concatenate([x0, b0])))
+    sp = lil_matrix((nr, k + E), dtype=int)
+    sp[:, :k] = 1
+    sp[np.arange(ne), k + inv] = 1
+    sp[ne + np.arange(E), k + np.arange(E)] = 1
+    nrob = ne + E
+
+    def loss(z):  # Cauchy on the samples and the edges' offsets, squares on the clicked lines and the prior
+        out = np.empty((3, len(z)))
+        t = 1.0 + z[:nrob]
+        out[0, :nrob], out[1, :nrob], out[2, :nrob] = np.log1p(z[:nrob]), 1.0 / t, -1.0 / t ** 2
+        out[0, nrob:], out[1, nrob:], out[2, nrob:] = z[nrob:], 1.0, 0.0
+        return out
+
+    x_scale = [1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:k] + [0.1] * E
+    res = least_squares(fun, np.concatenate([x0, b0]), loss=loss, f_scale=ROBUST_SIGMAS, x_scale=x_scale,
+                        method="trf", jac_sparsity=sp, max_nfev=100)
+    res.n_camera = k
+    res.edge_weight = None
+    return res
+
+
+def _random_effect_stage(model: _Model, fit: _Fit, edges, occ, photo: PhotoEdges, lines,
+                         lines_share: bool = False) -> tuple[_Fit, EdgeErrors] | None:
+    """The sub-pixel fit with each edge's shared error a random effect whose size is measured on the photo
+    (in place of the fixed cap of EDGE_WEIGHT_SAMPLES samples at FINE_SIGMA_PX): from the profile stage's
+    camera `fit`, RE_ROUNDS rounds of edgesnap's sub-pixel edges at the current camera, each fitted by
+    _solve_random with the variance components (s, tau) re-estimated from the fit's own residuals
+    (_variance_components) until they settle (RE_ITERATIONS). With lines_share the clicked (snapped) lines
+    carry the same per-edge error tau as the room's edges (they are the photo's edges too). None when too
+    few samples are found."""
+    x = fit.x
+    out = None
+    s, tau = FINE_SIGMA_PX, EDGE_MODEL_SIGMA_PX  # the start: the fixed figures of the default fit
+    for _ in range(RE_ROUNDS):
+        S = _sample_edges(model.camera(x), edges, occ)
+        if len(S.X) < MIN_SAMPLES:
+            break
+        uv, n = _project(model.camera(x), S)
+        q, ok = photo.subpixel(uv, n)
+        ok &= _exclusive(uv, n, S.edge, q)
+        if ok.sum() < MIN_SAMPLES:
+            break
+        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
+        ue, inv = np.unique(sub.edge, return_inverse=True)
+        b = np.zeros(len(ue))
+        for _ in range(RE_ITERATIONS):
+            res = _solve_random(model, x, b, sub, q[ok], inv, s, tau, lines, tau if lines_share else 0.0)
+            x, b = res.x[:model.n], res.x[model.n:]
+            uv1, n1 = _project(model.camera(x), sub)
+            raw = np.sum(n1 * (q[ok] - uv1), axis=1)
+            s1, tau1 = _variance_components(raw, inv, b, model.n)
+            done = abs(s1 - s) <= 0.05 * s and abs(tau1 - tau) <= 0.05 * tau
+            s, tau = s1, tau1
+            if done:
+                break
+        sigma = np.full(int(ok.sum()), float(s))  # the sample residuals' scale in _solve_random (the guard's
+        # conditioning turns the normalised Jacobian back into px with it)
+        out = (_Fit(x, res, S, ok, raw, sigma, start=fit.start, data=(sub, q[ok], s, tau ** 2)),
+               EdgeErrors(float(s), float(tau), len(ue), {int(e): float(v) for e, v in zip(ue, b)}))
+    return out
+
+
+def camera_covariance(res, n_camera: int | None = None) -> np.ndarray | None:
+    """The covariance of the camera's parameters (_Model's x) from a least-squares result: the inverse of the
+    Gauss-Newton Hessian (res.jac, the robust loss's weights included), marginal over any nuisance
+    parameters after the first n_camera (the edges' offsets), scaled by the reduced chi-square when it
+    exceeds 1 (the noise figures under-stated). None when singular."""
+    if res is None:
+        return None
+    J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
+    k = n_camera or getattr(res, "n_camera", None) or J.shape[1]
+    r = np.array(res.fun, float)
+    a = getattr(res, "edge_weight", None)
+    if a is not None:
+        r[:len(a)] *= np.sqrt(a)
+    try:
+        cov = np.linalg.inv(J.T @ J)[:k, :k]
+    except np.linalg.LinAlgError:
+        return None
+    scale = max(float(r @ r) / max(len(r) - J.shape[1], 1), 1.0)
+    return cov * scale
+
+
+def point_std_px(camera_at, x: np.ndarray, cov: np.ndarray, P: np.ndarray, h: float = 1e-6) -> float:
+    """rms over the world points P (m) of the 1-sigma image uncertainty (px, sqrt of the trace of each
+    point's 2x2 covariance) that the parameter covariance cov gives about x, camera_at(x) -> Camera
+    (finite differences of step h in each parameter's own units)."""
+    u0, _ = camera_at(x).project(P)
+    J = np.empty((len(P), 2, len(x)))
+    for j in range(len(x)):
+        dx = np.zeros(len(x))
+        dx[j] = h
+        J[:, :, j] = (camera_at(x + dx).project(P)[0] - u0) / h
+    var = np.einsum("nij,jk,nik->n", J, cov, J)
+    return float(np.sqrt(np.mean(np.maximum(var, 0.0))))
