@@ -642,8 +642,9 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
         best = _search(model, **stage)
     ee_note = ""
-    if best is not None and edge_errors == "random" and fine_stage == "profiles":
-        got = _random_effect_stage(model, best, edges, occ, photo, lines, lines_share)
+    if best is not None and edge_errors != "capped" and fine_stage == "profiles":
+        got = _random_effect_stage(model, best, edges, occ, photo, lines, lines_share,
+                                   per_edge=edge_errors == "random_edge_noise")
         if got is not None:
             best, ee = got
             ee_note = (f"random effect per edge: {ee.n_edges} edges, their own error tau {ee.tau_px:.2f} px, a sample's "
@@ -801,8 +802,12 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: np
 # ----------------------------------------------------------------------------------------------
 # The edges' own errors as random effects (refine_camera(edge_errors="random"))
 
-EDGE_ERRORS = ("capped", "random")  # how an edge's shared error enters the fit: "capped" (each edge weighs at
-# most EDGE_WEIGHT_SAMPLES samples at FINE_SIGMA_PX; the default) or "random" (_random_effect_stage)
+EDGE_ERRORS = ("capped", "random", "random_edge_noise")  # how an edge's shared error enters the fit: "capped"
+# (each edge weighs at most EDGE_WEIGHT_SAMPLES samples at FINE_SIGMA_PX; the default), "random"
+# (_random_effect_stage, one sample noise s for the photo) or "random_edge_noise" (s measured per edge)
+PRIOR_DOF = 4.0  # per-edge noise: the photo's pooled s counts as this many degrees of freedom beside the edge's
+# own samples (a conjugate inverse-chi-square prior; 4 is the fewest whose prior has a finite mean and keeps an
+# edge of 2-3 samples from claiming a noise of ~0)
 MEDIAN_CHI2_1 = 0.454936  # the median of a chi-square variable of 1 dof: a robust variance from squared offsets
 MAD_TO_SIGMA = 1.4826  # the normal distribution's sigma per median absolute deviation
 RE_ITERATIONS = 5  # the variance components re-estimated at most this often per measurement round (they settle
@@ -822,31 +827,42 @@ class EdgeErrors:
     offsets_px: dict  # {edge index: fitted offset, px, along the edge's projected normal}
 
 
-def _variance_components(raw: np.ndarray, inv: np.ndarray, b: np.ndarray, n_params: int) -> tuple[float, float]:
+def _variance_components(raw: np.ndarray, inv: np.ndarray, b: np.ndarray, n_params: int,
+                         per_edge: bool = False) -> tuple[np.ndarray, float]:
     """(s, tau) px from the residuals `raw` (n.(q - uv) at the fitted camera, per sample), each sample's edge
     (inv, 0..E-1) and the edges' fitted offsets b. s: MAD of the samples about their edge's offset, with the
     dof the offsets and camera take (N / (N - E - p)). tau: the edges' mean residuals m_e have variance
     tau^2 + s^2 / n_e; tau^2 is their excess over the sampling part, robustly (median over edges of
     m_e^2 - s^2 / n_e, divided by the median of chi-square 1 dof) and with the REML dof correction E / (E - p)
     (the camera's p parameters were fitted to the same offsets). tau is floored at the precision with which
-    the longest edge's offset is measured (s / sqrt(max n_e)): below it no edge can tell an offset from noise."""
+    the longest edge's offset is measured (s / sqrt(max n_e)): below it no edge can tell an offset from noise.
+    With per_edge, s is one figure per edge (E,): the edge's own MAD about its offset, its square pooled with
+    the photo's s^2 at PRIOR_DOF degrees of freedom (grain differs from a dark crease to a sunlit wall)."""
     E = len(b)
     N = len(raw)
     counts = np.bincount(inv, minlength=E)
     within = raw - b[inv]
     s = MAD_TO_SIGMA * float(np.median(np.abs(within - np.median(within))))
     s *= np.sqrt(N / max(N - E - n_params, 1))
+    s = max(s, 1e-6)
+    se = np.full(E, s)
+    if per_edge:
+        for e in range(E):
+            w = within[inv == e]
+            if len(w) >= 2:
+                own = (MAD_TO_SIGMA * float(np.median(np.abs(w - np.median(w))))) ** 2 * len(w) / (len(w) - 1)
+                se[e] = np.sqrt(((len(w) - 1) * own + PRIOR_DOF * s ** 2) / (len(w) - 1 + PRIOR_DOF))
     m = np.bincount(inv, weights=raw, minlength=E) / np.maximum(counts, 1)
-    excess = float(np.median(m ** 2 - s ** 2 / np.maximum(counts, 1))) / MEDIAN_CHI2_1
+    excess = float(np.median(m ** 2 - se ** 2 / np.maximum(counts, 1))) / MEDIAN_CHI2_1
     tau2 = excess * E / max(E - n_params, 1)
-    floor = s / np.sqrt(max(int(counts.max()), 1))
-    return max(s, 1e-6), float(np.sqrt(max(tau2, floor ** 2)))
+    floor = float(np.min(se / np.sqrt(np.maximum(counts, 1))))
+    return (se if per_edge else s), float(np.sqrt(max(tau2, floor ** 2)))
 
 
 def _solve_random(model: _Model, x0: np.ndarray, b0: np.ndarray, S: _Samples, q: np.ndarray, inv: np.ndarray,
-                  s: float, tau: float, lines, line_tau: float = 0.0):
+                  s, tau: float, lines, line_tau: float = 0.0):
     """Least squares of the camera x and one offset b_e per edge (px, along the edge's projected normal):
-    sample residuals (n.(q - uv) - b_e) / s, Cauchy at ROBUST_SIGMAS (a sample against its own noise); edge
+    sample residuals (n.(q - uv) - b_e) / s (s: px, one figure or one per edge), Cauchy at ROBUST_SIGMAS (a sample against its own noise); edge
     residuals b_e / tau, Cauchy at ROBUST_SIGMAS (the random effect's prior: an edge whose offset is several
     tau is an edge whose profile does not mark the geometry, and its offset is then nearly free, so it keeps
     only its direction's information: the edge-level robust fit); clicked lines as in _solve, their noise
@@ -861,6 +877,7 @@ def _solve_random(model: _Model, x0: np.ndarray, b0: np.ndarray, S: _Samples, q:
     segs, sig = lines
     idx = {"x": 0, "y": 1, "z": 2}
     k, E, ne = model.n, len(b0), len(S.X)
+    s_i = np.asarray(s, float)[inv] if np.ndim(s) else float(s)
     pp0 = np.array([(model.cam0.width - 1) / 2.0, (model.cam0.height - 1) / 2.0])
     pp_sig = PP_PRIOR_REL * max(model.cam0.width, model.cam0.height)
 
@@ -868,7 +885,7 @@ def _solve_random(model: _Model, x0: np.ndarray, b0: np.ndarray, S: _Samples, q:
         x, b = p[:k], p[k:]
         cam = model.camera(x)
         uv, n = _project(cam, S)
-        r = [(np.sum(n * (q - uv), axis=1) - b[inv]) / s, b / tau]
+        r = [(np.sum(n * (q - uv), axis=1) - b[inv]) / s_i, b / tau]
         KR = cam.K @ cam.R
         r += [_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / np.sqrt(sig[a] ** 2 + line_tau ** 2)
               for a in segs]
@@ -899,14 +916,14 @@ def _solve_random(model: _Model, x0: np.ndarray, b0: np.ndarray, S: _Samples, q:
 
 
 def _random_effect_stage(model: _Model, fit: _Fit, edges, occ, photo: PhotoEdges, lines,
-                         lines_share: bool = False) -> tuple[_Fit, EdgeErrors] | None:
+                         lines_share: bool = False, per_edge: bool = False) -> tuple[_Fit, EdgeErrors] | None:
     """The sub-pixel fit with each edge's shared error a random effect whose size is measured on the photo
     (in place of the fixed cap of EDGE_WEIGHT_SAMPLES samples at FINE_SIGMA_PX): from the profile stage's
     camera `fit`, RE_ROUNDS rounds of edgesnap's sub-pixel edges at the current camera, each fitted by
     _solve_random with the variance components (s, tau) re-estimated from the fit's own residuals
     (_variance_components) until they settle (RE_ITERATIONS). With lines_share the clicked (snapped) lines
-    carry the same per-edge error tau as the room's edges (they are the photo's edges too). None when too
-    few samples are found."""
+    carry the same per-edge error tau as the room's edges (they are the photo's edges too); with per_edge the
+    samples' noise s is measured per edge. None when too few samples are found."""
     x = fit.x
     out = None
     s, tau = FINE_SIGMA_PX, EDGE_MODEL_SIGMA_PX  # the start: the fixed figures of the default fit
@@ -922,41 +939,39 @@ def _random_effect_stage(model: _Model, fit: _Fit, edges, occ, photo: PhotoEdges
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
         ue, inv = np.unique(sub.edge, return_inverse=True)
         b = np.zeros(len(ue))
+        s = np.full(len(ue), float(np.median(s))) if per_edge else float(np.median(s))
         for _ in range(RE_ITERATIONS):
             res = _solve_random(model, x, b, sub, q[ok], inv, s, tau, lines, tau if lines_share else 0.0)
             x, b = res.x[:model.n], res.x[model.n:]
             uv1, n1 = _project(model.camera(x), sub)
             raw = np.sum(n1 * (q[ok] - uv1), axis=1)
-            s1, tau1 = _variance_components(raw, inv, b, model.n)
-            done = abs(s1 - s) <= 0.05 * s and abs(tau1 - tau) <= 0.05 * tau
+            s1, tau1 = _variance_components(raw, inv, b, model.n, per_edge)
+            done = bool(np.all(np.abs(s1 - s) <= 0.05 * s)) and abs(tau1 - tau) <= 0.05 * tau
             s, tau = s1, tau1
             if done:
                 break
-        sigma = np.full(int(ok.sum()), float(s))  # the sample residuals' scale in _solve_random (the guard's
+        sigma = (np.asarray(s, float)[inv] if per_edge else np.full(int(ok.sum()), float(s)))  # the sample residuals' scale in _solve_random (the guard's
         # conditioning turns the normalised Jacobian back into px with it)
         out = (_Fit(x, res, S, ok, raw, sigma, start=fit.start, data=(sub, q[ok], s, tau ** 2)),
-               EdgeErrors(float(s), float(tau), len(ue), {int(e): float(v) for e, v in zip(ue, b)}))
+               EdgeErrors(float(np.median(s)), float(tau), len(ue), {int(e): float(v) for e, v in zip(ue, b)}))
     return out
 
 
 def camera_covariance(res, n_camera: int | None = None) -> np.ndarray | None:
     """The covariance of the camera's parameters (_Model's x) from a least-squares result: the inverse of the
     Gauss-Newton Hessian (res.jac, the robust loss's weights included), marginal over any nuisance
-    parameters after the first n_camera (the edges' offsets), scaled by the reduced chi-square when it
-    exceeds 1 (the noise figures under-stated). None when singular."""
+    parameters after the first n_camera (the edges' offsets), scaled by the reduced robust chi-square (2 cost /
+    dof: the loss's, so the outliers the loss discounts do not inflate it) when it exceeds 1 (the noise figures
+    under-stated). None when singular."""
     if res is None:
         return None
     J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
     k = n_camera or getattr(res, "n_camera", None) or J.shape[1]
-    r = np.array(res.fun, float)
-    a = getattr(res, "edge_weight", None)
-    if a is not None:
-        r[:len(a)] *= np.sqrt(a)
     try:
         cov = np.linalg.inv(J.T @ J)[:k, :k]
     except np.linalg.LinAlgError:
         return None
-    scale = max(float(r @ r) / max(len(r) - J.shape[1], 1), 1.0)
+    scale = max(2.0 * float(res.cost) / max(len(res.fun) - J.shape[1], 1), 1.0)
     return cov * scale
 
 
