@@ -644,11 +644,13 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     ee_note = ""
     if best is not None and edge_errors != "capped" and fine_stage == "profiles":
         got = _random_effect_stage(model, best, edges, occ, photo, lines, lines_share,
-                                   per_edge=edge_errors == "random_edge_noise")
+                                   per_edge=edge_errors in ("random_edge_noise", "random_tilt"),
+                                   tilt=edge_errors == "random_tilt")
         if got is not None:
             best, ee = got
-            ee_note = (f"random effect per edge: {ee.n_edges} edges, their own error tau {ee.tau_px:.2f} px, a sample's "
-                       f"s {ee.s_px:.2f} px")
+            ee_note = (f"random effect per edge: {ee.n_edges} edges, their own error tau {ee.tau_px:.2f} px"
+                       + ("" if np.isnan(ee.tilt_tau_px) else f", tilt {ee.tilt_tau_px:.2f} px")
+                       + f", a sample's s {ee.s_px:.2f} px")
     if best is None:
         S0 = _sample_edges(cam, edges, occ)
         best, refined = _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0), np.zeros(0)), cam
@@ -802,9 +804,10 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: np
 # ----------------------------------------------------------------------------------------------
 # The edges' own errors as random effects (refine_camera(edge_errors="random"))
 
-EDGE_ERRORS = ("capped", "random", "random_edge_noise")  # how an edge's shared error enters the fit: "capped"
-# (each edge weighs at most EDGE_WEIGHT_SAMPLES samples at FINE_SIGMA_PX; the default), "random"
-# (_random_effect_stage, one sample noise s for the photo) or "random_edge_noise" (s measured per edge)
+EDGE_ERRORS = ("capped", "random", "random_edge_noise", "random_tilt")  # how an edge's shared error enters the
+# fit: "capped" (each edge weighs at most EDGE_WEIGHT_SAMPLES samples at FINE_SIGMA_PX; the default), "random"
+# (_random_effect_stage: an offset per edge, one sample noise s for the photo), "random_edge_noise" (s measured
+# per edge) or "random_tilt" (an offset and a tilt per edge, s per edge)
 PRIOR_DOF = 4.0  # per-edge noise: the photo's pooled s counts as this many degrees of freedom beside the edge's
 # own samples (a conjugate inverse-chi-square prior; 4 is the fewest whose prior has a finite mean and keeps an
 # edge of 2-3 samples from claiming a noise of ~0)
@@ -825,26 +828,44 @@ class EdgeErrors:
     tau_px: float
     n_edges: int
     offsets_px: dict  # {edge index: fitted offset, px, along the edge's projected normal}
+    tilt_tau_px: float = float("nan")  # with a tilt: the spread of the edges' own tilts (px at an edge's ends)
+
+
+def _edge_basis(S: _Samples, inv: np.ndarray, tilt: bool) -> np.ndarray:
+    """(N, m) each sample's basis of its edge's own error: [1] (an offset) or [1, t] (an offset and a tilt), t
+    the sample's place along its edge's used run, centred on the run's mean and scaled to [-1, 1] (so the tilt's
+    figure is the error in px at the run's far ends, and the two are uncorrelated)."""
+    if not tilt:
+        return np.ones((len(S.X), 1))
+    a = np.sum(S.X * S.D, axis=1)  # m along the edge's 3D direction
+    t = np.zeros(len(a))
+    for e in np.unique(inv):
+        m = inv == e
+        c = a[m] - a[m].mean()
+        h = np.max(np.abs(c))
+        t[m] = c / h if h > 0 else 0.0
+    return np.stack([np.ones(len(a)), t], 1)
 
 
 def _variance_components(raw: np.ndarray, inv: np.ndarray, b: np.ndarray, n_params: int,
-                         per_edge: bool = False) -> tuple[np.ndarray, float]:
+                         per_edge: bool = False, T: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(s, tau) px from the residuals `raw` (n.(q - uv) at the fitted camera, per sample), each sample's edge
-    (inv, 0..E-1) and the edges' fitted offsets b. s: MAD of the samples about their edge's offset, with the
-    dof the offsets and camera take (N / (N - E - p)). tau: the edges' mean residuals m_e have variance
-    tau^2 + s^2 / n_e; tau^2 is their excess over the sampling part, robustly (median over edges of
-    m_e^2 - s^2 / n_e, divided by the median of chi-square 1 dof) and with the REML dof correction E / (E - p)
-    (the camera's p parameters were fitted to the same offsets). tau is floored at the precision with which
-    the longest edge's offset is measured (s / sqrt(max n_e)): below it no edge can tell an offset from noise.
-    With per_edge, s is one figure per edge (E,): the edge's own MAD about its offset, its square pooled with
-    the photo's s^2 at PRIOR_DOF degrees of freedom (grain differs from a dark crease to a sunlit wall)."""
-    E = len(b)
+    (inv, 0..E-1), the edges' fitted errors b (E, m) on the basis T (N, m; _edge_basis; default the offset
+    only). s: MAD of the samples about their edge's own error, with the dof the errors and camera take
+    (N / (N - mE - p)). tau (m,): the edges' least-squares coefficients on each basis function (the mean
+    residual, the tilt) have variance tau^2 + s^2 / sum(T^2) over the edge; tau^2 is their excess over the
+    sampling part, robustly (median over edges, divided by the median of chi-square 1 dof) and with the REML
+    dof correction E / (E - p) (the camera's p parameters were fitted to the same edges). tau is floored at the
+    best precision with which any edge's coefficient is measured (min s / sqrt(sum T^2)): below it no edge can
+    tell its own error from noise. With per_edge, s is one figure per edge (E,): the edge's own MAD about its
+    error, its square pooled with the photo's s^2 at PRIOR_DOF degrees of freedom (grain differs from a dark
+    crease to a sunlit wall)."""
+    E, m = b.shape
     N = len(raw)
-    counts = np.bincount(inv, minlength=E)
-    within = raw - b[inv]
+    T = np.ones((N, 1)) if T is None else T
+    within = raw - np.sum(b[inv] * T, axis=1)
     s = MAD_TO_SIGMA * float(np.median(np.abs(within - np.median(within))))
-    s *= np.sqrt(N / max(N - E - n_params, 1))
-    s = max(s, 1e-6)
+    s = max(s * np.sqrt(N / max(N - m * E - n_params, 1)), 1e-6)
     se = np.full(E, s)
     if per_edge:
         for e in range(E):
@@ -852,23 +873,28 @@ def _variance_components(raw: np.ndarray, inv: np.ndarray, b: np.ndarray, n_para
             if len(w) >= 2:
                 own = (MAD_TO_SIGMA * float(np.median(np.abs(w - np.median(w))))) ** 2 * len(w) / (len(w) - 1)
                 se[e] = np.sqrt(((len(w) - 1) * own + PRIOR_DOF * s ** 2) / (len(w) - 1 + PRIOR_DOF))
-    m = np.bincount(inv, weights=raw, minlength=E) / np.maximum(counts, 1)
-    excess = float(np.median(m ** 2 - se ** 2 / np.maximum(counts, 1))) / MEDIAN_CHI2_1
-    tau2 = excess * E / max(E - n_params, 1)
-    floor = float(np.min(se / np.sqrt(np.maximum(counts, 1))))
-    return (se if per_edge else s), float(np.sqrt(max(tau2, floor ** 2)))
+    tau = np.empty(m)
+    for j in range(m):
+        st2 = np.maximum(np.bincount(inv, weights=T[:, j] ** 2, minlength=E), 1e-12)
+        beta = np.bincount(inv, weights=raw * T[:, j], minlength=E) / st2
+        ok = st2 > 1e-9
+        excess = float(np.median((beta ** 2 - se ** 2 / st2)[ok])) / MEDIAN_CHI2_1
+        tau2 = excess * E / max(E - n_params, 1)
+        floor = float(np.min((se / np.sqrt(st2))[ok]))
+        tau[j] = np.sqrt(max(tau2, floor ** 2))
+    return (se if per_edge else s), tau
 
 
 def _solve_random(model: _Model, x0: np.ndarray, b0: np.ndarray, S: _Samples, q: np.ndarray, inv: np.ndarray,
-                  s, tau: float, lines, line_tau: float = 0.0):
-    """Least squares of the camera x and one offset b_e per edge (px, along the edge's projected normal):
-    sample residuals (n.(q - uv) - b_e) / s (s: px, one figure or one per edge), Cauchy at ROBUST_SIGMAS (a sample against its own noise); edge
-    residuals b_e / tau, Cauchy at ROBUST_SIGMAS (the random effect's prior: an edge whose offset is several
-    tau is an edge whose profile does not mark the geometry, and its offset is then nearly free, so it keeps
-    only its direction's information: the edge-level robust fit); clicked lines as in _solve, their noise
-    sqrt(sig^2 + line_tau^2). For Gaussian losses this is the generalised least squares of samples sharing
-    an edge error of variance tau^2 (the random effect integrated out), which weighs an edge of n samples
-    as one measurement of variance s^2 / n + tau^2 for its offset and in full for its direction."""
+                  s, tau, lines, line_tau: float = 0.0, T: np.ndarray | None = None):
+    """Least squares of the camera x and each edge's own error b_e (px, along the edge's projected normal; on
+    the basis T (N, m) of _edge_basis: an offset, or an offset and a tilt; b0 (E, m)): sample residuals
+    (n.(q - uv) - T b_e) / s (s: px, one figure or one per edge), Cauchy at ROBUST_SIGMAS (a sample against its
+    own noise); edge residuals b_e / tau (tau (m,) px), Cauchy at ROBUST_SIGMAS (the random effect's prior: an
+    edge whose error is several tau is an edge whose profile does not mark the geometry, and its error is then
+    nearly free, so it keeps only what the rest of its samples say: the edge-level robust fit); clicked lines as
+    in _solve, their noise sqrt(sig^2 + line_tau^2). For Gaussian losses this is the generalised least squares
+    of samples sharing an edge error of covariance diag(tau^2) on T (the random effect integrated out)."""
     from scipy.optimize import least_squares
     from scipy.sparse import lil_matrix
 
@@ -876,16 +902,19 @@ def _solve_random(model: _Model, x0: np.ndarray, b0: np.ndarray, S: _Samples, q:
 
     segs, sig = lines
     idx = {"x": 0, "y": 1, "z": 2}
-    k, E, ne = model.n, len(b0), len(S.X)
+    E, m = b0.shape
+    k, ne = model.n, len(S.X)
+    T = np.ones((ne, 1)) if T is None else T
+    tau = np.broadcast_to(np.asarray(tau, float), (m,))
     s_i = np.asarray(s, float)[inv] if np.ndim(s) else float(s)
     pp0 = np.array([(model.cam0.width - 1) / 2.0, (model.cam0.height - 1) / 2.0])
     pp_sig = PP_PRIOR_REL * max(model.cam0.width, model.cam0.height)
 
     def fun(p):
-        x, b = p[:k], p[k:]
+        x, b = p[:k], p[k:].reshape(E, m)
         cam = model.camera(x)
         uv, n = _project(cam, S)
-        r = [(np.sum(n * (q - uv), axis=1) - b[inv]) / s_i, b / tau]
+        r = [(np.sum(n * (q - uv), axis=1) - np.sum(b[inv] * T, axis=1)) / s_i, (b / tau).ravel()]
         KR = cam.K @ cam.R
         r += [_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / np.sqrt(sig[a] ** 2 + line_tau ** 2)
               for a in segs]
@@ -893,22 +922,24 @@ def _solve_random(model: _Model, x0: np.ndarray, b0: np.ndarray, S: _Samples, q:
             r.append((cam.K[:2, 2] - pp0) / pp_sig)
         return np.concatenate(r)
 
-    nr = len(fun(np.concatenate([x0, b0])))
-    sp = lil_matrix((nr, k + E), dtype=int)
+    p0 = np.concatenate([x0, b0.ravel()])
+    nr = len(fun(p0))
+    sp = lil_matrix((nr, k + m * E), dtype=int)
     sp[:, :k] = 1
-    sp[np.arange(ne), k + inv] = 1
-    sp[ne + np.arange(E), k + np.arange(E)] = 1
-    nrob = ne + E
+    for j in range(m):
+        sp[np.arange(ne), k + m * inv + j] = 1
+    sp[ne + np.arange(m * E), k + np.arange(m * E)] = 1
+    nrob = ne + m * E
 
-    def loss(z):  # Cauchy on the samples and the edges' offsets, squares on the clicked lines and the prior
+    def loss(z):  # Cauchy on the samples and the edges' errors, squares on the clicked lines and the prior
         out = np.empty((3, len(z)))
         t = 1.0 + z[:nrob]
         out[0, :nrob], out[1, :nrob], out[2, :nrob] = np.log1p(z[:nrob]), 1.0 / t, -1.0 / t ** 2
         out[0, nrob:], out[1, nrob:], out[2, nrob:] = z[nrob:], 1.0, 0.0
         return out
 
-    x_scale = [1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:k] + [0.1] * E
-    res = least_squares(fun, np.concatenate([x0, b0]), loss=loss, f_scale=ROBUST_SIGMAS, x_scale=x_scale,
+    x_scale = [1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:k] + [0.1] * (m * E)
+    res = least_squares(fun, p0, loss=loss, f_scale=ROBUST_SIGMAS, x_scale=x_scale,
                         method="trf", jac_sparsity=sp, max_nfev=100)
     res.n_camera = k
     res.edge_weight = None
@@ -916,17 +947,21 @@ def _solve_random(model: _Model, x0: np.ndarray, b0: np.ndarray, S: _Samples, q:
 
 
 def _random_effect_stage(model: _Model, fit: _Fit, edges, occ, photo: PhotoEdges, lines,
-                         lines_share: bool = False, per_edge: bool = False) -> tuple[_Fit, EdgeErrors] | None:
+                         lines_share: bool = False, per_edge: bool = False,
+                         tilt: bool = False) -> tuple[_Fit, EdgeErrors] | None:
     """The sub-pixel fit with each edge's shared error a random effect whose size is measured on the photo
     (in place of the fixed cap of EDGE_WEIGHT_SAMPLES samples at FINE_SIGMA_PX): from the profile stage's
     camera `fit`, RE_ROUNDS rounds of edgesnap's sub-pixel edges at the current camera, each fitted by
     _solve_random with the variance components (s, tau) re-estimated from the fit's own residuals
     (_variance_components) until they settle (RE_ITERATIONS). With lines_share the clicked (snapped) lines
     carry the same per-edge error tau as the room's edges (they are the photo's edges too); with per_edge the
-    samples' noise s is measured per edge. None when too few samples are found."""
+    samples' noise s is measured per edge; with tilt each edge's own error is an offset and a tilt (a lean that
+    changes along the edge: the edge's direction is then no better known than its ends). None when too few
+    samples are found."""
     x = fit.x
     out = None
-    s, tau = FINE_SIGMA_PX, EDGE_MODEL_SIGMA_PX  # the start: the fixed figures of the default fit
+    m = 2 if tilt else 1
+    s, tau = FINE_SIGMA_PX, np.full(m, EDGE_MODEL_SIGMA_PX)  # the start: the fixed figures of the default fit
     for _ in range(RE_ROUNDS):
         S = _sample_edges(model.camera(x), edges, occ)
         if len(S.X) < MIN_SAMPLES:
@@ -938,22 +973,25 @@ def _random_effect_stage(model: _Model, fit: _Fit, edges, occ, photo: PhotoEdges
             break
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
         ue, inv = np.unique(sub.edge, return_inverse=True)
-        b = np.zeros(len(ue))
+        T = _edge_basis(sub, inv, tilt)
+        b = np.zeros((len(ue), m))
         s = np.full(len(ue), float(np.median(s))) if per_edge else float(np.median(s))
         for _ in range(RE_ITERATIONS):
-            res = _solve_random(model, x, b, sub, q[ok], inv, s, tau, lines, tau if lines_share else 0.0)
-            x, b = res.x[:model.n], res.x[model.n:]
+            res = _solve_random(model, x, b, sub, q[ok], inv, s, tau, lines, float(tau[0]) if lines_share else 0.0, T)
+            x, b = res.x[:model.n], res.x[model.n:].reshape(len(ue), m)
             uv1, n1 = _project(model.camera(x), sub)
             raw = np.sum(n1 * (q[ok] - uv1), axis=1)
-            s1, tau1 = _variance_components(raw, inv, b, model.n, per_edge)
-            done = bool(np.all(np.abs(s1 - s) <= 0.05 * s)) and abs(tau1 - tau) <= 0.05 * tau
+            s1, tau1 = _variance_components(raw, inv, b, model.n, per_edge, T)
+            done = bool(np.all(np.abs(s1 - s) <= 0.05 * s)) and bool(np.all(np.abs(tau1 - tau) <= 0.05 * tau))
             s, tau = s1, tau1
             if done:
                 break
-        sigma = (np.asarray(s, float)[inv] if per_edge else np.full(int(ok.sum()), float(s)))  # the sample residuals' scale in _solve_random (the guard's
-        # conditioning turns the normalised Jacobian back into px with it)
+        # the sample residuals' scale in _solve_random (the guard's conditioning turns the normalised Jacobian
+        # back into px with it)
+        sigma = np.asarray(s, float)[inv] if per_edge else np.full(int(ok.sum()), float(s))
         out = (_Fit(x, res, S, ok, raw, sigma, start=fit.start, data=(sub, q[ok], s, tau ** 2)),
-               EdgeErrors(float(np.median(s)), float(tau), len(ue), {int(e): float(v) for e, v in zip(ue, b)}))
+               EdgeErrors(float(np.median(s)), float(tau[0]), len(ue), {int(e): float(v) for e, v in zip(ue, b[:, 0])},
+                          float(tau[1]) if tilt else float("nan")))
     return out
 
 
