@@ -76,13 +76,15 @@ def _variant(text: str) -> dict:
     for kv in filter(None, text.split(",")):
         k, v = kv.split("=", 1)
         out[k] = {"true": True, "false": False}.get(v.lower(), v)
+        if k == "fine_step_px":
+            out[k] = float(v)
     return out
 
 
 def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> dict:
     from bench.own_room_flow import calibrated_from_lines
     from recon import assemble as asm
-    from recon.camrefine import _Occluder, _sample_edges, refine_camera, room_edges, room_faces
+    from recon.camrefine import _Occluder, _sample_edges, edge_jackknife, refine_camera, room_edges, room_faces
 
     truth, img, cal, prims, lo, hi = calibrated_from_lines(_room_dir(name, rooms))
     cam = cal.camera
@@ -98,7 +100,7 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
         kw = _variant(v)
         r = refine_camera(cam, prims, img, cj, **kw)
         out[v or "default"] = {**camera_errors(r.camera, truth, S, P), "accepted": r.accepted, "reason": r.reason,
-                               "object_std_px": _object_std(r, P),
+                               "object_std_px": _object_std(r, P), "jackknife": edge_jackknife(r, P),
                                "seconds": time.time() - t0, "refinement": r.to_json(),
                                "camera": {"K": r.camera.K.tolist(), "R": r.camera.R.tolist(), "t": r.camera.t.tolist()}}
         if true_start:
@@ -142,7 +144,10 @@ def main() -> None:
         print(f"{name} (principal point from: {r['pp_from']}): calibrated {_fmt(r['calibrated'])}", flush=True)
         for v in variants:
             e = r[v or "default"]
-            print(f"  {v or 'default'}: {_fmt(e)} (fit's own 1 sigma {e['object_std_px']:.2f} px)"
+            jk = e["jackknife"]
+            print(f"  {v or 'default'}: {_fmt(e)} (fit's own 1 sigma {e['object_std_px']:.2f} px"
+                  + (f"; edge jackknife 1 sigma {jk[0]:.2f} px, edge {jk[2]} alone moves it {jk[1]:.2f} px"
+                     if np.isfinite(jk[0]) else "") + ")"
                   f"{'' if e['accepted'] else ' (kept: ' + e['reason'] + ')'}"
                   f"{'; ' + e['refinement']['edge_errors'] if e['refinement'].get('edge_errors') else ''}"
                   f" [{e['seconds']:.1f} s]", flush=True)

@@ -118,6 +118,9 @@ class Refinement:
     # (camera_covariance), its parameters `x` and `camera_at(x)` -> Camera: the refined fit's own uncertainty
     x: object = dataclasses.field(default=None, repr=False)
     camera_at: object = dataclasses.field(default=None, repr=False)
+    without_edge: object = dataclasses.field(default=None, repr=False)  # (edge index) -> Camera: the final fit
+    # solved again without that room edge (edge_jackknife); None when the fit is not the default's
+    edge_ids: object = dataclasses.field(default=None, repr=False)  # the room edges of the final fit
 
     def to_json(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
@@ -195,8 +198,8 @@ class _Samples:
     edge: np.ndarray  # (N,) index of the edge
 
 
-def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder) -> _Samples:
-    """Visible samples along the edges, about SAMPLE_STEP_PX apart in the image of `cam`."""
+def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder, step: float = SAMPLE_STEP_PX) -> _Samples:
+    """Visible samples along the edges, about `step` px (default SAMPLE_STEP_PX) apart in the image of `cam`."""
     Xs, Ds, idx = [], [], []
     C = cam.centre
     for i, (a, b) in enumerate(edges):
@@ -214,7 +217,7 @@ def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder) -> _Samples:
         length = float(np.linalg.norm(uv[1] - uv[0]))
         if not length >= MIN_EDGE_PX:
             continue
-        n = int(np.ceil(length / SAMPLE_STEP_PX))
+        n = int(np.ceil(length / step))
         s = (np.arange(n) + 0.5) / n
         X = p + s[:, None] * (q - p)
         Xs.append(X)
@@ -231,8 +234,7 @@ def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder) -> _Samples:
         m = idx == i
         u = uv[m]
         along = np.linalg.norm(u - u[0], axis=1)
-        ok[np.flatnonzero(m)] &= (along >= END_TRIM_PX - SAMPLE_STEP_PX / 2) & (along <= along[-1] - END_TRIM_PX
-                                                                                 + SAMPLE_STEP_PX / 2)
+        ok[np.flatnonzero(m)] &= (along >= END_TRIM_PX - step / 2) & (along <= along[-1] - END_TRIM_PX + step / 2)
     ok[ok] &= occ.visible(C, X[ok])
     return _Samples(X[ok], D[ok], idx[ok])
 
@@ -291,7 +293,7 @@ def _project(cam: Camera, S: _Samples) -> tuple[np.ndarray, np.ndarray]:
     return uv, np.stack([-d[:, 1], d[:, 0]], 1)
 
 
-def _edge_weights(S: _Samples, sig_e, edge_var=None, weighting: str = "capped") -> np.ndarray:
+def _edge_weights(S: _Samples, sig_e, edge_var=None, weighting: str = "capped", unit: float = 1.0) -> np.ndarray:
     """(N,) weight of each sample's squared normalised residual. "capped" (the fit's): min(1,
     EDGE_WEIGHT_SAMPLES / n_e), n_e the samples of its edge: an edge weighs at most that many samples.
     "model" (the model selection's, the per-edge model-error term): sig^2 / (sig^2 + n_e V_e), sig the
@@ -300,7 +302,7 @@ def _edge_weights(S: _Samples, sig_e, edge_var=None, weighting: str = "capped") 
     the edge costs d^2 / (sig^2 / n_e + V_e), the generalised least squares of samples sharing an error."""
     _, inv, counts = np.unique(S.edge, return_inverse=True, return_counts=True)
     if weighting == "capped":
-        return np.minimum(1.0, EDGE_WEIGHT_SAMPLES / counts[inv])
+        return np.minimum(unit, EDGE_WEIGHT_SAMPLES / counts[inv])  # unit: a sample's share of SAMPLE_STEP_PX
     if weighting != "model":
         raise ValueError(f"weighting: expected 'capped' or 'model', got {weighting!r}")
     sig2 = np.broadcast_to(np.asarray(sig_e, float), (len(S.X),)) ** 2
@@ -309,7 +311,7 @@ def _edge_weights(S: _Samples, sig_e, edge_var=None, weighting: str = "capped") 
 
 
 def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lines, f_scale: float, edge_var=None,
-           weighting: str = "capped"):
+           weighting: str = "capped", unit: float = 1.0):
     """Least squares of the edge residuals n.(q - uv)/sig_e (sig_e: px, one figure or one per sample;
     robust: Cauchy at f_scale, whose pull of a wrong match falls as 1/r, so texture matched at a wide
     radius hardly moves a camera that already fits; soft-L1's pull stays constant and let such matches
@@ -327,7 +329,7 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lin
 
     segs, sig = lines
     idx = {"x": 0, "y": 1, "z": 2}
-    a_e = _edge_weights(S, sig_e, edge_var, weighting)
+    a_e = _edge_weights(S, sig_e, edge_var, weighting, unit)
     w = (np.sqrt(a_e) if weighting == "capped" else 1.0) / np.asarray(sig_e, float)
     if weighting == "capped":
         a_e = np.ones(len(S.X))
@@ -436,7 +438,7 @@ class _Fit:
 
 
 def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines,
-         fine_stage: str = "profiles") -> _Fit:
+         fine_stage: str = "profiles", fine_step: float = SAMPLE_STEP_PX) -> _Fit:
     """ICP on the oriented Canny edges over the match radii `radii`, then the sub-pixel stage, from
     parameters x: the sub-pixel stage's fit (res None when it did not run)."""
     S = _sample_edges(model.camera(x), edges, occ)
@@ -455,7 +457,7 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
         res = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
     fine = _line_stage(model, x, edges, occ, photo, lines) if fine_stage == "lines" else \
-        _profile_stage(model, x, edges, occ, photo, lines)
+        _profile_stage(model, x, edges, occ, photo, lines, fine_step)
     if fine is not None:
         return fine
     # no sub-pixel stage: res None (the guard reports too few edges, as for any fit that found too few)
@@ -463,9 +465,12 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
     return _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), np.zeros(0))
 
 
-def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines) -> _Fit | None:
-    """The per-sample sub-pixel stage (edgesnap's centroid at every sample), three rounds."""
-    S = _sample_edges(model.camera(x), edges, occ)
+def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines,
+                   step: float = SAMPLE_STEP_PX) -> _Fit | None:
+    """The per-sample sub-pixel stage (edgesnap's centroid at every sample), three rounds; samples `step` px
+    apart, each weighing step / SAMPLE_STEP_PX of a sample in the fit (so an edge's weight stays that of its
+    length; a denser step only measures its position from more of its pixels: fine_step_px)."""
+    S = _sample_edges(model.camera(x), edges, occ, step)
     fine = None
     for _ in range(3):
         if len(S.X) < MIN_SAMPLES:
@@ -476,7 +481,7 @@ def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, 
         if ok.sum() < MIN_SAMPLES:
             break
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
+        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS, unit=step / SAMPLE_STEP_PX)
         x = res.x
         uv1, n1 = _project(model.camera(x), sub)
         fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX),
@@ -588,7 +593,7 @@ PP_MODELS = ("select", "free", "held")  # a principal point from three vanishing
 
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
                   fine_stage: str = "profiles", principal_point: str = "select", edge_errors: str = "capped",
-                  lines_share: bool = False) -> Refinement:
+                  lines_share: bool = False, fine_step_px: float = SAMPLE_STEP_PX) -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
     module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
@@ -600,9 +605,14 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre).
     edge_errors: "capped" (the default) or "random" (after the profile stage, each edge's shared error a
     random effect of a size measured on the photo, with an edge-level robust loss: _random_effect_stage;
-    lines_share: the clicked lines carry that error too)."""
+    lines_share: the clicked lines carry that error too).
+    fine_step_px: the profile stage's sample spacing along each edge (px; default SAMPLE_STEP_PX); a sample
+    then weighs fine_step_px / SAMPLE_STEP_PX of one, so each edge weighs what its length did and a denser
+    step only measures its offset from more of its own pixels (the profiles' noise is the pixels' grain)."""
     from recon import campp
 
+    if not 0.25 <= float(fine_step_px) <= SAMPLE_STEP_PX:
+        raise ValueError(f"fine_step_px: expected 0.25 .. {SAMPLE_STEP_PX:g} px, got {fine_step_px!r}")
     if fine_stage not in FINE_STAGES:
         raise ValueError(f"fine_stage: expected one of {FINE_STAGES}, got {fine_stage!r}")
     if principal_point not in PP_MODELS:
@@ -622,7 +632,8 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     # triangle moves far with a distant vanishing point): it is held at the image centre or refined
     # (principal_point); the image centre (calibrate's default) or a given one is held
     pp3 = (camera_json or {}).get("principal_point_from") == "three vanishing points"
-    stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage}
+    stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage,
+             "fine_step": float(fine_step_px)}
     note = "refined (calibrate's, from three vanishing points)" if pp3 else ""
     if pp3 and principal_point != "free":
         held = _Model(campp.at_image_centre(cam), free_pp=False)
@@ -637,7 +648,8 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
                 return _solve(m, x0, sub, q, sig, lines, f_scale=ROBUST_SIGMAS, edge_var=edge_var, weighting="model")
 
             best, model, note = campp.select(held, free, best, solve,
-                                             lambda m, x: fine(m, x, edges, occ, photo, lines))
+                                             lambda m, x: fine(m, x, edges, occ, photo, lines, *(
+                                                 () if fine_stage == "lines" else (float(fine_step_px),))))
     else:
         model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
         best = _search(model, **stage)
@@ -657,11 +669,24 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     else:
         refined = model.camera(best.x)
     r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
+    without, ids = None, None
+    if best.res is not None and best.data is not None and best.data[3] is None and edge_errors == "capped":
+        sub, q, sig, _ = best.data
+        ids = np.unique(sub.edge)
+        x_end, unit = best.x, float(fine_step_px) / SAMPLE_STEP_PX
+
+        def without(e: int) -> Camera:
+            keep = sub.edge != e
+            res = _solve(model, x_end, _Samples(sub.X[keep], sub.D[keep], sub.edge[keep]), q[keep], sig, lines,
+                         f_scale=ROBUST_SIGMAS, unit=unit)
+            return model.camera(res.x)
     return dataclasses.replace(r, principal_point=note, edge_errors=ee_note, x=best.x,
-                               covariance=camera_covariance(best.res), camera_at=model.camera)
+                               covariance=camera_covariance(best.res), camera_at=model.camera,
+                               without_edge=without, edge_ids=ids)
 
 
-def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str) -> _Fit | None:
+def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str,
+            fine_step: float = SAMPLE_STEP_PX) -> _Fit | None:
     """The best fit of `model` over its starts (None when no start's sub-pixel stage ran): the input
     camera (model.cam0) with the full coarse schedule, and the centre search's best minima."""
     cam = model.cam0
@@ -673,8 +698,8 @@ def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str
     grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
     starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for x0 in _centre_search(cam, S0, photo)]
     # each start's sub-pixel fit (a start whose sub-pixel stage did not run is dropped)
-    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage), start="input" if i == 0
-                                else "centre search") for i, (x0, radii) in enumerate(starts)]
+    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage, fine_step),
+                                start="input" if i == 0 else "centre search") for i, (x0, radii) in enumerate(starts)]
     fits = [f for f in fits if f.res is not None]
     if not fits:
         return None
@@ -1025,3 +1050,20 @@ def point_std_px(camera_at, x: np.ndarray, cov: np.ndarray, P: np.ndarray, h: fl
         J[:, :, j] = (camera_at(x + dx).project(P)[0] - u0) / h
     var = np.einsum("nij,jk,nik->n", J, cov, J)
     return float(np.sqrt(np.mean(np.maximum(var, 0.0))))
+
+
+def edge_jackknife(r: Refinement, P: np.ndarray) -> tuple[float, float, int]:
+    """(std px, largest shift px, its edge): the jackknife over the room's edges of the refined camera's image of
+    the world points P (m): the final fit solved again without each edge in turn (Refinement.without_edge);
+    std is sqrt((E-1)/E sum_e |u_(-e) - u_mean|^2) (rms over P), which counts each edge's own error however it
+    is shared by its samples (the edges, not the samples, are the independent units); the largest shift is the
+    one edge's influence (rms over P of u_(-e) - u). nan when the fit has no such refit."""
+    if r.without_edge is None or r.edge_ids is None or len(r.edge_ids) < 2 or r.camera_at is None:
+        return float("nan"), float("nan"), -1
+    u0, _ = r.camera_at(np.asarray(r.x, float)).project(P)
+    U = np.stack([r.without_edge(int(e)).project(P)[0] for e in r.edge_ids])  # (E, V, 2)
+    E = len(U)
+    var = (E - 1) / E * np.sum(np.sum((U - U.mean(axis=0)) ** 2, axis=2), axis=0)
+    shift = np.sqrt(np.mean(np.sum((U - u0) ** 2, axis=2), axis=1))
+    k = int(np.argmax(shift))
+    return float(np.sqrt(np.mean(var))), float(shift[k]), int(r.edge_ids[k])
