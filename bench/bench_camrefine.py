@@ -76,8 +76,6 @@ def _variant(text: str) -> dict:
     for kv in filter(None, text.split(",")):
         k, v = kv.split("=", 1)
         out[k] = {"true": True, "false": False}.get(v.lower(), v)
-        if k == "fine_step_px":
-            out[k] = float(v)
     return out
 
 

@@ -113,18 +113,17 @@ class Refinement:
     chamfer_after_px: float  # ... at the refined camera
     seconds: float
     principal_point: str = ""  # how the principal point was modelled (recon/campp.py); "" when held as given
-    edge_errors: str = ""  # with edge_errors="random": the measured variance components (EdgeErrors), in words
     covariance: object = dataclasses.field(default=None, repr=False)  # the fit's camera-parameter covariance
     # (camera_covariance), its parameters `x` and `camera_at(x)` -> Camera: the refined fit's own uncertainty
     x: object = dataclasses.field(default=None, repr=False)
     camera_at: object = dataclasses.field(default=None, repr=False)
     without_edge: object = dataclasses.field(default=None, repr=False)  # (edge index) -> Camera: the final fit
-    # solved again without that room edge (edge_jackknife); None when the fit is not the default's
+    # solved again without that room edge (edge_jackknife); None without a profile-stage fit
     edge_ids: object = dataclasses.field(default=None, repr=False)  # the room edges of the final fit
 
     def to_json(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-             if f.name not in ("camera", "covariance", "x", "camera_at")}
+             if f.name not in ("camera", "covariance", "x", "camera_at", "without_edge", "edge_ids")}
         return {k: (round(v, 6) if isinstance(v, float) else v) for k, v in d.items()}
 
     def summary(self) -> str:
@@ -198,8 +197,8 @@ class _Samples:
     edge: np.ndarray  # (N,) index of the edge
 
 
-def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder, step: float = SAMPLE_STEP_PX) -> _Samples:
-    """Visible samples along the edges, about `step` px (default SAMPLE_STEP_PX) apart in the image of `cam`."""
+def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder) -> _Samples:
+    """Visible samples along the edges, about SAMPLE_STEP_PX apart in the image of `cam`."""
     Xs, Ds, idx = [], [], []
     C = cam.centre
     for i, (a, b) in enumerate(edges):
@@ -217,7 +216,7 @@ def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder, step: float = 
         length = float(np.linalg.norm(uv[1] - uv[0]))
         if not length >= MIN_EDGE_PX:
             continue
-        n = int(np.ceil(length / step))
+        n = int(np.ceil(length / SAMPLE_STEP_PX))
         s = (np.arange(n) + 0.5) / n
         X = p + s[:, None] * (q - p)
         Xs.append(X)
@@ -234,7 +233,8 @@ def _sample_edges(cam: Camera, edges: np.ndarray, occ: _Occluder, step: float = 
         m = idx == i
         u = uv[m]
         along = np.linalg.norm(u - u[0], axis=1)
-        ok[np.flatnonzero(m)] &= (along >= END_TRIM_PX - step / 2) & (along <= along[-1] - END_TRIM_PX + step / 2)
+        ok[np.flatnonzero(m)] &= (along >= END_TRIM_PX - SAMPLE_STEP_PX / 2) & (along <= along[-1] - END_TRIM_PX
+                                                                                 + SAMPLE_STEP_PX / 2)
     ok[ok] &= occ.visible(C, X[ok])
     return _Samples(X[ok], D[ok], idx[ok])
 
@@ -293,7 +293,7 @@ def _project(cam: Camera, S: _Samples) -> tuple[np.ndarray, np.ndarray]:
     return uv, np.stack([-d[:, 1], d[:, 0]], 1)
 
 
-def _edge_weights(S: _Samples, sig_e, edge_var=None, weighting: str = "capped", unit: float = 1.0) -> np.ndarray:
+def _edge_weights(S: _Samples, sig_e, edge_var=None, weighting: str = "capped") -> np.ndarray:
     """(N,) weight of each sample's squared normalised residual. "capped" (the fit's): min(1,
     EDGE_WEIGHT_SAMPLES / n_e), n_e the samples of its edge: an edge weighs at most that many samples.
     "model" (the model selection's, the per-edge model-error term): sig^2 / (sig^2 + n_e V_e), sig the
@@ -302,7 +302,7 @@ def _edge_weights(S: _Samples, sig_e, edge_var=None, weighting: str = "capped", 
     the edge costs d^2 / (sig^2 / n_e + V_e), the generalised least squares of samples sharing an error."""
     _, inv, counts = np.unique(S.edge, return_inverse=True, return_counts=True)
     if weighting == "capped":
-        return np.minimum(unit, EDGE_WEIGHT_SAMPLES / counts[inv])  # unit: a sample's share of SAMPLE_STEP_PX
+        return np.minimum(1.0, EDGE_WEIGHT_SAMPLES / counts[inv])
     if weighting != "model":
         raise ValueError(f"weighting: expected 'capped' or 'model', got {weighting!r}")
     sig2 = np.broadcast_to(np.asarray(sig_e, float), (len(S.X),)) ** 2
@@ -311,7 +311,7 @@ def _edge_weights(S: _Samples, sig_e, edge_var=None, weighting: str = "capped", 
 
 
 def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lines, f_scale: float, edge_var=None,
-           weighting: str = "capped", unit: float = 1.0):
+           weighting: str = "capped"):
     """Least squares of the edge residuals n.(q - uv)/sig_e (sig_e: px, one figure or one per sample;
     robust: Cauchy at f_scale, whose pull of a wrong match falls as 1/r, so texture matched at a wide
     radius hardly moves a camera that already fits; soft-L1's pull stays constant and let such matches
@@ -329,7 +329,7 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lin
 
     segs, sig = lines
     idx = {"x": 0, "y": 1, "z": 2}
-    a_e = _edge_weights(S, sig_e, edge_var, weighting, unit)
+    a_e = _edge_weights(S, sig_e, edge_var, weighting)
     w = (np.sqrt(a_e) if weighting == "capped" else 1.0) / np.asarray(sig_e, float)
     if weighting == "capped":
         a_e = np.ones(len(S.X))
@@ -438,7 +438,7 @@ class _Fit:
 
 
 def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines,
-         fine_stage: str = "profiles", fine_step: float = SAMPLE_STEP_PX) -> _Fit:
+         fine_stage: str = "profiles") -> _Fit:
     """ICP on the oriented Canny edges over the match radii `radii`, then the sub-pixel stage, from
     parameters x: the sub-pixel stage's fit (res None when it did not run)."""
     S = _sample_edges(model.camera(x), edges, occ)
@@ -457,7 +457,7 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
         res = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
     fine = _line_stage(model, x, edges, occ, photo, lines) if fine_stage == "lines" else \
-        _profile_stage(model, x, edges, occ, photo, lines, fine_step)
+        _profile_stage(model, x, edges, occ, photo, lines)
     if fine is not None:
         return fine
     # no sub-pixel stage: res None (the guard reports too few edges, as for any fit that found too few)
@@ -465,12 +465,9 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
     return _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), np.zeros(0))
 
 
-def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines,
-                   step: float = SAMPLE_STEP_PX) -> _Fit | None:
-    """The per-sample sub-pixel stage (edgesnap's centroid at every sample), three rounds; samples `step` px
-    apart, each weighing step / SAMPLE_STEP_PX of a sample in the fit (so an edge's weight stays that of its
-    length; a denser step only measures its position from more of its pixels: fine_step_px)."""
-    S = _sample_edges(model.camera(x), edges, occ, step)
+def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines) -> _Fit | None:
+    """The per-sample sub-pixel stage (edgesnap's centroid at every sample), three rounds."""
+    S = _sample_edges(model.camera(x), edges, occ)
     fine = None
     for _ in range(3):
         if len(S.X) < MIN_SAMPLES:
@@ -481,7 +478,7 @@ def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, 
         if ok.sum() < MIN_SAMPLES:
             break
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS, unit=step / SAMPLE_STEP_PX)
+        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
         uv1, n1 = _project(model.camera(x), sub)
         fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX),
@@ -592,8 +589,7 @@ PP_MODELS = ("select", "free", "held")  # a principal point from three vanishing
 
 
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
-                  fine_stage: str = "profiles", principal_point: str = "select", edge_errors: str = "capped",
-                  lines_share: bool = False, fine_step_px: float = SAMPLE_STEP_PX) -> Refinement:
+                  fine_stage: str = "profiles", principal_point: str = "select") -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
     module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
@@ -602,23 +598,13 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     calibrate's prior, PP_PRIOR_REL): see docs/unseen.md for where each does better.
     principal_point (used when calibrate took it from three vanishing points; else it is held as given):
     "select" (the default: fitted held at the image centre, freed only when the room's edges and the
-    clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre).
-    edge_errors: "capped" (the default) or "random" (after the profile stage, each edge's shared error a
-    random effect of a size measured on the photo, with an edge-level robust loss: _random_effect_stage;
-    lines_share: the clicked lines carry that error too).
-    fine_step_px: the profile stage's sample spacing along each edge (px; default SAMPLE_STEP_PX); a sample
-    then weighs fine_step_px / SAMPLE_STEP_PX of one, so each edge weighs what its length did and a denser
-    step only measures its offset from more of its own pixels (the profiles' noise is the pixels' grain)."""
+    clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre)."""
     from recon import campp
 
-    if not 0.25 <= float(fine_step_px) <= SAMPLE_STEP_PX:
-        raise ValueError(f"fine_step_px: expected 0.25 .. {SAMPLE_STEP_PX:g} px, got {fine_step_px!r}")
     if fine_stage not in FINE_STAGES:
         raise ValueError(f"fine_stage: expected one of {FINE_STAGES}, got {fine_stage!r}")
     if principal_point not in PP_MODELS:
         raise ValueError(f"principal_point: expected one of {PP_MODELS}, got {principal_point!r}")
-    if edge_errors not in EDGE_ERRORS:
-        raise ValueError(f"edge_errors: expected one of {EDGE_ERRORS}, got {edge_errors!r}")
     t0 = time.time()
     image = np.asarray(image)
     if image.shape[:2] != (cam.height, cam.width):
@@ -632,8 +618,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     # triangle moves far with a distant vanishing point): it is held at the image centre or refined
     # (principal_point); the image centre (calibrate's default) or a given one is held
     pp3 = (camera_json or {}).get("principal_point_from") == "three vanishing points"
-    stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage,
-             "fine_step": float(fine_step_px)}
+    stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage}
     note = "refined (calibrate's, from three vanishing points)" if pp3 else ""
     if pp3 and principal_point != "free":
         held = _Model(campp.at_image_centre(cam), free_pp=False)
@@ -648,21 +633,10 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
                 return _solve(m, x0, sub, q, sig, lines, f_scale=ROBUST_SIGMAS, edge_var=edge_var, weighting="model")
 
             best, model, note = campp.select(held, free, best, solve,
-                                             lambda m, x: fine(m, x, edges, occ, photo, lines, *(
-                                                 () if fine_stage == "lines" else (float(fine_step_px),))))
+                                             lambda m, x: fine(m, x, edges, occ, photo, lines))
     else:
         model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
         best = _search(model, **stage)
-    ee_note = ""
-    if best is not None and edge_errors != "capped" and fine_stage == "profiles":
-        got = _random_effect_stage(model, best, edges, occ, photo, lines, lines_share,
-                                   per_edge=edge_errors in ("random_edge_noise", "random_tilt"),
-                                   tilt=edge_errors == "random_tilt")
-        if got is not None:
-            best, ee = got
-            ee_note = (f"random effect per edge: {ee.n_edges} edges, their own error tau {ee.tau_px:.2f} px"
-                       + ("" if np.isnan(ee.tilt_tau_px) else f", tilt {ee.tilt_tau_px:.2f} px")
-                       + f", a sample's s {ee.s_px:.2f} px")
     if best is None:
         S0 = _sample_edges(cam, edges, occ)
         best, refined = _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0), np.zeros(0)), cam
@@ -670,23 +644,21 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         refined = model.camera(best.x)
     r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
     without, ids = None, None
-    if best.res is not None and best.data is not None and best.data[3] is None and edge_errors == "capped":
+    if best.res is not None and best.data is not None and best.data[3] is None:  # the profile stage's fit
         sub, q, sig, _ = best.data
         ids = np.unique(sub.edge)
-        x_end, unit = best.x, float(fine_step_px) / SAMPLE_STEP_PX
+        x_end = best.x
 
         def without(e: int) -> Camera:
             keep = sub.edge != e
             res = _solve(model, x_end, _Samples(sub.X[keep], sub.D[keep], sub.edge[keep]), q[keep], sig, lines,
-                         f_scale=ROBUST_SIGMAS, unit=unit)
+                         f_scale=ROBUST_SIGMAS)
             return model.camera(res.x)
-    return dataclasses.replace(r, principal_point=note, edge_errors=ee_note, x=best.x,
-                               covariance=camera_covariance(best.res), camera_at=model.camera,
-                               without_edge=without, edge_ids=ids)
+    return dataclasses.replace(r, principal_point=note, x=best.x, covariance=camera_covariance(best.res),
+                               camera_at=model.camera, without_edge=without, edge_ids=ids)
 
 
-def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str,
-            fine_step: float = SAMPLE_STEP_PX) -> _Fit | None:
+def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str) -> _Fit | None:
     """The best fit of `model` over its starts (None when no start's sub-pixel stage ran): the input
     camera (model.cam0) with the full coarse schedule, and the centre search's best minima."""
     cam = model.cam0
@@ -698,8 +670,8 @@ def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str
     grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
     starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for x0 in _centre_search(cam, S0, photo)]
     # each start's sub-pixel fit (a start whose sub-pixel stage did not run is dropped)
-    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage, fine_step),
-                                start="input" if i == 0 else "centre search") for i, (x0, radii) in enumerate(starts)]
+    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage), start="input" if i == 0
+                                else "centre search") for i, (x0, radii) in enumerate(starts)]
     fits = [f for f in fits if f.res is not None]
     if not fits:
         return None
@@ -796,15 +768,14 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: np
     """None when the fit pins every free parameter: the Jacobian has full rank, the inlier samples'
     projected edges span two directions, and a one-sigma error of the parameters (the covariance
     scaled by the residuals) moves the samples by at most MAX_PRED_STD_PX rms; else the reason."""
-    J = res.jac.toarray() if hasattr(res.jac, "toarray") else res.jac
+    J = res.jac
     ne = int(used.sum())
-    k = getattr(res, "n_camera", None) or J.shape[1]  # the camera's parameters (then the edges' offsets)
-    Je = J[:ne][inl][:, :k]
+    Je = J[:ne][inl]
     try:
         s = np.linalg.svd(J, compute_uv=False)
         if not s[-1] > 1e-9 * s[0]:
             return "the room's edges do not determine the camera (rank-deficient fit)"
-        cov = np.linalg.inv(J.T @ J)[:k, :k]
+        cov = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         return "the room's edges do not determine the camera (singular fit)"
     r = np.array(res.fun, float)
@@ -827,205 +798,15 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: np
 
 
 # ----------------------------------------------------------------------------------------------
-# The edges' own errors as random effects (refine_camera(edge_errors="random"))
-
-EDGE_ERRORS = ("capped", "random", "random_edge_noise", "random_tilt")  # how an edge's shared error enters the
-# fit: "capped" (each edge weighs at most EDGE_WEIGHT_SAMPLES samples at FINE_SIGMA_PX; the default), "random"
-# (_random_effect_stage: an offset per edge, one sample noise s for the photo), "random_edge_noise" (s measured
-# per edge) or "random_tilt" (an offset and a tilt per edge, s per edge)
-PRIOR_DOF = 4.0  # per-edge noise: the photo's pooled s counts as this many degrees of freedom beside the edge's
-# own samples (a conjugate inverse-chi-square prior; 4 is the fewest whose prior has a finite mean and keeps an
-# edge of 2-3 samples from claiming a noise of ~0)
-MEDIAN_CHI2_1 = 0.454936  # the median of a chi-square variable of 1 dof: a robust variance from squared offsets
-MAD_TO_SIGMA = 1.4826  # the normal distribution's sigma per median absolute deviation
-RE_ITERATIONS = 5  # the variance components re-estimated at most this often per measurement round (they settle
-# in 2-3: each re-estimate changes the weights only through tau / s)
-RE_ROUNDS = 2  # measurement rounds: the sub-pixel edges re-measured at the fitted camera (the profile stage's
-# three rounds have already converged the matches; a second round checks the random-effect camera's own)
-
-
-@dataclass
-class EdgeErrors:
-    """The variance components of the random-effect fit (px): s the noise of one sub-pixel sample about its
-    edge's own offset (pooled over the photo), tau the spread of the edges' own offsets (the room model's
-    error of one edge's image, estimated from the photo), and the fitted offset of each edge."""
-    s_px: float
-    tau_px: float
-    n_edges: int
-    offsets_px: dict  # {edge index: fitted offset, px, along the edge's projected normal}
-    tilt_tau_px: float = float("nan")  # with a tilt: the spread of the edges' own tilts (px at an edge's ends)
-
-
-def _edge_basis(S: _Samples, inv: np.ndarray, tilt: bool) -> np.ndarray:
-    """(N, m) each sample's basis of its edge's own error: [1] (an offset) or [1, t] (an offset and a tilt), t
-    the sample's place along its edge's used run, centred on the run's mean and scaled to [-1, 1] (so the tilt's
-    figure is the error in px at the run's far ends, and the two are uncorrelated)."""
-    if not tilt:
-        return np.ones((len(S.X), 1))
-    a = np.sum(S.X * S.D, axis=1)  # m along the edge's 3D direction
-    t = np.zeros(len(a))
-    for e in np.unique(inv):
-        m = inv == e
-        c = a[m] - a[m].mean()
-        h = np.max(np.abs(c))
-        t[m] = c / h if h > 0 else 0.0
-    return np.stack([np.ones(len(a)), t], 1)
-
-
-def _variance_components(raw: np.ndarray, inv: np.ndarray, b: np.ndarray, n_params: int,
-                         per_edge: bool = False, T: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(s, tau) px from the residuals `raw` (n.(q - uv) at the fitted camera, per sample), each sample's edge
-    (inv, 0..E-1), the edges' fitted errors b (E, m) on the basis T (N, m; _edge_basis; default the offset
-    only). s: MAD of the samples about their edge's own error, with the dof the errors and camera take
-    (N / (N - mE - p)). tau (m,): the edges' least-squares coefficients on each basis function (the mean
-    residual, the tilt) have variance tau^2 + s^2 / sum(T^2) over the edge; tau^2 is their excess over the
-    sampling part, robustly (median over edges, divided by the median of chi-square 1 dof) and with the REML
-    dof correction E / (E - p) (the camera's p parameters were fitted to the same edges). tau is floored at the
-    best precision with which any edge's coefficient is measured (min s / sqrt(sum T^2)): below it no edge can
-    tell its own error from noise. With per_edge, s is one figure per edge (E,): the edge's own MAD about its
-    error, its square pooled with the photo's s^2 at PRIOR_DOF degrees of freedom (grain differs from a dark
-    crease to a sunlit wall)."""
-    E, m = b.shape
-    N = len(raw)
-    T = np.ones((N, 1)) if T is None else T
-    within = raw - np.sum(b[inv] * T, axis=1)
-    s = MAD_TO_SIGMA * float(np.median(np.abs(within - np.median(within))))
-    s = max(s * np.sqrt(N / max(N - m * E - n_params, 1)), 1e-6)
-    se = np.full(E, s)
-    if per_edge:
-        for e in range(E):
-            w = within[inv == e]
-            if len(w) >= 2:
-                own = (MAD_TO_SIGMA * float(np.median(np.abs(w - np.median(w))))) ** 2 * len(w) / (len(w) - 1)
-                se[e] = np.sqrt(((len(w) - 1) * own + PRIOR_DOF * s ** 2) / (len(w) - 1 + PRIOR_DOF))
-    tau = np.empty(m)
-    for j in range(m):
-        st2 = np.maximum(np.bincount(inv, weights=T[:, j] ** 2, minlength=E), 1e-12)
-        beta = np.bincount(inv, weights=raw * T[:, j], minlength=E) / st2
-        ok = st2 > 1e-9
-        excess = float(np.median((beta ** 2 - se ** 2 / st2)[ok])) / MEDIAN_CHI2_1
-        tau2 = excess * E / max(E - n_params, 1)
-        floor = float(np.min((se / np.sqrt(st2))[ok]))
-        tau[j] = np.sqrt(max(tau2, floor ** 2))
-    return (se if per_edge else s), tau
-
-
-def _solve_random(model: _Model, x0: np.ndarray, b0: np.ndarray, S: _Samples, q: np.ndarray, inv: np.ndarray,
-                  s, tau, lines, line_tau: float = 0.0, T: np.ndarray | None = None):
-    """Least squares of the camera x and each edge's own error b_e (px, along the edge's projected normal; on
-    the basis T (N, m) of _edge_basis: an offset, or an offset and a tilt; b0 (E, m)): sample residuals
-    (n.(q - uv) - T b_e) / s (s: px, one figure or one per edge), Cauchy at ROBUST_SIGMAS (a sample against its
-    own noise); edge residuals b_e / tau (tau (m,) px), Cauchy at ROBUST_SIGMAS (the random effect's prior: an
-    edge whose error is several tau is an edge whose profile does not mark the geometry, and its error is then
-    nearly free, so it keeps only what the rest of its samples say: the edge-level robust fit); clicked lines as
-    in _solve, their noise sqrt(sig^2 + line_tau^2). For Gaussian losses this is the generalised least squares
-    of samples sharing an edge error of covariance diag(tau^2) on T (the random effect integrated out)."""
-    from scipy.optimize import least_squares
-    from scipy.sparse import lil_matrix
-
-    from recon.vanishing import _seg_residual
-
-    segs, sig = lines
-    idx = {"x": 0, "y": 1, "z": 2}
-    E, m = b0.shape
-    k, ne = model.n, len(S.X)
-    T = np.ones((ne, 1)) if T is None else T
-    tau = np.broadcast_to(np.asarray(tau, float), (m,))
-    s_i = np.asarray(s, float)[inv] if np.ndim(s) else float(s)
-    pp0 = np.array([(model.cam0.width - 1) / 2.0, (model.cam0.height - 1) / 2.0])
-    pp_sig = PP_PRIOR_REL * max(model.cam0.width, model.cam0.height)
-
-    def fun(p):
-        x, b = p[:k], p[k:].reshape(E, m)
-        cam = model.camera(x)
-        uv, n = _project(cam, S)
-        r = [(np.sum(n * (q - uv), axis=1) - np.sum(b[inv] * T, axis=1)) / s_i, (b / tau).ravel()]
-        KR = cam.K @ cam.R
-        r += [_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / np.sqrt(sig[a] ** 2 + line_tau ** 2)
-              for a in segs]
-        if model.free_pp and model.pp_prior:
-            r.append((cam.K[:2, 2] - pp0) / pp_sig)
-        return np.concatenate(r)
-
-    p0 = np.concatenate([x0, b0.ravel()])
-    nr = len(fun(p0))
-    sp = lil_matrix((nr, k + m * E), dtype=int)
-    sp[:, :k] = 1
-    for j in range(m):
-        sp[np.arange(ne), k + m * inv + j] = 1
-    sp[ne + np.arange(m * E), k + np.arange(m * E)] = 1
-    nrob = ne + m * E
-
-    def loss(z):  # Cauchy on the samples and the edges' errors, squares on the clicked lines and the prior
-        out = np.empty((3, len(z)))
-        t = 1.0 + z[:nrob]
-        out[0, :nrob], out[1, :nrob], out[2, :nrob] = np.log1p(z[:nrob]), 1.0 / t, -1.0 / t ** 2
-        out[0, nrob:], out[1, nrob:], out[2, nrob:] = z[nrob:], 1.0, 0.0
-        return out
-
-    x_scale = [1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3, 1.0, 1.0][:k] + [0.1] * (m * E)
-    res = least_squares(fun, p0, loss=loss, f_scale=ROBUST_SIGMAS, x_scale=x_scale,
-                        method="trf", jac_sparsity=sp, max_nfev=100)
-    res.n_camera = k
-    res.edge_weight = None
-    return res
-
-
-def _random_effect_stage(model: _Model, fit: _Fit, edges, occ, photo: PhotoEdges, lines,
-                         lines_share: bool = False, per_edge: bool = False,
-                         tilt: bool = False) -> tuple[_Fit, EdgeErrors] | None:
-    """The sub-pixel fit with each edge's shared error a random effect whose size is measured on the photo
-    (in place of the fixed cap of EDGE_WEIGHT_SAMPLES samples at FINE_SIGMA_PX): from the profile stage's
-    camera `fit`, RE_ROUNDS rounds of edgesnap's sub-pixel edges at the current camera, each fitted by
-    _solve_random with the variance components (s, tau) re-estimated from the fit's own residuals
-    (_variance_components) until they settle (RE_ITERATIONS). With lines_share the clicked (snapped) lines
-    carry the same per-edge error tau as the room's edges (they are the photo's edges too); with per_edge the
-    samples' noise s is measured per edge; with tilt each edge's own error is an offset and a tilt (a lean that
-    changes along the edge: the edge's direction is then no better known than its ends). None when too few
-    samples are found."""
-    x = fit.x
-    out = None
-    m = 2 if tilt else 1
-    s, tau = FINE_SIGMA_PX, np.full(m, EDGE_MODEL_SIGMA_PX)  # the start: the fixed figures of the default fit
-    for _ in range(RE_ROUNDS):
-        S = _sample_edges(model.camera(x), edges, occ)
-        if len(S.X) < MIN_SAMPLES:
-            break
-        uv, n = _project(model.camera(x), S)
-        q, ok = photo.subpixel(uv, n)
-        ok &= _exclusive(uv, n, S.edge, q)
-        if ok.sum() < MIN_SAMPLES:
-            break
-        sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        ue, inv = np.unique(sub.edge, return_inverse=True)
-        T = _edge_basis(sub, inv, tilt)
-        b = np.zeros((len(ue), m))
-        s = np.full(len(ue), float(np.median(s))) if per_edge else float(np.median(s))
-        for _ in range(RE_ITERATIONS):
-            res = _solve_random(model, x, b, sub, q[ok], inv, s, tau, lines, float(tau[0]) if lines_share else 0.0, T)
-            x, b = res.x[:model.n], res.x[model.n:].reshape(len(ue), m)
-            uv1, n1 = _project(model.camera(x), sub)
-            raw = np.sum(n1 * (q[ok] - uv1), axis=1)
-            s1, tau1 = _variance_components(raw, inv, b, model.n, per_edge, T)
-            done = bool(np.all(np.abs(s1 - s) <= 0.05 * s)) and bool(np.all(np.abs(tau1 - tau) <= 0.05 * tau))
-            s, tau = s1, tau1
-            if done:
-                break
-        # the sample residuals' scale in _solve_random (the guard's conditioning turns the normalised Jacobian
-        # back into px with it)
-        sigma = np.asarray(s, float)[inv] if per_edge else np.full(int(ok.sum()), float(s))
-        out = (_Fit(x, res, S, ok, raw, sigma, start=fit.start, data=(sub, q[ok], s, tau ** 2)),
-               EdgeErrors(float(np.median(s)), float(tau[0]), len(ue), {int(e): float(v) for e, v in zip(ue, b[:, 0])},
-                          float(tau[1]) if tilt else float("nan")))
-    return out
-
+# The refined camera's own uncertainty (bench/bench_camrefine.py)
 
 def camera_covariance(res, n_camera: int | None = None) -> np.ndarray | None:
     """The covariance of the camera's parameters (_Model's x) from a least-squares result: the inverse of the
     Gauss-Newton Hessian (res.jac, the robust loss's weights included), marginal over any nuisance
-    parameters after the first n_camera (the edges' offsets), scaled by the reduced robust chi-square (2 cost /
+    parameters after the first n_camera, scaled by the reduced robust chi-square (2 cost /
     dof: the loss's, so the outliers the loss discounts do not inflate it) when it exceeds 1 (the noise figures
-    under-stated). None when singular."""
+    under-stated). It takes the fit's noise model as given: samples independent at their sigma, an edge
+    capped at EDGE_WEIGHT_SAMPLES; edge_jackknife counts the edges' own errors. None when singular."""
     if res is None:
         return None
     J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
