@@ -8,7 +8,10 @@ drag a camera that is right). Errors against the truth's camera: focal (%), prin
 rotation (deg), centre (cm), the image error: rms px between the two cameras' images of the
 room's edge samples the truth's camera sees, and the object's image error: the same over the vertices of the
 scene's synthetic object where it stands (what rmse_object scores: bench/bench_object_shift.py gives how
-rmse_object grows with it). With --json each refined camera (K, R, t) is written too.
+rmse_object grows with it). Beside each refined camera's object error, its uncertainty there: the fit's own
+1 sigma (its parameter covariance, recon.camrefine.camera_covariance: samples taken as independent) and the
+jackknife over the room's edges (recon.camrefine.edge_jackknife: the edges as the independent units), with the
+one edge whose removal moves the object most. With --json each refined camera (K, R, t) is written too.
 
 `python bench/bench_camrefine.py [--rooms DIR] [--only window_101,...,sun_room] [--variant profiles]
 [--variant lines] [--true] [--json OUT]`; a variant is refine_camera's keyword arguments as
@@ -147,7 +150,6 @@ def main() -> None:
                   + (f"; edge jackknife 1 sigma {jk[0]:.2f} px, edge {jk[2]} alone moves it {jk[1]:.2f} px"
                      if np.isfinite(jk[0]) else "") + ")"
                   f"{'' if e['accepted'] else ' (kept: ' + e['reason'] + ')'}"
-                  f"{'; ' + e['refinement']['edge_errors'] if e['refinement'].get('edge_errors') else ''}"
                   f" [{e['seconds']:.1f} s]", flush=True)
             if a.true:
                 t = r[(v or "default") + " from truth"]

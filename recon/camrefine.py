@@ -38,7 +38,9 @@ lines fit significantly better with it free (recon/campp.py: calibrate's chi-squ
 room's edges, each edge carrying the room model's own error). The refined camera is accepted when the fit
 is well-conditioned, agrees with the clicked lines and lowers the edge residual (_guard); else the
 input camera is kept, as it is also when the refinement would move the room's edges by under
-MIN_MOVE_PX (the camera already fits: a true camera stays put).
+MIN_MOVE_PX (the camera already fits: a true camera stays put). The refined fit's own uncertainty
+(camera_covariance, point_std_px) and a jackknife over the room's edges (edge_jackknife: the edges, not their
+samples, as the independent units) come with it (Refinement.covariance / without_edge; bench/bench_camrefine.py).
 
 Conventions: recon/camera.py (OpenCV, x_cam = R X + t, pixel (0,0) the centre of the top-left pixel).
 """
