@@ -8,7 +8,10 @@ drag a camera that is right). Errors against the truth's camera: focal (%), prin
 rotation (deg), centre (cm), the image error: rms px between the two cameras' images of the
 room's edge samples the truth's camera sees, and the object's image error: the same over the vertices of the
 scene's synthetic object where it stands (what rmse_object scores: bench/bench_object_shift.py gives how
-rmse_object grows with it). With --json each refined camera (K, R, t) is written too.
+rmse_object grows with it). Beside each refined camera's object error, its uncertainty there: the fit's own
+1 sigma (its parameter covariance, recon.camrefine.camera_covariance: samples taken as independent) and the
+jackknife over the room's edges (recon.camrefine.edge_jackknife: the edges as the independent units), with the
+one edge whose removal moves the object most. With --json each refined camera (K, R, t) is written too.
 
 `python bench/bench_camrefine.py [--rooms DIR] [--only window_101,...,sun_room] [--variant profiles]
 [--variant lines] [--true] [--json OUT]`; a variant is refine_camera's keyword arguments as
@@ -82,7 +85,7 @@ def _variant(text: str) -> dict:
 def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> dict:
     from bench.own_room_flow import calibrated_from_lines
     from recon import assemble as asm
-    from recon.camrefine import _Occluder, _sample_edges, refine_camera, room_edges, room_faces
+    from recon.camrefine import _Occluder, _sample_edges, edge_jackknife, refine_camera, room_edges, room_faces
 
     truth, img, cal, prims, lo, hi = calibrated_from_lines(_room_dir(name, rooms))
     cam = cal.camera
@@ -98,6 +101,7 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
         kw = _variant(v)
         r = refine_camera(cam, prims, img, cj, **kw)
         out[v or "default"] = {**camera_errors(r.camera, truth, S, P), "accepted": r.accepted, "reason": r.reason,
+                               "object_std_px": _object_std(r, P), "jackknife": edge_jackknife(r, P),
                                "seconds": time.time() - t0, "refinement": r.to_json(),
                                "camera": {"K": r.camera.K.tolist(), "R": r.camera.R.tolist(), "t": r.camera.t.tolist()}}
         if true_start:
@@ -106,6 +110,16 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
             out[(v or "default") + " from truth"] = {"moved_px": r.moved_px, "accepted": r.accepted,
                                                      "reason": r.reason, "errors": moved}
     return out
+
+
+def _object_std(r, P: np.ndarray) -> float:
+    """The refined fit's own 1-sigma uncertainty of the object's image (px, rms over its vertices), from the
+    fit's parameter covariance (recon.camrefine.camera_covariance); nan without a fit."""
+    from recon.camrefine import point_std_px
+
+    if r.covariance is None or r.x is None or r.camera_at is None or not len(P):
+        return float("nan")
+    return point_std_px(r.camera_at, np.asarray(r.x, float), np.asarray(r.covariance, float), P)
 
 
 def _fmt(e: dict) -> str:
@@ -131,7 +145,11 @@ def main() -> None:
         print(f"{name} (principal point from: {r['pp_from']}): calibrated {_fmt(r['calibrated'])}", flush=True)
         for v in variants:
             e = r[v or "default"]
-            print(f"  {v or 'default'}: {_fmt(e)}{'' if e['accepted'] else ' (kept: ' + e['reason'] + ')'}"
+            jk = e["jackknife"]
+            print(f"  {v or 'default'}: {_fmt(e)} (fit's own 1 sigma {e['object_std_px']:.2f} px"
+                  + (f"; edge jackknife 1 sigma {jk[0]:.2f} px, edge {jk[2]} alone moves it {jk[1]:.2f} px"
+                     if np.isfinite(jk[0]) else "") + ")"
+                  f"{'' if e['accepted'] else ' (kept: ' + e['reason'] + ')'}"
                   f" [{e['seconds']:.1f} s]", flush=True)
             if a.true:
                 t = r[(v or "default") + " from truth"]

@@ -38,7 +38,9 @@ lines fit significantly better with it free (recon/campp.py: calibrate's chi-squ
 room's edges, each edge carrying the room model's own error). The refined camera is accepted when the fit
 is well-conditioned, agrees with the clicked lines and lowers the edge residual (_guard); else the
 input camera is kept, as it is also when the refinement would move the room's edges by under
-MIN_MOVE_PX (the camera already fits: a true camera stays put).
+MIN_MOVE_PX (the camera already fits: a true camera stays put). The refined fit's own uncertainty
+(camera_covariance, point_std_px) and a jackknife over the room's edges (edge_jackknife: the edges, not their
+samples, as the independent units) come with it (Refinement.covariance / without_edge; bench/bench_camrefine.py).
 
 Conventions: recon/camera.py (OpenCV, x_cam = R X + t, pixel (0,0) the centre of the top-left pixel).
 """
@@ -113,9 +115,17 @@ class Refinement:
     chamfer_after_px: float  # ... at the refined camera
     seconds: float
     principal_point: str = ""  # how the principal point was modelled (recon/campp.py); "" when held as given
+    covariance: object = dataclasses.field(default=None, repr=False)  # the fit's camera-parameter covariance
+    # (camera_covariance), its parameters `x` and `camera_at(x)` -> Camera: the refined fit's own uncertainty
+    x: object = dataclasses.field(default=None, repr=False)
+    camera_at: object = dataclasses.field(default=None, repr=False)
+    without_edge: object = dataclasses.field(default=None, repr=False)  # (edge index) -> Camera: the final fit
+    # solved again without that room edge (edge_jackknife); None without a profile-stage fit
+    edge_ids: object = dataclasses.field(default=None, repr=False)  # the room edges of the final fit
 
     def to_json(self) -> dict:
-        d = {k: v for k, v in dataclasses.asdict(self).items() if k != "camera"}
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+             if f.name not in ("camera", "covariance", "x", "camera_at", "without_edge", "edge_ids")}
         return {k: (round(v, 6) if isinstance(v, float) else v) for k, v in d.items()}
 
     def summary(self) -> str:
@@ -635,7 +645,19 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     else:
         refined = model.camera(best.x)
     r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
-    return dataclasses.replace(r, principal_point=note)
+    without, ids = None, None
+    if best.res is not None and best.data is not None and best.data[3] is None:  # the profile stage's fit
+        sub, q, sig, _ = best.data
+        ids = np.unique(sub.edge)
+        x_end = best.x
+
+        def without(e: int) -> Camera:
+            keep = sub.edge != e
+            res = _solve(model, x_end, _Samples(sub.X[keep], sub.D[keep], sub.edge[keep]), q[keep], sig, lines,
+                         f_scale=ROBUST_SIGMAS)
+            return model.camera(res.x)
+    return dataclasses.replace(r, principal_point=note, x=best.x, covariance=camera_covariance(best.res),
+                               camera_at=model.camera, without_edge=without, edge_ids=ids)
 
 
 def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str) -> _Fit | None:
@@ -775,3 +797,56 @@ def _conditioning(res, S: _Samples, used: np.ndarray, inl: np.ndarray, sigma: np
         if np.min(G) > np.cos(np.radians(MIN_LINE_DIRECTIONS_DEG)):
             return "the room's edges found in the photo run in one direction only"
     return None
+
+
+# ----------------------------------------------------------------------------------------------
+# The refined camera's own uncertainty (bench/bench_camrefine.py)
+
+def camera_covariance(res, n_camera: int | None = None) -> np.ndarray | None:
+    """The covariance of the camera's parameters (_Model's x) from a least-squares result: the inverse of the
+    Gauss-Newton Hessian (res.jac, the robust loss's weights included), marginal over any nuisance
+    parameters after the first n_camera, scaled by the reduced robust chi-square (2 cost /
+    dof: the loss's, so the outliers the loss discounts do not inflate it) when it exceeds 1 (the noise figures
+    under-stated). It takes the fit's noise model as given: samples independent at their sigma, an edge
+    capped at EDGE_WEIGHT_SAMPLES; edge_jackknife counts the edges' own errors. None when singular."""
+    if res is None:
+        return None
+    J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
+    k = n_camera or getattr(res, "n_camera", None) or J.shape[1]
+    try:
+        cov = np.linalg.inv(J.T @ J)[:k, :k]
+    except np.linalg.LinAlgError:
+        return None
+    scale = max(2.0 * float(res.cost) / max(len(res.fun) - J.shape[1], 1), 1.0)
+    return cov * scale
+
+
+def point_std_px(camera_at, x: np.ndarray, cov: np.ndarray, P: np.ndarray, h: float = 1e-6) -> float:
+    """rms over the world points P (m) of the 1-sigma image uncertainty (px, sqrt of the trace of each
+    point's 2x2 covariance) that the parameter covariance cov gives about x, camera_at(x) -> Camera
+    (finite differences of step h in each parameter's own units)."""
+    u0, _ = camera_at(x).project(P)
+    J = np.empty((len(P), 2, len(x)))
+    for j in range(len(x)):
+        dx = np.zeros(len(x))
+        dx[j] = h
+        J[:, :, j] = (camera_at(x + dx).project(P)[0] - u0) / h
+    var = np.einsum("nij,jk,nik->n", J, cov, J)
+    return float(np.sqrt(np.mean(np.maximum(var, 0.0))))
+
+
+def edge_jackknife(r: Refinement, P: np.ndarray) -> tuple[float, float, int]:
+    """(std px, largest shift px, its edge): the jackknife over the room's edges of the refined camera's image of
+    the world points P (m): the final fit solved again without each edge in turn (Refinement.without_edge);
+    std is sqrt((E-1)/E sum_e |u_(-e) - u_mean|^2) (rms over P), which counts each edge's own error however it
+    is shared by its samples (the edges, not the samples, are the independent units); the largest shift is the
+    one edge's influence (rms over P of u_(-e) - u). nan when the fit has no such refit."""
+    if r.without_edge is None or r.edge_ids is None or len(r.edge_ids) < 2 or r.camera_at is None:
+        return float("nan"), float("nan"), -1
+    u0, _ = r.camera_at(np.asarray(r.x, float)).project(P)
+    U = np.stack([r.without_edge(int(e)).project(P)[0] for e in r.edge_ids])  # (E, V, 2)
+    E = len(U)
+    var = (E - 1) / E * np.sum(np.sum((U - U.mean(axis=0)) ** 2, axis=2), axis=0)
+    shift = np.sqrt(np.mean(np.sum((U - u0) ** 2, axis=2), axis=1))
+    k = int(np.argmax(shift))
+    return float(np.sqrt(np.mean(var))), float(shift[k]), int(r.edge_ids[k])
