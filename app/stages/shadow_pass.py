@@ -67,6 +67,11 @@ CLUSTER_MAP_RES = 128
 # shadow fractions (occluded share of the pixel's light: sum / scale) differ by at most this much;
 # about the smallest luminance contrast the eye sees (Weber's fraction, 1-2 %).
 REFINE_TOL = 0.02
+# The fewest (point, map) pairs a concurrent range of a graded frame's sums gets (ShadowPass._sum): a pair costs
+# 0.2-0.4 us on the 2-core CPU (a cluster map's PCSS lookup), so this is about a millisecond of work per range,
+# ten times a thread's hand-off (~0.1 ms). A cut by point count (2048 points, 20-90 maps listed each near the
+# object) left each spacing's launch of a drag frame on one core.
+MIN_PART_PAIRS = 4096
 TILE = 8  # pixels: side of the image blocks whose points share a list of maps that may shadow them
 
 
@@ -438,10 +443,12 @@ class ShadowPass:
         return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, O_pix, O_cen)
 
     def _sum(self) -> np.ndarray:
-        """The prepared batch's masked sums over the selected points, both cores cut by work."""
+        """The prepared batch's masked sums over the selected points, both cores cut by work: the number of
+        ranges from the (point, map) pairs (MaskedSum.work), at least MIN_PART_PAIRS each."""
         dev = self.device
+        k = runtime.parts(dev, self.sums.work(), min_items=MIN_PART_PAIRS)
         runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
-                     for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
+                     for a, b in self.sums.balanced(k)])
         return self.sums.result()[0]
 
     def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray, out=None) -> np.ndarray | None:
