@@ -18,7 +18,8 @@ the run and looking up nearby texels point after point. The work of a point is t
 cell's list, so concurrent ranges are cut by work (`balanced`), not by point count: the cells near
 the object list most maps.
 
-A cluster map (a spread) is looked up with a PCSS penumbra (`penumbra`). Its cost is held down
+A cluster map (a spread) is looked up with a PCSS penumbra (`penumbra`), or as a point source's map by the
+points from `MaskedSum.hard_from` on (none by default). Its cost is held down
 by the map's depth range pyramid (kernels.shadowmap.depth_range): a run whose points' widest
 boxes are all lit, or all in umbra, is settled with no tap (exact), as is a point's blocker
 search or filter box; a run within one tap spacing of its mean shares one blocker search there
@@ -221,8 +222,9 @@ def _weight(weights: wp.array2d(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32)
 
 
 @wp.kernel
-def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, hard0: int, run_start: wp.array(dtype=wp.int32),
-                       run_cell: wp.array(dtype=wp.int32), idx: wp.array(dtype=wp.int32),
+def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, hard0: int,
+                       run_start: wp.array(dtype=wp.int32), run_cell: wp.array(dtype=wp.int32),
+                       idx: wp.array(dtype=wp.int32),
                        pos: wp.array(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32),
                        bary: wp.array(dtype=wp.vec3), lists: wp.array2d(dtype=wp.int32),
                        n_list: wp.array(dtype=wp.int32), weights: wp.array2d(dtype=wp.vec3),
@@ -322,8 +324,9 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, hard0
 
 
 @wp.kernel
-def _ray_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, hard0: int, run_start: wp.array(dtype=wp.int32),
-                    run_cell: wp.array(dtype=wp.int32), idx: wp.array(dtype=wp.int32),
+def _ray_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, hard0: int,
+                    run_start: wp.array(dtype=wp.int32), run_cell: wp.array(dtype=wp.int32),
+                    idx: wp.array(dtype=wp.int32),
                     pos: wp.array(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32),
                     bary: wp.array(dtype=wp.vec3), lists: wp.array2d(dtype=wp.int32),
                     n_list: wp.array(dtype=wp.int32), weights: wp.array2d(dtype=wp.vec3),
@@ -403,7 +406,9 @@ class MaskedSum:
         self.acc = Buffer(n_alloc, wp.vec3, d)
         self.count = Buffer(n_alloc, wp.float32, d)
         self.n = 0
-        self.hard_from = self.size  # points of this index on: a cluster map's hard lookup, no penumbra (none by default)
+        # points of this index on take a cluster map's hard lookup, no penumbra (none by default; ShadowPass.
+        # hard_centres): _masked_sum_kernel's hard0
+        self.hard_from = self.size
         self.select(None)
 
     def select(self, idx: np.ndarray | None = None) -> None:
