@@ -67,6 +67,11 @@ CLUSTER_MAP_RES = 128
 # shadow fractions (occluded share of the pixel's light: sum / scale) differ by at most this much;
 # about the smallest luminance contrast the eye sees (Weber's fraction, 1-2 %).
 REFINE_TOL = 0.02
+# The fewest (point, map) pairs a concurrent range of a graded frame's sums gets (ShadowPass._sum): a pair costs
+# 0.2-0.4 us on the 2-core CPU (a cluster map's PCSS lookup), so this is about a millisecond of work per range,
+# ten times a thread's hand-off (~0.1 ms). A cut by point count (2048 points, 20-90 maps listed each near the
+# object) left each spacing's launch of a drag frame on one core.
+MIN_PART_PAIRS = 4096
 TILE = 8  # pixels: side of the image blocks whose points share a list of maps that may shadow them
 
 
@@ -140,6 +145,7 @@ class ShadowPass:
         self._allowed = np.zeros(R, bool)  # scratch: wanted points of the frame
         self._known = np.zeros(R, bool)  # scratch: points summed so far in the frame
         self._vals = np.zeros((R, 3))  # their sums
+        self._frac = np.zeros((R, 3))  # and their shadow fractions (sum / scale: _run_graded's refine test)
         self.refine_tol = REFINE_TOL
         self.graded = True  # False: every frame on the spacing-2 lattice (run's other branch), for A/B
         # exact within this many bounding radii (graded frames): inside the bounding sphere a receiver
@@ -182,6 +188,19 @@ class ShadowPass:
         self.taps = int(taps)
         for m in {id(m): m for m in (self.maps_full, self.maps_cluster, *self._twin.values())}.values():
             m.taps = m.ms.taps = self.taps
+
+    @property
+    def hard_centres(self) -> bool:
+        """True: the patch centres' sums take the cluster maps' hard lookup (kernels.masked_sums: MaskedSum.
+        hard_from), not the PCSS penumbra; the pixels keep it. A patch centre stands for its whole patch in the
+        second order and the object's light, so the penumbra at that one point is no truer than the hard lookup,
+        at a ninth of the taps. False: the frames at rest and the drag frame (tried for the drag frame and not
+        taken: it moved sun_room's drag row's energy 1.024 -> 1.036; docs/benchmarks.md, sixth round, masks36)."""
+        return self.sums.hard_from == self.n_pix_points
+
+    @hard_centres.setter
+    def hard_centres(self, on: bool) -> None:
+        self.sums.hard_from = self.n_pix_points if on else self.sums.size
 
     # ------------------------------------------------------------------ per frame
     def run(self, proxy: tuple[np.ndarray, np.ndarray, Occluder | None], centre: np.ndarray, radius: float,
@@ -326,7 +345,13 @@ class ShadowPass:
         dev, n = self.device, len(eyes)
         R = self.n_pix_points
         ok = cand.any(1) if cand.shape[1] else np.zeros(len(cand), bool)
-        allowed, known, vals = self._allowed, self._known, self._vals
+        allowed, known, vals, fracs = self._allowed, self._known, self._vals, self._frac
+
+        def summed(pts: np.ndarray, v: np.ndarray) -> None:
+            """Points pts summed to v: known, their values and shadow fractions kept."""
+            known[pts] = True
+            vals[pts] = v
+            fracs[pts] = v / np.maximum(scale[self.recv[pts]], 1e-12)
         allowed[:] = ok[self.pt_patch]
         covered = np.flatnonzero(coverage.reshape(-1) >= 1.0)
         if len(covered):  # pixels the object hides completely: no shadow to show
@@ -372,8 +397,7 @@ class ShadowPass:
         acc = self._sum()
         O_cen = acc[len(first_pts):]
         exact = [first_pts]
-        known[first_pts] = True
-        vals[first_pts] = acc[:len(first_pts)]
+        summed(first_pts, acc[:len(first_pts)])
         fill_pt, fill_s = [], []
         sq = sq8
         for s in (8, 4):
@@ -382,7 +406,7 @@ class ShadowPass:
             c = self.sq_corners[s][sq]
             cc = np.maximum(c, 0)
             good = np.all((c >= 0) & known[cc], axis=1)
-            frac = vals[cc] / np.maximum(scale[self.recv[cc]], 1e-12)  # (squares, 4, 3)
+            frac = fracs[cc]  # (squares, 4, 3)
             good &= (frac.max(1) - frac.min(1)).max(1) <= self.refine_tol
             sq_good = self._sq_mark[s]
             sq_good[sq[good]] = True
@@ -401,19 +425,20 @@ class ShadowPass:
                 new = new[~known[new]]
             if len(new):
                 self.sums.select(new)
-                vals[new] = self._sum()
-                known[new] = True
+                summed(new, self._sum())
                 exact.append(new)
         # spacing 2: a pixel is filled (the 3x3 mean) where its own corners are wanted, summed, and agree
         # as above; the others are summed themselves
         pend = pend[~known[pend]]
         c = self.corners[pend]
         need = c != -2
-        cc = np.maximum(c, 0)
-        good = np.all(~need | ((c >= 0) & known[cc]), axis=1)
-        frac = vals[cc] / np.maximum(scale[self.recv[cc]], 1e-12)
-        spread_ = (np.where(need[..., None], frac, -np.inf).max(1) - np.where(need[..., None], frac, np.inf).min(1))
-        good &= spread_.max(1) <= self.refine_tol
+        good = np.all(~need | ((c >= 0) & known[np.maximum(c, 0)]), axis=1)
+        # a corner of zero weight is replaced by the first one (never of zero weight): the same
+        # max and min; only the squares whose corners are all summed are tested
+        at = np.flatnonzero(good)
+        c = c[at]
+        frac = fracs[np.where(need[at], c, c[:, :1])]
+        good[at] = (frac.max(1) - frac.min(1)).max(1) <= self.refine_tol
         fill_pt.append(pend[good])
         fill_s.append(np.full(int(good.sum()), 2))
         new = pend[~good]
@@ -438,10 +463,12 @@ class ShadowPass:
         return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, O_pix, O_cen)
 
     def _sum(self) -> np.ndarray:
-        """The prepared batch's masked sums over the selected points, both cores cut by work."""
+        """The prepared batch's masked sums over the selected points, both cores cut by work: the number of
+        ranges from the (point, map) pairs (MaskedSum.work), at least MIN_PART_PAIRS each."""
         dev = self.device
+        k = runtime.parts(dev, self.sums.work(), min_items=MIN_PART_PAIRS)
         runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
-                     for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
+                     for a, b in self.sums.balanced(k)])
         return self.sums.result()[0]
 
     def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray, out=None) -> np.ndarray | None:
