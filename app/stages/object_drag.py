@@ -1,8 +1,7 @@
 """The object while dragging, from per-shape tables: its shading and its light on the room, no rays per vertex.
 
-Used by the drag frame only (FrameConfig.drag; app.engine), and there only in rooms no sun lights (with a
-sun the object's error is not yet within bounds: docs/benchmarks.md "The object while dragging"); at rest
-app.stages.object_shading and app.stages.object_light run as before. Everything per vertex is computed once per object shape in the
+Used by the drag frame only (FrameConfig.drag; app.engine), in every room (Engine.drag_object_sun False: not
+in rooms a sun lights); at rest app.stages.object_shading and app.stages.object_light run as before. Everything per vertex is computed once per object shape in the
 shape's own frame (canonical: centred, yaw 0; a pose that translates the object or turns it about the
 up axis +Y keeps every table), and per frame only the room's light is looked up:
 
@@ -14,16 +13,20 @@ up axis +Y keeps every table), and per frame only the room's light is looked up:
 - the exact emitters (lamps, windows, the sunlit floor patches): unoccluded polygon form factors at the
   vertices (kernels.formfactor) x the object's own visibility toward each emitter, read from
   the cached PRT rays binned by direction (VIS_RES^2 octahedral cells) x the room's visibility, one ray
-  per probe and emitter group, interpolated, summed per vertex in one kernel (kernels.drag_gather; so are
-  the near changed patches' form factors below);
+  per probe and emitter part (a group wider than SPLIT_ANGLE of its distance is cut: split_groups),
+  interpolated, summed per vertex in one kernel (kernels.drag_gather; so are the near changed patches' form
+  factors below, the sun's loss on a sunlit patch seen past the room as that patch is); a vertex touching a
+  patch gathered so (a leg's foot on the sunlit floor) gathers from just above it (lift_off_contacts, as at rest);
+- the changed patches: the room's that hold DB_SHARE of its loss (the later bounces of the sun's loss on the
+  walls included: app.stages.sun.SunStage.later_at_patches) and every patch the sun's loss takes from, as at rest;
 - the sun: cos x the object's own shadow (rays cast once per shape and sun direction in the object's
   frame: a translation casts none) x the room's shadow: the opening the sun comes through, per vertex
   (a plane and a quad: no ray), and what else blocks it, at the probes, interpolated.
 
 The object's light on the room: the frame's proxy (the same triangles as at rest) takes its triangles'
 radiance from the shaded vertices (the area-weighted mean of those nearest each, a sparse map made once per
-shape and proxy) instead of gathering the room at each triangle by rays, with the room's and the sun's parts
-apart (the frame's later sun bounces need them). A coarser proxy (48 triangles simplified from the shading
+shape and proxy) instead of gathering the room at each triangle by rays; the sun's part is the frame at rest's
+sunlit pieces (app.engine: SunStage.object_emitters, made once per shape). A coarser proxy (48 triangles simplified from the shading
 mesh) was tried and not kept: facets near a contact sent several times the light (docs/benchmarks.md).
 
 Units: radiance; E as irradiance / pi, as in app.stages.object_shading.
@@ -73,6 +76,51 @@ DB_SHARE = 0.95
 DB_NEAR = 2.0
 KEY_OFFSET = 1.0 / 3.0  # DragObject.shape's key: coordinates to 10 um on a grid offset by a third of a step
 DB_MAX = 512
+
+
+def _strongest(change: np.ndarray, area: np.ndarray, share: float = DB_SHARE) -> np.ndarray:
+    """The patches (indices) of a radiance change (P,3) that hold `share` of its loss |change| x area, at most
+    DB_MAX of them, strongest first."""
+    loss = np.abs(change).sum(1) * area
+    order = np.argsort(-loss)[:DB_MAX]
+    order = order[loss[order] > 0]
+    if len(order) == 0:
+        return order
+    keep = int(np.searchsorted(np.cumsum(loss[order]), share * loss[order].sum() * (1 - 1e-12))) + 1
+    return order[:keep]
+
+
+# An emitter group seen from the object is looked up in the visibility table (and past the room, at the probes) by the
+# direction of its centre alone: a group wider than this share of its distance from the object's centre is cut into
+# a grid of parts that are not (the table's cells span ~30 deg, VIS_RES; 0.25 rad, ~14 deg, keeps a part within about
+# one cell, as object_shading.DB_CLUSTER keeps a far cluster's SH error ~1.5 %). A window 1.4 m wide 2 m away: 3 x 3.
+SPLIT_ANGLE = 0.25
+
+
+def split_groups(polys: np.ndarray, rad: np.ndarray, centre: np.ndarray, angle: float = SPLIT_ANGLE
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(parts (M,4,3), their radiance (M,3), the group of each part (M,)): the emitter groups' rectangles polys
+    (G,4,3) (corners c0..c3, kernels.shade.patch_groups) of radiance rad (G,3) cut into n_u x n_v equal rectangles,
+    n = ceil(side / (angle x distance)), the distance from `centre` (3,) to the rectangle's nearest corner or centre
+    (at least its own half-diagonal); 1 x 1 where that is already below it."""
+    e_u, e_v = polys[:, 1] - polys[:, 0], polys[:, 3] - polys[:, 0]
+    su, sv = np.linalg.norm(e_u, axis=1), np.linalg.norm(e_v, axis=1)
+    pts = np.concatenate([polys, polys.mean(1, keepdims=True)], 1)
+    dist = np.maximum(np.linalg.norm(pts - centre, axis=2).min(1), 0.5 * np.hypot(su, sv))
+    nu = np.maximum(np.ceil(su / (angle * dist)), 1).astype(np.int64)
+    nv = np.maximum(np.ceil(sv / (angle * dist)), 1).astype(np.int64)
+    if (nu * nv == 1).all():
+        return polys, rad, np.arange(len(polys))
+    one = np.flatnonzero(nu * nv == 1)
+    parts, prad, group = [polys[one]], [rad[one]], [one]
+    for g in np.flatnonzero(nu * nv > 1):
+        a, b = np.meshgrid(np.arange(nu[g]) / nu[g], np.arange(nv[g]) / nv[g], indexing="ij")
+        o = polys[g, 0] + a.reshape(-1, 1) * e_u[g] + b.reshape(-1, 1) * e_v[g]  # (k,3) each part's c0
+        du, dv = e_u[g] / nu[g], e_v[g] / nv[g]
+        parts.append(np.stack([o, o + du, o + du + dv, o + dv], 1))
+        prad.append(np.broadcast_to(rad[g], (len(o), 3)))
+        group.append(np.full(len(o), g))
+    return np.concatenate(parts), np.concatenate(prad), np.concatenate(group)
 
 
 def rot_y(yaw: float) -> np.ndarray:
@@ -384,7 +432,7 @@ class DragObject:
         """The object's radiance at its camera hits from the per-shape tables (module docstring); None when
         the object is not turned about +Y only (the caller shades it as at rest). The per-pixel radiance
         (shaded.radiance) is a kept image, valid until the next call (the frame composes it before then)."""
-        from app.stages.object_shading import ShadedObject
+        from app.stages.object_shading import ShadedObject, lift_off_contacts
 
         yaw = yaw_of(obj.object_to_world)
         if yaw is None:
@@ -404,12 +452,13 @@ class DragObject:
         if sun_dB is not None:
             change = sun_dB if change is None else change + sun_dB
         if change is not None:
-            loss = np.abs(change).sum(1) * pm.area
-            order = np.argsort(-loss)[:DB_MAX]
-            order = order[loss[order] > 0]
-            if len(order):
-                keep = int(np.searchsorted(np.cumsum(loss[order]), DB_SHARE * loss[order].sum())) + 1
-                k = order[:keep]
+            # the room's change: the patches holding DB_SHARE of its loss; the sun's: every patch it takes from (as
+            # at rest: the room's loss, its later bounces on the walls included, is spread thin; a cut of the two
+            # summed would keep the sun's patches alone and leave the object seeing the walls as lit)
+            k = _strongest(dB, pm.area) if dB is not None else np.zeros(0, np.int64)
+            if sun_dB is not None:
+                k = np.union1d(k, _strongest(sun_dB, pm.area, 1.0))
+            if len(k):
                 # near the object (within DB_NEAR bounding radii of its centre) a patch is a polygon, its form
                 # factor exact at every vertex (the floor under the object fills half of a low vertex's view,
                 # which no disk at a probe resolves), farther a disk at the probes (SH)
@@ -428,8 +477,16 @@ class DragObject:
         E_proxy = E * self.bounce_scale  # the indirect a bounce fewer; the emitters' and the sun's as they are
         # ---- the exact emitters: form factors x own visibility by direction x the room's at the probes
         em, (start, polys) = osh.emitter_groups()
+        # a vertex touching a patch gathered exactly (a leg's foot on the sunlit floor) gathers it from just above
+        # the surface, as at rest (object_shading.lift_off_contacts: in the surface's plane its form factor is 0)
+        ch = np.flatnonzero(np.abs(sun_dB).sum(1) > 0) if sun_dB is not None else np.zeros(0, np.int64)
+        touch = np.union1d(em, ch).astype(np.int64)
+        vg = lift_off_contacts(vu, nu, pm.centre[touch], pm.normal[touch], pm.radius[touch], 2e-3)
+        w_em = None  # (U,G) the room's visibility of each emitter group at the vertices
         if len(em):
             rad = rl.radiance[em[start[:-1]]]  # (G,3) one radiance per group
+            part_of = np.arange(len(polys))
+            polys, rad, part_of = split_groups(polys, rad, 0.5 * (vu.min(0) + vu.max(0)))
             cen = polys.mean(1)  # (G,3)
             dp = cen[None] - probes[:, None]  # (Q,G,3)
             dist = np.linalg.norm(dp, axis=2)
@@ -437,8 +494,8 @@ class DragObject:
                                     workspace=self._ws.get("drag.probe_rays"))
             seen = (depth.reshape(dist.shape) >= dist * (1 - 1e-2) - 1e-2).astype(np.float64)  # (Q,G)
             # form factors x own visibility by direction x the room's, summed per vertex in one kernel
-            E_em = gather_seen(vu, nu, ds.all_rows, ds.vis_on(self.device), polys, rad, R, VIS_RES, self.device,
-                               self._ws.get("drag.ff"), self._split, weights=ds.weights @ seen)
+            E_em = gather_seen(vg, nu, ds.all_rows, ds.vis_on(self.device), polys, rad, R, VIS_RES, self.device,
+                               self._ws.get("drag.ff"), self._split, weights=(w_em := ds.weights @ seen))
             E += E_em
             E_proxy += E_em
         if near_light is not None:  # the near changed patches: exact form factors x own visibility (no room's); the
@@ -449,9 +506,24 @@ class DragObject:
             for part, rows in ((~sunny, ss.sub), (sunny, ds.all_rows)):
                 if not part.any():
                     continue
-                E_near = gather_seen(vu[rows], nu[rows], rows, ds.vis_on(self.device), corners[part], rad[part], R,
+                w = None
+                if part is sunny and w_em is not None:
+                    # the sun's loss on an emitter patch (a sunlit floor patch in the object's shadow) seen past the
+                    # room as that patch's emitter group is: the two nearly cancel, and the same visibility on both
+                    # keeps their difference's error the difference's, not the larger terms'
+                    group = np.full(pm.n_patches, -1)
+                    group[em] = np.repeat(np.arange(len(start) - 1), np.diff(start))
+                    g_k = group[kn[part]]
+                    # the part of its group nearest the patch (a sunlit patch is a group of its own: that group)
+                    col = np.zeros(len(g_k), np.int64)
+                    cen_k = pm.centre[kn[part]]
+                    for i in np.flatnonzero(g_k >= 0):
+                        cand = np.flatnonzero(part_of == g_k[i])
+                        col[i] = cand[np.argmin(np.linalg.norm(cen[cand] - cen_k[i], axis=1))]
+                    w = np.where(g_k[None] >= 0, w_em[:, col], 1.0)
+                E_near = gather_seen(vg[rows], nu[rows], rows, ds.vis_on(self.device), corners[part], rad[part], R,
                                      VIS_RES, self.device, self._ws.get(f"drag.near_ff.{part is sunny}"), self._split,
-                                     capacity=DB_MAX)
+                                     capacity=DB_MAX, weights=w)
                 if part is not sunny:
                     E_near = ss.interpolate(E_near)
                 E += E_near
