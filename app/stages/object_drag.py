@@ -1,33 +1,32 @@
 """The object while dragging, from per-shape tables: its shading and its light on the room, no rays per vertex.
 
-Used by the drag frame only (FrameConfig.drag; app.engine), in every room (Engine.drag_object_sun False: not
-in rooms a sun lights); at rest app.stages.object_shading and app.stages.object_light run as before. Everything per vertex is computed once per object shape in the
-shape's own frame (canonical: centred, yaw 0; a pose that translates the object or turns it about the
-up axis +Y keeps every table), and per frame only the room's light is looked up:
+Used by the drag frame only (FrameConfig.drag; app.engine), in every room (Engine.drag_object_sun False: not in
+rooms a sun lights); at rest app.stages.object_shading and app.stages.object_light run as before. Everything per
+vertex is computed once per object shape in the shape's own frame (canonical: centred, yaw 0; a pose that translates
+the object or turns it about the up axis +Y keeps every table), and per frame only the room's light is looked up:
 
-- indirect light and the room's change in the object's shadow: radiance SH9 at a PROBES^3 grid over
-  the object's box (the SH volume looked up there, the changed patches projected as small disks),
-  rotated into the object's frame for its yaw (sh_yaw_matrix: each band's (m, -m) pair turns by
-  cos / sin of m x yaw), interpolated trilinearly and dotted with each vertex's cached self-occlusion
-  transfer (PRT, kernels.shade.self_transfer: the same transfer the frame at rest uses);
-- the exact emitters (lamps, windows, the sunlit floor patches): unoccluded polygon form factors at the
-  vertices (kernels.formfactor) x the object's own visibility toward each emitter, read from
-  the cached PRT rays binned by direction (VIS_RES^2 octahedral cells) x the room's visibility, one ray
-  per probe and emitter part (a group wider than SPLIT_ANGLE of its distance is cut: split_groups),
-  interpolated, summed per vertex in one kernel (kernels.drag_gather; so are the near changed patches' form
-  factors below, the sun's loss on a sunlit patch seen past the room as that patch is); a vertex touching a
-  patch gathered so (a leg's foot on the sunlit floor) gathers from just above it (lift_off_contacts, as at rest);
-- the changed patches: the room's that hold DB_SHARE of its loss (the later bounces of the sun's loss on the
-  walls included: app.stages.sun.SunStage.later_at_patches) and every patch the sun's loss takes from, as at rest;
-- the sun: cos x the object's own shadow (rays cast once per shape and sun direction in the object's
-  frame: a translation casts none) x the room's shadow: the opening the sun comes through, per vertex
-  (a plane and a quad: no ray), and what else blocks it, at the probes, interpolated.
+- indirect light and the room's change in the object's shadow: radiance SH9 at a PROBES^3 grid over the object's box
+  (the SH volume looked up there, the changed patches projected as small disks), rotated into the object's frame for
+  its yaw (sh_yaw_matrix: each band's (m, -m) pair turns by cos / sin of m x yaw), interpolated trilinearly and
+  dotted with each vertex's cached self-occlusion transfer (PRT, kernels.shade.self_transfer: the same transfer the
+  frame at rest uses);
+- the exact emitters (lamps, windows, the sunlit floor patches): unoccluded polygon form factors at the vertices
+  (kernels.formfactor) x the object's own visibility toward each emitter, read from the cached PRT rays binned by
+  direction (VIS_RES^2 octahedral cells) x the room's visibility, one ray per probe and emitter group, interpolated,
+  summed per vertex in one kernel (kernels.drag_gather; so are the near changed patches' form factors below, the
+  sun's loss on a sunlit patch seen past the room as that patch is); a vertex touching a patch gathered so (a leg's
+  foot on the sunlit floor) gathers from just above it (lift_off_contacts, as at rest);
+- the changed patches: the room's that hold DB_SHARE of its loss (the later bounces of the sun's loss on the walls
+  included: app.stages.sun.SunStage.later_at_patches) and every patch the sun's loss takes from, as at rest;
+- the sun: cos x the object's own shadow (rays cast once per shape and sun direction in the object's frame: a
+  translation casts none) x the room's shadow: the opening the sun comes through, per vertex (a plane and a quad: no
+  ray), and what else blocks it, at the probes, interpolated.
 
-The object's light on the room: the frame's proxy (the same triangles as at rest) takes its triangles'
-radiance from the shaded vertices (the area-weighted mean of those nearest each, a sparse map made once per
-shape and proxy) instead of gathering the room at each triangle by rays; the sun's part is the frame at rest's
-sunlit pieces (app.engine: SunStage.object_emitters, made once per shape). A coarser proxy (48 triangles simplified from the shading
-mesh) was tried and not kept: facets near a contact sent several times the light (docs/benchmarks.md).
+The object's light on the room: the frame's proxy (the same triangles as at rest) takes its triangles' radiance from
+the shaded vertices (the area-weighted mean of those nearest each, a sparse map made once per shape and proxy)
+instead of gathering the room at each triangle by rays; the sun's part is the frame at rest's sunlit pieces
+(app.engine: SunStage.object_emitters, made once per shape). A coarser proxy (48 triangles simplified from the
+shading mesh) was tried and not kept: facets near a contact sent several times the light (docs/benchmarks.md).
 
 Units: radiance; E as irradiance / pi, as in app.stages.object_shading.
 """
@@ -88,39 +87,6 @@ def _strongest(change: np.ndarray, area: np.ndarray, share: float = DB_SHARE) ->
         return order
     keep = int(np.searchsorted(np.cumsum(loss[order]), share * loss[order].sum() * (1 - 1e-12))) + 1
     return order[:keep]
-
-
-# An emitter group seen from the object is looked up in the visibility table (and past the room, at the probes) by the
-# direction of its centre alone: a group wider than this share of its distance from the object's centre is cut into
-# a grid of parts that are not (the table's cells span ~30 deg, VIS_RES; 0.25 rad, ~14 deg, keeps a part within about
-# one cell, as object_shading.DB_CLUSTER keeps a far cluster's SH error ~1.5 %). A window 1.4 m wide 2 m away: 3 x 3.
-SPLIT_ANGLE = 0.25
-
-
-def split_groups(polys: np.ndarray, rad: np.ndarray, centre: np.ndarray, angle: float = SPLIT_ANGLE
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(parts (M,4,3), their radiance (M,3), the group of each part (M,)): the emitter groups' rectangles polys
-    (G,4,3) (corners c0..c3, kernels.shade.patch_groups) of radiance rad (G,3) cut into n_u x n_v equal rectangles,
-    n = ceil(side / (angle x distance)), the distance from `centre` (3,) to the rectangle's nearest corner or centre
-    (at least its own half-diagonal); 1 x 1 where that is already below it."""
-    e_u, e_v = polys[:, 1] - polys[:, 0], polys[:, 3] - polys[:, 0]
-    su, sv = np.linalg.norm(e_u, axis=1), np.linalg.norm(e_v, axis=1)
-    pts = np.concatenate([polys, polys.mean(1, keepdims=True)], 1)
-    dist = np.maximum(np.linalg.norm(pts - centre, axis=2).min(1), 0.5 * np.hypot(su, sv))
-    nu = np.maximum(np.ceil(su / (angle * dist)), 1).astype(np.int64)
-    nv = np.maximum(np.ceil(sv / (angle * dist)), 1).astype(np.int64)
-    if (nu * nv == 1).all():
-        return polys, rad, np.arange(len(polys))
-    one = np.flatnonzero(nu * nv == 1)
-    parts, prad, group = [polys[one]], [rad[one]], [one]
-    for g in np.flatnonzero(nu * nv > 1):
-        a, b = np.meshgrid(np.arange(nu[g]) / nu[g], np.arange(nv[g]) / nv[g], indexing="ij")
-        o = polys[g, 0] + a.reshape(-1, 1) * e_u[g] + b.reshape(-1, 1) * e_v[g]  # (k,3) each part's c0
-        du, dv = e_u[g] / nu[g], e_v[g] / nv[g]
-        parts.append(np.stack([o, o + du, o + du + dv, o + dv], 1))
-        prad.append(np.broadcast_to(rad[g], (len(o), 3)))
-        group.append(np.full(len(o), g))
-    return np.concatenate(parts), np.concatenate(prad), np.concatenate(group)
 
 
 def rot_y(yaw: float) -> np.ndarray:
@@ -485,8 +451,6 @@ class DragObject:
         w_em = None  # (U,G) the room's visibility of each emitter group at the vertices
         if len(em):
             rad = rl.radiance[em[start[:-1]]]  # (G,3) one radiance per group
-            part_of = np.arange(len(polys))
-            polys, rad, part_of = split_groups(polys, rad, 0.5 * (vu.min(0) + vu.max(0)))
             cen = polys.mean(1)  # (G,3)
             dp = cen[None] - probes[:, None]  # (Q,G,3)
             dist = np.linalg.norm(dp, axis=2)
@@ -514,13 +478,7 @@ class DragObject:
                     group = np.full(pm.n_patches, -1)
                     group[em] = np.repeat(np.arange(len(start) - 1), np.diff(start))
                     g_k = group[kn[part]]
-                    # the part of its group nearest the patch (a sunlit patch is a group of its own: that group)
-                    col = np.zeros(len(g_k), np.int64)
-                    cen_k = pm.centre[kn[part]]
-                    for i in np.flatnonzero(g_k >= 0):
-                        cand = np.flatnonzero(part_of == g_k[i])
-                        col[i] = cand[np.argmin(np.linalg.norm(cen[cand] - cen_k[i], axis=1))]
-                    w = np.where(g_k[None] >= 0, w_em[:, col], 1.0)
+                    w = np.where(g_k[None] >= 0, w_em[:, np.maximum(g_k, 0)], 1.0)
                 E_near = gather_seen(vg[rows], nu[rows], rows, ds.vis_on(self.device), corners[part], rad[part], R,
                                      VIS_RES, self.device, self._ws.get(f"drag.near_ff.{part is sunny}"), self._split,
                                      capacity=DB_MAX, weights=w)
