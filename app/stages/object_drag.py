@@ -85,7 +85,7 @@ def _strongest(change: np.ndarray, area: np.ndarray, share: float = DB_SHARE) ->
     order = order[loss[order] > 0]
     if len(order) == 0:
         return order
-    keep = int(np.searchsorted(np.cumsum(loss[order]), share * loss[order].sum() * (1 - 1e-12))) + 1
+    keep = int(np.searchsorted(np.cumsum(loss[order]), share * loss[order].sum())) + 1
     return order[:keep]
 
 
