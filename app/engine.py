@@ -166,6 +166,8 @@ class Engine:
         # drag frames shade the object and send its light from per-shape tables (app.stages.object_drag);
         # False: as at rest (bench/bench_drag_object.py's A/B)
         self.drag_object_tables = True
+        # in rooms a sun lights too (False: those rooms' drag frames shade the object as at rest)
+        self.drag_object_sun = True
         rest = ~pm.is_emitter
         self.object_drag = DragObject(self.object_shading, dev, (pm.area[rest] @ self.B_obj[rest]) / np.maximum(
             pm.area[rest] @ B_src[rest], 1e-30))
@@ -337,11 +339,12 @@ class Engine:
         dB_room = dB_shadow  # the room's light the object's shadow takes from the patches (the sun's apart)
         if sun is not None:
             dB_shadow = dB_shadow + sun_dB
-        # a drag frame in a room no sun lights: the object from per-shape tables (None: not turned about +Y only);
-        # with a sun they are not used yet (sun_room / sun_101: the object's rmse against the truth 12-17 levels
-        # against 3.4-7.4 at rest, the energy of sun_101's drag row 1.12: docs/benchmarks.md)
-        tables = self.object_drag.shade(obj, shade_mesh, hits, dB_room, sun_dB) \
-            if px is not self and self.drag_object_tables and sun is None else None
+        # a drag frame: the object from per-shape tables (None: not turned about +Y only), in sun rooms too
+        # (drag_object_sun; docs/benchmarks.md, "sunobj36")
+        later = sun.later_at_patches(sun_dB, pm.albedo, self.pre.G_c, self.pre.G_v, self.params.bounces) \
+            if sun is not None else None  # the walls the object's sun shadow darkens (the object sees them darker)
+        tables = self.object_drag.shade(obj, shade_mesh, hits, dB_room if later is None else dB_room + later, sun_dB) \
+            if px is not self and self.drag_object_tables and (sun is None or self.drag_object_sun) else None
 
         # ---- light the object reflects, onto pixels and patch centres (app.stages.object_light): before the
         # object's own shading, which gathers it back from the patches (the object's light the room reflects)
@@ -351,7 +354,7 @@ class Engine:
 
         # ---- the object's radiance (app.stages.object_shading): the room's light, less what its shadow takes
         # from the patches, plus its own light the patches reflect back to it
-        dB_obj = self._object_sees(sun, sun_dB, dB_room, R_cen)
+        dB_obj = self._object_sees(sun, sun_dB, dB_room, R_cen, later)
         shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_obj, sun_dB)
         if tables is not None:
             shaded = tables.shaded
@@ -364,8 +367,8 @@ class Engine:
         else:
             shaded = shade()
         obj_rad = shaded.radiance
-        if sun is not None and shaded.L_vert is not None and tables is None:  # sun: the outline where sunlight
-            # clips, sampled finely (full size; not while dragging from the tables)
+        if sun is not None and shaded.L_vert is not None:  # sun: the outline where sunlight
+            # clips, sampled finely (full size; while dragging too: without it sun_room's drag object 4.9 levels rmse)
             sun.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
                                      shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip)
         t = tick("object_shading", t)
@@ -421,22 +424,22 @@ class Engine:
         timer.tick("object", t)
         return pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov
 
-    def _object_sees(self, sun, sun_dB: np.ndarray | None, dB_room: np.ndarray, R_cen: np.ndarray) -> np.ndarray:
+    def _object_sees(self, sun, sun_dB: np.ndarray | None, dB_room: np.ndarray, R_cen: np.ndarray,
+                     later: np.ndarray | None = None) -> np.ndarray:
         """(P,3) the change of the patches' radiance the object gathers this frame, besides sun_dB (the sun
         its shadow takes from the floor, gathered exactly): the room's light its shadow takes (dB_room), its
         own light the patches reflect (rho R_cen: object -> patch -> object, a path of the truth's within
-        its bounces), and with a sun the later bounces of sun_dB (SunStage.later_at_patches: the walls and
-        ceiling that the shadowed floor no longer lights). R_cen's room-lit part is the object lit by B_obj,
+        its bounces), and with a sun `later`, the later bounces of sun_dB (SunStage.later_at_patches: the walls
+        and ceiling that the shadowed floor no longer lights; computed once per frame, the drag frame's tables
+        read it too). R_cen's room-lit part is the object lit by B_obj,
         one bounce more than this path leaves it (B[bounces - 3], not kept): a little too much. Measured
         (known light, rmse_object / bias): with the room-lit part left out sun_room's chair came out darker
         (3.54 / -1.95 against 3.33 / -1.62 with it); with it window_room's and lamps_room's objects, already
         bright, gain 0.3-0.4 levels of bias (docs/unseen.md)."""
         pm = self.pre.patches
         dB = dB_room + pm.albedo * R_cen
-        if sun is not None:
-            later = sun.later_at_patches(sun_dB, pm.albedo, self.pre.G_c, self.pre.G_v, self.params.bounces)
-            if later is not None:
-                dB = dB + later
+        if later is not None:
+            dB = dB + later
         return dB
 
     def _sun_share(self, sun_loss: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
@@ -468,8 +471,12 @@ class Engine:
             tri_room, tri_sun = self.object_drag.proxy_radiance(pv, pf, tables.L_proxy, tables.L_sun)
             if tri_sun is None:
                 return (*ol.light(pv, pf, tri_room, proxy_occ, centre, radius, covered), None)
-            R_pix, _ = ol.light(pv, pf, tri_room + tri_sun, proxy_occ, centre, radius, covered, centres=False)
-            R_cen_room, R_cen_sun = ol.centre_light_parts(pv, pf, tri_room, tri_sun, proxy_occ, centre, radius, None)
+            # the sun's part as at rest, the proxy's sunlit pieces (SunStage.object_emitters: made once per shape):
+            # from the vertices' sun (tri_sun) the room got 11 % more of it (sun_room's drag energy 0.92, docs)
+            tri_rad, extra = sun.object_emitters(pv, pf, tri_room, obj.albedo, proxy_occ, radius)
+            R_pix, _ = ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered, extra, centres=False)
+            R_cen_room, R_cen_sun = ol.centre_light_parts(pv, pf, tri_room, tri_rad - tri_room, proxy_occ, centre,
+                                                          radius, extra)
             return R_pix, R_cen_room + R_cen_sun, R_cen_sun
         if px is self:
             tri_rad = ol.triangle_radiance(obj, pv, pf, proxy_occ, self.B_obj + dB_shadow)

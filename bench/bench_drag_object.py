@@ -8,16 +8,18 @@ drag frame (FrameConfig(passes, drag=DRAG_SCALE)) with Engine.drag_object_tables
 app.stages.object_drag), the same with the object light's far field per triangle ("far_each": ObjectLight.far_cells
 None, the drag frame before DRAG_FAR_CELLS) and with drag_object_tables False ("rest": the object shaded and its
 light sent as at rest) rendered alternately along a drag of --path poses (app.dragpath; the first pose excluded).
-Prints per configuration the path's mean object_shading / object_light / frame ms and the frame's time outside
-Warp kernels ("python", app.glue), and at the scene's own
-pose the drag frame's error: rmse of the object's pixels (8-bit levels, pixels the all-sources frame covers
-fully) against the all-sources frame's, and the truth's rmse_object / rmse_affected / energy_ratio
-(lighting.metrics, tools/score.py's measures). Timings depend on the machine's load: compare the rows of one run.
+Prints per configuration the path's mean object_shading / object_light / frame ms, the process's CPU time per
+frame ("cpu": all its threads; steadier than the wall time under load) and the frame's time outside Warp kernels
+("python", app.glue), and at the scene's own pose the drag frame's error: rmse of the object's pixels (8-bit
+levels, pixels the all-sources frame covers fully) against the all-sources frame's, and the truth's rmse_object /
+rmse_affected / energy_ratio (lighting.metrics, tools/score.py's measures). Timings depend on the machine's load:
+compare the rows of one run.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -64,12 +66,16 @@ def bench_scene(d: Path, n_path: int, passes: int, rounds: int = 2) -> dict:
                 s = metrics.score_regions(fr.pixels, scene.photo, truth, mask)
                 out["rows"][name] = {"object_vs_all_sources": object_rmse(fr.pixels, full.pixels, full.coverage),
                                      **{k: float(s[k]) for k in ("rmse_object", "rmse_affected", "energy_ratio")}}
-            times[name].extend(eng.render(moved(scene.obj, o), cfg).stats for o in offsets[1:])
+            for o in offsets[1:]:
+                c0 = time.process_time()
+                st = eng.render(moved(scene.obj, o), cfg).stats
+                times[name].append({**st, "cpu_s": time.process_time() - c0})
     for name, st in times.items():
         row = out["rows"][name]
         for k in ("object_shading", "object_light"):
             row[k + "_ms"] = 1e3 * float(np.mean([s["timings"][k] for s in st]))
         row["frame_ms"] = 1e3 * float(np.mean([s["frame_s"] for s in st]))
+        row["cpu_ms"] = 1e3 * float(np.mean([s["cpu_s"] for s in st]))  # the process's CPU time, all its threads
         row["python_ms"] = 1e3 * float(np.mean([s["frame_s"] - s["kernel_s"] for s in st]))  # app.glue
     return out
 
@@ -87,10 +93,12 @@ def main() -> None:
         al = res["all_sources"]
         print(f"\n{res['scene']}: all sources rmse_object {al['rmse_object']:.2f}, rmse_affected "
               f"{al['rmse_affected']:.2f}, energy {al['energy_ratio']:.3f}")
-        print(f"{'object':>8} {'shading ms':>10} {'light ms':>9} {'frame ms':>9} {'python ms':>9}  {'obj vs all':>10} "
+        print(f"{'object':>8} {'shading ms':>10} {'light ms':>9} {'frame ms':>9} {'cpu ms':>7} {'python ms':>9}  "
+              f"{'obj vs all':>10} "
               f"{'rmse_obj':>8} {'rmse_aff':>8} {'energy':>7}")
         for name, r in res["rows"].items():
             print(f"{name:>8} {r['object_shading_ms']:10.1f} {r['object_light_ms']:9.1f} {r['frame_ms']:9.1f} "
+                  f"{r['cpu_ms']:7.1f} "
                   f"{r['python_ms']:9.1f}  "
                   f"{r['object_vs_all_sources']:10.2f} {r['rmse_object']:8.2f} {r['rmse_affected']:8.2f} "
                   f"{r['energy_ratio']:7.3f}")

@@ -1,30 +1,32 @@
 """The object while dragging, from per-shape tables: its shading and its light on the room, no rays per vertex.
 
-Used by the drag frame only (FrameConfig.drag; app.engine), and there only in rooms no sun lights (with a
-sun the object's error is not yet within bounds: docs/benchmarks.md "The object while dragging"); at rest
-app.stages.object_shading and app.stages.object_light run as before. Everything per vertex is computed once per object shape in the
-shape's own frame (canonical: centred, yaw 0; a pose that translates the object or turns it about the
-up axis +Y keeps every table), and per frame only the room's light is looked up:
+Used by the drag frame only (FrameConfig.drag; app.engine), in every room (Engine.drag_object_sun False: not in
+rooms a sun lights); at rest app.stages.object_shading and app.stages.object_light run as before. Everything per
+vertex is computed once per object shape in the shape's own frame (canonical: centred, yaw 0; a pose that translates
+the object or turns it about the up axis +Y keeps every table), and per frame only the room's light is looked up:
 
-- indirect light and the room's change in the object's shadow: radiance SH9 at a PROBES^3 grid over
-  the object's box (the SH volume looked up there, the changed patches projected as small disks),
-  rotated into the object's frame for its yaw (sh_yaw_matrix: each band's (m, -m) pair turns by
-  cos / sin of m x yaw), interpolated trilinearly and dotted with each vertex's cached self-occlusion
-  transfer (PRT, kernels.shade.self_transfer: the same transfer the frame at rest uses);
-- the exact emitters (lamps, windows, the sunlit floor patches): unoccluded polygon form factors at the
-  vertices (kernels.formfactor) x the object's own visibility toward each emitter, read from
-  the cached PRT rays binned by direction (VIS_RES^2 octahedral cells) x the room's visibility, one ray
-  per probe and emitter group, interpolated, summed per vertex in one kernel (kernels.drag_gather; so are
-  the near changed patches' form factors below);
-- the sun: cos x the object's own shadow (rays cast once per shape and sun direction in the object's
-  frame: a translation casts none) x the room's shadow: the opening the sun comes through, per vertex
-  (a plane and a quad: no ray), and what else blocks it, at the probes, interpolated.
+- indirect light and the room's change in the object's shadow: radiance SH9 at a PROBES^3 grid over the object's box
+  (the SH volume looked up there, the changed patches projected as small disks), rotated into the object's frame for
+  its yaw (sh_yaw_matrix: each band's (m, -m) pair turns by cos / sin of m x yaw), interpolated trilinearly and
+  dotted with each vertex's cached self-occlusion transfer (PRT, kernels.shade.self_transfer: the same transfer the
+  frame at rest uses);
+- the exact emitters (lamps, windows, the sunlit floor patches): unoccluded polygon form factors at the vertices
+  (kernels.formfactor) x the object's own visibility toward each emitter, read from the cached PRT rays binned by
+  direction (VIS_RES^2 octahedral cells) x the room's visibility, one ray per probe and emitter group, interpolated,
+  summed per vertex in one kernel (kernels.drag_gather; so are the near changed patches' form factors below, the
+  sun's loss on a sunlit patch seen past the room as that patch is); a vertex touching a patch gathered so (a leg's
+  foot on the sunlit floor) gathers from just above it (lift_off_contacts, as at rest);
+- the changed patches: the room's that hold DB_SHARE of its loss (the later bounces of the sun's loss on the walls
+  included: app.stages.sun.SunStage.later_at_patches) and every patch the sun's loss takes from, as at rest;
+- the sun: cos x the object's own shadow (rays cast once per shape and sun direction in the object's frame: a
+  translation casts none) x the room's shadow: the opening the sun comes through, per vertex (a plane and a quad: no
+  ray), and what else blocks it, at the probes, interpolated.
 
-The object's light on the room: the frame's proxy (the same triangles as at rest) takes its triangles'
-radiance from the shaded vertices (the area-weighted mean of those nearest each, a sparse map made once per
-shape and proxy) instead of gathering the room at each triangle by rays, with the room's and the sun's parts
-apart (the frame's later sun bounces need them). A coarser proxy (48 triangles simplified from the shading
-mesh) was tried and not kept: facets near a contact sent several times the light (docs/benchmarks.md).
+The object's light on the room: the frame's proxy (the same triangles as at rest) takes its triangles' radiance from
+the shaded vertices (the area-weighted mean of those nearest each, a sparse map made once per shape and proxy)
+instead of gathering the room at each triangle by rays; the sun's part is the frame at rest's sunlit pieces
+(app.engine: SunStage.object_emitters, made once per shape). A coarser proxy (48 triangles simplified from the
+shading mesh) was tried and not kept: facets near a contact sent several times the light (docs/benchmarks.md).
 
 Units: radiance; E as irradiance / pi, as in app.stages.object_shading.
 """
@@ -73,6 +75,18 @@ DB_SHARE = 0.95
 DB_NEAR = 2.0
 KEY_OFFSET = 1.0 / 3.0  # DragObject.shape's key: coordinates to 10 um on a grid offset by a third of a step
 DB_MAX = 512
+
+
+def _strongest(change: np.ndarray, area: np.ndarray, share: float = DB_SHARE) -> np.ndarray:
+    """The patches (indices) of a radiance change (P,3) that hold `share` of its loss |change| x area, at most
+    DB_MAX of them, strongest first."""
+    loss = np.abs(change).sum(1) * area
+    order = np.argsort(-loss)[:DB_MAX]
+    order = order[loss[order] > 0]
+    if len(order) == 0:
+        return order
+    keep = int(np.searchsorted(np.cumsum(loss[order]), share * loss[order].sum())) + 1
+    return order[:keep]
 
 
 def rot_y(yaw: float) -> np.ndarray:
@@ -384,7 +398,7 @@ class DragObject:
         """The object's radiance at its camera hits from the per-shape tables (module docstring); None when
         the object is not turned about +Y only (the caller shades it as at rest). The per-pixel radiance
         (shaded.radiance) is a kept image, valid until the next call (the frame composes it before then)."""
-        from app.stages.object_shading import ShadedObject
+        from app.stages.object_shading import ShadedObject, lift_off_contacts
 
         yaw = yaw_of(obj.object_to_world)
         if yaw is None:
@@ -404,12 +418,13 @@ class DragObject:
         if sun_dB is not None:
             change = sun_dB if change is None else change + sun_dB
         if change is not None:
-            loss = np.abs(change).sum(1) * pm.area
-            order = np.argsort(-loss)[:DB_MAX]
-            order = order[loss[order] > 0]
-            if len(order):
-                keep = int(np.searchsorted(np.cumsum(loss[order]), DB_SHARE * loss[order].sum())) + 1
-                k = order[:keep]
+            # the room's change: the patches holding DB_SHARE of its loss; the sun's: every patch it takes from (as
+            # at rest: the room's loss, its later bounces on the walls included, is spread thin; a cut of the two
+            # summed would keep the sun's patches alone and leave the object seeing the walls as lit)
+            k = _strongest(dB, pm.area) if dB is not None else np.zeros(0, np.int64)
+            if sun_dB is not None:
+                k = np.union1d(k, _strongest(sun_dB, pm.area, 1.0))
+            if len(k):
                 # near the object (within DB_NEAR bounding radii of its centre) a patch is a polygon, its form
                 # factor exact at every vertex (the floor under the object fills half of a low vertex's view,
                 # which no disk at a probe resolves), farther a disk at the probes (SH)
@@ -428,6 +443,12 @@ class DragObject:
         E_proxy = E * self.bounce_scale  # the indirect a bounce fewer; the emitters' and the sun's as they are
         # ---- the exact emitters: form factors x own visibility by direction x the room's at the probes
         em, (start, polys) = osh.emitter_groups()
+        # a vertex touching a patch gathered exactly (a leg's foot on the sunlit floor) gathers it from just above
+        # the surface, as at rest (object_shading.lift_off_contacts: in the surface's plane its form factor is 0)
+        ch = np.flatnonzero(np.abs(sun_dB).sum(1) > 0) if sun_dB is not None else np.zeros(0, np.int64)
+        touch = np.union1d(em, ch).astype(np.int64)
+        vg = lift_off_contacts(vu, nu, pm.centre[touch], pm.normal[touch], pm.radius[touch], 2e-3)
+        w_em = None  # (U,G) the room's visibility of each emitter group at the vertices
         if len(em):
             rad = rl.radiance[em[start[:-1]]]  # (G,3) one radiance per group
             cen = polys.mean(1)  # (G,3)
@@ -437,8 +458,8 @@ class DragObject:
                                     workspace=self._ws.get("drag.probe_rays"))
             seen = (depth.reshape(dist.shape) >= dist * (1 - 1e-2) - 1e-2).astype(np.float64)  # (Q,G)
             # form factors x own visibility by direction x the room's, summed per vertex in one kernel
-            E_em = gather_seen(vu, nu, ds.all_rows, ds.vis_on(self.device), polys, rad, R, VIS_RES, self.device,
-                               self._ws.get("drag.ff"), self._split, weights=ds.weights @ seen)
+            E_em = gather_seen(vg, nu, ds.all_rows, ds.vis_on(self.device), polys, rad, R, VIS_RES, self.device,
+                               self._ws.get("drag.ff"), self._split, weights=(w_em := ds.weights @ seen))
             E += E_em
             E_proxy += E_em
         if near_light is not None:  # the near changed patches: exact form factors x own visibility (no room's); the
@@ -449,9 +470,18 @@ class DragObject:
             for part, rows in ((~sunny, ss.sub), (sunny, ds.all_rows)):
                 if not part.any():
                     continue
-                E_near = gather_seen(vu[rows], nu[rows], rows, ds.vis_on(self.device), corners[part], rad[part], R,
+                w = None
+                if part is sunny and w_em is not None:
+                    # the sun's loss on an emitter patch (a sunlit floor patch in the object's shadow) seen past the
+                    # room as that patch's emitter group is: the two nearly cancel, and the same visibility on both
+                    # keeps their difference's error the difference's, not the larger terms'
+                    group = np.full(pm.n_patches, -1)
+                    group[em] = np.repeat(np.arange(len(start) - 1), np.diff(start))
+                    g_k = group[kn[part]]
+                    w = np.where(g_k[None] >= 0, w_em[:, np.maximum(g_k, 0)], 1.0)
+                E_near = gather_seen(vg[rows], nu[rows], rows, ds.vis_on(self.device), corners[part], rad[part], R,
                                      VIS_RES, self.device, self._ws.get(f"drag.near_ff.{part is sunny}"), self._split,
-                                     capacity=DB_MAX)
+                                     capacity=DB_MAX, weights=w)
                 if part is not sunny:
                     E_near = ss.interpolate(E_near)
                 E += E_near

@@ -110,16 +110,18 @@ def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     assert s_drag["rmse_affected"] <= 1.5 * s_all["rmse_affected"] + 0.5
     assert 0.93 <= s_drag["energy_ratio"] <= 1.07
     inside = same.coverage >= 1
-    if eng.sun_pixels.stage is None:
-        # the object from per-shape tables (app.stages.object_drag: SH9 at 27 probes, the self-visibility by
-        # 30-degree cells, no rays per vertex) within 3 levels rmse of the full frame's object pixels, i.e. a few
-        # per cent of the object's level, with no bias beyond 1 level (the room's light in SH9 errs by 1-3 %)
-        diff = drag.pixels[inside].astype(float) - same.pixels[inside]
-        assert np.sqrt(np.mean(diff ** 2)) <= 3.0 and abs(diff.mean()) <= 1.0
-        eng.drag_object_tables = False  # the object shaded as at rest: the frames below and their bound
-        drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
-        eng.drag_object_tables = True
-    # shaded as at rest (a room a sun lights always is), the object's own pixels are the full frame's
+    # the object from per-shape tables (app.stages.object_drag: SH9 at 27 probes, the self-visibility by
+    # 30-degree cells, no rays per vertex) within 3 levels rmse of the full frame's object pixels, i.e. a few
+    # per cent of the object's level, with no bias beyond 1 level (the room's light in SH9 errs by 1-3 %); in a
+    # sun room within 5 levels: the sun's self-shadow edge per camera hit from a 256-texel depth map (not a ray)
+    # moves the edge across a pixel of a face 20-50 times brighter than its shaded side
+    diff = drag.pixels[inside].astype(float) - same.pixels[inside]
+    assert np.sqrt(np.mean(diff ** 2)) <= (3.0 if eng.sun_pixels.stage is None else 5.0)
+    assert abs(diff.mean()) <= 1.0
+    eng.drag_object_tables = False  # the object shaded as at rest: the frames below and their bound
+    drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
+    eng.drag_object_tables = True
+    # shaded as at rest, the object's own pixels are the full frame's
     assert np.abs(drag.pixels[inside].astype(int) - same.pixels[inside]).max() <= 1
     # where the drag frame moves a pixel by more than 2 levels, the full-resolution frame moves it or a pixel
     # within 2 working pixels (the bilinear footprint) by more than half a level
@@ -127,3 +129,40 @@ def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     near = cv2.dilate(moved, np.ones((4 * DRAG_SCALE + 1,) * 2, np.uint8)) > 0
     moved_drag = np.abs(drag.pixels.astype(int) - scene.photo).max(2) > 2
     assert np.mean(moved_drag & ~near) < 1e-4
+
+
+def test_sun_room_drag_tables_match_the_exact_object(shared_room):
+    # sun_room's drag frame shades the chair from the per-shape tables (the sun: cos x the self-shadow cast once per
+    # shape and direction x the opening per vertex; the sunlit floor patches: form factors x the visibility table)
+    # against the same drag frame with the object shaded as at rest (rays per vertex and per camera hit), at the
+    # scene's own pose: the vertices' sun share (cos x visibility) agrees on all but 2 % of the vertices (those on
+    # the floor: a ray from the floor's plane grazes it at rest), the sunlit side's mean radiance within 3 % (the
+    # sun's direct light, the same cos and shadow, is most of it), the shaded side's within 20 % (it sees the sunlit
+    # floor less the object's shadow on it, the difference of two gathers each a few per cent off by the 30-degree
+    # visibility cells: 12 % measured), the object's light on the room (the drag row's energy) within 0.02
+    from app.engine import FrameConfig
+    from app.evaluate import DRAG_PASSES, DRAG_SCALE
+
+    sr = shared_room("sun_room")
+    scene, eng = sr.scene, sr.engine
+    cfg = FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE)
+    assert eng.drag_object_tables and eng.drag_object_sun
+    try:
+        eng.drag_object_tables = False
+        exact = eng.render(scene.obj, cfg)
+        _, L_x, _, vis_x = eng.last_shading
+        eng.drag_object_tables = True
+        drag = eng.render(scene.obj, cfg)
+        _, L_t, _, vis_t = eng.last_shading
+    finally:
+        eng.drag_object_tables = True
+    assert eng.object_drag.last is not None and eng.object_drag.last.shaded.L_vert is L_t  # the tables ran
+    same = np.abs(vis_t - vis_x) <= 0.05
+    assert same.mean() >= 0.98
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    lit, dark = same & (vis_x > 0), same & (vis_x == 0)
+    assert lit.sum() > 100 and dark.sum() > 100
+    assert abs((L_t[lit] @ lum).mean() / (L_x[lit] @ lum).mean() - 1.0) <= 0.03
+    assert abs((L_t[dark] @ lum).mean() / (L_x[dark] @ lum).mean() - 1.0) <= 0.20
+    e_x, e_t = sr.score(exact.pixels)["energy_ratio"], sr.score(drag.pixels)["energy_ratio"]
+    assert abs(e_t - e_x) <= 0.02
