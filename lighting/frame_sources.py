@@ -119,6 +119,7 @@ class ShadowSources:
         lum_B = luminance(self.B[self.src_ids])
         self.blocked = self._blocked_transfer(np.asarray(recv_points, np.float64), lum_B, device, recv_weights)
         self.cluster = self._cluster_weights(device)
+        self.shafts.use_device(device if device is not None else "cpu")
 
     def _cluster_weights(self, device: str | None, max_bytes: int = SINGLE_TABLE_MAX_BYTES):
         """The cluster weights' kernel and its tables (kernels.cluster_weights: the prefix table, G per KD
