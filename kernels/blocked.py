@@ -14,9 +14,37 @@ from kernels import runtime
 from kernels.visibility import segment_meets_box
 
 
+# The cone prefilter's margin on the box's bounding radius (m, and relative): the points and eyes are float32
+# (rounding ~1e-6 m over a room), so a segment the exact test passes lies well inside the widened cone.
+CONE_MARGIN_M, CONE_MARGIN_REL = 1.0e-4, 1.0e-4
+
+
+@wp.kernel
+def _cone_kernel(pts: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3, axis: wp.array(dtype=wp.vec3),
+                 reach: wp.array(dtype=wp.float32), cos2: wp.array(dtype=wp.float32)):
+    # per receiver point p: the cone from p that holds the box's bounding sphere (widened by the margin): its
+    # axis u toward the centre, the distance a segment must reach along u (d - radius), the squared cosine of
+    # its half-angle; reach < 0 where p lies inside the sphere (every segment may pass it)
+    r = wp.tid()
+    c = 0.5 * (lo + hi)
+    rad = wp.length(hi - c) * (1.0 + CONE_MARGIN_REL) + CONE_MARGIN_M
+    q = c - pts[r]
+    d = wp.length(q)
+    if d <= rad:
+        axis[r] = wp.vec3(0.0)
+        reach[r] = -1.0
+        cos2[r] = 0.0
+    else:
+        axis[r] = q / d
+        reach[r] = d - rad
+        cos2[r] = 1.0 - (rad / d) * (rad / d)
+
+
 @wp.kernel
 def _blocked_kernel(first: int, pts: wp.array(dtype=wp.vec3), eyes: wp.array(dtype=wp.vec3),
-                    g: wp.array2d(dtype=wp.float32), lo: wp.vec3, hi: wp.vec3, out: wp.array(dtype=wp.float32)):
+                    g: wp.array2d(dtype=wp.float32), lo: wp.vec3, hi: wp.vec3, axis: wp.array(dtype=wp.vec3),
+                    reach: wp.array(dtype=wp.float32), cos2: wp.array(dtype=wp.float32),
+                    out: wp.array(dtype=wp.float32)):
     j = first + wp.tid()
     e = eyes[j]
     c = 0.5 * (lo + hi)
@@ -27,10 +55,18 @@ def _blocked_kernel(first: int, pts: wp.array(dtype=wp.vec3), eyes: wp.array(dty
         if w > 0.0:
             p = pts[r]
             v = e - p
-            t = wp.clamp(wp.dot(c - p, v) / wp.max(wp.dot(v, v), 1.0e-20), 0.0, 1.0)
-            if wp.length_sq(p + t * v - c) <= rad2:  # the segment passes the box's bounding sphere
-                if segment_meets_box(p, e, lo, hi):
-                    acc += w
+            # the cone first (no division): a segment that passes within the radius of the centre points into
+            # p's cone and reaches the sphere along its axis
+            near = reach[r] < 0.0
+            if not near:
+                s = wp.dot(v, axis[r])
+                if s >= reach[r]:
+                    near = s * s >= wp.length_sq(v) * cos2[r]
+            if near:
+                t = wp.clamp(wp.dot(c - p, v) / wp.max(wp.dot(v, v), 1.0e-20), 0.0, 1.0)
+                if wp.length_sq(p + t * v - c) <= rad2:  # the segment passes the box's bounding sphere
+                    if segment_meets_box(p, e, lo, hi):
+                        acc += w
     out[j] = acc
 
 
@@ -45,6 +81,10 @@ class BlockedTransfer:
         self.eyes = wp.array(np.asarray(eyes, np.float32), dtype=wp.vec3, device=d)
         self.g = wp.array(np.ascontiguousarray(g, np.float32), dtype=wp.float32, device=d)
         self.out = wp.zeros(len(eyes), dtype=wp.float32, device=d)
+        n = max(len(self.pts), 1)  # the cone prefilter's per-point values, written each call
+        self.axis = wp.zeros(n, dtype=wp.vec3, device=d)
+        self.reach = wp.zeros(n, dtype=wp.float32, device=d)
+        self.cos2 = wp.zeros(n, dtype=wp.float32, device=d)
         self.cpu = wp.get_device(d).is_cpu
         # the result's host copy, allocated once (a GPU array's .numpy() would allocate every call)
         self.host = self.out if self.cpu else wp.zeros(len(eyes), dtype=wp.float32, device="cpu", pinned=True)
@@ -57,8 +97,13 @@ class BlockedTransfer:
             return np.zeros(0)
         lo, hi = wp.vec3(*map(float, box_min)), wp.vec3(*map(float, box_max))
 
+        if len(self.pts):
+            wp.launch(_cone_kernel, dim=len(self.pts), inputs=[self.pts, lo, hi],
+                      outputs=[self.axis, self.reach, self.cos2], device=self.device)
+
         def launch(a: int, b: int) -> None:
-            wp.launch(_blocked_kernel, dim=b - a, inputs=[a, self.pts, self.eyes, self.g, lo, hi],
+            wp.launch(_blocked_kernel, dim=b - a, inputs=[a, self.pts, self.eyes, self.g, lo, hi, self.axis,
+                                                          self.reach, self.cos2],
                       outputs=[self.out], device=self.device)
 
         runtime.launch_split(launch, len(self.out), split)
