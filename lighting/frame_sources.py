@@ -119,6 +119,7 @@ class ShadowSources:
         lum_B = luminance(self.B[self.src_ids])
         self.blocked = self._blocked_transfer(np.asarray(recv_points, np.float64), lum_B, device, recv_weights)
         self.cluster = self._cluster_weights(device)
+        self._block_shares = None  # blocked_key's per-scene shares, made on its first call
         self.shafts.use_device(device if device is not None else "cpu")
 
     def _cluster_weights(self, device: str | None, max_bytes: int = SINGLE_TABLE_MAX_BYTES):
@@ -159,14 +160,17 @@ class ShadowSources:
         """(S,) per KD position: the luminance transfer to the receiver vertices whose segment to the
         source's block meets the box (BlockedTransfer; split: its launches cut into ranges), shared
         among the block's members by strength (evenly where their strength is 0)."""
-        so, k = self.src_ids, self.block
-        starts = np.arange(0, len(so), k)
         b = self.blocked(box_min, box_max, split)
-        size = np.diff(np.append(starts, len(so)))
-        wsum = np.add.reduceat(self.strength, starts)
-        share = np.where(np.repeat(wsum, size) > 0, self.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
-                         1.0 / np.repeat(size, size))
-        return np.repeat(b, size) * share
+        shares = getattr(self, "_block_shares", None)
+        if shares is None:  # per scene: each KD position's block and its share of it
+            so, k = self.src_ids, self.block
+            starts = np.arange(0, len(so), k)
+            size = np.diff(np.append(starts, len(so)))
+            wsum = np.add.reduceat(self.strength, starts)
+            share = np.where(np.repeat(wsum, size) > 0, self.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
+                             1.0 / np.repeat(size, size))
+            shares = self._block_shares = (np.repeat(np.arange(len(starts)), size), share)
+        return b[shares[0]] * shares[1]
 
     def _weight_prefix(self) -> np.ndarray:
         """(S // block + 1 (+1), Vr + P, 3) float32: row b holds, for every receiver vertex (G_v
