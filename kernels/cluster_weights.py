@@ -21,9 +21,11 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from kernels.buffers import Workspace
+from kernels.buffers import Buffer
 
 wp.set_module_options({"fuse_fp": False})
+
+_INDEX = ("tab_lo", "tab_hi", "row_a", "row_b", "raw_lo", "raw_hi", "raw_pos")  # ClusterWeights' plan arrays
 
 
 # receiver rows per thread: a thread sums one node over a run of rows, reading its two prefix rows and its
@@ -91,7 +93,10 @@ class ClusterWeights:
                                copy=not self.cpu)
         self.gt = wp.array(np.ascontiguousarray(gt, np.float32), dtype=wp.float32, device=device)
         self.b = wp.array(np.ascontiguousarray(b, np.float64), dtype=wp.vec3d, device=device)
-        self.ws = Workspace()
+        # the plan's index arrays, at capacity (a frame allocates nothing): a node, a run and a raw column each
+        # hold a KD position of their own, so none outnumbers the sources
+        cap = max(gt.shape[0], 1) + 1
+        self.index = {nm: Buffer(cap, wp.int32, device) for nm in _INDEX}
         self._out: dict[int, tuple[wp.array, wp.array]] = {}  # CUDA: the outputs per pass count
 
     @property
@@ -107,15 +112,15 @@ class ClusterWeights:
         hi), m): cuts the (run of rows, node) threads into ranges (app.runtime.split); default one launch."""
         from kernels.runtime import launch_split
 
-        n, dev, ws = len(tab_lo), self.device, self.ws
+        n, dev = len(tab_lo), self.device
         vr, P = self.vr, self.rows - self.vr
         W_v = np.empty((vr, n, 3), np.float32)
         W_c = np.empty((P, n, 3), np.float32)
         if n == 0:
             return W_v, W_c
-        i32 = [np.asarray(a, np.int32) for a in (tab_lo, tab_hi, row_a, row_b, raw_lo, raw_hi, raw_pos)]
-        names = ("tab_lo", "tab_hi", "row_a", "row_b", "raw_lo", "raw_hi", "raw_pos")
-        ins = [ws.upload(nm, a if len(a) else np.zeros(1, np.int32), wp.int32, dev) for nm, a in zip(names, i32)]
+        ins = [self.index[nm].dev for nm in _INDEX]
+        for nm, a in zip(_INDEX, (tab_lo, tab_hi, row_a, row_b, raw_lo, raw_hi, raw_pos)):
+            self.index[nm].upload(np.asarray(a, np.int32))
         if self.cpu:
             out_v = wp.array(W_v, dtype=wp.vec3, device=dev, copy=False)
             out_c = wp.array(W_c, dtype=wp.vec3, device=dev, copy=False)
