@@ -99,10 +99,6 @@ class ClusterWeights:
         self.index = {nm: Buffer(cap, wp.int32, device) for nm in _INDEX}
         self._out: dict[int, tuple[wp.array, wp.array]] = {}  # CUDA: the outputs per pass count
 
-    @property
-    def nbytes(self) -> int:
-        return self.gt.capacity + self.b.capacity + (0 if self.cpu else self.prefix.capacity)
-
     def __call__(self, tab_lo: np.ndarray, tab_hi: np.ndarray, row_a: np.ndarray, row_b: np.ndarray,
                  raw_lo: np.ndarray, raw_hi: np.ndarray, raw_pos: np.ndarray, one_run: bool, split=None
                  ) -> tuple[np.ndarray, np.ndarray]:
