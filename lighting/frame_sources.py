@@ -118,6 +118,26 @@ class ShadowSources:
             return
         lum_B = luminance(self.B[self.src_ids])
         self.blocked = self._blocked_transfer(np.asarray(recv_points, np.float64), lum_B, device, recv_weights)
+        self.cluster = self._cluster_weights(device)
+        self._block_shares = None  # blocked_key's per-scene shares, made on its first call
+        self.shafts.use_device(device if device is not None else "cpu")
+
+    def _cluster_weights(self, device: str | None, max_bytes: int = SINGLE_TABLE_MAX_BYTES):
+        """The cluster weights' kernel and its tables (kernels.cluster_weights: the prefix table, G per KD
+        position as rows (S, Vr + P) float32, B per KD position), or None (weights then runs
+        weights_reference) where that G table would take more than max_bytes. Made with the device buffers,
+        not in the per-scene artefact."""
+        from kernels.cluster_weights import ClusterWeights
+        from kernels.runtime import device as resolve
+
+        so = self.src_ids
+        if len(so) * (self.G_v.shape[0] + self.P) * 4 > max_bytes:
+            return None
+        gt = np.empty((len(so), self.G_v.shape[0] + self.P), np.float32)
+        gt[:, :self.G_v.shape[0]] = np.asarray(self.G_v[:, so], np.float32).T
+        gt[:, self.G_v.shape[0]:] = np.asarray(self.G_c[:, so], np.float32).T
+        return ClusterWeights(self.prefix, gt, np.asarray(self.B[so], np.float64), self.G_v.shape[0],
+                              resolve(device))
 
     def _blocked_transfer(self, points: np.ndarray, lum_B: np.ndarray, device: str | None,
                           recv_weights: np.ndarray | None = None) -> BlockedTransfer:
@@ -140,14 +160,17 @@ class ShadowSources:
         """(S,) per KD position: the luminance transfer to the receiver vertices whose segment to the
         source's block meets the box (BlockedTransfer; split: its launches cut into ranges), shared
         among the block's members by strength (evenly where their strength is 0)."""
-        so, k = self.src_ids, self.block
-        starts = np.arange(0, len(so), k)
         b = self.blocked(box_min, box_max, split)
-        size = np.diff(np.append(starts, len(so)))
-        wsum = np.add.reduceat(self.strength, starts)
-        share = np.where(np.repeat(wsum, size) > 0, self.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
-                         1.0 / np.repeat(size, size))
-        return np.repeat(b, size) * share
+        shares = getattr(self, "_block_shares", None)
+        if shares is None:  # per scene: each KD position's block and its share of it
+            so, k = self.src_ids, self.block
+            starts = np.arange(0, len(so), k)
+            size = np.diff(np.append(starts, len(so)))
+            wsum = np.add.reduceat(self.strength, starts)
+            share = np.where(np.repeat(wsum, size) > 0, self.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
+                             1.0 / np.repeat(size, size))
+            shares = self._block_shares = (np.repeat(np.arange(len(starts)), size), share)
+        return b[shares[0]] * shares[1]
 
     def _weight_prefix(self) -> np.ndarray:
         """(S // block + 1 (+1), Vr + P, 3) float32: row b holds, for every receiver vertex (G_v
@@ -234,11 +257,62 @@ class ShadowSources:
                 "receiver_nodes": self.recv_tree.n_nodes, "weight_table_mb": self.prefix.nbytes / 2 ** 20,
                 "single_table_mb": 0.0 if single is None else single.nbytes / 2 ** 20}
 
-    def weights(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def weights(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray, split=None) -> tuple[np.ndarray, np.ndarray]:
+        """weights_reference's (W_v (Vr,n,3), W_c (P,n,3)), the same bytes: its plan (which prefix rows and
+        raw columns each node sums, _weight_plan) made here, the sums written in the frame's layout by one
+        launch (kernels.cluster_weights, made by use_receivers; without it weights_reference). split: the
+        launch cut over the cores (app.runtime.split)."""
+        cw = getattr(self, "cluster", None)
+        if cw is None:
+            return self.weights_reference(lo, hi, marked)
+        return cw(*self._weight_plan(lo, hi, marked), split=split)
+
+    def _weight_plan(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray) -> tuple:
+        """(tab_lo, tab_hi, row_a, row_b, raw_lo, raw_hi, raw_pos, one_run) of weights_reference's sums:
+        node k's whole-block runs are the prefix-row pairs (row_a, row_b)[tab_lo[k]:tab_hi[k]] (one_run: no
+        node has two, so each is one float32 difference), its raw columns the KD positions
+        raw_pos[raw_lo[k]:raw_hi[k]] in weights_reference's order (every segment's left end, then every
+        segment's right end)."""
+        k = self.block
+        n = len(lo)
+        edge = np.diff(np.concatenate([[0], marked.astype(np.int8), [0]]))
+        rs, re = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)  # marked runs [rs, re)
+        i0 = np.searchsorted(re, lo, side="right")
+        count = np.searchsorted(rs, hi, side="left") - i0
+        node = np.repeat(np.arange(n), count)
+        first = np.cumsum(count) - count
+        run = np.arange(len(node)) - first[node] + i0[node]
+        a, b = np.maximum(rs[run], lo[node]), np.minimum(re[run], hi[node])  # segments, sorted by node
+        S, last = len(self.src_ids), len(self.prefix) - 1
+        A, Bk = -(-a // k) * k, np.where(b == S, S, b // k * k)  # S has its own prefix row
+
+        def row(x):
+            return np.where(x == S, last, x // k)
+
+        whole = A <= Bk
+        tab = np.flatnonzero(A < Bk)  # segments holding whole blocks (sorted by node)
+        t_node = node[tab]
+        one_run = bool(np.all(np.diff(t_node) > 0))
+        nodes = np.arange(n)
+        tab_lo, tab_hi = np.searchsorted(t_node, nodes), np.searchsorted(t_node, nodes, side="right")
+        r_lo = np.concatenate([a, np.where(whole, Bk, b)])
+        r_hi = np.concatenate([np.where(whole, A, b), b])
+        r_node = np.concatenate([node, node])
+        o = np.argsort(r_node, kind="stable")
+        r_lo, r_hi, r_node = r_lo[o], r_hi[o], r_node[o]
+        length = r_hi - r_lo
+        keep = length > 0
+        r_lo, length, r_node = r_lo[keep], length[keep], r_node[keep]
+        col_node = np.repeat(r_node, length)
+        pos = np.arange(len(col_node)) - np.repeat(np.cumsum(length) - length, length) + np.repeat(r_lo, length)
+        raw_lo, raw_hi = np.searchsorted(col_node, nodes), np.searchsorted(col_node, nodes, side="right")
+        return tab_lo, tab_hi, row(A[tab]), row(Bk[tab]), raw_lo, raw_hi, pos, one_run
+
+    def weights_reference(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(W_v (Vr,n,3), W_c (P,n,3)) float32: per node [lo, hi) of KD positions (sorted, disjoint,
         each holding a marked source), the transfers G * B summed over its marked sources. Each
         node's marked runs are split into whole blocks (a difference of two prefix rows) and at most
-        block-1 raw columns at either end."""
+        block-1 raw columns at either end. numpy; `weights` gives the same bytes (tests)."""
         Vr, k = self.G_v.shape[0], self.block
         n = len(lo)
         edge = np.diff(np.concatenate([[0], marked.astype(np.int8), [0]]))
@@ -458,7 +532,7 @@ class ShadowSources:
         if n == len(pos):  # one source per pass (the all-sources frame): its own transfers
             W_v, W_c = self._single_transfers(ids, split, pos)
         else:
-            W_v, W_c = self.weights(lo, hi, marked)
+            W_v, W_c = self.weights(lo, hi, marked, split)
         eyes = self.eye_pos[ids] if n == len(pos) else self.eyes(starts, pos, key)
         spread = (np.zeros((n, 2, 3)) if n == len(pos) else
                   self.spread(starts, pos, key, eyes, 0.5 * (box_min + box_max)))

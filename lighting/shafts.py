@@ -146,10 +146,26 @@ class ShaftHierarchy:
     def nbytes(self) -> int:
         return sum(sum(a.nbytes for a in vars(lv).values()) for lv in self.levels)
 
+    def use_device(self, device: str) -> None:
+        """Traverse with one Warp launch on `device` from now on (kernels.shaft_traverse: the levels
+        flattened and uploaded here; not part of the cached artefact)."""
+        from kernels.shaft_traverse import ShaftTraversal
+
+        self._kernel = ShaftTraversal(self.levels, device)
+
     def traverse(self, box_min: np.ndarray, box_max: np.ndarray, keep_weak: bool = True
                  ) -> tuple[np.ndarray, np.ndarray]:
         """Leaf shafts met by the object's box: (source node ids, receiver node ids), each (n,).
-        keep_weak=False drops the shafts stopped by the threshold (the seed's rule)."""
+        keep_weak=False drops the shafts stopped by the threshold (the seed's rule). With use_device's
+        kernel: the same shafts in the same order (traverse_reference, numpy)."""
+        kernel = getattr(self, "_kernel", None)
+        if kernel is not None:
+            return kernel(box_min, box_max, keep_weak)
+        return self.traverse_reference(box_min, box_max, keep_weak)
+
+    def traverse_reference(self, box_min: np.ndarray, box_max: np.ndarray, keep_weak: bool = True
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """traverse in numpy, level by level (the specification of kernels.shaft_traverse)."""
         box_min, box_max = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
         active = np.array([0])
         out_s, out_r = [], []

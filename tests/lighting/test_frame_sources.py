@@ -176,3 +176,81 @@ def test_near_split_splits_the_clusters_beside_the_object_first(engine):
     # and the frame that uses it has as many passes
     fs = ss.select(v.min(0), v.max(0), passes, near_split=True)
     assert len(fs.eyes) == passes and fs.W_v.shape[1] == passes
+
+
+def _bits(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a).view(np.uint32 if a.dtype == np.float32 else np.uint64)
+
+
+def test_cluster_weights_kernel_gives_numpys_bytes(engine):
+    # kernels.cluster_weights writes the same float32 weights as the numpy sums it replaced
+    # (weights_reference), bit for bit: one whole-block run per node (every source marked) and many runs
+    # (random and periodic marks: float64 run sums and raw columns at every run end), plain and near-split keys
+    scene, eng = engine
+    ss = eng.shadow_sources
+    t = ss.src_tree
+    assert ss.cluster is not None  # the engine's source list uses the kernel
+    v = scene.obj.vertices
+    lo, hi = np.floor(v.min(0) * 1e3) / 1e3, np.ceil(v.max(0) * 1e3) / 1e3
+    rng = np.random.default_rng(5)
+    one_run_seen = set()
+    for trial in range(3):
+        marked = ss.traverse(lo, hi)[0].copy()
+        if trial:
+            marked &= rng.random(len(marked)) < 0.5 if trial == 1 else np.arange(len(marked)) % 7 != 3
+        key = ss.blocked_key(lo, hi)
+        for passes, factor in ((1, None), (7, None), (50, None), (64, ss.near_factor(lo, hi)),
+                               (int(marked.sum()) - 1, None)):
+            nodes = ss.representatives(marked, passes, key, factor)
+            a, b = t.lo[nodes], t.hi[nodes]
+            one_run_seen.add(ss._weight_plan(a, b, marked)[-1])
+            for got, want in zip(ss.weights(a, b, marked), ss.weights_reference(a, b, marked)):
+                assert got.shape == want.shape and got.dtype == want.dtype == np.float32
+                np.testing.assert_array_equal(_bits(got), _bits(want), err_msg=f"trial {trial}, {passes} passes")
+    assert one_run_seen == {True, False}  # both of the kernel's sums were exercised
+
+
+def test_shaft_traversal_kernel_lists_numpys_shafts_in_order(engine):
+    # kernels.shaft_traverse: the leaf shafts of the numpy level-by-level traversal, in its order, for the
+    # object's box along a drag, boxes anywhere in the room (small to room-sized), and one outside it
+    from app.dragpath import drag_offsets
+
+    scene, eng = engine
+    sh = eng.shadow_sources.shafts
+    assert getattr(sh, "_kernel", None) is not None
+    v = scene.obj.vertices
+    boxes = [(v.min(0) + o, v.max(0) + o) for o in drag_offsets(scene, scene.obj, 5)]
+    rng = np.random.default_rng(7)
+    span = scene.room_max - scene.room_min
+    for size in (0.02, 0.3, 1.0):
+        for _ in range(4):
+            c = scene.room_min + rng.random(3) * span
+            boxes.append((c - size * rng.random(3), c + size * rng.random(3)))
+    boxes += [(scene.room_min, scene.room_max), (scene.room_max + 1.0, scene.room_max + 2.0)]
+    hits = 0
+    for lo, hi in boxes:
+        for keep_weak in (True, False):
+            got, want = sh.traverse(lo, hi, keep_weak), sh.traverse_reference(lo, hi, keep_weak)
+            np.testing.assert_array_equal(got[0], want[0])
+            np.testing.assert_array_equal(got[1], want[1])
+            hits += len(got[0])
+    assert hits > 0 and len(sh.traverse(*boxes[-1])[0]) == 0  # boxes in the room meet shafts, the outside one none
+
+
+def test_blocked_key_shares_made_once_equal_the_per_frame_form(engine):
+    # blocked_key's per-block shares (made on its first call, kept) give the key of the per-frame formula
+    scene, eng = engine
+    ss = eng.shadow_sources
+    v = scene.obj.vertices
+    for off in (0.0, 0.4):
+        lo, hi = v.min(0) + off, v.max(0) + off
+        got = ss.blocked_key(lo, hi)
+        so, k = ss.src_ids, ss.block
+        starts = np.arange(0, len(so), k)
+        size = np.diff(np.append(starts, len(so)))
+        wsum = np.add.reduceat(ss.strength, starts)
+        share = np.where(np.repeat(wsum, size) > 0, ss.strength / np.repeat(np.where(wsum > 0, wsum, 1), size),
+                         1.0 / np.repeat(size, size))
+        want = np.repeat(ss.blocked(lo, hi), size) * share
+        np.testing.assert_array_equal(got, want)
+        assert got.sum() > 0
