@@ -33,7 +33,7 @@ def run_room(root: Path, draws: int) -> dict:
     from recon.camera import Camera
     from recon.camrefine import _exclusive, _Occluder, _project, _sample_edges, room_edges, room_faces
     from recon.edgesnap import EdgeImage
-    from recon.edgesynth import EdgeSynth, edge_leans
+    from recon.edgesynth import EdgeSynth, synthetic_offsets
     from recon.io import read_image_rgb
     from recon.photoedges import PhotoEdges
 
@@ -52,7 +52,14 @@ def run_room(root: Path, draws: int) -> dict:
     E = photo.fine
     g = E._sample(E.gx, uv[None])[0] * n[:, 0] + E._sample(E.gy, uv[None])[0] * n[:, 1]
     synth = EdgeSynth(truth, occ, len(faces), img)
-    lean = edge_leans(synth, E.near_clip, uv, n, S.edge, draws=draws)
+    o = synthetic_offsets(synth, E.near_clip, uv, n, draws=draws)
+    lean, scatter = {}, {}
+    for e in np.unique(S.edge):  # edgesynth.edge_leans' median, and the scatter of one draw's per-edge median
+        v = o[:, S.edge == e]
+        if np.isfinite(v).sum() >= 3:
+            lean[int(e)] = float(np.nanmedian(v))
+            per = [np.median(r[np.isfinite(r)]) for r in v if np.isfinite(r).sum() >= 1]
+            scatter[int(e)] = float(np.std(per, ddof=1)) if len(per) >= 3 else float("nan")
     pe = PhotoEdges.__new__(PhotoEdges)  # noise-free synthetic: the detector's lean without grain
     pe.fine = EdgeImage(synth.image(None))
     pe.fine.near_clip = E.near_clip
@@ -67,7 +74,8 @@ def run_room(root: Path, draws: int) -> dict:
         mc = m & np.isfinite(p_clean)
         rows.append({"edge": int(e), "n": int(m.sum()), "photo": float(np.median(d[m])), "pred": lean[int(e)],
                      "resid": float(np.median(d[m]) - lean[int(e)]),
-                     "clean": float(np.median(p_clean[mc])) if mc.sum() >= 3 else float("nan"), "polarity": pol})
+                     "clean": float(np.median(p_clean[mc])) if mc.sum() >= 3 else float("nan"), "polarity": pol,
+                     "scatter": scatter[int(e)]})
     return {"room": root.name, "edges": rows}
 
 
@@ -83,10 +91,14 @@ def summary(r: dict) -> str:
     fc = np.isfinite(cl)
     rc = float(np.corrcoef(ph[fc], cl[fc])[0, 1]) if fc.sum() > 2 else float("nan")
     rms = lambda a: float(np.sqrt(np.mean(a ** 2)))  # noqa: E731
+    sc = np.array([e["scatter"] for e in E])
+    fz = np.isfinite(sc) & (sc > 0)
+    z = f"; residual / predicted scatter rms {rms(rs[fz] / sc[fz]):.2f} (median scatter {np.median(sc[fz]):.2f} px)" \
+        if fz.any() else ""
     return (f"{r['room']}: {len(E)} edges; r(photo, predicted) {rr:+.2f} (noise-free {rc:+.2f}), slope {slope:.2f}; "
             f"rms per-edge offset {rms(ph):.2f} -> {rms(rs):.2f} px (noise-free subtracted {rms(ph[fc] - cl[fc]):.2f}); "
             f"lean to bright {np.mean(ph * pol):+.2f} -> {np.mean(rs * pol):+.2f} px (predicted {np.mean(pr * pol):+.2f}, "
-            f"noise-free {np.mean(cl[fc] * pol[fc]):+.2f})")
+            f"noise-free {np.mean(cl[fc] * pol[fc]):+.2f})" + z)
 
 
 def main() -> None:
