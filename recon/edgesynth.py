@@ -17,8 +17,13 @@ error can be predicted per sample without any constant read off a room:
 3. a synthetic photo: each pixel the coverage-weighted sum of its faces' radiance, plus Gaussian noise
    of the coverage-weighted variance, through edgesnap's gamma to 8 bits; the detector run on it at the
    same camera finds the edges off their true (projected) place by its own bias. The mean over DRAWS
-   noise draws is the predicted offset of each sample (px, along its normal n), which the caller
-   subtracts from the photo's.
+   noise draws is the predicted offset of each sample (px, along its normal n); an edge's lean is the
+   median over its samples and the draws (edge_leans).
+
+Used by bench/bench_edgebias.py (is the photo's per-edge offset at the true camera predicted?). Subtracting
+the lean in recon/camrefine.py's profile stage was measured and not kept (docs/unseen.md, "The calibrated
+camera, sixth round"): it halves the sun rooms' lean at the true camera, but what remains is each edge's
+own grain, and the refined camera got better in two rooms and worse in sun_101.
 
 Conventions: recon/camera.py (pixel (0,0) the centre of the top-left pixel); offsets along the sample's
 unit normal n, as PhotoEdges.subpixel returns q = uv + offset n.
@@ -37,8 +42,8 @@ NOISE = "empirical"  # "empirical": each face's own standardised residuals resam
 MIN_POOL = 50  # a face with fewer own pixels draws from all faces' residuals (50 values: its tails unmeasured)
 MARGIN_PX = 0  # a face's levels are read this far inside its projected outline (px): 0, the pixels it covers
 # entirely. Read 1-2 px further in (against a camera a pixel or two off), the levels next to the edge are lost
-# (the skirting's dark line, shading) and the prediction at the true camera got worse (docs/unseen.md); the
-# refinement re-renders at each round's camera instead
+# (the skirting's dark line, shading) and the prediction at the true camera got worse (docs/unseen.md); a
+# caller at a camera that may be off re-renders at each new camera instead
 _DISK = np.ones((2 * MARGIN_PX + 1, 2 * MARGIN_PX + 1), np.uint8)
 GAMMA = 2.2  # edgesnap's linearisation (recon/edgesnap.EdgeImage), so the synthetic goes through the same
 
