@@ -199,3 +199,20 @@ def edge_leans(synth: EdgeSynth, near_clip: np.ndarray, uv: np.ndarray, n: np.nd
         if len(v) >= 3:
             out[int(e)] = float(np.median(v))
     return out
+
+
+def edge_leans_and_scatter(synth: EdgeSynth, near_clip: np.ndarray, uv: np.ndarray, n: np.ndarray,
+                           edge: np.ndarray, draws: int = DRAWS, seed: int = 0) -> tuple[dict, dict]:
+    """({edge: lean px}, {edge: scatter px}): edge_leans' lean, and how far one photo's per-edge median
+    scatters about it from the grain alone (the standard deviation over the draws of each draw's median
+    over the edge's samples; NaN with under 3 draws finding the edge)."""
+    o = synthetic_offsets(synth, near_clip, uv, n, draws, seed)
+    lean, scatter = {}, {}
+    for e in np.unique(edge):
+        v = o[:, edge == e]
+        if np.isfinite(v).sum() < 3:
+            continue
+        lean[int(e)] = float(np.nanmedian(v))
+        per = [np.median(r[np.isfinite(r)]) for r in v if np.isfinite(r).any()]
+        scatter[int(e)] = float(np.std(per, ddof=1)) if len(per) >= 3 else float("nan")
+    return lean, scatter
