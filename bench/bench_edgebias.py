@@ -33,7 +33,7 @@ def run_room(root: Path, draws: int) -> dict:
     from recon.camera import Camera
     from recon.camrefine import _exclusive, _Occluder, _project, _sample_edges, room_edges, room_faces
     from recon.edgesnap import EdgeImage
-    from recon.edgesynth import EdgeSynth, synthetic_offsets
+    from recon.edgesynth import EdgeSynth, edge_leans_and_scatter
     from recon.io import read_image_rgb
     from recon.photoedges import PhotoEdges
 
@@ -52,14 +52,7 @@ def run_room(root: Path, draws: int) -> dict:
     E = photo.fine
     g = E._sample(E.gx, uv[None])[0] * n[:, 0] + E._sample(E.gy, uv[None])[0] * n[:, 1]
     synth = EdgeSynth(truth, occ, len(faces), img)
-    o = synthetic_offsets(synth, E.near_clip, uv, n, draws=draws)
-    lean, scatter = {}, {}
-    for e in np.unique(S.edge):  # edgesynth.edge_leans' median, and the scatter of one draw's per-edge median
-        v = o[:, S.edge == e]
-        if np.isfinite(v).sum() >= 3:
-            lean[int(e)] = float(np.nanmedian(v))
-            per = [np.median(r[np.isfinite(r)]) for r in v if np.isfinite(r).sum() >= 1]
-            scatter[int(e)] = float(np.std(per, ddof=1)) if len(per) >= 3 else float("nan")
+    lean, scatter = edge_leans_and_scatter(synth, E.near_clip, uv, n, S.edge, draws=draws)
     pe = PhotoEdges.__new__(PhotoEdges)  # noise-free synthetic: the detector's lean without grain
     pe.fine = EdgeImage(synth.image(None))
     pe.fine.near_clip = E.near_clip

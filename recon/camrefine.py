@@ -169,7 +169,6 @@ class _Occluder:
         F = np.concatenate([np.array([[0, 1, 2], [0, 2, 3]]) + 4 * i for i in range(len(faces))]).astype(np.uint32)
         self.scene = o3d.t.geometry.RaycastingScene()
         self.scene.add_triangles(o3d.core.Tensor(V), o3d.core.Tensor(F))
-        self.n_faces = len(faces)  # triangle i belongs to face i // 2
 
     def visible(self, centre: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """(N,) bool: nothing of the room lies between `centre` and each point (a point on a surface
@@ -431,7 +430,7 @@ class _Fit:
 
 
 def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines,
-         fine_stage: str = "profiles", edge_lean: bool = False) -> _Fit:
+         fine_stage: str = "profiles") -> _Fit:
     """ICP on the oriented Canny edges over the match radii `radii`, then the sub-pixel stage, from
     parameters x: the sub-pixel stage's fit (res None when it did not run)."""
     S = _sample_edges(model.camera(x), edges, occ)
@@ -450,7 +449,7 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
         res = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
     fine = _line_stage(model, x, edges, occ, photo, lines) if fine_stage == "lines" else \
-        _profile_stage(model, x, edges, occ, photo, lines, edge_lean)
+        _profile_stage(model, x, edges, occ, photo, lines)
     if fine is not None:
         return fine
     # no sub-pixel stage: res None (the guard reports too few edges, as for any fit that found too few)
@@ -458,11 +457,8 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
     return _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), np.zeros(0))
 
 
-def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines,
-                   edge_lean: bool = False) -> _Fit | None:
-    """The per-sample sub-pixel stage (edgesnap's centroid at every sample), three rounds; with
-    edge_lean, each edge's sub-pixel points moved back by the detector's own lean on that edge
-    (_subtract_synthetic_lean)."""
+def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines) -> _Fit | None:
+    """The per-sample sub-pixel stage (edgesnap's centroid at every sample), three rounds."""
     S = _sample_edges(model.camera(x), edges, occ)
     fine = None
     for _ in range(3):
@@ -470,50 +466,16 @@ def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, 
             break
         uv, n = _project(model.camera(x), S)
         q, ok = photo.subpixel(uv, n)
-        var = None
-        if edge_lean == "weight":  # lean subtracted, each edge weighed as one measurement of its grain scatter
-            from recon.edgesynth import EdgeSynth, edge_leans_and_scatter
-
-            lean, scat = edge_leans_and_scatter(EdgeSynth(model.camera(x), occ, occ.n_faces, photo.image),
-                                                photo.fine.near_clip, uv, n, S.edge)
-            d = np.array([lean.get(int(e), 0.0) for e in S.edge])
-            q = np.where(ok[:, None], q - d[:, None] * n, q)
-            var = np.array([scat.get(int(e), np.nan) ** 2 for e in S.edge])
-        elif edge_lean:  # the synthetic photo rendered at this round's camera, so its true edges lie at uv
-            from recon.edgesynth import EdgeSynth
-
-            q = _subtract_synthetic_lean(EdgeSynth(model.camera(x), occ, occ.n_faces, photo.image), photo, uv, n,
-                                         S.edge, q, ok)
         ok &= _exclusive(uv, n, S.edge, q)
         if ok.sum() < MIN_SAMPLES:
             break
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        if var is not None:  # the edge's total variance = its predicted scatter^2 (sample noise sig^2 / n_e in it)
-            _, inv, cnt = np.unique(sub.edge, return_inverse=True, return_counts=True)
-            v = var[ok]
-            v = np.where(np.isfinite(v), np.maximum(v - FINE_SIGMA_PX ** 2 / cnt[inv], 0.0), EDGE_MODEL_SIGMA_PX ** 2)
-            res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS, edge_var=v,
-                         weighting="model")
-        else:
-            res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
+        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
         uv1, n1 = _project(model.camera(x), sub)
         fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX),
                     data=(sub, q[ok], FINE_SIGMA_PX, None))
     return fine
-
-
-def _subtract_synthetic_lean(synth, photo: PhotoEdges, uv: np.ndarray, n: np.ndarray, edge: np.ndarray,
-                             q: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """The sub-pixel edge points q (N,2) with each room edge's predicted lean subtracted along its
-    samples' normals n (recon/edgesynth.edge_leans: the detector's median offset on that edge in the
-    synthetic photo rendered at this camera from the photo's own per-face radiance and noise, where the
-    true edge is known). An edge the synthetic does not find keeps its points as measured."""
-    from recon.edgesynth import edge_leans
-
-    lean = edge_leans(synth, photo.fine.near_clip, uv, n, edge)
-    d = np.array([lean.get(int(e), 0.0) for e in edge])
-    return np.where(ok[:, None], q - d[:, None] * n, q)
 
 
 def _line_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines) -> _Fit | None:
@@ -619,15 +581,13 @@ PP_MODELS = ("select", "free", "held")  # a principal point from three vanishing
 
 
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
-                  fine_stage: str = "profiles", principal_point: str = "select", edge_lean: bool = False) -> Refinement:
+                  fine_stage: str = "profiles", principal_point: str = "select") -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
     module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
     fine_stage: "profiles" (per-sample sub-pixel edges, the default) or "lines" (each edge found as one
     line against the photo's own noise, recon/edgelines.py; a freed principal point then also gets
     calibrate's prior, PP_PRIOR_REL): see docs/unseen.md for where each does better.
-    edge_lean: subtract each edge's predicted detector lean in the profile stage (recon/edgesynth.py,
-    analysis by synthesis; see docs/unseen.md).
     principal_point (used when calibrate took it from three vanishing points; else it is held as given):
     "select" (the default: fitted held at the image centre, freed only when the room's edges and the
     clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre)."""
@@ -650,8 +610,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     # triangle moves far with a distant vanishing point): it is held at the image centre or refined
     # (principal_point); the image centre (calibrate's default) or a given one is held
     pp3 = (camera_json or {}).get("principal_point_from") == "three vanishing points"
-    stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage,
-             "edge_lean": edge_lean}
+    stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage}
     note = "refined (calibrate's, from three vanishing points)" if pp3 else ""
     if pp3 and principal_point != "free":
         held = _Model(campp.at_image_centre(cam), free_pp=False)
@@ -666,8 +625,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
                 return _solve(m, x0, sub, q, sig, lines, f_scale=ROBUST_SIGMAS, edge_var=edge_var, weighting="model")
 
             best, model, note = campp.select(held, free, best, solve,
-                                             lambda m, x: fine(m, x, edges, occ, photo, lines, *(
-                                                 [edge_lean] if fine is _profile_stage else [])))
+                                             lambda m, x: fine(m, x, edges, occ, photo, lines))
     else:
         model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
         best = _search(model, **stage)
@@ -680,7 +638,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     return dataclasses.replace(r, principal_point=note)
 
 
-def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str, edge_lean: bool = False) -> _Fit | None:
+def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str) -> _Fit | None:
     """The best fit of `model` over its starts (None when no start's sub-pixel stage ran): the input
     camera (model.cam0) with the full coarse schedule, and the centre search's best minima."""
     cam = model.cam0
@@ -692,7 +650,7 @@ def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str
     grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
     starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for x0 in _centre_search(cam, S0, photo)]
     # each start's sub-pixel fit (a start whose sub-pixel stage did not run is dropped)
-    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage, edge_lean), start="input" if i == 0
+    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage), start="input" if i == 0
                                 else "centre search") for i, (x0, radii) in enumerate(starts)]
     fits = [f for f in fits if f.res is not None]
     if not fits:
