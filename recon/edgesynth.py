@@ -23,7 +23,8 @@ error can be predicted per sample without any constant read off a room:
 Used by bench/bench_edgebias.py (is the photo's per-edge offset at the true camera predicted?). Subtracting
 the lean in recon/camrefine.py's profile stage was measured and not kept (docs/unseen.md, "The calibrated
 camera, sixth round"): it halves the sun rooms' lean at the true camera, but what remains is each edge's
-own grain, and the refined camera got better in two rooms and worse in sun_101.
+own grain, and the refined camera got better in two rooms and worse in sun_101; weighing each edge by its
+predicted scatter (edge_leans_and_scatter) too made sun_102 and sun_103 good and window_101 far worse.
 
 Conventions: recon/camera.py (pixel (0,0) the centre of the top-left pixel); offsets along the sample's
 unit normal n, as PhotoEdges.subpixel returns q = uv + offset n.
