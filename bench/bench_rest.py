@@ -1,7 +1,7 @@
 """The all-sources frame at rest (issue 36, item 5): before/after in one process, scored against the truth.
 
 usage: python bench/bench_rest.py [--scenes window_room,lamps_room,sun_room,~/.cache/photoar/rooms/lamps_102]
-                                  [--repeat 3] [--variants before,kernel,prev,upload,aside,after,all128] [--json OUT]
+                                  [--repeat 3] [--variants before,kernel,prev,upload,aside,ring,after,all128,far1.5] [--json OUT]
 
 Per scene (a shared scene's name or a benchmark folder with truth.png and truth_mask.png) one engine,
 warm (one frame of each variant first), then `--repeat` rounds in which every variant renders the
@@ -14,8 +14,11 @@ alike). Variants:
           gathered by numpy on the rendering thread (the engine of the round before);
   upload: prev, the columns gathered by a Warp kernel (kernels.gather);
   aside:  upload, on the side thread that draws the next batch's maps (ShadowPass.upload_aside);
-  after:  upload, and the weak sources' sums filled at the near ring's pixels (ShadowPass.weak_ring): the
-          engine's default;
+  ring:   upload, and the weak sources' sums filled at the near ring's pixels (ShadowPass.weak_ring): the
+          engine of the round before;
+  after:  ring, and the weak sources summed on the spacing-4 lattice beyond weak_far bounding radii and
+          filled bilinearly on the spacing-2 one there (ShadowPass.weak_coarse): the engine's default;
+  farX:   after with weak_far X (bounding radii);
   all128: the kernel, every source on a half-size map (what the rule is measured against).
 Prints per variant the median frame seconds (wall, and the process's CPU seconds: both cores, steadier
 under load) and stage milliseconds, the sources on full-size maps, and
@@ -44,7 +47,7 @@ def scene_dir(name: str) -> Path:
     return p if p.is_dir() else Path(os.environ.get("PHOTOAR_SHARED", ROOT.parent / "shared")) / "scenes" / name
 
 
-def variant(engine, name: str, kernel, numpy_blocked, rest_maps: dict, gather) -> None:
+def variant(engine, name: str, kernel, numpy_blocked, rest_maps: dict, gather, default_far: float = 2.0) -> None:
     """Set the engine to one variant (module docstring); rest_maps: {"after": ..., "all128": ...}; gather: the
     shadow pass's ColumnGather."""
     engine._blocked = numpy_blocked if name == "before" else kernel
@@ -52,7 +55,10 @@ def variant(engine, name: str, kernel, numpy_blocked, rest_maps: dict, gather) -
     sp = engine.shadow_pass
     sp._gather = None if name in ("before", "kernel", "prev") else gather
     sp.upload_aside = name == "aside"
-    sp.weak_lattice = name in ("after", "all128")
+    sp.weak_lattice = name in ("ring", "after", "all128") or name.startswith("far")
+    # ring: the weak sources summed on the spacing-2 lattice at every distance (the round before's default);
+    # farX: on the spacing-4 lattice from X bounding radii (ShadowPass.weak_coarse); after: the engine's weak_far
+    sp.weak_far = float(name[3:]) if name.startswith("far") else (0.0 if name in ("ring", "all128") else default_far)
 
 
 def run_scene(path: Path, variants: list[str], repeat: int) -> dict:
@@ -80,9 +86,11 @@ def run_scene(path: Path, variants: list[str], repeat: int) -> dict:
 
     r = engine.receivers
     kernel = engine._blocked
-    rest_maps = {v: engine.rest_maps for v in ("prev", "upload", "aside", "after")}
+    rest_maps = {v: engine.rest_maps for v in ("prev", "upload", "aside", "ring", "after") + tuple(variants)
+                 if v not in ("before", "kernel", "all128")}
     rest_maps["all128"] = RestMaps(r.E_v, budget=np.inf)
     gather = engine.shadow_pass._gather
+    default_far = engine.shadow_pass.weak_far
     truth = read_image_rgb(path / "truth.png")
     mask = cv2.imread(str(path / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
     cfg = dataclasses.replace(engine.frame_config(), passes=None)
@@ -90,7 +98,7 @@ def run_scene(path: Path, variants: list[str], repeat: int) -> dict:
     out: dict[str, dict] = {}
     for rnd in range(repeat + 1):
         for v in (variants if rnd % 2 == 0 else variants[::-1]):
-            variant(engine, v, kernel, numpy_blocked, rest_maps, gather)
+            variant(engine, v, kernel, numpy_blocked, rest_maps, gather, default_far)
             c0 = time.process_time()
             fr = engine.render(scene.obj, cfg)
             cpu = time.process_time() - c0
@@ -123,7 +131,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", default="window_room,lamps_room,sun_room")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--variants", default="before,kernel,prev,upload,aside,after,all128")
+    ap.add_argument("--variants", default="ring,after")
     ap.add_argument("--json", help="write the results here")
     a = ap.parse_args(argv)
     variants = a.variants.split(",")
