@@ -69,6 +69,12 @@ CLUSTER_MAP_RES = 128
 # about the smallest luminance contrast the eye sees (Weber's fraction, 1-2 %).
 REFINE_TOL = 0.02
 TILE = 8  # pixels: side of the image blocks whose points share a list of maps that may shadow them
+# the same for the frames with one map per source (the all-sources frame): their lookups are hard (one texel, no
+# PCSS taps), so a point's test costs little beside a cell's per map (listing it, reading the map's frame and its
+# first texels), and cells of 4 times the area list 1.6-1.7 times fewer (cell, map) entries for 1.13 times the
+# (point, map) tests (bench_rest's runs / pairs; window_room, lamps_room); 32 px lists longer than it saves
+# (lamps_room: the sums' kernel time above 16 px's). The cluster frames keep TILE: their PCSS tests cost taps each
+TILE_SOURCE = 16
 
 
 class ShadowPass:
@@ -108,6 +114,9 @@ class ShadowPass:
         ty, tx = np.divmod(self.recv, W)
         tile = np.concatenate([(ty // TILE) * (W // TILE + 1) + tx // TILE, np.full(P, -1)])
         self.sums = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
+        # the same points in cells of TILE_SOURCE px: the frames with a map per source (run's per_source)
+        tile = np.concatenate([(ty // TILE_SOURCE) * (W // TILE_SOURCE + 1) + tx // TILE_SOURCE, np.full(P, -1)])
+        self.sums_source = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
         # exact on every frame they are wanted (lattice, or no lattice neighbour): in scan order (the
         # masked sums take them cell by cell);
         # the rest (filled unless near the object): sorted by patch, with each patch's range
@@ -170,6 +179,7 @@ class ShadowPass:
         # run(order=) with weak_lattice: beyond this many bounding radii the weak passes are summed on the spacing-4
         # lattice only and filled bilinearly on the spacing-2 one (weak_coarse; 0: off, for A/B)
         self.weak_far = 2.0
+        self.source_cells = True  # run(per_source): the masked sums in cells of TILE_SOURCE px (False: TILE, for A/B)
         if self.pipelined:
             self._batch_bufs.append((Buffer((n_recv_vert + P, batch), wp.vec3, device),
                                      Buffer((P, batch), wp.uint8, device)))
@@ -214,6 +224,7 @@ class ShadowPass:
         self._fill.set_spacing(np.zeros(0, np.int64), 2)
         pix_pt, fill_pt, cen = self.select(centre, radius, coverage, cand)
         R = self.n_pix_points
+        sums = self.sums_source if per_source and self.source_cells else self.sums  # TILE_SOURCE cells, or TILE
         primary = self.maps_full if per_source or full_maps else self.maps_cluster
         n_src, dev = len(eyes), self.device
         perm, hard = (None, n_src) if order is None or not per_source else (order[0], min(max(int(order[1]), 0), n_src))
@@ -224,7 +235,7 @@ class ShadowPass:
         skip = ring if coarse is None else ring | coarse
         sel_all = np.concatenate([pix_pt, R + cen])
         sel_weak = sel_all if ring is None else np.concatenate([pix_pt[~skip], R + cen])
-        self.sums.select(sel_all if hard > 0 else sel_weak)
+        sums.select(sel_all if hard > 0 else sel_weak)
         strong = None  # the sums of the passes before the weak ones, when these have their own selection
         if perm is not None:
             eyes = eyes[perm]
@@ -273,15 +284,15 @@ class ShadowPass:
                 drawing = runtime.background(functools.partial(draw, k + 1, False))  # uploaded, on the side thread
             try:
                 if ring is not None and first == hard and hard > 0:  # the first weak batch
-                    strong = self.sums.result()[0]
-                    self.sums.select(sel_weak)
+                    strong = sums.result()[0]
+                    sums.select(sel_weak)
                 if not self.upload_aside:
                     upload(k, (w_buf, c_buf))
-                self.sums.prepare(self.maps, n, 0, c_buf.dev,
-                                  split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
+                sums.prepare(self.maps, n, 0, c_buf.dev,
+                             split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
                 # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
-                runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, w_buf.dev, a, b)
-                             for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
+                runtime.run([lambda a=a, b=b: sums.accumulate(self.maps, 0, w_buf.dev, a, b)
+                             for a, b in sums.balanced(runtime.parts(dev, sums.n, min_items=2048))])
             finally:  # joined before the pause: nothing runs while refine() holds the frame
                 if drawing is not None:
                     nxt = drawing.result()
@@ -289,7 +300,7 @@ class ShadowPass:
                 nxt = draw(k + 1, True)
             yield first + n  # sources done: refine() may stop here and resume on its next call
         self.maps = primary
-        acc, _ = self.sums.result()
+        acc, _ = sums.result()
         n_pix = len(pix_pt)
         if ring is None:
             return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, acc[:n_pix], acc[n_pix:])

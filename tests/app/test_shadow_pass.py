@@ -530,6 +530,32 @@ def test_weak_passes_sum_the_far_lattice_at_spacing_4(demo):
     np.testing.assert_allclose(got.O_pix[ring], a.O_pix[ring] + filled, rtol=1e-5, atol=tol)
 
 
+def test_source_cells_give_the_same_masks(demo):
+    # the frames with a map per source sum in culling cells of TILE_SOURCE px (source_cells): the cells' lists are
+    # conservative (kernels.masked_sums), so a point adds the same maps in the same order as in TILE's cells: the
+    # masks bitwise those of TILE's cells, with fewer (cell, map) entries
+    from app.stages.shadow_pass import TILE, TILE_SOURCE
+
+    scene, eng = demo
+    sp = eng.shadow_pass
+    assert TILE_SOURCE > TILE and sp.sums_source.n_cells < sp.sums.n_cells
+    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    S = len(fs.eyes)
+    order = (np.random.default_rng(17).permutation(S), S // 3)
+    out = []
+    try:
+        for cells in (False, True):
+            sp.source_cells = cells
+            out.append(_masks(sp, (pv, pf, occ), centre, radius, cov, fs, order=order))
+    finally:
+        sp.source_cells = True
+    assert np.abs(out[0].O_pix).sum() > 0 and np.abs(out[0].O_cen).sum() > 0
+    np.testing.assert_array_equal(out[1].pix_sel, out[0].pix_sel)
+    np.testing.assert_array_equal(out[1].O_pix, out[0].O_pix)
+    np.testing.assert_array_equal(out[1].O_cen, out[0].O_cen)
+
+
 def test_set_taps_refuses_fewer_than_two(demo):
     # a PCSS lookup needs at least 2 taps per axis: 1 is refused with one line, and the taps stay as they were
     _, eng = demo
