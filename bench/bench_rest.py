@@ -58,7 +58,7 @@ def variant(engine, name: str, kernel, numpy_blocked, rest_maps: dict, gather, d
     sp = engine.shadow_pass
     sp._gather = None if name in ("before", "kernel", "prev") else gather
     sp.upload_aside = name == "aside"
-    sp.weak_lattice = name in ("ring", "after", "all128") or name.startswith("far")
+    sp.weak_lattice = name in ("ring", "cells8", "after", "all128") or name.startswith("far")
     # ring: the weak sources summed on the spacing-2 lattice at every distance (the round before's default);
     # farX: on the spacing-4 lattice from X bounding radii (ShadowPass.weak_coarse); after: the engine's weak_far
     sp.source_cells = name not in ("before", "kernel", "prev", "upload", "aside", "ring", "cells8")

@@ -71,8 +71,8 @@ REFINE_TOL = 0.02
 TILE = 8  # pixels: side of the image blocks whose points share a list of maps that may shadow them
 # the same for the frames with one map per source (the all-sources frame): their lookups are hard (one texel, no
 # PCSS taps), so a point's test costs little beside a cell's per map (listing it, reading the map's frame and its
-# first texels), and cells of 4 times the area list 1.6-1.7 times fewer (cell, map) entries for 1.13 times the
-# (point, map) tests (bench_rest's runs / pairs; window_room, lamps_room); 32 px lists longer than it saves
+# first texels), and cells of 4 times the area list 1.6-1.9 times fewer (cell, map) entries for 1.13-1.16 times
+# the (point, map) tests (bench_rest's runs / pairs, five rooms); 32 px lists longer than it saves
 # (lamps_room: the sums' kernel time above 16 px's). The cluster frames keep TILE: their PCSS tests cost taps each
 TILE_SOURCE = 16
 
