@@ -18,7 +18,9 @@ shade from j), so the rule errs towards the full map; it depends on the room's l
 photo or a fitted constant), and is computed once per list of sources (the frames at rest of one pose
 list the same ones). For the same reason the shadow pass does not sum the weak sources at the pixels near
 the object that it lists off its lattice beyond the bounding sphere, and fills their part there from the
-listed pixels around (ShadowPass.weak_ring); the strong ones are summed at every listed pixel.
+listed pixels around (ShadowPass.weak_ring), and beyond weak_far radii sums them on the spacing-4 lattice
+only, filling the spacing-2 one there bilinearly (ShadowPass.weak_coarse); the strong ones are summed at
+every listed pixel.
 """
 from __future__ import annotations
 

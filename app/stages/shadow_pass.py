@@ -6,7 +6,8 @@ Per frame, of the receiver pixels on patches that some pass's shaft can shadow (
   of every second pixel in x and y (plus the pixels no lattice pixel of their own quad
   neighbours), where shadows are soft and vary slowly: sum_j W_xj M_xj over the passes (the
   all-sources frame's weak passes, app.rest_maps, fill the off-lattice pixels beyond graded_near
-  radii instead: ShadowPass.weak_ring);
+  radii instead, ShadowPass.weak_ring, and beyond weak_far radii sum the spacing-4 lattice only and fill
+  the spacing-2 one bilinearly, ShadowPass.weak_coarse);
 - filled: the other ones, the mean of the exact values in their 3x3 window on the same quad
   (ShadowPass.fill, kernels.maskfill, given the values compose derives from the sums).
 A cluster frame whose maps fit one batch (the drag's) instead sums on a graded lattice
@@ -73,6 +74,12 @@ REFINE_TOL = 0.02
 # object) left each spacing's launch of a drag frame on one core.
 MIN_PART_PAIRS = 4096
 TILE = 8  # pixels: side of the image blocks whose points share a list of maps that may shadow them
+# the same for the frames with one map per source (the all-sources frame): their lookups are hard (one texel, no
+# PCSS taps), so a point's test costs little beside a cell's per map (listing it, reading the map's frame and its
+# first texels), and cells of 4 times the area list 1.6-1.9 times fewer (cell, map) entries for 1.13-1.16 times
+# the (point, map) tests (bench_rest's runs / pairs, five rooms); 32 px lists longer than it saves
+# (lamps_room: the sums' kernel time above 16 px's). The cluster frames keep TILE: their PCSS tests cost taps each
+TILE_SOURCE = 16
 
 
 class ShadowPass:
@@ -112,6 +119,9 @@ class ShadowPass:
         ty, tx = np.divmod(self.recv, W)
         tile = np.concatenate([(ty // TILE) * (W // TILE + 1) + tx // TILE, np.full(P, -1)])
         self.sums = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
+        # the same points in cells of TILE_SOURCE px: the frames with a map per source (run's per_source)
+        tile = np.concatenate([(ty // TILE_SOURCE) * (W // TILE_SOURCE + 1) + tx // TILE_SOURCE, np.full(P, -1)])
+        self.sums_source = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
         # exact on every frame they are wanted (lattice, or no lattice neighbour): in scan order (the
         # masked sums take them cell by cell);
         # the rest (filled unless near the object): sorted by patch, with each patch's range
@@ -172,6 +182,10 @@ class ShadowPass:
         # threads on two cores); idle, the side thread's raster already fills the second core during the upload
         self.upload_aside = False
         self.weak_lattice = True  # run(order=): the weak passes fill the near ring's pixels (weak_ring; False: A/B)
+        # run(order=) with weak_lattice: beyond this many bounding radii the weak passes are summed on the spacing-4
+        # lattice only and filled bilinearly on the spacing-2 one (weak_coarse; 0: off, for A/B)
+        self.weak_far = 2.0
+        self.source_cells = True  # run(per_source): the masked sums in cells of TILE_SOURCE px (False: TILE, for A/B)
         if self.pipelined:
             self._batch_bufs.append((Buffer((n_recv_vert + P, batch), wp.vec3, device),
                                      Buffer((P, batch), wp.uint8, device)))
@@ -229,14 +243,18 @@ class ShadowPass:
         self._fill.set_spacing(np.zeros(0, np.int64), 2)
         pix_pt, fill_pt, cen = self.select(centre, radius, coverage, cand)
         R = self.n_pix_points
+        sums = self.sums_source if per_source and self.source_cells else self.sums  # TILE_SOURCE cells, or TILE
         primary = self.maps_full if per_source or full_maps else self.maps_cluster
         n_src, dev = len(eyes), self.device
         perm, hard = (None, n_src) if order is None or not per_source else (order[0], min(max(int(order[1]), 0), n_src))
         # the weak passes (order's last n_src - hard) skip the ring's own pixels (weak_ring); their sums start apart
         ring = self.weak_ring(pix_pt, centre, radius) if self.weak_lattice and hard < n_src else None
+        # and, at weak_far radii and beyond, the spacing-2 lattice's pixels off the spacing-4 lattice (weak_coarse)
+        coarse = self.weak_coarse(pix_pt, centre, radius, ring) if ring is not None and self.weak_far else None
+        skip = ring if coarse is None else ring | coarse
         sel_all = np.concatenate([pix_pt, R + cen])
-        sel_weak = sel_all if ring is None else np.concatenate([pix_pt[~ring], R + cen])
-        self.sums.select(sel_all if hard > 0 else sel_weak)
+        sel_weak = sel_all if ring is None else np.concatenate([pix_pt[~skip], R + cen])
+        sums.select(sel_all if hard > 0 else sel_weak)
         strong = None  # the sums of the passes before the weak ones, when these have their own selection
         if perm is not None:
             eyes = eyes[perm]
@@ -285,15 +303,15 @@ class ShadowPass:
                 drawing = runtime.background(functools.partial(draw, k + 1, False))  # uploaded, on the side thread
             try:
                 if ring is not None and first == hard and hard > 0:  # the first weak batch
-                    strong = self.sums.result()[0]
-                    self.sums.select(sel_weak)
+                    strong = sums.result()[0]
+                    sums.select(sel_weak)
                 if not self.upload_aside:
                     upload(k, (w_buf, c_buf))
-                self.sums.prepare(self.maps, n, 0, c_buf.dev,
-                                  split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
+                sums.prepare(self.maps, n, 0, c_buf.dev,
+                             split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
                 # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
-                runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, w_buf.dev, a, b)
-                             for a, b in self.sums.balanced(runtime.parts(dev, self.sums.n, min_items=2048))])
+                runtime.run([lambda a=a, b=b: sums.accumulate(self.maps, 0, w_buf.dev, a, b)
+                             for a, b in sums.balanced(runtime.parts(dev, sums.n, min_items=2048))])
             finally:  # joined before the pause: nothing runs while refine() holds the frame
                 if drawing is not None:
                     nxt = drawing.result()
@@ -301,17 +319,26 @@ class ShadowPass:
                 nxt = draw(k + 1, True)
             yield first + n  # sources done: refine() may stop here and resume on its next call
         self.maps = primary
-        acc, _ = self.sums.result()
+        acc, _ = sums.result()
         n_pix = len(pix_pt)
         if ring is None:
             return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, acc[:n_pix], acc[n_pix:])
         # the weak passes' sums at the ring's pixels: the mean of their sums at the known pixels of the 3x3
         # window on the same quad (the fill of the lattice's other pixels), added to the strong passes' own
         out = np.zeros((len(sel_all), 3)) if strong is None else strong
-        keep = np.flatnonzero(~ring)
-        out[keep] += acc[:len(keep)]
+        keep = np.flatnonzero(~skip)
         out[n_pix:] += acc[len(keep):]
-        out[np.flatnonzero(ring)] += self.fill(self.recv[pix_pt[keep]], acc[:len(keep)], self.recv[pix_pt[ring]])
+        weak = np.zeros((n_pix, 3))
+        weak[keep] = acc[:len(keep)]
+        if coarse is not None and coarse.any():  # bilinear from the corners of their spacing-4 squares, all summed
+            self._fill.set_spacing(self.recv[pix_pt[coarse]], 4)
+            try:
+                weak[coarse] = self.fill(self.recv[pix_pt[keep]], acc[:len(keep)], self.recv[pix_pt[coarse]])
+            finally:
+                self._fill.set_spacing(np.zeros(0, np.int64), 2)
+        have = np.flatnonzero(~ring)
+        weak[ring] = self.fill(self.recv[pix_pt[have]], weak[have], self.recv[pix_pt[ring]])
+        out[:n_pix] += weak
         return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, out[:n_pix], out[n_pix:])
 
     def weak_ring(self, pix_pt: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
@@ -331,6 +358,33 @@ class ShadowPass:
             seen = self.fill(known, np.ones((len(known), 3)), self.recv[pts[at]])
             ring[at[seen[:, 0] <= 0.0]] = False
         return ring
+
+    def weak_coarse(self, pix_pt: np.ndarray, centre: np.ndarray, radius: float, ring: np.ndarray) -> np.ndarray:
+        """(len(pix_pt),) bool: the exact pixels of an all-sources frame that its weak passes fill bilinearly from
+        the corners of their spacing-4 lattice square instead of summing: pixels of the spacing-2 lattice at
+        weak_far bounding radii or more, off the spacing-4 lattice, whose square's four corners (on its quad) are
+        all exact pixels the weak passes sum (not in `ring`, weak_ring's). Each weak pass changes a pixel by at
+        most WEBER (2 %) of its light (app.rest_maps), so no edge of one is a visible step; what the interpolation
+        could show is the weak passes' edges coinciding, which they do where the receiver nears the object (the
+        contact: the sphere and the ring). weak_far = 2 radii, one object width beyond the bounding sphere:
+        there the weak sources' shadows, cast from every direction, fan apart by at least the object's own size,
+        and their sum varies smoothly. The strong passes are still summed at every such pixel."""
+        pts = pix_pt
+        rx, ry = np.divmod(self.recv[pts], self.width)[::-1]
+        lat2 = (rx % 2 == 0) & (ry % 2 == 0)
+        cand = lat2 & ((rx % 4 != 0) | (ry % 4 != 0)) & ~ring
+        cand &= np.linalg.norm(self.pt_pos[pts] - centre, axis=1) >= self.weak_far * radius
+        if not cand.any():
+            return cand
+        summed = self._allowed  # scratch (R,): the pixels the weak passes sum unless coarse
+        summed[pts[~cand & ~ring]] = True
+        at = np.flatnonzero(cand)
+        c = self.sq_corners[4][self.pt_sq[4][pts[at]]]
+        good = np.all((c >= 0) & summed[np.maximum(c, 0)], axis=1)
+        summed[pts[~cand & ~ring]] = False
+        out = np.zeros(len(pts), bool)
+        out[at[good]] = True
+        return out
 
     def _run_graded(self, proxy, centre: np.ndarray, radius: float, coverage: np.ndarray, cand: np.ndarray,
                     eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, spread: np.ndarray | None,

@@ -420,8 +420,18 @@ def test_weak_passes_fill_the_near_ring(demo):
     # sums at the other listed pixels (the 3x3 same-quad mean); the strong passes are summed at every pixel.
     # Against the strong and the weak passes drawn apart (each with the other's transfers zero), every pixel
     # summed so
+    # (the far lattice off: test_weak_passes_sum_the_far_lattice_at_spacing_4)
     scene, eng = demo
     sp = eng.shadow_pass
+    far = sp.weak_far
+    sp.weak_far = 0.0
+    try:
+        _weak_ring(scene, eng, sp)
+    finally:
+        sp.weak_far = far
+
+
+def _weak_ring(scene, eng, sp):
     pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
     proxy = (pv, pf, occ)
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
@@ -453,6 +463,97 @@ def test_weak_passes_fill_the_near_ring(demo):
     filled = sp.fill(got.pix_sel[keep], b.O_pix[keep], got.pix_sel[ring]).copy()
     np.testing.assert_allclose(got.O_pix[ring], a.O_pix[ring] + filled, rtol=1e-5, atol=tol)
     assert np.abs(b.O_pix[ring]).sum() > 0 and np.abs(filled - b.O_pix[ring]).max() > 0  # the fill shows
+
+
+def test_weak_passes_sum_the_far_lattice_at_spacing_4(demo):
+    # run(order=(perm, hard)) with weak_far: beyond weak_far bounding radii the weak passes are summed on the
+    # spacing-4 lattice only; at the other pixels of the spacing-2 lattice there (whose square's four corners
+    # they sum) their sums are the bilinear interpolation of the corners' (kernels.maskfill, spacing 4), and
+    # at the near ring's pixels the 3x3 mean as before (of the lattice's values, filled or summed). The strong
+    # passes are summed at every pixel. Against the strong and the weak passes drawn apart (each with the
+    # other's transfers zero), every pixel summed so
+    scene, eng = demo
+    sp = eng.shadow_pass
+    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
+    proxy = (pv, pf, occ)
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    S = len(fs.eyes)
+    perm = np.random.default_rng(13).permutation(S)
+    h = S // 4 + 1
+    far = sp.weak_far
+    assert far > sp.graded_near
+    sp.weak_far = sp.graded_near  # the demo's image: enough of the spacing-4 lattice within a few radii
+    try:
+        got = _masks(sp, proxy, centre, radius, cov, fs, order=(perm, h))
+        pix_pt = sp.recv_index[got.pix_sel]
+        ring = sp.weak_ring(pix_pt, centre, radius)
+        coarse = sp.weak_coarse(pix_pt, centre, radius, ring)
+    finally:
+        sp.weak_far = far
+    assert coarse.sum() > 100 and not np.any(coarse & ring)
+    y, x = np.divmod(got.pix_sel[coarse], sp.width)
+    assert np.all((x % 2 == 0) & (y % 2 == 0)) and not np.any((x % 4 == 0) & (y % 4 == 0))
+    d = np.linalg.norm(sp.pt_pos[pix_pt] - centre, axis=1)
+    assert np.all(d[coarse] >= sp.graded_near * radius)
+    # their squares' corners: summed pixels of the frame, on the same quad
+    corners = sp.sq_corners[4][sp.pt_sq[4][pix_pt[coarse]]]
+    assert np.all(np.isin(corners, pix_pt[~coarse & ~ring]))
+    W = np.asarray(fs.W_v)
+    Wa, Wb = W.copy(), W.copy()
+    Wa[:, perm[h:]] = 0.0
+    Wb[:, perm[:h]] = 0.0
+    a = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wa)
+    full = sp.maps_full
+    try:
+        sp.maps_full = sp.maps_cluster
+        b = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wb)
+    finally:
+        sp.maps_full = full
+    np.testing.assert_array_equal(a.pix_sel, got.pix_sel)
+    tol = 1e-6 * np.abs(a.O_pix + b.O_pix).max()
+    keep = ~ring & ~coarse
+    np.testing.assert_allclose(got.O_pix[keep], a.O_pix[keep] + b.O_pix[keep], rtol=1e-5, atol=tol)
+    # bilinear at spacing 4, by hand: the corners' weights (1 - fx, fx) x (1 - fy, fy), fx = (x mod 4) / 4
+    at = {int(p): i for i, p in enumerate(got.pix_sel)}
+    want = np.zeros((int(coarse.sum()), 3))
+    for n, (px, py) in enumerate(zip(x, y)):
+        x0, y0 = px // 4 * 4, py // 4 * 4
+        fx, fy = (px - x0) / 4, (py - y0) / 4
+        for cx, cy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+            if w > 0:
+                want[n] += w * b.O_pix[at[(y0 + 4 * cy) * sp.width + x0 + 4 * cx]]
+    np.testing.assert_allclose(got.O_pix[coarse], a.O_pix[coarse] + want, rtol=1e-5, atol=tol)
+    assert np.abs(want - b.O_pix[coarse]).max() > 0  # the interpolation shows
+    lat = b.O_pix.copy()
+    lat[coarse] = want
+    filled = sp.fill(got.pix_sel[~ring], lat[~ring], got.pix_sel[ring]).copy()
+    np.testing.assert_allclose(got.O_pix[ring], a.O_pix[ring] + filled, rtol=1e-5, atol=tol)
+
+
+def test_source_cells_give_the_same_masks(demo):
+    # the frames with a map per source sum in culling cells of TILE_SOURCE px (source_cells): the cells' lists are
+    # conservative (kernels.masked_sums), so a point adds the same maps in the same order as in TILE's cells: the
+    # masks bitwise those of TILE's cells, with fewer (cell, map) entries
+    from app.stages.shadow_pass import TILE, TILE_SOURCE
+
+    scene, eng = demo
+    sp = eng.shadow_pass
+    assert TILE_SOURCE > TILE and sp.sums_source.n_cells < sp.sums.n_cells
+    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    S = len(fs.eyes)
+    order = (np.random.default_rng(17).permutation(S), S // 3)
+    out = []
+    try:
+        for cells in (False, True):
+            sp.source_cells = cells
+            out.append(_masks(sp, (pv, pf, occ), centre, radius, cov, fs, order=order))
+    finally:
+        sp.source_cells = True
+    assert np.abs(out[0].O_pix).sum() > 0 and np.abs(out[0].O_cen).sum() > 0
+    np.testing.assert_array_equal(out[1].pix_sel, out[0].pix_sel)
+    np.testing.assert_array_equal(out[1].O_pix, out[0].O_pix)
+    np.testing.assert_array_equal(out[1].O_cen, out[0].O_cen)
 
 
 def test_set_taps_refuses_fewer_than_two(demo):
