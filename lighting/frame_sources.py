@@ -267,19 +267,16 @@ class ShadowSources:
             return self.weights_reference(lo, hi, marked)
         return cw(*self._weight_plan(lo, hi, marked), split=split)
 
-    def _weight_plan(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray) -> tuple:
-        """(tab_lo, tab_hi, row_a, row_b, raw_lo, raw_hi, raw_pos, one_run) of weights_reference's sums:
-        node k's whole-block runs are the prefix-row pairs (row_a, row_b)[tab_lo[k]:tab_hi[k]] (one_run: no
-        node has two, so each is one float32 difference), its raw columns the KD positions
-        raw_pos[raw_lo[k]:raw_hi[k]] in weights_reference's order (every segment's left end, then every
-        segment's right end)."""
+    def _segments(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray) -> tuple:
+        """(node, a, b, A, Bk, row) of the nodes [lo, hi): each marked run's segment [a, b) within its node
+        (sorted by node), the segment's whole-block bounds [A, Bk) (multiples of the block; the last source
+        S has its own prefix row) and row(x), the prefix row of a block bound x."""
         k = self.block
-        n = len(lo)
         edge = np.diff(np.concatenate([[0], marked.astype(np.int8), [0]]))
         rs, re = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)  # marked runs [rs, re)
         i0 = np.searchsorted(re, lo, side="right")
         count = np.searchsorted(rs, hi, side="left") - i0
-        node = np.repeat(np.arange(n), count)
+        node = np.repeat(np.arange(len(lo)), count)
         first = np.cumsum(count) - count
         run = np.arange(len(node)) - first[node] + i0[node]
         a, b = np.maximum(rs[run], lo[node]), np.minimum(re[run], hi[node])  # segments, sorted by node
@@ -288,23 +285,22 @@ class ShadowSources:
 
         def row(x):
             return np.where(x == S, last, x // k)
+        return node, a, b, A, Bk, row
 
-        whole = A <= Bk
+    def _weight_plan(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray) -> tuple:
+        """(tab_lo, tab_hi, row_a, row_b, raw_lo, raw_hi, raw_pos, one_run) of weights_reference's sums:
+        node k's whole-block runs are the prefix-row pairs (row_a, row_b)[tab_lo[k]:tab_hi[k]] (one_run: no
+        node has two, so each is one float32 difference), its raw columns the KD positions
+        raw_pos[raw_lo[k]:raw_hi[k]] in weights_reference's order (every segment's left end, then every
+        segment's right end)."""
+        n = len(lo)
+        node, a, b, A, Bk, row = self._segments(lo, hi, marked)
         tab = np.flatnonzero(A < Bk)  # segments holding whole blocks (sorted by node)
         t_node = node[tab]
         one_run = bool(np.all(np.diff(t_node) > 0))
         nodes = np.arange(n)
         tab_lo, tab_hi = np.searchsorted(t_node, nodes), np.searchsorted(t_node, nodes, side="right")
-        r_lo = np.concatenate([a, np.where(whole, Bk, b)])
-        r_hi = np.concatenate([np.where(whole, A, b), b])
-        r_node = np.concatenate([node, node])
-        o = np.argsort(r_node, kind="stable")
-        r_lo, r_hi, r_node = r_lo[o], r_hi[o], r_node[o]
-        length = r_hi - r_lo
-        keep = length > 0
-        r_lo, length, r_node = r_lo[keep], length[keep], r_node[keep]
-        col_node = np.repeat(r_node, length)
-        pos = np.arange(len(col_node)) - np.repeat(np.cumsum(length) - length, length) + np.repeat(r_lo, length)
+        col_node, pos = _raw_columns(node, a, b, A, Bk)
         raw_lo, raw_hi = np.searchsorted(col_node, nodes), np.searchsorted(col_node, nodes, side="right")
         return tab_lo, tab_hi, row(A[tab]), row(Bk[tab]), raw_lo, raw_hi, pos, one_run
 
@@ -313,23 +309,9 @@ class ShadowSources:
         each holding a marked source), the transfers G * B summed over its marked sources. Each
         node's marked runs are split into whole blocks (a difference of two prefix rows) and at most
         block-1 raw columns at either end. numpy; `weights` gives the same bytes (tests)."""
-        Vr, k = self.G_v.shape[0], self.block
+        Vr = self.G_v.shape[0]
         n = len(lo)
-        edge = np.diff(np.concatenate([[0], marked.astype(np.int8), [0]]))
-        rs, re = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)  # marked runs [rs, re)
-        i0 = np.searchsorted(re, lo, side="right")
-        count = np.searchsorted(rs, hi, side="left") - i0
-        node = np.repeat(np.arange(n), count)
-        first = np.cumsum(count) - count
-        run = np.arange(len(node)) - first[node] + i0[node]
-        a, b = np.maximum(rs[run], lo[node]), np.minimum(re[run], hi[node])  # segments, sorted by node
-        S, last = len(self.src_ids), len(self.prefix) - 1
-        A, Bk = -(-a // k) * k, np.where(b == S, S, b // k * k)  # S has its own prefix row
-
-        def row(x):
-            return np.where(x == S, last, x // k)
-
-        whole = A <= Bk
+        node, a, b, A, Bk, row = self._segments(lo, hi, marked)
         W = np.zeros((n, Vr + self.P, 3), np.float32)
         tab = np.flatnonzero(A < Bk)  # segments holding whole blocks (sorted by node)
         if len(tab):
@@ -340,18 +322,8 @@ class ShadowSources:
                 starts = np.flatnonzero(np.diff(np.concatenate([[-1], t_node])))
                 W[t_node[starts]] = np.add.reduceat(self.prefix[row(Bk[tab])].astype(np.float64)
                                                     - self.prefix[row(A[tab])], starts, axis=0)
-        # raw columns: [a, A) and [Bk, b) of whole segments, [a, b) of the others
-        r_lo = np.concatenate([a, np.where(whole, Bk, b)])
-        r_hi = np.concatenate([np.where(whole, A, b), b])
-        r_node = np.concatenate([node, node])
-        o = np.argsort(r_node, kind="stable")
-        r_lo, r_hi, r_node = r_lo[o], r_hi[o], r_node[o]
-        length = r_hi - r_lo
-        keep = length > 0
-        r_lo, length, r_node = r_lo[keep], length[keep], r_node[keep]
-        if len(r_lo):
-            col_node = np.repeat(r_node, length)
-            pos = np.arange(len(col_node)) - np.repeat(np.cumsum(length) - length, length) + np.repeat(r_lo, length)
+        col_node, pos = _raw_columns(node, a, b, A, Bk)
+        if len(pos):
             ids = self.src_ids[pos]
             Bc = np.asarray(self.B[ids], np.float64)
             starts = np.flatnonzero(np.diff(np.concatenate([[-1], col_node])))
@@ -605,3 +577,22 @@ def _column_transfers(G: np.ndarray, ids: np.ndarray, B: np.ndarray, rows: int =
 
     launch_split(work, G.shape[0], split)
     return out
+
+
+def _raw_columns(node: np.ndarray, a: np.ndarray, b: np.ndarray, A: np.ndarray, Bk: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(col_node, pos): the raw columns of the segments [a, b) of `node` (FrameSources._segments) as KD positions
+    pos, each with its node, sorted by node: [a, A) and [Bk, b) of a segment holding whole blocks (A <= Bk),
+    [a, b) of the others; every segment's left end, then every segment's right end."""
+    whole = A <= Bk
+    r_lo = np.concatenate([a, np.where(whole, Bk, b)])
+    r_hi = np.concatenate([np.where(whole, A, b), b])
+    r_node = np.concatenate([node, node])
+    o = np.argsort(r_node, kind="stable")
+    r_lo, r_hi, r_node = r_lo[o], r_hi[o], r_node[o]
+    length = r_hi - r_lo
+    keep = length > 0
+    r_lo, length, r_node = r_lo[keep], length[keep], r_node[keep]
+    col_node = np.repeat(r_node, length)
+    pos = np.arange(len(col_node)) - np.repeat(np.cumsum(length) - length, length) + np.repeat(r_lo, length)
+    return col_node, pos
