@@ -431,6 +431,23 @@ def test_weak_passes_fill_the_near_ring(demo):
         sp.weak_far = far
 
 
+def _strong_and_weak_apart(sp, proxy, centre, radius, cov, fs, perm, h):
+    """(strong, weak) masks of the passes drawn apart: the strong passes perm[:h] on their full maps with the
+    weak passes' transfers zero, and the weak passes perm[h:] on the cluster maps with the strong ones' zero."""
+    W = np.asarray(fs.W_v)
+    Wa, Wb = W.copy(), W.copy()
+    Wa[:, perm[h:]] = 0.0
+    Wb[:, perm[:h]] = 0.0
+    a = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wa)
+    full = sp.maps_full
+    try:
+        sp.maps_full = sp.maps_cluster
+        b = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wb)
+    finally:
+        sp.maps_full = full
+    return a, b
+
+
 def _weak_ring(scene, eng, sp):
     pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
     proxy = (pv, pf, occ)
@@ -445,17 +462,7 @@ def _weak_ring(scene, eng, sp):
     assert ring.sum() > 100  # the demo's object has a ring
     assert np.all(d[ring] >= sp.graded_near * radius) and np.all(d[ring] < sp.near_factor * radius)
     assert not np.any(sp.lattice[got.pix_sel[ring]])
-    W = np.asarray(fs.W_v)
-    Wa, Wb = W.copy(), W.copy()
-    Wa[:, perm[h:]] = 0.0
-    Wb[:, perm[:h]] = 0.0
-    a = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wa)
-    full = sp.maps_full
-    try:
-        sp.maps_full = sp.maps_cluster
-        b = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wb)
-    finally:
-        sp.maps_full = full
+    a, b = _strong_and_weak_apart(sp, proxy, centre, radius, cov, fs, perm, h)
     np.testing.assert_array_equal(a.pix_sel, got.pix_sel)
     tol = 1e-6 * np.abs(a.O_pix + b.O_pix).max()
     keep = ~ring
@@ -498,17 +505,7 @@ def test_weak_passes_sum_the_far_lattice_at_spacing_4(demo):
     # their squares' corners: summed pixels of the frame, on the same quad
     corners = sp.sq_corners[4][sp.pt_sq[4][pix_pt[coarse]]]
     assert np.all(np.isin(corners, pix_pt[~coarse & ~ring]))
-    W = np.asarray(fs.W_v)
-    Wa, Wb = W.copy(), W.copy()
-    Wa[:, perm[h:]] = 0.0
-    Wb[:, perm[:h]] = 0.0
-    a = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wa)
-    full = sp.maps_full
-    try:
-        sp.maps_full = sp.maps_cluster
-        b = _masks(sp, proxy, centre, radius, cov, fs, W_v=Wb)
-    finally:
-        sp.maps_full = full
+    a, b = _strong_and_weak_apart(sp, proxy, centre, radius, cov, fs, perm, h)
     np.testing.assert_array_equal(a.pix_sel, got.pix_sel)
     tol = 1e-6 * np.abs(a.O_pix + b.O_pix).max()
     keep = ~ring & ~coarse
