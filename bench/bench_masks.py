@@ -12,7 +12,8 @@ truth (lighting.metrics), with the largest level difference from the first varia
   pairs (ShadowPass._sum before MIN_PART_PAIRS);
 - hardcen: the patch centres take the cluster maps' hard lookup (ShadowPass.hard_centres);
 - seq: the graded frame's finer spacings summed in sequence, before the object stages (ShadowPass.overlap off);
-- own: overlapped (as base), the side thread's sums in one launch on its own thread, not cut over the pool.
+- own: overlapped (as base), the side thread's sums in one launch on its own thread, not cut over the pool;
+- swi: overlapped (as base), with the interpreter's switch interval 0.5 ms instead of 5 (sys.setswitchinterval).
 Prints per variant the means over the path of the masks and upsample stages (wall), the frame's wall and
 CPU time (the process's, all threads), and "crit": the frame's critical path in CPU time, the rendering
 thread's own CPU time plus, for each set of concurrent launches (app.runtime.run), the CPU time of its
@@ -165,10 +166,14 @@ def apply(variant: str, shadow_pass) -> callable:
     if variant == "own":
         shadow_pass._sum = _sum_own_thread.__get__(shadow_pass)
         return lambda: delattr(shadow_pass, "_sum")
+    if variant == "swi":  # overlapped, the interpreter's switch interval 0.5 ms (the GIL handed over sooner)
+        was = sys.getswitchinterval()
+        sys.setswitchinterval(0.0005)
+        return lambda: sys.setswitchinterval(was)
     if variant == "hardcen":
         shadow_pass.hard_centres = True
         return lambda: setattr(shadow_pass, "hard_centres", False)
-    raise SystemExit(f"unknown variant {variant!r} (base, points, seq, own, hardcen)")
+    raise SystemExit(f"unknown variant {variant!r} (base, points, seq, own, swi, hardcen)")
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:
