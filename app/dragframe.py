@@ -153,6 +153,7 @@ class DragStages:
             self.object_light.room_cells = DRAG_ROOM_CELLS
             self.object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (app.stages.object_light.FarGroups)
             self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
+        self.shadow_pass.overlap = True  # its finer spacings summed while the object stages run (ShadowPass.overlap)
         self.shape = (cam.height, cam.width)
         self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object
         self.zero_rad = np.zeros((*self.shape, 3), np.float32)

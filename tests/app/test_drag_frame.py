@@ -48,6 +48,47 @@ def test_drag_frame_leaves_the_frames_at_rest_unchanged(demo_engine):
         assert np.array_equal(a, b)
 
 
+def test_overlapped_drag_frame_is_the_sequential_one_bit_for_bit(demo_engine):
+    # the drag frame's shadow pass sums its finer spacings on the side thread while the object stages run
+    # (ShadowPass.overlap, on in app.dragframe): every frame along a drag (pixels, radiance, room) is the one of
+    # the same shadow pass run in sequence, bit for bit, frames interleaved so that each starts after the other
+    from app.dragpath import drag_offsets, moved
+    from app.engine import FrameConfig
+    from app.stages.shadow_pass import LateMasks
+
+    scene, eng = demo_engine
+    cfg = FrameConfig(passes=50, drag=2)
+    eng.render(scene.obj, cfg)
+    sp = eng.pixel_stages(2).shadow_pass
+    assert sp.overlap
+    run, kinds = sp.run, []
+
+    def spy(*a, **k):
+        masks = yield from run(*a, **k)
+        kinds.append(type(masks))
+        return masks
+
+    sp.run = spy
+    try:
+        for o in drag_offsets(scene, scene.obj, 4):
+            obj = moved(scene.obj, o)
+            frames = []
+            for overlap in (True, False, True):
+                sp.overlap = overlap
+                fr = eng.render(obj, cfg)  # copied: a frame may hand out buffers the next one reuses
+                frames.append({"pixels": fr.pixels.copy(), "radiance": fr.radiance.copy(), "room": fr.room.copy(),
+                               "counts": (fr.stats["n_mask_pixels"], fr.stats["n_filled_pixels"])})
+            assert frames[0]["counts"][0] > 0 and frames[0]["counts"][1] > 0
+            assert np.abs(frames[0]["pixels"].astype(int) - scene.photo).max() > 2  # the object changed the room
+            for f in frames[1:]:
+                for field in ("pixels", "radiance", "room", "counts"):
+                    assert np.array_equal(f[field], frames[0][field]), field
+    finally:
+        sp.overlap = True
+        del sp.run
+    assert kinds.count(LateMasks) == 8 and len(kinds) == 12  # the overlapped frames took the overlapped path
+
+
 def test_drag_compose_kernel_matches_its_reference(demo_engine):
     # kernels.drag_compose against DragStages.finish_reference (numpy, float32 ratio): the 8-bit frame
     # within 1 level (the two round a ratio computed in float64 and float32), radiance within 1e-4 relative

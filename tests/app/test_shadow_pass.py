@@ -561,3 +561,42 @@ def test_set_taps_refuses_fewer_than_two(demo):
     with pytest.raises(ValueError, match="at least 2 taps per axis, got 1"):
         sp.set_taps(1)
     assert sp.taps == before and sp.maps_full.taps == before
+
+
+def test_overlapped_graded_frame_gives_the_same_masks(demo):
+    # ShadowPass.overlap: a graded frame (a cluster frame of one batch) returns once its first launch is summed
+    # and sums the spacings 4, 2 and 1 on the side thread; its masks are bitwise the sequential frame's, and a
+    # frame started before the last one's pixels were read (its LateMasks not joined) joins it first: both
+    # frames' masks stay those of the sequential frames
+    from app.stages.shadow_pass import LateMasks, Masks
+
+    scene, eng = demo
+    sp = eng.shadow_pass
+    E = eng.receivers.E_x
+    out = {}
+    for i, o in enumerate(drag_offsets(scene, scene.obj, 3)[:2]):
+        pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
+        pv = pv + o
+        centre = centre + o
+        fs = eng.shadow_sources.select(pv.min(0), pv.max(0), 20)
+        assert 0 < len(fs.eyes) <= sp.batch  # one batch: the graded lattice
+        for overlap in (False, True):
+            sp.overlap = overlap
+            try:
+                steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, False,
+                               spread=fs.spread, scale=E)
+                try:
+                    while True:
+                        next(steps)
+                except StopIteration as stop:
+                    out[i, overlap] = stop.value
+            finally:
+                sp.overlap = False
+    # the overlapped frames' pixels are read only now: the second frame's run joined the first's side thread
+    for i in range(2):
+        seq, late = out[i, False], out[i, True]
+        assert isinstance(seq, Masks) and isinstance(late, LateMasks)
+        assert len(seq.pix_sel) and len(seq.fill_sel) and np.abs(seq.O_pix).sum() > 0
+        for f in ("pix_sel", "fill_sel", "cen_sel", "O_pix", "O_cen"):
+            np.testing.assert_array_equal(getattr(late, f), getattr(seq, f), err_msg=f"frame {i}: {f}")
+    assert not np.array_equal(out[0, False].O_cen, out[1, False].O_cen)  # two poses, two frames
