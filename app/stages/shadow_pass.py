@@ -111,17 +111,9 @@ class ShadowPass:
         self.recv = np.flatnonzero(recv_pix).astype(np.int64)
         R = len(self.recv)
         self.n_pix_points = R
-        rows = np.concatenate([np.maximum(pix_rows[self.recv], 0), n_recv_vert + np.repeat(np.arange(P)[:, None], 3, 1)])
-        bary = np.concatenate([pix_bary[self.recv], np.tile([1.0, 0.0, 0.0], (P, 1))])
-        pos = np.concatenate([pix_pos[self.recv], patches.centre + patches.normal * 1e-3])
-        group = np.concatenate([pix_patch[self.recv], np.arange(P)])
-        # culling cells: the pixels of a patch in one TILE x TILE block (a centre is a cell of its own)
-        ty, tx = np.divmod(self.recv, W)
-        tile = np.concatenate([(ty // TILE) * (W // TILE + 1) + tx // TILE, np.full(P, -1)])
-        self.sums = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
-        # the same points in cells of TILE_SOURCE px: the frames with a map per source (run's per_source)
-        tile = np.concatenate([(ty // TILE_SOURCE) * (W // TILE_SOURCE + 1) + tx // TILE_SOURCE, np.full(P, -1)])
-        self.sums_source = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
+        self._points = (pix_pos, pix_rows, pix_bary, pix_patch, patches)  # the masked sums' (_masked_sum)
+        self.sums = self._masked_sum(TILE)
+        self._sums_source: MaskedSum | None = None  # the same points in cells of TILE_SOURCE px (sums_source)
         # exact on every frame they are wanted (lattice, or no lattice neighbour): in scan order (the
         # masked sums take them cell by cell);
         # the rest (filled unless near the object): sorted by patch, with each patch's range
@@ -202,6 +194,29 @@ class ShadowPass:
         self.taps = int(taps)
         for m in {id(m): m for m in (self.maps_full, self.maps_cluster, *self._twin.values())}.values():
             m.taps = m.ms.taps = self.taps
+
+    def _masked_sum(self, tile_px: int) -> MaskedSum:
+        """The masked sums of the receiver pixels, then every patch centre (lifted 1 mm), in culling cells of the
+        pixels of a patch in one tile_px x tile_px block (a centre is a cell of its own)."""
+        pix_pos, pix_rows, pix_bary, pix_patch, patches = self._points
+        P, W = patches.n_patches, self.width
+        rows = np.concatenate([np.maximum(pix_rows[self.recv], 0),
+                               self.n_recv_vert + np.repeat(np.arange(P)[:, None], 3, 1)])
+        bary = np.concatenate([pix_bary[self.recv], np.tile([1.0, 0.0, 0.0], (P, 1))])
+        pos = np.concatenate([pix_pos[self.recv], patches.centre + patches.normal * 1e-3])
+        group = np.concatenate([pix_patch[self.recv], np.arange(P)])
+        ty, tx = np.divmod(self.recv, W)
+        tile = np.concatenate([(ty // tile_px) * (W // tile_px + 1) + tx // tile_px, np.full(P, -1)])
+        return MaskedSum(pos, rows, bary, group, self.device, n_groups=P, max_maps=self.batch, tile=tile)
+
+    @property
+    def sums_source(self) -> MaskedSum:
+        """`sums`'s points in culling cells of TILE_SOURCE px: the frames with a map per source (run's per_source
+        with source_cells). Made on first use: the drag frame's shadow pass, whose frames have maps of clusters,
+        never makes it (a second set of points and cells, a few MB)."""
+        if self._sums_source is None:
+            self._sums_source = self._masked_sum(TILE_SOURCE)
+        return self._sums_source
 
     @property
     def hard_centres(self) -> bool:
