@@ -103,7 +103,8 @@ class Engine:
         elif p.lighting == "photo":
             from lighting.photolight import prepare_scene
 
-            scene, declared = prepare_scene(scene, photo_priors)
+            scene, declared = prepare_scene(scene, photo_priors,
+                                            scene_precompute.cached_probe_response(self.cache_dir, scene))
             self.photo_light = {"declared_emitters_unused": declared}
         elif p.lighting == "known" and (scene.response is None or scene.meta.get("emitters_without_radiance")):
             scene_precompute.need_declared(scene)  # captured: the probe gives the response and the emitters
