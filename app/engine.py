@@ -103,7 +103,8 @@ class Engine:
         elif p.lighting == "photo":
             from lighting.photolight import prepare_scene
 
-            scene, declared = prepare_scene(scene, photo_priors)
+            scene, declared = prepare_scene(scene, photo_priors,
+                                            scene_precompute.cached_probe_response(self.cache_dir, scene))
             self.photo_light = {"declared_emitters_unused": declared}
         elif p.lighting == "known" and (scene.response is None or scene.meta.get("emitters_without_radiance")):
             scene_precompute.need_declared(scene)  # captured: the probe gives the response and the emitters
@@ -354,7 +355,7 @@ class Engine:
 
         # ---- the object's radiance (app.stages.object_shading): the room's light, less what its shadow takes
         # from the patches, plus its own light the patches reflect back to it
-        dB_obj = self._object_sees(sun, sun_dB, dB_room, R_cen, later)
+        dB_obj = self._object_sees(dB_room, R_cen, later)
         shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_obj, sun_dB)
         if tables is not None:
             shaded = tables.shaded
@@ -427,8 +428,7 @@ class Engine:
         timer.tick("object", t)
         return pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov
 
-    def _object_sees(self, sun, sun_dB: np.ndarray | None, dB_room: np.ndarray, R_cen: np.ndarray,
-                     later: np.ndarray | None = None) -> np.ndarray:
+    def _object_sees(self, dB_room: np.ndarray, R_cen: np.ndarray, later: np.ndarray | None = None) -> np.ndarray:
         """(P,3) the change of the patches' radiance the object gathers this frame, besides sun_dB (the sun
         its shadow takes from the floor, gathered exactly): the room's light its shadow takes (dB_room), its
         own light the patches reflect (rho R_cen: object -> patch -> object, a path of the truth's within

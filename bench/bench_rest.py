@@ -1,7 +1,7 @@
 """The all-sources frame at rest (issue 36, item 5): before/after in one process, scored against the truth.
 
 usage: python bench/bench_rest.py [--scenes window_room,lamps_room,sun_room,~/.cache/photoar/rooms/lamps_102]
-                                  [--repeat 3] [--variants before,kernel,prev,upload,aside,ring,cells8,after,all128,far1.5] [--json OUT]
+                                  [--repeat 3] [--variants before,kernel,prev,upload,ring,cells8,after,all128,far1.5] [--json OUT]
 
 Per scene (a shared scene's name or a benchmark folder with truth.png and truth_mask.png) one engine,
 warm (one frame of each variant first), then `--repeat` rounds in which every variant renders the
@@ -13,7 +13,6 @@ alike). Variants:
   prev:   the kernel and the weak sources on half-size maps (app.rest_maps), each batch's scattered transfer columns
           gathered by numpy on the rendering thread (the engine of the round before);
   upload: prev, the columns gathered by a Warp kernel (kernels.gather);
-  aside:  upload, on the side thread that draws the next batch's maps (ShadowPass.upload_aside);
   ring:   upload, and the weak sources' sums filled at the near ring's pixels (ShadowPass.weak_ring): the
           engine of the round before;
   cells8: ring, and the weak sources summed on the spacing-4 lattice beyond weak_far bounding radii and
@@ -57,11 +56,10 @@ def variant(engine, name: str, kernel, numpy_blocked, rest_maps: dict, gather, d
     engine.rest_maps = rest_maps.get(name)
     sp = engine.shadow_pass
     sp._gather = None if name in ("before", "kernel", "prev") else gather
-    sp.upload_aside = name == "aside"
     sp.weak_lattice = name in ("ring", "cells8", "after", "all128") or name.startswith("far")
     # ring: the weak sources summed on the spacing-2 lattice at every distance (the round before's default);
     # farX: on the spacing-4 lattice from X bounding radii (ShadowPass.weak_coarse); after: the engine's weak_far
-    sp.source_cells = name not in ("before", "kernel", "prev", "upload", "aside", "ring", "cells8")
+    sp.source_cells = name not in ("before", "kernel", "prev", "upload", "ring", "cells8")
     sp.weak_far = float(name[3:]) if name.startswith("far") else (0.0 if name in ("ring", "all128") else default_far)
 
 
@@ -90,7 +88,7 @@ def run_scene(path: Path, variants: list[str], repeat: int) -> dict:
 
     r = engine.receivers
     kernel = engine._blocked
-    rest_maps = {v: engine.rest_maps for v in ("prev", "upload", "aside", "ring", "after") + tuple(variants)
+    rest_maps = {v: engine.rest_maps for v in ("prev", "upload", "ring", "after") + tuple(variants)
                  if v not in ("before", "kernel", "all128")}
     rest_maps["all128"] = RestMaps(r.E_v, budget=np.inf)
     gather = engine.shadow_pass._gather

@@ -290,7 +290,15 @@ def _point_launches(kernel, points: np.ndarray, normals: np.ndarray, shared: lis
         for o, r in zip(outs, res):
             o[s:e] = r.pull(e - s)
 
-    halves = [(0, n)] if n <= split or not wp.get_device(device).is_cpu else [(0, n // 2), (n // 2, n)]
+    cpu = wp.get_device(device).is_cpu
+    halves = [(0, n)] if n <= split or not cpu else [(0, n // 2), (n // 2, n)]
+    # a kept workspace (blocks of its rows) gets both slots' buffers on its first call: a later call of more than
+    # `split` points (a drag's object light as the object moves) then splits over both without allocating
+    for slot in range(2 if cpu and block == ws.rows else 1):
+        for k in range(outputs):
+            ws.buffer(f"out{slot}" + (f"_{k}" if k else ""), block, wp.vec3, device)
+        for name in ("points", "normals"):
+            ws.buffer(f"{name}{slot}", block, wp.vec3d, device)
     parts = [[(s, min(e, s + block)) for s in range(a, e, block)] for a, e in halves]
     for k in range(max(len(p) for p in parts)):  # the halves side by side, one per core on the CPU
         runtime.run_parallel([lambda r=p[k], i=i: run(*r, i) for i, p in enumerate(parts) if k < len(p)])

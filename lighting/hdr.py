@@ -377,13 +377,23 @@ def scene_probe_files(scene_dir: Path) -> tuple[list[Path], list[float], dict]:
         raise FileNotFoundError(f"{sj}: no such file")
     try:
         scene = json.loads(sj.read_text())
+    except ValueError as e:
+        raise ValueError(f"{sj}: light_probe: missing or malformed ldr_files / exposure_times ({e})") from None
+    files, times = probe_bracket(sj, scene)
+    return files, times, scene
+
+
+def probe_bracket(sj: Path, scene: dict) -> tuple[list[Path], list[float]]:
+    """The probe bracket (files, exposure times in s) of a parsed scene.json `scene` read from `sj` (the file,
+    named by the errors)."""
+    try:
         lp = scene["light_probe"]
         files, times = lp["ldr_files"], lp["exposure_times"]
-    except (ValueError, KeyError, TypeError) as e:
+        if len(files) != len(times):
+            raise ValueError(f"{sj}: light_probe: {len(files)} ldr_files but {len(times)} exposure_times")
+        return [Path(sj).parent / f for f in files], [float(x) for x in times]
+    except (KeyError, TypeError) as e:
         raise ValueError(f"{sj}: light_probe: missing or malformed ldr_files / exposure_times ({e})") from None
-    if len(files) != len(times):
-        raise ValueError(f"{sj}: light_probe: {len(files)} ldr_files but {len(times)} exposure_times")
-    return [sj.parent / f for f in files], [float(x) for x in times], scene
 
 
 def load_scene_probe(scene_dir: str | Path, response: np.ndarray | None = None, method: str = "debevec",

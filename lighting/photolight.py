@@ -70,6 +70,7 @@ import dataclasses
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -134,10 +135,21 @@ class PhotoResponse(CameraResponse):
     measured: bool = False
 
 
-def photo_response(scene, priors: PhotoPriors | None = None) -> PhotoResponse:
+def recover_response(files: list[Path], times: list[float]) -> np.ndarray:
+    """The inverse response (256,3) recovered from a probe bracket (lighting.hdr.calibrate_response): seconds
+    (docs/benchmarks.md), so the engine caches it per bracket (app.stages.precompute.cached_probe_response)."""
+    from lighting import hdr
+    from recon.io import read_image_rgb
+
+    return hdr.calibrate_response([read_image_rgb(f) for f in files], times)
+
+
+def photo_response(scene, priors: PhotoPriors | None = None,
+                   recover: Callable[[list[Path], list[float]], np.ndarray] = recover_response) -> PhotoResponse:
     """The response photo light reads the photo through (module docstring): the scene's declared
-    camera_response, else the one recovered from its probe bracket (measured), else sRGB
-    (`gamma_scale`). A bracket that cannot be read or fitted falls back to sRGB with a warning."""
+    camera_response, else the one recovered from its probe bracket (measured; recover(files, times): the
+    inverse response (256,3), e.g. a cached recover_response), else sRGB (`gamma_scale`). A bracket that
+    cannot be read or fitted falls back to sRGB with a warning."""
     priors = priors or PhotoPriors()
     t = scene.camera.exposure_time
     r = scene.response
@@ -147,13 +159,12 @@ def photo_response(scene, priors: PhotoPriors | None = None) -> PhotoResponse:
         return PhotoResponse(r.forward_table, r.inverse_table, t, source="declared (scene.json camera_response)",
                              measured=True)
     root = Path(scene.root) if getattr(scene, "root", None) is not None else None
-    if root is not None and "light_probe" in _scene_json(root):
+    sj = _scene_json(root) if root is not None else {}
+    if "light_probe" in sj:
         from lighting import hdr
-        from recon.io import read_image_rgb
 
         try:
-            files, times, _ = hdr.scene_probe_files(root)
-            g = hdr.calibrate_response([read_image_rgb(f) for f in files], times)
+            g = recover(*hdr.probe_bracket(root / "scene.json", sj))
             return PhotoResponse(hdr.forward_table(g), g.T, t, source="recovered from the probe bracket",
                                  measured=True)
         except (OSError, ValueError, RuntimeError) as e:
@@ -171,16 +182,17 @@ def _scene_json(root) -> dict:
         return {}
 
 
-def prepare_scene(scene, priors: PhotoPriors | None = None):
-    """The scene as photo light sees it: its response (photo_response), window / lamp quads marked as
-    emitters (placeholder radiance 1, replaced by the fit) and nothing declared. Returns (scene,
+def prepare_scene(scene, priors: PhotoPriors | None = None,
+                  recover: Callable[[list[Path], list[float]], np.ndarray] = recover_response):
+    """The scene as photo light sees it: its response (photo_response, `recover` its bracket's), window / lamp
+    quads marked as emitters (placeholder radiance 1, replaced by the fit) and nothing declared. Returns (scene,
     declared): declared = {quad name: emitted_radiance} from scene.json, for the report only."""
     priors = priors or PhotoPriors()
     declared = {q.name: [float(v) for v in q.emission] for q in scene.quads if np.any(q.emission > 0)}
     quads = [dataclasses.replace(q, emission=np.ones(3) if q.role in EMITTER_ROLES else np.zeros(3),
                                  albedo=np.zeros(3), texture=None)  # declared albedos are not used
              for q in scene.quads]
-    return dataclasses.replace(scene, quads=quads, response=photo_response(scene, priors)), declared
+    return dataclasses.replace(scene, quads=quads, response=photo_response(scene, priors, recover)), declared
 
 
 def _unknown_groups(patches: PatchMesh, photo_count: np.ndarray, clipped: np.ndarray

@@ -155,6 +155,22 @@ def cache_file(cache_dir: Path | None, scene: Scene, what: str, key: str) -> Pat
     return cache_dir / f"{scene.name}-{what}{key[:20]}.npz" if cache_dir is not None else None
 
 
+def cached_probe_response(cache_dir: Path | None, scene: Scene):
+    """recover(files, times) -> the inverse response (256,3) of a probe bracket (lighting.photolight.
+    recover_response), cached in `cache_dir` keyed by the bracket's file contents, its exposure times and the code
+    that fits it (lighting.hdr): photo light's response is recovered once per bracket, not on every run."""
+    from lighting.photolight import recover_response
+
+    def recover(files: list[Path], times: list[float]) -> np.ndarray:
+        key = artefact_cache.digest("probe-response", artefact_cache.code_digest("lighting.hdr", "lighting.photolight"),
+                                    [float(x) for x in times], [Path(f).read_bytes() for f in files])
+        g, _ = artefact_cache.cached(cache_file(cache_dir, scene, "response-", key),
+                                     lambda: recover_response(files, times), what="probe response")
+        return np.asarray(g, np.float64)
+
+    return recover
+
+
 def _load(cache: Path, patches: PatchMesh, key: str) -> Precomputed:
     with np.load(cache) as z:
         return Precomputed(patches, z["G_c"], z["recv_vert"], z["G_v"], z["B"], z["pix_tri"], z["pix_bary"],

@@ -21,8 +21,8 @@ Everything per scene is set up once (ShadowPass's constructor): the points (rece
 patch centres) are uploaded once and a frame uploads the indices of its listed ones, the proxy
 is the object's own per-shape BVH, and the per-batch transfers and candidate flags go into
 buffers of the batch's capacity. A frame of several batches (run) draws the next batch's maps on a
-side thread while the batch before is summed (two sets of maps; its transfers too with upload_aside,
-into a second set of buffers); the all-sources frame's scattered columns are gathered by a kernel
+side thread while the batch before is summed (two sets of maps; the transfers are uploaded on the
+rendering thread, into one set of buffers); the all-sources frame's scattered columns are gathered by a kernel
 (kernels.gather).
 Launches are split over the cores by app.runtime.
 """
@@ -139,17 +139,9 @@ class ShadowPass:
         self.recv = np.flatnonzero(recv_pix).astype(np.int64)
         R = len(self.recv)
         self.n_pix_points = R
-        rows = np.concatenate([np.maximum(pix_rows[self.recv], 0), n_recv_vert + np.repeat(np.arange(P)[:, None], 3, 1)])
-        bary = np.concatenate([pix_bary[self.recv], np.tile([1.0, 0.0, 0.0], (P, 1))])
-        pos = np.concatenate([pix_pos[self.recv], patches.centre + patches.normal * 1e-3])
-        group = np.concatenate([pix_patch[self.recv], np.arange(P)])
-        # culling cells: the pixels of a patch in one TILE x TILE block (a centre is a cell of its own)
-        ty, tx = np.divmod(self.recv, W)
-        tile = np.concatenate([(ty // TILE) * (W // TILE + 1) + tx // TILE, np.full(P, -1)])
-        self.sums = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
-        # the same points in cells of TILE_SOURCE px: the frames with a map per source (run's per_source)
-        tile = np.concatenate([(ty // TILE_SOURCE) * (W // TILE_SOURCE + 1) + tx // TILE_SOURCE, np.full(P, -1)])
-        self.sums_source = MaskedSum(pos, rows, bary, group, device, n_groups=P, max_maps=batch, tile=tile)
+        self._points = (pix_pos, pix_rows, pix_bary, pix_patch, patches)  # the masked sums' (_masked_sum)
+        self.sums = self._masked_sum(TILE)
+        self._sums_source: MaskedSum | None = None  # the same points in cells of TILE_SOURCE px (sums_source)
         # exact on every frame they are wanted (lattice, or no lattice neighbour): in scan order (the
         # masked sums take them cell by cell);
         # the rest (filled unless near the object): sorted by patch, with each patch's range
@@ -208,21 +200,11 @@ class ShadowPass:
         self.maps = self.maps_full  # the last frame's
         self.weights = Buffer((n_recv_vert + P, batch), wp.vec3, device)  # pixel rows, then centre rows
         self.cand = Buffer((P, batch), wp.uint8, device)
-        # run's batch buffers (transfers, candidate flags): batch k in set k % 2 when pipelined, so that the
-        # side thread may upload the next batch's while this one's are summed (upload_aside)
-        self._batch_bufs = [(self.weights, self.cand)]
-        # True: each batch's transfers uploaded on the side thread with its maps. Off: over runs at load 5-18 it
-        # made the all-sources frame's wall time 0.91-1.27x, its CPU the same (bench_rest, variant aside; three
-        # threads on two cores); idle, the side thread's raster already fills the second core during the upload
-        self.upload_aside = False
         self.weak_lattice = True  # run(order=): the weak passes fill the near ring's pixels (weak_ring; False: A/B)
         # run(order=) with weak_lattice: beyond this many bounding radii the weak passes are summed on the spacing-4
         # lattice only and filled bilinearly on the spacing-2 one (weak_coarse; 0: off, for A/B)
         self.weak_far = 2.0
         self.source_cells = True  # run(per_source): the masked sums in cells of TILE_SOURCE px (False: TILE, for A/B)
-        if self.pipelined:
-            self._batch_bufs.append((Buffer((n_recv_vert + P, batch), wp.vec3, device),
-                                     Buffer((P, batch), wp.uint8, device)))
         # run's `order` (the all-sources frame): a batch's scattered columns gathered by a kernel on the CPU
         self._gather = ColumnGather(max(n_recv_vert, P), batch, device) if wp.get_device(device).is_cpu else None
         self._fill = WindowFill(W, H, self.pix_quad, device)
@@ -236,6 +218,29 @@ class ShadowPass:
         self.taps = int(taps)
         for m in {id(m): m for m in (self.maps_full, self.maps_cluster, *self._twin.values())}.values():
             m.taps = m.ms.taps = self.taps
+
+    def _masked_sum(self, tile_px: int) -> MaskedSum:
+        """The masked sums of the receiver pixels, then every patch centre (lifted 1 mm), in culling cells of the
+        pixels of a patch in one tile_px x tile_px block (a centre is a cell of its own)."""
+        pix_pos, pix_rows, pix_bary, pix_patch, patches = self._points
+        P, W = patches.n_patches, self.width
+        rows = np.concatenate([np.maximum(pix_rows[self.recv], 0),
+                               self.n_recv_vert + np.repeat(np.arange(P)[:, None], 3, 1)])
+        bary = np.concatenate([pix_bary[self.recv], np.tile([1.0, 0.0, 0.0], (P, 1))])
+        pos = np.concatenate([pix_pos[self.recv], patches.centre + patches.normal * 1e-3])
+        group = np.concatenate([pix_patch[self.recv], np.arange(P)])
+        ty, tx = np.divmod(self.recv, W)
+        tile = np.concatenate([(ty // tile_px) * (W // tile_px + 1) + tx // tile_px, np.full(P, -1)])
+        return MaskedSum(pos, rows, bary, group, self.device, n_groups=P, max_maps=self.batch, tile=tile)
+
+    @property
+    def sums_source(self) -> MaskedSum:
+        """`sums`'s points in culling cells of TILE_SOURCE px: the frames with a map per source (run's per_source
+        with source_cells). Made on first use: the drag frame's shadow pass, whose frames have maps of clusters,
+        never makes it (a second set of points and cells, a few MB)."""
+        if self._sums_source is None:
+            self._sums_source = self._masked_sum(TILE_SOURCE)
+        return self._sums_source
 
     @property
     def hard_centres(self) -> bool:
@@ -309,43 +314,38 @@ class ShadowPass:
             ax = None if per_source or spread is None else spread[first:end]
             return maps, maps.prepare(eyes[first:end], None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
 
-        def draw(k: int, split: bool) -> tuple[ShadowMaps, int, tuple[Buffer, Buffer]]:
-            """aim(k), then its maps drawn (split over the cores, or in one launch: the side thread's work)
-            and its transfers and candidate flags uploaded (into set k % 2 when pipelined); (maps, n, buffers)."""
+        def draw(k: int, split: bool) -> tuple[ShadowMaps, int]:
+            """aim(k), then its maps drawn (split over the cores, or in one launch: the side thread's work)."""
             maps, n = aim(k)
             if split:
                 runtime.split(maps.raster, n, dev, min_items=1)
             else:
                 maps.raster(0, n)
-            bufs = self._batch_bufs[k % len(self._batch_bufs)]
-            if self.upload_aside:
-                upload(k, bufs)
-            return maps, n, bufs
+            return maps, n
 
-        def upload(k: int, bufs: tuple[Buffer, Buffer]) -> None:
-            """Batch k's transfers and candidate flags into `bufs`."""
+        def upload(k: int) -> None:
+            """Batch k's transfers and candidate flags into the batch buffers (weights, cand)."""
             first, end = firsts[k], ends[k]
             cols = None if perm is None else perm[first:end]
-            self.upload_batch(cand, W_pix, W_c, first, end - first, cen, cols, bufs)
+            self.upload_batch(cand, W_pix, W_c, first, end - first, cen, cols)
 
         nxt = draw(0, True) if firsts else None
         for k in tqdm(range(len(firsts)), desc="shadow passes", unit="batch", leave=False,
                       disable=self.quiet or n_src <= 4 * self.batch or not sys.stderr.isatty()):
-            self.maps, n, (w_buf, c_buf) = nxt
+            self.maps, n = nxt
             first = firsts[k]
             drawing = None
-            if k + 1 < len(firsts) and self.pipelined:  # the next batch: its maps aimed and drawn, its transfers
-                drawing = runtime.background(functools.partial(draw, k + 1, False))  # uploaded, on the side thread
+            if k + 1 < len(firsts) and self.pipelined:  # the next batch: its maps aimed and drawn on the side thread
+                drawing = runtime.background(functools.partial(draw, k + 1, False))
             try:
                 if ring is not None and first == hard and hard > 0:  # the first weak batch
                     strong = sums.result()[0]
                     sums.select(sel_weak)
-                if not self.upload_aside:
-                    upload(k, (w_buf, c_buf))
-                sums.prepare(self.maps, n, 0, c_buf.dev,
+                upload(k)
+                sums.prepare(self.maps, n, 0, self.cand.dev,
                              split=lambda launch, m: runtime.split(launch, m, dev, min_items=1024))
                 # both cores, cut where the (point, map) pairs are halved: the cells near the object list most maps
-                runtime.run([lambda a=a, b=b: sums.accumulate(self.maps, 0, w_buf.dev, a, b)
+                runtime.run([lambda a=a, b=b: sums.accumulate(self.maps, 0, self.weights.dev, a, b)
                              for a, b in sums.balanced(runtime.parts(dev, sums.n, min_items=2048))])
             finally:  # joined before the pause: nothing runs while refine() holds the frame
                 if drawing is not None:
@@ -619,15 +619,13 @@ class ShadowPass:
         return pix_pt, fill_pt, cen
 
     def upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int,
-                      cen: np.ndarray, cols: np.ndarray | None = None,
-                      bufs: tuple[Buffer, Buffer] | None = None) -> None:
-        """Sources first..first+n-1's transfers and candidate flags into the batch buffers (bufs: (transfers,
-        flags), default (self.weights, self.cand); cols: the passes' columns instead, n of them, e.g. run's
-        perm). Of the
+                      cen: np.ndarray, cols: np.ndarray | None = None) -> None:
+        """Sources first..first+n-1's transfers and candidate flags into the batch buffers (weights, cand); cols:
+        the passes' columns instead, n of them, e.g. run's perm). Of the
         patch-centre rows only those of the frame's centres `cen` that are candidates of some source
         of the batch: the masked sums read no other (a centre's list holds its candidates only)."""
         Vr = self.n_recv_vert
-        wb, cb = bufs or (self.weights, self.cand)
+        wb, cb = self.weights, self.cand
         w = wb.host
         if cols is None:
             w[:Vr, :n] = W_pix[:, first:first + n]

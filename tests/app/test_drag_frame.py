@@ -89,6 +89,22 @@ def test_overlapped_drag_frame_is_the_sequential_one_bit_for_bit(demo_engine):
     assert kinds.count(LateMasks) == 8 and len(kinds) == 12  # the overlapped frames took the overlapped path
 
 
+def test_drag_frames_make_no_per_source_sums(demo_engine):
+    # the per-source frames' masked sums (ShadowPass.sums_source: culling cells of TILE_SOURCE px) are made on
+    # the first frame with a map per source: the drag frames' shadow pass, whose maps stand for clusters, never
+    # makes them; the all-sources frame at rest does, and its masks read the same points in fewer cells
+    from app.engine import FrameConfig
+
+    scene, eng = demo_engine
+    eng.render(scene.obj, FrameConfig(passes=10, drag=2))
+    drag_sp = eng._drag[2].shadow_pass
+    assert drag_sp._sums_source is None
+    eng.render(scene.obj, FrameConfig(passes=None))
+    assert drag_sp._sums_source is None
+    made = eng.shadow_pass._sums_source
+    assert made is not None and made.size == eng.shadow_pass.sums.size
+    assert made.n_cells < eng.shadow_pass.sums.n_cells
+
 def test_drag_compose_kernel_matches_its_reference(demo_engine):
     # kernels.drag_compose against DragStages.finish_reference (numpy, float32 ratio): the 8-bit frame
     # within 1 level (the two round a ratio computed in float64 and float32), radiance within 1e-4 relative

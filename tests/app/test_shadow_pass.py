@@ -386,10 +386,10 @@ def _order_and_half_size_maps(scene, eng, sp):
     np.testing.assert_allclose(got.O_pix, a.O_pix + b.O_pix, rtol=1e-5, atol=1e-6 * np.abs(ref.O_pix).max())
 
 
-def test_side_thread_upload_and_column_gather_give_the_same_masks(demo):
-    # the all-sources frame's batches take scattered columns (order): gathered by kernels.gather, on the
-    # rendering thread or on the side thread with the next batch's maps (upload_aside), the masks are bitwise
-    # those of numpy's gather on the rendering thread, each batch drawn and summed in turn
+def test_pipelined_batches_and_column_gather_give_the_same_masks(demo):
+    # the all-sources frame's batches take scattered columns (order): gathered by kernels.gather, with the next
+    # batch's maps drawn on the side thread (pipelined) or not, the masks are bitwise those of numpy's gather,
+    # each batch drawn and summed in turn
     scene, eng = demo
     sp = eng.shadow_pass
     pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
@@ -397,16 +397,15 @@ def test_side_thread_upload_and_column_gather_give_the_same_masks(demo):
     S = len(fs.eyes)
     assert S > 2 * sp.batch
     order = (np.random.default_rng(7).permutation(S), S // 2)
-    gather, defaults = sp._gather, (sp._gather, sp.upload_aside, sp.pipelined)
+    gather, defaults = sp._gather, (sp._gather, sp.pipelined)
     assert gather is not None  # the CPU device
     out = []
     try:
-        for g, aside, pipelined in ((None, False, False), (gather, True, True), (gather, False, True),
-                                    (None, True, True), (gather, True, False)):
-            sp._gather, sp.upload_aside, sp.pipelined = g, aside, pipelined
+        for g, pipelined in ((None, False), (gather, True), (None, True), (gather, False)):
+            sp._gather, sp.pipelined = g, pipelined
             out.append(_masks(sp, (pv, pf, occ), centre, radius, cov, fs, order=order))
     finally:
-        sp._gather, sp.upload_aside, sp.pipelined = defaults
+        sp._gather, sp.pipelined = defaults
     assert np.abs(out[0].O_pix).sum() > 0 and np.abs(out[0].O_cen).sum() > 0
     for m in out[1:]:
         np.testing.assert_array_equal(m.pix_sel, out[0].pix_sel)

@@ -115,3 +115,46 @@ def test_store_round_trip_and_no_foreign_classes(tmp_path):
         artefact_cache.load(tmp_path / "evil.npz")
     built, hit = artefact_cache.cached(tmp_path / "evil.npz", lambda: {"rebuilt": 1})
     assert not hit and built == {"rebuilt": 1} and artefact_cache.load(tmp_path / "evil.npz") == {"rebuilt": 1}
+
+
+def test_probe_response_is_recovered_once_per_bracket(tmp_path, monkeypatch):
+    # photo light's response from the probe bracket (lighting.photolight.recover_response, seconds a run) is cached
+    # keyed by the bracket's files and times: a second run reads it (the same table, no fit), a changed image or
+    # exposure time fits again; the table recovered is the scene's true inverse response in shape (within 5 %
+    # over levels 20-235, as tests/lighting/test_photoalbedo.py checks the uncached one)
+    import shutil
+
+    import cv2
+
+    from lighting import hdr
+    from lighting import photolight as PL
+    from tests.conftest import shared_scene
+
+    src = shared_scene("window_room")
+    calls = []
+    fit = PL.recover_response
+    monkeypatch.setattr(PL, "recover_response", lambda f, t: calls.append(1) or fit(f, t))
+    files, times, sj = hdr.scene_probe_files(src)
+    (tmp_path / "cache").mkdir()
+    recover = stage.cached_probe_response(tmp_path / "cache", load_scene(src))
+    g1 = recover(files, times)
+    g2 = recover(files, times)
+    assert len(calls) == 1 and np.array_equal(g1, g2) and g1.shape == (256, 3)
+    true_inv = np.asarray(sj["camera_response"]["inverse_table"], float)
+    lv = np.arange(20, 236)
+    shape = (g1.T[:, lv] / g1.T[:, 128:129]) / (true_inv[:, lv] / true_inv[:, 128:129])
+    assert np.abs(shape - 1).max() < 0.05
+    # a changed image of the bracket (one pixel a level brighter) and a changed exposure time: each a miss
+    moved = [tmp_path / f.name for f in files]
+    for f, m in zip(files, moved):
+        shutil.copy(f, m)
+    img = cv2.imread(str(moved[0]), cv2.IMREAD_UNCHANGED)
+    img[0, 0, 0] = min(int(img[0, 0, 0]) + 1, 254) if img[0, 0, 0] < 255 else 254
+    cv2.imwrite(str(moved[0]), img)
+    recover(moved, times)
+    assert len(calls) == 2
+    recover(files, [t * 1.01 for t in times])
+    assert len(calls) == 3
+    recover(files, times)
+    assert len(calls) == 3
+    assert len(list((tmp_path / "cache").glob("*-response-*.npz"))) == 3
