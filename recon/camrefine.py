@@ -117,6 +117,7 @@ class Refinement:
     chamfer_after_px: float  # ... at the refined camera
     seconds: float
     principal_point: str = ""  # how the principal point was modelled (recon/campp.py); "" when held as given
+    edge_tau_px: float | None = None  # edge_synth: the per-edge error tau measured on the photo (edge_tau)
     covariance: object = dataclasses.field(default=None, repr=False)  # the fit's camera-parameter covariance
     # (camera_covariance), its parameters `x` and `camera_at(x)` -> Camera: the refined fit's own uncertainty
     x: object = dataclasses.field(default=None, repr=False)
@@ -746,6 +747,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
                          f_scale=ROBUST_SIGMAS)
             return model.camera(res.x)
     return dataclasses.replace(r, principal_point=note, x=best.x, covariance=camera_covariance(best.res),
+                               edge_tau_px=best.tau,
                                camera_at=model.camera, without_edge=without, edge_ids=ids)
 
 
