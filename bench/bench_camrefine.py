@@ -148,9 +148,7 @@ def main() -> None:
             jk = e["jackknife"]
             print(f"  {v or 'default'}: {_fmt(e)} (fit's own 1 sigma {e['object_std_px']:.2f} px"
                   + (f"; edge jackknife 1 sigma {jk[0]:.2f} px, edge {jk[2]} alone moves it {jk[1]:.2f} px"
-                     if np.isfinite(jk[0]) else "")
-                  + (f"; edge tau {e['refinement']['edge_tau_px']:.2f} px"
-                     if e["refinement"].get("edge_tau_px") is not None else "") + ")"
+                     if np.isfinite(jk[0]) else "") + ")"
                   f"{'' if e['accepted'] else ' (kept: ' + e['reason'] + ')'}"
                   f" [{e['seconds']:.1f} s]", flush=True)
             if a.true:

@@ -91,8 +91,6 @@ CENTRE_STEP_PX = 4.0  # the centre search's grid step, as the motion of an edge 
 # the coarse stage's 2 px final match radius, so the grid's best point is within the ICP's reach
 CENTRE_HYPOTHESES = 3  # the centre search's best local minima refined besides the input camera: each costs
 # one fit; three leave room for the true basin when texture basins score better on the grid's coarse residual
-EDGE_SYNTH = ("off", "tau", "tau_nolean")  # refine_camera(edge_synth=...): the profile stage's per-edge variances
-CHI2_1_MEDIAN = 0.4549  # the median of a chi-square of 1 degree of freedom: the robust moment tau is solved from
 MIN_LINE_DIRECTIONS_DEG = 20.0  # the samples' 3D edges must span two directions at least this far apart
 
 
@@ -117,7 +115,6 @@ class Refinement:
     chamfer_after_px: float  # ... at the refined camera
     seconds: float
     principal_point: str = ""  # how the principal point was modelled (recon/campp.py); "" when held as given
-    edge_tau_px: float | None = None  # edge_synth: the per-edge error tau measured on the photo (edge_tau)
     covariance: object = dataclasses.field(default=None, repr=False)  # the fit's camera-parameter covariance
     # (camera_covariance), its parameters `x` and `camera_at(x)` -> Camera: the refined fit's own uncertainty
     x: object = dataclasses.field(default=None, repr=False)
@@ -182,7 +179,6 @@ class _Occluder:
         F = np.concatenate([np.array([[0, 1, 2], [0, 2, 3]]) + 4 * i for i in range(len(faces))]).astype(np.uint32)
         self.scene = o3d.t.geometry.RaycastingScene()
         self.scene.add_triangles(o3d.core.Tensor(V), o3d.core.Tensor(F))
-        self.n_faces = len(faces)  # triangle i belongs to face i // 2 (recon/edgesynth's face labels)
 
     def visible(self, centre: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """(N,) bool: nothing of the room lies between `centre` and each point (a point on a surface
@@ -441,11 +437,10 @@ class _Fit:
     sigma: np.ndarray  # (used,) noise of each used sample, px
     start: str = "input"
     data: tuple | None = None  # the last solve's data (samples, matched edge points, sigma, edge_var): campp.select
-    tau: float | None = None  # edge_synth: the per-edge error measured on the photo, px
 
 
 def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines,
-         fine_stage: str = "profiles", edge_synth: str = "off") -> _Fit:
+         fine_stage: str = "profiles") -> _Fit:
     """ICP on the oriented Canny edges over the match radii `radii`, then the sub-pixel stage, from
     parameters x: the sub-pixel stage's fit (res None when it did not run)."""
     S = _sample_edges(model.camera(x), edges, occ)
@@ -464,7 +459,7 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
         res = _solve(model, x, sub, q[ok], COARSE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
     fine = _line_stage(model, x, edges, occ, photo, lines) if fine_stage == "lines" else \
-        _profile_stage(model, x, edges, occ, photo, lines, edge_synth)
+        _profile_stage(model, x, edges, occ, photo, lines)
     if fine is not None:
         return fine
     # no sub-pixel stage: res None (the guard reports too few edges, as for any fit that found too few)
@@ -472,12 +467,8 @@ def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lin
     return _Fit(x, None, S, np.zeros(len(S.X), bool), np.zeros(0), np.zeros(0))
 
 
-def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines,
-                   edge_synth: str = "off") -> _Fit | None:
-    """The per-sample sub-pixel stage (edgesnap's centroid at every sample), three rounds. With edge_synth
-    "tau" / "tau_nolean" each round weighs each edge as one measurement of variance (_synth_tau_fit):
-    the grain's scatter of its median predicted by the synthetic photo at that round's camera
-    (recon/edgesynth.py) plus the photo's own per-edge error tau^2; "tau" also subtracts the predicted lean."""
+def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines) -> _Fit | None:
+    """The per-sample sub-pixel stage (edgesnap's centroid at every sample), three rounds."""
     S = _sample_edges(model.camera(x), edges, occ)
     fine = None
     for _ in range(3):
@@ -485,89 +476,16 @@ def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, 
             break
         uv, n = _project(model.camera(x), S)
         q, ok = photo.subpixel(uv, n)
-        scat = None
-        if edge_synth != "off":  # the synthetic rendered at this round's camera, so its true edges lie at uv
-            from recon.edgesynth import EdgeSynth, edge_leans_and_scatter
-
-            lean, scat = edge_leans_and_scatter(EdgeSynth(model.camera(x), occ, occ.n_faces, photo.image),
-                                                photo.fine.near_clip, uv, n, S.edge)
-            if edge_synth == "tau":
-                d = np.array([lean.get(int(e), 0.0) for e in S.edge])
-                q = np.where(ok[:, None], q - d[:, None] * n, q)
         ok &= _exclusive(uv, n, S.edge, q)
         if ok.sum() < MIN_SAMPLES:
             break
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        if scat is None:
-            res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
-            data = (sub, q[ok], FINE_SIGMA_PX, None)
-        else:
-            res, v, tau = _synth_tau_fit(model, x, sub, q[ok], scat, lines)
-            data = (sub, q[ok], FINE_SIGMA_PX, v)
+        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
         uv1, n1 = _project(model.camera(x), sub)
         fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX),
-                    data=data, tau=None if scat is None else tau)
+                    data=(sub, q[ok], FINE_SIGMA_PX, None))
     return fine
-
-
-def edge_tau(m: np.ndarray, v: np.ndarray, n_params: int) -> float:
-    """px: the per-edge error tau shared by an edge's samples beyond its predicted noise, from the edges'
-    offsets m (E,) px at the fitted camera and each one's predicted noise variance v (E,) px^2: the tau at
-    which the median of m^2 / (v + tau^2), inflated by E / (E - n_params) for the offsets the fit itself
-    absorbed (REML's degrees of freedom), equals the median of a chi-square of 1 dof (a median, not a mean:
-    a few edges far off, furniture or a wrong match, must not set every edge's weight). 0 when the predicted
-    noise already explains the offsets; solved by bisection (the left side falls as tau grows)."""
-    m2, v = np.asarray(m, float) ** 2, np.asarray(v, float)
-    E = len(m2)
-    if E <= n_params:
-        return float(np.sqrt(np.median(m2) / CHI2_1_MEDIAN))
-    c = E / (E - n_params)
-
-    def g(t2: float) -> float:
-        return c * np.median(m2 / (v + t2)) - CHI2_1_MEDIAN
-
-    if g(0.0) <= 0:
-        return 0.0
-    lo, hi = 0.0, float(np.max(m2)) / CHI2_1_MEDIAN * c + 1e-12
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if g(mid) > 0 else (lo, mid)
-    return float(np.sqrt(0.5 * (lo + hi)))
-
-
-def _synth_tau_fit(model: _Model, x: np.ndarray, sub: _Samples, q: np.ndarray, scat: dict, lines,
-                   rounds: int = 4):
-    """The fit with each edge one measurement of variance scat_e^2 + tau^2 (scat_e: the synthetic's predicted
-    grain scatter of the edge's median, px, which holds the samples' own noise sig^2 / n_e that the "model"
-    weighting adds back, so that part is taken out of it; an edge the synthetic did not find gets the median
-    of the found edges' scatter: a typical edge), tau measured on the photo (edge_tau) from the edges' median
-    offsets at the fitted camera and re-fitted until it changes by under 10 % (REML-style iteration).
-    Returns (least-squares result, per-sample edge variance px^2 without the sample noise, tau px)."""
-    ids, inv, cnt = np.unique(sub.edge, return_inverse=True, return_counts=True)
-    s = np.array([scat.get(int(e), np.nan) for e in ids])
-    fill = np.nanmedian(s) if np.isfinite(s).any() else EDGE_MODEL_SIGMA_PX
-    s2 = np.where(np.isfinite(s), s, fill) ** 2  # (E,) predicted variance of each edge's median, px^2
-    own = np.maximum(s2 - FINE_SIGMA_PX ** 2 / cnt, 0.0)  # less the samples' noise the weighting adds back
-    n_params = model.n
-
-    def offsets(xx):
-        uv, n = _project(model.camera(xx), sub)
-        r = np.sum(n * (q - uv), axis=1)
-        return np.array([np.median(r[inv == k]) for k in range(len(ids))])
-
-    tau = edge_tau(offsets(x), s2, n_params)  # at the round's start: the camera's own error counts as edges'
-    res = None
-    for _ in range(rounds):
-        v = (own + tau ** 2)[inv]
-        res = _solve(model, x, sub, q, FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS, edge_var=v, weighting="model")
-        t1 = edge_tau(offsets(res.x), s2, n_params)
-        done = abs(t1 - tau) <= 0.1 * max(tau, 1e-3)
-        tau = t1
-        if done:
-            break
-    v = (own + tau ** 2)[inv]
-    return res, v, tau
 
 
 def _line_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines) -> _Fit | None:
@@ -673,7 +591,7 @@ PP_MODELS = ("select", "free", "held")  # a principal point from three vanishing
 
 
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
-                  fine_stage: str = "profiles", principal_point: str = "select", edge_synth: str = "off") -> Refinement:
+                  fine_stage: str = "profiles", principal_point: str = "select") -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
     module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
@@ -682,19 +600,13 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     calibrate's prior, PP_PRIOR_REL): see docs/unseen.md for where each does better.
     principal_point (used when calibrate took it from three vanishing points; else it is held as given):
     "select" (the default: fitted held at the image centre, freed only when the room's edges and the
-    clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre).
-    edge_synth (profile stage only): "off" (the default), "tau" or "tau_nolean": each edge weighed as one
-    measurement whose variance is the synthetic photo's predicted grain scatter plus a per-photo tau^2
-    measured from the edges' residuals, with ("tau") or without the predicted lean subtracted
-    (_profile_stage; docs/unseen.md for what it does in the unseen rooms)."""
+    clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre)."""
     from recon import campp
 
     if fine_stage not in FINE_STAGES:
         raise ValueError(f"fine_stage: expected one of {FINE_STAGES}, got {fine_stage!r}")
     if principal_point not in PP_MODELS:
         raise ValueError(f"principal_point: expected one of {PP_MODELS}, got {principal_point!r}")
-    if edge_synth not in EDGE_SYNTH:
-        raise ValueError(f"edge_synth: expected one of {EDGE_SYNTH}, got {edge_synth!r}")
     t0 = time.time()
     image = np.asarray(image)
     if image.shape[:2] != (cam.height, cam.width):
@@ -708,8 +620,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     # triangle moves far with a distant vanishing point): it is held at the image centre or refined
     # (principal_point); the image centre (calibrate's default) or a given one is held
     pp3 = (camera_json or {}).get("principal_point_from") == "three vanishing points"
-    stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage,
-             "edge_synth": edge_synth}
+    stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage}
     note = "refined (calibrate's, from three vanishing points)" if pp3 else ""
     if pp3 and principal_point != "free":
         held = _Model(campp.at_image_centre(cam), free_pp=False)
@@ -724,8 +635,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
                 return _solve(m, x0, sub, q, sig, lines, f_scale=ROBUST_SIGMAS, edge_var=edge_var, weighting="model")
 
             best, model, note = campp.select(held, free, best, solve,
-                                             lambda m, x: fine(m, x, edges, occ, photo, lines, *(
-                                                 [edge_synth] if fine is _profile_stage else [])))
+                                             lambda m, x: fine(m, x, edges, occ, photo, lines))
     else:
         model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
         best = _search(model, **stage)
@@ -747,12 +657,10 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
                          f_scale=ROBUST_SIGMAS)
             return model.camera(res.x)
     return dataclasses.replace(r, principal_point=note, x=best.x, covariance=camera_covariance(best.res),
-                               edge_tau_px=best.tau,
                                camera_at=model.camera, without_edge=without, edge_ids=ids)
 
 
-def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str,
-            edge_synth: str = "off") -> _Fit | None:
+def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str) -> _Fit | None:
     """The best fit of `model` over its starts (None when no start's sub-pixel stage ran): the input
     camera (model.cam0) with the full coarse schedule, and the centre search's best minima."""
     cam = model.cam0
@@ -764,8 +672,7 @@ def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str
     grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
     starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for x0 in _centre_search(cam, S0, photo)]
     # each start's sub-pixel fit (a start whose sub-pixel stage did not run is dropped)
-    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage, edge_synth),
-                                start="input" if i == 0
+    fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage), start="input" if i == 0
                                 else "centre search") for i, (x0, radii) in enumerate(starts)]
     fits = [f for f in fits if f.res is not None]
     if not fits:

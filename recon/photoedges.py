@@ -24,7 +24,6 @@ class PhotoEdges:
         from recon.edgesnap import EdgeImage
 
         img = np.asarray(image)
-        self.image = img  # the photo (recon/edgesynth.py renders the room's edges from its per-face levels)
         self.fine = EdgeImage(img)  # linear gray gradient, clipped-pixel mask (raises on a non-8-bit image)
         gray = cv2.cvtColor(img[:, :, :3], cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
         g = cv2.GaussianBlur(gray, (0, 0), 1.0)
