@@ -166,3 +166,36 @@ def test_sun_room_drag_tables_match_the_exact_object(shared_room):
     assert abs((L_t[dark] @ lum).mean() / (L_x[dark] @ lum).mean() - 1.0) <= 0.20
     e_x, e_t = sr.score(exact.pixels)["energy_ratio"], sr.score(drag.pixels)["energy_ratio"]
     assert abs(e_t - e_x) <= 0.02
+
+
+def test_unseen_torus_contact_shadow_within_the_bound(shared_scenes_cache):
+    # lamps_102 (bench/bench_unseen.py's room, rendered by ../shared/tools/roomgen.py into $PHOTOAR_ROOMS or
+    # ~/.cache/photoar/rooms; skipped where it is not rendered): a torus lit by lamps, its shadow mostly the contact
+    # band along its outline. The drag frame's cluster maps at 64 px (128 / 3) leaked light into that band:
+    # rmse_affected 5.37 against issue 36's bound 5.03 (all sources 3.02); at the per-source map's size at 1/3
+    # (app.dragframe.drag_map_res: 85 px) 4.01
+    import os
+    from pathlib import Path
+
+    import cv2
+
+    from app.dragframe import drag_map_res
+    from app.engine import Engine, EngineParams, FrameConfig
+    from app.evaluate import DRAG_PASSES, DRAG_SCALE
+    from lighting import metrics
+    from recon.io import read_image_rgb
+    from recon.scene import load_scene
+
+    d = Path(os.environ.get("PHOTOAR_ROOMS", Path.home() / ".cache" / "photoar" / "rooms")) / "lamps_102"
+    if not (d / "scene.json").is_file():
+        pytest.skip(f"unseen room {d} not rendered (bench/bench_unseen.py --render)")
+    scene = load_scene(d)
+    eng = Engine(scene, EngineParams(), cache_dir=shared_scenes_cache, quiet=True)
+    truth = read_image_rgb(d / "truth.png")
+    mask = cv2.imread(str(d / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+    s_all = metrics.score_regions(eng.render(scene.obj, FrameConfig(passes=None)).pixels, scene.photo, truth, mask)
+    drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
+    assert eng.pixel_stages(DRAG_SCALE).shadow_pass.maps_cluster.res == drag_map_res(DRAG_SCALE, eng.params.shadow.map_res)
+    s_drag = metrics.score_regions(drag.pixels, scene.photo, truth, mask)
+    assert s_drag["rmse_affected"] <= 1.5 * s_all["rmse_affected"] + 0.5, (s_drag, s_all)
+    assert 0.93 <= s_drag["energy_ratio"] <= 1.07, s_drag
