@@ -73,6 +73,17 @@ DRAG_ROOM_CELLS = 1
 DRAG_PCSS_TAPS = 3
 
 
+# The drag frame's shadow pass sums every receiver pixel exactly within this many bounding radii of the object
+# (ShadowPass.graded_near; 1 at rest: within the bounding sphere a receiver may touch the object), the graded
+# lattice beyond. The lattice's squares (spacing 8, 4, 2 working pixels) are filled where their corners agree;
+# at 1/s a square spans s times as many full pixels, so a small object's hard shadow beyond its bounding sphere
+# (a lamp's, near the contact) can fall between four lit corners and vanish: lamps_101's box at 1/3, rmse_affected
+# 4.71 against its bound 1.74, 1.32 exact within 2 radii. 2 is the frames at rest's per-pixel reach of the
+# object's light (ObjectConfig.near_factor) and of their weak passes' fine lattice (ShadowPass.weak_far)
+# (docs/benchmarks.md "lamps_102's drag row")
+DRAG_GRADED_NEAR = 2.0
+
+
 # (A frame with a map per source, when the room has no more sources than the passes, takes the same size.)
 
 
@@ -154,6 +165,7 @@ class DragStages:
             self.object_light.room_cells = DRAG_ROOM_CELLS
             self.object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (app.stages.object_light.FarGroups)
             self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
+            self.shadow_pass.graded_near = DRAG_GRADED_NEAR
         self.shape = (cam.height, cam.width)
         self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object
         self.zero_rad = np.zeros((*self.shape, 3), np.float32)
