@@ -121,8 +121,11 @@ def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     eng.drag_object_tables = False  # the object shaded as at rest: the frames below and their bound
     drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
     eng.drag_object_tables = True
-    # shaded as at rest, the object's own pixels are the full frame's
-    assert np.abs(drag.pixels[inside].astype(int) - same.pixels[inside]).max() <= 1
+    # shaded as at rest, the object's own pixels are the full frame's within rounding, but for the room's shadow at
+    # the patch centres that lights them, read from the drag frame's maps (85 px at 1/3, app.dragframe.drag_map_res;
+    # the full frame's 128): on lamps_room 7 of 8452 pixels 2 levels off, none more
+    d_obj = np.abs(drag.pixels[inside].astype(int) - same.pixels[inside]).max(1)
+    assert d_obj.max() <= 2 and np.mean(d_obj > 1) <= 1e-3
     # where the drag frame moves a pixel by more than 2 levels, the full-resolution frame moves it or a pixel
     # within 2 working pixels (the bilinear footprint) by more than half a level
     moved = (np.abs(same.pixels.astype(int) - scene.photo).max(2) > 0.5).astype(np.uint8)
