@@ -32,11 +32,14 @@ from recon.camera import Camera
 from recon.scene import Scene
 
 
-# Cluster-map size of the drag frame at 1/s resolution: CLUSTER_MAP_RES (128, the full frame's) over s,
-# at least 64: a map texel then spans about as many working pixels as at full resolution, so the
-# coarse frame resolves the same shadow detail per pixel; 64 is the smallest size whose penumbra
-# filter (kernels.masked_sums.penumbra) keeps the clusters' soft shadows smooth
-# (bench/bench_drag.py: 1/2 resolution, 64 and 128 px maps score alike on the shared rooms).
+# Cluster-map size of the drag frame at 1/s resolution: the size a map per source gets at 1/s (ShadowConfig.map_res,
+# 256, over s), at least 64, not the frames at rest's cluster size (CLUSTER_MAP_RES 128) over s. Where the object
+# touches a receiver every penumbra shrinks to nothing (PCSS: width ~ (d_receiver - d_blocker) / d_blocker), so a
+# cluster's contact shadow is as hard as one source's, and it meets the object's outline, which the drag frame draws
+# at full resolution; 128 / s px maps (64 at 1/3) leaked light into the contact band of lamps_102's torus (the drag
+# row +3.2 levels brighter than the all-sources frame within 3 px of the outline; rmse_affected 5.37 against its
+# bound 5.03; docs/benchmarks.md "lamps_102's drag row"). 64 is the smallest size whose penumbra filter
+# (kernels.masked_sums.penumbra) keeps the clusters' soft shadows smooth.
 MIN_DRAG_MAP_RES = 64
 
 
@@ -70,15 +73,24 @@ DRAG_ROOM_CELLS = 1
 DRAG_PCSS_TAPS = 3
 
 
-# (A frame with a map per source, when the room has no more sources than the passes, takes the same rule
-# from the full frame's map size: max(MIN_DRAG_MAP_RES, map_res / s).)
+# The drag frame's shadow pass sums every receiver pixel exactly within this many bounding radii of the object
+# (ShadowPass.graded_near; 1 at rest: within the bounding sphere a receiver may touch the object), the graded
+# lattice beyond. The lattice's squares (spacing 8, 4, 2 working pixels) are filled where their corners agree;
+# at 1/s a square spans s times as many full pixels, so a small object's hard shadow beyond its bounding sphere
+# (a lamp's, near the contact) can fall between four lit corners and vanish: lamps_101's box at 1/3, rmse_affected
+# 4.71 against its bound 1.74, 1.32 exact within 2 radii. 2 is the frames at rest's per-pixel reach of the
+# object's light (ObjectConfig.near_factor) and of their weak passes' fine lattice (ShadowPass.weak_far)
+# (docs/benchmarks.md "lamps_102's drag row")
+DRAG_GRADED_NEAR = 2.0
 
 
-def drag_map_res(scale: int) -> int:
-    """The drag frame's cluster-map size at 1/scale resolution (MIN_DRAG_MAP_RES's rule)."""
-    from app.stages.shadow_pass import CLUSTER_MAP_RES
+# (A frame with a map per source, when the room has no more sources than the passes, takes the same size.)
 
-    return max(MIN_DRAG_MAP_RES, CLUSTER_MAP_RES // scale)
+
+def drag_map_res(scale: int, map_res: int) -> int:
+    """The drag frame's map size at 1/scale resolution, for clusters and single sources alike, from the full
+    frame's map size per source map_res (px; MIN_DRAG_MAP_RES's rule): max(64, map_res // scale)."""
+    return max(MIN_DRAG_MAP_RES, map_res // scale)
 
 
 def coarse_camera(cam: Camera, s: int) -> Camera:
@@ -109,7 +121,7 @@ class DragStages:
     room's change back to full resolution. Made once per scale, on the first drag frame at it."""
 
     def __init__(self, engine, scale: int, map_res: int | None = None, plain: bool = False):
-        """map_res: the drag frame's cluster map size (default: drag_map_res(scale)); plain: the frames at
+        """map_res: the drag frame's cluster map size (default: drag_map_res(scale, the shadow's map_res)); plain: the frames at
         rest's cluster key and object-light reach (no near split, ObjectConfig.near_factor; the drag frame
         before they were chosen, bench/bench_drag.py's A/B)."""
         from app.stages.compose import ComposeStage
@@ -138,8 +150,8 @@ class DragStages:
         pm, sh, oc = pre.patches, p.shadow, p.object
         self.shadow_pass = ShadowPass(r.pix_pos, r.pix_rows, pre.pix_bary, r.pix_patch, r.recv_pix, pm,
                                       len(pre.recv_vert), cam.width, cam.height, sh.batch,
-                                      max(MIN_DRAG_MAP_RES, sh.map_res // s), dev, quiet=True,
-                                      cluster_map_res=map_res or drag_map_res(s))
+                                      drag_map_res(s, sh.map_res), dev, quiet=True,
+                                      cluster_map_res=map_res or drag_map_res(s, sh.map_res))
         self.compose = ComposeStage(L_b=r.L_b, L_b_levels=r.L_b_levels, E_x=r.E_x, rho_x=r.rho_x, recv_pix=r.recv_pix,
                                     pix_rows=r.pix_rows, pix_bary=pre.pix_bary, photo=sc.photo,
                                     response=sc.response, G_v=pre.G_v, E_v=r.E_v, recv_vert=pre.recv_vert,
@@ -153,6 +165,7 @@ class DragStages:
             self.object_light.room_cells = DRAG_ROOM_CELLS
             self.object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (app.stages.object_light.FarGroups)
             self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
+            self.shadow_pass.graded_near = DRAG_GRADED_NEAR
         self.shadow_pass.overlap = True  # its finer spacings summed while the object stages run (ShadowPass.overlap)
         self.shape = (cam.height, cam.width)
         self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object

@@ -178,8 +178,11 @@ def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     eng.drag_object_tables = False  # the object shaded as at rest: the frames below and their bound
     drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
     eng.drag_object_tables = True
-    # shaded as at rest, the object's own pixels are the full frame's
-    assert np.abs(drag.pixels[inside].astype(int) - same.pixels[inside]).max() <= 1
+    # shaded as at rest, the object's own pixels are the full frame's within rounding, but for the room's shadow at
+    # the patch centres that lights them, read from the drag frame's maps (85 px at 1/3, app.dragframe.drag_map_res;
+    # the full frame's 128): on lamps_room 7 of 8452 pixels 2 levels off, none more
+    d_obj = np.abs(drag.pixels[inside].astype(int) - same.pixels[inside]).max(1)
+    assert d_obj.max() <= 2 and np.mean(d_obj > 1) <= 1e-3
     # where the drag frame moves a pixel by more than 2 levels, the full-resolution frame moves it or a pixel
     # within 2 working pixels (the bilinear footprint) by more than half a level
     moved = (np.abs(same.pixels.astype(int) - scene.photo).max(2) > 0.5).astype(np.uint8)
@@ -223,3 +226,41 @@ def test_sun_room_drag_tables_match_the_exact_object(shared_room):
     assert abs((L_t[dark] @ lum).mean() / (L_x[dark] @ lum).mean() - 1.0) <= 0.20
     e_x, e_t = sr.score(exact.pixels)["energy_ratio"], sr.score(drag.pixels)["energy_ratio"]
     assert abs(e_t - e_x) <= 0.02
+
+
+@pytest.mark.parametrize("name", ["lamps_102", "lamps_101"])
+def test_unseen_lamp_rooms_drag_frame_within_the_bound(shared_scenes_cache, name):
+    # unseen rooms (bench/bench_unseen.py's, rendered by ../shared/tools/roomgen.py into $PHOTOAR_ROOMS or
+    # ~/.cache/photoar/rooms; skipped where not rendered), objects on the floor under lamps, issue 36's bound.
+    # lamps_102, a torus whose shadow is mostly the contact band along its outline: the drag frame's cluster maps
+    # at 64 px (128 / 3) leaked light into that band, rmse_affected 5.37 against the bound 5.03 (all sources 3.02);
+    # at the per-source map's size at 1/3 (app.dragframe.drag_map_res: 85 px) 4.01. lamps_101, a small box: its
+    # lamp's hard shadow beyond the bounding sphere fell between the graded lattice's corners at 1/3, 4.71 against
+    # 1.74; exact within 2 radii (app.dragframe.DRAG_GRADED_NEAR) 1.32
+    import os
+    from pathlib import Path
+
+    import cv2
+
+    from app.dragframe import DRAG_GRADED_NEAR, drag_map_res
+    from app.engine import Engine, EngineParams, FrameConfig
+    from app.evaluate import DRAG_PASSES, DRAG_SCALE
+    from lighting import metrics
+    from recon.io import read_image_rgb
+    from recon.scene import load_scene
+
+    d = Path(os.environ.get("PHOTOAR_ROOMS", Path.home() / ".cache" / "photoar" / "rooms")) / name
+    if not (d / "scene.json").is_file():
+        pytest.skip(f"unseen room {d} not rendered (bench/bench_unseen.py --render)")
+    scene = load_scene(d)
+    eng = Engine(scene, EngineParams(), cache_dir=shared_scenes_cache, quiet=True)
+    truth = read_image_rgb(d / "truth.png")
+    mask = cv2.imread(str(d / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
+    s_all = metrics.score_regions(eng.render(scene.obj, FrameConfig(passes=None)).pixels, scene.photo, truth, mask)
+    drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
+    sp = eng.pixel_stages(DRAG_SCALE).shadow_pass
+    assert sp.maps_cluster.res == drag_map_res(DRAG_SCALE, eng.params.shadow.map_res)
+    assert sp.graded_near == DRAG_GRADED_NEAR
+    s_drag = metrics.score_regions(drag.pixels, scene.photo, truth, mask)
+    assert s_drag["rmse_affected"] <= 1.5 * s_all["rmse_affected"] + 0.5, (s_drag, s_all)
+    assert 0.93 <= s_drag["energy_ratio"] <= 1.07, s_drag
