@@ -49,9 +49,10 @@ def test_drag_frame_leaves_the_frames_at_rest_unchanged(demo_engine):
 
 
 def test_overlapped_drag_frame_is_the_sequential_one_bit_for_bit(demo_engine):
-    # the drag frame's shadow pass sums its finer spacings on the side thread while the object stages run
-    # (ShadowPass.overlap, on in app.dragframe): every frame along a drag (pixels, radiance, room) is the one of
-    # the same shadow pass run in sequence, bit for bit, frames interleaved so that each starts after the other
+    # the drag frame's shadow pass can sum its finer spacings on the side thread while the object stages run
+    # (ShadowPass.overlap; off by default, app.dragframe.DRAG_OVERLAP): every frame along a drag (pixels,
+    # radiance, room) is the one of the same shadow pass run in sequence, bit for bit, frames interleaved so
+    # that each starts after the other
     from app.dragpath import drag_offsets, moved
     from app.engine import FrameConfig
     from app.stages.shadow_pass import LateMasks
@@ -60,7 +61,7 @@ def test_overlapped_drag_frame_is_the_sequential_one_bit_for_bit(demo_engine):
     cfg = FrameConfig(passes=50, drag=2)
     eng.render(scene.obj, cfg)
     sp = eng.pixel_stages(2).shadow_pass
-    assert sp.overlap
+    default = sp.overlap
     run, kinds = sp.run, []
 
     def spy(*a, **k):
@@ -84,7 +85,7 @@ def test_overlapped_drag_frame_is_the_sequential_one_bit_for_bit(demo_engine):
                 for field in ("pixels", "radiance", "room", "counts"):
                     assert np.array_equal(f[field], frames[0][field]), field
     finally:
-        sp.overlap = True
+        sp.overlap = default
         del sp.run
     assert kinds.count(LateMasks) == 8 and len(kinds) == 12  # the overlapped frames took the overlapped path
 
