@@ -379,6 +379,17 @@ def test_fewer_taps_keep_the_square_light_penumbra(device):
     assert np.abs(frac[pen] - 0.5).mean() < 0.45  # still soft
 
 
+def _oblique_square(h: float):
+    """(eye, e1, e2, axes (1,2,3)): a square light of half-side h (m) at (0.9, 2.3, 0.4) facing the plate's
+    centre, seen obliquely from the floor (the plate's depth varies across its map)."""
+    eye = np.array([0.9, 2.3, 0.4])
+    fwd = (np.array([0.0, PLATE_Y, 0.0]) - eye) / np.linalg.norm(np.array([0.0, PLATE_Y, 0.0]) - eye)
+    e1 = np.cross(fwd, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(fwd, e1)
+    return eye, e1, e2, np.array([[h * e1, h * e2]])
+
+
 def test_small_cells_share_a_blocker_search(device):
     # a square light seen obliquely (the plate's depth varies across the map), cells of 3 x 3 cm (9
     # points each): a run within one tap spacing of its mean searches the blockers once
@@ -386,12 +397,7 @@ def test_small_cells_share_a_blocker_search(device):
     # small difference of every point searching on its own (one cell of all points)
     h = 0.2
     pts = _floor_grid(step=0.01, ext=1.2)
-    eye = np.array([0.9, 2.3, 0.4])
-    fwd = (np.array([0.0, PLATE_Y, 0.0]) - eye) / np.linalg.norm(np.array([0.0, PLATE_Y, 0.0]) - eye)
-    e1 = np.cross(fwd, [0.0, 0.0, 1.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(fwd, e1)
-    axes = np.array([[h * e1, h * e2]])
+    eye, e1, e2, axes = _oblique_square(h)
     tile = (np.floor(pts[:, 0] / 0.03) * 1000 + np.floor(pts[:, 2] / 0.03)).astype(np.int64)
     _, own = _cluster_sums(device, pts, eye[None], np.array([h]), axes=axes)
     _, shared = _cluster_sums(device, pts, eye[None], np.array([h]), axes=axes, tile=tile)
@@ -411,12 +417,7 @@ def test_a_run_of_one_point_gives_its_own_lookup(device):
     # is too wide to share one), on the oblique square light of the test above
     h = 0.2
     pts = _floor_grid(step=0.02, ext=1.2)
-    eye = np.array([0.9, 2.3, 0.4])
-    fwd = (np.array([0.0, PLATE_Y, 0.0]) - eye) / np.linalg.norm(np.array([0.0, PLATE_Y, 0.0]) - eye)
-    e1 = np.cross(fwd, [0.0, 0.0, 1.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(fwd, e1)
-    axes = np.array([[h * e1, h * e2]])
+    eye, e1, e2, axes = _oblique_square(h)
     _, own = _cluster_sums(device, pts, eye[None], np.array([h]), axes=axes)
     _, single = _cluster_sums(device, pts, eye[None], np.array([h]), axes=axes, tile=np.arange(len(pts)))
     assert ((own > 0) & (own < 1)).sum() > 500
