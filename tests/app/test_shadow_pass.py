@@ -430,6 +430,15 @@ def test_weak_passes_fill_the_near_ring(demo):
         sp.weak_far = far
 
 
+def _demo_passes(scene, eng, seed: int, strong_share: int):
+    """(proxy, centre, radius, cov, fs, perm, h): the demo object's proxy and bounds, the source list over its
+    box, a seeded order of its passes and the count h = S // strong_share + 1 of them drawn first (strong)."""
+    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    S = len(fs.eyes)
+    return (pv, pf, occ), centre, radius, cov, fs, np.random.default_rng(seed).permutation(S), S // strong_share + 1
+
+
 def _strong_and_weak_apart(sp, proxy, centre, radius, cov, fs, perm, h):
     """(strong, weak) masks of the passes drawn apart: the strong passes perm[:h] on their full maps with the
     weak passes' transfers zero, and the weak passes perm[h:] on the cluster maps with the strong ones' zero."""
@@ -448,12 +457,7 @@ def _strong_and_weak_apart(sp, proxy, centre, radius, cov, fs, perm, h):
 
 
 def _weak_ring(scene, eng, sp):
-    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
-    proxy = (pv, pf, occ)
-    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
-    S = len(fs.eyes)
-    perm = np.random.default_rng(11).permutation(S)
-    h = S // 3 + 1
+    proxy, centre, radius, cov, fs, perm, h = _demo_passes(scene, eng, seed=11, strong_share=3)
     got = _masks(sp, proxy, centre, radius, cov, fs, order=(perm, h))
     pix_pt = sp.recv_index[got.pix_sel]
     ring = sp.weak_ring(pix_pt, centre, radius)
@@ -480,12 +484,7 @@ def test_weak_passes_sum_the_far_lattice_at_spacing_4(demo):
     # other's transfers zero), every pixel summed so
     scene, eng = demo
     sp = eng.shadow_pass
-    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
-    proxy = (pv, pf, occ)
-    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
-    S = len(fs.eyes)
-    perm = np.random.default_rng(13).permutation(S)
-    h = S // 4 + 1
+    proxy, centre, radius, cov, fs, perm, h = _demo_passes(scene, eng, seed=13, strong_share=4)
     far = sp.weak_far
     assert far > sp.graded_near
     sp.weak_far = sp.graded_near  # the demo's image: enough of the spacing-4 lattice within a few radii
