@@ -84,13 +84,6 @@ DRAG_PCSS_TAPS = 3
 DRAG_GRADED_NEAR = 2.0
 
 
-# The drag frame's shadow pass does not sum its finer spacings (4, 2, 1) on the side thread while the object
-# stages run (ShadowPass.overlap; the same frames either way): the masked sums already cut every launch over both
-# cores, so the side thread only competes with them. bench/bench_masks.py --variants seq,base --path 8 --rounds 2,
-# idle, wall ms per frame, sequential / overlapped: window_room 220.5 / 225.3, sun_room 297.4 / 286.8.
-DRAG_OVERLAP = False
-
-
 # (A frame with a map per source, when the room has no more sources than the passes, takes the same size.)
 
 
@@ -173,7 +166,6 @@ class DragStages:
             self.object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (app.stages.object_light.FarGroups)
             self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
             self.shadow_pass.graded_near = DRAG_GRADED_NEAR
-        self.shadow_pass.overlap = DRAG_OVERLAP
         self.shape = (cam.height, cam.width)
         self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object
         self.zero_rad = np.zeros((*self.shape, 3), np.float32)

@@ -58,7 +58,7 @@ from app.stages.object_drag import DragObject
 from app.stages.object_shading import ObjectShading
 from app.stages.precompute import Precomputed, hash_scene as _hash_scene  # noqa: F401 (re-exported)
 from app.stages.receiver_map import ReceiverMap, receiver_map, reflectance
-from app.stages.shadow_pass import LateMasks, ShadowPass
+from app.stages.shadow_pass import ShadowPass
 from app.stages.sun import SunPixels, SunSetup, estimate_line as _sun_estimate_line, upright_box  # noqa: F401
 from app.stages.second_order import BlockedSecondOrder
 from kernels import runtime
@@ -396,9 +396,6 @@ class Engine:
                                                         self.sun_pixels.pix, sun_loss)
             tick("compose", t)
         else:  # the drag frame: the coarse room (HDR), its ratio to the photo upsampled, the object over it
-            if isinstance(masks, LateMasks):  # its finer spacings, summed on the side thread meanwhile: the wait
-                masks.join()  # is the shadow pass's (ShadowPass.overlap)
-                t = tick("masks", t, add=True)
             _, _, room_c = px.compose.frame("hdr", masks.pix_sel, masks.O_pix, masks.fill_sel, px.shadow_pass.fill,
                                             R_pix, dE_v, px.zero_cov, px.zero_rad)
             t = tick("compose", t)

@@ -84,14 +84,12 @@ class FrameTimer:
         self.start = self.last = time.perf_counter()  # the timer's start, the last tick's end
         self._k_last = 0.0
 
-    def tick(self, name: str, t: float, add: bool = False) -> float:
-        """Record stage `name` as the time since t (perf_counter seconds; add: added to the stage's time so far,
-        e.g. a wait for its side thread's part); returns now."""
+    def tick(self, name: str, t: float) -> float:
+        """Record stage `name` as the time since t (perf_counter seconds); returns now."""
         now = time.perf_counter()
+        self.timings[name] = now - t
         k = self.clock.seconds
-        before = (self.timings.get(name, 0.0), self.glue.get(name, 0.0)) if add else (0.0, 0.0)
-        self.timings[name] = before[0] + now - t
-        self.glue[name] = before[1] + (now - t) - (k - self._k_last)
+        self.glue[name] = self.timings[name] - (k - self._k_last)
         self._k_last = k
         self.last = now
         return now

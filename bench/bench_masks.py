@@ -10,18 +10,13 @@ truth (lighting.metrics), with the largest level difference from the first varia
 - base: the shadow pass as it is;
 - points: each graded spacing's sums cut over the cores by point count (2048 a range), not by (point, map)
   pairs (ShadowPass._sum before MIN_PART_PAIRS);
-- hardcen: the patch centres take the cluster maps' hard lookup (ShadowPass.hard_centres);
-- seq: the graded frame's finer spacings summed in sequence, before the object stages (ShadowPass.overlap off);
-- own: overlapped (as base), the side thread's sums in one launch on its own thread, not cut over the pool;
-- swi: overlapped (as base), with the interpreter's switch interval 0.5 ms instead of 5 (sys.setswitchinterval).
+- hardcen: the patch centres take the cluster maps' hard lookup (ShadowPass.hard_centres).
 Prints per variant the means over the path of the masks and upsample stages (wall), the frame's wall and
 CPU time (the process's, all threads), and "crit": the frame's critical path in CPU time, the rendering
 thread's own CPU time plus, for each set of concurrent launches (app.runtime.run), the CPU time of its
 longest one: about the frame's wall time on an idle machine of as many cores as launches (two here),
-which the wall time of a loaded machine does not show; "masks crit" the same for the shadow pass alone. An
-overlapped frame's (base, own) object stages (from the masks' return to compose's join) and the side thread's
-finer spacings count as one window, as long as the longest of the two paths and half their CPU together (two
-cores); its "masks crit" adds the side thread's path. "objects" is the stages sun .. second_order (wall);
+which the wall time of a loaded machine does not show; "masks crit" the same for the shadow pass alone.
+"objects" is the stages sun .. second_order (wall);
 "same path": every path frame equal, byte for byte, to the first variant's.
 Timings depend on the machine's load: compare the rows of one run.
 """
@@ -50,11 +45,11 @@ from lighting import metrics  # noqa: E402
 from recon.io import read_image_rgb  # noqa: E402
 from recon.scene import load_scene  # noqa: E402
 
-CRIT = {"masks": 0.0, "bg_crit": 0.0, "bg_cpu": 0.0, "obj_crit": 0.0, "obj_cpu": 0.0}
+CRIT = {"masks": 0.0}
 # per calling thread: the summed CPU time of the longest job of each set of concurrent launches ("crit") and of
 # all their jobs ("cpu")
 LAUNCHES: dict[int, dict[str, float]] = {}
-# the stages between the masks and compose, which the overlapped shadow pass runs beside (ShadowPass.overlap)
+# the stages between the masks and compose
 OBJECT_STAGES = ("sun", "object_light", "object_shading", "second_order")
 
 
@@ -94,45 +89,13 @@ def _mark() -> tuple[float, float, float]:
 
 
 def _timed_shadow_pass(run):
-    """ShadowPass.run that adds its critical path (rendering thread + longest concurrent launches) to CRIT; an
-    overlapped frame's (a LateMasks) then marks the start of the object stages' window (_timed_join ends it)."""
+    """ShadowPass.run that adds its critical path (rendering thread + longest concurrent launches) to CRIT."""
     def timed(self, *a, **k):
         t0, c0, _ = _mark()
         out = yield from run(self, *a, **k)
-        t1, c1, u1 = _mark()
+        t1, c1, _ = _mark()
         CRIT["masks"] += t1 - t0 + c1 - c0
-        if isinstance(out, sp.LateMasks):
-            out.window = (t1, c1, u1)
         return out
-    return timed
-
-
-def _timed_join(join):
-    """LateMasks.join that adds the object stages' window (from the masks' return to the join) to CRIT: its
-    critical path (obj_crit) and CPU (obj_cpu: the thread's and every job of its launches)."""
-    def timed(self):
-        w = getattr(self, "window", None)
-        if w is not None:
-            t, c, u = _mark()
-            CRIT["obj_crit"] += t - w[0] + c - w[1]
-            CRIT["obj_cpu"] += t - w[0] + u - w[2]
-            self.window = None
-        return join(self)
-    return timed
-
-
-def _timed_finer(finer):
-    """ShadowPass._graded_finer that adds, when on the side thread (overlapped), its critical path (bg_crit) and
-    CPU (bg_cpu) to CRIT."""
-    def timed(self, *a, **k):
-        t0, c0, u0 = _mark()
-        try:
-            return finer(self, *a, **k)
-        finally:
-            if threading.current_thread().name.startswith("photoar-frame"):
-                t1, c1, u1 = _mark()
-                CRIT["bg_crit"] += t1 - t0 + c1 - c0
-                CRIT["bg_cpu"] += t1 - t0 + u1 - u0
     return timed
 
 
@@ -144,15 +107,6 @@ def _sum_by_points(self) -> np.ndarray:
     return self.sums.result()[0]
 
 
-def _sum_own_thread(self) -> np.ndarray:
-    """ShadowPass._sum in one launch on the side thread (the overlapped finer spacings: variant `own`), cut over
-    the cores elsewhere."""
-    if threading.current_thread().name.startswith("photoar-frame"):
-        self.sums.accumulate(self.maps, 0, self.weights.dev, 0, self.sums.n)
-        return self.sums.result()[0]
-    return sp.ShadowPass._sum(self)
-
-
 def apply(variant: str, shadow_pass) -> callable:
     """Set `variant` on the drag frame's shadow pass; returns the undo."""
     if variant == "base":
@@ -160,20 +114,10 @@ def apply(variant: str, shadow_pass) -> callable:
     if variant == "points":
         shadow_pass._sum = _sum_by_points.__get__(shadow_pass)
         return lambda: delattr(shadow_pass, "_sum")
-    if variant == "seq":
-        shadow_pass.overlap = False
-        return lambda: setattr(shadow_pass, "overlap", True)
-    if variant == "own":
-        shadow_pass._sum = _sum_own_thread.__get__(shadow_pass)
-        return lambda: delattr(shadow_pass, "_sum")
-    if variant == "swi":  # overlapped, the interpreter's switch interval 0.5 ms (the GIL handed over sooner)
-        was = sys.getswitchinterval()
-        sys.setswitchinterval(0.0005)
-        return lambda: sys.setswitchinterval(was)
     if variant == "hardcen":
         shadow_pass.hard_centres = True
         return lambda: setattr(shadow_pass, "hard_centres", False)
-    raise SystemExit(f"unknown variant {variant!r} (base, points, seq, own, swi, hardcen)")
+    raise SystemExit(f"unknown variant {variant!r} (base, points, hardcen)")
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:
@@ -209,13 +153,8 @@ def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:
                     q.setdefault("hashes", []).append(hash(fr.pixels.tobytes()))
                     q["cpu"].append(time.process_time() - t0)
                     th1, c1, _ = _mark()
-                    d = {k: CRIT[k] - snap[k] for k in CRIT}
-                    crit = th1 - th0 + c1 - c0  # the rendering thread's path, with the object stages' window
-                    # overlapped: the window on an idle 2-core machine lasts at least its own path, the side
-                    # thread's, and half their CPU together
-                    q["crit"].append(crit - d["obj_crit"] + max(d["obj_crit"], d["bg_crit"],
-                                                               0.5 * (d["obj_cpu"] + d["bg_cpu"])))
-                    q["masks_crit"].append(d["masks"] + d["bg_crit"])
+                    q["crit"].append(th1 - th0 + c1 - c0)
+                    q["masks_crit"].append(CRIT["masks"] - snap["masks"])
                     q["wall"].append(st["frame_s"])
                     q["masks"].append(st["timings"]["masks"])
                     q["upsample"].append(st["timings"].get("upsample", 0.0))
@@ -249,8 +188,6 @@ def main() -> None:
     a = ap.parse_args()
     krt.run_parallel = _timed_run_parallel(krt.run_parallel)
     sp.ShadowPass.run = _timed_shadow_pass(sp.ShadowPass.run)
-    sp.LateMasks.join = _timed_join(sp.LateMasks.join)
-    sp.ShadowPass._graded_finer = _timed_finer(sp.ShadowPass._graded_finer)
     for name in a.scenes.split(","):
         bench_scene(scene_dir(name), a.variants.split(","), a.path, a.rounds)
 

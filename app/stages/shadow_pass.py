@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import functools
 import sys
-from concurrent.futures import Future
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,33 +57,6 @@ class Masks:
     cen_sel: np.ndarray
     O_pix: np.ndarray
     O_cen: np.ndarray
-
-
-class LateMasks:
-    """A frame's Masks whose patch-centre sums (cen_sel, O_cen: what the object stages read) are ready and whose
-    pixels (pix_sel, O_pix, fill_sel: what compose reads) are still summed on the frame's side thread
-    (ShadowPass.overlap); reading a pixel field joins it (and raises its error, if any)."""
-
-    def __init__(self, cen_sel: np.ndarray, O_cen: np.ndarray, pixels: Future):
-        self.cen_sel, self.O_cen, self._pixels, self._done = cen_sel, O_cen, pixels, None
-
-    def join(self) -> Masks:
-        """The whole frame's Masks, once the side thread has summed the pixels."""
-        if self._done is None:
-            self._done = self._pixels.result()
-        return self._done
-
-    @property
-    def pix_sel(self) -> np.ndarray:
-        return self.join().pix_sel
-
-    @property
-    def fill_sel(self) -> np.ndarray:
-        return self.join().fill_sel
-
-    @property
-    def O_pix(self) -> np.ndarray:
-        return self.join().O_pix
 
 
 # Map size of frames whose maps stand for clusters of sources (a pass budget): 128 scores as
@@ -178,12 +150,6 @@ class ShadowPass:
         self._frac = np.zeros((R, 3))  # and their shadow fractions (sum / scale: _run_graded's refine test)
         self.refine_tol = REFINE_TOL
         self.graded = True  # False: every frame on the spacing-2 lattice (run's other branch), for A/B
-        # True: a graded frame returns once its first launch (the near points, the spacing-8 corners and the patch
-        # centres) is summed, a LateMasks, and sums the spacings 4, 2 and 1 (which only compose reads) on the frame's
-        # side thread while the caller's object stages run (the same sums in the same order: the same frame). The
-        # drag frame's (app.dragframe); False elsewhere: a frame at rest may pause at run's yield (Engine.refine)
-        self.overlap = False
-        self._pending: LateMasks | None = None  # the last overlapped frame's, joined before the next frame starts
         # exact within this many bounding radii (graded frames): inside the bounding sphere a receiver
         # may touch the object (contact shadows, no penumbra to interpolate); beyond it the lattice
         self.graded_near = 1.0
@@ -276,7 +242,6 @@ class ShadowPass:
         passes drawn in the order perm, its first `hard` on maps of map_res, the others on maps of
         cluster_map_res (the same hard lookup; in batches of their own; app.rest_maps); None: every pass
         in its order, map_res."""
-        self.join()
         if self.graded and scale is not None and not per_source and 0 < len(eyes) <= self.batch:
             return (yield from self._run_graded(proxy, centre, radius, coverage, cand, eyes, W_pix, W_c,
                                                 spread, full_maps, scale))
@@ -430,9 +395,7 @@ class ShadowPass:
         wanted) differ in shadow fraction by at most refine_tol is filled from them (bilinear), the
         others go to the square of half the spacing, whose corners are summed next; at spacing 2
         a pixel is filled as in run (the 3x3 mean) where its own corners agree so, else summed itself.
-        The maps are rendered and listed once; each spacing is one launch of the masked sums. With overlap, the
-        spacings after the first launch are summed on the side thread (_graded_finer) and the result is a
-        LateMasks."""
+        The maps are rendered and listed once; each spacing is one launch of the masked sums."""
         dev, n = self.device, len(eyes)
         R = self.n_pix_points
         ok = cand.any(1) if cand.shape[1] else np.zeros(len(cand), bool)
@@ -472,12 +435,7 @@ class ShadowPass:
         acc = self._sum()
         O_cen = acc[len(first_pts):]
         self._summed(first_pts, acc[:len(first_pts)], scale)
-        finer = functools.partial(self._graded_finer, pend, sq8, first_pts, cen, O_cen, scale)
-        if self.overlap:  # on the side thread, while the caller's object stages run (LateMasks joins it)
-            self._pending = LateMasks(cen, O_cen, runtime.background(finer))
-            yield n
-            return self._pending
-        masks = finer()
+        masks = self._graded_finer(pend, sq8, first_pts, cen, O_cen, scale)
         yield n
         return masks
 
@@ -486,8 +444,7 @@ class ShadowPass:
         """_run_graded after its first launch (the near points, the spacing-8 corners and the patch centres,
         summed): the squares of spacing 8 and 4 tested and refined, the spacing-2 pixels, each spacing one
         launch of the masked sums on the batch's maps; the frame's Masks. pend: the wanted points farther out,
-        sq: the spacing-8 squares holding them; scale: run's. Reads and writes only the shadow pass's own
-        scratch, maps and sums: it may run on the side thread while the frame's object stages run (overlap)."""
+        sq: the spacing-8 squares holding them; scale: run's."""
         allowed, known, vals, fracs = self._allowed, self._known, self._vals, self._frac
         exact = [first_pts]
         fill_pt, fill_s = [], []
@@ -551,12 +508,6 @@ class ShadowPass:
         self.last_graded = {8: int(np.sum(fill_s == 8)), 4: int(np.sum(fill_s == 4)), 2: int(np.sum(fill_s == 2)),
                             "exact": len(pix_pt)}
         return Masks(self.recv[pix_pt], self.recv[fill_pt], cen, O_pix, O_cen)
-
-    def join(self) -> None:
-        """Wait for the last overlapped frame's pixel sums (overlap), if any (its errors are its caller's)."""
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            pending._pixels.exception()
 
     def _summed(self, pts: np.ndarray, v: np.ndarray, scale: np.ndarray) -> None:
         """_run_graded's points pts summed to v: known, their values and shadow fractions (v / scale) kept."""

@@ -48,48 +48,6 @@ def test_drag_frame_leaves_the_frames_at_rest_unchanged(demo_engine):
         assert np.array_equal(a, b)
 
 
-def test_overlapped_drag_frame_is_the_sequential_one_bit_for_bit(demo_engine):
-    # the drag frame's shadow pass can sum its finer spacings on the side thread while the object stages run
-    # (ShadowPass.overlap; off by default, app.dragframe.DRAG_OVERLAP): every frame along a drag (pixels,
-    # radiance, room) is the one of the same shadow pass run in sequence, bit for bit, frames interleaved so
-    # that each starts after the other
-    from app.dragpath import drag_offsets, moved
-    from app.engine import FrameConfig
-    from app.stages.shadow_pass import LateMasks
-
-    scene, eng = demo_engine
-    cfg = FrameConfig(passes=50, drag=2)
-    eng.render(scene.obj, cfg)
-    sp = eng.pixel_stages(2).shadow_pass
-    default = sp.overlap
-    run, kinds = sp.run, []
-
-    def spy(*a, **k):
-        masks = yield from run(*a, **k)
-        kinds.append(type(masks))
-        return masks
-
-    sp.run = spy
-    try:
-        for o in drag_offsets(scene, scene.obj, 4):
-            obj = moved(scene.obj, o)
-            frames = []
-            for overlap in (True, False, True):
-                sp.overlap = overlap
-                fr = eng.render(obj, cfg)  # copied: a frame may hand out buffers the next one reuses
-                frames.append({"pixels": fr.pixels.copy(), "radiance": fr.radiance.copy(), "room": fr.room.copy(),
-                               "counts": (fr.stats["n_mask_pixels"], fr.stats["n_filled_pixels"])})
-            assert frames[0]["counts"][0] > 0 and frames[0]["counts"][1] > 0
-            assert np.abs(frames[0]["pixels"].astype(int) - scene.photo).max() > 2  # the object changed the room
-            for f in frames[1:]:
-                for field in ("pixels", "radiance", "room", "counts"):
-                    assert np.array_equal(f[field], frames[0][field]), field
-    finally:
-        sp.overlap = default
-        del sp.run
-    assert kinds.count(LateMasks) == 8 and len(kinds) == 12  # the overlapped frames took the overlapped path
-
-
 def test_drag_frames_make_no_per_source_sums(demo_engine):
     # the per-source frames' masked sums (ShadowPass.sums_source: culling cells of TILE_SOURCE px) are made on
     # the first frame with a map per source: the drag frames' shadow pass, whose maps stand for clusters, never

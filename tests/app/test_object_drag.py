@@ -195,17 +195,9 @@ def test_frame_timer_splits_each_stage_into_kernels_and_glue():
     point_to_polygon(pts, nrm, poly, device="cpu")
     t = ft.tick("kernel", ft.last)
     np.sort(pts, axis=0)  # numpy only
-    t = ft.tick("numpy", t)
-    t_numpy, t_kernel = ft.timings["numpy"], ft.timings["kernel"]
-    t = ft.tick("other", t)
-    point_to_polygon(pts, nrm, poly, device="cpu")
-    end = ft.tick("kernel", t, add=True)  # a stage's second part (the drag frame's wait for its side thread)
+    ft.tick("numpy", t)
     frame_s = ft.close()
     k = ft.clock.seconds
-    # the added part: its time added to the stage's first part's, its kernels taken from the sum's glue (both
-    # launches are the stage's); the stages between untouched
-    assert ft.timings["kernel"] == pytest.approx(t_kernel + (end - t), abs=1e-12)
-    assert ft.timings["numpy"] == t_numpy and ft.glue["other"] == pytest.approx(ft.timings["other"], abs=1e-9)
     assert k > 0 and ft.glue["kernel"] == pytest.approx(ft.timings["kernel"] - k, abs=1e-9)
     assert ft.glue["numpy"] == pytest.approx(ft.timings["numpy"], abs=1e-9)
     assert sum(ft.timings.values()) <= frame_s
