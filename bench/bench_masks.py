@@ -1,7 +1,7 @@
 """The drag frame's "masks" stage (issue 36): variants of the shadow pass A/B in one process.
 
 usage: python bench/bench_masks.py [--scenes window_room,lamps_room,sun_room | DIR,...] [--path 8]
-                                   [--variants base,points,hardcen] [--rounds 2]
+                                   [--variants base,points] [--rounds 2]
 
 Per scene one Engine (the default precompute cache) and the drag frame of app.config (1/DRAG_SCALE,
 DRAG_PASSES); for each variant a drag of --path poses (app.dragpath), in rounds interleaved over the
@@ -9,8 +9,7 @@ variants (the same machine load for all), and the drag frame at the scene's own 
 truth (lighting.metrics), with the largest level difference from the first variant's frame. Variants:
 - base: the shadow pass as it is;
 - points: each graded spacing's sums cut over the cores by point count (2048 a range), not by (point, map)
-  pairs (ShadowPass._sum before MIN_PART_PAIRS);
-- hardcen: the patch centres take the cluster maps' hard lookup (ShadowPass.hard_centres).
+  pairs (ShadowPass._sum before MIN_PART_PAIRS).
 Prints per variant the means over the path of the masks and upsample stages (wall), the frame's wall and
 CPU time (the process's, all threads), and "crit": the frame's critical path in CPU time, the rendering
 thread's own CPU time plus, for each set of concurrent launches (app.runtime.run), the CPU time of its
@@ -114,10 +113,7 @@ def apply(variant: str, shadow_pass) -> callable:
     if variant == "points":
         shadow_pass._sum = _sum_by_points.__get__(shadow_pass)
         return lambda: delattr(shadow_pass, "_sum")
-    if variant == "hardcen":
-        shadow_pass.hard_centres = True
-        return lambda: setattr(shadow_pass, "hard_centres", False)
-    raise SystemExit(f"unknown variant {variant!r} (base, points, hardcen)")
+    raise SystemExit(f"unknown variant {variant!r} (base, points)")
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:
@@ -182,7 +178,7 @@ def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", default="window_room,lamps_room,sun_room")
-    ap.add_argument("--variants", default="base,points,hardcen")
+    ap.add_argument("--variants", default="base,points")
     ap.add_argument("--path", type=int, default=8)
     ap.add_argument("--rounds", type=int, default=2)
     a = ap.parse_args()

@@ -18,8 +18,7 @@ the run and looking up nearby texels point after point. The work of a point is t
 cell's list, so concurrent ranges are cut by work (`balanced`), not by point count: the cells near
 the object list most maps.
 
-A cluster map (a spread) is looked up with a PCSS penumbra (`penumbra`), or as a point source's map by the
-points from `MaskedSum.hard_from` on (none by default). Its cost is held down
+A cluster map (a spread) is looked up with a PCSS penumbra (`penumbra`). Its cost is held down
 by the map's depth range pyramid (kernels.shadowmap.depth_range): a run whose points' widest
 boxes are all lit, or all in umbra, is settled with no tap (exact), as is a point's blocker
 search or filter box; a run within one tap spacing of its mean shares one blocker search there
@@ -222,7 +221,7 @@ def _weight(weights: wp.array2d(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32)
 
 
 @wp.kernel
-def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, hard0: int,
+def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int,
                        run_start: wp.array(dtype=wp.int32), run_cell: wp.array(dtype=wp.int32),
                        idx: wp.array(dtype=wp.int32),
                        pos: wp.array(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32),
@@ -269,7 +268,7 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, hard0
         run = wp.vec2(3.0, 0.0)
         # a cluster map: what the whole run shares (all its points, for any cut lo..hi); a run of one point
         # (a patch centre, a sparse lattice's corner) shares nothing: its own lookup alone gives the same value
-        if sp > 0.0 and run_start[r + 1] - run_start[r] > 1 and idx[run_start[r]] < hard0:
+        if sp > 0.0 and run_start[r + 1] - run_start[r] > 1:
             xl = float(1.0e30)
             xh = float(-1.0e30)
             yl = float(1.0e30)
@@ -309,14 +308,14 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, hard0
                 x = wp.dot(d, rt) / z * it * half + half - 0.5
                 y = wp.dot(d, up) / z * it * half + half - 0.5
                 fr = float(0.0)
-                if sp > 0.0 and k < hard0:  # a cluster map: its penumbra
+                if sp > 0.0:  # a cluster map: its penumbra
                     if run[0] == 1.0:
                         fr = 1.0
                     elif run[0] == 2.0:
                         fr = penumbra(ms, s, x, y, z, a1, a2, run[1])
                     else:
                         fr = penumbra(ms, s, x, y, z, a1, a2, 0.0)
-                else:  # one source, or a point of hard0 on: the hard lookup of kernels.shadowmap.occluded
+                else:  # one source: the hard lookup of kernels.shadowmap.occluded
                     fr = _hard(ms, s, x, y, z)
                 if fr > 0.0:
                     acc[i] = acc[i] + fr * _weight(weights, rows, bary, k, j)
@@ -324,7 +323,7 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, hard0
 
 
 @wp.kernel
-def _ray_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int, hard0: int,
+def _ray_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int,
                     run_start: wp.array(dtype=wp.int32), run_cell: wp.array(dtype=wp.int32),
                     idx: wp.array(dtype=wp.int32),
                     pos: wp.array(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32),
@@ -406,9 +405,6 @@ class MaskedSum:
         self.acc = Buffer(n_alloc, wp.vec3, d)
         self.count = Buffer(n_alloc, wp.float32, d)
         self.n = 0
-        # points of this index on take a cluster map's hard lookup, no penumbra (none by default; ShadowPass.
-        # hard_centres): _masked_sum_kernel's hard0
-        self.hard_from = self.size
         self.select(None)
 
     def select(self, idx: np.ndarray | None = None) -> None:
@@ -519,7 +515,7 @@ class MaskedSum:
             return
         r0 = int(np.searchsorted(self._run_start, lo, side="right")) - 1
         r1 = int(np.searchsorted(self._run_start, hi, side="left"))
-        args = [maps.ms, lo, hi, first, r0, self.hard_from, self.run_start.dev, self.run_cell.dev, self.idx.dev,
+        args = [maps.ms, lo, hi, first, r0, self.run_start.dev, self.run_cell.dev, self.idx.dev,
                 self.pos.dev, self.rows.dev, self.bary.dev, self.lists, self.n_list, weights]
         wp.launch(_masked_sum_kernel, dim=r1 - r0, inputs=args, outputs=[self.acc.dev, self.count.dev],
                   device=self.device)

@@ -208,19 +208,6 @@ class ShadowPass:
             self._sums_source = self._masked_sum(TILE_SOURCE)
         return self._sums_source
 
-    @property
-    def hard_centres(self) -> bool:
-        """True: the patch centres' sums take the cluster maps' hard lookup (kernels.masked_sums: MaskedSum.
-        hard_from), not the PCSS penumbra; the pixels keep it. A patch centre stands for its whole patch in the
-        second order and the object's light, so the penumbra at that one point is no truer than the hard lookup,
-        at a ninth of the taps. False: the frames at rest and the drag frame (tried for the drag frame and not
-        taken: it moved sun_room's drag row's energy 1.024 -> 1.036; docs/benchmarks.md, sixth round, masks36)."""
-        return self.sums.hard_from == self.n_pix_points
-
-    @hard_centres.setter
-    def hard_centres(self, on: bool) -> None:
-        self.sums.hard_from = self.n_pix_points if on else self.sums.size
-
     # ------------------------------------------------------------------ per frame
     def run(self, proxy: tuple[np.ndarray, np.ndarray, Occluder | None], centre: np.ndarray, radius: float,
             coverage: np.ndarray, cand: np.ndarray, eyes: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray,

@@ -319,7 +319,7 @@ def test_ray_mode_culling_by_the_proxy_box(device):
 # cluster maps: the penumbra of a map that stands for a spread of sources (kernels.masked_sums.penumbra)
 # ----------------------------------------------------------------------------------------------------------
 
-def _cluster_sums(device, pts, eyes, spread, cull=True, res=256, axes=None, tile=None, taps=None, hard_from=None):
+def _cluster_sums(device, pts, eyes, spread, cull=True, res=256, axes=None, tile=None, taps=None):
     S = len(eyes)
     maps = ShadowMaps(S, res, device=device) if taps is None else ShadowMaps(S, res, device=device, taps=taps)
     maps.set_proxy(PLATE_V, PLATE_F)
@@ -327,8 +327,6 @@ def _cluster_sums(device, pts, eyes, spread, cull=True, res=256, axes=None, tile
     maps.raster(0, n)
     ms = MaskedSum(pts, np.zeros((len(pts), 3), np.int32), np.tile([1.0, 0.0, 0.0], (len(pts), 1)),
                    np.zeros(len(pts), np.int32), device, cull=cull, max_maps=S, tile=tile)
-    if hard_from is not None:
-        ms.hard_from = hard_from
     ms.add(maps, n, 0, _wp2(np.ones((1, S), np.uint8), wp.uint8, device),
            _wp2(np.ones((1, S, 3), np.float32), wp.vec3, device))
     return ms.result()
@@ -422,24 +420,6 @@ def test_a_run_of_one_point_gives_its_own_lookup(device):
     _, single = _cluster_sums(device, pts, eye[None], np.array([h]), axes=axes, tile=np.arange(len(pts)))
     assert ((own > 0) & (own < 1)).sum() > 500
     np.testing.assert_array_equal(single, own)
-
-
-def test_points_from_hard_from_on_take_the_hard_lookup(device):
-    # MaskedSum.hard_from (the drag frame's patch centres): those points read a cluster map as a point
-    # source's (the same drawn map: bitwise the sums of zero spread, themselves the exact rays' within the
-    # map's texels, test_mask_matches_exact_rays), the points before it keep the penumbra
-    h = 0.2
-    pts = _floor_grid(step=0.02, ext=1.5)
-    eye = np.array([[0.0, 2.5, 0.0]])
-    k = len(pts) // 2
-    _, soft = _cluster_sums(device, pts, eye, np.array([h]))
-    _, hard = _cluster_sums(device, pts, eye, np.array([0.0]))
-    _, mixed = _cluster_sums(device, pts, eye, np.array([h]), hard_from=k)
-    np.testing.assert_array_equal(mixed[:k], soft[:k])
-    np.testing.assert_array_equal(mixed[k:], hard[k:])
-    assert set(np.unique(mixed[k:])) == {0.0, 1.0} and ((soft[k:] > 0) & (soft[k:] < 1)).sum() > 200
-    occ = _exact(pts[k:], eye)[0][:, 0]
-    assert np.mean(mixed[k:] == occ) > 0.99
 
 
 def test_spread_along_one_axis_gives_the_line_light_penumbra(device):
