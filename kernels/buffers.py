@@ -97,14 +97,19 @@ class Workspace:
         b = self._buffers[name] = Buffer((max(rows, 1), *cols), dtype, device)
         return b
 
-    def upload(self, name: str, values: np.ndarray, dtype, device: str, capacity: int = 0) -> wp.array:
-        """`values` (n rows) copied into buffer `name` (at least max(n, capacity) rows; trailing
-        shape from `dtype`'s length when a vector type) and pushed; returns the device view of
-        its first n rows."""
+    def upload(self, name: str, values: np.ndarray, dtype, device: str, capacity: int = 0,
+               col_capacity: int = 0) -> wp.array:
+        """`values` (n rows) copied into buffer `name` (at least max(n, capacity) rows and, for 2-d or
+        wider values, at least max(m, col_capacity) columns, m = values.shape[1]: columns that vary from
+        call to call; both grow 1.5x past what a call outgrew, as `buffer` does; trailing shape from
+        `dtype`'s length when a vector type) and pushed; returns the device view of its leading
+        block of values' shape."""
         values = np.asarray(values)
         n = len(values)
-        b = self.buffer(name, max(n, capacity), dtype, device,
-                        values.shape[1:-1] if _is_vector(dtype) else values.shape[1:])
+        cols = values.shape[1:-1] if _is_vector(dtype) else values.shape[1:]
+        if cols and col_capacity > cols[0]:
+            cols = (col_capacity, *cols[1:])
+        b = self.buffer(name, max(n, capacity), dtype, device, cols)
         b.host[(slice(0, n), *(slice(0, k) for k in values.shape[1:]))] = values
         b.push(n)
         return _rows(b.dev, values.shape[:-1] if _is_vector(dtype) else values.shape)

@@ -82,7 +82,8 @@ def gather_seen(points: np.ndarray, normals: np.ndarray, rows: np.ndarray, vis: 
             ws.upload("centres", np.asarray(polygons, np.float64).mean(1), wp.vec3d, device, capacity),
             ws.upload("rad", np.asarray(radiance, np.float64), wp.vec3d, device, capacity),
             m, polygons.shape[1], wp.mat33d(*np.asarray(R, np.float64).T.ravel()), int(res), int(weights is not None),
-            _weights(ws, weights, capacity, device) if weights is not None
+            ws.upload("w", np.asarray(weights, np.float64), wp.float64, device, col_capacity=capacity)
+            if weights is not None
             else ws.buffer("w0", 1, wp.float64, device, (1,)).dev]
     out = ws.buffer("out", n, wp.vec3d, device)
 
@@ -95,15 +96,3 @@ def gather_seen(points: np.ndarray, normals: np.ndarray, rows: np.ndarray, vis: 
         split(launch, n)
     return out.pull(n).copy()
 
-
-def _weights(ws: Workspace, weights: np.ndarray, capacity: int, device: str) -> wp.array:
-    """weights (N,M) in the workspace's buffer "w" of at least max(M, capacity) columns (Workspace.buffer grows
-    it 1.5x where it is exceeded), pushed; the device view of its (N,M) block (no memory allocated). The columns
-    are the frame's polygons (a drag's sunlit patches near the object vary frame to frame): a buffer sized to the
-    first frame's would be made anew on a frame with more."""
-    w = np.asarray(weights, np.float64)
-    n, m = w.shape
-    b = ws.buffer("w", n, wp.float64, device, (max(m, capacity),))
-    b.host[:n, :m] = w
-    b.push(n)
-    return b.dev[:n, :m]

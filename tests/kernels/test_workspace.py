@@ -109,3 +109,34 @@ def test_workspace_uploads_scalar_and_vector_rows():
     c = ws.upload("t", t, wp.int32, dev, capacity=8)
     assert c.shape == (2, 3)
     np.testing.assert_array_equal(c.numpy(), t)
+
+
+def test_workspace_upload_holds_a_column_capacity():
+    # Workspace.upload(col_capacity=): a table whose columns vary from call to call (the drag's sunlit patches,
+    # kernels.drag_gather's weights) gets a buffer of at least col_capacity columns on its first call, so calls of
+    # up to that many columns allocate nothing; a call past it grows the buffer 1.5x along what it outgrew, and the
+    # calls after it up to that size allocate nothing again. Each call's view is its values, exactly
+    ws = Workspace()
+    dev = runtime.device(None)
+    rng = np.random.default_rng(7)
+    first = rng.uniform(size=(5, 3))
+    a = ws.upload("w", first, wp.float64, dev, col_capacity=8)
+    assert a.shape == (5, 3) and ws.buffer("w", 1, wp.float64, dev, (1,)).dev.shape == (5, 8)
+    np.testing.assert_array_equal(a.numpy(), first)
+    for m in (8, 1, 6):
+        w = rng.uniform(size=(4, m))
+        with _Allocations() as count:
+            a = ws.upload("w", w, wp.float64, dev, col_capacity=8)
+        assert count.n == 0, f"{m} columns allocated {count.n} arrays"
+        np.testing.assert_array_equal(a.numpy(), w)
+    w = rng.uniform(size=(5, 10))
+    a = ws.upload("w", w, wp.float64, dev, col_capacity=8)
+    assert ws.buffer("w", 1, wp.float64, dev, (1,)).dev.shape == (5, 15)
+    np.testing.assert_array_equal(a.numpy(), w)
+    with _Allocations() as count:
+        a = ws.upload("w", w[:, :2], wp.float64, dev, col_capacity=8)
+        b = ws.upload("w", rng.uniform(size=(3, 15)), wp.float64, dev, col_capacity=8)
+    assert count.n == 0 and a.shape == (5, 2) and b.shape == (3, 15)
+    # a 1-d table has no columns: col_capacity leaves it as upload made it before
+    x = ws.upload("x", np.arange(4.0), wp.float64, dev, col_capacity=8)
+    assert x.shape == (4,)
