@@ -64,6 +64,29 @@ def test_drag_frames_make_no_per_source_sums(demo_engine):
     assert made is not None and made.size == eng.shadow_pass.sums.size
     assert made.n_cells < eng.shadow_pass.sums.n_cells
 
+def test_emitter_group_of_each_patch_is_made_once(demo_engine):
+    # app.stages.object_drag.DragObject.emitter_group_of, which a sunny drag frame reads for the sun's loss on
+    # emitter patches: made once per engine, the same array on every later frame; each emitter patch's group is a
+    # group of its own radiance whose rectangle holds its centre (kernels.shade.patch_groups: one surface and
+    # radiance that tiles a rectangle), every other patch -1
+    from app.engine import FrameConfig
+
+    scene, eng = demo_engine
+    drag = eng.object_drag
+    group = drag.emitter_group_of()
+    eng.render(scene.obj, FrameConfig(passes=10, drag=2))
+    assert drag.emitter_group_of() is group
+    rl, pm = eng.object_shading.room_light, eng.object_shading.patches
+    em, (start, polys) = eng.object_shading.emitter_groups()
+    assert len(em) > 0 and len(polys) == len(start) - 1
+    assert np.all(group[np.setdiff1d(np.arange(pm.n_patches), em)] == -1)
+    g = group[em]
+    assert np.all((g >= 0) & (g < len(polys)))
+    np.testing.assert_array_equal(rl.radiance[em], rl.radiance[em[start[g]]])
+    lo, hi = polys.min(1)[g], polys.max(1)[g]
+    assert np.all((pm.centre[em] >= lo - 1e-9) & (pm.centre[em] <= hi + 1e-9))
+
+
 def test_drag_compose_kernel_matches_its_reference(demo_engine):
     # kernels.drag_compose against DragStages.finish_reference (numpy, float32 ratio): the 8-bit frame
     # within 1 level (the two round a ratio computed in float64 and float32), radiance within 1e-4 relative
