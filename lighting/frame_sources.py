@@ -118,15 +118,30 @@ class ShadowSources:
             return
         lum_B = luminance(self.B[self.src_ids])
         self.blocked = self._blocked_transfer(np.asarray(recv_points, np.float64), lum_B, device, recv_weights)
-        self.cluster = self._cluster_weights(device)
+        self._cluster_device, self._cluster_made = device, False  # the cluster weights' kernel: see `cluster`
         self._block_shares = None  # blocked_key's per-scene shares, made on its first call
         self.shafts.use_device(device if device is not None else "cpu")
+
+    @property
+    def cluster(self):
+        """The cluster weights' kernel and its tables (_cluster_weights), or None (weights then runs
+        weights_reference; None too before use_receivers). Made on first use, by `weights` on the first frame
+        whose passes are clusters (a drag frame, a frame of a pass budget, Engine.refine's finer frame before
+        the exact one), not by use_receivers: its G table is a copy of G (57 MB, 0.3 s on window_room) that an
+        engine whose frames are all one pass per source (the all-sources frame) never reads."""
+        if not self.__dict__.get("_cluster_made", True):
+            self._cluster, self._cluster_made = self._cluster_weights(self._cluster_device), True
+        return self.__dict__.get("_cluster")
+
+    @cluster.setter
+    def cluster(self, cw) -> None:
+        self._cluster, self._cluster_made = cw, True
 
     def _cluster_weights(self, device: str | None, max_bytes: int = SINGLE_TABLE_MAX_BYTES):
         """The cluster weights' kernel and its tables (kernels.cluster_weights: the prefix table, G per KD
         position as rows (S, Vr + P) float32, B per KD position), or None (weights then runs
-        weights_reference) where that G table would take more than max_bytes. Made with the device buffers,
-        not in the per-scene artefact."""
+        weights_reference) where that G table would take more than max_bytes. Made after the device buffers
+        (`cluster`: on first use), not in the per-scene artefact."""
         from kernels.cluster_weights import ClusterWeights
         from kernels.runtime import device as resolve
 
@@ -260,9 +275,9 @@ class ShadowSources:
     def weights(self, lo: np.ndarray, hi: np.ndarray, marked: np.ndarray, split=None) -> tuple[np.ndarray, np.ndarray]:
         """weights_reference's (W_v (Vr,n,3), W_c (P,n,3)), the same bytes: its plan (which prefix rows and
         raw columns each node sums, _weight_plan) made here, the sums written in the frame's layout by one
-        launch (kernels.cluster_weights, made by use_receivers; without it weights_reference). split: the
-        launch cut over the cores (app.runtime.split)."""
-        cw = getattr(self, "cluster", None)
+        launch (kernels.cluster_weights: `cluster`, made on the first call; without it weights_reference). split:
+        the launch cut over the cores (app.runtime.split)."""
+        cw = self.cluster
         if cw is None:
             return self.weights_reference(lo, hi, marked)
         return cw(*self._weight_plan(lo, hi, marked), split=split)

@@ -210,6 +210,35 @@ def test_cluster_weights_kernel_gives_numpys_bytes(engine):
     assert one_run_seen == {True, False}  # both of the kernel's sums were exercised
 
 
+def test_cluster_weights_kernel_made_on_the_first_clustered_frame(engine):
+    # ShadowSources.cluster, whose G table is a copy of G (57 MB on window_room), is made on the first frame whose
+    # passes are clusters, not with the device buffers: an all-sources select leaves it unmade; a select of fewer
+    # passes makes it and sums with it (its weights those of weights_reference, bit for bit); later selects keep it
+    scene, eng = engine
+    ss = eng.shadow_sources
+    ss._cluster_made, ss._cluster = False, None  # as use_receivers leaves it (the fixture's engine may have made it)
+    v = scene.obj.vertices
+    lo, hi = v.min(0), v.max(0)
+    every = ss.select(lo, hi, None)
+    assert every.n_listed > 20 and ss.__dict__["_cluster"] is None and not ss._cluster_made
+    calls = []
+    weights = ss.weights
+    ss.weights = lambda *a, **k: calls.append(a) or weights(*a, **k)
+    try:
+        fs = ss.select(lo, hi, 20)
+    finally:
+        del ss.weights
+    assert ss._cluster_made and len(calls) == 1
+    made = ss.__dict__["_cluster"]
+    assert made is not None and ss.cluster is made
+    got, want = ss.weights(*calls[0][:3]), ss.weights_reference(*calls[0][:3])
+    np.testing.assert_array_equal(fs.W_v, want[0])
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(_bits(g), _bits(w))
+    ss.select(lo + 0.1, hi + 0.1, 20)
+    assert ss.cluster is made
+
+
 def test_shaft_traversal_kernel_lists_numpys_shafts_in_order(engine):
     # kernels.shaft_traverse: the leaf shafts of the numpy level-by-level traversal, in its order, for the
     # object's box along a drag, boxes anywhere in the room (small to room-sized), and one outside it
