@@ -98,7 +98,7 @@ class Engine:
         probe = None
         if p.lighting == "captured":
             # the camera response comes from the probe bracket too: nothing declared is used
-            probe = load_captured_probe(scene)
+            probe = load_captured_probe(scene, scene_precompute.cached_probe_response(self.cache_dir, scene))
             scene = dataclasses.replace(scene, response=probe.response)
         elif p.lighting == "photo":
             from lighting.photolight import prepare_scene

@@ -248,8 +248,10 @@ def captured_files(scene) -> list[Path]:
     return _light_probe(scene)[1]
 
 
-def load_captured_probe(scene) -> CapturedProbe:
-    """Merge the scene's probe bracket with a response recovered from the bracket itself."""
+def load_captured_probe(scene, recover=None) -> CapturedProbe:
+    """Merge the scene's probe bracket with a response recovered from the bracket itself: by recover(files,
+    times) -> the inverse response (256,3) (the engine's: app.stages.precompute.cached_probe_response, the same
+    fit cached per bracket, as photo light's), or, with None, by merge_bracket's own fit."""
     from lighting import hdr
     from recon.io import read_image_rgb
     from recon.response import CameraResponse
@@ -257,7 +259,7 @@ def load_captured_probe(scene) -> CapturedProbe:
     lp, files, times = _light_probe(scene)
     images = [read_image_rgb(f) for f in files]
     try:
-        rad, g = hdr.merge_bracket(images, times)
+        rad, g = hdr.merge_bracket(images, times, None if recover is None else recover(files, times))
     except ValueError as e:
         raise ValueError(f"{scene.root / 'scene.json'}: light_probe bracket: {e}") from None
     response = CameraResponse(hdr.forward_table(g), g.T, scene.camera.exposure_time)

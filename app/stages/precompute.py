@@ -158,7 +158,8 @@ def cache_file(cache_dir: Path | None, scene: Scene, what: str, key: str) -> Pat
 def cached_probe_response(cache_dir: Path | None, scene: Scene):
     """recover(files, times) -> the inverse response (256,3) of a probe bracket (lighting.photolight.
     recover_response), cached in `cache_dir` keyed by the bracket's file contents, its exposure times and the code
-    that fits it (lighting.hdr): photo light's response is recovered once per bracket, not on every run."""
+    that fits it (lighting.hdr): photo light's and captured light's response is recovered once per bracket, not on
+    every run (the same fit, mitsunaga: one cached table serves both)."""
     from lighting.photolight import recover_response
 
     def recover(files: list[Path], times: list[float]) -> np.ndarray:

@@ -158,3 +158,31 @@ def test_probe_response_is_recovered_once_per_bracket(tmp_path, monkeypatch):
     recover(files, times)
     assert len(calls) == 3
     assert len(list((tmp_path / "cache").glob("*-response-*.npz"))) == 3
+
+
+def test_captured_light_reads_the_cached_probe_response(tmp_path, monkeypatch):
+    # captured light merges its probe bracket with the response cached per bracket (cached_probe_response, as
+    # photo light's): the merged radiance and the table bit for bit those of the uncached merge (merge_bracket's
+    # own fit, the same one); a second load reads the table (no fit), and photo light's response of the same
+    # bracket is that cached table (no fit either)
+    from lighting import hdr
+    from lighting import photolight as PL
+    from lighting.radiance import load_captured_probe
+    from tests.conftest import shared_scene
+
+    src = shared_scene("window_room")
+    scene = load_scene(src)
+    plain = load_captured_probe(scene)
+    calls = []
+    fit = PL.recover_response
+    monkeypatch.setattr(PL, "recover_response", lambda f, t: calls.append(1) or fit(f, t))
+    (tmp_path / "cache").mkdir()
+    recover = stage.cached_probe_response(tmp_path / "cache", scene)
+    first, second = load_captured_probe(scene, recover), load_captured_probe(scene, recover)
+    assert len(calls) == 1 and len(list((tmp_path / "cache").glob("*-response-*.npz"))) == 1
+    for p in (first, second):
+        np.testing.assert_array_equal(p.radiance, plain.radiance)
+        np.testing.assert_array_equal(p.inverse_response, plain.inverse_response)
+    files, times, _ = hdr.scene_probe_files(src)
+    np.testing.assert_array_equal(recover(files, times), plain.inverse_response)
+    assert len(calls) == 1
