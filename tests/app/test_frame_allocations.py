@@ -32,6 +32,8 @@ from recon.scene import load_scene
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 _TICK = re.compile(r"""tick\(\s*["'](\w+)["']""")
 _TICK_LINES: dict = {}  # code object -> [(line, stage)] of its tick calls
+# the allocation helpers (Buffer, Workspace): an allocation is placed at the line that called them
+HELPERS = (os.path.join("kernels", "buffers.py"),)
 
 
 def _stage_ticks(code) -> list[tuple[int, str]]:
@@ -58,16 +60,21 @@ def _stage_of(f) -> str | None:
 def _where(render_thread: int) -> tuple[str, str]:
     """(stage, place) of the allocation being made: the stage from the frame function's next
     tick (for a launch in a worker thread, app.runtime's, the stage the rendering thread waits
-    in), the place the innermost project line outside the tests (file:line function)."""
-    place = "?"
+    in), the place the innermost project line outside the tests and the HELPERS (file:line function),
+    with the helper's line it went through."""
+    place, via = None, None
     f = inspect.currentframe().f_back.f_back
     here = f
     while f is not None:
         fn = f.f_code.co_filename
         if fn.startswith(ROOT) and "/tests/" not in fn:
-            place = f"{os.path.relpath(fn, ROOT)}:{f.f_lineno} {f.f_code.co_name}"
-            break
+            line = f"{os.path.relpath(fn, ROOT)}:{f.f_lineno} {f.f_code.co_name}"
+            if os.path.relpath(fn, ROOT) not in HELPERS:
+                place = line if via is None else f"{line} (through {via})"
+                break
+            via = via or line
         f = f.f_back
+    place = place or via or "?"
     stage = _stage_of(here)
     if stage is None and threading.get_ident() != render_thread:
         stage = _stage_of(sys._current_frames().get(render_thread))
@@ -136,6 +143,23 @@ def test_the_counter_sees_allocations():
         wp.Mesh(points=pts, indices=wp.array(np.arange(3, dtype=np.int32), dtype=wp.int32, device="cpu"))
     kinds = collections.Counter(k for k, _, _ in ev)
     assert kinds == {"array": 5, "Mesh": 1}
+
+
+def test_the_report_names_the_caller_of_a_buffer():
+    # an allocation made through kernels.buffers (Buffer, Workspace) is placed at the project line that asked for
+    # it, here kernels.drag_gather.gather_seen's uploads into a fresh workspace, with the helper's line after it
+    from kernels.buffers import Workspace
+    from kernels.drag_gather import gather_seen
+
+    vis = wp.array(np.ones((2, 4), np.float32), dtype=wp.float32, device="cpu")
+    poly = np.array([[[-1.0, 0.0, -1.0], [-1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, -1.0]]])
+    with counting_allocations() as ev:
+        gather_seen(np.array([[0.0, 1.0, 0.0], [0.2, 1.0, 0.0]]), np.array([[0.0, -1.0, 0.0]] * 2), np.arange(2),
+                    vis, poly, np.ones((1, 3)), np.eye(3), 2, "cpu", Workspace())
+    places = [p for _, _, p in ev]
+    assert len(places) >= 4  # its inputs, each a buffer of the workspace
+    assert all(re.fullmatch(r"kernels/drag_gather\.py:\d+ gather_seen \(through kernels/buffers\.py:\d+ \w+\)", p)
+               for p in places), places
 
 
 def test_drag_renders_real_frames(drag_allocations):
