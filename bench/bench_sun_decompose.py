@@ -126,6 +126,45 @@ def best_shift(root: Path, img_rgb: np.ndarray, reach: float = 1.5, step: float 
         return min((at(best[1] + dx, best[2] + dy, tmp), best[1] + dx, best[2] + dy) for dx in f for dy in f)
 
 
+def displacement(cam_cal, cam_true, V: np.ndarray) -> tuple[np.ndarray, float]:
+    """The calibrated camera's image of the object's vertices less the true camera's: (mean (2,) px, rms
+    about the mean px). A small rms about the mean: the camera moves the object as a whole."""
+    d = cam_cal.project(V)[0] - cam_true.project(V)[0]
+    return d.mean(0), float(np.sqrt(((d - d.mean(0)) ** 2).sum(1).mean()))
+
+
+def shifted(img_rgb: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """The whole image shifted by (dx, dy) px (bilinear, edges replicated), as bench_object_shift does."""
+    import cv2
+
+    H, W = img_rgb.shape[:2]
+    return cv2.warpAffine(img_rgb, np.float32([[1, 0, dx], [0, 1, dy]]), (W, H), flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+
+
+def object_light_ratio(work: Path, cam_cal, cam_true, V: np.ndarray, F: np.ndarray) -> float:
+    """Median over the object's inner pixels (fully covered on both cameras, 1 px inside the calibrated
+    outline) of the calibrated composite's luminance radiance at each surface point over the true camera
+    composite's: the light on the object, registration removed."""
+    import cv2
+    from scipy.ndimage import map_coordinates
+
+    from recon.io import read_exr
+
+    p_t, _ = cast(cam_true, V, F, 1)
+    _, h_t = cast(cam_true, V, F, 4)
+    _, h_c = cast(cam_cal, V, F, 4)
+    full_t = h_t.all(2)
+    inner_c = cv2.erode(h_c.all(2).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    uv, _ = cam_cal.project(p_t[:, :, 0][full_t])
+    lw = np.array([0.2126, 0.7152, 0.0722])
+    lc = map_coordinates(read_exr(work / "out_captured" / "composite.exr").astype(np.float64) @ lw,
+                         [uv[:, 1], uv[:, 0]], order=1)
+    ok = map_coordinates(inner_c.astype(float), [uv[:, 1], uv[:, 0]], order=0) > 0
+    lt = (read_exr(work / "out_captured_true_cam" / "composite.exr").astype(np.float64) @ lw)[full_t]
+    return float(np.median(lc[ok] / np.maximum(lt[ok], 1e-9)))
+
+
 def sun_of(report: Path) -> tuple[list[float], list[float]]:
     """(direction, irradiance_perpendicular) of the sun a composite used (its report.json "sun")."""
     sun = json.loads(report.read_text())["sun"]
@@ -178,6 +217,11 @@ def main() -> None:
             row["calibrated, registered"] = score_png(root, registered(comp, cam_cal, cam_true, V, F),
                                                       Path(tmp))["rmse_object"]
             tc = read_image_rgb(work / "out_captured_true_cam" / "composite.png")
+            d, spread = displacement(cam_cal, cam_true, V)
+            print(name, f"object displacement ({d[0]:+.3f}, {d[1]:+.3f}) px, rms about it {spread:.3f} px", flush=True)
+            row["true camera, shifted by the displacement"] = score_png(root, shifted(tc, *d), Path(tmp))["rmse_object"]
+            row["calibrated, shifted back"] = score_png(root, shifted(comp, *(-d)), Path(tmp))["rmse_object"]
+            row["object light calibrated / true (median)"] = object_light_ratio(work, cam_cal, cam_true, V, F)
             if a.best_shift:
                 for tag, img in (("calibrated", comp), ("true camera", tc)):
                     r, dx, dy = best_shift(root, img)
@@ -193,7 +237,7 @@ def main() -> None:
             row["calibrated, own sun declared"] = with_sun(root, work, cal_json, s_cal, "cal_sun_cal")
             row["calibrated, true camera's sun"] = with_sun(root, work, cal_json, s_true, "cal_sun_true")
             row["true camera, calibrated's sun"] = with_sun(root, work, true_json, s_cal, "true_sun_cal")
-        print(name, json.dumps({k: round(v, 2) for k, v in row.items()}))
+        print(name, json.dumps({k: round(v, 3) for k, v in row.items()}))
 
 
 if __name__ == "__main__":
