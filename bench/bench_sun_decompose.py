@@ -220,6 +220,12 @@ def main() -> None:
             d, spread = displacement(cam_cal, cam_true, V)
             print(name, f"object displacement ({d[0]:+.3f}, {d[1]:+.3f}) px, rms about it {spread:.3f} px", flush=True)
             row["true camera, shifted by the displacement"] = score_png(root, shifted(tc, *d), Path(tmp))["rmse_object"]
+            mag = float(np.hypot(*d))
+            ring = [score_png(root, shifted(tc, mag * np.cos(a_), mag * np.sin(a_)), Path(tmp))["rmse_object"]
+                    for a_ in np.radians(np.arange(0, 360, 45))]
+            print(name, f"true camera shifted by {mag:.3f} px at 0, 45, ..., 315 deg:", [round(x, 2) for x in ring],
+                  flush=True)
+            row["true camera, shifted as far, mean of 8 directions"] = float(np.mean(ring))
             row["calibrated, shifted back"] = score_png(root, shifted(comp, *(-d)), Path(tmp))["rmse_object"]
             row["object light calibrated / true (median)"] = object_light_ratio(work, cam_cal, cam_true, V, F)
             if a.best_shift:
