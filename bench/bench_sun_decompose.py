@@ -14,7 +14,12 @@ out_captured_true_cam) and scores:
 - `--sun-swap`: each flow's estimated sun (report.json's `sun`) declared in the other's room (`scene
   --sun-direction --sun-irradiance` on the same camera), composited and scored: the sun's share.
 
-`python bench/bench_sun_decompose.py KEEP_DIR ROOMS_DIR --only sun_102[,...] [--sun-swap]`
+Also printed: the object's displacement between the two cameras' images (displacement), the true composite shifted
+by it and by as much in 8 directions, the calibrated one shifted back, the object's light at the same surface
+points (object_light_ratio); `--best-shift`: the best whole-image shift of each composite. Results:
+docs/unseen.md, "The sun rooms' object under the calibrated camera (sun34)".
+
+`python bench/bench_sun_decompose.py KEEP_DIR ROOMS_DIR --only sun_102[,...] [--best-shift] [--sun-swap]`
 """
 from __future__ import annotations
 
