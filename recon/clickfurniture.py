@@ -320,14 +320,15 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
     or a click on a corner of it no piece hides: `clicked`, its indices; a side hidden under another
     piece, a sofa's seat under its back, is not judged: only clicks on hidden corners place it) is
     held on the plane when the side and the plane are one within both their noises (_against_chi2
-    at most CHI2_1DOF_99: the side's place is one number; a piece the photo cannot tell from standing
-    against the wall stands against it; a side further off than its noise keeps its fit); of several
+    at most CHI2_HOLD: the side's place is one number, tested at 1 % for the piece's four sides; a
+    piece the photo cannot tell from standing against the wall stands against it; a side further
+    off than its noise keeps its fit); of several
     such planes, the one most alike. A side whose clicked corners only the piece itself hides
     (`behind`: its far side, which no other piece covers) is judged against a wall too: nothing
     else can stand between it and the wall unseen, as a piece under another's overhang can (a
     seat under its back, whose far side the back covers, stays unjudged). Returns (y, {side held:
     (what it is held on, the held place's sd m)})."""
-    from recon.clickedges import CHI2_1DOF_99
+    from recon.clickedges import CHI2_HOLD
 
     base = P.edges.chi2(y, corners, pts, uvs, lines)
     held: dict[int, tuple[str, float]] = {}
@@ -346,7 +347,7 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
             y1 = P.edges.held(y, k, value - shift, corners, pts, uvs, lines)
             d, rise = float(y[k]) + shift - value, P.edges.chi2(y1, corners, pts, uvs, lines) - base
             chi = _against_chi2(d, rise, plane_sd)
-            if chi <= CHI2_1DOF_99 and (best is None or chi < best[0]):
+            if chi <= CHI2_HOLD and (best is None or chi < best[0]):
                 best = (chi, value, plane_sd, what, d, rise, y1)
         if best is None:
             continue
