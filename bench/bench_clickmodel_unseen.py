@@ -9,7 +9,9 @@ slash is a shared scene) are clicked with `--draws` noise seeds and modelled fro
 and refined against the photo (recon/clickedges.py); per item kind (wall, ceiling, furniture,
 quad) the median and worst error over all draws, clicks only -> refined, how often each item
 was refined (the rest kept as clicked) and how often the model reported it ill-determined
-(`model.ill_determined`: a side pinned worse than 3 cm at 99 %).
+(`model.ill_determined`: a side pinned worse than 3 cm at 99 %). A piece of furniture beyond 3 cm
+on its worst refined draw is printed again with that draw's error per side (model minus truth, cm:
+x min, x max, z min, z max, top) and what the photo refined: which side is off.
 
 Without --rooms:
 Only roomgen's config drawer and geometry helpers are used (room box, furniture boxes, window and
@@ -69,6 +71,18 @@ def _kind(item: str, done: dict) -> str:
             else "quad" if item in done["quads"] else "furniture")
 
 
+def side_errors(sc: dict, model, piece: str) -> np.ndarray:
+    """(5,) m: piece's modelled [x min, x max, z min, z max, top] minus the truth's (a desk: its top
+    slab), from a scene.json dict and a ClickModel."""
+    from bench.clicks_truth import furniture_groups
+
+    g = next(q for q in furniture_groups(sc) if q["name"] == piece)
+    p = next(q for q in model.primitives if q["name"] in (piece, piece + "_top"))
+    c, s = np.asarray(p["center"], float), np.asarray(p["size"], float)
+    got = np.r_[c[0] - s[0] / 2, c[0] + s[0] / 2, c[2] - s[2] / 2, c[2] + s[2] / 2, c[1] + s[1] / 2]
+    return got - np.r_[g["x"], g["z"], g["top"]]
+
+
 def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: bool = False) -> None:
     """Clicks only -> refined against the photo, per item kind, on rendered rooms."""
     import json
@@ -92,6 +106,7 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: 
         t = time.time()
         edges = EdgeImage(read_image_rgb(root / "background.png"))
         per: dict[str, list] = {}
+        worst_draw: dict[str, tuple] = {}  # furniture piece -> (error m, seed, per-side errors m, how refined)
         for seed in range(draws):
             clicks, done = true_clicks(sc, sigma_px=noise, seed=seed, seen_only=seen_only)
             ch = None if done["ceiling"] else sc["world"]["room_max"][1]
@@ -109,11 +124,18 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: 
                                                  key in (m1.uncertain or {})))
                 every.setdefault(_kind(item, done), []).append((e0[item][0], e1[item][0],
                                                                 key in (m1.uncertain or {})))
+                if _kind(item, done) == "furniture" and e1[item][0] > worst_draw.get(item, (-1.0,))[0]:
+                    worst_draw[item] = (e1[item][0], seed, side_errors(sc, m1, item), m1.refined.get(key, ""))
         for item, v in per.items():
             v = np.array(v, float)
             print(f"{name:<12} {item:<16} {np.median(v[:, 0]) * 100:6.1f} -> {np.median(v[:, 1]) * 100:4.1f} "
                   f"{v[:, 0].max() * 100:6.1f} -> {v[:, 1].max() * 100:4.1f} {v[0, 2] * 100:8.1f} "
                   f"{int(v[:, 3].sum())}/{len(v)} {int(v[:, 4].sum())}/{len(v)}")
+        for item, (e, seed, sides, how) in worst_draw.items():
+            if e > 0.03:
+                print(f"{name:<12} {item:<16} worst seed {seed}: " +
+                      " ".join(f"{k} {v * 100:+.1f}" for k, v in zip(("x min", "x max", "z min", "z max", "top"), sides))
+                      + f" cm ({how})")
         print(f"{name:<12} ({time.time() - t:.1f} s for {draws} draws, both fits)")
     print()
     for kind, v in every.items():

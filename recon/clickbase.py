@@ -119,6 +119,9 @@ class _Clicks:
         self.ceiling_sd = 0.0  # m: the ceiling height's standard deviation when clicked (with the photo)
         self.wall_sd: dict[tuple[int, int], float] = {}  # (axis, side) -> a clicked wall offset's sd (m) for
         # _hold_on_walls, with the photo: at least its foot line's noise floor in metres
+        self.against: dict[tuple[int, int], list[tuple[str, float, float]]] = {}  # with the photo: (axis, side) of a
+        # clicked wall -> [(piece, its own fit of its side held on that wall m, that fit's variance m^2)]
+        # (recon/clickjoint.py)
         self.sides: dict[str, tuple[np.ndarray, dict[int, float]]] = {}  # with the photo: an axis-aligned piece ->
         # ([x min, x max, z min, z max] m, {side: sd m}), for the pieces modelled after it (_piece_planes)
 

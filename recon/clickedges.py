@@ -81,7 +81,10 @@ FAINT_SNR = 4.0  # a piece's mean gradient profile must peak this many of its no
 LINE_SIGMA_FLOOR_PX = 0.25  # px: a snapped line's noise is at least this: where a crease's edge appears
 # depends on its shading (a contact shadow, a skirting's texture), an error along the whole line that
 # the samples' spread does not show (edgesnap's own floor, 0.1 px, is for calibrate's long lines)
-CHI2_1DOF_99 = 6.63  # a side held on a wall must not raise the fit's chi-square more than this (99 %)
+CHI2_1DOF_99 = 6.63  # chi-square 99 % point, 1 dof
+CHI2_HOLD = 9.14  # a side held on a wall or a face must not raise the fit's chi-square more than this: the 1 dof
+# point of 1 - 0.01 / 4, so that a piece whose footprint's four sides each may stand against a plane is refused one
+# it does stand against on at most 1 % of draws (Bonferroni over its sides), not 1 % a side (2.58 -> 3.02 sigma)
 CHI2_2DOF_999 = 13.82  # a snapped line the fit leaves this far off (in its sigmas) is dropped
 CHI2_2DOF_9999 = 18.42  # a click moved this far (in click sigmas) sends the piece back to its clicks: at
 # 1e-4 a click, a room's ~20 clicks fall back for noise alone in under 0.2 % of rooms

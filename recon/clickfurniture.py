@@ -160,7 +160,7 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
             behind = {j for j in range(4) if any(j in sides for sides in on)
                       and all(ok for ok, sides in zip(free_of_others, on) if j in sides)}
             y, held = _hold_on_walls(P, y, active, corners, pts, uvs, kept, lo, hi, clicked, x0,
-                                     _piece_planes(P, name, full(y)), behind)
+                                     _piece_planes(P, name, full(y)), behind, name)
         words = ([f"{len(kept)} edges snapped"] if kept else []) + \
             [f"{SIDES[j]} side against {what}" for j, (what, _) in held.items()]
         P.refined[name] = ", ".join(words) if words else "as clicked"
@@ -312,7 +312,7 @@ def _piece_planes(P: _Clicks, name: str, x: np.ndarray, reach: float = 3 * 0.01)
 
 def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, uvs: np.ndarray, lines: list,
                    lo: np.ndarray, hi: np.ndarray, clicked: set[int] = frozenset(), offsets: np.ndarray | None = None,
-                   planes: dict[int, list] | None = None, behind: set[int] = frozenset()
+                   planes: dict[int, list] | None = None, behind: set[int] = frozenset(), name: str = ""
                    ) -> tuple[np.ndarray, dict[int, tuple[str, float]]]:
     """An axis-aligned piece's fit y (its parameters `active` of [x min, x max, z min, z max, top])
     with each side that the clicks and snapped `lines` allow on a clicked wall, or on a face of
@@ -320,14 +320,16 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
     or a click on a corner of it no piece hides: `clicked`, its indices; a side hidden under another
     piece, a sofa's seat under its back, is not judged: only clicks on hidden corners place it) is
     held on the plane when the side and the plane are one within both their noises (_against_chi2
-    at most CHI2_1DOF_99: the side's place is one number; a piece the photo cannot tell from standing
-    against the wall stands against it; a side further off than its noise keeps its fit); of several
+    at most CHI2_HOLD: the side's place is one number, tested at 1 % for the piece's four sides; a
+    piece the photo cannot tell from standing against the wall stands against it; a side further
+    off than its noise keeps its fit); of several
     such planes, the one most alike. A side whose clicked corners only the piece itself hides
     (`behind`: its far side, which no other piece covers) is judged against a wall too: nothing
     else can stand between it and the wall unseen, as a piece under another's overhang can (a
-    seat under its back, whose far side the back covers, stays unjudged). Returns (y, {side held:
-    (what it is held on, the held place's sd m)})."""
-    from recon.clickedges import CHI2_1DOF_99
+    seat under its back, whose far side the back covers, stays unjudged). A side held on a wall is
+    recorded in P.against under piece `name` (its own fit and variance), for the wall to take it
+    (recon/clickjoint.py). Returns (y, {side held: (what it is held on, the held place's sd m)})."""
+    from recon.clickedges import CHI2_HOLD
 
     base = P.edges.chi2(y, corners, pts, uvs, lines)
     held: dict[int, tuple[str, float]] = {}
@@ -346,7 +348,7 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
             y1 = P.edges.held(y, k, value - shift, corners, pts, uvs, lines)
             d, rise = float(y[k]) + shift - value, P.edges.chi2(y1, corners, pts, uvs, lines) - base
             chi = _against_chi2(d, rise, plane_sd)
-            if chi <= CHI2_1DOF_99 and (best is None or chi < best[0]):
+            if chi <= CHI2_HOLD and (best is None or chi < best[0]):
                 best = (chi, value, plane_sd, what, d, rise, y1)
         if best is None:
             continue
@@ -354,6 +356,8 @@ def _hold_on_walls(P: _Clicks, y: np.ndarray, active: list[int], corners, pts, u
         held_sd = plane_sd
         if rise > 0.0 and plane_sd > 0.0:  # the one plane: the side's fit and the other's, by their variances
             var_s, var_w = d * d / rise, plane_sd * plane_sd
+            if what == "the wall":  # the wall takes it too (recon/clickjoint.py)
+                P.against.setdefault((axis, side), []).append((name, float(y[k]) + shift, var_s))
             y1 = P.edges.held(y, k, value - shift + d * var_w / (var_s + var_w), corners, pts, uvs, lines)
             held_sd = float(np.sqrt(var_s * var_w / (var_s + var_w)))
         y, base = y1, P.edges.chi2(y1, corners, pts, uvs, lines)

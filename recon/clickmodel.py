@@ -43,14 +43,17 @@ Method:
     a clicked wall, or a face of a piece modelled before it, within both their noises is put against it
     (_hold_on_walls, _piece_planes; a side only clicks on
     hidden corners place is not judged: _shown), and a side pinned worse than TOLERANCE_M (at 99 %)
-    is reported ill-determined (ClickModel.uncertain, a warning);
+    is reported ill-determined (ClickModel.uncertain, a warning). The furniture is modelled before
+    the windows and lamps: a clicked wall then takes the pieces held on it (recon/clickjoint.py: its
+    offset and their own fits of their sides on it, by their inverse variances; their sides on the
+    one plane), and the quads on it are fitted on that plane;
   * walls that no click shows are placed WALL_MARGIN_M beyond the camera (recon/roomfit.py's rule:
     the photographer stands between the camera and the wall behind), and beyond every clicked
     primitive, and flagged guessed.
 
 Stages: recon/clickbase.py (constants, the model's types, rays, the clicks file's parsing),
-recon/clickroom.py (walls and ceiling), recon/clickfurniture.py (pieces), recon/clickquad.py (windows
-and lamps); this module runs them (model_from_clicks) and draws a primitive's edges (primitive_edges).
+recon/clickroom.py (walls and ceiling), recon/clickfurniture.py (pieces), recon/clickjoint.py (a wall
+with the pieces against it), recon/clickquad.py (windows and lamps); this module runs them (model_from_clicks) and draws a primitive's edges (primitive_edges).
 
 Errors (ClickError, one line naming the file and the click): a floor point on or above the horizon,
 a pixel outside the photo, a footprint crossing a wall by more than WALL_TOL_M, a quad corner off its
@@ -70,6 +73,7 @@ from recon.clickbase import (AXIS_DEG, CLICK_SIGMA_PX, ClickError, ClickModel, D
                              load_clicks)
 from recon.clickroom import _refine_room, _wall_offset
 from recon.clickfurniture import _furniture
+from recon.clickjoint import joint_walls
 from recon.clickquad import _quad
 from recon.roomfit import WALL_MARGIN_M
 
@@ -203,18 +207,23 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
         _refine_room(P, walls, ceil_clicks, lo, hi, ceiling_from != "default")
 
     names = {"room"} | set(wall_of)
+    ordered = _support_order(items)
+    for label, where, c in ordered:
+        if c["name"] in names:
+            raise ClickError(f"{src}: {where}: duplicate name {c['name']!r}")
+        names.add(c["name"])
+    pieces: dict[str, list[dict]] = {}  # furniture modelled so far: name -> its boxes
+    for label, where, c in ordered:  # the furniture first: the walls then take the pieces held on them
+        if label == "furniture":
+            pieces[c["name"]] = _furniture(P, c, where, c["name"], lo, hi, wall_of, pieces)
+    if P.edges is not None:
+        joint_walls(P, walls, lo, hi, pieces)
     prims: list[dict] = []
     extents: list[np.ndarray] = []  # points every wall must contain (guessed walls are moved beyond them)
-    pieces: dict[str, list[dict]] = {}  # furniture modelled so far: name -> its boxes
-    for label, where, c in _support_order(items):
+    names = {"room"} | set(wall_of) | {c["name"] for _, _, c in ordered}
+    for label, where, c in ordered:
         name = c["name"]
-        if name in names:
-            raise ClickError(f"{src}: {where}: duplicate name {name!r}")
-        names.add(name)
-        if label == "furniture":
-            new = pieces[name] = _furniture(P, c, where, name, lo, hi, wall_of, pieces)
-        else:
-            new = [_quad(P, c, where, name, label, lo, hi, wall_of)]
+        new = pieces[name] if label == "furniture" else [_quad(P, c, where, name, label, lo, hi, wall_of)]
         for p in new:
             if p["name"] in names - {name}:
                 raise ClickError(f"{src}: {where}: its part {p['name']!r} has the name of another primitive")

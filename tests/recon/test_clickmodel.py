@@ -693,3 +693,38 @@ def test_turn_within_the_clicks_noise_is_no_turn():
     with pytest.raises(ClickError, match="turned -11 deg"):
         _footprint(P, f, "clicks[3] (furniture 'shelf')", np.array([0.306, 0.5]),
                    noise_m=np.array([0.005, 0.005, np.nan]))
+
+
+def test_a_piece_against_its_wall_held_on_every_seed():
+    """window_101 (rendered by roomgen, not tuned on): bench_2 stands against the left wall, its wall
+    side pinned only by one grazing floor click (1 px = 3.1 cm of floor there) and the top click over
+    it. Ten seeds of 1 px noise, refined against the photo: that side is held on the wall on every
+    seed and lies within 1 cm of it. The hold test is 1 % for the piece's four sides (CHI2_HOLD,
+    3.02 sigma); at 1 % a side (2.58 sigma) seed 9's fit, 8.0 cm off at 2.8 of its sigmas, was
+    refused and the bench left 7.9 cm off."""
+    import os
+    from pathlib import Path
+
+    from recon.edgesnap import EdgeImage
+    from recon.io import read_image_rgb
+
+    root = Path(os.environ.get("PHOTOAR_ROOMS", Path.home() / ".cache" / "photoar" / "rooms")) / "window_101"
+    if not (root / "scene.json").is_file():
+        pytest.skip(f"unseen room {root} not rendered (bench/bench_unseen.py --render)")
+    sc = json.loads((root / "scene.json").read_text())
+    cam = Camera.from_json(sc["main_camera"], str(root), "main_camera.")
+    edges = EdgeImage(read_image_rgb(root / "background.png"))
+    g = next(q for q in furniture_groups(sc) if q["name"] == "bench_2")
+    assert g["x"][0] == 0.0  # it stands against the left wall
+    logging.disable(logging.WARNING)
+    try:
+        for seed in range(10):
+            clicks, done = true_clicks(sc, sigma_px=1.0, seed=seed)
+            m = model_from_clicks(clicks, cam, "window_101", None if done["ceiling"] else sc["world"]["room_max"][1],
+                                  photo=edges)
+            p = next(q for q in m.primitives if q["name"] == "bench_2")
+            x_min = p["center"][0] - p["size"][0] / 2
+            assert "x min side against the wall" in m.refined["bench_2"], (seed, m.refined["bench_2"])
+            assert abs(x_min - g["x"][0]) <= 0.01, (seed, x_min)
+    finally:
+        logging.disable(logging.NOTSET)
