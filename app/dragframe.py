@@ -87,6 +87,21 @@ DRAG_CENTRE_NEAR: float | None = 2.0
 DRAG_LIGHT_GRID = False
 
 
+# The drag frame takes the room's share of the object's light (ObjectLight's room_share: a segment per receiver and
+# facing group) only at the receiver vertices whose light passes the level at which their patches are drawn
+# (5e-4 of the room's mean radiance over the brightest reflectance, the frames' own threshold); the share is at most
+# 1, so a vertex below it stays below, and keeps at most that much light more (True; False: every lit vertex)
+DRAG_SHARE_DRAWN = True
+
+
+# The drag frame's receiver vertices see the proxy's far groups (DRAG_FAR_CELLS a side, point emitters) beyond this
+# many bounding radii, not FAR_FIELD's 3: the same reach as the centres' (DRAG_CENTRE_NEAR) and the frames'
+# per-pixel reach; a group spans at most half the object's box, so from 2 radii it is seen from at least its own
+# size. Drag rows, 3 -> 2: window_room rmse_affected 1.035 -> 1.035, lamps_room 1.550 -> 1.546 (loaded, one
+# process; docs/benchmarks.md "The drag frame's object light (objlight37)")
+DRAG_FAR_FIELD = 2.0
+
+
 # The drag frame's cluster maps are looked up with 3 x 3 PCSS taps (blocker search and filter), not 5 x 5
 # (kernels.masked_sums.PCSS_TAPS, the frames at rest's): a penumbra point costs 18 taps, not 50. Against the
 # mean of 21 x 21 point sources of a square light a penumbra point errs by 0.085 on average, not 0.054, with
@@ -199,6 +214,8 @@ class DragStages:
             self.object_light.table_tolerance = DRAG_LIGHT_TABLES
             self.object_light.centre_near = DRAG_CENTRE_NEAR
             self.object_light.near_grid = DRAG_LIGHT_GRID
+            self.object_light.share_drawn = DRAG_SHARE_DRAWN
+            self.object_light.far_field = DRAG_FAR_FIELD
             self.object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (app.stages.object_light.FarGroups)
             self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
             self.shadow_pass.graded_near = DRAG_GRADED_NEAR

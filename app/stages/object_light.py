@@ -468,7 +468,8 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
                ws: Workspace | None = None, far_emitters: tuple | None = None,
                extra: ExtraEmitters | None = None, free: np.ndarray | None = None,
                room: Occluder | None = None, room_cells: int = ROOM_CELLS, far_groups: FarGroups | None = None,
-               tables: LightTables | None = None) -> np.ndarray:
+               tables: LightTables | None = None, share_above: float | None = None,
+               far_field: float = FAR_FIELD) -> np.ndarray:
     """sum_t B_t F(x -> t) V(x, t) (N,3) at points (N,3) [normals (N,3)]: exact (emitter_sum) within
     FAR_FIELD bounding radii of the object; beyond, where each triangle subtends a small solid angle,
     the point-source form factor A_t cos_x cos_t / (pi r^2) times the triangle's own visibility
@@ -481,9 +482,11 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     a point and the object take their share of its light (room_share, its light grouped in room_cells a side), or
     None (the object alone). far_groups: the triangles' far field merged (FarGroups of this shape; used when no
     far_emitters are given), None: each triangle its own. tables: the near sum's triangles seen through the
-    shape's table, no rays (LightTables: a drag frame), or None."""
+    shape's table, no rays (LightTables: a drag frame), or None. share_above: the room's share only at points whose
+    light's luminance exceeds this (the others keep all of it), None: at every lit point. far_field: the bounding
+    radii beyond which the triangles are point emitters (FAR_FIELD; a drag frame's vertices: ObjectLight.far_field)."""
     out = np.zeros((len(points), 3))
-    far = np.linalg.norm(points - centre, axis=1) > FAR_FIELD * radius
+    far = np.linalg.norm(points - centre, axis=1) > far_field * radius
     near = np.flatnonzero(~far)
     if len(near):
         out[near] = _exact_sum(points[near], normals[near], tris, tri_rad, proxy_occ, device, ws, extra, free, tables)
@@ -501,7 +504,7 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
         out[far] = point_emitter_sum(points[far], normals[far], c, tn, rad, seen, CUBE_RES, device=device,
                                      split=256, workspace=_sub_workspace(ws, "far"), capacity=2 * len(tris))
     if room is not None:
-        lit = np.flatnonzero(out.any(1))
+        lit = np.flatnonzero(out.any(1) if share_above is None else luminance(out) > share_above)
         out[lit] *= room_share(points[lit], normals[lit], tris, tri_rad, room, extra,
                                _sub_workspace(ws, "room"), room_cells)[:, None]
     return out
@@ -581,12 +584,19 @@ class LightTables:
         """seen: the triangles' rows of the table (T, 6 CUBE_RES^2) bool; capacity: the shape's triangles (the
         buffers' size: a frame summing some of its faces allocates nothing)."""
         self.seen, self.tolerance, self.capacity = seen, tolerance, capacity
+        self._last: tuple | None = None  # (tris, tri_rad, SeenEmitters) of the last upload
 
     def emitters(self, tris: np.ndarray, tri_rad: np.ndarray, device, ws: Workspace | None) -> SeenEmitters:
         """The triangles tris (T,3,3) of radiance tri_rad (T,3) uploaded with their table rows, in ws's
-        sub-workspace "tables" (kept: nothing allocated after a shape's first frame)."""
+        sub-workspace "tables" (kept: nothing allocated after a shape's first frame); the last upload again
+        where it holds the same triangles and radiance (a frame's vertices, pixels and centres share one)."""
+        last = self._last
+        if last is not None and np.array_equal(last[0], tris) and np.array_equal(last[1], tri_rad):
+            return last[2]
         em = SeenEmitters(device, _sub_workspace(ws, "tables"))
-        return em.set(tris, tri_rad, self.seen, CUBE_RES, self.tolerance, capacity=self.capacity)
+        em.set(tris, tri_rad, self.seen, CUBE_RES, self.tolerance, capacity=self.capacity)
+        self._last = (np.array(tris, copy=True), np.array(tri_rad, copy=True), em)
+        return em
 
 
 def _sub_workspace(ws: Workspace | None, name: str) -> Workspace | None:
@@ -708,6 +718,13 @@ class ObjectLight:
         # the near pixels on _near_pixels's adaptive screen grid (True, at rest), or each summed (False: a drag
         # frame, app.dragframe.DRAG_LIGHT_GRID)
         self.near_grid = True
+        # the room's share at the receiver vertices only where their light is drawn (passes the level at which
+        # their patches take it; True: a drag frame, app.dragframe.DRAG_SHARE_DRAWN), False: at every lit vertex
+        self.share_drawn = False
+        # bounding radii beyond which the receiver vertices see the proxy as point emitters (FAR_FIELD at rest; a
+        # drag frame sets app.dragframe.DRAG_FAR_FIELD)
+        self.far_field = FAR_FIELD
+        self._light_tables: tuple | None = None  # (ProxyShape, LightTables) of the last proxy shape
         self.n_pixels = 0  # pixels the last frame evaluated per pixel (the near region)
         self.n_exact = 0  # of those, the ones summed exactly (the rest blended on the screen grid)
         self._workspaces = Workspaces()
@@ -763,10 +780,13 @@ class ObjectLight:
         tvis = shape.visibility
         far = _far_emitters(tris, tri_rad, tvis.seen, extra) if extra is not None else None
         rv = self.recv_vert
+        # the light a receiver vertex must pass to be drawn (below it its patches keep the photo's light)
+        drawn = 5e-4 * float(luminance(self.B_src).mean()) / float(self.rho_x.max())
         R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, self.device,
                          tvis, self._workspaces.get("object_light.vertices"), far, extra, shape.free,
                          room=self.scene_occ, room_cells=self.room_cells, far_groups=self.far_groups(pv, pf, shape),
-                         tables=self.light_tables(shape))
+                         tables=self.light_tables(shape), share_above=drawn if self.share_drawn else None,
+                         far_field=self.far_field)
         # the pixels of the patches with a vertex that gets a visible share of the object's light take
         # the vertices' light, interpolated
         reach_v = luminance(R_v) * float(self.rho_x.max()) > 5e-4 * float(luminance(self.B_src).mean())
@@ -981,12 +1001,17 @@ class ObjectLight:
         return out
 
     def light_tables(self, shape: ProxyShape, faces: np.ndarray | None = None) -> LightTables | None:
-        """The near sums' LightTables of the proxy shape `shape` (of its `faces`, None: all), None without
-        table_tolerance (rays)."""
+        """The near sums' LightTables of the proxy shape `shape` (of its `faces`, None: all; the whole shape's
+        kept for its frames), None without table_tolerance (rays)."""
         if self.table_tolerance is None:
             return None
         seen = shape.visibility.seen
-        return LightTables(seen if faces is None else seen[faces], self.table_tolerance, len(seen))
+        if faces is not None:
+            return LightTables(seen[faces], self.table_tolerance, len(seen))
+        kept = self._light_tables
+        if kept is None or kept[0] is not shape or kept[1].tolerance != self.table_tolerance:
+            kept = self._light_tables = (shape, LightTables(seen, self.table_tolerance, len(seen)))
+        return kept[1]
 
     def proxy_shape(self, pv: np.ndarray, pf: np.ndarray, proxy_occ: Occluder) -> ProxyShape:
         """The proxy's ProxyShape, kept for the last shape (shape_key)."""
