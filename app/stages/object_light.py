@@ -546,6 +546,14 @@ def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     tables: the proxy's triangles too with their visibility from the shape's table and point form factors
     within its tolerance (LightTables: a drag frame; no ray), None: a ray each."""
     if tables is not None:
+        rays = tables.rays_at(points)
+        if rays.any():  # within the bounding sphere: a ray each, as without tables
+            out = np.empty((len(points), 3))
+            out[rays] = _exact_sum(points[rays], normals[rays], tris, tri_rad, proxy_occ, device,
+                                   _sub_workspace(ws, "rays"), extra, free)
+            far = ~rays
+            out[far] = _exact_sum(points[far], normals[far], tris, tri_rad, proxy_occ, device, ws, extra, free, tables)
+            return out
         out = tables.emitters(tris, tri_rad, device, ws).sum(points, normals, split=256, workspace=ws)
         if extra is not None and len(extra.tris):
             out += _extra_sum(points, normals, extra, device, ws)
@@ -578,13 +586,25 @@ class LightTables:
     mid-point rule where the bound of that error is within `tolerance` of its unoccluded light
     (kernels.visibility.emitter_sum_seen_bounded); the sum at a receiver then costs a table lookup and mostly
     one division per triangle in place of three arc tangents and a ray. The table errs where another part of
-    the object lies between a triangle and a receiver off its cell's centre ray: a cell spans about 14 deg."""
+    the object lies between a triangle and a receiver off its cell's centre ray (a cell spans about 14 deg): on
+    the bundled scene 26 near pixels lost up to 28 levels at 0.91-1 bounding radii from the centre, where a
+    receiver may touch the object and a cell is wider than the gap; so the receivers within the bounding sphere
+    (`sphere`, set per frame) keep a ray per triangle."""
 
     def __init__(self, seen: np.ndarray, tolerance: float, capacity: int):
         """seen: the triangles' rows of the table (T, 6 CUBE_RES^2) bool; capacity: the shape's triangles (the
         buffers' size: a frame summing some of its faces allocates nothing)."""
         self.seen, self.tolerance, self.capacity = seen, tolerance, capacity
         self._last: tuple | None = None  # (tris, tri_rad, SeenEmitters) of the last upload
+        self.sphere: tuple[np.ndarray, float] | None = None  # the object's bounding sphere (centre, radius) this frame
+
+    def rays_at(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: the points (N,3) within the bounding sphere (none without one), which keep their rays."""
+        if self.sphere is None:
+            return np.zeros(len(points), bool)
+        c, r = self.sphere
+        d = points - c
+        return np.einsum("nc,nc->n", d, d) <= r * r
 
     def emitters(self, tris: np.ndarray, tri_rad: np.ndarray, device, ws: Workspace | None) -> SeenEmitters:
         """The triangles tris (T,3,3) of radiance tri_rad (T,3) uploaded with their table rows, in ws's
@@ -785,8 +805,8 @@ class ObjectLight:
         R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, self.device,
                          tvis, self._workspaces.get("object_light.vertices"), far, extra, shape.free,
                          room=self.scene_occ, room_cells=self.room_cells, far_groups=self.far_groups(pv, pf, shape),
-                         tables=self.light_tables(shape), share_above=drawn if self.share_drawn else None,
-                         far_field=self.far_field)
+                         tables=self.light_tables(shape, centre, radius),
+                         share_above=drawn if self.share_drawn else None, far_field=self.far_field)
         # the pixels of the patches with a vertex that gets a visible share of the object's light take
         # the vertices' light, interpolated
         reach_v = luminance(R_v) * float(self.rho_x.max()) > 5e-4 * float(luminance(self.B_src).mean())
@@ -810,10 +830,11 @@ class ObjectLight:
         if len(sel) and not self.near_grid:  # every near pixel summed (a drag frame's few hundred)
             R_pix[sel] = _exact_sum(self.pix_pos[sel], pm.normal[self.pix_patch[sel]], tris, tri_rad, proxy_occ,
                                     self.device, self._workspaces.get("near_pixels.exact"), extra, shape.free,
-                                    self.light_tables(shape))
+                                    self.light_tables(shape, centre, radius))
             self.n_exact = len(sel)
         elif len(sel):
-            R_pix[sel] = self._near_pixels(sel, tris, tri_rad, proxy_occ, extra, shape.free, self.light_tables(shape))
+            R_pix[sel] = self._near_pixels(sel, tris, tri_rad, proxy_occ, extra, shape.free,
+                                           self.light_tables(shape, centre, radius))
         R_cen = self.centre_light(pv, pf, tri_rad, proxy_occ, centre, radius, extra, far) if centres else None
         self.n_pixels = len(sel)
         return R_pix, R_cen
@@ -845,7 +866,7 @@ class ObjectLight:
                                    self.device, shape.visibility, self._workspaces.get(site), far, extra, free,
                                    room=self.scene_occ, room_cells=self.room_cells,
                                    far_groups=self.far_groups(pv, pf, shape) if faces is None else None,
-                                   tables=self.light_tables(shape, faces))
+                                   tables=self.light_tables(shape, centre, radius, faces))
         return R_cen
 
     def sun_centre_light(self, pv, pf, sun_rad, proxy_occ, centre, radius, extra: ExtraEmitters | None,
@@ -897,13 +918,7 @@ class ObjectLight:
             return room, sun
         far = dist_c[near_c] > FAR_FIELD * radius
         c_near, c_far = near_c[~far], near_c[far]
-        tables = self.light_tables(shape)
-        if len(c_near) and tables is not None:  # a drag frame: the proxy's faces through their tables, no rays
-            pts, nrm = pm.centre[c_near], pm.normal[c_near]
-            room[c_near] = tables.emitters(tris, room_rad, self.device, ws).sum(pts, nrm, split=256, workspace=ws)
-            sun[c_near] = tables.emitters(tris, sun_rad, self.device, ws).sum(pts, nrm, split=256, workspace=ws) \
-                + _extra_sum(pts, nrm, extra, self.device, ws)
-        elif len(c_near):
+        if len(c_near):
             room[c_near], sun[c_near] = extra.uploaded.sum_with_rays2(
                 pm.centre[c_near], pm.normal[c_near], tris, room_rad, sun_rad, proxy_occ, eps=EXACT_EPS, split=256,
                 workspace=ws, free=shape.free, free_res=FREE_RES)
@@ -986,7 +1001,7 @@ class ObjectLight:
         n_i, f_i = idx[near], idx[~near]
         if len(n_i):
             out[near] = _exact_sum(pm.centre[n_i], pm.normal[n_i], tris, rad, proxy_occ, self.device, ws, extra,
-                                   shape.free, self.light_tables(shape))
+                                   shape.free, self.light_tables(shape, centre, radius))
         if len(f_i):
             groups = self.far_groups(pv, pf, shape)
             em = groups.emitters(tris.mean(1), rad) if groups is not None else _far_emitters(
@@ -1000,18 +1015,22 @@ class ObjectLight:
             out[~near] = np.minimum(far, _light_bound(pm.centre[f_i], dist[~near], rad, radius, extra, centre))
         return out
 
-    def light_tables(self, shape: ProxyShape, faces: np.ndarray | None = None) -> LightTables | None:
+    def light_tables(self, shape: ProxyShape, centre: np.ndarray, radius: float, faces: np.ndarray | None = None
+                     ) -> LightTables | None:
         """The near sums' LightTables of the proxy shape `shape` (of its `faces`, None: all; the whole shape's
-        kept for its frames), None without table_tolerance (rays)."""
+        kept for its frames) at the bounding sphere (centre, radius), None without table_tolerance (rays)."""
         if self.table_tolerance is None:
             return None
         seen = shape.visibility.seen
         if faces is not None:
-            return LightTables(seen[faces], self.table_tolerance, len(seen))
-        kept = self._light_tables
-        if kept is None or kept[0] is not shape or kept[1].tolerance != self.table_tolerance:
-            kept = self._light_tables = (shape, LightTables(seen, self.table_tolerance, len(seen)))
-        return kept[1]
+            tables = LightTables(seen[faces], self.table_tolerance, len(seen))
+        else:
+            kept = self._light_tables
+            if kept is None or kept[0] is not shape or kept[1].tolerance != self.table_tolerance:
+                kept = self._light_tables = (shape, LightTables(seen, self.table_tolerance, len(seen)))
+            tables = kept[1]
+        tables.sphere = (np.asarray(centre, np.float64), float(radius))
+        return tables
 
     def proxy_shape(self, pv: np.ndarray, pf: np.ndarray, proxy_occ: Occluder) -> ProxyShape:
         """The proxy's ProxyShape, kept for the last shape (shape_key)."""
