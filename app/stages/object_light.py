@@ -552,7 +552,9 @@ def _exact_sum(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
             out[rays] = _exact_sum(points[rays], normals[rays], tris, tri_rad, proxy_occ, device,
                                    _sub_workspace(ws, "rays"), extra, free)
             far = ~rays
-            out[far] = _exact_sum(points[far], normals[far], tris, tri_rad, proxy_occ, device, ws, extra, free, tables)
+            if far.any():
+                out[far] = _exact_sum(points[far], normals[far], tris, tri_rad, proxy_occ, device, ws, extra, free,
+                                      tables)
             return out
         out = tables.emitters(tris, tri_rad, device, ws).sum(points, normals, split=256, workspace=ws)
         if extra is not None and len(extra.tris):
