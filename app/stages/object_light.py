@@ -748,6 +748,8 @@ class ObjectLight:
         # point from 2 radii moved sun_room's drag row by +0.007 energy, rmse_affected 1.208 -> 1.223)
         self.far_field = FAR_FIELD
         self._light_tables: tuple | None = None  # (ProxyShape, LightTables) of the last proxy shape
+        # a drag frame's vertices and centres summed together (_drag_sums; False: apart, the same values)
+        self.merge_sums = True
         self.n_pixels = 0  # pixels the last frame evaluated per pixel (the near region)
         self.n_exact = 0  # of those, the ones summed exactly (the rest blended on the screen grid)
         self._workspaces = Workspaces()
@@ -805,12 +807,17 @@ class ObjectLight:
         rv = self.recv_vert
         # the light a receiver vertex must pass to be drawn (below it its patches keep the photo's light)
         drawn = 5e-4 * float(luminance(self.B_src).mean()) / float(self.rho_x.max())
-        R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius, self.device,
-                         tvis, self._workspaces.get("object_light.vertices"), far, extra, shape.free,
-                         room=self.scene_occ, room_cells=self.room_cells, far_groups=self.far_groups(pv, pf, shape),
-                         tables=self.light_tables(shape, centre, radius, extra),
-                         share_above=drawn if self.share_drawn else None,
-                         far_field=self.far_field if extra is None else FAR_FIELD)
+        R_cen = None
+        if centres and extra is None and self.centre_near is not None and self.merge_sums:
+            R_v, R_cen = self._drag_sums(pv, pf, tris, tri_rad, proxy_occ, centre, radius, shape, drawn)
+        else:
+            R_v = _reflected(pm.vert_inset[rv], pm.vert_normal[rv], tris, tri_rad, proxy_occ, centre, radius,
+                             self.device, tvis, self._workspaces.get("object_light.vertices"), far, extra, shape.free,
+                             room=self.scene_occ, room_cells=self.room_cells,
+                             far_groups=self.far_groups(pv, pf, shape),
+                             tables=self.light_tables(shape, centre, radius, extra),
+                             share_above=drawn if self.share_drawn else None,
+                             far_field=self.far_field if extra is None else FAR_FIELD)
         # the pixels of the patches with a vertex that gets a visible share of the object's light take
         # the vertices' light, interpolated
         reach_v = luminance(R_v) * float(self.rho_x.max()) > 5e-4 * float(luminance(self.B_src).mean())
@@ -839,7 +846,8 @@ class ObjectLight:
         elif len(sel):
             R_pix[sel] = self._near_pixels(sel, tris, tri_rad, proxy_occ, extra, shape.free,
                                            self.light_tables(shape, centre, radius, extra))
-        R_cen = self.centre_light(pv, pf, tri_rad, proxy_occ, centre, radius, extra, far) if centres else None
+        if centres and R_cen is None:
+            R_cen = self.centre_light(pv, pf, tri_rad, proxy_occ, centre, radius, extra, far)
         self.n_pixels = len(sel)
         return R_pix, R_cen
 
@@ -987,6 +995,45 @@ class ObjectLight:
             cached = self._far_groups = (key, self.far_cells, FarGroups(tris.mean(1), tn, shape.visibility.seen,
                                                                         self.far_cells))
         return cached[2]
+
+    def _drag_sums(self, pv, pf, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder, centre: np.ndarray,
+                   radius: float, shape: ProxyShape, drawn: float) -> tuple[np.ndarray, np.ndarray]:
+        """(R_v (Vr,3), R_cen (P,3)): a drag frame's light at the receiver vertices (as _reflected gives it with
+        far_field, the tables and the room's share where luminance passes `drawn` when share_drawn) and at the
+        patch centres (as centre_light gives it with centre_near: _coarse_centres), both sets' near receivers in
+        one exact sum and their far ones in one far-group sum (the same emitters: each receiver's value is the
+        same, in two launches' hand-offs to the cores, not four). No extra emitters (the sun's path sums its
+        centres in parts)."""
+        pm, rv = self.patches, self.recv_vert
+        p_v, n_v = pm.vert_inset[rv], pm.vert_normal[rv]
+        dist_c = np.linalg.norm(pm.centre - centre, axis=1)
+        reach = luminance(_light_bound(pm.centre, dist_c, tri_rad, radius, None, centre))
+        near_c = np.flatnonzero((reach > 1e-4 * luminance(self.B_src).mean()) & ~pm.is_emitter)
+        pts, nrm = np.concatenate([p_v, pm.centre[near_c]]), np.concatenate([n_v, pm.normal[near_c]])
+        nv = len(rv)
+        dist = np.concatenate([np.linalg.norm(p_v - centre, axis=1), dist_c[near_c]])
+        near = dist <= np.concatenate([np.full(nv, self.far_field), np.full(len(near_c), self.centre_near)]) * radius
+        ws = self._workspaces.get("object_light.drag")
+        out = np.zeros((len(pts), 3))
+        if near.any():
+            out[near] = _exact_sum(pts[near], nrm[near], tris, tri_rad, proxy_occ, self.device, ws, None, shape.free,
+                                   self.light_tables(shape, centre, radius, None))
+        far = np.flatnonzero(~near)
+        if len(far):
+            groups = self.far_groups(pv, pf, shape)
+            em = groups.emitters(tris.mean(1), tri_rad) if groups is not None else _far_emitters(
+                tris, tri_rad, shape.visibility.seen, None)
+            out[far] = point_emitter_sum(pts[far], nrm[far], *em, CUBE_RES, device=self.device, split=256,
+                                         workspace=ws.sub("far"), capacity=2 * len(tris))
+            fc = far[far >= nv]  # the far centres: at most the sphere bound (_coarse_centres)
+            out[fc] = np.minimum(out[fc], _light_bound(pts[fc], dist[fc], tri_rad, radius, None, centre))
+        R_v = out[:nv]
+        lit = np.flatnonzero(luminance(R_v) > drawn if self.share_drawn else R_v.any(1))
+        R_v[lit] *= room_share(p_v[lit], n_v[lit], tris, tri_rad, self.scene_occ, None, ws.sub("room"),
+                               self.room_cells)[:, None]
+        R_cen = np.zeros((pm.n_patches, 3))
+        R_cen[near_c] = out[nv:]
+        return R_v, R_cen
 
     def _coarse_centres(self, idx: np.ndarray, dist: np.ndarray, pv, pf, tris: np.ndarray, rad: np.ndarray,
                         proxy_occ: Occluder, centre: np.ndarray, radius: float, extra: ExtraEmitters | None,

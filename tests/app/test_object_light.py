@@ -432,7 +432,8 @@ def test_drag_object_light_against_the_frames_at_rest(demo):
     # frame's reach: within a level on every pixel and 0.05 rms over the lit ones (the coarse stage's own bar,
     # test_object_light_coarse_against_exact_on_the_frame), the centres' total within 5 % (measured 0.30 level,
     # 0.018 rms, centres 1.025: the far groups' points nearer than FAR_FIELD); without the sphere's rays the tables
-    # alone lose 28 levels at contact (26 pixels at 0.91-1 radii), so that split is what holds the first bound
+    # alone lose 28 levels at contact (26 pixels at 0.91-1 radii), so that split is what holds the first bound;
+    # the vertices' and centres' sums merged (ObjectLight._drag_sums) give what they give apart
     import dataclasses
 
     from app import dragframe as DF
@@ -454,7 +455,12 @@ def test_drag_object_light_against_the_frames_at_rest(demo):
             setattr(ol, k, v)
         ours, ours_c = ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered)
         assert ol._light_tables is not None and ol.n_pixels > 100  # the tables ran, over a near region
+        # the vertices' and the centres' sums in one launch each (_drag_sums) or apart: the same bytes
+        ol.merge_sums = False
+        apart, apart_c = ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered)
+        assert np.array_equal(apart, ours) and np.array_equal(apart_c, ours_c)
     finally:
+        ol.merge_sums = True
         ol.config, ol.room_cells, ol.far_cells = saved
         for k, v in rest.items():
             setattr(ol, k, v)
