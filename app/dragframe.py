@@ -61,21 +61,25 @@ DRAG_LIGHT_NEAR_FACTOR = 1.0
 DRAG_ROOM_CELLS = 1
 
 
-# The drag frame's object light sums the proxy's triangles near the object (within FAR_FIELD radii: the receiver
-# vertices, the patch centres and the near pixels) with each triangle's visibility from the shape's per-direction
+# The drag frame's object light sums the proxy's triangles near the object (the receiver vertices, the patch centres
+# and the near pixels) beyond its bounding sphere with each triangle's visibility from the shape's per-direction
 # table (app.stages.object_light.LightTables: the directions its centroid sees out of the object, as the far field
 # and the sun's lit pieces already do), no ray per (receiver, triangle), and a triangle as a point emitter (or its
 # quarters' mid-point rule) where the bound of that error is within this share of its unoccluded light: the sun's
-# lit pieces' tolerance (app.stages.sun.PIECE_POINT_TOLERANCE), the same rule. None: a ray each (the frames at rest)
+# lit pieces' tolerance (app.stages.sun.PIECE_POINT_TOLERANCE), the same rule. Within the sphere (contact: a 14 deg
+# cell is wider than the gap) and with the sun's emitters (sunlit faces 20-50x brighter) a ray each. None: a ray
+# each everywhere (the frames at rest). docs/benchmarks.md "The drag frame's object light (objlight37)"
 DRAG_LIGHT_TABLES: float | None = 0.05
 
 
 # The drag frame's object light at the patch centres is summed as near the pixels within this many bounding radii
 # of the object, beyond it from the far field's groups (at most 6 DRAG_FAR_CELLS^3 point emitters, each bounded by
 # the object's sphere bound), with no room share (app.stages.object_light.ObjectLight._coarse_centres): while
-# dragging the object is shaded from its tables before its light is summed, so the centres' light only feeds the
-# second order. 2: the frames' per-pixel reach (ObjectConfig.near_factor), within which a group's spread (up to
-# the object's size) is not small against the distance. None: as at rest (FAR_FIELD, room share)
+# dragging the object is shaded from its tables before its light is summed (Engine.drag_object_tables), so the
+# centres' light only feeds the second order. 2: the frames' per-pixel reach (ObjectConfig.near_factor), within
+# which a group's spread (up to the object's size) is not small against the distance. On the bundled scene the
+# centres' total light 1.026 x the rays' (the far groups' points nearer than FAR_FIELD); window_room's stage CPU
+# 28.2 -> 24 ms (loaded). None: as at rest (FAR_FIELD, room share)
 DRAG_CENTRE_NEAR: float | None = 2.0
 
 
