@@ -871,8 +871,8 @@ class ObjectLight:
         near_c = np.flatnonzero((reach > 1e-4 * luminance(self.B_src).mean()) & ~pm.is_emitter)
         R_cen = np.zeros((pm.n_patches, 3))
         if self.centre_near is not None and faces is None:  # a drag frame: the proxy's groups (DragCentres)
-            R_cen[near_c] = self._coarse_centres(near_c, dist_c[near_c], pv, pf, tris, rad, proxy_occ, centre, radius, extra,
-                                                 self._workspaces.get(site))
+            R_cen[near_c] = self._coarse_centres(near_c, dist_c[near_c], pv, pf, tris, rad, proxy_occ, centre, radius,
+                                                 extra, self._workspaces.get(site))
             return R_cen
         R_cen[near_c] = _reflected(pm.centre[near_c], pm.normal[near_c], tris, rad, proxy_occ, centre, radius,
                                    self.device, shape.visibility, self._workspaces.get(site), far, extra, free,
@@ -1039,9 +1039,9 @@ class ObjectLight:
                         proxy_occ: Occluder, centre: np.ndarray, radius: float, extra: ExtraEmitters | None,
                         ws: Workspace) -> np.ndarray:
         """A drag frame's light (len(idx),3) of the triangles tris (T,3,3) of radiance rad (T,3) (and the extra
-        emitters) at the patch centres idx, dist (len(idx),) from the bounding sphere's (centre, radius): within centre_near
-        radii summed as the near pixels are (_exact_sum, through the shape's tables when table_tolerance is set),
-        beyond as the far field's groups (FarGroups: at most 6 DRAG_FAR_CELLS^3 point emitters with the extra
+        emitters) at the patch centres idx, dist (len(idx),) from the bounding sphere's (centre, radius): within
+        centre_near radii summed as the near pixels are (_exact_sum, through the shape's tables when table_tolerance
+        is set), beyond as the far field's groups (FarGroups: at most 6 DRAG_FAR_CELLS^3 point emitters with the extra
         emitters' stand-ins), each centre's value at most _light_bound's (a point emitter nearer than its spread
         is not). No room share: in a drag frame the centres' light only feeds the second order (the object is
         shaded from its tables before it: app.stages.object_drag), which the room's light passes on once more."""
