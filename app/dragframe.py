@@ -61,6 +61,51 @@ DRAG_LIGHT_NEAR_FACTOR = 1.0
 DRAG_ROOM_CELLS = 1
 
 
+# The drag frame's object light sums the proxy's triangles near the object (the receiver vertices, the patch centres
+# and the near pixels) beyond its bounding sphere with each triangle's visibility from the shape's per-direction
+# table (app.stages.object_light.LightTables: the directions its centroid sees out of the object, as the far field
+# and the sun's lit pieces already do), no ray per (receiver, triangle), and a triangle as a point emitter (or its
+# quarters' mid-point rule) where the bound of that error is within this share of its unoccluded light: the sun's
+# lit pieces' tolerance (app.stages.sun.PIECE_POINT_TOLERANCE), the same rule. Within the sphere (contact: a 14 deg
+# cell is wider than the gap) and with the sun's emitters (sunlit faces 20-50x brighter) a ray each. None: a ray
+# each everywhere (the frames at rest). docs/benchmarks.md "The drag frame's object light (objlight37)"
+DRAG_LIGHT_TABLES: float | None = 0.05
+
+
+# The drag frame's object light at the patch centres is summed as near the pixels within this many bounding radii
+# of the object, beyond it from the far field's groups (at most 6 DRAG_FAR_CELLS^3 point emitters, each bounded by
+# the object's sphere bound), with no room share (app.stages.object_light.ObjectLight._coarse_centres): while
+# dragging the object is shaded from its tables before its light is summed (Engine.drag_object_tables), so the
+# centres' light only feeds the second order. 2: the frames' per-pixel reach (ObjectConfig.near_factor), within
+# which a group's spread (up to the object's size) is not small against the distance. On the bundled scene the
+# centres' total light 1.026 x the rays' (the far groups' points nearer than FAR_FIELD); window_room's stage CPU
+# 28.2 -> 24 ms (loaded). None: as at rest (FAR_FIELD, room share)
+DRAG_CENTRE_NEAR: float | None = 2.0
+
+
+# The drag frame's near pixels (within DRAG_LIGHT_NEAR_FACTOR radii, where the object's light may pass a quarter
+# level) are each summed, not on the adaptive screen grid (ObjectLight._near_pixels: strides 16 to 2 px, blended
+# where a cell lies GRID_CLEARANCE diagonals from the object): at 1/3 within one radius a 16 px cell spans more than
+# the object's reach, so the grid blended none of window_room's 342 near pixels along its drag and only added its
+# clearance and node passes (False: each summed; True: the grid, as at rest)
+DRAG_LIGHT_GRID = False
+
+
+# The drag frame takes the room's share of the object's light (ObjectLight's room_share: a segment per receiver and
+# facing group) only at the receiver vertices whose light passes the level at which their patches are drawn
+# (5e-4 of the room's mean radiance over the brightest reflectance, the frames' own threshold); the share is at most
+# 1, so a vertex below it stays below, and keeps at most that much light more (True; False: every lit vertex)
+DRAG_SHARE_DRAWN = True
+
+
+# The drag frame's receiver vertices see the proxy's far groups (DRAG_FAR_CELLS a side, point emitters) beyond this
+# many bounding radii, not FAR_FIELD's 3: the same reach as the centres' (DRAG_CENTRE_NEAR) and the frames'
+# per-pixel reach; a group spans at most half the object's box, so from 2 radii it is seen from at least its own
+# size. Drag rows, 3 -> 2: window_room rmse_affected 1.035 -> 1.035, lamps_room 1.550 -> 1.546 (loaded, one
+# process; docs/benchmarks.md "The drag frame's object light (objlight37)")
+DRAG_FAR_FIELD = 2.0
+
+
 # The drag frame's cluster maps are looked up with 3 x 3 PCSS taps (blocker search and filter), not 5 x 5
 # (kernels.masked_sums.PCSS_TAPS, the frames at rest's): a penumbra point costs 18 taps, not 50. Against the
 # mean of 21 x 21 point sources of a square light a penumbra point errs by 0.085 on average, not 0.054, with
@@ -163,6 +208,11 @@ class DragStages:
                                         sun_dir=sun_light.d if sun_light is not None else None)
         if not plain:
             self.object_light.room_cells = DRAG_ROOM_CELLS
+            self.object_light.table_tolerance = DRAG_LIGHT_TABLES
+            self.object_light.centre_near = DRAG_CENTRE_NEAR
+            self.object_light.near_grid = DRAG_LIGHT_GRID
+            self.object_light.share_drawn = DRAG_SHARE_DRAWN
+            self.object_light.far_field = DRAG_FAR_FIELD
             self.object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (app.stages.object_light.FarGroups)
             self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
             self.shadow_pass.graded_near = DRAG_GRADED_NEAR
