@@ -243,7 +243,7 @@ class PlacementWindow:
         p.add_fixed(0.5 * em)
         p.add_child(gui.Label("Shadow passes per frame"))
         self.slider = gui.Slider(gui.Slider.INT)
-        self.slider.set_limits(10, 50)
+        self.slider.set_limits(10, max(50, int(ctl.passes or 0)))
         self.slider.int_value = int(ctl.passes) if ctl.passes else 50
         self.slider.set_on_value_changed(self._on_passes)
         p.add_child(self.slider)
@@ -342,6 +342,7 @@ class PlacementWindow:
             eng = self.ctl.start_engine(progress=self._on_precompute_progress)
             if eng is not self.ctl.engine:  # the lighting changed meanwhile: its own precompute follows
                 return
+            self.ctl.prepare_drag()  # the drag frame's stages now, not on the first drag
             msg = (f"precompute {eng.precompute_s:.1f} s" + (" (cached)" if eng.cache_hit else "")
                    + f", {eng.pre.patches.n_patches} patches")
         except Exception as e:  # noqa: BLE001 - shown in the window, and ends a headless run
