@@ -573,12 +573,13 @@ class PlacementController:
         return FrameResult(fr.pixels, fr.radiance, {**fr.stats, "cached": True, "frame_s": time.perf_counter() - t0})
 
     def refine(self, pose: Pose | None = None, budget_s: float | None = None,
-               intermediate: bool = False) -> FrameResult | None:
+               intermediate: bool = False, stop: Callable[[], bool] | None = None) -> FrameResult | None:
         """At rest: advance the all-sources frame of `pose` (default: the current one) for about
         `budget_s` seconds (None: to the end) and return it once every source is in, else None.
         intermediate: also return Engine.refine's intermediate frames as they come (converged
         False; the drag budget sets them, Engine.refine_schedule). The finished frame is kept like
-        any other (budget None), so later calls return it at once. stats as render's, with
+        any other (budget None), so later calls return it at once. stop: Engine.refine's (checked
+        between steps: True returns None at once). stats as render's, with
         converged True and engine_s the refinement's compute time."""
         t0 = time.perf_counter()
         with self._lock:
@@ -596,7 +597,7 @@ class PlacementController:
             return self.render(pose)
         at_rest = replace(self.config, fps=None, drag=None,  # full resolution; the drag budget sets the frames
                           passes=DRAG_PASSES if self.config.drag else self.config.passes)
-        f = eng.refine(obj, at_rest, budget_s)
+        f = eng.refine(obj, at_rest, budget_s, stop)
         if f is None or not (f.stats["exact"] or intermediate):
             return None
         fr = FrameResult(f.pixels, f.radiance, {"passes": f.stats["passes"], "engine_s": f.stats["refine_s"],
