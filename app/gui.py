@@ -212,6 +212,7 @@ class PlacementWindow:
         self._script: Callable[[], bool] | None = None  # headless mode: decides whether to render more
         self._pre_t0 = time.perf_counter()
         self._pre_fraction: float | None = None  # share of the precompute done (Engine's progress callback)
+        self._dragging = False  # the mouse button is down on the photo: a gesture is under way (no refinement)
 
         w = self.window = self.app.create_window(title, width, height)
         em = w.theme.font_size
@@ -402,9 +403,13 @@ class PlacementWindow:
         """While `pose` is the current one and no edit is waiting, add sources a slice at a time;
         show each frame at rest as it is complete (Engine.refine's intermediate frames, then the
         all-sources frame)."""
-        while not self.closed and not self._dirty and pose == self.ctl.pose:
+        def edited() -> bool:  # the next edit or a press ends it between any two of its steps; none starts while
+            # the button is held (the pose is not at rest: the next move comes; the release asks for the refinement)
+            return self.closed or self._dirty or self._dragging or pose != self.ctl.pose
+
+        while not edited():
             try:
-                fr = self.ctl.refine(pose, budget_s=REFINE_SLICE_S, intermediate=True)
+                fr = self.ctl.refine(pose, budget_s=REFINE_SLICE_S, intermediate=True, stop=edited)
             except Exception as e:  # noqa: BLE001 - an engine error must not kill the window
                 log.exception("refinement failed")
                 self.error = f"refinement failed: {e}"
@@ -503,14 +508,15 @@ class PlacementWindow:
                 self._guard(self.ctl.place_at_pixel, *uv)
                 self._dragging = True
             return gui.Widget.EventCallbackResult.CONSUMED
-        if t == gui.MouseEvent.Type.DRAG and getattr(self, "_dragging", False):
+        if t == gui.MouseEvent.Type.DRAG and self._dragging:
             uv = self.image_to_pixel(e.x, e.y)
             if uv is not None:
                 self._guard(self.ctl.move_to_pixel, *uv)
             return gui.Widget.EventCallbackResult.CONSUMED
-        if t == gui.MouseEvent.Type.BUTTON_UP and getattr(self, "_dragging", False):
+        if t == gui.MouseEvent.Type.BUTTON_UP and self._dragging:
             self._dragging = False
             self.ctl.end_gesture()
+            self.request_frame()  # at rest now: the render loop shows the pose's kept frame and refines it
             return gui.Widget.EventCallbackResult.CONSUMED
         return gui.Widget.EventCallbackResult.IGNORED
 

@@ -190,7 +190,7 @@ def test_placement_refine_shows_intermediate_frames_at_rest(tmp_path):
     from app.gui import PlacementWindow
 
     class Win:
-        closed, _dirty, refined_frames, error, window = False, False, 0, None, None
+        closed, _dirty, _dragging, refined_frames, error, window = False, False, False, 0, None, None
 
         def __init__(self):
             self.ctl, self.shown = ctl, []
