@@ -40,6 +40,13 @@ LIFT_STEP = 0.02  # m
 MOVE_STEP = 0.05  # m
 SCALE_STEP = 1.1
 REFINE_SLICE_S = 0.05  # s of refinement between checks for a new edit (the drag frame stays on screen meanwhile)
+# The newest pose's preview (the pose label, the 3D view's object, the last frame with the pose's outline, shown
+# while that pose's frame is made) is redrawn at most once per PREVIEW_INTERVAL_S, not on each mouse move: each one
+# costs the main thread (outline_preview rasterizes the outline, the 3D view re-uploads the object) and redraws the
+# whole window, on the CPU where there is no GPU (Mesa's llvmpipe under Xvfb), CPU the drag frames need on a
+# 2-core machine (docs/benchmarks.md, "The GUI's drag (gui37)"). 20 Hz keeps the outline moving smoothly for the
+# eye; the frames themselves come slower.
+PREVIEW_INTERVAL_S = 0.05
 SETTLE_TICKS = 20  # redraws before a scripted screenshot is compared (settled_screenshot)
 
 
@@ -212,6 +219,8 @@ class PlacementWindow:
         self._script: Callable[[], bool] | None = None  # headless mode: decides whether to render more
         self._pre_t0 = time.perf_counter()
         self._pre_fraction: float | None = None  # share of the precompute done (Engine's progress callback)
+        self._preview_due = False  # the newest pose's outline is not on screen yet (main thread only)
+        self._preview_t = -math.inf  # when the last outline preview was drawn (perf_counter s)
         self._dragging = False  # the mouse button is down on the photo: a gesture is under way (no refinement)
 
         w = self.window = self.app.create_window(title, width, height)
@@ -427,6 +436,10 @@ class PlacementWindow:
             self._set_image(fr.pixels)
         else:  # an edit arrived meanwhile: show this frame with the newer outline until its own
             self._set_image(outline_preview(fr.pixels, self.ctl, self.ctl.pose))
+        if self._preview_due:  # the newest pose's label and 3D object go with this redraw: no preview due
+            self._preview_due, self._preview_t = False, time.perf_counter()
+            self._show_pose(self.ctl.pose)
+            self._show_object()
         st = fr.stats
         kept = " (kept)" if st["cached"] else ""
         self.frame_label.text = (f"frame: {st['frame_s'] * 1000:.0f} ms{kept}"
@@ -468,13 +481,28 @@ class PlacementWindow:
 
     def _on_pose_change(self, pose: Pose) -> None:
         """Controller callback (main thread: edits come from widget events)."""
+        self.request_frame()
+        self._preview_due = True
+        self._preview()
+
+    def _preview(self) -> bool:
+        """Show the newest pose (the pose label, the 3D view's object, its outline over the last frame) when
+        it is due and the last preview is at least PREVIEW_INTERVAL_S old (else _on_tick shows it later);
+        returns whether it did. Each of the three redraws the window, so they go at the preview's rate."""
+        now = time.perf_counter()
+        if not self._preview_due or now - self._preview_t < PREVIEW_INTERVAL_S:
+            return False
+        self._preview_due, self._preview_t = False, now
+        pose = self.ctl.pose
         self._show_pose(pose)
         self._show_object()
         if self.last_frame is not None:
             self._set_image(outline_preview(self.last_frame.pixels, self.ctl, pose))
-        self.request_frame()
+        return True
 
     def _on_tick(self) -> bool:
+        if self._preview():
+            return True
         if not self.engine_ready.is_set() and self.error is None:
             t = time.perf_counter() - self._pre_t0
             f = self._pre_fraction
