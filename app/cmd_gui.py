@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from app.cli import add_object_args
+from app.config import DRAG_PASSES, DRAG_SCALE
 from kernels.quiet import native_output_held
 
 log = logging.getLogger("photoar")
@@ -52,10 +53,14 @@ def register(sub) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     g.add_argument("scene", type=Path, help="scene folder, or a placement JSON saved from the window")
     add_object_args(g)
-    g.add_argument("--passes", type=_positive_int, default=50,
-                   help="shadow passes per frame while the object moves (default %(default)s; the window's slider "
-                        "changes it); at rest the window shows a frame of twice as many passes, then the "
-                        "all-sources frame (Engine.refine)")
+    g.add_argument("--passes", type=_positive_int, default=DRAG_PASSES,
+                   help="shadow passes per frame while the object moves (default %(default)s, the drag frame's; the "
+                        "window's slider changes it); at rest the window shows a finer frame, then the all-sources "
+                        "frame (Engine.refine)")
+    g.add_argument("--drag-scale", type=_positive_int, default=DRAG_SCALE, metavar="S",
+                   help="frames while the object moves compute the room's change at 1/S resolution each way and "
+                        "the object at full (app.dragframe; default %(default)s); 1: the whole frame at full "
+                        "resolution")
     g.add_argument("--all-sources", action="store_true", help="one shadow pass per source (slow)")
     g.add_argument("--mode", choices=["hdr", "ldr"], default="hdr", help="compositing path (default %(default)s)")
     g.add_argument("--screenshot", type=Path, default=None,
@@ -140,10 +145,6 @@ def run_model(a: argparse.Namespace) -> int:
 
 
 def run(a: argparse.Namespace) -> int:
-    from app.composite import default_cache_dir
-    from app.engine import EngineParams
-    from app.placement import PlacementController
-
     if not os.environ.get("DISPLAY"):
         raise RuntimeError("photoar gui: no X display (DISPLAY is not set); run it under Xvfb, "
                            "e.g. `xvfb-run -a photoar gui SCENE_DIR --screenshot shot.png`")
@@ -154,10 +155,30 @@ def run(a: argparse.Namespace) -> int:
             raise ValueError(f"--{opt.replace('_', '-')}: only with --model")
     if a.object_size is not None and not a.object_size > 0:
         raise ValueError(f"{a.object}: --object-size must be positive, got {a.object_size}")
+    ctl = controller(a)
+    choices = ctl.object_choices([Path(ctl.pose.mesh).parent] if ctl.pose.mesh else [])
+
+    # Filament and Vulkan print their start-up lines from C++ (8 on a Mesa machine): held back,
+    # shown after a failure or with -v.
+    with native_output_held(show=bool(getattr(a, "verbose", False))):
+        return _show(a, ctl, choices)
+
+
+def controller(a: argparse.Namespace):
+    """The window's PlacementController of the parsed `gui` arguments `a` (no window, no engine yet): frames
+    while the object moves are drag frames at 1/--drag-scale (--all-sources, --drag-scale 1: full size), the
+    frames of --frames / --screenshot (a pose at rest) full size; the object at its pose."""
+    from app.composite import default_cache_dir
+    from app.engine import EngineParams
+    from app.placement import PlacementController
+
     params = EngineParams(passes=None if a.all_sources else a.passes, mode=a.mode, lighting=a.lighting,
                           sun=a.sun)
+    # frames while the object moves are drag frames; --frames / --screenshot composite a pose at rest (full size)
+    still = a.frames is not None or a.screenshot is not None
     ctl = PlacementController.open(a.scene, params=params, cache_dir=a.cache or default_cache_dir(),
-                                   quiet=a.quiet, work_res=a.work_res)
+                                   quiet=a.quiet, work_res=a.work_res,
+                                   drag=a.drag_scale if a.drag_scale > 1 and not still else None)
     ctl.device = a.device
     mesh = a.object
     if mesh is None and ctl.pose.mesh is None:
@@ -170,12 +191,7 @@ def run(a: argparse.Namespace) -> int:
         ctl.place_at(a.place)
         if a.yaw:
             ctl.rotate(a.yaw)
-    choices = ctl.object_choices([Path(ctl.pose.mesh).parent] if ctl.pose.mesh else [])
-
-    # Filament and Vulkan print their start-up lines from C++ (8 on a Mesa machine): held back,
-    # shown after a failure or with -v.
-    with native_output_held(show=bool(getattr(a, "verbose", False))):
-        return _show(a, ctl, choices)
+    return ctl
 
 
 def _show(a: argparse.Namespace, ctl, choices) -> int:

@@ -274,8 +274,8 @@ class Engine:
             except StopIteration as done:
                 return done.value
 
-    def refine(self, obj: SceneObject, config: FrameConfig | None = None, budget_s: float | None = None
-               ) -> Frame | None:
+    def refine(self, obj: SceneObject, config: FrameConfig | None = None, budget_s: float | None = None,
+               stop=None) -> Frame | None:
         """Progressive refinement at rest (app.progressive): advance the frames of this pose at rest
         (refine_schedule: intermediate frames, then the all-sources frame in config's mode) by batches
         of shadow maps for about `budget_s` seconds (None: to the end). config.passes is the budget of
@@ -286,8 +286,9 @@ class Engine:
         completed no frame. A call for another pose or mode starts over, and so does a call after
         another frame was rendered in between (it re-aims the shared shadow maps and BVHs). Its stats
         add refine_s (compute in refine calls so far), refine_calls and refine_frames (intermediate
-        frames returned before it)."""
-        return self.refiner.refine(obj, config or self.frame_config(), budget_s)
+        frames returned before it). stop: callable() -> bool, checked between steps (a batch of maps or a
+        stage): True ends the call at once, returning None (the GUI's next edit waits for no long slice)."""
+        return self.refiner.refine(obj, config or self.frame_config(), budget_s, stop)
 
     def refine_schedule(self, obj: SceneObject, config: FrameConfig | None = None) -> list[FrameConfig]:
         """The frames Engine.refine makes of `obj`'s pose at rest, in order (Refiner.schedule)."""
@@ -319,6 +320,7 @@ class Engine:
         if px is self and config.passes is None and self.rest_maps is not None and len(fs.eyes):
             order = self.rest_maps.order(fs)
         t = tick("sources", t)
+        yield  # a pause between stages: Engine.refine's stop and budget are checked here too
 
         # ---- occlusion masks: listed pixels and patch centres (app.stages.shadow_pass; yields per batch)
         ldr = config.mode == "ldr" and px is self  # a drag frame is composed in HDR
@@ -352,6 +354,7 @@ class Engine:
         R_pix, R_cen, R_cen_sun = self._object_light(px, obj, pv, pf, proxy_occ, centre, radius, cov_px, dB_shadow,
                                                      tables) if oc.object_light else (np.zeros((r.L_b.shape[0], 3)), np.zeros((pm.n_patches, 3)), None)
         t = tick("object_light", t)
+        yield  # a pause between stages: Engine.refine's stop and budget are checked here too
 
         # ---- the object's radiance (app.stages.object_shading): the room's light, less what its shadow takes
         # from the patches, plus its own light the patches reflect back to it
@@ -373,6 +376,7 @@ class Engine:
             sun.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
                                      shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip)
         t = tick("object_shading", t)
+        yield  # a pause between stages: Engine.refine's stop and budget are checked here too
 
         # ---- second order: change of patch radiance, passed on once to receiver vertices (app.stages.compose)
         dE_v = None
@@ -388,6 +392,7 @@ class Engine:
                 more = -blk if more is None else more - blk
             dE_v = px.compose.second_order(dB, dE_more=more)
         t = tick("second_order", t)
+        yield  # a pause between stages: Engine.refine's stop and budget are checked here too
 
         # ---- compose (app.stages.compose): HDR or LDR, on the pixels that changed
         if px is self:

@@ -40,6 +40,13 @@ LIFT_STEP = 0.02  # m
 MOVE_STEP = 0.05  # m
 SCALE_STEP = 1.1
 REFINE_SLICE_S = 0.05  # s of refinement between checks for a new edit (the drag frame stays on screen meanwhile)
+# The newest pose's preview (the pose label, the 3D view's object, the last frame with the pose's outline, shown
+# while that pose's frame is made) is redrawn at most once per PREVIEW_INTERVAL_S, not on each mouse move: each one
+# costs the main thread (outline_preview rasterizes the outline, the 3D view re-uploads the object) and redraws the
+# whole window, on the CPU where there is no GPU (Mesa's llvmpipe under Xvfb), CPU the drag frames need on a
+# 2-core machine (docs/benchmarks.md, "The GUI's drag (gui37)"). 20 Hz keeps the outline moving smoothly for the
+# eye; the frames themselves come slower.
+PREVIEW_INTERVAL_S = 0.05
 SETTLE_TICKS = 20  # redraws before a scripted screenshot is compared (settled_screenshot)
 
 
@@ -212,6 +219,9 @@ class PlacementWindow:
         self._script: Callable[[], bool] | None = None  # headless mode: decides whether to render more
         self._pre_t0 = time.perf_counter()
         self._pre_fraction: float | None = None  # share of the precompute done (Engine's progress callback)
+        self._preview_due = False  # the newest pose's outline is not on screen yet (main thread only)
+        self._preview_t = -math.inf  # when the last outline preview was drawn (perf_counter s)
+        self._dragging = False  # the mouse button is down on the photo: a gesture is under way (no refinement)
 
         w = self.window = self.app.create_window(title, width, height)
         em = w.theme.font_size
@@ -243,7 +253,7 @@ class PlacementWindow:
         p.add_fixed(0.5 * em)
         p.add_child(gui.Label("Shadow passes per frame"))
         self.slider = gui.Slider(gui.Slider.INT)
-        self.slider.set_limits(10, 50)
+        self.slider.set_limits(10, max(50, int(ctl.passes or 0)))
         self.slider.int_value = int(ctl.passes) if ctl.passes else 50
         self.slider.set_on_value_changed(self._on_passes)
         p.add_child(self.slider)
@@ -342,6 +352,7 @@ class PlacementWindow:
             eng = self.ctl.start_engine(progress=self._on_precompute_progress)
             if eng is not self.ctl.engine:  # the lighting changed meanwhile: its own precompute follows
                 return
+            self.ctl.prepare_drag()  # the drag frame's stages now, not on the first drag
             msg = (f"precompute {eng.precompute_s:.1f} s" + (" (cached)" if eng.cache_hit else "")
                    + f", {eng.pre.patches.n_patches} patches")
         except Exception as e:  # noqa: BLE001 - shown in the window, and ends a headless run
@@ -401,9 +412,13 @@ class PlacementWindow:
         """While `pose` is the current one and no edit is waiting, add sources a slice at a time;
         show each frame at rest as it is complete (Engine.refine's intermediate frames, then the
         all-sources frame)."""
-        while not self.closed and not self._dirty and pose == self.ctl.pose:
+        def edited() -> bool:  # the next edit or a press ends it between any two of its steps; none starts while
+            # the button is held (the pose is not at rest: the next move comes; the release asks for the refinement)
+            return self.closed or self._dirty or self._dragging or pose != self.ctl.pose
+
+        while not edited():
             try:
-                fr = self.ctl.refine(pose, budget_s=REFINE_SLICE_S, intermediate=True)
+                fr = self.ctl.refine(pose, budget_s=REFINE_SLICE_S, intermediate=True, stop=edited)
             except Exception as e:  # noqa: BLE001 - an engine error must not kill the window
                 log.exception("refinement failed")
                 self.error = f"refinement failed: {e}"
@@ -421,6 +436,10 @@ class PlacementWindow:
             self._set_image(fr.pixels)
         else:  # an edit arrived meanwhile: show this frame with the newer outline until its own
             self._set_image(outline_preview(fr.pixels, self.ctl, self.ctl.pose))
+        if self._preview_due:  # the newest pose's label and 3D object go with this redraw: no preview due
+            self._preview_due, self._preview_t = False, time.perf_counter()
+            self._show_pose(self.ctl.pose)
+            self._show_object()
         st = fr.stats
         kept = " (kept)" if st["cached"] else ""
         self.frame_label.text = (f"frame: {st['frame_s'] * 1000:.0f} ms{kept}"
@@ -462,13 +481,28 @@ class PlacementWindow:
 
     def _on_pose_change(self, pose: Pose) -> None:
         """Controller callback (main thread: edits come from widget events)."""
+        self.request_frame()
+        self._preview_due = True
+        self._preview()
+
+    def _preview(self) -> bool:
+        """Show the newest pose (the pose label, the 3D view's object, its outline over the last frame) when
+        it is due and the last preview is at least PREVIEW_INTERVAL_S old (else _on_tick shows it later);
+        returns whether it did. Each of the three redraws the window, so they go at the preview's rate."""
+        now = time.perf_counter()
+        if not self._preview_due or now - self._preview_t < PREVIEW_INTERVAL_S:
+            return False
+        self._preview_due, self._preview_t = False, now
+        pose = self.ctl.pose
         self._show_pose(pose)
         self._show_object()
         if self.last_frame is not None:
             self._set_image(outline_preview(self.last_frame.pixels, self.ctl, pose))
-        self.request_frame()
+        return True
 
     def _on_tick(self) -> bool:
+        if self._preview():
+            return True
         if not self.engine_ready.is_set() and self.error is None:
             t = time.perf_counter() - self._pre_t0
             f = self._pre_fraction
@@ -502,14 +536,15 @@ class PlacementWindow:
                 self._guard(self.ctl.place_at_pixel, *uv)
                 self._dragging = True
             return gui.Widget.EventCallbackResult.CONSUMED
-        if t == gui.MouseEvent.Type.DRAG and getattr(self, "_dragging", False):
+        if t == gui.MouseEvent.Type.DRAG and self._dragging:
             uv = self.image_to_pixel(e.x, e.y)
             if uv is not None:
                 self._guard(self.ctl.move_to_pixel, *uv)
             return gui.Widget.EventCallbackResult.CONSUMED
-        if t == gui.MouseEvent.Type.BUTTON_UP and getattr(self, "_dragging", False):
+        if t == gui.MouseEvent.Type.BUTTON_UP and self._dragging:
             self._dragging = False
             self.ctl.end_gesture()
+            self.request_frame()  # at rest now: the render loop shows the pose's kept frame and refines it
             return gui.Widget.EventCallbackResult.CONSUMED
         return gui.Widget.EventCallbackResult.IGNORED
 

@@ -166,11 +166,15 @@ class PlacementController:
     """
 
     def __init__(self, scene: Scene, params=None, cache_dir: str | Path | None = None, quiet: bool = True,
-                 frame_cache: int = 16):
+                 frame_cache: int = 16, drag: int | None = None):
+        """drag: frames while the object moves are drag frames, the room at 1/drag resolution each way
+        (FrameConfig.drag, app.dragframe), when params gives a pass budget; None: at full resolution.
+        With no params they always are (at app.config.DRAG_SCALE)."""
         from kernels.visibility import Occluder
 
         self.scene = scene
         self.params = params
+        self.drag = DRAG_SCALE if params is None and drag is None else drag
         self.device: str | None = None  # Warp device of the engine (None: kernels.runtime's default)
         self.cache_dir = cache_dir
         self.quiet = quiet
@@ -195,20 +199,21 @@ class PlacementController:
     # ------------------------------------------------------------------ construction
     @classmethod
     def open(cls, path: str | Path, params=None, cache_dir: str | Path | None = None,
-             quiet: bool = True, work_res: int | None = None) -> "PlacementController":
+             quiet: bool = True, work_res: int | None = None, drag: int | None = None) -> "PlacementController":
         """A benchmark scene folder, or a saved placement JSON (which names its scene folder);
-        work_res: preview at most this many pixels on the photo's long side (app.workres)."""
+        work_res: preview at most this many pixels on the photo's long side (app.workres); drag: as
+        the constructor's."""
         from app.workres import working_scene
 
         path = Path(path)
         if path.is_file() and path.suffix.lower() == ".json" and path.name != "scene.json":
             data = _read_placement(path)
-            ctl = cls(working_scene(load_scene(data["scene"]), work_res), params, cache_dir, quiet)
+            ctl = cls(working_scene(load_scene(data["scene"]), work_res), params, cache_dir, quiet, drag=drag)
             ctl._apply_saved(data, path)
             return ctl
         if path.is_file() and path.name == "scene.json":
             path = path.parent
-        return cls(working_scene(load_scene(path), work_res), params, cache_dir, quiet)
+        return cls(working_scene(load_scene(path), work_res), params, cache_dir, quiet, drag=drag)
 
     def start_engine(self, params=None, progress=None):
         """Build the engine (precompute, cached under cache_dir); returns it. progress: callable(done,
@@ -226,8 +231,22 @@ class PlacementController:
             self.engine = eng
             self.params = eng.params
             if self._config is None:
-                self._config = eng.frame_config()
+                self._config = self._frame_config(eng.params)
         return eng
+
+    def prepare_drag(self) -> None:
+        """Build the drag frame's per-scene stages of the engine now (app.dragframe.DragStages, or the sphere
+        frame's data), not on the first drag frame: the GUI calls it once the engine is ready."""
+        from app.dragframe import sphere_stages, uses_spheres
+
+        with self._lock:
+            eng, cfg = self.engine, self.config
+        if eng is None or cfg.drag is None:
+            return
+        if uses_spheres(eng, cfg):
+            sphere_stages(eng, cfg.drag)
+        else:
+            eng.pixel_stages(cfg.drag)
 
     def set_lighting(self, lighting: str) -> bool:
         """Light the room another way (a key of app.engine.LIGHTING). The engine is per lighting: when
@@ -476,16 +495,20 @@ class PlacementController:
     @property
     def config(self):
         """The FrameConfig of the next frames (frozen; set_budget replaces it)."""
-        from app.engine import FrameConfig
-
         with self._lock:
             if self._config is None:
-                p = self.params
-                # with no settings given, frames while the object moves are drag frames (app.dragframe)
-                self._config = (FrameConfig(DRAG_FRAME_PASSES, "hdr", drag=DRAG_SCALE, drag_shadow=DRAG_SHADOW)
-                                if p is None
-                                else FrameConfig(p.passes, p.mode, p.fps))
+                self._config = self._frame_config(self.params)
             return self._config
+
+    def _frame_config(self, p):
+        """The FrameConfig of params `p` (None: no settings given): frames while the object moves are drag
+        frames (app.dragframe) at 1/self.drag when there is a pass budget and self.drag is set."""
+        from app.engine import FrameConfig
+
+        if p is None:
+            return FrameConfig(DRAG_FRAME_PASSES, "hdr", drag=self.drag, drag_shadow=DRAG_SHADOW)
+        drag = self.drag if p.passes is not None else None
+        return FrameConfig(p.passes, p.mode, p.fps, drag=drag, drag_shadow=DRAG_SHADOW)
 
     @property
     def passes(self) -> int | None:
@@ -500,7 +523,10 @@ class PlacementController:
             raise ValueError(f"mode must be 'hdr' or 'ldr', got {mode!r}")
         with self._lock:  # a new FrameConfig: a frame already running keeps the one it was given
             cfg = self.config
-            self._config = replace(cfg, passes=cfg.passes if passes == "keep" else passes, mode=mode or cfg.mode)
+            passes = cfg.passes if passes == "keep" else passes
+            # all sources: at full resolution; a pass budget: the drag frame's scale, if any
+            drag = None if passes is None else (cfg.drag or self.drag)
+            self._config = replace(cfg, passes=passes, mode=mode or cfg.mode, drag=drag)
 
     def render(self, pose: Pose | None = None) -> FrameResult:
         """Composite `pose` (default: the current one) through the engine.
@@ -547,12 +573,13 @@ class PlacementController:
         return FrameResult(fr.pixels, fr.radiance, {**fr.stats, "cached": True, "frame_s": time.perf_counter() - t0})
 
     def refine(self, pose: Pose | None = None, budget_s: float | None = None,
-               intermediate: bool = False) -> FrameResult | None:
+               intermediate: bool = False, stop: Callable[[], bool] | None = None) -> FrameResult | None:
         """At rest: advance the all-sources frame of `pose` (default: the current one) for about
         `budget_s` seconds (None: to the end) and return it once every source is in, else None.
         intermediate: also return Engine.refine's intermediate frames as they come (converged
         False; the drag budget sets them, Engine.refine_schedule). The finished frame is kept like
-        any other (budget None), so later calls return it at once. stats as render's, with
+        any other (budget None), so later calls return it at once. stop: Engine.refine's (checked
+        between steps: True returns None at once). stats as render's, with
         converged True and engine_s the refinement's compute time."""
         t0 = time.perf_counter()
         with self._lock:
@@ -570,7 +597,7 @@ class PlacementController:
             return self.render(pose)
         at_rest = replace(self.config, fps=None, drag=None,  # full resolution; the drag budget sets the frames
                           passes=DRAG_PASSES if self.config.drag else self.config.passes)
-        f = eng.refine(obj, at_rest, budget_s)
+        f = eng.refine(obj, at_rest, budget_s, stop)
         if f is None or not (f.stats["exact"] or intermediate):
             return None
         fr = FrameResult(f.pixels, f.radiance, {"passes": f.stats["passes"], "engine_s": f.stats["refine_s"],

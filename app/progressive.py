@@ -88,8 +88,11 @@ class Refiner:
             out.insert(0, FrameConfig(n, config.mode, full_maps=True))
         return out
 
-    def refine(self, obj: SceneObject, config: FrameConfig, budget_s: float | None):
-        """Engine.refine (see there): (frame or None)."""
+    def refine(self, obj: SceneObject, config: FrameConfig, budget_s: float | None,
+               stop: Callable[[], bool] | None = None):
+        """Engine.refine (see there): (frame or None). stop() is asked before each step (a batch of shadow
+        maps or a stage of the frame): True ends the call there, the state kept for the next call (a frame
+        rendered in between restarts it), so a caller's next edit waits for one step at most."""
         key = (pose_key(obj), config.mode)
         st = self._state
         if st is not None and st.frame is None and st.frames_seen not in (-1, self.frames_started()):
@@ -110,6 +113,8 @@ class Refiner:
         mark = t0
         try:
             while True:
+                if stop is not None and stop():
+                    break
                 try:
                     next(st.steps)
                 except StopIteration as done:

@@ -310,3 +310,40 @@ def test_public_engine_api_progress_lighting_and_no_param_writes(tmp_path):
         src = (root / name).read_text()
         writes = re.findall(r"(?:params|engine\.params)\.\w+\s*=(?!=)", src)
         assert not writes, (name, writes)
+
+
+def test_gui_frames_while_dragging_are_drag_frames_and_prepare_drag_builds_their_stages(demo):
+    # `photoar gui`'s controller (app.cmd_gui.controller): while the object moves, the drag frame of
+    # app.dragframe (the room at 1/DRAG_SCALE, DRAG_PASSES passes), built when the engine is ready
+    # (prepare_drag), not on the first drag; --screenshot / --frames, --drag-scale 1 and --all-sources: full size
+    from app.cli import build_parser
+    from app.cmd_gui import controller
+    from app.config import DRAG_PASSES, DRAG_SCALE, DRAG_SHADOW
+    from app.engine import FrameConfig
+
+    def gui_controller(*extra):
+        return controller(build_parser().parse_args(["gui", str(demo_scene_dir()), "--cache", str(demo.cache_dir),
+                                                     *extra]))
+
+    drag = FrameConfig(DRAG_PASSES, "hdr", drag=DRAG_SCALE, drag_shadow=DRAG_SHADOW)
+    ctl = gui_controller()
+    assert ctl.config == drag
+    for extra in (["--screenshot", "shot.png"], ["--frames", "2"], ["--drag-scale", "1"]):
+        assert gui_controller(*extra).config == FrameConfig(DRAG_PASSES, "hdr", drag_shadow=DRAG_SHADOW), extra
+    assert gui_controller("--all-sources").config.passes is None and gui_controller("--all-sources").config.drag is None
+    assert gui_controller("--drag-scale", "2").config.drag == 2
+    eng = ctl.start_engine()
+    assert DRAG_SCALE not in eng._drag  # the drag stages are made on demand ...
+    ctl.prepare_drag()
+    stages = eng._drag[DRAG_SCALE]  # ... and prepare_drag made them
+    ctl.set_budget(12)  # the slider keeps the drag frame's scale; all sources: full size
+    assert ctl.config.drag == DRAG_SCALE and ctl.config.passes == 12
+    ctl.set_budget(DRAG_PASSES)
+    fr = ctl.render()
+    obj = ctl.scene_object()
+    assert eng._drag[DRAG_SCALE] is stages  # the first drag frame used them
+    assert np.array_equal(fr.pixels, eng.render(obj, drag).pixels) and fr.stats["budget"] == DRAG_PASSES
+    full = eng.render(obj, FrameConfig(DRAG_PASSES, "hdr"))
+    assert np.mean(np.any(fr.pixels != full.pixels, axis=2)) > 0.01  # not the full-size frame
+    ctl.set_budget(None)
+    assert ctl.config.drag is None and ctl.config.passes is None

@@ -47,10 +47,13 @@ def test_refine_converges_to_the_all_sources_frame(demo):
     S, b = exact.stats["passes"], eng.params.batch
     hard = S if order is None else order[1]
     n_batches = [-(-20 // b), -(-hard // b) + -(-(S - hard) // b)]
-    # spread over calls: one batch of shadow maps each, then each frame's shading and compositing
-    assert n_batches[1] > 1 and calls == sum(n_batches) + 2
+    # spread over calls: one batch of shadow maps each, and each frame pauses between its stages (after the
+    # source list, the object's light, its shading and the second order: a caller's stop() is asked there too),
+    # then its compositing
+    stage_pauses = 4
+    assert n_batches[1] > 1 and calls == sum(n_batches) + 2 * (stage_pauses + 1)
     (c_mid, mid), (c_end, fr) = shown
-    assert c_mid == n_batches[0] + 1 and not mid.stats["exact"] and mid.stats["passes"] == 20
+    assert c_mid == n_batches[0] + stage_pauses + 1 and not mid.stats["exact"] and mid.stats["passes"] == 20
     assert mid.stats["refine_frames"] == 0 and fr.stats["refine_frames"] == 1
     # the intermediate frame is shown before the exact one and is closer to it than the drag frame
     assert _rmse(mid.pixels, exact.pixels) < _rmse(drag.pixels, exact.pixels)
@@ -187,7 +190,7 @@ def test_placement_refine_shows_intermediate_frames_at_rest(tmp_path):
     from app.gui import PlacementWindow
 
     class Win:
-        closed, _dirty, refined_frames, error, window = False, False, 0, None, None
+        closed, _dirty, _dragging, refined_frames, error, window = False, False, False, 0, None, None
 
         def __init__(self):
             self.ctl, self.shown = ctl, []
@@ -202,3 +205,34 @@ def test_placement_refine_shows_intermediate_frames_at_rest(tmp_path):
     PlacementWindow._refine_at_rest(win, ctl.pose)
     assert [f.stats["converged"] for f, _ in win.shown] == [False, True] and win.refined_frames == 2
     assert win.shown[0][0].stats["passes"] == 20 and all(p == ctl.pose for _, p in win.shown)
+
+
+def test_refine_stops_where_stop_says_and_goes_on_from_there(demo):
+    # stop() is asked before each step (a batch of maps or a stage of the frame): True ends the call there
+    # with no frame, and the next call goes on from that step; the frame is the uninterrupted one, bit for bit
+    scene, eng = demo
+    pose = moved(scene.obj, np.array([-0.45, 0.0, 0.0]))
+    asked = []
+    assert eng.refine(pose, FrameConfig(passes=10), stop=lambda: asked.append(1) or True) is None
+    assert len(asked) == 1  # asked once, before a first step it did not take (no budget: it would run to the end)
+    steps = [0]
+
+    def two_steps():  # allows two steps per call
+        steps[0] += 1
+        return steps[0] % 3 == 0
+
+    calls = 0
+    while (fr := eng.refine(pose, FrameConfig(passes=10), stop=two_steps)) is None:
+        calls += 1
+        assert calls < 1000
+    pv = eng.object_shading.object_shape(pose)[0]
+    order = eng.rest_maps.order(eng.shadow_sources.select(pv.min(0), pv.max(0), None))
+    S, b = fr.stats["passes"], eng.params.batch
+    hard = S if order is None else order[1]
+    # no budget: straight to the all-sources frame, its batches, four stage pauses and the compositing step
+    n_steps = -(-hard // b) + -(-(S - hard) // b) + 4 + 1
+    assert fr.stats["exact"] and calls + 1 == -(-n_steps // 2) and fr.stats["refine_calls"] == calls + 2
+    eng.refiner.forget()
+    whole = eng.refine(pose, FrameConfig(passes=10))
+    assert whole is not fr and whole.stats["refine_calls"] == 1
+    assert np.array_equal(whole.pixels, fr.pixels) and np.array_equal(whole.radiance, fr.radiance)

@@ -1,0 +1,120 @@
+"""PlacementWindow's render loop (app/gui.py) with a stand-in controller and event loop, no window: a late
+frame makes it drop the poses made meanwhile (it renders the newest, never queues them); while the mouse
+button is held it does not refine; the release refines the pose at rest, and a press stops that."""
+import threading
+from types import SimpleNamespace
+
+from app.gui import PlacementWindow, _ScriptMouse
+
+WAIT_S = 60.0  # a guard against a hung loop, not a timing
+
+
+def _pose(k: int):
+    return SimpleNamespace(mesh="object.ply", k=k)
+
+
+class _Controller:
+    """Frames and refinement under the test's control: each render waits for `go`; refine returns at once
+    (it is asked again while the pose rests) unless `hold` is set, then it waits for `pressed`."""
+
+    def __init__(self):
+        self.pose = _pose(0)
+        self.rendered: list[int] = []
+        self.refined: list[int] = []
+        self.started = threading.Semaphore(0)
+        self.go = threading.Semaphore(0)
+        self.hold = False
+        self.refining = threading.Event()
+        self.pressed = threading.Event()
+        self.stop_said: list[bool] = []
+
+    def render(self, pose):
+        self.rendered.append(pose.k)
+        self.started.release()
+        assert self.go.acquire(timeout=WAIT_S)
+        return SimpleNamespace(pixels=None, stats={"cached": False, "frame_s": 0.0, "converged": False})
+
+    def refine(self, pose, budget_s=None, intermediate=False, stop=None):
+        self.refined.append(pose.k)
+        if self.hold:
+            self.stop_said.append(stop())  # at rest, nothing pending: False
+            self.refining.set()
+            assert self.pressed.wait(WAIT_S)
+            self.stop_said.append(stop())  # after the press: True, the refinement ends between two steps
+        return None
+
+    def end_gesture(self):
+        pass
+
+
+class _Condition(threading.Condition):
+    """The loop's condition, telling when the loop waits for the next request (it is idle)."""
+
+    def __init__(self):
+        super().__init__()
+        self.idle = threading.Event()
+
+    def wait(self, timeout=None):
+        self.idle.set()
+        return super().wait(timeout)
+
+
+def _window(ctl) -> tuple[PlacementWindow, list]:
+    import open3d.visualization.gui as gui
+
+    w = PlacementWindow.__new__(PlacementWindow)  # the loop's state only: no Open3D window
+    shown = []
+    w.gui, w.ctl, w.choices, w.closed, w._dirty, w._script, w._dragging = gui, ctl, [], False, False, None, False
+    w._render_cv, w.engine_ready = _Condition(), threading.Event()
+    w.frame_times, w.error, w.refined_frames, w.window = [], None, 0, None
+    w.app = SimpleNamespace(post_to_main_thread=lambda window, fn: fn())
+    w._show_frame = lambda fr, pose: shown.append(pose.k)
+    w.engine_ready.set()
+    return w, shown
+
+
+def _move(w, ctl, k: int):  # what a mouse move does: a new pose, then _on_pose_change's request_frame
+    ctl.pose = _pose(k)
+    w.request_frame()
+
+
+def _frame(ctl):  # wait for the loop to start a frame, then let it finish
+    assert ctl.started.acquire(timeout=WAIT_S)
+    ctl.go.release()
+
+
+def test_a_late_frame_drops_the_poses_made_meanwhile_and_a_press_stops_the_refinement():
+    ctl = _Controller()
+    w, shown = _window(ctl)
+    loop = threading.Thread(target=w._render_loop, daemon=True)
+    w._dragging = True  # the button is down (BUTTON_DOWN on the photo): a drag
+    _move(w, ctl, 1)
+    loop.start()
+    try:
+        assert ctl.started.acquire(timeout=WAIT_S)  # pose 1's frame is under way ...
+        for k in range(2, 7):  # ... and late: five moves meanwhile
+            _move(w, ctl, k)
+        ctl.go.release()
+        w._render_cv.idle.clear()
+        _frame(ctl)  # the next frame: the newest pose's
+        assert w._render_cv.idle.wait(WAIT_S)  # the pointer rests a moment: the loop waits, it does not refine
+        _move(w, ctl, 7)
+        _frame(ctl)
+        # 2-5 were dropped, not queued; nothing refined while the button is held
+        assert ctl.rendered == [1, 6, 7] and ctl.refined == []
+        ctl.hold = True
+        T = w.gui.MouseEvent.Type
+        w._on_image_mouse(_ScriptMouse(T.BUTTON_UP, 0.0, 0.0))  # the release asks for the pose at rest
+        _frame(ctl)
+        assert ctl.refining.wait(WAIT_S)
+        w._dragging = True  # a press while it refines (on the object's own spot: no new pose)
+        ctl.pressed.set()
+    finally:
+        w.closed = True
+        with w._render_cv:
+            w._render_cv.notify()
+        ctl.go.release()
+        loop.join(WAIT_S)
+    assert not loop.is_alive()
+    assert ctl.rendered == [1, 6, 7, 7] and shown == [1, 6, 7, 7]
+    assert ctl.refined == [7] and ctl.stop_said == [False, True]
