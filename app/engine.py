@@ -402,7 +402,7 @@ class Engine:
             _, _, room_c = px.compose.frame("hdr", masks.pix_sel, masks.O_pix, masks.fill_sel, px.shadow_pass.fill,
                                             R_pix, dE_v, px.zero_cov, px.zero_rad)
             t = tick("compose", t)
-            radiance, pixels, room = px.finish(room_c, cov, obj_rad, self._sun_share(sun_loss))
+            radiance, pixels, room = px.finish(room_c, cov, obj_rad, self._sun_share(sun_loss), hits.rect)
             tick("upsample", t)
         frame_s = ft.close()
         self.budget.measured(frame_s, timings["masks"], len(fs.eyes))

@@ -143,6 +143,34 @@ def test_drag_compose_kernel_matches_its_reference(demo_engine):
     assert np.array_equal(pix1, scene.photo)
 
 
+def test_drag_finish_copies_only_the_objects_rectangle_bit_for_bit(demo_engine):
+    # DragStages.finish given the object's rectangle (ObjectHits.rect: cov and obj_rad are 0 outside it) copies
+    # only that rectangle into the kernel's buffers, the last one's zeroed first: along a drag (the rectangle
+    # moving; once after a whole-frame copy of another pose) every frame is the whole-frame copy's, bit for bit
+    from app.dragpath import drag_offsets, moved
+
+    scene, eng = demo_engine
+    px = eng.pixel_stages(2)
+    h, w = px.shape
+    room_c = px.receivers.L_b.reshape(h, w, 3).astype(np.float32) * np.float32(0.8)
+    poses = []
+    for k, o in enumerate(drag_offsets(scene, scene.obj, 4)):
+        obj = moved(scene.obj, o)
+        hits = eng.object_shading.object_hits(obj.vertices, obj.faces)
+        cov = hits.coverage()
+        assert (cov > 0).sum() > 100
+        poses.append((hits.rect, cov, hits.average(np.ones((len(hits.hit), 3)) * (0.3 + 0.1 * k))))
+    assert len({p[0] for p in poses}) == len(poses)  # the rectangle moves every time
+    part = []
+    for k, (rect, cov, obj_rad) in enumerate(poses):
+        if k == 2:
+            px.finish(room_c, np.roll(cov, 40, 1), np.roll(obj_rad, 40, 1))
+        part.append([a.copy() for a in px.finish(room_c, cov, obj_rad, rect=rect)])
+    for (rect, cov, obj_rad), got in zip(poses, part):
+        for a, b in zip(px.finish(room_c, cov, obj_rad), got):
+            assert np.array_equal(a, b)
+
+
 @pytest.mark.parametrize("room", ["window_room", "lamps_room", "sun_room"])
 def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     # each shared room against its truth (tools/score.py's measures, lighting.metrics): evaluate's drag frame
