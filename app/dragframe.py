@@ -185,6 +185,19 @@ class DragStages:
                                     engine.receivers.recv_pix, dev)
         self._split = functools.partial(runtime.split, device=dev)
         self._near: dict[str, tuple] = {}  # near_pose: (shape, centre, value) of the last computed pose
+        self._engine_cam = (engine.cam_occ, engine.scene.camera, engine.params.object.supersample, dev)
+        self._scene_depth = None  # scene_depth(), made on first use
+
+    def scene_depth(self):
+        """The object's camera hits at full resolution with the scene's depth per sub-sample kept
+        (kernels.scene_depth.SceneDepth: cast on the first drag frame, the same hits as the frames at rest's)."""
+        if self._scene_depth is None:
+            from kernels.scene_depth import SceneDepth
+
+            occ, cam, s, dev = self._engine_cam
+            self._scene_depth = SceneDepth(occ, cam.centre, cam.R.T @ np.linalg.inv(cam.K), cam.width, cam.height,
+                                           s, dev)
+        return self._scene_depth
 
     def near_pose(self, what: str, compute, vertices: np.ndarray, faces: np.ndarray, centre: np.ndarray,
                   reach: float):

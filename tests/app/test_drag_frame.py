@@ -293,3 +293,27 @@ def test_unseen_lamp_rooms_drag_frame_within_the_bound(shared_scenes_cache, name
     s_drag = metrics.score_regions(drag.pixels, scene.photo, truth, mask)
     assert s_drag["rmse_affected"] <= 1.5 * s_all["rmse_affected"] + 0.5, (s_drag, s_all)
     assert 0.93 <= s_drag["energy_ratio"] <= 1.07, s_drag
+
+
+def test_drag_object_hits_with_the_scene_depth_kept_are_the_frames_at_rest(demo_engine):
+    # the drag frame's camera hits read the scene's distance per sub-sample from a table cast by bands of rows as the
+    # object first reaches them (kernels.scene_depth.SceneDepth), not a scene ray per hit (kernels.shade.CameraHits):
+    # the same rays, the same closest scene hit, so the same triangles, barycentrics and hits bit for bit, along a
+    # drag and with the object half sunk into the floor (the floor in front of its lower half: the test matters)
+    from app.dragpath import drag_offsets, moved
+
+    scene, eng = demo_engine
+    osh = eng.object_shading
+    caster = eng.pixel_stages(2).scene_depth()
+    height = np.ptp(scene.obj.vertices[:, 1])
+    offsets = list(drag_offsets(scene, scene.obj, 5)) + [np.array([0.0, -0.5 * height, 0.0])]
+    hidden = 0
+    for o in offsets:
+        pv, pf, proxy_occ, (v, n, f), shade_occ = osh.object_shape(moved(scene.obj, o))
+        a = osh.object_hits(v, f, occluder=shade_occ)
+        b = osh.object_hits(v, f, occluder=shade_occ, caster=caster)
+        assert a.rect == b.rect and a.hit.sum() > 100
+        assert np.array_equal(a.tri, b.tri) and np.array_equal(a.bary, b.bary) and np.array_equal(a.hit, b.hit)
+        hidden = ((a.tri >= 0) & ~a.hit).sum()
+    assert hidden > 50  # the sunk pose: sub-samples on the object behind the floor
+    assert caster._done.any() and not caster._done.all()  # only the bands the object reached were cast
