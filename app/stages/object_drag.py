@@ -378,6 +378,7 @@ class DragObject:
         self._ws = Workspaces()  # per call site: a drag allocates nothing after its first frame
         self._split = functools.partial(split_launches, device=device, min_items=64)
         self._radiance = FrameImage()  # the per-pixel radiance, kept: only the object's rectangle is rewritten
+        self._group: np.ndarray | None = None  # _emitter_group's, per scene
 
     def shape(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, R: np.ndarray) -> tuple[DragShape, np.ndarray]:
         """(the DragShape of the shading mesh (v, n, f) at a pose of rotation R, its centre (3,))."""
@@ -475,9 +476,7 @@ class DragObject:
                     # the sun's loss on an emitter patch (a sunlit floor patch in the object's shadow) seen past the
                     # room as that patch's emitter group is: the two nearly cancel, and the same visibility on both
                     # keeps their difference's error the difference's, not the larger terms'
-                    group = np.full(pm.n_patches, -1)
-                    group[em] = np.repeat(np.arange(len(start) - 1), np.diff(start))
-                    g_k = group[kn[part]]
+                    g_k = self._emitter_group()[kn[part]]
                     w = np.where(g_k[None] >= 0, w_em[:, np.maximum(g_k, 0)], 1.0)
                 E_near = gather_seen(vg[rows], nu[rows], rows, ds.vis_on(self.device), corners[part], rad[part], R,
                                      VIS_RES, self.device, self._ws.get(f"drag.near_ff.{part is sunny}"), self._split,
@@ -533,6 +532,16 @@ class DragObject:
         shaded = ShadedObject(radiance, L_vert, sun_vis)
         self.last = DragShaded(shaded, L_sun, L_proxy + L_sun if L_sun is not None else L_proxy)
         return self.last
+
+    def _emitter_group(self) -> np.ndarray:
+        """(P,) each patch's emitter group (ObjectShading.emitter_groups' order), -1 for none: per scene, made on
+        first use."""
+        if self._group is None:
+            em, (start, _) = self.shading.emitter_groups()
+            group = np.full(self.shading.patches.n_patches, -1)
+            group[em] = np.repeat(np.arange(len(start) - 1), np.diff(start))
+            self._group = group
+        return self._group
 
     def proxy_radiance(self, pv: np.ndarray, pf: np.ndarray, L_vert: np.ndarray, L_sun: np.ndarray | None
                        ) -> tuple[np.ndarray, np.ndarray | None]:
