@@ -1,7 +1,7 @@
 """One BLAS thread while a frame runs: numpy's (and scipy's) OpenBLAS threads a matrix product of a few
 thousand rows over every core, and on the 2-core machine those threads compete with the frame's own Warp
 launches (app.runtime splits them over both cores) and with each other. A drag frame's small products
-(the object's probe weights (U,27) @ (27,27), the emitter visibility (U,Q) @ (Q,G)) then took 12-20 ms
+(the object's probe weights (U,27) @ (27,27) and (U,27) @ (27,G), app.stages.object_drag) then took 12-20 ms
 each on the loaded machine against 0.1-0.4 ms on one thread (docs/benchmarks.md, "The drag frame's glue
 (glue37)"). A frame's parallelism is the launches'; a frame's products are small, so one BLAS thread costs
 them nothing. The per-scene precompute keeps the process's own setting (one_thread is called per frame).
