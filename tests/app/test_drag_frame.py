@@ -296,8 +296,8 @@ def test_unseen_lamp_rooms_drag_frame_within_the_bound(shared_scenes_cache, name
 
 
 def test_drag_object_hits_with_the_scene_depth_kept_are_the_frames_at_rest(demo_engine):
-    # the drag frame's camera hits read the scene's distance per sub-sample from a table cast by bands of rows as the
-    # object first reaches them (kernels.scene_depth.SceneDepth), not a scene ray per hit (kernels.shade.CameraHits):
+    # the drag frame's camera hits read the scene's distance per sub-sample from a table cast by tiles of 16 x 16 px
+    # as the object first reaches them (kernels.scene_depth.SceneDepth), not a scene ray per hit (CameraHits):
     # the same rays, the same closest scene hit, so the same triangles, barycentrics and hits bit for bit, along a
     # drag and with the object half sunk into the floor (the floor in front of its lower half: the test matters)
     from app.dragpath import drag_offsets, moved
@@ -316,4 +316,4 @@ def test_drag_object_hits_with_the_scene_depth_kept_are_the_frames_at_rest(demo_
         assert np.array_equal(a.tri, b.tri) and np.array_equal(a.bary, b.bary) and np.array_equal(a.hit, b.hit)
         hidden = ((a.tri >= 0) & ~a.hit).sum()
     assert hidden > 50  # the sunk pose: sub-samples on the object behind the floor
-    assert caster._done.any() and not caster._done.all()  # only the bands the object reached were cast
+    assert caster._done.any() and not caster._done.all()  # only the tiles the object reached were cast
