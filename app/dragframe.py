@@ -227,6 +227,19 @@ class DragStages:
                                     engine.receivers.recv_pix, dev)
         self._split = functools.partial(runtime.split, device=dev)
         self._near: dict[str, tuple] = {}  # near_pose: (shape, centre, value) of the last computed pose
+        self._engine_cam = (engine.cam_occ, engine.scene.camera, engine.params.object.supersample, dev)
+        self._scene_depth = None  # scene_depth(), made on first use
+
+    def scene_depth(self):
+        """The object's camera hits at full resolution with the scene's depth per sub-sample kept
+        (kernels.scene_depth.SceneDepth: cast on the first drag frame, the same hits as the frames at rest's)."""
+        if self._scene_depth is None:
+            from kernels.scene_depth import SceneDepth
+
+            occ, cam, s, dev = self._engine_cam
+            self._scene_depth = SceneDepth(occ, cam.centre, cam.R.T @ np.linalg.inv(cam.K), cam.width, cam.height,
+                                           s, dev)
+        return self._scene_depth
 
     def near_pose(self, what: str, compute, vertices: np.ndarray, faces: np.ndarray, centre: np.ndarray,
                   reach: float):
@@ -255,15 +268,16 @@ class DragStages:
         up[self._no_ratio] = 1.0
         return up
 
-    def finish(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, sun=None
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def finish(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, sun=None,
+               rect: tuple[int, int, int, int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(radiance (H,W,3) float32, pixels (H,W,3) uint8, room (H,W,3) float32) at full resolution
         from the coarse room room_c (h,w,3) without the sun, the object's cov (H,W), obj_rad (H,W,3), and
         sun: None or (pixels (n,), the share of their light the object takes from the sun (n,3)) at full
-        resolution (Engine._sun_share): one kernel (kernels.drag_compose), the form finish_reference
-        specifies."""
+        resolution (Engine._sun_share); rect: None or the object's rectangle (u0, v0, u1, v1) (inclusive, full
+        pixels; ObjectHits.rect) outside which cov and obj_rad are 0. One kernel (kernels.drag_compose), the form
+        finish_reference specifies."""
         H, W = self.full_shape
-        rad, room, pix = self._compose.run(room_c, cov, obj_rad, self._split, sun)
+        rad, room, pix = self._compose.run(room_c, cov, obj_rad, self._split, sun, rect)
         return rad.reshape(H, W, 3), pix.reshape(H, W, 3), room.reshape(H, W, 3)
 
     def finish_reference(self, engine, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, sun=None

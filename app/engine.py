@@ -308,7 +308,8 @@ class Engine:
         pm, oc, r, sun = self.pre.patches, self.params.object, px.receivers, self.sun_pixels.stage
         ft = FrameTimer()
         tick, timings = ft.tick, ft.timings
-        pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov = self.frame_object(obj, ft)
+        pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov = self.frame_object(
+            obj, ft, px.scene_depth() if px is not self else None)
         t = ft.last
         cov_px = cov if px is self else px.zero_cov  # the drag's coarse room is computed under the object too
 
@@ -404,7 +405,7 @@ class Engine:
             _, _, room_c = px.compose.frame("hdr", masks.pix_sel, masks.O_pix, masks.fill_sel, px.shadow_pass.fill,
                                             R_pix, dE_v, px.zero_cov, px.zero_rad)
             t = tick("compose", t)
-            radiance, pixels, room = px.finish(room_c, cov, obj_rad, self._sun_share(sun_loss))
+            radiance, pixels, room = px.finish(room_c, cov, obj_rad, self._sun_share(sun_loss), hits.rect)
             tick("upsample", t)
         frame_s = ft.close()
         self.budget.measured(frame_s, timings["masks"], len(fs.eyes))
@@ -416,16 +417,17 @@ class Engine:
             stats["fps_calibration_s"] = calibration_s
         return Frame(radiance, pixels, stats, room, cov.astype(np.float32))
 
-    def frame_object(self, obj: SceneObject, timer: FrameTimer) -> tuple:
+    def frame_object(self, obj: SceneObject, timer: FrameTimer, caster=None) -> tuple:
         """Every frame's first steps (the map frames here, the sphere drag frame in app.dragshadow): the object's
         proxy and shading mesh (app.stages.object_shading), its bounding sphere, and its pixels (camera hits
         against the scene model, coverage (H,W)); timed as the frame's stages "proxy" and "object" from the
-        timer's last tick (app.glue.FrameTimer: their glue too). Returns (pv, pf, proxy_occ, shade_mesh,
-        shade_occ, centre, radius, hits, cov)."""
+        timer's last tick (app.glue.FrameTimer: their glue too); caster: the camera hits' (ObjectShading.object_hits;
+        a drag frame's keeps the scene's depth). Returns (pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius,
+        hits, cov)."""
         pv, pf, proxy_occ, shade_mesh, shade_occ = self.object_shading.object_shape(obj)
         centre, radius = bounding_sphere(pv)
         t = timer.tick("proxy", timer.last)
-        hits = self.object_shading.object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ)
+        hits = self.object_shading.object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ, caster=caster)
         cov = hits.coverage()
         timer.tick("object", t)
         return pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov

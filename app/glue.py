@@ -15,6 +15,8 @@ import functools
 import threading
 import time
 
+from app import blas
+
 _state = threading.local()
 _installed = False
 
@@ -78,6 +80,7 @@ class FrameTimer:
     stack until the next clock replaces it: it then counts nothing that matters."""
 
     def __init__(self) -> None:
+        blas.one_thread()  # a frame's matrix products on one BLAS thread until close() (app.blas)
         self.clock = KernelClock().__enter__()
         self.timings: dict[str, float] = {}
         self.glue: dict[str, float] = {}
@@ -98,4 +101,5 @@ class FrameTimer:
         """Stop the clock; returns the frame's seconds since the timer started."""
         frame_s = time.perf_counter() - self.start
         self.clock.__exit__(None, None, None)
+        blas.own_threads()
         return frame_s

@@ -155,16 +155,36 @@ class DragCompose:
         self._ratio = wp.zeros(m, dtype=wp.vec3f, device=device)  # the coarse pixels' ratios, per frame
         self._cov = _Mirror((n,), f32, device)
         self._obj = _Mirror((n, 3), f32, device)
+        self._rect: tuple[int, int, int, int] | None = None  # the object's rectangle written last (run)
 
-    def run(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, split, sun=None
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _object(self, cov: np.ndarray, obj_rad: np.ndarray, rect: tuple[int, int, int, int] | None) -> None:
+        """The object's coverage and radiance into their buffers: the whole frame (rect None), or only the
+        rectangle (u0, v0, u1, v1) (inclusive) outside which both are 0, the last call's rectangle zeroed
+        first (a drag frame copies its object's ~1-10 % of the frame, not 1.2 M floats)."""
+        H, W = self.H, self.W
+        cv, ob = self._cov.np.reshape(H, W), self._obj.np.reshape(H, W, 3)
+        if rect is None or self._rect is None and (cv.any() or ob.any()):
+            cv[...] = cov.reshape(H, W)
+            ob[...] = obj_rad.reshape(H, W, 3)
+        else:
+            if self._rect is not None:
+                u0, v0, u1, v1 = self._rect
+                cv[v0:v1 + 1, u0:u1 + 1] = 0.0
+                ob[v0:v1 + 1, u0:u1 + 1] = 0.0
+            u0, v0, u1, v1 = rect
+            cv[v0:v1 + 1, u0:u1 + 1] = cov.reshape(H, W)[v0:v1 + 1, u0:u1 + 1]
+            ob[v0:v1 + 1, u0:u1 + 1] = obj_rad.reshape(H, W, 3)[v0:v1 + 1, u0:u1 + 1]
+        self._rect = None if rect is None else tuple(int(x) for x in rect)
+
+    def run(self, room_c: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray, split, sun=None,
+            rect: tuple[int, int, int, int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(radiance (N,3) float32, room (N,3) float32, pixels (N,3) uint8) from the coarse room
         room_c (h*w,3), the object's coverage cov (N,) and radiance obj_rad (N,3) (float32); sun: None or
-        (pixels (n,), the sun's share there (n,3))."""
+        (pixels (n,), the sun's share there (n,3)); rect: None, or the rectangle (u0, v0, u1, v1) (inclusive)
+        outside which cov and obj_rad are 0 (only it is copied)."""
         d, n, k = self.device, self.H * self.W, self.k
         self._room.np[:] = room_c.reshape(-1, 3)
-        self._cov.np[:] = cov.reshape(-1)
-        self._obj.np[:] = obj_rad.reshape(-1, 3)
+        self._object(cov, obj_rad, rect)
         for m in (self._room, self._cov, self._obj):
             m.push()
         if sun is not None:

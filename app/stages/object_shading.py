@@ -525,10 +525,11 @@ class ObjectShading:
         return pv, sh["pf"], sh["proxy_occ"], (sv, sh["sn"], sh["sf"]), sh["shade_occ"]
 
     def object_hits(self, verts: np.ndarray, faces: np.ndarray, camera=None, supersample: int | None = None,
-                     occluder: Occluder | None = None) -> "ObjectHits":
+                     occluder: Occluder | None = None, caster: CameraHits | None = None) -> "ObjectHits":
         """Sub-pixel camera rays against the object mesh, depth-tested against the scene model
         (camera: default the scene's; another one sees the same world, e.g. the full-resolution
-        photo's, app.workres)."""
+        photo's, app.workres; caster: the rays' CameraHits, default the stage's own; a drag frame's keeps the
+        scene's depth, kernels.scene_depth.SceneDepth)."""
         cam = camera or self.camera
         H, W, s = cam.height, cam.width, max(1, supersample or self.config.supersample)
         uv, z = cam.project(verts)
@@ -540,7 +541,7 @@ class ObjectShading:
             u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
         if u0 > u1 or v0 > v1:
             return ObjectHits(H, W, s, (0, 0, -1, -1), np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0, bool))
-        ch = self._camera_hits
+        ch = caster or self._camera_hits
         if ch is None:
             ch = self._camera_hits = CameraHits(self.device)
         tri, bary, hit = ch(occluder or Occluder(verts, faces, self.device), self.cam_occ, cam.centre,

@@ -124,6 +124,34 @@ def test_drag_compose_kernel_matches_its_reference(demo_engine):
     assert np.array_equal(pix1, scene.photo)
 
 
+def test_drag_finish_copies_only_the_objects_rectangle_bit_for_bit(demo_engine):
+    # DragStages.finish given the object's rectangle (ObjectHits.rect: cov and obj_rad are 0 outside it) copies
+    # only that rectangle into the kernel's buffers, the last one's zeroed first: along a drag (the rectangle
+    # moving; once after a whole-frame copy of another pose) every frame is the whole-frame copy's, bit for bit
+    from app.dragpath import drag_offsets, moved
+
+    scene, eng = demo_engine
+    px = eng.pixel_stages(2)
+    h, w = px.shape
+    room_c = px.receivers.L_b.reshape(h, w, 3).astype(np.float32) * np.float32(0.8)
+    poses = []
+    for k, o in enumerate(drag_offsets(scene, scene.obj, 4)):
+        obj = moved(scene.obj, o)
+        hits = eng.object_shading.object_hits(obj.vertices, obj.faces)
+        cov = hits.coverage()
+        assert (cov > 0).sum() > 100
+        poses.append((hits.rect, cov, hits.average(np.ones((len(hits.hit), 3)) * (0.3 + 0.1 * k))))
+    assert len({p[0] for p in poses}) == len(poses)  # the rectangle moves every time
+    part = []
+    for k, (rect, cov, obj_rad) in enumerate(poses):
+        if k == 2:
+            px.finish(room_c, np.roll(cov, 40, 1), np.roll(obj_rad, 40, 1))
+        part.append([a.copy() for a in px.finish(room_c, cov, obj_rad, rect=rect)])
+    for (rect, cov, obj_rad), got in zip(poses, part):
+        for a, b in zip(px.finish(room_c, cov, obj_rad), got):
+            assert np.array_equal(a, b)
+
+
 @pytest.mark.parametrize("room", ["window_room", "lamps_room", "sun_room"])
 def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     # each shared room against its truth (tools/score.py's measures, lighting.metrics): evaluate's drag frame
@@ -246,3 +274,27 @@ def test_unseen_lamp_rooms_drag_frame_within_the_bound(shared_scenes_cache, name
     s_drag = metrics.score_regions(drag.pixels, scene.photo, truth, mask)
     assert s_drag["rmse_affected"] <= 1.5 * s_all["rmse_affected"] + 0.5, (s_drag, s_all)
     assert 0.93 <= s_drag["energy_ratio"] <= 1.07, s_drag
+
+
+def test_drag_object_hits_with_the_scene_depth_kept_are_the_frames_at_rest(demo_engine):
+    # the drag frame's camera hits read the scene's distance per sub-sample from a table cast by tiles of 16 x 16 px
+    # as the object first reaches them (kernels.scene_depth.SceneDepth), not a scene ray per hit (CameraHits):
+    # the same rays, the same closest scene hit, so the same triangles, barycentrics and hits bit for bit, along a
+    # drag and with the object half sunk into the floor (the floor in front of its lower half: the test matters)
+    from app.dragpath import drag_offsets, moved
+
+    scene, eng = demo_engine
+    osh = eng.object_shading
+    caster = eng.pixel_stages(2).scene_depth()
+    height = np.ptp(scene.obj.vertices[:, 1])
+    offsets = list(drag_offsets(scene, scene.obj, 5)) + [np.array([0.0, -0.5 * height, 0.0])]
+    hidden = 0
+    for o in offsets:
+        pv, pf, proxy_occ, (v, n, f), shade_occ = osh.object_shape(moved(scene.obj, o))
+        a = osh.object_hits(v, f, occluder=shade_occ)
+        b = osh.object_hits(v, f, occluder=shade_occ, caster=caster)
+        assert a.rect == b.rect and a.hit.sum() > 100
+        assert np.array_equal(a.tri, b.tri) and np.array_equal(a.bary, b.bary) and np.array_equal(a.hit, b.hit)
+        hidden = ((a.tri >= 0) & ~a.hit).sum()
+    assert hidden > 50  # the sunk pose: sub-samples on the object behind the floor
+    assert caster._done.any() and not caster._done.all()  # only the tiles the object reached were cast
