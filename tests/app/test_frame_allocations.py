@@ -67,7 +67,8 @@ def _where(render_thread: int) -> tuple[str, str]:
     here = f
     while f is not None:
         fn = f.f_code.co_filename
-        if fn.startswith(ROOT) and "/tests/" not in fn:
+        # the project's own files: a venv inside the checkout (.venv, as `make deps` makes it) holds warp's
+        if fn.startswith(ROOT) and "/tests/" not in fn and "site-packages" not in fn:
             line = f"{os.path.relpath(fn, ROOT)}:{f.f_lineno} {f.f_code.co_name}"
             if os.path.relpath(fn, ROOT) not in HELPERS:
                 place = line if via is None else f"{line} (through {via})"
