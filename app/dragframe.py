@@ -84,6 +84,16 @@ DRAG_PCSS_TAPS = 3
 DRAG_GRADED_NEAR = 2.0
 
 
+# The drag frame's weak cluster maps take the hard lookup of their cluster's eye, no PCSS penumbra (ShadowPass.
+# weak_clusters): a pass is weak when its largest share of any receiver vertex's light is at most WEBER (2 %,
+# app.rest_maps: the rule by which the all-sources frame gives its weak sources half-size maps and fills their sums
+# in the near ring). Where the penumbra and the hard shadow of such a cluster differ, the pixel moves by at most that
+# share, a step the eye does not see; the lookup costs one texel, not a blocker search and a filter of 3 x 3 taps
+# each, and the cluster's cone loses its penumbra's reach (shorter lists). 8-23 of the 64 passes are weak on the
+# shared rooms (docs/benchmarks.md, "The drag frame's masks (masks37)").
+DRAG_HARD_WEAK = True
+
+
 # The drag frame's shadow pass does not sum its finer spacings (4, 2, 1) on the side thread while the object
 # stages run (ShadowPass.overlap; the same frames either way): the masked sums already cut every launch over both
 # cores, so the side thread only competes with them. bench/bench_masks.py --variants seq,base --path 8 --rounds 2,
@@ -131,6 +141,7 @@ class DragStages:
         """map_res: the drag frame's cluster map size (default: drag_map_res(scale, the shadow's map_res)); plain: the frames at
         rest's cluster key and object-light reach (no near split, ObjectConfig.near_factor; the drag frame
         before they were chosen, bench/bench_drag.py's A/B)."""
+        from app.rest_maps import RestMaps
         from app.stages.compose import ComposeStage
         from app.stages.object_light import ObjectLight
         from app.stages.shadow_pass import ShadowPass
@@ -173,6 +184,8 @@ class DragStages:
             self.object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (app.stages.object_light.FarGroups)
             self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
             self.shadow_pass.graded_near = DRAG_GRADED_NEAR
+            if DRAG_HARD_WEAK:  # in the drag frame's HDR units: W_v and E_v irradiance/pi
+                self.shadow_pass.weak_clusters = RestMaps(r.E_v)
         self.shadow_pass.overlap = DRAG_OVERLAP
         self.shape = (cam.height, cam.width)
         self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object

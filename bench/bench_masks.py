@@ -154,7 +154,10 @@ def _sum_own_thread(self) -> np.ndarray:
 
 
 def apply(variant: str, shadow_pass) -> callable:
-    """Set `variant` on the drag frame's shadow pass; returns the undo."""
+    """Set `variant` on the drag frame's shadow pass (several joined by "+": each in turn); returns the undo."""
+    if "+" in variant:
+        undos = [apply(v, shadow_pass) for v in variant.split("+")]
+        return lambda: [u() for u in reversed(undos)] and None
     if variant == "base":
         return lambda: None
     if variant == "points":
@@ -170,10 +173,19 @@ def apply(variant: str, shadow_pass) -> callable:
         was = sys.getswitchinterval()
         sys.setswitchinterval(0.0005)
         return lambda: sys.setswitchinterval(was)
+    if variant == "soft":  # every cluster map its PCSS penumbra (ShadowPass.weak_clusters None)
+        was = shadow_pass.weak_clusters
+        shadow_pass.weak_clusters = None
+        return lambda: setattr(shadow_pass, "weak_clusters", was)
+    if variant.startswith("tol"):  # the graded lattice's refine tolerance tolN, N in percent (ShadowPass.refine_tol)
+        was = shadow_pass.refine_tol
+        shadow_pass.refine_tol = int(variant[3:]) / 100
+        return lambda: setattr(shadow_pass, "refine_tol", was)
     if variant == "hardcen":
         shadow_pass.hard_centres = True
         return lambda: setattr(shadow_pass, "hard_centres", False)
-    raise SystemExit(f"unknown variant {variant!r} (base, points, seq, own, swi, hardcen)")
+    raise SystemExit(f"unknown variant {variant!r} (base, points, seq, own, swi, hardcen, tolN, "
+                     "soft)")
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:
