@@ -151,6 +151,43 @@ def _mip_kernel(ms: MapSet, first: int, lv: int):
     ms.mip_max[s, ms.mip_off[lv] + by * side + bx] = hi
 
 
+@wp.kernel
+def _mip12_kernel(ms: MapSet, first: int):
+    # levels 1 and 2 of the pyramid at once, one thread per level-2 block: its (up to) four level-1 blocks from
+    # their texels, then itself from them; the values of _mip_kernel's launches for lv = 1 and 2 (min and max are
+    # exact), with a quarter of the threads
+    k, by, bx = wp.tid()
+    s = first + k
+    side2 = ms.mip_side[2]
+    if by >= side2 or bx >= side2:
+        return
+    side1 = ms.mip_side[1]
+    off1 = ms.mip_off[1]
+    lo2 = float(1.0e30)
+    hi2 = float(-1.0e30)
+    for qy in range(2):
+        for qx in range(2):
+            y1 = 2 * by + qy
+            x1 = 2 * bx + qx
+            if y1 < side1 and x1 < side1:
+                lo = float(1.0e30)
+                hi = float(-1.0e30)
+                for dy in range(2):
+                    for dx in range(2):
+                        cy = 2 * y1 + dy
+                        cx = 2 * x1 + dx
+                        if cy < ms.res and cx < ms.res:
+                            d = ms.depth[s, cy, cx]
+                            lo = wp.min(lo, d)
+                            hi = wp.max(hi, d)
+                ms.mip_min[s, off1 + y1 * side1 + x1] = lo
+                ms.mip_max[s, off1 + y1 * side1 + x1] = hi
+                lo2 = wp.min(lo2, lo)
+                hi2 = wp.max(hi2, hi)
+    ms.mip_min[s, ms.mip_off[2] + by * side2 + bx] = lo2
+    ms.mip_max[s, ms.mip_off[2] + by * side2 + bx] = hi2
+
+
 @wp.func
 def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     """False when no point of the sphere (c, r) can be occluded in map s (conservative): the sphere lies outside the cone from the eye that
@@ -316,6 +353,7 @@ class ShadowMaps:
         self.n = 0  # maps in the current batch
         self.n_ray = 0  # of them in ray mode (the masked sums launch their kernel only if any)
         self._soft = False  # the batch has cluster maps (a spread): raster builds their pyramids
+        self.merge_mips = True  # build_mips: levels 1 and 2 in one launch (_mip12_kernel; False: level by level, A/B)
         self._proxy: Occluder | None = None
         self._closed: tuple[bytes, bool] | None = None  # (mesh key, closed) of the last proxy
 
@@ -394,7 +432,12 @@ class ShadowMaps:
     def build_mips(self, lo: int, hi: int) -> None:
         """The depth range pyramid (depth_range) of drawn maps lo..hi-1, level by level (one launch
         per level; disjoint ranges may run concurrently)."""
-        for lv in range(1, self.ms.mip_levels + 1):
+        first = 1
+        if self.merge_mips and self.ms.mip_levels >= 2:  # levels 1 and 2 in one launch
+            side = self._mip_side[2]
+            wp.launch(_mip12_kernel, dim=(hi - lo, side, side), inputs=[self.ms, lo], device=self.device)
+            first = 3
+        for lv in range(first, self.ms.mip_levels + 1):
             side = self._mip_side[lv]
             wp.launch(_mip_kernel, dim=(hi - lo, side, side), inputs=[self.ms, lo, lv], device=self.device)
 
