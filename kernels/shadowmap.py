@@ -15,7 +15,8 @@ Buffers are allocated once at the batch capacity (kernels.buffers); a frame's pr
 object's BVH kept per shape (set_proxy takes it), so rendering a batch allocates nothing.
 `may_occlude` bounds a map's shadow: only points inside the cone from the eye around the
 proxy's bounding sphere, behind its nearest depth, and whose texels lie in a COARSE x COARSE
-block of the map that some triangle's row span touched (`coarse`, marked while rasterising)
+block of the map that some triangle's row span touched (`coarse`, marked while rasterising; its summed-area
+table `coarse_sat` answers for a box of blocks at once)
 can be occluded; the masked sums skip the rest (kernels.masked_sums).
 """
 from __future__ import annotations
@@ -51,6 +52,7 @@ class MapSet:
     cone_sec: wp.array(dtype=wp.float32)  # and 1 / cos of it (ShadowMaps.prepare)
     depth: wp.array3d(dtype=wp.float32)
     coarse: wp.array3d(dtype=wp.int32)  # (S, ceil(res/COARSE), same): 1 where a triangle may have drawn
+    coarse_sat: wp.array3d(dtype=wp.int32)  # (S, nc + 1, nc + 1) its summed-area table: blocks set in any box
     # depth range pyramid (ShadowMaps.build_mips): level l >= 1 holds the min and max depth of
     # texel blocks of side 2^l, side mip_side[l] = ceil(mip_side[l-1] / 2), flat at mip_off[l]
     mip_min: wp.array2d(dtype=wp.float32)  # (S, mip_off[mip_levels])
@@ -152,6 +154,23 @@ def _mip_kernel(ms: MapSet, first: int, lv: int):
 
 
 @wp.kernel
+def _coarse_sat_kernel(ms: MapSet, first: int):
+    # one thread per map: the summed-area table of its coarse blocks (sat[y, x] = blocks set above and left of
+    # (y, x)), what may_occlude reads in place of a loop over a box's blocks
+    s = first + wp.tid()
+    n = ms.coarse.shape[1]
+    for y in range(n + 1):
+        ms.coarse_sat[s, y, 0] = 0
+    for x in range(n + 1):
+        ms.coarse_sat[s, 0, x] = 0
+    for y in range(n):
+        row = int(0)
+        for x in range(n):
+            row += ms.coarse[s, y, x]
+            ms.coarse_sat[s, y + 1, x + 1] = ms.coarse_sat[s, y, x + 1] + row
+
+
+@wp.kernel
 def _mip12_kernel(ms: MapSet, first: int):
     # levels 1 and 2 of the pyramid at once, one thread per level-2 block: its (up to) four level-1 blocks from
     # their texels, then itself from them; the values of _mip_kernel's launches for lv = 1 and 2 (min and max are
@@ -226,11 +245,13 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     y1 = wp.min(int(wp.floor(yc + ext)), ms.res - 1)
     if x0 > x1 or y0 > y1:
         return False
-    for cy in range(y0 / COARSE, y1 / COARSE + 1):
-        for cx in range(x0 / COARSE, x1 / COARSE + 1):
-            if ms.coarse[s, cy, cx] != 0:
-                return True
-    return False
+    # some block of the texels' box was drawn in: from the summed-area table, one box sum
+    cx0 = x0 / COARSE
+    cx1 = x1 / COARSE + 1
+    cy0 = y0 / COARSE
+    cy1 = y1 / COARSE + 1
+    sat = ms.coarse_sat
+    return sat[s, cy1, cx1] - sat[s, cy0, cx1] - sat[s, cy1, cx0] + sat[s, cy0, cx0] > 0
 
 
 @wp.func
@@ -333,6 +354,7 @@ class ShadowMaps:
         self.ms.depth = wp.full((cap, self.res, self.res), float("inf"), dtype=wp.float32, device=d)
         n_coarse = -(-self.res // COARSE)
         self.ms.coarse = wp.zeros((cap, n_coarse, n_coarse), dtype=wp.int32, device=d)
+        self.ms.coarse_sat = wp.zeros((cap, n_coarse + 1, n_coarse + 1), dtype=wp.int32, device=d)
         side, off = [self.res], [0, 0]
         while side[-1] > 1:
             side.append(-(-side[-1] // 2))
@@ -415,6 +437,7 @@ class ShadowMaps:
             self._frame[k].upload(v)
         self.ms.depth.fill_(float("inf"))  # one fill of the whole batch (a kernel per texel costs far more)
         self.ms.coarse.zero_()
+        self.ms.coarse_sat.zero_()
         self.n = n
         self.n_ray = int(use_ray.sum())
         self._soft = bool(np.any(sp > 0))
@@ -426,6 +449,7 @@ class ShadowMaps:
         if self._n_tris and hi > lo:
             wp.launch(_raster_kernel, dim=(hi - lo, self._n_tris), inputs=[self.ms, lo, self._verts, self._tris],
                       device=self.device)
+            wp.launch(_coarse_sat_kernel, dim=hi - lo, inputs=[self.ms, lo], device=self.device)
         if self._soft and hi > lo:  # the penumbra's lookups read the depth range pyramid
             self.build_mips(lo, hi)
 

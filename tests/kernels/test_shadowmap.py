@@ -287,6 +287,31 @@ def test_culling_changes_no_sum(device):
 
 
 
+def test_coarse_blocks_summed_area_table(device):
+    # may_occlude asks whether any coarse block of a box was drawn in from the blocks' summed-area table (one box
+    # sum, not a loop over the blocks): the table is the blocks' 2-d running sum, and a random box's sum is
+    # positive exactly where one of its blocks is set; a batch drawn again from other eyes leaves no stale count
+    v, t = _cube()
+    maps = ShadowMaps(len(EYES), 100, device=device)  # 13 blocks a side, the last partly off the map
+    maps.set_proxy(v, t)
+    rng = np.random.default_rng(11)
+    for eyes in (EYES, EYES[::-1] * np.array([1.0, 1.4, 1.0])):
+        n = maps.render(eyes)
+        coarse = maps.ms.coarse.numpy()[:n]
+        sat = maps.ms.coarse_sat.numpy()[:n]
+        assert 0.05 < coarse.mean() < 0.95
+        ref = np.zeros_like(sat)
+        ref[:, 1:, 1:] = coarse.cumsum(1).cumsum(2)
+        np.testing.assert_array_equal(sat, ref)
+        nc = coarse.shape[1]
+        for _ in range(500):
+            k = rng.integers(n)
+            y0, y1 = np.sort(rng.integers(0, nc, 2))
+            x0, x1 = np.sort(rng.integers(0, nc, 2))
+            box = sat[k, y1 + 1, x1 + 1] - sat[k, y0, x1 + 1] - sat[k, y1 + 1, x0] + sat[k, y0, x0]
+            assert (box > 0) == coarse[k, y0:y1 + 1, x0:x1 + 1].any()
+
+
 def test_ray_mode_culling_by_the_proxy_box(device):
     # an eye inside the cube's bounding sphere (ray mode): cells whose segments to the eye miss the
     # cube's box are not listed, and the sums are those of testing every point
