@@ -13,7 +13,11 @@ truth (lighting.metrics), with the largest level difference from the first varia
 - hardcen: the patch centres take the cluster maps' hard lookup (ShadowPass.hard_centres);
 - seq: the graded frame's finer spacings summed in sequence, before the object stages (ShadowPass.overlap off);
 - own: overlapped (as base), the side thread's sums in one launch on its own thread, not cut over the pool;
-- swi: overlapped (as base), with the interpreter's switch interval 0.5 ms instead of 5 (sys.setswitchinterval).
+- swi: overlapped (as base), with the interpreter's switch interval 0.5 ms instead of 5 (sys.setswitchinterval);
+- soft: every cluster map looked up with its PCSS penumbra (ShadowPass.weak_clusters None: the weak passes too);
+- levels: the depth pyramids built level by level (ShadowMaps.merge_mips False; the same pyramids);
+- tolN: the graded lattice's refine tolerance N % (ShadowPass.refine_tol);
+- A+B: variants A and B together.
 Prints per variant the means over the path of the masks and upsample stages (wall), the frame's wall and
 CPU time (the process's, all threads), and "crit": the frame's critical path in CPU time, the rendering
 thread's own CPU time plus, for each set of concurrent launches (app.runtime.run), the CPU time of its
@@ -177,6 +181,11 @@ def apply(variant: str, shadow_pass) -> callable:
         was = shadow_pass.weak_clusters
         shadow_pass.weak_clusters = None
         return lambda: setattr(shadow_pass, "weak_clusters", was)
+    if variant == "levels":  # the depth pyramids built level by level (ShadowMaps.merge_mips False)
+        maps = [m for m in {id(m): m for m in (shadow_pass.maps_cluster, *shadow_pass._twin.values())}.values()]
+        for m in maps:
+            m.merge_mips = False
+        return lambda: [setattr(m, "merge_mips", True) for m in maps] and None
     if variant.startswith("tol"):  # the graded lattice's refine tolerance tolN, N in percent (ShadowPass.refine_tol)
         was = shadow_pass.refine_tol
         shadow_pass.refine_tol = int(variant[3:]) / 100
@@ -185,7 +194,7 @@ def apply(variant: str, shadow_pass) -> callable:
         shadow_pass.hard_centres = True
         return lambda: setattr(shadow_pass, "hard_centres", False)
     raise SystemExit(f"unknown variant {variant!r} (base, points, seq, own, swi, hardcen, tolN, "
-                     "soft)")
+                     "soft, levels)")
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:
