@@ -53,6 +53,7 @@ class MapSet:
     depth: wp.array3d(dtype=wp.float32)
     coarse: wp.array3d(dtype=wp.int32)  # (S, ceil(res/COARSE), same): 1 where a triangle may have drawn
     coarse_sat: wp.array3d(dtype=wp.int32)  # (S, nc + 1, nc + 1) its summed-area table: blocks set in any box
+    sat: int  # 1: may_occlude reads coarse_sat; 0: it loops over the box's blocks (the same answer; A/B)
     # depth range pyramid (ShadowMaps.build_mips): level l >= 1 holds the min and max depth of
     # texel blocks of side 2^l, side mip_side[l] = ceil(mip_side[l-1] / 2), flat at mip_off[l]
     mip_min: wp.array2d(dtype=wp.float32)  # (S, mip_off[mip_levels])
@@ -246,6 +247,12 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     if x0 > x1 or y0 > y1:
         return False
     # some block of the texels' box was drawn in: from the summed-area table, one box sum
+    if ms.sat == 0:
+        for cy in range(y0 / COARSE, y1 / COARSE + 1):
+            for cx in range(x0 / COARSE, x1 / COARSE + 1):
+                if ms.coarse[s, cy, cx] != 0:
+                    return True
+        return False
     cx0 = x0 / COARSE
     cx1 = x1 / COARSE + 1
     cy0 = y0 / COARSE
@@ -355,6 +362,7 @@ class ShadowMaps:
         n_coarse = -(-self.res // COARSE)
         self.ms.coarse = wp.zeros((cap, n_coarse, n_coarse), dtype=wp.int32, device=d)
         self.ms.coarse_sat = wp.zeros((cap, n_coarse + 1, n_coarse + 1), dtype=wp.int32, device=d)
+        self.ms.sat = 1
         side, off = [self.res], [0, 0]
         while side[-1] > 1:
             side.append(-(-side[-1] // 2))

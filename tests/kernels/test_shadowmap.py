@@ -269,12 +269,17 @@ def test_culling_changes_no_sum(device):
     maps = ShadowMaps(S, 128, device=device)
     maps.set_proxy(v, t)
     assert maps.render(eyes) == S
-    out = []
-    for cull in (True, False):
+    out, lists = [], []
+    for cull, sat in ((True, 1), (False, 1), (True, 0)):  # sat 0: may_occlude loops over the blocks, no table
+        maps.ms.sat = sat
         ms = MaskedSum(pts, rows, bary, group, device, cull=cull, tile=tile, max_maps=S)
         ms.add(maps, S, 0, _wp2(cand, wp.uint8, device), _wp2(W, wp.vec3, device))
         out.append(ms.result() + (ms.n_list.numpy()[ms.point_cell].sum(),))
-    (a1, c1, pairs1), (a0, c0, pairs0) = out
+        lists.append((ms.n_list.numpy().copy(), ms.lists.numpy().copy()))
+    maps.ms.sat = 1
+    (a1, c1, pairs1), (a0, c0, pairs0), _ = out
+    # the blocks' summed-area table lists the maps the loop over the blocks lists
+    assert all(np.array_equal(x, y) for x, y in zip(lists[0], lists[2]))
     np.testing.assert_array_equal(c1, c0)
     np.testing.assert_array_equal(a1, a0)
     assert 0.02 < (c0 > 0).mean() < 0.9 and c0.sum() > 500
