@@ -16,6 +16,8 @@ truth (lighting.metrics), with the largest level difference from the first varia
 - swi: overlapped (as base), with the interpreter's switch interval 0.5 ms instead of 5 (sys.setswitchinterval);
 - soft: every cluster map looked up with its PCSS penumbra (ShadowPass.weak_clusters None: the weak passes too);
 - levels: the depth pyramids built level by level (ShadowMaps.merge_mips False; the same pyramids);
+- blockloop: may_occlude loops over a box's coarse blocks (MapSet.sat 0; the same lists); soft+levels+blockloop is
+  main's shadow pass before masks37;
 - tolN: the graded lattice's refine tolerance N % (ShadowPass.refine_tol);
 - A+B: variants A and B together.
 Prints per variant the means over the path of the masks and upsample stages (wall), the frame's wall and
@@ -186,6 +188,11 @@ def apply(variant: str, shadow_pass) -> callable:
         for m in maps:
             m.merge_mips = False
         return lambda: [setattr(m, "merge_mips", True) for m in maps] and None
+    if variant == "blockloop":  # may_occlude loops over a box's coarse blocks, no summed-area table (MapSet.sat 0)
+        maps = [m for m in {id(m): m for m in (shadow_pass.maps_cluster, *shadow_pass._twin.values())}.values()]
+        for m in maps:
+            m.ms.sat = 0
+        return lambda: [setattr(m.ms, "sat", 1) for m in maps] and None
     if variant.startswith("tol"):  # the graded lattice's refine tolerance tolN, N in percent (ShadowPass.refine_tol)
         was = shadow_pass.refine_tol
         shadow_pass.refine_tol = int(variant[3:]) / 100
@@ -194,7 +201,7 @@ def apply(variant: str, shadow_pass) -> callable:
         shadow_pass.hard_centres = True
         return lambda: setattr(shadow_pass, "hard_centres", False)
     raise SystemExit(f"unknown variant {variant!r} (base, points, seq, own, swi, hardcen, tolN, "
-                     "soft, levels)")
+                     "soft, levels, blockloop)")
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:
