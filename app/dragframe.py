@@ -89,8 +89,9 @@ DRAG_GRADED_NEAR = 2.0
 # app.rest_maps: the rule by which the all-sources frame gives its weak sources half-size maps and fills their sums
 # in the near ring). Where the penumbra and the hard shadow of such a cluster differ, the pixel moves by at most that
 # share, a step the eye does not see; the lookup costs one texel, not a blocker search and a filter of 3 x 3 taps
-# each, and the cluster's cone loses its penumbra's reach (shorter lists). 8-23 of the 64 passes are weak on the
-# shared rooms (docs/benchmarks.md, "The drag frame's masks (masks37)").
+# each, and the cluster's cone loses its penumbra's reach (shorter lists). 8 (window_room) to 27 (lamps_room,
+# lamps_101) of the 64 passes are weak; the masks' CPU 0.76-1.0x, the drag rows within 0.008 levels (docs/
+# benchmarks.md, "The drag frame's masks (masks37)").
 DRAG_HARD_WEAK = True
 
 

@@ -246,7 +246,7 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     y1 = wp.min(int(wp.floor(yc + ext)), ms.res - 1)
     if x0 > x1 or y0 > y1:
         return False
-    # some block of the texels' box was drawn in: from the summed-area table, one box sum
+    # some block of the texels' box was drawn in: from the summed-area table, one box sum (sat 0: block by block)
     if ms.sat == 0:
         for cy in range(y0 / COARSE, y1 / COARSE + 1):
             for cx in range(x0 / COARSE, x1 / COARSE + 1):
