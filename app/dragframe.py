@@ -129,6 +129,17 @@ DRAG_PCSS_TAPS = 3
 DRAG_GRADED_NEAR = 2.0
 
 
+# The drag frame's weak cluster maps take the hard lookup of their cluster's eye, no PCSS penumbra (ShadowPass.
+# weak_clusters): a pass is weak when its largest share of any receiver vertex's light is at most WEBER (2 %,
+# app.rest_maps: the rule by which the all-sources frame gives its weak sources half-size maps and fills their sums
+# in the near ring). Where the penumbra and the hard shadow of such a cluster differ, the pixel moves by at most that
+# share, a step the eye does not see; the lookup costs one texel, not a blocker search and a filter of 3 x 3 taps
+# each, and the cluster's cone loses its penumbra's reach (shorter lists). 8 (window_room) to 27 (lamps_room,
+# lamps_101) of the 64 passes are weak; the masks' CPU 0.76-1.0x, the drag rows within 0.008 levels (docs/
+# benchmarks.md, "The drag frame's masks (masks37)").
+DRAG_HARD_WEAK = True
+
+
 # (A frame with a map per source, when the room has no more sources than the passes, takes the same size.)
 
 
@@ -169,6 +180,7 @@ class DragStages:
         """map_res: the drag frame's cluster map size (default: drag_map_res(scale, the shadow's map_res)); plain: the frames at
         rest's cluster key and object-light reach (no near split, ObjectConfig.near_factor; the drag frame
         before they were chosen, bench/bench_drag.py's A/B)."""
+        from app.rest_maps import RestMaps
         from app.stages.compose import ComposeStage
         from app.stages.object_light import ObjectLight
         from app.stages.shadow_pass import ShadowPass
@@ -216,6 +228,8 @@ class DragStages:
             self.object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (app.stages.object_light.FarGroups)
             self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
             self.shadow_pass.graded_near = DRAG_GRADED_NEAR
+            if DRAG_HARD_WEAK:  # in the drag frame's HDR units: W_v and E_v irradiance/pi
+                self.shadow_pass.weak_clusters = RestMaps(r.E_v)
         self.shape = (cam.height, cam.width)
         self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object
         self.zero_rad = np.zeros((*self.shape, 3), np.float32)

@@ -9,7 +9,13 @@ variants (the same machine load for all), and the drag frame at the scene's own 
 truth (lighting.metrics), with the largest level difference from the first variant's frame. Variants:
 - base: the shadow pass as it is;
 - points: each graded spacing's sums cut over the cores by point count (2048 a range), not by (point, map)
-  pairs (ShadowPass._sum before MIN_PART_PAIRS).
+  pairs (ShadowPass._sum before MIN_PART_PAIRS);
+- soft: every cluster map looked up with its PCSS penumbra (ShadowPass.weak_clusters None: the weak passes too);
+- levels: the depth pyramids built level by level (ShadowMaps.merge_mips False; the same pyramids);
+- blockloop: may_occlude loops over a box's coarse blocks (MapSet.sat 0; the same lists); soft+levels+blockloop is
+  main's shadow pass before masks37;
+- tolN: the graded lattice's refine tolerance N % (ShadowPass.refine_tol);
+- A+B: variants A and B together.
 Prints per variant the means over the path of the masks and upsample stages (wall), the frame's wall and
 CPU time (the process's, all threads), and "crit": the frame's critical path in CPU time, the rendering
 thread's own CPU time plus, for each set of concurrent launches (app.runtime.run), the CPU time of its
@@ -107,13 +113,35 @@ def _sum_by_points(self) -> np.ndarray:
 
 
 def apply(variant: str, shadow_pass) -> callable:
-    """Set `variant` on the drag frame's shadow pass; returns the undo."""
+    """Set `variant` on the drag frame's shadow pass (several joined by "+": each in turn); returns the undo."""
+    if "+" in variant:
+        undos = [apply(v, shadow_pass) for v in variant.split("+")]
+        return lambda: [u() for u in reversed(undos)] and None
     if variant == "base":
         return lambda: None
     if variant == "points":
         shadow_pass._sum = _sum_by_points.__get__(shadow_pass)
         return lambda: delattr(shadow_pass, "_sum")
-    raise SystemExit(f"unknown variant {variant!r} (base, points)")
+    if variant == "soft":  # every cluster map its PCSS penumbra (ShadowPass.weak_clusters None)
+        was = shadow_pass.weak_clusters
+        shadow_pass.weak_clusters = None
+        return lambda: setattr(shadow_pass, "weak_clusters", was)
+    if variant == "levels":  # the depth pyramids built level by level (ShadowMaps.merge_mips False)
+        maps = [m for m in {id(m): m for m in (shadow_pass.maps_cluster, *shadow_pass._twin.values())}.values()]
+        for m in maps:
+            m.merge_mips = False
+        return lambda: [setattr(m, "merge_mips", True) for m in maps] and None
+    if variant == "blockloop":  # may_occlude loops over a box's coarse blocks, no summed-area table (MapSet.sat 0)
+        maps = [m for m in {id(m): m for m in (shadow_pass.maps_cluster, *shadow_pass._twin.values())}.values()]
+        for m in maps:
+            m.ms.sat = 0
+        return lambda: [setattr(m.ms, "sat", 1) for m in maps] and None
+    if variant.startswith("tol"):  # the graded lattice's refine tolerance tolN, N in percent (ShadowPass.refine_tol)
+        was = shadow_pass.refine_tol
+        shadow_pass.refine_tol = int(variant[3:]) / 100
+        return lambda: setattr(shadow_pass, "refine_tol", was)
+    raise SystemExit(f"unknown variant {variant!r} (base, points, tolN, soft, levels, "
+                     "blockloop)")
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:

@@ -15,7 +15,8 @@ Buffers are allocated once at the batch capacity (kernels.buffers); a frame's pr
 object's BVH kept per shape (set_proxy takes it), so rendering a batch allocates nothing.
 `may_occlude` bounds a map's shadow: only points inside the cone from the eye around the
 proxy's bounding sphere, behind its nearest depth, and whose texels lie in a COARSE x COARSE
-block of the map that some triangle's row span touched (`coarse`, marked while rasterising)
+block of the map that some triangle's row span touched (`coarse`, marked while rasterising; its summed-area
+table `coarse_sat` answers for a box of blocks at once)
 can be occluded; the masked sums skip the rest (kernels.masked_sums).
 """
 from __future__ import annotations
@@ -51,6 +52,8 @@ class MapSet:
     cone_sec: wp.array(dtype=wp.float32)  # and 1 / cos of it (ShadowMaps.prepare)
     depth: wp.array3d(dtype=wp.float32)
     coarse: wp.array3d(dtype=wp.int32)  # (S, ceil(res/COARSE), same): 1 where a triangle may have drawn
+    coarse_sat: wp.array3d(dtype=wp.int32)  # (S, nc + 1, nc + 1) its summed-area table: blocks set in any box
+    sat: int  # 1: may_occlude reads coarse_sat; 0: it loops over the box's blocks (the same answer; A/B)
     # depth range pyramid (ShadowMaps.build_mips): level l >= 1 holds the min and max depth of
     # texel blocks of side 2^l, side mip_side[l] = ceil(mip_side[l-1] / 2), flat at mip_off[l]
     mip_min: wp.array2d(dtype=wp.float32)  # (S, mip_off[mip_levels])
@@ -151,6 +154,60 @@ def _mip_kernel(ms: MapSet, first: int, lv: int):
     ms.mip_max[s, ms.mip_off[lv] + by * side + bx] = hi
 
 
+@wp.kernel
+def _coarse_sat_kernel(ms: MapSet, first: int):
+    # one thread per map: the summed-area table of its coarse blocks (sat[y, x] = blocks set above and left of
+    # (y, x)), what may_occlude reads in place of a loop over a box's blocks
+    s = first + wp.tid()
+    n = ms.coarse.shape[1]
+    for y in range(n + 1):
+        ms.coarse_sat[s, y, 0] = 0
+    for x in range(n + 1):
+        ms.coarse_sat[s, 0, x] = 0
+    for y in range(n):
+        row = int(0)
+        for x in range(n):
+            row += ms.coarse[s, y, x]
+            ms.coarse_sat[s, y + 1, x + 1] = ms.coarse_sat[s, y, x + 1] + row
+
+
+@wp.kernel
+def _mip12_kernel(ms: MapSet, first: int):
+    # levels 1 and 2 of the pyramid at once, one thread per level-2 block: its (up to) four level-1 blocks from
+    # their texels, then itself from them; the values of _mip_kernel's launches for lv = 1 and 2 (min and max are
+    # exact), with a quarter of the threads
+    k, by, bx = wp.tid()
+    s = first + k
+    side2 = ms.mip_side[2]
+    if by >= side2 or bx >= side2:
+        return
+    side1 = ms.mip_side[1]
+    off1 = ms.mip_off[1]
+    lo2 = float(1.0e30)
+    hi2 = float(-1.0e30)
+    for qy in range(2):
+        for qx in range(2):
+            y1 = 2 * by + qy
+            x1 = 2 * bx + qx
+            if y1 < side1 and x1 < side1:
+                lo = float(1.0e30)
+                hi = float(-1.0e30)
+                for dy in range(2):
+                    for dx in range(2):
+                        cy = 2 * y1 + dy
+                        cx = 2 * x1 + dx
+                        if cy < ms.res and cx < ms.res:
+                            d = ms.depth[s, cy, cx]
+                            lo = wp.min(lo, d)
+                            hi = wp.max(hi, d)
+                ms.mip_min[s, off1 + y1 * side1 + x1] = lo
+                ms.mip_max[s, off1 + y1 * side1 + x1] = hi
+                lo2 = wp.min(lo2, lo)
+                hi2 = wp.max(hi2, hi)
+    ms.mip_min[s, ms.mip_off[2] + by * side2 + bx] = lo2
+    ms.mip_max[s, ms.mip_off[2] + by * side2 + bx] = hi2
+
+
 @wp.func
 def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     """False when no point of the sphere (c, r) can be occluded in map s (conservative): the sphere lies outside the cone from the eye that
@@ -189,11 +246,19 @@ def may_occlude(ms: MapSet, s: int, c: wp.vec3, r: float) -> bool:
     y1 = wp.min(int(wp.floor(yc + ext)), ms.res - 1)
     if x0 > x1 or y0 > y1:
         return False
-    for cy in range(y0 / COARSE, y1 / COARSE + 1):
-        for cx in range(x0 / COARSE, x1 / COARSE + 1):
-            if ms.coarse[s, cy, cx] != 0:
-                return True
-    return False
+    # some block of the texels' box was drawn in: from the summed-area table, one box sum (sat 0: block by block)
+    if ms.sat == 0:
+        for cy in range(y0 / COARSE, y1 / COARSE + 1):
+            for cx in range(x0 / COARSE, x1 / COARSE + 1):
+                if ms.coarse[s, cy, cx] != 0:
+                    return True
+        return False
+    cx0 = x0 / COARSE
+    cx1 = x1 / COARSE + 1
+    cy0 = y0 / COARSE
+    cy1 = y1 / COARSE + 1
+    sat = ms.coarse_sat
+    return sat[s, cy1, cx1] - sat[s, cy0, cx1] - sat[s, cy1, cx0] + sat[s, cy0, cx0] > 0
 
 
 @wp.func
@@ -296,6 +361,8 @@ class ShadowMaps:
         self.ms.depth = wp.full((cap, self.res, self.res), float("inf"), dtype=wp.float32, device=d)
         n_coarse = -(-self.res // COARSE)
         self.ms.coarse = wp.zeros((cap, n_coarse, n_coarse), dtype=wp.int32, device=d)
+        self.ms.coarse_sat = wp.zeros((cap, n_coarse + 1, n_coarse + 1), dtype=wp.int32, device=d)
+        self.ms.sat = 1
         side, off = [self.res], [0, 0]
         while side[-1] > 1:
             side.append(-(-side[-1] // 2))
@@ -316,6 +383,7 @@ class ShadowMaps:
         self.n = 0  # maps in the current batch
         self.n_ray = 0  # of them in ray mode (the masked sums launch their kernel only if any)
         self._soft = False  # the batch has cluster maps (a spread): raster builds their pyramids
+        self.merge_mips = True  # build_mips: levels 1 and 2 in one launch (_mip12_kernel; False: level by level, A/B)
         self._proxy: Occluder | None = None
         self._closed: tuple[bytes, bool] | None = None  # (mesh key, closed) of the last proxy
 
@@ -377,6 +445,7 @@ class ShadowMaps:
             self._frame[k].upload(v)
         self.ms.depth.fill_(float("inf"))  # one fill of the whole batch (a kernel per texel costs far more)
         self.ms.coarse.zero_()
+        self.ms.coarse_sat.zero_()
         self.n = n
         self.n_ray = int(use_ray.sum())
         self._soft = bool(np.any(sp > 0))
@@ -388,13 +457,19 @@ class ShadowMaps:
         if self._n_tris and hi > lo:
             wp.launch(_raster_kernel, dim=(hi - lo, self._n_tris), inputs=[self.ms, lo, self._verts, self._tris],
                       device=self.device)
+            wp.launch(_coarse_sat_kernel, dim=hi - lo, inputs=[self.ms, lo], device=self.device)
         if self._soft and hi > lo:  # the penumbra's lookups read the depth range pyramid
             self.build_mips(lo, hi)
 
     def build_mips(self, lo: int, hi: int) -> None:
         """The depth range pyramid (depth_range) of drawn maps lo..hi-1, level by level (one launch
         per level; disjoint ranges may run concurrently)."""
-        for lv in range(1, self.ms.mip_levels + 1):
+        first = 1
+        if self.merge_mips and self.ms.mip_levels >= 2:  # levels 1 and 2 in one launch
+            side = self._mip_side[2]
+            wp.launch(_mip12_kernel, dim=(hi - lo, side, side), inputs=[self.ms, lo], device=self.device)
+            first = 3
+        for lv in range(first, self.ms.mip_levels + 1):
             side = self._mip_side[lv]
             wp.launch(_mip_kernel, dim=(hi - lo, side, side), inputs=[self.ms, lo, lv], device=self.device)
 

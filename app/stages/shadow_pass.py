@@ -153,6 +153,11 @@ class ShadowPass:
         # exact within this many bounding radii (graded frames): inside the bounding sphere a receiver
         # may touch the object (contact shadows, no penumbra to interpolate); beyond it the lattice
         self.graded_near = 1.0
+        # graded frames: the cluster maps whose passes are weak (app.rest_maps.RestMaps: share_j <= its budget, each
+        # pass's largest share of a receiver's light) take the hard lookup of their cluster's eye, no PCSS penumbra
+        # (the drag frame's: app.dragframe.DRAG_HARD_WEAK); None: every cluster map its penumbra
+        self.weak_clusters = None
+        self.last_hard = 0  # the last graded frame's cluster maps so looked up
         self.maps_full = ShadowMaps(batch, map_res, device=device)
         res = min(cluster_map_res or CLUSTER_MAP_RES, map_res)
         self.maps_cluster = self.maps_full if res == map_res else ShadowMaps(batch, res, device=device)
@@ -409,6 +414,12 @@ class ShadowPass:
         self.maps = self.maps_full if full_maps else self.maps_cluster
         self.maps.set_proxy(proxy[0], proxy[1], proxy[2])
         ax = None if spread is None else spread[:n]
+        self.last_hard = 0
+        if ax is not None and self.weak_clusters is not None:  # weak passes: a spread of 0, the hard lookup
+            weak = self.weak_clusters.shares(W_pix)[:n] <= self.weak_clusters.budget
+            self.last_hard = int(weak.sum())
+            if self.last_hard:
+                ax = np.where(weak[:, None, None], 0.0, ax)
         n = self.maps.prepare(eyes, None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
         runtime.split(self.maps.raster, n, dev, min_items=1)
         self.upload_batch(cand, W_pix, W_c, 0, n, cen)

@@ -87,6 +87,62 @@ def test_emitter_group_of_each_patch_is_made_once(demo_engine):
     assert np.all((pm.centre[em] >= lo - 1e-9) & (pm.centre[em] <= hi + 1e-9))
 
 
+def test_weak_cluster_maps_take_the_hard_lookup_within_their_share(demo_engine):
+    # the drag frame's weak passes (app.dragframe.DRAG_HARD_WEAK: share_j <= WEBER, app.rest_maps) are looked up
+    # hard, the others with their PCSS penumbra: exactly the weak passes' maps lose their spread, and at every patch
+    # centre (all summed in either frame) the sums move by at most the weak passes' own transfers there (each an
+    # occluded share in 0..1, hard or soft); with no pass weak (a budget of 0) the masks are the all-PCSS ones bit
+    # for bit
+    from app.dragframe import DRAG_HARD_WEAK
+    from app.engine import FrameConfig
+    from app.rest_maps import WEBER, RestMaps
+    from recon.proxy import bounding_sphere
+
+    scene, eng = demo_engine
+    eng.render(scene.obj, FrameConfig(passes=50, drag=3))
+    px = eng.pixel_stages(3)
+    sp = px.shadow_pass
+    assert DRAG_HARD_WEAK and sp.weak_clusters is not None and sp.weak_clusters.budget == WEBER
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
+    centre, radius = bounding_sphere(pv)
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), 50, near_split=True)
+    n = len(fs.eyes)
+    weak = sp.weak_clusters.shares(fs.W_v) <= WEBER
+    assert 0 < weak.sum() < n  # the demo's 50 passes hold both kinds
+
+    def masks():
+        steps = sp.run((pv, pf, occ), centre, radius, px.zero_cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, False,
+                       spread=fs.spread, scale=px.receivers.E_x)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as stop:
+                return stop.value
+
+    kept = sp.weak_clusters
+    try:
+        hard = masks()
+        assert sp.last_hard == weak.sum()
+        own = np.linalg.norm(fs.spread[:n], axis=2).max(1).astype(np.float32)  # each cluster's half-width (m)
+        assert np.any(own[weak] > 0.0)
+        spread = sp.maps.ms.spread.numpy()[:n]
+        assert np.all(spread[weak] == 0.0) and np.array_equal(spread[~weak], own[~weak])
+        sp.weak_clusters = None
+        soft = masks()
+        assert sp.last_hard == 0 and np.array_equal(sp.maps.ms.spread.numpy()[:n], own)
+        sp.weak_clusters = RestMaps(px.receivers.E_v, budget=0.0)
+        none_weak = masks()
+    finally:
+        sp.weak_clusters = kept
+    assert np.array_equal(hard.cen_sel, soft.cen_sel) and len(hard.cen_sel) > 0
+    bound = np.asarray(fs.W_c, np.float64)[hard.cen_sel][:, weak].sum(1)
+    diff = np.abs(hard.O_cen - soft.O_cen)
+    assert np.all(diff <= bound * (1 + 1e-5) + 1e-7)
+    assert diff.max() > 0.0  # the weak passes' hard shadows do differ from their penumbrae somewhere
+    for field in ("pix_sel", "fill_sel", "cen_sel", "O_pix", "O_cen"):
+        assert np.array_equal(getattr(none_weak, field), getattr(soft, field)), field
+
+
 def test_drag_compose_kernel_matches_its_reference(demo_engine):
     # kernels.drag_compose against DragStages.finish_reference (numpy, float32 ratio): the 8-bit frame
     # within 1 level (the two round a ratio computed in float64 and float32), radiance within 1e-4 relative

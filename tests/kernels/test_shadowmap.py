@@ -269,12 +269,17 @@ def test_culling_changes_no_sum(device):
     maps = ShadowMaps(S, 128, device=device)
     maps.set_proxy(v, t)
     assert maps.render(eyes) == S
-    out = []
-    for cull in (True, False):
+    out, lists = [], []
+    for cull, sat in ((True, 1), (False, 1), (True, 0)):  # sat 0: may_occlude loops over the blocks, no table
+        maps.ms.sat = sat
         ms = MaskedSum(pts, rows, bary, group, device, cull=cull, tile=tile, max_maps=S)
         ms.add(maps, S, 0, _wp2(cand, wp.uint8, device), _wp2(W, wp.vec3, device))
         out.append(ms.result() + (ms.n_list.numpy()[ms.point_cell].sum(),))
-    (a1, c1, pairs1), (a0, c0, pairs0) = out
+        lists.append((ms.n_list.numpy().copy(), ms.lists.numpy().copy()))
+    maps.ms.sat = 1
+    (a1, c1, pairs1), (a0, c0, pairs0), _ = out
+    # the blocks' summed-area table lists the maps the loop over the blocks lists
+    assert all(np.array_equal(x, y) for x, y in zip(lists[0], lists[2]))
     np.testing.assert_array_equal(c1, c0)
     np.testing.assert_array_equal(a1, a0)
     assert 0.02 < (c0 > 0).mean() < 0.9 and c0.sum() > 500
@@ -285,6 +290,31 @@ def test_culling_changes_no_sum(device):
         _exact_box(pts, eyes, CUBE_LO + 0.02, CUBE_HI - 0.02).sum(1)
     np.testing.assert_array_equal(c1[clear], ref[clear])
 
+
+
+def test_coarse_blocks_summed_area_table(device):
+    # may_occlude asks whether any coarse block of a box was drawn in from the blocks' summed-area table (one box
+    # sum, not a loop over the blocks): the table is the blocks' 2-d running sum, and a random box's sum is
+    # positive exactly where one of its blocks is set; a batch drawn again from other eyes leaves no stale count
+    v, t = _cube()
+    maps = ShadowMaps(len(EYES), 100, device=device)  # 13 blocks a side, the last partly off the map
+    maps.set_proxy(v, t)
+    rng = np.random.default_rng(11)
+    for eyes in (EYES, EYES[::-1] * np.array([1.0, 1.4, 1.0])):
+        n = maps.render(eyes)
+        coarse = maps.ms.coarse.numpy()[:n]
+        sat = maps.ms.coarse_sat.numpy()[:n]
+        assert 0.05 < coarse.mean() < 0.95
+        ref = np.zeros_like(sat)
+        ref[:, 1:, 1:] = coarse.cumsum(1).cumsum(2)
+        np.testing.assert_array_equal(sat, ref)
+        nc = coarse.shape[1]
+        for _ in range(500):
+            k = rng.integers(n)
+            y0, y1 = np.sort(rng.integers(0, nc, 2))
+            x0, x1 = np.sort(rng.integers(0, nc, 2))
+            box = sat[k, y1 + 1, x1 + 1] - sat[k, y0, x1 + 1] - sat[k, y1 + 1, x0] + sat[k, y0, x0]
+            assert (box > 0) == coarse[k, y0:y1 + 1, x0:x1 + 1].any()
 
 
 def test_ray_mode_culling_by_the_proxy_box(device):

@@ -55,6 +55,35 @@ def test_depth_range_bounds_every_texel(device):
         assert tuple(out.numpy()[0]) == (depth[0].min(), depth[0].max())
 
 
+def test_merged_levels_are_the_level_by_level_pyramid(device):
+    # build_mips' first launch writes levels 1 and 2 at once (merge_mips): every level of the pyramid equals the one
+    # built level by level, bit for bit, and each block holds the exact min and max of its texels; map sides that
+    # halve evenly and ones that do not (85 -> 43 -> 22: a level-2 block with one level-1 block, edge texels alone),
+    # and a map with one level (2 texels a side: no level 2). An empty texel (inf) counts as 1e30 in both
+    for res in (128, 85, 100, 2):
+        maps, n = _cube_maps(device, res, EYES, np.full(len(EYES), 0.3))
+        pyr = {}
+        for merged in (True, False):
+            maps.merge_mips = merged
+            maps.ms.mip_min.fill_(-7.0)
+            maps.ms.mip_max.fill_(-7.0)
+            maps.build_mips(0, n)
+            pyr[merged] = (maps.ms.mip_min.numpy().copy(), maps.ms.mip_max.numpy().copy())
+        assert np.array_equal(pyr[True][0], pyr[False][0]) and np.array_equal(pyr[True][1], pyr[False][1])
+        depth = maps.depth_numpy()
+        side, off = maps._mip_side, maps.ms.mip_off.numpy()
+        for lv in range(1, min(3, maps.ms.mip_levels + 1)):
+            b = 2 ** lv
+            for k in range(n):
+                for by in range(side[lv]):
+                    for bx in range(side[lv]):
+                        block = depth[k, by * b:(by + 1) * b, bx * b:(bx + 1) * b]
+                        i = off[lv] + by * side[lv] + bx
+                        # an empty texel (inf) reads as 1e30, the kernels' start value
+                        assert pyr[True][0][k, i] == min(block.min(), np.float32(1e30))
+                        assert pyr[True][1][k, i] == max(block.max(), np.float32(-1e30))
+
+
 def test_early_outs_change_no_sum(device):
     # square and line clusters over a cube: the sums with the pyramid equal those with a pyramid
     # that knows nothing (every range (-inf, inf): every tap looked up), bit for bit
