@@ -398,6 +398,8 @@ class PlacementWindow:
             try:
                 fr = self.ctl.render(pose)
             except Exception as e:  # noqa: BLE001 - an engine error must not kill the window
+                if self.closed:  # the window closed mid-frame: the engine's worker pool is gone, nothing to report
+                    return
                 log.exception("frame failed")
                 self.error = f"frame failed: {e}"
                 self.app.post_to_main_thread(self.window, lambda: setattr(self.status, "text", self.error))
@@ -420,6 +422,8 @@ class PlacementWindow:
             try:
                 fr = self.ctl.refine(pose, budget_s=REFINE_SLICE_S, intermediate=True, stop=edited)
             except Exception as e:  # noqa: BLE001 - an engine error must not kill the window
+                if self.closed:  # the window closed mid-slice: the engine's worker pool is gone, nothing to report
+                    return
                 log.exception("refinement failed")
                 self.error = f"refinement failed: {e}"
                 return
