@@ -21,8 +21,9 @@ timers around every launch (app.glue.KernelClock): the Python and numpy glue wit
 evaluation.json gets "path": positions (N), passes, frame_s_mean and frame_s_p95 over frames
 2..N (the first frame pays one-off work: kernels, the object's shape), and the per-phase mean
 "stages_ms"; then the release at rest (drag_path): converge_s (to all-source quality against the
-truth), exact_s (to the all-sources frame) and the frames shown. Every row has the frame's
-per-phase "stages_ms" too.
+truth), exact_s (to the all-sources frame) and the frames shown ("shown": each one's t_s since the
+move, passes, exact, frame_s, "stages_ms" and rmse_affected). Every row has the frame's per-phase
+"stages_ms" too.
 """
 from __future__ import annotations
 
@@ -172,6 +173,7 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None, drag: int | 
     import dataclasses
 
     from app.dragpath import drag_offsets, moved
+    from app.report import stages_ms
 
     offsets = drag_offsets(scene, scene.obj, n)
     cfg = dataclasses.replace(engine.frame_config(), passes=passes, drag=drag, drag_shadow=DRAG_SHADOW)
@@ -215,6 +217,7 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None, drag: int | 
              "exact_s": exact_s, "exact_frames": steps, "converge_measures": measures,
              "release_frame_s": float(release.stats["frame_s"]), "refine_s": done.stats["refine_s"],
              "shown": [{"t_s": t, "passes": int(f.stats["passes"]), "exact": bool(f.stats.get("exact", False)),
+                        "frame_s": float(f.stats["frame_s"]), "stages_ms": stages_ms(f.stats),
                         **({"rmse_affected": scores[i]} if scores is not None else {})}
                        for i, (t, _, f) in enumerate(shown)]}
     return entry, done

@@ -66,6 +66,12 @@ def test_evaluate_path_and_stage_table(tmp_path):
     assert ev["exact_s"] == p["exact_s"] == p["converge_s"] == p["shown"][-1]["t_s"]
     assert [s["exact"] for s in p["shown"]] == [False] * (len(p["shown"]) - 1) + [True]
     assert "rmse_affected" not in p["shown"][0] and "no truth" in p["converge_measures"]
+    # each frame shown at rest has its own time and stage table (the release frame's is release_frame_s):
+    # its timed stages make up the frame, which took no longer than the time since the move
+    assert p["shown"][0]["frame_s"] == p["release_frame_s"]
+    for s in p["shown"]:
+        assert {"masks", "compose"} <= set(s["stages_ms"]) and 0 < s["frame_s"] <= s["t_s"]
+        assert 0 < sum(s["stages_ms"].values()) <= 1e3 * s["frame_s"] + 1e-6
 
 
 def test_evaluate_reaches_all_source_quality_before_the_exact_frame(shared_scenes_cache, tmp_path, capsys):
