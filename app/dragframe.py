@@ -67,8 +67,10 @@ DRAG_ROOM_CELLS = 1
 # and the sun's lit pieces already do), no ray per (receiver, triangle), and a triangle as a point emitter (or its
 # quarters' mid-point rule) where the bound of that error is within this share of its unoccluded light: the sun's
 # lit pieces' tolerance (app.stages.sun.PIECE_POINT_TOLERANCE), the same rule. Within the sphere (contact: a 14 deg
-# cell is wider than the gap) and with the sun's emitters (sunlit faces 20-50x brighter) a ray each. None: a ray
-# each everywhere (the frames at rest). docs/benchmarks.md "The drag frame's object light (objlight37)"
+# cell is wider than the gap) and with the sun's emitters a ray each (the floor the sun lights beside the object
+# lights its faces turned from the sun as brightly: with those alone through the tables sun_room's drag row still
+# lost 24 levels between 1 and 1.5 radii; docs/benchmarks.md "The sun rooms' drag object light (sunobj37)"). None:
+# a ray each everywhere (the frames at rest). docs/benchmarks.md "The drag frame's object light (objlight37)"
 DRAG_LIGHT_TABLES: float | None = 0.05
 
 

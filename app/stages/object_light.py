@@ -1070,9 +1070,9 @@ class ObjectLight:
                      faces: np.ndarray | None = None) -> LightTables | None:
         """The near sums' LightTables of the proxy shape `shape` (of its `faces`, None: all; the whole shape's
         kept for its frames) at the bounding sphere (centre, radius), None without table_tolerance (rays) or with
-        extra emitters (the sun's: sunlit faces 20-50 times brighter than the shaded ones multiply a cell's error
-        as much; sun_room's drag row with tables 24 levels off at a few pixels beside the chair, rmse_affected
-        1.208 -> 1.224)."""
+        extra emitters (the sun's: sun_room's drag row with tables 24 levels off at a few pixels beside the chair,
+        rmse_affected 1.208 -> 1.224; as far off with only the faces turned from the sun through the tables, which
+        the sunlit floor lights as brightly: docs/benchmarks.md "The sun rooms' drag object light (sunobj37)")."""
         if self.table_tolerance is None or extra is not None:
             return None
         seen = shape.visibility.seen
