@@ -459,8 +459,11 @@ class MaskedSum:
         self.active.push()
 
     def reset(self) -> None:
-        self.acc.dev.zero_()
-        self.count.dev.zero_()
+        """Zero the sums of the selected points: the first n rows, the only ones accumulate writes and
+        result reads (the buffers hold every point; a drag frame selects a few)."""
+        if self.n:
+            self.acc.dev[:self.n].zero_()
+            self.count.dev[:self.n].zero_()
 
     def prepare(self, maps: ShadowMaps, n_maps: int, first: int, cand: wp.array, split=None) -> None:
         """Each cell's list of maps 0..n_maps-1 of `maps` (sources first.. of `cand`'s columns)

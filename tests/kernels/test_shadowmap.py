@@ -139,6 +139,36 @@ def test_batches_reuse_buffers(device):
     np.testing.assert_array_equal(one_cnt[clear], occ[clear].sum(1))
 
 
+def test_a_new_selection_sums_from_zero(device):
+    # MaskedSum.select zeroes only the rows the selection uses (its first n): sums over all points, then a few
+    # of them in a scrambled order, then all again give each point its own count, the exact occluded-eye count
+    # away from the plate's edge, every time (no row keeps a sum of the selection before)
+    pts = _floor_grid(step=0.06)
+    S = len(EYES)
+    maps = ShadowMaps(S, 256, device=device)
+    maps.set_proxy(PLATE_V, PLATE_F)
+    assert maps.render(EYES) == S
+    cand = _wp2(np.ones((1, S), np.uint8), wp.uint8, device)
+    w = _wp2(np.ones((1, S, 3), np.float32), wp.vec3, device)
+    acc = _masked(device, pts)
+    acc.add(maps, S, 0, cand, w)
+    full_sum, full_cnt = (a.copy() for a in acc.result())
+    occ, margin = _exact(pts, EYES)
+    clear = (np.abs(margin) > 0.02).all(1)
+    np.testing.assert_array_equal(full_cnt[clear], occ[clear].sum(1))
+    idx = np.random.default_rng(3).permutation(len(pts))[:len(pts) // 5]
+    acc.select(idx)
+    acc.add(maps, S, 0, cand, w)
+    sub_sum, sub_cnt = acc.result()
+    np.testing.assert_array_equal(sub_cnt, full_cnt[idx])
+    np.testing.assert_array_equal(sub_sum, full_sum[idx])
+    acc.select(None)
+    acc.add(maps, S, 0, cand, w)
+    again_sum, again_cnt = acc.result()
+    np.testing.assert_array_equal(again_cnt, full_cnt)
+    np.testing.assert_array_equal(again_sum, full_sum)
+
+
 def test_weights_accumulate_barycentric(device):
     # sums equal, per point, sum over occluded candidate sources of the barycentric interpolation of W
     rng = np.random.default_rng(11)
