@@ -719,14 +719,24 @@ class PlacementWindow:
         object's first frame is on screen, press the mouse on the object's footprint, play n DRAG events
         through the window's own handler (_on_image_mouse), one every interval_s (a 60 Hz mouse) with the
         event loop running between them, along the straight drag of app.dragpath projected to the photo;
-        wait for the last pose's frame, release. Each event's latency is the time from its handling to
-        the first frame handed to the window (_show_frame: the image updated, a redraw posted) of its pose
-        or a later one (the render loop drops the poses it had no time for: it renders the newest).
-        Returns drag_latencies' figures."""
+        wait for the last pose's frame, release. Each event's latency runs from the moment the event is
+        handed to the window (before its handler: the handler's own work is part of the latency) to the end
+        of the event loop's tick that showed the first frame of its pose or a later one (_show_frame: the
+        image updated and a redraw posted, drawn in that tick at the earliest) (the render loop drops the
+        poses it had no time for: it renders the newest). Returns drag_latencies' figures."""
         from app.dragpath import drag_offsets
 
         T = self.gui.MouseEvent.Type
         t0 = time.perf_counter()
+
+        shown: list[tuple[float, Pose]] = []
+
+        def tick() -> None:  # the frames _show_frame handed over in this tick are on screen once it returns
+            self.app.run_one_tick()
+            if self._bench_shown:
+                now = time.perf_counter()
+                shown.extend((now, p) for _, p in self._bench_shown)
+                self._bench_shown.clear()
 
         def spin_until(cond, what: str) -> None:
             while not cond():
@@ -734,7 +744,7 @@ class PlacementWindow:
                     raise RuntimeError(f"{self.ctl.scene.root}: {self.error}")
                 if time.perf_counter() - t0 > timeout_s:
                     raise RuntimeError(f"{self.ctl.scene.root}: --drag-bench: no {what} after {timeout_s:.0f} s")
-                self.app.run_one_tick()
+                tick()
                 time.sleep(0.002)
 
         spin_until(lambda: self.engine_ready.is_set() and self.frames_shown > 0, "first frame")
@@ -748,15 +758,16 @@ class PlacementWindow:
         self._bench_shown = []
         events: list[tuple[float, Pose]] = []
         for k in range(1, n + 1):
-            next_t = time.perf_counter() + interval_s
+            t_ev = time.perf_counter()
+            next_t = t_ev + interval_s
             self._on_image_mouse(_ScriptMouse(T.DRAG, *self.pixel_to_window(*uv[k])))
-            events.append((time.perf_counter(), self.ctl.pose))
+            events.append((t_ev, self.ctl.pose))
             while time.perf_counter() < next_t:
-                self.app.run_one_tick()
+                tick()
                 time.sleep(0.001)
         last = events[-1][1]
-        spin_until(lambda: any(p == last for _, p in self._bench_shown), "frame of the last pose")
-        shown, self._bench_shown = self._bench_shown, None
+        spin_until(lambda: any(p == last for _, p in shown), "frame of the last pose")
+        self._bench_shown = None
         self._on_image_mouse(_ScriptMouse(T.BUTTON_UP, *self.pixel_to_window(*uv[n])))
         return drag_latencies(events, shown)
 
