@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import logging
 import math
 import threading
@@ -47,6 +48,12 @@ REFINE_SLICE_S = 0.05  # s of refinement between checks for a new edit (the drag
 # 2-core machine (docs/benchmarks.md, "The GUI's drag (gui37)"). 20 Hz keeps the outline moving smoothly for the
 # eye; the frames themselves come slower.
 PREVIEW_INTERVAL_S = 0.05
+# The pointer has rested once no edit came for STILL_S: three reports of a 60 Hz mouse (a drag reports each
+# move at the screen's rate; a hand that stopped reports none). The frame under way, of a pose an edit has
+# replaced since, is then abandoned between two of its stages (Engine.render's stop) so that the resting
+# pose's frame starts at once instead of after it: the rested pose is on screen up to a frame sooner. While
+# the edits keep coming every frame is finished: each would be overtaken before its end, and none shown.
+STILL_S = 3 / 60
 SETTLE_TICKS = 20  # redraws before a scripted screenshot is compared (settled_screenshot)
 
 
@@ -222,6 +229,7 @@ class PlacementWindow:
         self._preview_due = False  # the newest pose's outline is not on screen yet (main thread only)
         self._preview_t = -math.inf  # when the last outline preview was drawn (perf_counter s)
         self._dragging = False  # the mouse button is down on the photo: a gesture is under way (no refinement)
+        self._edit_t = -math.inf  # when the last edit changed the pose (perf_counter s; main thread writes it)
 
         w = self.window = self.app.create_window(title, width, height)
         em = w.theme.font_size
@@ -384,7 +392,13 @@ class PlacementWindow:
             self._dirty = True
             self._render_cv.notify()
 
+    def _overtaken(self, pose: Pose) -> bool:
+        """Abandon the frame of `pose` under way? The window closed, or an edit replaced the pose and the
+        pointer has rested STILL_S since the last edit."""
+        return self.closed or (pose != self.ctl.pose and time.perf_counter() - self._edit_t >= STILL_S)
+
     def _render_loop(self) -> None:
+        abandoned = False  # the last frame was abandoned: this one is finished (every other frame at least shows)
         while not self.closed:
             with self._render_cv:
                 while not self._dirty and not self.closed:
@@ -395,14 +409,18 @@ class PlacementWindow:
             if self._script is not None and not self._script():
                 continue
             pose = self.ctl.pose
+            stop = None if abandoned or self._script is not None else functools.partial(self._overtaken, pose)
             try:
-                fr = self.ctl.render(pose)
+                fr = self.ctl.render(pose, stop=stop)
             except Exception as e:  # noqa: BLE001 - an engine error must not kill the window
                 if self.closed:  # the window closed mid-frame: the engine's worker pool is gone, nothing to report
                     return
                 log.exception("frame failed")
                 self.error = f"frame failed: {e}"
                 self.app.post_to_main_thread(self.window, lambda: setattr(self.status, "text", self.error))
+                continue
+            abandoned = fr is None
+            if abandoned:  # overtaken: the edit that replaced its pose asked for the next frame (request_frame)
                 continue
             if not fr.stats["cached"]:
                 self.frame_times.append(fr.stats["frame_s"])
@@ -485,6 +503,7 @@ class PlacementWindow:
 
     def _on_pose_change(self, pose: Pose) -> None:
         """Controller callback (main thread: edits come from widget events)."""
+        self._edit_t = time.perf_counter()
         self.request_frame()
         self._preview_due = True
         self._preview()
