@@ -48,8 +48,10 @@ REFINE_SLICE_S = 0.05  # s of refinement between checks for a new edit (the drag
 # 2-core machine (docs/benchmarks.md, "The GUI's drag (gui37)"). 20 Hz keeps the outline moving smoothly for the
 # eye; the frames themselves come slower.
 PREVIEW_INTERVAL_S = 0.05
-# The pointer has rested once no edit came for STILL_S: three reports of a 60 Hz mouse (a drag reports each
-# move at the screen's rate; a hand that stopped reports none). The frame under way, of a pose an edit has
+# The pointer has rested once the event loop ran a tick STILL_S after the last edit with no edit since: three
+# reports of a 60 Hz mouse (a drag reports each move at the screen's rate; a hand that stopped reports none).
+# Timed by the loop's ticks, not the clock: a main thread held up by a redraw delivers the moves made meanwhile
+# on its next tick, and a drag is not taken for a rest then. The frame under way, of a pose an edit has
 # replaced since, is then abandoned between two of its stages (Engine.render's stop) so that the resting
 # pose's frame starts at once instead of after it: the rested pose is on screen up to a frame sooner. While
 # the edits keep coming every frame is finished: each would be overtaken before its end, and none shown.
@@ -230,6 +232,7 @@ class PlacementWindow:
         self._preview_t = -math.inf  # when the last outline preview was drawn (perf_counter s)
         self._dragging = False  # the mouse button is down on the photo: a gesture is under way (no refinement)
         self._edit_t = -math.inf  # when the last edit changed the pose (perf_counter s; main thread writes it)
+        self._tick_t = -math.inf  # when the event loop's last tick began (perf_counter s; _on_tick writes it)
 
         w = self.window = self.app.create_window(title, width, height)
         em = w.theme.font_size
@@ -394,8 +397,8 @@ class PlacementWindow:
 
     def _overtaken(self, pose: Pose) -> bool:
         """Abandon the frame of `pose` under way? The window closed, or an edit replaced the pose and the
-        pointer has rested STILL_S since the last edit."""
-        return self.closed or (pose != self.ctl.pose and time.perf_counter() - self._edit_t >= STILL_S)
+        pointer has rested: the event loop ticked STILL_S after the last edit."""
+        return self.closed or (pose != self.ctl.pose and self._tick_t - self._edit_t >= STILL_S)
 
     def _render_loop(self) -> None:
         abandoned = False  # the last frame was abandoned: this one is finished (every other frame at least shows)
@@ -524,6 +527,7 @@ class PlacementWindow:
         return True
 
     def _on_tick(self) -> bool:
+        self._tick_t = time.perf_counter()
         if self._preview():
             return True
         if not self.engine_ready.is_set() and self.error is None:

@@ -75,6 +75,7 @@ def _window(ctl) -> tuple[PlacementWindow, list]:
     w._render_cv, w.engine_ready = _Condition(), threading.Event()
     w.frame_times, w.error, w.refined_frames, w.window = [], None, 0, None
     w._edit_t = math.inf  # the pointer keeps moving (no frame is abandoned) unless a test says it rests
+    w._tick_t = 0.0  # the event loop's last tick
     w.app = SimpleNamespace(post_to_main_thread=lambda window, fn: fn())
     w._show_frame = lambda fr, pose: shown.append(pose.k)
     w.engine_ready.set()
@@ -82,7 +83,7 @@ def _window(ctl) -> tuple[PlacementWindow, list]:
 
 
 def _move(w, ctl, k: int, rests: bool = False):  # what a mouse move does: a new pose, then _on_pose_change's
-    # request_frame; rests: the pointer rests from then on (the move was STILL_S ago when the frame asks)
+    # request_frame; rests: the pointer rests from then on (the event loop ticked STILL_S after the move)
     ctl.pose = _pose(k)
     w._edit_t = -math.inf if rests else math.inf
     w.request_frame()
