@@ -264,15 +264,20 @@ class Engine:
         """The FrameConfig of the engine's params (what render uses when given none)."""
         return self.params.frame
 
-    def render(self, obj: SceneObject, config: FrameConfig | None = None) -> Frame:
+    def render(self, obj: SceneObject, config: FrameConfig | None = None, stop=None) -> Frame | None:
         """Composite the object at its pose within `config` (default: frame_config()); returns the
-        frame with per-phase timings in stats."""
+        frame with per-phase timings in stats. stop: callable() -> bool, asked between steps (a stage
+        or a batch of maps): True abandons the frame and returns None (the GUI's frame of a pose a
+        newer one replaced)."""
         steps = self._frame_steps(obj, config or self.frame_config())
         while True:
             try:
                 next(steps)
             except StopIteration as done:
                 return done.value
+            if stop is not None and stop():
+                steps.close()
+                return None
 
     def refine(self, obj: SceneObject, config: FrameConfig | None = None, budget_s: float | None = None,
                stop=None) -> Frame | None:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import logging
 import math
 import threading
@@ -47,6 +48,14 @@ REFINE_SLICE_S = 0.05  # s of refinement between checks for a new edit (the drag
 # 2-core machine (docs/benchmarks.md, "The GUI's drag (gui37)"). 20 Hz keeps the outline moving smoothly for the
 # eye; the frames themselves come slower.
 PREVIEW_INTERVAL_S = 0.05
+# The pointer has rested once the event loop ran a tick STILL_S after the last edit with no edit since: three
+# reports of a 60 Hz mouse (a drag reports each move at the screen's rate; a hand that stopped reports none).
+# Timed by the loop's ticks, not the clock: a main thread held up by a redraw delivers the moves made meanwhile
+# on its next tick, and a drag is not taken for a rest then. The frame under way, of a pose an edit has
+# replaced since, is then abandoned between two of its stages (Engine.render's stop) so that the resting
+# pose's frame starts at once instead of after it: the rested pose is on screen up to a frame sooner. While
+# the edits keep coming every frame is finished: each would be overtaken before its end, and none shown.
+STILL_S = 3 / 60
 SETTLE_TICKS = 20  # redraws before a scripted screenshot is compared (settled_screenshot)
 
 
@@ -222,6 +231,8 @@ class PlacementWindow:
         self._preview_due = False  # the newest pose's outline is not on screen yet (main thread only)
         self._preview_t = -math.inf  # when the last outline preview was drawn (perf_counter s)
         self._dragging = False  # the mouse button is down on the photo: a gesture is under way (no refinement)
+        self._edit_t = -math.inf  # when the last edit changed the pose (perf_counter s; main thread writes it)
+        self._tick_t = -math.inf  # when the event loop's last tick began (perf_counter s; _on_tick writes it)
 
         w = self.window = self.app.create_window(title, width, height)
         em = w.theme.font_size
@@ -384,7 +395,13 @@ class PlacementWindow:
             self._dirty = True
             self._render_cv.notify()
 
+    def _overtaken(self, pose: Pose) -> bool:
+        """Abandon the frame of `pose` under way? The window closed, or an edit replaced the pose and the
+        pointer has rested: the event loop ticked STILL_S after the last edit."""
+        return self.closed or (pose != self.ctl.pose and self._tick_t - self._edit_t >= STILL_S)
+
     def _render_loop(self) -> None:
+        abandoned = False  # the last frame was abandoned: this one is finished (every other frame at least shows)
         while not self.closed:
             with self._render_cv:
                 while not self._dirty and not self.closed:
@@ -395,14 +412,18 @@ class PlacementWindow:
             if self._script is not None and not self._script():
                 continue
             pose = self.ctl.pose
+            stop = None if abandoned or self._script is not None else functools.partial(self._overtaken, pose)
             try:
-                fr = self.ctl.render(pose)
+                fr = self.ctl.render(pose, stop=stop)
             except Exception as e:  # noqa: BLE001 - an engine error must not kill the window
                 if self.closed:  # the window closed mid-frame: the engine's worker pool is gone, nothing to report
                     return
                 log.exception("frame failed")
                 self.error = f"frame failed: {e}"
                 self.app.post_to_main_thread(self.window, lambda: setattr(self.status, "text", self.error))
+                continue
+            abandoned = fr is None
+            if abandoned:  # overtaken: the edit that replaced its pose asked for the next frame (request_frame)
                 continue
             if not fr.stats["cached"]:
                 self.frame_times.append(fr.stats["frame_s"])
@@ -485,6 +506,7 @@ class PlacementWindow:
 
     def _on_pose_change(self, pose: Pose) -> None:
         """Controller callback (main thread: edits come from widget events)."""
+        self._edit_t = time.perf_counter()
         self.request_frame()
         self._preview_due = True
         self._preview()
@@ -505,6 +527,7 @@ class PlacementWindow:
         return True
 
     def _on_tick(self) -> bool:
+        self._tick_t = time.perf_counter()
         if self._preview():
             return True
         if not self.engine_ready.is_set() and self.error is None:
@@ -719,14 +742,24 @@ class PlacementWindow:
         object's first frame is on screen, press the mouse on the object's footprint, play n DRAG events
         through the window's own handler (_on_image_mouse), one every interval_s (a 60 Hz mouse) with the
         event loop running between them, along the straight drag of app.dragpath projected to the photo;
-        wait for the last pose's frame, release. Each event's latency is the time from its handling to
-        the first frame handed to the window (_show_frame: the image updated, a redraw posted) of its pose
-        or a later one (the render loop drops the poses it had no time for: it renders the newest).
-        Returns drag_latencies' figures."""
+        wait for the last pose's frame, release. Each event's latency runs from the moment the event is
+        handed to the window (before its handler: the handler's own work is part of the latency) to the end
+        of the event loop's tick that showed the first frame of its pose or a later one (_show_frame: the
+        image updated and a redraw posted, drawn in that tick at the earliest) (the render loop drops the
+        poses it had no time for: it renders the newest). Returns drag_latencies' figures."""
         from app.dragpath import drag_offsets
 
         T = self.gui.MouseEvent.Type
         t0 = time.perf_counter()
+
+        shown: list[tuple[float, Pose]] = []
+
+        def tick() -> None:  # the frames _show_frame handed over in this tick are on screen once it returns
+            self.app.run_one_tick()
+            if self._bench_shown:
+                now = time.perf_counter()
+                shown.extend((now, p) for _, p in self._bench_shown)
+                self._bench_shown.clear()
 
         def spin_until(cond, what: str) -> None:
             while not cond():
@@ -734,7 +767,7 @@ class PlacementWindow:
                     raise RuntimeError(f"{self.ctl.scene.root}: {self.error}")
                 if time.perf_counter() - t0 > timeout_s:
                     raise RuntimeError(f"{self.ctl.scene.root}: --drag-bench: no {what} after {timeout_s:.0f} s")
-                self.app.run_one_tick()
+                tick()
                 time.sleep(0.002)
 
         spin_until(lambda: self.engine_ready.is_set() and self.frames_shown > 0, "first frame")
@@ -748,15 +781,16 @@ class PlacementWindow:
         self._bench_shown = []
         events: list[tuple[float, Pose]] = []
         for k in range(1, n + 1):
-            next_t = time.perf_counter() + interval_s
+            t_ev = time.perf_counter()
+            next_t = t_ev + interval_s
             self._on_image_mouse(_ScriptMouse(T.DRAG, *self.pixel_to_window(*uv[k])))
-            events.append((time.perf_counter(), self.ctl.pose))
+            events.append((t_ev, self.ctl.pose))
             while time.perf_counter() < next_t:
-                self.app.run_one_tick()
+                tick()
                 time.sleep(0.001)
         last = events[-1][1]
-        spin_until(lambda: any(p == last for _, p in self._bench_shown), "frame of the last pose")
-        shown, self._bench_shown = self._bench_shown, None
+        spin_until(lambda: any(p == last for _, p in shown), "frame of the last pose")
+        self._bench_shown = None
         self._on_image_mouse(_ScriptMouse(T.BUTTON_UP, *self.pixel_to_window(*uv[n])))
         return drag_latencies(events, shown)
 

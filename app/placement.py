@@ -528,11 +528,12 @@ class PlacementController:
             drag = None if passes is None else (cfg.drag or self.drag)
             self._config = replace(cfg, passes=passes, mode=mode or cfg.mode, drag=drag)
 
-    def render(self, pose: Pose | None = None) -> FrameResult:
+    def render(self, pose: Pose | None = None, stop: Callable[[], bool] | None = None) -> FrameResult | None:
         """Composite `pose` (default: the current one) through the engine.
 
         stats: frame_s (this call), engine_s (the engine's own figure, 0 for a kept frame),
-        passes, mode, cached. Raises RuntimeError before start_engine has finished.
+        passes, mode, cached. stop: Engine.render's (asked between the frame's steps: True abandons
+        it, returns None, keeps nothing). Raises RuntimeError before start_engine has finished.
         """
         t0 = time.perf_counter()
         with self._lock:
@@ -551,7 +552,9 @@ class PlacementController:
             rad = eng.receivers.L_b.reshape(H, W, 3).astype(np.float32)
             fr = FrameResult(self.scene.photo.copy(), rad, {"passes": 0, "engine_s": 0.0})
         else:
-            f = eng.render(obj, cfg)
+            f = eng.render(obj, cfg, stop)
+            if f is None:
+                return None
             fr = FrameResult(f.pixels, f.radiance, {"passes": f.stats["passes"], "engine_s": f.stats["frame_s"],
                                                     "timings": f.stats.get("timings", {})})
         fr.pixels.setflags(write=False)

@@ -1,6 +1,8 @@
 """PlacementWindow's render loop (app/gui.py) with a stand-in controller and event loop, no window: a late
 frame makes it drop the poses made meanwhile (it renders the newest, never queues them); while the mouse
-button is held it does not refine; the release refines the pose at rest, and a press stops that."""
+button is held it does not refine; the release refines the pose at rest, and a press stops that; the frame
+of a pose an edit replaced is abandoned once the pointer rests, never two in a row."""
+import math
 import threading
 from types import SimpleNamespace
 
@@ -27,11 +29,16 @@ class _Controller:
         self.refining = threading.Event()
         self.pressed = threading.Event()
         self.stop_said: list[bool] = []
+        self.render_stop_said: list[bool] = []  # what each frame's stop answered when asked (after `go`)
 
-    def render(self, pose):
+    def render(self, pose, stop=None):
         self.rendered.append(pose.k)
         self.started.release()
         assert self.go.acquire(timeout=WAIT_S)
+        if stop is not None:  # one pause between two stages, after `go`
+            self.render_stop_said.append(stop())
+            if self.render_stop_said[-1]:
+                return None
         return SimpleNamespace(pixels=None, stats={"cached": False, "frame_s": 0.0, "converged": False})
 
     def refine(self, pose, budget_s=None, intermediate=False, stop=None):
@@ -67,14 +74,18 @@ def _window(ctl) -> tuple[PlacementWindow, list]:
     w.gui, w.ctl, w.choices, w.closed, w._dirty, w._script, w._dragging = gui, ctl, [], False, False, None, False
     w._render_cv, w.engine_ready = _Condition(), threading.Event()
     w.frame_times, w.error, w.refined_frames, w.window = [], None, 0, None
+    w._edit_t = math.inf  # the pointer keeps moving (no frame is abandoned) unless a test says it rests
+    w._tick_t = 0.0  # the event loop's last tick
     w.app = SimpleNamespace(post_to_main_thread=lambda window, fn: fn())
     w._show_frame = lambda fr, pose: shown.append(pose.k)
     w.engine_ready.set()
     return w, shown
 
 
-def _move(w, ctl, k: int):  # what a mouse move does: a new pose, then _on_pose_change's request_frame
+def _move(w, ctl, k: int, rests: bool = False):  # what a mouse move does: a new pose, then _on_pose_change's
+    # request_frame; rests: the pointer rests from then on (the event loop ticked STILL_S after the move)
     ctl.pose = _pose(k)
+    w._edit_t = -math.inf if rests else math.inf
     w.request_frame()
 
 
@@ -118,3 +129,34 @@ def test_a_late_frame_drops_the_poses_made_meanwhile_and_a_press_stops_the_refin
     assert not loop.is_alive()
     assert ctl.rendered == [1, 6, 7, 7] and shown == [1, 6, 7, 7]
     assert ctl.refined == [7] and ctl.stop_said == [False, True]
+
+
+def test_a_frame_of_a_replaced_pose_is_abandoned_once_the_pointer_rests_never_two_in_a_row():
+    ctl = _Controller()
+    w, shown = _window(ctl)
+    loop = threading.Thread(target=w._render_loop, daemon=True)
+    w._dragging = True
+    _move(w, ctl, 1)
+    loop.start()
+    try:
+        assert ctl.started.acquire(timeout=WAIT_S)
+        _move(w, ctl, 2)  # the pointer still moves: pose 1's frame is finished and shown
+        ctl.go.release()
+        assert ctl.started.acquire(timeout=WAIT_S)  # pose 2's frame
+        _move(w, ctl, 3, rests=True)  # replaced, and the pointer rests: abandoned between two stages
+        ctl.go.release()
+        assert ctl.started.acquire(timeout=WAIT_S)  # pose 3's frame at once
+        _move(w, ctl, 4, rests=True)  # replaced too, but it follows an abandoned frame: finished
+        ctl.go.release()
+        _frame(ctl)  # pose 4's frame: its pose is the newest, nothing to abandon
+        w._render_cv.idle.clear()
+        assert w._render_cv.idle.wait(WAIT_S)
+    finally:
+        w.closed = True
+        with w._render_cv:
+            w._render_cv.notify()
+        ctl.go.release()
+        loop.join(WAIT_S)
+    assert not loop.is_alive()
+    assert ctl.rendered == [1, 2, 3, 4] and shown == [1, 3, 4]
+    assert ctl.render_stop_said == [False, True, False]  # frame 3 had no stop; 4's pose was the newest

@@ -236,3 +236,21 @@ def test_refine_stops_where_stop_says_and_goes_on_from_there(demo):
     whole = eng.refine(pose, FrameConfig(passes=10))
     assert whole is not fr and whole.stats["refine_calls"] == 1
     assert np.array_equal(whole.pixels, fr.pixels) and np.array_equal(whole.radiance, fr.radiance)
+
+
+def test_render_abandons_the_frame_where_stop_says(demo):
+    # Engine.render asks stop() after each step (a stage or a batch of maps): True abandons the frame, None;
+    # a stop that never says True gives the uninterrupted frame bit for bit, and so does a frame after an
+    # abandoned one (the abandoned frame leaves nothing behind)
+    scene, eng = demo
+    pose = moved(scene.obj, np.array([0.3, 0.0, 0.0]))
+    cfg = FrameConfig(passes=10)
+    asked = []
+    assert eng.render(pose, cfg, stop=lambda: asked.append(1) or len(asked) == 2) is None
+    assert len(asked) == 2  # it stopped at the second pause, asked nothing more
+    seen = []
+    fr = eng.render(pose, cfg, stop=lambda: seen.append(1) or False)
+    assert len(seen) >= 4  # at least the frame's four stage pauses (and one per batch of maps)
+    whole = eng.render(pose, cfg)
+    assert not np.shares_memory(fr.pixels, whole.pixels)  # two frames, not one buffer compared with itself
+    assert np.array_equal(fr.pixels, whole.pixels) and np.array_equal(fr.radiance, whole.radiance)
