@@ -137,21 +137,7 @@ class SceneDepth(CameraHits):
         u0, v0, u1, v1 = rect
         depth = self.depth(rect, split)
         cols, rows = u1 - u0 + 1, v1 - v0 + 1
-        n = rows * s * cols * s
-        tri, bary, hit = np.empty(n, np.int32), np.empty((n, 3), np.float32), np.empty(n, bool)
         M = wp.mat33(*np.asarray(pix_to_dir, np.float32).reshape(-1))
         c = wp.vec3(*np.asarray(centre, np.float32))
-        for first in range(0, n, self.block):
-            m = min(self.block, n - first)
-
-            def launch(lo: int, hi: int) -> None:
-                wp.launch(_object_hits_depth_kernel, dim=hi - lo,
-                          inputs=[wp.uint64(obj.id), depth, c, M, int(u0), int(v0), int(cols), self.W, int(s),
-                                  int(first), int(lo)],
-                          outputs=[self._tri.dev, self._bary.dev, self._hit.dev], device=self.device)
-
-            runtime.launch_split(launch, m, split)
-            tri[first:first + m] = self._tri.pull(m)
-            bary[first:first + m] = self._bary.pull(m)
-            hit[first:first + m] = self._hit.pull(m) != 0
-        return tri, bary, hit
+        return self.in_blocks(_object_hits_depth_kernel, rows * s * cols * s,
+                              [wp.uint64(obj.id), depth, c, M, int(u0), int(v0), int(cols), self.W, int(s)], split)

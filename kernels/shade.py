@@ -392,17 +392,20 @@ class CameraHits:
         `split(launch, n)` runs launch(lo, hi) over ranges covering [0, n) (None: one launch)."""
         u0, v0, u1, v1 = rect
         cols, rows = u1 - u0 + 1, v1 - v0 + 1
-        n = rows * s * cols * s
-        tri, bary, hit = np.empty(n, np.int32), np.empty((n, 3), np.float32), np.empty(n, bool)
         M = wp.mat33(*np.asarray(pix_to_dir, np.float32).reshape(-1))
         c = wp.vec3(*np.asarray(centre, np.float32))
+        return self.in_blocks(_object_hits_kernel, rows * s * cols * s,
+                              [wp.uint64(obj.id), wp.uint64(scene.id), c, M, int(u0), int(v0), int(cols), int(s)], split)
+
+    def in_blocks(self, kernel, n: int, inputs: list, split=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(tri, bary, hit) of n sub-samples, `block` at a time: `kernel` launched with inputs + [first, lo] (the
+        block's first sub-sample, the range's first thread) into the kept buffers, each block pulled to the host."""
+        tri, bary, hit = np.empty(n, np.int32), np.empty((n, 3), np.float32), np.empty(n, bool)
         for first in range(0, n, self.block):
             m = min(self.block, n - first)
 
             def launch(lo: int, hi: int) -> None:
-                wp.launch(_object_hits_kernel, dim=hi - lo,
-                          inputs=[wp.uint64(obj.id), wp.uint64(scene.id), c, M, int(u0), int(v0), int(cols), int(s),
-                                  int(first), int(lo)],
+                wp.launch(kernel, dim=hi - lo, inputs=[*inputs, int(first), int(lo)],
                           outputs=[self._tri.dev, self._bary.dev, self._hit.dev], device=self.device)
 
             runtime.launch_split(launch, m, split)
