@@ -2,6 +2,7 @@
 frame makes it drop the poses made meanwhile (it renders the newest, never queues them); while the mouse
 button is held it does not refine; the release refines the pose at rest, and a press stops that; the frame
 of a pose an edit replaced is abandoned once the pointer rests, never two in a row."""
+import contextlib
 import math
 import threading
 from types import SimpleNamespace
@@ -94,14 +95,29 @@ def _frame(ctl):  # wait for the loop to start a frame, then let it finish
     ctl.go.release()
 
 
+@contextlib.contextmanager
+def _loop_running(w, ctl):
+    """The window's render loop on its own thread for the with-block; then the window closes, the stand-in lets a
+    waiting frame go, and the loop must have ended."""
+    loop = threading.Thread(target=w._render_loop, daemon=True)
+    loop.start()
+    try:
+        yield
+    finally:
+        w.closed = True
+        with w._render_cv:
+            w._render_cv.notify()
+        ctl.go.release()
+        loop.join(WAIT_S)
+    assert not loop.is_alive()
+
+
 def test_a_late_frame_drops_the_poses_made_meanwhile_and_a_press_stops_the_refinement():
     ctl = _Controller()
     w, shown = _window(ctl)
-    loop = threading.Thread(target=w._render_loop, daemon=True)
     w._dragging = True  # the button is down (BUTTON_DOWN on the photo): a drag
     _move(w, ctl, 1)
-    loop.start()
-    try:
+    with _loop_running(w, ctl):
         assert ctl.started.acquire(timeout=WAIT_S)  # pose 1's frame is under way ...
         for k in range(2, 7):  # ... and late: five moves meanwhile
             _move(w, ctl, k)
@@ -120,13 +136,6 @@ def test_a_late_frame_drops_the_poses_made_meanwhile_and_a_press_stops_the_refin
         assert ctl.refining.wait(WAIT_S)
         w._dragging = True  # a press while it refines (on the object's own spot: no new pose)
         ctl.pressed.set()
-    finally:
-        w.closed = True
-        with w._render_cv:
-            w._render_cv.notify()
-        ctl.go.release()
-        loop.join(WAIT_S)
-    assert not loop.is_alive()
     assert ctl.rendered == [1, 6, 7, 7] and shown == [1, 6, 7, 7]
     assert ctl.refined == [7] and ctl.stop_said == [False, True]
 
@@ -134,11 +143,9 @@ def test_a_late_frame_drops_the_poses_made_meanwhile_and_a_press_stops_the_refin
 def test_a_frame_of_a_replaced_pose_is_abandoned_once_the_pointer_rests_never_two_in_a_row():
     ctl = _Controller()
     w, shown = _window(ctl)
-    loop = threading.Thread(target=w._render_loop, daemon=True)
     w._dragging = True
     _move(w, ctl, 1)
-    loop.start()
-    try:
+    with _loop_running(w, ctl):
         assert ctl.started.acquire(timeout=WAIT_S)
         _move(w, ctl, 2)  # the pointer still moves: pose 1's frame is finished and shown
         ctl.go.release()
@@ -151,12 +158,5 @@ def test_a_frame_of_a_replaced_pose_is_abandoned_once_the_pointer_rests_never_tw
         _frame(ctl)  # pose 4's frame: its pose is the newest, nothing to abandon
         w._render_cv.idle.clear()
         assert w._render_cv.idle.wait(WAIT_S)
-    finally:
-        w.closed = True
-        with w._render_cv:
-            w._render_cv.notify()
-        ctl.go.release()
-        loop.join(WAIT_S)
-    assert not loop.is_alive()
     assert ctl.rendered == [1, 2, 3, 4] and shown == [1, 3, 4]
     assert ctl.render_stop_said == [False, True, False]  # frame 3 had no stop; 4's pose was the newest
