@@ -48,7 +48,7 @@ from app.config import (LIGHTING, SUN_SOURCES, EngineParams, FrameConfig, Lighti
 from app.dragframe import DragStages, sphere_stages, uses_spheres
 from app.frame_budget import FrameBudget
 from app.glue import FrameTimer
-from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner  # noqa: F401 (re-exported)
+from app.progressive import REFINE_MAX_SHARE, REFINE_STEP, Refiner, finer_near_split  # noqa: F401 (re-exported)
 from app.rest_maps import RestMaps
 from app.runtime import split as split_launches  # the two-core split (sources: kernels of few, long items)
 from app.stages import precompute as scene_precompute
@@ -163,6 +163,9 @@ class Engine:
                                            pm.area, dev)
         # the all-sources frame's map size per source (app.rest_maps; None: every map map_res, for A/B)
         self.rest_maps: RestMaps | None = RestMaps(r.E_v)
+        # refine's finer frames in rooms a sun lights: clusters split near the object first (app.progressive.
+        # finer_near_split; False: the plain key, for A/B)
+        self.rest_near_split = True
         self._drag: dict[int, DragStages] = {}  # drag frames' coarse pixel stages, per scale (made on first use)
         # drag frames shade the object and send its light from per-shape tables (app.stages.object_drag);
         # False: as at rest (bench/bench_drag_object.py's A/B)
@@ -319,9 +322,11 @@ class Engine:
         cov_px = cov if px is self else px.zero_cov  # the drag's coarse room is computed under the object too
 
         # ---- source list from the shaft hierarchy, grouped into the frame's passes (sec. 6.2.1, 6.4)
-        fs = self.shadow_sources.select(pv.min(0), pv.max(0), self.budget.passes(config, sun is not None),
+        passes = self.budget.passes(config, sun is not None)
+        near = px.near_split if px is not self else finer_near_split(self, config, passes, sun is not None)
+        fs = self.shadow_sources.select(pv.min(0), pv.max(0), passes,
                                         functools.partial(split_launches, device=self.device, min_items=64),
-                                        near_split=px is not self and px.near_split)
+                                        near_split=near)
         order = None  # the all-sources frame: its weak sources on half-size maps (app.rest_maps), drawn last
         if px is self and config.passes is None and self.rest_maps is not None and len(fs.eyes):
             order = self.rest_maps.order(fs)

@@ -4,7 +4,8 @@ of shadow maps at a time, the last the all-sources frame.
 Before the all-sources frame, one frame of REFINE_STEP times the drag frame's passes (one level of
 the source tree finer), when that is at most REFINE_MAX_SHARE of the all-sources frame's maps (else
 the exact frame comes soon enough) and, once both were timed, when it takes less time than the
-all-sources frame (else it would show nothing sooner and only delay the exact frame).
+all-sources frame (else it would show nothing sooner and only delay the exact frame). In rooms a sun
+lights its clusters split near the object first, as the drag frame's do (finer_near_split).
 """
 from __future__ import annotations
 
@@ -21,6 +22,19 @@ from recon.scene import SceneObject
 
 REFINE_STEP = 2
 REFINE_MAX_SHARE = 1 / 8
+
+
+def finer_near_split(engine, config: FrameConfig, passes: int | None, sun: bool) -> bool:
+    """Whether a full-resolution frame of `config` splits its clusters near the object first (ShadowSources.select's
+    near_split, the drag frame's rule): refine's finer frames (cluster frames on full-size maps) in rooms a sun
+    lights, unless engine.rest_near_split is False. A sun makes the floor beside the object the brightest secondary
+    source, and a cluster of it puts the light of its far members at its one eye beside the object, which blocks
+    it (ShadowSources.near_factor): the plain key leaves sun_room's 100-pass frame 0.052 rmse_affected above the
+    all-sources frame's (sun_101: 0.279), past CONVERGE_RMSE, and the near split brings it to 0.008 (0.014).
+    Without a sun the plain key stays: the lamps' hard shadows need its splits (lamps_room 0.034 -> 0.126 with
+    the near split; window_room 0.002 -> 0.083). docs/benchmarks.md, "rest48"."""
+    return sun and config.full_maps and passes is not None and getattr(engine, "rest_near_split", True)
+
 
 FrameSteps = Callable[[SceneObject, FrameConfig], Generator]  # Engine's frame as a generator (yields per batch)
 
