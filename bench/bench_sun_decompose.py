@@ -19,7 +19,10 @@ by it and by as much in 8 directions, the calibrated one shifted back, the objec
 points (object_light_ratio); `--best-shift`: the best whole-image shift of each composite. Results:
 docs/unseen.md, "The sun rooms' object under the calibrated camera (sun34)".
 
-`python bench/bench_sun_decompose.py KEEP_DIR ROOMS_DIR --only sun_102[,...] [--best-shift] [--sun-swap]`
+`--light photo` reads out_photo and out_photo_true_cam (bench_unseen `--lights photo --true-camera-lights photo`).
+
+`python bench/bench_sun_decompose.py KEEP_DIR ROOMS_DIR --only sun_102[,...] [--best-shift] [--sun-swap]
+[--light captured|photo]`
 """
 from __future__ import annotations
 
@@ -147,7 +150,7 @@ def shifted(img_rgb: np.ndarray, dx: float, dy: float) -> np.ndarray:
                           borderMode=cv2.BORDER_REPLICATE)
 
 
-def object_light_ratio(work: Path, cam_cal, cam_true, V: np.ndarray, F: np.ndarray) -> float:
+def object_light_ratio(work: Path, cam_cal, cam_true, V: np.ndarray, F: np.ndarray, light: str = "captured") -> float:
     """Median over the object's inner pixels (fully covered on both cameras, 1 px inside the calibrated
     outline) of the calibrated composite's luminance radiance at each surface point over the true camera
     composite's: the light on the object, registration removed."""
@@ -163,10 +166,10 @@ def object_light_ratio(work: Path, cam_cal, cam_true, V: np.ndarray, F: np.ndarr
     inner_c = cv2.erode(h_c.all(2).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     uv, _ = cam_cal.project(p_t[:, :, 0][full_t])
     lw = np.array([0.2126, 0.7152, 0.0722])
-    lc = map_coordinates(read_exr(work / "out_captured" / "composite.exr").astype(np.float64) @ lw,
+    lc = map_coordinates(read_exr(work / f"out_{light}" / "composite.exr").astype(np.float64) @ lw,
                          [uv[:, 1], uv[:, 0]], order=1)
     ok = map_coordinates(inner_c.astype(float), [uv[:, 1], uv[:, 0]], order=0) > 0
-    lt = (read_exr(work / "out_captured_true_cam" / "composite.exr").astype(np.float64) @ lw)[full_t]
+    lt = (read_exr(work / f"out_{light}_true_cam" / "composite.exr").astype(np.float64) @ lw)[full_t]
     return float(np.median(lc[ok] / np.maximum(lt[ok], 1e-9)))
 
 
@@ -206,7 +209,12 @@ def main() -> None:
     ap.add_argument("--only", required=True)
     ap.add_argument("--best-shift", action="store_true", help="also the best whole-image shift of each composite")
     ap.add_argument("--sun-swap", action="store_true", help="also each flow's sun declared in the other's room")
+    ap.add_argument("--light", default="captured", choices=("captured", "photo"),
+                    help="whose composites: out_LIGHT and out_LIGHT_true_cam (default %(default)s; --sun-swap: "
+                         "captured only)")
     a = ap.parse_args()
+    if a.sun_swap and a.light != "captured":
+        raise SystemExit("--sun-swap declares the sun, which photo light does not take: use --light captured")
     for name in a.only.split(","):
         work, root = a.keep / name, a.rooms / name
         V, F = object_mesh(root)
@@ -214,14 +222,15 @@ def main() -> None:
         cam_true = Camera.load(root / "scene.json")
         row = {}
         with tempfile.TemporaryDirectory() as tmp:
-            for tag, out in (("calibrated", "out_captured"), ("true camera", "out_captured_true_cam")):
+            out_cal, out_true = f"out_{a.light}", f"out_{a.light}_true_cam"
+            for tag, out in (("calibrated", out_cal), ("true camera", out_true)):
                 row[tag] = score_png(root, read_image_rgb(work / out / "composite.png"), Path(tmp))["rmse_object"]
-            comp = read_image_rgb(work / "out_captured" / "composite.png")
+            comp = read_image_rgb(work / out_cal / "composite.png")
             row["calibrated, identity warp"] = score_png(root, registered(comp, cam_cal, cam_cal, V, F),
                                                          Path(tmp))["rmse_object"]
             row["calibrated, registered"] = score_png(root, registered(comp, cam_cal, cam_true, V, F),
                                                       Path(tmp))["rmse_object"]
-            tc = read_image_rgb(work / "out_captured_true_cam" / "composite.png")
+            tc = read_image_rgb(work / out_true / "composite.png")
             d, spread = displacement(cam_cal, cam_true, V)
             print(name, f"object displacement ({d[0]:+.3f}, {d[1]:+.3f}) px, rms about it {spread:.3f} px", flush=True)
             row["true camera, shifted by the displacement"] = score_png(root, shifted(tc, *d), Path(tmp))["rmse_object"]
@@ -232,7 +241,7 @@ def main() -> None:
                   flush=True)
             row["true camera, shifted as far, mean of 8 directions"] = float(np.mean(ring))
             row["calibrated, shifted back"] = score_png(root, shifted(comp, *(-d)), Path(tmp))["rmse_object"]
-            row["object light calibrated / true (median)"] = object_light_ratio(work, cam_cal, cam_true, V, F)
+            row["object light calibrated / true (median)"] = object_light_ratio(work, cam_cal, cam_true, V, F, a.light)
             if a.best_shift:
                 for tag, img in (("calibrated", comp), ("true camera", tc)):
                     r, dx, dy = best_shift(root, img)
