@@ -43,6 +43,7 @@ from scipy.spatial import cKDTree
 
 from app.runtime import split as split_launches
 from kernels.buffers import Workspaces
+from kernels.disk_sh import disk_sh_launch
 from kernels.drag_gather import gather_seen
 from kernels.hit_average import FrameImage, SunAtHits, hit_average
 from kernels.raycast import cast_rays
@@ -183,7 +184,8 @@ def disk_sh(probes: np.ndarray, centres: np.ndarray, normals: np.ndarray, areas:
             radiance: np.ndarray) -> np.ndarray:
     """Radiance SH9 (Q,9,3) at the probes (Q,3) of patches as disks (centres, unit normals (M,3), areas (M,) m^2,
     radiance (M,3)) seen from their emitting side: solid angle 2 pi (1 - r / sqrt(r^2 + a / pi)) x cos (the
-    on-axis disk's, finite where a probe comes close), no visibility (the patches lie around the object)."""
+    on-axis disk's, finite where a probe comes close), no visibility (the patches lie around the object). The numpy
+    reference of kernels.disk_sh.disk_sh_launch, which DragObject.shade calls."""
     dv = centres[None] - probes[:, None]  # (Q,M,3)
     r = np.linalg.norm(dv, axis=2)
     w = dv / np.maximum(r, 1e-9)[..., None]
@@ -483,8 +485,9 @@ class DragObject:
                 radius = float(np.linalg.norm(vu - centre, axis=1).max())
                 near = np.linalg.norm(pm.centre[k] - centre, axis=1) - pm.radius[k] < DB_NEAR * radius
                 kn, kf = k[near], k[~near]
-                if len(kf):
-                    L = L + disk_sh(probes, pm.centre[kf], pm.normal[kf], pm.area[kf], change[kf])
+                if len(kf):  # disk_sh in one launch (kernels.disk_sh)
+                    L = L + disk_sh_launch(probes, pm.centre[kf], pm.normal[kf], pm.area[kf], change[kf], self.device,
+                                           self._ws.get("drag.disk"), DB_MAX)
                 if len(kn):
                     near_light = (kn, pm.corners[kn], pm.centre[kn], change[kn])
         A = sh_yaw_matrix(yaw)

@@ -324,3 +324,32 @@ def test_sun_per_hit_kernel_matches_the_numpy_it_replaced(yaw):
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
     ref_px = hit_average(hits, f, L, ref, np.ones(3), "cpu", Workspace())
     np.testing.assert_allclose(got_px, ref_px, rtol=1e-12, atol=1e-15)
+
+
+def test_disk_sh_kernel_matches_the_numpy_disk_sh():
+    # kernels.disk_sh (one launch, a thread per probe) against object_drag.disk_sh (numpy) on 27 probes and 400
+    # patches around them, some facing away (cos <= 0: none of their light), one probe close to a patch: float64
+    # both, the sum over the patches in another order, so equal within 1e-12 of the largest coefficient
+    from app.stages.object_drag import disk_sh
+    from kernels.buffers import Workspace
+    from kernels.disk_sh import disk_sh_launch
+
+    rng = np.random.default_rng(3)
+    g = np.linspace(-0.3, 0.3, 3)
+    probes = np.stack(np.meshgrid(g, g + 0.5, g, indexing="ij"), -1).reshape(-1, 3)
+    centres = rng.uniform(-3.0, 3.0, (400, 3))
+    centres[0] = probes[4] + [0.0, 0.0, 0.01]
+    normals = rng.normal(size=(400, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    areas = rng.uniform(0.01, 0.5, 400)
+    rad = rng.uniform(-1.0, 2.0, (400, 3))
+    ref = disk_sh(probes, centres, normals, areas, rad)
+    ws = Workspace()
+    got = disk_sh_launch(probes, centres, normals, areas, rad, "cpu", ws, 512)
+    facing = -np.einsum("qmc,mc->qm", centres[None] - probes[:, None], normals) > 0
+    assert 0.3 < facing.mean() < 0.7
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    # a smaller second call into the same buffers: only its own patches
+    np.testing.assert_allclose(disk_sh_launch(probes, centres[:50], normals[:50], areas[:50], rad[:50], "cpu", ws, 512),
+                               disk_sh(probes, centres[:50], normals[:50], areas[:50], rad[:50]), rtol=0,
+                               atol=1e-12 * np.abs(ref).max())
