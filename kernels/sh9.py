@@ -15,6 +15,7 @@ C2 = 1.092548430592079
 C3 = 0.315391565252520
 C4 = 0.546274215296040
 _C0, _C1, _C2, _C3, _C4 = (wp.constant(c) for c in (C0, C1, C2, C3, C4))
+_D0, _D1, _D2, _D3, _D4 = (wp.constant(wp.float64(c)) for c in (C0, C1, C2, C3, C4))  # sh9_64's, in float64
 
 
 @wp.func
@@ -40,3 +41,28 @@ def sh9(d: wp.vec3, k: int) -> float:
     if k == 7:
         return _C2 * x * z
     return _C4 * (x * x - y * y)
+
+
+@wp.func
+def sh9_64(d: wp.vec3d, k: int) -> wp.float64:
+    """sh9 in float64 (lighting.sh.basis' arithmetic: the same products in the same order)."""
+    x = d[0]
+    y = d[1]
+    z = d[2]
+    if k == 0:
+        return _D0
+    if k == 1:
+        return _D1 * y
+    if k == 2:
+        return _D1 * z
+    if k == 3:
+        return _D1 * x
+    if k == 4:
+        return _D2 * x * y
+    if k == 5:
+        return _D2 * y * z
+    if k == 6:
+        return _D3 * (wp.float64(3.0) * z * z - wp.float64(1.0))
+    if k == 7:
+        return _D2 * x * z
+    return _D4 * (x * x - y * y)

@@ -43,9 +43,11 @@ from scipy.spatial import cKDTree
 
 from app.runtime import split as split_launches
 from kernels.buffers import Workspaces
+from kernels.disk_sh import disk_sh_launch
 from kernels.drag_gather import gather_seen
-from kernels.hit_average import FrameImage, hit_average
+from kernels.hit_average import FrameImage, SunAtHits, hit_average
 from kernels.raycast import cast_rays
+from kernels.sunshadow import exit_arrays
 from kernels.visibility import Occluder
 from lighting import sh
 
@@ -182,7 +184,8 @@ def disk_sh(probes: np.ndarray, centres: np.ndarray, normals: np.ndarray, areas:
             radiance: np.ndarray) -> np.ndarray:
     """Radiance SH9 (Q,9,3) at the probes (Q,3) of patches as disks (centres, unit normals (M,3), areas (M,) m^2,
     radiance (M,3)) seen from their emitting side: solid angle 2 pi (1 - r / sqrt(r^2 + a / pi)) x cos (the
-    on-axis disk's, finite where a probe comes close), no visibility (the patches lie around the object)."""
+    on-axis disk's, finite where a probe comes close), no visibility (the patches lie around the object). The numpy
+    reference of kernels.disk_sh.disk_sh_launch, which DragObject.shade calls."""
     dv = centres[None] - probes[:, None]  # (Q,M,3)
     r = np.linalg.norm(dv, axis=2)
     w = dv / np.maximum(r, 1e-9)[..., None]
@@ -319,6 +322,15 @@ class DragShape:
             got = self._sun[key] = (e1, e2, lo, texel, top, depth.reshape(SUN_MAP_RES, SUN_MAP_RES))
         return got
 
+    def sun_map_on(self, d_local: np.ndarray, device: str) -> wp.array:
+        """sun_map(d_local)'s depth as a Warp array (res, res) float32 on `device`, uploaded once per direction."""
+        key = ("map on", device) + tuple(np.round(d_local, 4))
+        got = self._sun.get(key)
+        if got is None:
+            got = self._sun[key] = wp.array(np.ascontiguousarray(self.sun_map(d_local)[5], np.float32),
+                                            dtype=wp.float32, device=device)
+        return got
+
     def sun_lit_at(self, points: np.ndarray, d_local: np.ndarray) -> np.ndarray:
         """(N,) share in [0, 1] of the object's own sun at points (N,3, this frame) on its surface: the depth map's
         test, bilinear over the 4 nearest texels (percentage closer), a bias of 2 texels + 2 mm along the sun."""
@@ -353,6 +365,29 @@ class DragShape:
         return lit
 
 
+def sun_per_hit_numpy(ds: DragShape, sun, v: np.ndarray, n: np.ndarray, f: np.ndarray, room: np.ndarray, hits,
+                      mean: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sun's share per camera hit in numpy, as DragObject.shade computed it before kernels.hit_average's
+    SunAtHits did it in one launch (the reference its test and bench/bench_glue48.py's A/B hold it to): per
+    sub-sample (n,) the interpolated normal's cos x the object's own shadow (DragShape.sun_lit_at) x the room's
+    share (room (V,) per vertex of the mesh v, n, f, world) blended from the corners x the exit through an opening
+    (sun: lighting.sun.SunLight, its exit_distance); and, for the hits facing the sun (in order), their own
+    shadow's share and whether they exit. The object's frame: local = (p - mean) @ R."""
+    d = sun.d
+    h = np.flatnonzero(hits.hit)
+    corners, bary = f[hits.tri[h]], hits.bary[h].astype(np.float64)
+    nh = np.einsum("nk,nkc->nc", bary, n[corners])
+    cos = np.maximum(nh @ d, 0.0) / np.maximum(np.linalg.norm(nh, axis=1), 1e-12)
+    on = np.flatnonzero(cos > 0)
+    add = np.zeros(len(hits.hit))
+    hk, ck, bk = h[on], corners[on], bary[on]
+    p = np.einsum("nk,nkc->nc", bk, v[ck])
+    room_h = np.einsum("nk,nk->n", bk, room[ck])
+    own, through = ds.sun_lit_at((p - mean) @ R, R.T @ d), np.isfinite(sun.exit_distance(p))
+    add[hk] = cos[on] * own * room_h * through
+    return add, own, through
+
+
 @dataclass
 class DragShaded:
     """DragObject.shade's result: the ShadedObject, and the vertex radiance's sun part (V,3) (None: no sun)."""
@@ -379,6 +414,13 @@ class DragObject:
         self._split = functools.partial(split_launches, device=device, min_items=64)
         self._radiance = FrameImage()  # the per-pixel radiance, kept: only the object's rectangle is rewritten
         self._group_of: np.ndarray | None = None  # each patch's emitter group (emitter_group_of)
+        self._exit_dev: tuple | None = None  # (the SunLight, its openings as kernels.sunshadow.exit_arrays)
+
+    def _exits(self, sun) -> list:
+        """The openings the sun (lighting.sun.SunLight) enters through as device arrays, made once per sun."""
+        if self._exit_dev is None or self._exit_dev[0] is not sun:
+            self._exit_dev = (sun, exit_arrays(sun.entries, self.device))
+        return self._exit_dev[1]
 
     def emitter_group_of(self) -> np.ndarray:
         """(P,) int64: each patch's emitter group (ObjectShading.emitter_groups' order), -1 for a patch in none;
@@ -443,8 +485,9 @@ class DragObject:
                 radius = float(np.linalg.norm(vu - centre, axis=1).max())
                 near = np.linalg.norm(pm.centre[k] - centre, axis=1) - pm.radius[k] < DB_NEAR * radius
                 kn, kf = k[near], k[~near]
-                if len(kf):
-                    L = L + disk_sh(probes, pm.centre[kf], pm.normal[kf], pm.area[kf], change[kf])
+                if len(kf):  # disk_sh in one launch (kernels.disk_sh)
+                    L = L + disk_sh_launch(probes, pm.centre[kf], pm.normal[kf], pm.area[kf], change[kf], self.device,
+                                           self._ws.get("drag.disk"), DB_MAX)
                 if len(kn):
                     near_light = (kn, pm.corners[kn], pm.centre[kn], change[kn])
         A = sh_yaw_matrix(yaw)
@@ -522,20 +565,12 @@ class DragObject:
         if L_sun is not None:
             L_sun = ds.fill @ L_sun
         add = colour = None
-        if L_sun is not None and hits.hit.any():  # the sun per camera hit (its edge across a face), the rest
-            # blended from the vertices
-            h = np.flatnonzero(hits.hit)
-            corners, bary = f[hits.tri[h]], hits.bary[h].astype(np.float64)
-            nh = np.einsum("nk,nkc->nc", bary, n[corners])
-            cos = np.maximum(nh @ d, 0.0) / np.maximum(np.linalg.norm(nh, axis=1), 1e-12)
-            on = np.flatnonzero(cos > 0)
-            add = np.zeros(len(hits.hit))
-            if len(on):
-                hk, ck, bk = h[on], corners[on], bary[on]
-                p = np.einsum("nk,nkc->nc", bk, v[ck])
-                room_h = np.einsum("nk,nk->n", bk, room_u[ss.inv][ck])
-                add[hk] = cos[on] * ds.sun_lit_at((p - mean) @ R, R.T @ d) * room_h * \
-                    np.isfinite(osh.sun.exit_distance(p))
+        if L_sun is not None and hits.hit.any():  # the sun per camera hit (its edge across a face: one launch,
+            # kernels.hit_average.SunAtHits), the rest blended from the vertices
+            d_local = R.T @ d
+            e1, e2, lo, texel, top, _ = ds.sun_map(d_local)
+            add = SunAtHits(v, n, room_u[ss.inv], d, self._exits(osh.sun), mean, R, e1, e2, lo, texel, top,
+                            d_local / np.linalg.norm(d_local), ds.sun_map_on(d_local, self.device))
             colour = albedo * (osh.sun.sun.irradiance / np.pi)
         radiance = hit_average(hits, f, L_vert - L_sun if L_sun is not None else L_vert, add, colour, self.device,
                                self._ws.get("drag.hits"), self._radiance)

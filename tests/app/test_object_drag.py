@@ -270,3 +270,86 @@ def test_hit_average_into_a_kept_image_equals_a_fresh_one():
         ref = hit_average(h, faces, L, None, None, "cpu", Workspace())
         assert got is kept.image and np.abs(ref).sum() > 1.0
         np.testing.assert_array_equal(got, ref)
+
+
+@pytest.mark.parametrize("yaw", [0.0, 1.2])
+def test_sun_per_hit_kernel_matches_the_numpy_it_replaced(yaw):
+    # kernels.hit_average.SunAtHits (one launch) against the numpy per-hit sun block it replaced, on a sphere
+    # shadowed by a smaller one above it (the object's own shadow crosses faces), lit through a skylight that
+    # a part of the hits' rays toward the sun miss, with a room share varying per vertex: per hit equal within
+    # 1e-12 (float64 both; the dot products' order differs), and the pixels' radiance within 1e-12 relative
+    from types import SimpleNamespace
+
+    from app.stages.object_drag import DragShape, SunAtHits, sun_per_hit_numpy
+    from kernels.buffers import Workspace
+    from kernels.hit_average import hit_average
+    from kernels.sunshadow import exit_arrays
+    from kernels.visibility import Occluder
+    from lighting.sun import SunLight
+    from recon.scene import Quad, Sun
+
+    s_v, s_f = _icosphere(3)
+    big, small = 0.3 * s_v, 0.12 * s_v + [0.05, 0.45, 0.02]
+    v = np.concatenate([big, small]) + [1.0, 0.3, -0.5]
+    n = np.concatenate([s_v, s_v])
+    f = np.concatenate([s_f, s_f + len(s_v)]).astype(np.int32)
+    R, mean = rot_y(yaw), v.mean(0)
+    ds = DragShape.__new__(DragShape)  # only the sun map's parts: the local mesh, its occluder, the maps
+    ds.local, ds._sun = (v - mean) @ R, {}
+    ds.own = Occluder(ds.local, f, "cpu")
+    d = np.array([0.35, 0.85, 0.25]) / np.linalg.norm([0.35, 0.85, 0.25])
+    corners = np.array([[1.9, 2.5, -2.0], [3.0, 2.5, -2.0], [3.0, 2.5, 2.0], [1.9, 2.5, 2.0]])
+    sky = Quad("sky", corners, np.array([0.0, -1.0, 0.0]), np.zeros(3), np.zeros(3), role="window", opening=True)
+    sun = SunLight(Sun(d, 0.53, np.array([3.0, 2.5, 2.0]), np.zeros(3)), [sky], Occluder(None, None, "cpu"))
+    room = np.random.default_rng(1).uniform(0.2, 1.0, len(v))
+
+    rng = np.random.default_rng(7)
+    H, W, s, rect = 40, 50, 2, (4, 3, 45, 36)
+    m = (rect[3] - rect[1] + 1) * s * (rect[2] - rect[0] + 1) * s
+    hits = SimpleNamespace(H=H, W=W, s=s, rect=rect, tri=rng.integers(0, len(f), m),
+                           bary=rng.dirichlet(np.ones(3), m).astype(np.float32), hit=rng.uniform(size=m) < 0.8)
+    ref, own, through = sun_per_hit_numpy(ds, sun, v, n, f, room, hits, mean, R)
+    d_local = R.T @ d
+    e1, e2, lo, texel, top, _ = ds.sun_map(d_local)
+    at = SunAtHits(v, n, room, d, exit_arrays(sun.entries, "cpu"), mean, R, e1, e2, lo, texel, top,
+                   d_local / np.linalg.norm(d_local), ds.sun_map_on(d_local, "cpu"))
+    ws = Workspace()
+    L = np.zeros((len(v), 3))
+    got_px = hit_average(hits, f, L, at, np.ones(3), "cpu", ws)
+    got = ws.buffer("add", m, __import__("warp").float64, "cpu").host[:m]
+    # the case holds every branch: hits facing the sun inside and outside the skylight's beam, in the small
+    # sphere's shadow, out of it and on its edge (a share between 0 and 1)
+    assert 0.2 < through.mean() < 0.8 and (own == 0).sum() > 50 and (own == 1).sum() > 50
+    assert ((own > 0.05) & (own < 0.95)).sum() > 20 and (ref > 0).sum() > 300
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+    ref_px = hit_average(hits, f, L, ref, np.ones(3), "cpu", Workspace())
+    np.testing.assert_allclose(got_px, ref_px, rtol=1e-12, atol=1e-15)
+
+
+def test_disk_sh_kernel_matches_the_numpy_disk_sh():
+    # kernels.disk_sh (one launch, a thread per probe) against object_drag.disk_sh (numpy) on 27 probes and 400
+    # patches around them, some facing away (cos <= 0: none of their light), one probe close to a patch: float64
+    # both, the sum over the patches in another order, so equal within 1e-12 of the largest coefficient
+    from app.stages.object_drag import disk_sh
+    from kernels.buffers import Workspace
+    from kernels.disk_sh import disk_sh_launch
+
+    rng = np.random.default_rng(3)
+    g = np.linspace(-0.3, 0.3, 3)
+    probes = np.stack(np.meshgrid(g, g + 0.5, g, indexing="ij"), -1).reshape(-1, 3)
+    centres = rng.uniform(-3.0, 3.0, (400, 3))
+    centres[0] = probes[4] + [0.0, 0.0, 0.01]
+    normals = rng.normal(size=(400, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    areas = rng.uniform(0.01, 0.5, 400)
+    rad = rng.uniform(-1.0, 2.0, (400, 3))
+    ref = disk_sh(probes, centres, normals, areas, rad)
+    ws = Workspace()
+    got = disk_sh_launch(probes, centres, normals, areas, rad, "cpu", ws, 512)
+    facing = -np.einsum("qmc,mc->qm", centres[None] - probes[:, None], normals) > 0
+    assert 0.3 < facing.mean() < 0.7
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    # a smaller second call into the same buffers: only its own patches
+    np.testing.assert_allclose(disk_sh_launch(probes, centres[:50], normals[:50], areas[:50], rad[:50], "cpu", ws, 512),
+                               disk_sh(probes, centres[:50], normals[:50], areas[:50], rad[:50]), rtol=0,
+                               atol=1e-12 * np.abs(ref).max())
