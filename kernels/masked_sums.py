@@ -545,12 +545,12 @@ class MaskedSum:
         self.prepare(maps, n_maps, first, cand)
         self.accumulate(maps, first, weights)
 
-    def result(self) -> tuple[np.ndarray, np.ndarray]:
+    def result(self, counts: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """(n,3) float64 masked sums and (n,) number of occluded sources per selected point (of a
-        ray-mode map, those of nonzero transfer only: _ray_sum_kernel)."""
+        ray-mode map, those of nonzero transfer only: _ray_sum_kernel; None when not `counts`)."""
         wp.synchronize_device(self.device)
-        return (self.acc.pull(self.n)[self.order].astype(np.float64),
-                self.count.pull(self.n)[self.order].astype(np.float64))
+        acc = self.acc.pull(self.n)[self.order].astype(np.float64)
+        return acc, (self.count.pull(self.n)[self.order].astype(np.float64) if counts else None)
 
 
 def _spheres(pos: np.ndarray, label: np.ndarray, n: int, device: str) -> tuple[Buffer, Buffer]:

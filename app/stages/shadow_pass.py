@@ -532,7 +532,7 @@ class ShadowPass:
         k = runtime.parts(dev, int(work[-1]) if len(work) else 0, min_items=MIN_PART_PAIRS)
         runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
                      for a, b in self.sums.balanced(k, work)])
-        return self.sums.result()[0]
+        return self.sums.result(counts=False)[0]  # the counts are not read
 
     def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray, out=None) -> np.ndarray | None:
         """Values (len(missing),3) at pixels `missing`: mean of the `known` pixels' values in
