@@ -502,14 +502,13 @@ class ShadowMaps:
         """The depth range pyramid (depth_range) of drawn maps lo..hi-1 that read one (a spread, not ray mode:
         _reads_pyramid), in two launches (merge_mips: levels 1 and 2 a thread per level-2 block, the coarser ones
         a thread per map) or one per level (merge_mips False, for A/B); disjoint ranges may run concurrently."""
-        first = 1
         if self.merge_mips and self.ms.mip_levels >= 2:  # levels 1 and 2 in one launch, the rest in another
             side = self._mip_side[2]
             wp.launch(_mip12_kernel, dim=(hi - lo, side, side), inputs=[self.ms, lo], device=self.device)
             if self.ms.mip_levels >= 3:
                 wp.launch(_mip_rest_kernel, dim=hi - lo, inputs=[self.ms, lo, 3], device=self.device)
             return
-        for lv in range(first, self.ms.mip_levels + 1):
+        for lv in range(1, self.ms.mip_levels + 1):
             side = self._mip_side[lv]
             wp.launch(_mip_kernel, dim=(hi - lo, side, side), inputs=[self.ms, lo, lv], device=self.device)
 
