@@ -364,6 +364,7 @@ class MaskedSum:
                  device: str | None = None, n_groups: int | None = None, max_maps: int = 64, cull: bool = True,
                  tile: np.ndarray | None = None):
         self.device = d = runtime.device(device)
+        self._cpu = wp.get_device(d).is_cpu
         pos = np.asarray(pos, np.float64).reshape(-1, 3)
         group = np.asarray(group, np.int64).reshape(-1)
         self.size = len(pos)
@@ -462,8 +463,12 @@ class MaskedSum:
         """Zero the sums of the selected points: the first n rows, the only ones accumulate writes and
         result reads (the buffers hold every point; a drag frame selects a few)."""
         if self.n:
-            self.acc.dev[:self.n].zero_()
-            self.count.dev[:self.n].zero_()
+            if self._cpu:  # the host mirror is the device array (kernels.buffers): zeroed in place, no array views
+                self.acc.host[:self.n] = 0.0
+                self.count.host[:self.n] = 0.0
+            else:
+                self.acc.dev[:self.n].zero_()
+                self.count.dev[:self.n].zero_()
 
     def prepare(self, maps: ShadowMaps, n_maps: int, first: int, cand: wp.array, split=None) -> None:
         """Each cell's list of maps 0..n_maps-1 of `maps` (sources first.. of `cand`'s columns)
@@ -496,15 +501,22 @@ class MaskedSum:
         n_list = self.n_list.numpy()[:self.n_cells]
         return int(np.dot(np.diff(self._run_start), n_list[self._run_cell] + 1))
 
-    def balanced(self, k: int) -> list[tuple[int, int]]:
+    def run_work(self) -> np.ndarray:
+        """(n_runs,) int64 the cumulative work (work()'s measure) of the prepared batch's runs, in their order:
+        its last entry is work(); balanced(k, it) cuts by it without reading the lists again."""
+        if self.n == 0:
+            return np.zeros(0, np.int64)
+        n_list = self.n_list.numpy()  # the CPU array itself (on CUDA a copy)
+        return np.cumsum(np.diff(self._run_start) * (n_list[self._run_cell].astype(np.int64) + 1))
+
+    def balanced(self, k: int, work: np.ndarray | None = None) -> list[tuple[int, int]]:
         """[0, n) cut at runs into at most k ranges of the prepared batch's selected points with
         near-equal work (points x maps listed: the masked sums' (point, map) pairs), for k
         concurrent accumulate calls (a cut by point count leaves the heavy cells near the
-        object to one of them)."""
+        object to one of them). work: run_work(), if the caller has it."""
         if k <= 1 or self.n_runs <= 1:
             return [(0, self.n)] if self.n else []
-        n_list = self.n_list.numpy()  # the CPU array itself (parts > 1 only on the CPU)
-        work = np.cumsum(np.diff(self._run_start) * (n_list[self._run_cell] + 1))
+        work = self.run_work() if work is None else work
         cut = np.searchsorted(work, work[-1] * np.arange(1, k) / k)
         bounds = np.unique(np.r_[0, self._run_start[np.minimum(cut + 1, self.n_runs)], self.n])
         return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
@@ -533,12 +545,12 @@ class MaskedSum:
         self.prepare(maps, n_maps, first, cand)
         self.accumulate(maps, first, weights)
 
-    def result(self) -> tuple[np.ndarray, np.ndarray]:
+    def result(self, counts: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """(n,3) float64 masked sums and (n,) number of occluded sources per selected point (of a
-        ray-mode map, those of nonzero transfer only: _ray_sum_kernel)."""
+        ray-mode map, those of nonzero transfer only: _ray_sum_kernel; None when not `counts`)."""
         wp.synchronize_device(self.device)
-        return (self.acc.pull(self.n)[self.order].astype(np.float64),
-                self.count.pull(self.n)[self.order].astype(np.float64))
+        acc = self.acc.pull(self.n)[self.order].astype(np.float64)
+        return acc, (self.count.pull(self.n)[self.order].astype(np.float64) if counts else None)
 
 
 def _spheres(pos: np.ndarray, label: np.ndarray, n: int, device: str) -> tuple[Buffer, Buffer]:

@@ -132,7 +132,7 @@ def _mip_kernel(ms: MapSet, first: int, lv: int):
     k, by, bx = wp.tid()
     s = first + k
     side = ms.mip_side[lv]
-    if by >= side or bx >= side:
+    if by >= side or bx >= side or not _reads_pyramid(ms, s):
         return
     cside = ms.mip_side[lv - 1]
     coff = ms.mip_off[lv - 1]
@@ -171,6 +171,14 @@ def _coarse_sat_kernel(ms: MapSet, first: int):
             ms.coarse_sat[s, y + 1, x + 1] = ms.coarse_sat[s, y, x + 1] + row
 
 
+@wp.func
+def _reads_pyramid(ms: MapSet, s: int) -> bool:
+    """True when map s's lookups read its depth range pyramid: a cluster map (a spread) drawn by raster (not ray
+    mode). A map of spread 0 takes the hard lookup (one texel) and a ray-mode map casts rays: build_mips skips
+    their pyramids (whatever they held stays; nothing reads it)."""
+    return ms.ray[s] == 0 and ms.spread[s] > 0.0
+
+
 @wp.kernel
 def _mip12_kernel(ms: MapSet, first: int):
     # levels 1 and 2 of the pyramid at once, one thread per level-2 block: its (up to) four level-1 blocks from
@@ -179,7 +187,7 @@ def _mip12_kernel(ms: MapSet, first: int):
     k, by, bx = wp.tid()
     s = first + k
     side2 = ms.mip_side[2]
-    if by >= side2 or bx >= side2:
+    if by >= side2 or bx >= side2 or not _reads_pyramid(ms, s):
         return
     side1 = ms.mip_side[1]
     off1 = ms.mip_off[1]
@@ -206,6 +214,35 @@ def _mip12_kernel(ms: MapSet, first: int):
                 hi2 = wp.max(hi2, hi)
     ms.mip_min[s, ms.mip_off[2] + by * side2 + bx] = lo2
     ms.mip_max[s, ms.mip_off[2] + by * side2 + bx] = hi2
+
+
+@wp.kernel
+def _mip_rest_kernel(ms: MapSet, first: int, lv0: int):
+    # levels lv0 (>= 2) .. mip_levels of one map per thread, coarsest last, each block from its (up to) four blocks
+    # one level finer: the values of _mip_kernel's launches for those levels (min and max are exact) in one launch.
+    # From level 3 on a map holds few blocks (85 texels a side: 171 in all), so one thread a map is little work
+    # and spares a launch per level
+    s = first + wp.tid()
+    if not _reads_pyramid(ms, s):
+        return
+    for lv in range(lv0, ms.mip_levels + 1):
+        side = ms.mip_side[lv]
+        off = ms.mip_off[lv]
+        cside = ms.mip_side[lv - 1]
+        coff = ms.mip_off[lv - 1]
+        for by in range(side):
+            for bx in range(side):
+                lo = float(1.0e30)
+                hi = float(-1.0e30)
+                for dy in range(2):
+                    for dx in range(2):
+                        cy = 2 * by + dy
+                        cx = 2 * bx + dx
+                        if cy < cside and cx < cside:
+                            lo = wp.min(lo, ms.mip_min[s, coff + cy * cside + cx])
+                            hi = wp.max(hi, ms.mip_max[s, coff + cy * cside + cx])
+                ms.mip_min[s, off + by * side + bx] = lo
+                ms.mip_max[s, off + by * side + bx] = hi
 
 
 @wp.func
@@ -383,7 +420,7 @@ class ShadowMaps:
         self.n = 0  # maps in the current batch
         self.n_ray = 0  # of them in ray mode (the masked sums launch their kernel only if any)
         self._soft = False  # the batch has cluster maps (a spread): raster builds their pyramids
-        self.merge_mips = True  # build_mips: levels 1 and 2 in one launch (_mip12_kernel; False: level by level, A/B)
+        self.merge_mips = True  # build_mips: two launches (_mip12_kernel, _mip_rest_kernel; False: level by level, A/B)
         self._proxy: Occluder | None = None
         self._closed: tuple[bytes, bool] | None = None  # (mesh key, closed) of the last proxy
 
@@ -462,14 +499,16 @@ class ShadowMaps:
             self.build_mips(lo, hi)
 
     def build_mips(self, lo: int, hi: int) -> None:
-        """The depth range pyramid (depth_range) of drawn maps lo..hi-1, level by level (one launch
-        per level; disjoint ranges may run concurrently)."""
-        first = 1
-        if self.merge_mips and self.ms.mip_levels >= 2:  # levels 1 and 2 in one launch
+        """The depth range pyramid (depth_range) of drawn maps lo..hi-1 that read one (a spread, not ray mode:
+        _reads_pyramid), in two launches (merge_mips: levels 1 and 2 a thread per level-2 block, the coarser ones
+        a thread per map) or one per level (merge_mips False, for A/B); disjoint ranges may run concurrently."""
+        if self.merge_mips and self.ms.mip_levels >= 2:  # levels 1 and 2 in one launch, the rest in another
             side = self._mip_side[2]
             wp.launch(_mip12_kernel, dim=(hi - lo, side, side), inputs=[self.ms, lo], device=self.device)
-            first = 3
-        for lv in range(first, self.ms.mip_levels + 1):
+            if self.ms.mip_levels >= 3:
+                wp.launch(_mip_rest_kernel, dim=hi - lo, inputs=[self.ms, lo, 3], device=self.device)
+            return
+        for lv in range(1, self.ms.mip_levels + 1):
             side = self._mip_side[lv]
             wp.launch(_mip_kernel, dim=(hi - lo, side, side), inputs=[self.ms, lo, lv], device=self.device)
 

@@ -528,10 +528,11 @@ class ShadowPass:
         """The prepared batch's masked sums over the selected points, both cores cut by work: the number of
         ranges from the (point, map) pairs (MaskedSum.work), at least MIN_PART_PAIRS each."""
         dev = self.device
-        k = runtime.parts(dev, self.sums.work(), min_items=MIN_PART_PAIRS)
+        work = self.sums.run_work()  # read once for the number of ranges and their cuts
+        k = runtime.parts(dev, int(work[-1]) if len(work) else 0, min_items=MIN_PART_PAIRS)
         runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
-                     for a, b in self.sums.balanced(k)])
-        return self.sums.result()[0]
+                     for a, b in self.sums.balanced(k, work)])
+        return self.sums.result(counts=False)[0]  # the counts are not read
 
     def fill(self, known: np.ndarray, values: np.ndarray, missing: np.ndarray, out=None) -> np.ndarray | None:
         """Values (len(missing),3) at pixels `missing`: mean of the `known` pixels' values in

@@ -56,7 +56,8 @@ def test_depth_range_bounds_every_texel(device):
 
 
 def test_merged_levels_are_the_level_by_level_pyramid(device):
-    # build_mips' first launch writes levels 1 and 2 at once (merge_mips): every level of the pyramid equals the one
+    # build_mips' first launch writes levels 1 and 2 at once, its second every coarser level a thread per map
+    # (merge_mips): every level of the pyramid equals the one
     # built level by level, bit for bit, and each block holds the exact min and max of its texels; map sides that
     # halve evenly and ones that do not (85 -> 43 -> 22: a level-2 block with one level-1 block, edge texels alone),
     # and a map with one level (2 texels a side: no level 2). An empty texel (inf) counts as 1e30 in both
@@ -72,7 +73,7 @@ def test_merged_levels_are_the_level_by_level_pyramid(device):
         assert np.array_equal(pyr[True][0], pyr[False][0]) and np.array_equal(pyr[True][1], pyr[False][1])
         depth = maps.depth_numpy()
         side, off = maps._mip_side, maps.ms.mip_off.numpy()
-        for lv in range(1, min(3, maps.ms.mip_levels + 1)):
+        for lv in range(1, maps.ms.mip_levels + 1):
             b = 2 ** lv
             for k in range(n):
                 for by in range(side[lv]):
@@ -119,3 +120,18 @@ def test_early_outs_change_no_sum(device):
     assert ((frac > 0) & (frac < 1) & (np.abs(frac * 4 - np.round(frac * 4)) > 1e-6)).sum() > 200  # soft somewhere
     np.testing.assert_array_equal(c1, c0)
     np.testing.assert_array_equal(a1, a0)
+
+
+def test_maps_that_read_no_pyramid_are_skipped(device):
+    # build_mips writes the pyramids of the cluster maps only: a map of spread 0 (the hard lookup) keeps what its
+    # pyramid held, the others get the exact min and max of their texels at every level
+    spread = np.array([0.3, 0.0, 0.3, 0.0])
+    maps, n = _cube_maps(device, 85, EYES, spread)
+    for merged in (True, False):
+        maps.merge_mips = merged
+        maps.ms.mip_min.fill_(-7.0)
+        maps.build_mips(0, n)
+        lo, depth = maps.ms.mip_min.numpy(), maps.depth_numpy()
+        assert np.all(lo[1] == -7.0) and np.all(lo[3] == -7.0)
+        top = maps.ms.mip_off.numpy()[maps.ms.mip_levels]
+        assert lo[0, top] == depth[0].min() and lo[2, top] == depth[2].min()
