@@ -22,7 +22,17 @@ Per sun room (the work folders `bench_unseen --keep DIR` leaves, and the room's 
    refinement drops for clipping (edgesnap's CLIP_RADIUS_PX), measured with the same clipped-indicator rule
    (the clipped side towards the sky), offset and jackknife per edge, at the truth's and the refined camera.
 
+With --joint, the joint fit linearised at the flow's refined camera (calibrate + refine_camera run again, the
+same camera as the flow's): the room's edges as the camera's prior (PRIOR "fit": the refinement's covariance, or
+"jackknife": over the room's edges), plus the rows of SOURCES ("patch", "opening", "patch+opening"; an edge's
+samples share one error: its jackknife and FLOOR px), free: the camera's 6 parameters and, with "sun free", the
+sun's direction; ROWS "model" (the bias model, f_c read off background.exr), "model fc=F" (f_c fixed), "raw",
+"oracle" (the offsets at the truth), "exact" (the refined camera's own error along the normals). Each variant
+PRIOR/SOURCES/sun MODE/ROWS/floorFLOOR gives the object's image error after (|mean over its vertices|) and the
+fit's 1 sigma there; --rescore runs the own-room flow's captured composite on chosen variants' cameras.
+
 usage: python bench/bench_patch_info.py --keep DIR [--rooms ~/.cache/photoar/rooms] [--only sun_101,...]
+       [--joint [--rescore 'none,jackknife/patch/sun held/model/floor0.1'] [--work DIR]] [--json OUT]
 """
 from __future__ import annotations
 
@@ -138,14 +148,6 @@ def opening_samples(cam, opening: np.ndarray, occ) -> tuple[np.ndarray, np.ndarr
         Xo.append(Y[ok])
         eo.append(np.full(int(ok.sum()), k))
     return np.concatenate(Xo), np.concatenate(eo)
-
-
-def outline_image(cam, X: np.ndarray, dsun, centroid: np.ndarray):
-    """uv (N,2) of the floor points and the unit image normals (N,2) pointing into the patch (towards its
-    image centroid side of each edge)."""
-    F = floor_hit(X, dsun)
-    uv, _ = cam.project(F)
-    return uv
 
 
 def normals_into(uv_a: np.ndarray, uv_b: np.ndarray, inside: np.ndarray) -> np.ndarray:
@@ -318,7 +320,7 @@ def main() -> None:
     ap.add_argument("--joint", action="store_true", help="also the joint fit against the room edges' prior "
                     "(calibrates and refines again: tens of seconds a room)")
     ap.add_argument("--rescore", help="with --joint: run the flow's captured composite on the camera of this "
-                    "joint fit (e.g. 'jackknife/sun held/model/floor0.1'; 'none': the refined camera itself; comma-separated) into --work")
+                    "joint fit (e.g. 'jackknife/patch/sun held/model/floor0.1'; 'none': the refined camera itself, 'truth': the truth's; comma-separated) into --work")
     ap.add_argument("--work", default="/tmp/bench_patch_info")
     ap.add_argument("--shared", default=os.environ.get("PHOTOAR_SHARED", str(ROOT.parent / "shared")))
     a = ap.parse_args()
@@ -326,7 +328,7 @@ def main() -> None:
     for n in a.only.split(","):
         r = room_info(n, Path(a.rooms), Path(a.keep))
         if a.joint and "fit" in r:
-            r.update(joint_fit(n, Path(a.rooms), Path(a.keep), r))
+            r.update(joint_fit(n, Path(a.rooms), Path(a.keep)))
             if a.rescore:
                 r["rescored"] = {k: rescore(n, Path(a.rooms), Path(a.work) / n / k.replace("/", "_").replace(" ", "_"),
                                             r["joint"][k]["camera"], Path(a.shared)) for k in a.rescore.split(",")}
@@ -412,7 +414,7 @@ def _params_of(camera_at, cam) -> np.ndarray:
     return np.array([rv[0], rv[1], rv[2], dc[0], dc[2], np.log(cam.K[0, 0] / c0.K[0, 0])])
 
 
-def joint_fit(name: str, rooms: Path, keep: Path, info: dict) -> dict:
+def joint_fit(name: str, rooms: Path, keep: Path) -> dict:
     from PIL import Image
 
     from bench.bench_camrefine import object_points
@@ -546,6 +548,9 @@ def joint_fit(name: str, rooms: Path, keep: Path, info: dict) -> dict:
     fits["none"] = {"camera": {"K": c_ref.K.tolist(), "R": c_ref.R.tolist(), "t": c_ref.t.tolist(),
                                "width": c_ref.width, "height": c_ref.height}, "err_before_px": float(np.linalg.norm(d_obj)),
                     "err_after_px": float(np.linalg.norm(d_obj))}
+    fits["truth"] = {"camera": {"K": truth.K.tolist(), "R": truth.R.tolist(), "t": truth.t.tolist(),
+                                "width": truth.width, "height": truth.height}, "err_before_px": float(np.linalg.norm(d_obj)),
+                     "err_after_px": 0.0}
     out["joint"] = fits
     return out
 
