@@ -103,8 +103,8 @@ def main(argv=None) -> int:
     ap.add_argument("--lights", default="captured,photo", help="lights of the own-room flow (default %(default)s)")
     ap.add_argument("--no-true-camera", action="store_true", help="skip the flow on the true camera")
     ap.add_argument("--true-camera-lights", default="captured",
-                    help="lights of the flow on the true camera (default %(default)s); only those also in "
-                         "--lights run")
+                    help="lights of the flow on the true camera (default %(default)s), whatever --lights "
+                         "holds")
     ap.add_argument("--no-declared-sun", action="store_true", help="skip the flow with the sun typed in")
     ap.add_argument("--no-known", action="store_true", help="skip the benchmark folder under known light")
     ap.add_argument("--camera-edges", choices=("profiles", "lines"), default="profiles",

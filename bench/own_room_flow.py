@@ -419,7 +419,7 @@ def run_room(root: Path, work: Path, shared: Path, lights=("captured", "photo"),
                     res["calibration"]["calibrated_focal_rel_err"] = cal["fx"] / t["K"]["fx"] - 1
                     res["calibration"]["calibrated_centre_err_m"] = float(min(  # calibrate's, or its turn about +Y
                         np.linalg.norm(cal_c - t_c), np.linalg.norm(cal_c * [-1, 1, -1] - t_c)))
-        for light in (lights if tag == "" else [x for x in lights if x in true_lights]):
+        for light in (lights if tag == "" else list(true_lights)):
             name = light + tag
             if rc != 0:
                 res["lights"][name] = {"error": f"scene: {err}"}
