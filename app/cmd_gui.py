@@ -30,12 +30,6 @@ from kernels.quiet import native_output_held
 
 log = logging.getLogger("photoar")
 
-# Rasterizer threads of Mesa's llvmpipe (the window drawn on the CPU where there is no GPU, as under Xvfb); read
-# when the window's renderer starts, ignored by GPU drivers; a value in the environment is kept. Mesa's default is
-# one per core: on a 2-core machine its two threads took ~50 ms of CPU a window redraw (loaded), one takes ~25 for
-# the same redraw, CPU the drag frames compete for (docs/benchmarks.md, "The GUI's event to screen (gui48)").
-LLVMPIPE_THREADS = 1
-
 
 def _positive_int(s: str) -> int:
     v = int(s)
@@ -154,7 +148,6 @@ def run(a: argparse.Namespace) -> int:
     if not os.environ.get("DISPLAY"):
         raise RuntimeError("photoar gui: no X display (DISPLAY is not set); run it under Xvfb, "
                            "e.g. `xvfb-run -a photoar gui SCENE_DIR --screenshot shot.png`")
-    os.environ.setdefault("LP_NUM_THREADS", str(LLVMPIPE_THREADS))
     if a.model:
         return run_model(a)
     for opt in ("photo", "camera", "clicks", "ceiling_height", "out", "script"):

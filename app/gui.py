@@ -44,7 +44,7 @@ REFINE_SLICE_S = 0.05  # s of refinement between checks for a new edit (the drag
 # The newest pose's preview (the pose label, the 3D view's object, the last frame with the pose's outline, shown
 # while that pose's frame is made) is redrawn at most once per PREVIEW_INTERVAL_S, not on each edit, and not at all
 # while the mouse button is held (DRAG_PREVIEWS): each preview is a redraw of the whole window, on the CPU where
-# there is no GPU (Mesa's llvmpipe under Xvfb), 25-50 ms of CPU a redraw on a 2-core machine (loaded), CPU the drag
+# there is no GPU (Mesa's llvmpipe under Xvfb), about 50 ms of CPU a redraw on a 2-core machine (loaded), CPU the drag
 # frames need; and a preview being drawn when a frame is handed over delays that frame's own draw. During a drag
 # the window is drawn once per frame: each frame shown while the pose moves carries the newest pose's outline and
 # label (_show_frame). docs/benchmarks.md, "The GUI's event to screen (gui48)" (20 Hz during drags before).

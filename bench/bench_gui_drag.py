@@ -268,9 +268,6 @@ def main() -> None:
     from app.gui import PlacementWindow
     import app.gui as g
 
-    from app.cmd_gui import LLVMPIPE_THREADS
-
-    os.environ.setdefault("LP_NUM_THREADS", str(LLVMPIPE_THREADS))  # as `photoar gui` (app.cmd_gui.run)
     args = build_parser().parse_args(["-q", "gui", str(a.scene)])
     ctl = controller(args)
     choices = ctl.object_choices([Path(ctl.pose.mesh).parent] if ctl.pose.mesh else [])
