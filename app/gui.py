@@ -42,12 +42,14 @@ MOVE_STEP = 0.05  # m
 SCALE_STEP = 1.1
 REFINE_SLICE_S = 0.05  # s of refinement between checks for a new edit (the drag frame stays on screen meanwhile)
 # The newest pose's preview (the pose label, the 3D view's object, the last frame with the pose's outline, shown
-# while that pose's frame is made) is redrawn at most once per PREVIEW_INTERVAL_S, not on each mouse move: each one
-# costs the main thread (outline_preview rasterizes the outline, the 3D view re-uploads the object) and redraws the
-# whole window, on the CPU where there is no GPU (Mesa's llvmpipe under Xvfb), CPU the drag frames need on a
-# 2-core machine (docs/benchmarks.md, "The GUI's drag (gui37)"). 20 Hz keeps the outline moving smoothly for the
-# eye; the frames themselves come slower.
+# while that pose's frame is made) is redrawn at most once per PREVIEW_INTERVAL_S, not on each edit, and not at all
+# while the mouse button is held (DRAG_PREVIEWS): each preview is a redraw of the whole window, on the CPU where
+# there is no GPU (Mesa's llvmpipe under Xvfb), about 50 ms of CPU a redraw on a 2-core machine (loaded), CPU the drag
+# frames need; and a preview being drawn when a frame is handed over delays that frame's own draw. During a drag
+# the window is drawn once per frame: each frame shown while the pose moves carries the newest pose's outline and
+# label (_show_frame). docs/benchmarks.md, "The GUI's event to screen (gui48)" (20 Hz during drags before).
 PREVIEW_INTERVAL_S = 0.05
+DRAG_PREVIEWS = False
 # The pointer has rested once the event loop ran a tick STILL_S after the last edit with no edit since: three
 # reports of a 60 Hz mouse (a drag reports each move at the screen's rate; a hand that stopped reports none).
 # Timed by the loop's ticks, not the clock: a main thread held up by a redraw delivers the moves made meanwhile
@@ -56,6 +58,9 @@ PREVIEW_INTERVAL_S = 0.05
 # pose's frame starts at once instead of after it: the rested pose is on screen up to a frame sooner. While
 # the edits keep coming every frame is finished: each would be overtaken before its end, and none shown.
 STILL_S = 3 / 60
+# The 3D view's object is uploaded only while the 3D tab is shown (_show_object): each upload costs the main thread
+# a mesh and the renderer a new geometry, for a view that is not drawn while the Photo tab is.
+SKIP_HIDDEN_3D = True
 SETTLE_TICKS = 20  # redraws before a scripted screenshot is compared (settled_screenshot)
 
 
@@ -218,7 +223,12 @@ class PlacementWindow:
         self.frames_shown = 0
         self.refined_frames = 0  # frames at rest shown by _refine_at_rest (intermediate and all-sources)
         self.last_frame = None  # FrameResult on display
-        self._bench_shown: list | None = None  # run_drag_bench: (time, pose) of each frame shown
+        # run_drag_bench: the poses whose frames _show_frame handed to the image widget and the window has not drawn
+        # yet (None: no bench), and those it drew in the tick under way (_on_layout: each hand-over asks for a layout,
+        # which Open3D runs in the window's next draw)
+        self._bench_handed: list | None = None
+        self._bench_drawn: list = []
+        self._object_stale = False  # the 3D view's object lags the pose (the 3D tab is hidden; shown on selecting it)
         self.frame_times: list[float] = []  # seconds per engine frame (not kept ones)
         self.error: str | None = None
         self.engine_ready = threading.Event()
@@ -244,6 +254,7 @@ class PlacementWindow:
         self.scene3d.scene = rendering.Open3DScene(w.renderer)
         self.scene3d.scene.set_background([0.1, 0.1, 0.12, 1.0])
         self.tabs.add_tab("3D", self.scene3d)
+        self.tabs.set_on_selected_tab_changed(self._on_tab)
         w.add_child(self.tabs)
 
         p = self.panel = gui.Vert(0.4 * em, gui.Margins(0.6 * em, 0.6 * em, 0.6 * em, 0.6 * em))
@@ -334,6 +345,9 @@ class PlacementWindow:
 
     # ------------------------------------------------------------------ layout
     def _on_layout(self, ctx) -> None:
+        if self._bench_handed:  # Open3D lays the window out inside its draw: the frames handed over are drawn now
+            self._bench_drawn.extend(self._bench_handed)
+            self._bench_handed.clear()
         r = self.window.content_rect
         pw = int(PANEL_W * self.window.scaling)
         self.tabs.frame = self.gui.Rect(r.x, r.y, r.width - pw, r.height)
@@ -472,8 +486,9 @@ class PlacementWindow:
         budget = "all" if st.get("budget") is None else st["budget"]
         self.pass_label.text = f"passes: {st['passes']} (budget {budget}), {st['mode'].upper()}"
         self.frames_shown += 1
-        if self._bench_shown is not None:  # --drag-bench: when each pose reached the window
-            self._bench_shown.append((time.perf_counter(), pose))
+        if self._bench_handed is not None:  # --drag-bench: the next draw shows it (_on_layout marks it drawn)
+            self._bench_handed.append(pose)
+            self.window.set_needs_layout()
         self.window.post_redraw()
 
     def _set_image(self, pixels: np.ndarray) -> None:
@@ -486,7 +501,16 @@ class PlacementWindow:
             s.remove_geometry("room")
         s.add_geometry("room", room_mesh(self.ctl), self._mat_room)
 
+    def _on_tab(self, index: int) -> None:
+        if index == 1 and self._object_stale:
+            self._show_object()
+
     def _show_object(self) -> None:
+        """The placed object in the 3D view; only while the 3D tab is shown (a hidden view is not drawn, and each
+        upload costs the main thread and the renderer: the next selection of the tab shows the pose then)."""
+        self._object_stale = SKIP_HIDDEN_3D and self.tabs.selected_tab_index != 1
+        if self._object_stale:
+            return
         o3d = self.o3d
         s = self.scene3d.scene
         if s.has_geometry("object"):
@@ -513,10 +537,12 @@ class PlacementWindow:
 
     def _preview(self) -> bool:
         """Show the newest pose (the pose label, the 3D view's object, its outline over the last frame) when
-        it is due and the last preview is at least PREVIEW_INTERVAL_S old (else _on_tick shows it later);
-        returns whether it did. Each of the three redraws the window, so they go at the preview's rate."""
+        it is due, the last preview is at least PREVIEW_INTERVAL_S old and the button is not held (DRAG_PREVIEWS;
+        else _on_tick or the next frame shows it); returns whether it did. The three go with one redraw."""
         now = time.perf_counter()
         if not self._preview_due or now - self._preview_t < PREVIEW_INTERVAL_S:
+            return False
+        if self._dragging and not DRAG_PREVIEWS:
             return False
         self._preview_due, self._preview_t = False, now
         pose = self.ctl.pose
@@ -744,9 +770,10 @@ class PlacementWindow:
         event loop running between them, along the straight drag of app.dragpath projected to the photo;
         wait for the last pose's frame, release. Each event's latency runs from the moment the event is
         handed to the window (before its handler: the handler's own work is part of the latency) to the end
-        of the event loop's tick that showed the first frame of its pose or a later one (_show_frame: the
-        image updated and a redraw posted, drawn in that tick at the earliest) (the render loop drops the
-        poses it had no time for: it renders the newest). Returns drag_latencies' figures."""
+        of the event loop's tick that drew the first frame of its pose or a later one (the render loop drops the
+        poses it had no time for: it renders the newest). Open3D runs the functions posted to the main thread
+        (_show_frame: the image updated, a redraw posted) after the tick's draw, so that frame is drawn in a later
+        tick, the one whose draw lays the window out (_on_layout). Returns drag_latencies' figures."""
         from app.dragpath import drag_offsets
 
         T = self.gui.MouseEvent.Type
@@ -754,12 +781,12 @@ class PlacementWindow:
 
         shown: list[tuple[float, Pose]] = []
 
-        def tick() -> None:  # the frames _show_frame handed over in this tick are on screen once it returns
+        def tick() -> None:  # the frames drawn in this tick are on screen once it returns
             self.app.run_one_tick()
-            if self._bench_shown:
+            if self._bench_drawn:
                 now = time.perf_counter()
-                shown.extend((now, p) for _, p in self._bench_shown)
-                self._bench_shown.clear()
+                shown.extend((now, p) for p in self._bench_drawn)
+                self._bench_drawn.clear()
 
         def spin_until(cond, what: str) -> None:
             while not cond():
@@ -778,7 +805,7 @@ class PlacementWindow:
         pivot = np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
         uv, _ = self.ctl.scene.camera.project(pivot + drag_offsets(self.ctl.scene, obj, n + 1))
         self._on_image_mouse(_ScriptMouse(T.BUTTON_DOWN, *self.pixel_to_window(*uv[0])))
-        self._bench_shown = []
+        self._bench_handed, self._bench_drawn = [], []
         events: list[tuple[float, Pose]] = []
         for k in range(1, n + 1):
             t_ev = time.perf_counter()
@@ -790,8 +817,9 @@ class PlacementWindow:
                 time.sleep(0.001)
         last = events[-1][1]
         spin_until(lambda: any(p == last for _, p in shown), "frame of the last pose")
-        self._bench_shown = None
+        self._bench_handed = None
         self._on_image_mouse(_ScriptMouse(T.BUTTON_UP, *self.pixel_to_window(*uv[n])))
+        self.bench_timeline = (events, shown)  # for bench/bench_gui_drag.py's breakdown
         return drag_latencies(events, shown)
 
 

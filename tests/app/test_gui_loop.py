@@ -160,3 +160,44 @@ def test_a_frame_of_a_replaced_pose_is_abandoned_once_the_pointer_rests_never_tw
         assert w._render_cv.idle.wait(WAIT_S)
     assert ctl.rendered == [1, 2, 3, 4] and shown == [1, 3, 4]
     assert ctl.render_stop_said == [False, True, False]  # frame 3 had no stop; 4's pose was the newest
+
+
+def test_the_3d_views_object_is_uploaded_only_while_its_tab_is_shown():
+    # each upload costs the main thread a mesh and the renderer a geometry: none while the Photo tab is shown
+    import numpy as np
+
+    added = []
+    obj = SimpleNamespace(vertices=np.zeros((3, 3)), faces=np.array([[0, 1, 2]]),
+                          normals=np.tile([0.0, 1.0, 0.0], (3, 1)), albedo=np.array([0.5, 0.5, 0.5]))
+    w = PlacementWindow.__new__(PlacementWindow)
+    from recon.io import open3d
+
+    w.o3d = open3d()
+    w.ctl = SimpleNamespace(scene_object=lambda pose=None: obj)
+    w.tabs = SimpleNamespace(selected_tab_index=0)  # the Photo tab
+    w.scene3d = SimpleNamespace(scene=SimpleNamespace(has_geometry=lambda name: False,
+                                                      add_geometry=lambda name, g, mat: added.append(name)))
+    w._mat_obj, w._object_stale = None, False
+    w._show_object()
+    w._show_object()
+    assert added == [] and w._object_stale
+    w.tabs.selected_tab_index = 1
+    w._on_tab(1)  # the 3D tab selected: the pose's object now
+    assert added == ["object"] and not w._object_stale
+    w._on_tab(1)  # nothing stale: no second upload
+    assert added == ["object"]
+
+
+def test_no_preview_is_drawn_while_the_button_is_held():
+    # during a drag the window is drawn once per frame (each frame carries the newest outline): the moves' previews
+    # wait, and the release shows the one due (the clock is set by hand: no timing)
+    drawn = []
+    w = PlacementWindow.__new__(PlacementWindow)
+    w.ctl = SimpleNamespace(pose=_pose(2))
+    w._show_pose = lambda p: drawn.append("label")
+    w._show_object = lambda: drawn.append("object")
+    w.last_frame = None  # (no frame to draw the outline on in the stand-in)
+    w._preview_due, w._preview_t, w._dragging = True, -math.inf, True
+    assert not w._preview() and drawn == [] and w._preview_due
+    w._dragging = False  # the release
+    assert w._preview() and drawn == ["label", "object"] and not w._preview_due
