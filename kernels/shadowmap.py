@@ -127,13 +127,9 @@ def depth_range(ms: MapSet, s: int, x0: int, x1: int, y0: int, y1: int) -> wp.ve
     return wp.vec2(lo, hi)
 
 
-@wp.kernel
-def _mip_kernel(ms: MapSet, first: int, lv: int):
-    k, by, bx = wp.tid()
-    s = first + k
-    side = ms.mip_side[lv]
-    if by >= side or bx >= side or not _reads_pyramid(ms, s):
-        return
+@wp.func
+def _block_minmax(ms: MapSet, s: int, lv: int, by: int, bx: int) -> wp.vec2:
+    """(min, max) of block (by, bx) of level lv >= 2 over its (up to) four blocks one level finer."""
     cside = ms.mip_side[lv - 1]
     coff = ms.mip_off[lv - 1]
     lo = float(1.0e30)
@@ -143,13 +139,33 @@ def _mip_kernel(ms: MapSet, first: int, lv: int):
             cy = 2 * by + dy
             cx = 2 * bx + dx
             if cy < cside and cx < cside:
-                if lv == 1:
+                lo = wp.min(lo, ms.mip_min[s, coff + cy * cside + cx])
+                hi = wp.max(hi, ms.mip_max[s, coff + cy * cside + cx])
+    return wp.vec2(lo, hi)
+
+
+@wp.kernel
+def _mip_kernel(ms: MapSet, first: int, lv: int):
+    k, by, bx = wp.tid()
+    s = first + k
+    side = ms.mip_side[lv]
+    if by >= side or bx >= side or not _reads_pyramid(ms, s):
+        return
+    lo = float(1.0e30)
+    hi = float(-1.0e30)
+    if lv == 1:
+        for dy in range(2):
+            for dx in range(2):
+                cy = 2 * by + dy
+                cx = 2 * bx + dx
+                if cy < ms.mip_side[0] and cx < ms.mip_side[0]:
                     d = ms.depth[s, cy, cx]
                     lo = wp.min(lo, d)
                     hi = wp.max(hi, d)
-                else:
-                    lo = wp.min(lo, ms.mip_min[s, coff + cy * cside + cx])
-                    hi = wp.max(hi, ms.mip_max[s, coff + cy * cside + cx])
+    else:
+        m = _block_minmax(ms, s, lv, by, bx)
+        lo = m[0]
+        hi = m[1]
     ms.mip_min[s, ms.mip_off[lv] + by * side + bx] = lo
     ms.mip_max[s, ms.mip_off[lv] + by * side + bx] = hi
 
@@ -228,21 +244,11 @@ def _mip_rest_kernel(ms: MapSet, first: int, lv0: int):
     for lv in range(lv0, ms.mip_levels + 1):
         side = ms.mip_side[lv]
         off = ms.mip_off[lv]
-        cside = ms.mip_side[lv - 1]
-        coff = ms.mip_off[lv - 1]
         for by in range(side):
             for bx in range(side):
-                lo = float(1.0e30)
-                hi = float(-1.0e30)
-                for dy in range(2):
-                    for dx in range(2):
-                        cy = 2 * by + dy
-                        cx = 2 * bx + dx
-                        if cy < cside and cx < cside:
-                            lo = wp.min(lo, ms.mip_min[s, coff + cy * cside + cx])
-                            hi = wp.max(hi, ms.mip_max[s, coff + cy * cside + cx])
-                ms.mip_min[s, off + by * side + bx] = lo
-                ms.mip_max[s, off + by * side + bx] = hi
+                m = _block_minmax(ms, s, lv, by, bx)
+                ms.mip_min[s, off + by * side + bx] = m[0]
+                ms.mip_max[s, off + by * side + bx] = m[1]
 
 
 @wp.func
