@@ -15,6 +15,8 @@ truth (lighting.metrics), with the largest level difference from the first varia
 - blockloop: may_occlude loops over a box's coarse blocks (MapSet.sat 0; the same lists); soft+levels+blockloop is
   main's shadow pass before masks37;
 - tolN: the graded lattice's refine tolerance N % (ShadowPass.refine_tol);
+- copycentres: the patch centres' transfers copied into the batch's weights by upload_batch (before masks48b),
+  not read by the sums in place from W_c (ShadowPass._centre_table None);
 - A+B: variants A and B together.
 Prints per variant the means over the path of the masks and upsample stages (wall), the frame's wall and
 CPU time (the process's, all threads), and "crit": the frame's critical path in CPU time, the rendering
@@ -136,12 +138,15 @@ def apply(variant: str, shadow_pass) -> callable:
         for m in maps:
             m.ms.sat = 0
         return lambda: [setattr(m.ms, "sat", 1) for m in maps] and None
+    if variant == "copycentres":  # the patch centres' transfers copied into the batch's weights (before masks48b)
+        shadow_pass._centre_table = lambda W_c: None
+        return lambda: delattr(shadow_pass, "_centre_table")
     if variant.startswith("tol"):  # the graded lattice's refine tolerance tolN, N in percent (ShadowPass.refine_tol)
         was = shadow_pass.refine_tol
         shadow_pass.refine_tol = int(variant[3:]) / 100
         return lambda: setattr(shadow_pass, "refine_tol", was)
     raise SystemExit(f"unknown variant {variant!r} (base, points, tolN, soft, levels, "
-                     "blockloop)")
+                     "blockloop, copycentres)")
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:

@@ -214,10 +214,16 @@ def penumbra(ms: MapSet, s: int, x: float, y: float, z: float, a1: wp.vec2, a2: 
 
 @wp.func
 def _weight(weights: wp.array2d(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32), bary: wp.array(dtype=wp.vec3),
-            k: int, j: int) -> wp.vec3:
-    """Point k's transfer for column j: its three weight rows blended by its barycentrics."""
+            k: int, j: int, centres: wp.array2d(dtype=wp.vec3), n_rows: int) -> wp.vec3:
+    """Point k's transfer for column j: its three weight rows blended by its barycentrics. Rows n_rows and up
+    are read from `centres` (its row r - n_rows, the same column) where that table is given (not of 0 rows):
+    the patch centres' transfers read in place instead of copied into `weights` (MaskedSum.accumulate)."""
     bk = bary[k]
-    return weights[rows[k, 0], j] * bk[0] + weights[rows[k, 1], j] * bk[1] + weights[rows[k, 2], j] * bk[2]
+    r0 = rows[k, 0]
+    if r0 >= n_rows and centres.shape[0] > 0:  # a centre: its three rows are one (bary 1, 0, 0), same formula
+        c = r0 - n_rows
+        return centres[c, j] * bk[0] + centres[rows[k, 1] - n_rows, j] * bk[1] + centres[rows[k, 2] - n_rows, j] * bk[2]
+    return weights[r0, j] * bk[0] + weights[rows[k, 1], j] * bk[1] + weights[rows[k, 2], j] * bk[2]
 
 
 @wp.kernel
@@ -227,6 +233,7 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int,
                        pos: wp.array(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32),
                        bary: wp.array(dtype=wp.vec3), lists: wp.array2d(dtype=wp.int32),
                        n_list: wp.array(dtype=wp.int32), weights: wp.array2d(dtype=wp.vec3),
+                       centres: wp.array2d(dtype=wp.vec3), n_rows: int,
                        acc: wp.array(dtype=wp.vec3), count: wp.array(dtype=wp.float32)):
     # one thread per run (the selected points of one cell, consecutive), clipped to points lo..hi-1:
     # map by map of the cell's list, the map's frame is read once for all the run's points
@@ -260,7 +267,7 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int,
                     iy = int(wp.floor(wp.dot(d, uy) * iz + half))
                     if ix >= 0 and iy >= 0 and ix < ms.res and iy < ms.res:
                         if z > ms.depth[s, iy, ix] + ms.bias:
-                            acc[i] = acc[i] + _weight(weights, rows, bary, k, j)
+                            acc[i] = acc[i] + _weight(weights, rows, bary, k, j, centres, n_rows)
                             count[i] = count[i] + 1.0
             continue
         a1 = wp.vec2(wp.dot(ms.axis1[s], rt), wp.dot(ms.axis1[s], up)) * (it * half)
@@ -318,7 +325,7 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int,
                 else:  # one source: the hard lookup of kernels.shadowmap.occluded
                     fr = _hard(ms, s, x, y, z)
                 if fr > 0.0:
-                    acc[i] = acc[i] + fr * _weight(weights, rows, bary, k, j)
+                    acc[i] = acc[i] + fr * _weight(weights, rows, bary, k, j, centres, n_rows)
                     count[i] = count[i] + fr
 
 
@@ -329,6 +336,7 @@ def _ray_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int,
                     pos: wp.array(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32),
                     bary: wp.array(dtype=wp.vec3), lists: wp.array2d(dtype=wp.int32),
                     n_list: wp.array(dtype=wp.int32), weights: wp.array2d(dtype=wp.vec3),
+                    centres: wp.array2d(dtype=wp.vec3), n_rows: int,
                     acc: wp.array(dtype=wp.vec3), count: wp.array(dtype=wp.float32)):
     # _masked_sum_kernel's runs, the ray-mode maps of their lists only (a source inside the proxy's
     # bounding sphere: the exact segment against the proxy, ~8x a map lookup on the CPU, so cast only
@@ -344,7 +352,7 @@ def _ray_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int,
             o = ms.origin[s]
             for i in range(a, b):
                 k = idx[i]
-                w = _weight(weights, rows, bary, k, j)
+                w = _weight(weights, rows, bary, k, j, centres, n_rows)
                 if w[0] != 0.0 or w[1] != 0.0 or w[2] != 0.0:  # no ray where it adds nothing (the source's back side)
                     if segment_blocked(ms.proxy, pos[k], o):
                         acc[i] = acc[i] + w
@@ -365,6 +373,7 @@ class MaskedSum:
                  tile: np.ndarray | None = None):
         self.device = d = runtime.device(device)
         self._cpu = wp.get_device(d).is_cpu
+        self._no_centres = wp.zeros((0, 1), dtype=wp.vec3, device=d)  # accumulate without a centres table
         pos = np.asarray(pos, np.float64).reshape(-1, 3)
         group = np.asarray(group, np.int64).reshape(-1)
         self.size = len(pos)
@@ -521,17 +530,20 @@ class MaskedSum:
         bounds = np.unique(np.r_[0, self._run_start[np.minimum(cut + 1, self.n_runs)], self.n])
         return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
-    def accumulate(self, maps: ShadowMaps, first: int, weights: wp.array, lo: int = 0, hi: int | None = None) -> None:
+    def accumulate(self, maps: ShadowMaps, first: int, weights: wp.array, lo: int = 0, hi: int | None = None,
+                   centres: wp.array | None = None, n_rows: int = 0) -> None:
         """Add the prepared batch's masked sums to selected points lo..hi-1 (in the cell-by-cell
         order the sums keep; default all); disjoint ranges may run concurrently. `weights` (rows,
-        sources) vec3, column first + map."""
+        sources) vec3, column first + map. centres: optional (rows, sources) vec3 table, same columns, of the
+        weight rows n_rows and up (row r read from its row r - n_rows instead of from `weights`)."""
         hi = self.n if hi is None else min(hi, self.n)
         if hi <= lo:
             return
         r0 = int(np.searchsorted(self._run_start, lo, side="right")) - 1
         r1 = int(np.searchsorted(self._run_start, hi, side="left"))
         args = [maps.ms, lo, hi, first, r0, self.run_start.dev, self.run_cell.dev, self.idx.dev,
-                self.pos.dev, self.rows.dev, self.bary.dev, self.lists, self.n_list, weights]
+                self.pos.dev, self.rows.dev, self.bary.dev, self.lists, self.n_list, weights,
+                self._no_centres if centres is None else centres, n_rows]
         wp.launch(_masked_sum_kernel, dim=r1 - r0, inputs=args, outputs=[self.acc.dev, self.count.dev],
                   device=self.device)
         if maps.n_ray:  # the batch's maps of sources inside the proxy's bounding sphere (rare)

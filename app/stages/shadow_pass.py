@@ -145,6 +145,7 @@ class ShadowPass:
         self.pt_start = np.searchsorted(self.pt_patch[self.pt_by_patch], np.arange(P + 1))
         self.pt_pos = pix_pos[self.recv].astype(np.float64)
         self._allowed = np.zeros(R, bool)  # scratch: wanted points of the frame
+        self._centres: wp.array | None = None  # _run_graded's W_c read in place by the sums (_centre_table)
         self._known = np.zeros(R, bool)  # scratch: points summed so far in the frame
         self._vals = np.zeros((R, 3))  # their sums
         self._frac = np.zeros((R, 3))  # and their shadow fractions (sum / scale: _run_graded's refine test)
@@ -422,7 +423,8 @@ class ShadowPass:
                 ax = np.where(weak[:, None, None], 0.0, ax)
         n = self.maps.prepare(eyes, None if ax is None else np.linalg.norm(ax, axis=2).max(1), ax)
         runtime.split(self.maps.raster, n, dev, min_items=1)
-        self.upload_batch(cand, W_pix, W_c, 0, n, cen)
+        self._centres = self._centre_table(W_c)  # the centres' transfers read in place where it can (the CPU)
+        self.upload_batch(cand, W_pix, W_c, 0, n, cen, centres=self._centres is None)
 
         sq8, c8 = self._square_corners(pend, 8)
         first_pts = np.unique(np.concatenate([near, c8]))
@@ -530,7 +532,8 @@ class ShadowPass:
         dev = self.device
         work = self.sums.run_work()  # read once for the number of ranges and their cuts
         k = runtime.parts(dev, int(work[-1]) if len(work) else 0, min_items=MIN_PART_PAIRS)
-        runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b)
+        wc, vr = self._centres, self.n_recv_vert
+        runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b, wc, vr)
                      for a, b in self.sums.balanced(k, work)])
         return self.sums.result(counts=False)[0]  # the counts are not read
 
@@ -569,18 +572,20 @@ class ShadowPass:
         return pix_pt, fill_pt, cen
 
     def upload_batch(self, cand: np.ndarray, W_pix: np.ndarray, W_c: np.ndarray, first: int, n: int,
-                      cen: np.ndarray, cols: np.ndarray | None = None) -> None:
+                      cen: np.ndarray, cols: np.ndarray | None = None, centres: bool = True) -> None:
         """Sources first..first+n-1's transfers and candidate flags into the batch buffers (weights, cand); cols:
         the passes' columns instead, n of them, e.g. run's perm). Of the
         patch-centre rows only those of the frame's centres `cen` that are candidates of some source
-        of the batch: the masked sums read no other (a centre's list holds its candidates only)."""
+        of the batch: the masked sums read no other (a centre's list holds its candidates only); none where
+        not `centres` (the sums read W_c in place: _centre_table)."""
         Vr = self.n_recv_vert
         wb, cb = self.weights, self.cand
         w = wb.host
         if cols is None:
             w[:Vr, :n] = W_pix[:, first:first + n]
-            c = cen[cand[cen, first:first + n].any(1)]
-            w[Vr + c, :n] = W_c[c, first:first + n]
+            if centres:
+                c = cen[cand[cen, first:first + n].any(1)]
+                w[Vr + c, :n] = W_c[c, first:first + n]
             cb.host[:, :n] = cand[:, first:first + n]
         elif self._gather is None or not self._gather_cols(cand, W_pix, W_c, cen, cols, wb, cb):
             w[:Vr, :n] = W_pix[:, cols]
@@ -590,6 +595,15 @@ class ShadowPass:
             cb.host[:, :n] = cc
         wb.push()
         cb.push()
+
+    def _centre_table(self, W_c) -> wp.array | None:
+        """W_c (P,S,3) as a Warp table the masked sums read in place (no copy; columns as the batch's weights,
+        so the batch must start at source 0), or None where it cannot be one: not the CPU (W_c lives on the
+        host), or not a C-contiguous float32 array."""
+        if not wp.get_device(self.device).is_cpu or not isinstance(W_c, np.ndarray) or W_c.dtype != np.float32 \
+                or W_c.ndim != 3 or W_c.shape[2] != 3 or not W_c.flags.c_contiguous or not len(W_c):
+            return None
+        return wp.array(W_c, dtype=wp.vec3, device=self.device, copy=False)
 
     def _gather_cols(self, cand: np.ndarray, W_pix, W_c, cen: np.ndarray, cols: np.ndarray, wb: Buffer, cb: Buffer
                      ) -> bool:

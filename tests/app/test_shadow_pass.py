@@ -147,6 +147,38 @@ def test_masked_sums_are_cut_by_work_and_equal_whatever_the_cut(demo):
     assert out[0][1].sum() > 0
 
 
+def test_centre_transfers_read_in_place_give_the_same_sums(demo):
+    # the graded drag frame's sums read the patch centres' transfers straight from W_c (_centre_table) instead
+    # of upload_batch copying their rows into the batch's weights: the same sums, bit for bit, with the copied
+    # rows poisoned (NaN) to show they are not read
+    scene, eng = demo
+    sp, sums = eng.shadow_pass, eng.shadow_pass.sums
+    pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), None)
+    centre, radius = bounding_sphere(pv)
+    pix_pt, _, cen = sp.select(centre, radius, np.zeros((scene.camera.height, scene.camera.width)), fs.cand)
+    table = sp._centre_table(fs.W_c)
+    assert table is not None and table.ptr == fs.W_c.ctypes.data  # a view, no copy (the CPU)
+    maps = sp.maps_full
+    maps.set_proxy(pv, pf, occ)
+    n = maps.prepare(fs.eyes[:sp.batch])  # the batch from source 0: W_c's columns are the weights' columns
+    maps.raster(0, n)
+    out = []
+    for in_place in (False, True):
+        sp.weights.host[sp.n_recv_vert:] = np.nan
+        sp.upload_batch(fs.cand, fs.W_v, fs.W_c, 0, n, cen, centres=not in_place)
+        sums.select(np.concatenate([pix_pt, sp.n_pix_points + cen]))
+        sums.prepare(maps, n, 0, sp.cand.dev)
+        for a, b in sums.balanced(2):
+            if in_place:
+                sums.accumulate(maps, 0, sp.weights.dev, a, b, table, sp.n_recv_vert)
+            else:
+                sums.accumulate(maps, 0, sp.weights.dev, a, b)
+        out.append(sums.result()[0].copy())
+    assert np.isfinite(out[0]).all() and np.abs(out[0][len(pix_pt):]).sum() > 0  # the centres are summed
+    np.testing.assert_array_equal(out[1], out[0])
+
+
 def _bilinear_reference(known, values, missing, surface, W, H, s):
     """Bilinear of each missing pixel's s x s lattice square's known corners on its own surface
     (weights renormalised), else the 3x3 mean (_window_mean)."""
