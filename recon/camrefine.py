@@ -374,8 +374,8 @@ def _edge_chamfer(cam: Camera, S: _Samples, photo: PhotoEdges) -> float:
     return float(np.mean(np.minimum(d, CHAMFER_CAP_PX)))
 
 
-def _centre_search(cam: Camera, S: _Samples, photo: PhotoEdges) -> list[np.ndarray]:
-    """Starting points [0, 0, 0, dx, dz, 0] (_Model's parameters) of the fit: the best local minima of
+def _centre_search(cam: Camera, S: _Samples, photo: PhotoEdges, log_focal: float = 0.0) -> list[tuple[float, np.ndarray]]:
+    """(grid cost, starting point [0, 0, 0, dx, dz, log_focal] (_Model's parameters)) of the fit: the best local minima of
     the capped edge residual over a grid of camera centres about the input one, rotation, focal length
     and height held.
 
@@ -385,10 +385,11 @@ def _centre_search(cam: Camera, S: _Samples, photo: PhotoEdges) -> list[np.ndarr
     texture) and end in a wrong basin. The grid spans the centres that move an edge at the samples'
     median depth by up to the widest match radius (COARSE_RADII_PX[0]), in steps that move it
     CENTRE_STEP_PX; the residual is capped at 2 steps so a grid point half a step from an edge still
-    counts it matched. The samples are the input camera's (the visible set changes little over the grid)."""
+    counts it matched. The samples are the input camera's (the visible set changes little over the grid).
+    log_focal: the grid's cameras have the focal length exp(log_focal) x the input's (_widened_search)."""
     if len(S.X) == 0:
         return []
-    f = float(cam.K[0, 0])
+    f = float(cam.K[0, 0]) * float(np.exp(log_focal))
     _, z = cam.project(S.X)
     zmed = float(np.median(z))
     half, step = COARSE_RADII_PX[0] * zmed / f, CENTRE_STEP_PX * zmed / f
@@ -398,7 +399,8 @@ def _centre_search(cam: Camera, S: _Samples, photo: PhotoEdges) -> list[np.ndarr
     dC = np.stack([dx.ravel(), np.zeros(dx.size), dz.ravel()], 1)  # (G,3) world offsets of the centre
     cap = 2.0 * CENTRE_STEP_PX
     RX, RD = S.X @ cam.R.T, S.D @ cam.R.T
-    K = cam.K
+    K = cam.K.copy()
+    K[0, 0], K[1, 1] = K[0, 0] * np.exp(log_focal), K[1, 1] * np.exp(log_focal)
     cost = np.empty(len(dC))
     dist = np.stack([d for d, _ in photo.near])  # (bins, H, W)
     H, W = photo.shape
@@ -422,7 +424,8 @@ def _centre_search(cam: Camera, S: _Samples, photo: PhotoEdges) -> list[np.ndarr
                    if i or j])
     minima = np.flatnonzero((C <= nb.min(axis=0)).ravel())
     best = minima[np.argsort(cost[minima])][:CENTRE_HYPOTHESES]
-    return [np.array([0.0, 0.0, 0.0, dC[i, 0], dC[i, 2], 0.0]) for i in best]  # pad for a free principal point
+    # pad for a free principal point
+    return [(float(cost[i]), np.array([0.0, 0.0, 0.0, dC[i, 0], dC[i, 2], log_focal])) for i in best]
 
 
 @dataclass
@@ -645,6 +648,18 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     else:
         refined = model.camera(best.x)
     r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
+    sigma_f = cam.focal_rel_sigma
+    if not r.accepted and not r.fits and sigma_f is not None and np.isfinite(sigma_f) and sigma_f > 0:
+        # the first search's camera failed the guard: search again with the focal length moved by its own
+        # calibration sigma (_widened_search); the best of those the guard accepts, by _edge_gain
+        wide = _widened_search(model, edges, occ, photo, lines, fine_stage, float(sigma_f))
+        ok = [(f, g) for f in wide
+              for g in [_guard(cam, model.camera(f.x), f, lines, edges, occ, photo, time.time() - t0)] if g.accepted]
+        if ok:
+            common = _union(_sample_edges(cam, edges, occ), *[f.S for f, _ in ok])
+            gains = [_edge_gain(cam, g.camera, common, photo) for _, g in ok]
+            best, r = ok[int(np.argmax(gains))]
+            r = dataclasses.replace(r, seconds=float(time.time() - t0))
     without, ids = None, None
     if best.res is not None and best.data is not None and best.data[3] is None:  # the profile stage's fit
         sub, q, sig, _ = best.data
@@ -670,7 +685,7 @@ def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str
     # match radius of 4 grid steps (an edge at a quarter of the median depth)
     starts = [(np.zeros(model.n), COARSE_RADII_PX)]
     grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
-    starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for x0 in _centre_search(cam, S0, photo)]
+    starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for _, x0 in _centre_search(cam, S0, photo)]
     # each start's sub-pixel fit (a start whose sub-pixel stage did not run is dropped)
     fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage), start="input" if i == 0
                                 else "centre search") for i, (x0, radii) in enumerate(starts)]
@@ -685,6 +700,33 @@ def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str
     if any(g > 0 for g in gains):
         best = fits[1 + int(np.argmax(gains))]
     return best
+
+
+def _widened_search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str,
+                    focal_rel_sigma: float) -> list[_Fit]:
+    """The fits from centre-search starts whose focal length is calibrate's moved by -2, -1, +1 and +2
+    of its own sigma (each focal length's CENTRE_HYPOTHESES best grid minima: the grid's coarse cost
+    does not rank the true basin first across focal lengths, so every one is fitted): refine_camera's
+    second search, run only when the first one's camera fails the guard (it costs up to 12 fits).
+
+    Why: calibrate's focal length comes from the vanishing points alone, and with a distant one (nearly
+    parallel clicked segments) its sigma is a few per cent (focal_rel_sigma in camera.json). A start
+    1.5 % off in focal length and tens of cm off in place puts the room's edges ten or more px from the
+    photo's, where the ICP locks onto other edges (a sunlit patch's border, floor texture): seen on a
+    clean render of an unseen sun room, whose three fits all missed the clicked lines (chi-square 70-75
+    against 32.9) while the true camera fits them as well as calibrate's (21.3) and the photo's edges
+    better (0.75 against 0.97-1.03 px). The first search holds the focal length in its grid, so it
+    cannot start near such a camera; moving the focal length by its own sigma can."""
+    cam = model.cam0
+    S0 = _sample_edges(cam, edges, occ)
+    pool = []
+    for k in (-2.0, -1.0, 1.0, 2.0):
+        if 1.0 + k * focal_rel_sigma > 0.5:  # a focal length at least half the calibrated one
+            pool += _centre_search(cam, S0, photo, float(np.log1p(k * focal_rel_sigma)))
+    grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
+    fits = [dataclasses.replace(_fit(model, np.pad(x0, (0, model.n - 6)), grid_radii, edges, occ, photo, lines,
+                                     fine_stage), start="focal search") for _, x0 in pool]
+    return [f for f in fits if f.res is not None]
 
 
 def _edge_distances(cam: Camera, S: _Samples, photo: PhotoEdges) -> np.ndarray:
@@ -708,6 +750,22 @@ def _edge_gain(a: Camera, b: Camera, S: _Samples, photo: PhotoEdges) -> float:
     if len(es) == 0:
         return 0.0
     return float(np.mean([np.mean(da[S.edge == e] - db[S.edge == e]) for e in es]))
+
+
+def _lines_chi2(cam: Camera, lines) -> tuple[float, float]:
+    """Chi-square of the clicked lines' normalised residuals (calibrate's) under `cam`, and its 99.9 %
+    point for that many segments (the guard's limit); (0, inf) without lines."""
+    from scipy.stats import chi2
+
+    from recon.vanishing import _seg_residual
+
+    segs, sig = lines
+    if not segs:
+        return 0.0, float("inf")
+    idx = {"x": 0, "y": 1, "z": 2}
+    KR = cam.K @ cam.R
+    z = np.concatenate([_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / sig[a] for a in segs])
+    return float(z @ z), float(chi2.ppf(0.999, len(z)))
 
 
 def _guard(cam, refined, fit: _Fit, lines, edges, occ, photo, seconds) -> Refinement:
@@ -747,15 +805,10 @@ def _guard(cam, refined, fit: _Fit, lines, edges, occ, photo, seconds) -> Refine
         return Refinement(cam, False, f"the camera already fits the room's edges (refining moves them {moved:.2f} px "
                           f"rms < {MIN_MOVE_PX:g} px, within the room model's own edge offsets)", True, **out)
     if not reason and len(lr):
-        # the refined camera must agree with the clicked lines within their noise: chi-square of the
-        # normalised residuals (calibrate's) at most its 99.9 % point for that many segments
-        from scipy.stats import chi2
-
-        z = np.concatenate([_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / sig[a] for a in segs])
-        lim = float(chi2.ppf(0.999, len(z)))
-        if not float(z @ z) <= lim:
-            reason = (f"the refined camera disagrees with the clicked lines (chi-square {float(z @ z):.1f} > "
-                      f"{lim:.1f})")
+        # the refined camera must agree with the clicked lines within their noise (_lines_chi2)
+        c2, lim = _lines_chi2(refined, lines)
+        if not c2 <= lim:
+            reason = f"the refined camera disagrees with the clicked lines (chi-square {c2:.1f} > {lim:.1f})"
     if not reason and not after <= before:
         reason = f"the edge residual does not drop ({before:.2f} -> {after:.2f} px)"
     lo, hi = edges.reshape(-1, 3).min(0), edges.reshape(-1, 3).max(0)

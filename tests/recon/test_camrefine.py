@@ -287,3 +287,24 @@ def test_bench_object_image_error_of_a_turned_camera(tmp_path):
     e = camera_errors(turned, truth, S, P)
     assert e["object_px"] == pytest.approx(520.0 * np.tan(np.radians(0.2)), abs=0.01)
     assert e["rot_deg"] == pytest.approx(0.2, abs=1e-6)
+
+
+def test_failed_search_widened_over_the_focal_sigma(synthetic, monkeypatch):
+    """When the first search's camera fails the guard (here forced: it returns no fit, as when every
+    start locks onto other edges), refine_camera searches again from centre-search starts with the focal
+    length moved by -2..+2 of calibrate's sigma (camera.json's focal_rel_sigma) and takes the best the
+    guard accepts: a start 4 % of focal (2 sigma) and 0.5 m off (about 45 px of image motion) comes
+    back within 0.3 px and 0.3 % of focal. Without a sigma there is no second search: the input is kept."""
+    from recon import camrefine
+
+    truth, img = synthetic
+    start = _perturbed(truth, deg=0.4, dc=(0.35, 0.0, -0.35), focal=0.96)
+    assert _image_shift(start, truth) > 30.0
+    monkeypatch.setattr(camrefine, "_search", lambda *a, **k: None)
+    kept = refine_camera(start, PRIMS, img)
+    assert not kept.accepted and kept.camera is start
+    r = refine_camera(dataclasses.replace(start, focal_rel_sigma=0.02), PRIMS, img)
+    assert r.accepted, r.reason
+    assert r.start == "focal search"
+    assert _image_shift(r.camera, truth) < 0.3
+    assert abs(r.camera.K[0, 0] / truth.K[0, 0] - 1) < 0.003
