@@ -171,7 +171,9 @@ def test_captured_light_uses_the_users_sun(sun_room_folder, sun_inputs, tmp_path
     assert main(["-q", "composite", str(sun_room_folder), "--out", str(tmp_path / "est"), "--sun", "estimate",
                  *common]) == 0
     rep = json.loads((tmp_path / "est" / "report.json").read_text())
-    assert rep["sun"]["from"] == "estimate" and rep["sun"]["direction"] == rep["sun_estimate"]["direction"]
+    assert rep["sun"]["from"] == "estimate"
+    # the sun used is the estimate's (to rounding: the two are written from separately normalised vectors)
+    np.testing.assert_allclose(rep["sun"]["direction"], rep["sun_estimate"]["direction"], rtol=0, atol=1e-12)
     assert 0.0 < rep["sun_estimate"]["direction_error_deg"] <= 2.0
 
 
