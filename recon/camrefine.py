@@ -649,17 +649,27 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         refined = model.camera(best.x)
     r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
     sigma_f = cam.focal_rel_sigma
-    if not r.accepted and not r.fits and sigma_f is not None and np.isfinite(sigma_f) and sigma_f > 0:
-        # the first search's camera failed the guard: search again with the focal length moved by its own
-        # calibration sigma (_widened_search); the best of those the guard accepts, by _edge_gain
+    if (not r.accepted and not r.fits and sigma_f is not None and np.isfinite(sigma_f) and sigma_f > 0
+            and _lines_chi2(refined, lines)[0] > _lines_chi2(refined, lines)[1]):
+        # the first search's camera fits the room's edges somewhere the clicked lines refuse (a wrong
+        # basin, not a room model the photo disagrees with: that fails the edge residual or the
+        # conditioning, and a second search would only find another camera the model fits as badly):
+        # search again with the focal length moved by its own calibration sigma (_widened_search); the
+        # best of those the guard accepts, by _edge_gain
         wide = _widened_search(model, edges, occ, photo, lines, fine_stage, float(sigma_f))
         ok = [(f, g) for f in wide
               for g in [_guard(cam, model.camera(f.x), f, lines, edges, occ, photo, time.time() - t0)] if g.accepted]
         if ok:
+            # a camera from beyond calibrate's own estimate must bring the room's edges closer to the
+            # photo's by more than the room model's own error of an edge's image (EDGE_MODEL_SIGMA_PX),
+            # else its gain may be that error: a reconstructed room whose guessed walls sit 0.3 m off
+            # offered a camera 12 px away for 0.11 px of residual
             common = _union(_sample_edges(cam, edges, occ), *[f.S for f, _ in ok])
             gains = [_edge_gain(cam, g.camera, common, photo) for _, g in ok]
-            best, r = ok[int(np.argmax(gains))]
-            r = dataclasses.replace(r, seconds=float(time.time() - t0))
+            i = int(np.argmax(gains))
+            if gains[i] > EDGE_MODEL_SIGMA_PX:
+                best, r = ok[i]
+                r = dataclasses.replace(r, seconds=float(time.time() - t0))
     without, ids = None, None
     if best.res is not None and best.data is not None and best.data[3] is None:  # the profile stage's fit
         sub, q, sig, _ = best.data

@@ -289,21 +289,43 @@ def test_bench_object_image_error_of_a_turned_camera(tmp_path):
     assert e["rot_deg"] == pytest.approx(0.2, abs=1e-6)
 
 
+def _clicked_lines_json(cam: Camera) -> dict:
+    """A camera.json's "vanishing_points" with three segments per axis, as `cam` sees them (exact)."""
+    world = {"x": [((0.5, 0.2, 0.4), (1.8, 0.2, 0.4)), ((0.5, 1.5, 0.3), (1.8, 1.5, 0.3)),
+                   ((0.6, 2.0, 1.0), (1.9, 2.0, 1.0))],
+             "y": [((0.5, 0.2, 0.4), (0.5, 1.8, 0.4)), ((1.8, 0.2, 0.6), (1.8, 1.8, 0.6)),
+                   ((1.2, 0.2, 1.5), (1.2, 1.8, 1.5))],
+             "z": [((0.5, 0.2, 0.3), (0.5, 0.2, 1.6)), ((1.8, 1.0, 0.3), (1.8, 1.0, 1.6)),
+                   ((1.0, 2.0, 0.3), (1.0, 2.0, 1.6))]}
+    vps = {}
+    for a, segs in world.items():
+        uv = [cam.project(np.array(seg, float))[0].ravel().tolist() for seg in segs]
+        vps[a] = {"segments": uv, "inliers": [True] * 3, "snapped": [False] * 3}
+    return {"vanishing_points": vps}
+
+
 def test_failed_search_widened_over_the_focal_sigma(synthetic, monkeypatch):
-    """When the first search's camera fails the guard (here forced: it returns no fit, as when every
-    start locks onto other edges), refine_camera searches again from centre-search starts with the focal
-    length moved by -2..+2 of calibrate's sigma (camera.json's focal_rel_sigma) and takes the best the
-    guard accepts: a start 4 % of focal (2 sigma) and 0.5 m off (about 45 px of image motion) comes
-    back within 0.3 px and 0.3 % of focal. Without a sigma there is no second search: the input is kept."""
+    """When the first search's camera fails the guard on the clicked lines (here forced: it returns the
+    input camera, 2 deg, 4 % of focal and 0.5 m off, about 45 px of image motion, which the exact
+    clicked lines refuse), refine_camera searches again from centre-search starts with the focal length moved by
+    -2..+2 of calibrate's sigma (camera.json's focal_rel_sigma) and takes the best the guard accepts,
+    when it brings the room's edges closer by more than the room model's own edge error: the camera
+    comes back within 0.3 px and 0.3 % of focal. Without a sigma there is no second search: the input
+    is kept."""
     from recon import camrefine
 
     truth, img = synthetic
-    start = _perturbed(truth, deg=0.4, dc=(0.35, 0.0, -0.35), focal=0.96)
+    start = _perturbed(truth, deg=2.0, dc=(0.35, 0.0, -0.35), focal=0.96)
     assert _image_shift(start, truth) > 30.0
+    cj = _clicked_lines_json(truth)
+    lines = camrefine.clicked_lines(cj)
+    assert camrefine._lines_chi2(truth, lines)[0] < 1e-6
+    chi2, lim = camrefine._lines_chi2(start, lines)
+    assert chi2 > lim  # the clicked lines refuse the input camera
     monkeypatch.setattr(camrefine, "_search", lambda *a, **k: None)
-    kept = refine_camera(start, PRIMS, img)
+    kept = refine_camera(start, PRIMS, img, cj)
     assert not kept.accepted and kept.camera is start
-    r = refine_camera(dataclasses.replace(start, focal_rel_sigma=0.02), PRIMS, img)
+    r = refine_camera(dataclasses.replace(start, focal_rel_sigma=0.02), PRIMS, img, cj)
     assert r.accepted, r.reason
     assert r.start == "focal search"
     assert _image_shift(r.camera, truth) < 0.3
