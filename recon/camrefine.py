@@ -91,6 +91,9 @@ CENTRE_STEP_PX = 4.0  # the centre search's grid step, as the motion of an edge 
 # the coarse stage's 2 px final match radius, so the grid's best point is within the ICP's reach
 CENTRE_HYPOTHESES = 3  # the centre search's best local minima refined besides the input camera: each costs
 # one fit; three leave room for the true basin when texture basins score better on the grid's coarse residual
+# the match radii of a centre-search start's ICP: from 4 grid steps (an edge at a quarter of the median depth) down
+GRID_RADII_PX = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
+AXIS = {"x": 0, "y": 1, "z": 2}  # a clicked line family's world axis: the column of K R its vanishing point is
 MIN_LINE_DIRECTIONS_DEG = 20.0  # the samples' 3D edges must span two directions at least this far apart
 
 
@@ -327,10 +330,6 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lin
     allows; the result then carries `edge_weight` (those weights) for the conditioning."""
     from scipy.optimize import least_squares
 
-    from recon.vanishing import _seg_residual
-
-    segs, sig = lines
-    idx = {"x": 0, "y": 1, "z": 2}
     a_e = _edge_weights(S, sig_e, edge_var, weighting)
     w = (np.sqrt(a_e) if weighting == "capped" else 1.0) / np.asarray(sig_e, float)
     if weighting == "capped":
@@ -343,8 +342,7 @@ def _solve(model: _Model, x0: np.ndarray, S: _Samples, q: np.ndarray, sig_e, lin
         cam = model.camera(x)
         uv, n = _project(cam, S)
         r = [np.sum(n * (q - uv), axis=1) * w]
-        KR = cam.K @ cam.R
-        r += [_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / sig[a] for a in segs]
+        r += _line_residuals(cam, lines)
         if model.free_pp and model.pp_prior:  # calibrate's prior: the principal point near the image centre
             r.append((cam.K[:2, 2] - pp0) / pp_sig)
         return np.concatenate(r)
@@ -649,8 +647,9 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         refined = model.camera(best.x)
     r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
     sigma_f = cam.focal_rel_sigma
+    chi2_lines, chi2_lim = _lines_chi2(refined, lines)
     if (not r.accepted and not r.fits and sigma_f is not None and np.isfinite(sigma_f) and sigma_f > 0
-            and _lines_chi2(refined, lines)[0] > _lines_chi2(refined, lines)[1]):
+            and chi2_lines > chi2_lim):
         # the first search's camera fits the room's edges somewhere the clicked lines refuse (a wrong
         # basin, not a room model the photo disagrees with: that fails the edge residual or the
         # conditioning, and a second search would only find another camera the model fits as badly):
@@ -694,8 +693,7 @@ def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str
     # whose grid leaves an edge at the median depth within CENTRE_STEP_PX / 2: their ICP starts at the
     # match radius of 4 grid steps (an edge at a quarter of the median depth)
     starts = [(np.zeros(model.n), COARSE_RADII_PX)]
-    grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
-    starts += [(np.pad(x0, (0, model.n - 6)), grid_radii) for _, x0 in _centre_search(cam, S0, photo)]
+    starts += [(np.pad(x0, (0, model.n - 6)), GRID_RADII_PX) for _, x0 in _centre_search(cam, S0, photo)]
     # each start's sub-pixel fit (a start whose sub-pixel stage did not run is dropped)
     fits = [dataclasses.replace(_fit(model, x0, radii, edges, occ, photo, lines, fine_stage), start="input" if i == 0
                                 else "centre search") for i, (x0, radii) in enumerate(starts)]
@@ -717,7 +715,9 @@ def _widened_search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_st
     """The fits from centre-search starts whose focal length is calibrate's moved by -2, -1, +1 and +2
     of its own sigma (each focal length's CENTRE_HYPOTHESES best grid minima: the grid's coarse cost
     does not rank the true basin first across focal lengths, so every one is fitted): refine_camera's
-    second search, run only when the first one's camera fails the guard (it costs up to 12 fits).
+    second search, run only when the first one's camera fails the guard on the clicked lines (it costs up
+    to 12 fits); its camera is taken only when it brings the room's edges closer by more than
+    EDGE_MODEL_SIGMA_PX (refine_camera).
 
     Why: calibrate's focal length comes from the vanishing points alone, and with a distant one (nearly
     parallel clicked segments) its sigma is a few per cent (focal_rel_sigma in camera.json). A start
@@ -733,8 +733,7 @@ def _widened_search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_st
     for k in (-2.0, -1.0, 1.0, 2.0):
         if 1.0 + k * focal_rel_sigma > 0.5:  # a focal length at least half the calibrated one
             pool += _centre_search(cam, S0, photo, float(np.log1p(k * focal_rel_sigma)))
-    grid_radii = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
-    fits = [dataclasses.replace(_fit(model, np.pad(x0, (0, model.n - 6)), grid_radii, edges, occ, photo, lines,
+    fits = [dataclasses.replace(_fit(model, np.pad(x0, (0, model.n - 6)), GRID_RADII_PX, edges, occ, photo, lines,
                                      fine_stage), start="focal search") for _, x0 in pool]
     return [f for f in fits if f.res is not None]
 
@@ -762,19 +761,26 @@ def _edge_gain(a: Camera, b: Camera, S: _Samples, photo: PhotoEdges) -> float:
     return float(np.mean([np.mean(da[S.edge == e] - db[S.edge == e]) for e in es]))
 
 
+def _line_residuals(cam: Camera, lines, normalised: bool = True) -> list[np.ndarray]:
+    """Per axis of the clicked lines (segs, sig), calibrate's residual of each segment under `cam`
+    (recon.vanishing._seg_residual, px), normalised by its noise (x sqrt(2) / sigma) unless not: the fit's
+    line terms (_solve), the guard's chi-square (_lines_chi2) and its rms."""
+    from recon.vanishing import _seg_residual
+
+    segs, sig = lines
+    KR = cam.K @ cam.R
+    out = [_seg_residual(segs[a], KR[:, AXIS[a]]) for a in segs]
+    return [r * np.sqrt(2.0) / sig[a] for r, a in zip(out, segs)] if normalised else out
+
+
 def _lines_chi2(cam: Camera, lines) -> tuple[float, float]:
     """Chi-square of the clicked lines' normalised residuals (calibrate's) under `cam`, and its 99.9 %
     point for that many segments (the guard's limit); (0, inf) without lines."""
     from scipy.stats import chi2
 
-    from recon.vanishing import _seg_residual
-
-    segs, sig = lines
-    if not segs:
+    if not lines[0]:
         return 0.0, float("inf")
-    idx = {"x": 0, "y": 1, "z": 2}
-    KR = cam.K @ cam.R
-    z = np.concatenate([_seg_residual(segs[a], KR[:, idx[a]]) * np.sqrt(2.0) / sig[a] for a in segs])
+    z = np.concatenate(_line_residuals(cam, lines))
     return float(z @ z), float(chi2.ppf(0.999, len(z)))
 
 
@@ -783,13 +789,10 @@ def _guard(cam, refined, fit: _Fit, lines, edges, occ, photo, seconds) -> Refine
     (_conditioning); it moves the room's edges by at least MIN_MOVE_PX (else the input already fits:
     `fits`); it agrees with the clicked lines within their noise; the edge residual (capped distance
     to the photo's oriented edges, on the room points either camera sees) drops; it lies in the room."""
-    from recon.vanishing import _seg_residual, rotation_error_deg
+    from recon.vanishing import rotation_error_deg
 
     res, S, used, resid = fit.res, fit.S, fit.used, fit.resid
-    idx = {"x": 0, "y": 1, "z": 2}
-    segs, sig = lines
-    KR = refined.K @ refined.R
-    lr = np.concatenate([_seg_residual(segs[a], KR[:, idx[a]]) for a in segs]) if segs else np.zeros(0)
+    lr = np.concatenate(_line_residuals(refined, lines, normalised=False)) if lines[0] else np.zeros(0)
     inl = np.abs(resid) <= 3 * ROBUST_SIGMAS * fit.sigma  # beyond 3x the loss's scale: an outlier
     # the same room points for both cameras: those either camera sees
     S0, S1 = _sample_edges(cam, edges, occ), S
