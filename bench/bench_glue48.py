@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import dataclasses
 import hashlib
 import sys
 import time
@@ -30,13 +29,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import app.stages.object_drag as object_drag  # noqa: E402
-from app.composite import default_cache_dir  # noqa: E402
-from app.dragpath import drag_offsets, moved  # noqa: E402
-from app.engine import Engine, EngineParams  # noqa: E402
-from app.evaluate import DRAG_PASSES, DRAG_SCALE, DRAG_SHADOW, path_stages_ms  # noqa: E402
-from bench.bench_drag import scene_dir  # noqa: E402
-from bench.bench_glue_cpu import ThreadCpu  # noqa: E402
-from recon.scene import load_scene  # noqa: E402
+from app.dragpath import moved  # noqa: E402
+from app.evaluate import path_stages_ms  # noqa: E402
+from bench.bench_glue_cpu import ThreadCpu, warm_drag  # noqa: E402
 
 _kernel_hit_average = object_drag.hit_average
 _disk_launch = object_drag.disk_sh_launch
@@ -66,12 +61,7 @@ def main() -> None:
     args = ap.parse_args()
     cpu = None
     for name in args.scenes.split(","):
-        scene = load_scene(scene_dir(name))
-        eng = Engine(scene, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
-        cfg = dataclasses.replace(eng.frame_config(), passes=DRAG_PASSES, drag=DRAG_SCALE, drag_shadow=DRAG_SHADOW)
-        offsets = drag_offsets(scene, scene.obj, args.path)
-        for o in offsets[:2]:
-            eng.render(moved(scene.obj, o), cfg)
+        scene, eng, cfg, offsets = warm_drag(name, args.path)
         cpu = cpu or ThreadCpu()
         variants = {"before": ("hits", "disk"), "hits": ("disk",), "after": ()}  # the levers left in numpy
         glue = {v: collections.defaultdict(float) for v in variants}

@@ -81,6 +81,19 @@ class ThreadCpu:
         self._last = (time.thread_time(), self.kernel)
 
 
+def warm_drag(name: str, n_path: int):
+    """(scene, engine, drag FrameConfig, offsets) of a scene (bench_drag.scene_dir's names) on evaluate's drag path
+    of n_path poses (DRAG_PASSES, DRAG_SCALE, DRAG_SHADOW), its first two poses rendered once (kernels compiled,
+    buffers made): what the glue benches time."""
+    scene = load_scene(scene_dir(name))
+    eng = Engine(scene, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
+    cfg = dataclasses.replace(eng.frame_config(), passes=DRAG_PASSES, drag=DRAG_SCALE, drag_shadow=DRAG_SHADOW)
+    offsets = drag_offsets(scene, scene.obj, n_path)
+    for o in offsets[:2]:
+        eng.render(moved(scene.obj, o), cfg)
+    return scene, eng, cfg, offsets
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", default="window_room,sun_room")
@@ -88,12 +101,7 @@ def main() -> None:
     args = ap.parse_args()
     cpu = None
     for name in args.scenes.split(","):
-        scene = load_scene(scene_dir(name))
-        eng = Engine(scene, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
-        cfg = dataclasses.replace(eng.frame_config(), passes=DRAG_PASSES, drag=DRAG_SCALE, drag_shadow=DRAG_SHADOW)
-        offsets = drag_offsets(scene, scene.obj, args.path)
-        for o in offsets[:2]:
-            eng.render(moved(scene.obj, o), cfg)
+        scene, eng, cfg, offsets = warm_drag(name, args.path)
         cpu = cpu or ThreadCpu()
         cpu.stage.clear()
         rows, stats = [], []

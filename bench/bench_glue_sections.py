@@ -11,7 +11,6 @@ depend on the load: compare sections of one run.
 from __future__ import annotations
 
 import collections
-import dataclasses
 import importlib
 import sys
 import threading
@@ -20,13 +19,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.composite import default_cache_dir  # noqa: E402
-from app.dragpath import drag_offsets, moved  # noqa: E402
-from app.engine import Engine, EngineParams  # noqa: E402
-from app.evaluate import DRAG_PASSES, DRAG_SCALE, DRAG_SHADOW  # noqa: E402
-from bench.bench_drag import scene_dir  # noqa: E402
-from bench.bench_glue_cpu import ThreadCpu  # noqa: E402
-from recon.scene import load_scene  # noqa: E402
+from app.dragpath import moved  # noqa: E402
+from bench.bench_glue_cpu import ThreadCpu, warm_drag  # noqa: E402
 
 
 SECTIONS = [  # (module, function or Class.method)
@@ -79,12 +73,7 @@ def _install(cpu: ThreadCpu, acc: dict) -> None:
 def main() -> None:
     name = sys.argv[1]
     n_path = int(sys.argv[2]) if len(sys.argv) > 2 else 8
-    scene = load_scene(scene_dir(name))
-    eng = Engine(scene, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
-    cfg = dataclasses.replace(eng.frame_config(), passes=DRAG_PASSES, drag=DRAG_SCALE, drag_shadow=DRAG_SHADOW)
-    offsets = drag_offsets(scene, scene.obj, n_path)
-    for o in offsets[:2]:
-        eng.render(moved(scene.obj, o), cfg)
+    scene, eng, cfg, offsets = warm_drag(name, n_path)
     cpu = ThreadCpu()
     acc: dict[str, float] = collections.defaultdict(float)
     _install(cpu, acc)

@@ -31,21 +31,27 @@ from pathlib import Path
 import numpy as np
 
 
-def _thread_cpu() -> dict[str, float]:
-    """CPU seconds (user + system) per thread group of this process: render, main, llvmpipe, other."""
+def threads_cpu() -> dict[tuple[str, str], float]:
+    """CPU seconds (user + system) per (thread id, thread name) of this process (/proc/self/task/*/stat)."""
     tick = os.sysconf("SC_CLK_TCK")
-    out: dict[str, float] = {}
-    main = os.getpid()
+    out = {}
     for tid in os.listdir("/proc/self/task"):
         try:
             with open(f"/proc/self/task/{tid}/stat") as f:
                 s = f.read()
         except OSError:
             continue
-        name = s[s.index("(") + 1:s.rindex(")")]
         fields = s[s.rindex(")") + 2:].split()
-        cpu = (int(fields[11]) + int(fields[12])) / tick
-        if int(tid) == main:
+        out[(tid, s[s.index("(") + 1:s.rindex(")")])] = (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
+def _thread_cpu() -> dict[str, float]:
+    """CPU seconds (user + system) per thread group of this process: render, main, llvmpipe, other."""
+    out: dict[str, float] = {}
+    main = str(os.getpid())
+    for (tid, name), cpu in threads_cpu().items():
+        if tid == main:
             key = "main"
         elif name.startswith("photoar-render"):
             key = "render"

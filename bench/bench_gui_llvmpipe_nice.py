@@ -21,11 +21,7 @@ win = PlacementWindow(ctl, choices, title="bench", width=1280, height=720)
 win._refine_at_rest = lambda pose: None
 B.settle(win, 0, 120)
 def lp_tids():
-    out = []
-    for tid in os.listdir("/proc/self/task"):
-        s = open(f"/proc/self/task/{tid}/stat").read()
-        if s[s.index("(")+1:s.rindex(")")].startswith("llvmpipe"): out.append(int(tid))
-    return out
+    return [int(tid) for tid, name in B.threads_cpu() if name.startswith("llvmpipe")]
 def setnice(v):
     for t in lp_tids(): os.setpriority(os.PRIO_PROCESS, t, v)
 start = ctl.pose

@@ -24,20 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-def _threads() -> dict[tuple[str, str], float]:
-    """CPU seconds (user + system) per (thread id, thread name) of this process."""
-    tick = os.sysconf("SC_CLK_TCK")
-    out = {}
-    for tid in os.listdir("/proc/self/task"):
-        try:
-            with open(f"/proc/self/task/{tid}/stat") as f:
-                s = f.read()
-        except OSError:
-            continue
-        fields = s[s.rindex(")") + 2:].split()
-        out[(tid, s[s.index("(") + 1:s.rindex(")")])] = (int(fields[11]) + int(fields[12])) / tick
-    return out
+from bench.bench_gui_drag import threads_cpu
 
 
 def _by_name(c0: dict, c1: dict) -> collections.Counter:
@@ -50,7 +37,7 @@ def _by_name(c0: dict, c1: dict) -> collections.Counter:
 def run_loop(app, secs: float, post=None, every: float = 0.2) -> tuple[collections.Counter, float, int]:
     """Tick the event loop for secs (1 ms sleeps, as run_drag_bench's loop); post() every `every` s when given.
     Returns (CPU s by thread name, wall s, posts)."""
-    c0, t0, last, k = _threads(), time.perf_counter(), -1e9, 0
+    c0, t0, last, k = threads_cpu(), time.perf_counter(), -1e9, 0
     while time.perf_counter() - t0 < secs:
         if post is not None and time.perf_counter() - last >= every:
             last = time.perf_counter()
@@ -58,7 +45,7 @@ def run_loop(app, secs: float, post=None, every: float = 0.2) -> tuple[collectio
             k += 1
         app.run_one_tick()
         time.sleep(0.001)
-    return _by_name(c0, _threads()), time.perf_counter() - t0, k
+    return _by_name(c0, threads_cpu()), time.perf_counter() - t0, k
 
 
 def _top(agg: collections.Counter, div: float) -> str:
