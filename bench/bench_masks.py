@@ -141,12 +141,15 @@ def apply(variant: str, shadow_pass) -> callable:
     if variant == "copycentres":  # the patch centres' transfers copied into the batch's weights (before masks48b)
         shadow_pass._centre_table = lambda W_c: None
         return lambda: delattr(shadow_pass, "_centre_table")
+    if variant == "numpyrefine":  # the graded lattice's refine tests in numpy (before drag36: refine_on_device False)
+        shadow_pass.refine_on_device = False
+        return lambda: setattr(shadow_pass, "refine_on_device", True)
     if variant.startswith("tol"):  # the graded lattice's refine tolerance tolN, N in percent (ShadowPass.refine_tol)
         was = shadow_pass.refine_tol
         shadow_pass.refine_tol = int(variant[3:]) / 100
         return lambda: setattr(shadow_pass, "refine_tol", was)
     raise SystemExit(f"unknown variant {variant!r} (base, points, tolN, soft, levels, "
-                     "blockloop, copycentres)")
+                     "blockloop, copycentres, numpyrefine)")
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:

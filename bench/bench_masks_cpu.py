@@ -1,13 +1,13 @@
 """The drag frame's "masks" stage as CPU time, variants A/B in one process (issue 36; loaded machines).
 
 usage: python bench/bench_masks_cpu.py [--scenes window_room,sun_room | DIR,...] [--path 8] [--rounds 3]
-                                       [--variants base,copycentres]
+                                       [--variants base,numpyrefine]
 
 Per scene one Engine (the default precompute cache) and evaluate's drag path (DRAG_PASSES, DRAG_SCALE,
 DRAG_SHADOW; --path poses after a warm-up frame), each variant (bench.bench_masks.apply) rendering the whole
 path in turn, in --rounds rounds interleaved over the variants. Per variant, ms per frame: the rendering thread's
-CPU in ShadowPass._graded_finer less its _sum calls ("refine": the graded lattice's numpy, kernels it launches
-itself included) and in ShadowPass.upload_batch (both parts of the glue), the masks stage's
+CPU in ShadowPass._graded_finer (or _graded_finer_device) less its _sum calls ("refine": the graded lattice's
+refine tests, numpy or kernels.graded_refine's launches; the spacing-8 corners' step in _run_graded not included) and in ShadowPass.upload_batch (both parts of the glue), the masks stage's
 glue CPU (the rendering thread's CPU outside its kernel calls between the FrameTimer ticks that close the
 stage: bench.bench_glue_cpu.ThreadCpu), its process CPU (time.process_time over ShadowPass.run: every thread)
 and the frame's process CPU, each as the mean over rounds and the per-round means; "same path": every path
@@ -65,18 +65,20 @@ def _timed_upload(upload):
     return timed
 
 
-def _timed_finer(finer, sum_):
-    """ShadowPass._graded_finer and _sum that add their thread's CPU time to FINER_CPU (_sum's inside _graded_finer
-    only)."""
+def _timed_finer(finers, sum_):
+    """ShadowPass._graded_finer and _graded_finer_device (finers), and _sum, that add their thread's CPU time to
+    FINER_CPU (_sum's inside either only)."""
     inside = [False]
 
-    def timed_finer(self, *a, **k):
-        t0, inside[0] = time.thread_time(), True
-        try:
-            return finer(self, *a, **k)
-        finally:
-            FINER_CPU[0] += time.thread_time() - t0
-            inside[0] = False
+    def timed(finer):
+        def timed_finer(self, *a, **k):
+            t0, inside[0] = time.thread_time(), True
+            try:
+                return finer(self, *a, **k)
+            finally:
+                FINER_CPU[0] += time.thread_time() - t0
+                inside[0] = False
+        return timed_finer
 
     def timed_sum(self, *a, **k):
         t0 = time.thread_time()
@@ -85,7 +87,7 @@ def _timed_finer(finer, sum_):
         finally:
             if inside[0]:
                 FINER_CPU[1] += time.thread_time() - t0
-    return timed_finer, timed_sum
+    return [timed(f) for f in finers], timed_sum
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int, cpu: list) -> None:
@@ -134,13 +136,14 @@ def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int, cpu: lis
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", default="window_room,sun_room")
-    ap.add_argument("--variants", default="base,copycentres")
+    ap.add_argument("--variants", default="base,numpyrefine")
     ap.add_argument("--path", type=int, default=8)
     ap.add_argument("--rounds", type=int, default=3)
     a = ap.parse_args()
     sp.ShadowPass.run = _timed_run(sp.ShadowPass.run)
     sp.ShadowPass.upload_batch = _timed_upload(sp.ShadowPass.upload_batch)
-    sp.ShadowPass._graded_finer, sp.ShadowPass._sum = _timed_finer(sp.ShadowPass._graded_finer, sp.ShadowPass._sum)
+    (sp.ShadowPass._graded_finer, sp.ShadowPass._graded_finer_device), sp.ShadowPass._sum = _timed_finer(
+        (sp.ShadowPass._graded_finer, sp.ShadowPass._graded_finer_device), sp.ShadowPass._sum)
     cpu: list = []
     for name in a.scenes.split(","):
         bench_scene(scene_dir(name), a.variants.split(","), a.path, a.rounds, cpu)

@@ -39,6 +39,7 @@ from tqdm import tqdm
 from app import runtime
 from kernels.buffers import Buffer
 from kernels.gather import ColumnGather
+from kernels.graded_refine import GradedRefine
 from kernels.masked_sums import PCSS_TAPS, MaskedSum
 from kernels.maskfill import WindowFill
 from kernels.shadowmap import ShadowMaps
@@ -150,6 +151,11 @@ class ShadowPass:
         self._vals = np.zeros((R, 3))  # their sums
         self._frac = np.zeros((R, 3))  # and their shadow fractions (sum / scale: _run_graded's refine test)
         self.refine_tol = REFINE_TOL
+        # graded frames: each spacing's refine test in one launch (kernels.graded_refine; False: the numpy of
+        # _graded_finer, its reference, for A/B)
+        self.refine_on_device = True
+        self._refine = GradedRefine(self.pt_sq, self.sq_corners, self.corners, self._known, self._allowed,
+                                    self._frac, device)
         self.graded = True  # False: every frame on the spacing-2 lattice (run's other branch), for A/B
         # exact within this many bounding radii (graded frames): inside the bounding sphere a receiver
         # may touch the object (contact shadows, no penumbra to interpolate); beyond it the lattice
@@ -426,8 +432,11 @@ class ShadowPass:
         self._centres = self._centre_table(W_c)  # the centres' transfers read in place where it can (the CPU)
         self.upload_batch(cand, W_pix, W_c, 0, n, cen, centres=self._centres is None)
 
-        sq8, c8 = self._square_corners(pend, 8)
-        first_pts = np.unique(np.concatenate([near, c8]))
+        if self.refine_on_device:  # the spacing-8 corners flagged by a kernel (_graded_finer_device)
+            sq8, (_, first_pts) = None, self._refine.step(pend, 0, 8, self.refine_tol, extra=near)
+        else:
+            sq8, c8 = self._square_corners(pend, 8)
+            first_pts = np.unique(np.concatenate([near, c8]))
         self.sums.select(np.concatenate([first_pts, R + cen]))
         self.sums.activate_groups(ok)
         self.sums.prepare(self.maps, n, 0, self.cand.dev,
@@ -435,7 +444,10 @@ class ShadowPass:
         acc = self._sum()
         O_cen = acc[len(first_pts):]
         self._summed(first_pts, acc[:len(first_pts)], scale)
-        masks = self._graded_finer(pend, sq8, first_pts, cen, O_cen, scale)
+        if self.refine_on_device:
+            masks = self._graded_finer_device(pend, first_pts, cen, O_cen, scale)
+        else:
+            masks = self._graded_finer(pend, sq8, first_pts, cen, O_cen, scale)
         yield n
         return masks
 
@@ -495,6 +507,40 @@ class ShadowPass:
             vals[new] = self._sum()
             known[new] = True
             exact.append(new)
+        return self._graded_masks(exact, fill_pt, fill_s, cen, O_cen)
+
+    def _graded_finer_device(self, pend: np.ndarray, first_pts: np.ndarray, cen: np.ndarray, O_cen: np.ndarray,
+                             scale: np.ndarray) -> Masks:
+        """_graded_finer with each spacing's refine test and the next spacing's corners in one launch
+        (kernels.graded_refine: the same tests, points and order, so the same Masks; no squares list)."""
+        exact, fill_pt, fill_s = [first_pts], [], []
+        for s, mark in ((8, 4), (4, 2)):
+            state, new = self._refine.step(pend, s, mark, self.refine_tol)
+            done = pend[state == 1]
+            fill_pt.append(done)
+            fill_s.append(np.full(len(done), s))
+            pend = pend[state == 2]
+            if len(new):
+                self.sums.select(new)
+                self._summed(new, self._sum(), scale)
+                exact.append(new)
+        state, _ = self._refine.step(pend, 2, 0, self.refine_tol)
+        done = pend[state == 1]
+        fill_pt.append(done)
+        fill_s.append(np.full(len(done), 2))
+        new = pend[state == 2]
+        if len(new):
+            self.sums.select(new)
+            self._vals[new] = self._sum()
+            self._known[new] = True
+            exact.append(new)
+        return self._graded_masks(exact, fill_pt, fill_s, cen, O_cen)
+
+    def _graded_masks(self, exact: list[np.ndarray], fill_pt: list[np.ndarray], fill_s: list[np.ndarray],
+                      cen: np.ndarray, O_cen: np.ndarray) -> Masks:
+        """The graded frame's Masks from its summed points (exact, in summing order), its filled points and their
+        spacings; the frame's known flags cleared and the fill's spacings set."""
+        known, vals = self._known, self._vals
         pix_pt = np.concatenate(exact)
         fill_pt, fill_s = np.concatenate(fill_pt), np.concatenate(fill_s)
         # a pixel filled at spacing 8 or 4 may be a corner of a finer square, summed after it was filled:

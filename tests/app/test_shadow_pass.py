@@ -591,3 +591,91 @@ def test_set_taps_refuses_fewer_than_two(demo):
     with pytest.raises(ValueError, match="at least 2 taps per axis, got 1"):
         sp.set_taps(1)
     assert sp.taps == before and sp.maps_full.taps == before
+
+
+def _refine_reference(sp, pend, test, mark, tol, extra=None):
+    """The numpy of _graded_finer's refine tests and next corners, per point (GradedRefine.step's contract)."""
+    known, allowed, frac = sp._known, sp._allowed, sp._frac
+    state = np.full(len(pend), 2, np.uint8)
+    if test:
+        c = sp.sq_corners[test][sp.pt_sq[test][pend]] if test in (4, 8) else sp.corners[pend].astype(np.int64)
+        c = np.where(c == -2, c[:, :1], c)  # a corner of zero weight: the first one
+        ok = np.all((c >= 0) & known[np.maximum(c, 0)], axis=1)
+        f = frac[np.maximum(c, 0)]
+        with np.errstate(invalid="ignore"):
+            ok &= (f.max(1) - f.min(1)).max(1) <= tol  # NaN: not agreed
+        state[ok] = 1
+        state[known[pend]] = 0
+    rest = pend[state == 2]
+    new = [np.zeros(0, np.int64) if extra is None else extra]
+    if mark in (4, 8):
+        c = sp.sq_corners[mark][sp.pt_sq[mark][rest]].reshape(-1)
+        c = c[c >= 0]
+        new.append(c[allowed[c] & ~known[c]])
+    elif mark == 2:
+        c2 = sp.corners[rest]
+        ok2 = (c2 >= 0) & allowed[np.maximum(c2, 0)]
+        n2 = np.concatenate([c2[ok2], rest[~ok2.any(1)]])
+        new.append(n2[~known[n2]])
+    return state, np.unique(np.concatenate(new))
+
+
+def test_refine_kernel_gives_the_numpy_refine_tests(demo):
+    # kernels.graded_refine (each spacing's refine test and the next corners in one launch) against the numpy it
+    # replaced, on the demo's lattices with random flags and fractions: the fractions on a grid of tol / 2 (so that
+    # many squares differ by exactly tol: the <= is tested at its edge), some NaN, and every test and mark mode.
+    # The outputs are flags and point lists: equal, no tolerance
+    _, eng = demo
+    sp = eng.shadow_pass
+    R = sp.n_pix_points
+    rng = np.random.default_rng(7)
+    tol = 0.1
+    saved = sp._known.copy(), sp._allowed.copy(), sp._frac.copy()
+    try:
+        for trial in range(3):
+            sp._known[:] = rng.random(R) < (0.2, 0.6, 0.95)[trial]
+            sp._allowed[:] = rng.random(R) < 0.9
+            sp._frac[:] = rng.integers(0, 3, (R, 3)) * (tol / 2) + 0.25
+            sp._frac[rng.random(R) < 0.01, rng.integers(0, 3)] = np.nan
+            pend = np.flatnonzero(sp._allowed & (rng.random(R) < 0.7))
+            extra = np.sort(rng.choice(R, 5, replace=False))
+            for test, mark in ((0, 8), (8, 4), (4, 2), (2, 0), (8, 0), (4, 8), (0, 2)):
+                st, new = sp._refine.step(pend, test, mark, tol, extra if test == 0 else None)
+                ref_st, ref_new = _refine_reference(sp, pend, test, mark, tol, extra if test == 0 else None)
+                assert (st == 1).sum() > 0 or test == 0
+                np.testing.assert_array_equal(st, ref_st)
+                np.testing.assert_array_equal(new, ref_new)
+                assert not sp._refine._need_np.any()  # the flags are left cleared
+    finally:
+        sp._known[:], sp._allowed[:], sp._frac[:] = saved
+
+
+def test_graded_frame_refined_by_the_kernel_is_the_numpy_frame(demo):
+    # the graded (drag) frame's masks with the refine tests launched (refine_on_device) are bitwise those of the
+    # numpy refine (_graded_finer), at two tolerances, and the frame fills and sums as many points as it did
+    scene, eng = demo
+    sp = eng.shadow_pass
+    pv, pf, occ, centre, radius, cov = _demo_object(scene, eng)
+    fs = eng.shadow_sources.select(pv.min(0), pv.max(0), 16)
+    tol0 = sp.refine_tol
+    try:
+        for tol in (tol0, tol0 / 4):
+            sp.refine_tol = tol
+            out = []
+            for on_device in (False, True):
+                sp.refine_on_device = on_device
+                steps = sp.run((pv, pf, occ), centre, radius, cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, False,
+                               spread=fs.spread, scale=eng.receivers.E_x)
+                while True:
+                    try:
+                        next(steps)
+                    except StopIteration as stop:
+                        out.append((stop.value, dict(sp.last_graded)))
+                        break
+            (a, ga), (b, gb) = out
+            assert ga == gb and ga[8] + ga[4] + ga[2] > 0
+            for f in ("pix_sel", "fill_sel", "cen_sel", "O_pix", "O_cen"):
+                np.testing.assert_array_equal(getattr(b, f), getattr(a, f))
+            assert not sp._known.any()
+    finally:
+        sp.refine_tol, sp.refine_on_device = tol0, True
