@@ -5,14 +5,17 @@ usage: python bench/bench_masks_cpu.py [--scenes window_room,sun_room | DIR,...]
 
 Per scene one Engine (the default precompute cache) and evaluate's drag path (DRAG_PASSES, DRAG_SCALE,
 DRAG_SHADOW; --path poses after a warm-up frame), each variant (bench.bench_masks.apply) rendering the whole
-path in turn, in --rounds rounds interleaved over the variants. Per variant, ms per frame: the rendering thread's
-CPU in ShadowPass._graded_finer (or _graded_finer_device) less its _sum calls ("refine": the graded lattice's
-refine tests, numpy or kernels.graded_refine's launches; the spacing-8 corners' step in _run_graded not included) and in ShadowPass.upload_batch (both parts of the glue), the masks stage's
-glue CPU (the rendering thread's CPU outside its kernel calls between the FrameTimer ticks that close the
-stage: bench.bench_glue_cpu.ThreadCpu), its process CPU (time.process_time over ShadowPass.run: every thread)
-and the frame's process CPU, each as the mean over rounds and the per-round means; "same path": every path
-frame byte-equal to the first variant's. CPU times vary less with the load than wall times, but still do:
-compare rows of one run.
+path in turn, in --rounds rounds interleaved over the variants. Per variant, ms per frame:
+- refine: the rendering thread's CPU in ShadowPass._graded_finer or _graded_finer_device less their _sum calls
+  (the graded lattice's refine tests, numpy or kernels.graded_refine's launches; the spacing-8 corners' step in
+  _run_graded not included);
+- upload: its CPU in ShadowPass.upload_batch;
+- glue: the masks stage's glue CPU (the rendering thread's CPU outside its kernel calls between the FrameTimer
+  ticks that close the stage: bench.bench_glue_cpu.ThreadCpu);
+- masks: the stage's process CPU (time.process_time over ShadowPass.run: every thread);
+- frame, wall: the frame's process CPU and its wall time (the load's waits included);
+each as the mean over rounds and the per-round means; "same path": every path frame byte-equal to the first
+variant's. CPU times vary less with the load than wall times, but still do: compare rows of one run.
 """
 from __future__ import annotations
 
@@ -100,7 +103,8 @@ def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int, cpu: lis
     if not cpu:
         cpu.append(ThreadCpu())
     tc = cpu[0]
-    rows = {v: {"refine": [], "upload": [], "glue": [], "masks": [], "frame": [], "hashes": []} for v in variants}
+    rows = {v: {"refine": [], "upload": [], "glue": [], "masks": [], "frame": [], "wall": [], "hashes": []}
+            for v in variants}
     for _ in range(rounds):
         for v in variants:
             undo = apply(v, shadow_pass)
@@ -108,6 +112,7 @@ def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int, cpu: lis
                 eng.render(moved(scene.obj, offsets[0]), cfg)  # warm
                 tc.stage.clear()
                 m0, u0, p0, f0 = MASKS_CPU[0], UPLOAD_CPU[0], time.process_time(), FINER_CPU[0] - FINER_CPU[1]
+                w0 = time.perf_counter()
                 hashes = []
                 for o in offsets[1:]:
                     tc.start_frame()
@@ -116,6 +121,7 @@ def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int, cpu: lis
                 n = len(offsets) - 1
                 q = rows[v]
                 q["frame"].append(1e3 * (time.process_time() - p0) / n)
+                q["wall"].append(1e3 * (time.perf_counter() - w0) / n)
                 q["masks"].append(1e3 * (MASKS_CPU[0] - m0) / n)
                 q["upload"].append(1e3 * (UPLOAD_CPU[0] - u0) / n)
                 q["refine"].append(1e3 * (FINER_CPU[0] - FINER_CPU[1] - f0) / n)
@@ -128,7 +134,7 @@ def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int, cpu: lis
     for v in variants:
         q = rows[v]
         cols = "  ".join(f"{k} {np.mean(q[k]):6.1f} ({' / '.join(f'{x:.1f}' for x in q[k])})"
-                         for k in ("refine", "upload", "glue", "masks", "frame"))
+                         for k in ("refine", "upload", "glue", "masks", "frame", "wall"))
         same = all(h == ref[0] for h in q["hashes"]) and all(h == ref[0] for h in ref)
         print(f"  {v:>12}: {cols}  {'same path' if same else 'PATH DIFFERS'}", flush=True)
 

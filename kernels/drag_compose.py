@@ -39,37 +39,19 @@ def coarse_ratio_kernel(room_c: wp.array2d(dtype=wp.float32), inv_c: wp.array2d(
 
 
 @wp.func
-def _compose_pixel(i: int, W: int, w: int, h: int, s: int, ratio_c: wp.array(dtype=wp.vec3f),
-                        recv: wp.array(dtype=wp.uint8),
-                        sun: wp.array2d(dtype=wp.float32),
-                        px: wp.array2d(dtype=wp.float64), cov: wp.array(dtype=wp.float32),
-                        obj: wp.array2d(dtype=wp.float32), tab: wp.array2d(dtype=wp.float64),
-                        grid: wp.array2d(dtype=wp.int32), rtab: wp.array2d(dtype=wp.int16), exposure: wp.float64,
-                        out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
+def _compose_pixel(i: int, rf: wp.vec3f, rec: bool, sun: wp.array2d(dtype=wp.float32),
+                   px: wp.array2d(dtype=wp.float64), cov: wp.array(dtype=wp.float32),
+                   obj: wp.array2d(dtype=wp.float32), tab: wp.array2d(dtype=wp.float64),
+                   grid: wp.array2d(dtype=wp.int32), rtab: wp.array2d(dtype=wp.int16), exposure: wp.float64,
+                   out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
                    out_pix: wp.array2d(dtype=wp.uint8)):
-    """Full pixel i of drag_compose_kernel."""
+    """Full pixel i of drag_compose_kernel, given its bilinear ratio rf (read where rec: the pixel is a receiver)."""
     zero = wp.float64(0.0)
     one = wp.float64(1.0)
     full = wp.float64(255.0)
     moved = False
     ratio = wp.vec3d(one, one, one)
-    if recv[i] != wp.uint8(0):
-        y = i // W
-        x = i - y * W
-        sf = wp.float32(s)
-        fx = (wp.float32(x) + wp.float32(0.5)) / sf - wp.float32(0.5)
-        fy = (wp.float32(y) + wp.float32(0.5)) / sf - wp.float32(0.5)
-        x0 = int(wp.floor(fx))
-        y0 = int(wp.floor(fy))
-        ax = fx - wp.float32(x0)
-        ay = fy - wp.float32(y0)
-        xa = wp.clamp(x0, 0, w - 1)
-        xb = wp.clamp(x0 + 1, 0, w - 1)
-        ya = wp.clamp(y0, 0, h - 1)
-        yb = wp.clamp(y0 + 1, 0, h - 1)
-        top = (wp.float32(1.0) - ax) * ratio_c[ya * w + xa] + ax * ratio_c[ya * w + xb]
-        bot = (wp.float32(1.0) - ax) * ratio_c[yb * w + xa] + ax * ratio_c[yb * w + xb]
-        rf = (wp.float32(1.0) - ay) * top + ay * bot
+    if rec:
         for c in range(3):
             r = wp.float64(rf[c])
             ratio[c] = r
@@ -112,6 +94,14 @@ def _compose_pixel(i: int, W: int, w: int, h: int, s: int, ratio_c: wp.array(dty
             out_pix[i, c] = wp.uint8(int(wp.clamp(wp.rint(pl[c]), zero, full)))
 
 
+@wp.func
+def _row_of(y: int, s: int):
+    """(ay, y0) of full row y: its bilinear weight and upper coarse row, unclamped (module doc; float32)."""
+    fy = (wp.float32(y) + wp.float32(0.5)) / wp.float32(s) - wp.float32(0.5)
+    y0 = int(wp.floor(fy))
+    return fy - wp.float32(y0), y0
+
+
 @wp.kernel
 def drag_compose_kernel(first: int, n: int, W: int, w: int, h: int, s: int, ratio_c: wp.array(dtype=wp.vec3f),
                         recv: wp.array(dtype=wp.uint8), sun: wp.array2d(dtype=wp.float32),
@@ -124,12 +114,83 @@ def drag_compose_kernel(first: int, n: int, W: int, w: int, h: int, s: int, rati
     (h*w,) the coarse pixels' ratios (coarse_ratio_kernel); recv (N,) 1 where the full pixel is a receiver;
     sun (N,3) the sun's share u (cleared as read); px the HDR per-scene table (pixel_compose.PX_*); cov (N,)
     and obj (N,3) the object's coverage and radiance at full resolution; out, out_room, out_pix as
-    pixel_compose.compose_kernel's."""
+    pixel_compose.compose_kernel's. The run's row terms are computed once per row, and its four coarse ratios
+    read again only where the left coarse column changes (the same float32 arithmetic per pixel as one
+    thread per pixel: the same bytes)."""
+    i0 = first + wp.tid() * PIXELS_PER_THREAD
+    i1 = wp.min(i0 + PIXELS_PER_THREAD, first + n)
+    sf = wp.float32(s)
+    y = i0 // W
+    row_end = (y + 1) * W
+    ay, y0 = _row_of(y, s)
+    last_x0 = int(-2)  # the left coarse column whose four ratios ta, tb, ba, bb hold (none yet)
+    ta = wp.vec3f()
+    tb = wp.vec3f()
+    ba = wp.vec3f()
+    bb = wp.vec3f()
+    for i in range(i0, i1):
+        if i == row_end:  # the run goes on in the next row
+            y = y + 1
+            row_end = row_end + W
+            ay, y0 = _row_of(y, s)
+            last_x0 = -2
+        rf = wp.vec3f(1.0, 1.0, 1.0)
+        rec = recv[i] != wp.uint8(0)
+        if rec:
+            x = i - y * W
+            fx = (wp.float32(x) + wp.float32(0.5)) / sf - wp.float32(0.5)
+            x0 = int(wp.floor(fx))
+            ax = fx - wp.float32(x0)
+            if x0 != last_x0:
+                xa = wp.clamp(x0, 0, w - 1)
+                xb = wp.clamp(x0 + 1, 0, w - 1)
+                ya = wp.clamp(y0, 0, h - 1)
+                yb = wp.clamp(y0 + 1, 0, h - 1)
+                ta = ratio_c[ya * w + xa]
+                tb = ratio_c[ya * w + xb]
+                ba = ratio_c[yb * w + xa]
+                bb = ratio_c[yb * w + xb]
+                last_x0 = x0
+            top = (wp.float32(1.0) - ax) * ta + ax * tb
+            bot = (wp.float32(1.0) - ax) * ba + ax * bb
+            rf = (wp.float32(1.0) - ay) * top + ay * bot
+        _compose_pixel(i, rf, rec, sun, px, cov, obj, tab, grid, rtab, exposure, out, out_room, out_pix)
+
+
+@wp.kernel
+def drag_compose_pixelwise_kernel(first: int, n: int, W: int, w: int, h: int, s: int,
+                                  ratio_c: wp.array(dtype=wp.vec3f), recv: wp.array(dtype=wp.uint8),
+                                  sun: wp.array2d(dtype=wp.float32), px: wp.array2d(dtype=wp.float64),
+                                  cov: wp.array(dtype=wp.float32), obj: wp.array2d(dtype=wp.float32),
+                                  tab: wp.array2d(dtype=wp.float64), grid: wp.array2d(dtype=wp.int32),
+                                  rtab: wp.array2d(dtype=wp.int16), exposure: wp.float64,
+                                  out: wp.array2d(dtype=wp.float32), out_room: wp.array2d(dtype=wp.float32),
+                                  out_pix: wp.array2d(dtype=wp.uint8)):
+    """drag_compose_kernel with each pixel's row, columns and four coarse ratios found on their own (as before
+    drag36): its reference (tests, DragCompose.rowwise False for A/B)."""
     i0 = first + wp.tid() * PIXELS_PER_THREAD
     i1 = wp.min(i0 + PIXELS_PER_THREAD, first + n)
     for i in range(i0, i1):
-        _compose_pixel(i, W, w, h, s, ratio_c, recv, sun, px, cov, obj, tab, grid, rtab, exposure, out, out_room,
-                       out_pix)
+        rf = wp.vec3f(1.0, 1.0, 1.0)
+        rec = recv[i] != wp.uint8(0)
+        if rec:
+            y = i // W
+            x = i - y * W
+            sf = wp.float32(s)
+            fx = (wp.float32(x) + wp.float32(0.5)) / sf - wp.float32(0.5)
+            fy = (wp.float32(y) + wp.float32(0.5)) / sf - wp.float32(0.5)
+            x0 = int(wp.floor(fx))
+            y0 = int(wp.floor(fy))
+            ax = fx - wp.float32(x0)
+            ay = fy - wp.float32(y0)
+            xa = wp.clamp(x0, 0, w - 1)
+            xb = wp.clamp(x0 + 1, 0, w - 1)
+            ya = wp.clamp(y0, 0, h - 1)
+            yb = wp.clamp(y0 + 1, 0, h - 1)
+            top = (wp.float32(1.0) - ax) * ratio_c[ya * w + xa] + ax * ratio_c[ya * w + xb]
+            bot = (wp.float32(1.0) - ax) * ratio_c[yb * w + xa] + ax * ratio_c[yb * w + xb]
+            rf = (wp.float32(1.0) - ay) * top + ay * bot
+        _compose_pixel(i, rf, rec, sun, px, cov, obj, tab, grid, rtab, exposure, out, out_room, out_pix)
 
 
 class DragCompose:
@@ -156,6 +217,7 @@ class DragCompose:
         self._cov = _Mirror((n,), f32, device)
         self._obj = _Mirror((n, 3), f32, device)
         self._rect: tuple[int, int, int, int] | None = None  # the object's rectangle written last (run)
+        self.rowwise = True  # drag_compose_kernel; False: drag_compose_pixelwise_kernel, the same bytes (A/B)
 
     def _object(self, cov: np.ndarray, obj_rad: np.ndarray, rect: tuple[int, int, int, int] | None) -> None:
         """The object's coverage and radiance into their buffers: the whole frame (rect None), or only the
@@ -202,7 +264,8 @@ class DragCompose:
         wp.launch(coarse_ratio_kernel, dim=self.h * self.w, device=d, inputs=[self._room.dev, self._inv.dev, self._ratio])
 
         def launch(lo: int, hi: int) -> None:
-            wp.launch(drag_compose_kernel, dim=-(-(hi - lo) // PIXELS_PER_THREAD), device=d,
+            kernel = drag_compose_kernel if self.rowwise else drag_compose_pixelwise_kernel
+            wp.launch(kernel, dim=-(-(hi - lo) // PIXELS_PER_THREAD), device=d,
                       inputs=[lo, hi - lo, self.W, self.w, self.h, self.s, self._ratio, self._recv.dev,
                               self._sun.dev, k._px["hdr"], self._cov.dev, self._obj.dev,
                               k._tab, k._grid, k._rtab, k._exposure, *outs])
