@@ -17,6 +17,8 @@ truth (lighting.metrics), with the largest level difference from the first varia
 - tolN: the graded lattice's refine tolerance N % (ShadowPass.refine_tol);
 - copycentres: the patch centres' transfers copied into the batch's weights by upload_batch (before masks48b),
   not read by the sums in place from W_c (ShadowPass._centre_table None);
+- numpyrefine: the graded lattice's refine tests in numpy (ShadowPass.refine_on_device False; before drag36);
+- pixelwise: the drag compose's kernel pixel by pixel (DragCompose.rowwise False, for every engine; before drag36);
 - A+B: variants A and B together.
 Prints per variant the means over the path of the masks and upsample stages (wall), the frame's wall and
 CPU time (the process's, all threads), and "crit": the frame's critical path in CPU time, the rendering
@@ -144,12 +146,16 @@ def apply(variant: str, shadow_pass) -> callable:
     if variant == "numpyrefine":  # the graded lattice's refine tests in numpy (before drag36: refine_on_device False)
         shadow_pass.refine_on_device = False
         return lambda: setattr(shadow_pass, "refine_on_device", True)
+    if variant == "pixelwise":  # the drag compose's kernel pixel by pixel (before drag36: DragCompose.rowwise False)
+        from kernels.drag_compose import DragCompose
+        DragCompose.rowwise = False
+        return lambda: setattr(DragCompose, "rowwise", True)
     if variant.startswith("tol"):  # the graded lattice's refine tolerance tolN, N in percent (ShadowPass.refine_tol)
         was = shadow_pass.refine_tol
         shadow_pass.refine_tol = int(variant[3:]) / 100
         return lambda: setattr(shadow_pass, "refine_tol", was)
     raise SystemExit(f"unknown variant {variant!r} (base, points, tolN, soft, levels, "
-                     "blockloop, copycentres, numpyrefine)")
+                     "blockloop, copycentres, numpyrefine, pixelwise)")
 
 
 def bench_scene(d: Path, variants: list[str], n_path: int, rounds: int) -> None:

@@ -200,6 +200,8 @@ class DragCompose:
     made once, the outputs from the compositor's pool (Compositor._outputs: a frame that is still held
     keeps its arrays); per frame one launch per core and no allocation."""
 
+    rowwise = True  # drag_compose_kernel; False: drag_compose_pixelwise_kernel, the same bytes (A/B: bench/)
+
     def __init__(self, compositor, shape: tuple[int, int], coarse: tuple[int, int], scale: int,
                  inv_Lb_c: np.ndarray, recv: np.ndarray, device: str):
         """compositor: the full frame's Compositor; shape (H,W), coarse (h,w); inv_Lb_c (h*w,3) float32;
@@ -217,7 +219,6 @@ class DragCompose:
         self._cov = _Mirror((n,), f32, device)
         self._obj = _Mirror((n, 3), f32, device)
         self._rect: tuple[int, int, int, int] | None = None  # the object's rectangle written last (run)
-        self.rowwise = True  # drag_compose_kernel; False: drag_compose_pixelwise_kernel, the same bytes (A/B)
 
     def _object(self, cov: np.ndarray, obj_rad: np.ndarray, rect: tuple[int, int, int, int] | None) -> None:
         """The object's coverage and radiance into their buffers: the whole frame (rect None), or only the

@@ -180,6 +180,51 @@ def test_drag_compose_kernel_matches_its_reference(demo_engine):
     assert np.array_equal(pix1, scene.photo)
 
 
+def test_rowwise_drag_compose_is_the_pixelwise_kernel_bit_for_bit(demo_engine):
+    # drag_compose_kernel (each thread's run: row terms once, the four coarse ratios read again only where the left
+    # coarse column changes) against drag_compose_pixelwise_kernel (every pixel its own, the kernel it replaced):
+    # the same bytes, at scales 2 and 3 (3: the coarse image's last column and row clamped), with the sun's share
+    # and the object, the frame cut into ranges that start mid-row (runs that cross into the next row)
+    from app.engine import FrameConfig
+    from kernels import runtime
+
+    scene, eng = demo_engine
+    fr = eng.render(scene.obj, FrameConfig(passes=50, drag=2))
+    rng = np.random.default_rng(4)
+    cov = fr.coverage
+    obj_rad = fr.radiance * (cov[..., None] > 0)
+    for s in (2, 3):
+        px = eng.pixel_stages(s)
+        h, w = px.shape
+        room_c = (px.receivers.L_b.reshape(h, w, 3) * rng.uniform(0.6, 1.1, (h, w, 1))).astype(np.float32)
+        sun_pix = np.flatnonzero(eng.receivers.recv_pix)[::5]
+        share = rng.uniform(0.0, 0.5, (len(sun_pix), 3))
+        dc = px._compose
+        n = dc.H * dc.W
+        cuts = [0, 1000, 20011, n // 2 + 7, n]  # ranges that start mid-row
+
+        def split(launch, m):
+            assert m == n
+            for a, b in zip(cuts, cuts[1:]):
+                launch(a, b)
+        outs = []
+        try:
+            for rowwise in (False, True):
+                dc.rowwise = rowwise
+                outs.append([x.copy() for x in dc.run(room_c, cov.reshape(-1).astype(np.float32),
+                                                      obj_rad.reshape(-1, 3).astype(np.float32), split,
+                                                      (sun_pix, share))])
+                outs.append([x.copy() for x in dc.run(room_c, cov.reshape(-1).astype(np.float32),
+                                                      obj_rad.reshape(-1, 3).astype(np.float32),
+                                                      lambda launch, m: runtime.launch_split(launch, m))])
+        finally:
+            dc.rowwise = True
+        for a, b in zip(outs[:2], outs[2:]):
+            for x, y in zip(a, b):
+                assert np.array_equal(x, y)
+        assert not np.array_equal(outs[0][2], outs[1][2])  # the sun's share moved pixels
+
+
 def test_drag_finish_copies_only_the_objects_rectangle_bit_for_bit(demo_engine):
     # DragStages.finish given the object's rectangle (ObjectHits.rect: cov and obj_rad are 0 outside it) copies
     # only that rectangle into the kernel's buffers, the last one's zeroed first: along a drag (the rectangle
