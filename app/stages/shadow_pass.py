@@ -154,8 +154,6 @@ class ShadowPass:
         # graded frames: each spacing's refine test in one launch (kernels.graded_refine; False: the numpy of
         # _graded_finer, its reference, for A/B)
         self.refine_on_device = True
-        self._refine = GradedRefine(self.pt_sq, self.sq_corners, self.corners, self._known, self._allowed,
-                                    self._frac, device)
         self.graded = True  # False: every frame on the spacing-2 lattice (run's other branch), for A/B
         # exact within this many bounding radii (graded frames): inside the bounding sphere a receiver
         # may touch the object (contact shadows, no penumbra to interpolate); beyond it the lattice
@@ -187,6 +185,13 @@ class ShadowPass:
         self._gather = ColumnGather(max(n_recv_vert, P), batch, device) if wp.get_device(device).is_cpu else None
         self._fill = WindowFill(W, H, self.pix_quad, device)
         self._covered = np.zeros(H * W, bool)  # scratch: pixels the object covers, this frame
+
+    @functools.cached_property
+    def _refine(self) -> GradedRefine:
+        """The graded frames' refine launches (kernels.graded_refine), made on the first graded frame: its lattice
+        tables on the device, a few MB at full resolution that the frames at rest never read."""
+        return GradedRefine(self.pt_sq, self.sq_corners, self.corners, self._known, self._allowed, self._frac,
+                            self.device)
 
     def set_taps(self, taps: int) -> None:
         """The PCSS taps per axis of every map set's cluster lookups from now on (ShadowMaps.taps; the
