@@ -182,6 +182,8 @@ def trace_drag(win, n: int) -> dict:
             "breakdown_ms": {k: round(1e3 * float(np.mean(v)), 1) if v else None for k, v in parts.items()},
             "frames_rendered": sum(1 for r in drag_renders if not r[3]),
             "frames_abandoned": sum(1 for r in drag_renders if r[3]),
+            # of those, abandoned before the last move (the pointer taken for at rest mid-drag: a frame lost)
+            "abandoned_mid_drag": sum(1 for r in drag_renders if r[3] and r[1] < moves[-1][0]),
             "render_ms_mean": round(1e3 * float(np.mean([r[1] - r[0] for r in drag_renders if not r[3]])), 1)
             if drag_renders else None,
             "previews": len(previews),
@@ -198,6 +200,7 @@ VARIANTS: dict[str, dict] = {
     "new": {"DRAG_PREVIEWS": False, "SKIP_HIDDEN_3D": True},  # gui48's: drawn once per frame while dragging
     "w1280": {"size": (1280, 720)},  # main's default window (gui48's), the 640x480 photo scaled up 1.45x
     "fit": {"size": "fit"},  # gui36's default window: the photo 1:1 beside the panel (940x502 for 640x480)
+    "rest1": {"size": "fit", "REST_TWO_TICKS": False},  # main's rest rule: one tick STILL_S after the last edit
 }
 
 
@@ -208,7 +211,9 @@ def apply_variant(win, name: str, base_state: dict) -> None:
         setattr(g, k, v)
     for k, v in VARIANTS[name].items():
         if k == "size":
-            size = win._fit_size(tab_h=win.image.frame.y - win.tabs.frame.y) if v == "fit" else v
+            laid_out = win.image.frame.height > 0  # before the first layout: the size the window opened with
+            size = (win._fit_size(tab_h=win.image.frame.y - win.tabs.frame.y) if laid_out else win._fit_set) \
+                if v == "fit" else v
             if (win.window.size.width, win.window.size.height) != tuple(size):
                 win.window.size = win.gui.Size(*size)
         else:
