@@ -57,10 +57,11 @@ DRAG_PREVIEWS = False
 # replaced since, is then abandoned between two of its stages (Engine.render's stop) so that the resting
 # pose's frame starts at once instead of after it: the rested pose is on screen up to a frame sooner. While
 # the edits keep coming every frame is finished: each would be overtaken before its end, and none shown.
-# REST_TWO_TICKS: the tick STILL_S after the last edit must be followed by another tick's start with no edit
-# between (the rest is read at the start of the tick after the one that saw STILL_S pass). One tick was not
-# enough: a tick held up by a draw past STILL_S looked like a rest whether Open3D calls the tick's callback before
-# or after the input it delivers, and the bench's drags lost frames mid-drag that way (gui36; docs/benchmarks.md).
+# REST_TWO_TICKS: the tick that ends STILL_S after the last edit must be followed by another tick with no edit
+# between (the rest is read at the end of the tick after the one that saw STILL_S pass). One tick was not enough: Open3D
+# calls the tick callback at the end of the tick, after its draw (bench/bench_gui_tick_order.py), so a tick whose
+# draw ran past STILL_S looked like a rest before the moves made meanwhile were delivered by the next tick, and
+# the frame under way was abandoned mid-drag (gui36, docs/benchmarks.md).
 STILL_S = 3 / 60
 REST_TWO_TICKS = True
 # The 3D view's object is uploaded only while the 3D tab is shown (_show_object): each upload costs the main thread
@@ -287,8 +288,8 @@ class PlacementWindow:
         self._preview_t = -math.inf  # when the last outline preview was drawn (perf_counter s)
         self._dragging = False  # the mouse button is down on the photo: a gesture is under way (no refinement)
         self._edit_t = -math.inf  # when the last edit changed the pose (perf_counter s; main thread writes it)
-        self._tick_t = -math.inf  # when the event loop's last tick began (perf_counter s; _on_tick writes it)
-        self._tick_prev = -math.inf  # when the tick before it began (_overtaken's rest)
+        self._tick_t = -math.inf  # when the event loop's last tick ran _on_tick (perf_counter s; at the tick's end)
+        self._tick_prev = -math.inf  # when the tick before it did (_overtaken's rest)
 
         # default size: the frames 1:1 (default_window_size); the tab bar's height is checked once laid out (_on_tick)
         self._fit_pending = width is None or height is None
@@ -488,7 +489,7 @@ class PlacementWindow:
 
     def _overtaken(self, pose: Pose) -> bool:
         """Abandon the frame of `pose` under way? The window closed, or an edit replaced the pose and the
-        pointer has rested: a tick of the event loop began STILL_S after the last edit and another began after it
+        pointer has rested: a tick of the event loop ended STILL_S after the last edit and another ended after it
         with no edit since (REST_TWO_TICKS; else the first of them is enough)."""
         tick = self._tick_prev if REST_TWO_TICKS else self._tick_t
         return self.closed or (pose != self.ctl.pose and tick - self._edit_t >= STILL_S)

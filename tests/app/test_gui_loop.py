@@ -203,10 +203,10 @@ def test_no_preview_is_drawn_while_the_button_is_held():
     assert w._preview() and drawn == ["label", "object"] and not w._preview_due
 
 
-def test_a_tick_held_up_past_still_s_is_not_a_rest_until_another_tick_begins():
-    # a move at t = 0; a tick that began before it and a draw that held the next tick's start up to 2 STILL_S:
-    # the pointer may be moving still (its moves arrive in the next tick), so pose 1's frame is not abandoned;
-    # once another tick begins with no edit since, the pointer has rested and it is
+def test_a_tick_held_up_past_still_s_is_not_a_rest_until_another_tick_ends():
+    # a move at t = 0, after a tick that ended before it; the next tick's draw held its end (where Open3D runs the
+    # tick callback) up to 2 STILL_S: the pointer may be moving still (its moves arrive in the next tick), so the
+    # replaced pose's frame is not abandoned; once another tick ends with no edit since, the pointer has rested
     from app.gui import STILL_S
 
     ctl = _Controller()
