@@ -71,7 +71,9 @@ def register(sub) -> None:
                    help="script a drag of N mouse moves through the window's event loop (one each 1/60 s), then "
                         "print one JSON line: events, event_to_screen_ms_mean, event_to_screen_ms_p95, "
                         "frames_shown; and exit (run it under xvfb-run)")
-    g.add_argument("--window", type=_size, default=(1280, 720), metavar="WxH", help="window size (default 1280x720)")
+    g.add_argument("--window", type=_size, default=None, metavar="WxH",
+                   help="window size (default: the photo at its own pixel size beside the panel, scaled down to fit "
+                        "the screen; the window stays resizable)")
     g.add_argument("--cache", type=Path, default=None,
                    help="folder for per-scene precompute (default $PHOTOAR_CACHE or ~/.cache/photoar)")
     from app.cli import add_lighting_arg, add_sun_arg
@@ -127,7 +129,8 @@ def run_model(a: argparse.Namespace) -> int:
 
     app = gui.Application.instance
     app.initialize()
-    win = ModelWindow(ctl, out, title=f"photoar - model {room.name}", width=a.window[0], height=a.window[1])
+    width, height = a.window or (1280, 720)  # the model window keeps 1280x720 by default
+    win = ModelWindow(ctl, out, title=f"photoar - model {room.name}", width=width, height=height)
     if events is None:
         app.run()
         return 0
@@ -203,8 +206,9 @@ def _show(a: argparse.Namespace, ctl, choices) -> int:
 
     app = gui.Application.instance
     app.initialize()
-    win = PlacementWindow(ctl, choices, title=f"photoar - {ctl.scene.name}", width=a.window[0],
-                          height=a.window[1], object_size=a.object_size)
+    width, height = a.window or (None, None)
+    win = PlacementWindow(ctl, choices, title=f"photoar - {ctl.scene.name}", width=width, height=height,
+                          object_size=a.object_size)
     if a.drag_bench is not None:
         import json
 

@@ -57,11 +57,22 @@ DRAG_PREVIEWS = False
 # replaced since, is then abandoned between two of its stages (Engine.render's stop) so that the resting
 # pose's frame starts at once instead of after it: the rested pose is on screen up to a frame sooner. While
 # the edits keep coming every frame is finished: each would be overtaken before its end, and none shown.
+# REST_TWO_TICKS: the tick that ends STILL_S after the last edit must be followed by another tick with no edit
+# between (the rest is read at the end of the tick after the one that saw STILL_S pass). One tick was not enough: Open3D
+# calls the tick callback at the end of the tick, after its draw (bench/bench_gui_tick_order.py), so a tick whose
+# draw ran past STILL_S looked like a rest before the moves made meanwhile were delivered by the next tick, and
+# the frame under way was abandoned mid-drag (gui36, docs/benchmarks.md).
 STILL_S = 3 / 60
+REST_TWO_TICKS = True
 # The 3D view's object is uploaded only while the 3D tab is shown (_show_object): each upload costs the main thread
 # a mesh and the renderer a new geometry, for a view that is not drawn while the Photo tab is.
 SKIP_HIDDEN_3D = True
 SETTLE_TICKS = 20  # redraws before a scripted screenshot is compared (settled_screenshot)
+# The default window shows the frames at their own pixel size (default_window_size): where the window is drawn on the
+# CPU (Mesa's llvmpipe), a draw costs CPU per window pixel, and a 640x480 photo scaled up to a 1280x720 window cost
+# ~2x the draw for no detail (docs/benchmarks.md, "The window at the photo's own size (gui36)").
+SCREEN_MARGIN_PX = 64  # px of the screen left free each way by the default window (title bar, task bar)
+TAB_BAR_EM = 1.375  # the TabControl's tab bar height in font sizes (22 px at Open3D's 16 px font; checked at layout)
 
 
 # ---------------------------------------------------------------------------- X11 screenshot
@@ -79,15 +90,13 @@ _x_errors: list[int] = []
 _x_handler = _X_ERROR_HANDLER(lambda d, e: _x_errors.append(1) or 0)
 
 
-def grab_screen(x: int, y: int, w: int, h: int) -> np.ndarray:
-    """RGB (h,w,3) uint8 of the X display's root window in the rectangle (x, y, w, h), clipped
-    to the screen (Xlib XGetImage through ctypes; needs a 24/32-bit TrueColor X server such as
-    Xvfb). RuntimeError when there is no X display or the grab fails."""
+def _xlib(what: str):
+    """Xlib through ctypes with the calls used here declared; RuntimeError naming `what` when it cannot load."""
     name = ctypes.util.find_library("X11") or "libX11.so.6"
     try:
         x11 = ctypes.CDLL(name)
     except OSError as e:
-        raise RuntimeError(f"{name}: cannot load Xlib for the screenshot ({e})") from None
+        raise RuntimeError(f"{name}: cannot load Xlib for {what} ({e})") from None
     x11.XOpenDisplay.restype = ctypes.c_void_p
     x11.XOpenDisplay.argtypes = [ctypes.c_char_p]
     x11.XDefaultRootWindow.restype = ctypes.c_ulong
@@ -102,6 +111,29 @@ def grab_screen(x: int, y: int, w: int, h: int) -> np.ndarray:
     x11.XSync.argtypes = [ctypes.c_void_p, ctypes.c_int]
     x11.XSetErrorHandler.argtypes = [_X_ERROR_HANDLER]
     x11.XSetErrorHandler.restype = ctypes.c_void_p
+    return x11
+
+
+def screen_size() -> tuple[int, int] | None:
+    """(width, height) px of the X display's default screen, or None when there is no X display (Xlib)."""
+    try:
+        x11 = _xlib("the screen size")
+    except RuntimeError:
+        return None
+    d = x11.XOpenDisplay(None)
+    if not d:
+        return None
+    try:
+        return int(x11.XDisplayWidth(d, 0)), int(x11.XDisplayHeight(d, 0))
+    finally:
+        x11.XCloseDisplay(d)
+
+
+def grab_screen(x: int, y: int, w: int, h: int) -> np.ndarray:
+    """RGB (h,w,3) uint8 of the X display's root window in the rectangle (x, y, w, h), clipped
+    to the screen (Xlib XGetImage through ctypes; needs a 24/32-bit TrueColor X server such as
+    Xvfb). RuntimeError when there is no X display or the grab fails."""
+    x11 = _xlib("the screenshot")
     d = x11.XOpenDisplay(None)
     if not d:
         raise RuntimeError("no X display to take the screenshot from (is DISPLAY set?)")
@@ -133,6 +165,19 @@ def grab_screen(x: int, y: int, w: int, h: int) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- drawing helpers
+def default_window_size(img_w: int, img_h: int, panel_w: int, tab_h: int,
+                        screen: tuple[int, int] | None) -> tuple[int, int]:
+    """The default window's (width, height) px for frames of img_w x img_h px: the image at its own pixel size
+    (1:1) under a tab bar of tab_h px, with the panel_w px side panel beside it; an image that does not fit the
+    screen (width, height px; None: unknown, no limit) less SCREEN_MARGIN_PX each way is scaled down to fit,
+    aspect kept. At least 320x240 (`--window`'s minimum)."""
+    s = 1.0
+    if screen is not None:
+        s = min(1.0, (screen[0] - SCREEN_MARGIN_PX - panel_w) / img_w, (screen[1] - SCREEN_MARGIN_PX - tab_h) / img_h)
+    w, h = int(math.floor(s * img_w + 1e-6)), int(math.floor(s * img_h + 1e-6))
+    return max(320, w + panel_w), max(240, h + tab_h)
+
+
 def image_fit(frame_w: float, frame_h: float, img_w: int, img_h: int) -> tuple[float, float, float]:
     """(scale, x offset, y offset) of an image drawn aspect-fit and centred in a frame, as
     Open3D's ImageWidget draws it."""
@@ -207,7 +252,8 @@ class PlacementWindow:
     """The window; `ctl` holds every bit of state, this class only shows it and forwards input."""
 
     def __init__(self, ctl: PlacementController, mesh_choices: list[str], title: str = "photoar",
-                 width: int = 1280, height: int = 720, object_size: float | None = None):
+                 width: int | None = None, height: int | None = None, object_size: float | None = None):
+        """width x height: the window's size in px; None: default_window_size (the frames 1:1)."""
         import open3d.visualization.gui as gui
         import open3d.visualization.rendering as rendering
 
@@ -242,9 +288,13 @@ class PlacementWindow:
         self._preview_t = -math.inf  # when the last outline preview was drawn (perf_counter s)
         self._dragging = False  # the mouse button is down on the photo: a gesture is under way (no refinement)
         self._edit_t = -math.inf  # when the last edit changed the pose (perf_counter s; main thread writes it)
-        self._tick_t = -math.inf  # when the event loop's last tick began (perf_counter s; _on_tick writes it)
+        self._tick_t = -math.inf  # when the event loop's last tick ran _on_tick (perf_counter s; at the tick's end)
+        self._tick_prev = -math.inf  # when the tick before it did (_overtaken's rest)
 
-        w = self.window = self.app.create_window(title, width, height)
+        # default size: the frames 1:1 (default_window_size); the tab bar's height is checked once laid out (_on_tick)
+        self._fit_pending = width is None or height is None
+        self._fit_set = self._fit_size() if self._fit_pending else (width, height)  # the size asked at creation
+        w = self.window = self.app.create_window(title, *self._fit_set)
         em = w.theme.font_size
         self.tabs = gui.TabControl()
         self.image = gui.ImageWidget(o3d.geometry.Image(np.ascontiguousarray(ctl.scene.photo)))
@@ -257,7 +307,8 @@ class PlacementWindow:
         self.tabs.set_on_selected_tab_changed(self._on_tab)
         w.add_child(self.tabs)
 
-        p = self.panel = gui.Vert(0.4 * em, gui.Margins(0.6 * em, 0.6 * em, 0.6 * em, 0.6 * em))
+        # scrolls where the window is lower than the panel (the default window is as high as the photo)
+        p = self.panel = gui.ScrollableVert(0.4 * em, gui.Margins(0.6 * em, 0.6 * em, 0.6 * em, 0.6 * em))
         self.status = gui.Label("precomputing the scene ...")
         self.progress = gui.ProgressBar()
         p.add_child(self.status)
@@ -283,21 +334,25 @@ class PlacementWindow:
         self.all_sources.checked = ctl.passes is None
         self.all_sources.set_on_checked(self._on_all_sources)
         p.add_child(self.all_sources)
-        p.add_child(gui.Label("Compositing path"))
+        # label and control on one row each: the panel fits beside a 640x480 photo's default window down to its
+        # Undo/Save row (the help below it scrolls)
         self.mode = gui.RadioButton(gui.RadioButton.HORIZ)
         self.mode.set_items(["HDR", "LDR"])
         self.mode.selected_index = 1 if ctl.config.mode == "ldr" else 0
         self.mode.set_on_selection_changed(self._on_mode)
-        p.add_child(self.mode)
         from app.engine import LIGHTING
 
-        p.add_child(gui.Label("Lighting"))
         self.lighting = gui.Combobox()
         for name in LIGHTING:
             self.lighting.add_item(name)
         self.lighting.selected_text = ctl.lighting
         self.lighting.set_on_selection_changed(self._on_lighting)
-        p.add_child(self.lighting)
+        for text, widget in (("Compositing", self.mode), ("Lighting", self.lighting)):
+            line = gui.Horiz(0.4 * em)
+            line.add_child(gui.Label(text))
+            line.add_stretch()
+            line.add_child(widget)
+            p.add_child(line)
         p.add_fixed(0.5 * em)
         self.frame_label = gui.Label("frame: -")
         self.pass_label = gui.Label("passes: -")
@@ -344,6 +399,29 @@ class PlacementWindow:
         threading.Thread(target=self._render_loop, name="photoar-render", daemon=True).start()
 
     # ------------------------------------------------------------------ layout
+    def _fit_size(self, tab_h: int | None = None) -> tuple[int, int]:
+        """default_window_size for this window's frames (the working camera's size) on this screen; tab_h: the tab
+        bar's height as laid out (None: TAB_BAR_EM of Open3D's theme font, before the window exists)."""
+        cam = self.ctl.scene.camera
+        win = getattr(self, "window", None)
+        scaling = win.scaling if win is not None else 1.0
+        if tab_h is None:
+            em = win.theme.font_size if win is not None else 16
+            tab_h = int(round(TAB_BAR_EM * em))
+        return default_window_size(cam.width, cam.height, int(PANEL_W * scaling), tab_h, screen_size())
+
+    def _check_fit(self) -> None:
+        """Once the Photo tab is laid out, resize a default-sized window whose tab bar is not the one assumed, so
+        that the frames show 1:1 (one resize at most; none if the window was resized meanwhile)."""
+        img, tabs = self.image.frame, self.tabs.frame
+        if img.height <= 0:
+            return
+        self._fit_pending = False
+        size = self._fit_size(tab_h=img.y - tabs.y)
+        now = (self.window.size.width, self.window.size.height)
+        if now == tuple(self._fit_set) and now != size:
+            self.window.size = self.gui.Size(*size)
+
     def _on_layout(self, ctx) -> None:
         if self._bench_handed:  # Open3D lays the window out inside its draw: the frames handed over are drawn now
             self._bench_drawn.extend(self._bench_handed)
@@ -411,8 +489,10 @@ class PlacementWindow:
 
     def _overtaken(self, pose: Pose) -> bool:
         """Abandon the frame of `pose` under way? The window closed, or an edit replaced the pose and the
-        pointer has rested: the event loop ticked STILL_S after the last edit."""
-        return self.closed or (pose != self.ctl.pose and self._tick_t - self._edit_t >= STILL_S)
+        pointer has rested: a tick of the event loop ended STILL_S after the last edit and another ended after it
+        with no edit since (REST_TWO_TICKS; else the first of them is enough)."""
+        tick = self._tick_prev if REST_TWO_TICKS else self._tick_t
+        return self.closed or (pose != self.ctl.pose and tick - self._edit_t >= STILL_S)
 
     def _render_loop(self) -> None:
         abandoned = False  # the last frame was abandoned: this one is finished (every other frame at least shows)
@@ -553,7 +633,9 @@ class PlacementWindow:
         return True
 
     def _on_tick(self) -> bool:
-        self._tick_t = time.perf_counter()
+        self._tick_prev, self._tick_t = self._tick_t, time.perf_counter()
+        if self._fit_pending:
+            self._check_fit()
         if self._preview():
             return True
         if not self.engine_ready.is_set() and self.error is None:

@@ -64,6 +64,15 @@ def _thread_cpu() -> dict[str, float]:
     return out
 
 
+def _by_name() -> dict[str, float]:
+    """CPU seconds per thread name of this process (threads of one name summed: Python's and the engine's workers
+    are all "python", Mesa's "llvmpipe-0", "llvmpipe-1" stay apart)."""
+    out: dict[str, float] = {}
+    for (_, name), cpu in threads_cpu().items():
+        out[name] = out.get(name, 0.0) + cpu
+    return out
+
+
 class _AppProxy:
     """gui.Application.instance with run_one_tick timed (the window's `app`)."""
 
@@ -125,7 +134,7 @@ def trace_drag(win, n: int) -> dict:
     app = win.app
     ctl.render, win._show_frame, win._on_image_mouse, win._preview = render, show, mouse, preview
     win.app = _AppProxy(app, ticks)
-    cpu0, w0 = _thread_cpu(), time.perf_counter()
+    named0, cpu0, w0 = _by_name(), _thread_cpu(), time.perf_counter()
     try:
         res = win.run_drag_bench(n)
     finally:
@@ -136,6 +145,8 @@ def trace_drag(win, n: int) -> dict:
     cpu1 = _thread_cpu()
     cpu = {k: round(cpu1.get(k, 0.0) - cpu0.get(k, 0.0), 3) for k in cpu1 if k != "llvmpipe_threads"}
     cpu["llvmpipe_threads"] = cpu1.get("llvmpipe_threads", 0)
+    named1 = _by_name()
+    cpu["by_name"] = {k: round(v - named0.get(k, 0.0), 3) for k, v in named1.items() if v - named0.get(k, 0.0) >= 0.005}
 
     # the drag's moves only (the press is events[0], the release the last)
     moves = events[1:-1]
@@ -171,6 +182,8 @@ def trace_drag(win, n: int) -> dict:
             "breakdown_ms": {k: round(1e3 * float(np.mean(v)), 1) if v else None for k, v in parts.items()},
             "frames_rendered": sum(1 for r in drag_renders if not r[3]),
             "frames_abandoned": sum(1 for r in drag_renders if r[3]),
+            # of those, abandoned before the last move (the pointer taken for at rest mid-drag: a frame lost)
+            "abandoned_mid_drag": sum(1 for r in drag_renders if r[3] and r[1] < moves[-1][0]),
             "render_ms_mean": round(1e3 * float(np.mean([r[1] - r[0] for r in drag_renders if not r[3]])), 1)
             if drag_renders else None,
             "previews": len(previews),
@@ -180,10 +193,14 @@ def trace_drag(win, n: int) -> dict:
             "cpu_s": cpu}
 
 
-# A variant: attributes of app.gui (module constants) and of the window set before its drags.
+# A variant: attributes of app.gui (module constants) set before its drags, and "size": the window's size (WxH px;
+# "fit": PlacementWindow's default, the frames 1:1 beside the panel), set before its drags.
 VARIANTS: dict[str, dict] = {
     "base": {"DRAG_PREVIEWS": True, "SKIP_HIDDEN_3D": False},  # main's window (gui37): previews at 20 Hz in drags
     "new": {"DRAG_PREVIEWS": False, "SKIP_HIDDEN_3D": True},  # gui48's: drawn once per frame while dragging
+    "w1280": {"size": (1280, 720)},  # main's default window (gui48's), the 640x480 photo scaled up 1.45x
+    "fit": {"size": "fit"},  # gui36's default window: the photo 1:1 beside the panel (940x502 for 640x480)
+    "rest1": {"size": "fit", "REST_TWO_TICKS": False},  # main's rest rule: one tick STILL_S after the last edit
 }
 
 
@@ -193,7 +210,14 @@ def apply_variant(win, name: str, base_state: dict) -> None:
     for k, v in base_state.items():
         setattr(g, k, v)
     for k, v in VARIANTS[name].items():
-        setattr(g, k, v)
+        if k == "size":
+            laid_out = win.image.frame.height > 0  # before the first layout: the size the window opened with
+            size = (win._fit_size(tab_h=win.image.frame.y - win.tabs.frame.y) if laid_out else win._fit_set) \
+                if v == "fit" else v
+            if (win.window.size.width, win.window.size.height) != tuple(size):
+                win.window.size = win.gui.Size(*size)
+        else:
+            setattr(g, k, v)
 
 
 def settle(win, shown0: int, timeout_s: float = 120.0) -> None:
@@ -279,12 +303,12 @@ def main() -> None:
     choices = ctl.object_choices([Path(ctl.pose.mesh).parent] if ctl.pose.mesh else [])
     app = gui.Application.instance
     app.initialize()
-    win = PlacementWindow(ctl, choices, title="bench", width=1280, height=720)
+    win = PlacementWindow(ctl, choices, title="bench")  # photoar gui's default size (a variant's "size" sets it)
     REFINE[0] = a.refine
     if not a.refine:
         win._refine_at_rest = lambda pose: None
     names = a.variants.split(",")
-    base_state = {k: getattr(g, k) for nm in names for k in VARIANTS[nm]}
+    base_state = {k: getattr(g, k) for nm in names for k in VARIANTS[nm] if k != "size"}
     rows: dict[str, list] = {nm: [] for nm in names}
     if a.redraw:
         settle(win, 0, a.settle_s)
@@ -305,11 +329,12 @@ def main() -> None:
                 start_pose = ctl.pose
             r = trace_drag(win, a.n)
             r["variant"], r["round"] = nm, rnd
+            r["window"] = f"{win.window.size.width}x{win.window.size.height}"
             rows[nm].append(r)
             print(json.dumps(r), flush=True)
     apply_variant(win, names[0], base_state)
     print("variant | mean / p95 ms | frames shown | wait / frame / handoff / show / tick / draw ms | render ms | "
-          "cpu render / main / llvmpipe s")
+          "cpu render / main / llvmpipe / other s")
     for nm in names:
         for r in rows[nm]:
             b, c = r["breakdown_ms"], r["cpu_s"]
@@ -317,7 +342,8 @@ def main() -> None:
                   f"{r['frames_shown']} | "
                   f"{b['wait']} / {b['frame']} / {b['handoff']} / {b['show']} / {b['tick']} / {b['draw']} | "
                   f"{r['render_ms_mean']} | "
-                  f"{c.get('render', 0):.2f} / {c.get('main', 0):.2f} / {c.get('llvmpipe', 0):.2f} (load {r['load']})")
+                  f"{c.get('render', 0):.2f} / {c.get('main', 0):.2f} / {c.get('llvmpipe', 0):.2f} / "
+                  f"{c.get('other', 0):.2f} (load {r['load']}, {r['window']})")
     win.closed = True
     win.window.close()
     app.run_one_tick()

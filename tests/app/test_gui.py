@@ -149,3 +149,54 @@ def test_gui_screenshot_shows_photo_and_object(xvfb, tmp_path):
           f"{(inside > 10).mean():.0%} of it changed by > 10 levels")
     assert (inside > 10).mean() > 0.3
     assert inside.mean() > 5 * max(np.median(outside), 1.0)
+
+
+def test_default_window_shows_the_frames_at_their_own_size_and_fits_a_large_photo_to_the_screen():
+    from app.gui import SCREEN_MARGIN_PX, default_window_size
+
+    # a 640x480 photo: 1:1 under the 22 px tab bar, the 300 px panel beside it
+    assert default_window_size(640, 480, 300, 22, (1280, 1024)) == (940, 502)
+    assert default_window_size(640, 480, 300, 22, None) == (940, 502)
+    # a photo larger than the screen: scaled down (aspect kept to a pixel) to fit the screen less its margin
+    screen = (1280, 1024)
+    w, h = default_window_size(4000, 3000, 300, 22, screen)
+    iw, ih = w - 300, h - 22
+    assert w <= screen[0] - SCREEN_MARGIN_PX and h <= screen[1] - SCREEN_MARGIN_PX
+    assert abs(iw / ih - 4000 / 3000) < 2 / ih
+    assert iw == screen[0] - SCREEN_MARGIN_PX - 300  # the width binds here: as large as fits, not smaller
+    # a tall one binds on the height
+    w, h = default_window_size(1000, 3000, 300, 22, screen)
+    assert h == screen[1] - SCREEN_MARGIN_PX and abs((w - 300) / (h - 22) - 1 / 3) < 2 / (h - 22)
+    # a tiny photo: at least --window's 320x240
+    assert default_window_size(8, 6, 0, 0, screen) == (320, 240)
+
+
+def test_screen_size_reads_the_x_display(xvfb, monkeypatch):
+    from app.gui import screen_size
+
+    monkeypatch.setenv("DISPLAY", xvfb)
+    assert screen_size() == (1600, 1000)  # the fixture's Xvfb screen
+    monkeypatch.setenv("DISPLAY", ":4999")  # no such display
+    assert screen_size() is None
+
+
+def test_gui_default_window_shows_the_photo_one_to_one(xvfb, tmp_path):
+    # no --window: the window is the photo (the demo's 320x240) 1:1 under the tab bar, beside the 300 px panel,
+    # and the screenshot's photo area is the photo pixel for pixel (up to the composite's object and rounding)
+    shot = tmp_path / "shot.png"
+    env = {**os.environ, "DISPLAY": xvfb, "PYTHONPATH": str(ROOT)}
+    cmd = [sys.executable, "-m", "app.cli", "gui", str(demo_scene_dir()), "--place", ",".join(map(str, PLACE)),
+           "--passes", "10", "--frames", "1", "--screenshot", str(shot), "--cache", str(tmp_path / "cache")]
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=240)
+    if r.returncode != 0 and ("GLFW" in r.stderr or "vulkan" in r.stderr.lower()) and not shot.exists():
+        pytest.skip(f"Open3D GUI cannot open a window here: {r.stderr.strip().splitlines()[-1]}")
+    assert r.returncode == 0, r.stderr[-2000:]
+    img = cv2.imread(str(shot))[..., ::-1].astype(float)
+    photo = cv2.imread(str(demo_scene_dir() / "background.png"))[..., ::-1].astype(float)
+    H, W = photo.shape[:2]
+    assert img.shape[1] == W + 300, img.shape
+    tab = img.shape[0] - H
+    assert 10 <= tab <= 60, img.shape  # the tab bar (22 px at Open3D's 16 px font)
+    err = np.median(np.abs(img[tab:, :W] - photo).max(2))
+    print(f"default window {img.shape[1]}x{img.shape[0]}: median |window - photo| {err:.1f} levels at 1:1")
+    assert err <= 3.0, err

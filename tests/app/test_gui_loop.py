@@ -76,7 +76,7 @@ def _window(ctl) -> tuple[PlacementWindow, list]:
     w._render_cv, w.engine_ready = _Condition(), threading.Event()
     w.frame_times, w.error, w.refined_frames, w.window = [], None, 0, None
     w._edit_t = math.inf  # the pointer keeps moving (no frame is abandoned) unless a test says it rests
-    w._tick_t = 0.0  # the event loop's last tick
+    w._tick_t = w._tick_prev = 0.0  # the event loop's last tick and the one before
     w.app = SimpleNamespace(post_to_main_thread=lambda window, fn: fn())
     w._show_frame = lambda fr, pose: shown.append(pose.k)
     w.engine_ready.set()
@@ -201,3 +201,23 @@ def test_no_preview_is_drawn_while_the_button_is_held():
     assert not w._preview() and drawn == [] and w._preview_due
     w._dragging = False  # the release
     assert w._preview() and drawn == ["label", "object"] and not w._preview_due
+
+
+def test_a_tick_held_up_past_still_s_is_not_a_rest_until_another_tick_ends():
+    # a move at t = 0, after a tick that ended before it; the next tick's draw held its end (where Open3D runs the
+    # tick callback) up to 2 STILL_S: the pointer may be moving still (its moves arrive in the next tick), so the
+    # replaced pose's frame is not abandoned; once another tick ends with no edit since, the pointer has rested
+    from app.gui import STILL_S
+
+    ctl = _Controller()
+    w, _ = _window(ctl)
+    old = ctl.pose
+    ctl.pose = _pose(2)
+    w._edit_t = 0.0
+    w._tick_prev, w._tick_t = -0.001, 2 * STILL_S
+    assert not w._overtaken(old)
+    w._tick_prev, w._tick_t = 2 * STILL_S, 2 * STILL_S + 0.01
+    assert w._overtaken(old)
+    assert not w._overtaken(ctl.pose)  # the newest pose's frame is never abandoned
+    w._edit_t = 2 * STILL_S + 0.005  # a move delivered in that tick: moving again
+    assert not w._overtaken(old)
