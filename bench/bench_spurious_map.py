@@ -1,6 +1,7 @@
 """Where a composite's spurious pixels are, and which light term puts them there (issue 34: sun_103's spurious).
 
-usage: python bench/bench_spurious_map.py ROOM_DIR TRUTH_DIR [--lighting captured|known] [--cache DIR] [--png OUT]
+usage: python bench/bench_spurious_map.py ROOM_DIR TRUTH_DIR [--lighting captured|known] [--cache DIR] [--json OUT]
+       [--frames OUT.npz]
 
 ROOM_DIR is the scene folder the engine runs on (bench_unseen's --keep KEEP/<room>/room_true_cam, or the
 benchmark folder itself under known light); TRUTH_DIR the benchmark folder (background.png, truth.png,
@@ -14,7 +15,8 @@ later bounce, the sun's included) and with both off (the direct shadows alone). 
 pixel is the difference of two frames (blurred luminance, 8-bit levels); per region of the room (the
 surface a pixel sees, its distance from the object, in or out of the sunlit patch) the table gives the
 rest pixels, the spurious share, brighter / darker, and the mean change of each term over the spurious
-pixels, beside the truth's change there smoothed with sigma 8 px (the truth's pixel noise averaged out).
+pixels and over all its rest pixels, beside the truth's change smoothed with sigma 8 px (the truth's pixel
+noise averaged out). Results: docs/unseen.md, "sun_103's spurious under captured light" (spur34).
 """
 from __future__ import annotations
 
@@ -103,7 +105,8 @@ def variant_frames(e, obj) -> dict[str, np.ndarray]:
 
 
 def report(frames: dict[str, np.ndarray], regs: dict[str, np.ndarray], truth_dir: Path) -> dict:
-    """Per region: rest pixels, spurious share (of all rest pixels), brighter/darker, each term's mean change."""
+    """Per region: rest pixels, spurious share (of all rest pixels), brighter/darker, each term's mean change over
+    the region's spurious pixels, and (terms_rest) over all its rest pixels; levels."""
     lb, lt, mask, rest = scorer_maps(truth_dir)
     t8 = _blur(lt - lb, 8.0)
     full = frames["full"]
@@ -119,7 +122,8 @@ def report(frames: dict[str, np.ndarray], regs: dict[str, np.ndarray], truth_dir
         s = reg & sp
         if not r.any():
             continue
-        row = {"terms_rest": {k: float(v[r].mean()) for k, v in terms.items()}, "rest_px": int(r.sum()), "spurious": float(s.sum() / n_rest), "brighter": float((s & (d > 0)).sum() / n_rest),
+        row = {"terms_rest": {k: float(v[r].mean()) for k, v in terms.items()}, "rest_px": int(r.sum()),
+               "spurious": float(s.sum() / n_rest), "brighter": float((s & (d > 0)).sum() / n_rest),
                "darker": float((s & (d < 0)).sum() / n_rest), "ours": float(d[s].mean()) if s.any() else 0.0,
                "truth_s8": float(t8[s].mean()) if s.any() else 0.0,
                "ours_rest": float(d[r].mean()), "truth_s8_rest": float(t8[r].mean())}

@@ -1,10 +1,10 @@
 """bench.bench_spurious_map: its per-region split of `spurious` adds up to the shared scorer's figure.
 
-A composite made from sun_room's truth with a known change (a smooth brightening of 3 levels over a
-rectangle of the room's wall, 1.5 levels over one of its floor: only the first exceeds the scorer's 2 levels) is scored by
-../shared/tools/score.py; the map's report of the same image, split into regions that tile the frame,
-must give the same spurious share in total, each region's share must be that region's own count, and
-the pixels it calls brighter must be exactly the first rectangle's rest pixels.
+A composite made from sun_room's background with a known change (3 levels added over a rectangle of
+its wall, 1.5 over one of its floor: only the first exceeds the scorer's 2 levels) is scored by
+../shared/tools/score.py; the map's report of the same image, split into two regions that tile the
+frame, must give the same spurious share in total and as the sum of its regions; the spurious pixels
+must cover the first rectangle (less the blur's fringe), none of the second, and be brighter.
 """
 import json
 import subprocess
