@@ -15,6 +15,8 @@ light's, each scored by the shared scorer against the room's truth:
 - `cap_all`: every patch takes captured light's radiance;
 - `noscale`: photo light without the emitter scale at the object (lighting.photolocal: scale 1);
 - `cap_emit_noscale`: both;
+- `bounce_limited`: photo light's mesh per bounce level as the truth's renderer (4 bounces after the camera
+  hit) limits it: the object gathers one bounce less than the camera sees, as under known light;
 - `prior:NAME=VALUE[;NAME=VALUE]`: photo light with lighting.photolight.PhotoPriors(NAME=VALUE, ...).
 
 Printed per variant: energy / rmse_affected / rmse_object (bias_object) and the emitter scale at the object
@@ -68,6 +70,8 @@ class Hooks:
                 hooks.photo = {"B": np.array(pre.B[-1]), "origin": np.array(pre.origin), "patches": pm}
                 if hooks.variant.startswith("cap_"):
                     hooks.swap(pre)
+                elif hooks.variant == "bounce_limited":
+                    hooks.bounce_limited(pre)
 
         def scale(self_, centre, radius):
             s = orig_scale(self_, centre, radius)
@@ -88,6 +92,23 @@ class Hooks:
         precompute.use_lighting = use_lighting
         precompute.fit_photo_light = fit_photo_light
         photolocal.LocalLight.scale = scale
+
+    def bounce_limited(self, pre) -> None:
+        """Each bounce level of photo light's mesh as the truth's renderer limits it: the fitted model (emitters
+        and fitted reflectivity) gathered bounce by bounce (lighting.radiosity.gather), and each non-emitter patch's
+        measured radiance scaled by its model's level k over its last level (pre.B[k] = B * Bm[k] / Bm[-1])."""
+        from lighting.radiosity import gather
+
+        pm = pre.patches
+        emit = (np.asarray(pre.origin) == 3) | pm.is_emitter
+        B = np.array(pre.B[-1])
+        Bm = gather(pre.G_c, np.where(emit[:, None], 0.0, pre.albedo), np.where(emit[:, None], B, 0.0),
+                    len(pre.B) - 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = [np.where(Bm[-1] > 0, b / Bm[-1], 1.0) for b in Bm]
+        pre.B = np.stack([np.where(emit[:, None], B, B * np.clip(fk, 0.0, 1.0)) for fk in f])
+        self.info["bounce_levels"] = [round(float(np.sum(pm.area[~emit] @ b[~emit]) /
+                                                  max(np.sum(pm.area[~emit] @ B[~emit]), 1e-30)), 3) for b in pre.B]
 
     def swap(self, pre) -> None:
         """Replace photo light's terms by captured light's, per self.variant."""
@@ -178,6 +199,9 @@ def main() -> None:
         row = {k: s[k] for k in ("energy_ratio", "rmse_affected", "rmse_object", "bias_object")}
         row["emitter_scale"] = pl.get("emitter_scale_at_object")
         row["scale_product"] = hooks.info.get("scale_product")
+        if "bounce_levels" in hooks.info:
+            row["bounce_levels"] = hooks.info["bounce_levels"]
+            print("  bounce levels / measured:", row["bounce_levels"], flush=True)
         if v == "photo":
             row["emitters"] = [(e["name"], e["radiance"], e["at_lower_bound"]) for e in pl.get("emitters", [])]
             row["wall_albedo"] = pl.get("wall_albedo")
