@@ -7,7 +7,7 @@ scene.json sun, with the response merged from its probe bracket), and each camer
 room's truth: focal length, centre, and the image error at the object (rms over its vertices, px).
 
 usage: python bench/bench_camsun.py --keep DIR [--rooms ~/.cache/photoar/rooms] [--only sun_101,...]
-       [--sun-from DIR]   (DIR/<room>/report.json's sun estimate in place of the declared sun)
+       [--estimated]   (the captured composite's sun estimate in place of the declared sun)
 """
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ def errors(cam, truth, P: np.ndarray) -> dict:
             "object_mean_px": float(np.linalg.norm(d.mean(axis=0)))}
 
 
-def room(name: str, rooms: Path, keep: Path) -> dict:
+def room(name: str, rooms: Path, keep: Path, estimated: bool = False) -> dict:
     from bench.bench_camrefine import object_points
     from lighting import hdr
     from recon import assemble as asm
@@ -46,6 +46,9 @@ def room(name: str, rooms: Path, keep: Path) -> dict:
     prims, lo, hi = asm.parse_primitives({"primitives": [p for p in sj["primitives"] if p.get("type") != "sun"]},
                                          "room_sun")
     sun = next(p for p in sj["primitives"] if p.get("type") == "sun")
+    if estimated:  # the captured composite's sun estimate (made on the flow's refined camera) in place of it
+        est = json.loads((work / "out_captured" / "report.json").read_text())["sun_estimate"]["direction"]
+        sun = {**sun, "direction_to_sun": est}
     cj = json.loads((work / "cal" / "camera.json").read_text())
     cam = Camera.load(work / "cal" / "camera.json")
     if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
@@ -72,10 +75,12 @@ def main() -> None:
     ap.add_argument("--rooms", default=os.environ.get("PHOTOAR_ROOMS", str(Path.home() / ".cache/photoar/rooms")))
     ap.add_argument("--only", default="sun_101,sun_102,sun_103")
     ap.add_argument("--json")
+    ap.add_argument("--estimated", action="store_true", help="the sun's direction the captured composite estimated "
+                    "(out_captured/report.json) in place of the declared one")
     a = ap.parse_args()
     res = []
     for n in a.only.split(","):
-        r = room(n, Path(a.rooms), Path(a.keep))
+        r = room(n, Path(a.rooms), Path(a.keep), a.estimated)
         res.append(r)
         for k in ("calibrated", "refined", "with sun"):
             e = r[k]

@@ -592,8 +592,14 @@ def _sun_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, line
         res = _solve(model, x, sub, qq, sig, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
         uv1, n1 = _project(model.camera(x), sub)
-        fine = _Fit(x, res, sub, np.ones(len(sub.X), bool), np.sum(n1 * (qq - uv1), axis=1), sig,
-                    data=None, sun_info=o.info)
+        resid = np.sum(n1 * (qq - uv1), axis=1)
+        info = []
+        for e, d in zip(np.unique(o.edge), o.info):  # o.info is in the order of its edge ids
+            m = sub.edge == len(edges) + e
+            info.append({**d, "resid_px": float(np.median(resid[m])),
+                         "sigma_px": float(np.sqrt(d["jackknife_px"] ** 2 + FINE_SIGMA_PX ** 2
+                                                   / min(int(m.sum()), EDGE_WEIGHT_SAMPLES)))})
+        fine = _Fit(x, res, sub, np.ones(len(sub.X), bool), resid, sig, data=None, sun_info=info)
     return fine
 
 
@@ -760,8 +766,21 @@ def _sun_edges(sun: dict | None, response, prims: list[dict], occ: _Occluder, im
 def _with_sun(model: _Model, best: _Fit, edges, occ, photo: PhotoEdges, lines, sun_edges) -> _Fit:
     """`best` fitted again with the sun's edges (_sun_stage) from its parameters; `best` itself when that
     stage does not run."""
+    from scipy.stats import chi2
+
     f = _sun_stage(model, best.x, edges, occ, photo, lines, sun_edges)
-    return best if f is None else dataclasses.replace(f, start=f"{best.start}, with the sunlit outline")
+    if f is None:
+        return best
+    # the sun's edges must agree with the camera they and the room's edges give: each edge's median residual
+    # within its own noise and the room model's error of an edge's image (the outline is the taped opening
+    # cast along the sun; a sun direction off by tenths of a degree moves it by pixels, and a camera pulled
+    # to it leaves its edges apart): a chi-square at 99.9 %
+    z2 = [e["resid_px"] ** 2 / (e["sigma_px"] ** 2 + EDGE_MODEL_SIGMA_PX ** 2) for e in f.sun_info]
+    if not sum(z2) <= chi2.ppf(0.999, len(z2)):
+        return dataclasses.replace(best, sun_info=[{**e, "refused": f"the sunlit outline disagrees with the room's "
+                                                    f"edges (chi-square {sum(z2):.1f} > {chi2.ppf(0.999, len(z2)):.1f})"}
+                                                   for e in f.sun_info])
+    return dataclasses.replace(f, start=f"{best.start}, with the sunlit outline")
 
 
 def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str) -> _Fit | None:

@@ -11,9 +11,9 @@ reproduced the measured boundary within 0.14 px with this model given the room's
 
 Here f_c is measured from the photo itself, linearised by the response the probe bracket gives: the
 boundary's position is the clipped indicator's (R - its integral over +-R px across the outline, exact
-for a step), the shade level is the photo's a few px further out, and f_c is the value whose model ramp
-(rest + K F(m - d), K = (1 - rest) / f_c) fits the photo's mean unclipped ramp on the unlit side of the
-boundary (d: distance from it). The opening's own edges (the clipped sky against the wall, the
+for a step), the shade level (rest) is the photo's a few px further out, and f_c is fitted together with
+the edge's position to the edge's pixels, each against min(1, rest + K F(s - delta)) with K = (1 - rest) /
+f_c (F the pixel-boxed sun fraction): the unclipped part of the ramp, over the pixels' phases, carries it. The opening's own edges (the clipped sky against the wall, the
 refinement's room edges drop them for clipping) are measured the same way with w = 0 (a pixel box only).
 
 Each measured edge gives per sample the geometric outline's position in the photo (the boundary less
@@ -36,9 +36,9 @@ END_TRIM_PX = 8.0  # samples this close to an outline edge's projected ends are 
 BLOCK = 8  # the jackknife's blocks of consecutive samples (the grain and the edge's shape correlate neighbours)
 SUB = 8  # the pixel box's sub-samples per side in the model (SUB x SUB)
 MIN_EDGE_SAMPLES = 3 * BLOCK  # an edge measured on fewer samples is dropped (its jackknife needs blocks)
-RAMP_PX = (0.5, 3.0)  # the unlit ramp's span from the boundary used for f_c (px): past the pixel box, within R
 REST_PX = (R_PX + 1.0, R_PX + 4.0)  # the shade level's span beyond the boundary's window (px)
-FC_GRID = np.linspace(0.02, 0.98, 97)  # the clip fractions tried
+FC_GRID = np.linspace(0.02, 0.98, 49)  # the clip fractions tried
+DELTA_PX = 1.5  # the edge's position searched this far either side of the boundary line less m(f_c = 1/2)
 
 
 @dataclass
@@ -147,8 +147,8 @@ def measure_edges(uv: np.ndarray, n: np.ndarray, w: np.ndarray, edge: np.ndarray
         if not (np.mean(lit_end > 0.5) >= 0.5 and np.mean(dark_end > 0.5) <= 0.5):
             continue
         b = boundary_offset(clip, u, nn)
-        # the boundary as a line along the edge (the camera's error varies smoothly along it): the ramp is
-        # read from it, not from each sample's noisy boundary (which would select the ramp's own noise)
+        # the boundary as a line along the edge (the camera's error varies smoothly along it): the shade level
+        # is read beyond it, not beyond each sample's noisy boundary
         t = np.arange(len(m), dtype=float)
         bs = np.polyval(np.polyfit(t, np.clip(b, -R_PX, R_PX), 1), t)
         rest = np.median(np.mean(_bilinear(lin, u[:, None] + (bs[:, None, None] - np.linspace(*REST_PX, 7)[None, :, None])
@@ -159,23 +159,26 @@ def measure_edges(uv: np.ndarray, n: np.ndarray, w: np.ndarray, edge: np.ndarray
         M = np.stack([np.interp(FC_GRID, F[i], ss) for i in range(len(m))])  # (n, G)
         if not rest < 1.0:
             continue
-        # the unlit ramp: the pixels (their centres, not interpolated: the model is the pixel's box) whose
-        # distance d from the boundary line is in RAMP_PX, their linear values (capped at the clip level)
-        dd = np.arange(RAMP_PX[0], RAMP_PX[1] + 1e-9, 0.5)
-        pix = np.rint(u[:, None] + (bs[:, None, None] - dd[None, :, None]) * nn[:, None]).astype(int)  # (n, k, 2)
+        # f_c and the edge's position fitted together to its pixels (their centres, not interpolated: the
+        # model is the pixel's box): each pixel within +-R of a sample's line, its linear value capped at the
+        # clip level against min(1, rest + K F(s - delta)), K = (1 - rest) / f_c; delta searched within
+        # DELTA_PX of the boundary line. The ramp's shape (its unclipped part, over the pixels' phases)
+        # carries f_c; anchored to the boundary alone it would take the boundary's own quantisation
+        kk = np.arange(-R_PX, R_PX + 1e-9, 0.5)
+        pix = np.rint(u[:, None] + kk[None, :, None] * nn[:, None]).astype(int)  # (n, k, 2)
         pix[..., 0] = pix[..., 0].clip(0, lin.shape[1] - 1)
         pix[..., 1] = pix[..., 1].clip(0, lin.shape[0] - 1)
-        d_pix = bs[:, None] - np.sum((pix - u[:, None]) * nn[:, None], axis=2)  # (n, k) px from the boundary
+        s_pix = np.sum((pix - u[:, None]) * nn[:, None], axis=2)  # (n, k) px along n from the sample's line
         val = np.minimum(lin[pix[..., 1], pix[..., 0]], 1.0)
-        use = (d_pix >= RAMP_PX[0] - 0.5) & (d_pix <= RAMP_PX[1] + 0.5)
-        cost = np.empty(len(FC_GRID))
-        for j, fc in enumerate(FC_GRID):
-            x = (M[:, j:j + 1] - d_pix - ss[0]) / (ss[1] - ss[0])  # the pixel's position in F's grid
-            i0 = np.clip(np.floor(x).astype(int), 0, len(ss) - 2)
-            fr = np.clip(x - i0, 0.0, 1.0)
-            Fp = np.take_along_axis(F, i0, 1) * (1 - fr) + np.take_along_axis(F, i0 + 1, 1) * fr
-            pred = np.minimum(rest + (1.0 - rest) / fc * Fp, 1.0)
-            cost[j] = np.sum(((val - pred) ** 2)[use])
+        delta = float(np.median(bs - M[:, len(FC_GRID) // 2])) + np.arange(-DELTA_PX, DELTA_PX + 1e-9, 0.05)
+        x = (s_pix[:, :, None] - delta[None, None, :] - ss[0]) / (ss[1] - ss[0])  # (n, k, D) in F's grid
+        i0 = np.clip(np.floor(x).astype(int), 0, len(ss) - 2)
+        fr = np.clip(x - i0, 0.0, 1.0)
+        Fi = np.take_along_axis(F[:, :, None], i0.reshape(len(m), -1)[:, :, None], 1)[..., 0].reshape(i0.shape)
+        Fj = np.take_along_axis(F[:, :, None], (i0 + 1).reshape(len(m), -1)[:, :, None], 1)[..., 0].reshape(i0.shape)
+        Fp = Fi * (1 - fr) + Fj * fr  # (n, k, D) the boxed sun fraction of each pixel for each delta
+        cost = np.array([np.min(np.sum((val[:, :, None] - np.minimum(rest + (1.0 - rest) / fc * Fp, 1.0)) ** 2,
+                                       axis=(0, 1))) for fc in FC_GRID])
         j = int(np.argmin(cost))
         o = b - M[:, j]
         off[m], keep[m] = o, True
