@@ -777,9 +777,9 @@ def _with_sun(model: _Model, best: _Fit, edges, occ, photo: PhotoEdges, lines, s
     # to it leaves its edges apart): a chi-square at 99.9 %
     z2 = [e["resid_px"] ** 2 / (e["sigma_px"] ** 2 + EDGE_MODEL_SIGMA_PX ** 2) for e in f.sun_info]
     if not sum(z2) <= chi2.ppf(0.999, len(z2)):
-        return dataclasses.replace(best, sun_info=[{**e, "refused": f"the sunlit outline disagrees with the room's "
-                                                    f"edges (chi-square {sum(z2):.1f} > {chi2.ppf(0.999, len(z2)):.1f})"}
-                                                   for e in f.sun_info])
+        why = f"the sunlit outline disagrees with the room's edges (chi-square {sum(z2):.1f} > " \
+              f"{chi2.ppf(0.999, len(z2)):.1f})"
+        return dataclasses.replace(best, sun_info=[{**e, "refused": why} for e in f.sun_info])
     return dataclasses.replace(f, start=f"{best.start}, with the sunlit outline")
 
 

@@ -13,7 +13,8 @@ Here f_c is measured from the photo itself, linearised by the response the probe
 boundary's position is the clipped indicator's (R - its integral over +-R px across the outline, exact
 for a step), the shade level (rest) is the photo's a few px further out, and f_c is fitted together with
 the edge's position to the edge's pixels, each against min(1, rest + K F(s - delta)) with K = (1 - rest) /
-f_c (F the pixel-boxed sun fraction): the unclipped part of the ramp, over the pixels' phases, carries it. The opening's own edges (the clipped sky against the wall, the
+f_c (F the pixel-boxed sun fraction): the unclipped part of the ramp, over the pixels' phases, carries it.
+The opening's own edges (the clipped sky against the wall, the
 refinement's room edges drop them for clipping) are measured the same way with w = 0 (a pixel box only).
 
 Each measured edge gives per sample the geometric outline's position in the photo (the boundary less
@@ -151,8 +152,8 @@ def measure_edges(uv: np.ndarray, n: np.ndarray, w: np.ndarray, edge: np.ndarray
         # is read beyond it, not beyond each sample's noisy boundary
         t = np.arange(len(m), dtype=float)
         bs = np.polyval(np.polyfit(t, np.clip(b, -R_PX, R_PX), 1), t)
-        rest = np.median(np.mean(_bilinear(lin, u[:, None] + (bs[:, None, None] - np.linspace(*REST_PX, 7)[None, :, None])
-                                           * nn[:, None]), axis=1))
+        far = bs[:, None, None] - np.linspace(*REST_PX, 7)[None, :, None]  # (n, 7, 1) px beyond the boundary
+        rest = np.median(np.mean(_bilinear(lin, u[:, None] + far * nn[:, None]), axis=1))
         F = _box_profiles(w[m], nn, ss)  # (n, len(ss)): each sample's pixel-boxed sun fraction, increasing
         F = np.maximum.accumulate(F, axis=1) + 1e-9 * np.arange(len(ss))[None]
         # m(f_c) per sample: where its boxed fraction reaches f_c (px from the geometric edge), on the grid
@@ -182,7 +183,8 @@ def measure_edges(uv: np.ndarray, n: np.ndarray, w: np.ndarray, edge: np.ndarray
         j = int(np.argmin(cost))
         o = b - M[:, j]
         off[m], keep[m] = o, True
-        info.append({"kind": kind, "edge": int(e), "n": int(len(m)), "offset_px": _tmean(o), "jackknife_px": _jackknife(o),
+        info.append({"kind": kind, "edge": int(e), "n": int(len(m)), "offset_px": _tmean(o),
+                     "jackknife_px": _jackknife(o),
                      "f_c": float(FC_GRID[j]), "rest": float(rest), "w_px": float(np.median(w[m]))})
     return off, keep, info
 
