@@ -700,7 +700,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     else:
         refined = model.camera(best.x)
     r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
-    if best is not plain and not r.accepted:
+    if plain is not None and best is not plain and not r.accepted:
         best, refined = plain, model.camera(plain.x)
         r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
     sigma_f = cam.focal_rel_sigma
