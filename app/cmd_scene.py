@@ -146,18 +146,10 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
     if not (np.isfinite(t) and t > 0):
         raise ValueError(f"--exposure-time: must be a positive number of seconds, got {t}")
     cam, turned = _camera_in_room(a, cam, lo, hi)
-    refinement = None if a.no_refine_camera else _refine_camera(a, cam, prims, model, photo)
-    if refinement is not None and refinement.accepted:
-        cam = refinement.camera
-    rel = cam.focal_rel_sigma
-    if (refinement is None or not refinement.accepted) and (cam.ill_conditioned or (rel is not None and rel > 0.05)):
-        log.warning("%s: the focal length is uncertain%s: the composite may be misregistered", a.camera,
-                    f" (std(f)/f = {rel:.1%})" if rel is not None else "")
-
     images = {"background.png": photo}
-    light_probe = None
+    probe = None
     if a.probe:
-        light_probe = _probe(a, cam, prims, lo, hi, photo, t, images)
+        probe = _load_probe(a, lo, hi, images)
     elif any(x is not None for x in (a.probe_times, a.probe_centre, a.probe_radius, a.probe_shot_from)):
         raise ValueError("--probe: probe options given without the --probe images")
     sun = None
@@ -182,6 +174,16 @@ def assemble(a: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray], dict[s
     if sun is not None:
         _warn_no_sun(sun, prims, "--sun-direction" if a.sun_direction is not None else
                      "--when/--where" if by_time else f"{a.primitives}: sun")
+    # the refinement takes the sun's direction (the sunlit patch's outline), read through the bracket's response
+    refinement = None if a.no_refine_camera else _refine_camera(a, cam, prims, model, photo, sun,
+                                                                probe[3][1] if probe is not None else None)
+    if refinement is not None and refinement.accepted:
+        cam = refinement.camera
+    rel = cam.focal_rel_sigma
+    if (refinement is None or not refinement.accepted) and (cam.ill_conditioned or (rel is not None and rel > 0.05)):
+        log.warning("%s: the focal length is uncertain%s: the composite may be misregistered", a.camera,
+                    f" (std(f)/f = {rel:.1%})" if rel is not None else "")
+    light_probe = None if probe is None else _check_probe_pose(a, cam, prims, photo, t, *probe)
     scene = asm.scene_dict(a.room.name, cam, t, prims, lo, hi, light_probe, sun)
     if refinement is not None:
         scene["main_camera"]["refinement"] = refinement.to_json()
@@ -296,10 +298,11 @@ def _camera_in_room(a, cam, lo, hi):
     return turned, True
 
 
-def _refine_camera(a, cam, prims, model, photo):
+def _refine_camera(a, cam, prims, model, photo, sun=None, response=None):
     """calibrate's camera refined against the photo's edges of the room and the clicked lines its
-    camera.json keeps (recon.camrefine); one info line when taken, one warning when the input camera
-    is kept. None (not tried) for a room clicked on the photo with this camera (`photoar model`)."""
+    camera.json keeps (recon.camrefine), and with a sun (scene.json's entry) and the bracket's response
+    the sunlit patch's outline and the openings' edges too; one info line when taken, one warning when the
+    input camera is kept. None (not tried) for a room clicked on the photo with this camera (`photoar model`)."""
     from recon.camrefine import refine_camera
     from recon.io import SceneError, read_json
 
@@ -310,7 +313,7 @@ def _refine_camera(a, cam, prims, model, photo):
                  "measurement)", a.primitives)
         return None
     r = refine_camera(cam, prims, photo, read_json(a.camera, SceneError),
-                      fine_stage=getattr(a, "camera_edges", "profiles"))
+                      fine_stage=getattr(a, "camera_edges", "profiles"), sun=sun, response=response)
     if r.accepted:
         log.info("camera refined against the room's edges: %s", r.summary())
     elif r.fits:
@@ -356,7 +359,9 @@ def _warn_no_sun(sun: dict, prims: list[dict], where: str) -> None:
         log.warning("%s", reason)
 
 
-def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
+def _load_probe(a, lo, hi, images) -> tuple:
+    """The bracket read, checked, cropped and merged (its images added to `images`), before any camera:
+    (the light_probe block, the shots shortest first, their times, (radiance, response) of the merge)."""
     from recon import assemble as asm
 
     for opt in ("probe_centre", "probe_radius", "probe_shot_from"):
@@ -404,12 +409,17 @@ def _probe(a, cam, prims, lo, hi, photo, photo_t, images) -> dict:
     asm.check_probe_inside(a.probe_centre, a.probe_radius, a.probe_shot_from, lo, hi)
     lp = asm.light_probe_block(a.probe_centre, a.probe_radius, a.probe_shot_from, shots[0].shape[0], files, times)
     merged = _check_response(a, [shots[i] for i in order], times)
+    return lp, [shots[i] for i in order], times, merged
+
+
+def _check_probe_pose(a, cam, prims, photo, photo_t, lp, shots, times, merged) -> dict:
+    """The light_probe block lp, once its pose agrees with the photo seen through the camera scene uses
+    (lighting.probecheck; an error when the ball's turned pose fits better, a warning when it fits poorly)."""
     if not a.skip_probe_check:
         from lighting.probecheck import check_probe_pose
 
         try:
-            chk = check_probe_pose(lp, a.probe_shot_from, [shots[i] for i in order], times, photo, photo_t, cam,
-                                   prims, merged=merged)
+            chk = check_probe_pose(lp, a.probe_shot_from, shots, times, photo, photo_t, cam, prims, merged=merged)
         except ValueError as e:
             raise ValueError(f"--probe: {e}") from None
         log.info("probe pose check: log-luminance correlation with the photo %.2f (turned 180 deg: %.2f)",

@@ -53,6 +53,9 @@ R_PX = 4.0  # the profile's half-width across the outline
 STEP = 0.25
 BLOCK = 8  # jackknife blocks of this many consecutive samples (the grain correlates neighbours)
 SUN_RAD = np.radians(0.53 / 2)
+
+from recon.sunoutline import _bilinear, _tmean, boundary_offset, disk_fraction  # noqa: E402  (the product's)
+from recon.sunoutline import clipped as _clipped  # noqa: E402
 FC_FIXED = (0.05, 0.15, 0.5)  # clip fractions tried in place of the room's own (sun_101-103 read 0.13, 0.55, 0.27)
 
 
@@ -66,31 +69,6 @@ def _load(root: Path, keep: Path):
     sun = next(p for p in truth_json["primitives"] if p.get("role") == "sun")
     prims = flow_json["primitives"]
     return truth, cam, sun, prims
-
-
-def _clipped(img: np.ndarray) -> np.ndarray:
-    from recon.edgesnap import CLIP_LEVEL
-
-    return (img[:, :, :3].max(axis=2) >= CLIP_LEVEL).astype(np.float32)
-
-
-def _bilinear(a: np.ndarray, P: np.ndarray) -> np.ndarray:
-    H, W = a.shape
-    u = np.clip(P[..., 0], 0, W - 1.001)
-    v = np.clip(P[..., 1], 0, H - 1.001)
-    u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
-    fu, fv = u - u0, v - v0
-    return ((1 - fu) * (1 - fv) * a[v0, u0] + fu * (1 - fv) * a[v0, u0 + 1] + (1 - fu) * fv * a[v0 + 1, u0]
-            + fu * fv * a[v0 + 1, u0 + 1])
-
-
-def boundary_offset(clip: np.ndarray, uv: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """(N,) px: the clipped region's boundary along n (towards the clipped side) about uv: R - integral of the
-    clipped indicator (bilinear between pixel centres) over [-R, R]."""
-    ss = np.arange(-R_PX + STEP / 2, R_PX, STEP)
-    P = uv[:, None, :] + ss[None, :, None] * n[:, None, :]
-    c = _bilinear(clip, P)
-    return R_PX - c.sum(axis=1) * STEP
 
 
 def floor_hit(X: np.ndarray, dsun: np.ndarray) -> np.ndarray:
@@ -155,13 +133,6 @@ def normals_into(uv_a: np.ndarray, uv_b: np.ndarray, inside: np.ndarray) -> np.n
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     n = np.stack([-d[:, 1], d[:, 0]], 1)
     return n * np.sign(np.sum(n * (inside - uv_a), axis=1))[:, None]
-
-
-def _tmean(o: np.ndarray) -> float:
-    """Mean of the central 60 % (the offsets are quantised and have outliers: furniture, grain)."""
-    o = np.sort(o)
-    k = int(0.2 * len(o))
-    return float(np.mean(o[k:len(o) - k])) if len(o) > 2 * k else float(np.mean(o))
 
 
 def per_edge(off: np.ndarray, edge: np.ndarray) -> dict:
@@ -343,12 +314,6 @@ def main() -> None:
 # The noise-free model of the clipped boundary: the sun fraction across the outline (the disk's chord fraction,
 # half-width w px along the image normal), averaged over the pixel's box, crosses the clip fraction f_c =
 # (clip - rest) / (sun-lit - rest) (linear, the channel that clips first).
-
-def disk_fraction(u: np.ndarray) -> np.ndarray:
-    """Lit fraction of a uniform disk whose chord at offset u (in radii, towards the lit side) bounds it."""
-    u = np.clip(u, -1.0, 1.0)
-    return 0.5 + (u * np.sqrt(1 - u * u) + np.arcsin(u)) / np.pi
-
 
 def penumbra_px(cam, X: np.ndarray, d0: np.ndarray, n: np.ndarray) -> np.ndarray:
     """(N,) the sun disk's half-width (px) across the outline's image normal n at each opening point X."""

@@ -125,10 +125,13 @@ class Refinement:
     without_edge: object = dataclasses.field(default=None, repr=False)  # (edge index) -> Camera: the final fit
     # solved again without that room edge (edge_jackknife); None without a profile-stage fit
     edge_ids: object = dataclasses.field(default=None, repr=False)  # the room edges of the final fit
+    sun_edges: list | None = None  # the sunlit outline's and the openings' edges the final fit used (_sun_stage):
+    # per edge its kind, samples, offset from the clipped boundary (px), jackknife, clip fraction f_c, penumbra
 
     def to_json(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-             if f.name not in ("camera", "covariance", "x", "camera_at", "without_edge", "edge_ids")}
+             if f.name not in ("camera", "covariance", "x", "camera_at", "without_edge", "edge_ids")
+             and not (f.name == "sun_edges" and self.sun_edges is None)}
         return {k: (round(v, 6) if isinstance(v, float) else v) for k, v in d.items()}
 
     def summary(self) -> str:
@@ -438,6 +441,7 @@ class _Fit:
     sigma: np.ndarray  # (used,) noise of each used sample, px
     start: str = "input"
     data: tuple | None = None  # the last solve's data (samples, matched edge points, sigma, edge_var): campp.select
+    sun_info: list | None = None  # _sun_stage: the outline's and the openings' measured edges (sunoutline)
 
 
 def _fit(model: _Model, x: np.ndarray, radii, edges, occ, photo: PhotoEdges, lines,
@@ -558,6 +562,47 @@ def _line_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lin
     return fine
 
 
+def _sun_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines, sun) -> _Fit | None:
+    """The profile stage with the sunlit patch's outline and the openings' own edges (recon/sunoutline.py,
+    `sun` a SunEdges) fitted with the room's edges, three rounds from parameters x; None when no outline
+    edge is measured or too few room edges are found. An outline edge's samples enter as a room edge's
+    do (FINE_SIGMA_PX each, EDGE_WEIGHT_SAMPLES at most, robust) plus its measured noise spread over them,
+    as the line stage does: sigma = sqrt(FINE_SIGMA_PX^2 + n_eff sigma_edge^2), sigma_edge the jackknife of
+    the edge's mean offset, so an edge weighs what its measurement is worth. Their ids follow the room's
+    edges (len(edges) + the outline's own id)."""
+    S = _sample_edges(model.camera(x), edges, occ)
+    fine = None
+    for _ in range(3):
+        if len(S.X) < MIN_SAMPLES:
+            break
+        cam = model.camera(x)
+        uv, n = _project(cam, S)
+        q, ok = photo.subpixel(uv, n)
+        ok &= _exclusive(uv, n, S.edge, q)
+        o = sun.measure(cam)
+        if ok.sum() < MIN_SAMPLES or not len(o.X):
+            break
+        _, inv, counts = np.unique(o.edge, return_inverse=True, return_counts=True)
+        n_eff = np.minimum(counts[inv], EDGE_WEIGHT_SAMPLES)
+        sig = np.concatenate([np.full(int(ok.sum()), FINE_SIGMA_PX),
+                              np.sqrt(FINE_SIGMA_PX ** 2 + n_eff * o.sigma_edge ** 2)])
+        sub = _Samples(np.concatenate([S.X[ok], o.X]), np.concatenate([S.D[ok], o.D]),
+                       np.concatenate([S.edge[ok], len(edges) + o.edge]))
+        qq = np.concatenate([q[ok], o.q])
+        res = _solve(model, x, sub, qq, sig, lines, f_scale=ROBUST_SIGMAS)
+        x = res.x
+        uv1, n1 = _project(model.camera(x), sub)
+        resid = np.sum(n1 * (qq - uv1), axis=1)
+        info = []
+        for e, d in zip(np.unique(o.edge), o.info):  # o.info is in the order of its edge ids
+            m = sub.edge == len(edges) + e
+            info.append({**d, "resid_px": float(np.median(resid[m])),
+                         "sigma_px": float(np.sqrt(d["jackknife_px"] ** 2 + FINE_SIGMA_PX ** 2
+                                                   / min(int(m.sum()), EDGE_WEIGHT_SAMPLES)))})
+        fine = _Fit(x, res, sub, np.ones(len(sub.X), bool), resid, sig, data=None, sun_info=info)
+    return fine
+
+
 def _exclusive(uv: np.ndarray, n: np.ndarray, edge: np.ndarray, q: np.ndarray, k: int = 8) -> np.ndarray:
     """(N,) bool: the photo edge point q matched to each projected sample (uv, unit normal n, room
     edge index) is not nearer to another room edge of the same orientation (normals within one
@@ -592,7 +637,8 @@ PP_MODELS = ("select", "free", "held")  # a principal point from three vanishing
 
 
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
-                  fine_stage: str = "profiles", principal_point: str = "select") -> Refinement:
+                  fine_stage: str = "profiles", principal_point: str = "select", sun: dict | None = None,
+                  response: np.ndarray | None = None) -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
     module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
@@ -601,7 +647,11 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     calibrate's prior, PP_PRIOR_REL): see docs/unseen.md for where each does better.
     principal_point (used when calibrate took it from three vanishing points; else it is held as given):
     "select" (the default: fitted held at the image centre, freed only when the room's edges and the
-    clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre)."""
+    clicked lines fit significantly better so, recon/campp.select), "free" or "held" (at the image centre).
+    sun: a scene.json sun entry ("direction_to_sun", "angular_diameter_deg") whose direction the flow knows,
+    with response (the photo's inverse response (256,3), lighting.hdr's: the probe bracket's) and an opening
+    quad in prims: the chosen fit is fitted again with the sunlit patch's outline and the openings' own edges
+    (_sun_stage, recon/sunoutline.py) and that camera, when the guard accepts it, is the refinement's."""
     from recon import campp
 
     if fine_stage not in FINE_STAGES:
@@ -617,6 +667,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     occ = _Occluder(faces)
     photo = PhotoEdges(image)
     lines = clicked_lines(camera_json)
+    sun_edges = _sun_edges(sun, response, prims, occ, image)
     # calibrate's principal point from three vanishing points is weak (the orthocentre of their
     # triangle moves far with a distant vanishing point): it is held at the image centre or refined
     # (principal_point); the image centre (calibrate's default) or a given one is held
@@ -640,12 +691,18 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     else:
         model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
         best = _search(model, **stage)
+    plain = best  # the fit on the room's edges alone: the refinement when the sun's fails the guard
+    if best is not None and sun_edges is not None:
+        best = _with_sun(model, best, edges, occ, photo, lines, sun_edges)
     if best is None:
         S0 = _sample_edges(cam, edges, occ)
         best, refined = _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0), np.zeros(0)), cam
     else:
         refined = model.camera(best.x)
     r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
+    if plain is not None and best is not plain and not r.accepted:
+        best, refined = plain, model.camera(plain.x)
+        r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
     sigma_f = cam.focal_rel_sigma
     chi2_lines, chi2_lim = _lines_chi2(refined, lines)
     if (not r.accepted and not r.fits and sigma_f is not None and np.isfinite(sigma_f) and sigma_f > 0
@@ -668,6 +725,12 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
             i = int(np.argmax(gains))
             if gains[i] > EDGE_MODEL_SIGMA_PX:
                 best, r = ok[i]
+                if sun_edges is not None:  # the outline from the chosen camera, when the guard accepts it
+                    sb = _with_sun(model, best, edges, occ, photo, lines, sun_edges)
+                    if sb is not best:
+                        g = _guard(cam, model.camera(sb.x), sb, lines, edges, occ, photo, time.time() - t0)
+                        if g.accepted:
+                            best, r = sb, g
                 r = dataclasses.replace(r, seconds=float(time.time() - t0))
     without, ids = None, None
     if best.res is not None and best.data is not None and best.data[3] is None:  # the profile stage's fit
@@ -681,7 +744,43 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
                          f_scale=ROBUST_SIGMAS)
             return model.camera(res.x)
     return dataclasses.replace(r, principal_point=note, x=best.x, covariance=camera_covariance(best.res),
-                               camera_at=model.camera, without_edge=without, edge_ids=ids)
+                               camera_at=model.camera, without_edge=without, edge_ids=ids,
+                               sun_edges=[{k: (round(v, 4) if isinstance(v, float) else v) for k, v in e.items()}
+                                          for e in best.sun_info] if best.sun_info is not None else None)
+
+
+def _sun_edges(sun: dict | None, response, prims: list[dict], occ: _Occluder, image: np.ndarray):
+    """recon.sunoutline.SunEdges of the openings in prims under `sun` (its direction and angular diameter),
+    measured through `response`; None without a sun, a response or an opening quad."""
+    if sun is None or response is None:
+        return None
+    quads = [np.asarray(p["corners"], float) for p in prims if p.get("type") == "quad" and p.get("opening") is True]
+    if not quads:
+        return None
+    from recon.sunoutline import SunEdges
+
+    return SunEdges(quads, np.asarray(sun["direction_to_sun"], float), float(sun.get("angular_diameter_deg", 0.53)),
+                    occ, image, response)
+
+
+def _with_sun(model: _Model, best: _Fit, edges, occ, photo: PhotoEdges, lines, sun_edges) -> _Fit:
+    """`best` fitted again with the sun's edges (_sun_stage) from its parameters; `best` itself when that
+    stage does not run."""
+    from scipy.stats import chi2
+
+    f = _sun_stage(model, best.x, edges, occ, photo, lines, sun_edges)
+    if f is None:
+        return best
+    # the sun's edges must agree with the camera they and the room's edges give: each edge's median residual
+    # within its own noise and the room model's error of an edge's image (the outline is the taped opening
+    # cast along the sun; a sun direction off by tenths of a degree moves it by pixels, and a camera pulled
+    # to it leaves its edges apart): a chi-square at 99.9 %
+    z2 = [e["resid_px"] ** 2 / (e["sigma_px"] ** 2 + EDGE_MODEL_SIGMA_PX ** 2) for e in f.sun_info]
+    if not sum(z2) <= chi2.ppf(0.999, len(z2)):
+        why = f"the sunlit outline disagrees with the room's edges (chi-square {sum(z2):.1f} > " \
+              f"{chi2.ppf(0.999, len(z2)):.1f})"
+        return dataclasses.replace(best, sun_info=[{**e, "refused": why} for e in f.sun_info])
+    return dataclasses.replace(f, start=f"{best.start}, with the sunlit outline")
 
 
 def _search(model: _Model, edges, occ, photo: PhotoEdges, lines, fine_stage: str) -> _Fit | None:
