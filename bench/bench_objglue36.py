@@ -1,0 +1,136 @@
+"""A/B of the drag frame's object-light glue cuts of objglue36, in one process, the variants interleaved in rounds.
+
+usage: python bench/bench_objglue36.py [--scenes window_room,sun_room] [--path 8] [--rounds 3]
+
+Per scene one Engine (bench_glue_cpu.warm_drag); each round runs evaluate's drag path once per variant: "before"
+(the levers switched back to main's code, loaded from commit 69048c8: lift_off_contacts building a cKDTree
+of the points and asking it about every listed patch) and "after"
+(the code as it is). Prints per variant the frame's wall mean, `stages_ms["python"]` and the rendering thread's
+glue CPU per stage (bench_glue_cpu.ThreadCpu), how many composites are byte-identical between the two; then each
+lever's own call alone (arguments captured at the path's last pose), before and after interleaved, the rendering
+thread's CPU per call. Timings depend on the load: compare the variants of one run only.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import contextlib
+import hashlib
+import subprocess
+import sys
+import time
+import types
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import app.stages.object_shading as object_shading  # noqa: E402
+from app.dragpath import moved  # noqa: E402
+from app.evaluate import path_stages_ms  # noqa: E402
+from bench.bench_glue_cpu import ThreadCpu, warm_drag  # noqa: E402
+
+_within_box = object_shading._within_box
+_lift = object_shading.lift_off_contacts
+
+
+def _main_module(path: str, commit: str = "69048c8"):
+    """The module at `path` as main had it (commit), loaded apart (its functions: the "before" variants)."""
+    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{commit}:{path}"], capture_output=True, text=True,
+                         check=True).stdout
+    mod = types.ModuleType("main_" + Path(path).stem)
+    mod.__file__ = str(ROOT / path)
+    exec(compile(src, f"main:{path}", "exec"), mod.__dict__)
+    return mod
+
+
+_main_shading = _main_module("app/stages/object_shading.py")
+
+
+@contextlib.contextmanager
+def before():
+    """The levers switched back to main's code (object_drag imports lift_off_contacts at each call)."""
+    object_shading.lift_off_contacts = _main_shading.lift_off_contacts
+    try:
+        yield
+    finally:
+        object_shading.lift_off_contacts = _lift
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", default="window_room,sun_room")
+    ap.add_argument("--path", type=int, default=8)
+    ap.add_argument("--rounds", type=int, default=3)
+    args = ap.parse_args()
+    cpu = None
+    for name in args.scenes.split(","):
+        scene, eng, cfg, offsets = warm_drag(name, args.path)
+        cpu = cpu or ThreadCpu()
+        variants = {"before": before, "after": contextlib.nullcontext}
+        glue = {v: collections.defaultdict(float) for v in variants}
+        wall = {v: [] for v in variants}
+        python = {v: [] for v in variants}
+        frames: dict[str, list[bytes]] = {}
+        for _ in range(args.rounds):
+            for v, ctx in variants.items():
+                cpu.stage.clear()
+                stats, pix = [], []
+                with ctx():
+                    for o in offsets:
+                        t = time.perf_counter()
+                        cpu.start_frame()
+                        fr = eng.render(moved(scene.obj, o), cfg)
+                        wall[v].append(time.perf_counter() - t)
+                        stats.append(fr.stats)
+                        pix.append(hashlib.sha1(np.ascontiguousarray(fr.pixels).tobytes()).digest())
+                for k, s in cpu.stage.items():
+                    glue[v][k] += s / (len(offsets) * args.rounds)
+                python[v].append(path_stages_ms(stats)["python"])
+                frames.setdefault(v, pix)
+        same = sum(a == b for a, b in zip(frames["before"], frames["after"]))
+        print(f"{name}: {len(offsets)} poses x {args.rounds} rounds; composites before/after byte-identical "
+              f"{same}/{len(offsets)}")
+        for v in variants:
+            g = glue[v]
+            print(f"  {v}: wall {1e3 * np.mean(wall[v]):.1f} ms, python (wall) {np.mean(python[v]):.1f} ms, "
+                  f"glue cpu {1e3 * sum(g.values()):.1f} ms:", {k: round(1e3 * x, 1) for k, x in g.items()})
+        _per_call(eng, scene, cfg, offsets[-1], args.rounds)
+
+
+def _per_call(eng, scene, cfg, offset, rounds: int, reps: int = 20) -> None:
+    """Each lever's own call at the pose, before and after interleaved: the rendering thread's CPU per call (ms)."""
+    got = {}
+    lift = _lift
+
+    def spy(*a, **k):
+        got["lift"] = (a, k)
+        return lift(*a, **k)
+    object_shading.lift_off_contacts = spy
+    try:
+        eng.render(moved(scene.obj, offset), cfg)
+    finally:
+        object_shading.lift_off_contacts = lift
+    a, k = got["lift"]
+    cost = {"before": 0.0, "after": 0.0}
+    fns = {"before": _main_shading.lift_off_contacts, "after": lift}
+    r0, r1 = fns["before"](*a, **k), fns["after"](*a, **k)
+    for _ in range(rounds):
+        for v, fn in fns.items():
+            c = time.thread_time()
+            for _ in range(reps):
+                fn(*a, **k)
+            cost[v] += time.thread_time() - c
+    per = 1e3 / (rounds * reps)
+    p, centre, radius, eps = a[0], a[2], np.asarray(a[4]), a[5]
+    h = np.maximum(object_shading.CONTACT_LIFT * radius, 2.0 * eps)
+    n_in = len(_within_box(centre, radius + 2.0 * h, p.min(0), p.max(0)))
+    print(f"  lift_off_contacts ({len(a[0])} points, {len(a[2])} patches listed, ~{n_in} near the box): "
+          f"cpu per call before {per * cost['before']:.2f} ms -> after {per * cost['after']:.2f} ms; "
+          f"same result {np.array_equal(r0, r1)}")
+
+
+if __name__ == "__main__":
+    main()
