@@ -3,8 +3,8 @@
 usage: python bench/bench_objglue36.py [--scenes window_room,sun_room] [--path 8] [--rounds 3]
 
 Per scene one Engine (bench_glue_cpu.warm_drag); each round runs evaluate's drag path once per variant: "before"
-(the levers switched back to main's code, loaded from commit 69048c8: lift_off_contacts building a cKDTree
-of the points and asking it about every listed patch) and "after"
+(the levers switched back to main's code: lift_off_contacts loaded from commit 69048c8, building a cKDTree
+of the points and asking it about every listed patch; room_share_numpy, main's room_share) and "after"
 (the code as it is). Prints per variant the frame's wall mean, `stages_ms["python"]` and the rendering thread's
 glue CPU per stage (bench_glue_cpu.ThreadCpu), how many composites are byte-identical between the two; then each
 lever's own call alone (arguments captured at the path's last pose), before and after interleaved, the rendering
@@ -27,13 +27,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import app.stages.object_light as object_light  # noqa: E402
 import app.stages.object_shading as object_shading  # noqa: E402
 from app.dragpath import moved  # noqa: E402
 from app.evaluate import path_stages_ms  # noqa: E402
 from bench.bench_glue_cpu import ThreadCpu, warm_drag  # noqa: E402
 
-_within_box = object_shading._within_box
 _lift = object_shading.lift_off_contacts
+_room_share = object_light.room_share
 
 
 def _main_module(path: str, commit: str = "69048c8"):
@@ -42,6 +43,7 @@ def _main_module(path: str, commit: str = "69048c8"):
                          check=True).stdout
     mod = types.ModuleType("main_" + Path(path).stem)
     mod.__file__ = str(ROOT / path)
+    sys.modules[mod.__name__] = mod  # (dataclasses look their module up)
     exec(compile(src, f"main:{path}", "exec"), mod.__dict__)
     return mod
 
@@ -53,10 +55,12 @@ _main_shading = _main_module("app/stages/object_shading.py")
 def before():
     """The levers switched back to main's code (object_drag imports lift_off_contacts at each call)."""
     object_shading.lift_off_contacts = _main_shading.lift_off_contacts
+    object_light.room_share = object_light.room_share_numpy  # main's room_share, kept as the kernel's reference
     try:
         yield
     finally:
         object_shading.lift_off_contacts = _lift
+        object_light.room_share = _room_share
 
 
 def main() -> None:
@@ -101,35 +105,37 @@ def main() -> None:
 
 
 def _per_call(eng, scene, cfg, offset, rounds: int, reps: int = 20) -> None:
-    """Each lever's own call at the pose, before and after interleaved: the rendering thread's CPU per call (ms)."""
-    got = {}
-    lift = _lift
+    """Each lever's own call at the pose, before and after interleaved: the rendering thread's CPU per call (ms),
+    and the largest difference of their results."""
+    got: dict[str, list] = collections.defaultdict(list)
 
-    def spy(*a, **k):
-        got["lift"] = (a, k)
-        return lift(*a, **k)
-    object_shading.lift_off_contacts = spy
+    def spy(name, fn):
+        def wrapper(*a, **k):
+            got[name].append((a, k))
+            return fn(*a, **k)
+        return wrapper
+    object_shading.lift_off_contacts = spy("lift_off_contacts", _lift)
+    object_light.room_share = spy("room_share", _room_share)
     try:
         eng.render(moved(scene.obj, offset), cfg)
     finally:
-        object_shading.lift_off_contacts = lift
-    a, k = got["lift"]
-    cost = {"before": 0.0, "after": 0.0}
-    fns = {"before": _main_shading.lift_off_contacts, "after": lift}
-    r0, r1 = fns["before"](*a, **k), fns["after"](*a, **k)
-    for _ in range(rounds):
-        for v, fn in fns.items():
-            c = time.thread_time()
-            for _ in range(reps):
-                fn(*a, **k)
-            cost[v] += time.thread_time() - c
-    per = 1e3 / (rounds * reps)
-    p, centre, radius, eps = a[0], a[2], np.asarray(a[4]), a[5]
-    h = np.maximum(object_shading.CONTACT_LIFT * radius, 2.0 * eps)
-    n_in = len(_within_box(centre, radius + 2.0 * h, p.min(0), p.max(0)))
-    print(f"  lift_off_contacts ({len(a[0])} points, {len(a[2])} patches listed, ~{n_in} near the box): "
-          f"cpu per call before {per * cost['before']:.2f} ms -> after {per * cost['after']:.2f} ms; "
-          f"same result {np.array_equal(r0, r1)}")
+        object_shading.lift_off_contacts, object_light.room_share = _lift, _room_share
+    levers = {"lift_off_contacts": (_main_shading.lift_off_contacts, _lift),
+              "room_share": (object_light.room_share_numpy, _room_share)}
+    for name, (fb, fa) in levers.items():
+        for a, k in got[name]:
+            r0, r1 = fb(*a, **k), fa(*a, **k)
+            cost = {"before": 0.0, "after": 0.0}
+            for _ in range(rounds):
+                for v, fn in (("before", fb), ("after", fa)):
+                    c = time.thread_time()
+                    for _ in range(reps):
+                        fn(*a, **k)
+                    cost[v] += time.thread_time() - c
+            per = 1e3 / (rounds * reps)
+            what = f"{len(a[0])} points, {len(a[2])} {'patches' if name == 'lift_off_contacts' else 'triangles'}"
+            print(f"  {name} ({what}): cpu per call before {per * cost['before']:.2f} ms -> after "
+                  f"{per * cost['after']:.2f} ms; largest difference {np.abs(r0 - r1).max():.3g}")
 
 
 if __name__ == "__main__":
