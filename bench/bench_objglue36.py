@@ -6,7 +6,8 @@ Per scene one Engine (bench_glue_cpu.warm_drag); each round runs evaluate's drag
 (the levers switched back to main's code: lift_off_contacts loaded from commit 69048c8, building a cKDTree
 of the points and asking it about every listed patch; room_share_numpy, main's room_share) and "after"
 (the code as it is). Prints per variant the frame's wall mean, `stages_ms["python"]` and the rendering thread's
-glue CPU per stage (bench_glue_cpu.ThreadCpu), how many composites are byte-identical between the two; then each
+glue CPU per stage (bench_glue_cpu.ThreadCpu; the object_light stage's per frame as a median and quartiles too: a
+frame the load stalls moves a mean), how many composites are byte-identical between the two; then each
 lever's own call alone (arguments captured at the path's last pose), before and after interleaved, the rendering
 thread's CPU per call. Timings depend on the load: compare the variants of one run only.
 """
@@ -77,6 +78,7 @@ def main() -> None:
         glue = {v: collections.defaultdict(float) for v in variants}
         wall = {v: [] for v in variants}
         python = {v: [] for v in variants}
+        per_frame = {v: [] for v in variants}  # the object_light stage's glue CPU per frame
         frames: dict[str, list[bytes]] = {}
         for _ in range(args.rounds):
             for v, ctx in variants.items():
@@ -84,10 +86,11 @@ def main() -> None:
                 stats, pix = [], []
                 with ctx():
                     for o in offsets:
-                        t = time.perf_counter()
+                        t, ol = time.perf_counter(), cpu.stage.get("object_light", 0.0)
                         cpu.start_frame()
                         fr = eng.render(moved(scene.obj, o), cfg)
                         wall[v].append(time.perf_counter() - t)
+                        per_frame[v].append(cpu.stage["object_light"] - ol)
                         stats.append(fr.stats)
                         pix.append(hashlib.sha1(np.ascontiguousarray(fr.pixels).tobytes()).digest())
                 for k, s in cpu.stage.items():
@@ -101,6 +104,8 @@ def main() -> None:
             g = glue[v]
             print(f"  {v}: wall {1e3 * np.mean(wall[v]):.1f} ms, python (wall) {np.mean(python[v]):.1f} ms, "
                   f"glue cpu {1e3 * sum(g.values()):.1f} ms:", {k: round(1e3 * x, 1) for k, x in g.items()})
+            print(f"    object_light glue per frame: median {1e3 * np.median(per_frame[v]):.1f} ms, quartiles "
+                  f"{1e3 * np.percentile(per_frame[v], 25):.1f}-{1e3 * np.percentile(per_frame[v], 75):.1f} ms")
         _per_call(eng, scene, cfg, offsets[-1], args.rounds)
 
 

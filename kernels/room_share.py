@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from kernels import runtime
 from kernels.buffers import Workspace, call_buffers
 from kernels.visibility import Occluder, segment_blocked
 
@@ -45,12 +46,13 @@ def _room_share_kernel(mesh: wp.uint64, points: wp.array(dtype=wp.vec3d), normal
 
 def room_share_launch(points: np.ndarray, normals: np.ndarray, src: np.ndarray, src_n: np.ndarray,
                       power: np.ndarray, room: Occluder, eps: float, workspace: Workspace | None = None,
-                      capacity: int = 0) -> np.ndarray:
+                      capacity: int = 0, split: int = 256) -> np.ndarray:
     """(N,) float64 in [0, 1]: the share (module docstring) at points (N,3) [unit normals (N,3)] of the source
     groups at src (G,3) [unit normals src_n (G,3), power (G,)] past the room's occluder `room`, the receiver ends
     lifted by eps (m). workspace: the call site's buffers (launches of at most its rows receivers; the groups'
     buffers of at least `capacity` rows: nothing allocated after the first call), None: fresh buffers, one
-    launch."""
+    launch. On the CPU more than `split` receivers run as two halves side by side, one per core
+    (runtime.run_parallel; each receiver's share is its own thread's: the same values)."""
     n = len(points)
     out = np.ones(n)
     if n == 0 or len(src) == 0:
@@ -62,14 +64,26 @@ def room_share_launch(points: np.ndarray, normals: np.ndarray, src: np.ndarray, 
               ws.upload("src_n", np.asarray(src_n, np.float64), wp.vec3d, device, cap),
               ws.upload("power", np.asarray(power, np.float64), wp.float64, device, cap), int(len(src)),
               float(eps)]
-    res = ws.buffer("share", block, wp.float64, device)
-    for lo in range(0, n, block):
-        hi = min(lo + block, n)
+    cpu = wp.get_device(device).is_cpu
+    # a kept workspace gets both slots' buffers on its first call: a later call of more than `split` receivers (the
+    # object moved near more of the room) splits over both without allocating
+    for slot in range(2 if cpu and block == ws.rows else 1):
+        ws.buffer(f"share{slot}", block, wp.float64, device)
+        for name in ("points", "normals"):
+            ws.buffer(f"{name}{slot}", block, wp.vec3d, device)
+
+    def run(lo: int, hi: int, slot: int) -> None:  # slot: which concurrent launch (its own buffers)
+        res = ws.buffer(f"share{slot}", block, wp.float64, device)
         wp.launch(_room_share_kernel, dim=hi - lo, device=device,
-                  inputs=[wp.uint64(room.id), ws.upload("points", np.asarray(points[lo:hi], np.float64), wp.vec3d,
-                                                        device, block),
-                          ws.upload("normals", np.asarray(normals[lo:hi], np.float64), wp.vec3d, device, block),
-                          *shared],
+                  inputs=[wp.uint64(room.id), ws.upload(f"points{slot}", np.asarray(points[lo:hi], np.float64),
+                                                        wp.vec3d, device, block),
+                          ws.upload(f"normals{slot}", np.asarray(normals[lo:hi], np.float64), wp.vec3d, device,
+                                    block), *shared],
                   outputs=[res.dev[:hi - lo]])
         out[lo:hi] = res.pull(hi - lo)
+
+    halves = [(0, n)] if n <= split or not cpu else [(0, n // 2), (n // 2, n)]
+    parts = [[(s, min(e, s + block)) for s in range(a, e, block)] for a, e in halves]
+    for k in range(max(len(p) for p in parts)):  # the halves side by side, one per core on the CPU
+        runtime.run_parallel([lambda r=p[k], i=i: run(*r, i) for i, p in enumerate(parts) if k < len(p)])
     return out
