@@ -240,7 +240,7 @@ def lift_off_contacts(p: np.ndarray, n: np.ndarray, centre: np.ndarray, normal: 
         cand = _within_box(centre, reach, out.min(0), out.max(0))
         if not len(cand):
             break
-        pi, pj = _pairs_within(out, centre[cand], reach[cand])  # per patch, the points that may touch it
+        pi, pj = _pairs_within(out, centre[cand], reach[cand], normal[cand], h[cand])  # the points that may touch
         if not len(pi):
             break
         pj = cand[pj]
@@ -263,15 +263,19 @@ def lift_off_contacts(p: np.ndarray, n: np.ndarray, centre: np.ndarray, normal: 
 LIFT_BRUTE_PAIRS = 1 << 18  # (patch, point) pairs up to which _pairs_within tests every pair, not a tree
 
 
-def _pairs_within(points: np.ndarray, centre: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(point rows, centre rows) of the pairs with the point within reach (M,) of the centre (M,3) (a superset:
-    up to the rounding of 1e-6 relative; lift_off_contacts's own test decides), patch-major and ascending points
-    within a patch: every pair tested where they are few (a drag frame: ~10 patches near the object's box), a
-    cKDTree otherwise."""
+def _pairs_within(points: np.ndarray, centre: np.ndarray, reach: np.ndarray, normal: np.ndarray, h: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(point rows, centre rows) of the pairs with the point within h (M,) of the patch's plane (centre (M,3),
+    unit normal (M,3)) and within reach (M,) of its centre: a superset of lift_off_contacts's touching pairs
+    (margins of 1e-9 m on the plane's distance, 1e-6 relative on reach, over the rounding of other formulas),
+    patch-major and ascending points within a patch. Every pair tested where they are few (a drag frame: the
+    patches near the object's box; the plane's distance of all pairs as one product), a cKDTree otherwise."""
     if len(centre) * len(points) <= LIFT_BRUTE_PAIRS:
-        gap = points[None] - centre[:, None]  # (M,N,3)
-        rows, cols = np.nonzero(np.einsum("mnc,mnc->mn", gap, gap) <= ((reach * (1.0 + 1e-6)) ** 2)[:, None])
-        return cols, rows
+        off = normal @ points.T - np.einsum("mc,mc->m", normal, centre)[:, None]  # (M,N) signed plane distance
+        rows, cols = np.nonzero(np.abs(off) < (h + 1e-9)[:, None])
+        gap = points[cols] - centre[rows]
+        keep = np.einsum("kc,kc->k", gap, gap) <= (reach[rows] * (1.0 + 1e-6)) ** 2
+        return cols[keep], rows[keep]
     near = cKDTree(points).query_ball_point(centre, reach * (1.0 + 1e-6))
     cnt = np.fromiter((len(a) for a in near), np.int64, len(near))
     if not cnt.sum():
