@@ -4,7 +4,8 @@ usage: python bench/bench_objglue36.py [--scenes window_room,sun_room] [--path 8
 
 Per scene one Engine (bench_glue_cpu.warm_drag); each round runs evaluate's drag path once per variant: "before"
 (the levers switched back to main's code: lift_off_contacts loaded from commit 69048c8, building a cKDTree
-of the points and asking it about every listed patch; room_share_numpy, main's room_share) and "after"
+of the points and asking it about every listed patch; room_share_numpy, main's room_share; hit_average handed
+an `add` of zeros where there is none, as main made and uploaded it) and "after"
 (the code as it is). Prints per variant the frame's wall mean, `stages_ms["python"]` and the rendering thread's
 glue CPU per stage (bench_glue_cpu.ThreadCpu; the object_light stage's per frame as a median and quartiles too: a
 frame the load stalls moves a mean), how many composites are byte-identical between the two; then each
@@ -28,6 +29,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import app.stages.object_drag as object_drag  # noqa: E402
 import app.stages.object_light as object_light  # noqa: E402
 import app.stages.object_shading as object_shading  # noqa: E402
 from app.dragpath import moved  # noqa: E402
@@ -36,6 +38,14 @@ from bench.bench_glue_cpu import ThreadCpu, warm_drag  # noqa: E402
 
 _lift = object_shading.lift_off_contacts
 _room_share = object_light.room_share
+_hit_average = object_drag.hit_average
+
+
+def _hit_average_zeros(hits, faces, L_vert, add, colour, *rest):
+    """hit_average as main called it in a room without a sun: its `add` made as zeros and uploaded."""
+    if add is None:
+        add, colour = np.zeros(len(hits.hit)), np.zeros(3)
+    return _hit_average(hits, faces, L_vert, add, colour, *rest)
 
 
 def _main_module(path: str, commit: str = "69048c8"):
@@ -57,11 +67,13 @@ def before():
     """The levers switched back to main's code (object_drag imports lift_off_contacts at each call)."""
     object_shading.lift_off_contacts = _main_shading.lift_off_contacts
     object_light.room_share = object_light.room_share_numpy  # main's room_share, kept as the kernel's reference
+    object_drag.hit_average = _hit_average_zeros
     try:
         yield
     finally:
         object_shading.lift_off_contacts = _lift
         object_light.room_share = _room_share
+        object_drag.hit_average = _hit_average
 
 
 def main() -> None:
@@ -121,15 +133,21 @@ def _per_call(eng, scene, cfg, offset, rounds: int, reps: int = 20) -> None:
         return wrapper
     object_shading.lift_off_contacts = spy("lift_off_contacts", _lift)
     object_light.room_share = spy("room_share", _room_share)
+    object_drag.hit_average = spy("hit_average", _hit_average)
     try:
         eng.render(moved(scene.obj, offset), cfg)
     finally:
         object_shading.lift_off_contacts, object_light.room_share = _lift, _room_share
+        object_drag.hit_average = _hit_average
     levers = {"lift_off_contacts": (_main_shading.lift_off_contacts, _lift),
-              "room_share": (object_light.room_share_numpy, _room_share)}
+              "room_share": (object_light.room_share_numpy, _room_share),
+              "hit_average": (_hit_average_zeros, _hit_average)}
     for name, (fb, fa) in levers.items():
         for a, k in got[name]:
-            r0, r1 = fb(*a, **k), fa(*a, **k)
+            if name == "hit_average" and a[3] is not None:  # a sun room: the lever (no add) does not run
+                continue
+            r0 = np.array(fb(*a, **k), copy=True)  # (hit_average's result is a kept image)
+            r1 = fa(*a, **k)
             cost = {"before": 0.0, "after": 0.0}
             for _ in range(rounds):
                 for v, fn in (("before", fb), ("after", fa)):
@@ -138,7 +156,8 @@ def _per_call(eng, scene, cfg, offset, rounds: int, reps: int = 20) -> None:
                         fn(*a, **k)
                     cost[v] += time.thread_time() - c
             per = 1e3 / (rounds * reps)
-            what = f"{len(a[0])} points, {len(a[2])} {'patches' if name == 'lift_off_contacts' else 'triangles'}"
+            what = (f"{len(a[0].hit)} sub-samples" if name == "hit_average" else
+                    f"{len(a[0])} points, {len(a[2])} {'patches' if name == 'lift_off_contacts' else 'triangles'}")
             print(f"  {name} ({what}): cpu per call before {per * cost['before']:.2f} ms -> after "
                   f"{per * cost['after']:.2f} ms; largest difference {np.abs(r0 - r1).max():.3g}")
 
