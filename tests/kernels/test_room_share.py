@@ -34,8 +34,10 @@ def test_room_share_kernel_matches_the_numpy_it_replaced():
     # receivers on the floor (up), on the sofa's front (-z) and back (+z: the object behind the sofa), on walls
     # facing away from the object (no group weighs anything: share 1), some in the boxes' shadow
     n = 3000
-    pts = np.concatenate([rng.uniform([-2, 0, -2], [2, 0, 2], (n, 3)), rng.uniform([-1, 0, 0.6], [1, 0.8, 0.6], (500, 3)),
-                          rng.uniform([-1, 0, 1.0], [1, 0.8, 1.0], (500, 3)), rng.uniform([2, 0, -2], [2, 2, 2], (200, 3))])
+    pts = np.concatenate([rng.uniform([-2, 0, -2], [2, 0, 2], (n, 3)),
+                          rng.uniform([-1, 0, 0.6], [1, 0.8, 0.6], (500, 3)),
+                          rng.uniform([-1, 0, 1.0], [1, 0.8, 1.0], (500, 3)),
+                          rng.uniform([2, 0, -2], [2, 2, 2], (200, 3))])
     nrm = np.concatenate([np.tile([0.0, 1.0, 0.0], (n, 1)), np.tile([0.0, 0.0, -1.0], (500, 1)),
                           np.tile([0.0, 0.0, 1.0], (500, 1)), np.tile([1.0, 0.0, 0.0], (200, 1))])
     for cells, extra in ((2, None), (1, None), (3, None)):
