@@ -153,14 +153,14 @@ def hit_average(hits, faces: np.ndarray, L_vert: np.ndarray, add: "np.ndarray | 
     n = len(hits.hit)
     ws = workspace
     cap = hits.H * hits.W * hits.s * hits.s  # the whole frame's sub-samples: a later, larger rectangle allocates nothing
-    if add is None:
-        add, colour = np.zeros(n), np.zeros(3)
     res = ws.buffer("out", hits.H * hits.W, wp.vec3d, device)
     tri = ws.upload("tri", np.maximum(hits.tri, 0).astype(np.int32), wp.int32, device, cap)
     bary = ws.upload("bary", hits.bary.astype(np.float32), wp.vec3, device, cap)
     hit = ws.upload("hit", hits.hit.astype(np.uint8), wp.uint8, device, cap)
     faces_d = ws.upload("faces", np.asarray(faces, np.int32), wp.vec3i, device)
-    if isinstance(add, SunAtHits):
+    if add is None:  # no add: a kept buffer of zeros (made zeroed, never written), no array made or uploaded
+        add_d, colour = ws.buffer("zero_add", max(n, cap), wp.float64, device).dev[:n], np.zeros(3)
+    elif isinstance(add, SunAtHits):
         add_d = ws.buffer("add", max(n, cap), wp.float64, device).dev[:n]
         _sun_at_hits(add, tri, bary, hit, faces_d, add_d, ws, device)
     else:

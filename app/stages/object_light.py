@@ -16,6 +16,7 @@ import scipy.sparse as sp
 from app.config import ObjectConfig
 from kernels.buffers import Workspace, Workspaces
 from kernels.farfield import VertexInterpolation, point_emitter_sum
+from kernels.room_share import room_share_launch
 from kernels.visibility import (Occluder, SeenEmitters, distance_to, emitter_sum, emitter_sum_seen_bounded,
                                 segments_visible, transfer_matrix)
 from recon.patches import PatchMesh
@@ -232,7 +233,19 @@ def room_share(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
     its faces face: at most 48), each weighted at the receiver by the point-source form factor (power x both
     cosines / distance^2) and tested with one segment: a few rays per receiver in place of one per
     (receiver, triangle). Groups whose faces look away from a receiver weigh nothing there, so a face
-    the room hides does not borrow the visibility of the object's far side."""
+    the room hides does not borrow the visibility of the object's far side. One launch, a thread per receiver
+    (kernels.room_share; room_share_numpy: the numpy it replaced, within 1e-12)."""
+    if len(points) == 0:
+        return np.ones(0)
+    src, src_n, power = _source_groups(tris, tri_rad, extra, cells)
+    return room_share_launch(points, normals, src, src_n, power, room, ROOM_EPS, workspace, 6 * cells ** 3)
+
+
+def room_share_numpy(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray,
+                     room: Occluder, extra: ExtraEmitters | None = None, workspace: Workspace | None = None,
+                     cells: int = ROOM_CELLS) -> np.ndarray:
+    """room_share in numpy, with segments_visible for the segments (the weights as (N,G) arrays): the reference
+    of its kernel (kernels.room_share) and the bench's "before"."""
     n = len(points)
     out = np.ones(n)
     if n == 0:

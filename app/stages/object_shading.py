@@ -235,12 +235,15 @@ def lift_off_contacts(p: np.ndarray, n: np.ndarray, centre: np.ndarray, normal: 
     h = np.maximum(CONTACT_LIFT * radius, 2.0 * eps)
     reach = radius + 2.0 * h  # a touching point lies within this of the patch's centre
     for _ in range(2):  # a point in a corner touches two surfaces
-        near = cKDTree(out).query_ball_point(centre, reach)  # per patch, the points that may touch it
-        cnt = np.fromiter((len(a) for a in near), np.int64, len(near))
-        if not cnt.sum():
+        # only the patches within reach of the points' box can touch one (a frame's list holds every patch the
+        # sun's change touches, mostly far from the object): only those are tested against the points, in their order
+        cand = _within_box(centre, reach, out.min(0), out.max(0))
+        if not len(cand):
             break
-        pi = np.concatenate([np.asarray(a, np.int64) for a in near if len(a)])
-        pj = np.repeat(np.arange(len(centre)), cnt)
+        pi, pj = _pairs_within(out, centre[cand], reach[cand], normal[cand], h[cand])  # the points that may touch
+        if not len(pi):
+            break
+        pj = cand[pj]
         rel = out[pi] - centre[pj]
         d = np.einsum("kc,kc->k", rel, normal[pj])
         inplane = np.linalg.norm(rel - d[:, None] * normal[pj], axis=1) < radius[pj] + h[pj]
@@ -255,6 +258,38 @@ def lift_off_contacts(p: np.ndarray, n: np.ndarray, centre: np.ndarray, normal: 
         t = normal[pj] - cos[:, None] * n[pi]  # the face's direction rising off the surface
         out[pi] += ((h[pj] - d) / np.einsum("kc,kc->k", t, t))[:, None] * t
     return out
+
+
+LIFT_BRUTE_PAIRS = 1 << 18  # (patch, point) pairs up to which _pairs_within tests every pair, not a tree
+
+
+def _pairs_within(points: np.ndarray, centre: np.ndarray, reach: np.ndarray, normal: np.ndarray, h: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(point rows, centre rows) of the pairs with the point within h (M,) of the patch's plane (centre (M,3),
+    unit normal (M,3)) and within reach (M,) of its centre: a superset of lift_off_contacts's touching pairs
+    (margins of 1e-9 m on the plane's distance, 1e-6 relative on reach, over the rounding of other formulas),
+    patch-major and ascending points within a patch. Every pair tested where they are few (a drag frame: the
+    patches near the object's box; the plane's distance of all pairs as one product), a cKDTree otherwise."""
+    if len(centre) * len(points) <= LIFT_BRUTE_PAIRS:
+        off = normal @ points.T - np.einsum("mc,mc->m", normal, centre)[:, None]  # (M,N) signed plane distance
+        rows, cols = np.nonzero(np.abs(off) < (h + 1e-9)[:, None])
+        gap = points[cols] - centre[rows]
+        keep = np.einsum("kc,kc->k", gap, gap) <= (reach[rows] * (1.0 + 1e-6)) ** 2
+        return cols[keep], rows[keep]
+    near = cKDTree(points).query_ball_point(centre, reach * (1.0 + 1e-6))
+    cnt = np.fromiter((len(a) for a in near), np.int64, len(near))
+    if not cnt.sum():
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return (np.concatenate([np.sort(np.asarray(a, np.int64)) for a in near if len(a)]),
+            np.repeat(np.arange(len(centre)), cnt))
+
+
+def _within_box(centre: np.ndarray, reach: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(K,) the rows of centre (M,3) within reach (M,) of the box [lo, hi] (3,), ascending: a superset of the
+    patches a point in the box can lie within reach of (the distance to the box is at most any of its points';
+    rounding is monotonic, and the 1e-6 relative margin covers the tree's own distance test)."""
+    gap = centre - np.clip(centre, lo, hi)
+    return np.flatnonzero(np.einsum("mc,mc->m", gap, gap) <= (reach * (1.0 + 1e-6)) ** 2)
 
 
 def _probe_grid(lo: np.ndarray, hi: np.ndarray, points: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:

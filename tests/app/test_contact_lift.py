@@ -49,3 +49,46 @@ def test_a_foot_on_the_floor_gathers_the_floor_from_just_above():
     ref = _wall_point_ff(h)
     assert at_floor < 1e-6, at_floor
     assert 0.45 < ref < 0.5 and abs(lifted - ref) <= 0.01 * ref, (lifted, ref)
+
+
+def test_the_box_prefilter_keeps_every_patch_a_point_can_touch():
+    """lift_off_contacts asks its tree only about the patches within reach of the points' box
+    (object_shading._within_box): a superset of those within reach of some point (brute force, every pair),
+    and the lifted points are bit for bit those with far patches added to the list, which it skips."""
+    from app.stages.object_shading import _within_box
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-0.3, 0.3, (400, 3))
+    centre = rng.uniform(-1.0, 1.0, (3000, 3))
+    reach = rng.uniform(0.01, 0.2, 3000)
+    cand = _within_box(centre, reach, p.min(0), p.max(0))
+    d = np.linalg.norm(centre[:, None] - p[None], axis=2).min(1)
+    must = np.flatnonzero(d <= reach)
+    assert len(must) > 50 and np.isin(must, cand).all() and (np.diff(cand) > 0).all()
+    assert len(cand) < 0.5 * len(centre)  # it does leave out the far ones
+    # a chair's feet on a floor, the floor's patches listed with far wall patches between them
+    _, fc, fn, fr = _floor()
+    feet = np.array([[0.013, 0.0, 0.027], [0.41, 0.004, 0.33], [0.2, 0.5, 0.2], [0.05, 0.001, 0.0]])
+    fnrm = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [np.sqrt(0.5), -np.sqrt(0.5), 0.0]])
+    wc = np.stack([np.full(500, 3.0), rng.uniform(0, 2, 500), rng.uniform(-2, 2, 500)], 1)
+    wn = np.tile([-1.0, 0.0, 0.0], (500, 1))
+    mixed = [np.concatenate([a[:800], b, a[800:]]) for a, b in ((fc, wc), (fn, wn), (fr, np.full(500, 0.07)))]
+    q0 = lift_off_contacts(feet, fnrm, fc, fn, fr, eps=2e-3)
+    q1 = lift_off_contacts(feet, fnrm, *mixed, eps=2e-3)
+    assert np.array_equal(q0, q1) and not np.array_equal(q0, feet)
+
+
+def test_every_pair_tested_gives_the_tree_s_lift(monkeypatch):
+    """_pairs_within tests every (patch, point) pair where they are few and asks a cKDTree otherwise: both give
+    the same lifted points, bit for bit (a floor's patches under feet and points just above it, two passes)."""
+    import app.stages.object_shading as osh
+    _, fc, fn, fr = _floor(2.0, 0.05)
+    rng = np.random.default_rng(5)
+    p = np.concatenate([rng.uniform(-0.9, 0.9, (300, 3)) * [1.0, 0.0, 1.0],
+                        rng.uniform(-0.9, 0.9, (300, 3)) * [1.0, 0.004, 1.0]])
+    nrm = rng.normal(size=(600, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    monkeypatch.setattr(osh, "LIFT_BRUTE_PAIRS", 10 ** 9)
+    brute = lift_off_contacts(p, nrm, fc, fn, fr, eps=2e-3)
+    monkeypatch.setattr(osh, "LIFT_BRUTE_PAIRS", 0)
+    tree = lift_off_contacts(p, nrm, fc, fn, fr, eps=2e-3)
+    assert np.array_equal(brute, tree) and (np.abs(brute - p).max(1) > 0).sum() > 200

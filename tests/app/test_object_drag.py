@@ -270,6 +270,9 @@ def test_hit_average_into_a_kept_image_equals_a_fresh_one():
         ref = hit_average(h, faces, L, None, None, "cpu", Workspace())
         assert got is kept.image and np.abs(ref).sum() > 1.0
         np.testing.assert_array_equal(got, ref)
+        # no add: the kept zero buffer gives the image an uploaded `add` of zeros gives, bit for bit
+        zeros = hit_average(h, faces, L, np.zeros(len(h.hit)), np.zeros(3), "cpu", Workspace())
+        np.testing.assert_array_equal(got, zeros)
 
 
 @pytest.mark.parametrize("yaw", [0.0, 1.2])
