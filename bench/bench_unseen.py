@@ -95,7 +95,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mitsuba-python", default=os.environ.get("PHOTOAR_MITSUBA_PYTHON",
                                                               str(Path.home() / ".venvs/mitsuba/bin/python")))
     ap.add_argument("--shared", default=os.environ.get("PHOTOAR_SHARED", str(ROOT.parent / "shared")))
-    ap.add_argument("--only", help="comma-separated KIND_SEED names to run (default: all)")
+    ap.add_argument("--only", help="comma-separated KIND_SEED names to run (default: the fixed list; a name outside "
+                                         "it, e.g. a held-out seed, runs too)")
     ap.add_argument("--json", help="write all results here (default <results>/bench_unseen.json)")
     ap.add_argument("--results", help="folder of one result file per room (default <rooms>/results): a room "
                                       "with a result there is not run again unless --rerun")
@@ -121,8 +122,10 @@ def main(argv=None) -> int:
     roomgen = shared / "tools" / "roomgen.py"
     todo = room_list()
     if a.only:
-        want = set(a.only.split(","))
-        todo = [r for r in todo if f"{r[0]}_{r[1]}" in want]
+        want = a.only.split(",")
+        extra = [(n.rsplit("_", 1)[0], int(n.rsplit("_", 1)[1])) for n in want
+                 if n not in {f"{k}_{s}" for k, s in todo}]  # held-out seeds beyond the fixed list
+        todo = [r for r in todo if f"{r[0]}_{r[1]}" in set(want)] + extra
     missing = [(k, s) for k, s in todo if not (rooms / f"{k}_{s}" / "scene.json").is_file()]
     if missing and a.render:
         for k, s in missing:
