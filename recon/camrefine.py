@@ -691,17 +691,18 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     else:
         model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
         best = _search(model, **stage)
-    plain = best  # the fit on the room's edges alone: the refinement when the sun's fails the guard
-    if best is not None and sun_edges is not None:
-        best = _with_sun(model, best, edges, occ, photo, lines, sun_edges)
-    if best is None:
-        S0 = _sample_edges(cam, edges, occ)
-        best, refined = _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0), np.zeros(0)), cam
-    else:
+    # the fit with the sun's edges when the guard accepts it, else the fit on the room's edges alone
+    with_sun = None if best is None else _sun_refit(cam, model, best, edges, occ, photo, lines, sun_edges, t0)
+    if with_sun is not None:
+        best, r = with_sun
         refined = model.camera(best.x)
-    r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
-    if plain is not None and best is not plain and not r.accepted:
-        best, refined = plain, model.camera(plain.x)
+    else:
+        if best is None:
+            S0 = _sample_edges(cam, edges, occ)
+            best, refined = _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0),
+                                 np.zeros(0)), cam
+        else:
+            refined = model.camera(best.x)
         r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
     sigma_f = cam.focal_rel_sigma
     chi2_lines, chi2_lim = _lines_chi2(refined, lines)
@@ -725,12 +726,8 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
             i = int(np.argmax(gains))
             if gains[i] > EDGE_MODEL_SIGMA_PX:
                 best, r = ok[i]
-                if sun_edges is not None:  # the outline from the chosen camera, when the guard accepts it
-                    sb = _with_sun(model, best, edges, occ, photo, lines, sun_edges)
-                    if sb is not best:
-                        g = _guard(cam, model.camera(sb.x), sb, lines, edges, occ, photo, time.time() - t0)
-                        if g.accepted:
-                            best, r = sb, g
+                # the outline from the chosen camera, when the guard accepts it
+                best, r = _sun_refit(cam, model, best, edges, occ, photo, lines, sun_edges, t0) or (best, r)
                 r = dataclasses.replace(r, seconds=float(time.time() - t0))
     without, ids = None, None
     if best.res is not None and best.data is not None and best.data[3] is None:  # the profile stage's fit
@@ -761,6 +758,20 @@ def _sun_edges(sun: dict | None, response, prims: list[dict], occ: _Occluder, im
 
     return SunEdges(quads, np.asarray(sun["direction_to_sun"], float), float(sun.get("angular_diameter_deg", 0.53)),
                     occ, image, response)
+
+
+def _sun_refit(cam: Camera, model: _Model, fit: _Fit, edges, occ, photo: PhotoEdges, lines, sun_edges,
+               t0: float) -> tuple[_Fit, Refinement] | None:
+    """(`fit` fitted again with the sun's edges (_with_sun), its guard) when there are sun edges, that stage
+    runs and the guard accepts its camera; None otherwise (the caller keeps `fit`). t0: the refinement's
+    start (time.time()), for the guard's seconds."""
+    if sun_edges is None:
+        return None
+    sb = _with_sun(model, fit, edges, occ, photo, lines, sun_edges)
+    if sb is fit:
+        return None
+    g = _guard(cam, model.camera(sb.x), sb, lines, edges, occ, photo, time.time() - t0)
+    return (sb, g) if g.accepted else None
 
 
 def _with_sun(model: _Model, best: _Fit, edges, occ, photo: PhotoEdges, lines, sun_edges) -> _Fit:
