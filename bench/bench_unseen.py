@@ -63,6 +63,14 @@ def room_list() -> list[tuple[str, int]]:
     return [(k, SEEDS[k][i]) for i in range(n) for k in SEEDS if i < len(SEEDS[k])]
 
 
+def parse_room_name(name: str, ap: argparse.ArgumentParser) -> tuple[str, int]:
+    """(kind, seed) of a KIND_SEED name (window_104); a usage error naming it otherwise."""
+    kind, _, seed = name.rpartition("_")
+    if kind not in SPP or not seed.isdigit():
+        ap.error(f"--only: {name!r} is not KIND_SEED with KIND one of {', '.join(SPP)} (e.g. sun_104)")
+    return kind, int(seed)
+
+
 def rooms_dir(arg: str | None) -> Path:
     return Path(arg or os.environ.get("PHOTOAR_ROOMS") or Path.home() / ".cache" / "photoar" / "rooms").expanduser()
 
@@ -123,8 +131,8 @@ def main(argv=None) -> int:
     todo = room_list()
     if a.only:
         want = a.only.split(",")
-        extra = [(n.rsplit("_", 1)[0], int(n.rsplit("_", 1)[1])) for n in want
-                 if n not in {f"{k}_{s}" for k, s in todo}]  # held-out seeds beyond the fixed list
+        fixed = {f"{k}_{s}" for k, s in todo}
+        extra = [parse_room_name(n, ap) for n in want if n not in fixed]  # held-out seeds beyond the fixed list
         todo = [r for r in todo if f"{r[0]}_{r[1]}" in set(want)] + extra
     missing = [(k, s) for k, s in todo if not (rooms / f"{k}_{s}" / "scene.json").is_file()]
     if missing and a.render:
