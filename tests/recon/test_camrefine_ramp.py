@@ -58,12 +58,12 @@ def test_a_step_is_kept(angle):
 def test_a_crease_into_a_slope_is_dropped(angle):
     """Radiance falling smoothly into the crease from one side (0.13 + 0.3 (1 - exp(s / 8 px)) for s < 0, flat
     0.13 beyond; the gradient largest next to the crease, as clean sun_103's back corner, whose gradient at 3.5-4 px
-    from the crease is 0.6 of its peak): the centroid rule finds the edge on the slope, over 0.7 px off the crease
-    (sun_103: 1.25 px), and the edge is dropped."""
+    from the crease is 0.6 of its peak): the centroid rule finds the edge on the slope, over 1 px off the crease
+    (measured 1.27-1.31 px at the four angles; sun_103's corner: 1.25 px), and the edge is dropped."""
     img, nrm = _photo(lambda s: 0.13 + np.where(s < 0, 0.3 * (1 - np.exp(s / 8.0)), 0.0), angle)
     q, ok, d, ramp = _found(img, nrm)
     assert ok.mean() > 0.5
-    assert np.median(d[ok]) < -0.7
+    assert np.median(d[ok]) < -1.0
     assert ramp[ok].all()
 
 
