@@ -4,7 +4,8 @@ Per room: calibrate's camera (the room's clicked lines, snapped to the photo, pl
 recon.vanishing.calibrate_lines, as `photoar calibrate` runs it; turned 180 deg about +Y when only the
 turn lies in the taped room, as `scene` does), then `refine_camera` with each variant given, and, with
 --true, the refinement started from the truth's camera (no clicked lines: how far the photo's edges
-drag a camera that is right). Errors against the truth's camera: focal (%), principal point (px),
+drag a camera that is right). calibrate's camera carries its focal sigma, as `scene` reads it from camera.json
+(refine_camera's second search over the focal length runs where the first fails the clicked lines). Errors against the truth's camera: focal (%), principal point (px),
 rotation (deg), centre (cm), the image error: rms px between the two cameras' images of the
 room's edge samples the truth's camera sees, and the object's image error: the same over the vertices of the
 scene's synthetic object where it stands (what rmse_object scores: bench/bench_object_shift.py gives how
@@ -21,6 +22,7 @@ read from $PHOTOAR_SHARED/scenes.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -88,7 +90,8 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
     from recon.camrefine import _Occluder, _sample_edges, edge_jackknife, refine_camera, room_edges, room_faces
 
     truth, img, cal, prims, lo, hi = calibrated_from_lines(_room_dir(name, rooms))
-    cam = cal.camera
+    cam = dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma)  # as `scene` reads camera.json:
+    # the focal length's sigma lets refine_camera search again when its first search fails the clicked lines
     if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
         cam = asm.turned_about_y(cam)
     faces = room_faces(prims)

@@ -16,7 +16,9 @@ projected into the photo and aligned with the photo's edges:
    radius shrinks 64 -> 2 px;
 3. fine: each sample's edge is re-measured to sub-pixel accuracy as the centroid of the gradient
    profile across the projected edge (recon/edgesnap.py's gradient image, its clipped-pixel mask
-   and its centroid rule), and the fit repeated; or, with fine_stage="lines" (not the default: see
+   and its centroid rule), and the fit repeated; an edge whose found profile is the steep side of a ramp,
+   not a step (a crease whose radiance falls smoothly into it: the centroid lands 1-1.5 px up the slope;
+   recon/photoedges.ramp_edge_mask) is left out of that stage; or, with fine_stage="lines" (not the default: see
    docs/unseen.md), each edge is found as one line against the photo's own noise (recon/edgelines.py,
    _line_stage);
 4. the clicked vanishing lines of calibrate (camera.json "vanishing_points": the segments it used)
@@ -480,8 +482,7 @@ def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, 
         if len(S.X) < MIN_SAMPLES:
             break
         uv, n = _project(model.camera(x), S)
-        q, ok = photo.subpixel(uv, n)
-        ok &= _exclusive(uv, n, S.edge, q)
+        q, ok = _subpixel(photo, uv, n, S.edge)
         if ok.sum() < MIN_SAMPLES:
             break
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
@@ -491,6 +492,19 @@ def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, 
         fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX),
                     data=(sub, q[ok], FINE_SIGMA_PX, None))
     return fine
+
+
+def _subpixel(photo: PhotoEdges, uv: np.ndarray, n: np.ndarray, edge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The profile stage's sub-pixel edge of each projected sample (uv, unit normal n, room edge index) and
+    which to use: found by edgesnap's rule (photo.subpixel), explaining its own room edge (_exclusive), and not
+    on an edge whose profile is a ramp (recon.photoedges.ramp_edge_mask; unless photo.ramp_edges is "keep")."""
+    from recon.photoedges import ramp_edge_mask
+
+    q, ok = photo.subpixel(uv, n)
+    ok &= _exclusive(uv, n, edge, q)
+    if getattr(photo, "ramp_edges", "drop") == "drop":
+        ok &= ~ramp_edge_mask(photo.fine, q, n, edge, ok)
+    return q, ok
 
 
 def _line_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, lines) -> _Fit | None:
@@ -577,8 +591,7 @@ def _sun_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, line
             break
         cam = model.camera(x)
         uv, n = _project(cam, S)
-        q, ok = photo.subpixel(uv, n)
-        ok &= _exclusive(uv, n, S.edge, q)
+        q, ok = _subpixel(photo, uv, n, S.edge)
         o = sun.measure(cam)
         if ok.sum() < MIN_SAMPLES or not len(o.X):
             break
@@ -638,7 +651,7 @@ PP_MODELS = ("select", "free", "held")  # a principal point from three vanishing
 
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
                   fine_stage: str = "profiles", principal_point: str = "select", sun: dict | None = None,
-                  response: np.ndarray | None = None) -> Refinement:
+                  response: np.ndarray | None = None, ramp_edges: str = "drop") -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
     module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
@@ -651,7 +664,9 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     sun: a scene.json sun entry ("direction_to_sun", "angular_diameter_deg") whose direction the flow knows,
     with response (the photo's inverse response (256,3), lighting.hdr's: the probe bracket's) and an opening
     quad in prims: the chosen fit is fitted again with the sunlit patch's outline and the openings' own edges
-    (_sun_stage, recon/sunoutline.py) and that camera, when the guard accepts it, is the refinement's."""
+    (_sun_stage, recon/sunoutline.py) and that camera, when the guard accepts it, is the refinement's.
+    ramp_edges: "drop" (the default) leaves out of the profile stage the room edges whose found profile is a ramp
+    (recon/photoedges.ramp_edge_mask), "keep" keeps them (the rule before; for measurements)."""
     from recon import campp
 
     if fine_stage not in FINE_STAGES:
@@ -665,7 +680,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     faces = room_faces(prims)
     edges = room_edges(faces)
     occ = _Occluder(faces)
-    photo = PhotoEdges(image)
+    photo = PhotoEdges(image, ramp_edges=ramp_edges)
     lines = clicked_lines(camera_json)
     sun_edges = _sun_edges(sun, response, prims, occ, image)
     # calibrate's principal point from three vanishing points is weak (the orthocentre of their

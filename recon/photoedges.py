@@ -12,16 +12,24 @@ import numpy as np
 ORIENT_BINS = 12  # bins of the edge normal's angle over [0, pi): 15 deg; a match may be one bin off
 PROFILE_HALF_PX = 2.0  # the fine stage's search either side of the projected edge
 PROFILE_STEP_PX = 0.25
+SHOULDER_PX = (2.0, 3.0)  # ramp_edges: where an edge's gradient profile is read beside its found edge (|s|, px):
+# past a box-filtered step's own gradient (the pixel, the bilinear sample and the Sobel reach under 2.5 px; a
+# rendered step reads 0.00-0.02 of its peak there at every angle and phase)
+RAMP_EDGE_MODES = ("drop", "keep")
 
 
 class PhotoEdges:
     """The photo prepared once: oriented Canny edges with their nearest-pixel maps, and edgesnap's
     linear gradient image for the sub-pixel stage."""
 
-    def __init__(self, image: np.ndarray):
+    def __init__(self, image: np.ndarray, ramp_edges: str = "drop"):
         import cv2
 
         from recon.edgesnap import EdgeImage
+
+        if ramp_edges not in RAMP_EDGE_MODES:
+            raise ValueError(f"ramp_edges: expected one of {RAMP_EDGE_MODES}, got {ramp_edges!r}")
+        self.ramp_edges = ramp_edges  # the profile stage drops an edge whose profile is a ramp (ramp_edge_mask)
 
         img = np.asarray(image)
         self.fine = EdgeImage(img)  # linear gray gradient, clipped-pixel mask (raises on a non-8-bit image)
@@ -89,6 +97,38 @@ class PhotoEdges:
         ok &= wsum > 0
         off = (w * ss[None, :]).sum(axis=1) / np.maximum(wsum, 1e-12)
         return uv + off[:, None] * n, ok
+
+
+def ramp_edge_mask(E, q: np.ndarray, n: np.ndarray, edge: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(N,) bool: the samples (found sub-pixel edges q, unit normals n, room edge index) of the room edges whose
+    found edge is the steep side of a ramp rather than a step: averaged over the edge's found samples (`ok`),
+    the linear gradient across it, aligned at each sample's found edge, still has over AMBIGUOUS (edgesnap's
+    half) of its peak, of the same polarity, at SHOULDER_PX on one side. That is a crease whose radiance falls
+    smoothly into the corner and turns there (a kink: two walls' shading meeting at their crease), whose gradient
+    peaks on the brighter wall's slope, not at the crease: the centroid rule finds it 1-1.5 px off the crease
+    (clean sun_103's back corner: shoulder 0.67, offset -1.25 px at the true camera; a rendered step reads
+    0.00-0.02). The per-sample rule (a second peak over half as strong) cannot see it: the ramp has no second
+    peak, and per sample its shoulder is grain. E: the photo's EdgeImage (linear gradient gx, gy)."""
+    from recon.edgesnap import AMBIGUOUS
+
+    out = np.zeros(len(q), bool)
+    if not ok.any():
+        return out
+    lo, hi = SHOULDER_PX
+    ss = np.concatenate([-np.arange(hi, lo - 1e-9, -PROFILE_STEP_PX), [0.0], np.arange(lo, hi + 1e-9, PROFILE_STEP_PX)])
+    k = len(ss) // 2
+    idx = np.flatnonzero(ok)
+    P = q[idx, None, :] + ss[None, :, None] * n[idx, None, :]
+    g = E._sample(E.gx, P) * n[idx, None, 0] + E._sample(E.gy, P) * n[idx, None, 1]
+    g *= np.where(g[:, k] >= 0, 1.0, -1.0)[:, None]  # each sample's own edge polarity (its found peak > 0)
+    for e in np.unique(edge[idx]):
+        m = edge[idx] == e
+        G = g[m].mean(axis=0)
+        if not G[k] > 0:
+            continue
+        if max(G[:k].mean(), G[k + 1:].mean()) >= AMBIGUOUS * G[k]:
+            out[idx[m]] = True
+    return out
 
 
 def _nearest(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
