@@ -45,7 +45,7 @@ photo gives everything else, read through the camera's response where the folder
 * **Every seen surface, each with its own albedo** (`surface_albedos`; by default only when the walls'
   fit leaves a modelled window or lamp dark, _dark_emitters: always on, it tells lamps apart in two
   unseen lamp rooms but costs the shared lamps_room 7.7 -> 11.8 rmse_object, docs/unseen.md "Photo
-  light"; lamps_104's walls leave its ceiling lamp dark, docs/unseen.md "photo34"). The walls (vertical room
+  light"; lamps_104's walls leave its ceiling lamp dark, docs/unseen.md "photo34, tenth round"). The walls (vertical room
   surfaces) carry the albedo prior, which sets the light's scale. The floor, the ceiling and each
   furniture face join the fit with an RGB albedo of their own, the per-channel median of L / E over
   their patches under the current light, alternated with the emitters' fit (a few rounds). The
