@@ -42,9 +42,10 @@ photo gives everything else, read through the camera's response where the folder
   E_i is then linear in the unknown radiances e; e is the bounded linear least-squares solution
   (scipy.optimize.lsq_linear, e >= the lower bound) of rho E_i(e) = L_i, with residuals
   relative to L_i (every wall counts alike, not only the bright ones near the window).
-* **Every seen surface, each with its own albedo** (`surface_albedos`, off by default: it tells
-  lamps apart in two unseen lamp rooms but costs the shared lamps_room 7.7 -> 11.8 rmse_object,
-  docs/unseen.md "Photo light"). The walls (vertical room
+* **Every seen surface, each with its own albedo** (`surface_albedos`; by default only when the walls'
+  fit leaves a modelled window or lamp dark, _dark_emitters: always on, it tells lamps apart in two
+  unseen lamp rooms but costs the shared lamps_room 7.7 -> 11.8 rmse_object, docs/unseen.md "Photo
+  light"; lamps_104's walls leave its ceiling lamp dark, docs/unseen.md "photo34, tenth round"). The walls (vertical room
   surfaces) carry the albedo prior, which sets the light's scale. The floor, the ceiling and each
   furniture face join the fit with an RGB albedo of their own, the per-channel median of L / E over
   their patches under the current light, alternated with the emitters' fit (a few rounds). The
@@ -96,7 +97,8 @@ class PhotoPriors:
     min_pixels: int = 4  # unclipped pixels a patch needs to be measured by the photo
     clipped_share: float = 0.5  # a patch is a clipped region when this share of its pixels is clipped
     relative: bool = True  # residuals relative to each wall's radiance (False: absolute)
-    surface_albedos: bool = False  # floors, ceilings, furniture join the fit, each with its own albedo
+    surface_albedos: bool | None = None  # floors, ceilings, furniture join the fit, each with its own albedo;
+    # None: when the walls alone leave a modelled window or lamp dark (_dark_emitters), True / False: always / never
     fit_albedo: bool | None = None  # the walls' albedo from the interreflections (lighting.photoalbedo);
     # None: when the response is measured (it needs the response's slope), True / False: always / never
     unseen_by_surface: bool = True  # unseen patches reflect as their surface's seen part (lighting.photoalbedo)
@@ -306,7 +308,9 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     e_hi = _solve_emitters(J1, w, L_S, a0, np.minimum(1.2 * rho_rows, 0.999), lower, unresolved)[0]
     rho_S = np.array(rho_rows)
     rho = float(luminance(rho))
-    if pr.surface_albedos and not fit_on.all():
+    dark = _dark_emitters(at_bound, lower, unresolved, [bool(emit[patches.quad == q].any()) for q in gquads])
+    surface = bool(dark) if pr.surface_albedos is None else pr.surface_albedos
+    if surface and not fit_on.all():
         rho_S, e = _surface_albedos(qS, fit_on, A1, w_all, L_S, a0, rho, lower, unresolved)
         e_lo = _surface_albedos(qS, fit_on, A1, w_all, L_S, a0, 0.8 * rho, lower, unresolved)[1]
         e_hi = _surface_albedos(qS, fit_on, A1, w_all, L_S, a0, min(1.2 * rho, 0.999), lower, unresolved)[1]
@@ -355,7 +359,8 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
               "fitted_on": "walls" if not fit_on.all() or vertical[S].all() else "all seen surfaces (no wall in view)",
               "surface_albedos": {(quad_names[q] if quad_names else f"quad {q}"):
                                   [round(float(v), 3) for v in rho_S[qS == q][0]]
-                                  for q in np.unique(qS[~fit_on])} if pr.surface_albedos else {},
+                                  for q in np.unique(qS[~fit_on])} if surface else {},
+              "surface_albedos_for": [names[g] for g in dark] if surface and pr.surface_albedos is None else [],
               "wall_patches_fitted": int(fit_on.sum()), "patches_from_photo": int(measured.sum()), "patches_gathered": int(len(U)),
               "patches_fitted": int(len(X)), "clipped_region_patches": int(clipped.sum()),
               "emitters": emitters}
@@ -387,6 +392,17 @@ def _lower_bounds(patches: PatchMesh, group: np.ndarray, gquads: list[int], pix_
                 source[g] = "the photo's view of it"
             lower[g] = np.maximum(lower[g], shown)
     return lower, source
+
+
+def _dark_emitters(at_bound: np.ndarray, lower: np.ndarray, unresolved: np.ndarray, modelled: list[bool]
+                   ) -> list[int]:
+    """The groups the walls' fit leaves dark: a modelled window or lamp (`modelled`, per group) that the
+    walls see, fitted at its lower bound 0 (no clipped pixel, not in view). The model says it emits, so
+    a dark fit is the walls' fit trading its light to another emitter: the walls see the lamps from afar
+    and at grazing angles, where a small bright lamp and a large dim one light them alike (module
+    docstring, "Every seen surface"). Then the floor, the ceiling and the furniture join the fit."""
+    return [g for g in range(len(modelled)) if modelled[g] and not unresolved[g] and at_bound[g].all()
+            and not np.any(lower[g] > 0)]
 
 
 def _surface_albedos(quad: np.ndarray, wall: np.ndarray, A1: np.ndarray, w: np.ndarray, L_S: np.ndarray,
