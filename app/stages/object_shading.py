@@ -684,6 +684,13 @@ class ObjectShading:
         # one bounce between the object's own parts: occluded directions see the object's radiance
         if ss.bounce is not None:
             L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
+        if sun_u is not None and ss.buried.any():
+            # a buried vertex's fill took its neighbours' direct sun, which its own sun share (sun_vis, what
+            # shade's per-hit sun replaces) does not hold: it keeps its own direct sun instead, so a face's
+            # hits get the sun per hit and not a neighbour's sun blended over it
+            S = obj.albedo * sun_u[ss.inv]
+            b = ss.buried
+            L_vert[b] += S[b] - _fill_from_neighbours(S, f, b)[b]
         return L_vert, sun_vis
 
     def room_triangles(self, occ: Occluder) -> np.ndarray:

@@ -310,7 +310,8 @@ def test_sun_room_drag_tables_match_the_exact_object(shared_room):
     # the floor: a ray from the floor's plane grazes it at rest), the sunlit side's mean radiance within 3 % (the
     # sun's direct light, the same cos and shadow, is most of it), the shaded side's within 20 % (it sees the sunlit
     # floor less the object's shadow on it, the difference of two gathers each a few per cent off by the 30-degree
-    # visibility cells: 12 % measured), the object's light on the room (the drag row's energy) within 0.02
+    # visibility cells: 3 % measured without the direct sun), the object's light on the room (the drag row's energy)
+    # within 0.02
     from app.engine import FrameConfig
     from app.evaluate import DRAG_PASSES, DRAG_SCALE
 
@@ -325,6 +326,7 @@ def test_sun_room_drag_tables_match_the_exact_object(shared_room):
         eng.drag_object_tables = True
         drag = eng.render(scene.obj, cfg)
         _, L_t, _, vis_t = eng.last_shading
+        sun_t = eng.object_drag.last.L_sun
     finally:
         eng.drag_object_tables = True
     assert eng.object_drag.last is not None and eng.object_drag.last.shaded.L_vert is L_t  # the tables ran
@@ -334,7 +336,9 @@ def test_sun_room_drag_tables_match_the_exact_object(shared_room):
     lit, dark = same & (vis_x > 0), same & (vis_x == 0)
     assert lit.sum() > 100 and dark.sum() > 100
     assert abs((L_t[lit] @ lum).mean() / (L_x[lit] @ lum).mean() - 1.0) <= 0.03
-    assert abs((L_t[dark] @ lum).mean() / (L_x[dark] @ lum).mean() - 1.0) <= 0.20
+    # the shaded side without the direct sun: the drag frame's vertex radiance holds its buried vertices'
+    # neighbours' sun (it subtracts it, L_sun, before its per-hit sun), the frame at rest their own (0 there)
+    assert abs(((L_t - sun_t)[dark] @ lum).mean() / (L_x[dark] @ lum).mean() - 1.0) <= 0.20
     e_x, e_t = sr.score(exact.pixels)["energy_ratio"], sr.score(drag.pixels)["energy_ratio"]
     assert abs(e_t - e_x) <= 0.02
 
