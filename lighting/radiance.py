@@ -218,15 +218,17 @@ def bounce_levels(G: np.ndarray, rm: RadianceMesh, sources: np.ndarray, bounces:
     rho[emit] = 0.0
     rho[origin == GATHERED] = unseen_reflectivity
 
-    def levels_of(r: np.ndarray) -> np.ndarray:
-        B = [E0]
-        for _ in range(bounces):
-            B.append(E1 + r * (G64 @ B[-1]))
-        return np.stack(B)
+    def levels_of(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """B^(0..bounces) (n+1,P,3) and what each patch gathers from the level below its measured one."""
+        B, gathered = [E0], np.zeros_like(L)
+        for k in range(1, bounces + 1):
+            GB = G64 @ B[-1]
+            gathered[level == k] = GB[level == k]
+            B.append(E1 + r * GB)
+        return np.stack(B), gathered
 
     for _ in range(iterations):
-        B = levels_of(rho)
-        gathered = np.take_along_axis(np.einsum("pq,kqc->kpc", G64, B[:-1]), (level - 1)[None, :, None], 0)[0]
+        B, gathered = levels_of(rho)
         with np.errstate(divide="ignore", invalid="ignore"):
             new = np.where(gathered > 0, L / gathered, rho)
         new = np.clip(new[measured], 0.0, 1.0)
@@ -234,7 +236,7 @@ def bounce_levels(G: np.ndarray, rm: RadianceMesh, sources: np.ndarray, bounces:
         rho[measured] = new
         if step <= tol:
             break
-    B = levels_of(rho)
+    B = levels_of(rho)[0]
     at_m = np.take_along_axis(B, level[None, :, None], 0)[0]
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(at_m > 0, L / at_m, 1.0)

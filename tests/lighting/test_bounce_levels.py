@@ -74,3 +74,38 @@ def test_too_few_bounces_is_an_error():
     rm = R.build_radiance_mesh(G, E0, np.zeros(len(G)), E0, np.full(len(G), 100), np.arange(len(G)) < 1)
     with pytest.raises(ValueError, match="bounces must be >= 2"):
         R.bounce_levels(G, rm, sources=np.arange(len(G)) < 1, bounces=1)
+
+
+def test_sun_room_captured_reflectivity_and_levels_against_the_truth(shared_scenes_cache):
+    # sun_room under captured light against its declared albedos and its known radiosity (the
+    # declared sun joined, lighting.sun.gather_with_sun): per large surface (>= 40 measured unlit
+    # patches), the median reflectivity / declared albedo within 4 % (measured 0.98-1.01; the rule
+    # before, every measurement taken as the converged light, read 0.82-0.98: 0.84-0.87 on the
+    # surfaces only the probe sees, one bounce short), and the light receivers gather, B[3], against
+    # the truth's B^(3) within 4 % (measured 0.97-1.01; 0.97-1.16 before: the photo's surfaces gave
+    # their 4-bounce light)
+    from app.engine import Engine, EngineParams
+    from lighting.sources import luminance
+    from lighting.sun import SunLight, gather_with_sun, openings
+    from recon.patches import build_patches
+    from recon.scene import load_scene
+    from tests.conftest import shared_scene
+
+    d = shared_scene("sun_room")
+    s = load_scene(d)
+    e = Engine(s, EngineParams(lighting="captured"), cache_dir=shared_scenes_cache, quiet=True)
+    truth = build_patches(load_scene(d), e.params.patch_size, e.params.emitter_patch_size)
+    assert np.array_equal(truth.quad, e.pre.patches.quad)
+    direct = SunLight(s.sun, openings(s), e.scene_occ).patch_irradiance(truth.corners, truth.normal,
+                                                                       ~truth.is_emitter)
+    known = gather_with_sun(e.pre.G_c, truth.albedo, truth.emission, direct, BOUNCES)
+    unlit = ~truth.is_emitter & ~e.pre.emitter & (luminance(direct) == 0) & (e.pre.origin != R.GATHERED)
+    rows = {}
+    for q in np.unique(truth.quad[unlit]):
+        m = unlit & (truth.quad == q)
+        if m.sum() >= 40:
+            rows[s.quads[q].name] = (np.median(luminance(e.pre.albedo[m]) / luminance(truth.albedo[m])),
+                                     np.median(luminance(e.pre.B[BOUNCES - 1][m]) / luminance(known[BOUNCES - 1][m])))
+    assert len(rows) >= 6, rows
+    for name, (rho, gathered) in rows.items():
+        assert abs(rho - 1) <= 0.04 and abs(gathered - 1) <= 0.04, (name, rho, gathered)
