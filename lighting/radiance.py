@@ -17,6 +17,8 @@ Per patch, in order of preference:
    radiance estimate and re-estimated a few times (an EM / Richardson-Lucy deconvolution over
    the pixel footprints). The sum over a pixel is conserved, so the split never invents light;
 3. gathering: B = 0.5 * (G @ B) over the transfers G, iterated.
+The engine's captured light then holds the mesh per bounce count (`bounce_levels`): the photo's
+patches hold the light after `bounces` bounces, the probe's one bounce fewer.
 
 Units: radiance in the scene's units (W/(m^2 sr) up to one scale), reflectivity in [0, 1].
 """
@@ -200,9 +202,8 @@ def bounce_levels(G: np.ndarray, rm: RadianceMesh, sources: np.ndarray, bounces:
     patch: the sun's disk is B^(0)), so its radiance enters from B^(1). Reflectivity of a measured
     non-emitter: the fixed point of rho = L / (G @ B^(m-1)(rho)), m its measured bounce count (clipped to
     [0, 1]; from rm.reflectivity, until no reflectivity moves more than `tol`, at most `iterations` steps);
-    unseen patches keep `unseen_reflectivity`. Each
-    measured patch's levels are its model levels scaled to its measurement (B^(m) = L exactly where rho
-    was clipped). With bounces -> infinity every level is the measurement and rho = L / (G @ L), the rule of
+    unseen patches keep `unseen_reflectivity`. Each measured patch's levels are its model levels scaled to
+    its measurement (B^(m) = L exactly where rho was clipped). With bounces -> infinity every level is the measurement and rho = L / (G @ L), the rule of
     build_radiance_mesh."""
     if bounces < 2:
         raise ValueError(f"bounce_levels: bounces must be >= 2 (the probe sees one fewer), got {bounces}")
