@@ -386,14 +386,15 @@ def test_drag_object_hits_with_the_scene_depth_kept_are_the_frames_at_rest(demo_
 
     scene, eng = demo_engine
     osh = eng.object_shading
-    caster = eng.pixel_stages(2).scene_depth()
+    st = eng.pixel_stages(2)
+    caster, ss = st.scene_depth(), st.supersample  # the drag frame's rays per pixel side (dragframe.DRAG_SUPERSAMPLE)
     height = np.ptp(scene.obj.vertices[:, 1])
     offsets = list(drag_offsets(scene, scene.obj, 5)) + [np.array([0.0, -0.5 * height, 0.0])]
     hidden = 0
     for o in offsets:
         pv, pf, proxy_occ, (v, n, f), shade_occ = osh.object_shape(moved(scene.obj, o))
-        a = osh.object_hits(v, f, occluder=shade_occ)
-        b = osh.object_hits(v, f, occluder=shade_occ, caster=caster)
+        a = osh.object_hits(v, f, supersample=ss, occluder=shade_occ)
+        b = osh.object_hits(v, f, supersample=ss, occluder=shade_occ, caster=caster)
         assert a.rect == b.rect and a.hit.sum() > 100
         assert np.array_equal(a.tri, b.tri) and np.array_equal(a.bary, b.bary) and np.array_equal(a.hit, b.hit)
         hidden = ((a.tri >= 0) & ~a.hit).sum()
