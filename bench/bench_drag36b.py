@@ -2,7 +2,7 @@
 row's score for several drag-frame variants, interleaved in rounds in one process (the loaded 2-core machine).
 
 usage: python bench/bench_drag36b.py [--scenes window_room,sun_room,DIR,...] [--variants base,s4,...] [--path 8]
-                                     [--rounds 2] [--out FILE.json]
+                                     [--rounds 2] [--out FILE.json] [--object-replay REPS]
 
 A variant is a name from VARIANTS: a FrameConfig for the drag frame and, optionally, a change to the engine made
 before its frames and undone after (so every variant runs on the same Engine, caches and load). Per variant it
@@ -207,6 +207,33 @@ def bench_scene(d: Path, names: list[str], n_path: int, rounds: int) -> dict:
     return out
 
 
+def object_replay(d: Path, n_path: int, reps: int) -> dict:
+    """The drag frame's first steps alone (Engine.frame_object: the object's shape, its camera hits against the kept
+    scene depth, its coverage) at each pose of the path, with 2 x 2 and with 1 ray a pixel, interleaved `reps` times:
+    process CPU per call (ms), median over the calls of each pose, then mean over the poses."""
+    from app.glue import FrameTimer
+
+    scene = load_scene(d)
+    eng = Engine(scene, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
+    st = eng.pixel_stages(DRAG_SCALE)
+    depth = {s: None for s in (2, 1)}
+    offsets = drag_offsets(scene, scene.obj, n_path)[1:]
+    cpu = {s: [[] for _ in offsets] for s in depth}
+    for r in range(reps + 1):
+        for i, o in enumerate(offsets):
+            obj = moved(scene.obj, o)
+            for s in depth:
+                st.supersample, st._scene_depth = s, depth[s]
+                c0 = time.process_time()
+                ft = FrameTimer()
+                eng.frame_object(obj, ft, st.scene_depth(), s)
+                ft.close()
+                if r:  # the first round casts the scene depth's tiles
+                    cpu[s][i].append(time.process_time() - c0)
+                depth[s] = st._scene_depth
+    return {f"ss{s}": float(np.mean([np.median(c) for c in cpu[s]]) * 1e3) for s in depth}
+
+
 def print_scene(res: dict) -> None:
     a = res["all"]
     print(f"\n{res['scene']}: all sources {a['energy']:.3f} / {a['rmse']:.2f} (bound {res['bound']:.2f}) {a['sha']}")
@@ -228,7 +255,14 @@ def main() -> None:
     ap.add_argument("--path", type=int, default=8)
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--object-replay", type=int, default=0, metavar="REPS",
+                    help="instead: the object's first steps alone, 2 x 2 against 1 ray a pixel, REPS rounds")
     a = ap.parse_args()
+    if a.object_replay:
+        for s in a.scenes.split(","):
+            print(scene_dir(s).name, "object stage CPU ms a frame:", object_replay(scene_dir(s), a.path, a.object_replay),
+                  flush=True)
+        return
     names = a.variants.split(",")
     _count_stage_cpu()
     for n in names:
