@@ -54,7 +54,8 @@ def _nothing(eng: Engine):
 
 @contextlib.contextmanager
 def _drag_supersample(eng: Engine, s: int, scale: int = DRAG_SCALE):
-    """The drag stages' (at 1/scale) object rays per pixel side set to s while the block runs (DragStages.supersample)."""
+    """The drag stages' (at 1/scale) object rays per pixel side set to s while the block runs
+    (DragStages.supersample)."""
     st = eng.pixel_stages(scale)
     old = (st.supersample, st._scene_depth)
     st.supersample, st._scene_depth = s, _DEPTHS.get((id(st), s))
@@ -237,7 +238,8 @@ def object_replay(d: Path, n_path: int, reps: int) -> dict:
 def print_scene(res: dict) -> None:
     a = res["all"]
     print(f"\n{res['scene']}: all sources {a['energy']:.3f} / {a['rmse']:.2f} (bound {res['bound']:.2f}) {a['sha']}")
-    keys = ["proxy", "object", "sources", "masks", "sun", "object_light", "object_shading", "second_order", "compose", "upsample"]
+    keys = ["proxy", "object", "sources", "masks", "sun", "object_light", "object_shading", "second_order", "compose",
+            "upsample"]
     print("(stage columns: process CPU ms per frame, all threads)")
     print(f"{'variant':>10} {'cpu':>6} {'cpumed':>6} {'wall':>6} {'p95':>6} {'energy':>6} {'rmse':>5} " +
           " ".join(f"{k[:7]:>7}" for k in keys) + "  sha")
@@ -260,8 +262,8 @@ def main() -> None:
     a = ap.parse_args()
     if a.object_replay:
         for s in a.scenes.split(","):
-            print(scene_dir(s).name, "object stage CPU ms a frame:", object_replay(scene_dir(s), a.path, a.object_replay),
-                  flush=True)
+            res = object_replay(scene_dir(s), a.path, a.object_replay)
+            print(scene_dir(s).name, "object stage CPU ms a frame:", res, flush=True)
         return
     names = a.variants.split(",")
     _count_stage_cpu()
