@@ -142,6 +142,15 @@ DRAG_GRADED_NEAR = 2.0
 DRAG_HARD_WEAK = True
 
 
+# The drag frame's object pixels: camera rays per pixel side (Engine.frame_object, kernels.scene_depth; None:
+# ObjectConfig.supersample, the frames at rest's 2). One ray a pixel: the object's camera hits, its coverage and the
+# sub-samples its shading averages (kernels.hit_average) are a quarter of 2 x 2's, and its outline is not
+# antialiased while it moves; the frame at rest draws it with 2 x 2 again. bench/bench_drag36b.py `ss1` against
+# `ss2` (one process, loaded): the object stage's process CPU 0.4-0.5x, the drag rows within 0.001 of energy and
+# 0.01 level of rmse_affected on every room measured (docs/benchmarks.md "drag36b")
+DRAG_SUPERSAMPLE: int | None = 1
+
+
 # (A frame with a map per source, when the room has no more sources than the passes, takes the same size.)
 
 
@@ -243,7 +252,9 @@ class DragStages:
                                     engine.receivers.recv_pix, dev)
         self._split = functools.partial(runtime.split, device=dev)
         self._near: dict[str, tuple] = {}  # near_pose: (shape, centre, value) of the last computed pose
-        self._engine_cam = (engine.cam_occ, engine.scene.camera, engine.params.object.supersample, dev)
+        # the object's camera rays per pixel side while dragging (Engine.frame_object; DRAG_SUPERSAMPLE)
+        self.supersample = engine.params.object.supersample if DRAG_SUPERSAMPLE is None else DRAG_SUPERSAMPLE
+        self._engine_cam = (engine.cam_occ, engine.scene.camera, dev)
         self._scene_depth = None  # scene_depth(), made on first use
 
     def scene_depth(self):
@@ -252,9 +263,9 @@ class DragStages:
         if self._scene_depth is None:
             from kernels.scene_depth import SceneDepth
 
-            occ, cam, s, dev = self._engine_cam
+            occ, cam, dev = self._engine_cam
             self._scene_depth = SceneDepth(occ, cam.centre, cam.R.T @ np.linalg.inv(cam.K), cam.width, cam.height,
-                                           s, dev)
+                                           self.supersample, dev)
         return self._scene_depth
 
     def near_pose(self, what: str, compute, vertices: np.ndarray, faces: np.ndarray, centre: np.ndarray,

@@ -317,7 +317,7 @@ class Engine:
         ft = FrameTimer()
         tick, timings = ft.tick, ft.timings
         pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov = self.frame_object(
-            obj, ft, px.scene_depth() if px is not self else None)
+            obj, ft, px.scene_depth() if px is not self else None, px.supersample if px is not self else None)
         t = ft.last
         cov_px = cov if px is self else px.zero_cov  # the drag's coarse room is computed under the object too
 
@@ -427,17 +427,19 @@ class Engine:
             stats["fps_calibration_s"] = calibration_s
         return Frame(radiance, pixels, stats, room, cov.astype(np.float32))
 
-    def frame_object(self, obj: SceneObject, timer: FrameTimer, caster=None) -> tuple:
+    def frame_object(self, obj: SceneObject, timer: FrameTimer, caster=None, supersample: int | None = None) -> tuple:
         """Every frame's first steps (the map frames here, the sphere drag frame in app.dragshadow): the object's
         proxy and shading mesh (app.stages.object_shading), its bounding sphere, and its pixels (camera hits
         against the scene model, coverage (H,W)); timed as the frame's stages "proxy" and "object" from the
         timer's last tick (app.glue.FrameTimer: their glue too); caster: the camera hits' (ObjectShading.object_hits;
-        a drag frame's keeps the scene's depth). Returns (pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius,
+        a drag frame's keeps the scene's depth); supersample: its rays per pixel side (None: ObjectConfig.supersample).
+        Returns (pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius,
         hits, cov)."""
         pv, pf, proxy_occ, shade_mesh, shade_occ = self.object_shading.object_shape(obj)
         centre, radius = bounding_sphere(pv)
         t = timer.tick("proxy", timer.last)
-        hits = self.object_shading.object_hits(shade_mesh[0], shade_mesh[2], occluder=shade_occ, caster=caster)
+        hits = self.object_shading.object_hits(shade_mesh[0], shade_mesh[2], supersample=supersample,
+                                               occluder=shade_occ, caster=caster)
         cov = hits.coverage()
         timer.tick("object", t)
         return pv, pf, proxy_occ, shade_mesh, shade_occ, centre, radius, hits, cov

@@ -259,8 +259,6 @@ def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     # (1/DRAG_SCALE resolution, DRAG_PASSES passes, clusters split near the object first) within issue 36's bound, rmse_affected <= 1.5 x the all-sources frame's
     # + 0.5 and energy_ratio in 0.93-1.07 (sun_room: the sun's pass at full resolution); its change lies where
     # the full-resolution frame of as many passes changes the photo
-    import cv2
-
     from app.engine import FrameConfig
     from app.evaluate import DRAG_PASSES, DRAG_SCALE
 
@@ -277,6 +275,26 @@ def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     s_all, s_drag = sr.s_all, sr.score(drag.pixels)
     assert s_drag["rmse_affected"] <= 1.5 * s_all["rmse_affected"] + 0.5
     assert 0.93 <= s_drag["energy_ratio"] <= 1.07
+    # the object's pixels below are compared with the full frame's at its sampling, 2 x 2 rays a pixel (the drag
+    # frame casts DRAG_SUPERSAMPLE: one ray a pixel differs from a 2 x 2 mean where a pixel holds an inner edge)
+    st = eng.pixel_stages(DRAG_SCALE)
+    ss = st.supersample
+    st.supersample, st._scene_depth = eng.params.object.supersample, None
+    try:
+        _object_pixels_as_at_rest(eng, scene, same)
+    finally:
+        st.supersample, st._scene_depth = ss, None
+
+
+def _object_pixels_as_at_rest(eng, scene, same) -> None:
+    """test_drag_frame_scores_near_the_all_sources_frame's checks of the drag frame's object pixels against `same`,
+    the full-resolution frame of the drag frame's passes and clusters."""
+    import cv2
+
+    from app.engine import FrameConfig
+    from app.evaluate import DRAG_PASSES, DRAG_SCALE
+
+    drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
     inside = same.coverage >= 1
     # the object from per-shape tables (app.stages.object_drag: SH9 at 27 probes, the self-visibility by
     # 30-degree cells, no rays per vertex) within 3 levels rmse of the full frame's object pixels, i.e. a few
@@ -390,14 +408,15 @@ def test_drag_object_hits_with_the_scene_depth_kept_are_the_frames_at_rest(demo_
 
     scene, eng = demo_engine
     osh = eng.object_shading
-    caster = eng.pixel_stages(2).scene_depth()
+    st = eng.pixel_stages(2)
+    caster, ss = st.scene_depth(), st.supersample  # the drag frame's rays per pixel side (dragframe.DRAG_SUPERSAMPLE)
     height = np.ptp(scene.obj.vertices[:, 1])
     offsets = list(drag_offsets(scene, scene.obj, 5)) + [np.array([0.0, -0.5 * height, 0.0])]
     hidden = 0
     for o in offsets:
         pv, pf, proxy_occ, (v, n, f), shade_occ = osh.object_shape(moved(scene.obj, o))
-        a = osh.object_hits(v, f, occluder=shade_occ)
-        b = osh.object_hits(v, f, occluder=shade_occ, caster=caster)
+        a = osh.object_hits(v, f, supersample=ss, occluder=shade_occ)
+        b = osh.object_hits(v, f, supersample=ss, occluder=shade_occ, caster=caster)
         assert a.rect == b.rect and a.hit.sum() > 100
         assert np.array_equal(a.tri, b.tri) and np.array_equal(a.bary, b.bary) and np.array_equal(a.hit, b.hit)
         hidden = ((a.tri >= 0) & ~a.hit).sum()

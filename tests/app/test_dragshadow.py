@@ -25,7 +25,13 @@ def test_sphere_drag_frame_scores_within_issue_36s_bound(shared_room, room):
     # the object's own pixels are the map drag frame's when that frame shades the object as at rest (the same
     # object stages at full resolution; the sphere frame does not use object_drag's per-shape tables)
     eng.drag_object_tables = False
-    maps = eng.render(scene.obj, dataclasses.replace(cfg, drag_shadow="maps"))
+    st = eng.pixel_stages(cfg.drag)  # at the sphere frame's object rays, 2 x 2 (the map frame's: DRAG_SUPERSAMPLE)
+    ss = st.supersample
+    st.supersample, st._scene_depth = eng.params.object.supersample, None
+    try:
+        maps = eng.render(scene.obj, dataclasses.replace(cfg, drag_shadow="maps"))
+    finally:
+        st.supersample, st._scene_depth = ss, None
     eng.drag_object_tables = True
     inside = maps.coverage >= 1
     assert np.abs(drag.pixels[inside].astype(int) - maps.pixels[inside]).max() <= 1
