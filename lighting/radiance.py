@@ -17,8 +17,6 @@ Per patch, in order of preference:
    radiance estimate and re-estimated a few times (an EM / Richardson-Lucy deconvolution over
    the pixel footprints). The sum over a pixel is conserved, so the split never invents light;
 3. gathering: B = 0.5 * (G @ B) over the transfers G, iterated.
-The engine's captured light then holds the mesh per bounce count (`bounce_levels`): the photo's
-patches hold the light after `bounces` bounces, the probe's one bounce fewer.
 
 Units: radiance in the scene's units (W/(m^2 sr) up to one scale), reflectivity in [0, 1].
 """
@@ -49,7 +47,6 @@ class RadianceMesh:
     reflectivity: np.ndarray
     origin: np.ndarray
     emitter: np.ndarray | None = None  # (P,) bool: patches that emit (see `emitters`)
-    levels: np.ndarray | None = None  # (n+1, P, 3): the light after 0..n bounces (see `bounce_levels`)
 
     def summary(self) -> dict:
         out = {"patches_from_photo": int(np.sum(self.origin == PHOTO)),
@@ -188,65 +185,6 @@ def build_radiance_mesh(G: np.ndarray, probe_rad: np.ndarray, probe_omega: np.nd
     return RadianceMesh(L, rho, origin, emit)
 
 
-def bounce_levels(G: np.ndarray, rm: RadianceMesh, sources: np.ndarray, bounces: int,
-                  unseen_reflectivity: float = 0.5, iterations: int = 60, tol: float = 1e-4
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """The radiance mesh's light per bounce count, and reflectivities that reproduce the measurements at
-    the bounce count each was measured at: (levels (bounces+1, P, 3), reflectivity (P, 3)).
-
-    Light seen after k bounces (lighting.radiosity): B^(0) = E^(0), B^(k) = E^(k) + rho (G @ B^(k-1)). The
-    camera sees B^(bounces) (the engine's `bounces`: the paths a photo holds); the mirror ball is itself one
-    reflection of every path the probe image records, so a patch measured through the probe holds
-    B^(bounces-1). Emitters: patches of `sources` (windows, lamps: light-shaped quads) emit their radiance
-    from B^(0) on; an emitter on a plain surface is a reflector of light the mesh does not hold (a sunlit
-    patch: the sun's disk is B^(0)), so its radiance enters from B^(1). Reflectivity of a measured
-    non-emitter: the fixed point of rho = L / (G @ B^(m-1)(rho)), m its measured bounce count (clipped to
-    [0, 1]; from rm.reflectivity, until no reflectivity moves more than `tol`, at most `iterations` steps);
-    unseen patches keep `unseen_reflectivity`. Each measured patch's levels are its model levels scaled to
-    its measurement (B^(m) = L exactly where rho was clipped). With bounces -> infinity every level is the measurement and rho = L / (G @ L), the rule of
-    build_radiance_mesh."""
-    if bounces < 2:
-        raise ValueError(f"bounce_levels: bounces must be >= 2 (the probe sees one fewer), got {bounces}")
-    G64 = np.asarray(G, np.float64)
-    L, origin = rm.radiance, rm.origin
-    emit = np.zeros(len(L), bool) if rm.emitter is None else np.asarray(rm.emitter, bool)
-    late = emit & ~np.asarray(sources, bool)  # plain-surface emitters: light from B^(1) on
-    measured = (origin != GATHERED) & ~emit
-    level = np.where(origin == PROBE, bounces - 1, bounces)
-    E0 = np.where((emit & ~late)[:, None], L, 0.0)
-    E1 = np.where(emit[:, None], L, 0.0)
-    rho = np.array(rm.reflectivity, np.float64, copy=True)
-    rho[emit] = 0.0
-    rho[origin == GATHERED] = unseen_reflectivity
-
-    def levels_of(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """B^(0..bounces) (n+1,P,3) and what each patch gathers from the level below its measured one."""
-        B, gathered = [E0], np.zeros_like(L)
-        for k in range(1, bounces + 1):
-            GB = G64 @ B[-1]
-            gathered[level == k] = GB[level == k]
-            B.append(E1 + r * GB)
-        return np.stack(B), gathered
-
-    for _ in range(iterations):
-        B, gathered = levels_of(rho)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            new = np.where(gathered > 0, L / gathered, rho)
-        new = np.clip(new[measured], 0.0, 1.0)
-        step = np.abs(new - rho[measured]).max(initial=0.0)
-        rho[measured] = new
-        if step <= tol:
-            break
-    B = levels_of(rho)[0]
-    at_m = np.take_along_axis(B, level[None, :, None], 0)[0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(at_m > 0, L / at_m, 1.0)
-    B[:, measured] *= scale[measured][None]
-    if not np.all(np.isfinite(B)):
-        raise RuntimeError("radiance mesh: non-finite bounce levels (check the probe image)")
-    return B, rho
-
-
 def emitters(radiance: np.ndarray, gathered: np.ndarray, origin: np.ndarray, openness: np.ndarray) -> np.ndarray:
     """(P,) bool: measured patches brighter than any reflector could be where they are.
 
@@ -329,22 +267,15 @@ def load_captured_probe(scene, recover=None) -> CapturedProbe:
 
 
 def captured_radiance_mesh(patches: PatchMesh, G: np.ndarray, mesh: Occluder, probe: CapturedProbe, scene,
-                           pix_patch: np.ndarray, bounces: int | None = None) -> RadianceMesh:
+                           pix_patch: np.ndarray) -> RadianceMesh:
     """The radiance mesh of a scene from its probe and photo (module docstring).
 
     pix_patch (H*W,): patch seen by each photo pixel (-1 none); the photo is read through the
-    recovered response. Saturated photo pixels (any channel 255) are not used. With `bounces` the
-    mesh's light per bounce count and the reflectivities consistent with it (`bounce_levels`; the
-    scene's light-shaped quads, windows and lamps, are its sources).
+    recovered response. Saturated photo pixels (any channel 255) are not used.
     """
     probe_rad, omega = project_probe(patches, mesh, probe.light_probe, probe.radiance)
     photo = scene.photo.reshape(-1, 3)
     L_b = probe.response.to_radiance(photo)
     sat = np.any(photo >= 255, axis=1)
     photo_rad, count = photo_radiance(pix_patch, L_b, sat, patches.n_patches)
-    rm = build_radiance_mesh(G, probe_rad, omega, photo_rad, count)
-    if bounces is None:
-        return rm
-    shaped = np.array([q.light_shaped for q in scene.quads], bool)[patches.quad]
-    rm.levels, rm.reflectivity = bounce_levels(G, rm, shaped, bounces)
-    return rm
+    return build_radiance_mesh(G, probe_rad, omega, photo_rad, count)

@@ -441,8 +441,8 @@ def sunlit_pixels(L_b: np.ndarray, saturated: np.ndarray, pix_quad: np.ndarray, 
 
 def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, dirs: np.ndarray,
                  L_b: np.ndarray, saturated: np.ndarray, recv: np.ndarray, B: np.ndarray, G_c: np.ndarray,
-                 occluder: Occluder, min_overlap: float = 0.5, direction: np.ndarray | None = None,
-                 B_gather: np.ndarray | None = None) -> tuple[Sun | None, dict]:
+                 occluder: Occluder, min_overlap: float = 0.5, direction: np.ndarray | None = None
+                 ) -> tuple[Sun | None, dict]:
     """The sun from the photo and the captured radiance mesh (no declared sun used); with `direction`
     (a known unit vector towards the sun, e.g. from date, time and place) only its strength.
 
@@ -453,8 +453,6 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     rho (E_ind + E_perp cos / pi); rho is the reflectivity of the unlit patches of the same quad
     (the same material), E_ind the gathered irradiance of the radiance mesh (the probe sees the patch
     unclipped where the photo clips), so E_perp = pi (L / rho - E_ind) / cos, median over patches.
-    B (P,3) is the light the camera sees; B_gather (P,3), default B, the light a surface gathers (one
-    bounce fewer: lighting.radiance.bounce_levels), so rho = B / (G_c @ B_gather) and E_ind = G_c @ B_gather.
     No sun (None, with info["reason"]) when nothing is lit, or when the best direction's predicted
     sunlit pixels overlap the observed ones less than `min_overlap` (intersection over union).
     Returns (Sun or None, info)."""
@@ -469,7 +467,7 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     if direction is not None:
         d = np.asarray(direction, np.float64) / np.linalg.norm(direction)
         info.update(direction=d.tolist(), direction_from="declared")
-        return _sun_strength(d, holes, occluder, pm, B, G_c, info, B_gather)
+        return _sun_strength(d, holes, occluder, pm, B, G_c, info)
     pix_quad = np.where(pix_patch >= 0, pm.quad[np.maximum(pix_patch, 0)], -1)
     lit = sunlit_pixels(L_b, saturated, pix_quad, recv, shape=scene.photo.shape[:2])
     if lit.sum() < 50:
@@ -519,11 +517,11 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     if info["overlap"] < min_overlap:  # bright surfaces that no sun through the openings explains
         return None, {**info, "reason": f"no sun direction explains the bright region (overlap "
                                         f"{info['overlap']:.2f} < {min_overlap})"}
-    return _sun_strength(d, holes, occluder, pm, B, G_c, info, B_gather)
+    return _sun_strength(d, holes, occluder, pm, B, G_c, info)
 
 
 def _sun_strength(d: np.ndarray, holes: list[Quad], occluder: Occluder, pm, B: np.ndarray, G_c: np.ndarray,
-                  info: dict, B_gather: np.ndarray | None = None) -> tuple[Sun | None, dict]:
+                  info: dict) -> tuple[Sun | None, dict]:
     """estimate_sun's strength for the unit direction d (its docstring): the median over fully sunlit
     patches of pi (L / rho - E_ind) / cos; (None, info with a reason) without such patches."""
     from lighting.sources import luminance
@@ -533,7 +531,7 @@ def _sun_strength(d: np.ndarray, holes: list[Quad], occluder: Occluder, pm, B: n
     e = light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)[:, 0]  # = cos x sunlit share
     cos = np.maximum(pm.normal @ d, 0.0)
     full = (e > 0.98 * cos) & (cos > 0.2)
-    E_ind = np.asarray(G_c, np.float64) @ (B if B_gather is None else B_gather)
+    E_ind = np.asarray(G_c, np.float64) @ B
     with np.errstate(divide="ignore", invalid="ignore"):
         rho_all = np.where(E_ind > 0, B / E_ind, 0.0)
     est = []

@@ -39,7 +39,7 @@ from recon.patches import PatchMesh, build_patches
 from recon.scene import Scene
 
 log = logging.getLogger("photoar")
-CACHE_VERSION = 7
+CACHE_VERSION = 6
 @dataclass
 class Precomputed:
     """Per-scene data that does not depend on the object (cached on disk)."""
@@ -225,12 +225,9 @@ def precompute(scene: Scene, config: PrecomputeConfig, patches: PatchMesh, scene
                               patches.normal, [scene_occ], n_side=p.vis_side, device=device, progress=step)
     if p.lighting == "captured":
         pix_patch = np.where(pix_tri >= 0, patches.tri_patch[np.maximum(pix_tri, 0)], -1)
-        # the light per bounce count (lighting.radiance.bounce_levels: the probe sees one bounce fewer
-        # than the photo); with under 2 bounces every level is the measurement
-        rm = captured_radiance_mesh(patches, G_c, cam_occ, probe, scene, pix_patch,
-                                    p.bounces if p.bounces >= 2 else None)
+        rm = captured_radiance_mesh(patches, G_c, cam_occ, probe, scene, pix_patch)
         log.debug("radiance mesh from captured light: %s", rm.summary())
-        B = rm.levels if rm.levels is not None else np.stack([rm.radiance] * (p.bounces + 1))
+        B = np.stack([rm.radiance] * (p.bounces + 1))
         albedo, origin, emitter = rm.reflectivity, rm.origin, rm.emitter
     elif p.lighting == "photo":  # filled in by use_lighting (cheap; redone on a cache hit)
         B, albedo, origin = np.zeros((p.bounces + 1, n_c, 3)), patches.albedo, np.full(n_c, -1, np.int8)

@@ -879,15 +879,13 @@ class SunSetup:
         pm.emission[flagged] = 0.0
         if self.source == "declared" and scene.sun.strength_estimated:  # its direction; strength from the photo
             sun, info = estimate_sun(scene, pm, pix_patch, rm.pix_pos.astype(np.float64), rm.dirs, rm.L_b,
-                                     sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ, direction=scene.sun.direction,
-                                     B_gather=pre.B[max(len(pre.B) - 2, 0)])
+                                     sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ, direction=scene.sun.direction)
             where = f"{self.where}: sun (strength estimated)"
         elif self.source == "declared":  # the user's sun as given (--sun); no estimate
             sun, info, where = scene.sun, None, f"{self.where}: sun"
         else:
             sun, info = estimate_sun(scene, pm, pix_patch, rm.pix_pos.astype(np.float64), rm.dirs, rm.L_b,
-                                     sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ,
-                                     B_gather=pre.B[max(len(pre.B) - 2, 0)])
+                                     sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ)
             where = f"{self.where}: sun estimate"
         self._patch_light = None
         self.light = SunLight(sun, openings(scene), self.scene_occ, where=where) if sun else None
