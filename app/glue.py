@@ -98,8 +98,10 @@ class FrameTimer:
         return now
 
     def close(self) -> float:
-        """Stop the clock; returns the frame's seconds since the timer started."""
-        frame_s = time.perf_counter() - self.start
+        """Stop the clock; returns the frame's seconds from the timer's start to its last tick: the ticks
+        enclose the frame exactly (a frame ends at its last tick; a thread switch before close() would
+        otherwise add a few unstaged microseconds to the frame, more on a loaded machine)."""
+        frame_s = self.last - self.start
         self.clock.__exit__(None, None, None)
         blas.own_threads()
         return frame_s

@@ -56,7 +56,7 @@ def test_evaluate_path_and_stage_table(tmp_path):
     assert {"upsample", "python"} <= set(p["stages_ms"])
     stages = dict(p["stages_ms"])
     glue = stages.pop("python")
-    assert sum(stages.values()) == pytest.approx(1e3 * rest.mean(), rel=1e-3)  # the ticks enclose the frame
+    assert sum(stages.values()) == pytest.approx(1e3 * rest.mean(), rel=1e-9)  # the ticks enclose the frame exactly
     assert 0 < glue < 1e3 * rest.mean()
     # at rest after the drag: refined to the all-sources frame (the "all" row) at the object's pose
     assert ev["converge_s"] == p["converge_s"] > 0 and p["converge_frames"] > 1
