@@ -4,9 +4,12 @@ A constructed chair top: a seat box (0.46 x 0.05 x 0.46 m, top at y = 0.46) and 
 rear (z -0.23 .. -0.19, up to y = 0.90), subdivided as the frame at rest's shading mesh (recon.proxy.subdivide,
 0.08 m). Under a uniform sky of radiance 1 (no bounce) a point on the back's front face at height s above the seat
 has irradiance / pi = 1 - F(s), F the form factor of the seat's top in front of the back (Lambert's polygon formula,
-exact): 0.45 at the crease, 0.29 at 0.115 m (the back's first row of vertices above it). The back's bottom row lay
-in the seat's plane, counted as buried, and took that row's value: the back brightened towards the crease. Lifted
-off the contact (app.stages.own_contacts), the row stands for the surface just above the seat.
+exact): 1 - F = 0.500 at the crease, 0.518 at 0.01 m, 0.570 at 0.04 m, 0.667 at 0.10 m, 0.688 at 0.115 m (the back's
+first row of vertices above it). The back's bottom row lay in the seat's plane, counted as buried (all of its PRT
+rays start on the seat), and took that row's value: on main the interpolated sky at 0.01 / 0.04 / 0.10 m is 0.641 /
+0.639 / 0.702 (flat, 0.12 over the truth at 0.01 m: fails). Lifted off the contact (app.stages.own_contacts, 4.3 mm
+here), the row stands for the surface just above the seat: 0.509 there (truth 0.508) and 0.545 / 0.608 / 0.702 up the
+face (the rest: a linear blend over a face 0.115 m tall of a curve that is not linear).
 """
 import numpy as np
 import pytest
