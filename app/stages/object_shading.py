@@ -438,7 +438,8 @@ def gathered_rows(buried: np.ndarray, inv: np.ndarray, samples: np.ndarray) -> n
 
 class ShapeShading:
     """What the shading needs of one object shape, made once in its own frame (centred: a
-    translation changes none of it): the distinct (position, normal) vertices, their self-occlusion
+    translation changes none of it): the distinct (position, normal) vertices, where each is shaded (lift: off a
+    contact line between two of the object's parts, own_contacts.lift_off_own_contacts), their self-occlusion
     transfer (kernels.shade.self_transfer), which of them are buried, the self-bounce operator, and
     the sample vertices of the dB gather with their interpolation weights (skip_buried False: the
     emitters' and the sun's gathers run at every distinct vertex, the buried ones too; the answer is the same)."""
@@ -615,7 +616,8 @@ class ObjectShading:
         room's patches in the object's shadow (P,3)), plus one bounce between the object's own parts;
         with a sun, its direct light with the object's self-shadowing and sun_dB (P,3), the sun the
         object blocks from each patch this frame. Everything is evaluated once per distinct (position,
-        normal) of the mesh (ShapeShading.uniq)."""
+        normal) of the mesh (ShapeShading.uniq), a vertex on a contact between two parts just off it
+        (ShapeShading.lift); the buried vertices' fill and each vertex's own sun as vertex_light."""
         return self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB)[0]
 
     def _vertex_radiance(self, obj: SceneObject, mesh, proxy_occ: Occluder, dB: np.ndarray | None,
