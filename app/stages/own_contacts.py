@@ -26,6 +26,12 @@ OWN_CONTACT_MIN_SIN = 0.5  # the sine of the angle between the two surfaces at l
 RISE_COS = 0.1  # a face of the vertex's own goes on along the lift when its centroid's direction has this cosine
 
 
+def _outer_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(A,B) the dot products of the rows of a (A,3) and b (B,3), elementwise (a (256,3) x (3,F) BLAS product
+    spent more CPU in its threads than the whole rest of lift_off_own_contacts)."""
+    return a[:, 0:1] * b[:, 0] + a[:, 1:2] * b[:, 1] + a[:, 2:3] * b[:, 2]
+
+
 def lift_off_own_contacts(p: np.ndarray, n: np.ndarray, faces: np.ndarray, eps: float = 1e-3, block: int = 256
                           ) -> np.ndarray:
     """Offsets (V,3) m that move each vertex (p (V,3), unit normals n (V,3), faces (F,3)) lying on a contact line
@@ -56,16 +62,17 @@ def lift_off_own_contacts(p: np.ndarray, n: np.ndarray, faces: np.ndarray, eps: 
         for s in range(0, len(p), block):
             e = min(len(p), s + block)
             q = moved[s:e]
-            d = q @ nf.T - np.einsum("fc,fc->f", nf, tri[:, 0])[None]  # (B,F) signed distance to the face's plane
-            bi, fj = np.nonzero((np.abs(d) < h[None] - 1e-9) & ok[None])
+            d = _outer_dot(q, nf) - np.einsum("fc,fc->f", nf, tri[:, 0])[None]  # (B,F) signed distance to the plane
+            C = _outer_dot(n[s:e], nf)  # (B,F) the normals' cosine: a crease, not a face in (or near) the vertex's plane
+            bi, fj = np.nonzero((np.abs(d) < h[None] - 1e-9) & ok[None] & (1.0 - C * C >= OWN_CONTACT_MIN_SIN ** 2))
             if not len(bi):
                 continue
             vi = bi + s
             # not one of its own faces: no corner at the vertex's (original) position
             gap = np.linalg.norm(tri[fj] - p[vi][:, None], axis=2).min(1)
-            cos = np.einsum("kc,kc->k", n[vi], nf[fj])
-            keep = (gap > 1e-7) & (1.0 - cos * cos >= OWN_CONTACT_MIN_SIN ** 2)
-            bi, fj, vi, cos = bi[keep], fj[keep], vi[keep], cos[keep]
+            keep = gap > 1e-7
+            bi, fj, vi = bi[keep], fj[keep], vi[keep]
+            cos = C[bi, fj]
             dk = d[bi, fj]
             # inside the face: barycentrics of the point projected onto its plane
             x = moved[vi] - dk[:, None] * nf[fj]
@@ -82,11 +89,13 @@ def lift_off_own_contacts(p: np.ndarray, n: np.ndarray, faces: np.ndarray, eps: 
                 continue
             t = nf[fj] - cos[:, None] * n[vi]  # the tangent direction rising off the touched face
             tu = t / np.linalg.norm(t, axis=1, keepdims=True)
-            rises = np.zeros(len(vi), bool)
-            for k in range(len(vi)):  # the vertex's own surface goes on along the lift (few pairs: the contacts)
-                fo = own_face[start[vi[k]]:start[vi[k] + 1]]
-                r = cen[fo] - p[vi[k]]
-                rises[k] = np.any(r @ tu[k] > RISE_COS * np.linalg.norm(r, axis=1))
+            # the vertex's own surface goes on along the lift: one of its faces' centroids lies that way
+            cnt = start[vi + 1] - start[vi]
+            pair = np.repeat(np.arange(len(vi)), cnt)
+            at = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(start[vi], cnt)
+            r = cen[own_face[at]] - p[vi[pair]]
+            ok_r = np.einsum("kc,kc->k", r, tu[pair]) > RISE_COS * np.linalg.norm(r, axis=1)
+            rises = np.bincount(pair[ok_r], minlength=len(vi)) > 0
             vi, fj, dk, t = vi[rises], fj[rises], dk[rises], t[rises]
             if not len(vi):
                 continue
