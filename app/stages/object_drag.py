@@ -248,7 +248,7 @@ class DragShape:
         self.ss = ss = ShapeShading(local, normals, faces, cfg.prt_dirs, cfg.dB_samples, device, cfg.vis_stride,
                                     len(shading.room_light.emitters))
         T, hit_face, _ = ss.transfer
-        self.lu, self.nu = local[ss.uniq], normals[ss.uniq]
+        self.lu, self.nu = local[ss.uniq] + ss.lift, normals[ss.uniq]  # a vertex on a contact between parts: off it
         self.vis = visibility_table(self.nu, hit_face[ss.uniq] < 0)
         self.fill = fill_operator(faces, ss.buried, len(local))  # _fill_from_neighbours as one sparse product
         lo, hi = self.lu.min(0), self.lu.max(0)
@@ -451,7 +451,7 @@ class DragObject:
         """The object's radiance at its camera hits from the per-shape tables (module docstring); None when
         the object is not turned about +Y only (the caller shades it as at rest). The per-pixel radiance
         (shaded.radiance) is a kept image, valid until the next call (the frame composes it before then)."""
-        from app.stages.object_shading import ShadedObject, lift_off_contacts
+        from app.stages.object_shading import ShadedObject, lift_off_contacts, vertex_light
 
         yaw = yaw_of(obj.object_to_world)
         if yaw is None:
@@ -557,13 +557,8 @@ class DragObject:
         albedo = obj.albedo
         L_room = albedo * np.maximum(E, 0.0)[ss.inv]
         L_proxy = ds.fill @ (albedo * np.maximum(E_proxy, 0.0)[ss.inv])
-        L_sun = albedo * E_sun[ss.inv] if E_sun is not None else None
-        L_vert = L_room + L_sun if L_sun is not None else L_room
-        L_vert = ds.fill @ L_vert
-        if ss.bounce is not None:
-            L_vert = ds.fill @ (L_vert + albedo * (ss.bounce @ L_vert))
-        if L_sun is not None:
-            L_sun = ds.fill @ L_sun
+        L_sun = albedo * E_sun[ss.inv] if E_sun is not None else None  # each vertex's own sun
+        L_vert = vertex_light(L_room, L_sun, ds.fill.__matmul__, ss.bounce, albedo)  # as at rest
         add = colour = None
         if L_sun is not None and hits.hit.any():  # the sun per camera hit (its edge across a face: one launch,
             # kernels.hit_average.SunAtHits), the rest blended from the vertices

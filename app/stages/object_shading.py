@@ -32,6 +32,7 @@ from recon.patches import PatchMesh
 from recon.proxy import simplify, subdivide
 from recon.response import luminance
 from recon.scene import SceneObject
+from app.stages.own_contacts import lift_off_own_contacts
 
 SPLIT_PAIRS = 1024  # (point, patch) pairs a concurrent part of a gather over patches gets at least (the
 # item count from which app.runtime.parts splits a launch of one-patch items): pair_split
@@ -122,6 +123,24 @@ def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.nda
         known = known | new
     out[~known] = out[known].mean(0)
     return out
+
+
+def vertex_light(L_room: np.ndarray, L_sun: np.ndarray | None, fill, bounce, albedo: np.ndarray) -> np.ndarray:
+    """Radiance (V,3) at the shading mesh's vertices from the room's part L_room (V,3) and each vertex's own
+    direct sun L_sun (V,3; None: no sun), both albedo x E, the one place the frame at rest and the drag frame
+    (app.stages.object_drag) make it. Buried vertices (ShapeShading.buried) see almost nothing: their room part
+    and the bounce come from their neighbours (fill(values) -> values: _fill_from_neighbours or the drag frame's
+    FillOperator), never their direct sun: each vertex keeps its own, the share that a camera hit's own sun
+    (shade's per-hit correction, the drag frame's SunAtHits) replaces, so a face's hits get the sun per hit and
+    not a neighbour's sun blended over them. One bounce between the object's own parts (bounce (V,V) sparse,
+    None: none) sees the object's radiance with that sun."""
+    base = fill(L_room)
+    if L_sun is not None:
+        base = base + L_sun
+    if bounce is None:
+        return base
+    lit = fill(base - L_sun + albedo * (bounce @ base)) if L_sun is not None else fill(base + albedo * (bounce @ base))
+    return lit + L_sun if L_sun is not None else lit
 
 
 def _facing(p: np.ndarray, n: np.ndarray, polys: np.ndarray, pn: np.ndarray) -> np.ndarray:
@@ -419,7 +438,8 @@ def gathered_rows(buried: np.ndarray, inv: np.ndarray, samples: np.ndarray) -> n
 
 class ShapeShading:
     """What the shading needs of one object shape, made once in its own frame (centred: a
-    translation changes none of it): the distinct (position, normal) vertices, their self-occlusion
+    translation changes none of it): the distinct (position, normal) vertices, where each is shaded (lift: off a
+    contact line between two of the object's parts, own_contacts.lift_off_own_contacts), their self-occlusion
     transfer (kernels.shade.self_transfer), which of them are buried, the self-bounce operator, and
     the sample vertices of the dB gather with their interpolation weights (skip_buried False: the
     emitters' and the sun's gathers run at every distinct vertex, the buried ones too; the answer is the same)."""
@@ -432,7 +452,11 @@ class ShapeShading:
         _, self.uniq, self.inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
         self.inv = self.inv.reshape(-1)
         own = Occluder(local, f, device)
-        T, hit_face, hit_bary = self_transfer(local, n, own, prt_dirs, device=device)
+        # a vertex on a contact line between two parts (a chair's back on its seat) is shaded just off the
+        # contact (own_contacts.lift_off_own_contacts); lift (U,3) m: its offset from the distinct vertex
+        self.lift = lift_off_own_contacts(local, n, f)[self.uniq]
+        at = local + self.lift[self.inv]
+        T, hit_face, hit_bary = self_transfer(at, n, own, prt_dirs, device=device)
         self.transfer = (T, hit_face, hit_bary)  # at every vertex
         self.T = T[self.uniq].astype(np.float64)
         hit = hit_face >= 0
@@ -443,7 +467,7 @@ class ShapeShading:
             cols = f[hit_face[rows, k]]  # (m,3)
             self.bounce = sp.csr_matrix((hit_bary[rows, k].reshape(-1).astype(np.float64) / hit.shape[1],
                                          (np.repeat(rows, 3), cols.reshape(-1))), shape=(len(local), len(local)))
-        lu, nu = local[self.uniq], n[self.uniq]
+        lu, nu = local[self.uniq] + self.lift, n[self.uniq]
         self.normals = nu
         self.key = ""  # shape_shading's key
         self._sun_self: tuple | None = None  # (sun direction, sun_self_lit of the distinct vertices)
@@ -592,7 +616,8 @@ class ObjectShading:
         room's patches in the object's shadow (P,3)), plus one bounce between the object's own parts;
         with a sun, its direct light with the object's self-shadowing and sun_dB (P,3), the sun the
         object blocks from each patch this frame. Everything is evaluated once per distinct (position,
-        normal) of the mesh (ShapeShading.uniq)."""
+        normal) of the mesh (ShapeShading.uniq), a vertex on a contact between two parts just off it
+        (ShapeShading.lift); the buried vertices' fill and each vertex's own sun as vertex_light."""
         return self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB)[0]
 
     def _vertex_radiance(self, obj: SceneObject, mesh, proxy_occ: Occluder, dB: np.ndarray | None,
@@ -605,7 +630,7 @@ class ObjectShading:
         cached = self._shade_occ
         own = cached[1] if cached is not None and cached[0] is v else Occluder(v, f, self.device)
         ss = self.shape_shading(v, n, f)
-        vu, nu = v[ss.uniq], n[ss.uniq]
+        vu, nu = v[ss.uniq] + ss.lift, n[ss.uniq]  # a vertex on a contact between parts: just off it
         E_ind = np.einsum("vk,vkc->vc", ss.T, self.room_light.indirect_sh(vu))
         rl = self.room_light  # the emitters, exact form factors, visibility cast at samples (ShapeShading)
         em, groups = self.emitter_groups()
@@ -675,22 +700,10 @@ class ObjectShading:
                 E += ss.interpolate(ss.dB_sum(vu[sub], nu[sub], pm.corners[changed], pm.normal[changed], dB[changed],
                                               [self.scene_occ, own], 2e-3, pair_split(self.device, len(changed))))
         E += E_ind
-        if sun_u is not None:
-            E += sun_u
-        L_vert = obj.albedo * np.maximum(E, 0.0)[ss.inv]
-        # vertices buried inside another part of the object (a chair's back-rest inside its seat)
-        # see almost nothing; their values would darken the visible triangles they belong to
-        L_vert = _fill_from_neighbours(L_vert, f, ss.buried)
-        # one bounce between the object's own parts: occluded directions see the object's radiance
-        if ss.bounce is not None:
-            L_vert = _fill_from_neighbours(L_vert + obj.albedo * (ss.bounce @ L_vert), f, ss.buried)
-        if sun_u is not None and ss.buried.any():
-            # a buried vertex's fill took its neighbours' direct sun, which its own sun share (sun_vis, what
-            # shade's per-hit sun replaces) does not hold: it keeps its own direct sun instead, so a face's
-            # hits get the sun per hit and not a neighbour's sun blended over it
-            S = obj.albedo * sun_u[ss.inv]
-            b = ss.buried
-            L_vert[b] += S[b] - _fill_from_neighbours(S, f, b)[b]
+        S = obj.albedo * sun_u[ss.inv] if sun_u is not None else None
+        L_vert = vertex_light(obj.albedo * np.maximum(E, 0.0)[ss.inv], S,
+                              functools.partial(_fill_from_neighbours, faces=f, missing=ss.buried), ss.bounce,
+                              obj.albedo)
         return L_vert, sun_vis
 
     def room_triangles(self, occ: Occluder) -> np.ndarray:
