@@ -20,6 +20,9 @@ holds per bounce count, rho the reflectivities, the sun's strength from lighting
 A name sun_room / window_room / lamps_room runs the shared scene's own folder (`composite --lighting captured
 --passes 64`, as tests/lighting/test_sun.py). With --map, bench/bench_spurious_map.py's table (which light term
 puts the spurious pixels where) per variant instead, plus 'known' (the benchmark folder under known light).
+With --reflectivity, per surface of the benchmark folder itself (the true geometry, declared albedos) under
+captured light: the median of main's reflectivity (L / G L) and of the bounce-consistent one over the declared
+albedo, on measured non-emitting patches split by origin (photo, probe).
 Each row: the scorer's figures, the sun's estimated strength (luminance of E_perp) and the spurious bound
 max(0.01, 1.2 x own_room_flow.spurious_noise_floor)."""
 from __future__ import annotations
@@ -50,6 +53,7 @@ def _patch() -> None:
         raise SystemExit("bench_spur34c: lighting.radiance has no bounce_levels (spur34b's code, reverted on main); "
                          "apply it first: git diff a7963e9 5ed2bc0 -- lighting app | git apply")
     real_levels, real_sun = radiance.bounce_levels, sun_stage.estimate_sun
+    _state["real_levels"] = real_levels
 
     def levels(G, rm, sources, bounces, *a, **k):
         B, rho = real_levels(G, rm, sources, bounces, *a, **k)
@@ -172,6 +176,59 @@ def spurious_maps(root: Path, work: Path, variants: list[str]) -> None:
             shutil.rmtree(cache, ignore_errors=True)
 
 
+def reflectivities(root: Path, work: Path) -> list[dict]:
+    """Per surface and origin (photo, probe): patches, declared albedo, main's and the bounce-consistent
+    reflectivity over it (medians of luminance) on the benchmark folder `root` under captured light."""
+    import app.stages.precompute as pc
+    import lighting.radiance as radiance
+    from app.cli import main as cli
+
+    w = np.array([0.2126, 0.7152, 0.0722])
+    real, got = pc.captured_radiance_mesh, {}
+
+    def mesh(patches, G, occ, probe, scene, pix_patch, bounces=None):
+        rm = real(patches, G, occ, probe, scene, pix_patch, None)
+        _, rho = _state["real_levels"](G, rm, np.array([q.light_shaped for q in scene.quads], bool)[patches.quad],
+                                        max(bounces or 4, 2))
+        got.update(main=rm.reflectivity @ w, new=rho @ w, origin=rm.origin, quad=np.asarray(patches.quad),
+                   emit=np.zeros(len(rm.origin), bool) if rm.emitter is None else np.asarray(rm.emitter, bool),
+                   albedo=np.asarray(patches.albedo) @ w, names=[q.name for q in scene.quads],
+                   shaped=np.array([q.light_shaped for q in scene.quads], bool), L=rm.radiance @ w)
+        return rm  # the engine as main
+
+    pc.captured_radiance_mesh = mesh
+    shutil.rmtree(work / "refl", ignore_errors=True)
+    try:
+        if cli(["-q", "composite", str(root), "--out", str(work / "refl" / "o"), "--cache", str(work / "refl" / "c"),
+                "--passes", "8", "--lighting", "captured"]):
+            raise RuntimeError(f"{root}: composite --lighting captured failed")
+    finally:
+        pc.captured_radiance_mesh = real
+        shutil.rmtree(work / "refl", ignore_errors=True)
+    rows = []
+    for q in np.flatnonzero(got["shaped"]):  # windows and lamps: their captured radiance (roomgen's room_config.json
+        m = got["quad"] == q  # holds the declared one)
+        if m.any():
+            rows.append({"surface": got["names"][q], "origin": "light", "patches": int(m.sum()),
+                         "radiance_lum_median": float(np.median(got["L"][m]))})
+            print(f"{root.name} {got['names'][q]:16s} light: {m.sum():4d} patches, captured radiance (luminance, "
+                  f"median) {rows[-1]['radiance_lum_median']:.3f}", flush=True)
+    for q in np.unique(got["quad"]):
+        for origin, tag in ((radiance.PHOTO, "photo"), (radiance.PROBE, "probe")):
+            m = (got["quad"] == q) & (got["origin"] == origin) & ~got["emit"] & (got["albedo"] > 0)
+            if m.sum() < 20:
+                continue
+            rows.append({"surface": got["names"][q], "origin": tag, "patches": int(m.sum()),
+                         "declared": float(np.median(got["albedo"][m])),
+                         "main": float(np.median(got["main"][m] / got["albedo"][m])),
+                         "bounce_consistent": float(np.median(got["new"][m] / got["albedo"][m]))})
+            r = rows[-1]
+            print(f"{root.name} {r['surface']:16s} {tag}: {r['patches']:4d} patches, declared {r['declared']:.3f}, "
+                  f"main / declared {r['main']:.3f}, bounce-consistent / declared {r['bounce_consistent']:.3f}",
+                  flush=True)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rooms", default=os.path.expanduser("~/.cache/photoar/rooms_full"))
@@ -181,6 +238,8 @@ def main(argv=None) -> int:
     ap.add_argument("--shared", default=os.environ.get("PHOTOAR_SHARED", "../shared"))
     ap.add_argument("--json", help="append the results here")
     ap.add_argument("--map", action="store_true", help="bench_spurious_map's table per variant (and 'known')")
+    ap.add_argument("--reflectivity", action="store_true",
+                    help="per surface: main's and the bounce-consistent reflectivity over the declared albedo")
     a = ap.parse_args(argv)
     variants = a.variants.split(",")
     bad = [v for v in variants if v not in VARIANTS + (("known",) if a.map else ())]
@@ -193,13 +252,16 @@ def main(argv=None) -> int:
     for name in a.only.split(","):
         root = Path(a.shared) / "scenes" / name if name in ("sun_room", "window_room", "lamps_room") \
             else Path(a.rooms).expanduser() / name
-        if a.map:
+        if a.reflectivity:
+            res[name] = reflectivities(root, Path(a.work) / name)
+        elif a.map:
             if (root.parent.name != "scenes" and not (Path(a.work) / name / "room" / "scene.json").is_file()
                     and any(v != "known" for v in variants)):
                 run(root, Path(a.work) / name, Path(a.shared), [])  # calibrate and scene only
             spurious_maps(root, Path(a.work) / name, variants)
             continue
-        res[name] = run(root, Path(a.work) / name, Path(a.shared), variants)
+        else:
+            res[name] = run(root, Path(a.work) / name, Path(a.shared), variants)
         if a.json:
             p = Path(a.json)
             old = json.loads(p.read_text()) if p.is_file() else {}
