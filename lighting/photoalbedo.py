@@ -80,7 +80,8 @@ def seen_transfers(G: np.ndarray, S: np.ndarray, U: np.ndarray, r_patch: np.ndar
 def fit_albedo_scale(G: np.ndarray, S: np.ndarray, U: np.ndarray, known: np.ndarray, M: np.ndarray,
                      qS: np.ndarray, wall: np.ndarray, w: np.ndarray, L_S: np.ndarray, lower: np.ndarray,
                      quad: np.ndarray, vertical: np.ndarray, ceiling_q: np.ndarray, priors,
-                     fit_walls: bool = True, outer: int = 4, inner: int = 40) -> AlbedoFit:
+                     fit_walls: bool = True, outer: int = 4, inner: int = 40, levels: int = 0,
+                     reflected: np.ndarray | None = None) -> AlbedoFit:
     """The albedos and the emitters that best explain every seen patch (module docstring).
 
     G (P,P) transfers; S seen patches (their radiance L_S (|S|,3) in `known`), U unseen ones, M (P,G)
@@ -88,7 +89,12 @@ def fit_albedo_scale(G: np.ndarray, S: np.ndarray, U: np.ndarray, known: np.ndar
     the relative weights; lower (G,3) the emitters' lower bounds; quad (P,) each patch's quad,
     vertical (P,) a wall patch, ceiling_q (Q,) a ceiling quad; priors: lighting.photolight.PhotoPriors
     (wall_albedo the start, ceiling_albedo, unseen_reflectivity); fit_walls False: the walls keep
-    wall_albedo, the other seen surfaces and the unseen patches are fitted around it."""
+    wall_albedo, the other seen surfaces and the unseen patches are fitted around it.
+
+    levels > 0: the photo holds at most `levels` light bounces, the camera hit one of them (a path tracer's
+    cap), so a seen patch gathers its neighbours at level levels - 1, not at the level the photo shows them:
+    from the second round on each source patch j is weighted by f_j = B^(levels-1) / B^(levels) of the
+    previous round's model (bounce_weights; `reflected` (G,) marks the clipped regions). 0: every bounce."""
     nq = len(ceiling_q)
     vertical_q = np.bincount(quad, vertical, nq) > 0
     seen_q = np.unique(qS)
@@ -98,8 +104,9 @@ def fit_albedo_scale(G: np.ndarray, S: np.ndarray, U: np.ndarray, known: np.ndar
     r_q = np.where(ceiling_q, priors.ceiling_albedo, priors.unseen_reflectivity)
     a0 = A1 = Z0 = Z1 = e = None
     rounds = 0
+    Gf = G
     for rounds in range(1, outer + 1):
-        a0, A1, Z0, Z1 = seen_transfers(G, S, U, r_q[quad], known, M)
+        a0, A1, Z0, Z1 = seen_transfers(Gf, S, U, r_q[quad], known, M)
         reach = np.abs(w[:, None] * A1).sum(0)
         unresolved = reach <= 1e-9 * max(reach.max(initial=0.0), 1e-300)
         for _ in range(inner):
@@ -120,12 +127,46 @@ def fit_albedo_scale(G: np.ndarray, S: np.ndarray, U: np.ndarray, known: np.ndar
         new_q[vertical_q] = luminance(wall_rho)
         for q in seen_q:
             new_q[q] = luminance(rho[qS == q][0])
-        if np.allclose(new_q, r_q, atol=1e-3) or rounds == outer:
+        if levels > 0 and rounds < outer:
+            f = bounce_weights(G, S, U, known, M, e, rho, new_q[quad], levels, reflected)
+            Gf = G * f[None, :]
+        elif np.allclose(new_q, r_q, atol=1e-3) or rounds == outer:
             break  # (r_q stays the one a0, A1 were solved with)
         r_q = new_q
     surface = {int(q): rho[qS == q][0] for q in seen_q}
     wall_rho = rho[wall][0] if wall.any() else np.full(3, priors.wall_albedo)
     return AlbedoFit(wall_rho, surface, r_q[quad].astype(np.float64), a0, A1, Z0, Z1, e, rounds)
+
+
+def bounce_weights(G: np.ndarray, S: np.ndarray, U: np.ndarray, known: np.ndarray, M: np.ndarray, e: np.ndarray,
+                   rho_S: np.ndarray, r_patch: np.ndarray, levels: int, reflected: np.ndarray | None = None
+                   ) -> np.ndarray:
+    """(P,) f_j = B_(levels-1) / B_(levels) (luminance, in [0, 1]) of the fitted model: the emitters (the
+    known patches outside S, and M e) gathered with reflectivity rho_S on S, r_patch on U. A group marked
+    `reflected` (G,) (a clipped region: a surface lit by the sun or a lamp, not a source) is itself one
+    bounce, so its light gathers one level less. Emitters get 1 (their radiance does not build up)."""
+    from lighting.radiosity import gather
+
+    refl = np.zeros(M.shape[1], bool) if reflected is None else np.asarray(reflected, bool)
+    other = np.ones(len(known), bool)
+    other[S] = False
+    kn = other & known.any(1)  # measured emitters (known, not a seen reflector)
+    src = M[:, ~refl] @ e[~refl]
+    src[kn] = known[kn]
+    clip = M[:, refl] @ e[refl]
+    emitting = M.any(1) | kn
+    albedo = np.zeros_like(known)
+    albedo[S] = rho_S
+    albedo[U] = r_patch[U, None]
+    A = gather(G, albedo, src, levels)
+    C = gather(G, albedo, clip, max(levels - 1, 0))
+    hi = luminance(A[levels] + C[-1])
+    lo = luminance(A[levels - 1] + (C[-2] if levels >= 2 else 0 * C[-1]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(hi > 0, lo / hi, 1.0)
+    f = np.clip(np.nan_to_num(f, nan=1.0), 0.0, 1.0)
+    f[emitting] = 1.0
+    return f
 
 
 def solve_emitters(J1: np.ndarray, w: np.ndarray, L_S: np.ndarray, a0: np.ndarray, rho: float | np.ndarray,

@@ -103,6 +103,9 @@ class PhotoPriors:
     # None: when the response is measured (it needs the response's slope), True / False: always / never
     unseen_by_surface: bool = True  # unseen patches reflect as their surface's seen part (lighting.photoalbedo)
     ceiling_albedo: float = 0.8  # an unseen ceiling's reflectivity with unseen_by_surface / fit_albedo
+    bounce_levels: int = 0  # > 0: the photo holds this many light bounces, the camera hit one of them (a path
+    # tracer's cap: the benchmark truth 4); the interreflection fit then gathers one level less (lighting.photoalbedo)
+    # 0: every bounce (a camera). Opt-in: measured in docs/unseen.md "photosun34b", not the default
 
 
 @dataclass
@@ -293,7 +296,8 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
         ceiling_q = (roles == "room") & (np.bincount(patches.quad, patches.normal[:, 1], nq)
                                          < -0.5 * np.maximum(np.bincount(patches.quad, minlength=nq), 1))
         albedo_fit = fit_albedo_scale(G64, S, U, known, M, qS, fit_on, w_all, L_S, lower, patches.quad,
-                                      vertical, ceiling_q, pr, fit_walls=pr.fit_albedo)
+                                      vertical, ceiling_q, pr, fit_walls=pr.fit_albedo, levels=pr.bounce_levels,
+                                      reflected=np.array([not emit[patches.quad == q].any() for q in gquads], bool))
         rho, r_patch = albedo_fit.wall, albedo_fit.r_patch
         a0, A1, Z0, Z1 = albedo_fit.a0, albedo_fit.A1, albedo_fit.Z0, albedo_fit.Z1
     else:
