@@ -17,7 +17,10 @@ refined) it prints:
 and the refinement started from the truth's camera (no clicked lines, as bench_unseen's `true cam`).
 
     python bench/bench_guard106.py [--rooms DIR] [--only window_106,window_104,window_105] [--json OUT]
-    python bench/bench_guard106.py --only window_106 --force-accept RESULTS_DIR   (composites: minutes)
+    python bench/bench_guard106.py --what-if [--only ...]           (a) and (b) on the calibrated camera, fit by fit
+    python bench/bench_guard106.py --compare [--variants current,a,b,b2,b3] [--only ...]   one line per room
+    python bench/bench_guard106.py --only window_106 --force-accept RESULTS_DIR [--variant a|b2]   (composites: minutes)
+Variants (bench-only monkeypatches): a = widened_on_edge_refusal, b/b2/b3 = canny_fallback (see their docstrings).
 """
 from __future__ import annotations
 
