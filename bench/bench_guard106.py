@@ -371,7 +371,7 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default="window_106,window_104,window_105")
     ap.add_argument("--json", type=Path, help="write the results here")
     ap.add_argument("--variant", choices=("", "a", "b", "b2", "b3"), default="",
-                    help="with --force-accept: the flow with the Canny fallback (b, b2: see compare())")
+                    help="with --force-accept: this variant instead of the forced guard (a, b, b2, b3)")
     ap.add_argument("--variants", default="current,b,b2,b3", help="with --compare: which (default %(default)s)")
     ap.add_argument("--compare", action="store_true", help="instead: one line per room, the camera scene would use "
                                                           "now and with the Canny fallback (compare())")
