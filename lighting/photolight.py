@@ -263,8 +263,10 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
                          f"no light to read")
     group, gquads = _unknown_groups(patches, count, clipped)
     ng = len(gquads)
-    names = [(quad_names[q] if quad_names else f"quad {q}")
-             + ("" if emit[patches.quad == q].any() else " (clipped region)") for q in gquads]
+    modelled = np.array([emit[patches.quad == q].any() for q in gquads], bool)  # a modelled window or lamp, per
+    # group (else a clipped region: a surface the sun or a lamp lights)
+    names = [(quad_names[q] if quad_names else f"quad {q}") + ("" if m else " (clipped region)")
+             for q, m in zip(gquads, modelled)]
 
     # ---- sets: S measured walls, K measured emitters, X unknown (grouped), U unseen reflectors
     S = np.flatnonzero(seen_wall)
@@ -297,7 +299,7 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
                                          < -0.5 * np.maximum(np.bincount(patches.quad, minlength=nq), 1))
         albedo_fit = fit_albedo_scale(G64, S, U, known, M, qS, fit_on, w_all, L_S, lower, patches.quad,
                                       vertical, ceiling_q, pr, fit_walls=pr.fit_albedo, levels=pr.bounce_levels,
-                                      reflected=np.array([not emit[patches.quad == q].any() for q in gquads], bool))
+                                      reflected=~modelled)
         rho, r_patch = albedo_fit.wall, albedo_fit.r_patch
         a0, A1, Z0, Z1 = albedo_fit.a0, albedo_fit.A1, albedo_fit.Z0, albedo_fit.Z1
     else:
@@ -312,7 +314,7 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     e_hi = _solve_emitters(J1, w, L_S, a0, np.minimum(1.2 * rho_rows, 0.999), lower, unresolved)[0]
     rho_S = np.array(rho_rows)
     rho = float(luminance(rho))
-    dark = _dark_emitters(at_bound, lower, unresolved, [bool(emit[patches.quad == q].any()) for q in gquads])
+    dark = _dark_emitters(at_bound, lower, unresolved, modelled)
     surface = bool(dark) if pr.surface_albedos is None else pr.surface_albedos
     if surface and not fit_on.all():
         rho_S, e = _surface_albedos(qS, fit_on, A1, w_all, L_S, a0, rho, lower, unresolved)
@@ -398,7 +400,7 @@ def _lower_bounds(patches: PatchMesh, group: np.ndarray, gquads: list[int], pix_
     return lower, source
 
 
-def _dark_emitters(at_bound: np.ndarray, lower: np.ndarray, unresolved: np.ndarray, modelled: list[bool]
+def _dark_emitters(at_bound: np.ndarray, lower: np.ndarray, unresolved: np.ndarray, modelled: np.ndarray
                    ) -> list[int]:
     """The groups the walls' fit leaves dark: a modelled window or lamp (`modelled`, per group) that the
     walls see, fitted at its lower bound 0 (no clipped pixel, not in view). The model says it emits, so
