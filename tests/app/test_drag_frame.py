@@ -262,13 +262,17 @@ def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     from app.engine import FrameConfig
     from app.evaluate import DRAG_PASSES, DRAG_SCALE
 
+    from app.config import DRAG_PASSES_NO_SUN
+
     sr = shared_room(room)
     scene, eng = sr.scene, sr.engine
-    # the full-resolution frame of the drag frame's passes: the same clusters (split near the object first)
+    # the full-resolution frame of the drag frame's passes (at most DRAG_PASSES_NO_SUN where no sun lights the
+    # room): the same clusters (split near the object first)
+    passes = DRAG_PASSES if eng.sun_pixels.stage is not None else min(DRAG_PASSES, DRAG_PASSES_NO_SUN)
     select = eng.shadow_sources.select
     eng.shadow_sources.select = lambda *a, near_split=False, **k: select(*a, near_split=True, **k)
     try:
-        same = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES))
+        same = eng.render(scene.obj, FrameConfig(passes=passes))
     finally:
         del eng.shadow_sources.select
     drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
