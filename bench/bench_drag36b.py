@@ -136,19 +136,6 @@ def _passes_no_sun(eng: Engine, n: int | None, scale: int = DRAG_SCALE):
         st.passes_no_sun = old
 
 
-@contextlib.contextmanager
-def _centre_reach(eng: Engine, reach: float | None, scale: int = DRAG_SCALE):
-    """The drag stages' shadow pass sums the patch centres within `reach` bounding radii only while the block
-    runs (ShadowPass.centre_reach; drag107)."""
-    sp = eng.pixel_stages(scale).shadow_pass
-    old = sp.centre_reach
-    sp.centre_reach = reach
-    try:
-        yield
-    finally:
-        sp.centre_reach = old
-
-
 def _cfg(scale: int = DRAG_SCALE, passes: int = DRAG_PASSES) -> FrameConfig:
     return FrameConfig(passes=passes, drag=scale)
 
@@ -178,8 +165,6 @@ VARIANTS = {
     "s4m128ss1": (_cfg(4), lambda e: _drag_stages(e, 4, 1, map_res=128)),
     "s4d3ss1": (_cfg(4), lambda e: _drag_stages(e, 4, 1, map_div=3)),
     "s4d3p48": (_cfg(4, 48), lambda e: _drag_stages(e, 4, 1, map_div=3)),  # drag107
-    "call": (_cfg(), lambda e: _centre_reach(e, None)),  # every patch centre summed (drag107)
-    **{f"cr{r:g}": (_cfg(), lambda e, r=r: _centre_reach(e, float(r))) for r in (1, 1.5, 2, 3, 4, 6, 8)},
 }
 
 
