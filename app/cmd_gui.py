@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from app.cli import add_object_args
-from app.config import DRAG_PASSES, DRAG_SCALE
+from app.config import DRAG_PASSES, DRAG_PASSES_NO_SUN, DRAG_SCALE
 from kernels.quiet import native_output_held
 
 log = logging.getLogger("photoar")
@@ -54,9 +54,9 @@ def register(sub) -> None:
     g.add_argument("scene", type=Path, help="scene folder, or a placement JSON saved from the window")
     add_object_args(g)
     g.add_argument("--passes", type=_positive_int, default=DRAG_PASSES,
-                   help="shadow passes per frame while the object moves (default %(default)s, the drag frame's; the "
-                        "window's slider changes it); at rest the window shows a finer frame, then the all-sources "
-                        "frame (Engine.refine)")
+                   help="shadow passes per frame while the object moves (default %(default)s, the drag frame's; at most "
+                        f"{DRAG_PASSES_NO_SUN} in a room no sun lights; the window's slider changes it); at rest the "
+                        "window shows a finer frame, then the all-sources frame (Engine.refine)")
     g.add_argument("--drag-scale", type=_positive_int, default=DRAG_SCALE, metavar="S",
                    help="frames while the object moves compute the room's change at 1/S resolution each way and "
                         "the object at full (app.dragframe; default %(default)s); 1: the whole frame at full "

@@ -134,6 +134,15 @@ class ObjectConfig:
 # (ShadowConfig.batch), whose frame sums on the graded lattice (ShadowPass._run_graded)
 DRAG_SCALE = 3
 DRAG_PASSES = 64
+# A drag frame in a room no sun lights takes at most this many passes (Engine._frame_steps; a ceiling on
+# FrameConfig.passes, the GUI's slider included). The drag frame's energy drifts at few passes where a cluster's
+# eye lies on a strong patch touching the object's box, which then blocks its far members' light too: the sunlit
+# floor around the object (docs/benchmarks.md "passes48"); without a sun no patch near the object is that strong.
+# 48 against 64, the drag rows (energy / rmse_affected): window_room 0.952 / 1.13 against 0.940 / 1.04 (bound
+# 1.61), lamps_room 1.000 / 1.54 against 1.000 / 1.54 (2.33), unseen lamps_101 0.987 / 1.32, lamps_102 0.960 /
+# 3.86 (5.03), window_101 0.985 / 1.01, window_102 1.053 / 0.83 (docs/benchmarks.md "passes48"); the masks' CPU
+# ~0.85x (docs/benchmarks.md "drag107")
+DRAG_PASSES_NO_SUN = 48
 # How a drag frame computes the room's change (FrameConfig.drag_shadow): "maps" (clustered shadow maps,
 # DRAG_PASSES of them), "spheres" (app.dragshadow: the object as ellipsoids against the room's SH light and
 # its compact sources, no maps) or "auto": spheres in a room no sun lights, else maps (app.dragframe.

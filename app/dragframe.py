@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from app import runtime
+from app.config import DRAG_PASSES_NO_SUN
 from app.stages.object_light import DRAG_FAR_CELLS
 from app.stages.receiver_map import ReceiverMap, receiver_map, reflectance
 from kernels.drag_compose import RATIO_EPS, DragCompose
@@ -142,6 +143,15 @@ DRAG_GRADED_NEAR = 2.0
 DRAG_HARD_WEAK = True
 
 
+# The drag frame's patch centres look every cluster map up with the hard lookup of its eye, no PCSS penumbra
+# (ShadowPass.hard_centres). Their occlusion feeds only the second order and the object's own shading (the room's
+# pixels take theirs from the pixels' own sums), both averages over many patches, where a penumbra's shape is not
+# seen; a centre is a run of one point, so each (centre, cluster map) pair paid a blocker search and a filter of its
+# own: ~14 % of the masks' PCSS pairs at about twice a pixel's cost (docs/benchmarks.md "masks48").
+# docs/benchmarks.md "drag107": the masks' CPU and the drag rows, True against False
+DRAG_HARD_CENTRES = True
+
+
 # The drag frame's object pixels: camera rays per pixel side (Engine.frame_object, kernels.scene_depth; None:
 # ObjectConfig.supersample, the frames at rest's 2). One ray a pixel: the object's camera hits, its coverage and the
 # sub-samples its shading averages (kernels.hit_average) are a quarter of 2 x 2's, and its outline is not
@@ -239,6 +249,7 @@ class DragStages:
             self.object_light.far_cells = DRAG_FAR_CELLS  # its far field merged (app.stages.object_light.FarGroups)
             self.shadow_pass.set_taps(DRAG_PCSS_TAPS)
             self.shadow_pass.graded_near = DRAG_GRADED_NEAR
+            self.shadow_pass.hard_centres = DRAG_HARD_CENTRES
             if DRAG_HARD_WEAK:  # in the drag frame's HDR units: W_v and E_v irradiance/pi
                 self.shadow_pass.weak_clusters = RestMaps(r.E_v)
         self.shape = (cam.height, cam.width)
@@ -255,6 +266,8 @@ class DragStages:
         # the object's camera rays per pixel side while dragging (Engine.frame_object; DRAG_SUPERSAMPLE)
         self.supersample = engine.params.object.supersample if DRAG_SUPERSAMPLE is None else DRAG_SUPERSAMPLE
         self._engine_cam = (engine.cam_occ, engine.scene.camera, dev)
+        # the most passes a drag frame takes in a room no sun lights (Engine._frame_steps; None: as asked)
+        self.passes_no_sun: int | None = DRAG_PASSES_NO_SUN
         self._scene_depth = None  # scene_depth(), made on first use
 
     def scene_depth(self):

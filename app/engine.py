@@ -323,6 +323,8 @@ class Engine:
 
         # ---- source list from the shaft hierarchy, grouped into the frame's passes (sec. 6.2.1, 6.4)
         passes = self.budget.passes(config, sun is not None)
+        if px is not self and sun is None and passes is not None and px.passes_no_sun is not None:
+            passes = min(passes, px.passes_no_sun)  # a drag frame without a sun: its ceiling (DRAG_PASSES_NO_SUN)
         near = px.near_split if px is not self else finer_near_split(self, config, passes, sun is not None)
         fs = self.shadow_sources.select(pv.min(0), pv.max(0), passes,
                                         functools.partial(split_launches, device=self.device, min_items=64),

@@ -103,6 +103,39 @@ def _drag_stages(eng: Engine, scale: int, supersample: int | None = None, **kw):
 _STAGES: dict = {}
 
 
+@contextlib.contextmanager
+def _hard_centres(eng: Engine, on: bool, scale: int = DRAG_SCALE):
+    """The drag stages' patch centres with the cluster maps' hard lookup (ShadowPass.hard_centres) on or off while
+    the block runs (drag107)."""
+    sp = eng.pixel_stages(scale).shadow_pass
+    old = sp.hard_centres
+    sp.hard_centres = on
+    try:
+        yield
+    finally:
+        sp.hard_centres = old
+
+
+@contextlib.contextmanager
+def _main107(eng: Engine, scale: int = DRAG_SCALE):
+    """main's drag frame before drag107: 64 passes whatever the sun, the centres' penumbrae."""
+    with _passes_no_sun(eng, None, scale), _hard_centres(eng, False, scale):
+        yield
+
+
+@contextlib.contextmanager
+def _passes_no_sun(eng: Engine, n: int | None, scale: int = DRAG_SCALE):
+    """The drag stages' pass ceiling in a room no sun lights (DragStages.passes_no_sun) set to n while the block
+    runs (None: the passes asked; drag107)."""
+    st = eng.pixel_stages(scale)
+    old = st.passes_no_sun
+    st.passes_no_sun = n
+    try:
+        yield
+    finally:
+        st.passes_no_sun = old
+
+
 def _cfg(scale: int = DRAG_SCALE, passes: int = DRAG_PASSES) -> FrameConfig:
     return FrameConfig(passes=passes, drag=scale)
 
@@ -110,6 +143,9 @@ def _cfg(scale: int = DRAG_SCALE, passes: int = DRAG_PASSES) -> FrameConfig:
 # name -> (FrameConfig, context manager factory taking the engine)
 VARIANTS = {
     "base": (_cfg(), _nothing),
+    "main107": (_cfg(), _main107),  # main's drag frame before drag107 (64 passes, the centres' penumbrae)
+    "softcen": (_cfg(), lambda e: _hard_centres(e, False)),  # drag107 without the centres' hard lookup
+    "ns64": (_cfg(), lambda e: _passes_no_sun(e, None)),  # main's drag frame before drag107: 64 passes, sun or not
     "s4": (_cfg(4), _nothing),
     "s5": (_cfg(5), _nothing),
     "s6": (_cfg(6), _nothing),
@@ -128,6 +164,7 @@ VARIANTS = {
     "s4m85ss2": (_cfg(4), lambda e: _drag_stages(e, 4, 2, map_res=85)),
     "s4m128ss1": (_cfg(4), lambda e: _drag_stages(e, 4, 1, map_res=128)),
     "s4d3ss1": (_cfg(4), lambda e: _drag_stages(e, 4, 1, map_div=3)),
+    "s4d3p48": (_cfg(4, 48), lambda e: _drag_stages(e, 4, 1, map_div=3)),  # drag107
 }
 
 
@@ -170,6 +207,7 @@ def bench_scene(d: Path, names: list[str], n_path: int, rounds: int) -> dict:
     def score(fr) -> dict:
         s = metrics.score_regions(fr.pixels, scene.photo, truth, mask)
         return {"energy": float(s["energy_ratio"]), "rmse": float(s["rmse_affected"]),
+                "rmse_object": float(s["rmse_object"]),
                 "sha": hashlib.sha256(np.ascontiguousarray(fr.pixels).tobytes()).hexdigest()[:12]}
 
     full = eng.render(scene.obj, FrameConfig())
@@ -182,11 +220,17 @@ def bench_scene(d: Path, names: list[str], n_path: int, rounds: int) -> dict:
     for n in names:  # the drag frame at the scene's own pose, scored (and every variant's one-off work done)
         cfg, ctx = VARIANTS[n]
         with ctx(eng):
+            for st in eng._drag.values():  # no pose reuse (DragStages.near_pose) across variants (drag107)
+                getattr(st, "_near", {}).clear()
+            eng.render(scene.obj, cfg)  # as evaluate's drag row: the second frame at the pose
             scores[n] = score(eng.render(scene.obj, cfg))
             eng.render(moved(scene.obj, offsets[0]), cfg)
     for r in range(rounds):  # each pose rendered by every variant in turn: the same load for all
-        for o in offsets[1:]:
-            for n in names:
+        for i, o in enumerate(offsets[1:]):
+            # the order reversed every other pose: the first render of a pose also fills the caches the others
+            # read at that pose (the object's shape, DragStages.near_pose), which biased the first variant's
+            # object stages (drag107)
+            for n in (names if (r + i) % 2 == 0 else names[::-1]):
                 cfg, ctx = VARIANTS[n]
                 with ctx(eng):
                     _STAGE_CPU.clear()
@@ -237,16 +281,17 @@ def object_replay(d: Path, n_path: int, reps: int) -> dict:
 
 def print_scene(res: dict) -> None:
     a = res["all"]
-    print(f"\n{res['scene']}: all sources {a['energy']:.3f} / {a['rmse']:.2f} (bound {res['bound']:.2f}) {a['sha']}")
+    print(f"\n{res['scene']}: all sources {a['energy']:.3f} / {a['rmse']:.2f} / {a.get('rmse_object', 0):.2f} "
+          f"(bound {res['bound']:.2f}) {a['sha']}")
     keys = ["proxy", "object", "sources", "masks", "sun", "object_light", "object_shading", "second_order", "compose",
             "upsample"]
     print("(stage columns: process CPU ms per frame, all threads)")
-    print(f"{'variant':>10} {'cpu':>6} {'cpumed':>6} {'wall':>6} {'p95':>6} {'energy':>6} {'rmse':>5} " +
+    print(f"{'variant':>10} {'cpu':>6} {'cpumed':>6} {'wall':>6} {'p95':>6} {'energy':>6} {'rmse':>5} {'r_obj':>5} " +
           " ".join(f"{k[:7]:>7}" for k in keys) + "  sha")
     for r in res["rows"]:
         st = r["stages_cpu_ms"]
         print(f"{r['variant']:>10} {r['cpu_ms']:6.1f} {r['cpu_med']:6.1f} {r['wall_ms']:6.1f} {r['wall_p95']:6.1f} "
-              f"{r['energy']:6.3f} {r['rmse']:5.2f} " + " ".join(f"{st.get(k, 0.0):7.1f}" for k in keys) +
+              f"{r['energy']:6.3f} {r['rmse']:5.2f} {r.get('rmse_object', 0):5.2f} " + " ".join(f"{st.get(k, 0.0):7.1f}" for k in keys) +
               f"  {r['sha']}" + ("" if r["ok"] else "  OUT"))
 
 

@@ -233,10 +233,11 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int,
                        pos: wp.array(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32),
                        bary: wp.array(dtype=wp.vec3), lists: wp.array2d(dtype=wp.int32),
                        n_list: wp.array(dtype=wp.int32), weights: wp.array2d(dtype=wp.vec3),
-                       centres: wp.array2d(dtype=wp.vec3), n_rows: int,
+                       centres: wp.array2d(dtype=wp.vec3), n_rows: int, hard0: int,
                        acc: wp.array(dtype=wp.vec3), count: wp.array(dtype=wp.float32)):
     # one thread per run (the selected points of one cell, consecutive), clipped to points lo..hi-1:
-    # map by map of the cell's list, the map's frame is read once for all the run's points
+    # map by map of the cell's list, the map's frame is read once for all the run's points; points k >= hard0
+    # take the hard lookup of a cluster map's eye too (no penumbra: MaskedSum.accumulate's hard_from)
     r = run0 + wp.tid()
     a = wp.max(run_start[r], lo)
     b = wp.min(run_start[r + 1], hi)
@@ -315,7 +316,7 @@ def _masked_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int,
                 x = wp.dot(d, rt) / z * it * half + half - 0.5
                 y = wp.dot(d, up) / z * it * half + half - 0.5
                 fr = float(0.0)
-                if sp > 0.0:  # a cluster map: its penumbra
+                if sp > 0.0 and k < hard0:  # a cluster map: its penumbra
                     if run[0] == 1.0:
                         fr = 1.0
                     elif run[0] == 2.0:
@@ -336,7 +337,7 @@ def _ray_sum_kernel(ms: MapSet, lo: int, hi: int, col0: int, run0: int,
                     pos: wp.array(dtype=wp.vec3), rows: wp.array2d(dtype=wp.int32),
                     bary: wp.array(dtype=wp.vec3), lists: wp.array2d(dtype=wp.int32),
                     n_list: wp.array(dtype=wp.int32), weights: wp.array2d(dtype=wp.vec3),
-                    centres: wp.array2d(dtype=wp.vec3), n_rows: int,
+                    centres: wp.array2d(dtype=wp.vec3), n_rows: int, hard0: int,
                     acc: wp.array(dtype=wp.vec3), count: wp.array(dtype=wp.float32)):
     # _masked_sum_kernel's runs, the ray-mode maps of their lists only (a source inside the proxy's
     # bounding sphere: the exact segment against the proxy, ~8x a map lookup on the CPU, so cast only
@@ -531,11 +532,13 @@ class MaskedSum:
         return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
     def accumulate(self, maps: ShadowMaps, first: int, weights: wp.array, lo: int = 0, hi: int | None = None,
-                   centres: wp.array | None = None, n_rows: int = 0) -> None:
+                   centres: wp.array | None = None, n_rows: int = 0, hard_from: int | None = None) -> None:
         """Add the prepared batch's masked sums to selected points lo..hi-1 (in the cell-by-cell
         order the sums keep; default all); disjoint ranges may run concurrently. `weights` (rows,
         sources) vec3, column first + map. centres: optional (rows, sources) vec3 table, same columns, of the
-        weight rows n_rows and up (row r read from its row r - n_rows instead of from `weights`)."""
+        weight rows n_rows and up (row r read from its row r - n_rows instead of from `weights`). hard_from:
+        the points (indices into the sums' positions) from this one up look every cluster map up with its eye's
+        hard lookup, no PCSS penumbra (None: none do)."""
         hi = self.n if hi is None else min(hi, self.n)
         if hi <= lo:
             return
@@ -543,7 +546,8 @@ class MaskedSum:
         r1 = int(np.searchsorted(self._run_start, hi, side="left"))
         args = [maps.ms, lo, hi, first, r0, self.run_start.dev, self.run_cell.dev, self.idx.dev,
                 self.pos.dev, self.rows.dev, self.bary.dev, self.lists, self.n_list, weights,
-                self._no_centres if centres is None else centres, n_rows]
+                self._no_centres if centres is None else centres, n_rows,
+                np.iinfo(np.int32).max if hard_from is None else int(hard_from)]
         wp.launch(_masked_sum_kernel, dim=r1 - r0, inputs=args, outputs=[self.acc.dev, self.count.dev],
                   device=self.device)
         if maps.n_ray:  # the batch's maps of sources inside the proxy's bounding sphere (rare)

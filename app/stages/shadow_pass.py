@@ -162,6 +162,9 @@ class ShadowPass:
         # pass's largest share of a receiver's light) take the hard lookup of their cluster's eye, no PCSS penumbra
         # (the drag frame's: app.dragframe.DRAG_HARD_WEAK); None: every cluster map its penumbra
         self.weak_clusters = None
+        # graded frames: the patch centres look every cluster map up with its eye's hard lookup, no PCSS penumbra
+        # (MaskedSum.accumulate's hard_from; the drag frame's: app.dragframe.DRAG_HARD_CENTRES)
+        self.hard_centres = False
         self.last_hard = 0  # the last graded frame's cluster maps so looked up
         self.maps_full = ShadowMaps(batch, map_res, device=device)
         res = min(cluster_map_res or CLUSTER_MAP_RES, map_res)
@@ -584,7 +587,8 @@ class ShadowPass:
         work = self.sums.run_work()  # read once for the number of ranges and their cuts
         k = runtime.parts(dev, int(work[-1]) if len(work) else 0, min_items=MIN_PART_PAIRS)
         wc, vr = self._centres, self.n_recv_vert
-        runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b, wc, vr)
+        hard = self.n_pix_points if self.hard_centres else None  # the centres' points follow the pixels'
+        runtime.run([lambda a=a, b=b: self.sums.accumulate(self.maps, 0, self.weights.dev, a, b, wc, vr, hard)
                      for a, b in self.sums.balanced(k, work)])
         return self.sums.result(counts=False)[0]  # the counts are not read
 

@@ -119,7 +119,8 @@ def test_weak_cluster_maps_take_the_hard_lookup_within_their_share(demo_engine):
             except StopIteration as stop:
                 return stop.value
 
-    kept = sp.weak_clusters
+    kept, kept_centres = sp.weak_clusters, sp.hard_centres
+    sp.hard_centres = False  # the centres with their penumbrae (DRAG_HARD_CENTRES looks every map up hard there)
     try:
         hard = masks()
         assert sp.last_hard == weak.sum()
@@ -133,7 +134,7 @@ def test_weak_cluster_maps_take_the_hard_lookup_within_their_share(demo_engine):
         sp.weak_clusters = RestMaps(px.receivers.E_v, budget=0.0)
         none_weak = masks()
     finally:
-        sp.weak_clusters = kept
+        sp.weak_clusters, sp.hard_centres = kept, kept_centres
     assert np.array_equal(hard.cen_sel, soft.cen_sel) and len(hard.cen_sel) > 0
     bound = np.asarray(fs.W_c, np.float64)[hard.cen_sel][:, weak].sum(1)
     diff = np.abs(hard.O_cen - soft.O_cen)
@@ -262,13 +263,17 @@ def test_drag_frame_scores_near_the_all_sources_frame(shared_room, room):
     from app.engine import FrameConfig
     from app.evaluate import DRAG_PASSES, DRAG_SCALE
 
+    from app.config import DRAG_PASSES_NO_SUN
+
     sr = shared_room(room)
     scene, eng = sr.scene, sr.engine
-    # the full-resolution frame of the drag frame's passes: the same clusters (split near the object first)
+    # the full-resolution frame of the drag frame's passes (at most DRAG_PASSES_NO_SUN where no sun lights the
+    # room): the same clusters (split near the object first)
+    passes = DRAG_PASSES if eng.sun_pixels.stage is not None else min(DRAG_PASSES, DRAG_PASSES_NO_SUN)
     select = eng.shadow_sources.select
     eng.shadow_sources.select = lambda *a, near_split=False, **k: select(*a, near_split=True, **k)
     try:
-        same = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES))
+        same = eng.render(scene.obj, FrameConfig(passes=passes))
     finally:
         del eng.shadow_sources.select
     drag = eng.render(scene.obj, FrameConfig(passes=DRAG_PASSES, drag=DRAG_SCALE))
