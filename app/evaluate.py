@@ -18,7 +18,8 @@ from the smallest pass budget given, as the GUI's slider sets it), and a row
 with "passes": "drag": that drag frame at the scene's own pose, scored like the others. The path's
 "stages_ms" has "python": the frame's time outside Warp kernels on the rendering thread, measured by
 timers around every launch (app.glue.KernelClock): the Python and numpy glue within and between the stages.
-evaluation.json gets "path": positions (N), passes, frame_s_mean and frame_s_p95 over frames
+evaluation.json gets "path": positions (N), passes (asked), n_passes (the distinct pass counts the path's frames took:
+a drag frame in a room no sun lights takes at most DRAG_PASSES_NO_SUN), frame_s_mean and frame_s_p95 over frames
 2..N (the first frame pays one-off work: kernels, the object's shape), and the per-phase mean
 "stages_ms"; then the release at rest (drag_path): converge_s (to all-source quality against the
 truth), exact_s (to the all-sources frame) and the frames shown ("shown": each one's t_s since the
@@ -208,7 +209,8 @@ def drag_path(engine, scene, passes: int | None, n: int, rmse=None, drag: int | 
         measures = ("seconds from the last move (the frame at `passes` of the object's own pose) until Engine.refine "
                     "returns the all-sources frame of that pose (no truth to score the intermediate frames): "
                     "equal to exact_s")
-    entry = {"positions": int(n), "passes": "all" if passes is None else passes,
+    used = sorted({int(s["passes"]) for s in stats[1:] if "passes" in s})  # what the frames took (a ceiling may cut)
+    entry = {"positions": int(n), "passes": "all" if passes is None else passes, "n_passes": used,
              "frame_s_mean": float(times.mean()), "frame_s_p95": float(np.percentile(times, 95)),
              "frame_s": [float(s["frame_s"]) for s in stats], "offsets_m": offsets.tolist(),
              "length_m": float(np.linalg.norm(offsets[-1] - offsets[0])), "precompute_runs": engine.n_precompute - before,

@@ -93,6 +93,7 @@ def test_evaluate_reaches_all_source_quality_before_the_exact_frame(shared_scene
     from app.config import DRAG_PASSES, DRAG_PASSES_NO_SUN
 
     assert [s["passes"] for s in shown[:2]] == [min(DRAG_PASSES, DRAG_PASSES_NO_SUN), 100] and shown[2]["passes"] == ev["rows"][1]["n_passes"]
+    assert p["passes"] == DRAG_PASSES and p["n_passes"] == [min(DRAG_PASSES, DRAG_PASSES_NO_SUN)]  # asked, and what it took
     t = [s["t_s"] for s in shown]
     assert 0 < p["release_frame_s"] <= t[0] < t[1] < t[2]
     # refine ends in the all-sources frame: its score is the "all" row's
