@@ -21,7 +21,8 @@ The truth's noise floor: the same sums over the pixels outside the affected set 
 change, plus the truth's own render noise (white, its per-pixel std from the high-pass of truth - bg, blurred as
 the scorer blurs), thresholded as the scorer does; the ratio this gives over 8 draws (1.0: no selection bias).
 --eyes: the object's share of the sunlit patches' sun light at the receiver vertices (first pass, G_v, the
-object's proxy): what the shadow pass hides (a patch's whole sunlit light at its one eye, the patch centre) plus
+object's proxy): what the shadow pass hides (a patch's whole sunlit light at its one eye: the patch centre, and the
+engine's own eye, shadow_sources.eye_pos, SunStage.source_eyes) plus
 the loss pass less its blocked pairs (a ray to the loss-weighted centre: SunStage.first_pass_blocked), against a
 ray per sun sample point (4 x 4 a patch) for both.
 """
@@ -195,10 +196,12 @@ def eye_check(e, s) -> str:
         hidden_ex += float((bk @ (w * vis[:, k] / K)).sum())
         blk_ex += float((bk @ (w * lost[:, k] / K)).sum())
     total, loss = float((G @ (w * vis.mean(1))).sum()), float((G @ (w * lost.mean(1))).sum())
-    ours, ex = hidden_eye + loss - blk_cen, hidden_ex + loss - blk_ex
-    return (f"sunlit light at the receivers {total:.1f}: hidden by the object {hidden_eye:.1f} (eye) / {hidden_ex:.1f} "
-            f"(per sample); the loss {loss:.1f}, its blocked pairs {blk_cen:.1f} (loss centre) / {blk_ex:.1f} (per sample); "
-            f"net taken {ours:.1f} / {ex:.1f}: ours / per sample {ours / ex:.3f}")
+    hidden_src = float(((G * blocked(e.shadow_sources.eye_pos[st.c_patch])) @ (w * vis.mean(1))).sum())
+    ours, ex, src = hidden_eye + loss - blk_cen, hidden_ex + loss - blk_ex, hidden_src + loss - blk_cen
+    return (f"sunlit light at the receivers {total:.1f}: hidden by the object {hidden_eye:.1f} (centre) / "
+            f"{hidden_src:.1f} (the engine's eye) / {hidden_ex:.1f} (per sample); the loss {loss:.1f}, its blocked pairs "
+            f"{blk_cen:.1f} (loss centre) / {blk_ex:.1f} (per sample); net taken {ours:.1f} (centre) / {src:.1f} (the "
+            f"engine's eye) / {ex:.1f}: centre / per sample {ours / ex:.3f}, the engine's eye / per sample {src / ex:.3f}")
 
 
 def main() -> None:
