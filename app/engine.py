@@ -220,6 +220,11 @@ class Engine:
         sources, hit = scene_precompute.shadow_sources(
             *args, scene_precompute.cache_file(self.cache_dir, self.scene, "shafts-", key))
         self._count(hit)
+        st = self.sun_pixels.stage
+        if st is not None and not sources.empty and st.c_patch.size:  # the sunlit patches seen from their sun
+            ids, eyes = st.source_eyes(B_src, pre.patches.albedo, sources.eye_pos)
+            sources.eye_pos = sources.eye_pos.copy()  # the cached artefact's array stays as built
+            sources.eye_pos[ids] = eyes
         # each receiver vertex's pixel footprint (the representatives' key counts the light the camera sees)
         vert_pixels = np.bincount(r.pix_rows[r.recv_pix].ravel(), pre.pix_bary[r.recv_pix].ravel(),
                                   len(pre.recv_vert))

@@ -169,3 +169,42 @@ def test_passes_through_q_are_the_matrix_products():
     ref = np.stack([Q[c].astype(np.float64) @ x[c].astype(np.float64) for c in range(3)])
     assert got.shape == (3, 300) and got.dtype == np.float32
     assert np.abs(got - ref).max() <= 1e-5 * np.abs(Q).sum(2).max() * np.abs(x).max()
+
+
+
+def test_sunlit_patch_eye_at_its_light_centroid(coarse):
+    # the shadow pass hides a source patch's whole radiance at its one eye; a sunlit patch's sun lies on its
+    # sunlit sample points only (its edge, the object's shadow), the rest of its light over the whole patch:
+    # the eye is that light's centroid, the mean of its sample points weighted by each one's light
+    # (SunStage.source_eyes), and the engine's shadow sources use it
+    from types import SimpleNamespace
+
+    from app.stages.sun import SunStage
+    from recon.response import luminance
+
+    # one 0.1 m patch, 4 x 4 sample points, its x < 0.05 half sunlit; E_sun/pi 3 (grey), albedo 0.5, the rest 0.5
+    f = (np.arange(4) + 0.5) / 4 * 0.1
+    x, z = [a.ravel() for a in np.meshgrid(f, f)]
+    pts = np.stack([x, np.full(16, 1e-3), z], 1)
+    vis = (x < 0.05).astype(float)
+    st = SimpleNamespace(c_vis=vis[None], c_pts=pts, c_patch=np.array([0]), E_perp=np.full(3, 3.0))
+    albedo, eye0 = np.full((1, 3), 0.5), np.array([[0.05, 1e-3, 0.05]])
+    B = albedo * 3.0 * vis.mean() + 0.5  # sun 0.75 + the rest 0.5
+    ids, eyes = SunStage.source_eyes(st, B, albedo, eye0)
+    w = 1.5 * vis + 0.5  # each point's light: its sun, and its share of the rest
+    assert ids.tolist() == [0]
+    assert np.allclose(eyes[0], (w[:, None] * pts).sum(0) / w.sum(), atol=1e-9)  # x = 0.035, not 0.05
+    # a patch the sun lights whole keeps its centre
+    st.c_vis = np.ones((1, 16))
+    _, eyes = SunStage.source_eyes(st, albedo * 3.0 + 0.5, albedo, eye0)
+    assert np.allclose(eyes[0], eye0[0], atol=1e-9)
+    # the engine's sources: every sunlit patch's eye moved so, none other
+    s, e = coarse
+    st = e.sun_pixels.stage
+    ids, eyes = st.source_eyes(e.shadow_sources.B, e.pre.patches.albedo,
+                               e.pre.patches.centre + e.pre.patches.normal * 1e-3)
+    assert len(ids) > 5
+    assert np.allclose(e.shadow_sources.eye_pos[ids], eyes, atol=1e-9)
+    moved = np.linalg.norm(e.shadow_sources.eye_pos - (e.pre.patches.centre + e.pre.patches.normal * 1e-3), axis=1)
+    assert moved.max() > 0.01 and np.all(moved[np.setdiff1d(np.arange(len(moved)), ids)] < 1e-9)
+    assert luminance(e.shadow_sources.B[ids]).min() > 0
