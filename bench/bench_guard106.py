@@ -20,7 +20,11 @@ and the refinement started from the truth's camera (no clicked lines, as bench_u
     python bench/bench_guard106.py --what-if [--only ...]           (a) and (b) on the calibrated camera, fit by fit
     python bench/bench_guard106.py --compare [--variants current,a,b,b2,b3] [--only ...]   one line per room
     python bench/bench_guard106.py --only window_106 --force-accept RESULTS_DIR [--variant a|b2]   (composites: minutes)
-Variants (bench-only monkeypatches): a = widened_on_edge_refusal, b/b2/b3 = canny_fallback (see their docstrings).
+    python bench/bench_guard106.py --only window_106 --force-accept DIR --variant old|current --lights captured,photo
+                                                                    (cam107: the flow before / with cam107's rule)
+Variants (bench-only monkeypatches): a = widened_on_edge_refusal, b/b2/b3/b4 = canny_fallback on the fine stages as
+before cam107, old = without_clipped_edges (see their docstrings); with --compare also c3/c4 (today's fit and b3's /
+b4's, the lower guard chamfer kept: _pick). The product's own rule since cam107: recon.camrefine._fine_edges.
 """
 from __future__ import annotations
 
@@ -187,12 +191,14 @@ def _print(res: dict) -> None:
 
 
 @contextlib.contextmanager
-def canny_fallback(coarse_sigma: bool = False, whole_edges: bool = False):
+def canny_fallback(coarse_sigma: bool = False, whole_edges: bool = False, clipped_only: bool = False):
     """In this process, while active: the profile stage keeps a sample that has no sub-pixel edge (edgesnap's
     rule refuses it, or its edge is a ramp) at its oriented Canny match within 2 px (the coarse stage's last
     radius; _exclusive applied), so the fine fit sees the edges the guard measures. coarse_sigma: such a
     sample's noise is COARSE_SIGMA_PX (a Canny pixel) in the fit, not FINE_SIGMA_PX. whole_edges: only the
-    samples of a room edge none of whose samples has a sub-pixel edge (each edge measured one way)."""
+    samples of a room edge none of whose samples has a sub-pixel edge (each edge measured one way). On the fine
+    stages as they were before cam107 (without_clipped_edges; b4 is cam107's rule done so). clipped_only:
+    only samples edgesnap refuses for a clipped pixel within 3 px (its near_clip mask at the sample)."""
     from recon import camrefine as cr
 
     orig_sub, orig_solve, last = cr._subpixel, cr._solve, {}
@@ -204,6 +210,10 @@ def canny_fallback(coarse_sigma: bool = False, whole_edges: bool = False):
         add = ~use & okc
         if whole_edges:
             add &= ~np.isin(edge, np.unique(edge[use]))
+        if clipped_only:
+            E = ph.fine
+            iu = np.clip(np.rint(uv).astype(int), 0, [E.shape[1] - 1, E.shape[0] - 1])
+            add &= E.near_clip[iu[:, 1], iu[:, 0]]
         last["add"] = add[use | add]  # which of the fit's samples are Canny matches, in the fit's order
         return np.where(add[:, None], qc, q), use | add
 
@@ -216,7 +226,8 @@ def canny_fallback(coarse_sigma: bool = False, whole_edges: bool = False):
 
     cr._subpixel, cr._solve = sub, solve
     try:
-        yield
+        with without_clipped_edges():  # on the fine stages as they were before cam107
+            yield
     finally:
         cr._subpixel, cr._solve = orig_sub, orig_solve
 
@@ -252,8 +263,39 @@ def widened_on_edge_refusal():
         cr._guard, cr._lines_chi2 = orig_guard, orig_chi2
 
 
-VARIANTS = {"a": widened_on_edge_refusal, "current": contextlib.nullcontext, "b": canny_fallback, "b2": lambda: canny_fallback(coarse_sigma=True),
-            "b3": lambda: canny_fallback(coarse_sigma=True, whole_edges=True)}
+@contextlib.contextmanager
+def without_clipped_edges():
+    """In this process, while active: the fine stages as before cam107 (recon.camrefine._fine_edges reduced to
+    _subpixel at FINE_SIGMA_PX: a room edge whose every sample lies by a clipped pixel is not fitted there)."""
+    from recon import camrefine as cr
+
+    orig = cr._fine_edges
+    cr._fine_edges = lambda photo, uv, n, edge: (*cr._subpixel(photo, uv, n, edge), cr.FINE_SIGMA_PX)
+    try:
+        yield
+    finally:
+        cr._fine_edges = orig
+
+
+VARIANTS = {"a": widened_on_edge_refusal, "old": without_clipped_edges, "current": contextlib.nullcontext,
+            "b": canny_fallback, "b2": lambda: canny_fallback(coarse_sigma=True),
+            "b3": lambda: canny_fallback(coarse_sigma=True, whole_edges=True),
+            "b4": lambda: canny_fallback(coarse_sigma=True, whole_edges=True, clipped_only=True)}
+CANDIDATES = {"c3": "b3", "c4": "b4"}  # today's fit and the variant's, the guard's chamfer picks (_pick)
+
+
+def _pick(cam, rs, prims, img):
+    """Of refinements rs (today's first), the accepted one with the lowest guard chamfer (mean over samples of the
+    capped distance, on the samples the input or any accepted camera sees); rs[0] when none is accepted."""
+    from recon import camrefine as cr
+
+    ok = [r for r in rs if r.accepted]
+    if len(ok) < 2:
+        return ok[0] if ok else rs[0]
+    faces = cr.room_faces(prims)
+    edges, occ, photo = cr.room_edges(faces), cr._Occluder(faces), cr.PhotoEdges(img)
+    S = cr._union(cr._sample_edges(cam, edges, occ), *[cr._sample_edges(r.camera, edges, occ) for r in ok])
+    return min(ok, key=lambda r: cr._edge_chamfer(r.camera, S, photo))
 
 
 def compare(root: Path, variants=("current", "b", "b2", "b3")) -> dict:
@@ -274,11 +316,20 @@ def compare(root: Path, variants=("current", "b", "b2", "b3")) -> dict:
     S_truth = cr._sample_edges(truth, cr.room_edges(faces), cr._Occluder(faces))
     P = object_points(root)
     out = {"room": root.name, "calibrated": camera_errors(cam, truth, S_truth, P)}
+    done = {}
+
+    def run(v):
+        if v not in done:
+            with VARIANTS[v]():
+                done[v] = (cr.refine_camera(cam, prims, img, cal.to_json()), cr.refine_camera(truth, prims, img, None))
+        return done[v]
+
     for name in variants:
-        ctx = VARIANTS[name]
-        with ctx():
-            r = cr.refine_camera(cam, prims, img, cal.to_json())
-            rt = cr.refine_camera(truth, prims, img, None)
+        if name in CANDIDATES:
+            (r0, rt0), (r1, rt1) = run("current"), run(CANDIDATES[name])
+            r, rt = _pick(cam, [r0, r1], prims, img), _pick(truth, [rt0, rt1], prims, img)
+        else:
+            r, rt = run(name)
         out[name] = {"accepted": r.accepted, "reason": r.reason, **camera_errors(r.camera, truth, S_truth, P),
                      "from_truth": {"accepted": rt.accepted, **camera_errors(rt.camera, truth, S_truth, P)}}
     return out
@@ -339,7 +390,8 @@ def what_if(root: Path) -> dict:
     return out
 
 
-def forced_unseen(rooms: Path, only: str, results: Path, variant: str = "") -> None:
+def forced_unseen(rooms: Path, only: str, results: Path, variant: str = "", lights: str = "captured",
+                  keep: Path | None = None) -> None:
     """bench/bench_unseen.py's own-room flow on `only` with the guard's edge-residual refusal overridden (the
     refined camera taken whenever that is the only reason to refuse it; in this process only): what rmse_object
     the refused camera would have given. Both `scene` runs (calibrated and true camera) are affected. With a
@@ -351,7 +403,7 @@ def forced_unseen(rooms: Path, only: str, results: Path, variant: str = "") -> N
 
     def forced(cam_in, refined, fit, *a, **k):
         g = orig(cam_in, refined, fit, *a, **k)
-        if not variant and not g.accepted and g.reason.startswith("the edge residual does not drop"):
+        if variant in ("", None) and not g.accepted and g.reason.startswith("the edge residual does not drop"):
             return dataclasses.replace(g, camera=refined, accepted=True, reason="")
         return g
 
@@ -360,7 +412,8 @@ def forced_unseen(rooms: Path, only: str, results: Path, variant: str = "") -> N
     try:
         with ctx():
             bench_unseen.main(["--rooms", str(rooms), "--only", only, "--results", str(results), "--rerun",
-                               "--lights", "captured", "--no-known", "--no-declared-sun"])
+                               "--lights", lights, "--no-known", "--no-declared-sun"]
+                              + (["--keep", str(keep)] if keep else []))
     finally:
         cr._guard = orig
 
@@ -370,9 +423,13 @@ def main(argv=None) -> int:
     ap.add_argument("--rooms", type=Path, default=Path.home() / ".cache/photoar/rooms_full")
     ap.add_argument("--only", default="window_106,window_104,window_105")
     ap.add_argument("--json", type=Path, help="write the results here")
-    ap.add_argument("--variant", choices=("", "a", "b", "b2", "b3"), default="",
-                    help="with --force-accept: this variant instead of the forced guard (a, b, b2, b3)")
-    ap.add_argument("--variants", default="current,b,b2,b3", help="with --compare: which (default %(default)s)")
+    ap.add_argument("--variant", choices=("", "a", "b", "b2", "b3", "b4", "old", "current"), default="",
+                    help="with --force-accept: this variant instead of the forced guard (a, b, b2, b3, b4; old: the "
+                         "fine stages before cam107; current: the product as it is)")
+    ap.add_argument("--lights", default="captured", help="with --force-accept: bench_unseen's --lights")
+    ap.add_argument("--keep", type=Path, help="with --force-accept: bench_unseen's --keep (work folders)")
+    ap.add_argument("--variants", default="current,b,b2,b3", help="with --compare: which (default %(default)s; also b4, "
+                    "and the candidates c3 / c4: today's fit and b3's / b4's, the lower guard chamfer kept)")
     ap.add_argument("--compare", action="store_true", help="instead: one line per room, the camera scene would use "
                                                           "now and with the Canny fallback (compare())")
     ap.add_argument("--what-if", action="store_true", help="instead: the two alternatives of what_if() (measured "
@@ -417,7 +474,7 @@ def main(argv=None) -> int:
             a.json.write_text(json.dumps(res, indent=1))
         return 0
     if a.force_accept:
-        forced_unseen(a.rooms, a.only, a.force_accept, a.variant)
+        forced_unseen(a.rooms, a.only, a.force_accept, a.variant, a.lights, a.keep)
         return 0
     results = []
     for name in a.only.split(","):

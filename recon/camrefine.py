@@ -23,6 +23,10 @@ projected into the photo and aligned with the photo's edges:
    _line_stage);
 4. the clicked vanishing lines of calibrate (camera.json "vanishing_points": the segments it used)
    enter the same least squares with calibrate's residual (recon/vanishing._seg_residual);
+3b. when the guard refuses the camera because the edge residual does not drop, the search runs again with
+   the room edges whose every sample lies by a clipped pixel (a blown-out window: edgesnap refuses them all)
+   kept in the fine stages at their oriented Canny matches, at a Canny pixel's noise (_fine_edges): the guard
+   measures those edges, the profile stage otherwise never sees them, and its fit slides off them;
 5. more starts (_centre_search): the clicked lines fix the rotation and focal length, not where the
    camera stands, and a centre tens of cm off can send the wide first match radius into a wrong basin
    (a sunlit patch's border, floor texture). A grid of centres (rotation, focal, height held) is scored
@@ -48,6 +52,7 @@ Conventions: recon/camera.py (OpenCV, x_cam = R X + t, pixel (0,0) the centre of
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 from dataclasses import dataclass
@@ -95,6 +100,7 @@ CENTRE_HYPOTHESES = 3  # the centre search's best local minima refined besides t
 # one fit; three leave room for the true basin when texture basins score better on the grid's coarse residual
 # the match radii of a centre-search start's ICP: from 4 grid steps (an edge at a quarter of the median depth) down
 GRID_RADII_PX = tuple(r for r in COARSE_RADII_PX if r <= 4 * CENTRE_STEP_PX)
+EDGE_RESIDUAL_REFUSAL = "the edge residual does not drop"  # the guard's reason when it does not (_guard)
 AXIS = {"x": 0, "y": 1, "z": 2}  # a clicked line family's world axis: the column of K R its vanishing point is
 MIN_LINE_DIRECTIONS_DEG = 20.0  # the samples' 3D edges must span two directions at least this far apart
 
@@ -482,16 +488,48 @@ def _profile_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, 
         if len(S.X) < MIN_SAMPLES:
             break
         uv, n = _project(model.camera(x), S)
-        q, ok = _subpixel(photo, uv, n, S.edge)
+        q, ok, sig = _fine_edges(photo, uv, n, S.edge)
         if ok.sum() < MIN_SAMPLES:
             break
         sub = _Samples(S.X[ok], S.D[ok], S.edge[ok])
-        res = _solve(model, x, sub, q[ok], FINE_SIGMA_PX, lines, f_scale=ROBUST_SIGMAS)
+        sig_ok = sig if np.ndim(sig) == 0 else sig[ok]
+        res = _solve(model, x, sub, q[ok], sig_ok, lines, f_scale=ROBUST_SIGMAS)
         x = res.x
         uv1, n1 = _project(model.camera(x), sub)
-        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1), np.full(int(ok.sum()), FINE_SIGMA_PX),
-                    data=(sub, q[ok], FINE_SIGMA_PX, None))
+        fine = _Fit(x, res, S, ok, np.sum(n1 * (q[ok] - uv1), axis=1),
+                    np.broadcast_to(np.asarray(sig_ok, float), (int(ok.sum()),)).copy(),
+                    data=(sub, q[ok], sig_ok, None))
     return fine
+
+
+def _fine_edges(photo: PhotoEdges, uv: np.ndarray, n: np.ndarray, edge: np.ndarray):
+    """The fine stages' photo edge point of each projected sample (uv, unit normal n, room edge index), which
+    to use, and its noise (px: FINE_SIGMA_PX, one figure, when every used sample has a sub-pixel edge; else
+    one per sample): the sub-pixel edge (_subpixel) where there is one; and on a room edge none of whose
+    samples has one, a sample that edgesnap refuses for a clipped pixel within its reach (a blown-out window's
+    or lamp's border: clipping moves a centroid by up to 0.5 px) keeps its oriented Canny match within the
+    coarse stage's last radius (COARSE_RADII_PX[-1], explaining its own room edge: _exclusive) at a Canny
+    pixel's noise, COARSE_SIGMA_PX.
+
+    Why: without it the fine stage never sees an edge whose every sample lies by a clipped pixel, and a room
+    whose window is blown out is fitted on its few other edges alone: the fit slides off the window's edges
+    (which the coarse stage had matched and the guard measures) and the guard refuses the camera (docs/unseen.md,
+    guard106 and cam107). Only clipped samples: a Canny match in an unclipped sample without a profile is
+    grain or texture (edgesnap refused it for a second peak, or no peak), which pulled noisy sunlit rooms'
+    cameras off (cam107)."""
+    q, ok = _subpixel(photo, uv, n, edge)
+    if not getattr(photo, "clipped_edges", False):
+        return q, ok, FINE_SIGMA_PX
+    E = photo.fine
+    iu = np.clip(np.rint(uv).astype(int), 0, [E.shape[1] - 1, E.shape[0] - 1])
+    cand = ~ok & E.near_clip[iu[:, 1], iu[:, 0]] & ~np.isin(edge, np.unique(edge[ok]))
+    if not cand.any():
+        return q, ok, FINE_SIGMA_PX
+    qc, okc = photo.match(uv, np.arctan2(n[:, 1], n[:, 0]), COARSE_RADII_PX[-1])
+    add = cand & okc & _exclusive(uv, n, edge, qc)
+    if not add.any():
+        return q, ok, FINE_SIGMA_PX
+    return np.where(add[:, None], qc, q), ok | add, np.where(add, COARSE_SIGMA_PX, FINE_SIGMA_PX)
 
 
 def _subpixel(photo: PhotoEdges, uv: np.ndarray, n: np.ndarray, edge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -591,13 +629,13 @@ def _sun_stage(model: _Model, x: np.ndarray, edges, occ, photo: PhotoEdges, line
             break
         cam = model.camera(x)
         uv, n = _project(cam, S)
-        q, ok = _subpixel(photo, uv, n, S.edge)
+        q, ok, sig_r = _fine_edges(photo, uv, n, S.edge)
         o = sun.measure(cam)
         if ok.sum() < MIN_SAMPLES or not len(o.X):
             break
         _, inv, counts = np.unique(o.edge, return_inverse=True, return_counts=True)
         n_eff = np.minimum(counts[inv], EDGE_WEIGHT_SAMPLES)
-        sig = np.concatenate([np.full(int(ok.sum()), FINE_SIGMA_PX),
+        sig = np.concatenate([np.broadcast_to(np.asarray(sig_r, float), ok.shape)[ok],
                               np.sqrt(FINE_SIGMA_PX ** 2 + n_eff * o.sigma_edge ** 2)])
         sub = _Samples(np.concatenate([S.X[ok], o.X]), np.concatenate([S.D[ok], o.D]),
                        np.concatenate([S.edge[ok], len(edges) + o.edge]))
@@ -687,38 +725,63 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     # triangle moves far with a distant vanishing point): it is held at the image centre or refined
     # (principal_point); the image centre (calibrate's default) or a given one is held
     pp3 = (camera_json or {}).get("principal_point_from") == "three vanishing points"
-    stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage}
-    note = "refined (calibrate's, from three vanishing points)" if pp3 else ""
-    if pp3 and principal_point != "free":
-        held = _Model(campp.at_image_centre(cam), free_pp=False)
-        best, model = _search(held, **stage), held
-        note = "held at the image centre"
-        if best is not None and principal_point == "select":
-            free = _Model(held.cam0, free_pp=True, pp_prior=fine_stage == "lines")
-            fine = _line_stage if fine_stage == "lines" else _profile_stage
 
-            def solve(m, x0, data):
-                sub, q, sig, edge_var = data
-                return _solve(m, x0, sub, q, sig, lines, f_scale=ROBUST_SIGMAS, edge_var=edge_var, weighting="model")
+    def attempt(photo: PhotoEdges):
+        """The search (and the principal point's model, and the sun's edges) on `photo`'s edges, and the guard:
+        (best fit, its model, the principal point's note, the refined camera, the guard's Refinement)."""
+        stage = {"edges": edges, "occ": occ, "photo": photo, "lines": lines, "fine_stage": fine_stage}
+        note = "refined (calibrate's, from three vanishing points)" if pp3 else ""
+        if pp3 and principal_point != "free":
+            held = _Model(campp.at_image_centre(cam), free_pp=False)
+            best, model = _search(held, **stage), held
+            note = "held at the image centre"
+            if best is not None and principal_point == "select":
+                free = _Model(held.cam0, free_pp=True, pp_prior=fine_stage == "lines")
+                fine = _line_stage if fine_stage == "lines" else _profile_stage
 
-            best, model, note = campp.select(held, free, best, solve,
-                                             lambda m, x: fine(m, x, edges, occ, photo, lines))
-    else:
-        model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
-        best = _search(model, **stage)
-    # the fit with the sun's edges when the guard accepts it, else the fit on the room's edges alone
-    with_sun = None if best is None else _sun_refit(cam, model, best, edges, occ, photo, lines, sun_edges, t0)
-    if with_sun is not None:
-        best, r = with_sun
-        refined = model.camera(best.x)
-    else:
-        if best is None:
-            S0 = _sample_edges(cam, edges, occ)
-            best, refined = _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0),
-                                 np.zeros(0)), cam
+                def solve(m, x0, data):
+                    sub, q, sig, edge_var = data
+                    return _solve(m, x0, sub, q, sig, lines, f_scale=ROBUST_SIGMAS, edge_var=edge_var,
+                                  weighting="model")
+
+                best, model, note = campp.select(held, free, best, solve,
+                                                 lambda m, x: fine(m, x, edges, occ, photo, lines))
         else:
+            model = _Model(cam, free_pp=pp3, pp_prior=fine_stage == "lines")
+            best = _search(model, **stage)
+        # the fit with the sun's edges when the guard accepts it, else the fit on the room's edges alone
+        with_sun = None if best is None else _sun_refit(cam, model, best, edges, occ, photo, lines, sun_edges, t0)
+        if with_sun is not None:
+            best, r = with_sun
             refined = model.camera(best.x)
-        r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
+        else:
+            if best is None:
+                S0 = _sample_edges(cam, edges, occ)
+                best, refined = _Fit(np.zeros(model.n), None, S0, np.zeros(len(S0.X), bool), np.zeros(0),
+                                     np.zeros(0)), cam
+            else:
+                refined = model.camera(best.x)
+            r = _guard(cam, refined, best, lines, edges, occ, photo, time.time() - t0)
+        return best, model, note, refined, r
+
+    best, model, note, refined, r = attempt(photo)
+    if (not r.accepted and not r.fits and r.reason.startswith(EDGE_RESIDUAL_REFUSAL) and fine_stage == "profiles"
+            and best.res is not None):
+        # the fine stage's objective and the guard disagree: the guard measures every room edge the camera sees
+        # against the photo's Canny edges, the profile stage only those with a sub-pixel profile; an edge whose
+        # every sample lies by a clipped pixel (a blown-out window) is one it never sees, and the fit slides off
+        # it. Search again with such edges' Canny matches in the fine stages (_fine_edges); its camera is taken
+        # when the guard accepts it and, as the widened search's, it brings the room's edges closer to the
+        # photo's by more than the room model's own error of an edge's image (EDGE_MODEL_SIGMA_PX, _edge_gain):
+        # in a grainy sunlit room (2 x 24 spp) the true camera's second attempt walked 4 px off for 0.02 px
+        clipped = copy.copy(photo)
+        clipped.clipped_edges = True
+        alt = attempt(clipped)
+        if alt[4].accepted:
+            common = _union(_sample_edges(cam, edges, occ), alt[0].S)
+            if _edge_gain(cam, alt[3], common, photo) > EDGE_MODEL_SIGMA_PX:
+                best, model, note, refined, r = alt
+                photo = clipped
     sigma_f = cam.focal_rel_sigma
     chi2_lines, chi2_lim = _lines_chi2(refined, lines)
     if (not r.accepted and not r.fits and sigma_f is not None and np.isfinite(sigma_f) and sigma_f > 0
@@ -752,7 +815,8 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
 
         def without(e: int) -> Camera:
             keep = sub.edge != e
-            res = _solve(model, x_end, _Samples(sub.X[keep], sub.D[keep], sub.edge[keep]), q[keep], sig, lines,
+            res = _solve(model, x_end, _Samples(sub.X[keep], sub.D[keep], sub.edge[keep]), q[keep],
+                         sig if np.ndim(sig) == 0 else sig[keep], lines,
                          f_scale=ROBUST_SIGMAS)
             return model.camera(res.x)
     return dataclasses.replace(r, principal_point=note, x=best.x, covariance=camera_covariance(best.res),
@@ -948,7 +1012,7 @@ def _guard(cam, refined, fit: _Fit, lines, edges, occ, photo, seconds) -> Refine
         if not c2 <= lim:
             reason = f"the refined camera disagrees with the clicked lines (chi-square {c2:.1f} > {lim:.1f})"
     if not reason and not after <= before:
-        reason = f"the edge residual does not drop ({before:.2f} -> {after:.2f} px)"
+        reason = f"{EDGE_RESIDUAL_REFUSAL} ({before:.2f} -> {after:.2f} px)"
     lo, hi = edges.reshape(-1, 3).min(0), edges.reshape(-1, 3).max(0)
     if not reason and not (np.all(refined.centre >= lo - 1e-3) and np.all(refined.centre <= hi + 1e-3)):
         reason = "the refined camera lies outside the room"

@@ -30,6 +30,8 @@ class PhotoEdges:
         if ramp_edges not in RAMP_EDGE_MODES:
             raise ValueError(f"ramp_edges: expected one of {RAMP_EDGE_MODES}, got {ramp_edges!r}")
         self.ramp_edges = ramp_edges  # the profile stage drops an edge whose profile is a ramp (ramp_edge_mask)
+        self.clipped_edges = False  # the fine stages keep Canny matches of wholly clipped room edges
+        # (recon.camrefine._fine_edges; refine_camera sets it on a copy for its second attempt)
 
         img = np.asarray(image)
         self.fine = EdgeImage(img)  # linear gray gradient, clipped-pixel mask (raises on a non-8-bit image)
