@@ -11,7 +11,7 @@ error, bias (mean of ours - truth) and RMSE.
 """
 from __future__ import annotations
 
-import sys
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -95,4 +95,8 @@ def main(scene_dir: str, composites: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], sys.argv[2:])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scene", help="scene folder with truth.png and scene.json (the object's mesh and pose)")
+    ap.add_argument("composites", nargs="+", help="composite PNGs of that scene to split")
+    a = ap.parse_args()
+    main(a.scene, a.composites)
