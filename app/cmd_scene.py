@@ -286,11 +286,10 @@ def _camera_in_room(a, cam, lo, hi):
     axes, --flip-xz); neither inside is an error naming the files."""
     from recon import assemble as asm
 
-    if asm.camera_in_room(cam, lo, hi):
+    turned, was_turned = asm.inside_turn(cam, lo, hi)
+    if not was_turned:
+        asm.check_camera_in_room(cam, lo, hi, str(a.camera), str(a.primitives))  # raises if outside, naming both files
         return cam, False
-    turned = asm.turned_about_y(cam)
-    if not asm.camera_in_room(turned, lo, hi):
-        asm.check_camera_in_room(cam, lo, hi, str(a.camera), str(a.primitives))  # raises, naming both files
     log.warning("%s: the camera centre %s m lies outside the room of %s, turned 180 deg about +Y at %s m it lies "
                 "inside: using the turned camera (the room's +X runs leftwards in the photo, as calibrate "
                 "--flip-xz would take it)", a.camera, np.round(cam.centre, 2).tolist(), a.primitives,

@@ -92,8 +92,7 @@ def run_room(name: str, rooms: Path, variants: list[str], true_start: bool) -> d
     truth, img, cal, prims, lo, hi = calibrated_from_lines(_room_dir(name, rooms))
     cam = dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma)  # as `scene` reads camera.json:
     # the focal length's sigma lets refine_camera search again when its first search fails the clicked lines
-    if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
-        cam = asm.turned_about_y(cam)
+    cam = asm.inside_turn(cam, lo, hi)[0]
     faces = room_faces(prims)
     S = _sample_edges(truth, room_edges(faces), _Occluder(faces))
     P = object_points(_room_dir(name, rooms))

@@ -51,8 +51,7 @@ def room(name: str, rooms: Path, keep: Path, estimated: bool = False) -> dict:
         sun = {**sun, "direction_to_sun": est}
     cj = json.loads((work / "cal" / "camera.json").read_text())
     cam = Camera.load(work / "cal" / "camera.json")
-    if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
-        cam = asm.turned_about_y(cam)
+    cam = asm.inside_turn(cam, lo, hi)[0]
     img = read_image_rgb(work / "room_sun" / "background.png")
     lp = sj["light_probe"]
     shots = [read_image_rgb(work / "room_sun" / f) for f in lp["ldr_files"]]

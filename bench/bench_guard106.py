@@ -89,8 +89,7 @@ def run_room(root: Path) -> dict:
 
     truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
     cam = dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma)
-    if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
-        cam = asm.turned_about_y(cam)
+    cam = asm.inside_turn(cam, lo, hi)[0]
     faces = cr.room_faces(prims)
     edges = cr.room_edges(faces)
     occ = cr._Occluder(faces)
@@ -310,8 +309,7 @@ def compare(root: Path, variants=("current", "b", "b2", "b3")) -> dict:
 
     truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
     cam = dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma)
-    if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
-        cam = asm.turned_about_y(cam)
+    cam = asm.inside_turn(cam, lo, hi)[0]
     faces = cr.room_faces(prims)
     S_truth = cr._sample_edges(truth, cr.room_edges(faces), cr._Occluder(faces))
     P = object_points(root)
@@ -350,8 +348,7 @@ def what_if(root: Path) -> dict:
 
     truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
     cam = dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma)
-    if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
-        cam = asm.turned_about_y(cam)
+    cam = asm.inside_turn(cam, lo, hi)[0]
     faces = cr.room_faces(prims)
     edges, occ = cr.room_edges(faces), cr._Occluder(faces)
     S_truth, P = cr._sample_edges(truth, edges, occ), object_points(root)

@@ -390,8 +390,7 @@ def joint_fit(name: str, rooms: Path, keep: Path) -> dict:
     root = rooms / name
     truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
     cam = cal.camera
-    if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
-        cam = asm.turned_about_y(cam)
+    cam = asm.inside_turn(cam, lo, hi)[0]
     r = refine_camera(cam, prims, img, cal.to_json())
     _, flow_cam, sun, flow_prims = _load(root, keep / name)
     P = object_points(root)

@@ -141,6 +141,15 @@ def turned_about_y(cam: Camera) -> Camera:
     return dataclasses.replace(cam, R=cam.R @ TURN_Y, t=cam.t.copy())
 
 
+def inside_turn(cam: Camera, lo: np.ndarray, hi: np.ndarray) -> tuple[Camera, bool]:
+    """(camera, turned): `cam`, or its 180 deg turn about +Y (turned_about_y) when only the turned one lies
+    in the room box [lo, hi]; `cam` unchanged when neither or both do (check_camera_in_room says which)."""
+    if camera_in_room(cam, lo, hi):
+        return cam, False
+    turned = turned_about_y(cam)
+    return (turned, True) if camera_in_room(turned, lo, hi) else (cam, False)
+
+
 def check_camera_in_room(cam: Camera, lo: np.ndarray, hi: np.ndarray, camera_src: str, prims_src: str,
                          tol: float = 1e-3) -> None:
     """The photo was taken inside the room: its camera centre lies in the room box."""

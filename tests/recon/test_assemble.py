@@ -52,3 +52,27 @@ def test_input_sun_is_validated_normalised_and_marked_as_the_users():
         input_sun({"primitives": [ROOM, WINDOW, {**SUN, "irradiance_perpendicular": [1, -1, 1]}]}, "m.json")
     with pytest.raises(SceneError, match="a second sun"):
         input_sun({"primitives": [ROOM, SUN, SUN]}, "m.json")
+
+
+def test_inside_turn_takes_the_turn_only_when_it_alone_lies_inside():
+    """inside_turn: a camera inside the box is kept; one at the mirror image of an inside point (the world turned
+    180 deg about +Y) is turned back inside; one outside either way is kept unchanged (the caller's check names it)."""
+    import numpy as np
+
+    from recon import assemble as asm
+    from recon.camera import Camera
+
+    lo, hi = np.array([0.5, 0.0, 0.5]), np.array([4.0, 3.0, 5.0])
+    R = np.eye(3)
+
+    def at(c):
+        return Camera(K=np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]]), R=R, t=-R @ np.asarray(c, float),
+                      width=640, height=480)
+
+    inside, mirrored, outside = at([2.0, 1.5, 3.0]), at([-2.0, 1.5, -3.0]), at([9.0, 1.5, 9.0])
+    cam, turned = asm.inside_turn(inside, lo, hi)
+    assert cam is inside and not turned
+    cam, turned = asm.inside_turn(mirrored, lo, hi)
+    assert turned and np.allclose(cam.centre, [2.0, 1.5, 3.0], atol=1e-9)
+    cam, turned = asm.inside_turn(outside, lo, hi)
+    assert cam is outside and not turned

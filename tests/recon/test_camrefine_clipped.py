@@ -101,8 +101,7 @@ def test_clean_window_106_refused_camera_now_refined():
 
     truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
     cam = cal.camera
-    if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
-        cam = asm.turned_about_y(cam)
+    cam = asm.inside_turn(cam, lo, hi)[0]
     faces = cr.room_faces(prims)
     S = cr._sample_edges(truth, cr.room_edges(faces), cr._Occluder(faces))
     P = object_points(root)

@@ -96,8 +96,7 @@ def test_clean_sun_103_camera_without_its_ramp_corner():
 
     truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
     cam = cal.camera
-    if not asm.camera_in_room(cam, lo, hi) and asm.camera_in_room(asm.turned_about_y(cam), lo, hi):
-        cam = asm.turned_about_y(cam)
+    cam = asm.inside_turn(cam, lo, hi)[0]
     faces = room_faces(prims)
     S = _sample_edges(truth, room_edges(faces), _Occluder(faces))
     P = object_points(root)
