@@ -32,7 +32,7 @@ from recon.patches import PatchMesh
 from recon.proxy import simplify, subdivide
 from recon.response import luminance
 from recon.scene import SceneObject
-from app.stages.own_contacts import lift_off_own_contacts
+from app.stages.own_contacts import CONTACT_LIFT, lift_off_own_contacts
 
 SPLIT_PAIRS = 1024  # (point, patch) pairs a concurrent part of a gather over patches gets at least (the
 # item count from which app.runtime.parts splits a launch of one-patch items): pair_split
@@ -229,11 +229,6 @@ DB_FAR = 2.0  # bounding radii (nearest point of the patch to the object's box c
 # shadowed patch's loss is gathered as a far field (far_field_sh; trilinear over DB_PROBES per axis: the
 # relative parallax error of its 1/r^2 falls as (radius / (DB_FAR (DB_PROBES - 1)))^2, ~3 % here)
 DB_PROBES = 4  # probes per axis of the far field's grid over the object's box
-
-
-
-CONTACT_LIFT = 0.1  # of a contacting patch's bounding radius: the height above a room surface at which a
-# vertex touching it gathers that surface's light (lift_off_contacts)
 
 
 def lift_off_contacts(p: np.ndarray, n: np.ndarray, centre: np.ndarray, normal: np.ndarray, radius: np.ndarray,

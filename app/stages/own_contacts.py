@@ -6,7 +6,7 @@ vertex sees the seat edge-on (its form factor is 0) and its hemisphere rays star
 back, where the room is seen: the back brightens towards the crease where the truth darkens (at any height above
 a plane the plane fills the lower half of the view). As app.stages.object_shading.lift_off_contacts does against the
 room's surfaces, such a vertex stands for the surface just off the contact: it is shaded at a point moved within its
-own tangent plane to a height h above the other part's face (OWN_CONTACT_LIFT x that face's bounding radius, at
+own tangent plane to a height h above the other part's face (CONTACT_LIFT x that face's bounding radius, at
 least 2 x the rays' eps), the limit from above.
 
 A vertex is on a contact line with a face of the object (not one of its own: no corner at its position) when it lies
@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-OWN_CONTACT_LIFT = 0.1  # of the touched face's bounding radius (as CONTACT_LIFT for the room's patches)
+CONTACT_LIFT = 0.1  # of a touched face's bounding radius: the height above it at which a vertex touching it is shaded,
+# for another part's face (here) and for a room patch (app.stages.object_shading.lift_off_contacts)
 OWN_CONTACT_MIN_SIN = 0.5  # the sine of the angle between the two surfaces at least (30 degrees): a crease
 RISE_COS = 0.1  # a face of the vertex's own goes on along the lift when its centroid's direction has this cosine
 
@@ -35,7 +36,7 @@ def _outer_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def lift_off_own_contacts(p: np.ndarray, n: np.ndarray, faces: np.ndarray, eps: float = 1e-3, block: int = 256
                           ) -> np.ndarray:
     """Offsets (V,3) m that move each vertex (p (V,3), unit normals n (V,3), faces (F,3)) lying on a contact line
-    with another part of the same mesh to OWN_CONTACT_LIFT x the touched face's radius (at least 2 eps) above that
+    with another part of the same mesh to CONTACT_LIFT x the touched face's radius (at least 2 eps) above that
     face, within the vertex's tangent plane (module docstring); 0 for the others. Per vertex its deepest contact;
     two rounds (a vertex in a corner touches two faces)."""
     p = np.asarray(p, np.float64)
@@ -51,7 +52,7 @@ def lift_off_own_contacts(p: np.ndarray, n: np.ndarray, faces: np.ndarray, eps: 
     nf = nf / np.maximum(area2, 1e-300)[:, None]
     cen = tri.mean(1)
     rad = np.linalg.norm(tri - cen[:, None], axis=2).max(1)
-    h = np.maximum(OWN_CONTACT_LIFT * rad, 2.0 * eps)
+    h = np.maximum(CONTACT_LIFT * rad, 2.0 * eps)
     # each vertex's own faces (by index) for the rising test, as a CSR list
     order = np.argsort(faces.reshape(-1), kind="stable")
     start = np.searchsorted(faces.reshape(-1)[order], np.arange(len(p) + 1))
