@@ -134,13 +134,11 @@ def vertex_light(L_room: np.ndarray, L_sun: np.ndarray | None, fill, bounce, alb
     (shade's per-hit correction, the drag frame's SunAtHits) replaces, so a face's hits get the sun per hit and
     not a neighbour's sun blended over them. One bounce between the object's own parts (bounce (V,V) sparse,
     None: none) sees the object's radiance with that sun."""
-    base = fill(L_room)
-    if L_sun is not None:
-        base = base + L_sun
+    room = fill(L_room)
+    sun = 0.0 if L_sun is None else L_sun
     if bounce is None:
-        return base
-    lit = fill(base - L_sun + albedo * (bounce @ base)) if L_sun is not None else fill(base + albedo * (bounce @ base))
-    return lit + L_sun if L_sun is not None else lit
+        return room + sun
+    return fill(room + albedo * (bounce @ (room + sun))) + sun
 
 
 def _facing(p: np.ndarray, n: np.ndarray, polys: np.ndarray, pn: np.ndarray) -> np.ndarray:
