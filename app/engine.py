@@ -331,9 +331,11 @@ class Engine:
         if px is not self and sun is None and passes is not None and px.passes_no_sun is not None:
             passes = min(passes, px.passes_no_sun)  # a drag frame without a sun: its ceiling (DRAG_PASSES_NO_SUN)
         near = px.near_split if px is not self else finer_near_split(self, config, passes, sun is not None)
-        fs = self.shadow_sources.select(pv.min(0), pv.max(0), passes,
-                                        functools.partial(split_launches, device=self.device, min_items=64),
-                                        near_split=near)
+        src_split = functools.partial(split_launches, device=self.device, min_items=64)
+        if px is self:
+            fs = self.shadow_sources.select(pv.min(0), pv.max(0), passes, src_split, near_split=near)
+        else:  # a drag frame: the selection of a box grown to a grid, kept while it holds (DragStages.frame_sources)
+            fs = px.frame_sources(self.shadow_sources, pv.min(0), pv.max(0), radius, passes, src_split, near)
         order = None  # the all-sources frame: its weak sources on half-size maps (app.rest_maps), drawn last
         if px is self and config.passes is None and self.rest_maps is not None and len(fs.eyes):
             order = self.rest_maps.order(fs)

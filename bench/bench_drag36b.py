@@ -136,6 +136,24 @@ def _passes_no_sun(eng: Engine, n: int | None, scale: int = DRAG_SCALE):
         st.passes_no_sun = old
 
 
+@contextlib.contextmanager
+def _source_grid(eng: Engine, grid: float | None, scale: int = DRAG_SCALE):
+    """The drag stages' source-list grid (DragStages.source_grid, bounding radii; None: a selection every frame)
+    set to `grid` while the block runs, with the kept selection of this grid's last frame (drag108: each variant keeps
+    its own, as if it ran alone)."""
+    st = eng.pixel_stages(scale)
+    old = (st.source_grid, st._sources)
+    st.source_grid, st._sources = grid, _KEPT.get((id(st), grid))
+    try:
+        yield
+    finally:
+        _KEPT[(id(st), grid)] = st._sources
+        st.source_grid, st._sources = old
+
+
+_KEPT: dict = {}
+
+
 def _cfg(scale: int = DRAG_SCALE, passes: int = DRAG_PASSES) -> FrameConfig:
     return FrameConfig(passes=passes, drag=scale)
 
@@ -165,6 +183,11 @@ VARIANTS = {
     "s4m128ss1": (_cfg(4), lambda e: _drag_stages(e, 4, 1, map_res=128)),
     "s4d3ss1": (_cfg(4), lambda e: _drag_stages(e, 4, 1, map_div=3)),
     "s4d3p48": (_cfg(4, 48), lambda e: _drag_stages(e, 4, 1, map_div=3)),  # drag107
+    "srcnone": (_cfg(), lambda e: _source_grid(e, None)),  # drag108: a source list every drag frame (main's)
+    "src25": (_cfg(), lambda e: _source_grid(e, 0.25)),  # drag108: the source list kept on a 0.25-radius grid
+    "src50": (_cfg(), lambda e: _source_grid(e, 0.5)),
+    "src100": (_cfg(), lambda e: _source_grid(e, 1.0)),
+    "src200": (_cfg(), lambda e: _source_grid(e, 2.0)),
 }
 
 
@@ -235,8 +258,11 @@ def bench_scene(d: Path, names: list[str], n_path: int, rounds: int) -> dict:
                 with ctx(eng):
                     _STAGE_CPU.clear()
                     c0, w0 = time.process_time(), time.perf_counter()
+                    ds = eng.pixel_stages(cfg.drag)
+                    r0 = ds.sources_reused
                     st = eng.render(moved(scene.obj, o), cfg).stats
-                    stats[n].append({**st, "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0})
+                    stats[n].append({**st, "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0,
+                                     "sources_reused": ds.sources_reused - r0})
                     for k, v in _STAGE_CPU.items():
                         stage_cpu[n][k] = stage_cpu[n].get(k, 0.0) + v
     out["rows"] = []
@@ -248,6 +274,7 @@ def bench_scene(d: Path, names: list[str], n_path: int, rounds: int) -> dict:
                             "wall_ms": float(wall.mean()), "wall_p95": float(np.percentile(wall, 95)), **sc,
                             "ok": bool(sc["rmse"] <= out["bound"] and 0.93 <= sc["energy"] <= 1.07),
                             "stages_ms": path_stages_ms(stats[n]),
+                            "sources_reused": sum(s["sources_reused"] for s in stats[n]) / len(stats[n]),
                             "stages_cpu_ms": {k: 1e3 * v / len(stats[n]) for k, v in stage_cpu[n].items()}})
     return out
 
@@ -292,7 +319,7 @@ def print_scene(res: dict) -> None:
         st = r["stages_cpu_ms"]
         print(f"{r['variant']:>10} {r['cpu_ms']:6.1f} {r['cpu_med']:6.1f} {r['wall_ms']:6.1f} {r['wall_p95']:6.1f} "
               f"{r['energy']:6.3f} {r['rmse']:5.2f} {r.get('rmse_object', 0):5.2f} " + " ".join(f"{st.get(k, 0.0):7.1f}" for k in keys) +
-              f"  {r['sha']}" + ("" if r["ok"] else "  OUT"))
+              f"  {r['sha']}" + f" reused {r.get('sources_reused', 0):.2f}" + ("" if r["ok"] else "  OUT"))
 
 
 def main() -> None:
