@@ -154,6 +154,19 @@ def _source_grid(eng: Engine, grid: float | None, scale: int = DRAG_SCALE):
 _KEPT: dict = {}
 
 
+@contextlib.contextmanager
+def _near_grid(eng: Engine, on: bool, scale: int = DRAG_SCALE):
+    """The drag stages' near pixels of the object light on the adaptive screen grid (ObjectLight.near_grid, as at
+    rest) or each summed (DRAG_LIGHT_GRID False) while the block runs (drag108)."""
+    ol = eng.pixel_stages(scale).object_light
+    old = ol.near_grid
+    ol.near_grid = on
+    try:
+        yield
+    finally:
+        ol.near_grid = old
+
+
 def _cfg(scale: int = DRAG_SCALE, passes: int = DRAG_PASSES) -> FrameConfig:
     return FrameConfig(passes=passes, drag=scale)
 
@@ -188,6 +201,7 @@ VARIANTS = {
     "src50": (_cfg(), lambda e: _source_grid(e, 0.5)),
     "src100": (_cfg(), lambda e: _source_grid(e, 1.0)),
     "src200": (_cfg(), lambda e: _source_grid(e, 2.0)),
+    "neargrid": (_cfg(), lambda e: _near_grid(e, True)),  # drag108: the near pixels on the adaptive grid
 }
 
 

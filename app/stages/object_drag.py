@@ -410,6 +410,7 @@ class DragObject:
         self._shape: tuple[str, DragShape] | None = None
         self.last: DragShaded | None = None
         self._pose: tuple | None = None  # (yaw, R, mean) of the last shaded pose
+        self._disk_made = 0  # probes disk_sh's buffers hold (made at DB_MAX patches)
         self._ws = Workspaces()  # per call site: a drag allocates nothing after its first frame
         self._split = functools.partial(split_launches, device=device, min_items=64)
         self._radiance = FrameImage()  # the per-pixel radiance, kept: only the object's rectangle is rewritten
@@ -488,8 +489,14 @@ class DragObject:
                 if len(kf):  # disk_sh in one launch (kernels.disk_sh)
                     L = L + disk_sh_launch(probes, pm.centre[kf], pm.normal[kf], pm.area[kf], change[kf], self.device,
                                            self._ws.get("drag.disk"), DB_MAX)
+                    self._disk_made = len(probes)
                 if len(kn):
                     near_light = (kn, pm.corners[kn], pm.centre[kn], change[kn])
+        if self._disk_made < len(probes):  # disk_sh's buffers made on a shape's first frame even when it has no far
+            # changed patch (a launch over none), so that a later frame that has some allocates nothing
+            e = np.zeros((0, 3))
+            disk_sh_launch(probes, e, e, np.zeros(0), e, self.device, self._ws.get("drag.disk"), DB_MAX)
+            self._disk_made = len(probes)
         A = sh_yaw_matrix(yaw)
         Lc = np.einsum("kj,qjc->qkc", A, L)  # (Q,9,3) in the object's frame
         Lv = (ds.weights @ Lc.reshape(len(probes), 27)).reshape(-1, 9, 3)
