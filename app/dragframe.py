@@ -168,10 +168,13 @@ DRAG_SUPERSAMPLE: int | None = 1
 # of the box crosses a grid line (at a step d per frame, a share ~1 - 2 d / grid of the frames reuse it). The grown
 # box is a superset of the object's: every source whose shaft reaches the object and every receiver pair it can
 # shadow are still listed (the masks test the object itself), at the cost of a few more of each and of clusters
-# chosen for a box up to one grid step larger per side. None: the object's own box every frame (as at rest).
-# evaluate's path (--path 30): 0.66-0.90 of the frames reuse it, the sources stage's CPU 6-12 -> 1.5-2.9 ms a frame;
-# the drag rows move by at most 0.035 of energy (sun_105 0.973 -> 1.008) and 0.07 level of rmse_affected on six rooms.
-# 2 radii took window_room's energy to 0.935; 0.5 reused 0.52-0.76 of the frames (docs/benchmarks.md "drag108")
+# chosen for a box up to one grid step larger per side. Only in a room no sun lights: the drag frame's energy drifts
+# where a cluster's eye lies on a strong patch touching the object's box (passes48, DRAG_PASSES_NO_SUN's rule), and
+# the grown box touches more of the sunlit floor (sun_101's drag row 1.054 -> 1.095, outside 0.93-1.07; sun_105
+# 0.973 -> 1.008). None: the object's own box every frame (as at rest). evaluate's path (--path 30), sunless rooms:
+# 0.66-0.90 of the frames reuse it, the sources stage's CPU 6-10 -> 1.5-2.8 ms a frame; the drag rows move by at most
+# 0.02 of energy and 0.07 level of rmse_affected, inside issue 36's bound wherever the frame without it was. 2 radii
+# took window_room's energy to 0.935; 0.5 reused 0.52-0.76 of the frames (docs/benchmarks.md "drag108")
 DRAG_SOURCE_GRID: float | None = 1.0
 
 
@@ -324,11 +327,13 @@ class DragStages:
         return last[2]
 
     def frame_sources(self, sources, box_min: np.ndarray, box_max: np.ndarray, radius: float, passes: int | None,
-                      split, near_split: bool):
+                      split, near_split: bool, sun: bool = False):
         """The drag frame's FrameSources (sources: the engine's ShadowSources) for an object in the box (box_min,
         box_max) of bounding radius `radius` (m): select()'s for the box grown by source_box to a grid of
-        source_grid radii (1 cm steps), the kept one while the grown box, passes and near split stay the same."""
-        if self.source_grid is None:
+        source_grid radii (1 cm steps), the kept one while the grown box, passes and near split stay the same.
+        The object's own box every frame in a room a sun lights (`sun`; DRAG_SOURCE_GRID's rule) and in a drag
+        frame of every source (passes None), whose passes a larger box would add to."""
+        if self.source_grid is None or passes is None or sun:
             return sources.select(box_min, box_max, passes, split, near_split=near_split)
         grid = max(round(self.source_grid * float(radius), 2), 0.01)
         lo, hi = source_box(box_min, box_max, grid)

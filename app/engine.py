@@ -335,7 +335,8 @@ class Engine:
         if px is self:
             fs = self.shadow_sources.select(pv.min(0), pv.max(0), passes, src_split, near_split=near)
         else:  # a drag frame: the selection of a box grown to a grid, kept while it holds (DragStages.frame_sources)
-            fs = px.frame_sources(self.shadow_sources, pv.min(0), pv.max(0), radius, passes, src_split, near)
+            fs = px.frame_sources(self.shadow_sources, pv.min(0), pv.max(0), radius, passes, src_split, near,
+                                  sun is not None)
         order = None  # the all-sources frame: its weak sources on half-size maps (app.rest_maps), drawn last
         if px is self and config.passes is None and self.rest_maps is not None and len(fs.eyes):
             order = self.rest_maps.order(fs)

@@ -125,3 +125,23 @@ def test_the_grown_box_frame_is_near_the_object_s_box_frame(demo_engine):
                 assert np.abs(a - full).mean() <= np.abs(b - full).mean() + 0.1
     finally:
         st.source_grid, st._sources = old, None
+
+
+def test_a_sunlit_room_or_every_source_takes_the_object_s_own_box(demo_engine):
+    # with a sun (its floor's strong patches near the box: DRAG_SOURCE_GRID's rule) and with every source (passes
+    # None) the drag frame selects for the object's own box every frame, as select does, and keeps nothing
+    scene, eng = demo_engine
+    from app.engine import FrameConfig
+
+    eng.render(scene.obj, FrameConfig(passes=10, drag=2))
+    st, ss = eng.pixel_stages(2), eng.shadow_sources
+    lo, hi, radius = _proxy_box(eng, scene.obj)
+    exact = ss.select(lo, hi, 10, near_split=True)
+    for passes, sun in ((10, True), (None, False)):
+        n0 = st.sources_reused
+        for _ in range(2):
+            fs = st.frame_sources(ss, lo, hi, radius, passes, None, True, sun=sun)
+        assert st.sources_reused == n0
+        ref = exact if passes == 10 else ss.select(lo, hi, None, near_split=True)
+        assert fs.n_listed == ref.n_listed and np.array_equal(fs.cand, ref.cand)
+        assert np.array_equal(fs.eyes, ref.eyes) and np.array_equal(np.asarray(fs.W_v), np.asarray(ref.W_v))
