@@ -172,7 +172,7 @@ DRAG_SUPERSAMPLE: int | None = 1
 # where a cluster's eye lies on a strong patch touching the object's box (passes48, DRAG_PASSES_NO_SUN's rule), and
 # the grown box touches more of the sunlit floor (sun_101's drag row 1.054 -> 1.095, outside 0.93-1.07; sun_105
 # 0.973 -> 1.008). None: the object's own box every frame (as at rest). evaluate's path (--path 30), sunless rooms:
-# 0.66-0.90 of the frames reuse it, the sources stage's CPU 6-10 -> 1.5-2.8 ms a frame; the drag rows move by at most
+# 0.64-0.90 of the frames reuse it, the sources stage's CPU 6-10 -> 1.5-2.9 ms a frame; the drag rows move by at most
 # 0.02 of energy and 0.07 level of rmse_affected, inside issue 36's bound wherever the frame without it was. 2 radii
 # took window_room's energy to 0.935; 0.5 reused 0.52-0.76 of the frames (docs/benchmarks.md "drag108")
 DRAG_SOURCE_GRID: float | None = 1.0
