@@ -33,6 +33,7 @@ from recon.proxy import simplify, subdivide
 from recon.response import luminance
 from recon.scene import SceneObject
 from app.stages.own_contacts import CONTACT_LIFT, lift_off_own_contacts
+from app.stages.spread import spread_subsets
 
 SPLIT_PAIRS = 1024  # (point, patch) pairs a concurrent part of a gather over patches gets at least (the
 # item count from which app.runtime.parts splits a launch of one-patch items): pair_split
@@ -464,17 +465,18 @@ class ShapeShading:
         self.normals = nu
         self.key = ""  # shape_shading's key
         self._sun_self: tuple | None = None  # (sun direction, sun_self_lit of the distinct vertices)
-        # spread over the mesh in its own order (faces), as distinct vertices
-        self.sub = np.unique(self.inv[np.arange(0, len(local), max(1, len(local) // max(dB_samples, 1)))])
+        # the spread subsets (app.stages.spread: chosen by position and normal, whatever the mesh's order):
+        # the patch sums' visibility samples, the dB gather's vertices and that gather's own samples
+        vis_samples, self.sub, sub_samples = self.subsets(lu, nu, vis_stride, dB_samples)
         self._knn = _knn_weights(lu, nu, self.sub)
         # emitter and dB light with the visibility cast at a spread subset (kernels.shade.SampledPatchSum);
         # a vertex whose tangent plane has the whole object behind it (a convex part) tests against the
         # object only the rays that go below that plane
         own_u = _object_above(lu, nu, local)
         hidden_u = hit.mean(axis=1)[self.uniq]
-        in_order = np.argsort(self.uniq)  # distinct vertices in the mesh's own order (spread)
         fu = self.inv[f]  # faces over the distinct vertices
-        samples, nbr = _visibility_samples(lu, fu, in_order[::vis_stride], hidden_u)
+        samples, nbr = _visibility_samples(lu, fu, vis_samples, hidden_u)
+        self.samples, self.sub_samples = samples, sub_samples  # (S,) into the distinct vertices; (s,) into sub
         # the per-vertex gathers (emitters, the sun's lost patches) skip the distinct vertices whose every
         # copy is buried: vertex_radiance replaces those vertices' values by their neighbours'
         # (_fill_from_neighbours) before anything reads them; the samples stay (their neighbours vote)
@@ -487,8 +489,13 @@ class ShapeShading:
         self.direct_sum = SampledPatchSum(own_u[rows], *g_samples, device, max_patches=max(n_emitters, 1))
         self.sun_dB_sum = SampledPatchSum(own_u[rows], *g_samples, device)  # the sun the object blocks from the room
         sub = self.sub  # spread thinly over the mesh: neighbours by distance, not by mesh edges
-        self.dB_sum = SampledPatchSum(own_u[sub], *_near_samples(lu[sub], nu[sub], np.arange(0, len(sub), vis_stride),
-                                                                  hidden_u[sub]), device)
+        self.dB_sum = SampledPatchSum(own_u[sub], *_near_samples(lu[sub], nu[sub], sub_samples, hidden_u[sub]), device)
+
+    def subsets(self, lu: np.ndarray, nu: np.ndarray, vis_stride: int, dB_samples: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(visibility samples, dB vertices `sub`, sub's own samples): spread.spread_subsets of the
+        distinct vertices at their shaded points lu (U,3) with normals nu (U,3)."""
+        return spread_subsets(lu, nu, vis_stride, dB_samples)
 
     def sun_self_lit(self, d: np.ndarray, vu: np.ndarray, nu: np.ndarray, own: Occluder, eps: float = 1e-3
                      ) -> np.ndarray:
