@@ -73,7 +73,7 @@ def main() -> None:
     ap.add_argument("--drag", action="store_true")
     ap.add_argument("--cost", type=int, default=0)
     ap.add_argument("--variants", default="",
-                    help="comma-separated cut:bounces pairs (own_cuts' cut 1/0, SELF_BOUNCES), e.g. '1:2,1:1,0:2' "
+                    help="comma-separated cut:bounces (own_cuts' cut 1/0, SELF_BOUNCES), e.g. '1:2,1:1,0:2' "
                          "(default: the code as it is)")
     a = ap.parse_args()
 
