@@ -72,6 +72,7 @@ def main() -> None:
     ap.add_argument("--shuffles", type=int, default=0)
     ap.add_argument("--drag", action="store_true")
     ap.add_argument("--cost", type=int, default=0)
+    ap.add_argument("--save", type=Path, default=None, help="write each composite as SAVE/ROOM_RULE_vS_FRAME.png")
     ap.add_argument("--variants", default="",
                     help="comma-separated cut:bounces (own_cuts' cut 1/0, SELF_BOUNCES), e.g. '1:2,1:1,0:2' "
                          "(default: the code as it is)")
@@ -138,6 +139,11 @@ def main() -> None:
                     sc = metrics.score_regions(fr.pixels, scene.photo, truth, mask)
                     h = hashlib.sha256(np.ascontiguousarray(fr.pixels).tobytes()).hexdigest()[:8]
                     spreads.setdefault((rule, name), []).append(sc["rmse_object"])
+                    if a.save is not None:
+                        from recon.io import write_png
+
+                        a.save.mkdir(parents=True, exist_ok=True)
+                        write_png(a.save / f"{room.name}_{rule.replace(' ', '')}_v{s}_{name}.png", fr.pixels)
                     print(f"{room.name} {rule} v{s} {name}: {sc['energy_ratio']:.3f} / {sc['rmse_affected']:.2f} / "
                           f"{sc['spurious']:.4f} / {sc['rmse_object']:.2f}  sha {h}", flush=True)
         for (rule, name), v in spreads.items():
