@@ -286,7 +286,8 @@ class SphereShadow:
         obj_rad = shaded.radiance
         if sun is not None and shaded.L_vert is not None:
             sun.refine_clipped_edges(eng.scene.camera, eng.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
-                                     shaded.sun_vis, obj.albedo, cov, obj_rad, eng.sun_pixels.photo_clip)
+                                     shaded.sun_vis, obj.albedo, cov, obj_rad, eng.sun_pixels.photo_clip,
+                                     groups=eng.object_shading.face_groups)
         t = tick("object_shading", t)
         sc, sa = self.spheres(obj)
         lo = self.sphere_radiance(shade_mesh[0], shade_mesh[1], shaded.L_vert, sc)

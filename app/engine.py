@@ -395,7 +395,8 @@ class Engine:
         if sun is not None and shaded.L_vert is not None:  # sun: the outline where sunlight
             # clips, sampled finely (full size; while dragging too: without it sun_room's drag object 4.9 levels rmse)
             sun.refine_clipped_edges(self.scene.camera, self.cam_occ, shade_mesh, shade_occ, shaded.L_vert,
-                                     shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip)
+                                     shaded.sun_vis, obj.albedo, cov, obj_rad, self.sun_pixels.photo_clip,
+                                     groups=self.object_shading.face_groups)
         t = tick("object_shading", t)
         yield  # a pause between stages: Engine.refine's stop and budget are checked here too
 

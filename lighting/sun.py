@@ -172,7 +172,8 @@ class SunLight:
         return vis[:, None] * (self.sun.irradiance / np.pi)
 
     def hit_correction(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, tri: np.ndarray,
-                       bary: np.ndarray, extra: list[Occluder] = ()) -> tuple[np.ndarray, np.ndarray]:
+                       bary: np.ndarray, extra: list[Occluder] = (), groups: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
         """The sun per camera hit on a mesh (v (V,3), unit vertex normals n (V,3), faces f (F,3)) against the
         blend of its vertices' sun that the hit's radiance holds: (k (K,), the hits (tri (M,), bary (M,3))
         on faces with a sunlit corner; delta (K,), their sun minus that blend, as a share of
@@ -181,8 +182,8 @@ class SunLight:
         interpolated normal on a face with all corners sunlit, a ray (visibility, past the room and
         `extra`) on a face that a shadow's edge crosses; faces with no sunlit corner have both 0, and
         so, to within 1 / FLAT_COS - 1, have wholly sunlit flat faces (corner normals equal): neither
-        is in k."""
-        code = self.hit_codes(n, f, vis_v)
+        is in k. groups: as hit_codes."""
+        code = self.hit_codes(n, f, vis_v, groups)
         ch = code[tri]
         k = np.flatnonzero(ch)
         if len(k) == 0:
@@ -196,12 +197,19 @@ class SunLight:
                               rays=int(np.count_nonzero(ch[k] == 2)), parallel=not pooled)
         return k, delta
 
-    def hit_codes(self, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray) -> np.ndarray:
+    def hit_codes(self, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, groups: np.ndarray | None = None
+                  ) -> np.ndarray:
         """(F,) uint8: what hit_correction does on each face f (F,3) of a mesh (unit vertex normals n (V,3),
         the vertices' sun shares vis_v (V,)): 0 nothing (no sunlit corner, or all sunlit and flat: a hit's
         sun is its corners' blend to within 1 / FLAT_COS - 1), 1 the interpolated normal's cos (all
-        corners sunlit, not flat), 2 a ray toward the sun (a shadow's edge crosses the face)."""
+        corners sunlit, not flat), 2 a ray toward the sun (a shadow's edge crosses the face). groups (F,) int:
+        the face each one was cut from (app.stages.own_cuts; None: none cut): a piece with no sunlit corner of its
+        own gets rays where another piece of its face has one (the sun's edge may pass between the cut's new
+        corners, which lie in shadow at a contact line, as it passed across the whole face)."""
         lit_f = (vis_v > 0)[f].sum(1)  # sunlit corners per face
+        if groups is not None:
+            lit_g = np.bincount(groups, weights=lit_f, minlength=int(groups.max()) + 1) > 0
+            lit_f = np.where((lit_f == 0) & lit_g[groups], 1, lit_f)
         return np.where(lit_f == 3, np.where(self._flat_faces(n, f), 0, 1), np.where(lit_f > 0, 2, 0)).astype(np.uint8)
 
     def _flat_faces(self, n: np.ndarray, f: np.ndarray) -> np.ndarray:

@@ -4,7 +4,7 @@
 Radiance at the shading mesh's vertices = albedo x (indirect SH9 volume x the object's own
 self-occlusion transfer (precomputed radiance transfer, kept per shape in the object's frame)
 + the emitters with visibility + the change of the room's patches in the object's shadow), plus
-one bounce between the object's own parts; interpolated at the camera hits. Units: radiance.
+two bounces between the object's own parts (vertex_light); interpolated at the camera hits. Units: radiance.
 
 ObjectShading is built once per scene from the camera, the scene's occluders, the patch mesh and the
 room's light; per frame `object_shape` gives the proxy and the shading mesh at the pose,
@@ -33,6 +33,8 @@ from recon.proxy import simplify, subdivide
 from recon.response import luminance
 from recon.scene import SceneObject
 from app.stages.own_contacts import CONTACT_LIFT, lift_off_own_contacts
+from app.stages.own_cuts import cut_along_own_contacts
+from app.stages.spread import spread_subsets
 
 SPLIT_PAIRS = 1024  # (point, patch) pairs a concurrent part of a gather over patches gets at least (the
 # item count from which app.runtime.parts splits a launch of one-patch items): pair_split
@@ -125,6 +127,9 @@ def _fill_from_neighbours(values: np.ndarray, faces: np.ndarray, missing: np.nda
     return out
 
 
+SELF_BOUNCES = 2  # bounces between the object's own parts (vertex_light)
+
+
 def vertex_light(L_room: np.ndarray, L_sun: np.ndarray | None, fill, bounce, albedo: np.ndarray) -> np.ndarray:
     """Radiance (V,3) at the shading mesh's vertices from the room's part L_room (V,3) and each vertex's own
     direct sun L_sun (V,3; None: no sun), both albedo x E, the one place the frame at rest and the drag frame
@@ -132,13 +137,17 @@ def vertex_light(L_room: np.ndarray, L_sun: np.ndarray | None, fill, bounce, alb
     and the bounce come from their neighbours (fill(values) -> values: _fill_from_neighbours or the drag frame's
     FillOperator), never their direct sun: each vertex keeps its own, the share that a camera hit's own sun
     (shade's per-hit correction, the drag frame's SunAtHits) replaces, so a face's hits get the sun per hit and
-    not a neighbour's sun blended over them. One bounce between the object's own parts (bounce (V,V) sparse,
-    None: none) sees the object's radiance with that sun."""
+    not a neighbour's sun blended over them. Two bounces between the object's own parts (bounce (V,V) sparse,
+    None: none; SELF_BOUNCES) see the object's radiance with that sun: a chair's seat in the back's shadow is lit
+    by the back, which the sunlit rest of the seat lights (one bounce left the crease at the back's own room light)."""
     room = fill(L_room)
     sun = 0.0 if L_sun is None else L_sun
+    lit = room + sun
     if bounce is None:
-        return room + sun
-    return fill(room + albedo * (bounce @ (room + sun))) + sun
+        return lit
+    for _ in range(SELF_BOUNCES):
+        lit = fill(room + albedo * (bounce @ lit)) + sun
+    return lit
 
 
 def _facing(p: np.ndarray, n: np.ndarray, polys: np.ndarray, pn: np.ndarray) -> np.ndarray:
@@ -429,6 +438,16 @@ def gathered_rows(buried: np.ndarray, inv: np.ndarray, samples: np.ndarray) -> n
     return np.flatnonzero(keep)
 
 
+def shading_mesh(v: np.ndarray, n: np.ndarray, f: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The shading mesh (vertices (V,3) m, unit normals (V,3), faces (F,3)) of an object mesh: subdivided to edges of
+    0.08 m at most (3000 faces), then cut along the contact lines between its own parts (own_cuts), so the vertices
+    on either side of a contact are shaded separately; and each face's face before the cut (F,) (None: nothing
+    cut), ObjectShading.face_groups."""
+    sv, sn, sf = subdivide(v, n, f, max_edge=0.08, max_faces=3000)
+    return cut_along_own_contacts(sv, sn, sf)
+
+
 class ShapeShading:
     """What the shading needs of one object shape, made once in its own frame (centred: a
     translation changes none of it): the distinct (position, normal) vertices, where each is shaded (lift: off a
@@ -464,17 +483,18 @@ class ShapeShading:
         self.normals = nu
         self.key = ""  # shape_shading's key
         self._sun_self: tuple | None = None  # (sun direction, sun_self_lit of the distinct vertices)
-        # spread over the mesh in its own order (faces), as distinct vertices
-        self.sub = np.unique(self.inv[np.arange(0, len(local), max(1, len(local) // max(dB_samples, 1)))])
+        # the spread subsets (app.stages.spread: chosen by position and normal, whatever the mesh's order):
+        # the patch sums' visibility samples, the dB gather's vertices and that gather's own samples
+        vis_samples, self.sub, sub_samples = self.subsets(lu, nu, vis_stride, dB_samples)
         self._knn = _knn_weights(lu, nu, self.sub)
         # emitter and dB light with the visibility cast at a spread subset (kernels.shade.SampledPatchSum);
         # a vertex whose tangent plane has the whole object behind it (a convex part) tests against the
         # object only the rays that go below that plane
         own_u = _object_above(lu, nu, local)
         hidden_u = hit.mean(axis=1)[self.uniq]
-        in_order = np.argsort(self.uniq)  # distinct vertices in the mesh's own order (spread)
         fu = self.inv[f]  # faces over the distinct vertices
-        samples, nbr = _visibility_samples(lu, fu, in_order[::vis_stride], hidden_u)
+        samples, nbr = _visibility_samples(lu, fu, vis_samples, hidden_u)
+        self.samples, self.sub_samples = samples, sub_samples  # (S,) into the distinct vertices; (s,) into sub
         # the per-vertex gathers (emitters, the sun's lost patches) skip the distinct vertices whose every
         # copy is buried: vertex_radiance replaces those vertices' values by their neighbours'
         # (_fill_from_neighbours) before anything reads them; the samples stay (their neighbours vote)
@@ -487,8 +507,13 @@ class ShapeShading:
         self.direct_sum = SampledPatchSum(own_u[rows], *g_samples, device, max_patches=max(n_emitters, 1))
         self.sun_dB_sum = SampledPatchSum(own_u[rows], *g_samples, device)  # the sun the object blocks from the room
         sub = self.sub  # spread thinly over the mesh: neighbours by distance, not by mesh edges
-        self.dB_sum = SampledPatchSum(own_u[sub], *_near_samples(lu[sub], nu[sub], np.arange(0, len(sub), vis_stride),
-                                                                  hidden_u[sub]), device)
+        self.dB_sum = SampledPatchSum(own_u[sub], *_near_samples(lu[sub], nu[sub], sub_samples, hidden_u[sub]), device)
+
+    def subsets(self, lu: np.ndarray, nu: np.ndarray, vis_stride: int, dB_samples: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(visibility samples, dB vertices `sub`, sub's own samples): spread.spread_subsets of the
+        distinct vertices at their shaded points lu (U,3) with normals nu (U,3)."""
+        return spread_subsets(lu, nu, vis_stride, dB_samples)
 
     def sun_self_lit(self, d: np.ndarray, vu: np.ndarray, nu: np.ndarray, own: Occluder, eps: float = 1e-3
                      ) -> np.ndarray:
@@ -540,6 +565,7 @@ class ObjectShading:
         self.n_shape_builds = 0  # object shapes simplified/subdivided so far
         self._workspaces = Workspaces()
         self._shape: dict | None = None  # the last shape's proxy, shading mesh and BVHs (object_shape)
+        self.face_groups: np.ndarray | None = None  # the shading mesh's faces before own_cuts' cut (object_shape)
         self._shade_occ: tuple | None = None  # (shading-mesh vertices, their Occluder) of the current frame
         self._prt: tuple | None = None  # (key, ShapeShading) of the last shape (shape_shading)
         self._camera_hits: CameraHits | None = None
@@ -562,8 +588,9 @@ class ObjectShading:
         sh = self._shape if self.config.shape_cache else None
         if sh is None or sh["key"] != key:
             pv, pf, _ = simplify(v, obj.faces, p.proxy_faces)
-            sv, sn, sf = subdivide(v, obj.normals, obj.faces, max_edge=0.08, max_faces=3000)
+            sv, sn, sf, groups = shading_mesh(v, obj.normals, obj.faces)
             sh = {"key": key, "offset": offset, "pv": pv - offset, "pf": pf, "sv": sv - offset, "sn": sn, "sf": sf,
+                  "groups": groups,
                   "proxy_occ": Occluder(pv, pf, self.device), "shade_occ": Occluder(sv, sf, self.device)}
             if self.config.shape_cache:
                 self._shape = sh
@@ -574,6 +601,7 @@ class ObjectShading:
             sh["shade_occ"].move(sv)
             sh["offset"] = offset
         self._shade_occ = (sv, sh["shade_occ"])  # vertex_radiance's own-shadow mesh, this frame
+        self.face_groups = sh["groups"]  # the shading mesh's faces before the cut (None: nothing cut), this frame
         return pv, sh["pf"], sh["proxy_occ"], (sv, sh["sn"], sh["sf"]), sh["shade_occ"]
 
     def object_hits(self, verts: np.ndarray, faces: np.ndarray, camera=None, supersample: int | None = None,
@@ -606,7 +634,7 @@ class ObjectShading:
         """Outgoing radiance (V,3) at the shading mesh's vertices (mesh = (verts, normals, faces)).
 
         albedo x (indirect SH9 x self-occlusion transfer + exact emitters + dB, the change of the
-        room's patches in the object's shadow (P,3)), plus one bounce between the object's own parts;
+        room's patches in the object's shadow (P,3)), plus two bounces between the object's own parts (vertex_light);
         with a sun, its direct light with the object's self-shadowing and sun_dB (P,3), the sun the
         object blocks from each patch this frame. Everything is evaluated once per distinct (position,
         normal) of the mesh (ShapeShading.uniq), a vertex on a contact between two parts just off it
@@ -803,7 +831,8 @@ class ObjectShading:
             own = self._shade_occ[1] if self._shade_occ is not None and self._shade_occ[0] is v else \
                 Occluder(v, f, self.device)
             hh = np.flatnonzero(h)
-            k, delta = self.sun.hit_correction(v, n, f, sun_vis, hits.tri[hh], hits.bary[hh], [own])
+            groups = self.face_groups if self._shade_occ is not None and self._shade_occ[0] is v else None
+            k, delta = self.sun.hit_correction(v, n, f, sun_vis, hits.tri[hh], hits.bary[hh], [own], groups)
             if len(k):
                 hk = hh[k]
                 sub[hk] = np.maximum(sub[hk] + obj.albedo * (delta[:, None] * (self.sun.sun.irradiance / np.pi)),

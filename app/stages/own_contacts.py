@@ -9,8 +9,9 @@ room's surfaces, such a vertex stands for the surface just off the contact: it i
 own tangent plane to a height h above the other part's face (CONTACT_LIFT x that face's bounding radius, at
 least 2 x the rays' eps), the limit from above.
 
-A vertex is on a contact line with a face of the object (not one of its own: no corner at its position) when it lies
-within h of the face's plane and inside the face, the face's plane crosses its tangent plane at OWN_CONTACT_MIN_SIN
+A vertex is on a contact line with a face of the object (not one of its own: no corner that is the same distinct
+vertex, position and normal; a vertex's copies count as one) when it lies within h of the face's plane and inside
+the face, the face's plane crosses its tangent plane at OWN_CONTACT_MIN_SIN
 or more (a fold, not a near-tangent neighbour), and its own surface goes on away from that face (one of its faces
 has its centroid on the rising side): the back's front face above the seat. A convex edge of one part (a box's front
 face at its top edge: the top face lies in the plane, but the front face does not go on above it) and a vertex
@@ -53,9 +54,13 @@ def lift_off_own_contacts(p: np.ndarray, n: np.ndarray, faces: np.ndarray, eps: 
     cen = tri.mean(1)
     rad = np.linalg.norm(tri - cen[:, None], axis=2).max(1)
     h = np.maximum(CONTACT_LIFT * rad, 2.0 * eps)
-    # each vertex's own faces (by index) for the rising test, as a CSR list
-    order = np.argsort(faces.reshape(-1), kind="stable")
-    start = np.searchsorted(faces.reshape(-1)[order], np.arange(len(p) + 1))
+    # each vertex's own faces for the rising test, as a CSR list over the distinct (position, normal) vertices:
+    # a vertex's copies (own_cuts: a row on a contact line, with faces on either side) count together
+    _, grp = np.unique(np.round(np.concatenate([p, n], 1), 6), axis=0, return_inverse=True)
+    grp = grp.reshape(-1)
+    corner_grp = grp[faces.reshape(-1)]
+    order = np.argsort(corner_grp, kind="stable")
+    start = np.searchsorted(corner_grp[order], np.arange(grp.max() + 2))
     own_face = order // 3
     moved = p.copy()
     for _ in range(2):
@@ -69,9 +74,9 @@ def lift_off_own_contacts(p: np.ndarray, n: np.ndarray, faces: np.ndarray, eps: 
             if not len(bi):
                 continue
             vi = bi + s
-            # not one of its own faces: no corner at the vertex's (original) position
-            gap = np.linalg.norm(tri[fj] - p[vi][:, None], axis=2).min(1)
-            keep = gap > 1e-7
+            # not one of its own faces: no corner that is the same distinct vertex (position and normal; a face of
+            # another surface through the same point, as a cut contact line's two sides, is not its own)
+            keep = (grp[faces[fj]] != grp[vi][:, None]).all(1)
             bi, fj, vi = bi[keep], fj[keep], vi[keep]
             cos = C[bi, fj]
             dk = d[bi, fj]
@@ -91,9 +96,10 @@ def lift_off_own_contacts(p: np.ndarray, n: np.ndarray, faces: np.ndarray, eps: 
             t = nf[fj] - cos[:, None] * n[vi]  # the tangent direction rising off the touched face
             tu = t / np.linalg.norm(t, axis=1, keepdims=True)
             # the vertex's own surface goes on along the lift: one of its faces' centroids lies that way
-            cnt = start[vi + 1] - start[vi]
+            gi = grp[vi]
+            cnt = start[gi + 1] - start[gi]
             pair = np.repeat(np.arange(len(vi)), cnt)
-            at = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(start[vi], cnt)
+            at = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(start[gi], cnt)
             r = cen[own_face[at]] - p[vi[pair]]
             ok_r = np.einsum("kc,kc->k", r, tu[pair]) > RISE_COS * np.linalg.norm(r, axis=1)
             rises = np.bincount(pair[ok_r], minlength=len(vi)) > 0

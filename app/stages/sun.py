@@ -412,7 +412,8 @@ class SunStage:
 
     def refine_clipped_edges(self, camera, cam_occ: Occluder, mesh, own: Occluder, L_vert: np.ndarray,
                              sun_vis: np.ndarray | None, albedo: np.ndarray, cov: np.ndarray, obj_rad: np.ndarray,
-                             clipped: np.ndarray, s: int | None = None) -> np.ndarray:
+                             clipped: np.ndarray, s: int | None = None, groups: np.ndarray | None = None
+                             ) -> np.ndarray:
         """Coverage and object radiance re-sampled with s x s rays (default edge_samples) on the object's outline pixels
         that touch clipping light (in place on cov (H,W) and obj_rad (H,W,3)); returns those pixels.
 
@@ -422,7 +423,8 @@ class SunStage:
         sunlit face; self.white, the response's radiance at level 255: it scales as 1 / exposure).
         Object radiance per ray: L_vert interpolated, with the sun per hit (its
         self-shadow edge: rays on the faces it crosses, SunLight.hit_correction; sun_vis (V,) the
-        vertices' sun share) as ObjectShading.shade does.
+        vertices' sun share; groups: the mesh's faces before own_cuts' cut, SunLight.hit_codes) as
+        ObjectShading.shade does.
 
         Adaptive: `edge_first` rays (the s x s grid's corners, first_samples) are cast on every outline
         pixel and the other s*s - edge_first only where some of those reach the object and some do not; of
@@ -460,7 +462,7 @@ class SunStage:
         # sunlit corner, as SunLight.hit_correction: on the others both it and the blend it replaces are 0)
         sun = None
         if sun_vis is not None:
-            sun = (sun_vis, self.light.hit_codes(n, f, sun_vis), albedo, self.E_perp,
+            sun = (sun_vis, self.light.hit_codes(n, f, sun_vis, groups), albedo, self.E_perp,
                    self.light.mesh_ids([own]), 1e-3)
         c, mean, _ = self._outline(
             own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s, mesh, L_vert, sun,

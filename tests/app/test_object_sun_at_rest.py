@@ -95,8 +95,9 @@ def test_the_backs_shade_on_the_seat_holds_no_sun_at_rest(chair_in_sun):
     assert shaded.sum() > 500 and (~shaded).sum() > 100  # both parts of the seat are sampled
     # the sunlit wedge keeps the full sun (within 10 %: the seat's own light off the sunlit back aside)
     np.testing.assert_allclose(np.median(sun_part[~shaded]), full, rtol=0.1)
-    # in the back's shade the sun adds only its light off the chair's other parts (their bounce, none that
-    # reaches the seat's top here): measured 7e-11 of the full sun on average, 3e-8 at most; before the fix
-    # 0.8 % on average and 56 % at most (the wedge from the seat's rear corner by the back's sunlit edge)
-    assert np.mean(sun_part[shaded]) < 1e-3 * full
+    # in the back's shade the sun adds only its light off the chair's other parts: with one bounce between them
+    # none reached the seat's top here (7e-11 of the full sun on average, 3e-8 at most); with two (shade107: the
+    # sunlit wedge lights the back's front face, which lights the shaded seat) 0.14 % on average; before the
+    # sunrest34 fix 0.8 % on average and 56 % at most (the wedge from the seat's rear corner by the back's sunlit edge)
+    assert np.mean(sun_part[shaded]) < 3e-3 * full
     assert np.max(sun_part[shaded]) < 0.02 * full
