@@ -211,10 +211,11 @@ class Engine:
     def _refit_sunlit(self, pre: Precomputed, sunlit: np.ndarray, priors=None) -> bool:
         """Photo light's fit again with the sunlit patches (`sunlit` (P,): their sun share) that it gathered as
         unseen reflectors joined to their surface's clipped region; False (nothing done) when none joins."""
+        from lighting.photolight import FITTED
         from lighting.radiance import GATHERED
 
         origin = np.asarray(pre.origin)
-        region_q = np.unique(pre.patches.quad[origin == 3])
+        region_q = np.unique(pre.patches.quad[origin == FITTED])
         if not ((sunlit > 0) & (origin == GATHERED) & np.isin(pre.patches.quad, region_q)).any():
             return False
         scene_precompute.use_lighting(pre, self.params.lighting, functools.partial(
