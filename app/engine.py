@@ -125,6 +125,14 @@ class Engine:
         B_src = pre.B[p.bounces - 1]  # what receivers gather (Engine.B_src)
         rm = receiver_map(scene, pre, B_src)
         self.sun_pixels: SunPixels = self.sun.apply(pre, rm, dev)
+        if p.lighting == "photo" and self.sun.on:  # the sun found: its out-of-view sunlit patches join the fit's
+            # clipped regions (lighting.photolight._sunlit_unseen), and the fit and the sun are made again
+            sunlit = self.sun.sun_share()
+            if self._refit_sunlit(pre, sunlit, photo_priors):
+                B_src = pre.B[p.bounces - 1]
+                rm = receiver_map(scene, pre, B_src)
+                self.sun = SunSetup(scene, p.lighting, p.sun, self.scene_occ, pre.patches)
+                self.sun_pixels = self.sun.apply(pre, rm, dev)
         if p.lighting == "photo":
             self.photo_light = self.sun.photo_report(self.photo_light)
         sp = self.sun_pixels
@@ -193,11 +201,26 @@ class Engine:
         else:
             self.n_precompute += 1
 
-    def _fit_photo_light(self, pre: Precomputed, priors=None) -> None:
-        """Radiance mesh from the photo alone into `pre` (B, albedo, origin), report in photo_light."""
-        report = scene_precompute.fit_photo_light(pre, self.scene, self.params.bounces, priors)
+    def _fit_photo_light(self, pre: Precomputed, priors=None, sunlit: np.ndarray | None = None) -> None:
+        """Radiance mesh from the photo alone into `pre` (B, albedo, origin), report in photo_light (`sunlit`:
+        lighting.photolight.fit_photo_light's)."""
+        report = scene_precompute.fit_photo_light(pre, self.scene, self.params.bounces, priors, sunlit)
         self.photo_light = {**report, **{k: v for k, v in self.photo_light.items() if k.startswith("declared")}}
         log.debug("photo light: %s", {k: v for k, v in self.photo_light.items() if k != "warnings"})
+
+    def _refit_sunlit(self, pre: Precomputed, sunlit: np.ndarray, priors=None) -> bool:
+        """Photo light's fit again with the sunlit patches (`sunlit` (P,): their sun share) that it gathered as
+        unseen reflectors joined to their surface's clipped region; False (nothing done) when none joins."""
+        from lighting.photolight import FITTED
+        from lighting.radiance import GATHERED
+
+        origin = np.asarray(pre.origin)
+        region_q = np.unique(pre.patches.quad[origin == FITTED])
+        if not ((sunlit > 0) & (origin == GATHERED) & np.isin(pre.patches.quad, region_q)).any():
+            return False
+        scene_precompute.use_lighting(pre, self.params.lighting, functools.partial(
+            self._fit_photo_light, priors=priors, sunlit=sunlit))
+        return self.photo_light.get("sunlit_unseen_joined", 0) > 0
 
     def _local_light(self, pre: Precomputed, B_lit: np.ndarray, sunlit: np.ndarray):
         """Photo light: (lighting.photolocal.LocalLight, the emitter patches (P,) bool it scales: the room

@@ -25,6 +25,11 @@ photo gives everything else, read through the camera's response where the folder
   radiance per quad, at least as bright as its clipped pixels show and as the photo measures the
   quad's seen patches (a lower bound: the model's window or lamp is one uniform emitter), so a
   window the photo shows is never fitted darker than it looks, and never to 0.
+* **A sun's patches out of view.** Given the sun's share per patch (`sunlit`: the engine passes it once
+  the sun stage has found a sun in the photo, and fits again), every sunlit patch the photo does not see,
+  on a surface whose sunlit part in view clips, joins that clipped region at its share of the region's
+  radiance: the walls see the whole sunlit patch, and gathered as an unlit reflector its out-of-view part
+  left its light to the part in view (sun_107: a third out of view, the sun 2.3x; docs/unseen.md "photo108").
 * **Inverse radiosity.** The walls show how strong the unknown emitters are: a photo-seen wall
   patch i has radiance L_i = rho * E_i with E_i = sum_j G_ij B_j (irradiance/pi through the
   transfers G, visibility included) and the wall albedo prior rho. Unseen patches gather,
@@ -215,7 +220,7 @@ def _unknown_groups(patches: PatchMesh, photo_count: np.ndarray, clipped: np.nda
 def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, photo: np.ndarray,
                     response: CameraResponse, priors: PhotoPriors | None = None,
                     quad_names: list[str] | None = None, where: str = "photo",
-                    quad_roles: list[str] | None = None) -> PhotoLight:
+                    quad_roles: list[str] | None = None, sunlit: np.ndarray | None = None) -> PhotoLight:
     """The radiance mesh from the photo (module docstring).
 
     patches: the scene's patch mesh, is_emitter = the model's window / lamp quads; G (P,P) patch ->
@@ -223,6 +228,10 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     pix_patch (N,) patch seen by each photo pixel (-1 none); photo (N,3) uint8; `where` names the
     photo in errors; quad_roles (one per quad, None: all "room") pick the walls the fit reads (the
     vertical room surfaces; floors, ceilings and furniture vary too much in albedo for one prior).
+    sunlit (P,) in [0, 1], optional: each patch's share in a sun found in this photo (app.stages.sun.SunSetup
+    .sun_share); the sunlit patches the photo does not see, on a quad whose seen sunlit part clips, join that
+    quad's clipped region (the same surface in the same sun: the region's radiance times their share) instead of
+    gathering as unlit reflectors (_sunlit_unseen).
     Raises ValueError when the photo holds no usable light.
     """
     pr = priors or PhotoPriors()
@@ -251,6 +260,8 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     rad[strict], count[strict] = rad_s[strict], 0
     clipped = ~emit & (n_sat >= pr.min_pixels) & (n_sat >= pr.clipped_share * np.maximum(n_all, 1))
     measured = (count >= pr.min_pixels) & ~clipped
+    joined = _sunlit_unseen(patches.quad, clipped, measured, emit, sunlit)
+    clipped |= joined
     count = np.where(measured, count, 0)
     seen_wall = measured & ~emit
     if not seen_wall.any():
@@ -282,6 +293,8 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     known[S], known[K] = rad[S], rad[K]
     M = np.zeros((P, ng))
     M[X, group[X]] = 1.0
+    if sunlit is not None and joined.any():  # a partly sunlit patch out of view: its sunlit share of the region's
+        M[joined, group[joined]] = np.clip(np.asarray(sunlit, np.float64)[joined], 0.0, 1.0)
     G64 = np.asarray(G, np.float64)
     r = pr.unseen_reflectivity
     L_S = rad[S]
@@ -369,9 +382,22 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
               "surface_albedos_for": [names[g] for g in dark] if surface and pr.surface_albedos is None else [],
               "wall_patches_fitted": int(fit_on.sum()), "patches_from_photo": int(measured.sum()), "patches_gathered": int(len(U)),
               "patches_fitted": int(len(X)), "clipped_region_patches": int(clipped.sum()),
+              "sunlit_unseen_joined": int(joined.sum()),
               "emitters": emitters}
-    _warn(report, where, emit, count)
+    _warn(report, where, emit, count, quiet=sunlit is not None)
     return PhotoLight(B, refl, origin, report)
+
+
+def _sunlit_unseen(quad: np.ndarray, clipped: np.ndarray, measured: np.ndarray, emit: np.ndarray,
+                   sunlit: np.ndarray | None) -> np.ndarray:
+    """(P,) bool: the sunlit patches (`sunlit` (P,) their sun share > 0) the photo does not see, on a quad with a
+    clipped region: they join it. The walls see the whole sunlit patch; gathered as unlit reflectors, its out-of-view part
+    leaves the walls' light from it to the part in view, whose fitted radiance rises to make up for it (sun_107:
+    a third of the sunlit floor out of view, docs/unseen.md "photo108"). None: no patch joins."""
+    if sunlit is None:
+        return np.zeros(len(quad), bool)
+    region_q = np.unique(quad[clipped])
+    return (np.asarray(sunlit) > 0) & ~clipped & ~measured & ~emit & np.isin(quad, region_q)
 
 
 def _lower_bounds(patches: PatchMesh, group: np.ndarray, gquads: list[int], pix_patch: np.ndarray,
@@ -448,9 +474,10 @@ def _rgb(v) -> str:
     return "({:.3g}, {:.3g}, {:.3g})".format(*v)
 
 
-def _warn(report: dict, where: str, emit: np.ndarray, count: np.ndarray) -> None:
+def _warn(report: dict, where: str, emit: np.ndarray, count: np.ndarray, quiet: bool = False) -> None:
     """Warnings for the hard cases: no light source, emitters the walls cannot pin down, walls darker
-    than the albedo prior allows."""
+    than the albedo prior allows; into report["warnings"], and logged (at debug level when `quiet`: the fit
+    made again with a sun's patches, whose first fit has logged them)."""
     ems = report["emitters"]
     report["warnings"] = warn = []
     if not emit.any() and report["clipped_region_patches"] == 0:
@@ -480,5 +507,5 @@ def _warn(report: dict, where: str, emit: np.ndarray, count: np.ndarray) -> None
     if report["implied_wall_albedo"] < 0.5 * report["wall_albedo_prior"]:
         warn.append(f"the walls are darker than the albedo prior {report['wall_albedo_prior']} allows: with the "
                     f"light the photo shows they reflect only {report['implied_wall_albedo']}")
-    for msg in warn:
-        log.warning("photo light: %s: %s", where, msg)
+    for msg in warn:  # quiet: the fit again with the sun's patches (its first fit has said the same in words)
+        (log.debug if quiet else log.warning)("photo light: %s: %s", where, msg)

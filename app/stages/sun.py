@@ -669,7 +669,11 @@ class SunSetup:
     that is a share of L_b would be far too small. In the clipped channels of sunlit pixels L_b is
     raised to the model's radiance rho x (E_x + E_sun), rho the surface's albedo (declared texture, or
     the patch reflectivity the captured light recovered), so the sun's shadow there is the absolute
-    rho x E_sun x occluded share; a channel below the clip level is a measurement and stays."""
+    rho x E_sun x occluded share; a channel below the clip level is a measurement and stays.
+
+    Under photo light the engine then fits the photo again with each patch's share in the estimated sun
+    (sun_share), so that the sunlit patches out of view join the fit's clipped region, and applies a new
+    SunSetup to that fit (app.engine.Engine._refit_sunlit)."""
 
     def __init__(self, scene: Scene, lighting: str, choice: str, scene_occ: Occluder, patches: PatchMesh):
         """Known light lights the precompute with the declared sun; captured and photo light take the
@@ -788,6 +792,18 @@ class SunSetup:
         out.stage = SunStage(self.light, pts, footprint, E_sun, lit_c, c_pts + nrm_c * 1e-3, c_vis, pm.n_patches,
                              device, patches=pm, white=scene.response.to_radiance(np.full((1, 3), 255, np.uint8))[0])
         return out
+
+    def sun_share(self) -> np.ndarray:
+        """(P,) in [0, 1]: each reflector's sunlit share (its mean direct sun over that of a wholly sunlit patch
+        at its cos; patches with cos <= 0.2, as lighting.sun._sun_strength leaves them, and emitters 0); all 0
+        without a sun on some surface."""
+        pm = self.patches
+        if not self.on:
+            return np.zeros(pm.n_patches, bool)
+        cos = np.maximum(pm.normal @ self.light.d, 0.0)
+        full = luminance(self.light.sun.irradiance / np.pi)
+        share = luminance(self.patch_light()) / max(full, 1e-300)
+        return np.where((cos > 0.2) & ~pm.is_emitter, np.clip(share / np.maximum(cos, 1e-9), 0.0, 1.0), 0.0)
 
     def sunlit_patches(self) -> np.ndarray:
         """(P,) bool: the reflectors the sun lights (none without a sun on some surface; under known
