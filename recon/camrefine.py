@@ -33,6 +33,11 @@ projected into the photo and aligned with the photo's edges:
    by the capped edge residual, and its best local minima are fitted too (stages 2-3 from a smaller
    radius). A start's fit replaces the input camera's own when it brings the room's edges closer to
    the photo's edges, on average over the room's edges (_edge_gain);
+5b. when the accepted fit has moved the focal length from calibrate's by more than calibrate's own sigma, the
+   widened focal search (_widened_search) runs and its fits the guard accepts replace the camera when their
+   completed objective (_fit_cost: the profile stage's cost with a sample that found no edge counted at the
+   profile's reach, plus the clicked lines) is lower (_focal_recheck): the fit's own cost does not charge an
+   edge it has pushed beyond the profile's reach, and it can stop in such a basin (docs/unseen.md, cam108);
 6. a photo edge point explains one room edge (_exclusive): a match nearer to another parallel room
    edge is dropped, so two close parallel edges do not both lock onto the stronger photo edge.
 
