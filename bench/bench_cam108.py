@@ -39,13 +39,13 @@ class FixedFocal:
         return self.base.camera(np.r_[np.asarray(x, float)[:5], self.lf])
 
 
-def split_cost(fit, sigma_lines=True) -> tuple[float, float, int]:
-    """(robust edge cost sum a_e log1p(z), lines chi-square, samples) of a fit's last solve."""
+def split_cost(fit) -> tuple[float, float, int]:
+    """(robust edge cost f^2 sum log1p((r/f)^2) over the found samples (the capped edge weights are inside r),
+    the clicked lines' chi-square, found samples) of a fit's last solve."""
     from recon.camrefine import ROBUST_SIGMAS
     res = fit.res
     ne = int(fit.used.sum())
     r = np.asarray(res.fun, float)
-    w = np.minimum(1.0, 1.0)  # capped weighting is already inside fun
     z = (r[:ne] / ROBUST_SIGMAS) ** 2
     return float(ROBUST_SIGMAS ** 2 * np.sum(np.log1p(z))), float(r[ne:] @ r[ne:]), ne
 

@@ -797,8 +797,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     chi2_lines, chi2_lim = _lines_chi2(refined, lines)
     widened = (not r.accepted and not r.fits and sigma_f is not None and np.isfinite(sigma_f) and sigma_f > 0
                and chi2_lines > chi2_lim)
-    if (not r.accepted and not r.fits and sigma_f is not None and np.isfinite(sigma_f) and sigma_f > 0
-            and chi2_lines > chi2_lim):
+    if widened:
         # the first search's camera fits the room's edges somewhere the clicked lines refuse (a wrong
         # basin, not a room model the photo disagrees with: that fails the edge residual or the
         # conditioning, and a second search would only find another camera the model fits as badly):
@@ -1032,7 +1031,8 @@ def _fit_cost(cam: Camera, S: _Samples, photo: PhotoEdges, lines) -> float:
     r = np.full(len(uv), PROFILE_HALF_PX)
     sig = np.full(len(uv), FINE_SIGMA_PX)
     idx = np.flatnonzero(inside)
-    for i0 in range(0, len(idx), FIT_COST_CHUNK):  # cv2.remap takes under 2^15 rows at a time
+    for i0 in range(0, len(idx), FIT_COST_CHUNK):  # cv2.remap takes under 2^15 rows at a time (_exclusive
+        # then judges a sample among its chunk's: the same as whole below FIT_COST_CHUNK samples)
         k = idx[i0:i0 + FIT_COST_CHUNK]
         q, ok, s = _fine_edges(photo, uv[k], n[k], S.edge[k])
         r[k] = np.minimum(np.where(ok, np.abs(np.sum(n[k] * (q - uv[k]), axis=1)), PROFILE_HALF_PX), PROFILE_HALF_PX)
