@@ -100,7 +100,8 @@ def run_room(root: Path, profile: bool, focals=(-2.0, -1.5, -1.0, -0.5, 0.0, 0.5
             continue
         ce, cl, ne = split_cost(f)
         c = m.camera(f.x)
-        prof.append({"focal_pct": fp, "edge_cost": ce, "lines_chi2": cl, "n": ne, "edges": len(np.unique(f.S.edge[f.used])),
+        prof.append({"focal_pct": fp, "edge_cost": ce, "lines_chi2": cl, "n": ne,
+                     "edges": len(np.unique(f.S.edge[f.used])),
                      **{k: v for k, v in camera_errors(c, truth, S_truth, P).items() if k != "focal_pct"},
                      "chamfer_edge_mean": float(np.mean([np.mean(d) for d in
                                                          [cr._edge_distances(c, S_truth, photo)[S_truth.edge == e]
@@ -152,7 +153,8 @@ def main(argv=None) -> int:
             o = compare_room(a.rooms / name, a.always)
             res.append(o)
             c = o["calibrated"]
-            line = f"{name:11s} sf {o['sigma_f_pct']:.2f}% cal {c['focal_pct']:+.2f}% {c['centre_cm']:.1f}cm {c['object_px']:.2f}px"
+            line = (f"{name:11s} sf {o['sigma_f_pct']:.2f}% cal {c['focal_pct']:+.2f}% {c['centre_cm']:.1f}cm "
+                    f"{c['object_px']:.2f}px")
             for mode in ("off", "moved", "always"):
                 if mode in o:
                     b = o[mode]
@@ -168,7 +170,8 @@ def main(argv=None) -> int:
         o = run_room(a.rooms / name, a.profile)
         res.append(o)
         c, r = o["calibrated"], o["refined"]
-        print(f"{name}: calibrated focal {c['focal_pct']:+.2f} % centre {c['centre_cm']:.1f} cm obj {c['object_px']:.2f} px"
+        print(f"{name}: calibrated focal {c['focal_pct']:+.2f} % centre {c['centre_cm']:.1f} cm "
+              f"obj {c['object_px']:.2f} px"
               f" -> refined ({'acc' if r['accepted'] else 'kept: ' + r['reason'][:40]}) focal {r['focal_pct']:+.2f} % "
               f"centre {r['centre_cm']:.1f} cm obj {r['object_px']:.2f} px", flush=True)
         for e in o.get("truth_edges", []):
@@ -179,7 +182,8 @@ def main(argv=None) -> int:
                 print(f"   focal {p['focal_pct']:+.1f}: no fit")
                 continue
             print(f"   focal {p['focal_pct']:+.1f} %: edge cost {p['edge_cost']:8.2f} lines {p['lines_chi2']:6.2f} "
-                  f"total {p['edge_cost'] + p['lines_chi2']:8.2f} n {p['n']} E {p['edges']} centre {p['centre_cm']:.1f} cm "
+                  f"total {p['edge_cost'] + p['lines_chi2']:8.2f} n {p['n']} E {p['edges']} "
+                  f"centre {p['centre_cm']:.1f} cm "
                   f"obj {p['object_px']:.2f} chamfer/edge {p['chamfer_edge_mean']:.3f}", flush=True)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1))
