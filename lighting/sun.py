@@ -449,8 +449,8 @@ def sunlit_pixels(L_b: np.ndarray, saturated: np.ndarray, pix_quad: np.ndarray, 
 
 def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, dirs: np.ndarray,
                  L_b: np.ndarray, saturated: np.ndarray, recv: np.ndarray, B: np.ndarray, G_c: np.ndarray,
-                 occluder: Occluder, min_overlap: float = 0.5, direction: np.ndarray | None = None
-                 ) -> tuple[Sun | None, dict]:
+                 occluder: Occluder, min_overlap: float = 0.5, direction: np.ndarray | None = None,
+                 bounces: int | None = None) -> tuple[Sun | None, dict]:
     """The sun from the photo and the captured radiance mesh (no declared sun used); with `direction`
     (a known unit vector towards the sun, e.g. from date, time and place) only its strength.
 
@@ -460,7 +460,8 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     with the observed ones (Nelder-Mead). Strength: on fully sunlit patches the radiance is
     rho (E_ind + E_perp cos / pi); rho is the reflectivity of the unlit patches of the same quad
     (the same material), E_ind the gathered irradiance of the radiance mesh (the probe sees the patch
-    unclipped where the photo clips), so E_perp = pi (L / rho - E_ind) / cos, median over patches.
+    unclipped where the photo clips), so E_perp = pi (L / rho - E_ind) / cos, median over patches;
+    with `bounces` (those the camera sees) E_ind is taken one bounce less than B (_sun_strength).
     No sun (None, with info["reason"]) when nothing is lit, or when the best direction's predicted
     sunlit pixels overlap the observed ones less than `min_overlap` (intersection over union).
     Returns (Sun or None, info)."""
@@ -475,7 +476,7 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     if direction is not None:
         d = np.asarray(direction, np.float64) / np.linalg.norm(direction)
         info.update(direction=d.tolist(), direction_from="declared")
-        return _sun_strength(d, holes, occluder, pm, B, G_c, info)
+        return _sun_strength(d, holes, occluder, pm, B, G_c, info, bounces)
     pix_quad = np.where(pix_patch >= 0, pm.quad[np.maximum(pix_patch, 0)], -1)
     lit = sunlit_pixels(L_b, saturated, pix_quad, recv, shape=scene.photo.shape[:2])
     if lit.sum() < 50:
@@ -525,24 +526,66 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     if info["overlap"] < min_overlap:  # bright surfaces that no sun through the openings explains
         return None, {**info, "reason": f"no sun direction explains the bright region (overlap "
                                         f"{info['overlap']:.2f} < {min_overlap})"}
-    return _sun_strength(d, holes, occluder, pm, B, G_c, info)
+    return _sun_strength(d, holes, occluder, pm, B, G_c, info, bounces)
 
 
 def _sun_strength(d: np.ndarray, holes: list[Quad], occluder: Occluder, pm, B: np.ndarray, G_c: np.ndarray,
-                  info: dict) -> tuple[Sun | None, dict]:
+                  info: dict, bounces: int | None = None) -> tuple[Sun | None, dict]:
     """estimate_sun's strength for the unit direction d (its docstring): the median over fully sunlit
-    patches of pi (L / rho - E_ind) / cos; (None, info with a reason) without such patches."""
-    from lighting.sources import luminance
+    patches of pi (L / rho - E_ind) / cos; (None, info with a reason) without such patches.
 
-    # strength from fully sunlit patches
+    bounces: the bounces the camera sees (EngineParams.bounces; the truth's 4). The measured radiance B is
+    B^(bounces), while a patch reflects the light of one bounce less: B^(bounces) = E + rho (sun + G B^(bounces-1))
+    (gather_with_sun). Gathering E_ind = G B^(bounces) instead counts one bounce too many, so rho comes out low
+    and the strength high by G B^(bounces) / G B^(bounces-1) (1.05-1.13 in the sun rooms). With `bounces`,
+    E_ind is G B scaled per patch by the bounce model's own ratio G B^(bounces-1) / G B^(bounces) (the model:
+    gather_with_sun with the current rho, the mesh's emitters and the current sun), iterated to its fixed
+    point (_BOUNCE_ROUNDS rounds); None: E_ind = G B as measured (the rule before)."""
+    G64 = np.asarray(G_c, np.float64)
+    B = np.asarray(B, np.float64)
     light = SunLight(Sun(d, SUN_DIAMETER_DEG, np.full(3, np.pi), np.zeros(3)), holes, occluder, where="sun estimate")
     e = light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)[:, 0]  # = cos x sunlit share
     cos = np.maximum(pm.normal @ d, 0.0)
     full = (e > 0.98 * cos) & (cos > 0.2)
-    E_ind = np.asarray(G_c, np.float64) @ B
+    E_meas = G64 @ B
+    out = _strength_from(B, E_meas, pm, e, cos, full)
+    if out is None or not bounces or bounces < 2:
+        return _sun_result(d, out, info)
+    source = np.any(np.asarray(pm.emission) > 0, axis=1)  # the mesh's emitters (their radiance, rho 0)
+    ratio = np.ones_like(B)
+    for _ in range(_BOUNCE_ROUNDS):
+        E_perp, rho_q, rho_all = out
+        rho = np.clip(np.nan_to_num(rho_all), 0.0, 1.0)
+        for q, r in rho_q.items():  # sunlit patches (any share) take their surface's unlit reflectivity
+            rho[(pm.quad == q) & (e > 0)] = r
+        rho[source] = 0.0
+        lv = gather_with_sun(G64, rho, np.where(source[:, None], pm.emission, 0.0), e[:, None] * E_perp / np.pi,
+                             bounces)
+        hi, lo = G64 @ lv[bounces], G64 @ lv[bounces - 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(hi > 0, lo / hi, 1.0)
+        out = _strength_from(B, ratio * E_meas, pm, e, cos, full)
+        if out is None:
+            break
+    info["bounce_ratio_median"] = float(np.median(ratio[~source].mean(1))) if (~source).any() else 1.0
+    if out is not None:  # the reflectivity the strength used, per sunlit surface (SunSetup gives it its patches)
+        info["reflectivity_by_quad"] = {str(q): r.tolist() for q, r in out[1].items()}
+    return _sun_result(d, out, info)
+
+
+_BOUNCE_ROUNDS = 4  # fixed-point rounds of _sun_strength's bounce ratio (each changes the strength by < 1 % after 3)
+
+
+def _strength_from(B: np.ndarray, E_ind: np.ndarray, pm, e: np.ndarray, cos: np.ndarray, full: np.ndarray
+                   ) -> tuple[np.ndarray, dict, np.ndarray] | None:
+    """(E_perp (3,), {quad: its unlit patches' median rho (3,)}, B / E_ind per patch) from the radiance B and
+    the gathered irradiance/pi E_ind (each (P,3)); None without a fully sunlit patch that has >= 3 unlit
+    patches of its surface."""
+    from lighting.sources import luminance
+
     with np.errstate(divide="ignore", invalid="ignore"):
         rho_all = np.where(E_ind > 0, B / E_ind, 0.0)
-    est = []
+    est, rho_q = [], {}
     for q in np.unique(pm.quad[full]):
         unlit = (pm.quad == q) & (e == 0) & ~pm.is_emitter & (luminance(E_ind) > 0)
         on = full & (pm.quad == q)
@@ -551,10 +594,16 @@ def _sun_strength(d: np.ndarray, holes: list[Quad], occluder: Occluder, pm, B: n
         rho = np.median(rho_all[unlit], axis=0)
         if np.any(rho <= 0):
             continue
-        s = np.pi * (B[on] / rho - E_ind[on]) / cos[on, None]
-        est.append(s)
+        rho_q[int(q)] = rho
+        est.append(np.pi * (B[on] / rho - E_ind[on]) / cos[on, None])
     if not est:
+        return None
+    return np.maximum(np.median(np.concatenate(est), axis=0), 0.0), rho_q, rho_all
+
+
+def _sun_result(d: np.ndarray, out, info: dict) -> tuple[Sun | None, dict]:
+    """_sun_strength's answer from _strength_from's `out`."""
+    if out is None:
         return None, {**info, "reason": "no fully sunlit patch with unlit patches of the same surface"}
-    E_perp = np.maximum(np.median(np.concatenate(est), axis=0), 0.0)
-    info["irradiance_perpendicular"] = E_perp.tolist()
-    return Sun(d, SUN_DIAMETER_DEG, E_perp, np.zeros(3)), info
+    info["irradiance_perpendicular"] = out[0].tolist()
+    return Sun(d, SUN_DIAMETER_DEG, out[0], np.zeros(3)), info
