@@ -26,25 +26,14 @@ def room(root: Path) -> dict:
     """The truth's camera of room folder `root` refined with its sun typed in: figures (see the module doc)."""
     from bench.bench_camrefine import object_points
     from bench.bench_camsun import errors
-    from bench.own_room_flow import benchmark_camera_json, tape_room
-    from lighting import hdr
-    from recon import assemble as asm
+    from bench.own_room_flow import benchmark_camera_json, sunlit_room
     from recon.camera import Camera
     from recon.camrefine import refine_camera
     from recon.io import read_image_rgb
 
-    sc = json.loads((root / "scene.json").read_text())
+    sc, prims, _, _, sun, g = sunlit_room(root)
     truth = Camera.load(root / "scene.json")
     img = read_image_rgb(root / "background.png")
-    rm = tape_room(sc)
-    openings = {p["name"] for p in sc["primitives"] if p.get("opening")}
-    for p in rm["primitives"]:
-        if p["name"] in openings:
-            p["opening"] = True
-    prims, _, _ = asm.parse_primitives(rm, str(root))
-    sun = next(p for p in sc["primitives"] if p.get("type") == "sun")
-    lp = sc["light_probe"]
-    _, g = hdr.merge_bracket([read_image_rgb(root / f) for f in lp["ldr_files"]], lp["exposure_times"])
     r = refine_camera(truth, prims, img, benchmark_camera_json(sc), sun=sun, response=g)
     return {**errors(r.camera, truth, object_points(root)), "accepted": r.accepted, "moved_px": r.moved_px,
             "start": r.start, "reason": r.reason, "sun_edges": r.sun_edges}

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import inspect
-import json
 import sys
 from pathlib import Path
 
@@ -39,25 +38,14 @@ def _probe_measure_edges():
 
 def room(root: Path) -> list[dict]:
     import recon.sunoutline as so
-    from bench.own_room_flow import tape_room
-    from lighting import hdr
-    from recon import assemble as asm
+    from bench.own_room_flow import sunlit_room
     from recon.camera import Camera
     from recon.camrefine import _Occluder, _sun_edges, room_faces
     from recon.io import read_exr, read_image_rgb
 
-    sc = json.loads((root / "scene.json").read_text())
+    sc, prims, _, _, sun, g = sunlit_room(root)
     cam = Camera.load(root / "scene.json")
     img = read_image_rgb(root / "background.png")
-    rm = tape_room(sc)
-    openings = {p["name"] for p in sc["primitives"] if p.get("opening")}
-    for p in rm["primitives"]:
-        if p["name"] in openings:
-            p["opening"] = True
-    prims, _, _ = asm.parse_primitives(rm, str(root))
-    sun = next(p for p in sc["primitives"] if p.get("type") == "sun")
-    lp = sc["light_probe"]
-    _, g = hdr.merge_bracket([read_image_rgb(root / f) for f in lp["ldr_files"]], lp["exposure_times"])
     se = _sun_edges(sun, g, prims, _Occluder(room_faces(prims)), img)
     ex = np.asarray(read_exr(root / "background.exr"), float)[:, :, :3].max(axis=2)
     m = (se.lin > 0.3) & (se.lin < 0.9)

@@ -312,14 +312,34 @@ def score(scene_dir: Path, composite_png: Path, shared: Path) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def declared_openings(room_json: Path, scene: dict) -> None:
-    """Mark in the tape room each window the truth has as an opening in a wall (a user sees the hole)."""
-    room = json.loads(room_json.read_text())
+def mark_openings(room: dict, scene: dict) -> dict:
+    """`room` (tape_room's) with each window the truth has as an opening in a wall marked so (a user sees the
+    hole); marked in place and returned."""
     openings = {p["name"] for p in scene["primitives"] if p.get("opening")}
     for p in room["primitives"]:
         if p["name"] in openings:
             p["opening"] = True
-    room_json.write_text(json.dumps(room, indent=1))
+    return room
+
+
+def declared_openings(room_json: Path, scene: dict) -> None:
+    """Mark in the tape room file each window the truth has as an opening in a wall (mark_openings)."""
+    room_json.write_text(json.dumps(mark_openings(json.loads(room_json.read_text()), scene), indent=1))
+
+
+def sunlit_room(root: Path) -> tuple[dict, list, np.ndarray, np.ndarray, dict, np.ndarray]:
+    """A sun room's folder as the declared-sun flow has it: (scene.json, the tape room's primitives with the
+    truth's openings marked, the room box's min and max (m), the scene's sun entry, the bracket's response)."""
+    from lighting import hdr
+    from recon import assemble as asm
+    from recon.io import read_image_rgb
+
+    sc = json.loads((root / "scene.json").read_text())
+    prims, lo, hi = asm.parse_primitives(mark_openings(tape_room(sc), sc), "room")
+    sun = next(p for p in sc["primitives"] if p.get("type") == "sun")
+    lp = sc["light_probe"]
+    _, g = hdr.merge_bracket([read_image_rgb(root / f) for f in lp["ldr_files"]], lp["exposure_times"])
+    return sc, prims, lo, hi, sun, g
 
 
 def _photoar(argv: list[str]) -> tuple[int, str, list[str]]:

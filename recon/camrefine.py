@@ -795,8 +795,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
                 photo = clipped
     sigma_f = cam.focal_rel_sigma
     chi2_lines, chi2_lim = _lines_chi2(refined, lines)
-    widened = (not r.accepted and not r.fits and sigma_f is not None and np.isfinite(sigma_f) and sigma_f > 0
-               and chi2_lines > chi2_lim)
+    widened = not r.accepted and not r.fits and _usable_sigma(sigma_f) and chi2_lines > chi2_lim
     if widened:
         # the first search's camera fits the room's edges somewhere the clicked lines refuse (a wrong
         # basin, not a room model the photo disagrees with: that fails the edge residual or the
@@ -856,9 +855,14 @@ def _focal_recheck_due(cam: Camera, refined: Camera, mode: str) -> bool:
     "always"; "moved": the fit's focal length left calibrate's (cam) by more than calibrate's own sigma
     (cam.focal_rel_sigma; never without one); "off": never."""
     sigma_f = cam.focal_rel_sigma
-    if mode == "off" or sigma_f is None or not np.isfinite(sigma_f) or not sigma_f > 0:
+    if mode == "off" or not _usable_sigma(sigma_f):
         return False
     return mode == "always" or abs(float(np.log(refined.K[0, 0] / cam.K[0, 0]))) > float(np.log1p(sigma_f))
+
+
+def _usable_sigma(sigma_f: float | None) -> bool:
+    """Whether calibrate gave a relative focal sigma the focal searches can step by (finite, > 0)."""
+    return sigma_f is not None and bool(np.isfinite(sigma_f)) and sigma_f > 0
 
 
 def _focal_recheck(cam: Camera, model: _Model, best: _Fit, edges, occ, photo: PhotoEdges, lines,
@@ -1088,8 +1092,9 @@ def _guard(cam, refined, fit: _Fit, lines, edges, occ, photo, seconds) -> Refine
     # small camera change, and counted in it turned a room fit within the room model's own edge offsets into an
     # accepted move: sun_107's true camera, 0.45 px on the room's edges, 1.35 px with the outline)
     room = S.edge < len(edges)
-    u0, _ = _project(cam, _Samples(S.X[room], S.D[room], S.edge[room]))
-    u1, _ = _project(refined, _Samples(S.X[room], S.D[room], S.edge[room]))
+    Sr = _Samples(S.X[room], S.D[room], S.edge[room])
+    u0, _ = _project(cam, Sr)
+    u1, _ = _project(refined, Sr)
     out = dict(moved_px=float(np.sqrt(np.mean(np.sum((u1 - u0) ** 2, axis=1)))) if room.any() else 0.0,
                n_edge_samples=int(inl.sum()), rms_edge_px=float(np.sqrt(np.mean(resid[inl] ** 2))) if inl.any()
                else float("nan"), n_lines=int(len(lr)), rms_lines_px=float(np.sqrt(np.mean(lr ** 2))) if len(lr)

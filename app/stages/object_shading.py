@@ -828,10 +828,10 @@ class ObjectShading:
         if self.sun is not None:  # sun: its direct light per camera hit (a sharp edge
             # across a face, not a vertex blend), on the faces with a sunlit corner (on the others both the
             # per-hit sun and the vertex blend it replaces are 0); rays where a shadow edge crosses a face
-            own = self._shade_occ[1] if self._shade_occ is not None and self._shade_occ[0] is v else \
-                Occluder(v, f, self.device)
+            this_frame = self._shade_occ is not None and self._shade_occ[0] is v  # object_shape's mesh
+            own = self._shade_occ[1] if this_frame else Occluder(v, f, self.device)
             hh = np.flatnonzero(h)
-            groups = self.face_groups if self._shade_occ is not None and self._shade_occ[0] is v else None
+            groups = self.face_groups if this_frame else None
             k, delta = self.sun.hit_correction(v, n, f, sun_vis, hits.tri[hh], hits.bary[hh], [own], groups)
             if len(k):
                 hk = hh[k]

@@ -799,7 +799,7 @@ class SunSetup:
         without a sun on some surface."""
         pm = self.patches
         if not self.on:
-            return np.zeros(pm.n_patches, bool)
+            return np.zeros(pm.n_patches)
         cos = np.maximum(pm.normal @ self.light.d, 0.0)
         full = luminance(self.light.sun.irradiance / np.pi)
         share = luminance(self.patch_light()) / max(full, 1e-300)

@@ -4,7 +4,6 @@ analytic step."""
 from __future__ import annotations
 
 import dataclasses
-import json
 
 import numpy as np
 
@@ -15,23 +14,12 @@ def _sun_room():
     """The shared sun_room as the own-room flow has it: the tape room with its window marked as an opening,
     the scene's sun (what `scene --sun-direction` declares), the bracket's response, the object's points."""
     from bench.bench_camrefine import object_points
-    from bench.own_room_flow import tape_room
-    from lighting import hdr
-    from recon import assemble as asm
+    from bench.own_room_flow import sunlit_room
     from recon.camera import Camera
     from recon.io import read_image_rgb
 
     root = shared_scene("sun_room")
-    sc = json.loads((root / "scene.json").read_text())
-    room = tape_room(sc)
-    openings = {p["name"] for p in sc["primitives"] if p.get("opening")}
-    for p in room["primitives"]:
-        if p["name"] in openings:
-            p["opening"] = True
-    prims, _, _ = asm.parse_primitives(room, "room")
-    sun = next(p for p in sc["primitives"] if p.get("type") == "sun")
-    lp = sc["light_probe"]
-    _, g = hdr.merge_bracket([read_image_rgb(root / f) for f in lp["ldr_files"]], lp["exposure_times"])
+    _, prims, _, _, sun, g = sunlit_room(root)
     return Camera.load(root / "scene.json"), read_image_rgb(root / "background.png"), prims, sun, g, \
         object_points(root)
 
@@ -84,31 +72,21 @@ def test_sun_103_outline_brings_the_calibrated_camera_back():
     if not (root / "scene.json").is_file():
         pytest.skip(f"unseen room {root} not rendered (bench/bench_unseen.py --render)")
     from bench.bench_camrefine import object_points
-    from bench.own_room_flow import tape_room
-    from lighting import hdr
+    from bench.own_room_flow import sunlit_room
     from recon import assemble as asm
     from recon.camera import Camera
     from recon.camrefine import refine_camera
     from recon.io import read_image_rgb
     from recon.vanishing import calibrate_lines, lines_from_scene, parse_lines
 
-    sc = json.loads((root / "scene.json").read_text())
+    sc, prims, lo, hi, sun, g = sunlit_room(root)
     truth = Camera.load(root / "scene.json")
     img = read_image_rgb(root / "background.png")
     cal = calibrate_lines(parse_lines(lines_from_scene(sc)), truth.width, truth.height,
                           camera_height=truth.centre[1], image=img)
-    room = tape_room(sc)
-    openings = {p["name"] for p in sc["primitives"] if p.get("opening")}
-    for p in room["primitives"]:
-        if p["name"] in openings:
-            p["opening"] = True
-    prims, lo, hi = asm.parse_primitives(room, "room")
     cam = cal.camera
     if not asm.camera_in_room(cam, lo, hi):
         cam = asm.turned_about_y(cam)
-    sun = next(p for p in sc["primitives"] if p.get("type") == "sun")
-    lp = sc["light_probe"]
-    _, g = hdr.merge_bracket([read_image_rgb(root / f) for f in lp["ldr_files"]], lp["exposure_times"])
     P = object_points(root)
     r = refine_camera(cam, prims, img, cal.to_json(), sun=sun, response=g)
     assert r.accepted and r.sun_edges, r.reason
@@ -177,25 +155,14 @@ def test_sun_107_true_camera_stays_with_the_sun_typed_in():
     root = Path(os.environ.get("PHOTOAR_ROOMS_FULL", Path.home() / ".cache" / "photoar" / "rooms_full")) / "sun_107"
     if not (root / "scene.json").is_file():
         pytest.skip(f"clean unseen room {root} not rendered")
-    from bench.own_room_flow import benchmark_camera_json, tape_room
-    from lighting import hdr
-    from recon import assemble as asm
+    from bench.own_room_flow import benchmark_camera_json, sunlit_room
     from recon.camera import Camera
     from recon.camrefine import MIN_MOVE_PX, refine_camera
     from recon.io import read_image_rgb
 
-    sc = json.loads((root / "scene.json").read_text())
+    sc, prims, _, _, sun, g = sunlit_room(root)
     truth = Camera.load(root / "scene.json")
     img = read_image_rgb(root / "background.png")
-    room = tape_room(sc)
-    openings = {p["name"] for p in sc["primitives"] if p.get("opening")}
-    for p in room["primitives"]:
-        if p["name"] in openings:
-            p["opening"] = True
-    prims, _, _ = asm.parse_primitives(room, "room")
-    sun = next(p for p in sc["primitives"] if p.get("type") == "sun")
-    lp = sc["light_probe"]
-    _, g = hdr.merge_bracket([read_image_rgb(root / f) for f in lp["ldr_files"]], lp["exposure_times"])
     r = refine_camera(truth, prims, img, benchmark_camera_json(sc), sun=sun, response=g)
     assert not r.accepted and r.fits and r.moved_px < MIN_MOVE_PX, (r.reason, r.moved_px)
     assert np.array_equal(r.camera.K, truth.K) and np.array_equal(r.camera.R, truth.R)
