@@ -467,8 +467,9 @@ class DragObject:
 
     def shade(self, obj, mesh, hits, dB: np.ndarray | None = None, sun_dB: np.ndarray | None = None
               ) -> DragShaded | None:
-        """The object's radiance at its camera hits from the per-shape tables (module docstring); None when
-        the object is not turned about +Y only (the caller shades it as at rest). The per-pixel radiance
+        """The object's radiance at its camera hits from the per-shape tables (module docstring; a tilted
+        object's tables in the world's orientation, frame_yaw); None for a tilted object when `tilted` is False (the
+        caller then shades it as at rest). The per-pixel radiance
         (shaded.radiance) is a kept image, valid until the next call (the frame composes it before then)."""
         from app.stages.object_shading import ShadedObject, lift_off_contacts, vertex_light
 
