@@ -386,7 +386,7 @@ class Engine:
         dB_room = dB_shadow  # the room's light the object's shadow takes from the patches (the sun's apart)
         if sun is not None:
             dB_shadow = dB_shadow + sun_dB
-        # a drag frame: the object from per-shape tables (None: not turned about +Y only), in sun rooms too
+        # a drag frame: the object from per-shape tables (a tilted one too: object_drag.frame_yaw), in sun rooms too
         # (drag_object_sun; docs/benchmarks.md, "sunobj36")
         later = sun.later_at_patches(sun_dB, pm.albedo, self.pre.G_c, self.pre.G_v, self.params.bounces) \
             if sun is not None else None  # the walls the object's sun shadow darkens (the object sees them darker)

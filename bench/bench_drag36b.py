@@ -172,6 +172,19 @@ def _cfg(scale: int = DRAG_SCALE, passes: int = DRAG_PASSES) -> FrameConfig:
 
 
 # name -> (FrameConfig, context manager factory taking the engine)
+@contextlib.contextmanager
+def _tilted(eng: Engine, on: bool):
+    """The drag frame's tables for a tilted object (DragObject.tilted, drag109) on or off while the block runs (off:
+    main's before drag109, the tilted object shaded as at rest)."""
+    od = eng.object_drag
+    old = od.tilted
+    od.tilted = on
+    try:
+        yield
+    finally:
+        od.tilted = old
+
+
 VARIANTS = {
     "base": (_cfg(), _nothing),
     "main107": (_cfg(), _main107),  # main's drag frame before drag107 (64 passes, the centres' penumbrae)
@@ -202,6 +215,7 @@ VARIANTS = {
     "src100": (_cfg(), lambda e: _source_grid(e, 1.0)),
     "src200": (_cfg(), lambda e: _source_grid(e, 2.0)),
     "neargrid": (_cfg(), lambda e: _near_grid(e, True)),  # drag108: the near pixels on the adaptive grid
+    "tilt0": (_cfg(), lambda e: _tilted(e, False)),  # drag109: a tilted object shaded as at rest (main's before)
 }
 
 

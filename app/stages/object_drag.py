@@ -3,7 +3,8 @@
 Used by the drag frame only (FrameConfig.drag; app.engine), in every room (Engine.drag_object_sun False: not in
 rooms a sun lights); at rest app.stages.object_shading and app.stages.object_light run as before. Everything per
 vertex is computed once per object shape in the shape's own frame (canonical: centred, yaw 0; a pose that translates
-the object or turns it about the up axis +Y keeps every table), and per frame only the room's light is looked up:
+the object or turns it about the up axis +Y keeps every table; a tilted object's frame is the world's orientation,
+frame_yaw), and per frame only the room's light is looked up:
 
 - indirect light and the room's change in the object's shadow: radiance SH9 at a PROBES^3 grid over the object's box
   (the SH volume looked up there, the changed patches projected as small disks), rotated into the object's frame for
@@ -77,6 +78,9 @@ DB_SHARE = 0.95
 DB_NEAR = 2.0
 KEY_OFFSET = 1.0 / 3.0  # DragObject.shape's key: coordinates to 10 um on a grid offset by a third of a step
 DB_MAX = 512
+# A tilted object (turned about another axis than +Y) shaded from its tables while dragging (frame_yaw), not as at
+# rest (DragObject.tilted; docs/benchmarks.md "drag109")
+DRAG_TILTED = True
 
 
 def _strongest(change: np.ndarray, area: np.ndarray, share: float = DB_SHARE) -> np.ndarray:
@@ -107,6 +111,17 @@ def yaw_of(object_to_world: np.ndarray, tol: float = 1e-6) -> float | None:
     R = L / s
     yaw = float(np.arctan2(R[0, 2], R[0, 0]))
     return yaw if np.abs(R - rot_y(yaw)).max() < tol else None
+
+
+def frame_yaw(object_to_world: np.ndarray) -> float:
+    """The yaw (radians) that DragObject takes out of a pose to find its shape's canonical frame: yaw_of's for a
+    pose turned about +Y only, 0 for a tilted one. A tilted object's canonical frame is then the world's own
+    orientation, the tilt kept in the shape's local coordinates: a drag (which translates the object) keeps its
+    tables, and a new tilt or a turn of a tilted object makes new ones (DragObject.shape's key). Before drag109 a
+    tilted object was shaded as at rest on every drag frame (its full ObjectShading and the proxy's rays: the
+    tilted tori of sun_107 / sun_108, ~410-460 ms of a drag frame's CPU; docs/benchmarks.md "drag109")."""
+    yaw = yaw_of(object_to_world)
+    return 0.0 if yaw is None else yaw
 
 
 def _fib_sphere(n: int) -> np.ndarray:
@@ -410,6 +425,9 @@ class DragObject:
         self._shape: tuple[str, DragShape] | None = None
         self.last: DragShaded | None = None
         self._pose: tuple | None = None  # (yaw, R, mean) of the last shaded pose
+        # a tilted object shaded from its tables too, its canonical frame the world's orientation (frame_yaw; False:
+        # as before drag109, shade returns None and the frame shades it as at rest)
+        self.tilted = DRAG_TILTED
         self._disk_made = 0  # probes disk_sh's buffers hold (made at DB_MAX patches)
         self._ws = Workspaces()  # per call site: a drag allocates nothing after its first frame
         self._split = functools.partial(split_launches, device=device, min_items=64)
@@ -449,14 +467,15 @@ class DragObject:
 
     def shade(self, obj, mesh, hits, dB: np.ndarray | None = None, sun_dB: np.ndarray | None = None
               ) -> DragShaded | None:
-        """The object's radiance at its camera hits from the per-shape tables (module docstring); None when
-        the object is not turned about +Y only (the caller shades it as at rest). The per-pixel radiance
+        """The object's radiance at its camera hits from the per-shape tables (module docstring; a tilted
+        object's tables in the world's orientation, frame_yaw); None for a tilted object when `tilted` is False (the
+        caller then shades it as at rest). The per-pixel radiance
         (shaded.radiance) is a kept image, valid until the next call (the frame composes it before then)."""
         from app.stages.object_shading import ShadedObject, lift_off_contacts, vertex_light
 
-        yaw = yaw_of(obj.object_to_world)
-        if yaw is None:
+        if not self.tilted and yaw_of(obj.object_to_world) is None:
             return None
+        yaw = frame_yaw(obj.object_to_world)
         R = rot_y(yaw)
         v, n, f = mesh
         ds, mean = self.shape(v, n, f, R)

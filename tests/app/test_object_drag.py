@@ -3,8 +3,8 @@ transfer of a convex shape, the self-visibility table, the yaw read from a pose.
 import numpy as np
 import pytest
 
-from app.stages.object_drag import (_fib_sphere, prt_directions, rot_y, sh_yaw_matrix, visibility_table,
-                                    yaw_of)
+from app.stages.object_drag import (_fib_sphere, frame_yaw, prt_directions, rot_y, sh_yaw_matrix,
+                                    visibility_table, yaw_of)
 from lighting import sh
 
 
@@ -135,6 +135,11 @@ def test_yaw_of_reads_a_placed_pose_and_refuses_a_tilt():
     c, s = np.cos(0.2), np.sin(0.2)
     M[:3, :3] = _rot_y(37.0) @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]])  # tilted about x
     assert yaw_of(M) is None
+    # the drag frame's canonical frame (frame_yaw): the yaw taken out of an upright pose, none of a tilted one (its
+    # tables are made in the world's orientation, the tilt in the shape)
+    assert frame_yaw(M) == 0.0
+    M[:3, :3] = _rot_y(37.0) * 1.7
+    assert frame_yaw(M) == pytest.approx(np.radians(37.0), abs=1e-12)
 
 
 def test_fill_operator_is_fill_from_neighbours():
