@@ -176,3 +176,22 @@ def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: 
         clicks.append(c)
         done["quads"].append(p["name"])
     return {"clicks": clicks}, done
+
+
+def tape_asked(scene: dict, clicks: dict, measure: dict, tape_error_m: float = 0.0) -> dict:
+    """A copy of clicks with each size the model asked to tape (ClickModel.measure / primitives.json's
+    `model.measure`: piece -> [{"size_m": index, "along": "x" | "z", ...}]) given in that piece's
+    size_m: the truth's length of the piece along that axis plus tape_error_m (m), as a user with a tape
+    measure answers the model's warning (the other entry stays as it was, or null)."""
+    import copy
+
+    groups = {g["name"]: g for g in furniture_groups(scene)}
+    out = copy.deepcopy(clicks)
+    for c in out["clicks"]:
+        for ask in measure.get(c.get("name"), []) if c.get("label") == "furniture" else []:
+            g = groups[c["name"]]
+            lo, hi = g[ask["along"]]
+            sizes = list(c.get("size_m") or [None, None])
+            sizes[ask["size_m"]] = float(hi - lo) + tape_error_m
+            c["size_m"] = sizes
+    return out

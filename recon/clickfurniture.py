@@ -107,7 +107,7 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
                 end = ix if j0 == 0 else iz  # size_m: [|floor[0] floor[1]|, |floor[1] floor[2]|]
                 size = next((sizes[n] for n, (p, q) in enumerate(((0, 1), (1, 2)))
                              if p in end and q in end and end[p] != end[q]), None)
-                if size is None:
+                if size is None or not np.isfinite(size):  # not measured (the other one was)
                     continue
                 axis_vec = e1 if j0 == 0 else e2
                 c = float(camera.centre @ axis_vec)
@@ -180,6 +180,9 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
         loose.update({SIDES[j]: float(v) for j, (_, v) in held.items() if not Z99 * v <= TOLERANCE_M})
         if loose:
             P.uncertain[name] = loose
+            ask = _sizes_to_tape(f, e1, e2, full(y), loose, sizes)
+            if ask:
+                P.measure[name] = ask
         if yaw == 0.0:  # its sides' places and noise, for the pieces modelled after it (_piece_planes)
             x, side_sd = full(y), {active[k]: float(v) for k, v in zip(free, sd)}
             for j in range(4):
@@ -191,6 +194,35 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
             P.sides[name] = (x[:4].copy(), {j: v if j in seen else float("inf") for j, v in side_sd.items()})
     x = full(y)
     return np.sort(x[:2]), np.sort(x[2:4]), float(x[4])
+
+
+def _sizes_to_tape(f: np.ndarray, e1: np.ndarray, e2: np.ndarray, x: np.ndarray, loose: dict[str, float],
+                   sizes: np.ndarray | None) -> list[dict]:
+    """The sizes a tape gives that pin a piece's loose sides: for each range (x, z) with one side loose
+    and its opposite side sure (the photo shows it, or a wall or piece holds it), the size_m entry
+    along it (size_m[0]: floor[0]-floor[1], size_m[1]: floor[1]-floor[2]; f (3,3) the clicked floor
+    corners, a row of nan where null) when not given yet: with it the loose side follows the sure one
+    (_refine_box), to the tape's accuracy. x: the fit [x min, x max, z min, z max, top] (m) along the
+    local axes e1, e2; loose: {side name: sd m}."""
+    known = [k for k in range(3) if np.isfinite(f[k, 0])]
+    a, b = f[0] - f[1], f[2] - f[1]
+    if 0 in known and 1 in known:
+        a_on_e1 = abs(a @ e1) >= abs(a @ e2)
+    elif 1 in known and 2 in known:
+        a_on_e1 = abs(b @ e1) < abs(b @ e2)
+    else:
+        a_on_e1 = True  # as _footprint: f0 and f2 diagonal
+    out = []
+    for j0, along in ((0, "x"), (2, "z")):
+        bad = [SIDES[j] in loose for j in (j0, j0 + 1)]
+        if bad[0] == bad[1]:  # both sure, or both loose: one size alone does not pin it
+            continue
+        n = 0 if a_on_e1 == (j0 == 0) else 1
+        if sizes is not None and np.isfinite(sizes[n]):
+            continue
+        out.append({"size_m": n, "floor": [n, n + 1], "along": along, "loose": SIDES[j0 + int(bad[1])],
+                    "about_m": round(float(x[j0 + 1] - x[j0]), 3)})
+    return out
 
 
 def _slab_ranges(x: np.ndarray, desk: bool, base: float = 0.0) -> tuple:
