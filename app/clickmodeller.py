@@ -112,6 +112,20 @@ class ModelController:
             k += 1
         return f"{base}{k}"
 
+    def set_size(self, name: str, k: int, metres: float) -> None:
+        """Give furniture piece `name` its size_m[k] (m, taped; the other entry kept, or null): the one
+        size the model asks for where a side is pinned worse than 3 cm and its opposite side is sure
+        (ClickModel.measure, shown in `message`). Undoable."""
+        c = next((c for c in self.clicks if c.get("label") == "furniture" and c.get("name") == name), None)
+        if c is None:
+            raise ValueError(f"no furniture piece {name!r} clicked (one of {', '.join(self.pieces()) or 'none'})")
+        if k not in (0, 1) or not (math.isfinite(metres) and metres > 0):
+            raise ValueError(f"size_m[{k}] = {metres!r}: expected index 0 or 1 and a positive length in metres")
+        self._push()
+        sizes = list(c.get("size_m") or [None, None])
+        sizes[k] = float(metres)
+        c["size_m"] = sizes
+
     # ------------------------------------------------------------------ clicking
     def inside(self, u: float, v: float) -> bool:
         return -0.5 <= u <= self.camera.width - 0.5 and -0.5 <= v <= self.camera.height - 0.5
@@ -215,8 +229,9 @@ class ModelController:
 
     def model(self):
         """(ClickModel or None, message): the model of the clicks so far (None with the refusal's
-        one line while the clicks do not make a room yet, e.g. before the first wall)."""
-        from recon.clickmodel import model_from_clicks
+        one line while the clicks do not make a room yet, e.g. before the first wall); with a model,
+        the message names each size to tape (ClickModel.measure: set_size gives it), else empty."""
+        from recon.clickmodel import model_from_clicks, tape_request
         from recon.io import SceneError
 
         if not self.clicks:
@@ -228,8 +243,8 @@ class ModelController:
             level = logger.level
             logger.setLevel(logging.ERROR)  # the preview is redone on every click: no repeated warnings
             try:
-                return model_from_clicks(self.clicks_json(), self.camera, self.src, self.ceiling_height,
-                                         photo=self.edges), ""
+                m = model_from_clicks(self.clicks_json(), self.camera, self.src, self.ceiling_height, photo=self.edges)
+                return m, "\n".join(f"{name}: {tape_request(asks)}" for name, asks in (m.measure or {}).items())
             finally:
                 logger.setLevel(level)
         except SceneError as e:

@@ -142,3 +142,32 @@ def test_controller_undo_redo_and_drag():
         assert ctl.click(*q) is None
     b = ctl.click(380, 300)
     assert ctl.pieces() == [d["name"], b["name"]] and b["on"] == d["name"] and "against" not in b
+
+
+def test_controller_names_the_size_to_tape():
+    """The model mode's message names the one size to tape where a side is pinned worse than 3 cm
+    and its opposite side is sure (ClickModel.measure): lamps_room clicked as the checker does (the
+    sofa seat's hidden back corners clicked, 1 px noise, seed 9), refined against the photo, asks for
+    the seat's and the back's depth; set_size gives the seat's (its truth, 0.9 m, as size_m[0] with
+    size_m[1] null), after which only the back is asked for, and undo asks for both again."""
+    from app.clickmodeller import ModelController
+    from bench.clicks_truth import true_clicks
+    from recon.camera import Camera
+    from recon.io import read_image_rgb
+
+    root = shared_scene("lamps_room")
+    sc = json.loads((root / "scene.json").read_text())
+    cam = Camera.from_json(sc["main_camera"], "scene.json", "main_camera.")
+    clicks, _ = true_clicks(sc, sigma_px=1.0, seed=9)
+    ctl = ModelController(cam, read_image_rgb(root / "background.png"), clicks, ceiling_height=2.6)
+    _, msg = ctl.model()
+    lines = msg.splitlines()
+    assert len(lines) == 2 and lines[0].startswith("sofa_seat: tape its length along z from floor[0] to floor[1]") \
+        and "size_m[0]" in lines[0] and lines[1].startswith("sofa_back: tape its length along z"), msg
+    with pytest.raises(ValueError, match="no furniture piece 'sofa'"):
+        ctl.set_size("sofa", 0, 0.9)
+    ctl.set_size("sofa_seat", 0, 0.9)
+    assert next(c for c in ctl.clicks if c.get("name") == "sofa_seat")["size_m"] == [0.9, None]
+    m, msg = ctl.model()
+    assert msg.startswith("sofa_back: ") and "sofa_seat" not in msg and "sofa_seat" not in m.uncertain, msg
+    assert ctl.undo() and ctl.model()[1].count("tape its length") == 2
