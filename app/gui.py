@@ -1002,6 +1002,7 @@ class ModelWindow:
         self.status = gui.Label("")
         p.add_child(self.status)
         p.add_child(gui.Label("press: next point / grab one\ndrag: move it  N corner out of photo\n"
+                              "H corner hidden behind a piece\n"
                               "Z undo  Y redo  S save"))
         w.add_child(p)
         w.set_on_layout(self._on_layout)
@@ -1086,7 +1087,7 @@ class ModelWindow:
         if e.type != gui.KeyEvent.Type.DOWN:
             return False
         actions = {gui.KeyName.Z: self._on_undo, gui.KeyName.Y: self._on_redo, gui.KeyName.S: self._on_save,
-                   gui.KeyName.N: self._on_skip}
+                   gui.KeyName.N: self._on_skip, gui.KeyName.H: self._on_skip_hidden}
         if e.key in actions:
             actions[e.key]()
             return True
@@ -1122,6 +1123,11 @@ class ModelWindow:
 
     def _on_skip(self) -> None:
         self._guard(self.ctl.skip_corner)
+        self.refresh()
+
+    def _on_skip_hidden(self) -> None:
+        """A furniture floor corner in the photo but behind a piece: null, listed in "hidden"."""
+        self._guard(self.ctl.skip_corner, True)
         self.refresh()
 
     def _on_undo(self) -> None:
@@ -1164,7 +1170,7 @@ class ModelWindow:
         the event loop (so layout and redraws happen as they would for a user). Events:
         {"tool": name}, {"on": wall name | "ceiling" | "last wall"}, {"opening": bool},
         {"size_m": "a, b"}, {"against": wall name | "no wall"}, {"stands_on": piece name | "floor"},
-        {"skip": true} (a corner out of the photo), {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
+        {"skip": true} (a corner out of the photo), {"hidden": true} (a floor corner behind a piece), {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
         (press on a clicked point, move, release), {"undo": n}, {"redo": n}, {"save": true}."""
         gui = self.gui
         from app.clickmodeller import TOOLS
@@ -1203,6 +1209,8 @@ class ModelWindow:
                 self._on_stands_on(ev["stands_on"], 0)
             elif ev.get("skip"):
                 self._on_skip()
+            elif ev.get("hidden"):
+                self._on_skip_hidden()
             elif "click" in ev:
                 mouse(T.BUTTON_DOWN, *ev["click"])
                 mouse(T.BUTTON_UP, *ev["click"])

@@ -84,7 +84,7 @@ def side_errors(sc: dict, model, piece: str) -> np.ndarray:
 
 
 def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: bool = False,
-             tape: bool = False) -> None:
+             tape: bool = False, hidden: bool = False) -> None:
     """Clicks only -> refined against the photo, per item kind, on rendered rooms. With tape: each
     size the refined model asks to tape (`model.measure`) is given (the truth's, bench/clicks_truth.
     tape_asked) and the piece refitted: its worst and median error before -> after per piece."""
@@ -112,7 +112,7 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: 
         per: dict[str, list] = {}
         worst_draw: dict[str, tuple] = {}  # furniture piece -> (error m, seed, per-side errors m, how refined)
         for seed in range(draws):
-            clicks, done = true_clicks(sc, sigma_px=noise, seed=seed, seen_only=seen_only)
+            clicks, done = true_clicks(sc, sigma_px=noise, seed=seed, seen_only=seen_only, hidden_marked=hidden)
             ch = None if done["ceiling"] else sc["world"]["room_max"][1]
             try:
                 m0 = model_from_clicks(clicks, cam, name, ch)
@@ -175,13 +175,15 @@ def main() -> None:
     ap.add_argument("--rooms", type=Path, default=None, help="folder of rendered rooms (with --only)")
     ap.add_argument("--only", default="window_room,lamps_room,sun_room", help="rooms, comma-separated")
     ap.add_argument("--draws", type=int, default=10, help="noise seeds per rendered room")
+    ap.add_argument("--hidden", action="store_true", help="with --seen-only: a null corner that lies in the photo "
+                    "behind a piece is marked so (the click's \"hidden\")")
     ap.add_argument("--tape", action="store_true", help="with --rooms: give each size the refined model asks to "
                     "tape (model.measure; the truth's) and refit: per piece before -> after")
     ap.add_argument("--seen-only", action="store_true", help="with --rooms: click only the furniture corners no "
                     "piece hides (hidden ones null, the footprint's sizes measured: bench/clicks_truth.py)")
     a = ap.parse_args()
     if a.rooms is not None:
-        rendered(a.rooms.expanduser(), [r for r in a.only.split(",") if r], a.draws, a.noise, a.seen_only, a.tape)
+        rendered(a.rooms.expanduser(), [r for r in a.only.split(",") if r], a.draws, a.noise, a.seen_only, a.tape, a.hidden)
         return
     lo_s, _, hi_s = a.seeds.partition("-")
     seeds = range(int(lo_s), int(hi_s or lo_s) + 1)

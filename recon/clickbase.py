@@ -184,15 +184,21 @@ class _Clicks:
             raise self.err(where, f"size_m must be positive (one of the two may be null), got {raw!r}")
         return v
 
-    def missing_end(self, where: str, known: float, size: np.ndarray | None, k: int, corners) -> float:
+    def missing_end(self, where: str, known: float, size: np.ndarray | None, k: int, corners,
+                    behind: bool = False) -> float:
         """The end of a side no clicked corner pins: `known` -/+ size[k], whichever puts the unclicked
         corners (callable end -> list of world points) out of the photo; when both put them in it, the
         corners are hidden (behind the piece, or another one): the end that puts them further from
-        the camera."""
+        the camera. behind: the user says the unclicked corner is in the photo, hidden (the clicks
+        file's "hidden"): the end that puts it in the photo (of two, the further from the camera)."""
         if size is None or not np.isfinite(size[k]):
             raise self.err(where, "a side has no clicked corner (corners out of the photo are null): give its "
                                   f"length in size_m[{k}], or the wall it stands against in 'against'")
         ends = (known - size[k], known + size[k])
+        if behind:
+            inside = [e for e in ends if not any(self.outside(X) for X in corners(e))] or list(ends)
+            far = [float(np.mean([np.linalg.norm(X - self.camera.centre) for X in corners(e)])) for e in inside]
+            return float(inside[int(np.argmax(far))])
         ok = [e for e in ends if all(self.outside(X) for X in corners(e))]
         if not ok:
             far = [float(np.mean([np.linalg.norm(X - self.camera.centre) for X in corners(e)])) for e in ends]

@@ -16,12 +16,14 @@ from recon.clickbase import (CLICK_SIGMA_PX, DESK_LEG_INSET_M, DESK_LEG_M, DESK_
 
 
 def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, against: Wall | None = None,
-               noise_m: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray]:
+               noise_m: np.ndarray | None = None, hidden: frozenset = frozenset()) -> tuple[float, np.ndarray, np.ndarray]:
     """Upright rectangle through floor corners f (3,3) (f[1] the corner between the others; a row of
     nan: a corner out of the photo): yaw (rad, about +Y as recon/scene.rot_y: local x = (cos, 0,
     -sin)), and its sorted ranges (2,) along local x and local z (m). Each side is the mean of the
     clicked corners on it; a side with none is size_m away from the opposite one, or on the wall
-    `against` (the wall the piece stands against). The footprint is axis-aligned when its yaw is
+    `against` (the wall the piece stands against); a corner in `hidden` (indices of null corners the
+    user saw in the photo, behind the piece or another one) on the side that keeps it in the photo.
+    The footprint is axis-aligned when its yaw is
     within SNAP_DEG of the room's axes, or within what the clicks' noise turns its edges by (Z99
     sigma; noise_m (3,): metres of floor one click sigma spans at each corner, across its edge): two
     corners a short edge apart far off cannot tell 12 deg from 0."""
@@ -75,7 +77,7 @@ def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, a
             if size is None and against is not None and abs(axis_vec[against.axis]) > 1 - 1e-9:
                 far = against.offset * float(axis_vec[against.axis])
             else:
-                far = P.missing_end(where, near, size, k, corners)
+                far = P.missing_end(where, near, size, k, corners, lone in hidden)
         ends.append(np.sort(np.array([far, near])))
     xr, zr = (ends[0], ends[1]) if a_on_e1 else (ends[1], ends[0])
     return yaw, xr, zr
@@ -523,7 +525,12 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
         raise P.err(where, f"'against' must name a clicked wall ({', '.join(sorted(wall_of))}), got {against!r}")
     sigma = P.edges.sigma if P.edges is not None else CLICK_SIGMA_PX
     noise_m = np.array([sigma * _pixel_metres(P, uv[k], base) if np.isfinite(uv[k, 0]) else np.nan for k in range(3)])
-    yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where), wall_of.get(against), noise_m)
+    hidden = c.get("hidden", [])
+    if not isinstance(hidden, list) or any(type(i) is not int or i not in (1, 2) or np.isfinite(uv[i, 0])
+                                           for i in hidden):
+        raise P.err(where, f"'hidden' must list null floor corners (1 or 2) that lie in the photo behind the piece "
+                           f"or another one, got {hidden!r}")
+    yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where), wall_of.get(against), noise_m, frozenset(hidden))
     # height: the vertical line over floor[0] nearest the top click's ray (least squares in h, s)
     C, d = ray(P.camera, top_uv)
     A = np.stack([np.array([0.0, 1.0, 0.0]), -d], axis=1)

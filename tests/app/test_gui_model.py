@@ -171,3 +171,28 @@ def test_controller_names_the_size_to_tape():
     m, msg = ctl.model()
     assert msg.startswith("sofa_back: ") and "sofa_seat" not in msg and "sofa_seat" not in m.uncertain, msg
     assert ctl.undo() and ctl.model()[1].count("tape its length") == 2
+
+
+def test_controller_marks_a_hidden_corner():
+    """skip_corner(hidden=True) on a box's third floor corner: null, listed in the click's "hidden"
+    (undo forgets it); a window corner cannot be marked hidden."""
+    from app.clickmodeller import ModelController
+    from recon.camera import Camera
+
+    sc = json.loads((shared_scene("lamps_room") / "scene.json").read_text())
+    cam = Camera.from_json(sc["main_camera"], "scene.json", "main_camera.")
+    ctl = ModelController(cam, np.zeros((cam.height, cam.width, 3), np.uint8))
+    ctl.set_tool("wall")
+    ctl.click(100, 300)
+    ctl.click(300, 260)
+    ctl.set_tool("box")
+    ctl.size_m = [1.2, 1.0]
+    ctl.click(196, 262)
+    ctl.click(63, 262)
+    assert ctl.skip_corner(hidden=True) is None and ctl.pending_hidden == [2]
+    assert ctl.undo() and ctl.pending_hidden == [] and ctl.redo() and ctl.pending_hidden == [2]
+    box = ctl.click(192, 215)
+    assert box["floor"][2] is None and box["hidden"] == [2] and box["size_m"] == [1.2, 1.0], box
+    ctl.set_tool("window")
+    with pytest.raises(ValueError, match="only a furniture floor corner"):
+        ctl.skip_corner(hidden=True)
