@@ -156,7 +156,9 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: 
                       f"{np.median(v[:, 0]) * 100:6.1f} -> {np.median(v[:, 1]) * 100:4.1f} {int(v[:, 2].sum())}/{len(v)}")
         v = np.array([q for vs in taped.values() for q in vs], float)
         print(f"furniture {len(v)} draws: within 3 cm {int((v[:, 0] <= 0.03).sum())} -> {int((v[:, 1] <= 0.03).sum())}; "
-              f"a size asked in {int(v[:, 2].sum())}; beyond 3 cm after taping {int((v[:, 1] > 0.03).sum())}")
+              f"a size asked in {int(v[:, 2].sum())}; beyond 3 cm after taping {int((v[:, 1] > 0.03).sum())}; "
+              f"worse after taping (by more than 1 mm) {int((v[:, 1] > v[:, 0] + 0.001).sum())}, by at most "
+              f"{max(0.0, float((v[:, 1] - v[:, 0]).max())) * 100:.1f} cm")
     print()
     for kind, v in every.items():
         v = np.array(v)
