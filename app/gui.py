@@ -990,6 +990,11 @@ class ModelWindow:
         self.against.set_on_selection_changed(self._on_against)
         row.add_child(self.against)
         p.add_child(row)
+        p.add_child(gui.Label("Taped size the status asks for: piece, k, metres"))
+        self.tape = gui.TextEdit()
+        self.tape.placeholder_text = "sofa_seat 0 0.9"
+        self.tape.set_on_value_changed(self._on_tape)
+        p.add_child(self.tape)
         b_skip = gui.Button("Corner out of photo (N)")
         b_skip.set_on_clicked(self._on_skip)
         p.add_child(b_skip)
@@ -1115,6 +1120,24 @@ class ModelWindow:
         if text.strip() and not ok:
             self.status.text = f"sizes: expected two positive numbers in metres, got {text!r}"
 
+    def _on_tape(self, text: str) -> None:
+        """"PIECE K METRES": the piece's size_m[K], taped (ModelController.set_size)."""
+        parts = text.replace(",", " ").split()
+        try:
+            name, k, metres = parts[0], int(parts[1]), float(parts[2])
+            if len(parts) != 3:
+                raise ValueError
+        except (IndexError, ValueError):
+            if text.strip():
+                self.status.text = f"taped size: expected 'piece k metres' (e.g. sofa_seat 0 0.9), got {text!r}"
+            return
+        try:
+            self.ctl.set_size(name, k, metres)
+        except ValueError as e:
+            self.status.text = str(e)
+            return
+        self.refresh()
+
     def _on_against(self, text: str, index: int) -> None:
         self.ctl.against = None if text == "no wall" else text
 
@@ -1170,7 +1193,7 @@ class ModelWindow:
         the event loop (so layout and redraws happen as they would for a user). Events:
         {"tool": name}, {"on": wall name | "ceiling" | "last wall"}, {"opening": bool},
         {"size_m": "a, b"}, {"against": wall name | "no wall"}, {"stands_on": piece name | "floor"},
-        {"skip": true} (a corner out of the photo), {"hidden": true} (a floor corner behind a piece), {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
+        {"skip": true} (a corner out of the photo), {"hidden": true} (a floor corner behind a piece), {"tape": "piece k metres"} (a taped size_m[k]), {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
         (press on a clicked point, move, release), {"undo": n}, {"redo": n}, {"save": true}."""
         gui = self.gui
         from app.clickmodeller import TOOLS
@@ -1211,6 +1234,9 @@ class ModelWindow:
                 self._on_skip()
             elif ev.get("hidden"):
                 self._on_skip_hidden()
+            elif "tape" in ev:
+                self.tape.text_value = str(ev["tape"])
+                self._on_tape(str(ev["tape"]))
             elif "click" in ev:
                 mouse(T.BUTTON_DOWN, *ev["click"])
                 mouse(T.BUTTON_UP, *ev["click"])
