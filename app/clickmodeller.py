@@ -53,6 +53,7 @@ class ModelController:
         self.against: str | None = None  # the wall a furniture piece stands against
         self.stands_on: str | None = None  # the furniture piece a new one stands on ("on"; None: the floor)
         self.pending: list[list[float] | None] = []
+        self.pending_hidden: list[int] = []  # the pending piece's null floor corners seen behind a piece ("hidden")
         self._undo: list[tuple] = []
         self._redo: list[tuple] = []
         self._drag: Handle | None = None
@@ -70,7 +71,7 @@ class ModelController:
 
     # ------------------------------------------------------------------ state and history
     def _state(self) -> tuple:
-        return copy.deepcopy(self.clicks), copy.deepcopy(self.pending)
+        return copy.deepcopy(self.clicks), copy.deepcopy(self.pending), list(self.pending_hidden)
 
     def _push(self) -> None:
         self._undo.append(self._state())
@@ -80,14 +81,14 @@ class ModelController:
         if not self._undo:
             return False
         self._redo.append(self._state())
-        self.clicks, self.pending = self._undo.pop()
+        self.clicks, self.pending, self.pending_hidden = self._undo.pop()
         return True
 
     def redo(self) -> bool:
         if not self._redo:
             return False
         self._undo.append(self._state())
-        self.clicks, self.pending = self._redo.pop()
+        self.clicks, self.pending, self.pending_hidden = self._redo.pop()
         return True
 
     def set_tool(self, tool: str) -> None:
@@ -95,7 +96,7 @@ class ModelController:
             raise ValueError(f"unknown tool {tool!r} (one of {', '.join(TOOLS)})")
         if tool != self.tool and self.pending:
             self._push()
-            self.pending = []
+            self.pending, self.pending_hidden = [], []
         self.tool = tool
 
     def walls(self) -> list[str]:
@@ -112,6 +113,20 @@ class ModelController:
             k += 1
         return f"{base}{k}"
 
+    def set_size(self, name: str, k: int, metres: float) -> None:
+        """Give furniture piece `name` its size_m[k] (m, taped; the other entry kept, or null): the one
+        size the model asks for where a side is pinned worse than 3 cm and its opposite side is sure
+        (ClickModel.measure, shown in `message`). Undoable."""
+        c = next((c for c in self.clicks if c.get("label") == "furniture" and c.get("name") == name), None)
+        if c is None:
+            raise ValueError(f"no furniture piece {name!r} clicked (one of {', '.join(self.pieces()) or 'none'})")
+        if k not in (0, 1) or not (math.isfinite(metres) and metres > 0):
+            raise ValueError(f"size_m[{k}] = {metres!r}: expected index 0 or 1 and a positive length in metres")
+        self._push()
+        sizes = list(c.get("size_m") or [None, None])
+        sizes[k] = float(metres)
+        c["size_m"] = sizes
+
     # ------------------------------------------------------------------ clicking
     def inside(self, u: float, v: float) -> bool:
         return -0.5 <= u <= self.camera.width - 0.5 and -0.5 <= v <= self.camera.height - 0.5
@@ -127,13 +142,19 @@ class ModelController:
         self.pending.append([float(u), float(v)])
         return self._complete()
 
-    def skip_corner(self) -> dict | None:
-        """The next corner is out of the photo (null); returns the click entry it completes."""
+    def skip_corner(self, hidden: bool = False) -> dict | None:
+        """The next corner is out of the photo (null), or with `hidden` (furniture) in the photo but
+        behind the piece or another one (null, listed in the click's "hidden"); returns the click
+        entry it completes."""
         k = len(self.pending)
         if not ((self.tool in ("desk", "box") and k in (1, 2)) or (self.tool in ("window", "lamp") and k < 4)):
             raise ValueError(f"{self.tool}: point {k + 1} cannot be out of the photo (furniture: the second or third "
                              "floor corner; windows and lamps: any corner)")
+        if hidden and self.tool not in ("desk", "box"):
+            raise ValueError(f"{self.tool}: only a furniture floor corner can be marked hidden")
         self._push()
+        if hidden:
+            self.pending_hidden.append(k)
         self.pending.append(None)
         return self._complete()
 
@@ -142,6 +163,7 @@ class ModelController:
             return None
         walls = self.walls()
         p, self.pending = self.pending, []
+        hidden, self.pending_hidden = self.pending_hidden, []
         t = self.tool
         if t == "wall":
             c = {"label": "wall", "name": self._name("wall"), "floor_line": p}
@@ -154,6 +176,8 @@ class ModelController:
                 c["against"] = self.against
             if self.stands_on:  # its floor corners clicked on that piece's top
                 c["on"] = self.stands_on
+            if hidden:
+                c["hidden"] = sorted(hidden)
         else:
             on = self.quad_on or (walls[-1] if walls else "ceiling")
             c = {"label": t, "name": self._name(t), "on": on, "corners": p,
@@ -215,8 +239,9 @@ class ModelController:
 
     def model(self):
         """(ClickModel or None, message): the model of the clicks so far (None with the refusal's
-        one line while the clicks do not make a room yet, e.g. before the first wall)."""
-        from recon.clickmodel import model_from_clicks
+        one line while the clicks do not make a room yet, e.g. before the first wall); with a model,
+        the message names each size to tape (ClickModel.measure: set_size gives it), else empty."""
+        from recon.clickmodel import model_from_clicks, tape_request
         from recon.io import SceneError
 
         if not self.clicks:
@@ -228,8 +253,8 @@ class ModelController:
             level = logger.level
             logger.setLevel(logging.ERROR)  # the preview is redone on every click: no repeated warnings
             try:
-                return model_from_clicks(self.clicks_json(), self.camera, self.src, self.ceiling_height,
-                                         photo=self.edges), ""
+                m = model_from_clicks(self.clicks_json(), self.camera, self.src, self.ceiling_height, photo=self.edges)
+                return m, "\n".join(f"{name}: {tape_request(asks)}" for name, asks in (m.measure or {}).items())
             finally:
                 logger.setLevel(level)
         except SceneError as e:

@@ -990,6 +990,11 @@ class ModelWindow:
         self.against.set_on_selection_changed(self._on_against)
         row.add_child(self.against)
         p.add_child(row)
+        p.add_child(gui.Label("Taped size the status asks for: piece, k, metres"))
+        self.tape = gui.TextEdit()
+        self.tape.placeholder_text = "sofa_seat 0 0.9"
+        self.tape.set_on_value_changed(self._on_tape)
+        p.add_child(self.tape)
         b_skip = gui.Button("Corner out of photo (N)")
         b_skip.set_on_clicked(self._on_skip)
         p.add_child(b_skip)
@@ -1002,6 +1007,7 @@ class ModelWindow:
         self.status = gui.Label("")
         p.add_child(self.status)
         p.add_child(gui.Label("press: next point / grab one\ndrag: move it  N corner out of photo\n"
+                              "H corner hidden behind a piece\n"
                               "Z undo  Y redo  S save"))
         w.add_child(p)
         w.set_on_layout(self._on_layout)
@@ -1086,7 +1092,7 @@ class ModelWindow:
         if e.type != gui.KeyEvent.Type.DOWN:
             return False
         actions = {gui.KeyName.Z: self._on_undo, gui.KeyName.Y: self._on_redo, gui.KeyName.S: self._on_save,
-                   gui.KeyName.N: self._on_skip}
+                   gui.KeyName.N: self._on_skip, gui.KeyName.H: self._on_skip_hidden}
         if e.key in actions:
             actions[e.key]()
             return True
@@ -1114,6 +1120,24 @@ class ModelWindow:
         if text.strip() and not ok:
             self.status.text = f"sizes: expected two positive numbers in metres, got {text!r}"
 
+    def _on_tape(self, text: str) -> None:
+        """"PIECE K METRES": the piece's size_m[K], taped (ModelController.set_size)."""
+        parts = text.replace(",", " ").split()
+        try:
+            name, k, metres = parts[0], int(parts[1]), float(parts[2])
+            if len(parts) != 3:
+                raise ValueError
+        except (IndexError, ValueError):
+            if text.strip():
+                self.status.text = f"taped size: expected 'piece k metres' (e.g. sofa_seat 0 0.9), got {text!r}"
+            return
+        try:
+            self.ctl.set_size(name, k, metres)
+        except ValueError as e:
+            self.status.text = str(e)
+            return
+        self.refresh()
+
     def _on_against(self, text: str, index: int) -> None:
         self.ctl.against = None if text == "no wall" else text
 
@@ -1122,6 +1146,11 @@ class ModelWindow:
 
     def _on_skip(self) -> None:
         self._guard(self.ctl.skip_corner)
+        self.refresh()
+
+    def _on_skip_hidden(self) -> None:
+        """A furniture floor corner in the photo but behind a piece: null, listed in "hidden"."""
+        self._guard(self.ctl.skip_corner, True)
         self.refresh()
 
     def _on_undo(self) -> None:
@@ -1164,7 +1193,7 @@ class ModelWindow:
         the event loop (so layout and redraws happen as they would for a user). Events:
         {"tool": name}, {"on": wall name | "ceiling" | "last wall"}, {"opening": bool},
         {"size_m": "a, b"}, {"against": wall name | "no wall"}, {"stands_on": piece name | "floor"},
-        {"skip": true} (a corner out of the photo), {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
+        {"skip": true} (a corner out of the photo), {"hidden": true} (a floor corner behind a piece), {"tape": "piece k metres"} (a taped size_m[k]), {"click": [u, v]} (photo pixels: press and release there), {"drag": [[u0, v0], [u1, v1]]}
         (press on a clicked point, move, release), {"undo": n}, {"redo": n}, {"save": true}."""
         gui = self.gui
         from app.clickmodeller import TOOLS
@@ -1203,6 +1232,11 @@ class ModelWindow:
                 self._on_stands_on(ev["stands_on"], 0)
             elif ev.get("skip"):
                 self._on_skip()
+            elif ev.get("hidden"):
+                self._on_skip_hidden()
+            elif "tape" in ev:
+                self.tape.text_value = str(ev["tape"])
+                self._on_tape(str(ev["tape"]))
             elif "click" in ev:
                 mouse(T.BUTTON_DOWN, *ev["click"])
                 mouse(T.BUTTON_UP, *ev["click"])

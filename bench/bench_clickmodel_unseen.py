@@ -83,8 +83,11 @@ def side_errors(sc: dict, model, piece: str) -> np.ndarray:
     return got - np.r_[g["x"], g["z"], g["top"]]
 
 
-def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: bool = False) -> None:
-    """Clicks only -> refined against the photo, per item kind, on rendered rooms."""
+def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: bool = False,
+             tape: bool = False, hidden: bool = False) -> None:
+    """Clicks only -> refined against the photo, per item kind, on rendered rooms. With tape: each
+    size the refined model asks to tape (`model.measure`) is given (the truth's, bench/clicks_truth.
+    tape_asked) and the piece refitted: its worst and median error before -> after per piece."""
     import json
     import time
 
@@ -92,11 +95,12 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: 
     from recon.clickmodel import ClickError, model_from_clicks
     from recon.edgesnap import EdgeImage
     from recon.io import read_image_rgb
-    from bench.clicks_truth import true_clicks
+    from bench.clicks_truth import tape_asked, true_clicks
     from tests.recon.test_clickmodel import _errors
 
     logging.disable(logging.WARNING)
     every: dict[str, list] = {}
+    taped: dict[str, list] = {}  # room piece -> [(refined error m, with the asked sizes taped m, asked)]
     print(f"{'room':<12} {'item':<16} {'median cm':>14} {'worst cm':>14} {'1 px cm':>8} refined ill")
     for name in only:
         root = Path(name) if "/" in name else (rooms / name if (rooms / name).is_dir()
@@ -108,7 +112,7 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: 
         per: dict[str, list] = {}
         worst_draw: dict[str, tuple] = {}  # furniture piece -> (error m, seed, per-side errors m, how refined)
         for seed in range(draws):
-            clicks, done = true_clicks(sc, sigma_px=noise, seed=seed, seen_only=seen_only)
+            clicks, done = true_clicks(sc, sigma_px=noise, seed=seed, seen_only=seen_only, hidden_marked=hidden)
             ch = None if done["ceiling"] else sc["world"]["room_max"][1]
             try:
                 m0 = model_from_clicks(clicks, cam, name, ch)
@@ -117,6 +121,12 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: 
                 print(f"{name:<12} seed {seed}: refused: {e}")
                 continue
             e0, e1 = _errors(sc, cam, clicks, done, m0), _errors(sc, cam, clicks, done, m1)
+            if tape:
+                asked = m1.measure or {}
+                e2 = _errors(sc, cam, clicks, done, model_from_clicks(tape_asked(sc, clicks, asked), cam, name, ch,
+                                                                      photo=edges)) if asked else e1
+                for piece in done["furniture"]:
+                    taped.setdefault(f"{name} {piece}", []).append((e1[piece][0], e2[piece][0], piece in asked))
             for item in e0:
                 key = item.removeprefix("wall ")
                 per.setdefault(item, []).append((e0[item][0], e1[item][0], e0[item][1],
@@ -137,6 +147,18 @@ def rendered(rooms: Path, only: list[str], draws: int, noise: float, seen_only: 
                       " ".join(f"{k} {v * 100:+.1f}" for k, v in zip(("x min", "x max", "z min", "z max", "top"), sides))
                       + f" cm ({how})")
         print(f"{name:<12} ({time.time() - t:.1f} s for {draws} draws, both fits)")
+    if tape:
+        print(f"\n{'piece':<28} {'worst cm':>14} {'median cm':>14} asked  (refined -> with the asked size taped)")
+        for key, v in taped.items():
+            v = np.array(v, float)
+            if v[:, 2].any() or v[:, 0].max() > 0.03:
+                print(f"{key:<28} {v[:, 0].max() * 100:6.1f} -> {v[:, 1].max() * 100:4.1f} "
+                      f"{np.median(v[:, 0]) * 100:6.1f} -> {np.median(v[:, 1]) * 100:4.1f} {int(v[:, 2].sum())}/{len(v)}")
+        v = np.array([q for vs in taped.values() for q in vs], float)
+        print(f"furniture {len(v)} draws: within 3 cm {int((v[:, 0] <= 0.03).sum())} -> {int((v[:, 1] <= 0.03).sum())}; "
+              f"a size asked in {int(v[:, 2].sum())}; beyond 3 cm after taping {int((v[:, 1] > 0.03).sum())}; "
+              f"worse after taping (by more than 1 mm) {int((v[:, 1] > v[:, 0] + 0.001).sum())}, by at most "
+              f"{max(0.0, float((v[:, 1] - v[:, 0]).max())) * 100:.1f} cm")
     print()
     for kind, v in every.items():
         v = np.array(v)
@@ -155,11 +177,15 @@ def main() -> None:
     ap.add_argument("--rooms", type=Path, default=None, help="folder of rendered rooms (with --only)")
     ap.add_argument("--only", default="window_room,lamps_room,sun_room", help="rooms, comma-separated")
     ap.add_argument("--draws", type=int, default=10, help="noise seeds per rendered room")
+    ap.add_argument("--hidden", action="store_true", help="with --seen-only: a null corner that lies in the photo "
+                    "behind a piece is marked so (the click's \"hidden\")")
+    ap.add_argument("--tape", action="store_true", help="with --rooms: give each size the refined model asks to "
+                    "tape (model.measure; the truth's) and refit: per piece before -> after")
     ap.add_argument("--seen-only", action="store_true", help="with --rooms: click only the furniture corners no "
                     "piece hides (hidden ones null, the footprint's sizes measured: bench/clicks_truth.py)")
     a = ap.parse_args()
     if a.rooms is not None:
-        rendered(a.rooms.expanduser(), [r for r in a.only.split(",") if r], a.draws, a.noise, a.seen_only)
+        rendered(a.rooms.expanduser(), [r for r in a.only.split(",") if r], a.draws, a.noise, a.seen_only, a.tape, a.hidden)
         return
     lo_s, _, hi_s = a.seeds.partition("-")
     seeds = range(int(lo_s), int(hi_s or lo_s) + 1)

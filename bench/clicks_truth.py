@@ -75,7 +75,7 @@ def support(groups: list[dict], g: dict) -> dict | None:
 
 
 def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: int = 2, seen_only: bool = False,
-                stacked: bool = False) -> tuple[dict, dict]:
+                stacked: bool = False, hidden_marked: bool = False) -> tuple[dict, dict]:
     """(clicks dict with `wall_points` points on each wall's foot, what was clicked: {"walls": [faces], "ceiling": bool, "furniture": [names],
     "quads": [names], "skipped": [names]}) for a benchmark scene.json dict. With `seen_only`, a
     furniture corner another piece or the piece itself hides is not clicked either (as a user who
@@ -83,7 +83,8 @@ def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: 
     with no visible floor corner under its top click is skipped. With `stacked`, a piece standing on
     another (a sofa's back on its seat: bench `support`) is clicked as such: `"on"` names that one and
     its `floor` corners are where it meets that one's top (else its footprint's corners on the floor
-    under it, hidden or not)."""
+    under it, hidden or not). With `hidden_marked` (and seen_only), a null floor corner that lies in
+    the frame behind a piece is listed in the click's "hidden" (the user saw where it is)."""
     rng = np.random.default_rng(seed)
     mc = scene["main_camera"]
     cam = Camera.from_json(mc, "scene.json", "main_camera.")
@@ -128,6 +129,7 @@ def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: 
                 top = ring[k] + [0, g["top"] - base, 0]
                 vis = _visible(cam, ring[idx])
                 top_vis = _visible(cam, top[None])[0]
+                framed = vis.copy()
                 if seen_only:
                     vis = vis & _unhidden(cam, scene, g, ring[idx])
                     top_vis = top_vis and bool(_unhidden(cam, scene, g, top)[0])
@@ -136,13 +138,15 @@ def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: 
                 uv, _ = cam.project(ring[idx])
                 score = (int(vis.sum()), float(np.linalg.norm(uv[1] - uv[0]) + np.linalg.norm(uv[2] - uv[1])))
                 if best is None or score > best[0]:
-                    best = (score, idx, top, vis)
+                    best = (score, idx, top, vis, framed)
         if best is None:
             done["skipped"].append(g["name"])
             continue
-        _, idx, top, vis = best
+        _, idx, top, vis, framed = best
         floor = [px(ring[i]) if v else None for i, v in zip(idx, vis)]
         c = {"label": "furniture", "name": g["name"], "kind": g["kind"], "floor": floor, "top": px(top)}
+        if hidden_marked and (framed & ~vis).any():  # null corners seen to lie in the photo, behind a piece
+            c["hidden"] = [int(k) for k in np.flatnonzero(framed & ~vis)]
         if under is not None:
             c["on"] = under["name"]
         if not vis.all():  # the user measures the footprint's sides
@@ -176,3 +180,22 @@ def true_clicks(scene: dict, sigma_px: float = 1.0, seed: int = 0, wall_points: 
         clicks.append(c)
         done["quads"].append(p["name"])
     return {"clicks": clicks}, done
+
+
+def tape_asked(scene: dict, clicks: dict, measure: dict, tape_error_m: float = 0.0) -> dict:
+    """A copy of clicks with each size the model asked to tape (ClickModel.measure / primitives.json's
+    `model.measure`: piece -> [{"size_m": index, "along": "x" | "z", ...}]) given in that piece's
+    size_m: the truth's length of the piece along that axis plus tape_error_m (m), as a user with a tape
+    measure answers the model's warning (the other entry stays as it was, or null)."""
+    import copy
+
+    groups = {g["name"]: g for g in furniture_groups(scene)}
+    out = copy.deepcopy(clicks)
+    for c in out["clicks"]:
+        for ask in measure.get(c.get("name"), []) if c.get("label") == "furniture" else []:
+            g = groups[c["name"]]
+            lo, hi = g[ask["along"]]
+            sizes = list(c.get("size_m") or [None, None])
+            sizes[ask["size_m"]] = float(hi - lo) + tape_error_m
+            c["size_m"] = sizes
+    return out

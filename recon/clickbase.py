@@ -67,6 +67,9 @@ class ClickModel:
     refined: dict[str, str] | None = None  # with the photo: each wall / piece / quad -> how it was refined
     uncertain: dict[str, dict[str, float]] | None = None  # with the photo: piece -> {side: standard deviation
     # m} of the sides pinned less well than TOLERANCE_M (at Z99 sigma)
+    measure: dict[str, list[dict]] | None = None  # with the photo: piece -> [{"size_m": index, "floor": [i, i + 1],
+    # "along": "x" | "z", "loose": side, "about_m": the fit's length}]: the one size a tape gives for a loose
+    # side whose opposite side is sure (_refine_box)
 
     def to_json(self) -> dict:
         model = {"from": "clicks", "ceiling_from": self.ceiling_from, "guessed_walls": self.guessed}
@@ -74,6 +77,7 @@ class ClickModel:
             model["refined_from_photo"] = self.refined
             model["ill_determined"] = {k: {side: round(Z99 * v, 4) for side, v in sides.items()}
                                        for k, sides in (self.uncertain or {}).items()}
+            model["measure"] = self.measure or {}
         return {"primitives": self.primitives, "model": model}
 
 
@@ -116,6 +120,7 @@ class _Clicks:
         self.occluders = occluders or []  # the clicks-only model's furniture boxes
         self.refined: dict[str, str] = {}
         self.uncertain: dict[str, dict[str, float]] = {}  # piece -> {side: standard deviation m} (TOLERANCE_M)
+        self.measure: dict[str, list[dict]] = {}  # piece -> the sizes to tape that would pin its loose sides
         self.ceiling_sd = 0.0  # m: the ceiling height's standard deviation when clicked (with the photo)
         self.wall_sd: dict[tuple[int, int], float] = {}  # (axis, side) -> a clicked wall offset's sd (m) for
         # _hold_on_walls, with the photo: at least its foot line's noise floor in metres
@@ -162,23 +167,38 @@ class _Clicks:
         return bool(z[0] <= 0 or not (-0.5 <= u <= self.camera.width - 0.5 and -0.5 <= v <= self.camera.height - 0.5))
 
     def sizes(self, c: dict, where: str) -> np.ndarray | None:
-        """The optional "size_m" [a, b] (m, positive) of a primitive with corners out of the photo."""
+        """The optional "size_m" [a, b] (m, positive; one of them may be null: nan, the one size the
+        model asked to tape, `model.measure`) of a primitive with corners out of the photo or a side
+        its clicks and the photo pin loosely."""
         if c.get("size_m") is None:
             return None
-        v = json_array(c["size_m"], (2,), f"{where}.size_m", self.src)
-        if not np.all(v > 0):
-            raise self.err(where, f"size_m must be positive, got {v.tolist()}")
+        raw = c["size_m"]
+        if isinstance(raw, list) and len(raw) == 2 and any(q is None for q in raw) and not all(q is None for q in raw):
+            k = next(i for i, q in enumerate(raw) if q is not None)
+            one = json_array([raw[k]], (1,), f"{where}.size_m[{k}]", self.src)[0]
+            v = np.full(2, np.nan)
+            v[k] = one
+        else:
+            v = json_array(raw, (2,), f"{where}.size_m", self.src)
+        if not np.all(v[np.isfinite(v)] > 0) or np.isnan(v).all():
+            raise self.err(where, f"size_m must be positive (one of the two may be null), got {raw!r}")
         return v
 
-    def missing_end(self, where: str, known: float, size: np.ndarray | None, k: int, corners) -> float:
+    def missing_end(self, where: str, known: float, size: np.ndarray | None, k: int, corners,
+                    behind: bool = False) -> float:
         """The end of a side no clicked corner pins: `known` -/+ size[k], whichever puts the unclicked
         corners (callable end -> list of world points) out of the photo; when both put them in it, the
         corners are hidden (behind the piece, or another one): the end that puts them further from
-        the camera."""
-        if size is None:
+        the camera. behind: the user says the unclicked corner is in the photo, hidden (the clicks
+        file's "hidden"): the end that puts it in the photo (of two, the further from the camera)."""
+        if size is None or not np.isfinite(size[k]):
             raise self.err(where, "a side has no clicked corner (corners out of the photo are null): give its "
-                                  "length in size_m, or the wall it stands against in 'against'")
+                                  f"length in size_m[{k}], or the wall it stands against in 'against'")
         ends = (known - size[k], known + size[k])
+        if behind:
+            inside = [e for e in ends if not any(self.outside(X) for X in corners(e))] or list(ends)
+            far = [float(np.mean([np.linalg.norm(X - self.camera.centre) for X in corners(e)])) for e in inside]
+            return float(inside[int(np.argmax(far))])
         ok = [e for e in ends if all(self.outside(X) for X in corners(e))]
         if not ok:
             far = [float(np.mean([np.linalg.norm(X - self.camera.centre) for X in corners(e)])) for e in ends]

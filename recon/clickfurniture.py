@@ -16,12 +16,14 @@ from recon.clickbase import (CLICK_SIGMA_PX, DESK_LEG_INSET_M, DESK_LEG_M, DESK_
 
 
 def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, against: Wall | None = None,
-               noise_m: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray]:
+               noise_m: np.ndarray | None = None, hidden: frozenset = frozenset()) -> tuple[float, np.ndarray, np.ndarray]:
     """Upright rectangle through floor corners f (3,3) (f[1] the corner between the others; a row of
     nan: a corner out of the photo): yaw (rad, about +Y as recon/scene.rot_y: local x = (cos, 0,
     -sin)), and its sorted ranges (2,) along local x and local z (m). Each side is the mean of the
     clicked corners on it; a side with none is size_m away from the opposite one, or on the wall
-    `against` (the wall the piece stands against). The footprint is axis-aligned when its yaw is
+    `against` (the wall the piece stands against); a corner in `hidden` (indices of null corners the
+    user saw in the photo, behind the piece or another one) on the side that keeps it in the photo.
+    The footprint is axis-aligned when its yaw is
     within SNAP_DEG of the room's axes, or within what the clicks' noise turns its edges by (Z99
     sigma; noise_m (3,): metres of floor one click sigma spans at each corner, across its edge): two
     corners a short edge apart far off cannot tell 12 deg from 0."""
@@ -75,7 +77,7 @@ def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, a
             if size is None and against is not None and abs(axis_vec[against.axis]) > 1 - 1e-9:
                 far = against.offset * float(axis_vec[against.axis])
             else:
-                far = P.missing_end(where, near, size, k, corners)
+                far = P.missing_end(where, near, size, k, corners, lone in hidden)
         ends.append(np.sort(np.array([far, near])))
     xr, zr = (ends[0], ends[1]) if a_on_e1 else (ends[1], ends[0])
     return yaw, xr, zr
@@ -107,7 +109,7 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
                 end = ix if j0 == 0 else iz  # size_m: [|floor[0] floor[1]|, |floor[1] floor[2]|]
                 size = next((sizes[n] for n, (p, q) in enumerate(((0, 1), (1, 2)))
                              if p in end and q in end and end[p] != end[q]), None)
-                if size is None:
+                if size is None or not np.isfinite(size):  # not measured (the other one was)
                     continue
                 axis_vec = e1 if j0 == 0 else e2
                 c = float(camera.centre @ axis_vec)
@@ -180,6 +182,9 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
         loose.update({SIDES[j]: float(v) for j, (_, v) in held.items() if not Z99 * v <= TOLERANCE_M})
         if loose:
             P.uncertain[name] = loose
+            ask = _sizes_to_tape(f, e1, e2, full(y), loose, sizes)
+            if ask:
+                P.measure[name] = ask
         if yaw == 0.0:  # its sides' places and noise, for the pieces modelled after it (_piece_planes)
             x, side_sd = full(y), {active[k]: float(v) for k, v in zip(free, sd)}
             for j in range(4):
@@ -191,6 +196,35 @@ def _refine_box(camera: Camera, yaw: float, xr: np.ndarray, zr: np.ndarray, h: f
             P.sides[name] = (x[:4].copy(), {j: v if j in seen else float("inf") for j, v in side_sd.items()})
     x = full(y)
     return np.sort(x[:2]), np.sort(x[2:4]), float(x[4])
+
+
+def _sizes_to_tape(f: np.ndarray, e1: np.ndarray, e2: np.ndarray, x: np.ndarray, loose: dict[str, float],
+                   sizes: np.ndarray | None) -> list[dict]:
+    """The sizes a tape gives that pin a piece's loose sides: for each range (x, z) with one side loose
+    and its opposite side sure (the photo shows it, or a wall or piece holds it), the size_m entry
+    along it (size_m[0]: floor[0]-floor[1], size_m[1]: floor[1]-floor[2]; f (3,3) the clicked floor
+    corners, a row of nan where null) when not given yet: with it the loose side follows the sure one
+    (_refine_box), to the tape's accuracy. x: the fit [x min, x max, z min, z max, top] (m) along the
+    local axes e1, e2; loose: {side name: sd m}."""
+    known = [k for k in range(3) if np.isfinite(f[k, 0])]
+    a, b = f[0] - f[1], f[2] - f[1]
+    if 0 in known and 1 in known:
+        a_on_e1 = abs(a @ e1) >= abs(a @ e2)
+    elif 1 in known and 2 in known:
+        a_on_e1 = abs(b @ e1) < abs(b @ e2)
+    else:
+        a_on_e1 = True  # as _footprint: f0 and f2 diagonal
+    out = []
+    for j0, along in ((0, "x"), (2, "z")):
+        bad = [SIDES[j] in loose for j in (j0, j0 + 1)]
+        if bad[0] == bad[1]:  # both sure, or both loose: one size alone does not pin it
+            continue
+        n = 0 if a_on_e1 == (j0 == 0) else 1
+        if sizes is not None and np.isfinite(sizes[n]):
+            continue
+        out.append({"size_m": n, "floor": [n, n + 1], "along": along, "loose": SIDES[j0 + int(bad[1])],
+                    "about_m": round(float(x[j0 + 1] - x[j0]), 3)})
+    return out
 
 
 def _slab_ranges(x: np.ndarray, desk: bool, base: float = 0.0) -> tuple:
@@ -491,7 +525,12 @@ def _furniture(P: _Clicks, c: dict, where: str, name: str, lo, hi, wall_of: dict
         raise P.err(where, f"'against' must name a clicked wall ({', '.join(sorted(wall_of))}), got {against!r}")
     sigma = P.edges.sigma if P.edges is not None else CLICK_SIGMA_PX
     noise_m = np.array([sigma * _pixel_metres(P, uv[k], base) if np.isfinite(uv[k, 0]) else np.nan for k in range(3)])
-    yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where), wall_of.get(against), noise_m)
+    hidden = c.get("hidden", [])
+    if not isinstance(hidden, list) or any(type(i) is not int or i not in (1, 2) or np.isfinite(uv[i, 0])
+                                           for i in hidden):
+        raise P.err(where, f"'hidden' must list null floor corners (1 or 2) that lie in the photo behind the piece "
+                           f"or another one, got {hidden!r}")
+    yaw, xr, zr = _footprint(P, f, where, P.sizes(c, where), wall_of.get(against), noise_m, frozenset(hidden))
     # height: the vertical line over floor[0] nearest the top click's ray (least squares in h, s)
     C, d = ray(P.camera, top_uv)
     A = np.stack([np.array([0.0, 1.0, 0.0]), -d], axis=1)

@@ -260,11 +260,24 @@ def model_from_clicks(d: dict, camera: Camera, src: str = "<clicks>", ceiling_he
     room = {"name": "room", "type": "box", "role": "room", "center": ((lo + hi) / 2).tolist(),
             "size": (hi - lo).tolist(), "walls": wall_list}
     for name, sides in P.uncertain.items():
-        log.warning("%s: %s: %s pinned only to %s by its clicks and the photo (%s sigma): click its corners with care, "
-                    "a hidden one as null with the footprint's sizes in size_m", src, name, ", ".join(sides),
-                    ", ".join(f"+-{Z99 * v * 100:.1f} cm" for v in sides.values()), f"{Z99:g}")
+        pinned = (f"{name}: {', '.join(sides)} pinned only to " +
+                  ", ".join(f"+-{Z99 * v * 100:.1f} cm" for v in sides.values()) +
+                  f" by its clicks and the photo ({Z99:g} sigma)")
+        if P.measure.get(name):  # the one size a tape gives: name it plainly
+            log.warning("%s: %s: %s", src, pinned, tape_request(P.measure[name]))
+        else:
+            log.warning("%s: %s: click its corners with care, a hidden one as null with the footprint's sizes in "
+                        "size_m", src, pinned)
     return ClickModel([room] + prims, lo, hi, ceiling_from, guessed, P.refined if P.edges is not None else None,
-                      P.uncertain if P.edges is not None else None)
+                      P.uncertain if P.edges is not None else None, P.measure if P.edges is not None else None)
+
+
+def tape_request(asks: list[dict]) -> str:
+    """What to tape for a piece, in words, from its ClickModel.measure entries: 'tape its length
+    along z from floor[0] to floor[1] (about 0.89 m) and give it as size_m[0] ("size_m": [L, null])'."""
+    return " and ".join(f"tape its length along {m['along']} from floor[{m['floor'][0]}] to floor[{m['floor'][1]}] "
+                        f"(about {m['about_m']:.2f} m) and give it as size_m[{m['size_m']}] (\"size_m\": "
+                        f"{'[L, null]' if m['size_m'] == 0 else '[null, L]'})" for m in asks)
 
 
 def _support_order(items: list[tuple[str, str, dict]]) -> list[tuple[str, str, dict]]:

@@ -734,3 +734,90 @@ def test_a_piece_against_its_wall_held_on_every_seed():
     print(f"window_101 bench_2's wall side: worst {max(errs) * 100:.2f} cm, median {np.median(errs) * 100:.2f} cm")
     assert max(errs) <= 0.03, errs  # the issue's flat 3 cm
     assert np.median(errs) <= 0.01, errs
+
+
+def test_the_one_size_to_tape(caplog):
+    """A side the clicks and the photo pin worse than 3 cm whose opposite side is sure is named with
+    the one size a tape gives (`model.measure`, and a warning line saying which: its length along x or z,
+    between which floor clicks, as which size_m entry); given it (size_m with the other entry null),
+    the loose side follows the sure one. lamps_room with its hidden corners clicked (BEYOND_3CM: no
+    edge of the seat's back side or of the back's front side shows, and from their hidden clicks
+    alone they are 5.3 and 3.6 cm off at worst, bench/bench_clicks_hidden_limit.py): on every seed
+    the model asks for the seat's depth and the back's depth (along z) and nothing else; with those two
+    lengths taped (the truth's, off by -1 or +1 cm of tape error) every item is within the issue's
+    flat 3 cm on every seed and none is reported ill-determined (measured: seat 5.7 -> 1.1 cm worst,
+    1.8 -> 0.2 median; back 3.2 -> 2.8 worst, 2.0 -> 1.2 median, exact tape). A size_m with both
+    entries null is refused."""
+    from bench.clicks_truth import tape_asked
+
+    sc, cam = _scene("lamps_room")
+    edges = _photo_edges("lamps_room")
+    worst = {n: [0.0, 0.0] for n in BEYOND_3CM["lamps_room"]}
+    logging.disable(logging.WARNING)
+    try:
+        for seed in range(10):
+            clicks, done = true_clicks(sc, sigma_px=1.0, seed=seed)
+            m = model_from_clicks(clicks, cam, "lamps_room", 2.6, photo=edges)
+            asked = m.to_json()["model"]["measure"]
+            assert set(asked) == set(BEYOND_3CM["lamps_room"]), (seed, asked)
+            for n, asks in asked.items():
+                assert len(asks) == 1 and asks[0]["along"] == "z" and asks[0]["loose"] in m.uncertain[n], (seed, asks)
+                worst[n][0] = max(worst[n][0], _errors(sc, cam, clicks, done, m)[n][0])
+            for tape_error in (-0.01, 0.01):
+                m2 = model_from_clicks(tape_asked(sc, clicks, asked, tape_error), cam, "lamps_room", 2.6, photo=edges)
+                assert not m2.uncertain and not m2.measure, (seed, m2.uncertain)
+                errs = _errors(sc, cam, clicks, done, m2)
+                for k, (e, _) in errs.items():
+                    assert e <= 0.03, (seed, tape_error, k, e)
+                for n in worst:
+                    worst[n][1] = max(worst[n][1], errs[n][0])
+    finally:
+        logging.disable(logging.NOTSET)
+    print("worst over 10 seeds, clicks -> with the asked size taped (+-1 cm):",
+          {n: f"{a * 100:.1f} -> {b * 100:.1f} cm" for n, (a, b) in worst.items()})
+    # the warning names the size plainly, on one line
+    clicks, _ = true_clicks(sc, sigma_px=1.0, seed=9)
+    with caplog.at_level(logging.WARNING, logger="photoar"):
+        model_from_clicks(clicks, cam, "clicks.json", 2.6, photo=edges)
+    lines = [r.getMessage() for r in caplog.records if "tape its length" in r.getMessage()]
+    assert len(lines) == 2 and all("\n" not in s for s in lines), lines
+    seat = next(s for s in lines if "sofa_seat: z min pinned only to" in s)
+    assert "along z from floor[0] to floor[1]" in seat and '"size_m": [L, null]' in seat, seat
+    from recon.io import SceneError
+
+    with pytest.raises(SceneError, match=r"furniture 'sofa_seat'\)\.size_m' must be 2 numbers"):
+        model_from_clicks(_edited(clicks, "sofa_seat", size_m=[None, None]), cam, "clicks.json", 2.6)
+    with pytest.raises(ClickError, match="size_m must be positive"):
+        model_from_clicks(_edited(clicks, "sofa_seat", size_m=[-0.9, None]), cam, "clicks.json", 2.6)
+
+
+def test_a_null_corner_marked_hidden():
+    """A box against the back wall near the left wall of lamps_room (x 0.05-1.25 m, z 0-1 m, 0.45 m
+    high; its front-left floor corner 60 px inside the photo's left edge), clicked as a user
+    who sees it: its two front corners and the top above the front-right one; its back-left corner
+    lies in the photo behind the box itself, so it is null. A null corner is first taken as out of
+    the photo, and the box 1 m deep towards the camera puts it there too (1 m off: what
+    bench_clickmodel_unseen --seen-only found on lamps_106's sofa seat, 91.9 cm on every draw).
+    Marked `"hidden": [2]` (the user saw it is behind the box) the side that keeps it in the photo is
+    taken: the exact clicks give the box within 5 mm. 'hidden' naming a clicked corner is refused."""
+    sc, cam = _scene("lamps_room")
+    clicks, _ = true_clicks(sc, sigma_px=0.0)
+    walls = [c for c in clicks["clicks"] if c["label"] in ("wall", "ceiling")]
+    x0, x1, depth, h = 0.05, 1.25, 1.0, 0.45
+    P = np.array([[x1, 0, depth], [x0, 0, depth], [x1, h, depth], [x0, 0, 0.0], [x0, 0, 2 * depth]])
+    uv, _ = cam.project(P)
+    inside = [bool(0 <= q[0] <= cam.width - 1 and 0 <= q[1] <= cam.height - 1) for q in uv]
+    assert inside == [True, True, True, True, False], uv  # the back-left corner in the photo, its mirror out of it
+    box = {"label": "furniture", "name": "chest", "kind": "box", "floor": [uv[0].tolist(), uv[1].tolist(), None],
+           "top": uv[2].tolist(), "size_m": [1.2, depth]}
+
+    def z_range(extra):
+        m = model_from_clicks({"clicks": walls + [{**box, **extra}]}, cam, "clicks.json", 2.7)
+        p = next(p for p in m.primitives if p["name"] == "chest")
+        return p["center"][2] - p["size"][2] / 2, p["center"][2] + p["size"][2] / 2
+
+    assert z_range({}) == pytest.approx((depth, 2 * depth), abs=0.005)  # null alone: out of the photo
+    assert z_range({"hidden": [2]}) == pytest.approx((0.0, depth), abs=0.005)
+    for bad in ([0], [3], "2", [True]):
+        with pytest.raises(ClickError, match="'hidden' must list null floor corners"):
+            z_range({"hidden": bad})
