@@ -815,7 +815,8 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         clipped = copy.copy(photo)
         clipped.clipped_edges = True
         alt = attempt(clipped)
-        if alt[4].accepted and not _focal_from_lines(cam, alt[0]):
+        ratio = _focal_sigma_ratio(cam, alt[0])
+        if alt[4].accepted and ratio is not None and ratio <= 1.0 / np.sqrt(2.0):
             best, model, note, refined, r = alt
             photo = clipped
     sigma_f = cam.focal_rel_sigma
@@ -885,19 +886,28 @@ def _focal_recheck_due(cam: Camera, refined: Camera, mode: str) -> bool:
     return mode == "always" or abs(float(np.log(refined.K[0, 0] / cam.K[0, 0]))) > float(np.log1p(sigma_f))
 
 
-def _focal_from_lines(cam: Camera, fit: _Fit) -> bool:
-    """Whether the room's edges of the profile-stage `fit` determine the focal length less than calibrate's clicked
-    lines do: the fit's own focal sigma (camera_covariance, the clicked lines included) is above calibrate's
-    (cam.focal_rel_sigma) / sqrt(2), i.e. the edges add less information on log f (1 / sigma^2) than the lines
-    hold. False without a usable calibrate sigma, without a profile-stage fit (a sun stage's fit: data None or
-    edge_var set) or with a singular covariance."""
+def _focal_sigma_ratio(cam: Camera, fit: _Fit) -> float | None:
+    """The fit's own sigma of log f (camera_covariance of its last solve, the clicked lines included) over calibrate's
+    (cam.focal_rel_sigma, also a sigma of log f); None without a usable calibrate sigma, a solve or a regular
+    covariance."""
     sigma_f = cam.focal_rel_sigma
-    if not _usable_sigma(sigma_f) or fit.res is None or fit.data is None or fit.data[3] is not None:
-        return False
+    if not _usable_sigma(sigma_f) or fit.res is None:
+        return None
     cov = camera_covariance(fit.res)
     if cov is None or not np.isfinite(cov[5, 5]):
+        return None
+    return float(np.sqrt(max(float(cov[5, 5]), 0.0))) / float(sigma_f)
+
+
+def _focal_from_lines(cam: Camera, fit: _Fit) -> bool:
+    """Whether the room's edges of the profile-stage `fit` determine the focal length less than calibrate's clicked
+    lines do: _focal_sigma_ratio above 1 / sqrt(2), i.e. the edges add less information on log f (1 / sigma^2)
+    than the lines hold. False when the ratio is unknown or for a fit other than the profile stage's (a sun
+    stage's: data None; a principal-point model selection's: edge_var set)."""
+    if fit.data is None or fit.data[3] is not None:
         return False
-    return bool(np.sqrt(max(float(cov[5, 5]), 0.0)) > float(sigma_f) / np.sqrt(2.0))  # x[5] = log f: its sigma is std(f)/f
+    ratio = _focal_sigma_ratio(cam, fit)
+    return ratio is not None and ratio > 1.0 / np.sqrt(2.0)
 
 
 def _usable_sigma(sigma_f: float | None) -> bool:

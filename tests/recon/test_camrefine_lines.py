@@ -34,7 +34,8 @@ def _fit_with_focal_sigma(s_f: float, data=(None, None, None, None)) -> cr._Fit:
 
 def test_focal_from_lines_threshold():
     """Calibrate's sigma 3 %: a fit sigma of 2.2 % (above 3 / sqrt(2) = 2.12 %) is the lines'; 2.0 % is the edges';
-    no calibrate sigma, a sun stage's fit (edge_var set or no data) or no solve: never."""
+    no calibrate sigma, a sun stage's or a principal-point model selection's fit (no data, edge_var set) or no
+    solve: never. The ratio (the retry's acceptance) of a fit with a solve: its sigma over calibrate's."""
     cam = dataclasses.replace(_look_at(np.array([3.2, 1.5, 4.4]), [1.0, 0.9, 0.5]), focal_rel_sigma=0.03)
     assert cr._focal_from_lines(cam, _fit_with_focal_sigma(0.022))
     assert not cr._focal_from_lines(cam, _fit_with_focal_sigma(0.020))
@@ -42,6 +43,9 @@ def test_focal_from_lines_threshold():
     assert not cr._focal_from_lines(cam, _fit_with_focal_sigma(0.05, data=None))
     assert not cr._focal_from_lines(cam, _fit_with_focal_sigma(0.05, data=(None, None, None, 0.09)))
     assert not cr._focal_from_lines(cam, dataclasses.replace(_fit_with_focal_sigma(0.05), res=None))
+    # the ratio itself (the retry's acceptance: at most 1 / sqrt(2)) is that of any fit with a solve, a sun stage's too
+    assert cr._focal_sigma_ratio(cam, _fit_with_focal_sigma(0.015, data=None)) == pytest.approx(0.5, rel=1e-6)
+    assert cr._focal_sigma_ratio(cam, dataclasses.replace(_fit_with_focal_sigma(0.015), res=None)) is None
 
 
 def test_synthetic_room_edges_determine_the_focal_length():
