@@ -27,6 +27,11 @@ projected into the photo and aligned with the photo's edges:
    the room edges whose every sample lies by a clipped pixel (a blown-out window: edgesnap refuses them all)
    kept in the fine stages at their oriented Canny matches, at a Canny pixel's noise (_fine_edges): the guard
    measures those edges, the profile stage otherwise never sees them, and its fit slides off them;
+3c. when an accepted fit's room edges say less about the focal length than the clicked lines do (its own sigma of
+   log f, camera_covariance with the lines included, above calibrate's sigma / sqrt(2): _focal_from_lines), the
+   search runs again as in 3b and that camera is taken when the guard accepts it and its edges determine the focal
+   length: a room whose only other edges are blown-out windows otherwise gets the clicked lines' focal length
+   moved by its few room edges' model errors (docs/unseen.md, cam109);
 5. more starts (_centre_search): the clicked lines fix the rotation and focal length, not where the
    camera stands, and a centre tens of cm off can send the wide first match radius into a wrong basin
    (a sunlit patch's border, floor texture). A grid of centres (rotation, focal, height held) is scored
@@ -695,7 +700,7 @@ PP_MODELS = ("select", "free", "held")  # a principal point from three vanishing
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
                   fine_stage: str = "profiles", principal_point: str = "select", sun: dict | None = None,
                   response: np.ndarray | None = None, ramp_edges: str = "drop",
-                  focal_search: str = "moved") -> Refinement:
+                  focal_search: str = "moved", focal_from_lines: str = "retry") -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
     module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
@@ -713,7 +718,11 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     (recon/photoedges.ramp_edge_mask), "keep" keeps them (the rule before; for measurements).
     focal_search: when an accepted camera is searched again over the focal length (_focal_recheck): "moved"
     (the default: when its fit moved the focal length from calibrate's by more than calibrate's own sigma),
-    "always", or "off" (the rule before; for measurements)."""
+    "always", or "off" (the rule before; for measurements).
+    focal_from_lines: when an accepted fit's room edges determine the focal length less than the clicked lines do
+    (_focal_from_lines): "retry" (the default: search again with the blown-out edges' Canny matches, as after an
+    edge-residual refusal, and take that camera when the guard accepts it and its edges do determine the focal
+    length) or "off" (the rule before; for measurements)."""
     from recon import campp
 
     if fine_stage not in FINE_STAGES:
@@ -722,6 +731,8 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         raise ValueError(f"principal_point: expected one of {PP_MODELS}, got {principal_point!r}")
     if focal_search not in FOCAL_SEARCHES:
         raise ValueError(f"focal_search: expected one of {FOCAL_SEARCHES}, got {focal_search!r}")
+    if focal_from_lines not in ("retry", "off"):
+        raise ValueError(f"focal_from_lines: expected 'retry' or 'off', got {focal_from_lines!r}")
     t0 = time.time()
     image = np.asarray(image)
     if image.shape[:2] != (cam.height, cam.width):
@@ -793,6 +804,21 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
             if _edge_gain(cam, alt[3], common, photo) > EDGE_MODEL_SIGMA_PX:
                 best, model, note, refined, r = alt
                 photo = clipped
+    if (focal_from_lines == "retry" and r.accepted and fine_stage == "profiles"
+            and not getattr(photo, "clipped_edges", False) and _focal_from_lines(cam, best)):
+        # the room's edges the fit found say less about the focal length than the clicked lines do, so the
+        # accepted focal length is the clicked lines' (a few per cent off with short clicked verticals) moved by
+        # whatever the edges' own model errors pull: window_108 (three room edges, a painted skirting beside two
+        # of them, +0.2..+0.6 px at the truth) went +3.46 -> +5.09 %. The room's other edges are then blown-out
+        # windows the profile stage never sees: search again with their Canny matches (_fine_edges, as 3b), and
+        # take that camera when the guard accepts it and its edges do determine the focal length
+        clipped = copy.copy(photo)
+        clipped.clipped_edges = True
+        alt = attempt(clipped)
+        ratio = _focal_sigma_ratio(cam, alt[0])
+        if alt[4].accepted and ratio is not None and ratio <= 1.0 / np.sqrt(2.0):
+            best, model, note, refined, r = alt
+            photo = clipped
     sigma_f = cam.focal_rel_sigma
     chi2_lines, chi2_lim = _lines_chi2(refined, lines)
     widened = not r.accepted and not r.fits and _usable_sigma(sigma_f) and chi2_lines > chi2_lim
@@ -858,6 +884,30 @@ def _focal_recheck_due(cam: Camera, refined: Camera, mode: str) -> bool:
     if mode == "off" or not _usable_sigma(sigma_f):
         return False
     return mode == "always" or abs(float(np.log(refined.K[0, 0] / cam.K[0, 0]))) > float(np.log1p(sigma_f))
+
+
+def _focal_sigma_ratio(cam: Camera, fit: _Fit) -> float | None:
+    """The fit's own sigma of log f (camera_covariance of its last solve, the clicked lines included) over calibrate's
+    (cam.focal_rel_sigma, also a sigma of log f); None without a usable calibrate sigma, a solve or a regular
+    covariance."""
+    sigma_f = cam.focal_rel_sigma
+    if not _usable_sigma(sigma_f) or fit.res is None:
+        return None
+    cov = camera_covariance(fit.res)
+    if cov is None or not np.isfinite(cov[5, 5]):
+        return None
+    return float(np.sqrt(max(float(cov[5, 5]), 0.0))) / float(sigma_f)
+
+
+def _focal_from_lines(cam: Camera, fit: _Fit) -> bool:
+    """Whether the room's edges of the profile-stage `fit` determine the focal length less than calibrate's clicked
+    lines do: _focal_sigma_ratio above 1 / sqrt(2), i.e. the edges add less information on log f (1 / sigma^2)
+    than the lines hold. False when the ratio is unknown or for a fit other than the profile stage's (a sun
+    stage's: data None; a principal-point model selection's: edge_var set)."""
+    if fit.data is None or fit.data[3] is not None:
+        return False
+    ratio = _focal_sigma_ratio(cam, fit)
+    return ratio is not None and ratio > 1.0 / np.sqrt(2.0)
 
 
 def _usable_sigma(sigma_f: float | None) -> bool:
