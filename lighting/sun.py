@@ -111,6 +111,12 @@ class SunLight:
             log.warning("%s", self.reason)
 
     @property
+    def tan_a(self) -> float:
+        """tan of the sun disk's angular radius (the openings' penumbra on the object: visibility(disk=True),
+        hit_correction)."""
+        return float(np.tan(self.sun.half_angle))
+
+    @property
     def entries(self) -> list:
         """The openings the sun enters through, as the launches toward the sun take them (kernels.sunshadow
         .exit_arrays): [(corner (3,), normal (3,), 1 / -(d . normal), (3,2) edges over their squared
@@ -137,8 +143,10 @@ class SunLight:
         return best
 
     def visibility(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = (),
-                   eps: float = 1e-3) -> np.ndarray:
-        """(N,) float: max(n.d, 0) x [sun's centre seen through an opening, unblocked]."""
+                   eps: float = 1e-3, disk: bool = False) -> np.ndarray:
+        """(N,) float: max(n.d, 0) x [sun's centre seen through an opening, unblocked]; disk: x the share of
+        the sun's disk the openings pass in place of its centre's 0 or 1 (their edges' penumbra; the meshes'
+        shadows stay the centre's: kernels.sunshadow._sun_soft)."""
         p = np.asarray(points, np.float64)
         n = np.asarray(normals, np.float64)
         if not self.active or len(p) == 0:
@@ -146,7 +154,7 @@ class SunLight:
         # the cos, the exit through an opening and the ray past the room and the object in one launch
         # (kernels.sunshadow.SunVisibility); split over the cores for many points, not from inside a pooled launch
         pooled = threading.current_thread().name.startswith("photoar")
-        return self._vis(p, n, self.mesh_ids(extra), eps, parallel=not pooled)
+        return self._vis(p, n, self.mesh_ids(extra), eps, parallel=not pooled, tan_a=self.tan_a if disk else 0.0)
 
     def mesh_ids(self, extra: list[Occluder] = ()) -> list[int]:
         """The Warp mesh ids a ray toward the sun must pass: the room's and those of `extra` (e.g. the object)."""
@@ -182,7 +190,8 @@ class SunLight:
         interpolated normal on a face with all corners sunlit, a ray (visibility, past the room and
         `extra`) on a face that a shadow's edge crosses; faces with no sunlit corner have both 0, and
         so, to within 1 / FLAT_COS - 1, have wholly sunlit flat faces (corner normals equal): neither
-        is in k. groups: as hit_codes."""
+        is in k. groups: as hit_codes. The openings' penumbra: the hit's sun is the share of the sun's disk
+        they pass (visibility(disk=True); flat faces wholly lit keep their corners' blend, which holds it)."""
         code = self.hit_codes(n, f, vis_v, groups)
         ch = code[tri]
         k = np.flatnonzero(ch)
@@ -194,7 +203,7 @@ class SunLight:
             self._hit_sun = HitSun(self.device, self.entries, self.d)
         pooled = threading.current_thread().name.startswith("photoar")
         delta = self._hit_sun(v, n, f, vis_v, code, tri[k], bary[k], self.mesh_ids(extra), 1e-3,
-                              rays=int(np.count_nonzero(ch[k] == 2)), parallel=not pooled)
+                              rays=int(np.count_nonzero(ch[k] == 2)), parallel=not pooled, tan_a=self.tan_a)
         return k, delta
 
     def hit_codes(self, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, groups: np.ndarray | None = None

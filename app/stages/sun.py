@@ -463,7 +463,7 @@ class SunStage:
         sun = None
         if sun_vis is not None:
             sun = (sun_vis, self.light.hit_codes(n, f, sun_vis, groups), albedo, self.E_perp,
-                   self.light.mesh_ids([own]), 1e-3)
+                   self.light.mesh_ids([own]), 1e-3, self.light.tan_a)
         c, mean, _ = self._outline(
             own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s, mesh, L_vert, sun,
             functools.partial(runtime.split, device=self.device, min_items=max(1, EDGE_MIN_RAYS // first)), first)
