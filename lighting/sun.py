@@ -79,13 +79,23 @@ FLAT_COS = 1.0 - 1e-7  # corner normals of a face this close (cosine; ~0.03 deg 
 # than 1 / FLAT_COS - 1 ~ 1e-7 of irradiance/pi (the blend's own float32 barycentric rounding)
 
 
+def _half_plane_share(u: np.ndarray) -> np.ndarray:
+    """Share of a uniform disk on the inner side of a line u disk radii from its centre (kernels.sunshadow's)."""
+    u = np.clip(u, -1.0, 1.0)
+    return (np.pi - np.arccos(u) + u * np.sqrt(1.0 - u * u)) / np.pi
+
+
 class SunLight:
     """The scene's sun seen through its openings, against the scene model's solid surfaces."""
 
-    def __init__(self, sun: Sun, holes: list[Quad], occluder: Occluder, where: str = "sun"):
+    def __init__(self, sun: Sun, holes: list[Quad], occluder: Occluder, where: str = "sun", disk: bool = True):
         """`where` starts the warning when the sun lights nothing: "<scene.json>: sun" (the CLI's log
-        prefixes "photoar: warning: ")."""
+        prefixes "photoar: warning: "). disk: the object's sun through the openings is the share of the sun's
+        disk they pass (tan_a; their edges' penumbra); False: its centre's ray alone (tan_a 0), for a direction
+        fitted with that hard edge to the photo's sunlit outline (estimate_sun), which already stands part of
+        the penumbra out."""
         self.sun = sun
+        self.disk = disk
         self.where = where
         self.d = np.asarray(sun.direction, np.float64) / np.linalg.norm(sun.direction)
         self.openings = list(holes)
@@ -114,7 +124,7 @@ class SunLight:
     def tan_a(self) -> float:
         """tan of the sun disk's angular radius (the openings' penumbra on the object: visibility(disk=True),
         hit_correction)."""
-        return float(np.tan(self.sun.half_angle))
+        return float(np.tan(self.sun.half_angle)) if self.disk else 0.0
 
     @property
     def entries(self) -> list:
@@ -141,6 +151,30 @@ class SunLight:
             ok = (t > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= 1) & (t < best)
             best[ok] = t[ok]
         return best
+
+    def disk_through(self, points: np.ndarray) -> np.ndarray:
+        """(N,) float64: the share of the sun's disk each point sees through the openings (the edges' penumbra,
+        kernels.sunshadow._disk_share's arithmetic in numpy: each opening's four edges' circular-segment shares
+        multiplied, the openings' summed, at most 1), no ray past the room; 0 where the sun is not active."""
+        p = np.asarray(points, np.float64).reshape(-1, 3)
+        total = np.zeros(len(p))
+        for c0, nrm, inv_denom, UV in self.entries:
+            pc = p - c0
+            t = (pc @ nrm) * inv_denom
+            h = pc + t[:, None] * self.d
+            share = np.where(t > 0, 1.0, 0.0)
+            for k in range(2):
+                a = UV[:, k]
+                la = np.linalg.norm(a)  # 1 / the edge's length
+                g = a / la - nrm * (self.d @ (a / la)) / (-1.0 / inv_denom)
+                r = np.where(t > 0, t, 1.0) * (self.tan_a * np.linalg.norm(g) * la)  # the footprint's half-width,
+                x = h @ a  # the centre's place along the edge; both in edge lengths (0..1 inside)
+                if self.tan_a > 0:
+                    share = share * _half_plane_share(x / r) * _half_plane_share((1.0 - x) / r)
+                else:  # the centre's exit (exit_distance's test)
+                    share = share * ((x >= 0) & (x <= 1))
+            total += share
+        return np.minimum(total, 1.0)
 
     def visibility(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = (),
                    eps: float = 1e-3, disk: bool = False) -> np.ndarray:

@@ -926,7 +926,10 @@ class SunSetup:
                                      sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ)
             where = f"{self.where}: sun estimate"
         self._patch_light = None
-        self.light = SunLight(sun, openings(scene), self.scene_occ, where=where) if sun else None
+        # an estimated direction was fitted with the disk's centre alone (a hard edge) to the photo's sunlit
+        # outline, whose split lies inside the penumbra: the object keeps that model (docs/unseen.md "sunobj109")
+        self.light = SunLight(sun, openings(scene), self.scene_occ, where=where,
+                              disk=self.source == "declared") if sun else None
         if sun is None and self.source == "declared":
             log.warning("%s: its strength could not be estimated from the photo (%s): no direct sun; give "
                         "`photoar scene --sun-irradiance`", where, info.get("reason"))
