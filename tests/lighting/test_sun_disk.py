@@ -66,19 +66,34 @@ def test_disk_share_through_an_opening_matches_the_quadrature(direction, diamete
     assert ((ref > 0.02) & (ref < 0.98)).sum() > 40  # the lines cross the penumbra
     assert set(np.unique(hard)) <= {0.0, 1.0}  # the centre's rule, as before
     assert np.abs(hard - ref).max() > 0.4
-    # across an edge the penumbra keeps the lit area: the soft and the hard profiles integrate alike
-    assert soft.sum() == pytest.approx(hard.sum(), abs=1.0)
+    # across an edge the penumbra keeps the lit area: per line (41 points, the middle one on the edge, where the
+    # centre's rule counts 1 and the disk 1/2) the soft and the hard profiles sum alike
+    per_line = soft.reshape(-1, 41).sum(1) - hard.reshape(-1, 41).sum(1)
+    assert np.abs(per_line).max() <= 0.55
+
+
+def _centre_only(light):
+    """The same sun and openings with the centre's rule (disk=False)."""
+    from lighting.sun import SunLight
+
+    return SunLight(light.sun, light.openings, light.occluder, disk=False)
 
 
 def test_zero_disk_is_the_centre_ray():
-    # tan_a 0 reproduces the centre ray's visibility bit for bit (the rule every other caller keeps)
+    # tan_a 0 (an estimated sun: SunLight(disk=False)) is the centre's ray: cos where the ray from the point (moved
+    # 1 mm along its normal) leaves through the opening (exit_distance), else 0
     light, _ = _window_light(np.array([-0.4, 0.5, -0.77]), 0.53)
+    hard = _centre_only(light)
+    assert hard.tan_a == 0.0 and light.tan_a == pytest.approx(np.tan(np.radians(0.265)))
     rng = np.random.default_rng(3)
-    pts = np.c_[rng.uniform(-1, 2, 500), rng.uniform(0, 2, 500), rng.uniform(0.5, 3, 500)]
-    nrm = rng.normal(size=(500, 3))
+    pts = np.c_[rng.uniform(-1, 2, 3000), rng.uniform(0, 3, 3000), rng.uniform(0.5, 3, 3000)]
+    nrm = rng.normal(size=(3000, 3))
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    ids = light.mesh_ids()
-    assert np.array_equal(light._vis(pts, nrm, ids, 1e-3, tan_a=0.0), light.visibility(pts, nrm))
+    cos = np.maximum(nrm @ light.d, 0.0)
+    ref = np.where(np.isfinite(light.exit_distance(pts + 1e-3 * nrm)), cos, 0.0)
+    for vis in (light.visibility(pts, nrm), hard.visibility(pts, nrm, disk=True)):
+        assert np.array_equal(vis > 0, ref > 0) and (ref > 0).sum() > 50
+        assert np.allclose(vis, ref, rtol=0, atol=1e-12)
 
 
 def test_sun_108_known_light_object_in_the_window_edge_penumbra():
