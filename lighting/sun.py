@@ -199,18 +199,23 @@ class SunLight:
         return self.visibility(points, normals, extra)[:, None] * (self.sun.irradiance / np.pi)
 
     def irradiance_on_mesh(self, points: np.ndarray, normals: np.ndarray, corner_lit: np.ndarray,
-                           extra: list[Occluder] = ()) -> np.ndarray:
+                           extra: list[Occluder] = (), disk: bool = False) -> np.ndarray:
         """Direct sun irradiance/pi (N,3) at points (N,3) on a mesh's faces whose corners' sun is known:
         corner_lit (N,3) bool, True where a corner of the point's face sees the sun. A face with all three
         corners in the sun is taken as wholly lit and one with none as wholly dark (no ray: n.d alone);
         the points of faces in between, where a shadow's edge crosses, are tested (irradiance). A shadow
-        narrower than the mesh's edges that crosses a face without reaching a corner is missed."""
+        narrower than the mesh's edges that crosses a face without reaching a corner is missed. disk: the share
+        of the sun's disk the openings pass, on the wholly lit faces too (from 1 mm along the normal: hit_correction's
+        reference)."""
         n_lit = np.asarray(corner_lit).sum(1)
-        cos = np.maximum(np.asarray(normals, np.float64) @ self.d, 0.0)
+        nrm = np.asarray(normals, np.float64)
+        cos = np.maximum(nrm @ self.d, 0.0)
         vis = np.where(n_lit == 3, cos, 0.0)
+        if disk and self.tan_a > 0:
+            vis = vis * np.where(n_lit == 3, self.disk_through(np.asarray(points, np.float64) + 1e-3 * nrm), 1.0)
         mixed = np.flatnonzero((n_lit > 0) & (n_lit < 3))
         if len(mixed):
-            vis[mixed] = self.visibility(np.asarray(points)[mixed], np.asarray(normals)[mixed], extra)
+            vis[mixed] = self.visibility(np.asarray(points)[mixed], nrm[mixed], extra, disk=disk)
         return vis[:, None] * (self.sun.irradiance / np.pi)
 
     def hit_correction(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, tri: np.ndarray,
