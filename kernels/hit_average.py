@@ -21,7 +21,7 @@ import numpy as np
 import warp as wp
 
 from kernels.buffers import Workspace
-from kernels.sunshadow import _exit_t
+from kernels.sunshadow import _disk_share, _exit_t
 
 
 @dataclass
@@ -47,6 +47,8 @@ class SunAtHits:
     top: float
     d_local: np.ndarray
     depth: wp.array
+    tan_a: float = 0.0  # tan of the sun disk's angular radius: > 0, the share of the disk the openings pass
+    # (kernels.sunshadow._disk_share) in place of the exit of the ray toward its centre
 
 
 @wp.func
@@ -86,7 +88,7 @@ def _sun_at_hits_kernel(tri: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.v
                         ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d), mean: wp.vec3d,
                         R: wp.mat33d, e1: wp.vec3d, e2: wp.vec3d, dl: wp.vec3d, lo0: wp.float64, lo1: wp.float64,
                         texel: wp.float64, top: wp.float64, bias: wp.float32, bias_mm: wp.float32,
-                        depth: wp.array2d(dtype=wp.float32), add: wp.array(dtype=wp.float64)):
+                        depth: wp.array2d(dtype=wp.float32), tan_a: wp.float64, add: wp.array(dtype=wp.float64)):
     k = wp.tid()
     add[k] = wp.float64(0.0)
     if hit[k] == wp.uint8(0):
@@ -101,10 +103,15 @@ def _sun_at_hits_kernel(tri: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.v
     if cos <= wp.float64(0.0):
         return
     p = b0 * v[f[0]] + b1 * v[f[1]] + b2 * v[f[2]]
-    if _exit_t(p, d, ex_c0, ex_n, ex_inv, ex_u, ex_v) <= wp.float64(0.0):
+    through = wp.float64(1.0)
+    if tan_a > wp.float64(0.0):
+        through = _disk_share(p, d, tan_a, ex_c0, ex_n, ex_inv, ex_u, ex_v)[0]
+        if through <= wp.float64(0.0):
+            return
+    elif _exit_t(p, d, ex_c0, ex_n, ex_inv, ex_u, ex_v) <= wp.float64(0.0):
         return
     own = _own_lit(wp.mul(wp.transpose(R), p - mean), e1, e2, dl, lo0, lo1, texel, top, bias, bias_mm, depth)
-    add[k] = cos * own * (b0 * room[f[0]] + b1 * room[f[1]] + b2 * room[f[2]])
+    add[k] = cos * own * (b0 * room[f[0]] + b1 * room[f[1]] + b2 * room[f[2]]) * through
 
 
 def _v3(x) -> wp.vec3d:
@@ -186,7 +193,8 @@ def _sun_at_hits(sun: SunAtHits, tri: wp.array, bary: wp.array, hit: wp.array, f
                       ws.upload("sun_room", np.asarray(sun.room, np.float64), wp.float64, device),
                       _v3(sun.d), *sun.exits, _v3(sun.mean), wp.mat33d(*np.asarray(sun.R, np.float64).ravel()),
                       _v3(sun.e1), _v3(sun.e2), _v3(sun.d_local), float(sun.lo[0]), float(sun.lo[1]), texel,
-                      float(sun.top), float(np.float32(2 * texel)), float(np.float32(2e-3)), sun.depth],
+                      float(sun.top), float(np.float32(2 * texel)), float(np.float32(2e-3)), sun.depth,
+                      wp.float64(sun.tan_a)],
               outputs=[add])
 
 

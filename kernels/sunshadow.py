@@ -460,15 +460,95 @@ def _exit_t(p: wp.vec3d, d: wp.vec3d, ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.
 
 
 @wp.func
+def _half_plane_share(u: wp.float64) -> wp.float64:
+    """Share of a uniform disk lying on the inner side of a line at u disk radii from its centre (u > 0: the
+    centre inside): 1 at u >= 1, 0 at u <= -1, 1/2 at 0 (a circular segment's area over the disk's)."""
+    if u >= wp.float64(1.0):
+        return wp.float64(1.0)
+    if u <= wp.float64(-1.0):
+        return wp.float64(0.0)
+    return (wp.float64(wp.pi) - wp.acos(u) + u * wp.sqrt(wp.float64(1.0) - u * u)) / wp.float64(wp.pi)
+
+
+@wp.func
+def _disk_through(p: wp.vec3d, d: wp.vec3d, tan_a: wp.float64, e: int, ex_c0: wp.array(dtype=wp.vec3d),
+                  ex_n: wp.array(dtype=wp.vec3d), ex_inv: wp.array(dtype=wp.float64), ex_u: wp.array(dtype=wp.vec3d),
+                  ex_v: wp.array(dtype=wp.vec3d)) -> wp.vec2d:
+    """(share of the sun's disk (angular radius atan(tan_a)) seen from p through opening e, the distance m along
+    d to the opening's plane; (0, -1) behind it). The disk's directions d + delta (|delta| <= tan_a, delta _|_ d)
+    meet the plane at h + t (delta - (delta . n) / (d . n) d): across an edge of in-plane unit direction e the
+    footprint's half-width is t tan_a |e - n (d . e) / (d . n)| and its share inside the edge a circular
+    segment's (_half_plane_share); the four edges' shares multiplied (exact but within a footprint of a corner)."""
+    pc = p - ex_c0[e]
+    t = wp.dot(pc, ex_n[e]) * ex_inv[e]
+    if t <= wp.float64(0.0):
+        return wp.vec2d(wp.float64(0.0), wp.float64(-1.0))
+    h = pc + t * d
+    nrm = ex_n[e]
+    dn = -wp.float64(1.0) / ex_inv[e]  # d . n
+    share = wp.float64(1.0)
+    for k in range(2):
+        a = ex_u[e]
+        if k == 1:
+            a = ex_v[e]
+        la = wp.sqrt(wp.dot(a, a))  # 1 / the edge's length
+        ea = a / la
+        g = ea - nrm * (wp.dot(d, ea) / dn)
+        r = t * tan_a * wp.sqrt(wp.dot(g, g)) * la  # the footprint's half-width in edge lengths
+        x = wp.dot(h, a)  # the centre's place along the edge, in edge lengths (0..1 inside)
+        share = share * _half_plane_share(x / r) * _half_plane_share((wp.float64(1.0) - x) / r)
+    return wp.vec2d(share, t)
+
+
+@wp.func
+def _disk_share(p: wp.vec3d, d: wp.vec3d, tan_a: wp.float64, ex_c0: wp.array(dtype=wp.vec3d),
+                ex_n: wp.array(dtype=wp.vec3d), ex_inv: wp.array(dtype=wp.float64), ex_u: wp.array(dtype=wp.vec3d),
+                ex_v: wp.array(dtype=wp.vec3d)) -> wp.vec2d:
+    """(share of the sun's disk seen from p through the openings (the openings' shares summed, at most 1), the
+    distance m along d to the plane of the opening passing the largest share; (0, -1): none)."""
+    total = wp.float64(0.0)
+    best = wp.float64(0.0)
+    t_best = wp.float64(-1.0)
+    for e in range(ex_c0.shape[0]):
+        st = _disk_through(p, d, tan_a, e, ex_c0, ex_n, ex_inv, ex_u, ex_v)
+        total = total + st[0]
+        if st[0] > best:
+            best = st[0]
+            t_best = st[1]
+    return wp.vec2d(wp.min(total, wp.float64(1.0)), t_best)
+
+
+@wp.func
+def _sun_soft(p: wp.vec3d, d: wp.vec3d, d32: wp.vec3, tan_a: wp.float64, ex_c0: wp.array(dtype=wp.vec3d),
+              ex_n: wp.array(dtype=wp.vec3d), ex_inv: wp.array(dtype=wp.float64), ex_u: wp.array(dtype=wp.vec3d),
+              ex_v: wp.array(dtype=wp.vec3d), meshes: wp.array(dtype=wp.uint64), n_meshes: int) -> wp.float64:
+    """The share of the sun's disk p sees: tan_a 0, _sun_free (its centre, 0 or 1); else the disk's share through
+    the openings (_disk_share: the openings' edges soften into their penumbra) where the ray toward the disk's
+    centre meets none of the meshes before that opening's plane (the meshes' own shadows stay hard)."""
+    if tan_a <= wp.float64(0.0):
+        return wp.float64(_sun_free(p, d, d32, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes))
+    st = _disk_share(p, d, tan_a, ex_c0, ex_n, ex_inv, ex_u, ex_v)
+    if st[0] <= wp.float64(0.0):
+        return wp.float64(0.0)
+    start = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+    for k in range(n_meshes):
+        if wp.mesh_query_ray_anyhit(meshes[k], start, d32, wp.float32(st[1] * wp.float64(0.9999))):
+            return wp.float64(0.0)
+    return st[0]
+
+
+@wp.func
 def _sun_delta(v: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), f: wp.array2d(dtype=wp.int32),
                vis_v: wp.array(dtype=wp.float64), code: wp.array(dtype=wp.uint8), t: int, b0: wp.float64,
-               b1: wp.float64, b2: wp.float64, d: wp.vec3d, d32: wp.vec3, eps: wp.float64,
+               b1: wp.float64, b2: wp.float64, d: wp.vec3d, d32: wp.vec3, eps: wp.float64, tan_a: wp.float64,
                ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d), ex_inv: wp.array(dtype=wp.float64),
                ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d), meshes: wp.array(dtype=wp.uint64),
                n_meshes: int) -> wp.float64:
     """A camera hit's sun share (face t of code 1: the cos of its interpolated normal; code 2: that cos where
     the ray from the hit, moved eps m along that normal, toward the sun is free (_sun_free), else 0) minus its
-    corners' blend of vis_v (barycentrics b0, b1, b2): what HitSun returns and OutlineShade adds per hit."""
+    corners' blend of vis_v (barycentrics b0, b1, b2): what HitSun returns and OutlineShade adds per hit. tan_a > 0:
+    the share of the sun's disk (angular radius atan(tan_a)) the openings pass (_sun_soft, _disk_share) in
+    place of the ray's 0 or 1, on code 1 too (its corners may lie in an opening's penumbra)."""
     c0 = f[t, 0]
     c1 = f[t, 1]
     c2 = f[t, 2]
@@ -478,17 +558,19 @@ def _sun_delta(v: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), f: wp.a
     vis = wp.float64(0.0)
     if code[t] == wp.uint8(1):  # every corner sunlit: the interpolated normal's cos
         vis = wp.max(cos, wp.float64(0.0))
+        if tan_a > wp.float64(0.0) and vis > wp.float64(0.0):  # x the disk's share the openings pass
+            p1 = b0 * v[c0] + b1 * v[c1] + b2 * v[c2] + nrm * eps
+            vis = vis * _disk_share(p1, d, tan_a, ex_c0, ex_n, ex_inv, ex_u, ex_v)[0]
     elif cos > wp.float64(0.0):  # a shadow's edge crosses the face: a ray toward the sun
         p = b0 * v[c0] + b1 * v[c1] + b2 * v[c2] + nrm * eps
-        if _sun_free(p, d, d32, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes) != 0:
-            vis = cos
+        vis = cos * _sun_soft(p, d, d32, tan_a, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes)
     return vis - (b0 * vis_v[c0] + b1 * vis_v[c1] + b2 * vis_v[c2])
 
 
 @wp.kernel
 def _hit_sun_kernel(v: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), f: wp.array2d(dtype=wp.int32),
                     vis_v: wp.array(dtype=wp.float64), code: wp.array(dtype=wp.uint8), tri: wp.array(dtype=wp.int32),
-                    bary: wp.array(dtype=wp.vec3), d: wp.vec3d, d32: wp.vec3, eps: wp.float64,
+                    bary: wp.array(dtype=wp.vec3), d: wp.vec3d, d32: wp.vec3, eps: wp.float64, tan_a: wp.float64,
                     ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d), ex_inv: wp.array(dtype=wp.float64),
                     ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d), meshes: wp.array(dtype=wp.uint64),
                     n_meshes: int, lo: int, delta: wp.array(dtype=wp.float64)):
@@ -496,7 +578,7 @@ def _hit_sun_kernel(v: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), f:
     i = wp.tid() + lo
     bf = bary[i]
     delta[i] = _sun_delta(v, n, f, vis_v, code, tri[i], wp.float64(bf[0]), wp.float64(bf[1]), wp.float64(bf[2]),
-                          d, d32, eps, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes)
+                          d, d32, eps, tan_a, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes)
 
 
 def exit_arrays(exits: list, device: str) -> list[wp.array]:
@@ -531,16 +613,16 @@ def _sun_free(p: wp.vec3d, d: wp.vec3d, d32: wp.vec3, ex_c0: wp.array(dtype=wp.v
 
 @wp.kernel
 def _sun_vis_kernel(p: wp.array(dtype=wp.vec3d), n: wp.array(dtype=wp.vec3d), d: wp.vec3d, d32: wp.vec3,
-                    eps: wp.float64, ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d),
+                    eps: wp.float64, tan_a: wp.float64, ex_c0: wp.array(dtype=wp.vec3d), ex_n: wp.array(dtype=wp.vec3d),
                     ex_inv: wp.array(dtype=wp.float64), ex_u: wp.array(dtype=wp.vec3d), ex_v: wp.array(dtype=wp.vec3d),
                     meshes: wp.array(dtype=wp.uint64), n_meshes: int, lo: int, vis: wp.array(dtype=wp.float64)):
-    """One point a thread (SunVisibility): max(n.d, 0) x its ray toward the sun free (from p + eps n)."""
+    """One point a thread (SunVisibility): max(n.d, 0) x its ray toward the sun free (from p + eps n); tan_a > 0:
+    x the share of the sun's disk it sees (_sun_soft)."""
     i = wp.tid() + lo
     cos = wp.dot(n[i], d)
     vis[i] = wp.float64(0.0)
     if cos > wp.float64(0.0):
-        if _sun_free(p[i] + n[i] * eps, d, d32, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes) != 0:
-            vis[i] = cos
+        vis[i] = cos * _sun_soft(p[i] + n[i] * eps, d, d32, tan_a, ex_c0, ex_n, ex_inv, ex_u, ex_v, meshes, n_meshes)
 
 
 class SunVisibility:
@@ -558,10 +640,11 @@ class SunVisibility:
         self.exits = exit_arrays(exits, device)
 
     def __call__(self, points: np.ndarray, normals: np.ndarray, mesh_ids: list[int], eps: float,
-                 parallel: bool = True) -> np.ndarray:
+                 parallel: bool = True, tan_a: float = 0.0) -> np.ndarray:
         """(N,) float64: max(n.d, 0) where the ray from points + eps normals (N,3) m toward the sun leaves
         through an opening past every mesh of mesh_ids (Warp ids, 0s skipped), else 0. parallel: two
-        launches side by side on the CPU from SUN_RAYS_SPLIT points on (False from inside a pooled thread)."""
+        launches side by side on the CPU from SUN_RAYS_SPLIT points on (False from inside a pooled thread).
+        tan_a > 0 (tan of the sun disk's angular radius): max(n.d, 0) x the disk's share (_sun_soft)."""
         m = len(points)
         out = np.zeros(m)
         if m == 0:
@@ -579,7 +662,8 @@ class SunVisibility:
             vd = ws.buffer("vis", rows, wp.float64, dev)
             cuts = [(0, b // 2), (b // 2, b)] if parallel and cpu and b >= SUN_RAYS_SPLIT else [(0, b)]
             runtime.run_parallel([lambda a=a, z=z: wp.launch(
-                _sun_vis_kernel, dim=z - a, inputs=[pd, nd, d, d32, wp.float64(eps), *self.exits, md, n_ids, a],
+                _sun_vis_kernel, dim=z - a, inputs=[pd, nd, d, d32, wp.float64(eps), wp.float64(tan_a), *self.exits,
+                                                    md, n_ids, a],
                 outputs=[vd.dev], device=dev) for a, z in cuts])
             out[s:e] = vd.pull(b)
         return out
@@ -613,13 +697,14 @@ class HitSun:
 
     def __call__(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, code: np.ndarray,
                  tri: np.ndarray, bary: np.ndarray, mesh_ids: list[int], eps: float, rays: int = 0,
-                 parallel: bool = True) -> np.ndarray:
+                 parallel: bool = True, tan_a: float = 0.0) -> np.ndarray:
         """delta (M,) float64 of the hits (tri (M,) into f (F,3), bary (M,3)) on a mesh (v (V,3) m, unit
         vertex normals n (V,3)) whose vertices' sun shares are vis_v (V,): the hit's sun share (code[tri] 1:
         cos of its interpolated normal; 2: that cos where a ray from the hit (moved eps m along it) toward the
         sun leaves through an opening past every mesh of mesh_ids (Warp ids, 0s skipped), else 0) minus
         the blend of its corners' vis_v. code (F,) uint8, nonzero on every face of a hit. rays: how many
-        hits are code 2 (two launches side by side on the CPU from SUN_RAYS_SPLIT of them, when parallel)."""
+        hits are code 2 (two launches side by side on the CPU from SUN_RAYS_SPLIT of them, when parallel).
+        tan_a > 0: the hit's sun share with the disk's share the openings pass (_sun_delta)."""
         m = len(tri)
         if m == 0:
             return np.zeros(0)
@@ -639,7 +724,8 @@ class HitSun:
             dd = ws.buffer("delta", rows, wp.float64, dev)
             cuts = [(0, b // 2), (b // 2, b)] if split else [(0, b)]
             runtime.run_parallel([lambda a=a, z=z: wp.launch(
-                _hit_sun_kernel, dim=z - a, inputs=[vd, nd, fd, visd, cd, td, bd, d, d32, wp.float64(eps), *self.exits,
+                _hit_sun_kernel, dim=z - a, inputs=[vd, nd, fd, visd, cd, td, bd, d, d32, wp.float64(eps),
+                                                    wp.float64(tan_a), *self.exits,
                                                     md, n_ids, a], outputs=[dd.dev], device=dev) for a, z in cuts])
             out[s:e] = dd.pull(b)
         return out
@@ -662,6 +748,7 @@ class HitShading:
     d: wp.vec3d
     d32: wp.vec3
     eps: wp.float64
+    tan_a: wp.float64  # tan of the sun disk's angular radius (0: its centre only; _sun_delta)
     albedo: wp.vec3d
     E: wp.vec3d
     ex_c0: wp.array(dtype=wp.vec3d)
@@ -687,7 +774,7 @@ def _hit_radiance(h: HitShading, t: int, bf: wp.vec3) -> wp.vec3d:
     rad = b0 * h.L[c0] + b1 * h.L[c1] + b2 * h.L[c2]
     if h.sun != 0:
         if h.code[t] != wp.uint8(0):
-            delta = _sun_delta(h.v, h.n, h.f, h.vis_v, h.code, t, b0, b1, b2, h.d, h.d32, h.eps, h.ex_c0, h.ex_n,
+            delta = _sun_delta(h.v, h.n, h.f, h.vis_v, h.code, t, b0, b1, b2, h.d, h.d32, h.eps, h.tan_a, h.ex_c0, h.ex_n,
                                h.ex_inv, h.ex_u, h.ex_v, h.meshes, h.n_meshes)
             rad = wp.vec3d(wp.max(rad[0] + h.albedo[0] * (delta * h.E[0]), wp.float64(0.0)),
                            wp.max(rad[1] + h.albedo[1] * (delta * h.E[1]), wp.float64(0.0)),
@@ -766,7 +853,7 @@ class OutlineShade:
         the n pixels (px, py) (columns, rows): their s x s sub-samples cast as OutlineHits casts them (`first`
         on every pixel, the rest where those disagree: full), each hit's radiance its face's corners' L (V,3)
         blended (mesh = (v (V,3) m, unit normals n (V,3), faces f (F,3))), and with sun = (vis_v (V,), code
-        (F,) uint8 (SunLight.hit_codes), albedo (3,), irradiance/pi (3,), Warp mesh ids, eps m) the sun per hit
+        (F,) uint8 (SunLight.hit_codes), albedo (3,), irradiance/pi (3,), Warp mesh ids, eps m[, tan_a]) the sun per hit
         added as SunLight.hit_correction's delta x albedo x irradiance/pi, at least 0. obj, scene:
         kernels.visibility.Occluder. `split(launch, n)` runs launch(lo, hi) over ranges of pixels covering
         [0, n) (None: one launch)."""
@@ -789,9 +876,10 @@ class OutlineShade:
             h.vis_v = ws.upload("vis", np.zeros(1), wp.float64, dev)
             h.code = ws.upload("code", np.zeros(1, np.uint8), wp.uint8, dev)
             h.albedo = h.E = wp.vec3d(0.0, 0.0, 0.0)
-            ids, h.eps = [], wp.float64(0.0)
+            ids, h.eps, h.tan_a = [], wp.float64(0.0), wp.float64(0.0)
         else:
-            vis_v, code, albedo, E, ids, eps = sun
+            vis_v, code, albedo, E, ids, eps = sun[:6]
+            h.tan_a = wp.float64(sun[6] if len(sun) > 6 else 0.0)
             h.sun = 1
             h.vis_v = ws.upload("vis", np.asarray(vis_v, np.float64), wp.float64, dev)
             h.code = ws.upload("code", np.asarray(code, np.uint8), wp.uint8, dev)

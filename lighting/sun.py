@@ -79,13 +79,23 @@ FLAT_COS = 1.0 - 1e-7  # corner normals of a face this close (cosine; ~0.03 deg 
 # than 1 / FLAT_COS - 1 ~ 1e-7 of irradiance/pi (the blend's own float32 barycentric rounding)
 
 
+def _half_plane_share(u: np.ndarray) -> np.ndarray:
+    """Share of a uniform disk on the inner side of a line u disk radii from its centre (kernels.sunshadow's)."""
+    u = np.clip(u, -1.0, 1.0)
+    return (np.pi - np.arccos(u) + u * np.sqrt(1.0 - u * u)) / np.pi
+
+
 class SunLight:
     """The scene's sun seen through its openings, against the scene model's solid surfaces."""
 
-    def __init__(self, sun: Sun, holes: list[Quad], occluder: Occluder, where: str = "sun"):
+    def __init__(self, sun: Sun, holes: list[Quad], occluder: Occluder, where: str = "sun", disk: bool = True):
         """`where` starts the warning when the sun lights nothing: "<scene.json>: sun" (the CLI's log
-        prefixes "photoar: warning: ")."""
+        prefixes "photoar: warning: "). disk: the object's sun through the openings is the share of the sun's
+        disk they pass (tan_a; their edges' penumbra); False: its centre's ray alone (tan_a 0), for a direction
+        fitted with that hard edge to the photo's sunlit outline (estimate_sun), which already stands part of
+        the penumbra out."""
         self.sun = sun
+        self.disk = disk
         self.where = where
         self.d = np.asarray(sun.direction, np.float64) / np.linalg.norm(sun.direction)
         self.openings = list(holes)
@@ -109,6 +119,12 @@ class SunLight:
         self.reason = no_sun_reason(self.d, sun.irradiance, [q.normal for q in self.openings], where)
         if self.reason:
             log.warning("%s", self.reason)
+
+    @property
+    def tan_a(self) -> float:
+        """tan of the sun disk's angular radius (the openings' penumbra on the object: visibility(disk=True),
+        hit_correction)."""
+        return float(np.tan(self.sun.half_angle)) if self.disk else 0.0
 
     @property
     def entries(self) -> list:
@@ -136,9 +152,35 @@ class SunLight:
             best[ok] = t[ok]
         return best
 
+    def disk_through(self, points: np.ndarray) -> np.ndarray:
+        """(N,) float64: the share of the sun's disk each point sees through the openings (the edges' penumbra,
+        kernels.sunshadow._disk_share's arithmetic in numpy: each opening's four edges' circular-segment shares
+        multiplied, the openings' summed, at most 1), no ray past the room; 0 where the sun is not active."""
+        p = np.asarray(points, np.float64).reshape(-1, 3)
+        total = np.zeros(len(p))
+        for c0, nrm, inv_denom, UV in self.entries:
+            pc = p - c0
+            t = (pc @ nrm) * inv_denom
+            h = pc + t[:, None] * self.d
+            share = np.where(t > 0, 1.0, 0.0)
+            for k in range(2):
+                a = UV[:, k]
+                la = np.linalg.norm(a)  # 1 / the edge's length
+                g = a / la - nrm * (self.d @ (a / la)) / (-1.0 / inv_denom)
+                r = np.where(t > 0, t, 1.0) * (self.tan_a * np.linalg.norm(g) * la)  # the footprint's half-width,
+                x = h @ a  # the centre's place along the edge; both in edge lengths (0..1 inside)
+                if self.tan_a > 0:
+                    share = share * _half_plane_share(x / r) * _half_plane_share((1.0 - x) / r)
+                else:  # the centre's exit (exit_distance's test)
+                    share = share * ((x >= 0) & (x <= 1))
+            total += share
+        return np.minimum(total, 1.0)
+
     def visibility(self, points: np.ndarray, normals: np.ndarray, extra: list[Occluder] = (),
-                   eps: float = 1e-3) -> np.ndarray:
-        """(N,) float: max(n.d, 0) x [sun's centre seen through an opening, unblocked]."""
+                   eps: float = 1e-3, disk: bool = False) -> np.ndarray:
+        """(N,) float: max(n.d, 0) x [sun's centre seen through an opening, unblocked]; disk: x the share of
+        the sun's disk the openings pass in place of its centre's 0 or 1 (their edges' penumbra; the meshes'
+        shadows stay the centre's: kernels.sunshadow._sun_soft)."""
         p = np.asarray(points, np.float64)
         n = np.asarray(normals, np.float64)
         if not self.active or len(p) == 0:
@@ -146,7 +188,7 @@ class SunLight:
         # the cos, the exit through an opening and the ray past the room and the object in one launch
         # (kernels.sunshadow.SunVisibility); split over the cores for many points, not from inside a pooled launch
         pooled = threading.current_thread().name.startswith("photoar")
-        return self._vis(p, n, self.mesh_ids(extra), eps, parallel=not pooled)
+        return self._vis(p, n, self.mesh_ids(extra), eps, parallel=not pooled, tan_a=self.tan_a if disk else 0.0)
 
     def mesh_ids(self, extra: list[Occluder] = ()) -> list[int]:
         """The Warp mesh ids a ray toward the sun must pass: the room's and those of `extra` (e.g. the object)."""
@@ -157,18 +199,23 @@ class SunLight:
         return self.visibility(points, normals, extra)[:, None] * (self.sun.irradiance / np.pi)
 
     def irradiance_on_mesh(self, points: np.ndarray, normals: np.ndarray, corner_lit: np.ndarray,
-                           extra: list[Occluder] = ()) -> np.ndarray:
+                           extra: list[Occluder] = (), disk: bool = False) -> np.ndarray:
         """Direct sun irradiance/pi (N,3) at points (N,3) on a mesh's faces whose corners' sun is known:
         corner_lit (N,3) bool, True where a corner of the point's face sees the sun. A face with all three
         corners in the sun is taken as wholly lit and one with none as wholly dark (no ray: n.d alone);
         the points of faces in between, where a shadow's edge crosses, are tested (irradiance). A shadow
-        narrower than the mesh's edges that crosses a face without reaching a corner is missed."""
+        narrower than the mesh's edges that crosses a face without reaching a corner is missed. disk: the share
+        of the sun's disk the openings pass, on the wholly lit faces too (from 1 mm along the normal: hit_correction's
+        reference)."""
         n_lit = np.asarray(corner_lit).sum(1)
-        cos = np.maximum(np.asarray(normals, np.float64) @ self.d, 0.0)
+        nrm = np.asarray(normals, np.float64)
+        cos = np.maximum(nrm @ self.d, 0.0)
         vis = np.where(n_lit == 3, cos, 0.0)
+        if disk and self.tan_a > 0:
+            vis = vis * np.where(n_lit == 3, self.disk_through(np.asarray(points, np.float64) + 1e-3 * nrm), 1.0)
         mixed = np.flatnonzero((n_lit > 0) & (n_lit < 3))
         if len(mixed):
-            vis[mixed] = self.visibility(np.asarray(points)[mixed], np.asarray(normals)[mixed], extra)
+            vis[mixed] = self.visibility(np.asarray(points)[mixed], nrm[mixed], extra, disk=disk)
         return vis[:, None] * (self.sun.irradiance / np.pi)
 
     def hit_correction(self, v: np.ndarray, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, tri: np.ndarray,
@@ -182,7 +229,8 @@ class SunLight:
         interpolated normal on a face with all corners sunlit, a ray (visibility, past the room and
         `extra`) on a face that a shadow's edge crosses; faces with no sunlit corner have both 0, and
         so, to within 1 / FLAT_COS - 1, have wholly sunlit flat faces (corner normals equal): neither
-        is in k. groups: as hit_codes."""
+        is in k. groups: as hit_codes. The openings' penumbra: the hit's sun is the share of the sun's disk
+        they pass (visibility(disk=True); flat faces wholly lit keep their corners' blend, which holds it)."""
         code = self.hit_codes(n, f, vis_v, groups)
         ch = code[tri]
         k = np.flatnonzero(ch)
@@ -194,7 +242,7 @@ class SunLight:
             self._hit_sun = HitSun(self.device, self.entries, self.d)
         pooled = threading.current_thread().name.startswith("photoar")
         delta = self._hit_sun(v, n, f, vis_v, code, tri[k], bary[k], self.mesh_ids(extra), 1e-3,
-                              rays=int(np.count_nonzero(ch[k] == 2)), parallel=not pooled)
+                              rays=int(np.count_nonzero(ch[k] == 2)), parallel=not pooled, tan_a=self.tan_a)
         return k, delta
 
     def hit_codes(self, n: np.ndarray, f: np.ndarray, vis_v: np.ndarray, groups: np.ndarray | None = None

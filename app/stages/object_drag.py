@@ -385,9 +385,9 @@ def sun_per_hit_numpy(ds: DragShape, sun, v: np.ndarray, n: np.ndarray, f: np.nd
     """The sun's share per camera hit in numpy, as DragObject.shade computed it before kernels.hit_average's
     SunAtHits did it in one launch (the reference its test and bench/bench_glue48.py's A/B hold it to): per
     sub-sample (n,) the interpolated normal's cos x the object's own shadow (DragShape.sun_lit_at) x the room's
-    share (room (V,) per vertex of the mesh v, n, f, world) blended from the corners x the exit through an opening
-    (sun: lighting.sun.SunLight, its exit_distance); and, for the hits facing the sun (in order), their own
-    shadow's share and whether they exit. The object's frame: local = (p - mean) @ R."""
+    share (room (V,) per vertex of the mesh v, n, f, world) blended from the corners x the share of the sun's disk
+    the openings pass (sun: lighting.sun.SunLight, its disk_through); and, for the hits facing the sun (in order),
+    their own shadow's share and that disk share. The object's frame: local = (p - mean) @ R."""
     d = sun.d
     h = np.flatnonzero(hits.hit)
     corners, bary = f[hits.tri[h]], hits.bary[h].astype(np.float64)
@@ -398,7 +398,7 @@ def sun_per_hit_numpy(ds: DragShape, sun, v: np.ndarray, n: np.ndarray, f: np.nd
     hk, ck, bk = h[on], corners[on], bary[on]
     p = np.einsum("nk,nkc->nc", bk, v[ck])
     room_h = np.einsum("nk,nk->n", bk, room[ck])
-    own, through = ds.sun_lit_at((p - mean) @ R, R.T @ d), np.isfinite(sun.exit_distance(p))
+    own, through = ds.sun_lit_at((p - mean) @ R, R.T @ d), sun.disk_through(p)
     add[hk] = cos[on] * own * room_h * through
     return add, own, through
 
@@ -572,7 +572,7 @@ class DragObject:
             # (a plane and a quad each, no ray: SunLight.exit_distance), times what else of the room blocks it,
             # seen at the probes (a ray each) and interpolated (1 at a probe whose ray leaves through no opening)
             d = osh.sun.d
-            through = np.isfinite(osh.sun.exit_distance(vu)) if osh.sun.active else np.zeros(len(vu), bool)
+            through = osh.sun.disk_through(vu)  # the share of the sun's disk the openings pass (their penumbra)
             probe_sun = osh.sun.visibility(probes, np.broadcast_to(d, probes.shape).copy())
             probe_open = np.isfinite(osh.sun.exit_distance(probes))
             blocked = np.where(probe_open, probe_sun, 1.0)
@@ -591,7 +591,7 @@ class DragObject:
             d_local = R.T @ d
             e1, e2, lo, texel, top, _ = ds.sun_map(d_local)
             add = SunAtHits(v, n, room_u[ss.inv], d, self._exits(osh.sun), mean, R, e1, e2, lo, texel, top,
-                            d_local / np.linalg.norm(d_local), ds.sun_map_on(d_local, self.device))
+                            d_local / np.linalg.norm(d_local), ds.sun_map_on(d_local, self.device), osh.sun.tan_a)
             colour = albedo * (osh.sun.sun.irradiance / np.pi)
         radiance = hit_average(hits, f, L_vert - L_sun if L_sun is not None else L_vert, add, colour, self.device,
                                self._ws.get("drag.hits"), self._radiance)

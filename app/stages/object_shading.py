@@ -682,7 +682,7 @@ class ObjectShading:
             self_lit = ss.sun_self_lit(self.sun.d, vu, nu, own)
             on = np.flatnonzero(self_lit > 0)  # the room's shadow tested only where the object's own leaves the sun
             vis_u = np.zeros(len(vu))
-            vis_u[on] = self.sun.visibility(vu[on], nu[on]) * self_lit[on]
+            vis_u[on] = self.sun.visibility(vu[on], nu[on], disk=True) * self_lit[on]  # the openings' penumbra
             sun_u = vis_u[:, None] * (self.sun.sun.irradiance / np.pi)
             sun_vis = vis_u[ss.inv]  # each vertex's sun share, cos x visibility (sharpened per camera hit later)
             # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at

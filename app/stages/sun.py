@@ -463,7 +463,7 @@ class SunStage:
         sun = None
         if sun_vis is not None:
             sun = (sun_vis, self.light.hit_codes(n, f, sun_vis, groups), albedo, self.E_perp,
-                   self.light.mesh_ids([own]), 1e-3)
+                   self.light.mesh_ids([own]), 1e-3, self.light.tan_a)
         c, mean, _ = self._outline(
             own, cam_occ, camera.centre, camera.R.T @ np.linalg.inv(camera.K), px, py, s, mesh, L_vert, sun,
             functools.partial(runtime.split, device=self.device, min_items=max(1, EDGE_MIN_RAYS // first)), first)
@@ -926,7 +926,10 @@ class SunSetup:
                                      sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ)
             where = f"{self.where}: sun estimate"
         self._patch_light = None
-        self.light = SunLight(sun, openings(scene), self.scene_occ, where=where) if sun else None
+        # an estimated direction was fitted with the disk's centre alone (a hard edge) to the photo's sunlit
+        # outline, whose split lies inside the penumbra: the object keeps that model (docs/unseen.md "sunobj109")
+        self.light = SunLight(sun, openings(scene), self.scene_occ, where=where,
+                              disk=self.source == "declared") if sun else None
         if sun is None and self.source == "declared":
             log.warning("%s: its strength could not be estimated from the photo (%s): no direct sun; give "
                         "`photoar scene --sun-irradiance`", where, info.get("reason"))

@@ -320,7 +320,7 @@ def test_sun_per_hit_kernel_matches_the_numpy_it_replaced(yaw):
     d_local = R.T @ d
     e1, e2, lo, texel, top, _ = ds.sun_map(d_local)
     at = SunAtHits(v, n, room, d, exit_arrays(sun.entries, "cpu"), mean, R, e1, e2, lo, texel, top,
-                   d_local / np.linalg.norm(d_local), ds.sun_map_on(d_local, "cpu"))
+                   d_local / np.linalg.norm(d_local), ds.sun_map_on(d_local, "cpu"), sun.tan_a)
     ws = Workspace()
     L = np.zeros((len(v), 3))
     got_px = hit_average(hits, f, L, at, np.ones(3), "cpu", ws)

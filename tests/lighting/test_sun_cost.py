@@ -18,7 +18,10 @@ def lit_room(room):
 
     s, _, occ = room
     d = np.array([-0.74, 0.62, 0.27])
-    light = SunLight(Sun(d / np.linalg.norm(d), 0.53, np.array([50.0, 40.0, 30.0]), np.zeros(3)), openings(s), occ)
+    # the centre's rule (disk=False): these tests hold the per-hit and outline launches to the numpy they replaced;
+    # the disk's share: test_hit_correction_with_the_disk
+    light = SunLight(Sun(d / np.linalg.norm(d), 0.53, np.array([50.0, 40.0, 30.0]), np.zeros(3)), openings(s), occ,
+                     disk=False)
     return s, light
 
 
@@ -99,6 +102,35 @@ def test_hit_correction_is_the_per_hit_sun_minus_the_vertex_blend(lit_room):
     left = ~np.isin(want, k)
     assert lit_c[want[left]].all() and np.abs(got - ref)[left].max() <= (1 / FLAT_COS - 1) * E.max() + 1e-12
     assert np.abs(got - ref)[~left].max() < 1e-12
+
+
+def test_hit_correction_with_the_disk(lit_room):
+    # the sun's disk (issue 34, sunobj109): every hit the correction takes gets irradiance_on_mesh(disk=True) minus
+    # its vertex blend (the disk's share the openings pass, on wholly lit curved faces and where an edge crosses)
+    import dataclasses
+
+    from lighting.sun import SunLight
+
+    s, hard = lit_room
+    # a disk of 10 deg: its penumbra (about 0.17 m wide 2 m from the opening) reaches the chair
+    light = SunLight(dataclasses.replace(hard.sun, angular_diameter_deg=10.0), hard.openings, hard.occluder)
+    v, n, f, own = _chair(s)
+    vis_v = light.visibility(v, n, [own], disk=True)
+    assert ((vis_v > 0) & (vis_v < np.maximum(n @ light.d, 0) - 1e-6)).any()  # some vertices in a penumbra
+    rng = np.random.default_rng(2)
+    tri = rng.integers(0, len(f), 5000).astype(np.int32)
+    bary = rng.dirichlet(np.ones(3), len(tri)).astype(np.float32)
+    k, delta = light.hit_correction(v, n, f, vis_v, tri, bary, [own])
+    lit_c = vis_v[f[tri[k]]] > 0
+    b = bary[k].astype(np.float64)
+    ck = f[tri[k]]
+    pos = np.einsum("nk,nkc->nc", b, v[ck])
+    nrm = np.einsum("nk,nkc->nc", b, n[ck])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    E = light.sun.irradiance / np.pi
+    ref = light.irradiance_on_mesh(pos, nrm, lit_c, [own], disk=True) - np.einsum("nk,nkc->nc", b, vis_v[ck][:, :, None] * E)
+    assert len(k) > 100
+    assert np.abs(delta[:, None] * E - ref).max() < 1e-12
 
 
 def test_hit_correction_in_blocks_and_halves_equals_it_hit_by_hit(lit_room):
@@ -183,7 +215,7 @@ def test_hit_correction_flat_faces_follow_the_mesh_given(lit_room):
     s, light = lit_room
     v, n, f, own = _chair(s)
     n2, tri, bary = _tilted_hits(n, f, seed=3)
-    fresh = SunLight(light.sun, light.openings, light.occluder)
+    fresh = SunLight(light.sun, light.openings, light.occluder, disk=light.disk)
     for nn in (n, n2, n):
         vis_v = light.visibility(v, nn, [own])
         k, delta = light.hit_correction(v, nn, f, vis_v, tri, bary, [own])
