@@ -7,8 +7,8 @@ transfers G_c) are kept. Then the fit is run again per variant (`base`, or Photo
 and the sun's strength is recomputed from the variant's radiance with the product's formula (pi (B_lit / rho -
 E_ind) / cos, median over the fully sunlit patches; `strength`) and with refl108's bounce rule (`strength_bounces`:
 lighting.sun._sun_strength with bounces 4, the emitters at their fitted radiance). Printed against the truth's
-scene.json: the walls' and the floor's albedo (luminance; k = truth / fit), each declared emitter's radiance over the truth's,
-and the sun's irradiance over the truth's. The replica of the product's sun is printed beside the product's.
+scene.json: the walls' and the floor's albedo (luminance; k = truth / fit), each declared emitter's radiance over
+the truth's, and the sun's irradiance over the truth's. The replica of the product's sun is printed beside the product's.
 Results: docs/unseen.md, "photosun34b" and "photo109".
 
 `python bench/bench_photo_sunscale.py KEEP ROOMS room[,room...] [--variants "base;bounce_levels=4"] [--out DIR]`
