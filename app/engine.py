@@ -126,12 +126,14 @@ class Engine:
         rm = receiver_map(scene, pre, B_src)
         self.sun_pixels: SunPixels = self.sun.apply(pre, rm, dev)
         if p.lighting == "photo" and self.sun.on:  # the sun found: its out-of-view sunlit patches join the fit's
-            # clipped regions (lighting.photolight._sunlit_unseen), and the fit and the sun are made again
+            # clipped regions (lighting.photolight._sunlit_unseen), with PhotoPriors.sun_bounces the fit and the sun's
+            # strength take the camera's bounce count (_sun_bounces), and the fit and the sun are made again
             sunlit = self.sun.sun_share()
-            if self._refit_sunlit(pre, sunlit, photo_priors):
+            sun_priors, levels = self._sun_bounces(photo_priors)
+            if self._refit_sunlit(pre, sunlit, sun_priors, force=levels > 0):
                 B_src = pre.B[p.bounces - 1]
                 rm = receiver_map(scene, pre, B_src)
-                self.sun = SunSetup(scene, p.lighting, p.sun, self.scene_occ, pre.patches)
+                self.sun = SunSetup(scene, p.lighting, p.sun, self.scene_occ, pre.patches, bounces=levels or None)
                 self.sun_pixels = self.sun.apply(pre, rm, dev)
         if p.lighting == "photo":
             self.photo_light = self.sun.photo_report(self.photo_light)
@@ -208,19 +210,39 @@ class Engine:
         self.photo_light = {**report, **{k: v for k, v in self.photo_light.items() if k.startswith("declared")}}
         log.debug("photo light: %s", {k: v for k, v in self.photo_light.items() if k != "warnings"})
 
-    def _refit_sunlit(self, pre: Precomputed, sunlit: np.ndarray, priors=None) -> bool:
+    def _sun_bounces(self, priors=None):
+        """(priors for photo light's fit once a sun is found, the bounce levels the sun's strength takes: 0 none).
+
+        With PhotoPriors.sun_bounces (opt-in): the photo holds the light of `EngineParams.bounces` reflections, the
+        camera's hit one of them (../shared/DESIGN.md "Bounces"), so a seen patch reflects its neighbours' light of
+        one bounce less than the photo shows them. Gathered at the photo's level, the light between the surfaces
+        looks weaker than the walls' albedo gives and the interreflection fit lowers that albedo, the more so the
+        brighter the room (sun_104: 0.70x the truth's); the sun's strength from the clipped sunlit patch carries
+        that scale to about the power 2.6 (docs/unseen.md "photosun34b"), and the floor's reflectivity, gathered
+        the same way, once more (docs "refl108"). So the fit takes bounce_levels = EngineParams.bounces and the
+        strength the bounce rule (docs "photo109": right in the bright sun rooms, too dark in the darker ones).
+        Without it: the priors as given, 0."""
+        from lighting.photolight import PhotoPriors
+
+        pr = priors or PhotoPriors()
+        if not pr.sun_bounces:
+            return priors, 0
+        return dataclasses.replace(pr, bounce_levels=self.params.bounces), self.params.bounces
+
+    def _refit_sunlit(self, pre: Precomputed, sunlit: np.ndarray, priors=None, force: bool = False) -> bool:
         """Photo light's fit again with the sunlit patches (`sunlit` (P,): their sun share) that it gathered as
-        unseen reflectors joined to their surface's clipped region; False (nothing done) when none joins."""
+        unseen reflectors joined to their surface's clipped region; False (nothing done) when none joins and not
+        `force` (the priors differ from the first fit's: the bounce levels, _sun_bounces)."""
         from lighting.photolight import FITTED
         from lighting.radiance import GATHERED
 
         origin = np.asarray(pre.origin)
         region_q = np.unique(pre.patches.quad[origin == FITTED])
-        if not ((sunlit > 0) & (origin == GATHERED) & np.isin(pre.patches.quad, region_q)).any():
+        if not force and not ((sunlit > 0) & (origin == GATHERED) & np.isin(pre.patches.quad, region_q)).any():
             return False
         scene_precompute.use_lighting(pre, self.params.lighting, functools.partial(
             self._fit_photo_light, priors=priors, sunlit=sunlit))
-        return self.photo_light.get("sunlit_unseen_joined", 0) > 0
+        return force or self.photo_light.get("sunlit_unseen_joined", 0) > 0
 
     def _local_light(self, pre: Precomputed, B_lit: np.ndarray, sunlit: np.ndarray):
         """Photo light: (lighting.photolocal.LocalLight, the emitter patches (P,) bool it scales: the room

@@ -5,10 +5,11 @@ with two hooks: the interreflection fit's inputs (lighting.photolight.fit_photo_
 (lighting.sun._sun_strength: the direction, the patches' sun share e = cos x sunlit share, the radiance B and the
 transfers G_c) are kept. Then the fit is run again per variant (`base`, or PhotoPriors fields `NAME=VALUE[,...]`)
 and the sun's strength is recomputed from the variant's radiance with the product's formula (pi (B_lit / rho -
-E_ind) / cos, median over the fully sunlit patches; `strength`). Printed against the truth's scene.json: the
-walls' and the floor's albedo (luminance; k = truth / fit), each declared emitter's radiance over the truth's,
-and the sun's irradiance over the truth's. The replica of the product's sun is printed beside the product's.
-Results: docs/unseen.md, "photosun34b".
+E_ind) / cos, median over the fully sunlit patches; `strength`) and with refl108's bounce rule (`strength_bounces`:
+lighting.sun._sun_strength with bounces 4, the emitters at their fitted radiance). Printed against the truth's
+scene.json: the walls' and the floor's albedo (luminance; k = truth / fit), each declared emitter's radiance over
+the truth's, and the sun's irradiance over the truth's. The replica of the product's sun is printed beside the product's.
+Results: docs/unseen.md, "photosun34b" and "photo109".
 
 `python bench/bench_photo_sunscale.py KEEP ROOMS room[,room...] [--variants "base;bounce_levels=4"] [--out DIR]`
 """
@@ -53,6 +54,18 @@ def strength(d: np.ndarray, e: np.ndarray, quad: np.ndarray, emit: np.ndarray, n
     return np.maximum(np.median(np.concatenate(est), axis=0), 0.0) if est else np.full(3, np.nan)
 
 
+def strength_bounces(sd: dict, B: np.ndarray, bounces: int = 4) -> np.ndarray:
+    """The sun's irradiance (3,) by lighting.sun._sun_strength with its bounce rule (`bounces`, docs "refl108"),
+    the emitters' radiance taken from B (photo light's mesh marks them with emission 1)."""
+    import lighting.sun as S
+
+    pm = copy.deepcopy(sd["pm"])
+    pm.emission = np.where(np.any(pm.emission > 0, axis=1)[:, None], B, 0.0)
+    info: dict = {}
+    S._sun_strength(sd["d"], sd["holes"], sd["occluder"], pm, B, sd["G"], info, bounces)
+    return np.array(info.get("irradiance_perpendicular", [np.nan] * 3))
+
+
 def truth(root: Path) -> dict:
     """The truth's walls' and floor's albedo (luminance), its sun's irradiance and its emitters' radiance."""
     s = json.loads((root / "scene.json").read_text())
@@ -74,19 +87,21 @@ def capture(keep: Path, rooms: Path, room: str, out: Path, shared: Path) -> dict
     state: dict = {}
     orig_ss, orig_fit = S._sun_strength, PL.fit_photo_light
 
-    def ss(d, holes, occluder, pm, B, G_c, info):
+    def ss(d, holes, occluder, pm, B, G_c, info, bounces=None):
         light = S.SunLight(S.Sun(d, S.SUN_DIAMETER_DEG, np.full(3, np.pi), np.zeros(3)), holes, occluder, where="bench")
         e = light.patch_irradiance(pm.corners, pm.normal, ~pm.is_emitter)[:, 0]
         state["sun"] = {"d": d, "e": e, "quad": pm.quad.copy(), "emit": pm.is_emitter.copy(), "normal": pm.normal.copy(),
-                        "G": np.array(G_c)}
-        r = orig_ss(d, holes, occluder, pm, B, G_c, info)
+                        "G": np.array(G_c), "holes": holes, "occluder": occluder, "pm": copy.deepcopy(pm)}
+        r = orig_ss(d, holes, occluder, pm, B, G_c, info, bounces)
         state["sun"]["product"] = np.array(info.get("irradiance_perpendicular", [np.nan] * 3))
         return r
 
-    def fit(patches, G, pix_patch, photo, response, priors=None, quad_names=None, where="photo", quad_roles=None):
+    def fit(patches, G, pix_patch, photo, response, priors=None, quad_names=None, where="photo", quad_roles=None,
+            sunlit=None):
         state["fit"] = {"patches": copy.deepcopy(patches), "G": G, "pix_patch": pix_patch, "photo": np.array(photo),
-                        "response": response, "priors": priors, "quad_names": quad_names, "quad_roles": quad_roles}
-        return orig_fit(patches, G, pix_patch, photo, response, priors, quad_names, where, quad_roles)
+                        "response": response, "priors": priors, "quad_names": quad_names, "quad_roles": quad_roles,
+                        "sunlit": None if sunlit is None else np.array(sunlit)}
+        return orig_fit(patches, G, pix_patch, photo, response, priors, quad_names, where, quad_roles, sunlit=sunlit)
 
     S._sun_strength, PL.fit_photo_light = ss, fit
     try:
@@ -108,7 +123,7 @@ def refit(state: dict, variant: str):
     if variant != "base":
         pr = dataclasses.replace(pr, **{k: eval(v) for k, v in (x.split("=") for x in variant.split(","))})  # noqa: S307
     return PL.fit_photo_light(f["patches"], f["G"], f["pix_patch"], f["photo"], f["response"], pr, f["quad_names"],
-                              "bench", f["quad_roles"])
+                              "bench", f["quad_roles"], sunlit=f.get("sunlit"))
 
 
 def main() -> None:
@@ -139,9 +154,12 @@ def main() -> None:
                                            fit.radiance))) if sd else float("nan")
             ems = {x["name"]: float(luminance(np.array(x["radiance"])) / luminance(np.array(t["emit"][x["name"]])))
                    for x in rep["emitters"] if x["name"] in t["emit"]}
-            rows[room]["variants"][v] = {"wall": wall, "floor": floor, "sun": sun, "emitters_over_truth": ems}
+            sun_b = float(luminance(strength_bounces(sd, fit.radiance))) if sd else float("nan")
+            rows[room]["variants"][v] = {"wall": wall, "floor": floor, "sun": sun, "sun_bounces": sun_b,
+                                         "emitters_over_truth": ems}
             print(f"  {v:24s} walls {wall:.3f} (k {t['wall'] / wall:.2f})  floor {floor:.3f} (k {t['floor'] / floor:.2f})  "
-                  f"sun {sun:.1f} ({sun / t['sun']:.2f}x)  " + " ".join(f"{n} {r:.2f}x" for n, r in ems.items()), flush=True)
+                  f"sun {sun:.1f} ({sun / t['sun']:.2f}x, bounce rule {sun_b / t['sun']:.2f}x)  "
+                  + " ".join(f"{n} {r:.2f}x" for n, r in ems.items()), flush=True)
         logging.disable(logging.NOTSET)
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "sunscale.json").write_text(json.dumps(rows, indent=1, default=float))

@@ -111,6 +111,9 @@ class PhotoPriors:
     bounce_levels: int = 0  # > 0: the photo holds this many light bounces, the camera hit one of them (a path
     # tracer's cap: the benchmark truth 4); the interreflection fit then gathers one level less (lighting.photoalbedo)
     # 0: every bounce (a camera). Opt-in: measured in docs/unseen.md "photosun34b", not the default
+    sun_bounces: bool = False  # once a sun is found in the photo, the fit again with bounce_levels = the engine's
+    # bounce count and the sun's strength by the same bounce model (app.engine.Engine._sun_bounces). Opt-in:
+    # measured in docs/unseen.md "photo109" (the bright sun rooms right, the darker ones too dark), not the default
 
 
 @dataclass

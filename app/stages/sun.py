@@ -675,11 +675,15 @@ class SunSetup:
     (sun_share), so that the sunlit patches out of view join the fit's clipped region, and applies a new
     SunSetup to that fit (app.engine.Engine._refit_sunlit)."""
 
-    def __init__(self, scene: Scene, lighting: str, choice: str, scene_occ: Occluder, patches: PatchMesh):
+    def __init__(self, scene: Scene, lighting: str, choice: str, scene_occ: Occluder, patches: PatchMesh,
+                 bounces: int | None = None):
         """Known light lights the precompute with the declared sun; captured and photo light take the
         declared one or the estimate in apply(), after the precompute. ValueError when --sun declared
-        has no sun entry."""
+        has no sun entry. bounces: the estimate's strength gathers one bounce less than the radiance
+        (lighting.sun._sun_strength's `bounces`; photo light once its fit has the bounce levels, app.engine
+        Engine._sun_bounces); None: as measured."""
         self.scene, self.lighting, self.scene_occ = scene, lighting, scene_occ
+        self.bounces = bounces
         self.where = str(scene.meta.get("json_path", scene.name))
         self.source = self._source(choice)  # "declared", "estimate" or None (no sun)
         self.patches = patches  # apply() works on a copy of the precompute's (its emission and reflectivity)
@@ -894,6 +898,16 @@ class SunSetup:
                                   pm.albedo[pix_patch[idx]])
         return pm.albedo[pix_patch[idx]]
 
+    def _emitting(self, pm: PatchMesh, B: np.ndarray) -> PatchMesh:
+        """pm for the strength's bounce model (self.bounces): photo light marks its emitters with emission 1 (app.
+        stages.precompute.fit_photo_light); the model needs their radiance B (P,3), as captured light's mesh holds
+        it. pm itself without bounces or under captured light."""
+        if not self.bounces or self.lighting != "photo":
+            return pm
+        out = copy.copy(pm)
+        out.emission = np.where(np.any(pm.emission > 0, axis=1)[:, None], B, 0.0)
+        return out
+
     def _estimate(self, pre, rm, E_x: np.ndarray, recv_pix: np.ndarray) -> None:
         """Captured or photo light: the sun estimated from the photo and the radiance mesh
         (lighting.sun.estimate_sun) replaces the declared one (or the declared one as given, --sun
@@ -922,8 +936,9 @@ class SunSetup:
         elif self.source == "declared":  # the user's sun as given (--sun); no estimate
             sun, info, where = scene.sun, None, f"{self.where}: sun"
         else:
-            sun, info = estimate_sun(scene, pm, pix_patch, rm.pix_pos.astype(np.float64), rm.dirs, rm.L_b,
-                                     sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ)
+            sun, info = estimate_sun(scene, self._emitting(pm, pre.B[-1]), pix_patch, rm.pix_pos.astype(np.float64),
+                                     rm.dirs, rm.L_b, sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ,
+                                     bounces=self.bounces)
             where = f"{self.where}: sun estimate"
         self._patch_light = None
         # an estimated direction was fitted with the disk's centre alone (a hard edge) to the photo's sunlit

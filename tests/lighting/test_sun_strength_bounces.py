@@ -60,3 +60,43 @@ def test_one_bounce_or_none_keeps_the_rule_before(known_engine):
     for b in (0, 1):
         same, _ = _strength(s, e, b)
         assert np.allclose(same.irradiance, old.irradiance, rtol=1e-12, atol=0)
+
+
+def test_photo_lights_emitter_markers_take_their_radiance(known_engine):
+    """Photo light marks its emitters with emission 1 (app.stages.precompute.fit_photo_light); the bounce model
+    needs their radiance. SunSetup._emitting gives it back: the strength is then the captured convention's to
+    1e-9, while the markers as radiance give another sun (docs/unseen.md "photo109")."""
+    import copy
+
+    from app.stages.sun import SunSetup
+    from lighting.sun import _sun_strength, openings
+
+    s, e = known_engine
+    pm = copy.copy(e.pre.patches)
+    pm.emission = np.where(np.any(e.pre.patches.emission > 0, axis=1)[:, None], 1.0, 0.0)
+    d = s.sun.direction / np.linalg.norm(s.sun.direction)
+
+    def strength(mesh):
+        return _lum(_sun_strength(d, openings(s), e.scene_occ, mesh, e.pre.B[-1], e.pre.G_c, {}, 4)[0].irradiance)
+
+    ref = strength(e.pre.patches)
+    setup = SunSetup(s, "photo", "auto", e.scene_occ, pm, bounces=4)
+    assert abs(strength(setup._emitting(pm, e.pre.B[-1])) / ref - 1) < 1e-9
+    assert abs(strength(pm) / ref - 1) > 0.02  # the markers as radiance: a different sun
+    assert SunSetup(s, "photo", "auto", e.scene_occ, pm)._emitting(pm, e.pre.B[-1]) is pm  # no bounces: as given
+
+
+def test_photo_fit_under_a_sun_takes_the_engines_bounces_when_asked():
+    """Engine._sun_bounces: PhotoPriors.sun_bounces gives the fit the engine's bounce count (the other priors
+    kept); off (the default) the priors pass as given and the strength takes no bounce rule."""
+    from types import SimpleNamespace
+
+    from app.engine import Engine
+    from lighting.photolight import PhotoPriors
+
+    eng = SimpleNamespace(params=SimpleNamespace(bounces=4))
+    assert Engine._sun_bounces(eng, None) == (None, 0)
+    given = PhotoPriors(bounce_levels=3)
+    assert Engine._sun_bounces(eng, given) == (given, 0)
+    pr, levels = Engine._sun_bounces(eng, PhotoPriors(sun_bounces=True, wall_albedo=0.6))
+    assert levels == 4 and pr.bounce_levels == 4 and pr.wall_albedo == 0.6
