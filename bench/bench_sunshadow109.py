@@ -9,7 +9,7 @@ mask, |truth - background| > 2 levels) and the energy split over parts of the af
     core        sunlit, the truth's darkening (bg - truth) above half the sunlit region's 99th percentile of it
                 and more than 3 px from the core's outline (the sun shadow's umbra)
     edge        sunlit, within 3 px of that outline (either side: the penumbra and the blur)
-    lit rest    sunlit, the rest (indirect shadow inside the sunlit patch)
+    rest        sunlit, the rest (indirect shadow inside the sunlit patch)
   unlit         the rest of the affected region, split where our composite is brighter than the background (the
                 light the sunlit object reflects onto the room) and darker (the indirect shadow); split on ours,
                 not the truth's sign, whose render noise would bias each side's truth away from ours; each
@@ -18,7 +18,7 @@ mask, |truth - background| > 2 levels) and the energy split over parts of the af
                 affected or not (chosen on ours alone: no selection on the truth's render noise)
 For each: pixels, the truth's darkening sum(bg - truth), ours sum(bg - ours), ours - truth (levels x px; its share
 of the total excess) and the clipped share (background blurred luminance >= 250).
-Reads images only (no engine), so it runs beside nothing else; the composite is `photoar evaluate`'s.
+Images only (no engine; seconds a room); COMPOSITE is `photoar evaluate ROOM --passes all`'s composite_all.png.
 """
 from __future__ import annotations
 
