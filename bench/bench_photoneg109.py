@@ -82,17 +82,18 @@ def terms(root: Path, keep: Path) -> None:
     from bench.own_room_flow import _composite_argv, _photoar, score, write_inputs
 
     shared = Path(os.environ.get("PHOTOAR_SHARED", "../shared"))
-    inp = write_inputs(root, Path(tempfile.mkdtemp(prefix="photoneg109_")))
-    for name, extra in (("full", []), ("no_object_light", ["--no-object-light"]),
-                        ("no_second_order", ["--no-second-order"]),
-                        ("neither", ["--no-object-light", "--no-second-order"])):
-        out = keep / f"terms_{name}"
-        rc, err, _ = _photoar(_composite_argv(keep / "room", out, inp, "photo", keep / "cache") + extra)
-        if rc != 0:
-            print(f"{name}: composite failed: {err}", flush=True)
-            continue
-        s, d = score(root, out / "composite.png", shared), split(str(root), str(out / "composite.png"))
-        print(json.dumps({"variant": name, "score": s, "split": d}), flush=True)
+    with tempfile.TemporaryDirectory(prefix="photoneg109_") as tmp:  # the flow's inputs (object mesh, pose)
+        inp = write_inputs(root, Path(tmp))
+        for name, extra in (("full", []), ("no_object_light", ["--no-object-light"]),
+                            ("no_second_order", ["--no-second-order"]),
+                            ("neither", ["--no-object-light", "--no-second-order"])):
+            out = keep / f"terms_{name}"
+            rc, err, _ = _photoar(_composite_argv(keep / "room", out, inp, "photo", keep / "cache") + extra)
+            if rc != 0:
+                print(f"{name}: composite failed: {err}", flush=True)
+                continue
+            s, d = score(root, out / "composite.png", shared), split(str(root), str(out / "composite.png"))
+            print(json.dumps({"variant": name, "score": s, "split": d}), flush=True)
 
 
 def main(argv: list[str]) -> int:
