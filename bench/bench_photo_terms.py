@@ -80,14 +80,14 @@ class Hooks:
 
         orig_fit = precompute.fit_photo_light
 
-        def fit_photo_light(pre, scene, bounces, priors):
+        def fit_photo_light(pre, scene, bounces, priors, *rest):
             hooks.quad_names = [q.name for q in scene.quads]
             if priors is None and hooks.variant.startswith("prior:"):  # prior:NAME=VALUE[;NAME=VALUE]
                 from lighting.photolight import PhotoPriors
 
                 kw = dict(x.split("=") for x in hooks.variant[6:].split(";"))
                 priors = PhotoPriors(**{k: eval(v) for k, v in kw.items()})  # noqa: S307 (bench option)
-            return orig_fit(pre, scene, bounces, priors)
+            return orig_fit(pre, scene, bounces, priors, *rest)
 
         precompute.use_lighting = use_lighting
         precompute.fit_photo_light = fit_photo_light
