@@ -195,14 +195,16 @@ class _Clicks:
             raise self.err(where, "a side has no clicked corner (corners out of the photo are null): give its "
                                   f"length in size_m[{k}], or the wall it stands against in 'against'")
         ends = (known - size[k], known + size[k])
+
+        def farthest(cands) -> float:  # the end whose corners lie furthest from the camera (mean distance)
+            far = [float(np.mean([np.linalg.norm(X - self.camera.centre) for X in corners(e)])) for e in cands]
+            return float(cands[int(np.argmax(far))])
+
         if behind:
-            inside = [e for e in ends if not any(self.outside(X) for X in corners(e))] or list(ends)
-            far = [float(np.mean([np.linalg.norm(X - self.camera.centre) for X in corners(e)])) for e in inside]
-            return float(inside[int(np.argmax(far))])
+            return farthest([e for e in ends if not any(self.outside(X) for X in corners(e))] or list(ends))
         ok = [e for e in ends if all(self.outside(X) for X in corners(e))]
         if not ok:
-            far = [float(np.mean([np.linalg.norm(X - self.camera.centre) for X in corners(e)])) for e in ends]
-            ok = [ends[int(np.argmax(far))]]
+            ok = [farthest(ends)]
         if len(ok) != 1:
             raise self.err(where, "cannot tell on which side the corners out of the photo lie (size_m puts them "
                                   "out of it both ways): click them")

@@ -15,6 +15,20 @@ from recon.clickbase import (CLICK_SIGMA_PX, DESK_LEG_INSET_M, DESK_LEG_M, DESK_
                              WALL_TOL_M, Wall, Z99, _Clicks, _floor, _pixel_metres, _reproject_fit, ray)
 
 
+def _a_on_e1(f: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> bool:
+    """Whether the footprint's edge floor[1] -> floor[0] (the a edge; f (3,3), a row of nan where null, at least
+    two clicked) runs along local x (e1) rather than z (e2): from the a edge when both its corners are clicked, else
+    from the b edge (floor[1] -> floor[2]); True when floor[0] and floor[2] (diagonal) are the clicked ones: they
+    pin every side either way."""
+    known = [k for k in range(3) if np.isfinite(f[k, 0])]
+    a, b = f[0] - f[1], f[2] - f[1]
+    if 0 in known and 1 in known:
+        return bool(abs(a @ e1) >= abs(a @ e2))
+    if 1 in known:
+        return bool(abs(b @ e1) < abs(b @ e2))
+    return True
+
+
 def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, against: Wall | None = None,
                noise_m: np.ndarray | None = None, hidden: frozenset = frozenset()) -> tuple[float, np.ndarray, np.ndarray]:
     """Upright rectangle through floor corners f (3,3) (f[1] the corner between the others; a row of
@@ -57,12 +71,7 @@ def _footprint(P: _Clicks, f: np.ndarray, where: str, size: np.ndarray | None, a
         raise P.err(where, f"the footprint is turned {math.degrees(yaw):.0f} deg from the room's axes: click all three "
                            "floor corners")
     e1, e2 = np.array([math.cos(yaw), 0, -math.sin(yaw)]), np.array([math.sin(yaw), 0, math.cos(yaw)])
-    if 1 in known and 0 in known:
-        a_on_e1 = abs(a @ e1) >= abs(a @ e2)
-    elif 1 in known:
-        a_on_e1 = abs(b @ e1) < abs(b @ e2)
-    else:
-        a_on_e1 = True  # f0 and f2 diagonal: they pin every side either way
+    a_on_e1 = _a_on_e1(f, e1, e2)
     ea, eb = (e1, e2) if a_on_e1 else (e2, e1)
     # along the a edge (f1 -> f0): f0 on one side, f1 and f2 on the other; along b: f2, and f0 and f1
     ends = []
@@ -206,14 +215,7 @@ def _sizes_to_tape(f: np.ndarray, e1: np.ndarray, e2: np.ndarray, x: np.ndarray,
     corners, a row of nan where null) when not given yet: with it the loose side follows the sure one
     (_refine_box), to the tape's accuracy. x: the fit [x min, x max, z min, z max, top] (m) along the
     local axes e1, e2; loose: {side name: sd m}."""
-    known = [k for k in range(3) if np.isfinite(f[k, 0])]
-    a, b = f[0] - f[1], f[2] - f[1]
-    if 0 in known and 1 in known:
-        a_on_e1 = abs(a @ e1) >= abs(a @ e2)
-    elif 1 in known and 2 in known:
-        a_on_e1 = abs(b @ e1) < abs(b @ e2)
-    else:
-        a_on_e1 = True  # as _footprint: f0 and f2 diagonal
+    a_on_e1 = _a_on_e1(f, e1, e2)
     out = []
     for j0, along in ((0, "x"), (2, "z")):
         bad = [SIDES[j] in loose for j in (j0, j0 + 1)]

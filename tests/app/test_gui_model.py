@@ -166,6 +166,10 @@ def test_controller_names_the_size_to_tape():
         and "size_m[0]" in lines[0] and lines[1].startswith("sofa_back: tape its length along z"), msg
     with pytest.raises(ValueError, match="no furniture piece 'sofa'"):
         ctl.set_size("sofa", 0, 0.9)
+    with pytest.raises(ValueError, match=r"size_m\[2\] = 0.9: expected index 0 or 1"):
+        ctl.set_size("sofa_seat", 2, 0.9)
+    with pytest.raises(ValueError, match=r"size_m\[0\] = -0.9: expected index 0 or 1 and a positive length"):
+        ctl.set_size("sofa_seat", 0, -0.9)
     ctl.set_size("sofa_seat", 0, 0.9)
     assert next(c for c in ctl.clicks if c.get("name") == "sofa_seat")["size_m"] == [0.9, None]
     m, msg = ctl.model()
