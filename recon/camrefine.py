@@ -99,6 +99,8 @@ EDGE_MODEL_SIGMA_PX = 0.3  # the model selection (recon/campp.py): the room mode
 # sigma_sample^2 / n + this^2 (_edge_weights "model"). Not the fit's weighting: fitted so (docs/unseen.md) the
 # short furniture edges weigh as much as the room's long ones and the clicked lines far more than before, and
 # window_103's refined camera went 0.19 -> 5.6 px off, window_101's 0.55 -> 2.0 px
+FOCAL_FROM_LINES_RATIO = 1.0 / np.sqrt(2.0)  # a fit's own sigma of log f over calibrate's above which its room
+# edges hold less information on the focal length (1 / sigma^2) than the clicked lines do (_focal_from_lines)
 MAX_PRED_STD_PX = 0.25  # conditioning: a 1-sigma parameter error may move the samples this much (rms)
 MIN_MOVE_PX = 1.0  # a refinement that moves the room's edges less (rms) is not made: the room model's own
 # edges sit 0.2-0.4 px off the photo's (creases, contact shadows, shading; per edge, at the true camera), and
@@ -796,8 +798,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         # when the guard accepts it and, as the widened search's, it brings the room's edges closer to the
         # photo's by more than the room model's own error of an edge's image (EDGE_MODEL_SIGMA_PX, _edge_gain):
         # in a grainy sunlit room (2 x 24 spp) the true camera's second attempt walked 4 px off for 0.02 px
-        clipped = copy.copy(photo)
-        clipped.clipped_edges = True
+        clipped = _with_clipped_edges(photo)
         alt = attempt(clipped)
         if alt[4].accepted:
             common = _union(_sample_edges(cam, edges, occ), alt[0].S)
@@ -812,11 +813,10 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         # of them, +0.2..+0.6 px at the truth) went +3.46 -> +5.09 %. The room's other edges are then blown-out
         # windows the profile stage never sees: search again with their Canny matches (_fine_edges, as 3b), and
         # take that camera when the guard accepts it and its edges do determine the focal length
-        clipped = copy.copy(photo)
-        clipped.clipped_edges = True
+        clipped = _with_clipped_edges(photo)
         alt = attempt(clipped)
         ratio = _focal_sigma_ratio(cam, alt[0])
-        if alt[4].accepted and ratio is not None and ratio <= 1.0 / np.sqrt(2.0):
+        if alt[4].accepted and ratio is not None and ratio <= FOCAL_FROM_LINES_RATIO:
             best, model, note, refined, r = alt
             photo = clipped
     sigma_f = cam.focal_rel_sigma
@@ -886,6 +886,14 @@ def _focal_recheck_due(cam: Camera, refined: Camera, mode: str) -> bool:
     return mode == "always" or abs(float(np.log(refined.K[0, 0] / cam.K[0, 0]))) > float(np.log1p(sigma_f))
 
 
+def _with_clipped_edges(photo: PhotoEdges) -> PhotoEdges:
+    """A copy of `photo` whose wholly clipped room edges the fine stages keep at their Canny matches (_fine_edges):
+    the second attempt of steps 3b and 3c."""
+    clipped = copy.copy(photo)
+    clipped.clipped_edges = True
+    return clipped
+
+
 def _focal_sigma_ratio(cam: Camera, fit: _Fit) -> float | None:
     """The fit's own sigma of log f (camera_covariance of its last solve, the clicked lines included) over calibrate's
     (cam.focal_rel_sigma, also a sigma of log f); None without a usable calibrate sigma, a solve or a regular
@@ -907,7 +915,7 @@ def _focal_from_lines(cam: Camera, fit: _Fit) -> bool:
     if fit.data is None or fit.data[3] is not None:
         return False
     ratio = _focal_sigma_ratio(cam, fit)
-    return ratio is not None and ratio > 1.0 / np.sqrt(2.0)
+    return ratio is not None and ratio > FOCAL_FROM_LINES_RATIO
 
 
 def _usable_sigma(sigma_f: float | None) -> bool:
