@@ -13,7 +13,6 @@ the edges add less information on the focal length than the lines: the retry run
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -26,24 +25,18 @@ sys.path.insert(0, str(ROOT))
 
 
 def compare_room(root: Path) -> dict:
-    from bench.bench_camrefine import camera_errors, object_points
-    from bench.own_room_flow import calibrated_from_lines
-    from recon import assemble as asm
+    from bench.bench_camrefine import calibrated_room
     from recon import camrefine as cr
 
-    truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
-    cam = dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma)
-    cam = asm.inside_turn(cam, lo, hi)[0]
-    faces = cr.room_faces(prims)
-    S_truth = cr._sample_edges(truth, cr.room_edges(faces), cr._Occluder(faces))
-    P = object_points(root)
+    room = calibrated_room(root)
+    cam = room.cam
     out = {"room": root.name, "sigma_f_pct": 100 * float(cam.focal_rel_sigma or np.nan),
-           "calibrated": camera_errors(cam, truth, S_truth, P)}
+           "calibrated": room.errors(cam)}
     for mode in ("off", "retry"):
         t0 = time.process_time()
-        r = cr.refine_camera(cam, prims, img, cal.to_json(), focal_from_lines=mode)
+        r = cr.refine_camera(cam, room.prims, room.img, room.cal.to_json(), focal_from_lines=mode)
         cov = r.covariance
-        out[mode] = {**camera_errors(r.camera, truth, S_truth, P), "accepted": r.accepted, "start": r.start,
+        out[mode] = {**room.errors(r.camera), "accepted": r.accepted, "start": r.start,
                      "reason": r.reason, "cpu_s": time.process_time() - t0, "summary": r.summary(),
                      "fit_sigma_f_pct": 100 * float(np.sqrt(cov[5, 5])) if cov is not None else float("nan"),
                      "K": r.camera.K.tolist(), "R": r.camera.R.tolist(), "t": r.camera.t.tolist()}

@@ -76,6 +76,37 @@ def camera_errors(cam, truth, S, P=None) -> dict:
             "image_px": float(np.sqrt(np.mean(np.sum((ua - ub) ** 2, axis=1)))) if len(S.X) else float("nan")}
 
 
+@dataclasses.dataclass
+class CalibratedRoom:
+    """A benchmark room as the own-room flow hands it to the camera refinement: the truth's camera, calibrate's on
+    the clicked lines (its focal sigma kept, turned to stand inside the taped room), the photo, the calibration and
+    the primitives, with the truth's visible room-edge samples and the object's points that camera_errors scores."""
+    truth: object
+    cam: object
+    img: np.ndarray
+    cal: object
+    prims: list
+    S_truth: object
+    P: np.ndarray
+
+    def errors(self, camera) -> dict:
+        """camera_errors of `camera` against the truth over this room's edge samples and object points."""
+        return camera_errors(camera, self.truth, self.S_truth, self.P)
+
+
+def calibrated_room(root: Path) -> CalibratedRoom:
+    """bench.own_room_flow.calibrated_from_lines(root) made ready for refine_camera (CalibratedRoom)."""
+    from bench.own_room_flow import calibrated_from_lines
+    from recon import assemble as asm
+    from recon import camrefine as cr
+
+    truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
+    cam = asm.inside_turn(dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma), lo, hi)[0]
+    faces = cr.room_faces(prims)
+    S_truth = cr._sample_edges(truth, cr.room_edges(faces), cr._Occluder(faces))
+    return CalibratedRoom(truth, cam, img, cal, prims, S_truth, object_points(root))
+
+
 def _variant(text: str) -> dict:
     out = {}
     for kv in filter(None, text.split(",")):

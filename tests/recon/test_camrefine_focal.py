@@ -113,16 +113,10 @@ def test_window_107_calibrated_camera_comes_within_half_a_percent():
     """Clean window_107 (rooms_full), the own-room flow's calibrated camera (-3.25 % of focal, 8.8 cm; 8.7 px at the
     object): refined before cam108 to -0.90 %, 3.3 cm, 4.5 px; now within 0.5 % of focal, 2 cm and 1 px
     (measured -0.24 %, 0.7 cm, 0.37 px)."""
-    from bench.bench_camrefine import camera_errors, object_points
-    from bench.own_room_flow import calibrated_from_lines
-    from recon import assemble as asm
+    from bench.bench_camrefine import calibrated_room
 
-    root = FULL / "window_107"
-    truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
-    cam = asm.inside_turn(dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma), lo, hi)[0]
-    r = cr.refine_camera(cam, prims, img, cal.to_json())
+    room = calibrated_room(FULL / "window_107")
+    r = cr.refine_camera(room.cam, room.prims, room.img, room.cal.to_json())
     assert r.accepted, r.reason
-    faces = cr.room_faces(prims)
-    e = camera_errors(r.camera, truth, cr._sample_edges(truth, cr.room_edges(faces), cr._Occluder(faces)),
-                      object_points(root))
+    e = room.errors(r.camera)
     assert abs(e["focal_pct"]) < 0.5 and e["centre_cm"] < 2.0 and e["object_px"] < 1.0, e

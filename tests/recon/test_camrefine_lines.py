@@ -70,16 +70,10 @@ def test_window_108_calibrated_camera_comes_near_the_truth():
     the object; calibrate's sigma 3.0 %): the old rule refines it to +5.09 %, 2.3 cm, 10.4 px (the fit's own focal
     sigma 2.9 %: its three room edges add nothing on the focal length); now within 1 % of focal, 2.5 cm and 2 px
     (measured -0.46 %, 1.8 cm, 1.25 px: the windows' Canny edges)."""
-    from bench.bench_camrefine import camera_errors, object_points
-    from bench.own_room_flow import calibrated_from_lines
-    from recon import assemble as asm
+    from bench.bench_camrefine import calibrated_room
 
-    root = FULL / "window_108"
-    truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
-    cam = asm.inside_turn(dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma), lo, hi)[0]
-    r = cr.refine_camera(cam, prims, img, cal.to_json())
+    room = calibrated_room(FULL / "window_108")
+    r = cr.refine_camera(room.cam, room.prims, room.img, room.cal.to_json())
     assert r.accepted, r.reason
-    faces = cr.room_faces(prims)
-    e = camera_errors(r.camera, truth, cr._sample_edges(truth, cr.room_edges(faces), cr._Occluder(faces)),
-                      object_points(root))
+    e = room.errors(r.camera)
     assert abs(e["focal_pct"]) < 1.0 and e["centre_cm"] < 2.5 and e["object_px"] < 2.0, e
