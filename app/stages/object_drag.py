@@ -568,11 +568,12 @@ class DragObject:
         E_sun = None
         sun_vis = None
         if osh.sun is not None:
-            # the room's shadow: whether the ray toward the sun leaves through an opening, per vertex and exact
-            # (a plane and a quad each, no ray: SunLight.exit_distance), times what else of the room blocks it,
-            # seen at the probes (a ray each) and interpolated (1 at a probe whose ray leaves through no opening)
+            # the room's shadow: the share of the sun's disk the openings pass, per vertex and exact (a plane and a
+            # quad's edges each, no ray: SunLight.disk_through; an estimated sun's centre alone, 0 or 1), times what
+            # else of the room blocks it, seen at the probes (a ray each) and interpolated (1 at a probe whose ray
+            # leaves through no opening)
             d = osh.sun.d
-            through = osh.sun.disk_through(vu)  # the share of the sun's disk the openings pass (their penumbra)
+            through = osh.sun.disk_through(vu)
             probe_sun = osh.sun.visibility(probes, np.broadcast_to(d, probes.shape).copy())
             probe_open = np.isfinite(osh.sun.exit_distance(probes))
             blocked = np.where(probe_open, probe_sun, 1.0)
