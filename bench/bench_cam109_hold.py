@@ -12,7 +12,6 @@ truth (focal %, centre cm, object px; bench_camrefine.camera_errors).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -36,25 +35,19 @@ class Held:
 
 
 def room(root: Path) -> dict:
-    from bench.bench_camrefine import camera_errors, object_points
-    from bench.own_room_flow import calibrated_from_lines
-    from recon import assemble as asm
+    from bench.bench_camrefine import calibrated_room
     from recon import camrefine as cr
 
-    truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
-    cam = asm.inside_turn(dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma), lo, hi)[0]
-    faces = cr.room_faces(prims)
-    edges, occ = cr.room_edges(faces), cr._Occluder(faces)
-    S_truth, P = cr._sample_edges(truth, edges, occ), object_points(root)
-    cj = cal.to_json()
-    r = cr.refine_camera(cam, prims, img, cj, focal_from_lines="off")
-    out = {"room": root.name, "sigma_f": cam.focal_rel_sigma, "calibrated": camera_errors(cam, truth, S_truth, P),
-           "refined": camera_errors(r.camera, truth, S_truth, P), "accepted": r.accepted}
+    rm = calibrated_room(root)
+    cam, edges, occ, cj = rm.cam, rm.edges, rm.occ, rm.cal.to_json()
+    r = cr.refine_camera(cam, rm.prims, rm.img, cj, focal_from_lines="off")
+    out = {"room": root.name, "sigma_f": cam.focal_rel_sigma, "calibrated": rm.errors(cam),
+           "refined": rm.errors(r.camera), "accepted": r.accepted}
     if not r.accepted or r.camera_at is None:
         return out
     model = r.camera_at.__self__
     lines = cr.clicked_lines(cj)
-    fit = cr._profile_stage(model, r.x, edges, occ, cr.PhotoEdges(img), lines)
+    fit = cr._profile_stage(model, r.x, edges, occ, cr.PhotoEdges(rm.img), lines)
     if fit is None:
         return out
     sub, q, sig, _ = fit.data
@@ -65,8 +58,7 @@ def room(root: Path) -> dict:
         cov = cr.camera_covariance(rf)
         out[w] = {"chi2_drop": float(2 * (rh.cost - rf.cost)),
                   "fit_sigma_f": float(np.sqrt(cov[5, 5])) if cov is not None else float("nan"),
-                  "free": camera_errors(model.camera(rf.x), truth, S_truth, P),
-                  "held": camera_errors(held.camera(rh.x), truth, S_truth, P)}
+                  "free": rm.errors(model.camera(rf.x)), "held": rm.errors(held.camera(rh.x))}
     return out
 
 

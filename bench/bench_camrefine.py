@@ -80,12 +80,15 @@ def camera_errors(cam, truth, S, P=None) -> dict:
 class CalibratedRoom:
     """A benchmark room as the own-room flow hands it to the camera refinement: the truth's camera, calibrate's on
     the clicked lines (its focal sigma kept, turned to stand inside the taped room), the photo, the calibration and
-    the primitives, with the truth's visible room-edge samples and the object's points that camera_errors scores."""
+    the primitives, the room's edges and their occluder, with the truth's visible room-edge samples and the object's
+    points that camera_errors scores."""
     truth: object
     cam: object
     img: np.ndarray
     cal: object
     prims: list
+    edges: list
+    occ: object
     S_truth: object
     P: np.ndarray
 
@@ -103,8 +106,9 @@ def calibrated_room(root: Path) -> CalibratedRoom:
     truth, img, cal, prims, lo, hi = calibrated_from_lines(root)
     cam = asm.inside_turn(dataclasses.replace(cal.camera, focal_rel_sigma=cal.focal_rel_sigma), lo, hi)[0]
     faces = cr.room_faces(prims)
-    S_truth = cr._sample_edges(truth, cr.room_edges(faces), cr._Occluder(faces))
-    return CalibratedRoom(truth, cam, img, cal, prims, S_truth, object_points(root))
+    edges, occ = cr.room_edges(faces), cr._Occluder(faces)
+    return CalibratedRoom(truth, cam, img, cal, prims, edges, occ, cr._sample_edges(truth, edges, occ),
+                          object_points(root))
 
 
 def _variant(text: str) -> dict:
