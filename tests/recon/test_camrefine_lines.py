@@ -77,3 +77,11 @@ def test_window_108_calibrated_camera_comes_near_the_truth():
     assert r.accepted, r.reason
     e = room.errors(r.camera)
     assert abs(e["focal_pct"]) < 1.0 and e["centre_cm"] < 2.5 and e["object_px"] < 2.0, e
+
+
+def test_an_unknown_focal_from_lines_mode_is_refused():
+    """focal_from_lines takes "retry" or "off": anything else stops with the choices named, before any work."""
+    cam = _look_at(np.array([3.2, 1.5, 4.4]), [1.0, 0.9, 0.5])
+    img = np.zeros((cam.height, cam.width, 3), np.uint8)
+    with pytest.raises(ValueError, match="focal_from_lines: expected 'retry' or 'off', got 'always'"):
+        cr.refine_camera(cam, PRIMS, img, None, focal_from_lines="always")
