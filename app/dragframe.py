@@ -138,7 +138,8 @@ DRAG_GRADED_NEAR = 2.0
 # a cluster differ, the pixel moves by at most that share, a step that the upsampling spreads over `scale` full pixels;
 # the lookup costs one texel, not a blocker search and a filter of 3 x 3 taps each, and the cluster's cone loses its
 # penumbra's reach (shorter lists). At WEBER 8 (window_room) to 27 (lamps_room, lamps_101) of the 64 passes were
-# weak, the masks' CPU 0.76-1.0x (docs/benchmarks.md, "The drag frame's masks (masks37)"); at 6 % 17-35 of 48-64.
+# weak, the masks' CPU 0.76-1.0x (docs/benchmarks.md, "The drag frame's masks (masks37)"); at 6 % 12-30 of 48-63
+# (window_room 12 of 48, lamps_room 26 of 48, sun_room 30 of 63, against 4, 15 and 14 at WEBER; drag110).
 DRAG_HARD_WEAK = True
 
 
@@ -149,7 +150,7 @@ def drag_weak_budget(scale: int) -> float:
     ratio room / photo is brought back to full resolution bilinearly (DragStages.finish), so the step becomes a ramp
     across `scale` full pixels, and two neighbouring full pixels differ by at most share_j / scale, WEBER at this
     budget (the frames at rest's rule for a visible step, app.rest_maps). At 1/3: 6 %. bench/bench_drag110.py,
-    `weber2` (WEBER: main's before drag110) against `base`: the masks' CPU 0.8-0.9x, the drag rows within the bound
+    `weber2` (WEBER: main's before drag110) against `base`: the masks' CPU 0.78-0.93x on ten rooms, the drag rows within the bound
     (docs/benchmarks.md "drag110")."""
     from app.rest_maps import WEBER
 
