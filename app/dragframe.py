@@ -150,8 +150,8 @@ def drag_weak_budget(scale: int) -> float:
     ratio room / photo is brought back to full resolution bilinearly (DragStages.finish), so the step becomes a ramp
     across `scale` full pixels, and two neighbouring full pixels differ by at most share_j / scale, WEBER at this
     budget (the frames at rest's rule for a visible step, app.rest_maps). At 1/3: 6 %. bench/bench_drag110.py,
-    `weber2` (WEBER: main's before drag110) against `base`: the masks' CPU 0.78-0.93x on ten rooms, the drag rows within the bound
-    (docs/benchmarks.md "drag110")."""
+    `weber2` (WEBER: main's before drag110) against `base`: the masks' CPU 0.78-0.93x on ten rooms, the drag rows
+    within the bound (docs/benchmarks.md "drag110")."""
     from app.rest_maps import WEBER
 
     return WEBER * int(scale)

@@ -9,8 +9,9 @@ Variants (each an attribute of the engine's drag stages at DRAG_SCALE set while 
                 the near pixels are (rays per proxy triangle, the sun's pieces a ray each)
   ff15          ObjectLight.far_field 1.5 (DRAG_FAR_FIELD 2): the receiver vertices see the far groups from 1.5 radii
   gn15          ShadowPass.graded_near 1.5 (DRAG_GRADED_NEAR 2): every pixel summed exactly within 1.5 radii
-  weak4, weak6, weak8, weak16, weakall: the weak cluster maps' budget (ShadowPass.weak_clusters.budget; WEBER 0.02) 0.04 ... 0.16, inf: more
-                cluster maps take their eye's hard lookup (no PCSS penumbra)
+  weak4, weak6, weak8, weak16, weakall
+                the weak cluster maps' budget (ShadowPass.weak_clusters.budget; WEBER 0.02) 0.04 ... 0.16, inf:
+                more cluster maps take their eye's hard lookup (no PCSS penumbra)
   weber2        the budget WEBER (0.02): main's drag frame before drag110 (base: drag_weak_budget(3) = 0.06)
   tt10          ObjectLight.table_tolerance 0.10 (DRAG_LIGHT_TABLES 0.05): more proxy triangles as point emitters
 """
