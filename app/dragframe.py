@@ -133,14 +133,28 @@ DRAG_GRADED_NEAR = 2.0
 
 
 # The drag frame's weak cluster maps take the hard lookup of their cluster's eye, no PCSS penumbra (ShadowPass.
-# weak_clusters): a pass is weak when its largest share of any receiver vertex's light is at most WEBER (2 %,
-# app.rest_maps: the rule by which the all-sources frame gives its weak sources half-size maps and fills their sums
-# in the near ring). Where the penumbra and the hard shadow of such a cluster differ, the pixel moves by at most that
-# share, a step the eye does not see; the lookup costs one texel, not a blocker search and a filter of 3 x 3 taps
-# each, and the cluster's cone loses its penumbra's reach (shorter lists). 8 (window_room) to 27 (lamps_room,
-# lamps_101) of the 64 passes are weak; the masks' CPU 0.76-1.0x, the drag rows within 0.008 levels (docs/
-# benchmarks.md, "The drag frame's masks (masks37)").
+# weak_clusters): a pass is weak when its largest share of any receiver vertex's light is at most drag_weak_budget
+# (WEBER x the scale: below; WEBER, 2 %, app.rest_maps, until drag110). Where the penumbra and the hard shadow of such
+# a cluster differ, the pixel moves by at most that share, a step that the upsampling spreads over `scale` full pixels;
+# the lookup costs one texel, not a blocker search and a filter of 3 x 3 taps each, and the cluster's cone loses its
+# penumbra's reach (shorter lists). At WEBER 8 (window_room) to 27 (lamps_room, lamps_101) of the 64 passes were
+# weak, the masks' CPU 0.76-1.0x (docs/benchmarks.md, "The drag frame's masks (masks37)"); at 6 % 12-30 of 48-63
+# (window_room 12 of 48, lamps_room 26 of 48, sun_room 30 of 63, against 4, 15 and 14 at WEBER; drag110).
 DRAG_HARD_WEAK = True
+
+
+def drag_weak_budget(scale: int) -> float:
+    """The largest share of a receiver's light (app.rest_maps: share_j, luminance) of a drag frame's weak pass at
+    1/scale resolution (DRAG_HARD_WEAK): WEBER x scale. A weak pass's hard shadow differs from its penumbra by a
+    step of at most share_j of a pixel's light, and in the drag frame that step lies between two coarse pixels: the
+    ratio room / photo is brought back to full resolution bilinearly (DragStages.finish), so the step becomes a ramp
+    across `scale` full pixels, and two neighbouring full pixels differ by at most share_j / scale, WEBER at this
+    budget (the frames at rest's rule for a visible step, app.rest_maps). At 1/3: 6 %. bench/bench_drag110.py,
+    `weber2` (WEBER: main's before drag110) against `base`: the masks' CPU 0.78-0.93x on ten rooms, the drag rows
+    within the bound (docs/benchmarks.md "drag110")."""
+    from app.rest_maps import WEBER
+
+    return WEBER * int(scale)
 
 
 # The drag frame's patch centres look every cluster map up with the hard lookup of its eye, no PCSS penumbra
@@ -279,7 +293,7 @@ class DragStages:
             self.shadow_pass.graded_near = DRAG_GRADED_NEAR
             self.shadow_pass.hard_centres = DRAG_HARD_CENTRES
             if DRAG_HARD_WEAK:  # in the drag frame's HDR units: W_v and E_v irradiance/pi
-                self.shadow_pass.weak_clusters = RestMaps(r.E_v)
+                self.shadow_pass.weak_clusters = RestMaps(r.E_v, drag_weak_budget(s))
         self.shape = (cam.height, cam.width)
         self.zero_cov = np.zeros(self.shape, np.float32)  # the coarse stages see the room without the object
         self.zero_rad = np.zeros((*self.shape, 3), np.float32)

@@ -88,12 +88,12 @@ def test_emitter_group_of_each_patch_is_made_once(demo_engine):
 
 
 def test_weak_cluster_maps_take_the_hard_lookup_within_their_share(demo_engine):
-    # the drag frame's weak passes (app.dragframe.DRAG_HARD_WEAK: share_j <= WEBER, app.rest_maps) are looked up
-    # hard, the others with their PCSS penumbra: exactly the weak passes' maps lose their spread, and at every patch
-    # centre (all summed in either frame) the sums move by at most the weak passes' own transfers there (each an
-    # occluded share in 0..1, hard or soft); with no pass weak (a budget of 0) the masks are the all-PCSS ones bit
-    # for bit
-    from app.dragframe import DRAG_HARD_WEAK
+    # the drag frame's weak passes (app.dragframe.DRAG_HARD_WEAK: share_j <= drag_weak_budget(scale), WEBER x scale,
+    # app.rest_maps) are looked up hard, the others with their PCSS penumbra: exactly the weak passes' maps lose their
+    # spread, and at every patch centre and every summed pixel (the same points in either frame) the sums move by at
+    # most the weak passes' own transfers there (each an occluded share in 0..1, hard or soft); with no pass weak (a
+    # budget of 0) the masks are the all-PCSS ones bit for bit
+    from app.dragframe import DRAG_HARD_WEAK, drag_weak_budget
     from app.engine import FrameConfig
     from app.rest_maps import WEBER, RestMaps
     from recon.proxy import bounding_sphere
@@ -102,13 +102,17 @@ def test_weak_cluster_maps_take_the_hard_lookup_within_their_share(demo_engine):
     eng.render(scene.obj, FrameConfig(passes=50, drag=3))
     px = eng.pixel_stages(3)
     sp = px.shadow_pass
-    assert DRAG_HARD_WEAK and sp.weak_clusters is not None and sp.weak_clusters.budget == WEBER
+    budget = drag_weak_budget(3)
+    assert budget == pytest.approx(3 * WEBER)
+    assert DRAG_HARD_WEAK and sp.weak_clusters is not None and sp.weak_clusters.budget == pytest.approx(budget)
     pv, pf, occ, _, _ = eng.object_shading.object_shape(scene.obj)
     centre, radius = bounding_sphere(pv)
     fs = eng.shadow_sources.select(pv.min(0), pv.max(0), 50, near_split=True)
     n = len(fs.eyes)
-    weak = sp.weak_clusters.shares(fs.W_v) <= WEBER
+    shares = sp.weak_clusters.shares(fs.W_v)
+    weak = shares <= budget
     assert 0 < weak.sum() < n  # the demo's 50 passes hold both kinds
+    assert weak.sum() >= (shares <= WEBER).sum()  # the drag budget makes no pass strong that WEBER made weak
 
     def masks():
         steps = sp.run((pv, pf, occ), centre, radius, px.zero_cov, fs.cand, fs.eyes, fs.W_v, fs.W_c, False,
@@ -140,8 +144,49 @@ def test_weak_cluster_maps_take_the_hard_lookup_within_their_share(demo_engine):
     diff = np.abs(hard.O_cen - soft.O_cen)
     assert np.all(diff <= bound * (1 + 1e-5) + 1e-7)
     assert diff.max() > 0.0  # the weak passes' hard shadows do differ from their penumbrae somewhere
+    # the pixels summed in both frames (the graded lattice refines where the fractions differ, so the sets may
+    # differ): each within the weak passes' transfers at the pixel (its rows' W_v, barycentric)
+    both, ih, isf = np.intersect1d(hard.pix_sel, soft.pix_sel, return_indices=True)
+    assert len(both) > 0.5 * len(soft.pix_sel)
+    rows, bary = px.receivers.pix_rows[both], px.shadow_pass._points[2][both]
+    W_weak = np.asarray(fs.W_v, np.float64)[:, weak].sum(1)  # (Vr,3)
+    pix_bound = np.einsum("nk,nkc->nc", bary, W_weak[np.maximum(rows, 0)])
+    pix_diff = np.abs(hard.O_pix[ih] - soft.O_pix[isf])
+    assert np.all(pix_diff <= pix_bound * (1 + 1e-4) + 1e-6)
     for field in ("pix_sel", "fill_sel", "cen_sel", "O_pix", "O_cen"):
         assert np.array_equal(getattr(none_weak, field), getattr(soft, field)), field
+
+
+def test_a_coarse_step_reaches_full_resolution_as_a_ramp_of_scale_pixels(demo_engine):
+    # drag_weak_budget's premise (WEBER x scale): the drag frame's ratio room / photo is upsampled bilinearly
+    # (DragStages.ratio, the form drag_compose_kernel computes), so a step of height h between two coarse pixels
+    # changes neighbouring full pixels by at most h / scale (to float32 rounding), and the whole step is kept
+    from app.dragframe import drag_weak_budget
+    from app.engine import FrameConfig
+
+    scene, eng = demo_engine
+    for s in (2, 3, 4):
+        eng.render(scene.obj, FrameConfig(passes=10, drag=s))
+        px = eng.pixel_stages(s)
+        h, w = px.shape
+        L_b = px.receivers.L_b.reshape(h, w, 3).astype(np.float32)
+        step = 0.06
+        room = L_b.copy()
+        room[:, w // 2:] *= 1.0 - step  # a coarse step of 6 % of the light between columns w/2 - 1 and w/2
+        ratio = px.ratio(room)
+        ok = (px._inv_Lb > 0).all(2)  # coarse pixels with a photo to take a ratio of
+        H, W = px.full_shape
+        rows = [y for y in range(H) if ok[min(y // s, h - 1), w // 2 - 3:w // 2 + 3].all()
+                and ok[min(max(y // s - 1, 0), h - 1), w // 2 - 3:w // 2 + 3].all()
+                and ok[min(y // s + 1, h - 1), w // 2 - 3:w // 2 + 3].all()
+                and not px._no_ratio[y, s * (w // 2 - 2):s * (w // 2 + 2)].any()]
+        assert len(rows) > 10
+        seg = ratio[rows, s * (w // 2 - 2):s * (w // 2 + 2)]  # full columns across the step
+        assert np.abs(np.diff(seg, axis=1)).max() <= step / s * (1 + 1e-4) + 1e-6
+        np.testing.assert_allclose(seg[:, 0], 1.0, atol=1e-6)
+        np.testing.assert_allclose(seg[:, -1], 1.0 - step, atol=1e-6)
+        # a weak pass's step of the drag budget reaches neighbouring full pixels as one of WEBER at most
+        assert drag_weak_budget(s) / s == pytest.approx(drag_weak_budget(1))
 
 
 def test_drag_compose_kernel_matches_its_reference(demo_engine):
