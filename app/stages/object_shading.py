@@ -337,26 +337,52 @@ SUN_NEAR = 1.0  # patch diameters: a sun-lost patch whose centre lies within thi
 # beyond, the form factor varies over the patch by O((diameter / distance)^2) and the patch's mean serves
 
 
-def sun_cells(corners: np.ndarray, values: np.ndarray, lost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def sun_cells(corners: np.ndarray, values: np.ndarray, lost: np.ndarray, keys: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The patches (corners (M,4,3), a parallelogram c0 + u U + v V with U = c1 - c0, V = c3 - c0; values (M,3),
     the sun each loses, mean over its sample points) split into the n x n cells of the sun's sample points (lost
     (M,n*n): each point's lost share, in app.stages.sun's order: point k at u = (k % n + 0.5) / n,
-    v = (k // n + 0.5) / n): (cells (M*n*n,4,3), their values (M*n*n,3)), each cell the patch's value x its own
-    point's share over the patch's mean (the patch's mean is kept: the cells' area-weighted mean is `values`)."""
+    v = (k // n + 0.5) / n), each cell the patch's value x its own point's share over the patch's mean (the patch's
+    mean is kept: the cells' area-weighted mean is `values`). Neighbouring cells with equal keys (M,n*n,C)
+    (default: lost) are merged into rectangles (runs along u, then equal runs along v; the form factor is additive,
+    so the sum is the cells' to rounding, a ray fewer per merged cell). Returns (polygons (R,4,3), their values
+    (R,3), the sample point each one's value is taken from (R,): index into the M*n*n points)."""
     M, K = lost.shape
     n = int(round(np.sqrt(K)))
     if n * n != K:
         raise ValueError(f"sun_cells: {K} sample points per patch is not a square grid")
-    c0 = corners[:, 0]
-    U, V = corners[:, 1] - c0, corners[:, 3] - c0
-    k = np.arange(K)
-    iu, iv = k % n, k // n
-    uu = np.stack([iu, iu + 1, iu + 1, iu], 1) / n  # (K,4) the cell's corners, in the patch's winding
-    vv = np.stack([iv, iv, iv + 1, iv + 1], 1) / n
-    cells = c0[:, None, None] + uu[None, ..., None] * U[:, None, None] + vv[None, ..., None] * V[:, None, None]
+    keys = lost[..., None] if keys is None else keys
+    rects = []  # (patch, u0, u1, v0, v1, point)
+    for m in range(M):
+        g = keys[m].reshape(n, n, -1)  # [v, u]
+        open_: dict = {}  # (u0, u1, key bytes) -> [v0, v1, point] of the rectangle still growing along v
+        for v in range(n):
+            runs, u0 = [], 0
+            for u in range(1, n + 1):
+                if u == n or not np.array_equal(g[v, u], g[v, u0]):
+                    runs.append((u0, u, g[v, u0].tobytes()))
+                    u0 = u
+            nxt = {}
+            for r in runs:
+                if r in open_ and open_[r][1] == v:
+                    open_[r][1] = v + 1
+                    nxt[r] = open_.pop(r)
+                else:
+                    nxt[r] = [v, v + 1, m * K + v * n + r[0]]
+            for r, (v0, v1, k) in open_.items():
+                rects.append((m, r[0], r[1], v0, v1, k))
+            open_ = nxt
+        for r, (v0, v1, k) in open_.items():
+            rects.append((m, r[0], r[1], v0, v1, k))
+    R = np.array(rects, np.int64).reshape(-1, 6)
+    c0 = corners[R[:, 0], 0]
+    U, V = corners[R[:, 0], 1] - c0, corners[R[:, 0], 3] - c0
+    uu = np.stack([R[:, 1], R[:, 2], R[:, 2], R[:, 1]], 1) / n  # the rectangle's corners, in the patch's winding
+    vv = np.stack([R[:, 3], R[:, 3], R[:, 4], R[:, 4]], 1) / n
+    polys = c0[:, None] + uu[..., None] * U[:, None] + vv[..., None] * V[:, None]
     mean = lost.mean(1)
-    share = np.where(mean[:, None] > 0, lost / np.where(mean > 0, mean, 1.0)[:, None], 1.0)  # (M,K)
-    return cells.reshape(-1, 4, 3), (values[:, None, :] * share[..., None]).reshape(-1, 3)
+    share = np.where(mean[:, None] > 0, lost / np.where(mean > 0, mean, 1.0)[:, None], 1.0).reshape(-1)
+    return polys, values[R[:, 0]] * share[R[:, 5], None], R[:, 5]
 
 
 DB_CLUSTER = 0.25  # a far patch cluster's side over its distance (angular size ~14 deg: seen as one point,
@@ -794,11 +820,12 @@ class ObjectShading:
         rhoE = pm.albedo[nr] * np.asarray(E_sun, np.float64).reshape(1, 3)  # (M,3)
         B = rl.radiance[nr]
         sun = rhoE[:, None, :] * (share[r] - share[r].mean(1, keepdims=True))[..., None]  # (M,K,3)
-        cells, _ = sun_cells(pm.corners[nr], np.zeros((len(nr), 3)), lost[r])
-        vals = np.maximum(B[:, None, :] + sun, 0.0) - rhoE[:, None, :] * lost[r][..., None]
+        vals = (np.maximum(B[:, None, :] + sun, 0.0) - rhoE[:, None, :] * lost[r][..., None]).reshape(-1, 3)
+        cells, _, k = sun_cells(pm.corners[nr], np.zeros((len(nr), 3)), lost[r],
+                                np.stack([lost[r], share[r]], -1))  # equal cells merged
         return (np.concatenate([pm.corners[far], pm.corners[nr], cells]),
-                np.concatenate([pm.normal[far], pm.normal[nr], np.repeat(pm.normal[nr], K, 0)]),
-                np.concatenate([sun_dB[far], -B, vals.reshape(-1, 3)]))
+                np.concatenate([pm.normal[far], pm.normal[nr], pm.normal[nr][k // K]]),
+                np.concatenate([sun_dB[far], -B, vals[k]]))
 
     def room_triangles(self, occ: Occluder) -> np.ndarray:
         """The room occluder's triangles (T,3,3) float64, read back once per engine."""
