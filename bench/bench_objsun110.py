@@ -72,9 +72,8 @@ def main() -> None:
     ap.add_argument("--cost", type=int, default=0, help="rounds of the per-frame vertex radiance timing")
     ap.add_argument("--drag", action="store_true", help="also the drag frame at the scene's pose")
     ap.add_argument("--foot", action="store_true", help="luminance per height above the floor")
-    ap.add_argument("--variants", default="patch,cells,near", help="patch (main's rule), cells (the sun's loss per "
-                    "sample point's cell near the object), near (cells and the shadowed patches beside the object "
-                    "gathered at every vertex)")
+    ap.add_argument("--variants", default="patch,cells", help="patch (main's rule), cells (the sun's loss per "
+                    "sample point's cell near the object)")
     ap.add_argument("--save", type=Path, default=None, help="write each composite here")
     a = ap.parse_args()
 
@@ -104,9 +103,7 @@ def main() -> None:
         drag_cfg = dataclasses.replace(engine.frame_config(), passes=DRAG_PASSES, drag=DRAG_SCALE,
                                        drag_shadow=DRAG_SHADOW)
         oc = engine.object_shading.config
-        allv = {"patch": dataclasses.replace(oc, sun_cells=False, dB_near=False),
-                "cells": dataclasses.replace(oc, sun_cells=True, dB_near=False),
-                "near": dataclasses.replace(oc, sun_cells=True, dB_near=True)}
+        allv = {"patch": dataclasses.replace(oc, sun_cells=False), "cells": dataclasses.replace(oc, sun_cells=True)}
         variants = {k: allv[k] for k in a.variants.split(",")}
         args = {}
         for name, c in variants.items():

@@ -771,15 +771,6 @@ class ObjectShading:
                                                        dB[far], d[is_far] + pr[far], 2.0 * float(pr.min()))
                     L = self.far_field_sh(probes, lo, hi, pc, pn, pa, prad)
                     E += np.einsum("vk,vkc->vc", ss.T, np.einsum("vq,qkc->vkc", weights, L))
-            if len(changed) and self.config.dB_near:
-                # the patches beside the object (centre within SUN_NEAR diameters plus a radius of the vertices'
-                # box: the floor at its foot) vary too fast over it for the spread subset: gathered at every vertex
-                gap = pm.centre[changed] - np.clip(pm.centre[changed], vu.min(0), vu.max(0))
-                near = np.linalg.norm(gap, axis=1) < (2.0 * SUN_NEAR + 1.0) * pm.radius[changed]
-                if near.any():
-                    nr, changed = changed[near], changed[~near]
-                    E[g] += ss.sun_dB_sum(vg, ng, pm.corners[nr], pm.normal[nr], dB[nr], [self.scene_occ, own], 2e-3,
-                                          pair_split(self.device, len(nr)))
             if len(changed):
                 # the loss varies slowly over the object (the shadowed patches are beyond it):
                 # gather it at a spread subset of vertices and interpolate by position and normal
