@@ -8,7 +8,7 @@ over score.py's object region, blurred luminance), sha256 of the pixels. --drag:
 arguments, N rounds per variant interleaved, CPU ms (process_time), median. --foot: mean luminance of the object's
 pixels per height above the floor (camera hits; 0-2, 2-4, 4-7, 7-10, 10-20 cm), truth and ours.
 
-    python bench/bench_objsun110.py ROOM [ROOM ...] [--drag] [--cost 3] [--foot] [--save DIR]
+    python bench/bench_objsun110.py ROOM [ROOM ...] [--drag] [--cost 3] [--foot] [--lighting captured] [--save DIR]
 """
 from __future__ import annotations
 
@@ -74,6 +74,8 @@ def main() -> None:
     ap.add_argument("--foot", action="store_true", help="luminance per height above the floor")
     ap.add_argument("--variants", default="patch,cells", help="patch (main's rule), cells (the sun's loss per "
                     "sample point's cell near the object)")
+    ap.add_argument("--lighting", default="known", help="known (the folder's declared light) or captured (the "
+                    "probes; the folder's own camera: bench_unseen's true-camera row)")
     ap.add_argument("--save", type=Path, default=None, help="write each composite here")
     a = ap.parse_args()
 
@@ -96,7 +98,7 @@ def main() -> None:
     os_mod.ObjectShading._vertex_radiance = rec_vr
     for room in a.rooms:
         scene = load_scene(room)
-        engine = Engine(scene, EngineParams(lighting="known"), cache_dir=default_cache_dir(), quiet=True)
+        engine = Engine(scene, EngineParams(lighting=a.lighting), cache_dir=default_cache_dir(), quiet=True)
         truth = read_image_rgb(room / "truth.png")
         mask = cv2.imread(str(room / "truth_mask.png"), cv2.IMREAD_GRAYSCALE)
         cfg = dataclasses.replace(engine.frame_config(), passes=None)
