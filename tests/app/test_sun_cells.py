@@ -84,3 +84,46 @@ def test_cells_against_a_brute_force_gather_at_the_foot():
     gathered = sum(_polygon_ff(p, n, c) * v for c, v in zip(cells, vals[:, 0]))
     assert abs(gathered - brute) < 3e-3 * brute, (gathered, brute)
     assert whole > 1.3 * brute, (whole, brute)  # the patch whole: far too much light at the foot
+
+
+def _stage(radius: float = 0.127):
+    """A stand-in ObjectShading (the attributes _sun_loss_cells reads) with the one sunlit floor patch PATCH, gathered
+    exactly at B = 0.6 (albedo 0.5, sun irradiance/pi 1.6 on the lit half of its sample points: 0.4 of sun, 0.2
+    indirect)."""
+    from types import SimpleNamespace
+
+    pm = SimpleNamespace(n_patches=1, corners=PATCH[None], normal=np.array([[0.0, 1.0, 0.0]]),
+                         centre=PATCH.mean(0)[None], radius=np.array([radius]), albedo=np.full((1, 3), 0.5),
+                         is_emitter=np.zeros(1, bool))
+    rl = SimpleNamespace(emitters=np.array([0]), radiance=np.full((1, 3), 0.6))
+    return SimpleNamespace(patches=pm, room_light=rl, config=SimpleNamespace(sun_cells=True))
+
+
+def test_the_patch_comes_back_as_its_cells_never_below_its_indirect_light():
+    from app.stages.object_shading import ObjectShading
+
+    u = np.arange(16) % 4
+    s = (u >= 2).astype(float)[None]  # the opening's stripe: the far two columns sunlit
+    v = np.arange(16) // 4
+    lost = s * (v < 2)  # the object shades the near two rows
+    E_sun = np.full(3, 1.6)
+    sun_dB = -0.5 * E_sun * lost.mean()  # as the engine: -albedo x mean lost share x E_sun
+    vu = np.array([[0.0, 0.01, -0.001], [0.0, 0.4, -0.4]])  # the object's vertices' box beside the patch
+    corners, normals, values = ObjectShading._sun_loss_cells(_stage(), vu, np.array([0]), sun_dB[None],
+                                                             (np.array([0]), lost, s, E_sun))
+    area = 0.5 * np.linalg.norm(np.cross(corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 1]), axis=1)
+    np.testing.assert_allclose(values[0], -0.6, rtol=1e-12)  # the exact gather's whole patch cancelled
+    np.testing.assert_allclose(area[0], 0.18 ** 2, rtol=1e-12)
+    cells, vals = slice(1, None), values[1:, 0]
+    assert len(vals) == 3  # the unlit half (one rectangle), the lit quarter the object shades, the lit quarter
+    np.testing.assert_allclose(area[cells].sum(), 0.18 ** 2, rtol=1e-12)
+    # the cells' mean is the patch's radiance plus its sun loss: nothing added or lost
+    np.testing.assert_allclose((area[cells] * vals).sum() / 0.18 ** 2, 0.6 + sun_dB[0], rtol=1e-12)
+    assert vals.min() >= 0.2 - 1e-12  # the indirect part stays: the shaded sunlit quarter is 0.2, not 0.6 - 0.8
+    np.testing.assert_allclose(np.sort(vals), [0.2, 0.2, 1.0], rtol=1e-12)
+    # the loss's cells alone on the patch's mean (the first version): the shaded sunlit quarter goes negative
+    assert 0.6 - 0.8 * lost.max() < 0
+    # a patch farther than SUN_NEAR diameters from the vertices stays whole
+    far = ObjectShading._sun_loss_cells(_stage(), vu + np.array([0.0, 0.0, -1.0]), np.array([0]), sun_dB[None],
+                                        (np.array([0]), lost, s, E_sun))
+    assert len(far[0]) == 1 and np.allclose(far[2], sun_dB)
