@@ -332,9 +332,10 @@ def _probe_grid(lo: np.ndarray, hi: np.ndarray, points: np.ndarray, n: int) -> t
     return probes, weights
 
 
-SUN_NEAR = 1.0  # patch diameters: a sun-lost patch whose centre lies within this many of its own diameters (plus its
-# radius) of the object's box is gathered as its sample points' cells (sun_cells), each with its own lost share;
-# beyond, the form factor varies over the patch by O((diameter / distance)^2) and the patch's mean serves
+SUN_NEAR = 1.0  # patch diameters: a sunlit patch whose centre lies within this many of its own diameters (plus its
+# radius) of the object's box is gathered as its sun sample points' cells (ObjectShading._sun_loss_cells), each with
+# its own sun and lost share; beyond, the form factor varies over the patch by O((diameter / distance)^2) and the
+# patch's mean serves (0.5 gives the same figures: docs/unseen.md, objsun110)
 
 
 def sun_cells(corners: np.ndarray, values: np.ndarray, lost: np.ndarray, keys: np.ndarray | None = None
@@ -692,8 +693,8 @@ class ObjectShading:
         object blocks from each patch this frame. Everything is evaluated once per distinct (position,
         normal) of the mesh (ShapeShading.uniq), a vertex on a contact between two parts just off it
         (ShapeShading.lift); the buried vertices' fill and each vertex's own sun as vertex_light. sun_lost:
-        (patch ids (Pc,), lost share per sample point (Pc,K)), SunStage's (c_patch, lost) of this frame: the sun_dB
-        patches near the object are gathered per sample point's cell (sun_cells); None: every patch whole."""
+        SunStage's (c_patch, lost, c_vis, E_perp) of this frame: the sunlit patches near the object are gathered
+        per sun sample point's cell (_sun_loss_cells); None: every patch whole."""
         return self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB, sun_lost)[0]
 
     def _vertex_radiance(self, obj: SceneObject, mesh, proxy_occ: Occluder, dB: np.ndarray | None,
