@@ -115,6 +115,7 @@ class ObjectConfig:
     near_factor: float = knob(2.0, "object light is computed per pixel within this many bounding radii")
     shaft_cull: bool = knob(True, "skip the room's rays when no room triangle lies between object and emitters")
     dB_far_field: bool = knob(True, "far shadowed patches reach the object as an SH9 far field")
+    sun_cells: bool = knob(True, "the sun's loss on patches near the object gathered per sample point's cell")
     shape_cache: bool = knob(True, "keep the object's proxy, shading mesh and BVHs per shape (False: made "
                                    "afresh every frame)")
 

@@ -425,7 +425,8 @@ class Engine:
         # ---- the object's radiance (app.stages.object_shading): the room's light, less what its shadow takes
         # from the patches, plus its own light the patches reflect back to it
         dB_obj = self._object_sees(dB_room, R_cen, later)
-        shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_obj, sun_dB)
+        shade = functools.partial(self.object_shading.shade, obj, shade_mesh, hits, proxy_occ, dB_obj, sun_dB,
+                                  sun_lost=None if sun is None else (sun.c_patch, sun.lost, sun.c_vis, sun.E_perp))
         if tables is not None:
             shaded = tables.shaded
         elif px is not self and sun is None and hits.hit.any():  # a drag frame: the vertex radiance of a near pose

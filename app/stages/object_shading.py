@@ -332,6 +332,60 @@ def _probe_grid(lo: np.ndarray, hi: np.ndarray, points: np.ndarray, n: int) -> t
     return probes, weights
 
 
+SUN_NEAR = 1.0  # patch diameters: a sunlit patch whose centre lies within this many of its own diameters (plus its
+# radius) of the object's box is gathered as its sun sample points' cells (ObjectShading._sun_loss_cells), each with
+# its own sun and lost share; beyond, the form factor varies over the patch by O((diameter / distance)^2) and the
+# patch's mean serves (0.5 gives the same figures: docs/unseen.md, objsun110)
+
+
+def sun_cells(corners: np.ndarray, values: np.ndarray, lost: np.ndarray, keys: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The patches (corners (M,4,3), a parallelogram c0 + u U + v V with U = c1 - c0, V = c3 - c0; values (M,3),
+    the sun each loses, mean over its sample points) split into the n x n cells of the sun's sample points (lost
+    (M,n*n): each point's lost share, in app.stages.sun's order: point k at u = (k % n + 0.5) / n,
+    v = (k // n + 0.5) / n), each cell the patch's value x its own point's share over the patch's mean (the patch's
+    mean is kept: the cells' area-weighted mean is `values`). Neighbouring cells with equal keys (M,n*n,C)
+    (default: lost) are merged into rectangles (runs along u, then equal runs along v; the form factor is additive,
+    so the sum is the cells' to rounding, a ray fewer per merged cell). Returns (polygons (R,4,3), their values
+    (R,3), the sample point each one's value is taken from (R,): index into the M*n*n points)."""
+    M, K = lost.shape
+    n = int(round(np.sqrt(K)))
+    if n * n != K:
+        raise ValueError(f"sun_cells: {K} sample points per patch is not a square grid")
+    keys = lost[..., None] if keys is None else keys
+    rects = []  # (patch, u0, u1, v0, v1, point)
+    for m in range(M):
+        g = keys[m].reshape(n, n, -1)  # [v, u]
+        open_: dict = {}  # (u0, u1, key bytes) -> [v0, v1, point] of the rectangle still growing along v
+        for v in range(n):
+            runs, u0 = [], 0
+            for u in range(1, n + 1):
+                if u == n or not np.array_equal(g[v, u], g[v, u0]):
+                    runs.append((u0, u, g[v, u0].tobytes()))
+                    u0 = u
+            nxt = {}
+            for r in runs:
+                if r in open_ and open_[r][1] == v:
+                    open_[r][1] = v + 1
+                    nxt[r] = open_.pop(r)
+                else:
+                    nxt[r] = [v, v + 1, m * K + v * n + r[0]]
+            for r, (v0, v1, k) in open_.items():
+                rects.append((m, r[0], r[1], v0, v1, k))
+            open_ = nxt
+        for r, (v0, v1, k) in open_.items():
+            rects.append((m, r[0], r[1], v0, v1, k))
+    R = np.array(rects, np.int64).reshape(-1, 6)
+    c0 = corners[R[:, 0], 0]
+    U, V = corners[R[:, 0], 1] - c0, corners[R[:, 0], 3] - c0
+    uu = np.stack([R[:, 1], R[:, 2], R[:, 2], R[:, 1]], 1) / n  # the rectangle's corners, in the patch's winding
+    vv = np.stack([R[:, 3], R[:, 3], R[:, 4], R[:, 4]], 1) / n
+    polys = c0[:, None] + uu[..., None] * U[:, None] + vv[..., None] * V[:, None]
+    mean = lost.mean(1)
+    share = np.where(mean[:, None] > 0, lost / np.where(mean > 0, mean, 1.0)[:, None], 1.0).reshape(-1)
+    return polys, values[R[:, 0]] * share[R[:, 5], None], R[:, 5]
+
+
 DB_CLUSTER = 0.25  # a far patch cluster's side over its distance (angular size ~14 deg: seen as one point,
 # the SH9 irradiance of its area-weighted centroid errs by O(size^2 / distance^2), ~1.5 %)
 
@@ -630,7 +684,7 @@ class ObjectShading:
         return ObjectHits(H, W, s, (u0, v0, u1, v1), tri, bary, hit)
 
     def vertex_radiance(self, obj: SceneObject, mesh, proxy_occ: Occluder, dB: np.ndarray | None = None,
-                        sun_dB: np.ndarray | None = None) -> np.ndarray:
+                        sun_dB: np.ndarray | None = None, sun_lost: tuple | None = None) -> np.ndarray:
         """Outgoing radiance (V,3) at the shading mesh's vertices (mesh = (verts, normals, faces)).
 
         albedo x (indirect SH9 x self-occlusion transfer + exact emitters + dB, the change of the
@@ -638,11 +692,14 @@ class ObjectShading:
         with a sun, its direct light with the object's self-shadowing and sun_dB (P,3), the sun the
         object blocks from each patch this frame. Everything is evaluated once per distinct (position,
         normal) of the mesh (ShapeShading.uniq), a vertex on a contact between two parts just off it
-        (ShapeShading.lift); the buried vertices' fill and each vertex's own sun as vertex_light."""
-        return self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB)[0]
+        (ShapeShading.lift); the buried vertices' fill and each vertex's own sun as vertex_light. sun_lost:
+        SunStage's (c_patch, lost, c_vis, E_perp) of this frame: the sunlit patches near the object are gathered
+        per sun sample point's cell (_sun_loss_cells); None: every patch whole."""
+        return self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB, sun_lost)[0]
 
     def _vertex_radiance(self, obj: SceneObject, mesh, proxy_occ: Occluder, dB: np.ndarray | None,
-                         sun_dB: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+                         sun_dB: np.ndarray | None, sun_lost: tuple | None = None
+                         ) -> tuple[np.ndarray, np.ndarray | None]:
         """(vertex_radiance, each vertex's sun share (V,) cos x visibility, None without a sun)."""
         v, n, f = mesh
         pm = self.patches
@@ -688,8 +745,9 @@ class ObjectShading:
             # the sun the object blocks from the floor: a large, sharp loss right beside it, gathered at
             # every vertex (a sparse sample would interpolate it past the SH9 light and clip to black)
             if len(ch):  # exact form factors at every vertex, visibility cast at samples (as the emitters')
-                E[g] += ss.sun_dB_sum(vg, ng, pm.corners[ch], pm.normal[ch], sun_dB[ch], [self.scene_occ, own],
-                                      2e-3, pair_split(self.device, len(ch)))
+                corners, normals, values = self._sun_loss_cells(vu, ch, sun_dB, sun_lost)
+                E[g] += ss.sun_dB_sum(vg, ng, corners, normals, values, [self.scene_occ, own],
+                                      2e-3, pair_split(self.device, len(corners)))
         if dB is not None:
             # the shadowed patches that hold 95 % of the lost power (the rest is too faint to matter)
             loss = np.abs(luminance(dB)) * pm.area
@@ -726,6 +784,49 @@ class ObjectShading:
                               functools.partial(_fill_from_neighbours, faces=f, missing=ss.buried), ss.bounce,
                               obj.albedo)
         return L_vert, sun_vis
+
+    def _sun_loss_cells(self, vu: np.ndarray, ch: np.ndarray, sun_dB: np.ndarray, sun_lost: tuple | None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(corners (M,4,3), normals (M,3), values (M,3)) of the sun's loss the object gathers: the patches ch
+        whole, but the sunlit patches near the object (centre within SUN_NEAR diameters plus a radius of the
+        box of the vertices vu) as the cells of their sun sample points (sun_cells), where those differ (a patch
+        whose points all lose, and all receive, the same share is its cells' sum already). Beside an object's foot
+        its own sun shadow's edge, and the opening's, cross a patch, and the floor right at the foot is what
+        a vertex near the contact sees most of (a vertical face's point at height z takes 3/4 of the floor's
+        form factor from within 4 z). Such a patch is gathered exactly whole (RoomLight.gather_exactly, its
+        mean radiance B): here it comes back as -B whole (cancelling that term) plus its cells at B + rho
+        E_sun (s_k - mean s) - rho E_sun lost_k, s_k the sun's share (cos x visibility past the room) at cell
+        k's point, lost_k the share the object takes there: the sun lies on the cells the room lets it reach
+        and is taken from those the object shades, never below the patch's indirect part.
+        sun_lost: (patch ids (Pc,), lost (Pc,K), the sun's share s (Pc,K), E_sun (3,) irradiance/pi): SunStage's
+        c_patch, lost, c_vis and E_perp this frame."""
+        pm, rl = self.patches, self.room_light
+        whole = (pm.corners[ch], pm.normal[ch], sun_dB[ch])
+        if sun_lost is None or not self.config.sun_cells:
+            return whole
+        ids, lost, share, E_sun = sun_lost
+        row = np.full(pm.n_patches, -1, np.int64)
+        row[ids] = np.arange(len(ids))
+        exact = np.zeros(pm.n_patches, bool)
+        exact[rl.emitters] = True
+        cand = ids[exact[ids] & ~pm.is_emitter[ids]]  # sunlit, gathered exactly whole
+        gap = pm.centre[cand] - np.clip(pm.centre[cand], vu.min(0), vu.max(0))
+        nr = cand[np.linalg.norm(gap, axis=1) < (2.0 * SUN_NEAR + 1.0) * pm.radius[cand]]
+        nr = nr[(np.ptp(lost[row[nr]], 1) > 0) | (np.ptp(share[row[nr]], 1) > 0)]  # uniform: its cells are the patch
+        if not len(nr):
+            return whole
+        far = ch[~np.isin(ch, nr)]
+        r = row[nr]
+        K = lost.shape[1]
+        rhoE = pm.albedo[nr] * np.asarray(E_sun, np.float64).reshape(1, 3)  # (M,3)
+        B = rl.radiance[nr]
+        sun = rhoE[:, None, :] * (share[r] - share[r].mean(1, keepdims=True))[..., None]  # (M,K,3)
+        vals = (np.maximum(B[:, None, :] + sun, 0.0) - rhoE[:, None, :] * lost[r][..., None]).reshape(-1, 3)
+        cells, _, k = sun_cells(pm.corners[nr], np.zeros((len(nr), 3)), lost[r],
+                                np.stack([lost[r], share[r]], -1))  # equal cells merged
+        return (np.concatenate([pm.corners[far], pm.corners[nr], cells]),
+                np.concatenate([pm.normal[far], pm.normal[nr], pm.normal[nr][k // K]]),
+                np.concatenate([sun_dB[far], -B, vals[k]]))
 
     def room_triangles(self, occ: Occluder) -> np.ndarray:
         """The room occluder's triangles (T,3,3) float64, read back once per engine."""
@@ -813,13 +914,16 @@ class ObjectShading:
         self._shape = self._shade_occ = self._prt = None
 
     def shade(self, obj: SceneObject, mesh, hits: ObjectHits, proxy_occ: Occluder, dB: np.ndarray,
-              sun_dB: np.ndarray | None = None, vertex: tuple | None = None) -> ShadedObject:
+              sun_dB: np.ndarray | None = None, vertex: tuple | None = None, sun_lost: tuple | None = None
+              ) -> ShadedObject:
         """The object's radiance from vertex_radiance, interpolated at the camera hits (with a sun, its
         direct light per hit; with a specular lobe, the room's reflection). vertex: (L_vert, sun_vis) of
-        this shading mesh to use instead of vertex_radiance's (the drag frame's, app.dragframe)."""
+        this shading mesh to use instead of vertex_radiance's (the drag frame's, app.dragframe); sun_lost:
+        vertex_radiance's."""
         if not hits.hit.any():
             return ShadedObject(np.zeros((hits.H, hits.W, 3)), None, None)
-        L_vert, sun_vis = vertex if vertex is not None else self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB)
+        L_vert, sun_vis = vertex if vertex is not None else self._vertex_radiance(obj, mesh, proxy_occ, dB, sun_dB,
+                                                                                           sun_lost)
         v, n, f = mesh
         h = hits.hit
         sub = np.zeros((len(h), 3))
