@@ -5,6 +5,7 @@ scene's own pose and its SHA-256) with this branch's glue levers switched off on
 usage: python bench/bench_dragpy110.py --scenes window_room,lamps_room,sun_room --variants base,noview [--path 10]
                                        [--rounds 2] [--cpu-glue]
        python bench/bench_dragpy110.py --upload-micro
+       python bench/bench_dragpy110.py --profile SCENE   (cProfile of warm drag frames on the thread's CPU time)
 
 --cpu-glue: app.glue's FrameTimer on the rendering thread's CPU time (time.thread_time), not wall: stats["python"]
 and the per-stage glue are then the thread's CPU outside Warp kernels (the loaded machine's waits left out).
@@ -132,7 +133,41 @@ def upload_micro(k: int = 5000, rounds: int = 3) -> None:
             print(f"VIEW_CACHE {vc:2d}: {1e6 * (time.thread_time() - t) / (2 * k):.1f} us per upload")
 
 
+def profile(scene: str, n_path: int = 12, top: int = 40) -> None:
+    """cProfile of warm drag frames of `scene` along its drag path (the first two not profiled), timed by the
+    rendering thread's CPU (time.thread_time: waits for a core and the pool's kernels left out): the top functions by
+    own time, then by cumulative time (the profiler inflates small calls ~1.5x)."""
+    import cProfile
+    import io
+    import pstats
+    import time
+
+    from app.composite import default_cache_dir
+    from app.dragpath import drag_offsets, moved
+    from app.engine import Engine, EngineParams
+    from recon.scene import load_scene
+
+    sc = load_scene(b36.scene_dir(scene))
+    eng = Engine(sc, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
+    cfg, offs = b36._cfg(), drag_offsets(sc, sc.obj, n_path)
+    for o in offs[:2]:
+        eng.render(moved(sc.obj, o), cfg)
+    pr = cProfile.Profile(time.thread_time)
+    pr.enable()
+    for o in offs[2:]:
+        eng.render(moved(sc.obj, o), cfg)
+    pr.disable()
+    st = pstats.Stats(pr, stream=(out := io.StringIO()))
+    print(f"{scene}: rendering thread CPU {1e3 * st.total_tt / len(offs[2:]):.1f} ms a frame (profiled)")
+    for key in ("tottime", "cumtime"):
+        st.sort_stats(key).print_stats(top)
+    print(out.getvalue())
+
+
 if __name__ == "__main__":
+    if "--profile" in sys.argv:  # --profile SCENE
+        profile(sys.argv[sys.argv.index("--profile") + 1])
+        sys.exit()
     if "--upload-micro" in sys.argv:
         upload_micro()
         sys.exit()
