@@ -10,6 +10,10 @@ import numpy as np
 import warp as wp
 
 
+# Buffer.view's views kept per buffer (0: a new view every call, as before dragpy110)
+VIEW_CACHE = 64
+
+
 class Buffer:
     """A Warp array `dev` of fixed shape and its host mirror `host` (numpy, same shape; vector
     dtypes add a trailing axis)."""
@@ -20,6 +24,7 @@ class Buffer:
         self._cpu = wp.get_device(device).is_cpu
         self._mirror = self.dev if self._cpu else wp.zeros(shape, dtype=dtype, device="cpu", pinned=True)
         self.host: np.ndarray = self._mirror.numpy()  # a view: writes go straight into the mirror
+        self._views: dict[tuple[int, ...], wp.array] = {}  # view(): the leading blocks handed out, by shape
         if fill is not None:
             self.host[...] = fill
             self.push()
@@ -51,6 +56,19 @@ class Buffer:
         self.host[:n] = values
         self.push(n)
         return n
+
+    def view(self, shape: tuple[int, ...]) -> wp.array:
+        """The device view of `dev`'s leading block of `shape` (no memory allocated), kept by shape: making a
+        Warp view costs ~10-30 us of interpreter time (wp.array.__getitem__), and a frame's uploads ask the same
+        few shapes again (at most VIEW_CACHE kept; the cache is emptied when full)."""
+        v = self._views.get(shape) if VIEW_CACHE else None
+        if v is None:
+            v = _rows(self.dev, shape)
+            if VIEW_CACHE:
+                if len(self._views) >= VIEW_CACHE:
+                    self._views.clear()
+                self._views[shape] = v
+        return v
 
     def _elements(self, rows: int | None) -> int:
         """Elements in `rows` leading rows (0: the whole array, wp.copy's convention)."""
@@ -112,7 +130,7 @@ class Workspace:
         b = self.buffer(name, max(n, capacity), dtype, device, cols)
         b.host[(slice(0, n), *(slice(0, k) for k in values.shape[1:]))] = values
         b.push(n)
-        return _rows(b.dev, values.shape[:-1] if _is_vector(dtype) else values.shape)
+        return b.view(values.shape[:-1] if _is_vector(dtype) else values.shape)
 
 
 def _is_vector(dtype) -> bool:

@@ -140,3 +140,31 @@ def test_workspace_upload_holds_a_column_capacity():
     # a 1-d table has no columns: col_capacity leaves it as upload made it before
     x = ws.upload("x", np.arange(4.0), wp.float64, dev, col_capacity=8)
     assert x.shape == (4,)
+
+
+def test_workspace_upload_reuses_its_views_and_holds_each_calls_values():
+    # Buffer.view (dragpy110): a call of a shape asked before returns the same Warp view (no wp.array made), whose
+    # data are this call's values; a buffer that grew gives views of its new array; at most VIEW_CACHE are kept
+    from kernels import buffers
+
+    ws = Workspace()
+    dev = runtime.device(None)
+    rng = np.random.default_rng(3)
+    x = rng.uniform(size=(6, 3))
+    a = ws.upload("p", x, wp.vec3d, dev, capacity=8)
+    y = rng.uniform(size=(6, 3))
+    b = ws.upload("p", y, wp.vec3d, dev, capacity=8)
+    assert b is a and b.shape == (6,)
+    np.testing.assert_array_equal(b.numpy(), y)
+    c = ws.upload("p", y[:4], wp.vec3d, dev, capacity=8)
+    assert c is not a and c.shape == (4,)
+    np.testing.assert_array_equal(c.numpy(), y[:4])
+    z = rng.uniform(size=(20, 3))  # past the capacity: a new buffer, its own views
+    d = ws.upload("p", z, wp.vec3d, dev, capacity=8)
+    e = ws.upload("p", z[:6], wp.vec3d, dev, capacity=8)
+    assert e is not a and e.ptr == d.ptr
+    np.testing.assert_array_equal(e.numpy(), z[:6])
+    buf = ws.buffer("p", 1, wp.vec3d, dev)
+    for n in range(1, buffers.VIEW_CACHE + 5):
+        buf.view((n % 20 + 1,))
+    assert len(buf._views) <= buffers.VIEW_CACHE
