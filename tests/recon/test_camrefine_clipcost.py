@@ -84,7 +84,7 @@ def test_an_unknown_recheck_samples_mode_is_refused():
 def test_sun_109_calibrated_camera_comes_within_a_pixel():
     """Clean sun_109 (rooms_full; a blown-out window, a sunlit patch beside the box), the own-room flow's calibrated
     camera (-6.07 % of focal, 3.8 cm; 14.2 px at the object; calibrate's sigma 3.9 %): cam108's ranking kept the
-    first fit at -0.78 %, 4.0 cm, 5.8 px (its completed objective 3.2 below the truth's basin, by the window's and a
+    first fit at -0.78 %, 4.0 cm, 5.8 px (its completed objective about 3 below the truth's basin, by the window's and a
     box edge's samples the truth's camera projects by clipped pixels); now within 1 % of focal, 2 cm and 1 px
     (measured -0.50 %, 1.2 cm, 0.53 px), and the old ranking is still more than 4 px off."""
     from bench.bench_camrefine import calibrated_room
