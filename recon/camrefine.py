@@ -968,9 +968,9 @@ def _focal_recheck(cam: Camera, model: _Model, best: _Fit, edges, occ, photo: Ph
         c0 = _fit_cost(b, common, photo, lines)
         drops = [_fit_cost(g.camera, common, photo, lines) - c0 for _, g in ok]
     else:
-        drops = []
+        drops, mb = [], _measurable(b, common, photo)
         for _, g in ok:
-            m = _measurable(b, common, photo) & _measurable(g.camera, common, photo)
+            m = mb & _measurable(g.camera, common, photo)
             both = _Samples(common.X[m], common.D[m], common.edge[m])
             drops.append(_fit_cost(g.camera, both, photo, lines) - _fit_cost(b, both, photo, lines))
     i = int(np.argmin(drops))
