@@ -78,11 +78,12 @@ def run(root: Path, work: Path, shared: Path) -> list[dict]:
                                                     np.mean(sun["irradiance_perpendicular"]))
         shutil.rmtree(work / f"cache_{i}", ignore_errors=True)
         out.append(row)
+        g = {k: row.get(k, float("nan")) for k in ("energy_ratio", "rmse_affected", "rmse_object", "sun_angle_deg",
+                                                    "sun_irradiance_ratio")}
         print(f"{tag:24s} focal {row['focal_pct']:+.2f} % centre {row['centre_cm']:.1f} cm rot {row['rot_deg']:.2f} "
               f"obj {row['object_px']:.2f} px | " + (row.get("error") or
-              f"energy {row.get('energy_ratio', float('nan')):.3f} rmse_aff {row.get('rmse_affected', float('nan')):.2f} "
-              f"rmse_obj {row.get('rmse_object', float('nan')):.2f} sun {row.get('sun_angle_deg', float('nan')):.2f} deg "
-              f"x{row.get('sun_irradiance_ratio', float('nan')):.2f}"), flush=True)
+              f"energy {g['energy_ratio']:.3f} rmse_aff {g['rmse_affected']:.2f} rmse_obj {g['rmse_object']:.2f} "
+              f"sun {g['sun_angle_deg']:.2f} deg x{g['sun_irradiance_ratio']:.2f}"), flush=True)
     return out
 
 
