@@ -42,7 +42,11 @@ projected into the photo and aligned with the photo's edges:
    widened focal search (_widened_search) runs and its fits the guard accepts replace the camera when their
    completed objective (_fit_cost: the profile stage's cost with a sample that found no edge counted at the
    profile's reach, plus the clicked lines) is lower (_focal_recheck): the fit's own cost does not charge an
-   edge it has pushed beyond the profile's reach, and it can stop in such a basin (docs/unseen.md, cam108);
+   edge it has pushed beyond the profile's reach, and it can stop in such a basin (docs/unseen.md, cam108).
+   Each fit is compared with the accepted camera on the samples neither of the two projects by a clipped pixel
+   (_measurable): there no camera can measure a profile, and charging such a sample the reach rewarded a camera
+   that moves a blown-out window's edge or a box edge beside a sunlit patch off the clipped pixels onto the
+   glow's ramp (docs/unseen.md, cam110);
 6. a photo edge point explains one room edge (_exclusive): a match nearer to another parallel room
    edge is dropped, so two close parallel edges do not both lock onto the stronger photo edge.
 
@@ -702,7 +706,8 @@ PP_MODELS = ("select", "free", "held")  # a principal point from three vanishing
 def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json: dict | None = None,
                   fine_stage: str = "profiles", principal_point: str = "select", sun: dict | None = None,
                   response: np.ndarray | None = None, ramp_edges: str = "drop",
-                  focal_search: str = "moved", focal_from_lines: str = "retry") -> Refinement:
+                  focal_search: str = "moved", focal_from_lines: str = "retry",
+                  recheck_samples: str = "measurable") -> Refinement:
     """Refine `cam` against the photo `image` (H,W,3 uint8, the camera's size) and the room `prims`
     (scene.json primitives, world metres), with calibrate's clicked lines from `camera_json`. See the
     module docstring; the input camera comes back (accepted False, with the reason) when the guard fails.
@@ -724,7 +729,9 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
     focal_from_lines: when an accepted fit's room edges determine the focal length less than the clicked lines do
     (_focal_from_lines): "retry" (the default: search again with the blown-out edges' Canny matches, as after an
     edge-residual refusal, and take that camera when the guard accepts it and its edges do determine the focal
-    length) or "off" (the rule before; for measurements)."""
+    length) or "off" (the rule before; for measurements).
+    recheck_samples: which samples the focal recheck ranks its fits on (_focal_recheck): "measurable" (the default:
+    those neither compared camera projects by a clipped pixel) or "all" (cam108's rule; for measurements)."""
     from recon import campp
 
     if fine_stage not in FINE_STAGES:
@@ -733,6 +740,8 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         raise ValueError(f"principal_point: expected one of {PP_MODELS}, got {principal_point!r}")
     if focal_search not in FOCAL_SEARCHES:
         raise ValueError(f"focal_search: expected one of {FOCAL_SEARCHES}, got {focal_search!r}")
+    if recheck_samples not in RECHECK_SAMPLES:
+        raise ValueError(f"recheck_samples: expected one of {RECHECK_SAMPLES}, got {recheck_samples!r}")
     if focal_from_lines not in ("retry", "off"):
         raise ValueError(f"focal_from_lines: expected 'retry' or 'off', got {focal_from_lines!r}")
     t0 = time.time()
@@ -850,7 +859,8 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
         # nothing (window_107: -0.90 % of focal, the truth's basin 25 % cheaper by the fit's own objective).
         # Search over the focal length as the widened search does, and keep the camera with the lowest completed
         # objective (_fit_cost) among those the guard accepts
-        alt = _focal_recheck(cam, model, best, edges, occ, photo, lines, float(sigma_f), fine_stage, t0)
+        alt = _focal_recheck(cam, model, best, edges, occ, photo, lines, float(sigma_f), fine_stage, t0,
+                             recheck_samples)
         if alt is not None:
             best, r = alt
             best, r = _sun_refit(cam, model, best, edges, occ, photo, lines, sun_edges, t0) or (best, r)
@@ -874,6 +884,7 @@ def refine_camera(cam: Camera, prims: list[dict], image: np.ndarray, camera_json
 
 
 FOCAL_SEARCHES = ("moved", "always", "off")  # refine_camera's focal_search
+RECHECK_SAMPLES = ("measurable", "all")  # refine_camera's recheck_samples
 
 
 def _focal_recheck_due(cam: Camera, refined: Camera, mode: str) -> bool:
@@ -924,7 +935,8 @@ def _usable_sigma(sigma_f: float | None) -> bool:
 
 
 def _focal_recheck(cam: Camera, model: _Model, best: _Fit, edges, occ, photo: PhotoEdges, lines,
-                   sigma_f: float, fine_stage: str, t0: float) -> tuple[_Fit, Refinement] | None:
+                   sigma_f: float, fine_stage: str, t0: float,
+                   samples: str = "measurable") -> tuple[_Fit, Refinement] | None:
     """(fit, guard) of the widened search's fit (_widened_search: calibrate's focal length moved by -2..+2 of
     its sigma) that the guard accepts and whose completed objective (_fit_cost, on the room points the input
     camera or any of the fits sees) is lower than `best`'s; None when none is.
@@ -934,7 +946,16 @@ def _focal_recheck(cam: Camera, model: _Model, best: _Fit, edges, occ, photo: Ph
     and 1.3 px off either way, the fit at -0.90 % of focal, 3.3 cm), and the Canny distance (_edge_gain) ranks
     that camera above the truth's (0.137 against 0.130 px: Canny pixels are quantised to 1 px); the completed
     objective ranks the truth first (776 against 1051) and picks the widened search's fit from calibrate's
-    +2 sigma (-0.24 %, 0.7 cm; 727)."""
+    +2 sigma (-0.24 %, 0.7 cm; 727).
+
+    samples: "measurable" (the default) compares each fit with `best` on the common samples that neither camera
+    projects by a clipped pixel (_measurable), and takes the fit with the largest drop when it is a drop; "all"
+    (cam108's rule, for measurements) on every common sample. Why: a sample by a clipped pixel has no profile
+    (edgesnap refuses it) at one camera and may find the clipped region's ramp at another; charging it the reach
+    ranked sun_109's first fit (-0.78 %, 4.0 cm, 5.8 px at the object) about 3 below the widened search's fit in the
+    truth's basin (-0.50 %, 1.2 cm, 0.53 px), carried by a blown-out window's edge (+21.8) and a box edge beside
+    the sunlit patch (+21.6) that the truth's camera projects by clipped pixels; on the samples both measure (1282
+    of 6960 dropped: two box edges by the patch, two window edges) that fit is 8.0 lower and is taken."""
     wide = _widened_search(model, edges, occ, photo, lines, fine_stage, sigma_f)
     ok = [(f, g) for f in wide
           for g in [_guard(cam, model.camera(f.x), f, lines, edges, occ, photo, time.time() - t0)] if g.accepted]
@@ -942,10 +963,29 @@ def _focal_recheck(cam: Camera, model: _Model, best: _Fit, edges, occ, photo: Ph
         return None
     common = _union(_sample_edges(cam, edges, occ), _sample_edges(model.camera(best.x), edges, occ),
                     *[f.S for f, _ in ok])
-    c0 = _fit_cost(model.camera(best.x), common, photo, lines)
-    costs = [_fit_cost(g.camera, common, photo, lines) for _, g in ok]
-    i = int(np.argmin(costs))
-    return ok[i] if costs[i] < c0 else None
+    b = model.camera(best.x)
+    if samples == "all":  # the rule before (cam108): every common sample, for measurements
+        c0 = _fit_cost(b, common, photo, lines)
+        drops = [_fit_cost(g.camera, common, photo, lines) - c0 for _, g in ok]
+    else:
+        drops, mb = [], _measurable(b, common, photo)
+        for _, g in ok:
+            m = mb & _measurable(g.camera, common, photo)
+            both = _Samples(common.X[m], common.D[m], common.edge[m])
+            drops.append(_fit_cost(g.camera, both, photo, lines) - _fit_cost(b, both, photo, lines))
+    i = int(np.argmin(drops))
+    return ok[i] if drops[i] < 0 else None
+
+
+def _measurable(cam: Camera, S: _Samples, photo: PhotoEdges) -> np.ndarray:
+    """Which samples S `cam` can measure a sub-pixel edge at: those it does not project by a clipped pixel
+    (photo.fine.near_clip, where edgesnap refuses every profile; a sample out of the image is kept: _fit_cost
+    charges it the profile's reach)."""
+    uv, _ = _project(cam, S)
+    E = photo.fine
+    inside = np.all(uv >= 0, axis=1) & (uv[:, 0] <= cam.width - 1) & (uv[:, 1] <= cam.height - 1)
+    iu = np.clip(np.rint(uv).astype(int), 0, [E.shape[1] - 1, E.shape[0] - 1])
+    return ~(inside & E.near_clip[iu[:, 1], iu[:, 0]])
 
 
 def _sun_edges(sun: dict | None, response, prims: list[dict], occ: _Occluder, image: np.ndarray):
