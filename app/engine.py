@@ -182,6 +182,9 @@ class Engine:
         self.drag_object_tables = True
         # in rooms a sun lights too (False: those rooms' drag frames shade the object as at rest)
         self.drag_object_sun = True
+        # at rest in a sunlit room the object's faces light each other before their light reaches the room
+        # (ObjectLight.self_light); False: left out (bench/bench_sunglow110.py's A/B)
+        self.object_self_light = True
         rest = ~pm.is_emitter
         self.object_drag = DragObject(self.object_shading, dev, (pm.area[rest] @ self.B_obj[rest]) / np.maximum(
             pm.area[rest] @ B_src[rest], 1e-30))
@@ -563,6 +566,11 @@ class Engine:
             return (*ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered), None)
         room_tri_rad = tri_rad
         tri_rad, extra = sun.object_emitters(pv, pf, tri_rad, obj.albedo, proxy_occ, radius)
+        if self.object_self_light and px is self:
+            # the object's own interreflection of both parts (ObjectLight.self_light), each kept with its part
+            s_room, s_sun = ol.self_light(pv, pf, proxy_occ, [room_tri_rad, sun.face_sun], obj.albedo)
+            room_tri_rad = room_tri_rad + s_room
+            tri_rad = tri_rad + s_room + s_sun
         R_pix, _ = ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered, extra, centres=False)
         # at the patches in two parts, the room's and the sun's alone (the latter's later bounces:
         # SunStage.later_bounces), summed: one pass over the proxy's faces

@@ -106,7 +106,8 @@ def switched(e, variant: str):
     """The engine with one second-order term left out for this frame: `no_later` (the sun's loss and the sunlit
     object's light passed on once only: Engine._sun_later_bounces off), `no_blk` (the pairs the object blocks
     kept: Engine._blocked_second_order off), `no_fpb` (the sun loss's pairs the object blocks not skipped:
-    SunStage.later_bounces without its occluder); other names: unchanged."""
+    SunStage.later_bounces without its occluder), `no_self` (the object's own interreflection left out:
+    Engine.object_self_light off); other names: unchanged."""
     saved = {}
     if variant == "no_later":
         saved["_sun_later_bounces"] = e.__dict__.get("_sun_later_bounces")
@@ -114,6 +115,8 @@ def switched(e, variant: str):
     elif variant == "no_blk":
         saved["_blocked_second_order"] = e.__dict__.get("_blocked_second_order")
         e._blocked_second_order = lambda *a, **k: None
+    elif variant == "no_self":  # the object's own interreflection left out (ObjectLight.self_light)
+        e.object_self_light = False
     elif variant == "no_fpb":
         st = e.sun_pixels.stage
         orig = st.later_bounces
@@ -128,6 +131,7 @@ def switched(e, variant: str):
                 setattr(e, k, v)
         if variant == "no_fpb":
             del e.sun_pixels.stage.later_bounces
+        e.object_self_light = True
 
 
 def selection_ratio(lb: np.ndarray, lc: np.ndarray, raw_bg: np.ndarray, raw_tr: np.ndarray, mask: np.ndarray,
