@@ -17,9 +17,15 @@ pieces (extra). At receiver pixels sampled by place (bench_sun_energy.places: fl
 - true ref: the same gather from the true object mesh (scene.obj), its sun at each hit point against the true
   mesh, its room light per true face from `--face-rays` cosine rays off the face's centroid into the room: a
   patch hit takes B_obj of the patch with its sun part (rho x patch_light) replaced by rho E_perp x the sun's
-  visibility at the hit point past the true object (its own shadow on the floor, exact); an object hit 0 (the
-  object's light on itself, which ours leaves out too; its share is printed).
+  visibility at the hit point past the true object (its own shadow on the floor, exact); an object hit 0 here.
   Tests the proxy (its sunlit area and the room light of its faces near the floor).
+- the object's own interreflection: the true faces' rays that hit the object itself carry the hit face's sun and
+  room light back (self_light: two bounces, as ObjectLight.self_light), gathered at the pixels as the true ref
+  ("true ref with it"); main's first pass left it out. Ours with it: ObjectLight.self_light of the proxy's room
+  and sun (face averages, SunStage.face_sun) summed by ObjectLight.light, against the same cosine gather's self
+  hits on the proxy (printed as power x area).
+The columns "ours" are main's first pass (the frame's emitters before self_light is added); the last column adds
+ours' self_light.
 
 All sums are over the sampled pixels; ratios ours / ref. Deterministic up to the Monte Carlo's seed (fixed).
 """
@@ -159,13 +165,49 @@ def self_light(e, L_direct: np.ndarray, bounces: int = 2) -> np.ndarray:
     return extra
 
 
+def receivers(room: Path) -> None:
+    """Per place (bench_sun_energy.places) the receiver pixels' mean reflectance rho_x, gathered light E_x and
+    photo radiance L_b (luminance), and the sunlit patches' mean B_src, under known and captured light (one engine
+    at a time): a glow rho_x x R carries rho_x = L_b / E_x, so a captured E_x short on the walls makes their glow
+    too strong by the same factor."""
+    import gc
+
+    from app.composite import default_cache_dir
+    from app.engine import Engine, EngineParams
+    from bench_sun_energy import places
+    from recon.scene import load_scene
+
+    s = load_scene(room)
+    print(f"\n### {room.name}: receivers by place (luminance means)")
+    print("| lighting | place | px | rho_x | E_x | L_b |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for lighting in ("known", "captured"):
+        e = Engine(s, EngineParams(lighting=lighting), cache_dir=default_cache_dir(), quiet=True)
+        r = e.receivers
+        where, _ = places(e, room)
+        for name in ("floor < 0.3 m", "floor 0.3-1 m", "walls"):
+            px = np.flatnonzero(where[name].reshape(-1))
+            print(f"| {lighting} | {name} | {len(px)} | {float((r.rho_x[px] @ LUMA).mean()):.4f} | "
+                  f"{float((r.E_x[px] @ LUMA).mean()):.4g} | {float((r.L_b[px] @ LUMA).mean()):.4g} |")
+        lit = e.sun.patch_light().any(1)
+        print(f"| {lighting} | sunlit patches B_src | {int(lit.sum())} | | | {float((e.B_src[lit] @ LUMA).mean()):.4g} |")
+        del e
+        gc.collect()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--receivers", action="store_true", help="only the receivers' rho_x, E_x, L_b by place, known "
+                                                              "and captured light (receivers())")
     ap.add_argument("rooms", nargs="+", type=Path)
     ap.add_argument("--n", type=int, default=200, help="receiver pixels a place")
     ap.add_argument("--rays", type=int, default=1024)
     ap.add_argument("--face-rays", type=int, default=128)
     a = ap.parse_args()
+    if a.receivers:
+        for room in a.rooms:
+            receivers(room)
+        return
     from app.composite import default_cache_dir
     from app.engine import Engine, EngineParams
     from bench_sun_energy import places
@@ -227,8 +269,9 @@ def main() -> None:
         ref_self = self_light(e, got["room"] + face_sun)
         print(f"proxy self-light x area (lum): ours {(ours_self @ LUMA * ar_p).sum():.5f}, cosine gather "
               f"{(ref_self @ LUMA * ar_p).sum():.5f}; of the proxy's room + sun {((got['room'] + face_sun) @ LUMA * ar_p).sum():.5f}")
-        print("| place | px | ours sun / proxy ref / true ref | ours room / proxy ref / true ref | ours all / true ref | object's self-light (ours all / true ref with it) |")
-        print("| --- | --- | --- | --- | --- | --- |")
+        R_self, _ = ol.light(pv, pf, ours_self, occ, centre, radius, None, None, centres=False)
+        print("| place | px | ours sun / proxy ref / true ref | ours room / proxy ref / true ref | ours all / true ref | object's self-light (ours all / true ref with it) | ours with self_light / true ref with it |")
+        print("| --- | --- | --- | --- | --- | --- | --- |")
         for name, px in sel.items():
             if len(px) == 0:
                 continue
@@ -240,7 +283,8 @@ def main() -> None:
             print(f"| {name} | {len(px)} | {os_:.4g} / {ps.sum():.4g} / {ts.sum():.4g} ({os_ / ts.sum():.3f}) | "
                   f"{or_:.4g} / {pr.sum():.4g} / {tr.sum():.4g} ({or_ / tr.sum():.3f}) | "
                   f"{(os_ + or_) / (ts.sum() + tr.sum()):.3f} (proxy ref {(ps.sum() + pr.sum()) / (ts.sum() + tr.sum()):.3f}) | "
-                  f"{tself.sum():.4g} ({(os_ + or_) / (ts.sum() + tr.sum() + tself.sum()):.3f}) |")
+                  f"{tself.sum():.4g} ({(os_ + or_) / (ts.sum() + tr.sum() + tself.sum()):.3f}) | "
+                  f"{(os_ + or_ + float((R_self[px] @ LUMA).sum())) / (ts.sum() + tr.sum() + tself.sum()):.3f} |")
         del e
 
 
