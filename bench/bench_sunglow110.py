@@ -191,12 +191,25 @@ def receivers(room: Path) -> None:
                   f"{float((r.E_x[px] @ LUMA).mean()):.4g} | {float((r.L_b[px] @ LUMA).mean()):.4g} |")
         lit = e.sun.patch_light().any(1)
         print(f"| {lighting} | sunlit patches B_src | {int(lit.sum())} | | | {float((e.B_src[lit] @ LUMA).mean()):.4g} |")
+        pm = e.pre.patches
+        rmin, rmax = np.asarray(e.scene.room_min, float), np.asarray(e.scene.room_max, float)
+        c = pm.centre
+        fl = np.abs(c[:, 1] - rmin[1]) < 1e-3
+        wl = np.zeros(len(c), bool)
+        for axis, v in ((0, rmin[0]), (0, rmax[0]), (2, rmin[2]), (2, rmax[2])):
+            wl |= np.abs(c[:, axis] - v) < 1e-3
+        for name, m in (("floor patches", fl & ~pm.is_emitter), ("wall patches", wl & ~pm.is_emitter)):
+            w = pm.area[m]
+            print(f"| {lighting} | {name}: albedo (area mean) | {int(m.sum())} | {float(w @ (pm.albedo[m] @ LUMA) / w.sum()):.4f}"
+                  f" | | {float(w @ (e.B_src[m] @ LUMA) / w.sum()):.4g} |")
         del e
         gc.collect()
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--lighting", default="known", help="the engine's lighting for the first-pass table (known, "
+                                                       "captured: the benchmark folder's probe, the sun estimated)")
     ap.add_argument("--receivers", action="store_true", help="only the receivers' rho_x, E_x, L_b by place, known "
                                                               "and captured light (receivers())")
     ap.add_argument("rooms", nargs="+", type=Path)
@@ -216,7 +229,7 @@ def main() -> None:
 
     for room in a.rooms:
         s = load_scene(room)
-        e = Engine(s, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
+        e = Engine(s, EngineParams(lighting=a.lighting), cache_dir=default_cache_dir(), quiet=True)
         ol, st = e.object_light, e.sun_pixels.stage
         got = {}
         orig_em, orig_light = st.object_emitters, ol.light
