@@ -183,9 +183,10 @@ class Engine:
         # in rooms a sun lights too (False: those rooms' drag frames shade the object as at rest)
         self.drag_object_sun = True
         # at rest in a sunlit room the object's faces light each other before their light reaches the room
-        # (ObjectLight.self_light): True takes known light's energy to 0.96-1.06 in 9 of 10 sun rooms and matches a
-        # brute-force gather, but under captured light, whose glow on the walls is already 1.3x the truth's, it
-        # pushes sun_101's spurious over its bound (docs/unseen.md "sunglow110"); off until that term is fixed
+        # (ObjectLight.self_light): True takes known light's energy to 0.965-1.064 in the five sun rooms off by
+        # 5-22 % and matches a brute-force gather, but under captured light, whose glow on the walls is already
+        # 1.3x the truth's, it pushes sun_101's spurious over its bound (docs/unseen.md "sunglow110"); off until
+        # that term is fixed
         self.object_self_light = False
         rest = ~pm.is_emitter
         self.object_drag = DragObject(self.object_shading, dev, (pm.area[rest] @ self.B_obj[rest]) / np.maximum(

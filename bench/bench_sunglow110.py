@@ -190,7 +190,8 @@ def receivers(room: Path) -> None:
             print(f"| {lighting} | {name} | {len(px)} | {float((r.rho_x[px] @ LUMA).mean()):.4f} | "
                   f"{float((r.E_x[px] @ LUMA).mean()):.4g} | {float((r.L_b[px] @ LUMA).mean()):.4g} |")
         lit = e.sun.patch_light().any(1)
-        print(f"| {lighting} | sunlit patches B_src | {int(lit.sum())} | | | {float((e.B_src[lit] @ LUMA).mean()):.4g} |")
+        b_lit = float((e.B_src[lit] @ LUMA).mean())
+        print(f"| {lighting} | sunlit patches B_src | {int(lit.sum())} | | | {b_lit:.4g} |")
         pm = e.pre.patches
         rmin, rmax = np.asarray(e.scene.room_min, float), np.asarray(e.scene.room_max, float)
         c = pm.centre
@@ -200,8 +201,8 @@ def receivers(room: Path) -> None:
             wl |= np.abs(c[:, axis] - v) < 1e-3
         for name, m in (("floor patches", fl & ~pm.is_emitter), ("wall patches", wl & ~pm.is_emitter)):
             w = pm.area[m]
-            print(f"| {lighting} | {name}: albedo (area mean) | {int(m.sum())} | {float(w @ (pm.albedo[m] @ LUMA) / w.sum()):.4f}"
-                  f" | | {float(w @ (e.B_src[m] @ LUMA) / w.sum()):.4g} |")
+            alb, b = float(w @ (pm.albedo[m] @ LUMA) / w.sum()), float(w @ (e.B_src[m] @ LUMA) / w.sum())
+            print(f"| {lighting} | {name}: albedo (area mean) | {int(m.sum())} | {alb:.4f} | | {b:.4g} |")
         del e
         gc.collect()
 
@@ -281,9 +282,11 @@ def main() -> None:
         true_face_room(e, g_prox, pv, pf, occ, a.face_rays, rng)
         ref_self = self_light(e, got["room"] + face_sun)
         print(f"proxy self-light x area (lum): ours {(ours_self @ LUMA * ar_p).sum():.5f}, cosine gather "
-              f"{(ref_self @ LUMA * ar_p).sum():.5f}; of the proxy's room + sun {((got['room'] + face_sun) @ LUMA * ar_p).sum():.5f}")
+              f"{(ref_self @ LUMA * ar_p).sum():.5f}; of the proxy's room + sun "
+              f"{((got['room'] + face_sun) @ LUMA * ar_p).sum():.5f}")
         R_self, _ = ol.light(pv, pf, ours_self, occ, centre, radius, None, None, centres=False)
-        print("| place | px | ours sun / proxy ref / true ref | ours room / proxy ref / true ref | ours all / true ref | object's self-light (ours all / true ref with it) | ours with self_light / true ref with it |")
+        print("| place | px | ours sun / proxy ref / true ref | ours room / proxy ref / true ref | ours all / true ref "
+              "| object's self-light (ours all / true ref with it) | ours with self_light / true ref with it |")
         print("| --- | --- | --- | --- | --- | --- | --- |")
         for name, px in sel.items():
             if len(px) == 0:
@@ -295,7 +298,8 @@ def main() -> None:
             os_, or_ = float((R_sun[px] @ LUMA).sum()), float((R_room[px] @ LUMA).sum())
             print(f"| {name} | {len(px)} | {os_:.4g} / {ps.sum():.4g} / {ts.sum():.4g} ({os_ / ts.sum():.3f}) | "
                   f"{or_:.4g} / {pr.sum():.4g} / {tr.sum():.4g} ({or_ / tr.sum():.3f}) | "
-                  f"{(os_ + or_) / (ts.sum() + tr.sum()):.3f} (proxy ref {(ps.sum() + pr.sum()) / (ts.sum() + tr.sum()):.3f}) | "
+                  f"{(os_ + or_) / (ts.sum() + tr.sum()):.3f} "
+                  f"(proxy ref {(ps.sum() + pr.sum()) / (ts.sum() + tr.sum()):.3f}) | "
                   f"{tself.sum():.4g} ({(os_ + or_) / (ts.sum() + tr.sum() + tself.sum()):.3f}) | "
                   f"{(os_ + or_ + float((R_self[px] @ LUMA).sum())) / (ts.sum() + tr.sum() + tself.sum()):.3f} |")
         del e
