@@ -182,6 +182,12 @@ class Engine:
         self.drag_object_tables = True
         # in rooms a sun lights too (False: those rooms' drag frames shade the object as at rest)
         self.drag_object_sun = True
+        # at rest in a sunlit room the object's faces light each other before their light reaches the room
+        # (ObjectLight.self_light): True takes known light's energy to 0.965-1.064 in the five sun rooms off by
+        # 5-22 % and matches a brute-force gather, but under captured light, whose glow on the walls is already
+        # 1.3x the truth's, it pushes sun_101's spurious over its bound (docs/unseen.md "sunglow110"); off until
+        # that term is fixed
+        self.object_self_light = False
         rest = ~pm.is_emitter
         self.object_drag = DragObject(self.object_shading, dev, (pm.area[rest] @ self.B_obj[rest]) / np.maximum(
             pm.area[rest] @ B_src[rest], 1e-30))
@@ -564,6 +570,11 @@ class Engine:
             return (*ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered), None)
         room_tri_rad = tri_rad
         tri_rad, extra = sun.object_emitters(pv, pf, tri_rad, obj.albedo, proxy_occ, radius)
+        if self.object_self_light and px is self:
+            # the object's own interreflection of both parts (ObjectLight.self_light), each kept with its part
+            s_room, s_sun = ol.self_light(pv, pf, proxy_occ, [room_tri_rad, sun.face_sun], obj.albedo)
+            room_tri_rad = room_tri_rad + s_room
+            tri_rad = tri_rad + s_room + s_sun
         R_pix, _ = ol.light(pv, pf, tri_rad, proxy_occ, centre, radius, covered, extra, centres=False)
         # at the patches in two parts, the room's and the sun's alone (the latter's later bounces:
         # SunStage.later_bounces), summed: one pass over the proxy's faces

@@ -106,7 +106,8 @@ def switched(e, variant: str):
     """The engine with one second-order term left out for this frame: `no_later` (the sun's loss and the sunlit
     object's light passed on once only: Engine._sun_later_bounces off), `no_blk` (the pairs the object blocks
     kept: Engine._blocked_second_order off), `no_fpb` (the sun loss's pairs the object blocks not skipped:
-    SunStage.later_bounces without its occluder); other names: unchanged."""
+    SunStage.later_bounces without its occluder), `self` / `no_self` (the object's own interreflection on / off:
+    Engine.object_self_light); other names: unchanged."""
     saved = {}
     if variant == "no_later":
         saved["_sun_later_bounces"] = e.__dict__.get("_sun_later_bounces")
@@ -114,6 +115,9 @@ def switched(e, variant: str):
     elif variant == "no_blk":
         saved["_blocked_second_order"] = e.__dict__.get("_blocked_second_order")
         e._blocked_second_order = lambda *a, **k: None
+    elif variant in ("self", "no_self"):  # the object's own interreflection on / off (ObjectLight.self_light)
+        saved["object_self_light"] = e.object_self_light
+        e.object_self_light = variant == "self"
     elif variant == "no_fpb":
         st = e.sun_pixels.stage
         orig = st.later_bounces
@@ -212,6 +216,9 @@ def main() -> None:
     ap.add_argument("--save", type=Path)
     ap.add_argument("--noise", action="store_true", help="the scorer's selection bias on the truth's noise")
     ap.add_argument("--eyes", action="store_true", help="the sunlit patches' hidden light: one eye against samples")
+    ap.add_argument("--lighting", default="known", help="the engine's lighting (known, captured: the benchmark "
+                                                       "folder's probe and photo, its true camera)")
+    ap.add_argument("--sun", default="auto", help="the engine's sun source (auto, estimate, declared)")
     a = ap.parse_args()
     import dataclasses
 
@@ -224,7 +231,9 @@ def main() -> None:
 
     for room in a.rooms:
         s = load_scene(room)
-        e = Engine(s, EngineParams(), cache_dir=default_cache_dir(), quiet=True)
+        e = Engine(s, EngineParams(lighting=a.lighting, sun=a.sun), cache_dir=default_cache_dir(), quiet=True)
+        if e.sun.light is not None:
+            print(f"sun ({a.lighting}, {a.sun}):", json.dumps(e.sun.report()))
         p0 = e.params
         lb = lum8(cv2.imread(str(room / "background.png"))[..., ::-1])
         lt = lum8(cv2.imread(str(room / "truth.png"))[..., ::-1])
@@ -246,7 +255,7 @@ def main() -> None:
                 scores[v] = json.loads(subprocess.check_output(
                     [sys.executable, str(a.shared / "tools" / "score.py"), str(room), str(p)]))
                 lc_by[v] = lum8(cv2.imread(str(p))[..., ::-1])
-        print(f"\n### {room} (known light, all sources)")
+        print(f"\n### {room} ({a.lighting} light, sun {a.sun}, all sources)")
         for v, sc in scores.items():
             print(f"- {v}: " + ", ".join(f"{k} {x:.4g}" for k, x in sc.items()))
         print("\n".join(table(lb, lt, lc_by, aff, where, mask)))

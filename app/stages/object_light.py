@@ -379,6 +379,9 @@ def _seen_lookup(seen: np.ndarray, tri_to_point: np.ndarray, res: int = CUBE_RES
 
 
 FREE_RES = 8  # cells per cube face side of the proxy triangles' ray-free directions (free_cells)
+# bounces among the object's own faces of the light it sends to the room (ObjectLight.self_light): the truth's 4
+# bounces less the room pixel's and the first light's (sun -> face -> face -> face -> room pixel)
+SELF_BOUNCES = 2
 EXACT_EPS = 1e-3  # m: the exact sum's ray ends pulled off the surfaces (kernels.visibility.emitter_sum's eps)
 GATHER_EPS = 2e-3  # m: triangle_radiance's (transfer_matrix's eps)
 
@@ -714,6 +717,35 @@ class StrideTable:
         return ny * self.W + nx
 
 
+def object_self_light(pv: np.ndarray, pf: np.ndarray, proxy_occ: Occluder, radiance: list[np.ndarray],
+                      albedo: np.ndarray, bounces: int = SELF_BOUNCES, device: str | None = None,
+                      workspace: Workspace | None = None) -> list[np.ndarray]:
+    """The light the object's faces reflect onto each other (its interreflection), per part of their radiance.
+
+    For each (T,3) array of `radiance` (the proxy (pv, pf)'s faces' outgoing radiance, irradiance/pi units: the
+    room's light, the sun's face averages), the radiance (T,3) it adds to the faces after `bounces` bounces among
+    them: L_k+1 = albedo x sum_t L_k,t F(centroid -> t) V (kernels.visibility.emitter_sum: exact polygon form
+    factors, a centroid-to-centroid ray past the proxy), summed over k = 1..bounces. Linear in the radiance (the
+    parts add). triangle_radiance's gather leaves the proxy's own faces dark (the proxy occludes, emits nothing);
+    the truth's object is lit by itself too: on sun_101's chair 20 % of a face's hemisphere is the chair, 8 % of
+    the light it sends to the room (bench/bench_sunglow110.py, docs/unseen.md "sunglow110"). A convex proxy gets 0."""
+    tris = np.asarray(pv, np.float64)[pf]
+    c = tris.mean(1)
+    nrm = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
+    out = []
+    for L in radiance:
+        total, step = np.zeros((len(tris), 3)), np.asarray(L, np.float64)
+        for _ in range(bounces):
+            if not step.any():
+                break
+            step = albedo * emitter_sum(c, nrm, tris, step, proxy_occ, eps=EXACT_EPS, device=device, split=256,
+                                        workspace=workspace)
+            total += step
+        out.append(total)
+    return out
+
+
 class ObjectLight:
     """The light the object reflects onto the room, for one scene: built once from the receiver map
     (pixels, their patches, positions, reflectance, the photo's radiance and response), the patch
@@ -788,6 +820,12 @@ class ObjectLight:
                             chunk=max(16, -(-len(c) // 2)),  # two launches side by side: both cores
                             workspace=self._workspaces.get("object_irradiance"), free=shape.free, free_res=FREE_RES)
         return obj.albedo * (G.astype(np.float64) @ B_set)
+
+    def self_light(self, pv, pf, proxy_occ, radiance: list[np.ndarray], albedo: np.ndarray,
+                   bounces: int = SELF_BOUNCES) -> list[np.ndarray]:
+        """object_self_light with this stage's device and buffers."""
+        return object_self_light(pv, pf, proxy_occ, radiance, albedo, bounces, self.device,
+                                 self._workspaces.get("object_light.self"))
 
     def patch_blocks(self) -> PatchBlocks:
         """The engine's PatchBlocks (made on first use: it depends on the scene only)."""

@@ -148,6 +148,9 @@ class SunStage:
         self._pieces: tuple | None = None  # the last proxy shape's (object_emitters)
         self._outline = OutlineShade(device, light.entries, light.d)  # refine_clipped_edges's
         # rays and their shading (buffers kept)
+        # the last object_emitters's sun radiance (T,3) of each proxy face averaged over the face (wholly and
+        # partly lit; zero unlit): the object's own interreflection takes it (ObjectLight.self_light)
+        self.face_sun: np.ndarray | None = None
         self._emitters = SeenEmitters(device)  # object_emitters's lit pieces on the device (buffers kept)
 
     @property
@@ -348,6 +351,7 @@ class SunStage:
         a direction as much as they do (power-weighted, their table at CUBE_RES cells a side)."""
         tris = pv[pf]
         pieces, table, coarse = self._pieces_of(pv, pf, tris, proxy_occ, radius)
+        self.face_sun = np.zeros_like(tri_rad)
         if len(pieces) == 0:
             return tri_rad, None
         origin = tris.reshape(-1, 3).mean(0)
@@ -356,11 +360,18 @@ class SunStage:
         lit = share > 0
         count, E_face = self._pieces[5]  # pieces per face, each face's cos (of the shape)
         whole = (np.bincount(pieces.parent, (share >= 1.0).astype(float), T) == count) & (count > 0)
-        tri_rad = tri_rad + albedo * (np.where(whole, E_face, 0.0)[:, None] * self.E_perp)
+        self.face_sun = albedo * (np.where(whole, E_face, 0.0)[:, None] * self.E_perp)
+        tri_rad = tri_rad + self.face_sun
         part = np.flatnonzero(lit & ~whole[pieces.parent])
         if len(part) == 0:
             return tri_rad, None
         rad = albedo * ((share[part] * pieces.cos[part])[:, None] * self.E_perp)
+        # the partly lit faces' sun averaged over the face (their pieces' power / the face's area: face_sun)
+        t = tris
+        area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+        pw = pieces.area[part][:, None] * rad
+        self.face_sun += np.stack([np.bincount(pieces.parent[part], pw[:, k], T) for k in range(3)], 1) \
+            / np.maximum(area, 1e-30)[:, None]
         sub = pieces.tris(origin)[part]
         # far field: one point emitter per partly lit face at its lit pieces' power centroid (the sums over
         # each face's pieces as products with a (faces x pieces) weight matrix: a few small products in
