@@ -283,7 +283,8 @@ class PhotoEdges:
         return out
 
     def lines(self, corners: np.ndarray, pairs: list[tuple[int, int]], blocked: Callable[[np.ndarray], np.ndarray],
-              clipped_ok: bool = False, faint: bool = False, model_sd: dict | None = None) -> list[EdgeLine]:
+              clipped_ok: bool = False, faint: bool = False, model_sd: dict | None = None,
+              others: np.ndarray | None = None) -> list[EdgeLine]:
         """The model edges `pairs` of corners (N,3) snapped to the photo, each over its longest
         stretch inside the photo and not `blocked` (callable (M,3) points -> (M,) bool); an edge
         edgesnap does not find over the search is scanned in narrow windows (snap_scan); with
@@ -295,7 +296,10 @@ class PhotoEdges:
         SEARCH_SIGMAS of that either side (at least MIN_SEARCH_PX: a fit pinning an edge to a fraction of
         a pixel keeps the search off a texture's edges a few pixels away, a floor's plank seams along a
         piece's foot), and the edge found must agree with it within that noise or the click noise,
-        whichever is larger (an edge far from every click moves more than a click does)."""
+        whichever is larger (an edge far from every click moves more than a click does). others: (K,2,2)
+        px, more edges in the photo that are not in `pairs` (other pieces' outlines, box_edges_px): an
+        edge is searched at most half way to these too (a shelf's side a few pixels beside a room's
+        corner line would be snapped in its place)."""
         cam = self.camera
         ts = np.linspace(0.0, 1.0, EDGE_SAMPLES)
         out = []
@@ -319,6 +323,8 @@ class PhotoEdges:
             mid = uv[a:b + 1]
             sep = min((float(np.median(_seg_dist(mid, e))) for (p, q), e in proj.items() if not {p, q} & {i, j}),
                       default=np.inf)
+            if others is not None and len(others):
+                sep = min(sep, min(float(np.median(_seg_dist(mid, e))) for e in others))
             sd_e = (model_sd or {}).get((i, j))
             sigma = self.sigma if sd_e is None else max(self.sigma, sd_e)
             search = self.search if sd_e is None else \
@@ -539,6 +545,22 @@ def _longest_run(ok: np.ndarray) -> tuple[int, int] | None:
                 best = (start, k - 1)
             start = None
     return best if best is not None and best[1] > best[0] else None
+
+
+def box_edges_px(camera: Camera, boxes: list[dict]) -> np.ndarray:
+    """(K,2,2) px: the 12 edges of each box (user primitives format: center, size, yaw_deg; not
+    shrunk) projected into the photo, those with both ends in front of the camera (z > 0.05 m)."""
+    from recon.view import box_corners
+
+    out = []
+    for b in boxes:
+        X = np.asarray(box_corners(b["center"], b["size"], b.get("yaw_deg", 0.0)), float)
+        uv, z = camera.project(X)
+        for a in range(8):
+            for c in range(a + 1, 8):
+                if bin(a ^ c).count("1") == 1 and z[a] > 0.05 and z[c] > 0.05:  # an edge: one index bit apart
+                    out.append(np.array([uv[a], uv[c]]))
+    return np.array(out).reshape(-1, 2, 2)
 
 
 def box_blocker(camera: Camera, boxes: list[dict]) -> Callable[[np.ndarray], np.ndarray]:

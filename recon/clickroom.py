@@ -85,7 +85,10 @@ def _refine_room(P: _Clicks, walls: dict[str, Wall], ceil_clicks: list[tuple[Wal
         return np.array([f(x) for f in ends]) if ends else np.zeros((0, 3))
 
     if model_pairs:
-        found = P.edges.lines(corners(x0), model_pairs, P.blocker(""), faint=True)
+        from recon.clickedges import box_edges_px
+
+        found = P.edges.lines(corners(x0), model_pairs, P.blocker(""), faint=True,
+                              others=box_edges_px(cam, P.occluders))
         by_pair = {pair: t for pair, t in zip(model_pairs, model_touch)}
         lines += found
         touches += [by_pair[(L.i, L.j)] for L in found]
