@@ -114,8 +114,9 @@ class PhotoPriors:
     sun_bounces: bool = False  # once a sun is found in the photo, the fit again with bounce_levels = the engine's
     # bounce count and the sun's strength by the same bounce model (app.engine.Engine._sun_bounces). Opt-in:
     # measured in docs/unseen.md "photo109" (the bright sun rooms right, the darker ones too dark), not the default
-    sun_ramp: bool = True  # once a sun is found in the photo, its clipped sunlit surfaces take the level their
-    # penumbra measures (lighting.sunramp), not the walls' fit's (app.engine.Engine._sunlit_levels; docs "photosun110")
+    sun_ramp: bool = False  # once a sun is found in the photo, its clipped sunlit surfaces take the level their
+    # penumbra measures (lighting.sunramp), not the walls' fit's (app.engine.Engine._sunlit_levels). Opt-in: measured
+    # in docs/unseen.md "photosun110" (the bright sun rooms right, the darker ones and the shared sun_room worse)
 
 
 @dataclass
