@@ -130,7 +130,8 @@ class Engine:
             # strength take the camera's bounce count (_sun_bounces), and the fit and the sun are made again
             sunlit = self.sun.sun_share()
             sun_priors, levels = self._sun_bounces(photo_priors)
-            if self._refit_sunlit(pre, sunlit, sun_priors, force=levels > 0):
+            pinned = self._sunlit_levels(pre, rm, photo_priors)  # the sunlit level from its penumbra (lighting.sunramp)
+            if self._refit_sunlit(pre, sunlit, sun_priors, force=levels > 0 or bool(pinned), pinned=pinned):
                 B_src = pre.B[p.bounces - 1]
                 rm = receiver_map(scene, pre, B_src)
                 self.sun = SunSetup(scene, p.lighting, p.sun, self.scene_occ, pre.patches, bounces=levels or None)
@@ -209,10 +210,11 @@ class Engine:
         else:
             self.n_precompute += 1
 
-    def _fit_photo_light(self, pre: Precomputed, priors=None, sunlit: np.ndarray | None = None) -> None:
-        """Radiance mesh from the photo alone into `pre` (B, albedo, origin), report in photo_light (`sunlit`:
-        lighting.photolight.fit_photo_light's)."""
-        report = scene_precompute.fit_photo_light(pre, self.scene, self.params.bounces, priors, sunlit)
+    def _fit_photo_light(self, pre: Precomputed, priors=None, sunlit: np.ndarray | None = None,
+                         pinned: dict | None = None) -> None:
+        """Radiance mesh from the photo alone into `pre` (B, albedo, origin), report in photo_light (`sunlit`,
+        `pinned`: lighting.photolight.fit_photo_light's)."""
+        report = scene_precompute.fit_photo_light(pre, self.scene, self.params.bounces, priors, sunlit, pinned)
         self.photo_light = {**report, **{k: v for k, v in self.photo_light.items() if k.startswith("declared")}}
         log.debug("photo light: %s", {k: v for k, v in self.photo_light.items() if k != "warnings"})
 
@@ -235,10 +237,12 @@ class Engine:
             return priors, 0
         return dataclasses.replace(pr, bounce_levels=self.params.bounces), self.params.bounces
 
-    def _refit_sunlit(self, pre: Precomputed, sunlit: np.ndarray, priors=None, force: bool = False) -> bool:
+    def _refit_sunlit(self, pre: Precomputed, sunlit: np.ndarray, priors=None, force: bool = False,
+                      pinned: dict | None = None) -> bool:
         """Photo light's fit again with the sunlit patches (`sunlit` (P,): their sun share) that it gathered as
-        unseen reflectors joined to their surface's clipped region; False (nothing done) when none joins and not
-        `force` (the priors differ from the first fit's: the bounce levels, _sun_bounces)."""
+        unseen reflectors joined to their surface's clipped region, and the clipped regions `pinned` ({quad: (3,)
+        radiance}, _sunlit_levels) at their measured level; False (nothing done) when none joins and not `force`
+        (the priors differ from the first fit's: the bounce levels, _sun_bounces; or a level is pinned)."""
         from lighting.photolight import FITTED
         from lighting.radiance import GATHERED
 
@@ -247,8 +251,47 @@ class Engine:
         if not force and not ((sunlit > 0) & (origin == GATHERED) & np.isin(pre.patches.quad, region_q)).any():
             return False
         scene_precompute.use_lighting(pre, self.params.lighting, functools.partial(
-            self._fit_photo_light, priors=priors, sunlit=sunlit))
+            self._fit_photo_light, priors=priors, sunlit=sunlit, pinned=pinned))
+        if pinned:
+            self.photo_light["sunlit_levels"] = self._ramp_report
         return force or self.photo_light.get("sunlit_unseen_joined", 0) > 0
+
+    def _sunlit_levels(self, pre: Precomputed, rm: ReceiverMap, priors=None) -> dict[int, np.ndarray]:
+        """Photo light with a sun found: {quad: (3,) radiance} the sunlit level of each clipped region the sun lights,
+        from its own penumbra (lighting.sunramp.sunlit_step: shadow level + the step its unclipped ramp pixels
+        give); {} where the ramp gives none (too few unclipped ramp pixels, PhotoPriors.sun_ramp off). The walls'
+        fit measures rho_wall x rho_floor x sun, so its region level carries the albedo's scale (docs/unseen.md
+        "photosun34b"); the penumbra's does not."""
+        from lighting.photolight import EMITTER_ROLES, FITTED, PhotoPriors
+        from lighting.sun import SunLight, openings
+        from lighting.sunramp import sunlit_step
+
+        self._ramp_report: dict = {}
+        if not (priors or PhotoPriors()).sun_ramp or self.sun.light is None:
+            return {}
+        scene, pm, sun = self.scene, pre.patches, self.sun.light
+        holes = openings(scene)
+        pix_quad = np.where(rm.pix_patch >= 0, pm.quad[np.maximum(rm.pix_patch, 0)], -1)
+        share = self.sun.sun_share()
+        region = (np.asarray(pre.origin) == FITTED) & (share > 0)
+        out = {}
+        for q in np.unique(pm.quad[region]).tolist():
+            quad = scene.quads[q]
+            if quad.role in EMITTER_ROLES:
+                continue
+            step = sunlit_step(
+                lambda d: SunLight(dataclasses.replace(sun.sun, direction=d), holes, self.scene_occ,
+                                   where="sun penumbra"),
+                scene.camera, scene.photo, rm.L_b, pix_quad, rm.pix_pos, rm.pix_patch >= 0, q,
+                (quad.corners[0], quad.normal), sun.d)
+            if step is None:
+                log.debug("photo light: %s: no sunlit level from its penumbra", quad.name)
+                continue
+            out[q] = step.lit
+            self._ramp_report[quad.name] = step.report()
+            log.info("photo light: %s: sunlit level %s from its penumbra (%d unclipped ramp pixels)", quad.name,
+                     "({:.3g}, {:.3g}, {:.3g})".format(*step.lit), step.n_ramp)
+        return out
 
     def _local_light(self, pre: Precomputed, B_lit: np.ndarray, sunlit: np.ndarray):
         """Photo light: (lighting.photolocal.LocalLight, the emitter patches (P,) bool it scales: the room

@@ -106,6 +106,9 @@ def room_row(keep: Path, rooms: Path, room: str, light: str) -> dict:
         if em["name"].startswith("floor") and "clipped" in em["name"]:
             row["lit_floor_x"] = lum(em["radiance"]) / t["lit_floor"] if t["lit_floor"] else float("nan")
             row["clip_over_truth_lit"] = t["clip"] / t["lit_floor"] if t["lit_floor"] else float("nan")
+    for name, rad in pl.get("pinned_regions", {}).items():  # a level measured by its penumbra (photosun110)
+        if name.startswith("floor"):
+            row["lit_floor_x"] = lum(rad) / t["lit_floor"] if t["lit_floor"] else float("nan")
     row["object"] = object_regions(rooms / room, keep / room / f"out_{light}" / "composite.png")
     return row
 

@@ -114,6 +114,9 @@ class PhotoPriors:
     sun_bounces: bool = False  # once a sun is found in the photo, the fit again with bounce_levels = the engine's
     # bounce count and the sun's strength by the same bounce model (app.engine.Engine._sun_bounces). Opt-in:
     # measured in docs/unseen.md "photo109" (the bright sun rooms right, the darker ones too dark), not the default
+    sun_ramp: bool = False  # once a sun is found in the photo, its clipped sunlit surfaces take the level their
+    # penumbra measures (lighting.sunramp), not the walls' fit's (app.engine.Engine._sunlit_levels). Opt-in: measured
+    # in docs/unseen.md "photosun110" (the bright sun rooms right, the darker ones and the shared sun_room worse)
 
 
 @dataclass
@@ -223,7 +226,8 @@ def _unknown_groups(patches: PatchMesh, photo_count: np.ndarray, clipped: np.nda
 def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, photo: np.ndarray,
                     response: CameraResponse, priors: PhotoPriors | None = None,
                     quad_names: list[str] | None = None, where: str = "photo",
-                    quad_roles: list[str] | None = None, sunlit: np.ndarray | None = None) -> PhotoLight:
+                    quad_roles: list[str] | None = None, sunlit: np.ndarray | None = None,
+                    pinned: dict[int, np.ndarray] | None = None) -> PhotoLight:
     """The radiance mesh from the photo (module docstring).
 
     patches: the scene's patch mesh, is_emitter = the model's window / lamp quads; G (P,P) patch ->
@@ -235,6 +239,10 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     .sun_share); the sunlit patches the photo does not see, on a quad whose seen sunlit part clips, join that
     quad's clipped region (the same surface in the same sun: the region's radiance times their share) instead of
     gathering as unlit reflectors (_sunlit_unseen).
+    pinned {quad: (3,) radiance}, optional: clipped regions whose level was measured from the photo's own pixels
+    (lighting.sunramp: the sunlit floor's penumbra). Their patches (and the sunlit ones out of view that join them, at
+    their share) take that radiance as known, not fitted: the walls' albedo is then read against a measured source,
+    which takes the fit's scale out of the region (docs/unseen.md "photosun110").
     Raises ValueError when the photo holds no usable light.
     """
     pr = priors or PhotoPriors()
@@ -265,6 +273,7 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     measured = (count >= pr.min_pixels) & ~clipped
     joined = _sunlit_unseen(patches.quad, clipped, measured, emit, sunlit)
     clipped |= joined
+    pin, pin_rad = _pinned(patches.quad, clipped, emit, joined, sunlit, pinned)
     count = np.where(measured, count, 0)
     seen_wall = measured & ~emit
     if not seen_wall.any():
@@ -275,7 +284,7 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
     if np.median(photo[wall_px].max(axis=1)) < 1:
         raise ValueError(f"{where}: the photo is black where it sees the walls (median wall level < 1): "
                          f"no light to read")
-    group, gquads = _unknown_groups(patches, count, clipped)
+    group, gquads = _unknown_groups(patches, count, clipped & ~pin)
     ng = len(gquads)
     modelled = np.array([emit[patches.quad == q].any() for q in gquads], bool)  # a modelled window or lamp, per
     # group (else a clipped region: a surface the sun or a lamp lights)
@@ -291,13 +300,14 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
         fit_on[:] = True  # no wall in view: every seen surface carries the prior (warned below)
     K = np.flatnonzero(measured & emit)
     X = np.flatnonzero(group >= 0)
-    U = np.flatnonzero(~measured & (group < 0) & ~emit)
+    U = np.flatnonzero(~measured & (group < 0) & ~emit & ~pin)
     known = np.zeros((P, 3))
-    known[S], known[K] = rad[S], rad[K]
+    known[S], known[K], known[pin] = rad[S], rad[K], pin_rad[pin]
     M = np.zeros((P, ng))
     M[X, group[X]] = 1.0
-    if sunlit is not None and joined.any():  # a partly sunlit patch out of view: its sunlit share of the region's
-        M[joined, group[joined]] = np.clip(np.asarray(sunlit, np.float64)[joined], 0.0, 1.0)
+    jf = joined & ~pin
+    if sunlit is not None and jf.any():  # a partly sunlit patch out of view: its sunlit share of the region's
+        M[jf, group[jf]] = np.clip(np.asarray(sunlit, np.float64)[jf], 0.0, 1.0)
     G64 = np.asarray(G, np.float64)
     r = pr.unseen_reflectivity
     L_S = rad[S]
@@ -350,10 +360,11 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
         refl = np.where(E > 0, B / E, r)
     refl = np.clip(np.nan_to_num(refl, nan=r), 0.0, 1.0)
     refl[U] = r_patch[U, None]
-    refl[emit | (group >= 0)] = 0.0
+    refl[emit | (group >= 0) | pin] = 0.0
     origin = np.full(P, GATHERED, np.int8)
     origin[measured] = PHOTO
     origin[X] = FITTED
+    origin[pin] = FITTED  # a clipped region still, its radiance measured (lighting.sunramp) rather than fitted
     if not np.all(np.isfinite(B)) or not np.all(np.isfinite(refl)):
         raise RuntimeError(f"{where}: photo light gave non-finite patch radiance")
 
@@ -387,6 +398,10 @@ def fit_photo_light(patches: PatchMesh, G: np.ndarray, pix_patch: np.ndarray, ph
               "patches_fitted": int(len(X)), "clipped_region_patches": int(clipped.sum()),
               "sunlit_unseen_joined": int(joined.sum()),
               "emitters": emitters}
+    if pin.any():
+        report["pinned_regions"] = {(quad_names[q] if quad_names else f"quad {q}"): [round(float(v), 4) for v in
+                                                                                      pinned[q]]
+                                    for q in sorted(pinned) if (pin & (patches.quad == q)).any()}
     _warn(report, where, emit, count, quiet=sunlit is not None)
     return PhotoLight(B, refl, origin, report)
 
@@ -401,6 +416,21 @@ def _sunlit_unseen(quad: np.ndarray, clipped: np.ndarray, measured: np.ndarray, 
         return np.zeros(len(quad), bool)
     region_q = np.unique(quad[clipped])
     return (np.asarray(sunlit) > 0) & ~clipped & ~measured & ~emit & np.isin(quad, region_q)
+
+
+def _pinned(quad: np.ndarray, clipped: np.ndarray, emit: np.ndarray, joined: np.ndarray, sunlit: np.ndarray | None,
+            pinned: dict[int, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray]:
+    """((P,) bool, (P,3)): the clipped patches of the `pinned` quads and their known radiance (a joined patch out of
+    view at its sunlit share); none without `pinned`."""
+    pin, rad = np.zeros(len(quad), bool), np.zeros((len(quad), 3))
+    for q, v in (pinned or {}).items():
+        m = clipped & ~emit & (quad == int(q))
+        pin |= m
+        rad[m] = np.asarray(v, np.float64)
+    if sunlit is not None and (pin & joined).any():
+        j = pin & joined
+        rad[j] *= np.clip(np.asarray(sunlit, np.float64)[j], 0.0, 1.0)[:, None]
+    return pin, rad
 
 
 def _lower_bounds(patches: PatchMesh, group: np.ndarray, gquads: list[int], pix_patch: np.ndarray,

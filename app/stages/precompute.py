@@ -263,9 +263,11 @@ def use_lighting(pre: Precomputed, lighting: str, fit_photo: Callable[[Precomput
         pm.emission = np.where(emit[:, None], np.maximum(pre.B[-1], 1e-12), 0.0)
 
 
-def fit_photo_light(pre: Precomputed, scene: Scene, bounces: int, priors, sunlit: np.ndarray | None = None) -> dict:
+def fit_photo_light(pre: Precomputed, scene: Scene, bounces: int, priors, sunlit: np.ndarray | None = None,
+                    pinned: dict | None = None) -> dict:
     """Radiance mesh from the photo alone into `pre` (B, albedo, origin); returns the fit's report
-    (lighting.photolight; `sunlit` (P,) each patch's share in a sun found in the photo, or None)."""
+    (lighting.photolight; `sunlit` (P,) each patch's share in a sun found in the photo, or None; `pinned`
+    {quad: (3,) radiance} clipped regions whose level the photo's penumbra measured, or None)."""
     from lighting.photolight import fit_photo_light as fit_light
 
     pm = pre.patches
@@ -273,7 +275,8 @@ def fit_photo_light(pre: Precomputed, scene: Scene, bounces: int, priors, sunlit
     pix_patch = np.where(pre.pix_tri >= 0, pm.tri_patch[np.maximum(pre.pix_tri, 0)], -1)
     where = str(scene.root / "background.png")
     fit = fit_light(pm, pre.G_c, pix_patch, scene.photo, scene.response, priors,
-                    [q.name for q in scene.quads], where, [q.role for q in scene.quads], sunlit=sunlit)
+                    [q.name for q in scene.quads], where, [q.role for q in scene.quads], sunlit=sunlit,
+                    pinned=pinned)
     pre.B = np.stack([fit.radiance] * (bounces + 1))
     pre.albedo, pre.origin = fit.reflectivity, fit.origin
     emit = (fit.origin == 3) | pm.is_emitter  # fitted groups and the model's emitters

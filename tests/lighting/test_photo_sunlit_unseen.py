@@ -36,7 +36,7 @@ def sunny_room():
     return pm, G, B, lit, in_view
 
 
-def _fit(pm, G, B, in_view, sunlit):
+def _fit(pm, G, B, in_view, sunlit, pinned=None):
     seen = np.flatnonzero(in_view)
     pix_patch = np.repeat(seen, 10)
     resp = PL.srgb_response(0.4)  # the sunlit floor (about 4.5) clips, the walls do not
@@ -44,7 +44,7 @@ def _fit(pm, G, B, in_view, sunlit):
     names = [f"q{q}" for q in range(pm.quad.max() + 1)]
     roles = ["window" if pm.is_emitter[pm.quad == q].any() else "room" for q in range(pm.quad.max() + 1)]
     return PL.fit_photo_light(pm, G, pix_patch, photo, resp, PL.PhotoPriors(fit_albedo=False), names, "test.png",
-                              roles, sunlit=sunlit)
+                              roles, sunlit=sunlit, pinned=pinned)
 
 
 def test_sunlit_floor_out_of_view_joins_the_region(sunny_room):
@@ -78,3 +78,21 @@ def test_only_unseen_sunlit_patches_of_a_clipped_quad_join():
     assert PL._sunlit_unseen(quad, clipped, measured, emit, sunlit).tolist() == [False, False, True, False, False,
                                                                                 False]
     assert not PL._sunlit_unseen(quad, clipped, measured, emit, None).any()
+
+
+def test_a_pinned_region_is_known_not_fitted(sunny_room):
+    # photosun110: a clipped region whose level the penumbra measured (lighting.sunramp) is pinned at it. Its patches
+    # in view and the sunlit ones out of view that join it take that radiance exactly, stay clipped-region patches
+    # (origin FITTED), and the fit has one unknown fewer: the window alone, which comes within 5 % of the truth's
+    pm, G, B, lit, in_view = sunny_room
+    truth = B[lit].mean(0)
+    q = int(pm.quad[lit][0])
+    fit = _fit(pm, G, B, in_view, lit, pinned={q: truth})
+    assert not [e for e in fit.report["emitters"] if e["name"].endswith("(clipped region)")], fit.report["emitters"]
+    assert np.allclose(fit.report["pinned_regions"][f"q{q}"], truth, rtol=1e-3)
+    assert np.allclose(fit.radiance[lit], truth, rtol=1e-9)
+    assert (fit.origin[lit] == PL.FITTED).all() and (fit.reflectivity[lit] == 0).all()
+    window = np.array(fit.report["emitters"][0]["radiance"])
+    true_window = pm.emission[pm.is_emitter][0]
+    print(window, true_window)
+    assert np.abs(window / true_window - 1).max() < 0.05, (window, true_window)
