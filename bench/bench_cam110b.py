@@ -165,8 +165,8 @@ def main(argv=None) -> int:
             print(name, flush=True)
             for d in o["edges"]:
                 if d["found"]:
-                    print(f"  e{d['edge']:<3d} {d['class']:18s} {d['found']:4d}/{d['samples']:<4d} {d['offset_px']:+.2f} "
-                          f"sd {d['spread_px']:.2f} se {d['se_px']:.3f} gray+ {d['gray_plus']:.0f} gray- "
+                    print(f"  e{d['edge']:<3d} {d['class']:18s} {d['found']:4d}/{d['samples']:<4d} "
+                          f"{d['offset_px']:+.2f} sd {d['spread_px']:.2f} se {d['se_px']:.3f} gray+ {d['gray_plus']:.0f} gray- "
                           f"{d['gray_minus']:.0f}", flush=True)
         res.append(o)
         if a.json:
@@ -179,8 +179,9 @@ def main(argv=None) -> int:
                     cls.setdefault(d["class"], []).append(d)
         for c, ds in sorted(cls.items()):
             tb = np.array([d["toward_bright_px"] for d in ds])
+            rms = np.sqrt(np.mean([d["offset_px"] ** 2 for d in ds]))
             s = (f"{c:18s} {len(ds):3d} edges: toward the brighter side mean {tb.mean():+.3f} px, "
-                 f"{np.mean(tb > 0):.0%} positive; rms offset {np.sqrt(np.mean([d['offset_px'] ** 2 for d in ds])):.3f} px")
+                 f"{np.mean(tb > 0):.0%} positive; rms offset {rms:.3f} px")
             if c == "room:floor":
                 tw = np.array([d["toward_wall_px"] for d in ds])
                 s += f"; toward the wall mean {tw.mean():+.3f} px, {np.mean(tw > 0):.0%} positive"
