@@ -166,8 +166,8 @@ def main(argv=None) -> int:
             for d in o["edges"]:
                 if d["found"]:
                     print(f"  e{d['edge']:<3d} {d['class']:18s} {d['found']:4d}/{d['samples']:<4d} "
-                          f"{d['offset_px']:+.2f} sd {d['spread_px']:.2f} se {d['se_px']:.3f} gray+ {d['gray_plus']:.0f} gray- "
-                          f"{d['gray_minus']:.0f}", flush=True)
+                          f"{d['offset_px']:+.2f} sd {d['spread_px']:.2f} se {d['se_px']:.3f} "
+                          f"gray+ {d['gray_plus']:.0f} gray- {d['gray_minus']:.0f}", flush=True)
         res.append(o)
         if a.json:
             a.json.write_text(json.dumps(res, indent=1))
