@@ -14,6 +14,8 @@ import sys
 
 import numpy as np
 from scipy.optimize import lsq_linear
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from lighting import photolight, photoalbedo
 from lighting.sources import luminance
 delta = float(sys.argv[1])
