@@ -219,6 +219,8 @@ def main() -> None:
     ap.add_argument("--lighting", default="known", help="the engine's lighting (known, captured: the benchmark "
                                                        "folder's probe and photo, its true camera)")
     ap.add_argument("--sun", default="auto", help="the engine's sun source (auto, estimate, declared)")
+    ap.add_argument("--captured-sun-sources", default="on", choices=("on", "off"),
+                    help="Engine.captured_sun_sources (off: main's captured sources, for an A/B)")
     a = ap.parse_args()
     import dataclasses
 
@@ -229,6 +231,7 @@ def main() -> None:
     from recon.io import write_png
     from recon.scene import load_scene
 
+    Engine.captured_sun_sources = a.captured_sun_sources == "on"
     for room in a.rooms:
         s = load_scene(room)
         e = Engine(s, EngineParams(lighting=a.lighting, sun=a.sun), cache_dir=default_cache_dir(), quiet=True)

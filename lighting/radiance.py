@@ -216,6 +216,25 @@ class CapturedProbe:
     light_probe: dict  # scene.json's light_probe block (pose, radius, files)
 
 
+def probe_shadowed(corners: np.ndarray, light_probe: dict, to_sun: np.ndarray, n_side: int = 4) -> np.ndarray:
+    """(P,) bool: the patches (corners (P,4,3), m) some of whose n_side x n_side sample points the probe's ball
+    (light_probe's centre and radius, m) hides from the sun (to_sun: unit direction towards it). The probe
+    is rendered with its ball in the room, so on such a patch it sees the ball's own sun shadow, not the
+    sunlit surface the room has without it."""
+    c = np.asarray(light_probe["centre"], np.float64)
+    r = float(light_probe["radius"])
+    d = np.asarray(to_sun, np.float64) / np.linalg.norm(to_sun)
+    f = (np.arange(n_side) + 0.5) / n_side
+    fu, fv = [a.ravel() for a in np.meshgrid(f, f)]
+    c0 = corners[:, 0]
+    pts = (c0[:, None] + fu[None, :, None] * (corners[:, 1] - c0)[:, None]
+           + fv[None, :, None] * (corners[:, 3] - c0)[:, None])  # (P,S,3)
+    oc = c - pts
+    t = oc @ d  # distance along the ray to the closest approach to the centre
+    miss2 = np.einsum("psk,psk->ps", oc, oc) - t * t
+    return ((t > 0) & (miss2 < r * r)).any(1)
+
+
 def _light_probe(scene) -> tuple[dict, list[Path], list[float]]:
     """The scene's light_probe block (pose checked), its bracket files and exposure times."""
     from lighting import hdr
