@@ -126,6 +126,14 @@ class Engine:
         scene_precompute.use_lighting(pre, p.lighting, functools.partial(self._fit_photo_light, priors=photo_priors))
 
         # ---- per-scene arrays: the receiver map, with the sun's changes (app.stages.receiver_map, sun)
+        def relit(pre: Precomputed, bounces: int | None = None) -> tuple[np.ndarray, ReceiverMap]:
+            """(B_src, receiver map) of `pre`, with the sun set up again from them (a refit changed B)."""
+            B_src = pre.B[p.bounces - 1]
+            rm = receiver_map(scene, pre, B_src)
+            self.sun = SunSetup(scene, p.lighting, p.sun, self.scene_occ, pre.patches, bounces=bounces)
+            self.sun_pixels = self.sun.apply(pre, rm, dev)
+            return B_src, rm
+
         B_src = pre.B[p.bounces - 1]  # what receivers gather (Engine.B_src)
         rm = receiver_map(scene, pre, B_src)
         self.sun_pixels: SunPixels = self.sun.apply(pre, rm, dev)
@@ -134,12 +142,12 @@ class Engine:
             # strength take the camera's bounce count (_sun_bounces), and the fit and the sun are made again
             sunlit = self.sun.sun_share()
             sun_priors, levels = self._sun_bounces(photo_priors)
-            pinned = self._sunlit_levels(pre, rm, photo_priors)  # the sunlit level from its penumbra (lighting.sunramp)
+            # the sunlit level from its penumbra (lighting.sunramp)
+            pinned, ramp_report = self._sunlit_levels(pre, rm, photo_priors)
             if self._refit_sunlit(pre, sunlit, sun_priors, force=levels > 0 or bool(pinned), pinned=pinned):
-                B_src = pre.B[p.bounces - 1]
-                rm = receiver_map(scene, pre, B_src)
-                self.sun = SunSetup(scene, p.lighting, p.sun, self.scene_occ, pre.patches, bounces=levels or None)
-                self.sun_pixels = self.sun.apply(pre, rm, dev)
+                if pinned:
+                    self.photo_light["sunlit_levels"] = ramp_report
+                B_src, rm = relit(pre, levels or None)
         if p.lighting == "captured" and self.captured_sun_sources and self.sun.on:
             # the sunlit patches neither the photo nor the probe sees (lighting.radiance's GATHERED: their radiance
             # gathered from the room without the sun) carry the sun's model radiance rho (E_ind + E_sun)
@@ -152,10 +160,7 @@ class Engine:
             B_mod = np.where(unmeasured[:, None], self.sun.object_radiance(pre, B_src), B_src)
             if not np.array_equal(B_mod, B_src):
                 pre = dataclasses.replace(pre, B=np.stack([B_mod] * len(pre.B)))
-                B_src = pre.B[p.bounces - 1]
-                rm = receiver_map(scene, pre, B_src)
-                self.sun = SunSetup(scene, p.lighting, p.sun, self.scene_occ, pre.patches)
-                self.sun_pixels = self.sun.apply(pre, rm, dev)
+                B_src, rm = relit(pre)
         if p.lighting == "photo":
             self.photo_light = self.sun.photo_report(self.photo_light)
         sp = self.sun_pixels
@@ -264,7 +269,6 @@ class Engine:
         radiance}, _sunlit_levels) at their measured level; False (nothing done) when none joins and not `force`
         (the priors differ from the first fit's: the bounce levels, _sun_bounces; or a level is pinned)."""
         from lighting.photolight import FITTED
-        from lighting.radiance import GATHERED
 
         origin = np.asarray(pre.origin)
         region_q = np.unique(pre.patches.quad[origin == FITTED])
@@ -272,12 +276,12 @@ class Engine:
             return False
         scene_precompute.use_lighting(pre, self.params.lighting, functools.partial(
             self._fit_photo_light, priors=priors, sunlit=sunlit, pinned=pinned))
-        if pinned:
-            self.photo_light["sunlit_levels"] = self._ramp_report
         return force or self.photo_light.get("sunlit_unseen_joined", 0) > 0
 
-    def _sunlit_levels(self, pre: Precomputed, rm: ReceiverMap, priors=None) -> dict[int, np.ndarray]:
-        """Photo light with a sun found: {quad: (3,) radiance} the sunlit level of each clipped region the sun lights,
+    def _sunlit_levels(self, pre: Precomputed, rm: ReceiverMap, priors=None
+                       ) -> tuple[dict[int, np.ndarray], dict[str, dict]]:
+        """Photo light with a sun found: ({quad: (3,) radiance} the sunlit level of each clipped region the sun lights,
+        {quad name: sunramp's report}),
         from its own penumbra (lighting.sunramp.sunlit_step: shadow level + the step its unclipped ramp pixels
         give); {} where the ramp gives none (too few unclipped ramp pixels, PhotoPriors.sun_ramp off). The walls'
         fit measures rho_wall x rho_floor x sun, so its region level carries the albedo's scale (docs/unseen.md
@@ -286,9 +290,9 @@ class Engine:
         from lighting.sun import SunLight, openings
         from lighting.sunramp import sunlit_step
 
-        self._ramp_report: dict = {}
+        report: dict[str, dict] = {}
         if not (priors or PhotoPriors()).sun_ramp or self.sun.light is None:
-            return {}
+            return {}, report
         scene, pm, sun = self.scene, pre.patches, self.sun.light
         holes = openings(scene)
         pix_quad = np.where(rm.pix_patch >= 0, pm.quad[np.maximum(rm.pix_patch, 0)], -1)
@@ -308,10 +312,10 @@ class Engine:
                 log.debug("photo light: %s: no sunlit level from its penumbra", quad.name)
                 continue
             out[q] = step.lit
-            self._ramp_report[quad.name] = step.report()
+            report[quad.name] = step.report()
             log.info("photo light: %s: sunlit level %s from its penumbra (%d unclipped ramp pixels)", quad.name,
                      "({:.3g}, {:.3g}, {:.3g})".format(*step.lit), step.n_ramp)
-        return out
+        return out, report
 
     def _local_light(self, pre: Precomputed, B_lit: np.ndarray, sunlit: np.ndarray):
         """Photo light: (lighting.photolocal.LocalLight, the emitter patches (P,) bool it scales: the room
