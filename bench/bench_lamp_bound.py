@@ -12,7 +12,6 @@ Loaded machine: no timings.
 from __future__ import annotations
 
 import argparse
-import pickle
 import sys
 from pathlib import Path
 
@@ -24,6 +23,7 @@ sys.path.insert(0, str(ROOT))
 
 
 def main() -> None:
+    from bench.bench_lamp_pool import load_dumps
     from lighting import photolight
     from lighting.sources import luminance
 
@@ -41,11 +41,7 @@ def main() -> None:
         return res
 
     photolight.fit_albedo_scale = hook
-    files = sorted(a.dir.glob("*.pkl"))
-    if a.room:
-        files = [f for f in files if f.stem in a.room.split(",")]
-    for f in files:
-        d = pickle.loads(f.read_bytes())
+    for room, d in load_dumps(a.dir, a.room):
         args, kw = d["calls"][-1]
         seen.clear()
         rep = photolight.fit_photo_light(*args, **kw).report
@@ -62,14 +58,14 @@ def main() -> None:
         lower = np.array([x["lower_bound"] for x in ems])[:, c]
         r0 = np.linalg.norm(J @ e[:, c] - b)
         scale = ""
-        if a.rooms is not None and (a.rooms / f.stem / "background.exr").exists():
+        if a.rooms is not None and (a.rooms / room / "background.exr").exists():
             from lighting.hdr import load_radiance
             px = np.asarray(args[3]).reshape(-1, 3)
-            ex = load_radiance(a.rooms / f.stem / "background.exr").reshape(-1, 3)
+            ex = load_radiance(a.rooms / room / "background.exr").reshape(-1, 3)
             ok = (np.asarray(args[2]) >= 0) & (px.max(axis=1) < 250) & (px.min(axis=1) > 10)
             ratio_px = args[4].to_radiance(px[ok]) / np.maximum(ex[ok], 1e-12)
             scale = f" photo radiance / exr {np.round(np.median(ratio_px, axis=0), 3).tolist()}"
-        print(f"{f.stem}:{scale} walls {rep['wall_albedo']} resid {rep['fit_rms_relative_residual']} "
+        print(f"{room}:{scale} walls {rep['wall_albedo']} resid {rep['fit_rms_relative_residual']} "
               f"surface_albedos_for {rep['surface_albedos_for']}")
         for g, em in enumerate(ems):
             t = d["truth"].get(em["name"].replace(" (clipped region)", ""))

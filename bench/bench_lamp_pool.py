@@ -40,6 +40,15 @@ from lighting.photoalbedo import ALBEDO_RANGE  # noqa: E402
 LAMP_ROLES = ("lamp", "ceiling_lamp", "point_lamp")  # the model roles of a lamp (own_room_flow maps them to "lamp")
 
 
+def load_dumps(folder: Path, rooms: str | None = None) -> list[tuple[str, dict]]:
+    """(room, dump) of `dump`'s pickles in `folder` (FOLDER/ROOM.pkl: {"calls": [(args, kwargs) of each
+    fit_photo_light call], "truth": {emitter name: radiance}, ...}), sorted by room; `rooms`: comma-separated, only those."""
+    files = sorted(Path(folder).glob("*.pkl"))
+    if rooms:
+        files = [f for f in files if f.stem in rooms.split(",")]
+    return [(f.stem, pickle.loads(f.read_bytes())) for f in files]
+
+
 def lamp_pool(qS: np.ndarray, A1: np.ndarray, a0: np.ndarray, L_S: np.ndarray, e: np.ndarray, w: np.ndarray,
               lamp: np.ndarray, min_patches: int = 4, detail: list | None = None) -> dict[str, np.ndarray]:
     """Each lamp's radiance from the light it throws on the seen surfaces, each with its own albedo.
@@ -175,11 +184,7 @@ def evaluate(a) -> list[dict]:
 
     photolight.fit_albedo_scale = fit_albedo_scale
     rows = []
-    files = sorted(a.dir.glob("*.pkl"))
-    if a.room:
-        files = [f for f in files if f.stem in a.room.split(",")]
-    for f in files:
-        d = pickle.loads(f.read_bytes())
+    for room, d in load_dumps(a.dir, a.room):
         args, kw = d["calls"][-1]
         args = list(args)
         extra = {k: type(getattr(photolight.PhotoPriors(), k))(v) for k, v in (x.split("=") for x in a.prior)}
@@ -195,14 +200,14 @@ def evaluate(a) -> list[dict]:
         for g, q, c, v, sd, rho, n in detail or []:
             t = d["truth"].get(ems[g]["name"])
             if c == 1 and t is not None:
-                print(f"  {f.stem} {ems[g]['name']} on {names[q]}: {v / t[1]:.3f} +- {sd / t[1]:.3f} "
+                print(f"  {room} {ems[g]['name']} on {names[q]}: {v / t[1]:.3f} +- {sd / t[1]:.3f} "
                       f"(albedo {rho:.3f}, {n} patches)")
         for g, em in enumerate(ems):
             t = d["truth"].get(em["name"])
             if t is None:
                 continue
             tl = float(luminance(np.asarray(t)))
-            r = {"room": f.stem, "emitter": em["name"], "fit_over_truth": float(luminance(em["radiance"])) / tl}
+            r = {"room": room, "emitter": em["name"], "fit_over_truth": float(luminance(em["radiance"])) / tl}
             if lamp[g] and np.all(np.isfinite(pool["estimate"][g])):
                 r["pool_over_truth"] = float(luminance(pool["estimate"][g])) / tl
                 r["pool_std"] = float(luminance(pool["std"][g])) / tl

@@ -7,15 +7,14 @@ residual is within (1 + DELTA) of the least, the one of least sum of squared wal
 columns' contributions, its weight by bisection): emitters the walls see alike share their light instead of
 trading it. Not kept: the windows' radiance runs away (lamps_105 fill_window 0.59 -> 4.9x at DELTA 0.01).
 """
-import glob
 import os
-import pickle
 import sys
 
 import numpy as np
 from scipy.optimize import lsq_linear
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench.bench_lamp_pool import load_dumps  # noqa: E402
 from lighting import photolight, photoalbedo
 from lighting.sources import luminance
 delta = float(sys.argv[1])
@@ -43,8 +42,8 @@ def spread(J1, w, L_S, a0, rho, lower, unresolved):
     return e, std, at_bound, resid
 if delta > 0:
     photolight._solve_emitters = spread
-for f in sorted(glob.glob(os.path.join(os.environ.get("DUMP", "/tmp/lamp110b/dump"), "*.pkl"))):
-    d = pickle.loads(open(f, "rb").read()); args, kw = d["calls"][-1]
+for room, d in load_dumps(os.environ.get("DUMP", "/tmp/lamp110b/dump")):
+    args, kw = d["calls"][-1]
     rep = photolight.fit_photo_light(*args, **kw).report
-    sc = 0.36 if "lamps_108" in f else 1.0
-    print(f.split("/")[-1][:-4], " ".join(f"{e['name']}={luminance(np.array(e['radiance'])) / luminance(np.array(d['truth'][e['name']])) / sc:.2f}" for e in rep["emitters"] if e["name"] in d["truth"]))
+    sc = 0.36 if room == "lamps_108" else 1.0
+    print(room, " ".join(f"{e['name']}={luminance(np.array(e['radiance'])) / luminance(np.array(d['truth'][e['name']])) / sc:.2f}" for e in rep["emitters"] if e["name"] in d["truth"]))
