@@ -173,9 +173,15 @@ def main() -> None:
                     help="refine_camera keyword arguments key=value,... (repeatable; default: the default)")
     ap.add_argument("--true", action="store_true", help="also refine from the truth's camera (no clicked lines)")
     ap.add_argument("--json", type=Path, help="write the results here")
-    ap.add_argument("--locator", choices=("centroid", "step"), help="recon.edgesnap.LOCATOR for this run (the "
+    ap.add_argument("--locator", choices=("centroid", "step", "kink"), help="recon.edgesnap.LOCATOR for this run (the "
                     "sub-pixel rule of calibrate's snap and of the profile stage)")
+    ap.add_argument("--profile-locator", choices=("centroid", "step", "kink"),
+                    help="recon.photoedges.PROFILE_LOCATOR: the profile stage's rule only (calibrate keeps --locator's)")
     a = ap.parse_args()
+    if a.profile_locator:
+        from recon import photoedges
+
+        photoedges.PROFILE_LOCATOR = a.profile_locator
     if a.locator:
         from recon import edgesnap
 

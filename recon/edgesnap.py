@@ -43,11 +43,13 @@ AMBIGUOUS = 0.5  # a second gradient peak this strong (relative) makes a sample 
 MIN_FOUND = 0.6  # fraction of the samples that must find the edge
 MAX_SPREAD_PX = 0.25  # robust spread of the sample edges about the fitted line
 SIGMA_FLOOR_PX = 0.1
-LOCATORS = ("centroid", "step")
+LOCATORS = ("centroid", "step", "kink")
 LOCATOR = "centroid"  # the sub-pixel rule of EdgeImage.snap and recon.photoedges.PhotoEdges.subpixel: "centroid"
 # (the gradient's centroid above half its peak) or "step" (step_offsets: a blurred two-level step fitted to the
 # linear profile); see step_offsets
 STEP_HALF_PX = 2.0  # step_offsets: the profile fitted spans +-this about the gradient's peak (px)
+KINK_HALF_PX = 3.0  # step_offsets with slopes ("kink"): the profile fitted spans +-this (px): each side's slope
+# needs pixels past the step's blur
 STEP_REACH_PX = 1.0  # step_offsets: the step's centre is searched within +-this of the gradient's peak (px)
 STEP_GRID_PX = 0.05  # step_offsets: grid of the candidate centres (px), refined by a parabola
 STEP_SIGMA_PX = 0.55  # step_offsets: the model step's blur (erf sigma, px): a box-filtered pixel (variance 1/12 at
@@ -145,8 +147,9 @@ class EdgeImage:
             return None
         off = (w[ok] * ss[None, :]).sum(axis=1) / wsum[ok]
         pts = base[ok] + off[:, None] * n
-        if LOCATOR == "step":
-            off, found = step_offsets(self, base[ok], n, ss[k[ok]], np.full(int(ok.sum()), sgn))
+        if LOCATOR in ("step", "kink"):
+            off, found = step_offsets(self, base[ok], n, ss[k[ok]], np.full(int(ok.sum()), sgn),
+                                      slopes=LOCATOR == "kink")
             pts = base[ok][found] + off[found, None] * n
         if len(pts) < 3:
             return None
@@ -166,7 +169,7 @@ class EdgeImage:
 
 
 def step_offsets(E: EdgeImage, base: np.ndarray, n: np.ndarray, s0: np.ndarray, polarity: np.ndarray,
-                 reach: float = STEP_REACH_PX) -> tuple[np.ndarray, np.ndarray]:
+                 reach: float = STEP_REACH_PX, slopes: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The edge across each sample by a blurred two-level step fitted to its linear profile: the offset (N,) along n
     from base (N,2) of the step's centre, and which samples found one. n: unit normal(s) (2,) or (N,2); s0 (N,): the
     gradient's peak along n (px), the window's centre; polarity (N,): +1 where the photo is brighter along +n.
@@ -195,15 +198,24 @@ def step_offsets(E: EdgeImage, base: np.ndarray, n: np.ndarray, s0: np.ndarray, 
     if N == 0:
         return np.zeros(0), np.zeros(0, bool)
     nn = np.broadcast_to(np.asarray(n, float), (N, 2))
-    o = np.arange(-STEP_HALF_PX, STEP_HALF_PX + 1e-9, STEP_PX)  # (O,)
+    half = KINK_HALF_PX if slopes else STEP_HALF_PX
+    o = np.arange(-half, half + 1e-9, STEP_PX)  # (O,)
     P = base[:, None, :] + (np.asarray(s0, float)[:, None] + o[None, :])[..., None] * nn[:, None, :]
     I = E._sample(E.gray, P).astype(np.float64) * np.asarray(polarity, float)[:, None]  # rising along +o
     c = np.arange(-reach, reach + 1e-9, STEP_GRID_PX)  # (C,)
     M = 0.5 * (1.0 + erf((o[None, :] - c[:, None]) / (np.sqrt(2.0) * STEP_SIGMA_PX)))  # (C,O)
-    Mc = M - M.mean(axis=1, keepdims=True)
-    den = np.sum(Mc * Mc, axis=1)  # (C,)
-    cov = I @ Mc.T  # (N,C): the step's height times den
-    gain = np.where(cov > 0, cov * cov / den, -np.inf)  # the squared residual the step removes (d > 0 only)
+    if slopes:  # each side's own linear shading: I = a + d Phi + k1 (s - c)(1 - Phi) + k2 (s - c) Phi
+        x = o[None, :] - c[:, None]
+        X = np.stack([np.ones_like(M), M, x * (1 - M), x * M], axis=2)  # (C,O,4)
+        Pinv = np.linalg.pinv(X)  # (C,4,O)
+        beta = np.einsum("no,cko->nck", I, Pinv)  # (N,C,4)
+        XtI = np.einsum("no,cok->nck", I, X)
+        gain = np.where(beta[..., 1] > 0, np.sum(beta * XtI, axis=2), -np.inf)
+    else:
+        Mc = M - M.mean(axis=1, keepdims=True)
+        den = np.sum(Mc * Mc, axis=1)  # (C,)
+        cov = I @ Mc.T  # (N,C): the step's height times den
+        gain = np.where(cov > 0, cov * cov / den, -np.inf)  # the squared residual the step removes (d > 0 only)
     j = np.argmax(gain, axis=1)
     r = np.arange(N)
     ok = (j > 0) & (j < len(c) - 1) & np.isfinite(gain[r, j])

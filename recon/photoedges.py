@@ -16,6 +16,7 @@ SHOULDER_PX = (2.0, 3.0)  # ramp_edges: where an edge's gradient profile is read
 # past a box-filtered step's own gradient (the pixel, the bilinear sample and the Sobel reach under 2.5 px; a
 # rendered step reads 0.00-0.02 of its peak there at every angle and phase)
 RAMP_EDGE_MODES = ("drop", "keep")
+PROFILE_LOCATOR = None  # the sub-pixel rule of PhotoEdges.subpixel: None follows recon.edgesnap.LOCATOR
 
 
 class PhotoEdges:
@@ -100,8 +101,9 @@ class PhotoEdges:
         wsum = w.sum(axis=1)
         ok &= wsum > 0
         off = (w * ss[None, :]).sum(axis=1) / np.maximum(wsum, 1e-12)
-        if edgesnap.LOCATOR == "step" and ok.any():  # a blurred step fitted to the linear profile
-            off_s, found = edgesnap.step_offsets(E, uv[ok], n[ok], ss[k[ok]], sgn[ok])
+        loc = PROFILE_LOCATOR or edgesnap.LOCATOR
+        if loc in ("step", "kink") and ok.any():  # a blurred step fitted to the linear profile
+            off_s, found = edgesnap.step_offsets(E, uv[ok], n[ok], ss[k[ok]], sgn[ok], slopes=loc == "kink")
             off[ok] = off_s
             ok[np.flatnonzero(ok)[~found]] = False
         return uv + off[:, None] * n, ok
