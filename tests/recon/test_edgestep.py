@@ -3,7 +3,7 @@
 A box-filtered step (8x8 rays per pixel, the renders' box filter) between two linear levels at a random angle and
 phase, through gamma 2.2 to 8 bits (edgesnap's linearisation, so the response adds nothing), is located by the
 profile stage's rule (recon.photoedges.PhotoEdges.subpixel) with recon.edgesnap.LOCATOR "centroid" (the default)
-and "step" (step_offsets). Offsets are signed toward the brighter side. Both rules are unbiased on clean steps;
+, "step" (step_offsets) and "kink" (step_offsets with each side's slope). Offsets are signed toward the brighter side. Both rules are unbiased on clean steps;
 with texture on the bright side both lean toward it alike, so the rule is not what makes the rooms' photo edges
 lean (docs/unseen.md, edge111); and on the shared sun_room at the true camera both find the floor-wall line
 along the floor texture's dark seam row (z = 0) 0.2-0.5 px toward the wall.
@@ -67,12 +67,12 @@ def _lean(locator, lo, hi, texture=0.0, draws=12, seed=0):
 
 
 @pytest.mark.parametrize("lo,hi", [(0.05, 0.1), (0.1, 0.3), (0.1, 0.8)])
-@pytest.mark.parametrize("locator", ["centroid", "step"])
+@pytest.mark.parametrize("locator", ["centroid", "step", "kink"])
 def test_clean_steps_unbiased(locator, lo, hi):
     e = _lean(locator, lo, hi)
     assert len(e) >= 250  # 12 steps x 25 samples, nearly all found
-    assert abs(e.mean()) < 0.02, e.mean()  # measured |mean| <= 0.011
-    assert np.sqrt(np.mean(e ** 2)) < (0.05 if locator == "centroid" else 0.1)  # rms 0.025-0.026 / 0.054-0.058
+    assert abs(e.mean()) < 0.02, e.mean()  # measured |mean| <= 0.013
+    assert np.sqrt(np.mean(e ** 2)) < (0.05 if locator == "centroid" else 0.1)  # rms 0.025-0.026 / 0.054-0.058 / 0.084-0.088
 
 
 def test_bright_texture_leans_both_rules_alike():
