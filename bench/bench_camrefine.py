@@ -176,7 +176,8 @@ def main() -> None:
     ap.add_argument("--locator", choices=("centroid", "step", "kink"), help="recon.edgesnap.LOCATOR for this run (the "
                     "sub-pixel rule of calibrate's snap and of the profile stage)")
     ap.add_argument("--profile-locator", choices=("centroid", "step", "kink"),
-                    help="recon.photoedges.PROFILE_LOCATOR: the profile stage's rule only (calibrate keeps --locator's)")
+                    help="recon.photoedges.PROFILE_LOCATOR: the profile stage's rule only "
+                    "(calibrate keeps --locator's)")
     a = ap.parse_args()
     if a.profile_locator:
         from recon import photoedges

@@ -2,11 +2,12 @@
 
 A box-filtered step (8x8 rays per pixel, the renders' box filter) between two linear levels at a random angle and
 phase, through gamma 2.2 to 8 bits (edgesnap's linearisation, so the response adds nothing), is located by the
-profile stage's rule (recon.photoedges.PhotoEdges.subpixel) with recon.edgesnap.LOCATOR "centroid" (the default)
-, "step" (step_offsets) and "kink" (step_offsets with each side's slope). Offsets are signed toward the brighter side. Both rules are unbiased on clean steps;
-with texture on the bright side both lean toward it alike, so the rule is not what makes the rooms' photo edges
-lean (docs/unseen.md, edge111); and on the shared sun_room at the true camera both find the floor-wall line
-along the floor texture's dark seam row (z = 0) 0.2-0.5 px toward the wall.
+profile stage's rule (recon.photoedges.PhotoEdges.subpixel) with recon.edgesnap.LOCATOR "centroid" (the default),
+"step" (step_offsets) and "kink" (step_offsets with each side's slope). Offsets are signed toward the brighter
+side. All three are unbiased on clean steps; with texture on the bright side the centroid and the step lean toward
+it alike, so the rule is not what makes the rooms' photo edges lean (docs/unseen.md, edge111); and on the shared
+sun_room at the true camera both find the floor-wall line along the floor texture's dark seam row (z = 0) 0.2-0.5
+px toward the wall.
 """
 from __future__ import annotations
 
@@ -72,7 +73,8 @@ def test_clean_steps_unbiased(locator, lo, hi):
     e = _lean(locator, lo, hi)
     assert len(e) >= 250  # 12 steps x 25 samples, nearly all found
     assert abs(e.mean()) < 0.02, e.mean()  # measured |mean| <= 0.013
-    assert np.sqrt(np.mean(e ** 2)) < (0.05 if locator == "centroid" else 0.1)  # rms 0.025-0.026 / 0.054-0.058 / 0.084-0.088
+    # rms measured 0.025-0.026 (centroid) / 0.054-0.058 (step) / 0.084-0.088 (kink)
+    assert np.sqrt(np.mean(e ** 2)) < (0.05 if locator == "centroid" else 0.1)
 
 
 def test_bright_texture_leans_both_rules_alike():
