@@ -150,7 +150,12 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path)
     ap.add_argument("--offsets", action="store_true")
     ap.add_argument("--jackknife", action="store_true")
+    ap.add_argument("--locator", choices=("centroid", "step", "kink"), help="recon.edgesnap.LOCATOR for this run")
     a = ap.parse_args(argv)
+    if a.locator:
+        from recon import edgesnap
+
+        edgesnap.LOCATOR = a.locator
     res = []
     for name in a.only.split(","):
         if a.offsets:

@@ -15,7 +15,7 @@ jackknife over the room's edges (recon.camrefine.edge_jackknife: the edges as th
 one edge whose removal moves the object most. With --json each refined camera (K, R, t) is written too.
 
 `python bench/bench_camrefine.py [--rooms DIR] [--only window_101,...,sun_room] [--variant profiles]
-[--variant lines] [--true] [--json OUT]`; a variant is refine_camera's keyword arguments as
+[--variant lines] [--true] [--locator centroid|step] [--json OUT]`; a variant is refine_camera's keyword arguments as
 `key=value,key=value` (e.g. `fine_stage=lines`, `fine_stage=lines,principal_point=free`). Shared rooms (window_room, lamps_room, sun_room) are
 read from $PHOTOAR_SHARED/scenes.
 """
@@ -173,7 +173,20 @@ def main() -> None:
                     help="refine_camera keyword arguments key=value,... (repeatable; default: the default)")
     ap.add_argument("--true", action="store_true", help="also refine from the truth's camera (no clicked lines)")
     ap.add_argument("--json", type=Path, help="write the results here")
+    ap.add_argument("--locator", choices=("centroid", "step", "kink"), help="recon.edgesnap.LOCATOR for this run (the "
+                    "sub-pixel rule of calibrate's snap and of the profile stage)")
+    ap.add_argument("--profile-locator", choices=("centroid", "step", "kink"),
+                    help="recon.photoedges.PROFILE_LOCATOR: the profile stage's rule only "
+                    "(calibrate keeps --locator's)")
     a = ap.parse_args()
+    if a.profile_locator:
+        from recon import photoedges
+
+        photoedges.PROFILE_LOCATOR = a.profile_locator
+    if a.locator:
+        from recon import edgesnap
+
+        edgesnap.LOCATOR = a.locator
     variants = a.variant or [""]
     results = []
     for name in a.only.split(","):

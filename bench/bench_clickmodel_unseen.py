@@ -183,7 +183,12 @@ def main() -> None:
                     "tape (model.measure; the truth's) and refit: per piece before -> after")
     ap.add_argument("--seen-only", action="store_true", help="with --rooms: click only the furniture corners no "
                     "piece hides (hidden ones null, the footprint's sizes measured: bench/clicks_truth.py)")
+    ap.add_argument("--locator", choices=("centroid", "step", "kink"), help="recon.edgesnap.LOCATOR for this run")
     a = ap.parse_args()
+    if a.locator:
+        from recon import edgesnap
+
+        edgesnap.LOCATOR = a.locator
     if a.rooms is not None:
         rendered(a.rooms.expanduser(), [r for r in a.only.split(",") if r], a.draws, a.noise, a.seen_only, a.tape, a.hidden)
         return

@@ -16,6 +16,7 @@ SHOULDER_PX = (2.0, 3.0)  # ramp_edges: where an edge's gradient profile is read
 # past a box-filtered step's own gradient (the pixel, the bilinear sample and the Sobel reach under 2.5 px; a
 # rendered step reads 0.00-0.02 of its peak there at every angle and phase)
 RAMP_EDGE_MODES = ("drop", "keep")
+PROFILE_LOCATOR = None  # the sub-pixel rule of PhotoEdges.subpixel: None follows recon.edgesnap.LOCATOR
 
 
 class PhotoEdges:
@@ -76,13 +77,15 @@ class PhotoEdges:
         +-PROFILE_HALF_PX, and which were found: edgesnap's rule per sample (the centroid of the
         gradient above half its peak within 1 px of it; no peak on the window's border, no second
         peak over half as strong, no clipped pixel within 3 px)."""
+        from recon import edgesnap
         from recon.edgesnap import AMBIGUOUS
 
         E = self.fine
         ss = np.arange(-PROFILE_HALF_PX, PROFILE_HALF_PX + 1e-9, PROFILE_STEP_PX)
         P = uv[:, None, :] + ss[None, :, None] * n[:, None, :]
         g = E._sample(E.gx, P) * n[:, None, 0] + E._sample(E.gy, P) * n[:, None, 1]
-        g *= np.where(g[np.arange(len(g)), np.argmax(np.abs(g), axis=1)] >= 0, 1.0, -1.0)[:, None]  # peak > 0
+        sgn = np.where(g[np.arange(len(g)), np.argmax(np.abs(g), axis=1)] >= 0, 1.0, -1.0)
+        g *= sgn[:, None]  # peak > 0
         k = np.argmax(g, axis=1)
         gmax = g[np.arange(len(g)), k]
         ok = (k > 0) & (k < len(ss) - 1) & (gmax > 0)
@@ -98,6 +101,11 @@ class PhotoEdges:
         wsum = w.sum(axis=1)
         ok &= wsum > 0
         off = (w * ss[None, :]).sum(axis=1) / np.maximum(wsum, 1e-12)
+        loc = PROFILE_LOCATOR or edgesnap.LOCATOR
+        if loc in ("step", "kink") and ok.any():  # a blurred step fitted to the linear profile
+            off_s, found = edgesnap.step_offsets(E, uv[ok], n[ok], ss[k[ok]], sgn[ok], slopes=loc == "kink")
+            off[ok] = off_s
+            ok[np.flatnonzero(ok)[~found]] = False
         return uv + off[:, None] * n, ok
 
 
