@@ -185,6 +185,15 @@ def build_radiance_mesh(G: np.ndarray, probe_rad: np.ndarray, probe_omega: np.nd
     return RadianceMesh(L, rho, origin, emit)
 
 
+def measured_levels(origin: np.ndarray, bounces: int) -> np.ndarray:
+    """(P,) int: the bounce level each patch's captured radiance holds (origin: build_radiance_mesh's). The photo
+    sees `bounces` reflections; the probe's ball is the probe camera's first, so the room in it holds one less
+    (the benchmark truth: a path tracer capped at `bounces` reflections after the camera hit; in sun_110 the probe's
+    patches are the known radiosity's B^(3) to 0.97-1.05 and the photo's its B^(4) to 1.00-1.01, in sun_room
+    0.975-0.999 and 1.001); a gathered patch reflects the mesh's light once more: `bounces`."""
+    return np.where(np.asarray(origin) == PROBE, bounces - 1, bounces)
+
+
 def emitters(radiance: np.ndarray, gathered: np.ndarray, origin: np.ndarray, openness: np.ndarray) -> np.ndarray:
     """(P,) bool: measured patches brighter than any reflector could be where they are.
 

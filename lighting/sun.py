@@ -498,7 +498,7 @@ def sunlit_pixels(L_b: np.ndarray, saturated: np.ndarray, pix_quad: np.ndarray, 
 def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, dirs: np.ndarray,
                  L_b: np.ndarray, saturated: np.ndarray, recv: np.ndarray, B: np.ndarray, G_c: np.ndarray,
                  occluder: Occluder, min_overlap: float = 0.5, direction: np.ndarray | None = None,
-                 bounces: int | None = None) -> tuple[Sun | None, dict]:
+                 bounces: int | None = None, levels: np.ndarray | None = None) -> tuple[Sun | None, dict]:
     """The sun from the photo and the captured radiance mesh (no declared sun used); with `direction`
     (a known unit vector towards the sun, e.g. from date, time and place) only its strength.
 
@@ -524,7 +524,7 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     if direction is not None:
         d = np.asarray(direction, np.float64) / np.linalg.norm(direction)
         info.update(direction=d.tolist(), direction_from="declared")
-        return _sun_strength(d, holes, occluder, pm, B, G_c, info, bounces)
+        return _sun_strength(d, holes, occluder, pm, B, G_c, info, bounces, levels)
     pix_quad = np.where(pix_patch >= 0, pm.quad[np.maximum(pix_patch, 0)], -1)
     lit = sunlit_pixels(L_b, saturated, pix_quad, recv, shape=scene.photo.shape[:2])
     if lit.sum() < 50:
@@ -574,11 +574,12 @@ def estimate_sun(scene: Scene, pm, pix_patch: np.ndarray, pix_pos: np.ndarray, d
     if info["overlap"] < min_overlap:  # bright surfaces that no sun through the openings explains
         return None, {**info, "reason": f"no sun direction explains the bright region (overlap "
                                         f"{info['overlap']:.2f} < {min_overlap})"}
-    return _sun_strength(d, holes, occluder, pm, B, G_c, info, bounces)
+    return _sun_strength(d, holes, occluder, pm, B, G_c, info, bounces, levels)
 
 
 def _sun_strength(d: np.ndarray, holes: list[Quad], occluder: Occluder, pm, B: np.ndarray, G_c: np.ndarray,
-                  info: dict, bounces: int | None = None) -> tuple[Sun | None, dict]:
+                  info: dict, bounces: int | None = None, levels: np.ndarray | None = None
+                  ) -> tuple[Sun | None, dict]:
     """estimate_sun's strength for the unit direction d (its docstring): the median over fully sunlit
     patches of pi (L / rho - E_ind) / cos; (None, info with a reason) without such patches.
 
@@ -588,7 +589,10 @@ def _sun_strength(d: np.ndarray, holes: list[Quad], occluder: Occluder, pm, B: n
     and the strength high by G B^(bounces) / G B^(bounces-1) (1.05-1.13 in the sun rooms). With `bounces`,
     E_ind is G B scaled per patch by the bounce model's own ratio G B^(bounces-1) / G B^(bounces) (the model:
     gather_with_sun with the current rho, the mesh's emitters and the current sun), iterated to its fixed
-    point (_BOUNCE_ROUNDS rounds); None: E_ind = G B as measured (the rule before)."""
+    point (_BOUNCE_ROUNDS rounds); None: E_ind = G B as measured (the rule before).
+    levels (P,) int: each patch's measured bounce level (lighting.radiance.measured_levels: the probe's patches
+    one less than the photo's), the ratio then per patch from its own level and its sources' (level_ratio);
+    None: every patch at `bounces`."""
     G64 = np.asarray(G_c, np.float64)
     B = np.asarray(B, np.float64)
     light = SunLight(Sun(d, SUN_DIAMETER_DEG, np.full(3, np.pi), np.zeros(3)), holes, occluder, where="sun estimate")
@@ -609,9 +613,7 @@ def _sun_strength(d: np.ndarray, holes: list[Quad], occluder: Occluder, pm, B: n
         rho[source] = 0.0
         lv = gather_with_sun(G64, rho, np.where(source[:, None], pm.emission, 0.0), e[:, None] * E_perp / np.pi,
                              bounces)
-        hi, lo = G64 @ lv[bounces], G64 @ lv[bounces - 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(hi > 0, lo / hi, 1.0)
+        ratio = level_ratio(G64, lv, bounces, levels)
         out = _strength_from(B, ratio * E_meas, pm, e, cos, full)
         if out is None:
             break
@@ -619,6 +621,27 @@ def _sun_strength(d: np.ndarray, holes: list[Quad], occluder: Occluder, pm, B: n
     if out is not None:  # the reflectivity the strength used, per sunlit surface (SunSetup gives it its patches)
         info["reflectivity_by_quad"] = {str(q): r.tolist() for q, r in out[1].items()}
     return _sun_result(d, out, info)
+
+
+def level_ratio(G: np.ndarray, lv: list[np.ndarray], bounces: int, levels: np.ndarray | None = None) -> np.ndarray:
+    """(P,3) c = G B^(l-1) / G B_meas per patch (row) and channel: the light a patch measured at bounce level l
+    reflects (one level less than its own) over what the measured mesh gathers, by the bounce model's iterates
+    lv = [B^(0) .. B^(bounces)] (gather_with_sun). levels (P,) int: each patch's measured level (the photo's
+    patches `bounces`; the probe's `bounces` - 1: its ball is the probe camera's first reflection), B_meas the
+    mesh of each patch at its own level; None: every patch at `bounces` (c = G B^(n-1) / G B^(n)). 1 where the
+    mesh gathers nothing."""
+    if levels is None:
+        hi, lo = G @ lv[bounces], G @ lv[bounces - 1]
+    else:
+        lvl = np.clip(np.asarray(levels, np.int64), 1, bounces)
+        stack = np.stack(lv)  # (n+1,P,3)
+        hi = G @ stack[lvl, np.arange(len(lvl))]
+        lo = np.zeros_like(hi)
+        for k in np.unique(lvl):
+            rows = lvl == k
+            lo[rows] = G[rows] @ stack[k - 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(hi > 0, lo / hi, 1.0)
 
 
 _BOUNCE_ROUNDS = 4  # fixed-point rounds of _sun_strength's bounce ratio (each changes the strength by < 1 % after 3)

@@ -919,6 +919,34 @@ class SunSetup:
         out.emission = np.where(np.any(pm.emission > 0, axis=1)[:, None], B, 0.0)
         return out
 
+    # captured light: the sun's strength by the bounce rule (lighting.sun._sun_strength's `bounces`) with each patch
+    # at the bounce level it was measured at (the probe's one fewer than the photo's: lighting.radiance.
+    # measured_levels), and the sunlit patches take the reflectivity that rule found. Opt-in (docs/unseen.md
+    # "spur111"): the strength comes within 1.02x / 0.95x / 0.96x of the truth's in sun_110 / 108 / 104 (1.15x /
+    # 1.04x / 1.08x before) and sun_110's and sun_108's spurious and energy come right, but sun_104's captured energy
+    # jumps over its bound (the too strong sun hid another error there) and sun_room's floor, darker where the sun
+    # falls than its unlit median, reads the sun 0.88x. False: the measured radiance gathered as it is, the sunlit
+    # patches their surface's unlit median (the rule before)
+    captured_bounces = False
+
+    def _estimate_bounces(self, pre) -> int | None:
+        """The bounces the sun estimate's strength rule takes (lighting.sun._sun_strength's `bounces`): self.bounces;
+        under captured light with captured_bounces the camera's bounces (len(pre.B) - 1: the precompute's levels);
+        None: the measured radiance gathered as it is."""
+        if self.bounces or self.lighting != "captured" or not self.captured_bounces:
+            return self.bounces
+        return len(pre.B) - 1
+
+    def _levels(self, pre) -> np.ndarray | None:
+        """(P,) the bounce level of each patch's measured radiance (lighting.radiance.measured_levels) for the
+        strength's bounce rule under captured light with captured_bounces; None: all at the camera's (photo)."""
+        n = self._estimate_bounces(pre)
+        if not n or self.lighting != "captured" or not self.captured_bounces:
+            return None
+        from lighting.radiance import measured_levels
+
+        return measured_levels(pre.origin, n)
+
     def _estimate(self, pre, rm, E_x: np.ndarray, recv_pix: np.ndarray) -> None:
         """Captured or photo light: the sun estimated from the photo and the radiance mesh
         (lighting.sun.estimate_sun) replaces the declared one (or the declared one as given, --sun
@@ -949,7 +977,7 @@ class SunSetup:
         else:
             sun, info = estimate_sun(scene, self._emitting(pm, pre.B[-1]), pix_patch, rm.pix_pos.astype(np.float64),
                                      rm.dirs, rm.L_b, sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ,
-                                     bounces=self.bounces)
+                                     bounces=self._estimate_bounces(pre), levels=self._levels(pre))
             where = f"{self.where}: sun estimate"
         self._patch_light = None
         # an estimated direction was fitted with the disk's centre alone (a hard edge) to the photo's sunlit
@@ -985,10 +1013,15 @@ class SunSetup:
             recv_pix |= new
             E_x[new] = np.einsum("nk,nkc->nc", pre.pix_bary[new], rm.E_v[pix_rows[new]])
             # sunlit patches: the photo clips there and the probe sees them coarsely; take the
-            # reflectivity of the unlit patches of the same surface (as the strength estimate does)
+            # reflectivity of the unlit patches of the same surface (as the strength estimate does: under captured
+            # light with the bounce rule its own, so that rho x sun is the radiance the photo and probe measure)
+            by_quad = (info or {}).get("reflectivity_by_quad", {}) \
+                if self.lighting == "captured" and self._estimate_bounces(pre) else {}
             for q in np.unique(pm.quad[lit]):
                 same = (pm.quad == q) & ~pm.is_emitter
-                if (same & ~lit).sum() >= 3:
+                if str(q) in by_quad:  # the strength's own reflectivity (bounce rule): rho x sun as the photo has it
+                    pm.albedo[same & lit] = np.asarray(by_quad[str(q)], np.float64)
+                elif (same & ~lit).sum() >= 3:
                     pm.albedo[same & lit] = np.median(pm.albedo[same & ~lit], axis=0)
         else:
             pm.emission[flagged] = kept  # no sun: what the radiance flagged emits

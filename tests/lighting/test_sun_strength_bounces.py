@@ -100,3 +100,39 @@ def test_photo_fit_under_a_sun_takes_the_engines_bounces_when_asked():
     assert Engine._sun_bounces(eng, given) == (given, 0)
     pr, levels = Engine._sun_bounces(eng, PhotoPriors(sun_bounces=True, wall_albedo=0.6))
     assert levels == 4 and pr.bounce_levels == 4 and pr.wall_albedo == 0.6
+
+
+def test_mixed_levels_probe_one_bounce_less(known_engine):
+    """The probe's ball is the probe camera's first reflection: the room in it holds one bounce less than the photo
+    (lighting.radiance.measured_levels). Analytic case: sun_room's known radiosity ladder, the "measured" radiance
+    B^(3) on every other patch (the probe's) and B^(4) on the rest (the photo's). With each patch's level the
+    rule gets the declared sun and the floor's albedo back (2 %); taking every patch at B^(4) (levels None) reads
+    the sun too strong; all patches at level 4 is exactly the rule without levels."""
+    from lighting.radiance import PHOTO, PROBE, measured_levels
+    from lighting.sun import _sun_strength, level_ratio, openings
+
+    s, e = known_engine
+    pm = e.pre.patches
+    n = len(e.pre.B) - 1
+    origin = np.where(np.arange(pm.n_patches) % 2 == 0, PROBE, PHOTO)
+    levels = measured_levels(origin, n)
+    assert set(np.unique(levels)) == {n - 1, n}
+    B = np.where((levels == n - 1)[:, None], e.pre.B[n - 1], e.pre.B[n])
+    d = s.sun.direction / np.linalg.norm(s.sun.direction)
+
+    def strength(lv):
+        sun, info = _sun_strength(d, openings(s), e.scene_occ, pm, B, e.pre.G_c, {}, n, lv)
+        return _lum(sun.irradiance) / _lum(s.sun.irradiance), info
+
+    r_lv, info = strength(levels)
+    r_all, _ = strength(None)
+    print(f"strength ratio: levels {r_lv:.4f}, all at B^({n}) {r_all:.4f}")
+    assert abs(r_lv - 1.0) <= 0.02, r_lv
+    assert r_all > r_lv + 0.02  # the probe's patches gathered one level too high: rho low, the sun strong
+    for q, rho in info["reflectivity_by_quad"].items():
+        truth = np.median(pm.albedo[pm.quad == int(q)], axis=0)
+        assert np.allclose(rho, truth, rtol=0.02), (q, rho, truth)
+    lv = [np.asarray(b, np.float64) for b in e.pre.B]
+    G = np.asarray(e.pre.G_c, np.float64)
+    np.testing.assert_allclose(level_ratio(G, lv, n, np.full(pm.n_patches, n)), level_ratio(G, lv, n, None),
+                               rtol=1e-12, atol=0)
