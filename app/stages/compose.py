@@ -38,8 +38,12 @@ from typing import Callable
 import numpy as np
 
 from app import runtime
-from kernels.pixel_compose import EX_COV, EX_OBJ, EX_SUN, Compositor
+from kernels.pixel_compose import EX_COV, EX_OBJ, EX_SUN, Compositor, changed_patches
 from lighting.transfer import intensity_transfers
+
+# the second order's least work per launch (app.runtime.split's min_items, in (receiver vertex, changed patch)
+# pairs: ~1.7 ns each on this CPU, so ~0.2 ms, several times a hand-off to the pool)
+SO_MIN_PAIRS = 1 << 17
 
 FillFn = Callable[..., "np.ndarray | None"]  # fill(known, values, missing, out=None): the values at missing,
 # or, given out (an image-sized wp.array of vec3d), written there at their pixels (returns None)
@@ -78,7 +82,12 @@ class ComposeStage:
         vertices, G_v dB over the changed patches only, plus `more` (P,3) passed on the same way and
         `dE_more` (Vr,3) added as it is (the sun's later bounces, already at the receiver vertices).
         Returns the stage's own buffer (valid until the next frame)."""
-        self.k.second_order(dB if more is None else dB + more, self.split)
+        dB = dB if more is None else dB + more
+        nz = changed_patches(dB)
+        # cut by work, (receiver vertex, changed patch) pairs, not by vertices alone (runtime.split's min_items): a
+        # drag frame's 1210 vertices at 1/3 are one launch by the vertex count, on the rendering thread alone, while a
+        # sun room's 3300 changed patches make it 4-7 ms of CPU (docs/benchmarks.md, "glue111")
+        self.k.second_order(dB, functools.partial(self.split, min_items=-(-SO_MIN_PAIRS // max(len(nz), 1))), nz)
         if dE_more is not None:
             self.k.dE_v += dE_more
             self.k.add_v += dE_more

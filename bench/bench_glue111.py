@@ -1,0 +1,140 @@
+"""The drag frame's CPU before and after glue111 (issue 36), variants interleaved in one process.
+
+usage: python bench/bench_glue111.py [--scenes sun_room,window_room,lamps_room] [--path 12] [--rounds 2]
+
+glue111 changed two pieces of per-frame glue, each for the same bytes:
+- ShadowSources._pairs (lighting/frame_sources.py) takes its row and column cuts from flags over the leaves and
+  passes (_cuts) instead of np.unique and np.searchsorted;
+- the triangle normals and other 3-vector cross products of the per-frame stages take kernels.vec.cross3 (numpy's
+  formula per component) instead of np.cross.
+- the second order's launch (ComposeStage.second_order) is cut over the cores by its work, (receiver vertex,
+  changed patch) pairs (SO_MIN_PAIRS), not by the vertex count: the drag frame's 1210 vertices were one launch on the
+  rendering thread. The same CPU; a shorter critical path where the other core is free.
+Variant `base` puts the old code back (the np.unique _pairs below, np.cross in every module that imported cross3, the
+second order cut by vertex count); `nosplit` is glue111's code with the old second-order cut; `new` is the code as it
+is. Besides the CPU times, the wall time of the frame and of its stages (stats["timings"]) are printed. Per scene one Engine, evaluate's drag path (DRAG_PASSES, DRAG_SCALE, DRAG_SHADOW; --path
+poses after two warm-up frames), each pose rendered by every variant in turn (the order reversed every other
+pose and round, so both see the same load). Per variant: the process's CPU (time.process_time, all threads), the
+rendering thread's CPU (time.thread_time) and its glue CPU per FrameTimer stage (bench_glue_cpu.ThreadCpu), ms a
+frame; and the SHA-256 of the drag path's composites (pixels and radiance, all poses chained, first 12 hex digits):
+the same in both variants when the change is byte-identical. Timings depend on the load: compare rows of one run.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import hashlib
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from app.dragpath import moved  # noqa: E402
+from app.stages import compose  # noqa: E402
+from bench.bench_glue_cpu import ThreadCpu, warm_drag  # noqa: E402
+from kernels.vec import cross3  # noqa: E402
+from lighting import frame_sources  # noqa: E402
+
+
+def _pairs_base(self, l_lo, l_hi, k_lo, k_hi, n):
+    """ShadowSources._pairs before glue111 (np.unique and np.searchsorted for the cuts)."""
+    L = self.n_recv_leaves
+    rb = np.unique(np.concatenate([[0, L], l_lo, l_hi]))
+    cb = np.unique(np.concatenate([[0, n], k_lo, k_hi]))
+    a0, a1 = np.searchsorted(rb, l_lo), np.searchsorted(rb, l_hi)
+    b0, b1 = np.searchsorted(cb, k_lo), np.searchsorted(cb, k_hi)
+    m = len(cb)
+    size = len(rb) * m
+    D = (np.bincount(np.concatenate([a0 * m + b0, a1 * m + b1]), minlength=size)
+         - np.bincount(np.concatenate([a0 * m + b1, a1 * m + b0]), minlength=size)).astype(np.int32)
+    D = D.reshape(len(rb), m)
+    np.cumsum(D, axis=0, dtype=np.int32, out=D)
+    np.cumsum(D, axis=1, dtype=np.int32, out=D)
+    cells = D[:-1, :-1] > 0
+    per_pass = cells[:, np.searchsorted(cb, np.arange(n), side="right") - 1]
+    per_pass = np.concatenate([per_pass, np.zeros((1, n), bool)])
+    cell_of_leaf = np.searchsorted(rb, np.arange(L), side="right") - 1
+    row = np.where(self.leaf_of_recv >= 0, cell_of_leaf[np.maximum(self.leaf_of_recv, 0)] if L else 0,
+                   len(per_pass) - 1)
+    return per_pass[row]
+
+
+NEW_PAIRS = frame_sources.ShadowSources._pairs
+NEW_SECOND_ORDER = compose.ComposeStage.second_order
+
+
+def _second_order_base(self, dB, more=None, dE_more=None):
+    """ComposeStage.second_order before glue111: the receiver vertices cut by their count alone."""
+    self.k.second_order(dB if more is None else dB + more, self.split)
+    if dE_more is not None:
+        self.k.dE_v += dE_more
+        self.k.add_v += dE_more
+    return self.k.dE_v
+
+
+def _cross_users() -> list:
+    return [m for m in list(sys.modules.values()) if m is not None and getattr(m, "cross3", None) in (cross3, np.cross)
+            and m.__name__ != "kernels.vec"]
+
+
+def use(variant: str) -> None:
+    """base: the code before glue111; nosplit: glue111's but the second order cut by vertex count; new: glue111's."""
+    frame_sources.ShadowSources._pairs = _pairs_base if variant == "base" else NEW_PAIRS
+    for m in _cross_users():
+        m.cross3 = np.cross if variant == "base" else cross3
+    compose.ComposeStage.second_order = NEW_SECOND_ORDER if variant == "new" else _second_order_base
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", default="sun_room,window_room,lamps_room")
+    ap.add_argument("--path", type=int, default=12)
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--variants", default="base,new")
+    args = ap.parse_args()
+    variants = args.variants.split(",")
+    cpu = None
+    for name in args.scenes.split(","):
+        scene, eng, cfg, offsets = warm_drag(name, args.path)
+        cpu = cpu or ThreadCpu()
+        print(f"{name}: modules using cross3: {sorted(m.__name__ for m in _cross_users())}")
+        rows = {v: [] for v in variants}
+        stage = {v: collections.defaultdict(float) for v in variants}
+        wall = {v: collections.defaultdict(float) for v in variants}
+        sha = {v: [hashlib.sha256(), hashlib.sha256()] for v in variants}
+        for r in range(args.rounds):
+            for i, o in enumerate(offsets):
+                order = variants if (i + r) % 2 == 0 else variants[::-1]
+                for v in order:
+                    use(v)
+                    before = dict(cpu.stage)
+                    k0 = cpu.kernel
+                    c, p = time.thread_time(), time.process_time()
+                    cpu.start_frame()
+                    fr = eng.render(moved(scene.obj, o), cfg)
+                    rows[v].append((time.process_time() - p, time.thread_time() - c, cpu.kernel - k0))
+                    for k, x in fr.stats.get("timings", {}).items():
+                        if isinstance(x, (int, float)):
+                            wall[v][k] += x
+                    for k, x in cpu.stage.items():
+                        stage[v][k] += x - before.get(k, 0.0)
+                    if r == 0:
+                        sha[v][0].update(np.ascontiguousarray(fr.pixels).tobytes())
+                        sha[v][1].update(np.ascontiguousarray(fr.radiance).tobytes())
+        use("new")
+        for v in variants:
+            n = len(rows[v])
+            proc, thread, kern = 1e3 * np.mean(rows[v], 0)
+            st = {k: round(1e3 * x / n, 2) for k, x in stage[v].items()}
+            print(f"  {v:5s} frames {n}: process cpu {proc:.1f}, thread cpu {thread:.1f}, glue {thread - kern:.1f} ms; "
+                  f"pixels {sha[v][0].hexdigest()[:12]} radiance {sha[v][1].hexdigest()[:12]}")
+            print(f"        glue per stage (ms): {st}")
+            print(f"        wall per stage (ms): { {k: round(1e3 * x / n, 2) for k, x in wall[v].items()} }")
+
+
+if __name__ == "__main__":
+    main()
