@@ -1,23 +1,29 @@
 """The drag frame's CPU before and after glue111 (issue 36), variants interleaved in one process.
 
 usage: python bench/bench_glue111.py [--scenes sun_room,window_room,lamps_room] [--path 12] [--rounds 2]
+                                    [--variants base,nosplit,new] [--rest]
 
 glue111 changed two pieces of per-frame glue, each for the same bytes:
 - ShadowSources._pairs (lighting/frame_sources.py) takes its row and column cuts from flags over the leaves and
   passes (_cuts) instead of np.unique and np.searchsorted;
 - the triangle normals and other 3-vector cross products of the per-frame stages take kernels.vec.cross3 (numpy's
   formula per component) instead of np.cross.
+- DragObject.shape (app.stages.object_drag) compares the quantised shape with the last one's instead of hashing
+  it (SHA-1) every frame;
 - the second order's launch (ComposeStage.second_order) is cut over the cores by its work, (receiver vertex,
   changed patch) pairs (SO_MIN_PAIRS), not by the vertex count: the drag frame's 1210 vertices were one launch on the
   rendering thread. The same CPU; a shorter critical path where the other core is free.
 Variant `base` puts the old code back (the np.unique _pairs below, np.cross in every module that imported cross3, the
-second order cut by vertex count); `nosplit` is glue111's code with the old second-order cut; `new` is the code as it
+second order cut by vertex count, the hashed shape key); `nosplit` is glue111's code with the old second-order cut; `new` is the code as it
 is. Besides the CPU times, the wall time of the frame and of its stages (stats["timings"]) are printed. Per scene one Engine, evaluate's drag path (DRAG_PASSES, DRAG_SCALE, DRAG_SHADOW; --path
 poses after two warm-up frames), each pose rendered by every variant in turn (the order reversed every other
 pose and round, so both see the same load). Per variant: the process's CPU (time.process_time, all threads), the
 rendering thread's CPU (time.thread_time) and its glue CPU per FrameTimer stage (bench_glue_cpu.ThreadCpu), ms a
 frame; and the SHA-256 of the drag path's composites (pixels and radiance, all poses chained, first 12 hex digits):
-the same in both variants when the change is byte-identical. Timings depend on the load: compare rows of one run.
+the same in both variants when the change is byte-identical (--rest: also the all-sources frame's pixels at the
+scene's own pose, per variant). In a room no sun lights the drag frame's source list is kept while the grown box
+holds (app.dragframe.DRAG_SOURCE_GRID): the variant that renders a pose first makes it, so the sources stage is
+compared between variants in sun rooms only. Timings depend on the load: compare rows of one run.
 """
 from __future__ import annotations
 
@@ -34,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.dragpath import moved  # noqa: E402
-from app.stages import compose  # noqa: E402
+from app.stages import compose, object_drag  # noqa: E402
 from bench.bench_glue_cpu import ThreadCpu, warm_drag  # noqa: E402
 from kernels.vec import cross3  # noqa: E402
 from lighting import frame_sources  # noqa: E402
@@ -65,20 +71,22 @@ def _pairs_base(self, l_lo, l_hi, k_lo, k_hi, n):
 
 NEW_PAIRS = frame_sources.ShadowSources._pairs
 NEW_SECOND_ORDER = compose.ComposeStage.second_order
+NEW_SHAPE = object_drag.DragObject.shape
 
 
-def _second_order_base(self, dB, more=None, dE_more=None):
-    """ComposeStage.second_order before glue111: the receiver vertices cut by their count alone."""
-    self.k.second_order(dB if more is None else dB + more, self.split)
-    if dE_more is not None:
-        self.k.dE_v += dE_more
-        self.k.add_v += dE_more
-    return self.k.dE_v
-
-
-def _cross_users() -> list:
-    return [m for m in list(sys.modules.values()) if m is not None and getattr(m, "cross3", None) in (cross3, np.cross)
-            and m.__name__ != "kernels.vec"]
+def _shape_base(self, v, n, f, R):
+    """DragObject.shape before glue111: the key a SHA-1 of the quantised shape (kept apart, in _base_key, so that the
+    variants share the kept shape and neither makes it again while the shape stays)."""
+    mean = v.mean(0)
+    local, nl = (v - mean) @ R, n @ R
+    cfg = self.shading.config
+    key = hashlib.sha1(np.floor(local * 1e5 + object_drag.KEY_OFFSET).tobytes()
+                       + np.floor(nl * 1e5 + object_drag.KEY_OFFSET).tobytes() + np.ascontiguousarray(f).tobytes()
+                       + f"{cfg.prt_dirs} {cfg.vis_stride}".encode()).hexdigest()
+    if self._shape is None or getattr(self, "_base_key", None) != key:
+        self._base_key = key
+        return NEW_SHAPE(self, v, n, f, R)
+    return self._shape[1], mean
 
 
 def use(variant: str) -> None:
@@ -87,6 +95,7 @@ def use(variant: str) -> None:
     for m in _cross_users():
         m.cross3 = np.cross if variant == "base" else cross3
     compose.ComposeStage.second_order = NEW_SECOND_ORDER if variant == "new" else _second_order_base
+    object_drag.DragObject.shape = _shape_base if variant == "base" else NEW_SHAPE
 
 
 def main() -> None:
@@ -95,6 +104,7 @@ def main() -> None:
     ap.add_argument("--path", type=int, default=12)
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--variants", default="base,new")
+    ap.add_argument("--rest", action="store_true", help="also hash the all-sources frame at the scene's own pose")
     args = ap.parse_args()
     variants = args.variants.split(",")
     cpu = None
@@ -125,6 +135,12 @@ def main() -> None:
                     if r == 0:
                         sha[v][0].update(np.ascontiguousarray(fr.pixels).tobytes())
                         sha[v][1].update(np.ascontiguousarray(fr.radiance).tobytes())
+        if args.rest:  # the frame at rest, every source, at the scene's own pose, once per variant
+            for v in variants:
+                use(v)
+                fr = eng.render(scene.obj, eng.frame_config())
+                print(f"  {v:5s} all-sources frame at the scene's pose: pixels "
+                      f"{hashlib.sha256(np.ascontiguousarray(fr.pixels).tobytes()).hexdigest()[:12]}")
         use("new")
         for v in variants:
             n = len(rows[v])

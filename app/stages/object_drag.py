@@ -413,6 +413,13 @@ class DragShaded:
     L_proxy: np.ndarray  # (V,3) the radiance the proxy sends to the room (DragObject.shade: a bounce fewer)
 
 
+def _same_key(a: tuple, b: tuple) -> bool:
+    """DragObject.shape's keys (quantised local vertices, normals, faces, the shading config) equal: the same arrays
+    (shape, dtype and values) and config."""
+    return a[3] == b[3] and all(x.shape == y.shape and x.dtype == y.dtype and np.array_equal(x, y)
+                                for x, y in zip(a[:3], b[:3]))
+
+
 class DragObject:
     """The drag frame's object shading and object proxy for one scene (built on an ObjectShading: its
     room light, emitters, sun and config)."""
@@ -423,7 +430,7 @@ class DragObject:
         the non-emitting patches); the proxy's radiance takes the indirect part so scaled, and no self-bounce."""
         self.bounce_scale = np.ones(3) if bounce_scale is None else np.asarray(bounce_scale, np.float64)
         self.shading, self.device = shading, device
-        self._shape: tuple[str, DragShape] | None = None
+        self._shape: tuple[tuple, DragShape] | None = None
         self.last: DragShaded | None = None
         self._pose: tuple | None = None  # (yaw, R, mean) of the last shaded pose
         # a tilted object shaded from its tables too, its canonical frame the world's orientation (frame_yaw; False:
@@ -458,11 +465,12 @@ class DragObject:
         local, nl = (v - mean) @ R, n @ R
         cfg = self.shading.config
         # to 10 um, the grid offset by a third of a step: a shape of round sizes (a box, its subdivision's midpoints)
-        # puts no coordinate on a rounding boundary, where float noise of the pose would flip it
-        key = hashlib.sha1(np.floor(local * 1e5 + KEY_OFFSET).tobytes() + np.floor(nl * 1e5 + KEY_OFFSET).tobytes()
-                           + np.ascontiguousarray(f).tobytes()
-                           + f"{cfg.prt_dirs} {cfg.vis_stride}".encode()).hexdigest()
-        if self._shape is None or self._shape[0] != key:
+        # puts no coordinate on a rounding boundary, where float noise of the pose would flip it. The key's arrays
+        # are compared with the last shape's, not hashed (a SHA-1 of a chair's ~90 kB took ~0.4 ms a frame, the
+        # comparison ~0.04: docs/benchmarks.md, "glue111")
+        key = (np.floor(local * 1e5 + KEY_OFFSET), np.floor(nl * 1e5 + KEY_OFFSET), np.array(f, copy=True),
+               (cfg.prt_dirs, cfg.vis_stride))
+        if self._shape is None or not _same_key(self._shape[0], key):
             self._shape = (key, DragShape(local, nl, np.asarray(f), self.shading, self.device))
         return self._shape[1], mean
 
