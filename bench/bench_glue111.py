@@ -1,21 +1,21 @@
 """The drag frame's CPU before and after glue111 (issue 36), variants interleaved in one process.
 
 usage: python bench/bench_glue111.py [--scenes sun_room,window_room,lamps_room] [--path 12] [--rounds 2]
-                                    [--variants base,nosplit,new] [--rest]
+                                    [--variants base,new,split] [--rest]
 
-glue111 changed two pieces of per-frame glue, each for the same bytes:
+glue111 changed three pieces of per-frame glue, each for the same bytes:
 - ShadowSources._pairs (lighting/frame_sources.py) takes its row and column cuts from flags over the leaves and
   passes (_cuts) instead of np.unique and np.searchsorted;
 - the triangle normals and other 3-vector cross products of the per-frame stages take kernels.vec.cross3 (numpy's
-  formula per component) instead of np.cross.
+  formula per component) instead of np.cross;
 - DragObject.shape (app.stages.object_drag) compares the quantised shape with the last one's instead of hashing
-  it (SHA-1) every frame;
-- the second order's launch (ComposeStage.second_order) is cut over the cores by its work, (receiver vertex,
-  changed patch) pairs (SO_MIN_PAIRS), not by the vertex count: the drag frame's 1210 vertices were one launch on the
-  rendering thread. The same CPU; a shorter critical path where the other core is free.
+  it (SHA-1) every frame.
+And it can cut the second order's launch (ComposeStage.second_order) over the cores by its work, (receiver vertex,
+changed patch) pairs (app.stages.compose.SO_MIN_PAIRS; off by default: slower on the loaded machine), not by the
+vertex count, which leaves the drag frame's ~1200 vertices one launch on the rendering thread.
 Variant `base` puts the old code back (the np.unique _pairs below, np.cross in every module that imported cross3, the
-second order cut by vertex count, the hashed shape key); `nosplit` is glue111's code with the old second-order cut; `new` is the code as it
-is. Besides the CPU times, the wall time of the frame and of its stages (stats["timings"]) are printed. Per scene one Engine, evaluate's drag path (DRAG_PASSES, DRAG_SCALE, DRAG_SHADOW; --path
+hashed shape key); `new` is the code as it is; `split` is `new` with SO_MIN_PAIRS = 1 << 17. Besides the CPU times,
+the wall time of the frame's stages (stats["timings"]) are printed. Per scene one Engine, evaluate's drag path (DRAG_PASSES, DRAG_SCALE, DRAG_SHADOW; --path
 poses after two warm-up frames), each pose rendered by every variant in turn (the order reversed every other
 pose and round, so both see the same load). Per variant: the process's CPU (time.process_time, all threads), the
 rendering thread's CPU (time.thread_time) and its glue CPU per FrameTimer stage (bench_glue_cpu.ThreadCpu), ms a
@@ -70,7 +70,6 @@ def _pairs_base(self, l_lo, l_hi, k_lo, k_hi, n):
 
 
 NEW_PAIRS = frame_sources.ShadowSources._pairs
-NEW_SECOND_ORDER = compose.ComposeStage.second_order
 NEW_SHAPE = object_drag.DragObject.shape
 
 
@@ -90,11 +89,11 @@ def _shape_base(self, v, n, f, R):
 
 
 def use(variant: str) -> None:
-    """base: the code before glue111; nosplit: glue111's but the second order cut by vertex count; new: glue111's."""
+    """base: the code before glue111; new: glue111's; split: glue111's with the second order cut by work."""
     frame_sources.ShadowSources._pairs = _pairs_base if variant == "base" else NEW_PAIRS
     for m in _cross_users():
         m.cross3 = np.cross if variant == "base" else cross3
-    compose.ComposeStage.second_order = NEW_SECOND_ORDER if variant == "new" else _second_order_base
+    compose.SO_MIN_PAIRS = 1 << 17 if variant == "split" else None
     object_drag.DragObject.shape = _shape_base if variant == "base" else NEW_SHAPE
 
 

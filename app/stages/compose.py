@@ -41,9 +41,12 @@ from app import runtime
 from kernels.pixel_compose import EX_COV, EX_OBJ, EX_SUN, Compositor, changed_patches
 from lighting.transfer import intensity_transfers
 
-# the second order's least work per launch (app.runtime.split's min_items, in (receiver vertex, changed patch)
-# pairs: ~1.7 ns each on this CPU, so ~0.2 ms, several times a hand-off to the pool)
-SO_MIN_PAIRS = 1 << 17
+# the second order's least work per launch in (receiver vertex, changed patch) pairs (~1.7 ns each on this CPU), or
+# None: its launches cut by the receiver vertices' count (app.runtime.split's min_items), which leaves a drag frame's
+# ~1200 vertices at 1/3 one launch on the rendering thread (4-7 ms of CPU in sun_room). 1 << 17 (~0.2 ms a part) cuts
+# them in two, the same bytes; on the loaded machine that was slower (sun_room 21.1 -> 25.4 ms wall median, +0.7 ms of
+# CPU: docs/benchmarks.md, "glue111"), so it stays off until an idle machine measures it
+SO_MIN_PAIRS: int | None = None
 
 FillFn = Callable[..., "np.ndarray | None"]  # fill(known, values, missing, out=None): the values at missing,
 # or, given out (an image-sized wp.array of vec3d), written there at their pixels (returns None)
@@ -84,10 +87,9 @@ class ComposeStage:
         Returns the stage's own buffer (valid until the next frame)."""
         dB = dB if more is None else dB + more
         nz = changed_patches(dB)
-        # cut by work, (receiver vertex, changed patch) pairs, not by vertices alone (runtime.split's min_items): a
-        # drag frame's 1210 vertices at 1/3 are one launch by the vertex count, on the rendering thread alone, while a
-        # sun room's 3300 changed patches make it 4-7 ms of CPU (docs/benchmarks.md, "glue111")
-        self.k.second_order(dB, functools.partial(self.split, min_items=-(-SO_MIN_PAIRS // max(len(nz), 1))), nz)
+        split = self.split if SO_MIN_PAIRS is None else \
+            functools.partial(self.split, min_items=-(-SO_MIN_PAIRS // max(len(nz), 1)))  # cut by work (SO_MIN_PAIRS)
+        self.k.second_order(dB, split, nz)
         if dE_more is not None:
             self.k.dE_v += dE_more
             self.k.add_v += dE_more
