@@ -42,7 +42,7 @@ sys.path.insert(0, str(ROOT))
 from app.dragpath import moved  # noqa: E402
 from app.stages import compose, object_drag  # noqa: E402
 from bench.bench_glue_cpu import ThreadCpu, warm_drag  # noqa: E402
-from kernels.vec import cross3  # noqa: E402
+from kernels import vec  # noqa: E402
 from lighting import frame_sources  # noqa: E402
 
 
@@ -88,11 +88,18 @@ def _shape_base(self, v, n, f, R):
     return self._shape[1], mean
 
 
+def _cross_users() -> list:
+    """The modules that took cross3 by name (not kernels.vec itself, nor this bench)."""
+    return [m for m in list(sys.modules.values())
+            if m is not None and getattr(m, "cross3", None) in (vec.cross3, np.cross)
+            and m.__name__ not in ("kernels.vec", "__main__", "bench.bench_glue111")]
+
+
 def use(variant: str) -> None:
     """base: the code before glue111; new: glue111's; split: glue111's with the second order cut by work."""
     frame_sources.ShadowSources._pairs = _pairs_base if variant == "base" else NEW_PAIRS
     for m in _cross_users():
-        m.cross3 = np.cross if variant == "base" else cross3
+        m.cross3 = np.cross if variant == "base" else vec.cross3
     compose.SO_MIN_PAIRS = 1 << 17 if variant == "split" else None
     object_drag.DragObject.shape = _shape_base if variant == "base" else NEW_SHAPE
 
