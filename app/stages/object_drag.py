@@ -466,8 +466,8 @@ class DragObject:
         cfg = self.shading.config
         # to 10 um, the grid offset by a third of a step: a shape of round sizes (a box, its subdivision's midpoints)
         # puts no coordinate on a rounding boundary, where float noise of the pose would flip it. The key's arrays
-        # are compared with the last shape's, not hashed (a SHA-1 of a chair's ~90 kB took ~0.4 ms a frame, the
-        # comparison ~0.04: docs/benchmarks.md, "glue111")
+        # are compared with the last shape's, not hashed (a SHA-1 of the shared rooms' chair, 3564 vertices, took
+        # ~0.38 ms a frame, the comparison ~0.05: docs/benchmarks.md, "glue111")
         key = (np.floor(local * 1e5 + KEY_OFFSET), np.floor(nl * 1e5 + KEY_OFFSET), np.array(f, copy=True),
                (cfg.prt_dirs, cfg.vis_stride))
         if self._shape is None or not _same_key(self._shape[0], key):
