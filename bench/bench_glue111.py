@@ -3,18 +3,19 @@
 usage: python bench/bench_glue111.py [--scenes sun_room,window_room,lamps_room] [--path 12] [--rounds 2]
                                     [--variants base,new,split] [--rest]
 
-glue111 changed three pieces of per-frame glue, each for the same bytes:
+glue111 changed four pieces of per-frame glue, each for the same bytes:
 - ShadowSources._pairs (lighting/frame_sources.py) takes its row and column cuts from flags over the leaves and
   passes (_cuts) instead of np.unique and np.searchsorted;
 - the triangle normals and other 3-vector cross products of the per-frame stages take kernels.vec.cross3 (numpy's
   formula per component) instead of np.cross;
-- DragObject.shape (app.stages.object_drag) compares the quantised shape with the last one's instead of hashing
-  it (SHA-1) every frame.
+- DragObject.shape (app.stages.object_drag) and ObjectShading.object_shape compare the quantised shape with the
+  last one's instead of hashing it (SHA-1) every frame; object_light.shape_key (the proxy's key, ~8 calls a frame)
+  keeps the last arrays' key.
 And it can cut the second order's launch (ComposeStage.second_order) over the cores by its work, (receiver vertex,
 changed patch) pairs (app.stages.compose.SO_MIN_PAIRS; off by default: slower on the loaded machine), not by the
 vertex count, which leaves the drag frame's ~1200 vertices one launch on the rendering thread.
 Variant `base` puts the old code back (the np.unique _pairs below, np.cross in every module that imported cross3, the
-hashed shape key); `new` is the code as it is; `split` is `new` with SO_MIN_PAIRS = 1 << 17. Besides the CPU times,
+hashed shape keys, kept apart so that both variants share the kept shapes); `new` is the code as it is; `split` is `new` with SO_MIN_PAIRS = 1 << 17. Besides the CPU times,
 the wall time of the frame's stages (stats["timings"]) are printed. Per scene one Engine, evaluate's drag path (DRAG_PASSES, DRAG_SCALE, DRAG_SHADOW; --path
 poses after two warm-up frames), each pose rendered by every variant in turn (the order reversed every other
 pose and round, so both see the same load). Per variant: the process's CPU (time.process_time, all threads), the
@@ -40,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.dragpath import moved  # noqa: E402
-from app.stages import compose, object_drag  # noqa: E402
+from app.stages import compose, object_drag, object_light, object_shading, sun  # noqa: E402
 from bench.bench_glue_cpu import ThreadCpu, warm_drag  # noqa: E402
 from kernels import vec  # noqa: E402
 from lighting import frame_sources  # noqa: E402
@@ -95,6 +96,37 @@ def _cross_users() -> list:
             and m.__name__ not in ("kernels.vec", "__main__", "bench.bench_glue111")]
 
 
+NEW_SHAPE_KEY = object_light.shape_key
+NEW_OBJECT_SHAPE = object_shading.ObjectShading.object_shape
+
+
+def _shape_key_base(pv, pf):
+    """object_light.shape_key before glue111: hashed every call."""
+    return hashlib.sha1(np.round(pv - pv.mean(0), 6).tobytes() + np.ascontiguousarray(pf).tobytes()).hexdigest()
+
+
+def _object_shape_base(self, obj):
+    """ObjectShading.object_shape before glue111: its key a SHA-1 every frame (kept apart, in _base_key; a new key
+    goes through the new method, which keeps or makes the shape, so both variants share the shape and its BVHs),
+    then the kept shape translated as before."""
+    p, v = self.config, obj.vertices
+    offset = v.mean(0)
+    key = hashlib.sha1(np.round(v - offset, 6).tobytes() + np.round(obj.normals, 6).tobytes()
+                       + np.ascontiguousarray(obj.faces).tobytes() + str(p.proxy_faces).encode()).hexdigest()
+    sh = self._shape if self.config.shape_cache else None
+    if sh is None or getattr(self, "_base_key", None) != key:
+        self._base_key = key
+        return NEW_OBJECT_SHAPE(self, obj)
+    pv, sv = sh["pv"] + offset, sh["sv"] + offset
+    if not np.array_equal(offset, sh["offset"]):
+        sh["proxy_occ"].move(pv)
+        sh["shade_occ"].move(sv)
+        sh["offset"] = offset
+    self._shade_occ = (sv, sh["shade_occ"])
+    self.face_groups = sh["groups"]
+    return pv, sh["pf"], sh["proxy_occ"], (sv, sh["sn"], sh["sf"]), sh["shade_occ"]
+
+
 def use(variant: str) -> None:
     """base: the code before glue111; new: glue111's; split: glue111's with the second order cut by work."""
     frame_sources.ShadowSources._pairs = _pairs_base if variant == "base" else NEW_PAIRS
@@ -102,6 +134,8 @@ def use(variant: str) -> None:
         m.cross3 = np.cross if variant == "base" else vec.cross3
     compose.SO_MIN_PAIRS = 1 << 17 if variant == "split" else None
     object_drag.DragObject.shape = _shape_base if variant == "base" else NEW_SHAPE
+    object_light.shape_key = sun.shape_key = _shape_key_base if variant == "base" else NEW_SHAPE_KEY
+    object_shading.ObjectShading.object_shape = _object_shape_base if variant == "base" else NEW_OBJECT_SHAPE
 
 
 def main() -> None:
