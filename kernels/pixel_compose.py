@@ -326,6 +326,11 @@ OUTPUT_SETS = 3  # output sets (radiance, room, pixels) the Compositor keeps for
 SO_ROWS = 4  # receiver vertices per thread of second_order_kernel
 
 
+def changed_patches(dB: np.ndarray) -> np.ndarray:
+    """(k,) int64 ascending: the patches where dB (P,3) is non-zero, the columns Compositor.second_order sums."""
+    return np.flatnonzero(np.abs(dB).sum(1) > 0)
+
+
 @wp.func
 def _store_row(dE_v: wp.array2d(dtype=wp.float64), add_v: wp.array2d(dtype=wp.float64), v: int, last: int,
                a: wp.vec3d):
@@ -547,10 +552,11 @@ class Compositor:
             self.used = m + len(new)
         return r
 
-    def second_order(self, dB: np.ndarray, split: Split) -> None:
-        """dE_v = G_v dB over the patches where dB (P,3) is non-zero, into `dE_v` (and `add_v`), the
-        receiver vertices cut into index ranges by `split` (one launch per range)."""
-        nz = np.flatnonzero(np.abs(dB).sum(1) > 0)
+    def second_order(self, dB: np.ndarray, split: Split, nz: np.ndarray | None = None) -> None:
+        """dE_v = G_v dB over the patches where dB (P,3) is non-zero (nz: those patches, ascending, when the
+        caller has them; changed_patches(dB)), into `dE_v` (and `add_v`), the receiver vertices cut into index
+        ranges by `split` (one launch per range)."""
+        nz = changed_patches(dB) if nz is None else nz
         self._nz.np[:len(nz)] = nz
         self._dB.np[:] = dB
         self._nz.push()

@@ -28,6 +28,7 @@ import warp as wp
 
 from kernels import runtime
 from kernels.buffers import Buffer
+from kernels.vec import cross3
 from kernels.visibility import Occluder, segment_blocked, segment_meets_box
 
 
@@ -468,9 +469,9 @@ class ShadowMaps:
         use_ray = dist < r * 1.05
         fwd = fwd / np.maximum(dist, 1e-12)[:, None]
         helper = np.where(np.abs(fwd[:, 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
-        right = np.cross(helper, fwd)
+        right = cross3(helper, fwd)
         right /= np.linalg.norm(right, axis=1, keepdims=True)
-        up = np.cross(fwd, right)
+        up = cross3(fwd, right)
         sin_h = np.clip(r / np.maximum(dist, 1e-12), 0.0, 0.999)
         inv_tan = np.sqrt(1 - sin_h ** 2) / np.maximum(sin_h, 1e-6)
         sp = np.zeros(n) if spread is None else np.asarray(spread, np.float64)[:n]

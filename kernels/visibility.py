@@ -18,6 +18,7 @@ import warp as wp
 from kernels import runtime
 from kernels.buffers import Workspace, call_buffers
 from kernels.formfactor import polygon_ff
+from kernels.vec import cross3
 
 
 @wp.func
@@ -248,7 +249,7 @@ def _ray_inputs(ws: Workspace, triangles: np.ndarray, radiance: np.ndarray, occl
     """_ray_emitters's inputs (emitter_sum's triangles, radiance, normals, occluder, eps and free table)
     pushed into ws's buffers."""
     tri = np.asarray(triangles, np.float64)
-    tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    tn = cross3(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
     shared = [ws.upload("tris", tri, wp.vec3d, device),
               ws.upload("radiance", np.asarray(radiance, np.float32), wp.vec3, device),
@@ -602,7 +603,7 @@ def _quarters_moment(polys: np.ndarray, verts: np.ndarray) -> np.ndarray:
     out = np.zeros(len(polys))
     for e in range(1, polys.shape[1] - 1):
         a, b, c = polys[:, 0], polys[:, e], polys[:, e + 1]
-        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+        area = 0.5 * np.linalg.norm(cross3(b - a, c - a), axis=1)
         edges = ((b - a) ** 2).sum(1) + ((c - b) ** 2).sum(1) + ((a - c) ** 2).sum(1)
         out += np.where(e + 1 < np.asarray(verts), 6.0 * area * edges / 144.0, 0.0)
     return out
@@ -637,7 +638,7 @@ class SeenEmitters:
         if self.n == 0:
             return self
         cen = tri.mean(1)
-        tn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        tn = cross3(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         rho = np.sqrt(((tri - cen[:, None]) ** 2).sum(-1).max(1))
         edges2 = ((tri - tri[:, [2, 0, 1]]) ** 2).sum((1, 2)) / 6.0  # 6 J_t / A_t
         if groups is None:

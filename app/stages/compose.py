@@ -38,8 +38,15 @@ from typing import Callable
 import numpy as np
 
 from app import runtime
-from kernels.pixel_compose import EX_COV, EX_OBJ, EX_SUN, Compositor
+from kernels.pixel_compose import EX_COV, EX_OBJ, EX_SUN, Compositor, changed_patches
 from lighting.transfer import intensity_transfers
+
+# the second order's least work per launch in (receiver vertex, changed patch) pairs (~1.7 ns each on this CPU), or
+# None: its launches cut by the receiver vertices' count (app.runtime.split's min_items), which leaves a drag frame's
+# ~1200 vertices at 1/3 one launch on the rendering thread (4-7 ms of CPU in sun_room). 1 << 17 (~0.2 ms a part) cuts
+# them in two, the same bytes; on the loaded machine that was slower (sun_room 21.1 -> 25.4 ms wall median, +0.7 ms of
+# CPU: docs/benchmarks.md, "glue111"), so it stays off until an idle machine measures it
+SO_MIN_PAIRS: int | None = None
 
 FillFn = Callable[..., "np.ndarray | None"]  # fill(known, values, missing, out=None): the values at missing,
 # or, given out (an image-sized wp.array of vec3d), written there at their pixels (returns None)
@@ -78,7 +85,11 @@ class ComposeStage:
         vertices, G_v dB over the changed patches only, plus `more` (P,3) passed on the same way and
         `dE_more` (Vr,3) added as it is (the sun's later bounces, already at the receiver vertices).
         Returns the stage's own buffer (valid until the next frame)."""
-        self.k.second_order(dB if more is None else dB + more, self.split)
+        dB = dB if more is None else dB + more
+        nz = changed_patches(dB)
+        split = self.split if SO_MIN_PAIRS is None else \
+            functools.partial(self.split, min_items=-(-SO_MIN_PAIRS // max(len(nz), 1)))  # cut by work (SO_MIN_PAIRS)
+        self.k.second_order(dB, split, nz)
         if dE_more is not None:
             self.k.dE_v += dE_more
             self.k.add_v += dE_more

@@ -49,6 +49,7 @@ from kernels.drag_gather import gather_seen
 from kernels.hit_average import FrameImage, SunAtHits, hit_average
 from kernels.raycast import cast_rays
 from kernels.sunshadow import exit_arrays
+from kernels.vec import cross3
 from kernels.visibility import Occluder
 from lighting import sh
 
@@ -173,9 +174,9 @@ def prt_directions(normals: np.ndarray, n_dirs: int) -> np.ndarray:
     (its tangent frame and golden-angle spiral, cosine-distributed), so its hit table can be read by direction."""
     n = np.asarray(normals, np.float64)
     helper = np.where((np.abs(n[:, 0]) > 0.9)[:, None], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0])
-    t1 = np.cross(helper, n)
+    t1 = cross3(helper, n)
     t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-12)
-    t2 = np.cross(n, t1)
+    t2 = cross3(n, t1)
     k = np.arange(n_dirs)
     u = (k + 0.5) / n_dirs
     phi = k * 2.399963229728653
@@ -292,10 +293,10 @@ class DragShape:
             return self._to_proxy[1]
         local, normals, faces = self.local, self.normals, self.faces
         tris = pv_local[pf]
-        tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        tn = cross3(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
         tc = tris.mean(1)
-        fa = 0.5 * np.linalg.norm(np.cross(local[faces[:, 1]] - local[faces[:, 0]],
+        fa = 0.5 * np.linalg.norm(cross3(local[faces[:, 1]] - local[faces[:, 0]],
                                            local[faces[:, 2]] - local[faces[:, 0]]), axis=1)
         va = np.bincount(faces.ravel(), np.repeat(fa / 3.0, 3), len(local))
         _, cand = cKDTree(tc).query(local, k=min(PROXY_CANDIDATES, len(tc)))
@@ -322,9 +323,9 @@ class DragShape:
         got = self._sun.get(key)
         if got is None:
             d = d_local / np.linalg.norm(d_local)
-            e1 = np.cross(d, [0.0, 1.0, 0.0] if abs(d[1]) < 0.9 else [1.0, 0.0, 0.0])
+            e1 = cross3(d, [0.0, 1.0, 0.0] if abs(d[1]) < 0.9 else [1.0, 0.0, 0.0])
             e1 /= np.linalg.norm(e1)
-            e2 = np.cross(d, e1)
+            e2 = cross3(d, e1)
             uv = np.stack([self.local @ e1, self.local @ e2], 1)
             lo, hi = uv.min(0), uv.max(0)
             texel = float((hi - lo).max()) / (SUN_MAP_RES - 2)
@@ -412,6 +413,13 @@ class DragShaded:
     L_proxy: np.ndarray  # (V,3) the radiance the proxy sends to the room (DragObject.shade: a bounce fewer)
 
 
+def _same_key(a: tuple, b: tuple) -> bool:
+    """DragObject.shape's keys (quantised local vertices, normals, faces, the shading config) equal: the same arrays
+    (shape, dtype and values) and config."""
+    return a[3] == b[3] and all(x.shape == y.shape and x.dtype == y.dtype and np.array_equal(x, y)
+                                for x, y in zip(a[:3], b[:3]))
+
+
 class DragObject:
     """The drag frame's object shading and object proxy for one scene (built on an ObjectShading: its
     room light, emitters, sun and config)."""
@@ -422,7 +430,7 @@ class DragObject:
         the non-emitting patches); the proxy's radiance takes the indirect part so scaled, and no self-bounce."""
         self.bounce_scale = np.ones(3) if bounce_scale is None else np.asarray(bounce_scale, np.float64)
         self.shading, self.device = shading, device
-        self._shape: tuple[str, DragShape] | None = None
+        self._shape: tuple[tuple, DragShape] | None = None
         self.last: DragShaded | None = None
         self._pose: tuple | None = None  # (yaw, R, mean) of the last shaded pose
         # a tilted object shaded from its tables too, its canonical frame the world's orientation (frame_yaw; False:
@@ -457,11 +465,12 @@ class DragObject:
         local, nl = (v - mean) @ R, n @ R
         cfg = self.shading.config
         # to 10 um, the grid offset by a third of a step: a shape of round sizes (a box, its subdivision's midpoints)
-        # puts no coordinate on a rounding boundary, where float noise of the pose would flip it
-        key = hashlib.sha1(np.floor(local * 1e5 + KEY_OFFSET).tobytes() + np.floor(nl * 1e5 + KEY_OFFSET).tobytes()
-                           + np.ascontiguousarray(f).tobytes()
-                           + f"{cfg.prt_dirs} {cfg.vis_stride}".encode()).hexdigest()
-        if self._shape is None or self._shape[0] != key:
+        # puts no coordinate on a rounding boundary, where float noise of the pose would flip it. The key's arrays
+        # are compared with the last shape's, not hashed (a SHA-1 of the shared rooms' chair, 3564 vertices, took
+        # ~0.38 ms a frame, the comparison ~0.05: docs/benchmarks.md, "glue111")
+        key = (np.floor(local * 1e5 + KEY_OFFSET), np.floor(nl * 1e5 + KEY_OFFSET), np.array(f, copy=True),
+               (cfg.prt_dirs, cfg.vis_stride))
+        if self._shape is None or not _same_key(self._shape[0], key):
             self._shape = (key, DragShape(local, nl, np.asarray(f), self.shading, self.device))
         return self._shape[1], mean
 
@@ -613,7 +622,7 @@ class DragObject:
         # sees mostly the dark contact under it, which its vertices' SH light does not resolve: its light is
         # scaled by that distance over its size (one ray along its normal; 0 at contact, whole from its size on)
         t = pv[pf]
-        nt = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        nt = cross3(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
         size = np.sqrt(0.5 * np.linalg.norm(nt, axis=1))
         nt /= np.maximum(2.0 * size[:, None] ** 2, 1e-18)
         _, _, depth = cast_rays(self.shading.scene_occ, t.mean(1) + nt * 1e-4, nt,

@@ -17,6 +17,7 @@ from app.config import ObjectConfig
 from kernels.buffers import Workspace, Workspaces
 from kernels.farfield import VertexInterpolation, point_emitter_sum
 from kernels.room_share import room_share_launch
+from kernels.vec import cross3
 from kernels.visibility import (Occluder, SeenEmitters, distance_to, emitter_sum, emitter_sum_seen_bounded,
                                 segments_visible, transfer_matrix)
 from recon.patches import PatchMesh
@@ -145,7 +146,7 @@ class ExtraEmitters:
 def _far_emitters(tris: np.ndarray, rad: np.ndarray, seen: np.ndarray, extra: ExtraEmitters | None) -> tuple:
     """_reflected's far_emitters of triangles (T,3,3) with radiance rad (T,3) and visibility rows seen,
     then the extra emitters' far-field stand-ins (when given)."""
-    tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    tn = cross3(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     far = (tris.mean(1), tn, rad, seen)
     if extra is None:
         return far
@@ -202,7 +203,7 @@ def _source_groups(tris: np.ndarray, tri_rad: np.ndarray, extra: ExtraEmitters |
     with its sign): per group the power-weighted centroid and mean normal of its emitters (the proxy's
     triangles of radiance tri_rad (T,3) and the extra emitters' far-field stand-ins) and their power
     (luminance x area); groups without light are left out."""
-    tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # twice the area x normal
+    tn = cross3(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # twice the area x normal
     c, P = tris.mean(1), luminance(tri_rad) * 0.5 * np.linalg.norm(tn, axis=1)
     if extra is not None and len(extra.far_c):
         c, tn = np.concatenate([c, extra.far_c]), np.concatenate([tn, extra.far_tn])
@@ -361,7 +362,7 @@ class TriangleVisibility:
         self.res = res
         dirs = _cube_dirs(res)
         c = tris.mean(1)
-        tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        tn = cross3(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         tn /= np.maximum(np.linalg.norm(tn, axis=1, keepdims=True), 1e-12)
         a = np.repeat(c + tn * eps, len(dirs), 0)
         b = a + np.tile(dirs, (len(tris), 1)) * 1e3
@@ -420,7 +421,7 @@ def free_cells(tris: np.ndarray, eps: tuple[float, float] = (EXACT_EPS, EXACT_EP
     float32 rays, the cell assignment and where the apex lies; an apex in or near a triangle's plane
     frees nothing."""
     T = len(tris)
-    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    n = cross3(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     lo, hi = min(eps), max(eps)
     apex = tris.mean(1) + n * (0.5 * (lo + hi))  # (T,3) the rays' starting points (+- (hi - lo) / 2)
@@ -437,7 +438,7 @@ def free_cells(tris: np.ndarray, eps: tuple[float, float] = (EXACT_EPS, EXACT_EP
         dist = np.linalg.norm(rel, axis=2)  # (U,3)
         margin = 1e-3 + (1e-4 * size + hi) / np.maximum(dist.min(1), 1e-12)  # (U,) rad
         v = rel / np.maximum(dist, 1e-300)[..., None]  # unit directions of the vertices
-        det = np.einsum("uc,uc->u", v[:, 0], np.cross(v[:, 1], v[:, 2]))
+        det = np.einsum("uc,uc->u", v[:, 0], cross3(v[:, 1], v[:, 2]))
         if (np.abs(det) < 1e-9).any() or (margin > 0.5).any():  # the apex near a triangle's plane
             free[t] = False
             continue
@@ -450,14 +451,14 @@ def free_cells(tris: np.ndarray, eps: tuple[float, float] = (EXACT_EPS, EXACT_EP
         near = np.zeros((len(axis), len(v)), bool)
         for e in range(3):
             a, b = v[:, e], v[:, (e + 1) % 3]
-            m = np.cross(a, b)
+            m = cross3(a, b)
             m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)  # (U,3) the edge's circle
             h = axis @ m.T  # (C,U) sine of the axis' angle to the edge's great circle
             inside &= h * sgn.T > 0  # on the triangle's side of it
             # the angle from the axis to the arc: to its great circle where the foot lies between the
             # ends, else to the nearer end
             # (the foot, axis - h m, has the axis' products with m x a and b x m: both lie in the circle's plane)
-            between = (axis @ np.cross(m, a).T >= 0) & (axis @ np.cross(b, m).T >= 0)
+            between = (axis @ cross3(m, a).T >= 0) & (axis @ cross3(b, m).T >= 0)
             near |= np.where(between, np.abs(h) <= sin_phi, np.maximum(axis @ a.T, axis @ b.T) >= cos_phi)
         free[t] = ~(inside | near).any(1)
     return free
@@ -469,14 +470,26 @@ class ProxyShape:
 
     def __init__(self, tris: np.ndarray, proxy_occ: Occluder):
         self.visibility = TriangleVisibility(tris, proxy_occ)
-        n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        n = cross3(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         self.normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
         self.free = free_cells(tris, (EXACT_EPS, GATHER_EPS))
 
 
+_shape_key_last: tuple | None = None  # shape_key's last (pv copy, pf copy, key): one tuple, rebound whole
+
+
 def shape_key(pv: np.ndarray, pf: np.ndarray) -> str:
-    """The key of a proxy's shape: the centred proxy to 1 um (a translation keeps it)."""
-    return hashlib.sha1(np.round(pv - pv.mean(0), 6).tobytes() + np.ascontiguousarray(pf).tobytes()).hexdigest()
+    """The key of a proxy's shape: the centred proxy to 1 um (a translation keeps it). A frame asks it ~8 times of
+    the same proxy (~40 us of hashing each): the last arrays' key is kept and returned for equal arrays (the same
+    shape, dtype and values; docs/benchmarks.md, "glue111")."""
+    global _shape_key_last
+    last = _shape_key_last
+    if (last is not None and last[0].shape == pv.shape and last[1].shape == pf.shape and last[0].dtype == pv.dtype
+            and last[1].dtype == pf.dtype and np.array_equal(last[0], pv) and np.array_equal(last[1], pf)):
+        return last[2]
+    key = hashlib.sha1(np.round(pv - pv.mean(0), 6).tobytes() + np.ascontiguousarray(pf).tobytes()).hexdigest()
+    _shape_key_last = (np.array(pv, copy=True), np.array(pf, copy=True), key)
+    return key
 
 
 def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_rad: np.ndarray, proxy_occ: Occluder,
@@ -512,7 +525,7 @@ def _reflected(points: np.ndarray, normals: np.ndarray, tris: np.ndarray, tri_ra
             c, tn, rad, seen = far_groups.emitters(tris.mean(1), tri_rad)
         elif far_emitters is None:
             c = tris.mean(1)
-            tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # (T,3) twice the area x normal
+            tn = cross3(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])  # (T,3) twice the area x normal
             rad = tri_rad
             seen = tvis.seen if tvis is not None else np.ones((len(tris), 6 * CUBE_RES ** 2), bool)
         else:
@@ -731,7 +744,7 @@ def object_self_light(pv: np.ndarray, pf: np.ndarray, proxy_occ: Occluder, radia
     the light it sends to the room (bench/bench_sunglow110.py, docs/unseen.md "sunglow110"). A convex proxy gets 0."""
     tris = np.asarray(pv, np.float64)[pf]
     c = tris.mean(1)
-    nrm = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    nrm = cross3(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
     out = []
     for L in radiance:
@@ -944,7 +957,7 @@ class ObjectLight:
             # sun (zero radiance where unlit), so that its kernel buffers are made at their capacity once
             self._sun_centre_shape = key
             T = pv[pf]
-            faces = np.flatnonzero((np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]) @ self.sun_dir > 0)
+            faces = np.flatnonzero((cross3(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]) @ self.sun_dir > 0)
                                    | sun_rad.any(1))
         else:
             faces = np.flatnonzero(sun_rad.any(1))
@@ -1042,7 +1055,7 @@ class ObjectLight:
         cached = self._far_groups
         if cached is None or cached[0] != key or cached[1] != self.far_cells:
             tris = pv[pf]
-            tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+            tn = cross3(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
             cached = self._far_groups = (key, self.far_cells, FarGroups(tris.mean(1), tn, shape.visibility.seen,
                                                                         self.far_cells))
         return cached[2]

@@ -313,6 +313,13 @@ def _within_box(centre: np.ndarray, reach: np.ndarray, lo: np.ndarray, hi: np.nd
     return np.flatnonzero(np.einsum("mc,mc->m", gap, gap) <= (reach * (1.0 + 1e-6)) ** 2)
 
 
+def _same_arrays(a: tuple, b: tuple) -> bool:
+    """Two keys of arrays then one plain value (ObjectShading.object_shape's) equal: each array's shape, dtype and
+    values, and the value."""
+    return a[-1] == b[-1] and all(x.shape == y.shape and x.dtype == y.dtype and np.array_equal(x, y)
+                                  for x, y in zip(a[:-1], b[:-1]))
+
+
 def _probe_grid(lo: np.ndarray, hi: np.ndarray, points: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """(probes (n^3,3), weights (N,n^3)): an n x n x n grid spanning the box lo..hi and the trilinear
     weights of the points (N,3) inside it (a flat axis puts all its weight on its first level)."""
@@ -637,10 +644,10 @@ class ObjectShading:
         the BVHs (Warp Mesh.refit) instead (shape_cache False: made afresh every frame)."""
         p, v = self.config, obj.vertices
         offset = v.mean(0)
-        key = hashlib.sha1(np.round(v - offset, 6).tobytes() + np.round(obj.normals, 6).tobytes()
-                           + np.ascontiguousarray(obj.faces).tobytes() + str(p.proxy_faces).encode()).hexdigest()
+        # the key's arrays compared with the kept shape's, not hashed every frame (docs/benchmarks.md, "glue111")
+        key = (np.round(v - offset, 6), np.round(obj.normals, 6), np.array(obj.faces, copy=True), p.proxy_faces)
         sh = self._shape if self.config.shape_cache else None
-        if sh is None or sh["key"] != key:
+        if sh is None or not _same_arrays(sh["key"], key):
             pv, pf, _ = simplify(v, obj.faces, p.proxy_faces)
             sv, sn, sf, groups = shading_mesh(v, obj.normals, obj.faces)
             sh = {"key": key, "offset": offset, "pv": pv - offset, "pf": pf, "sv": sv - offset, "sn": sn, "sf": sf,

@@ -28,6 +28,7 @@ import numpy as np
 from app import runtime
 from kernels.blocked_transfer import BlockedPairs
 from kernels.sunshadow import OutlineShade, SunShadowMap
+from kernels.vec import cross3
 from kernels.visibility import Occluder, SeenEmitters
 from app.stages.object_light import CUBE_RES, ExtraEmitters, TriangleVisibility, shape_key
 from app.stages.receiver_map import reflectance
@@ -368,7 +369,7 @@ class SunStage:
         rad = albedo * ((share[part] * pieces.cos[part])[:, None] * self.E_perp)
         # the partly lit faces' sun averaged over the face (their pieces' power / the face's area: face_sun)
         t = tris
-        area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+        area = 0.5 * np.linalg.norm(cross3(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
         pw = pieces.area[part][:, None] * rad
         self.face_sun += np.stack([np.bincount(pieces.parent[part], pw[:, k], T) for k in range(3)], 1) \
             / np.maximum(area, 1e-30)[:, None]

@@ -283,3 +283,19 @@ def test_blocked_key_shares_made_once_equal_the_per_frame_form(engine):
         want = np.repeat(ss.blocked(lo, hi), size) * share
         np.testing.assert_array_equal(got, want)
         assert got.sum() > 0
+
+
+def test_cuts_are_numpys_unique_and_searchsorted():
+    # _pairs' cuts by flags: the sorted distinct values of 0, size and the bounds, and each bound's index in
+    # them, as np.unique and np.searchsorted give them (random bounds, repeats, the ends, an empty list)
+    from lighting.frame_sources import _cuts
+
+    rng = np.random.default_rng(3)
+    for size, m in ((1045, 7407), (63, 200), (5, 0), (1, 3)):
+        lo, hi = rng.integers(0, size + 1, m), rng.integers(0, size + 1, m)
+        cuts, at = _cuts(size, lo, hi)
+        want = np.unique(np.concatenate([[0, size], lo, hi]))
+        np.testing.assert_array_equal(cuts, want)
+        np.testing.assert_array_equal(at[lo], np.searchsorted(want, lo))
+        np.testing.assert_array_equal(at[hi], np.searchsorted(want, hi))
+        assert at[size] == len(want) - 1 and at[0] == 0
