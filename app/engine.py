@@ -291,14 +291,13 @@ class Engine:
         "photosun34b"); the penumbra's does not.
 
         A level is pinned only where the penumbra reads it below the walls' fit's (self.photo_light, the fit as made
-        so far). The fit's large errors have one sign: the photo holds a capped number of bounces (a camera's
-        converged light fits the same way), the walls' light between them looks weaker than their albedo gives,
-        the fit lowers the albedo and raises the emitters that light them, the more so the brighter the room
-        (photo109: the sunlit floor 1.13-1.63x in the bright rooms). Where the fit reads the level lower than the
-        penumbra it also reads the floor's reflectivity low by about as much, and the sun, their ratio, came out
-        right (0.92-1.03x in sun_101-105 and the shared sun_room); the penumbra's level there leaves the
-        reflectivity's error alone in the sun (1.33-1.53x, docs "photosun110"). The one-sided rule: docs
-        "photosun111"."""
+        so far). The fit's large errors have one sign: the photo holds a capped number of bounces, the walls' light
+        between them looks weaker than their albedo gives, and the fit lowers the albedo and raises the emitters
+        that light them, the more so the brighter the room (photo109: the sunlit floor 1.13-1.63x in the bright
+        rooms). Where the fit reads the level lower than the penumbra it also read the floor's reflectivity low by
+        about as much, and the sun, their ratio, came out right (0.92-1.03x in sun_101-105); the penumbra's level
+        there leaves the reflectivity's error alone in the sun (1.33-1.53x, docs "photosun110"; the shared sun_room
+        1.20x -> 1.44x). The one-sided rule: docs "photosun111"."""
         from lighting.photolight import EMITTER_ROLES, FITTED, PhotoPriors
         from lighting.sources import luminance
         from lighting.sun import SunLight, openings
@@ -328,8 +327,8 @@ class Engine:
                 continue
             fit = fitted.get(f"{quad.name} (clipped region)")
             pin = fit is None or luminance(step.lit) < luminance(fit)
-            report[quad.name] = {**step.report(), "fit_level": None if fit is None else [round(float(v), 5) for v in fit],
-                                 "used": "penumbra" if pin else "walls' fit"}
+            report[quad.name] = {**step.report(), "used": "penumbra" if pin else "walls' fit",
+                                 "fit_level": None if fit is None else [round(float(v), 5) for v in fit]}
             lit = "({:.3g}, {:.3g}, {:.3g})".format(*step.lit)
             if not pin:
                 log.info("photo light: %s: its penumbra reads the sunlit level %s, not below the walls' fit's "
