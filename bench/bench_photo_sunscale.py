@@ -97,11 +97,12 @@ def capture(keep: Path, rooms: Path, room: str, out: Path, shared: Path) -> dict
         return r
 
     def fit(patches, G, pix_patch, photo, response, priors=None, quad_names=None, where="photo", quad_roles=None,
-            sunlit=None):
+            sunlit=None, pinned=None):
         state["fit"] = {"patches": copy.deepcopy(patches), "G": G, "pix_patch": pix_patch, "photo": np.array(photo),
                         "response": response, "priors": priors, "quad_names": quad_names, "quad_roles": quad_roles,
-                        "sunlit": None if sunlit is None else np.array(sunlit)}
-        return orig_fit(patches, G, pix_patch, photo, response, priors, quad_names, where, quad_roles, sunlit=sunlit)
+                        "sunlit": None if sunlit is None else np.array(sunlit), "pinned": pinned}
+        return orig_fit(patches, G, pix_patch, photo, response, priors, quad_names, where, quad_roles, sunlit=sunlit,
+                        pinned=pinned)
 
     S._sun_strength, PL.fit_photo_light = ss, fit
     try:
@@ -123,7 +124,7 @@ def refit(state: dict, variant: str):
     if variant != "base":
         pr = dataclasses.replace(pr, **{k: eval(v) for k, v in (x.split("=") for x in variant.split(","))})  # noqa: S307
     return PL.fit_photo_light(f["patches"], f["G"], f["pix_patch"], f["photo"], f["response"], pr, f["quad_names"],
-                              "bench", f["quad_roles"], sunlit=f.get("sunlit"))
+                              "bench", f["quad_roles"], sunlit=f.get("sunlit"), pinned=f.get("pinned"))
 
 
 def main() -> None:

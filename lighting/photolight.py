@@ -114,9 +114,10 @@ class PhotoPriors:
     sun_bounces: bool = False  # once a sun is found in the photo, the fit again with bounce_levels = the engine's
     # bounce count and the sun's strength by the same bounce model (app.engine.Engine._sun_bounces). Opt-in:
     # measured in docs/unseen.md "photo109" (the bright sun rooms right, the darker ones too dark), not the default
-    sun_ramp: bool = False  # once a sun is found in the photo, its clipped sunlit surfaces take the level their
-    # penumbra measures (lighting.sunramp), not the walls' fit's (app.engine.Engine._sunlit_levels). Opt-in: measured
-    # in docs/unseen.md "photosun110" (the bright sun rooms right, the darker ones and the shared sun_room worse)
+    sun_ramp: bool = True  # once a sun is found in the photo, a clipped sunlit surface takes the level its penumbra
+    # measures (lighting.sunramp) where that is below the walls' fit's (app.engine.Engine._sunlit_levels; docs/unseen.md
+    # "photosun111"). Pinned always (photosun110's opt-in) it set the bright sun rooms right and the darker ones and the
+    # shared sun_room worse, where the fit reads the level lower than the penumbra; False: the walls' fit's level
 
 
 @dataclass

@@ -92,3 +92,57 @@ def test_no_level_without_a_penumbra_in_view():
     pix_quad = np.full(len(pos), -1, np.int64)  # the floor is not a receiver quad here
     assert sunlit_step(_light, cam, photo, L_b, pix_quad, pos, np.ones(len(pos), bool), 0,
                        (np.zeros(3), np.array([0.0, 1.0, 0.0])), d) is None
+
+
+def _engine_stub(d_off: np.ndarray, photo: np.ndarray, L_b: np.ndarray, pos: np.ndarray, fit_level):
+    """What app.engine.Engine._sunlit_levels reads of the engine: the analytic floor as one clipped region (quad 0,
+    four fitted patches, wholly sunlit) seen by every pixel, the window opening, the sun at d_off, and the walls'
+    fit's level of the region (fit_level (3,), or None: not a fitted region)."""
+    from types import SimpleNamespace
+
+    from kernels.visibility import Occluder
+    from lighting.photolight import FITTED
+
+    light = _light(d_off)
+    floor = Quad("floor", np.array([[-5, 0, -5], [5, 0, -5], [5, 0, 5], [-5, 0, 5]], float),
+                 np.array([0.0, 1.0, 0.0]), np.zeros(3), np.full(3, 0.5))
+    window = Quad("window", np.array([[0, 1, 0], [1, 1, 0], [1, 2, 0], [0, 2, 0]], float), np.array([0.0, 0.0, 1.0]),
+                  np.zeros(3), np.zeros(3), role="window", opening=True)
+    scene = SimpleNamespace(camera=_camera(), photo=photo, quads=[floor, window])
+    P = 4
+    pre = SimpleNamespace(patches=SimpleNamespace(quad=np.zeros(P, np.int64)), origin=np.full(P, FITTED, np.int8))
+    rm = SimpleNamespace(L_b=L_b, pix_patch=np.zeros(len(pos), np.int64), pix_pos=pos)
+    sun = SimpleNamespace(light=light, sun_share=lambda: np.ones(P))
+    emitters = [] if fit_level is None else [{"name": "floor (clipped region)", "radiance": list(fit_level)}]
+    return SimpleNamespace(scene=scene, sun=sun, scene_occ=Occluder(None, None, "cpu"),
+                           photo_light={"emitters": emitters}), pre, rm
+
+
+@pytest.mark.parametrize("fit_over_truth, pinned", [(1.6, True), (0.8, False), (None, True)])
+def test_the_penumbra_level_is_pinned_only_below_the_walls_fit(fit_over_truth, pinned):
+    """app.engine.Engine._sunlit_levels (docs/unseen.md "photosun111"): the penumbra's level is pinned where the walls'
+    fit reads the region brighter (1.6x the truth, as in the bright sun rooms), the fit's kept where it reads it darker
+    (0.8x) and the report says which; the level pinned is the penumbra's (within 8 % of the truth, as above); nothing
+    with PhotoPriors.sun_ramp off."""
+    from app.engine import Engine
+    from lighting.photolight import PhotoPriors
+
+    d_true = np.array([0.3, 0.6, -0.74]) / np.linalg.norm([0.3, 0.6, -0.74])
+    cam, photo, L_b, pos = _photo(d_true)
+    axis = np.cross(d_true, [0.0, 1.0, 0.0])
+    axis /= np.linalg.norm(axis)
+    a = np.radians(0.2)
+    d_off = d_true * np.cos(a) + np.cross(axis, d_true) * np.sin(a)
+    truth = np.full(3, SHADOW + STEP)  # the texture's mean is 1
+    fit = None if fit_over_truth is None else fit_over_truth * truth
+    stub, pre, rm = _engine_stub(d_off, photo, L_b, pos, fit)
+    out, report = Engine._sunlit_levels(stub, pre, rm, PhotoPriors())
+    assert report["floor"]["used"] == ("penumbra" if pinned else "walls' fit"), report
+    assert report["floor"]["fit_level"] == (None if fit is None else pytest.approx(list(fit), rel=1e-5))
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    assert abs(float(np.asarray(report["floor"]["lit"]) @ lum) / float(truth @ lum) - 1) < 0.08
+    if pinned:
+        assert list(out) == [0] and abs(float(out[0] @ lum) / float(truth @ lum) - 1) < 0.08
+    else:
+        assert out == {}
+    assert Engine._sunlit_levels(stub, pre, rm, PhotoPriors(sun_ramp=False)) == ({}, {})
