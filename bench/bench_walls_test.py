@@ -8,7 +8,12 @@ threshold, which albedo it keeps) and each emitter's radiance over the truth's (
 (albedo_test off, the product's default) and with the test on. `--rooms DIR`: the rooms' room_config.json, for the
 truth's walls (mean luminance of the four walls' base albedo; textures not counted).
 
-`python bench/bench_walls_test.py DUMP_DIR [--room ROOM,...] [--rooms ROOMS_DIR]`. Seconds per room.
+`--profile`: also the walls held at 0.35-0.80 (steps of 0.05; the other seen surfaces fitted around them, the unseen ones
+reflecting as their surface, lighting.photoalbedo.fit_albedo_scale with fit_walls False): the residual of every seen
+patch (relative, rms, luminance-weighted mean of the channels' rms) and each emitter over the truth in that joint fit.
+
+`python bench/bench_walls_test.py DUMP_DIR [--room ROOM,...] [--rooms ROOMS_DIR] [--profile]`. Seconds per room (a
+minute with --profile).
 """
 from __future__ import annotations
 
@@ -31,6 +36,7 @@ def main() -> None:
     ap.add_argument("dir", type=Path)
     ap.add_argument("--room")
     ap.add_argument("--rooms", type=Path)
+    ap.add_argument("--profile", action="store_true")
     a = ap.parse_args()
     from lighting import photolight
     from lighting.sources import luminance
@@ -61,6 +67,36 @@ def main() -> None:
             tl = float(luminance(np.asarray(tr, float)))
             print(f"  {off['name']:24s} fit / truth {float(luminance(np.array(off['radiance']))) / tl:.3f} -> "
                   f"{float(luminance(np.array(on['radiance']))) / tl:.3f}")
+        if a.profile:
+            profile(args, kw, pr, d["truth"], [e["name"] for e in reps[False]["emitters"]])
+
+
+def profile(args: list, kw: dict, pr, truth: dict, names: list[str]) -> None:
+    """The walls held at 0.35-0.80: the seen patches' residual and the emitters over the truth (module docstring)."""
+    from lighting import photoalbedo, photolight
+    from lighting.sources import luminance
+
+    seen: dict = {}
+    orig = photolight.fit_albedo_scale
+
+    def hook(*fa, **fk):
+        seen.update(args=fa, kw=fk)
+        return orig(*fa, **fk)
+
+    photolight.fit_albedo_scale = hook
+    try:
+        args[5] = dataclasses.replace(pr, albedo_test=False)
+        photolight.fit_photo_light(*args, **kw)
+    finally:
+        photolight.fit_albedo_scale = orig
+    fa, fk = list(seen["args"]), dict(seen["kw"], fit_walls=False)
+    tl = np.array([float(luminance(np.asarray(truth[n], float))) if n in truth else np.nan for n in names])
+    for rw in np.arange(0.35, 0.801, 0.05):
+        fa[13] = dataclasses.replace(pr, wall_albedo=float(rw))
+        r = photoalbedo.fit_albedo_scale(*fa, **fk)
+        rms = float(luminance(np.sqrt(r.ss / max(r.n, 1))))
+        print(f"  walls held {rw:.2f}: residual {rms:.4f}  emitters / truth "
+              + " ".join(f"{n} {v:.3f}" for n, v in zip(names, luminance(r.e) / tl)))
 
 
 if __name__ == "__main__":
