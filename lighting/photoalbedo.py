@@ -49,6 +49,8 @@ class AlbedoFit:
     Z1: np.ndarray
     e: np.ndarray
     rounds: int
+    ss: np.ndarray | None = None  # (3,) the weighted squared residual of every seen patch at the fit, per channel
+    n: int = 0  # the seen patches it sums over
 
     def report(self, names: list[str] | None) -> dict:
         """{quad name: RGB albedo} of the seen surfaces and the rounds, for report.json."""
@@ -135,7 +137,25 @@ def fit_albedo_scale(G: np.ndarray, S: np.ndarray, U: np.ndarray, known: np.ndar
         r_q = new_q
     surface = {int(q): rho[qS == q][0] for q in seen_q}
     wall_rho = rho[wall][0] if wall.any() else np.full(3, priors.wall_albedo)
-    return AlbedoFit(wall_rho, surface, r_q[quad].astype(np.float64), a0, A1, Z0, Z1, e, rounds)
+    on = w > 0
+    ss = np.sum((w[on, None] * (rho[on] * (a0[on] + A1[on] @ e) - L_S[on])) ** 2, axis=0)
+    return AlbedoFit(wall_rho, surface, r_q[quad].astype(np.float64), a0, A1, Z0, Z1, e, rounds, ss, int(on.sum()))
+
+
+def walls_test(free: AlbedoFit, held: AlbedoFit, level: float = 0.95) -> tuple[float, float]:
+    """(statistic, threshold): the likelihood-ratio test of the walls' albedo prior (`held`: the fit with the walls
+    at the prior, fit_walls False) against the walls' albedo fitted to the interreflections (`free`, one more
+    albedo per channel). Residuals taken as independent and normal, one variance per channel: statistic
+    n sum_c ln(ss_held,c / ss_free,c), threshold the chi-square quantile at `level` with 3 degrees of freedom.
+    Above it the interreflections tell the walls' albedo; at or below it they do not, and the prior stands (a
+    flat residual over the walls' albedo: the light and the albedos trade, lamps_110's walls 0.73 for 0.53,
+    docs/unseen.md "photolamp111")."""
+    from scipy.stats import chi2
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.log(np.maximum(held.ss, 1e-300) / np.maximum(free.ss, 1e-300))
+    stat = float(free.n * np.sum(r)) if free.ss is not None and held.ss is not None else float("inf")
+    return stat, float(chi2.ppf(level, 3))
 
 
 def bounce_weights(G: np.ndarray, S: np.ndarray, U: np.ndarray, known: np.ndarray, M: np.ndarray, e: np.ndarray,
