@@ -53,6 +53,7 @@ class SunlitStep:
     moved_deg: float
     n_ramp: int
     n_clipped: int
+    shadow_irradiance: np.ndarray | None = None  # (3,) the gathered irradiance/pi under the shadow level (given E)
 
     @property
     def lit(self) -> np.ndarray:
@@ -105,7 +106,7 @@ def _clad(s: np.ndarray, rise: np.ndarray, clipped: np.ndarray) -> tuple[float, 
 
 def sunlit_step(light_of, camera, photo: np.ndarray, L_b: np.ndarray, pix_quad: np.ndarray, pix_pos: np.ndarray,
                 recv: np.ndarray, quad: int, plane: tuple[np.ndarray, np.ndarray], d: np.ndarray,
-                move: bool = True) -> SunlitStep | None:
+                move: bool = True, E: np.ndarray | None = None) -> SunlitStep | None:
     """The sunlit step of `quad` from its penumbra (module docstring).
 
     light_of(d): a lighting.sun.SunLight for the unit direction d (the room's openings and occluder); camera: the
@@ -113,7 +114,9 @@ def sunlit_step(light_of, camera, photo: np.ndarray, L_b: np.ndarray, pix_quad: 
     the quad each pixel sees (-1 none); pix_pos (N,3) the point it sees; recv (N,) the pixels the model may read;
     plane = (a corner, the unit normal) of the quad; d the sun's unit direction. move: fit the direction's small
     move with the step (False: the direction as given). None when the quad shows fewer than MIN_RAMP unclipped
-    penumbra pixels, the fit moves the direction more than MAX_MOVE_DEG or gives no positive step."""
+    penumbra pixels, the fit moves the direction more than MAX_MOVE_DEG or gives no positive step. E (N,3): an
+    irradiance/pi per pixel (the model's indirect); the step then holds its mean over the same shadow pixels as the
+    shadow level (shadow_irradiance: the shadow side's reflectivity is shadow / shadow_irradiance)."""
     from scipy.ndimage import binary_dilation, uniform_filter
     from scipy.optimize import minimize
 
@@ -169,4 +172,9 @@ def sunlit_step(light_of, camera, photo: np.ndarray, L_b: np.ndarray, pix_quad: 
     if not np.all(np.isfinite(Ac)) or np.any(Ac <= 0):
         return None
     Ac *= A / float(luminance(Ac))
-    return SunlitStep(int(quad), Ac, np.median(L_sh, axis=0), dd, moved, int(u.sum()), int(cl.sum()))
+    E_sh = None
+    if E is not None:
+        E = np.asarray(E, np.float64)
+        E_sh = np.median(np.stack([uniform_filter(np.where(dark, E[:, c], 0.0).reshape(H, W), SHADOW_WINDOW)
+                                   .reshape(-1)[sel] for c in range(3)], -1) / den[sel, None], axis=0)
+    return SunlitStep(int(quad), Ac, np.median(L_sh, axis=0), dd, moved, int(u.sum()), int(cl.sum()), E_sh)

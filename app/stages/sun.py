@@ -929,6 +929,13 @@ class SunSetup:
     # falls than its unlit median, reads the sun 0.88x. False: the measured radiance gathered as it is, the sunlit
     # patches their surface's unlit median (the rule before)
     captured_bounces = False
+    # with captured_bounces, which reflectivity the sunlit patches take and the strength reads (docs/unseen.md
+    # "capb112"): "rule" the bounce rule's own (the unlit patches' at their level, spur111); "measured" the strength
+    # by the rule, the sunlit patches their surface's unlit median as measured (the rule before); "penumbra" the
+    # sunlit surface's own, from its penumbra (lighting.sunramp: the shadow level beside the ramp over the gathered
+    # irradiance there), the strength then pi x step / (cos rho); "shadow" that rho, the strength the rule's rho x sun
+    # over it
+    captured_sunlit = "rule"
 
     def _estimate_bounces(self, pre) -> int | None:
         """The bounces the sun estimate's strength rule takes (lighting.sun._sun_strength's `bounces`): self.bounces;
@@ -947,6 +954,59 @@ class SunSetup:
         from lighting.radiance import measured_levels
 
         return measured_levels(pre.origin, n)
+
+    def _penumbra_strength(self, sun, info: dict, rm, pre, recv_any: np.ndarray):
+        """captured_sunlit "penumbra": the estimated sun's strength from the sunlit surface's own penumbra
+        (lighting.sunramp.sunlit_step): the step A = rho E_sun cos / pi, and rho = the shadow level beside the ramp
+        over the model's gathered irradiance/pi on those pixels (no unlit floor's reflectivity borrowed), so
+        E_sun = pi A / (cos rho). Of the surfaces the strength used (info["reflectivity_by_quad"]), the one with
+        the most unclipped ramp pixels; that surface's sunlit patches take rho, the others their rule's rho scaled
+        so that rho x sun is unchanged. The sun as given where no surface's ramp reads (too few unclipped pixels)."""
+        import dataclasses as dc
+
+        from lighting.sunramp import sunlit_step
+
+        by_quad = info.get("reflectivity_by_quad") or {}
+        if not by_quad:
+            return sun
+        scene, pm = self.scene, self.patches
+        holes = openings(scene)
+        ok = recv_any & (rm.pix_rows.min(1) >= 0)
+        E = np.zeros((len(ok), 3))
+        E[ok] = np.einsum("nk,nkc->nc", pre.pix_bary[ok], rm.E_v[rm.pix_rows[ok]])
+        pix_quad = np.where(rm.pix_patch >= 0, pm.quad[np.maximum(rm.pix_patch, 0)], -1)
+        best = None
+        for q in sorted(int(k) for k in by_quad):
+            quad = scene.quads[q]
+            st = sunlit_step(lambda d: SunLight(dc.replace(sun, direction=d), holes, self.scene_occ,
+                                                where="sun penumbra"),
+                             scene.camera, scene.photo, rm.L_b, pix_quad, rm.pix_pos, ok, q,
+                             (quad.corners[0], quad.normal), sun.direction, E=E)
+            if st is None or st.shadow_irradiance is None or np.any(st.shadow_irradiance <= 0):
+                continue
+            if best is None or st.n_ramp > best.n_ramp:
+                best = st
+        if best is None:
+            info["penumbra"] = "no surface's penumbra reads"
+            return sun
+        q = best.quad
+        cos = float(scene.quads[q].normal @ (sun.direction / np.linalg.norm(sun.direction)))
+        rho = best.shadow / best.shadow_irradiance
+        if cos <= 0.2 or np.any(rho <= 0):
+            info["penumbra"] = "the penumbra's surface faces away from the sun"
+            return sun
+        if self.captured_sunlit == "shadow":  # rho x sun as the rule measured it, rho the surface's own
+            E_new = np.asarray(sun.irradiance, np.float64) * np.asarray(by_quad[str(q)]) / rho
+        else:
+            E_new = np.pi * best.step / (cos * rho)
+        scale = np.asarray(sun.irradiance, np.float64) / np.maximum(E_new, 1e-12)
+        info["reflectivity_by_quad"] = {k: (rho if int(k) == q else np.asarray(r) * scale).tolist()
+                                        for k, r in by_quad.items()}
+        info["penumbra_rho"] = [round(float(v), 4) for v in rho]
+        info["penumbra"] = {**best.report(), "irradiance_rule": [float(v) for v in sun.irradiance],
+                            "rho_rule": [float(v) for v in by_quad[str(q)]]}
+        info["irradiance_perpendicular"] = E_new.tolist()
+        return dc.replace(sun, irradiance=E_new)
 
     def _estimate(self, pre, rm, E_x: np.ndarray, recv_pix: np.ndarray) -> None:
         """Captured or photo light: the sun estimated from the photo and the radiance mesh
@@ -980,6 +1040,8 @@ class SunSetup:
                                      rm.dirs, rm.L_b, sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ,
                                      bounces=self._estimate_bounces(pre), levels=self._levels(pre))
             where = f"{self.where}: sun estimate"
+            if sun is not None and self._levels(pre) is not None and self.captured_sunlit in ("penumbra", "shadow"):
+                sun = self._penumbra_strength(sun, info, rm, pre, recv_any)
         self._patch_light = None
         # an estimated direction was fitted with the disk's centre alone (a hard edge) to the photo's sunlit
         # outline, whose split lies inside the penumbra: the object keeps that model (docs/unseen.md "sunobj109")
@@ -1017,7 +1079,8 @@ class SunSetup:
             # reflectivity of the unlit patches of the same surface (as the strength estimate does: under captured
             # light with the bounce rule its own, so that rho x sun is the radiance the photo and probe measure)
             by_quad = (info or {}).get("reflectivity_by_quad", {}) \
-                if self.lighting == "captured" and self._estimate_bounces(pre) else {}
+                if self.lighting == "captured" and self._estimate_bounces(pre) and self.captured_sunlit != "measured" \
+                else {}
             for q in np.unique(pm.quad[lit]):
                 same = (pm.quad == q) & ~pm.is_emitter
                 if str(q) in by_quad:  # the strength's own reflectivity (bounce rule): rho x sun as the photo has it
