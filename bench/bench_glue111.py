@@ -47,30 +47,14 @@ from kernels import vec  # noqa: E402
 from lighting import frame_sources  # noqa: E402
 
 
-def _pairs_base(self, l_lo, l_hi, k_lo, k_hi, n):
-    """ShadowSources._pairs before glue111 (np.unique and np.searchsorted for the cuts)."""
-    L = self.n_recv_leaves
-    rb = np.unique(np.concatenate([[0, L], l_lo, l_hi]))
-    cb = np.unique(np.concatenate([[0, n], k_lo, k_hi]))
-    a0, a1 = np.searchsorted(rb, l_lo), np.searchsorted(rb, l_hi)
-    b0, b1 = np.searchsorted(cb, k_lo), np.searchsorted(cb, k_hi)
-    m = len(cb)
-    size = len(rb) * m
-    D = (np.bincount(np.concatenate([a0 * m + b0, a1 * m + b1]), minlength=size)
-         - np.bincount(np.concatenate([a0 * m + b1, a1 * m + b0]), minlength=size)).astype(np.int32)
-    D = D.reshape(len(rb), m)
-    np.cumsum(D, axis=0, dtype=np.int32, out=D)
-    np.cumsum(D, axis=1, dtype=np.int32, out=D)
-    cells = D[:-1, :-1] > 0
-    per_pass = cells[:, np.searchsorted(cb, np.arange(n), side="right") - 1]
-    per_pass = np.concatenate([per_pass, np.zeros((1, n), bool)])
-    cell_of_leaf = np.searchsorted(rb, np.arange(L), side="right") - 1
-    row = np.where(self.leaf_of_recv >= 0, cell_of_leaf[np.maximum(self.leaf_of_recv, 0)] if L else 0,
-                   len(per_pass) - 1)
-    return per_pass[row]
+def _cuts_base(size, lo, hi):
+    """frame_sources._cuts as ShadowSources._pairs did it before glue111: np.unique of the bounds, and each value's
+    index by np.searchsorted (here over all of [0, size], where the old code searched the bounds themselves)."""
+    cuts = np.unique(np.concatenate([[0, size], lo, hi]))
+    return cuts, np.searchsorted(cuts, np.arange(size + 1))
 
 
-NEW_PAIRS = frame_sources.ShadowSources._pairs
+NEW_CUTS = frame_sources._cuts
 NEW_SHAPE = object_drag.DragObject.shape
 
 
@@ -129,7 +113,7 @@ def _object_shape_base(self, obj):
 
 def use(variant: str) -> None:
     """base: the code before glue111; new: glue111's; split: glue111's with the second order cut by work."""
-    frame_sources.ShadowSources._pairs = _pairs_base if variant == "base" else NEW_PAIRS
+    frame_sources._cuts = _cuts_base if variant == "base" else NEW_CUTS
     for m in _cross_users():
         m.cross3 = np.cross if variant == "base" else vec.cross3
     compose.SO_MIN_PAIRS = 1 << 17 if variant == "split" else None
