@@ -15,3 +15,19 @@ def cross3(a, b) -> np.ndarray:
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
+
+
+def same_key(a: tuple, b: tuple) -> bool:
+    """Two cache keys (tuples of numpy arrays and plain values) equal: each array's shape, dtype and values, each
+    other entry by ==. The per-frame shape caches compare their keys so instead of hashing the arrays every frame
+    (docs/benchmarks.md, "glue111")."""
+    if len(a) != len(b):
+        return False
+    for x, y in zip(a, b):
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            if not (isinstance(x, np.ndarray) and isinstance(y, np.ndarray) and x.shape == y.shape
+                    and x.dtype == y.dtype and np.array_equal(x, y)):
+                return False
+        elif x != y:
+            return False
+    return True

@@ -49,7 +49,7 @@ from kernels.drag_gather import gather_seen
 from kernels.hit_average import FrameImage, SunAtHits, hit_average
 from kernels.raycast import cast_rays
 from kernels.sunshadow import exit_arrays
-from kernels.vec import cross3
+from kernels.vec import cross3, same_key
 from kernels.visibility import Occluder
 from lighting import sh
 
@@ -413,13 +413,6 @@ class DragShaded:
     L_proxy: np.ndarray  # (V,3) the radiance the proxy sends to the room (DragObject.shade: a bounce fewer)
 
 
-def _same_key(a: tuple, b: tuple) -> bool:
-    """DragObject.shape's keys (quantised local vertices, normals, faces, the shading config) equal: the same arrays
-    (shape, dtype and values) and config."""
-    return a[3] == b[3] and all(x.shape == y.shape and x.dtype == y.dtype and np.array_equal(x, y)
-                                for x, y in zip(a[:3], b[:3]))
-
-
 class DragObject:
     """The drag frame's object shading and object proxy for one scene (built on an ObjectShading: its
     room light, emitters, sun and config)."""
@@ -470,7 +463,7 @@ class DragObject:
         # ~0.38 ms a frame, the comparison ~0.05: docs/benchmarks.md, "glue111")
         key = (np.floor(local * 1e5 + KEY_OFFSET), np.floor(nl * 1e5 + KEY_OFFSET), np.array(f, copy=True),
                (cfg.prt_dirs, cfg.vis_stride))
-        if self._shape is None or not _same_key(self._shape[0], key):
+        if self._shape is None or not same_key(self._shape[0], key):
             self._shape = (key, DragShape(local, nl, np.asarray(f), self.shading, self.device))
         return self._shape[1], mean
 

@@ -17,7 +17,7 @@ from app.config import ObjectConfig
 from kernels.buffers import Workspace, Workspaces
 from kernels.farfield import VertexInterpolation, point_emitter_sum
 from kernels.room_share import room_share_launch
-from kernels.vec import cross3
+from kernels.vec import cross3, same_key
 from kernels.visibility import (Occluder, SeenEmitters, distance_to, emitter_sum, emitter_sum_seen_bounded,
                                 segments_visible, transfer_matrix)
 from recon.patches import PatchMesh
@@ -484,8 +484,7 @@ def shape_key(pv: np.ndarray, pf: np.ndarray) -> str:
     shape, dtype and values; docs/benchmarks.md, "glue111")."""
     global _shape_key_last
     last = _shape_key_last
-    if (last is not None and last[0].shape == pv.shape and last[1].shape == pf.shape and last[0].dtype == pv.dtype
-            and last[1].dtype == pf.dtype and np.array_equal(last[0], pv) and np.array_equal(last[1], pf)):
+    if last is not None and same_key(last[:2], (pv, pf)):
         return last[2]
     key = hashlib.sha1(np.round(pv - pv.mean(0), 6).tobytes() + np.ascontiguousarray(pf).tobytes()).hexdigest()
     _shape_key_last = (np.array(pv, copy=True), np.array(pf, copy=True), key)

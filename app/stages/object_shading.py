@@ -24,6 +24,7 @@ from app.config import ObjectConfig
 from kernels.buffers import Workspaces
 from kernels.raycast import cast_rays
 from kernels.shade import CameraHits, SampledPatchSum, patch_groups, self_transfer
+from kernels.vec import same_key
 from kernels.visibility import Occluder
 from lighting.irradiance import RoomLight
 from lighting.sun import SunLight
@@ -311,13 +312,6 @@ def _within_box(centre: np.ndarray, reach: np.ndarray, lo: np.ndarray, hi: np.nd
     rounding is monotonic, and the 1e-6 relative margin covers the tree's own distance test)."""
     gap = centre - np.clip(centre, lo, hi)
     return np.flatnonzero(np.einsum("mc,mc->m", gap, gap) <= (reach * (1.0 + 1e-6)) ** 2)
-
-
-def _same_arrays(a: tuple, b: tuple) -> bool:
-    """Two keys of arrays then one plain value (ObjectShading.object_shape's) equal: each array's shape, dtype and
-    values, and the value."""
-    return a[-1] == b[-1] and all(x.shape == y.shape and x.dtype == y.dtype and np.array_equal(x, y)
-                                  for x, y in zip(a[:-1], b[:-1]))
 
 
 def _probe_grid(lo: np.ndarray, hi: np.ndarray, points: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -647,7 +641,7 @@ class ObjectShading:
         # the key's arrays compared with the kept shape's, not hashed every frame (docs/benchmarks.md, "glue111")
         key = (np.round(v - offset, 6), np.round(obj.normals, 6), np.array(obj.faces, copy=True), p.proxy_faces)
         sh = self._shape if self.config.shape_cache else None
-        if sh is None or not _same_arrays(sh["key"], key):
+        if sh is None or not same_key(sh["key"], key):
             pv, pf, _ = simplify(v, obj.faces, p.proxy_faces)
             sv, sn, sf, groups = shading_mesh(v, obj.normals, obj.faces)
             sh = {"key": key, "offset": offset, "pv": pv - offset, "pf": pf, "sv": sv - offset, "sn": sn, "sf": sf,

@@ -1036,11 +1036,12 @@ class SunSetup:
         elif self.source == "declared":  # the user's sun as given (--sun); no estimate
             sun, info, where = scene.sun, None, f"{self.where}: sun"
         else:
+            levels = self._levels(pre)
             sun, info = estimate_sun(scene, self._emitting(pm, pre.B[-1]), pix_patch, rm.pix_pos.astype(np.float64),
                                      rm.dirs, rm.L_b, sat, recv_any, pre.B[-1], pre.G_c, self.scene_occ,
-                                     bounces=self._estimate_bounces(pre), levels=self._levels(pre))
+                                     bounces=self._estimate_bounces(pre), levels=levels)
             where = f"{self.where}: sun estimate"
-            if sun is not None and self._levels(pre) is not None and self.captured_sunlit in ("penumbra", "shadow"):
+            if sun is not None and levels is not None and self.captured_sunlit in ("penumbra", "shadow"):
                 sun = self._penumbra_strength(sun, info, rm, pre, recv_any)
         self._patch_light = None
         # an estimated direction was fitted with the disk's centre alone (a hard edge) to the photo's sunlit

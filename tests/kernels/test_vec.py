@@ -1,6 +1,6 @@
 import numpy as np
 
-from kernels.vec import cross3
+from kernels.vec import cross3, same_key
 
 
 def test_cross3_gives_np_cross_bytes():
@@ -15,3 +15,15 @@ def test_cross3_gives_np_cross_bytes():
         assert got.dtype == want.dtype and got.shape == want.shape
         assert got.tobytes() == want.tobytes()
     assert not np.array_equal(cross3(t[:, 0], t[:, 1]), cross3(t[:, 1], t[:, 0]))  # the order matters
+
+
+def test_same_key_compares_arrays_by_shape_dtype_and_values():
+    a = np.arange(6.0).reshape(2, 3)
+    key = (a, np.array([[0, 1, 2]]), (24, 2))
+    assert same_key(key, (a.copy(), np.array([[0, 1, 2]]), (24, 2)))
+    assert not same_key(key, (a + 1e-9, np.array([[0, 1, 2]]), (24, 2)))  # a value
+    assert not same_key(key, (a.reshape(3, 2), np.array([[0, 1, 2]]), (24, 2)))  # a shape
+    assert not same_key(key, (a.astype(np.float32), np.array([[0, 1, 2]]), (24, 2)))  # a dtype
+    assert not same_key(key, (a, np.array([[0, 1, 2]]), (24, 3)))  # the plain entry
+    assert not same_key(key, (a, np.array([[0, 1, 2]])))  # a length
+    assert not same_key((a,), ([[0.0, 1.0, 2.0], [3.0, 4.0, 5.0]],))  # an array against a list
